@@ -1,0 +1,5 @@
+import sys
+
+from mapfilter.cli import main
+
+sys.exit(main())

@@ -1,0 +1,1 @@
+"""The regularised particle filter: particle state, models, resampling, the step loop."""

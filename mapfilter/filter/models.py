@@ -1,0 +1,33 @@
+"""The two small interfaces the filter calls. A new model implements one; the filter never changes.
+
+Motion models (random walk, constant velocity, PDR) live in ``filter/motion.py``; measurement
+models for position fixes live in ``filter/measurement.py``, WiFi ones in ``mapfilter/wifi.py``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import numpy as np
+
+from mapfilter.filter.particles import Particles
+
+
+class MotionModel(Protocol):
+    def propagate(self, particles: Particles, inputs: Any, dt_s: float, rng: np.random.Generator) -> Particles:
+        """Return the particles moved over ``dt_s`` seconds; never mutate ``particles``.
+
+        ``inputs`` is model specific: None for the random walk and constant velocity, a
+        ``StepInput`` for PDR. The filter keeps the old positions for the wall check.
+        """
+        ...
+
+
+class MeasurementModel(Protocol):
+    def log_likelihood(self, particles: Particles, measurement: Any) -> np.ndarray:
+        """log p(measurement | particle state) for each particle, shape (N,), finite or -inf.
+
+        Constant offsets do not matter (the filter normalises), but the values must be
+        comparable across particles of one call.
+        """
+        ...

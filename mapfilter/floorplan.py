@@ -1,0 +1,305 @@
+"""FloorPlan: the wall mask every other part of mapfilter uses.
+
+Conventions (ROS map_server): the mask is an image, row 0 at the top; ``origin_m`` is the
+world position of the lower-left corner of the lower-left pixel; the world frame is metres,
+x right, y up. Continuous pixel coordinates ``(u, v)`` put pixel ``(row, col)`` over
+``col <= u < col + 1`` and ``row <= v < row + 1``, so ``u = (x - x0) / res`` and
+``v = H - (y - y0) / res``.
+
+Files: ``NAME.yaml`` with ``image``, ``resolution``, ``origin``, ``occupied_thresh``,
+``free_thresh``, ``negate``, ``mode``, plus our own keys under ``mapfilter:`` (the source
+floor-plan image for display and its placement, the floor name, an access-point table).
+Any map_server-compatible tool reads the files we write; we read theirs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+from scipy import ndimage
+
+from mapfilter.atomic import atomic_paths
+from mapfilter.errors import MapfilterError
+
+# map_server's defaults; pixel values we write: 0 = occupied, 254 = free.
+DEFAULT_OCCUPIED_THRESH = 0.65
+DEFAULT_FREE_THRESH = 0.196
+_FREE_VALUE = 254
+_WALL_VALUE = 0
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SourceImage:
+    """A floor-plan picture shown under the mask, placed in the world like the mask is."""
+
+    path: Path  # absolute
+    resolution_m: float  # metres per pixel of the picture
+    origin_m: tuple[float, float]  # world position of the picture's lower-left corner
+
+
+@dataclasses.dataclass(eq=False)
+class FloorPlan:
+    """A wall mask in the world frame.
+
+    Attributes
+    ----------
+    wall_mask : (H, W) bool array, True = wall (or unknown: not walkable). Row 0 is the top.
+    resolution_m : metres per pixel.
+    origin_m : (x, y) world position of the lower-left corner of the image.
+    floor_name : optional floor label (e.g. "F1").
+    source_image : optional floor-plan picture for display.
+    access_points_csv : optional path of an access-point table for this floor.
+    """
+
+    wall_mask: np.ndarray
+    resolution_m: float
+    origin_m: tuple[float, float] = (0.0, 0.0)
+    floor_name: str | None = None
+    source_image: SourceImage | None = None
+    access_points_csv: Path | None = None
+
+    def __post_init__(self) -> None:
+        mask = np.asarray(self.wall_mask)
+        if mask.ndim != 2 or mask.size == 0:
+            raise MapfilterError(f"wall mask must be a non-empty 2-D array, got shape {mask.shape}")
+        self.wall_mask = np.ascontiguousarray(mask, dtype=bool)
+        if not (math.isfinite(self.resolution_m) and self.resolution_m > 0):
+            raise MapfilterError(f"resolution must be a positive number of metres per pixel, got {self.resolution_m}")
+        self.resolution_m = float(self.resolution_m)
+        self.origin_m = (float(self.origin_m[0]), float(self.origin_m[1]))
+
+    # ---- geometry -------------------------------------------------------------------------
+    @property
+    def shape_px(self) -> tuple[int, int]:
+        """(rows, cols) of the mask."""
+        return self.wall_mask.shape  # type: ignore[return-value]
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        """(width, height) of the map in metres."""
+        rows, cols = self.wall_mask.shape
+        return cols * self.resolution_m, rows * self.resolution_m
+
+    @property
+    def extent_m(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) of the map in metres."""
+        width_m, height_m = self.size_m
+        x0, y0 = self.origin_m
+        return x0, x0 + width_m, y0, y0 + height_m
+
+    def world_to_pixel(self, xy_m: np.ndarray) -> np.ndarray:
+        """Continuous pixel coordinates ``(u, v)`` = (column, row) of world points.
+
+        ``floor(v), floor(u)`` index the mask; pixel centres sit at half-integers.
+        """
+        xy = np.asarray(xy_m, dtype=np.float64)
+        u = (xy[..., 0] - self.origin_m[0]) / self.resolution_m
+        v = self.wall_mask.shape[0] - (xy[..., 1] - self.origin_m[1]) / self.resolution_m
+        return np.stack([u, v], axis=-1)
+
+    def pixel_to_world(self, uv_px: np.ndarray) -> np.ndarray:
+        """World points of continuous pixel coordinates ``(u, v)`` (inverse of world_to_pixel).
+
+        For the centre of pixel (row, col) pass ``(col + 0.5, row + 0.5)``.
+        """
+        uv = np.asarray(uv_px, dtype=np.float64)
+        x = self.origin_m[0] + uv[..., 0] * self.resolution_m
+        y = self.origin_m[1] + (self.wall_mask.shape[0] - uv[..., 1]) * self.resolution_m
+        return np.stack([x, y], axis=-1)
+
+    def pixel_index(self, xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(rows, cols, inside) integer pixel indices of world points; ``inside`` marks in-bounds."""
+        uv = self.world_to_pixel(xy_m)
+        cols = np.floor(uv[..., 0]).astype(np.int64)
+        rows = np.floor(uv[..., 1]).astype(np.int64)
+        h, w = self.wall_mask.shape
+        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+        return rows, cols, inside
+
+    def is_free(self, xy_m: np.ndarray) -> np.ndarray:
+        """True where a world point lies on a free pixel (outside the map counts as wall)."""
+        rows, cols, inside = self.pixel_index(xy_m)
+        free = np.zeros(rows.shape, dtype=bool)
+        free[inside] = ~self.wall_mask[rows[inside], cols[inside]]
+        return free
+
+    @functools.cached_property
+    def free_pixels(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, cols) of every free pixel."""
+        return np.nonzero(~self.wall_mask)
+
+    @property
+    def free_fraction(self) -> float:
+        return float(np.count_nonzero(~self.wall_mask)) / self.wall_mask.size
+
+    def sample_free(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` world points drawn uniformly over free space, shape (n, 2)."""
+        rows, cols = self.free_pixels
+        if rows.size == 0:
+            raise MapfilterError("the map has no free space to place positions in")
+        pick = rng.integers(0, rows.size, size=n)
+        uv = np.stack([cols[pick] + rng.random(n), rows[pick] + rng.random(n)], axis=-1)
+        return self.pixel_to_world(uv)
+
+    @functools.cached_property
+    def wall_distance_px(self) -> np.ndarray:
+        """Per pixel: Euclidean distance (pixels) from its centre to the nearest wall pixel centre."""
+        if not self.wall_mask.any():
+            return np.full(self.wall_mask.shape, np.inf)
+        return ndimage.distance_transform_edt(~self.wall_mask)
+
+    def distance_to_wall_m(self, xy_m: np.ndarray) -> np.ndarray:
+        """Distance in metres from world points to the nearest wall pixel (0 on walls / outside)."""
+        rows, cols, inside = self.pixel_index(xy_m)
+        dist = np.zeros(rows.shape, dtype=np.float64)
+        dist[inside] = self.wall_distance_px[rows[inside], cols[inside]] * self.resolution_m
+        return dist
+
+    # ---- files ----------------------------------------------------------------------------
+    @classmethod
+    def load(cls, yaml_path: str | os.PathLike) -> FloorPlan:
+        """Read a ROS map_server map (``NAME.yaml`` + image) with our optional extra keys."""
+        yaml_path = Path(yaml_path)
+        meta = _read_yaml(yaml_path)
+        for key in ("image", "resolution", "origin"):
+            if key not in meta:
+                raise MapfilterError(f"map YAML lacks the required key '{key}'", yaml_path)
+        resolution = _positive_float(meta["resolution"], "resolution", yaml_path)
+        origin = meta["origin"]
+        if not (isinstance(origin, list) and len(origin) in (2, 3) and all(_is_number(v) for v in origin)):
+            raise MapfilterError(f"'origin' must be [x, y, yaw] numbers, got {origin!r}", yaml_path)
+        if len(origin) == 3 and abs(float(origin[2])) > 1e-9:
+            raise MapfilterError(f"a rotated map (origin yaw {origin[2]}) is not supported", yaml_path)
+        occupied_thresh = float(meta.get("occupied_thresh", DEFAULT_OCCUPIED_THRESH))
+        free_thresh = float(meta.get("free_thresh", DEFAULT_FREE_THRESH))
+        if not 0.0 <= free_thresh <= occupied_thresh <= 1.0:
+            raise MapfilterError(
+                f"thresholds must satisfy 0 <= free_thresh ({free_thresh}) <= occupied_thresh ({occupied_thresh}) <= 1",
+                yaml_path,
+            )
+        negate = meta.get("negate", 0)
+        if negate not in (0, 1, True, False):
+            raise MapfilterError(f"'negate' must be 0 or 1, got {negate!r}", yaml_path)
+        mode = meta.get("mode", "trinary")
+        if mode not in ("trinary", "scale", "raw"):
+            raise MapfilterError(f"'mode' must be trinary, scale or raw, got {mode!r}", yaml_path)
+
+        image_path = _resolve(yaml_path, meta["image"])
+        gray = read_gray_image(image_path)
+        if mode == "raw":
+            # raw: the pixel value is the occupancy in percent (0 = free)
+            occupancy = gray.astype(np.float64) / 100.0
+        else:
+            occupancy = gray.astype(np.float64) / 255.0 if negate else (255.0 - gray) / 255.0
+        # Unknown cells (between the thresholds) are not walkable: they count as wall.
+        wall = ~(occupancy < free_thresh) if mode != "raw" else occupancy > 0.0
+
+        ours = meta.get("mapfilter") or {}
+        if not isinstance(ours, dict):
+            raise MapfilterError("'mapfilter' must be a mapping of our extra keys", yaml_path)
+        source = None
+        if ours.get("source_image"):
+            src_origin = ours.get("source_origin", origin[:2])
+            source = SourceImage(
+                path=_resolve(yaml_path, ours["source_image"]),
+                resolution_m=_positive_float(ours.get("source_resolution", resolution), "source_resolution", yaml_path),
+                origin_m=(float(src_origin[0]), float(src_origin[1])),
+            )
+        aps = _resolve(yaml_path, ours["access_points"]) if ours.get("access_points") else None
+        floor = ours.get("floor")
+        return cls(wall, resolution, (float(origin[0]), float(origin[1])),
+                   None if floor is None else str(floor), source, aps)
+
+    def save(self, yaml_path: str | os.PathLike, image_name: str | None = None) -> None:
+        """Write ``NAME.yaml`` and the mask image (PNG by default) beside it, atomically.
+
+        Walls are written as 0 and free space as 254 with map_server's default thresholds,
+        so the mask round-trips exactly.
+        """
+        yaml_path = Path(yaml_path)
+        image_path = yaml_path.with_name(image_name or (yaml_path.stem + ".png"))
+        pixels = np.where(self.wall_mask, _WALL_VALUE, _FREE_VALUE).astype(np.uint8)
+        meta: dict[str, Any] = {
+            "image": image_path.name,
+            "resolution": self.resolution_m,
+            "origin": [self.origin_m[0], self.origin_m[1], 0.0],
+            "occupied_thresh": DEFAULT_OCCUPIED_THRESH,
+            "free_thresh": DEFAULT_FREE_THRESH,
+            "negate": 0,
+            "mode": "trinary",
+        }
+        ours: dict[str, Any] = {}
+        if self.floor_name is not None:
+            ours["floor"] = self.floor_name
+        if self.source_image is not None:
+            ours["source_image"] = _relative(self.source_image.path, yaml_path.parent)
+            ours["source_resolution"] = self.source_image.resolution_m
+            ours["source_origin"] = list(self.source_image.origin_m)
+        if self.access_points_csv is not None:
+            ours["access_points"] = _relative(self.access_points_csv, yaml_path.parent)
+        if ours:
+            meta["mapfilter"] = ours
+        with atomic_paths(yaml_path, image_path) as (tmp_yaml, tmp_image):
+            # the temporary keeps the final suffix, so OpenCV picks the same encoder
+            if not cv2.imwrite(str(tmp_image), pixels):
+                raise MapfilterError("could not write the mask image", image_path)
+            tmp_yaml.write_text(yaml.safe_dump(meta, sort_keys=False))
+
+
+def read_gray_image(path: str | os.PathLike) -> np.ndarray:
+    """Read an image as 8-bit grey (colour channels averaged, as map_server does)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MapfilterError("file not found", path)
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise MapfilterError("not a readable image", path)
+    if image.dtype != np.uint8:
+        image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
+    if image.ndim == 3:
+        image = image[..., :3].mean(axis=2).round().astype(np.uint8)
+    return image
+
+
+def _read_yaml(path: Path) -> dict:
+    if not path.is_file():
+        raise MapfilterError("file not found", path)
+    try:
+        meta = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = None if mark is None else mark.line + 1
+        problem = getattr(exc, "problem", None) or "malformed YAML"
+        raise MapfilterError(f"malformed YAML: {problem}", path, line) from None
+    except UnicodeDecodeError:
+        raise MapfilterError("not a text YAML file", path) from None
+    if not isinstance(meta, dict):
+        raise MapfilterError("a map YAML must be a mapping of keys", path)
+    return meta
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _positive_float(value: Any, key: str, path: Path) -> float:
+    if not _is_number(value) or value <= 0:
+        raise MapfilterError(f"'{key}' must be a positive number, got {value!r}", path)
+    return float(value)
+
+
+def _resolve(yaml_path: Path, name: Any) -> Path:
+    candidate = Path(str(name))
+    return candidate if candidate.is_absolute() else (yaml_path.parent / candidate).resolve()
+
+
+def _relative(path: Path, base: Path) -> str:
+    return os.path.relpath(Path(path).resolve(), base.resolve())

@@ -1,0 +1,87 @@
+"""A phone walk as arrays per sensor: what every reader produces and every stage consumes."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclasses.dataclass
+class WifiScans:
+    """WiFi scans, flat: one row per (scan, access point) heard.
+
+    ``ap_keys[row_ap[i]]`` ("bssid@2.4" / "bssid@5") was heard at ``rssi_dbm[i]`` in scan
+    ``row_scan[i]``, taken at ``t_s[row_scan[i]]``. Rows are grouped by scan, scans sorted by time.
+    """
+
+    t_s: np.ndarray  # (S,) scan times, Unix seconds
+    ap_keys: list[str]  # (K,)
+    row_scan: np.ndarray  # (R,) int64
+    row_ap: np.ndarray  # (R,) int64
+    rssi_dbm: np.ndarray  # (R,) float32
+    freq_mhz: np.ndarray  # (R,) float32
+    age_s: np.ndarray  # (R,) float32, scan time minus last-seen time
+
+    def __len__(self) -> int:
+        return self.t_s.shape[0]
+
+    def scan(self, index: int) -> tuple[list[str], np.ndarray]:
+        """The AP keys and RSSI values (dBm) of one scan."""
+        rows = np.nonzero(self.row_scan == index)[0]
+        return [self.ap_keys[a] for a in self.row_ap[rows]], self.rssi_dbm[rows]
+
+    def matrix(self, keys: list[str] | None = None, missing_dbm: float = np.nan) -> np.ndarray:
+        """(S, len(keys)) float32 RSSI matrix over ``keys`` (default: all of ours); unheard = ``missing_dbm``."""
+        keys = self.ap_keys if keys is None else keys
+        column = {k: j for j, k in enumerate(keys)}
+        remap = np.array([column.get(k, -1) for k in self.ap_keys], dtype=np.int64)
+        out = np.full((len(self), len(keys)), missing_dbm, dtype=np.float32)
+        if self.row_ap.size:
+            cols = remap[self.row_ap]
+            keep = cols >= 0
+            out[self.row_scan[keep], cols[keep]] = self.rssi_dbm[keep]
+        return out
+
+
+@dataclasses.dataclass
+class Beacons:
+    t_s: np.ndarray  # (B,)
+    beacon_id: list[str]  # "uuid:major:minor"
+    rssi_dbm: np.ndarray  # (B,)
+    distance_m: np.ndarray  # (B,) the phone's own distance estimate
+
+
+@dataclasses.dataclass
+class Recording:
+    """One walk. Times are Unix seconds (float64); IMU arrays are (M, 3) in the phone frame."""
+
+    path: Path | None
+    floor_name: str | None
+    start_t_s: float | None
+    waypoint_t_s: np.ndarray  # (W,) ground truth times
+    waypoint_xy_m: np.ndarray  # (W, 2) ground truth positions, floor frame
+    acc_t_s: np.ndarray
+    acc_mps2: np.ndarray  # with gravity
+    gyro_t_s: np.ndarray
+    gyro_radps: np.ndarray
+    magnet_t_s: np.ndarray
+    magnet_ut: np.ndarray
+    rotvec_t_s: np.ndarray
+    rotvec_xyz: np.ndarray  # x, y, z of the unit quaternion
+    wifi: WifiScans
+    beacons: Beacons
+
+    @property
+    def has_ground_truth(self) -> bool:
+        return self.waypoint_t_s.shape[0] > 0
+
+    @property
+    def name(self) -> str:
+        if self.path is None:
+            return "recording"
+        name = self.path.name
+        for suffix in (".gz", ".txt"):
+            name = name.removesuffix(suffix)
+        return name
