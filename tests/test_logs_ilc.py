@@ -1,10 +1,9 @@
-from pathlib import Path
 
 import numpy as np
 
 from mapfilter.logs import read_ilc
 
-ILC = Path(__file__).resolve().parents[2] / "shared" / "data" / "ilc20" / "site1"
+from conftest import ILC_SITE1 as ILC
 
 
 def test_reads_a_real_trace_with_stale_rows_dropped():
