@@ -1,0 +1,133 @@
+"""Track files: our CSV (``t_s,x_m,y_m[,floor][,heading_rad][,std_m]``) and TUM (``t x y z qx qy qz qw``).
+
+TUM is what evo and most trajectory tools read: z = 0, the orientation a yaw rotation about z
+(identity when no heading is known).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from mapfilter.atomic import atomic_paths
+from mapfilter.errors import MapfilterError
+
+
+@dataclasses.dataclass
+class Track:
+    """An estimated trajectory in the map frame."""
+
+    t_s: np.ndarray  # (T,)
+    xy_m: np.ndarray  # (T, 2)
+    std_m: np.ndarray | None = None  # (T,) position spread
+    heading_rad: np.ndarray | None = None  # (T,)
+    floor: list[str] | None = None
+    name: str = "track"
+
+    def __len__(self) -> int:
+        return self.t_s.shape[0]
+
+
+def write_track_csv(track: Track, path: str | os.PathLike) -> None:
+    """Write ``t_s,x_m,y_m[,floor][,heading_rad][,std_m]`` atomically."""
+    header = ["t_s", "x_m", "y_m"]
+    if track.floor is not None:
+        header.append("floor")
+    if track.heading_rad is not None:
+        header.append("heading_rad")
+    if track.std_m is not None:
+        header.append("std_m")
+    with atomic_paths(path) as (tmp,):
+        with tmp.open("w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(header)
+            for i in range(len(track)):
+                row = [f"{track.t_s[i]:.3f}", f"{track.xy_m[i, 0]:.3f}", f"{track.xy_m[i, 1]:.3f}"]
+                if track.floor is not None:
+                    row.append(track.floor[i])
+                if track.heading_rad is not None:
+                    row.append(f"{track.heading_rad[i]:.4f}")
+                if track.std_m is not None:
+                    row.append(f"{track.std_m[i]:.3f}")
+                writer.writerow(row)
+
+
+def write_track_tum(track: Track, path: str | os.PathLike) -> None:
+    """Write TUM ``t x y z qx qy qz qw`` lines (z = 0; yaw-only quaternion), atomically."""
+    heading = track.heading_rad if track.heading_rad is not None else np.zeros(len(track))
+    with atomic_paths(path) as (tmp,):
+        with tmp.open("w") as handle:
+            for t, (x, y), yaw in zip(track.t_s, track.xy_m, heading):
+                qz, qw = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
+                handle.write(f"{t:.6f} {x:.4f} {y:.4f} 0.0 0.0 0.0 {qz:.6f} {qw:.6f}\n")
+
+
+def read_track(path: str | os.PathLike) -> Track:
+    """Read a track written by ``write_track_csv`` or ``write_track_tum`` (told apart by content)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MapfilterError("file not found", path)
+    text = path.read_text(errors="replace")
+    first = next((line for line in text.splitlines() if line.strip() and not line.startswith("#")), "")
+    if first.startswith("t_s"):
+        return _read_csv(path)
+    return _read_tum(path)
+
+
+def _read_csv(path: Path) -> Track:
+    with path.open(newline="") as handle:
+        reader = csv.DictReader(handle)
+        fields = reader.fieldnames or []
+        if not {"t_s", "x_m", "y_m"} <= set(fields):
+            raise MapfilterError("a track CSV needs the columns t_s,x_m,y_m", path, 1)
+        columns: dict[str, list] = {name: [] for name in fields}
+        for line_no, row in enumerate(reader, start=2):
+            for name in fields:
+                value = row.get(name)
+                if name == "floor":
+                    columns[name].append(value or "")
+                    continue
+                try:
+                    number = float(value)  # type: ignore[arg-type]
+                except (TypeError, ValueError):
+                    raise MapfilterError(f"column {name} is not a number: {value!r}", path, line_no) from None
+                if not math.isfinite(number):
+                    raise MapfilterError(f"column {name} is not finite: {value!r}", path, line_no)
+                columns[name].append(number)
+    if not columns["t_s"]:
+        raise MapfilterError("the track has no rows", path)
+    return Track(
+        t_s=np.array(columns["t_s"]),
+        xy_m=np.column_stack([columns["x_m"], columns["y_m"]]),
+        std_m=np.array(columns["std_m"]) if "std_m" in columns else None,
+        heading_rad=np.array(columns["heading_rad"]) if "heading_rad" in columns else None,
+        floor=columns.get("floor"),
+        name=path.stem,
+    )
+
+
+def _read_tum(path: Path) -> Track:
+    rows = []
+    for line_no, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+        if not line.strip() or line.startswith("#"):
+            continue
+        parts = line.split()
+        if len(parts) != 8:
+            raise MapfilterError(f"a TUM line has 8 numbers, this one has {len(parts)}", path, line_no)
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            raise MapfilterError("a TUM line holds a value that is not a number", path, line_no) from None
+        if not all(math.isfinite(v) for v in values):
+            raise MapfilterError("a TUM line holds a value that is not finite", path, line_no)
+        rows.append(values)
+    if not rows:
+        raise MapfilterError("the track has no rows", path)
+    data = np.array(rows)
+    yaw = 2.0 * np.arctan2(data[:, 6], data[:, 7])  # yaw-only quaternion: qz = sin(yaw/2), qw = cos(yaw/2)
+    return Track(t_s=data[:, 0], xy_m=data[:, 1:3].copy(), heading_rad=yaw, name=path.stem)
