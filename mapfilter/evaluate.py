@@ -1,0 +1,153 @@
+"""Errors against ground truth, summary tables, and the pictures that go with them.
+
+Error = horizontal distance from the estimate to the ground truth at the ground-truth
+(waypoint) times. A causal method is judged by its latest estimate at or before each
+waypoint time; waypoints before a method's first estimate are counted as ``missed`` and
+left out of the statistics (reported, never hidden).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from mapfilter.atomic import atomic_paths
+
+SUMMARY_FIELDS = ("mean", "median", "p75", "p90", "max", "rmse")
+
+
+@dataclasses.dataclass
+class WaypointErrors:
+    """Per-waypoint errors of one track against one walk's ground truth."""
+
+    errors_m: np.ndarray  # (W',) errors of the waypoints that had an estimate
+    waypoint_index: np.ndarray  # (W',) which waypoints those are
+    missed: int  # waypoints before the first estimate
+
+
+def errors_at_waypoints(
+    track_t_s: np.ndarray,
+    track_xy_m: np.ndarray,
+    waypoint_t_s: np.ndarray,
+    waypoint_xy_m: np.ndarray,
+    causal: bool = True,
+) -> WaypointErrors:
+    """Error of a track at every waypoint time.
+
+    ``causal=True``: the latest estimate at or before the waypoint time (what a live system
+    would have shown). ``causal=False`` (smoothed tracks): the track linearly interpolated
+    at the waypoint time, clamped to its ends.
+    """
+    track_t = np.asarray(track_t_s, dtype=np.float64)
+    track_xy = np.asarray(track_xy_m, dtype=np.float64).reshape(-1, 2)
+    wp_t = np.asarray(waypoint_t_s, dtype=np.float64)
+    wp_xy = np.asarray(waypoint_xy_m, dtype=np.float64).reshape(-1, 2)
+    if track_t.size == 0:
+        return WaypointErrors(np.zeros(0), np.zeros(0, dtype=np.int64), int(wp_t.size))
+    if causal:
+        latest = np.searchsorted(track_t, wp_t, side="right") - 1
+        have = latest >= 0
+        estimate = track_xy[latest[have]]
+    else:
+        have = np.ones(wp_t.shape, dtype=bool)
+        estimate = np.column_stack([np.interp(wp_t, track_t, track_xy[:, 0]), np.interp(wp_t, track_t, track_xy[:, 1])])
+    index = np.nonzero(have)[0]
+    errors = np.linalg.norm(estimate - wp_xy[index], axis=1)
+    return WaypointErrors(errors, index, int((~have).sum()))
+
+
+def summarise_errors(errors_m: Sequence[float] | np.ndarray) -> dict[str, float]:
+    """mean, median, p75 (the IPIN/EvAAL score), p90, max and RMSE of errors (NaN when empty)."""
+    errors = np.asarray(errors_m, dtype=np.float64)
+    if errors.size == 0:
+        return {name: math.nan for name in SUMMARY_FIELDS} | {"n": 0}
+    return {
+        "mean": float(errors.mean()),
+        "median": float(np.median(errors)),
+        "p75": float(np.percentile(errors, 75)),
+        "p90": float(np.percentile(errors, 90)),
+        "max": float(errors.max()),
+        "rmse": float(np.sqrt(np.mean(errors**2))),
+        "n": int(errors.size),
+    }
+
+
+def format_table(rows: list[dict], columns: Sequence[str], float_format: str = "{:.2f}") -> str:
+    """A markdown table of ``rows`` (dicts) over ``columns``."""
+    def cell(value) -> str:
+        if isinstance(value, float):
+            return "-" if math.isnan(value) else float_format.format(value)
+        return str(value)
+
+    lines = ["| " + " | ".join(columns) + " |", "|" + "|".join(" --- " for _ in columns) + "|"]
+    lines += ["| " + " | ".join(cell(row.get(c, "")) for c in columns) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def plot_error_cdf(errors_by_method: dict[str, np.ndarray], path: str | os.PathLike, title: str = "") -> None:
+    """Write a PNG with the empirical CDF of the errors of each method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
+    for method, errors in errors_by_method.items():
+        errors = np.sort(np.asarray(errors, dtype=np.float64))
+        if errors.size == 0:
+            continue
+        share = np.arange(1, errors.size + 1) / errors.size
+        ax.step(errors, share, where="post", label=f"{method} (median {np.median(errors):.2f} m)")
+    ax.axhline(0.75, color="0.6", lw=0.8, ls=":")
+    ax.set_xlabel("horizontal error (m)")
+    ax.set_ylabel("share of waypoints")
+    ax.set_ylim(0, 1)
+    ax.set_xlim(left=0)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    _save_figure(fig, path)
+
+
+def plot_tracks_on_map(floorplan, tracks: dict[str, np.ndarray], path: str | os.PathLike,
+                       ground_truth_xy_m: np.ndarray | None = None, title: str = "") -> None:
+    """Write a PNG of tracks (name -> (T, 2) metres) and the ground truth over the floor plan."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x0, x1, y0, y1 = floorplan.extent_m
+    aspect = (y1 - y0) / max(x1 - x0, 1e-9)
+    fig, ax = plt.subplots(figsize=(8, max(3.0, 8 * aspect)), dpi=120)
+    ax.imshow(np.where(floorplan.wall_mask, 0.35, 1.0), cmap="gray", vmin=0, vmax=1,
+              extent=(x0, x1, y0, y1), origin="upper", interpolation="nearest")
+    if ground_truth_xy_m is not None and len(ground_truth_xy_m):
+        gt = np.asarray(ground_truth_xy_m)
+        ax.plot(gt[:, 0], gt[:, 1], "k--", lw=1.2, marker="o", ms=3, label="ground truth")
+    for name, xy in tracks.items():
+        xy = np.asarray(xy)
+        if len(xy):
+            ax.plot(xy[:, 0], xy[:, 1], lw=1.0, label=name)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_aspect("equal")
+    ax.legend(loc="best", fontsize=7)
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    _save_figure(fig, path)
+
+
+def _save_figure(fig, path: str | os.PathLike) -> None:
+    import matplotlib.pyplot as plt
+
+    with atomic_paths(path) as (tmp,):
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
