@@ -1,0 +1,338 @@
+"""Pedestrian dead reckoning: step detection, heading and step length from the phone's IMU.
+
+Follows the Lund thesis (Karlsson & Karlsson, ch. 8): the magnitude of the specific force
+|a| is differentiated (which removes the constant gravity offset), low-passed with a
+4th-order Butterworth filter at 3 Hz, and a step is counted at each upward crossing of a
+threshold, at most one per minimum step interval. The heading change is the gyroscope rate
+projected on the gravity direction (gravity from the low-passed accelerometer), integrated.
+Step length is fixed or from the Weinberg formula L = K (a_max - a_min)^(1/4); the
+per-particle adaptive step length (thesis eq. 8.23) belongs to the filter's ``PDRMotion``,
+which gets its prior from ``PDRConfig.step_length_m`` / ``step_length_std_m``.
+
+All filtering here is offline and zero-phase (``sosfiltfilt``): the whole recording is
+known before the filter runs, so step times carry no filter delay. An online version would
+use ``sosfilt`` and accept a delay of a few samples.
+
+The map frame of the ILC data has x east and y north; headings are counter-clockwise from +x.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy import signal
+
+from mapfilter.errors import MapfilterError
+from mapfilter.logs.recording import Recording
+
+
+@dataclasses.dataclass(frozen=True)
+class PDRConfig:
+    """Parameters of step detection, heading and step length, with the defaults we use.
+
+    Defaults were tuned on the 48 ILC site1 traces (``tools/report_pdr.py``).
+    """
+
+    sample_rate_hz: float = 50.0  # uniform grid the irregular IMU samples are resampled onto
+    lowpass_hz: float = 3.0  # Butterworth cut-off on d|a|/dt (thesis: 3 Hz)
+    lowpass_order: int = 4  # Butterworth order (thesis: 4)
+    # a step = upward crossing of this level by the filtered d|a|/dt; walking gives peaks of
+    # 50-120 m/s^3 on the ILC phone, standing still < 5; 15 was best of 2-30 on ILC site1
+    step_threshold_mps3: float = 15.0
+    # no two steps closer than this: brisk walking is ~0.45-0.5 s per step; 0.3 double-counts
+    # some steps on ILC site1 (heel strike and push-off both cross), 0.5 drops fast steps
+    min_step_interval_s: float = 0.4
+    gravity_lowpass_hz: float = 0.3  # gravity direction = accelerometer low-passed below the step rhythm
+    step_length_m: float = 0.7  # fixed step length; also the prior mean of the adaptive per-particle state
+    step_length_std_m: float = 0.1  # prior spread of the per-particle step length (for PDRMotion)
+    # Weinberg K for |a| (m/s^2) low-passed at lowpass_hz: sum of waypoint polyline lengths over
+    # sum of (a_max - a_min)^(1/4) on all 48 ILC site1 traces (leave-one-out K varies by < 1 %)
+    weinberg_k: float = 0.39
+    max_step_window_s: float = 1.0  # Weinberg min/max window before a step when the previous one is older
+    abs_heading_offset_rad: float = 0.0  # added to pi/2 - azimuth: map frame vs magnetic north
+
+
+@dataclasses.dataclass
+class ImuGrid:
+    """IMU resampled onto a uniform time grid (linear interpolation per axis)."""
+
+    t_s: np.ndarray  # (M,) uniform, Unix seconds
+    acc_mps2: np.ndarray  # (M, 3) phone frame, with gravity
+    gyro_radps: np.ndarray  # (M, 3) phone frame
+    rotvec_xyzw: np.ndarray | None  # (M, 4) unit quaternion device -> world (ENU), or None
+
+    @property
+    def dt_s(self) -> float:
+        return float(self.t_s[1] - self.t_s[0])
+
+
+@dataclasses.dataclass
+class Steps:
+    """Detected steps, one row each, sorted by time."""
+
+    t_s: np.ndarray  # (S,) step times, Unix seconds
+    heading_change_rad: np.ndarray  # (S,) gyro heading change since the previous step (first: since the start)
+    heading_rad: np.ndarray  # (S,) integrated gyro heading at the step, arbitrary zero, unwrapped
+    abs_heading_rad: np.ndarray | None  # (S,) map-frame heading from the rotation vector, or None
+    step_length_m: np.ndarray  # (S,) Weinberg step length
+    weinberg_unit: np.ndarray  # (S,) (a_max - a_min)^(1/4), so that step_length_m = K * weinberg_unit
+    t0_s: float  # start of the IMU grid (the zero of heading_rad's integration)
+
+    def __len__(self) -> int:
+        return int(self.t_s.shape[0])
+
+
+@dataclasses.dataclass(frozen=True)
+class StepInterval:
+    """What PDR says happened between two filter times; field names match the filter's ``StepInput``."""
+
+    n_steps: int
+    heading_change_rad: float  # gyro heading change over the interval's steps
+    heading_abs_rad: float | None = None  # map-frame heading at the last step, if the rotation vector is used
+    step_length_m: float | None = None  # mean Weinberg length of the interval's steps
+
+
+# --------------------------------------------------------------------------------------------
+# resampling
+
+
+def resample_imu(recording: Recording, config: PDRConfig = PDRConfig()) -> ImuGrid:
+    """Resample accelerometer, gyroscope (and rotation vector) onto one uniform grid.
+
+    The phone's sensors tick irregularly (19-20 ms here, with occasional gaps) and not in
+    lockstep; the Butterworth filter and the integration assume a uniform step. The grid spans
+    the time all of accelerometer and gyroscope cover.
+
+    Raises
+    ------
+    MapfilterError
+        If the recording has fewer than 2 s of accelerometer or gyroscope data.
+    """
+    where = recording.path
+    for name, t_s in (("accelerometer", recording.acc_t_s), ("gyroscope", recording.gyro_t_s)):
+        if t_s.shape[0] < 2 or t_s[-1] - t_s[0] < 2.0:
+            raise MapfilterError(f"no usable {name} data for PDR (need at least 2 s)", where)
+    if config.sample_rate_hz <= 2 * config.lowpass_hz:
+        raise MapfilterError(f"sample_rate_hz {config.sample_rate_hz} must exceed twice lowpass_hz {config.lowpass_hz}")
+    t0_s = max(recording.acc_t_s[0], recording.gyro_t_s[0])
+    t1_s = min(recording.acc_t_s[-1], recording.gyro_t_s[-1])
+    if t1_s - t0_s < 2.0:
+        raise MapfilterError("accelerometer and gyroscope overlap by less than 2 s", where)
+    dt_s = 1.0 / config.sample_rate_hz
+    t_s = t0_s + dt_s * np.arange(int(np.floor((t1_s - t0_s) / dt_s)) + 1)
+    acc = _interp_columns(t_s, recording.acc_t_s, recording.acc_mps2)
+    gyro = _interp_columns(t_s, recording.gyro_t_s, recording.gyro_radps)
+    rot = None
+    if recording.rotvec_t_s.shape[0] >= 2:
+        rot = _interp_columns(t_s, recording.rotvec_t_s, _rotvec_to_quaternion(recording.rotvec_xyz))
+        rot /= np.linalg.norm(rot, axis=1, keepdims=True)
+    return ImuGrid(t_s=t_s, acc_mps2=acc, gyro_radps=gyro, rotvec_xyzw=rot)
+
+
+def _interp_columns(t_new_s: np.ndarray, t_s: np.ndarray, values: np.ndarray) -> np.ndarray:
+    # duplicate timestamps would make np.interp pick arbitrarily: keep the last of each
+    keep = np.append(np.diff(t_s) > 0, True)
+    t_s, values = t_s[keep], values[keep]
+    return np.stack([np.interp(t_new_s, t_s, values[:, j]) for j in range(values.shape[1])], axis=1)
+
+
+def _rotvec_to_quaternion(xyz: np.ndarray) -> np.ndarray:
+    """Android rotation vector (x, y, z of a unit quaternion, w >= 0 implied) -> (x, y, z, w)."""
+    w = np.sqrt(np.clip(1.0 - np.sum(xyz * xyz, axis=1), 0.0, None))
+    return np.column_stack([xyz, w])
+
+
+# --------------------------------------------------------------------------------------------
+# signals
+
+
+def _lowpass(x: np.ndarray, cutoff_hz: float, fs_hz: float, order: int) -> np.ndarray:
+    # zero-phase (forward-backward) so that detected step times are not delayed
+    sos = signal.butter(order, cutoff_hz, btype="low", fs=fs_hz, output="sos")
+    return signal.sosfiltfilt(sos, x, axis=0)
+
+
+def step_signal(grid: ImuGrid, config: PDRConfig = PDRConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """The thesis's step-detection signal: low-passed d|a|/dt (m/s^3), and low-passed |a| (m/s^2)."""
+    fs_hz = 1.0 / grid.dt_s
+    magnitude = np.linalg.norm(grid.acc_mps2, axis=1)
+    derivative = np.gradient(magnitude, grid.dt_s)
+    return (_lowpass(derivative, config.lowpass_hz, fs_hz, config.lowpass_order),
+            _lowpass(magnitude, config.lowpass_hz, fs_hz, config.lowpass_order))
+
+
+def detect_step_times(t_s: np.ndarray, step_signal_mps3: np.ndarray, threshold: float,
+                      min_interval_s: float) -> np.ndarray:
+    """Times of upward crossings of ``threshold`` at least ``min_interval_s`` apart.
+
+    The crossing time is interpolated linearly between the two samples around it.
+    """
+    below = step_signal_mps3[:-1] < threshold
+    above = step_signal_mps3[1:] >= threshold
+    idx = np.nonzero(below & above)[0]
+    s0, s1 = step_signal_mps3[idx], step_signal_mps3[idx + 1]
+    crossing_s = t_s[idx] + (threshold - s0) / (s1 - s0) * (t_s[idx + 1] - t_s[idx])
+    accepted: list[float] = []
+    for t in crossing_s:  # greedy: a crossing within the refractory time of the last step is ignored
+        if not accepted or t - accepted[-1] >= min_interval_s:
+            accepted.append(float(t))
+    return np.array(accepted, dtype=np.float64)
+
+
+def gyro_heading(grid: ImuGrid, config: PDRConfig = PDRConfig()) -> np.ndarray:
+    """Integrated heading (rad, counter-clockwise seen from above, arbitrary zero) on the grid.
+
+    The yaw rate is the gyroscope rate about the vertical: gyro . g_hat, with g_hat the unit
+    accelerometer vector low-passed at ``gravity_lowpass_hz`` (it points up: an accelerometer at
+    rest reads +g along up). Android gyro rates are counter-clockwise positive, so a left turn
+    increases the heading, as in the map frame (x east, y north). Trapezoidal integration.
+    """
+    fs_hz = 1.0 / grid.dt_s
+    gravity = _lowpass(grid.acc_mps2, config.gravity_lowpass_hz, fs_hz, 2)
+    norm = np.linalg.norm(gravity, axis=1, keepdims=True)
+    up = gravity / np.where(norm > 0, norm, 1.0)
+    yaw_rate_radps = np.sum(grid.gyro_radps * up, axis=1)
+    heading = np.zeros_like(yaw_rate_radps)
+    heading[1:] = np.cumsum(0.5 * (yaw_rate_radps[1:] + yaw_rate_radps[:-1]) * grid.dt_s)
+    return heading
+
+
+def rotation_vector_heading(grid: ImuGrid, config: PDRConfig = PDRConfig()) -> np.ndarray | None:
+    """Map-frame heading of the phone's forward (+y) axis from the rotation vector, or None.
+
+    Android's rotation vector rotates device coordinates into East-North-Up. The device y axis
+    in ENU is the second column of R; its azimuth (clockwise from north) is atan2(e, n), so the
+    map heading is pi/2 - azimuth = atan2(n, e), plus ``abs_heading_offset_rad`` for the angle
+    between magnetic north and the floor plan's y axis.
+    """
+    if grid.rotvec_xyzw is None:
+        return None
+    x, y, z, w = grid.rotvec_xyzw.T
+    # second column of the rotation matrix of quaternion (x, y, z, w)
+    east = 2.0 * (x * y - z * w)
+    north = 1.0 - 2.0 * (x * x + z * z)
+    return np.arctan2(north, east) + config.abs_heading_offset_rad
+
+
+def weinberg_units(t_s: np.ndarray, magnitude_mps2: np.ndarray, step_t_s: np.ndarray,
+                   max_window_s: float) -> np.ndarray:
+    """(a_max - a_min)^(1/4) of low-passed |a| over each step's window (Weinberg 2002).
+
+    The window of step k runs from step k-1 (at most ``max_window_s`` back) to step k + half of
+    that span, so that it holds one full bounce whatever phase the detector triggers at.
+    """
+    units = np.zeros(step_t_s.shape[0])
+    for k, t in enumerate(step_t_s):
+        t_prev = step_t_s[k - 1] if k > 0 else -np.inf
+        start = max(t_prev, t - max_window_s)
+        end = t + 0.5 * (t - start)
+        i0, i1 = np.searchsorted(t_s, [start, end])
+        seg = magnitude_mps2[i0:max(i1, i0 + 1)]
+        units[k] = (seg.max() - seg.min()) ** 0.25
+    return units
+
+
+# --------------------------------------------------------------------------------------------
+# public API
+
+
+def detect_steps(recording: Recording, config: PDRConfig = PDRConfig()) -> Steps:
+    """Detect steps in a recording and attach heading and Weinberg length to each.
+
+    Parameters
+    ----------
+    recording
+        A walk with accelerometer and gyroscope (rotation vector optional).
+    config
+        Thresholds and step-length parameters.
+
+    Returns
+    -------
+    Steps
+        ``t_s``, ``heading_change_rad`` (since the previous step), ``heading_rad`` (gyro,
+        arbitrary zero), ``abs_heading_rad`` (rotation vector, map frame, or None),
+        ``step_length_m`` (Weinberg, K = ``config.weinberg_k``).
+
+    Raises
+    ------
+    MapfilterError
+        If the recording has no usable accelerometer or gyroscope data.
+    """
+    grid = resample_imu(recording, config)
+    return detect_steps_on_grid(grid, config)
+
+
+def detect_steps_on_grid(grid: ImuGrid, config: PDRConfig = PDRConfig()) -> Steps:
+    """``detect_steps`` on an already resampled IMU grid."""
+    d_mag, mag = step_signal(grid, config)
+    step_t = detect_step_times(grid.t_s, d_mag, config.step_threshold_mps3, config.min_step_interval_s)
+    heading = gyro_heading(grid, config)
+    heading_at = np.interp(step_t, grid.t_s, heading)
+    change = np.diff(np.concatenate([[heading[0]], heading_at]))
+    abs_heading = rotation_vector_heading(grid, config)
+    abs_at = None
+    if abs_heading is not None:
+        # interpolate the unwrapped angle, then wrap back to (-pi, pi]
+        abs_at = wrap_angle(np.interp(step_t, grid.t_s, np.unwrap(abs_heading)))
+    units = weinberg_units(grid.t_s, mag, step_t, config.max_step_window_s)
+    return Steps(t_s=step_t, heading_change_rad=change, heading_rad=heading_at, abs_heading_rad=abs_at,
+                 step_length_m=config.weinberg_k * units, weinberg_unit=units, t0_s=float(grid.t_s[0]))
+
+
+def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
+    """Wrap to [-pi, pi)."""
+    return (np.asarray(angle_rad) + np.pi) % (2 * np.pi) - np.pi
+
+
+def steps_between(steps: Steps, t0_s: float, t1_s: float, use_abs_heading: bool = False) -> StepInterval:
+    """Steps in the half-open interval (t0_s, t1_s], summarised for one filter update.
+
+    ``heading_change_rad`` is the sum of the per-step changes, i.e. the gyro heading at the
+    interval's last step minus that at the step before the interval (zero if no step).
+    """
+    i0, i1 = np.searchsorted(steps.t_s, [t0_s, t1_s], side="right")
+    n = int(i1 - i0)
+    if n == 0:
+        return StepInterval(n_steps=0, heading_change_rad=0.0)
+    abs_heading = None
+    if use_abs_heading and steps.abs_heading_rad is not None:
+        abs_heading = float(steps.abs_heading_rad[i1 - 1])
+    return StepInterval(
+        n_steps=n,
+        heading_change_rad=float(np.sum(steps.heading_change_rad[i0:i1])),
+        heading_abs_rad=abs_heading,
+        step_length_m=float(np.mean(steps.step_length_m[i0:i1])),
+    )
+
+
+def to_step_inputs(steps: Steps, t_s: np.ndarray, use_abs_heading: bool = False) -> list[StepInterval]:
+    """One ``StepInterval`` per filter interval (t_s[i-1], t_s[i]]; the first covers (-inf, t_s[0]].
+
+    Each maps one-to-one onto the filter's ``StepInput(n_steps, heading_change_rad,
+    heading_abs_rad, step_length_m)``: ``StepInput(**dataclasses.asdict(interval))``.
+    """
+    edges = np.concatenate([[-np.inf], np.asarray(t_s, dtype=np.float64)])
+    return [steps_between(steps, edges[i], edges[i + 1], use_abs_heading) for i in range(len(edges) - 1)]
+
+
+def dead_reckon(steps: Steps, start_xy_m: np.ndarray, start_heading_rad: float,
+                step_length_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """PDR-only track: each step moves ``step_length_m`` (or its Weinberg length) along the heading.
+
+    The heading at step k is ``start_heading_rad`` plus the gyro heading change since the first
+    step, so ``start_heading_rad`` is the walking direction of the first step.
+
+    Returns
+    -------
+    t_s : (S + 1,) the first step's time (the start position), then each step's time
+    xy_m : (S + 1, 2) positions
+    """
+    start_xy_m = np.asarray(start_xy_m, dtype=np.float64).reshape(2)
+    if len(steps) == 0:
+        return np.array([steps.t0_s]), start_xy_m[None, :].copy()
+    heading = start_heading_rad + (steps.heading_rad - steps.heading_rad[0])
+    length = steps.step_length_m if step_length_m is None else np.full(len(steps), float(step_length_m))
+    moves = length[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
+    xy = np.vstack([start_xy_m, start_xy_m + np.cumsum(moves, axis=0)])
+    return np.concatenate([[steps.t_s[0]], steps.t_s]), xy

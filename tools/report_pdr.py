@@ -1,0 +1,191 @@
+"""PDR check on real walks: step distance vs waypoint polyline, gyro turns vs waypoint turns.
+
+For every ILC trace given (default: all of ../shared/data/ilc20/site1/F*/path_data_files):
+
+- distance: steps detected between the first and the last waypoint time, times the fixed step
+  length (``PDRConfig.step_length_m``), the Weinberg lengths (default K), the Weinberg lengths
+  with K fitted leave-one-trace-out (K_i = sum of the other traces' polyline lengths over the sum
+  of their (a_max - a_min)^(1/4)), and a fixed length fitted leave-one-trace-out the same way;
+  each divided by the waypoint polyline length over that span;
+- turns: for each pair of consecutive waypoint legs, the angle between the legs vs the gyro
+  heading change between the legs' middle times (error wrapped to [-180, 180) degrees);
+- absolute heading: the rotation-vector heading (pi/2 - azimuth) minus each leg's direction,
+  averaged over the steps of the leg's middle half: its circular mean is the offset between
+  magnetic north and the floor plan's y axis.
+
+Prints a markdown table per trace, a summary, and (with --json) writes the numbers as JSON.
+
+    .venv/bin/python tools/report_pdr.py [--json out.json] [TRACE ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+from mapfilter.logs import read_ilc
+from mapfilter.pdr import PDRConfig, detect_steps, gyro_heading, resample_imu, wrap_angle
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ilc20" / "site1"
+TURN_MIN_DEG = 30.0  # a leg pair whose directions differ by more is a "turn"
+TOLERANCE_DEG = 20.0
+TOLERANCE_DIST = 0.10
+
+
+def trace_numbers(path: Path, config: PDRConfig) -> dict:
+    recording = read_ilc(path)
+    if recording.waypoint_t_s.shape[0] < 2:
+        raise MapfilterError("fewer than 2 waypoints", path)
+    grid = resample_imu(recording, config)
+    steps = detect_steps(recording, config)
+    heading = gyro_heading(grid, config)
+    wp_t, wp_xy = recording.waypoint_t_s, recording.waypoint_xy_m
+    legs = np.diff(wp_xy, axis=0)
+    polyline_m = float(np.sum(np.linalg.norm(legs, axis=1)))
+    in_span = (steps.t_s > wp_t[0]) & (steps.t_s <= wp_t[-1])
+
+    # turns: leg direction change vs gyro heading change between leg middles
+    leg_dir = np.arctan2(legs[:, 1], legs[:, 0])
+    leg_mid_t = 0.5 * (wp_t[:-1] + wp_t[1:])
+    gyro_at_mid = np.interp(leg_mid_t, grid.t_s, heading)
+    turn_true = np.degrees(wrap_angle(np.diff(leg_dir)))
+    turn_gyro = np.degrees(np.diff(gyro_at_mid))
+    turn_err = np.degrees(wrap_angle(np.radians(turn_gyro - turn_true)))
+
+    # absolute heading offset per leg (steps in the middle half of each leg; legs >= 3 m)
+    offsets = []
+    if steps.abs_heading_rad is not None:
+        for i in range(legs.shape[0]):
+            if np.linalg.norm(legs[i]) < 3.0:
+                continue
+            span = wp_t[i + 1] - wp_t[i]
+            sel = (steps.t_s > wp_t[i] + 0.25 * span) & (steps.t_s < wp_t[i + 1] - 0.25 * span)
+            if np.any(sel):
+                d = steps.abs_heading_rad[sel] - leg_dir[i]
+                offsets.append(float(np.angle(np.mean(np.exp(1j * d)))))
+    return {
+        "trace": f"{path.parent.parent.name}/{recording.name}",
+        "polyline_m": polyline_m,
+        "duration_s": float(wp_t[-1] - wp_t[0]),
+        "n_steps": int(np.sum(in_span)),
+        "weinberg_m": float(np.sum(steps.step_length_m[in_span])),
+        "weinberg_unit_sum": float(np.sum(steps.weinberg_unit[in_span])),
+        "turn_true_deg": turn_true.tolist(),
+        "turn_gyro_deg": turn_gyro.tolist(),
+        "turn_err_deg": turn_err.tolist(),
+        "abs_offset_rad": offsets,
+    }
+
+
+def summarise(rows: list[dict], config: PDRConfig) -> dict:
+    poly = np.array([r["polyline_m"] for r in rows])
+    n = np.array([r["n_steps"] for r in rows], dtype=float)
+    unit = np.array([r["weinberg_unit_sum"] for r in rows])
+    # leave-one-trace-out calibration: the trace under test never informs its own K / length
+    k_loo = (poly.sum() - poly) / (unit.sum() - unit)
+    len_loo = (poly.sum() - poly) / (n.sum() - n)
+    ratios = {
+        "fixed": n * config.step_length_m / poly,
+        "weinberg": np.array([r["weinberg_m"] for r in rows]) / poly,
+        "weinberg_loo": k_loo * unit / poly,
+        "fixed_loo": len_loo * n / poly,
+    }
+    for r, i in zip(rows, range(len(rows))):
+        for name, values in ratios.items():
+            r[f"ratio_{name}"] = float(values[i])
+    dist = {name: {"median_ratio": float(np.median(v)),
+                   "p10_ratio": float(np.percentile(v, 10)), "p90_ratio": float(np.percentile(v, 90)),
+                   "share_within_10pct": float(np.mean(np.abs(v - 1) <= TOLERANCE_DIST))}
+            for name, v in ratios.items()}
+    true = np.concatenate([r["turn_true_deg"] for r in rows])
+    err = np.concatenate([r["turn_err_deg"] for r in rows])
+    turn = np.abs(true) >= TURN_MIN_DEG
+    offsets = np.concatenate([r["abs_offset_rad"] for r in rows])
+    offset_mean = np.angle(np.mean(np.exp(1j * offsets)))
+    offset_dev = np.degrees(np.abs(wrap_angle(offsets - offset_mean)))
+    return {
+        "n_traces": len(rows),
+        "config": dataclasses.asdict(config),
+        "weinberg_k_all": float(poly.sum() / unit.sum()),
+        "weinberg_k_loo_range": [float(k_loo.min()), float(k_loo.max())],
+        "fixed_length_all_m": float(poly.sum() / n.sum()),
+        "distance": dist,
+        "turns": {
+            "n_leg_pairs": int(true.size),
+            "n_turns": int(np.sum(turn)),
+            "turn_min_deg": TURN_MIN_DEG,
+            "share_turns_within_20deg": float(np.mean(np.abs(err[turn]) <= TOLERANCE_DEG)),
+            "share_all_pairs_within_20deg": float(np.mean(np.abs(err) <= TOLERANCE_DEG)),
+            "median_abs_err_turns_deg": float(np.median(np.abs(err[turn]))),
+        },
+        "abs_heading": {
+            "n_legs": int(offsets.size),
+            "offset_deg": float(np.degrees(offset_mean)),
+            "median_abs_dev_deg": float(np.median(offset_dev)),
+            "share_legs_within_20deg": float(np.mean(offset_dev <= TOLERANCE_DEG)),
+        },
+    }
+
+
+def markdown(rows: list[dict], summary: dict) -> str:
+    out = ["| trace | polyline m | s | steps | fixed | Weinberg | Weinberg LOO | fixed LOO | turns ok |",
+           "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for r in rows:
+        err = np.abs(np.array(r["turn_err_deg"]))
+        turn = np.abs(np.array(r["turn_true_deg"])) >= TURN_MIN_DEG
+        out.append(f"| {r['trace']} | {r['polyline_m']:.1f} | {r['duration_s']:.0f} | {r['n_steps']} "
+                   f"| {r['ratio_fixed']:.2f} | {r['ratio_weinberg']:.2f} | {r['ratio_weinberg_loo']:.2f} "
+                   f"| {r['ratio_fixed_loo']:.2f} | {int(np.sum(err[turn] <= TOLERANCE_DEG))}/{int(np.sum(turn))} |")
+    out += ["", "| step length | median ratio | 10th pct | 90th pct | traces within +/-10 % |",
+            "| --- | ---: | ---: | ---: | ---: |"]
+    for name, d in summary["distance"].items():
+        out.append(f"| {name} | {d['median_ratio']:.3f} | {d['p10_ratio']:.3f} | {d['p90_ratio']:.3f} "
+                   f"| {100 * d['share_within_10pct']:.0f} % |")
+    t, a = summary["turns"], summary["abs_heading"]
+    out += ["",
+            f"Turns (leg pairs turning >= {t['turn_min_deg']:.0f} deg): {t['n_turns']}, within 20 deg: "
+            f"{100 * t['share_turns_within_20deg']:.0f} % (median |error| {t['median_abs_err_turns_deg']:.1f} deg); "
+            f"all {t['n_leg_pairs']} leg pairs within 20 deg: {100 * t['share_all_pairs_within_20deg']:.0f} %.",
+            f"Rotation-vector heading minus leg direction over {a['n_legs']} legs: offset "
+            f"{a['offset_deg']:.1f} deg, median |deviation| {a['median_abs_dev_deg']:.1f} deg, "
+            f"{100 * a['share_legs_within_20deg']:.0f} % of legs within 20 deg of the offset.",
+            f"Weinberg K over all traces {summary['weinberg_k_all']:.3f} (LOO range "
+            f"{summary['weinberg_k_loo_range'][0]:.3f}-{summary['weinberg_k_loo_range'][1]:.3f}); "
+            f"fitted fixed length {summary['fixed_length_all_m']:.3f} m."]
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("traces", nargs="*", type=Path, help="ILC traces (default: all of site1 F1 and F2)")
+    parser.add_argument("--json", type=Path, help="write per-trace numbers and the summary here")
+    args = parser.parse_args(argv)
+    traces = args.traces or sorted(DATA.glob("F*/path_data_files/*.txt.gz"))
+    if not traces:
+        print(f"no traces found under {DATA}", file=sys.stderr)
+        return 1
+    config = PDRConfig()
+    try:
+        rows = [trace_numbers(path, config) for path in traces]
+    except MapfilterError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    summary = summarise(rows, config)
+    print(markdown(rows, summary))
+    print()
+    print(json.dumps(summary, indent=1))
+    if args.json:
+        from mapfilter.atomic import atomic_paths
+        with atomic_paths(args.json) as (tmp,):
+            Path(tmp).write_text(json.dumps({"summary": summary, "traces": rows}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
