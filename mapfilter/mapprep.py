@@ -1,0 +1,654 @@
+"""Map preparation: floor plans (line drawings, filled-region images, GeoJSON) -> FloorPlan.
+
+One function per kind of plan, each returning a :class:`~mapfilter.floorplan.FloorPlan`:
+
+- :func:`prepare_lines`: dark walls on a light background (scanned or anti-aliased drawings):
+  Otsu or adaptive threshold, morphological closing of small gaps, removal of text and specks
+  by connected-component size, optional wall thickening.
+- :func:`prepare_regions`: filled-region plans such as the ILC ``floor_image.png`` (transparent
+  corridors, filled shops, outlines, text): the caller names the walkable colours.
+- :func:`prepare_geojson`: vector floors (outline + shop polygons, lon/lat or metres) rasterised
+  at a chosen resolution with shapely; outside the outline is wall.
+
+:func:`apply_edits` forces polygons (in metres) free or wall, :func:`write_map` writes the
+map YAML + mask + a preview PNG atomically, :func:`import_ilc` does an ILC floor in one call.
+The plan's scale comes from a :class:`PlanScale` (metres per pixel, real size, or two points
+and their distance); a missing or contradictory scale is a :class:`MapfilterError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import shapely
+import yaml
+from shapely.geometry import shape as geojson_shape
+
+from mapfilter.atomic import atomic_paths
+from mapfilter.errors import MapfilterError
+from mapfilter.floorplan import FloorPlan, SourceImage
+
+EARTH_RADIUS_M = 6378137.0  # Web Mercator sphere (ILC README)
+# Two scale sources that disagree by more than this (relative) are contradictory; ILC floors
+# give width/height that imply pixel sizes 0.1 % apart, a hand-measured distance is rarely better
+# than 1 %.
+SCALE_TOLERANCE = 0.02
+
+
+# ---- scale ----------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class PlanScale:
+    """How big a plan pixel is. Give one or more; they must agree (within ``SCALE_TOLERANCE``).
+
+    Attributes
+    ----------
+    resolution_m : metres per plan pixel.
+    size_m : (width, height) of the whole plan image in metres (ILC floor_info.json); either may
+        be None to use only the other one.
+    points_px : two image points ((u1, v1), (u2, v2)) in pixels (column, row).
+    points_distance_m : the real distance between ``points_px`` in metres.
+    """
+
+    resolution_m: float | None = None
+    size_m: tuple[float | None, float | None] | None = None
+    points_px: tuple[tuple[float, float], tuple[float, float]] | None = None
+    points_distance_m: float | None = None
+
+    def resolve(self, shape_px: tuple[int, int], path: str | os.PathLike | None = None) -> float:
+        """Metres per pixel of a plan of ``shape_px`` = (rows, cols); error if missing/contradictory."""
+        candidates: list[tuple[str, float]] = []
+        if self.resolution_m is not None:
+            candidates.append(("--resolution", _positive(self.resolution_m, "resolution", path)))
+        if self.size_m is not None:
+            width_m, height_m = self.size_m
+            if width_m is not None:
+                candidates.append(("width", _positive(width_m, "width", path) / shape_px[1]))
+            if height_m is not None:
+                candidates.append(("height", _positive(height_m, "height", path) / shape_px[0]))
+        if (self.points_px is None) != (self.points_distance_m is None):
+            raise MapfilterError("two scale points need their distance, and a distance needs two points", path)
+        if self.points_px is not None:
+            (u1, v1), (u2, v2) = self.points_px
+            span_px = math.hypot(u2 - u1, v2 - v1)
+            if span_px <= 0:
+                raise MapfilterError("the two scale points coincide", path)
+            candidates.append(("two points", _positive(self.points_distance_m, "distance", path) / span_px))
+        if not candidates:
+            raise MapfilterError(
+                "no scale given: use --resolution M, --size W H, or --scale-points U1 V1 U2 V2 --scale-distance M", path
+            )
+        reference_name, reference = candidates[0]
+        for name, value in candidates[1:]:
+            if abs(value - reference) > SCALE_TOLERANCE * reference:
+                raise MapfilterError(
+                    f"contradictory scale: {reference_name} gives {reference:.4g} m/px but {name} gives {value:.4g} m/px",
+                    path,
+                )
+        return float(np.mean([value for _, value in candidates]))
+
+
+def _positive(value: Any, name: str, path: str | os.PathLike | None) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise MapfilterError(f"{name} must be a number, got {value!r}", path) from None
+    if not (math.isfinite(number) and number > 0):
+        raise MapfilterError(f"{name} must be a positive number, got {value!r}", path)
+    return number
+
+
+# ---- reading plans --------------------------------------------------------------------------
+def read_plan_image(path: str | os.PathLike) -> np.ndarray:
+    """Read a plan as 8-bit BGRA (grey and BGR images get an opaque alpha channel)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MapfilterError("file not found", path)
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None or image.size == 0:
+        raise MapfilterError("not a readable image", path)
+    if image.dtype != np.uint8:
+        image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
+    if image.ndim == 2:
+        image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGRA)
+    elif image.shape[2] == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2BGRA)
+    return image
+
+
+def _flatten_on_white(bgra: np.ndarray) -> np.ndarray:
+    """BGR picture of a BGRA plan composited over white (transparent = paper)."""
+    alpha = bgra[..., 3:4].astype(np.float32) / 255.0
+    return (bgra[..., :3] * alpha + 255.0 * (1.0 - alpha)).round().astype(np.uint8)
+
+
+# ---- line drawings --------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class LineOptions:
+    """Options of :func:`prepare_lines` (pixel sizes are plan pixels)."""
+
+    threshold: str = "otsu"  # "otsu" (global) or "adaptive" (uneven scans)
+    adaptive_block_px: int = 51  # neighbourhood of the adaptive threshold (odd)
+    close_gaps_px: int = 3  # closing kernel: wall gaps narrower than this are closed (0 = off)
+    remove_below_px: int = 20  # ink blobs whose bounding box is shorter than this are text/specks
+    thicken_px: int = 0  # dilate walls by this many pixels after cleaning (0 = off)
+    outside_is_wall: bool = True  # free space connected to the image border is outside: wall
+
+
+def prepare_lines(
+    plan_path: str | os.PathLike,
+    scale: PlanScale,
+    options: LineOptions = LineOptions(),
+    map_resolution_m: float | None = None,
+    floor_name: str | None = None,
+) -> FloorPlan:
+    """Wall mask of a line drawing (dark walls on light paper).
+
+    Parameters
+    ----------
+    plan_path : the plan image (PNG, JPEG, PGM, ...; transparent pixels count as paper).
+    scale : the plan's scale.
+    options : thresholding and clean-up, see :class:`LineOptions`.
+    map_resolution_m : metres per pixel of the output mask (default: the plan's own); a coarser
+        mask marks a cell wall if any plan wall pixel falls in it, so walls stay closed.
+    floor_name : optional floor label.
+    """
+    plan_path = Path(plan_path)
+    bgra = read_plan_image(plan_path)
+    resolution_m = scale.resolve(bgra.shape[:2], plan_path)
+    gray = cv2.cvtColor(_flatten_on_white(bgra), cv2.COLOR_BGR2GRAY)
+    if options.threshold == "otsu":
+        if int(gray.max()) - int(gray.min()) < 16:
+            raise MapfilterError("the plan has no contrast: no walls to find", plan_path)
+        _, ink = cv2.threshold(gray, 0, 1, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
+    elif options.threshold == "adaptive":
+        block = max(3, options.adaptive_block_px | 1)
+        # a pixel is ink when it is 10 grey levels darker than its neighbourhood's mean
+        ink = cv2.adaptiveThreshold(gray, 1, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 10)
+    else:
+        raise MapfilterError(f"unknown threshold method {options.threshold!r} (otsu or adaptive)")
+    ink = ink.astype(bool)
+    if options.close_gaps_px > 0:
+        ink = _close(ink, options.close_gaps_px)
+    if options.remove_below_px > 0:
+        ink = _remove_small_blobs(ink, options.remove_below_px)
+    if options.thicken_px > 0:
+        ink = _dilate(ink, options.thicken_px)
+    if options.outside_is_wall:
+        ink = _fill_outside(ink)
+    return _finish(ink, resolution_m, map_resolution_m, plan_path, floor_name)
+
+
+def _close(mask: np.ndarray, size_px: int) -> np.ndarray:
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
+    # pad so that closing does not glue walls to the image border
+    pad = size_px
+    padded = cv2.copyMakeBorder(mask.astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+    closed = cv2.morphologyEx(padded, cv2.MORPH_CLOSE, kernel)
+    return closed[pad:-pad, pad:-pad].astype(bool)
+
+
+def _dilate(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
+    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
+
+
+def _erode(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
+    # border value 1: the image edge does not eat into walls that touch it
+    return cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=1).astype(bool)
+
+
+def _remove_small_blobs(mask: np.ndarray, below_px: int) -> np.ndarray:
+    """Drop 8-connected components whose bounding box's longer side is < ``below_px``."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    longer = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT])
+    keep = longer >= below_px
+    keep[0] = False  # label 0 is the background
+    return keep[labels]
+
+
+def _remove_small_areas(mask: np.ndarray, below_px: int) -> np.ndarray:
+    """Drop 8-connected components of fewer than ``below_px`` pixels."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    keep = stats[:, cv2.CC_STAT_AREA] >= below_px
+    keep[0] = False
+    return keep[labels]
+
+
+def _fill_outside(wall: np.ndarray) -> np.ndarray:
+    """Mark free space 4-connected to the image border as wall (outside the building)."""
+    count, labels = cv2.connectedComponents((~wall).astype(np.uint8), connectivity=4)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    outside = np.isin(labels, border[border > 0])
+    return wall | outside
+
+
+def _finish(
+    wall_plan: np.ndarray,
+    plan_resolution_m: float,
+    map_resolution_m: float | None,
+    plan_path: Path,
+    floor_name: str | None,
+) -> FloorPlan:
+    """Resample the plan-pixel wall mask, check it, and wrap it with the plan as source image."""
+    wall = wall_plan
+    resolution_m = plan_resolution_m
+    if map_resolution_m is not None:
+        resolution_m = _positive(map_resolution_m, "map resolution", plan_path)
+        wall = resample_wall_mask(wall_plan, plan_resolution_m, resolution_m)
+    _check_mask(wall, plan_path)
+    source = SourceImage(path=plan_path.resolve(), resolution_m=plan_resolution_m, origin_m=(0.0, 0.0))
+    return FloorPlan(wall, resolution_m, (0.0, 0.0), floor_name, source)
+
+
+def _check_mask(wall: np.ndarray, path: Path | None) -> None:
+    if wall.all():
+        raise MapfilterError("the plan has no free space (everything came out as wall)", path)
+    if not wall.any():
+        raise MapfilterError("no walls found in the plan (everything came out free)", path)
+
+
+def resample_wall_mask(wall: np.ndarray, from_resolution_m: float, to_resolution_m: float) -> np.ndarray:
+    """Resample a wall mask to another pixel size; both share the lower-left corner as origin.
+
+    Going coarser, an output cell is wall if any input wall pixel overlaps it (walls never get
+    holes; they may thicken by up to one output pixel). Going finer, nearest pixel.
+    """
+    rows_in, cols_in = wall.shape
+    ratio = to_resolution_m / from_resolution_m  # input pixels per output pixel
+    rows_out = max(1, int(round(rows_in / ratio)))
+    cols_out = max(1, int(round(cols_in / ratio)))
+    # output pixel (r, c) covers input columns [c*ratio, (c+1)*ratio) and, counted from the
+    # bottom (shared lower-left origin), input rows [rows_in - (rows_out - r) * ratio, ...)
+    col_lo = np.floor(np.arange(cols_out) * ratio + 1e-9).astype(np.int64)
+    col_hi = np.ceil((np.arange(cols_out) + 1) * ratio - 1e-9).astype(np.int64)
+    row_lo = np.floor(rows_in - (rows_out - np.arange(rows_out)) * ratio + 1e-9).astype(np.int64)
+    row_hi = np.ceil(rows_in - (rows_out - np.arange(rows_out) - 1) * ratio - 1e-9).astype(np.int64)
+    # summed-area table: any wall in a block <=> block sum > 0 (outside the plan is not wall)
+    table = np.zeros((rows_in + 1, cols_in + 1), dtype=np.int64)
+    table[1:, 1:] = np.cumsum(np.cumsum(wall, axis=0), axis=1)
+    r0 = np.clip(row_lo, 0, rows_in)[:, None]
+    r1 = np.clip(row_hi, 0, rows_in)[:, None]
+    c0 = np.clip(col_lo, 0, cols_in)[None, :]
+    c1 = np.clip(col_hi, 0, cols_in)[None, :]
+    total = table[r1, c1] - table[r0, c1] - table[r1, c0] + table[r0, c0]
+    return total > 0
+
+
+# ---- filled-region plans --------------------------------------------------------------------
+TRANSPARENT = "transparent"
+
+
+@dataclasses.dataclass(frozen=True)
+class RegionOptions:
+    """Options of :func:`prepare_regions` (pixel sizes are plan pixels).
+
+    ``walkable`` holds colour specs: ``"transparent"`` (alpha <= ``alpha_max``), ``"#rrggbb"`` or
+    ``"r,g,b"`` (opaque pixels within ``tolerance`` per channel). Everything else is wall, then:
+    wall blobs smaller than ``remove_below_px`` pixels become free (text and marks inside
+    corridors), and walls are eroded by ``open_outlines_px`` where they meet free space (the
+    outlines drawn around filled regions are walkable: ILC waypoints lie on them).
+    """
+
+    walkable: tuple[str, ...] = (TRANSPARENT,)
+    tolerance: int = 24  # max per-channel difference to a walkable colour (0-255)
+    alpha_max: int = 127  # pixels at most this opaque count as transparent
+    remove_below_px: int = 0  # wall blobs (8-connected) with fewer pixels become free (0 = off)
+    open_outlines_px: int = 0  # erode walls by this many pixels along free space (0 = off)
+    outside_is_wall: bool = False  # free space connected to the image border becomes wall
+
+
+def parse_colour(spec: str) -> tuple[int, int, int] | str:
+    """``"transparent"``, ``"#rrggbb"`` or ``"r,g,b"`` -> ``"transparent"`` or an (r, g, b) tuple."""
+    text = spec.strip().lower()
+    if text == TRANSPARENT:
+        return TRANSPARENT
+    match = re.fullmatch(r"#?([0-9a-f]{6})", text)
+    if match:
+        value = match.group(1)
+        return int(value[0:2], 16), int(value[2:4], 16), int(value[4:6], 16)
+    parts = text.split(",")
+    if len(parts) == 3 and all(p.strip().isdigit() and int(p) <= 255 for p in parts):
+        return int(parts[0]), int(parts[1]), int(parts[2])
+    raise MapfilterError(f"bad colour {spec!r}: use 'transparent', '#rrggbb' or 'r,g,b'")
+
+
+def prepare_regions(
+    plan_path: str | os.PathLike,
+    scale: PlanScale,
+    options: RegionOptions = RegionOptions(),
+    map_resolution_m: float | None = None,
+    floor_name: str | None = None,
+) -> FloorPlan:
+    """Wall mask of a filled-region plan: the ``options.walkable`` colours are free, the rest wall.
+
+    Parameters are as for :func:`prepare_lines`; see :class:`RegionOptions` for the clean-up.
+    """
+    plan_path = Path(plan_path)
+    bgra = read_plan_image(plan_path)
+    resolution_m = scale.resolve(bgra.shape[:2], plan_path)
+    colours = [parse_colour(c) for c in options.walkable]
+    if not colours:
+        raise MapfilterError("name at least one walkable colour")
+    alpha = bgra[..., 3]
+    opaque = alpha > options.alpha_max
+    free = np.zeros(alpha.shape, dtype=bool)
+    for colour in colours:
+        if colour == TRANSPARENT:
+            free |= ~opaque
+        else:
+            bgr = np.array(colour[::-1], dtype=np.int16)
+            diff = np.abs(bgra[..., :3].astype(np.int16) - bgr).max(axis=2)
+            free |= opaque & (diff <= options.tolerance)
+    wall = ~free
+    if options.remove_below_px > 0:
+        wall = _remove_small_areas(wall, options.remove_below_px)
+    if options.open_outlines_px > 0:
+        wall = _erode(wall, options.open_outlines_px)
+    if options.outside_is_wall:
+        wall = _fill_outside(wall)
+    return _finish(wall, resolution_m, map_resolution_m, plan_path, floor_name)
+
+
+# ---- GeoJSON floors -------------------------------------------------------------------------
+@dataclasses.dataclass
+class VectorFloor:
+    """A vector floor in metres: outline (walkable area) and obstacles (shops), both shapely."""
+
+    outline: shapely.Geometry
+    obstacles: list[shapely.Geometry]
+    origin_lonlat: tuple[float, float] | None  # lon/lat of the metre frame's origin, if projected
+
+
+def read_geojson_floor(path: str | os.PathLike, units: str = "lonlat") -> VectorFloor:
+    """Read a floor GeoJSON: the feature typed ``floor`` (else the first) is the outline.
+
+    ``units="lonlat"`` projects with Web Mercator scaled by cos(mean outline latitude) and puts
+    the origin at the lower-left of the outline's bounding box (the ILC convention; its README
+    checks this against floor_info.json to 0.01 m). ``units="m"`` takes coordinates as metres.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise MapfilterError("file not found", path)
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        line = getattr(exc, "lineno", None)
+        raise MapfilterError(f"not valid GeoJSON: {getattr(exc, 'msg', exc)}", path, line) from None
+    features = data.get("features") if isinstance(data, dict) else None
+    if not isinstance(features, list) or not features:
+        raise MapfilterError("GeoJSON has no 'features' list", path)
+    geometries = []
+    for index, feature in enumerate(features):
+        try:
+            geometry = geojson_shape(feature["geometry"])
+        except Exception as exc:  # shapely raises several types for bad geometry
+            raise MapfilterError(f"feature {index} has no valid geometry ({exc})", path) from None
+        if geometry.geom_type not in ("Polygon", "MultiPolygon"):
+            continue
+        geometries.append((feature.get("properties") or {}, shapely.make_valid(geometry)))
+    if not geometries:
+        raise MapfilterError("GeoJSON has no polygons", path)
+    floor_index = next((i for i, (props, _) in enumerate(geometries) if props.get("type") == "floor"), 0)
+    outline = geometries[floor_index][1]
+    obstacles = [g for i, (_, g) in enumerate(geometries) if i != floor_index]
+    if units == "m":
+        return VectorFloor(outline, obstacles, None)
+    if units != "lonlat":
+        raise MapfilterError(f"unknown GeoJSON units {units!r} (lonlat or m)")
+    coords = shapely.get_coordinates(outline)
+    if np.abs(coords[:, 0]).max() > 180 or np.abs(coords[:, 1]).max() > 85:
+        raise MapfilterError("coordinates are not longitude/latitude degrees (use units 'm')", path)
+    lat_mean_rad = math.radians(float(coords[:, 1].mean()))
+    k = math.cos(lat_mean_rad)
+
+    def mercator(xy: np.ndarray) -> np.ndarray:
+        lon = np.radians(xy[:, 0])
+        lat = np.radians(xy[:, 1])
+        return np.stack([EARTH_RADIUS_M * lon * k, EARTH_RADIUS_M * np.log(np.tan(np.pi / 4 + lat / 2)) * k], axis=1)
+
+    projected = mercator(coords)
+    x0, y0 = projected.min(axis=0)
+    lon0, lat0 = coords[:, 0].min(), coords[:, 1].min()
+
+    def to_metres(geometry: shapely.Geometry) -> shapely.Geometry:
+        return shapely.transform(geometry, lambda xy: mercator(xy) - [x0, y0])
+
+    return VectorFloor(to_metres(outline), [to_metres(g) for g in obstacles], (float(lon0), float(lat0)))
+
+
+def prepare_geojson(
+    path: str | os.PathLike,
+    resolution_m: float | None,
+    units: str = "lonlat",
+    obstacle_inset_m: float = 0.0,
+    margin_m: float = 0.0,
+    floor_name: str | None = None,
+    source_image: SourceImage | None = None,
+) -> FloorPlan:
+    """Rasterise a GeoJSON floor: a pixel is free if its centre is inside the outline and not
+    inside an obstacle. Outside the outline is wall.
+
+    Parameters
+    ----------
+    path : the GeoJSON file (see :func:`read_geojson_floor`).
+    resolution_m : metres per output pixel (required).
+    units : "lonlat" (project, ILC convention) or "m".
+    obstacle_inset_m : shrink every obstacle by this much first, so that a walker brushing a
+        shop front (ILC waypoints lie on shop outlines) stays on free space.
+    margin_m : wall margin added around the outline's bounding box.
+    floor_name, source_image : passed to the FloorPlan.
+    """
+    path = Path(path)
+    if resolution_m is None:
+        raise MapfilterError("no scale given: a GeoJSON floor needs --resolution M (metres per pixel)", path)
+    resolution_m = _positive(resolution_m, "resolution", path)
+    floor = read_geojson_floor(path, units)
+    x_min, y_min, x_max, y_max = floor.outline.bounds
+    x_min, y_min, x_max, y_max = x_min - margin_m, y_min - margin_m, x_max + margin_m, y_max + margin_m
+    cols = int(math.ceil((x_max - x_min) / resolution_m - 1e-9))
+    rows = int(math.ceil((y_max - y_min) / resolution_m - 1e-9))
+    if rows * cols > 50_000_000:
+        raise MapfilterError(f"resolution {resolution_m} m gives a {cols}x{rows} map: too large", path)
+    obstacles = shapely.union_all(floor.obstacles) if floor.obstacles else shapely.Polygon()
+    if obstacle_inset_m > 0:
+        obstacles = obstacles.buffer(-obstacle_inset_m)
+    walkable = floor.outline.difference(obstacles)
+    # pixel centres; row 0 is the top of the map
+    x_c = x_min + (np.arange(cols) + 0.5) * resolution_m
+    y_c = y_min + (rows - np.arange(rows) - 0.5) * resolution_m
+    xx, yy = np.meshgrid(x_c, y_c)
+    shapely.prepare(walkable)
+    free = shapely.contains_xy(walkable, xx.ravel(), yy.ravel()).reshape(rows, cols)
+    wall = ~free
+    _check_mask(wall, path)
+    return FloorPlan(wall, resolution_m, (x_min, y_min), floor_name, source_image)
+
+
+# ---- edits ----------------------------------------------------------------------------------
+@dataclasses.dataclass
+class MapEdits:
+    """Polygons in world metres forced free (doors) or wall (closed-off areas); wall wins."""
+
+    free: list[shapely.Geometry]
+    wall: list[shapely.Geometry]
+
+
+def read_edits(path: str | os.PathLike) -> MapEdits:
+    """Read edits from YAML ``{free: [[[x, y], ...], ...], wall: [...]}`` or GeoJSON in metres
+    whose features carry ``properties: {"set": "free" | "wall"}``."""
+    path = Path(path)
+    if not path.is_file():
+        raise MapfilterError("file not found", path)
+    try:
+        data = yaml.safe_load(path.read_text())  # YAML is a superset of JSON: reads both
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise MapfilterError(f"malformed edits file: {getattr(exc, 'problem', None) or exc}", path,
+                             None if mark is None else mark.line + 1) from None
+    except UnicodeDecodeError:
+        raise MapfilterError("not a text file", path) from None
+    edits = MapEdits([], [])
+    if isinstance(data, dict) and data.get("type") == "FeatureCollection":
+        for index, feature in enumerate(data.get("features") or []):
+            kind = ((feature or {}).get("properties") or {}).get("set")
+            if kind not in ("free", "wall"):
+                raise MapfilterError(f"feature {index}: properties.set must be 'free' or 'wall'", path)
+            try:
+                geometry = shapely.make_valid(geojson_shape(feature["geometry"]))
+            except Exception as exc:
+                raise MapfilterError(f"feature {index} has no valid geometry ({exc})", path) from None
+            getattr(edits, kind).append(geometry)
+        return edits
+    if not isinstance(data, dict) or not set(data) <= {"free", "wall"}:
+        raise MapfilterError("edits must be a mapping with keys 'free' and/or 'wall' (or GeoJSON)", path)
+    for kind in ("free", "wall"):
+        for index, ring in enumerate(data.get(kind) or []):
+            try:
+                points = np.asarray(ring, dtype=np.float64)
+                if points.ndim != 2 or points.shape[1] != 2 or len(points) < 3 or not np.isfinite(points).all():
+                    raise ValueError
+            except (TypeError, ValueError):
+                raise MapfilterError(f"{kind}[{index}] must be a list of at least three [x, y] points", path) from None
+            getattr(edits, kind).append(shapely.make_valid(shapely.Polygon(points)))
+    return edits
+
+
+def apply_edits(plan: FloorPlan, edits: MapEdits) -> FloorPlan:
+    """A new FloorPlan with every pixel touched by a ``free`` polygon free, then every pixel
+    touched by a ``wall`` polygon wall (so a door narrower than a pixel still opens)."""
+    wall = plan.wall_mask.copy()
+    for kind, value in (("free", False), ("wall", True)):
+        touched = np.zeros(wall.shape, dtype=np.uint8)
+        for geometry in getattr(edits, kind):
+            for polygon in getattr(geometry, "geoms", [geometry]):
+                if polygon.geom_type != "Polygon" or polygon.is_empty:
+                    continue
+                rings = [polygon.exterior, *polygon.interiors]
+                # 4 fractional bits: pixel coordinates with sub-pixel accuracy
+                pts = [np.round(plan.world_to_pixel(np.asarray(r.coords)[:, :2]) * 16 - 8).astype(np.int32) for r in rings]
+                cv2.fillPoly(touched, pts, 1, lineType=cv2.LINE_8, shift=4)
+                cv2.polylines(touched, pts, True, 1, lineType=cv2.LINE_8, shift=4)
+        wall[touched.astype(bool)] = value
+    _check_mask(wall, None)
+    return dataclasses.replace(plan, wall_mask=wall)
+
+
+# ---- output ---------------------------------------------------------------------------------
+def preview_image(plan: FloorPlan, max_side_px: int = 2000) -> np.ndarray:
+    """BGR picture of the mask (walls in red, half transparent) over the source plan.
+
+    Drawn at the finer of the plan's and the mask's pixel sizes (at most ``max_side_px``).
+    """
+    x_min, x_max, y_min, y_max = plan.extent_m
+    source = None
+    res = plan.resolution_m
+    if plan.source_image is not None and plan.source_image.path.is_file():
+        source = read_plan_image(plan.source_image.path)
+        res = min(res, plan.source_image.resolution_m)
+    res = max(res, max(x_max - x_min, y_max - y_min) / max_side_px)
+    cols = int(math.ceil((x_max - x_min) / res))
+    rows = int(math.ceil((y_max - y_min) / res))
+    # world coordinates of the preview's pixel centres
+    x_c = x_min + (np.arange(cols) + 0.5) * res
+    y_c = y_max - (np.arange(rows) + 0.5) * res
+    xx, yy = np.meshgrid(x_c, y_c)
+    xy = np.stack([xx, yy], axis=-1)
+    canvas = np.full((rows, cols, 3), 255, dtype=np.uint8)
+    if source is not None:
+        src = plan.source_image
+        picture = _flatten_on_white(source)
+        h_src = picture.shape[0]
+        u = (xx - src.origin_m[0]) / src.resolution_m
+        v = h_src - (yy - src.origin_m[1]) / src.resolution_m
+        canvas = cv2.remap(picture, u.astype(np.float32), v.astype(np.float32), cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_CONSTANT, borderValue=(255, 255, 255))
+    wall = ~plan.is_free(xy)
+    tinted = canvas.astype(np.float32)
+    tinted[wall] = 0.5 * tinted[wall] + 0.5 * np.array([40, 40, 230], dtype=np.float32)  # BGR red
+    return tinted.round().astype(np.uint8)
+
+
+def preview_path_for(yaml_path: str | os.PathLike) -> Path:
+    """Where :func:`write_map` puts the preview: ``NAME_preview.png`` beside ``NAME.yaml``."""
+    yaml_path = Path(yaml_path)
+    return yaml_path.with_name(yaml_path.stem + "_preview.png")
+
+
+def write_map(plan: FloorPlan, yaml_path: str | os.PathLike, preview: bool = True) -> list[Path]:
+    """Write ``NAME.yaml`` + ``NAME.png`` (mask) and ``NAME_preview.png``; all or nothing.
+
+    Returns the written paths.
+    """
+    yaml_path = Path(yaml_path)
+    if yaml_path.suffix not in (".yaml", ".yml"):
+        raise MapfilterError("the output map must be a .yaml file", yaml_path)
+    written = [yaml_path, yaml_path.with_name(yaml_path.stem + ".png")]
+    if not preview:
+        plan.save(yaml_path)
+        return written
+    picture = preview_image(plan)  # computed before anything is written
+    preview_path = preview_path_for(yaml_path)
+    with atomic_paths(preview_path) as (tmp_preview,):
+        if not cv2.imwrite(str(tmp_preview), picture):
+            raise MapfilterError("could not write the preview image", preview_path)
+        plan.save(yaml_path)  # atomic itself; if it fails the preview is not kept either
+    return [*written, preview_path]
+
+
+# ---- ILC in one step ------------------------------------------------------------------------
+# The ILC floor images: transparent corridors, light-blue shops with ~2 px darker outlines that
+# the walkers brush along, grey shop names, a few marks in the corridors. Outlines are opened
+# by 2 px and corridor marks of < 150 px removed; shop names sit inside shops (wall anyway).
+ILC_REGION_OPTIONS = RegionOptions(walkable=(TRANSPARENT,), alpha_max=127, remove_below_px=150, open_outlines_px=2)
+# GeoJSON shop polygons are the outlines themselves: shrink them by 0.6 m (about two image
+# pixels) so that waypoints on a shop front stay free.
+ILC_OBSTACLE_INSET_M = 0.6
+ILC_GEOJSON_RESOLUTION_M = 0.25
+
+
+def read_ilc_floor_info(floor_dir: str | os.PathLike) -> tuple[float, float]:
+    """(width, height) in metres from an ILC ``floor_info.json``."""
+    path = Path(floor_dir) / "floor_info.json"
+    if not path.is_file():
+        raise MapfilterError("file not found", path)
+    try:
+        info = json.loads(path.read_text())["map_info"]
+        return _positive(info["width"], "width", path), _positive(info["height"], "height", path)
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError):
+        raise MapfilterError("expected {\"map_info\": {\"width\": .., \"height\": ..}}", path) from None
+
+
+def import_ilc(floor_dir: str | os.PathLike, route: str = "image", resolution_m: float | None = None) -> FloorPlan:
+    """FloorPlan of an ILC floor directory (floor_image.png, floor_info.json, geojson_map.json).
+
+    ``route="image"``: the floor image, transparent = walkable, scaled by floor_info.json
+    (``resolution_m`` resamples the mask). ``route="geojson"``: the vector floor rasterised at
+    ``resolution_m`` (default 0.25 m), outside the outline = wall. Both share the ILC metre
+    frame (origin at the floor's lower-left corner) and show floor_image.png underneath.
+    """
+    floor_dir = Path(floor_dir)
+    if not floor_dir.is_dir():
+        raise MapfilterError("not an ILC floor directory", floor_dir)
+    width_m, height_m = read_ilc_floor_info(floor_dir)
+    image_path = floor_dir / "floor_image.png"
+    floor_name = floor_dir.name
+    if route == "image":
+        return prepare_regions(image_path, PlanScale(size_m=(width_m, height_m)), ILC_REGION_OPTIONS,
+                               resolution_m, floor_name)
+    if route == "geojson":
+        source = None
+        if image_path.is_file():
+            rows, cols = read_plan_image(image_path).shape[:2]
+            source = SourceImage(image_path.resolve(), 0.5 * (width_m / cols + height_m / rows), (0.0, 0.0))
+        return prepare_geojson(floor_dir / "geojson_map.json", resolution_m or ILC_GEOJSON_RESOLUTION_M, "lonlat",
+                               ILC_OBSTACLE_INSET_M, 0.0, floor_name, source)
+    raise MapfilterError(f"unknown route {route!r} (image or geojson)")
