@@ -61,10 +61,7 @@ class ImuGrid:
     acc_mps2: np.ndarray  # (M, 3) phone frame, with gravity
     gyro_radps: np.ndarray  # (M, 3) phone frame
     rotvec_xyzw: np.ndarray | None  # (M, 4) unit quaternion device -> world (ENU), or None
-
-    @property
-    def dt_s(self) -> float:
-        return float(self.t_s[1] - self.t_s[0])
+    dt_s: float  # grid step (t_s differences carry ~2e-7 s of float64 round-off at Unix times)
 
 
 @dataclasses.dataclass
@@ -127,7 +124,7 @@ def resample_imu(recording: Recording, config: PDRConfig = PDRConfig()) -> ImuGr
     if recording.rotvec_t_s.shape[0] >= 2:
         rot = _interp_columns(t_s, recording.rotvec_t_s, _rotvec_to_quaternion(recording.rotvec_xyz))
         rot /= np.linalg.norm(rot, axis=1, keepdims=True)
-    return ImuGrid(t_s=t_s, acc_mps2=acc, gyro_radps=gyro, rotvec_xyzw=rot)
+    return ImuGrid(t_s=t_s, acc_mps2=acc, gyro_radps=gyro, rotvec_xyzw=rot, dt_s=dt_s)
 
 
 def _interp_columns(t_new_s: np.ndarray, t_s: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -157,9 +154,11 @@ def step_signal(grid: ImuGrid, config: PDRConfig = PDRConfig()) -> tuple[np.ndar
     """The thesis's step-detection signal: low-passed d|a|/dt (m/s^3), and low-passed |a| (m/s^2)."""
     fs_hz = 1.0 / grid.dt_s
     magnitude = np.linalg.norm(grid.acc_mps2, axis=1)
-    derivative = np.gradient(magnitude, grid.dt_s)
-    return (_lowpass(derivative, config.lowpass_hz, fs_hz, config.lowpass_order),
-            _lowpass(magnitude, config.lowpass_hz, fs_hz, config.lowpass_order))
+    smooth = _lowpass(magnitude, config.lowpass_hz, fs_hz, config.lowpass_order)
+    # differentiate after the low-pass: both are linear and time-invariant, so away from the
+    # ends this equals the thesis's "differentiate, then filter", but the filter's edge padding
+    # then never sees the raw derivative's amplified noise (which made false steps at the start)
+    return np.gradient(smooth, grid.dt_s), smooth
 
 
 def detect_step_times(t_s: np.ndarray, step_signal_mps3: np.ndarray, threshold: float,
