@@ -79,6 +79,14 @@ class Steps:
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
 
+    def between(self, t0_s: float, t1_s: float) -> "Steps":
+        """The steps with t0_s < t_s <= t1_s (a new object; heading changes kept as detected)."""
+        sel = (self.t_s > t0_s) & (self.t_s <= t1_s)
+        return Steps(t_s=self.t_s[sel], heading_change_rad=self.heading_change_rad[sel],
+                     heading_rad=self.heading_rad[sel],
+                     abs_heading_rad=None if self.abs_heading_rad is None else self.abs_heading_rad[sel],
+                     step_length_m=self.step_length_m[sel], weinberg_unit=self.weinberg_unit[sel], t0_s=self.t0_s)
+
 
 @dataclasses.dataclass(frozen=True)
 class StepInterval:
@@ -315,23 +323,47 @@ def to_step_inputs(steps: Steps, t_s: np.ndarray, use_abs_heading: bool = False)
     return [steps_between(steps, edges[i], edges[i + 1], use_abs_heading) for i in range(len(edges) - 1)]
 
 
-def dead_reckon(steps: Steps, start_xy_m: np.ndarray, start_heading_rad: float,
-                step_length_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def dead_reckon(steps: Steps, start_xy_m: np.ndarray, start_heading_rad: float | None,
+                step_length_m: float | None = None, start_t_s: float | None = None,
+                use_abs_heading: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """PDR-only track: each step moves ``step_length_m`` (or its Weinberg length) along the heading.
 
-    The heading at step k is ``start_heading_rad`` plus the gyro heading change since the first
-    step, so ``start_heading_rad`` is the walking direction of the first step.
+    Parameters
+    ----------
+    steps
+        Detected steps.
+    start_xy_m
+        Position at the start.
+    start_heading_rad
+        Walking direction of the first step (map frame); the heading at step k adds the gyro
+        heading change since the first step. Ignored (may be None) with ``use_abs_heading``.
+    step_length_m
+        Fixed step length; None uses each step's Weinberg length.
+    start_t_s
+        Time of ``start_xy_m``; steps at or before it are not walked. Default: the first step's time.
+    use_abs_heading
+        Walk along the rotation-vector heading of each step instead of the gyro heading.
 
     Returns
     -------
-    t_s : (S + 1,) the first step's time (the start position), then each step's time
+    t_s : (S + 1,) the start time, then each walked step's time
     xy_m : (S + 1, 2) positions
     """
     start_xy_m = np.asarray(start_xy_m, dtype=np.float64).reshape(2)
+    if start_t_s is not None:
+        steps = steps.between(start_t_s, np.inf)
+    t_start = start_t_s if start_t_s is not None else (float(steps.t_s[0]) if len(steps) else steps.t0_s)
     if len(steps) == 0:
-        return np.array([steps.t0_s]), start_xy_m[None, :].copy()
-    heading = start_heading_rad + (steps.heading_rad - steps.heading_rad[0])
+        return np.array([t_start]), start_xy_m[None, :].copy()
+    if use_abs_heading:
+        if steps.abs_heading_rad is None:
+            raise MapfilterError("absolute heading requested but the recording has no rotation vector")
+        heading = steps.abs_heading_rad
+    else:
+        if start_heading_rad is None:
+            raise ValueError("start_heading_rad is needed for gyro dead reckoning")
+        heading = start_heading_rad + (steps.heading_rad - steps.heading_rad[0])
     length = steps.step_length_m if step_length_m is None else np.full(len(steps), float(step_length_m))
     moves = length[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
     xy = np.vstack([start_xy_m, start_xy_m + np.cumsum(moves, axis=0)])
-    return np.concatenate([[steps.t_s[0]], steps.t_s]), xy
+    return np.concatenate([[t_start], steps.t_s]), xy

@@ -298,3 +298,17 @@ def test_bad_config_raises():
     rec = make_recording(t, np.tile([0, 0, G_MPS2], (t.size, 1)), t, np.zeros((t.size, 3)))
     with pytest.raises(MapfilterError, match="sample_rate_hz"):
         pdr.detect_steps(rec, pdr.PDRConfig(sample_rate_hz=5.0))
+
+
+def test_dead_reckon_from_a_start_time_and_along_the_absolute_heading():
+    heading = np.radians(np.r_[np.zeros(5), np.full(5, 90.0)])
+    steps = _fake_steps(np.arange(10) + 1.0, heading, length_m=1.0)  # abs heading = gyro + 1 rad
+    t, xy = pdr.dead_reckon(steps, [0.0, 0.0], 0.0, start_t_s=2.0)  # steps at t = 1, 2 are not walked
+    assert t[0] == 2.0 and t.size == 9
+    assert xy[-1] == pytest.approx([3.0, 5.0])
+    _, xy_abs = pdr.dead_reckon(steps, [0.0, 0.0], None, use_abs_heading=True)
+    expected = np.cumsum(np.column_stack([np.cos(heading + 1.0), np.sin(heading + 1.0)]), axis=0)
+    assert xy_abs[1:] == pytest.approx(expected)
+    no_rotvec = dataclasses.replace(steps, abs_heading_rad=None)
+    with pytest.raises(MapfilterError, match="rotation vector"):
+        pdr.dead_reckon(no_rotvec, [0.0, 0.0], None, use_abs_heading=True)

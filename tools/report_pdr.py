@@ -30,7 +30,7 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.logs import read_ilc
-from mapfilter.pdr import PDRConfig, detect_steps, gyro_heading, resample_imu, wrap_angle
+from mapfilter.pdr import PDRConfig, dead_reckon, detect_steps, gyro_heading, resample_imu, wrap_angle
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ilc20" / "site1"
 TURN_MIN_DEG = 30.0  # a leg pair whose directions differ by more is a "turn"
@@ -69,8 +69,18 @@ def trace_numbers(path: Path, config: PDRConfig) -> dict:
             if np.any(sel):
                 d = steps.abs_heading_rad[sel] - leg_dir[i]
                 offsets.append(float(np.angle(np.mean(np.exp(1j * d)))))
+    # PDR only from the first waypoint (Weinberg lengths, default K): no ground truth after the start
+    pdr_err = {}
+    first = steps.between(wp_t[0], wp_t[-1])
+    if steps.abs_heading_rad is not None and len(first):
+        for name, use_abs in (("gyro", False), ("rotvec", True)):
+            t_track, xy_track = dead_reckon(steps, wp_xy[0], float(first.abs_heading_rad[0]),
+                                            start_t_s=float(wp_t[0]), use_abs_heading=use_abs)
+            at = np.column_stack([np.interp(wp_t, t_track, xy_track[:, j]) for j in range(2)])
+            pdr_err[name] = np.linalg.norm(at - wp_xy, axis=1)[1:].tolist()
     return {
         "trace": f"{path.parent.parent.name}/{recording.name}",
+        "pdr_only_err_m": pdr_err,
         "polyline_m": polyline_m,
         "duration_s": float(wp_t[-1] - wp_t[0]),
         "n_steps": int(np.sum(in_span)),
@@ -109,8 +119,15 @@ def summarise(rows: list[dict], config: PDRConfig) -> dict:
     offsets = np.concatenate([r["abs_offset_rad"] for r in rows])
     offset_mean = np.angle(np.mean(np.exp(1j * offsets)))
     offset_dev = np.degrees(np.abs(wrap_angle(offsets - offset_mean)))
+    pdr_only = {}
+    for name in ("gyro", "rotvec"):
+        e = np.concatenate([r["pdr_only_err_m"].get(name, []) for r in rows])
+        if e.size:
+            pdr_only[name] = {"n_waypoints": int(e.size), "mean_m": float(e.mean()), "median_m": float(np.median(e)),
+                              "p75_m": float(np.percentile(e, 75)), "p90_m": float(np.percentile(e, 90))}
     return {
         "n_traces": len(rows),
+        "pdr_only": pdr_only,
         "config": dataclasses.asdict(config),
         "weinberg_k_all": float(poly.sum() / unit.sum()),
         "weinberg_k_loo_range": [float(k_loo.min()), float(k_loo.max())],
@@ -155,6 +172,10 @@ def markdown(rows: list[dict], summary: dict) -> str:
             f"Rotation-vector heading minus leg direction over {a['n_legs']} legs: offset "
             f"{a['offset_deg']:.1f} deg, median |deviation| {a['median_abs_dev_deg']:.1f} deg, "
             f"{100 * a['share_legs_within_20deg']:.0f} % of legs within 20 deg of the offset.",
+            *[f"PDR only from the first waypoint, heading from {name} (start: rotation vector), "
+              f"Weinberg lengths: error at the other {d['n_waypoints']} waypoints mean {d['mean_m']:.2f} m, "
+              f"median {d['median_m']:.2f} m, 75th pct {d['p75_m']:.2f} m, 90th pct {d['p90_m']:.2f} m."
+              for name, d in summary["pdr_only"].items()],
             f"Weinberg K over all traces {summary['weinberg_k_all']:.3f} (LOO range "
             f"{summary['weinberg_k_loo_range'][0]:.3f}-{summary['weinberg_k_loo_range'][1]:.3f}); "
             f"fitted fixed length {summary['fixed_length_all_m']:.3f} m."]
