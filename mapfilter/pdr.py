@@ -292,11 +292,15 @@ def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
     return (np.asarray(angle_rad) + np.pi) % (2 * np.pi) - np.pi
 
 
-def steps_between(steps: Steps, t0_s: float, t1_s: float, use_abs_heading: bool = False) -> StepInterval:
+def steps_between(steps: Steps, t0_s: float, t1_s: float, use_abs_heading: bool = False,
+                  with_step_length: bool = True) -> StepInterval:
     """Steps in the half-open interval (t0_s, t1_s], summarised for one filter update.
 
     ``heading_change_rad`` is the sum of the per-step changes, i.e. the gyro heading at the
     interval's last step minus that at the step before the interval (zero if no step).
+    ``use_abs_heading`` fills ``heading_abs_rad`` with the rotation-vector heading at the last
+    step. ``with_step_length=False`` leaves ``step_length_m`` None, so that ``PDRMotion`` walks
+    its per-particle adaptive step length (thesis eq. 8.23) instead of the Weinberg mean.
     """
     i0, i1 = np.searchsorted(steps.t_s, [t0_s, t1_s], side="right")
     n = int(i1 - i0)
@@ -309,18 +313,22 @@ def steps_between(steps: Steps, t0_s: float, t1_s: float, use_abs_heading: bool 
         n_steps=n,
         heading_change_rad=float(np.sum(steps.heading_change_rad[i0:i1])),
         heading_abs_rad=abs_heading,
-        step_length_m=float(np.mean(steps.step_length_m[i0:i1])),
+        step_length_m=float(np.mean(steps.step_length_m[i0:i1])) if with_step_length else None,
     )
 
 
-def to_step_inputs(steps: Steps, t_s: np.ndarray, use_abs_heading: bool = False) -> list[StepInterval]:
+def to_step_inputs(steps: Steps, t_s: np.ndarray, use_abs_heading: bool = False,
+                   with_step_length: bool = True) -> list[StepInterval]:
     """One ``StepInterval`` per filter interval (t_s[i-1], t_s[i]]; the first covers (-inf, t_s[0]].
 
     Each maps one-to-one onto the filter's ``StepInput(n_steps, heading_change_rad,
     heading_abs_rad, step_length_m)``: ``StepInput(**dataclasses.asdict(interval))``.
+    ``to_step_inputs(steps, steps.t_s)`` gives one interval per detected step. Options as in
+    ``steps_between``.
     """
     edges = np.concatenate([[-np.inf], np.asarray(t_s, dtype=np.float64)])
-    return [steps_between(steps, edges[i], edges[i + 1], use_abs_heading) for i in range(len(edges) - 1)]
+    return [steps_between(steps, edges[i], edges[i + 1], use_abs_heading, with_step_length)
+            for i in range(len(edges) - 1)]
 
 
 def dead_reckon(steps: Steps, start_xy_m: np.ndarray, start_heading_rad: float | None,

@@ -237,6 +237,10 @@ def test_steps_between_and_to_step_inputs_partition_the_steps():
             assert interval.step_length_m == pytest.approx(0.7)
         else:
             assert interval.heading_change_rad == 0.0
+    per_step = pdr.to_step_inputs(steps, t, with_step_length=False)
+    assert [s.n_steps for s in per_step] == [1] * 50
+    assert all(s.step_length_m is None and s.heading_abs_rad is None for s in per_step)
+    assert [s.heading_change_rad for s in per_step] == pytest.approx(steps.heading_change_rad)
     empty = pdr.steps_between(steps, 100.0, 101.0)
     assert (empty.n_steps, empty.heading_change_rad, empty.heading_abs_rad) == (0, 0.0, None)
 
@@ -246,6 +250,10 @@ def test_step_interval_maps_onto_the_filter_step_input():
     interval = pdr.StepInterval(n_steps=3, heading_change_rad=0.2, heading_abs_rad=None, step_length_m=0.65)
     step_input = motion.StepInput(**dataclasses.asdict(interval))
     assert (step_input.n_steps, step_input.heading_change_rad, step_input.step_length_m) == (3, 0.2, 0.65)
+    # the per-particle step-length prior the filter starts from is within PDRMotion's bounds
+    config, model = pdr.PDRConfig(), motion.PDRMotion()
+    assert model.step_length_min_m < config.step_length_m - 2 * config.step_length_std_m
+    assert config.step_length_m + 2 * config.step_length_std_m < model.step_length_max_m
 
 
 def test_dead_reckon_walks_a_square():
@@ -312,3 +320,22 @@ def test_dead_reckon_from_a_start_time_and_along_the_absolute_heading():
     no_rotvec = dataclasses.replace(steps, abs_heading_rad=None)
     with pytest.raises(MapfilterError, match="rotation vector"):
         pdr.dead_reckon(no_rotvec, [0.0, 0.0], None, use_abs_heading=True)
+
+
+def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1):
+    """The filter's PDRMotion, noise off, fed one StepInput per detected step = dead_reckon."""
+    motion = pytest.importorskip("mapfilter.filter.motion")
+    from mapfilter.filter.particles import Particles
+
+    rec = read_ilc(ilc_site1 / "F1" / "path_data_files" / "5dd9e7c29191710006b57061.txt.gz")
+    steps = pdr.detect_steps(rec)
+    model = motion.PDRMotion(heading_sigma_rad=0.0, false_turn_fraction=0.0, position_sigma_m=0.0,
+                             step_length_input_sigma_m=0.0, step_length_walk_sigma_m=0.0)
+    start_xy, start_heading = np.array([10.0, 20.0]), 0.4
+    # dead_reckon walks the first step along start_heading; the filter adds that step's change
+    particles = Particles.at(start_xy[None, :], heading_rad=start_heading - steps.heading_change_rad[0])
+    rng = np.random.default_rng(0)
+    for interval in pdr.to_step_inputs(steps, steps.t_s):
+        particles = model.propagate(particles, motion.StepInput(**dataclasses.asdict(interval)), 0.5, rng)
+    _, xy = pdr.dead_reckon(steps, start_xy, start_heading)
+    assert particles.xy_m[0] == pytest.approx(xy[-1], abs=1e-6)
