@@ -1,0 +1,174 @@
+"""``mapfilter map prepare|import-ilc``: floor plans -> wall-mask maps (YAML + mask + preview)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from mapfilter import mapprep
+from mapfilter.errors import MapfilterError
+
+_PREPARE_EPILOG = """\
+kinds:
+  lines    dark walls on light paper (scans, CAD exports): threshold, close small gaps,
+           drop text and specks, optionally thicken; outside the building becomes wall
+  regions  filled-region plans (e.g. ILC floor_image.png): --walkable colours are free,
+           everything else wall (after --open-outlines / --remove-below clean-up)
+  geojson  vector floor: first 'floor' feature (else the first) = outline, the other
+           polygons = obstacles; outside the outline is wall (--resolution = output m/px)
+
+scale (give one or more; they must agree within 2 %):
+  --resolution M                 metres per plan pixel
+  --size W H                     real width and height of the whole plan in metres
+  --scale-points U1 V1 U2 V2 --scale-distance M
+                                 two image points (column, row) and their real distance
+
+edits file (metres, world frame: x right, y up, origin at the plan's lower-left corner):
+  free:                          # forced free, e.g. doors drawn closed
+    - [[10.0, 5.0], [11.0, 5.0], [11.0, 5.3], [10.0, 5.3]]
+  wall:                          # forced wall (applied after 'free')
+    - [[0, 0], [2, 0], [2, 2], [0, 2]]
+  or GeoJSON in metres whose features have properties {"set": "free"|"wall"}.
+
+writes NAME.yaml (ROS map_server), NAME.png (mask: 0 = wall, 254 = free) and
+NAME_preview.png (walls in red over the plan); nothing is written on error.
+
+example:
+  mapfilter map prepare maps/office_plan.png --kind lines --resolution 0.05 \\
+      --map-resolution 0.1 --out maps/office.yaml
+"""
+
+_IMPORT_EPILOG = """\
+FLOOR_DIR holds floor_image.png, floor_info.json ({"map_info": {"width": .., "height": ..}})
+and geojson_map.json (ILC 2.0 layout). Both routes use the ILC metre frame (origin at the
+floor's lower-left corner) and record floor_image.png for display under the mask.
+  image    transparent pixels walkable, shop outlines opened by 2 px, scale from floor_info.json
+  geojson  outline minus shops (shrunk by 0.6 m) rasterised at --resolution (default 0.25 m)
+
+example:
+  mapfilter map import-ilc ../shared/data/ilc20/site1/F1 --out F1.yaml
+"""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("map", help="prepare wall-mask maps from floor plans",
+                                   description="Prepare wall-mask maps from floor plans.")
+    commands = parser.add_subparsers(dest="map_command", metavar="SUBCOMMAND")
+    parser.set_defaults(func=lambda args: _missing_subcommand(parser))
+
+    prepare = commands.add_parser(
+        "prepare", help="a floor plan (line drawing, filled regions or GeoJSON) -> map YAML + mask",
+        description="Turn a floor plan into a wall mask (ROS map_server YAML + PNG) and a preview.",
+        epilog=_PREPARE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    prepare.add_argument("plan", type=Path, metavar="PLAN", help="plan image (PNG, JPEG, PGM, ...) or GeoJSON file")
+    prepare.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output map YAML")
+    prepare.add_argument("--kind", choices=("lines", "regions", "geojson"), default=None,
+                         help="kind of plan (default: geojson for .json/.geojson, else lines)")
+    scale = prepare.add_argument_group("scale")
+    scale.add_argument("--resolution", type=float, metavar="M", help="metres per plan pixel (geojson: per output pixel)")
+    scale.add_argument("--size", type=float, nargs=2, metavar=("W", "H"), help="real width and height of the plan in metres")
+    scale.add_argument("--scale-points", type=float, nargs=4, metavar=("U1", "V1", "U2", "V2"),
+                       help="two image points (column, row) ...")
+    scale.add_argument("--scale-distance", type=float, metavar="M", help="... and their real distance in metres")
+    scale.add_argument("--map-resolution", type=float, metavar="M",
+                       help="metres per pixel of the output mask (default: the plan's own; coarser keeps walls closed)")
+    lines = prepare.add_argument_group("line drawings (--kind lines)")
+    lines.add_argument("--threshold", choices=("otsu", "adaptive"), default="otsu",
+                       help="ink threshold: global Otsu, or adaptive for uneven scans (default: otsu)")
+    lines.add_argument("--close-gaps", type=int, default=3, metavar="PX",
+                       help="close wall gaps narrower than PX plan pixels (0 = off; default: 3)")
+    lines.add_argument("--remove-text", type=int, default=20, metavar="PX",
+                       help="drop ink blobs whose bounding box is shorter than PX (text, specks; default: 20)")
+    lines.add_argument("--thicken", type=int, default=0, metavar="PX", help="dilate walls by PX pixels (default: 0)")
+    lines.add_argument("--keep-outside", action="store_true",
+                       help="keep free space connected to the image border (default: it is outside, so wall)")
+    regions = prepare.add_argument_group("filled-region plans (--kind regions)")
+    regions.add_argument("--walkable", nargs="+", default=["transparent"], metavar="COLOUR",
+                         help="walkable colours: transparent, #rrggbb or r,g,b (default: transparent)")
+    regions.add_argument("--tolerance", type=int, default=24, metavar="N",
+                         help="max per-channel difference to a walkable colour (default: 24)")
+    regions.add_argument("--open-outlines", type=int, default=0, metavar="PX",
+                         help="erode walls by PX pixels along free space (outlines walkable; default: 0)")
+    regions.add_argument("--remove-below", type=int, default=0, metavar="PX",
+                         help="wall blobs of fewer than PX pixels become free (text in corridors; default: 0)")
+    regions.add_argument("--outside-wall", action="store_true",
+                         help="free space connected to the image border becomes wall")
+    vector = prepare.add_argument_group("GeoJSON floors (--kind geojson)")
+    vector.add_argument("--units", choices=("lonlat", "m"), default="lonlat",
+                        help="coordinates: lon/lat (Web Mercator, ILC convention) or metres (default: lonlat)")
+    vector.add_argument("--inset", type=float, default=0.0, metavar="M",
+                        help="shrink obstacle polygons by M metres (default: 0)")
+    prepare.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall (see below)")
+    prepare.add_argument("--floor", metavar="NAME", help="floor name stored in the YAML")
+    prepare.add_argument("--access-points", type=Path, metavar="CSV",
+                         help="access-point table (bssid,x,y,band,C,n,alpha,d_max) referenced from the YAML")
+    prepare.set_defaults(func=run_prepare)
+
+    ilc = commands.add_parser(
+        "import-ilc", help="an ILC 2.0 floor directory -> map YAML + mask in one step",
+        description="Make a map of an ILC (Indoor Location Competition 2.0) floor directory.",
+        epilog=_IMPORT_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ilc.add_argument("floor_dir", type=Path, metavar="FLOOR_DIR", help="e.g. ../shared/data/ilc20/site1/F1")
+    ilc.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output map YAML")
+    ilc.add_argument("--route", choices=("image", "geojson"), default="image",
+                     help="from the floor image or the GeoJSON polygons (default: image)")
+    ilc.add_argument("--resolution", type=float, metavar="M",
+                     help="metres per output pixel (default: the image's ~0.3 m, or 0.25 m for geojson)")
+    ilc.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall")
+    ilc.set_defaults(func=run_import_ilc)
+
+
+def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
+    parser.print_help()
+    return 2
+
+
+def run_prepare(args: argparse.Namespace) -> int:
+    kind = args.kind or ("geojson" if args.plan.suffix.lower() in (".json", ".geojson") else "lines")
+    edits = mapprep.read_edits(args.edits) if args.edits else None
+    if args.access_points is not None and not args.access_points.is_file():
+        raise MapfilterError("file not found", args.access_points)
+    if kind == "geojson":
+        if args.size or args.scale_points or args.scale_distance:
+            raise MapfilterError("a GeoJSON floor is already in real units: give only --resolution (m per pixel)",
+                                 args.plan)
+        plan = mapprep.prepare_geojson(args.plan, args.resolution or args.map_resolution, args.units,
+                                       args.inset, 0.0, args.floor)
+    else:
+        points = None
+        if args.scale_points is not None:
+            u1, v1, u2, v2 = args.scale_points
+            points = ((u1, v1), (u2, v2))
+        scale = mapprep.PlanScale(args.resolution, tuple(args.size) if args.size else None, points,
+                                  args.scale_distance)
+        if kind == "lines":
+            options = mapprep.LineOptions(args.threshold, close_gaps_px=args.close_gaps,
+                                          remove_below_px=args.remove_text, thicken_px=args.thicken,
+                                          outside_is_wall=not args.keep_outside)
+            plan = mapprep.prepare_lines(args.plan, scale, options, args.map_resolution, args.floor)
+        else:
+            options = mapprep.RegionOptions(tuple(args.walkable), args.tolerance, remove_below_px=args.remove_below,
+                                            open_outlines_px=args.open_outlines, outside_is_wall=args.outside_wall)
+            plan = mapprep.prepare_regions(args.plan, scale, options, args.map_resolution, args.floor)
+    if edits is not None:
+        plan = mapprep.apply_edits(plan, edits)
+    if args.access_points is not None:
+        plan.access_points_csv = args.access_points.resolve()
+    _write(plan, args.out)
+    return 0
+
+
+def run_import_ilc(args: argparse.Namespace) -> int:
+    edits = mapprep.read_edits(args.edits) if args.edits else None
+    plan = mapprep.import_ilc(args.floor_dir, args.route, args.resolution)
+    if edits is not None:
+        plan = mapprep.apply_edits(plan, edits)
+    _write(plan, args.out)
+    return 0
+
+
+def _write(plan, out: Path) -> None:
+    written = mapprep.write_map(plan, out)
+    rows, cols = plan.shape_px
+    print(f"wrote {', '.join(str(p) for p in written)}: {cols}x{rows} px at {plan.resolution_m:.4g} m/px, "
+          f"{plan.free_fraction:.1%} free")
