@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -339,3 +340,21 @@ def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1):
         particles = model.propagate(particles, motion.StepInput(**dataclasses.asdict(interval)), 0.5, rng)
     _, xy = pdr.dead_reckon(steps, start_xy, start_heading)
     assert particles.xy_m[0] == pytest.approx(xy[-1], abs=1e-6)
+
+
+def test_report_tool_on_two_real_traces(ilc_site1, tmp_path, capsys):
+    import importlib.util
+    import json
+
+    spec = importlib.util.spec_from_file_location("report_pdr", Path(__file__).parents[1] / "tools" / "report_pdr.py")
+    report = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(report)
+    traces = sorted((ilc_site1 / "F1" / "path_data_files").glob("*.txt.gz"))[:2]
+    out = tmp_path / "pdr.json"
+    assert report.main([str(t) for t in traces] + ["--json", str(out)]) == 0
+    numbers = json.loads(out.read_text())
+    assert numbers["summary"]["n_traces"] == 2 and len(numbers["traces"]) == 2
+    for row in numbers["traces"]:
+        assert 0.7 < row["ratio_weinberg"] < 1.4
+    assert "| step length |" in capsys.readouterr().out
+    assert report.main([str(tmp_path / "missing.txt")]) == 1

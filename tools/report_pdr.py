@@ -30,12 +30,14 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.logs import read_ilc
-from mapfilter.pdr import PDRConfig, dead_reckon, detect_steps, gyro_heading, resample_imu, wrap_angle
+from mapfilter.pdr import (PDRConfig, dead_reckon, detect_steps, gyro_heading, resample_imu,
+                          rotation_vector_heading, wrap_angle)
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ilc20" / "site1"
 TURN_MIN_DEG = 30.0  # a leg pair whose directions differ by more is a "turn"
 TOLERANCE_DEG = 20.0
 TOLERANCE_DIST = 0.10
+LONG_LEG_M = 5.0  # turns between two legs at least this long: the legs' directions are a fair reference
 
 
 def trace_numbers(path: Path, config: PDRConfig) -> dict:
@@ -57,6 +59,14 @@ def trace_numbers(path: Path, config: PDRConfig) -> dict:
     turn_true = np.degrees(wrap_angle(np.diff(leg_dir)))
     turn_gyro = np.degrees(np.diff(gyro_at_mid))
     turn_err = np.degrees(wrap_angle(np.radians(turn_gyro - turn_true)))
+    leg_m = np.linalg.norm(legs, axis=1)
+    # the rotation vector's turn at the same times: an independent check of the gyro (it fuses
+    # the magnetometer too) that does not assume the walker went straight between waypoints
+    rotvec = rotation_vector_heading(grid, config)
+    turn_rotvec_err = np.full(turn_true.shape, np.nan)
+    if rotvec is not None:
+        turn_rotvec = np.degrees(np.diff(np.interp(leg_mid_t, grid.t_s, np.unwrap(rotvec))))
+        turn_rotvec_err = np.degrees(wrap_angle(np.radians(turn_gyro - turn_rotvec)))
 
     # absolute heading offset per leg (steps in the middle half of each leg; legs >= 3 m)
     offsets = []
@@ -89,6 +99,8 @@ def trace_numbers(path: Path, config: PDRConfig) -> dict:
         "turn_true_deg": turn_true.tolist(),
         "turn_gyro_deg": turn_gyro.tolist(),
         "turn_err_deg": turn_err.tolist(),
+        "turn_shorter_leg_m": np.minimum(leg_m[:-1], leg_m[1:]).tolist(),
+        "turn_gyro_minus_rotvec_deg": turn_rotvec_err.tolist(),
         "abs_offset_rad": offsets,
     }
 
@@ -116,6 +128,9 @@ def summarise(rows: list[dict], config: PDRConfig) -> dict:
     true = np.concatenate([r["turn_true_deg"] for r in rows])
     err = np.concatenate([r["turn_err_deg"] for r in rows])
     turn = np.abs(true) >= TURN_MIN_DEG
+    long_legs = turn & (np.concatenate([r["turn_shorter_leg_m"] for r in rows]) >= LONG_LEG_M)
+    vs_rotvec = np.concatenate([r["turn_gyro_minus_rotvec_deg"] for r in rows])[turn]
+    vs_rotvec = vs_rotvec[np.isfinite(vs_rotvec)]
     offsets = np.concatenate([r["abs_offset_rad"] for r in rows])
     offset_mean = np.angle(np.mean(np.exp(1j * offsets)))
     offset_dev = np.degrees(np.abs(wrap_angle(offsets - offset_mean)))
@@ -125,8 +140,22 @@ def summarise(rows: list[dict], config: PDRConfig) -> dict:
         if e.size:
             pdr_only[name] = {"n_waypoints": int(e.size), "mean_m": float(e.mean()), "median_m": float(np.median(e)),
                               "p75_m": float(np.percentile(e, 75)), "p90_m": float(np.percentile(e, 90))}
+    per_floor = {}
+    for floor in sorted({r["trace"].split("/")[0] for r in rows}):
+        of = [r for r in rows if r["trace"].startswith(floor + "/")]
+        f_true = np.concatenate([r["turn_true_deg"] for r in of])
+        f_err = np.concatenate([r["turn_err_deg"] for r in of])
+        f_turn = np.abs(f_true) >= TURN_MIN_DEG
+        per_floor[floor] = {
+            "n_traces": len(of),
+            **{f"share_within_10pct_{name}": float(np.mean([abs(r[f"ratio_{name}"] - 1) <= TOLERANCE_DIST for r in of]))
+               for name in ratios},
+            "n_turns": int(np.sum(f_turn)),
+            "share_turns_within_20deg": float(np.mean(np.abs(f_err[f_turn]) <= TOLERANCE_DEG)),
+        }
     return {
         "n_traces": len(rows),
+        "per_floor": per_floor,
         "pdr_only": pdr_only,
         "config": dataclasses.asdict(config),
         "weinberg_k_all": float(poly.sum() / unit.sum()),
@@ -140,6 +169,11 @@ def summarise(rows: list[dict], config: PDRConfig) -> dict:
             "share_turns_within_20deg": float(np.mean(np.abs(err[turn]) <= TOLERANCE_DEG)),
             "share_all_pairs_within_20deg": float(np.mean(np.abs(err) <= TOLERANCE_DEG)),
             "median_abs_err_turns_deg": float(np.median(np.abs(err[turn]))),
+            "long_leg_m": LONG_LEG_M,
+            "n_turns_long_legs": int(np.sum(long_legs)),
+            "share_turns_long_legs_within_20deg": float(np.mean(np.abs(err[long_legs]) <= TOLERANCE_DEG)),
+            "share_turns_gyro_vs_rotvec_within_20deg": float(np.mean(np.abs(vs_rotvec) <= TOLERANCE_DEG)),
+            "median_abs_gyro_vs_rotvec_deg": float(np.median(np.abs(vs_rotvec))),
         },
         "abs_heading": {
             "n_legs": int(offsets.size),
@@ -164,11 +198,21 @@ def markdown(rows: list[dict], summary: dict) -> str:
     for name, d in summary["distance"].items():
         out.append(f"| {name} | {d['median_ratio']:.3f} | {d['p10_ratio']:.3f} | {d['p90_ratio']:.3f} "
                    f"| {100 * d['share_within_10pct']:.0f} % |")
+    out += ["", "| floor | traces | within +/-10 %: fixed / Weinberg / Weinberg LOO / fixed LOO | turns | turns within 20 deg |",
+            "| --- | ---: | --- | ---: | ---: |"]
+    for floor, f in summary["per_floor"].items():
+        shares = " / ".join(f"{100 * f[f'share_within_10pct_{n}']:.0f} %" for n in summary["distance"])
+        out.append(f"| {floor} | {f['n_traces']} | {shares} | {f['n_turns']} | {100 * f['share_turns_within_20deg']:.0f} % |")
     t, a = summary["turns"], summary["abs_heading"]
     out += ["",
             f"Turns (leg pairs turning >= {t['turn_min_deg']:.0f} deg): {t['n_turns']}, within 20 deg: "
             f"{100 * t['share_turns_within_20deg']:.0f} % (median |error| {t['median_abs_err_turns_deg']:.1f} deg); "
-            f"all {t['n_leg_pairs']} leg pairs within 20 deg: {100 * t['share_all_pairs_within_20deg']:.0f} %.",
+            f"all {t['n_leg_pairs']} leg pairs within 20 deg: {100 * t['share_all_pairs_within_20deg']:.0f} %; "
+            f"turns between legs >= {t['long_leg_m']:.0f} m: {t['n_turns_long_legs']}, within 20 deg: "
+            f"{100 * t['share_turns_long_legs_within_20deg']:.0f} %.",
+            f"Gyro turn vs rotation-vector turn at the same times: median |difference| "
+            f"{t['median_abs_gyro_vs_rotvec_deg']:.1f} deg, within 20 deg on "
+            f"{100 * t['share_turns_gyro_vs_rotvec_within_20deg']:.0f} % of the turns.",
             f"Rotation-vector heading minus leg direction over {a['n_legs']} legs: offset "
             f"{a['offset_deg']:.1f} deg, median |deviation| {a['median_abs_dev_deg']:.1f} deg, "
             f"{100 * a['share_legs_within_20deg']:.0f} % of legs within 20 deg of the offset.",
