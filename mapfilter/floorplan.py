@@ -178,8 +178,12 @@ class FloorPlan:
             raise MapfilterError(f"'origin' must be [x, y, yaw] numbers, got {origin!r}", yaml_path)
         if len(origin) == 3 and abs(float(origin[2])) > 1e-9:
             raise MapfilterError(f"a rotated map (origin yaw {origin[2]}) is not supported", yaml_path)
-        occupied_thresh = float(meta.get("occupied_thresh", DEFAULT_OCCUPIED_THRESH))
-        free_thresh = float(meta.get("free_thresh", DEFAULT_FREE_THRESH))
+        occupied_thresh = meta.get("occupied_thresh", DEFAULT_OCCUPIED_THRESH)
+        free_thresh = meta.get("free_thresh", DEFAULT_FREE_THRESH)
+        if not (_is_number(occupied_thresh) and _is_number(free_thresh)):
+            raise MapfilterError(f"thresholds must be numbers, got occupied_thresh {occupied_thresh!r}, "
+                                 f"free_thresh {free_thresh!r}", yaml_path)
+        occupied_thresh, free_thresh = float(occupied_thresh), float(free_thresh)
         if not 0.0 <= free_thresh <= occupied_thresh <= 1.0:
             raise MapfilterError(
                 f"thresholds must satisfy 0 <= free_thresh ({free_thresh}) <= occupied_thresh ({occupied_thresh}) <= 1",
@@ -208,6 +212,8 @@ class FloorPlan:
         source = None
         if ours.get("source_image"):
             src_origin = ours.get("source_origin", origin[:2])
+            if not (isinstance(src_origin, list) and len(src_origin) >= 2 and all(_is_number(v) for v in src_origin[:2])):
+                raise MapfilterError(f"'source_origin' must be [x, y] numbers, got {src_origin!r}", yaml_path)
             source = SourceImage(
                 path=_resolve(yaml_path, ours["source_image"]),
                 resolution_m=_positive_float(ours.get("source_resolution", resolution), "source_resolution", yaml_path),

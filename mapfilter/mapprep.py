@@ -182,7 +182,7 @@ def prepare_lines(
     if options.thicken_px > 0:
         ink = _dilate(ink, options.thicken_px)
     if options.outside_is_wall:
-        ink = _fill_outside(ink)
+        ink = _fill_outside(ink, plan_path)
     return _finish(ink, resolution_m, map_resolution_m, plan_path, floor_name)
 
 
@@ -223,12 +223,17 @@ def _remove_small_areas(mask: np.ndarray, below_px: int) -> np.ndarray:
     return keep[labels]
 
 
-def _fill_outside(wall: np.ndarray) -> np.ndarray:
+def _fill_outside(wall: np.ndarray, path: Path | None = None) -> np.ndarray:
     """Mark free space 4-connected to the image border as wall (outside the building)."""
     count, labels = cv2.connectedComponents((~wall).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     outside = np.isin(labels, border[border > 0])
-    return wall | outside
+    filled = wall | outside
+    if filled.all() and not wall.all():
+        raise MapfilterError(
+            "all free space is connected to the image border, so it all counts as outside: the outer wall has "
+            "an opening (close it with --edits, or keep the outside free with --keep-outside)", path)
+    return filled
 
 
 def _finish(
@@ -354,7 +359,7 @@ def prepare_regions(
     if options.open_outlines_px > 0:
         wall = _erode(wall, options.open_outlines_px)
     if options.outside_is_wall:
-        wall = _fill_outside(wall)
+        wall = _fill_outside(wall, plan_path)
     return _finish(wall, resolution_m, map_resolution_m, plan_path, floor_name)
 
 
