@@ -1,0 +1,79 @@
+"""``mapfilter radiomap build|fit-aps``: radio map and access-point table from survey logs."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from mapfilter.errors import MapfilterError
+from mapfilter.floorplan import FloorPlan
+from mapfilter.logs import read_ilc
+from mapfilter.radiomap import build_radio_map
+from mapfilter.wifi import ApFitConfig, estimate_access_points
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("radiomap", help="build a WiFi radio map or fit access points from survey logs",
+                                   description="Radio maps (fingerprint databases) and access-point tables "
+                                               "from survey logs with waypoints (ILC trace format, .gz ok).")
+    sub = parser.add_subparsers(dest="radiomap_command", metavar="SUBCOMMAND", required=True)
+
+    def common(p: argparse.ArgumentParser) -> None:
+        p.add_argument("map", type=Path, metavar="MAP", help="floor map YAML (ROS map_server)")
+        p.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="survey logs with waypoints")
+        p.add_argument("--exclude", action="append", default=[], metavar="TRACE",
+                       help="leave out a log, by file name or trace id (repeatable)")
+        p.add_argument("--max-wifi-age", type=float, default=5.0, metavar="S",
+                       help="drop WiFi rows last seen more than S seconds before their scan (default 5)")
+
+    build = sub.add_parser("build", help="build a radio map (.npz)")
+    common(build)
+    build.add_argument("--out", type=Path, required=True, metavar="RADIOMAP", help="output radio map (.npz)")
+    build.set_defaults(func=run_build)
+
+    fit = sub.add_parser("fit-aps", help="estimate access-point positions and path-loss parameters (CSV)")
+    common(fit)
+    fit.add_argument("--out", type=Path, required=True, metavar="APS_CSV",
+                     help="output table bssid,x,y,band,C,n,alpha,d_max")
+    fit.add_argument("--min-observations", type=int, default=ApFitConfig.min_observations, metavar="N",
+                     help=f"fit only APs heard in N labelled scans (default {ApFitConfig.min_observations})")
+    fit.set_defaults(func=run_fit_aps)
+
+
+def _load(args: argparse.Namespace):
+    floorplan = FloorPlan.load(args.map)
+    excluded = set(args.exclude)
+    paths = [p for p in args.logs if not excluded & {p.name, _trace_id(p)}]
+    unused = excluded - {n for p in args.logs for n in (p.name, _trace_id(p))}
+    if unused:
+        raise MapfilterError(f"--exclude {sorted(unused)[0]!r} matches none of the logs")
+    if not paths:
+        raise MapfilterError("every log is excluded: nothing to build from")
+    return floorplan, [read_ilc(p, max_wifi_age_s=args.max_wifi_age) for p in paths]
+
+
+def _trace_id(path: Path) -> str:
+    name = path.name
+    for suffix in (".gz", ".txt"):
+        name = name.removesuffix(suffix)
+    return name
+
+
+def run_build(args: argparse.Namespace) -> int:
+    floorplan, recordings = _load(args)
+    radio_map = build_radio_map(recordings, floorplan)
+    radio_map.save(args.out)
+    print(f"radio map: {len(radio_map)} reference points, {len(radio_map.ap_keys)} access points "
+          f"from {len(recordings)} logs -> {args.out}")
+    return 0
+
+
+def run_fit_aps(args: argparse.Namespace) -> int:
+    if args.min_observations < 3:
+        raise MapfilterError(f"--min-observations must be at least 3 (4 parameters per AP), got {args.min_observations}")
+    floorplan, recordings = _load(args)
+    table = estimate_access_points(build_radio_map(recordings, floorplan),
+                                   ApFitConfig(min_observations=args.min_observations))
+    table.write_csv(args.out)
+    print(f"access points: {len(table)} fitted from {len(recordings)} logs -> {args.out}")
+    return 0

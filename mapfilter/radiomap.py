@@ -1,0 +1,492 @@
+"""Radio map (WiFi fingerprint database): building, saving, KWNN fixes, per-particle likelihood.
+
+A radio map is a set of reference points, each a WiFi scan labelled with the position where
+it was taken. Survey logs with waypoints give the labels: a scan's position is interpolated
+linearly in time between the waypoints around it (the walker went roughly straight between
+consecutive waypoints); scans before the first or after the last waypoint are dropped.
+
+File format (``.npz``, numpy's zip of arrays, written compressed)
+------------------------------------------------------------------
+========================  =========================  ================================================
+key                       dtype, shape               meaning
+========================  =========================  ================================================
+``format``                str scalar                 ``"mapfilter-radiomap"``
+``version``               int64 scalar               ``1``
+``xy_m``                  float64 (P, 2)             reference-point positions, world metres
+``t_s``                   float64 (P,)               scan times, Unix seconds
+``trace``                 int64 (P,)                 index into ``source_traces`` of each point
+``ap_keys``               str (K,)                   ``"bssid@2.4"`` / ``"bssid@5"``
+``rssi_dbm``              float32 (P, K)             RSSI; NaN = the AP was not heard in that scan
+``source_traces``         str (T,)                   names of the survey logs (trace ids)
+``floor_name``            str scalar                 floor label, ``""`` if unknown
+========================  =========================  ================================================
+
+Nothing in the file is pickled (``allow_pickle=False`` on load).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import zipfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from mapfilter.atomic import atomic_paths
+from mapfilter.errors import MapfilterError
+from mapfilter.floorplan import FloorPlan
+from mapfilter.logs.recording import Recording
+from mapfilter.wifi import WifiScan
+
+FORMAT_NAME = "mapfilter-radiomap"
+FORMAT_VERSION = 1
+
+
+@dataclasses.dataclass(eq=False)
+class RadioMap:
+    """Reference points (labelled WiFi scans) of one floor.
+
+    Attributes
+    ----------
+    xy_m : (P, 2) float64 reference positions.
+    ap_keys : K access-point keys ("bssid@band").
+    rssi_dbm : (P, K) float32, NaN where the AP was not heard.
+    t_s : (P,) scan times.
+    trace : (P,) index into ``source_traces``.
+    source_traces : names of the survey logs the points came from.
+    floor_name : floor label or None.
+    """
+
+    xy_m: np.ndarray
+    ap_keys: list[str]
+    rssi_dbm: np.ndarray
+    t_s: np.ndarray
+    trace: np.ndarray
+    source_traces: list[str]
+    floor_name: str | None = None
+
+    def __post_init__(self) -> None:
+        self.xy_m = np.asarray(self.xy_m, dtype=np.float64).reshape(-1, 2)
+        self.rssi_dbm = np.asarray(self.rssi_dbm, dtype=np.float32).reshape(self.xy_m.shape[0], len(self.ap_keys))
+        self.t_s = np.asarray(self.t_s, dtype=np.float64)
+        self.trace = np.asarray(self.trace, dtype=np.int64)
+        self.ap_keys = list(self.ap_keys)
+        self.source_traces = list(self.source_traces)
+
+    def __len__(self) -> int:
+        return self.xy_m.shape[0]
+
+    @property
+    def key_index(self) -> dict[str, int]:
+        """Column of each AP key."""
+        index = getattr(self, "_key_index", None)
+        if index is None or len(index) != len(self.ap_keys):
+            index = {key: j for j, key in enumerate(self.ap_keys)}
+            self._key_index = index
+        return index
+
+    def scan_vector(self, scan: WifiScan) -> np.ndarray:
+        """The scan as a (K,) float32 row over this map's APs (NaN = not heard); other APs dropped."""
+        row = np.full(len(self.ap_keys), np.nan, dtype=np.float32)
+        index = self.key_index
+        for key, value in zip(scan.ap_keys, scan.rssi_dbm):
+            j = index.get(key)
+            if j is not None:
+                row[j] = max(value, row[j]) if not np.isnan(row[j]) else value
+        return row
+
+    def scan_matrix(self, scans: Sequence[WifiScan]) -> np.ndarray:
+        """(S, K) float32 matrix of scans over this map's APs (NaN = not heard)."""
+        return np.stack([self.scan_vector(s) for s in scans]) if scans else np.empty((0, len(self.ap_keys)), np.float32)
+
+    def select(self, keep: np.ndarray) -> RadioMap:
+        """A new radio map with the reference points where ``keep`` is True (all APs kept)."""
+        keep = np.asarray(keep)
+        return RadioMap(self.xy_m[keep], self.ap_keys, self.rssi_dbm[keep], self.t_s[keep], self.trace[keep],
+                        self.source_traces, self.floor_name)
+
+    def without_traces(self, names: Sequence[str]) -> RadioMap:
+        """A new radio map without the points of the named source traces (leave-one-trace-out)."""
+        drop = [i for i, t in enumerate(self.source_traces) if t in set(names)]
+        return self.select(~np.isin(self.trace, drop))
+
+    # ---- files ----------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the radio map as a compressed ``.npz`` (format in the module docstring), atomically."""
+        with atomic_paths(path) as (tmp,):
+            with tmp.open("wb") as handle:
+                np.savez_compressed(
+                    handle, format=np.array(FORMAT_NAME), version=np.array(FORMAT_VERSION, dtype=np.int64),
+                    xy_m=self.xy_m, t_s=self.t_s, trace=self.trace, ap_keys=np.array(self.ap_keys, dtype=str),
+                    rssi_dbm=self.rssi_dbm, source_traces=np.array(self.source_traces, dtype=str),
+                    floor_name=np.array(self.floor_name or ""),
+                )
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> RadioMap:
+        """Read a radio map written by ``save``; ``MapfilterError`` on anything else."""
+        path = Path(path)
+        if not path.is_file():
+            raise MapfilterError("file not found", path)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {key: data[key] for key in data.files}
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+            raise MapfilterError(f"not a radio map file (.npz): {exc}", path) from None
+        if str(arrays.get("format", "")) != FORMAT_NAME:
+            raise MapfilterError(f"not a radio map file: no format key {FORMAT_NAME!r}", path)
+        version = int(arrays.get("version", -1))
+        if version != FORMAT_VERSION:
+            raise MapfilterError(f"radio map format version {version} is not supported (this is {FORMAT_VERSION})", path)
+        missing = {"xy_m", "t_s", "trace", "ap_keys", "rssi_dbm", "source_traces"} - set(arrays)
+        if missing:
+            raise MapfilterError(f"radio map lacks the arrays {sorted(missing)}", path)
+        xy, rssi, keys = arrays["xy_m"], arrays["rssi_dbm"], arrays["ap_keys"]
+        p = xy.shape[0] if xy.ndim == 2 else -1
+        if (xy.ndim != 2 or xy.shape[1] != 2 or rssi.shape != (p, keys.shape[0]) or arrays["t_s"].shape != (p,)
+                or arrays["trace"].shape != (p,)):
+            raise MapfilterError(f"radio map arrays disagree in shape: xy_m {xy.shape}, rssi_dbm {rssi.shape}, "
+                                 f"ap_keys {keys.shape}", path)
+        if not np.all(np.isfinite(xy)):
+            raise MapfilterError("radio map has non-finite reference positions", path)
+        traces = [str(t) for t in arrays["source_traces"]]
+        if p and (arrays["trace"].min() < 0 or arrays["trace"].max() >= len(traces)):
+            raise MapfilterError("radio map trace indices out of range", path)
+        floor = str(arrays.get("floor_name", ""))
+        return cls(xy, [str(k) for k in keys], rssi, arrays["t_s"], arrays["trace"], traces, floor or None)
+
+
+# ---- building ---------------------------------------------------------------------------------
+def label_scans(recording: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """Positions of a recording's scans interpolated linearly in time between waypoints.
+
+    Returns ``(xy_m, inside)``: (S, 2) positions and (S,) True for scans within the
+    waypoint time span (the others get NaN and must be dropped).
+    ``MapfilterError`` if the log has fewer than two waypoints.
+    """
+    if recording.waypoint_t_s.shape[0] < 2:
+        raise MapfilterError("the log has fewer than two waypoints: its scans cannot be labelled with positions",
+                             recording.path)
+    t = recording.wifi.t_s
+    wp_t, wp_xy = recording.waypoint_t_s, recording.waypoint_xy_m
+    inside = (t >= wp_t[0]) & (t <= wp_t[-1])
+    xy = np.full((t.shape[0], 2), np.nan)
+    xy[inside, 0] = np.interp(t[inside], wp_t, wp_xy[:, 0])
+    xy[inside, 1] = np.interp(t[inside], wp_t, wp_xy[:, 1])
+    return xy, inside
+
+
+def build_radio_map(recordings: Sequence[Recording], floorplan: FloorPlan | None = None,
+                    min_aps_per_scan: int = 1) -> RadioMap:
+    """Radio map from survey logs with waypoints (module docstring: labelling).
+
+    Parameters
+    ----------
+    recordings : survey logs of one floor; each needs waypoints and WiFi scans.
+    floorplan : optional; gives the floor name if the logs do not.
+    min_aps_per_scan : scans hearing fewer APs are dropped.
+
+    ``MapfilterError`` naming the log if one has no waypoints or no WiFi, or if no scan
+    falls in a waypoint span.
+    """
+    if not recordings:
+        raise MapfilterError("no survey logs given for the radio map")
+    keys: dict[str, int] = {}
+    blocks = []  # (xy, t, trace, rows, cols, rssi)
+    for trace, rec in enumerate(recordings):
+        if len(rec.wifi) == 0:
+            raise MapfilterError("the log has no usable WiFi scans", rec.path)
+        xy, inside = label_scans(rec)
+        heard_count = np.bincount(rec.wifi.row_scan, minlength=len(rec.wifi))
+        keep = inside & (heard_count >= min_aps_per_scan)
+        scan_ids = np.nonzero(keep)[0]
+        new_row = np.full(len(rec.wifi), -1, dtype=np.int64)
+        new_row[scan_ids] = np.arange(scan_ids.size)
+        col_of = np.array([keys.setdefault(k, len(keys)) for k in rec.wifi.ap_keys], dtype=np.int64)
+        r = new_row[rec.wifi.row_scan]
+        use = r >= 0
+        blocks.append((xy[scan_ids], rec.wifi.t_s[scan_ids], np.full(scan_ids.size, trace), r[use],
+                       col_of[rec.wifi.row_ap[use]], rec.wifi.rssi_dbm[use]))
+    total = sum(b[0].shape[0] for b in blocks)
+    if total == 0:
+        raise MapfilterError("no WiFi scan of the survey logs falls between two waypoints: empty radio map")
+    rssi = np.full((total, len(keys)), np.nan, dtype=np.float32)
+    offset = 0
+    for xy, _, _, r, c, v in blocks:
+        rssi[offset + r, c] = v
+        offset += xy.shape[0]
+    floor = next((rec.floor_name for rec in recordings if rec.floor_name), None)
+    if floor is None and floorplan is not None:
+        floor = floorplan.floor_name
+    return RadioMap(
+        xy_m=np.concatenate([b[0] for b in blocks]), ap_keys=list(keys), rssi_dbm=rssi,
+        t_s=np.concatenate([b[1] for b in blocks]), trace=np.concatenate([b[2] for b in blocks]),
+        source_traces=[rec.name for rec in recordings], floor_name=floor,
+    )
+
+
+# ---- KWNN (Chang et al.) -------------------------------------------------------------------------
+class KwnnFix(NamedTuple):
+    """A KWNN position fix and how it was made."""
+
+    xy_m: np.ndarray  # (2,) or (S, 2); NaN where no fix could be made
+    neighbours: np.ndarray  # (k,) or (S, k) reference-point indices, -1 = none
+    distance_db: np.ndarray  # signal-space distances of those neighbours
+    n_shared_aps: np.ndarray  # APs the scan shares with the radio map (scalar or (S,))
+
+
+@njit(cache=True, parallel=True)
+def _signal_distances(scans, refs, p, missing_dbm, out_dist, out_shared):
+    """Minkowski-p signal distance between every scan and reference point (NaN = not heard)."""
+    n_scans, n_aps = scans.shape
+    n_refs = refs.shape[0]
+    for s in prange(n_scans):
+        for r in range(n_refs):
+            acc = 0.0
+            shared = 0
+            for k in range(n_aps):
+                a = scans[s, k]
+                b = refs[r, k]
+                a_heard = not math.isnan(a)
+                b_heard = not math.isnan(b)
+                if not (a_heard or b_heard):
+                    continue  # heard by neither: both would be missing_dbm, contributes 0
+                if a_heard and b_heard:
+                    shared += 1
+                else:  # heard by one side only: the other side gets missing_dbm explicitly
+                    if not a_heard:
+                        a = missing_dbm
+                    if not b_heard:
+                        b = missing_dbm
+                acc += abs(a - b) ** p
+            out_dist[s, r] = acc ** (1.0 / p)
+            out_shared[s, r] = shared
+
+
+def kwnn_fix_many(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4, p: float = 2.0, q: float = 2.0,
+                  missing_dbm: float = -100.0, min_shared_aps: int = 3) -> KwnnFix:
+    """KWNN fixes for many scans given as an (S, K) matrix over the radio map's APs (NaN = not heard).
+
+    Signal distance (Chang et al.): D = (sum_k |r_k - f_k|^p)^(1/p) over the APs heard by the
+    scan or the reference point, an AP missing on one side taking ``missing_dbm``. Only
+    reference points sharing at least ``min_shared_aps`` heard APs with the scan are
+    candidates; the fix is sum_i w_i x_i / sum_i w_i over the k nearest, w_i = 1 / D_i^q.
+    Scans without any candidate get a NaN fix.
+    """
+    if k < 1 or p <= 0 or q < 0:
+        raise MapfilterError(f"KWNN needs k >= 1, p > 0, q >= 0; got k={k}, p={p}, q={q}")
+    scans = np.ascontiguousarray(scan_rssi_dbm, dtype=np.float64)
+    if scans.ndim != 2 or scans.shape[1] != len(radio_map.ap_keys):
+        raise MapfilterError(f"scan matrix has shape {scans.shape}, expected (S, {len(radio_map.ap_keys)})")
+    refs = np.ascontiguousarray(radio_map.rssi_dbm, dtype=np.float64)
+    n_scans, n_refs = scans.shape[0], refs.shape[0]
+    dist = np.empty((n_scans, n_refs))
+    shared = np.empty((n_scans, n_refs), dtype=np.int64)
+    _signal_distances(scans, refs, float(p), float(missing_dbm), dist, shared)
+    n_shared_aps = np.count_nonzero(~np.isnan(scans), axis=1)
+    dist[shared < max(min_shared_aps, 1)] = np.inf
+    kk = min(k, n_refs)
+    order = np.argsort(dist, axis=1, kind="stable")[:, :kk]
+    d_nn = np.take_along_axis(dist, order, axis=1)
+    valid = np.isfinite(d_nn)
+    # an exact match (D = 0) takes all the weight instead of dividing by zero
+    weight = np.where(valid, 1.0 / np.maximum(d_nn, 1e-9) ** q, 0.0)
+    total = weight.sum(axis=1)
+    xy = np.full((n_scans, 2), np.nan)
+    ok = total > 0
+    xy[ok] = (weight[ok, :, None] * radio_map.xy_m[order[ok]]).sum(axis=1) / total[ok, None]
+    return KwnnFix(xy, np.where(valid, order, -1), np.where(valid, d_nn, np.nan), n_shared_aps)
+
+
+def kwnn_fix(radio_map: RadioMap, scan_keys: Sequence[str], scan_rssi_dbm: np.ndarray, k: int = 4, p: float = 2.0,
+             q: float = 2.0, missing_dbm: float = -100.0, min_shared_aps: int = 3) -> KwnnFix:
+    """KWNN fix of one scan (keys and RSSI in dBm); see ``kwnn_fix_many`` for the method.
+
+    APs never in the radio map are ignored. ``MapfilterError`` if the scan shares fewer than
+    ``min_shared_aps`` APs with the radio map (in particular none at all).
+    """
+    row = radio_map.scan_vector(WifiScan(0.0, tuple(scan_keys), np.asarray(scan_rssi_dbm, dtype=np.float32)))
+    n_shared = int(np.count_nonzero(~np.isnan(row)))
+    if n_shared < max(min_shared_aps, 1):
+        raise MapfilterError(f"the scan shares {n_shared} access points with the radio map, "
+                             f"a fingerprint fix needs {max(min_shared_aps, 1)}")
+    fix = kwnn_fix_many(radio_map, row[None, :], k, p, q, missing_dbm, min_shared_aps)
+    if not np.all(np.isfinite(fix.xy_m[0])):
+        raise MapfilterError(f"no reference point shares {min_shared_aps} access points with the scan")
+    return KwnnFix(fix.xy_m[0], fix.neighbours[0], fix.distance_db[0], fix.n_shared_aps[0])
+
+
+# ---- per-particle likelihood from the radio map --------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class RadioMapLikelihoodConfig:
+    """How the radio map is spread over space (defaults in brackets)."""
+
+    cell_m: float = 1.0  # grid cell; particles read their nearest cell
+    bandwidth_m: float = 3.0  # Gaussian kernel sigma for averaging reference points
+    support_sigmas: float = 3.0  # cells farther than this many sigmas from every point: no data
+    sigma_floor_db: float = 4.0  # added in quadrature: the kernel average underestimates spread
+    prior_sigma_db: float = 6.0  # spread where an AP has few observations (pseudo-count below)
+    prior_weight: float = 0.5  # pseudo-count of the prior, in kernel-weight units
+    prior_heard: float = 0.05  # P(heard) where there is no data
+    prior_rssi_dbm: float = -95.0  # mean RSSI assumed where an AP is heard without data there
+    heard_clip: float = 0.02  # P(heard) kept in [clip, 1 - clip]: APs drop out / pop up at random
+    min_observations: int = 2  # APs heard in fewer reference points are ignored
+    min_weight: float = 0.02  # an AP's kernel weight below which a cell keeps the prior (sparsity)
+    exponent: float = 1.0  # tempering: APs are not independent; < 1 flattens the likelihood
+
+
+class RadioMapLikelihood:
+    """Per-particle likelihood of a WiFi scan from the radio map itself (a ``MeasurementModel``).
+
+    On a grid over the floor, each AP's RSSI mean mu_k, spread sigma_k and probability of
+    being heard h_k are Gaussian-kernel averages of the reference points, shrunk toward a
+    weak prior (pseudo-count ``prior_weight``) where data are thin. A scan's log-likelihood
+    at a cell is
+
+        sum_{k heard} [log h_k + log N(r_k; mu_k, sigma_k^2)] + sum_{k not heard} log(1 - h_k)
+
+    over the map's APs. Storage is sparse: an AP's statistics are kept only on the cells
+    near reference points that heard it; elsewhere they equal the prior, which depends on
+    the cell's total kernel weight alone. A scan then costs O(cells + stored cells of the
+    heard APs): a per-cell constant sum_k log(1 - h_k), a vectorised prior term for the
+    heard APs, and sparse corrections. Particles read the value of their cell (nearest
+    lookup); off the grid, on walls or far from all data they get the prior cell's value.
+    """
+
+    def __init__(self, radio_map: RadioMap, floorplan: FloorPlan | None = None,
+                 config: RadioMapLikelihoodConfig = RadioMapLikelihoodConfig()):
+        from scipy.spatial import cKDTree
+
+        cfg = self.config = config
+        heard = ~np.isnan(radio_map.rssi_dbm)
+        use_aps = np.nonzero(heard.sum(axis=0) >= cfg.min_observations)[0]
+        if use_aps.size == 0 or len(radio_map) == 0:
+            raise MapfilterError(f"the radio map has no AP heard in {cfg.min_observations} reference points")
+        self.ap_keys = [radio_map.ap_keys[j] for j in use_aps]
+        self.key_index = {key: j for j, key in enumerate(self.ap_keys)}
+        n_aps = use_aps.size
+        # grid: the floor plan's extent, else the reference points' bounding box plus the kernel support
+        reach = cfg.bandwidth_m * cfg.support_sigmas
+        if floorplan is not None:
+            x0, x1, y0, y1 = floorplan.extent_m
+        else:
+            (x0, y0), (x1, y1) = radio_map.xy_m.min(axis=0) - reach, radio_map.xy_m.max(axis=0) + reach
+        self.origin_m = (float(x0), float(y0))
+        self.shape = (max(int(math.ceil((y1 - y0) / cfg.cell_m)), 1), max(int(math.ceil((x1 - x0) / cfg.cell_m)), 1))
+        rows, cols = np.indices(self.shape)
+        centres = np.column_stack([x0 + (cols.ravel() + 0.5) * cfg.cell_m, y0 + (rows.ravel() + 0.5) * cfg.cell_m])
+        near = cKDTree(radio_map.xy_m).query(centres, distance_upper_bound=reach)[0] < np.inf
+        if floorplan is not None:
+            near &= floorplan.is_free(centres)
+        active = np.nonzero(near)[0]
+        n_cells = active.size
+        self.cell_of = np.full(centres.shape[0], n_cells, dtype=np.int64)  # row n_cells = the prior cell
+        self.cell_of[active] = np.arange(n_cells)
+        self.cell_xy_m = centres[active]
+
+        prior_var = cfg.prior_sigma_db ** 2 + cfg.sigma_floor_db ** 2
+        w_all = np.zeros(n_cells + 1)
+        entries: list[tuple[np.ndarray, ...]] = []  # (ap, cell, mu, var, p_heard) where an AP has data
+        h = heard[:, use_aps].astype(np.float32)
+        r0 = np.where(heard[:, use_aps], radio_map.rssi_dbm[:, use_aps], 0.0).astype(np.float32)
+        r2 = r0 * r0
+        chunk = 1024
+        for start in range(0, n_cells, chunk):
+            c = self.cell_xy_m[start:start + chunk]
+            d2 = ((c[:, None, :] - radio_map.xy_m[None, :, :]) ** 2).sum(axis=-1)
+            w = np.where(d2 <= reach ** 2, np.exp(-0.5 * d2 / cfg.bandwidth_m ** 2), 0.0).astype(np.float32)
+            w_all[start:start + c.shape[0]] = w.sum(axis=1)
+            w_heard = w @ h
+            # below the threshold the prior's pseudo-count dominates: keep the prior there
+            cell_local, ap = np.nonzero(w_heard > cfg.min_weight)
+            wh = w_heard[cell_local, ap].astype(np.float64)
+            s1 = (w @ r0)[cell_local, ap].astype(np.float64)
+            s2 = (w @ r2)[cell_local, ap].astype(np.float64)
+            pw = cfg.prior_weight
+            mu = (s1 + pw * cfg.prior_rssi_dbm) / (wh + pw)
+            # weighted spread around mu, the prior's spread counting as pw pseudo-observations
+            var = (s2 - 2 * mu * s1 + mu * mu * wh + pw * cfg.prior_sigma_db ** 2) / (wh + pw)
+            var = np.maximum(var, 0.0) + cfg.sigma_floor_db ** 2
+            p_heard = (wh + pw * cfg.prior_heard) / (w_all[start + cell_local] + pw)
+            entries.append((ap, start + cell_local, mu, var, p_heard))
+        ap, cell, mu, var, p_heard = (np.concatenate([e[i] for e in entries]) if entries else np.empty(0)
+                                      for i in range(5))
+        ap, cell = ap.astype(np.int64), cell.astype(np.int64)
+        clip = cfg.heard_clip
+        # the prior per cell: an AP never heard near the cell
+        p0 = np.clip(cfg.prior_weight * cfg.prior_heard / (w_all + cfg.prior_weight), clip, 1 - clip)
+        p_heard = np.clip(p_heard, clip, 1 - clip)
+        self._prior_mu_dbm = cfg.prior_rssi_dbm
+        self._prior_inv_var = 1.0 / prior_var
+        self._prior_offset = np.log(p0) - 0.5 * np.log(2 * np.pi * prior_var) - np.log1p(-p0)  # (cells + 1,)
+        # every AP unheard: the prior everywhere, corrected where an AP has data
+        self.base = n_aps * np.log1p(-p0)
+        np.add.at(self.base, cell, np.log1p(-p_heard) - np.log1p(-p0[cell]))
+        # sparse per-AP tables (CSR by AP): log h + log N normaliser - log(1 - h), mean, 1/var
+        order = np.argsort(ap, kind="stable")
+        self._ap_ptr = np.searchsorted(ap[order], np.arange(n_aps + 1))
+        self._cell = cell[order].astype(np.int32)
+        self._mu = mu[order].astype(np.float32)
+        self._inv_var = (1.0 / var[order]).astype(np.float32)
+        self._offset = (np.log(p_heard) - 0.5 * np.log(2 * np.pi * var) - np.log1p(-p_heard))[order].astype(np.float32)
+
+    @property
+    def n_cells(self) -> int:
+        """Active grid cells (the prior cell not counted)."""
+        return self.cell_xy_m.shape[0]
+
+    def grid_log_likelihood(self, scan: WifiScan) -> np.ndarray:
+        """Log-likelihood of the scan at every active cell plus the prior cell, shape (cells + 1,)."""
+        cols, rssi = [], []
+        for key, value in zip(scan.ap_keys, scan.rssi_dbm):
+            j = self.key_index.get(key)
+            if j is not None:
+                cols.append(j)
+                rssi.append(float(value))
+        out = np.zeros(self.n_cells + 1)
+        if not cols:
+            return out  # nothing known heard: no information
+        r = np.array(rssi)
+        # every heard AP at its prior, then the cells where it has data replace that term
+        out += self.base + len(cols) * self._prior_offset
+        out -= 0.5 * self._prior_inv_var * float(((r - self._prior_mu_dbm) ** 2).sum())
+        _add_heard_corrections(out, np.array(cols, dtype=np.int64), r, self._ap_ptr, self._cell, self._mu,
+                               self._inv_var, self._offset, self._prior_offset, self._prior_mu_dbm,
+                               self._prior_inv_var)
+        return self.config.exponent * out
+
+    def cell_index(self, xy_m: np.ndarray) -> np.ndarray:
+        """Row of the grid tables for each point (the prior cell off the grid or without data)."""
+        xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+        col = np.floor((xy[:, 0] - self.origin_m[0]) / self.config.cell_m).astype(np.int64)
+        row = np.floor((xy[:, 1] - self.origin_m[1]) / self.config.cell_m).astype(np.int64)
+        inside = (row >= 0) & (row < self.shape[0]) & (col >= 0) & (col < self.shape[1])
+        flat = np.where(inside, row * self.shape[1] + col, 0)
+        return np.where(inside, self.cell_of[flat], self.n_cells)
+
+    def log_likelihood(self, particles, measurement: WifiScan) -> np.ndarray:
+        return self.grid_log_likelihood(measurement)[self.cell_index(particles.xy_m)]
+
+    def best_position(self, scan: WifiScan) -> np.ndarray:
+        """Centre of the active cell with the highest likelihood: the radio-map likelihood used alone."""
+        ll = self.grid_log_likelihood(scan)[:-1]
+        if ll.size == 0:
+            return np.full(2, np.nan)
+        return self.cell_xy_m[int(np.argmax(ll))]
+
+
+@njit(cache=True)
+def _add_heard_corrections(out, cols, rssi, ap_ptr, cell, mu, inv_var, offset, prior_offset, prior_mu, prior_inv_var):
+    """Swap the prior term of each heard AP for its own on the cells where it has data."""
+    for i in range(cols.shape[0]):
+        r = rssi[i]
+        prior_quad = 0.5 * prior_inv_var * (r - prior_mu) ** 2
+        for e in range(ap_ptr[cols[i]], ap_ptr[cols[i] + 1]):
+            c = cell[e]
+            d = r - mu[e]
+            out[c] += (offset[e] - 0.5 * inv_var[e] * d * d) - (prior_offset[c] - prior_quad)
