@@ -35,13 +35,14 @@ class PDRConfig:
     """
 
     sample_rate_hz: float = 50.0  # uniform grid the irregular IMU samples are resampled onto
-    lowpass_hz: float = 3.0  # Butterworth cut-off on d|a|/dt (thesis: 3 Hz)
+    lowpass_hz: float = 3.0  # Butterworth cut-off of the step signal (thesis: 3 Hz)
     lowpass_order: int = 4  # Butterworth order (thesis: 4)
-    # a step = upward crossing of this level by the filtered d|a|/dt; walking gives peaks of
-    # 50-120 m/s^3 on the ILC phone, standing still < 5; 15 was best of 2-30 on ILC site1
+    # a step = upward crossing of this level by the filtered d|a|/dt; walking on the ILC phone
+    # gives peaks of 50-120 m/s^3; of 2, 5, 10, 12, 15, 17, 20, 25, 30 on the 48 ILC site1
+    # traces, 12-20 fit the waypoint distances best, 2-5 count sway as steps
     step_threshold_mps3: float = 15.0
-    # no two steps closer than this: brisk walking is ~0.45-0.5 s per step; 0.3 double-counts
-    # some steps on ILC site1 (heel strike and push-off both cross), 0.5 drops fast steps
+    # no two steps closer than this: brisk walking is ~0.45-0.5 s per step; with 0.3 some
+    # steps of ILC site1 cross the threshold twice, 0.5 drops the fastest steps
     min_step_interval_s: float = 0.4
     gravity_lowpass_hz: float = 0.3  # gravity direction = accelerometer low-passed below the step rhythm
     step_length_m: float = 0.7  # fixed step length; also the prior mean of the adaptive per-particle state
@@ -50,7 +51,23 @@ class PDRConfig:
     # sum of (a_max - a_min)^(1/4) on all 48 ILC site1 traces (leave-one-out K varies by < 1 %)
     weinberg_k: float = 0.39
     max_step_window_s: float = 1.0  # Weinberg min/max window before a step when the previous one is older
-    abs_heading_offset_rad: float = 0.0  # added to pi/2 - azimuth: map frame vs magnetic north
+    # added to pi/2 - azimuth: the angle from magnetic north to the map's +y axis; measured
+    # -2.4 deg on ILC site1 (median leg deviation 8.8 deg), so 0 there
+    abs_heading_offset_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        positive = ("sample_rate_hz", "lowpass_hz", "gravity_lowpass_hz", "step_length_m", "weinberg_k",
+                    "max_step_window_s")
+        for name in positive:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise MapfilterError(f"PDR setting {name} must be a positive number, got {value}")
+        if self.min_step_interval_s < 0 or self.step_length_std_m < 0 or self.lowpass_order < 1:
+            raise MapfilterError("PDR settings min_step_interval_s and step_length_std_m must be >= 0, "
+                                 "lowpass_order >= 1")
+        if self.sample_rate_hz <= 2 * max(self.lowpass_hz, self.gravity_lowpass_hz):
+            raise MapfilterError(f"PDR setting sample_rate_hz {self.sample_rate_hz} must exceed twice "
+                                 f"lowpass_hz {self.lowpass_hz}")
 
 
 @dataclasses.dataclass
@@ -118,8 +135,6 @@ def resample_imu(recording: Recording, config: PDRConfig = PDRConfig()) -> ImuGr
     for name, t_s in (("accelerometer", recording.acc_t_s), ("gyroscope", recording.gyro_t_s)):
         if t_s.shape[0] < 2 or t_s[-1] - t_s[0] < 2.0:
             raise MapfilterError(f"no usable {name} data for PDR (need at least 2 s)", where)
-    if config.sample_rate_hz <= 2 * config.lowpass_hz:
-        raise MapfilterError(f"sample_rate_hz {config.sample_rate_hz} must exceed twice lowpass_hz {config.lowpass_hz}")
     t0_s = max(recording.acc_t_s[0], recording.gyro_t_s[0])
     t1_s = min(recording.acc_t_s[-1], recording.gyro_t_s[-1])
     if t1_s - t0_s < 2.0:
@@ -143,9 +158,19 @@ def _interp_columns(t_new_s: np.ndarray, t_s: np.ndarray, values: np.ndarray) ->
 
 
 def _rotvec_to_quaternion(xyz: np.ndarray) -> np.ndarray:
-    """Android rotation vector (x, y, z of a unit quaternion, w >= 0 implied) -> (x, y, z, w)."""
+    """Android rotation vector (x, y, z of a unit quaternion, w >= 0 implied) -> (x, y, z, w).
+
+    q and -q are the same rotation; Android's w >= 0 convention flips the sign of x, y, z
+    whenever w passes 0 (e.g. a flat phone turning through 180 deg). The signs are made
+    continuous so that interpolating between neighbours never passes through zero.
+    """
     w = np.sqrt(np.clip(1.0 - np.sum(xyz * xyz, axis=1), 0.0, None))
-    return np.column_stack([xyz, w])
+    q = np.column_stack([xyz, w])
+    if q.shape[0] > 1:
+        flips = np.sum(q[1:] * q[:-1], axis=1) < 0
+        sign = np.concatenate([[1.0], np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)])
+        q *= sign[:, None]
+    return q
 
 
 # --------------------------------------------------------------------------------------------

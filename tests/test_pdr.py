@@ -307,6 +307,9 @@ def test_bad_config_raises():
     rec = make_recording(t, np.tile([0, 0, G_MPS2], (t.size, 1)), t, np.zeros((t.size, 3)))
     with pytest.raises(MapfilterError, match="sample_rate_hz"):
         pdr.detect_steps(rec, pdr.PDRConfig(sample_rate_hz=5.0))
+    for bad in ({"weinberg_k": 0.0}, {"step_length_m": float("nan")}, {"min_step_interval_s": -1.0}):
+        with pytest.raises(MapfilterError, match="PDR setting"):
+            pdr.PDRConfig(**bad)
 
 
 def test_dead_reckon_from_a_start_time_and_along_the_absolute_heading():
@@ -358,3 +361,19 @@ def test_report_tool_on_two_real_traces(ilc_site1, tmp_path, capsys):
         assert 0.7 < row["ratio_weinberg"] < 1.4
     assert "| step length |" in capsys.readouterr().out
     assert report.main([str(tmp_path / "missing.txt")]) == 1
+
+
+def test_rotation_vector_heading_is_continuous_through_the_w_sign_flip():
+    # a flat phone turning at constant rate through azimuth 180 deg: Android's w >= 0 flips
+    # the sign of (x, y, z) there; the resampled heading must still turn smoothly
+    t = 1.6e9 + np.arange(0, 4, 0.02)
+    t_rot = t[::3] + 0.007  # rotation vector on its own, coarser clock
+    azimuth = np.radians(150.0 + 15.0 * (t_rot - 1.6e9))  # 150 -> 210 deg
+    q = np.array([_quaternion_xyzw([0, 0, 1], -a) for a in azimuth])
+    q[q[:, 3] < 0] *= -1.0
+    rec = make_recording(t, np.tile([0, 0, G_MPS2], (t.size, 1)), t, np.zeros((t.size, 3)), t_rot, q[:, :3])
+    grid = pdr.resample_imu(rec)
+    heading = pdr.rotation_vector_heading(grid)
+    expected = np.pi / 2 - np.radians(150.0 + 15.0 * (grid.t_s - 1.6e9))
+    inside = (grid.t_s >= t_rot[0]) & (grid.t_s <= t_rot[-1])
+    assert np.all(np.abs(pdr.wrap_angle(heading - expected)[inside]) < np.radians(0.5))
