@@ -230,13 +230,17 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("traces", nargs="*", type=Path, help="ILC traces (default: all of site1 F1 and F2)")
     parser.add_argument("--json", type=Path, help="write per-trace numbers and the summary here")
+    parser.add_argument("--threshold", type=float, default=PDRConfig.step_threshold_mps3,
+                        help="step threshold on the filtered d|a|/dt, m/s^3 (sensitivity checks)")
+    parser.add_argument("--min-interval", type=float, default=PDRConfig.min_step_interval_s,
+                        help="minimum step interval, s (sensitivity checks)")
     args = parser.parse_args(argv)
     traces = args.traces or sorted(DATA.glob("F*/path_data_files/*.txt.gz"))
     if not traces:
         print(f"no traces found under {DATA}", file=sys.stderr)
         return 1
-    config = PDRConfig()
     try:
+        config = PDRConfig(step_threshold_mps3=args.threshold, min_step_interval_s=args.min_interval)
         rows = [trace_numbers(path, config) for path in traces]
     except MapfilterError as exc:
         print(f"error: {exc}", file=sys.stderr)
