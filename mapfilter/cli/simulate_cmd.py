@@ -1,0 +1,70 @@
+"""``mapfilter simulate MAP --aps APS.csv --out walk.txt``: a synthetic walk in the ILC format."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+from mapfilter.floorplan import FloorPlan
+from mapfilter.simulate import SimConfig, simulate_walk, write_ilc
+from mapfilter.wifi import AccessPointTable
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    defaults = SimConfig()
+    parser = subparsers.add_parser(
+        "simulate",
+        help="simulate a phone walk (or a radio-map survey) over a map, written as an ILC trace",
+        description="Simulate a pedestrian walk over a floor plan: ground-truth waypoints at every step, "
+                    "a 50 Hz IMU, and WiFi scans from a multi-wall path-loss model, written in the ILC "
+                    "trace format (.gz compresses).",
+    )
+    parser.add_argument("map", type=Path, metavar="MAP", help="map YAML (ROS map_server)")
+    parser.add_argument("--aps", type=Path, default=None,
+                        help="access-point table CSV (bssid,x,y,band,C,n,alpha,d_max); default: the map's own")
+    parser.add_argument("--out", type=Path, required=True, help="output trace (.txt or .txt.gz)")
+    parser.add_argument("--duration", type=float, default=None,
+                        help=f"seconds of walking (default {defaults.duration_s:g}; survey: until every point is visited)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
+    parser.add_argument("--survey", action="store_true",
+                        help="radio-map survey: stand at reference points on a grid and scan there")
+    parser.add_argument("--survey-spacing", type=float, default=defaults.survey_spacing_m, metavar="M",
+                        help="survey grid spacing in metres (default %(default)s)")
+    parser.add_argument("--scans-per-point", type=int, default=defaults.survey_scans_per_point, metavar="N",
+                        help="survey scans at each reference point (default %(default)s)")
+    parser.add_argument("--shadowing-db", type=float, default=defaults.shadowing_sigma_db, metavar="DB",
+                        help="log-normal shadowing sigma in dB (default %(default)s)")
+    parser.add_argument("--wall-loss-db", type=float, nargs=2, metavar=("DB_2G4", "DB_5G"),
+                        default=(defaults.wall_loss_2g4_db, defaults.wall_loss_5g_db),
+                        help="attenuation per wall crossed at 2.4 and 5 GHz (default %(default)s)")
+    parser.add_argument("--start-time-ms", type=int, default=defaults.start_time_ms,
+                        help="Unix time (ms) of the first record (default %(default)s)")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    floorplan = FloorPlan.load(args.map)
+    aps_path = args.aps if args.aps is not None else floorplan.access_points_csv
+    if aps_path is None:
+        raise MapfilterError("no access points: pass --aps or set mapfilter.access_points in the map", args.map)
+    ap_table = AccessPointTable.read_csv(aps_path)
+    duration = args.duration
+    if duration is None and not args.survey:
+        duration = SimConfig.duration_s
+    config = dataclasses.replace(
+        SimConfig(), duration_s=duration, start_time_ms=args.start_time_ms, survey=args.survey,
+        survey_spacing_m=args.survey_spacing, survey_scans_per_point=args.scans_per_point,
+        shadowing_sigma_db=args.shadowing_db, wall_loss_2g4_db=args.wall_loss_db[0],
+        wall_loss_5g_db=args.wall_loss_db[1],
+    )
+    walk = simulate_walk(floorplan, ap_table, config, np.random.default_rng(args.seed), site_id=args.map.stem)
+    write_ilc(walk, args.out)
+    print(f"{args.out}: {walk.end_t_s - walk.start_t_s:.1f} s, {walk.n_steps} steps, "
+          f"{walk.waypoint_t_s.size} waypoints, {walk.scan_t_s.size} WiFi scans ({walk.row_ap.size} rows)"
+          + (f", {walk.reference_xy_m.shape[0]} reference points" if args.survey else ""), file=sys.stderr)
+    return 0
