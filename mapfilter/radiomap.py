@@ -321,6 +321,34 @@ def kwnn_fix(radio_map: RadioMap, scan_keys: Sequence[str], scan_rssi_dbm: np.nd
     return KwnnFix(fix.xy_m[0], fix.neighbours[0], fix.distance_db[0], fix.n_shared_aps[0])
 
 
+class KwnnFixLikelihood:
+    """The KWNN fix of each scan weighed as a position with an isotropic Gaussian (a ``MeasurementModel``).
+
+    Evennou & Marx: the fingerprint fix is the measurement, p(fix | x) = N(fix; x, sigma^2 I)
+    with sigma = 5 m. A scan that yields no fix (too few shared APs) leaves the weights
+    unchanged. ``last_fix_xy_m`` keeps the last fix for display.
+    """
+
+    def __init__(self, radio_map: RadioMap, sigma_m: float = 5.0, k: int = 4, p: float = 2.0, q: float = 2.0,
+                 missing_dbm: float = -100.0, min_shared_aps: int = 3):
+        if not (math.isfinite(sigma_m) and sigma_m > 0):
+            raise MapfilterError(f"fix sigma must be a positive number of metres, got {sigma_m}")
+        self.radio_map = radio_map
+        self.sigma_m = float(sigma_m)
+        self.options = dict(k=k, p=p, q=q, missing_dbm=missing_dbm, min_shared_aps=min_shared_aps)
+        self.last_fix_xy_m: np.ndarray | None = None
+
+    def log_likelihood(self, particles, measurement: WifiScan) -> np.ndarray:
+        row = self.radio_map.scan_vector(measurement)[None, :]
+        fix = kwnn_fix_many(self.radio_map, row, **self.options).xy_m[0]
+        if not np.all(np.isfinite(fix)):
+            self.last_fix_xy_m = None
+            return np.zeros(len(particles))
+        self.last_fix_xy_m = fix
+        d2 = ((particles.xy_m - fix[None, :]) ** 2).sum(axis=1)
+        return -0.5 * d2 / self.sigma_m ** 2
+
+
 # ---- per-particle likelihood from the radio map --------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class RadioMapLikelihoodConfig:

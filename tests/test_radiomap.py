@@ -218,3 +218,17 @@ def test_cli_errors_are_one_line_and_write_nothing(tmp_path, f1_map, capsys, ext
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
     assert list(tmp_path.glob("rm*")) == [] and not list(tmp_path.glob(".rm*"))
+
+
+def test_kwnn_fix_likelihood_is_a_gaussian_around_the_fix():
+    from mapfilter.radiomap import KwnnFixLikelihood
+
+    aps, radio_map = _synthetic_radio_map()
+    scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
+    model = KwnnFixLikelihood(radio_map, sigma_m=5.0)
+    fix = kwnn_fix(radio_map, scan.ap_keys, scan.rssi_dbm).xy_m
+    xy = fix[None] + np.array([[0.0, 0.0], [5.0, 0.0], [0.0, -10.0]])
+    np.testing.assert_allclose(model.log_likelihood(Particles.at(xy), scan), [0.0, -0.5, -2.0], atol=1e-9)
+    assert np.linalg.norm(fix - [21.0, 9.0]) < 2.0
+    unknown = WifiScan(0.0, ("aa:aa:aa:aa:aa:aa@5",), np.array([-40.0], np.float32))
+    assert np.all(model.log_likelihood(Particles.at(xy), unknown) == 0) and model.last_fix_xy_m is None

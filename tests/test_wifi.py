@@ -117,3 +117,15 @@ def test_a_log_without_wifi_is_a_clear_error(tmp_path):
     log.write_text("1000\tTYPE_WAYPOINT\t1.0\t2.0\n1500\tTYPE_ACCELEROMETER\t0\t0\t9.8\t3\n3000\tTYPE_WAYPOINT\t3.0\t2.0\n")
     with pytest.raises(MapfilterError, match="no usable WiFi"):
         scans_of(read_ilc(log))
+
+
+def test_trilateration_uses_a_kernel_equal_to_the_plain_formula():
+    rng = np.random.default_rng(2)
+    table = _table(rng.uniform(0, 60, (7, 2)), c=-41.0, n=2.4)
+    xy = rng.uniform(-5, 65, (500, 2))
+    scan = _scan(table, [20.0, 30.0], rng, 3.0)
+    ll = TrilaterationLikelihood(table, variance_db2=16.0).log_likelihood(Particles.at(xy), scan)
+    plain = -0.5 * ((scan.rssi_dbm[None].astype(float) - table.expected_rssi_dbm(xy)) ** 2).sum(axis=1) / 16.0
+    np.testing.assert_allclose(ll - ll.max(), plain - plain.max(), rtol=1e-3, atol=1e-2)
+    with pytest.raises(MapfilterError, match="variance"):
+        TrilaterationLikelihood(table, variance_db2=0.0)
