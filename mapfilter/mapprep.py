@@ -165,8 +165,10 @@ def prepare_lines(
     resolution_m = scale.resolve(bgra.shape[:2], plan_path)
     gray = cv2.cvtColor(_flatten_on_white(bgra), cv2.COLOR_BGR2GRAY)
     if options.threshold == "otsu":
-        if int(gray.max()) - int(gray.min()) < 16:
-            raise MapfilterError("the plan has no contrast: no walls to find", plan_path)
+        if int(gray.max()) - int(gray.min()) < 16:  # one flat tone: all paper or all ink
+            if gray.mean() < 128:
+                raise MapfilterError("the plan has no free space (it is dark all over)", plan_path)
+            raise MapfilterError("no walls found in the plan (it is blank)", plan_path)
         _, ink = cv2.threshold(gray, 0, 1, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
     elif options.threshold == "adaptive":
         block = max(3, options.adaptive_block_px | 1)
