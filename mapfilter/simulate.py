@@ -44,6 +44,7 @@ from scipy.spatial.transform import Rotation
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
 from mapfilter.floorplan import FloorPlan
+from mapfilter.walls import crosses_wall
 from mapfilter.wifi import AccessPointTable, path_loss_rssi_dbm
 
 GRAVITY_MPS2 = 9.80665
@@ -74,14 +75,14 @@ class SimConfig:
     pause_s: tuple[float, float] = (0.5, 3.0)  # standing at each goal, uniform
     # --- IMU ---
     imu_rate_hz: float = 50.0
-    step_bump_mps2: float = 2.5  # peak vertical acceleration of a step (one bump per step)
+    step_bump_mps2: float = 4.0  # peak vertical acceleration of a step: |a| swings about +-4 m/s^2 in hand
     step_bump_sigma: float = 0.15  # relative spread of the bump amplitude between steps
     forward_sway_mps2: float = 1.0  # forward acceleration swing within a step
     acc_noise_mps2: float = 0.15  # white noise per axis per sample
     acc_bias_sigma_mps2: float = 0.05  # constant bias per axis per walk
     tilt_deg: tuple[float, float] = (15.0, 5.0)  # phone pitch (top raised) mean, sigma; roll ~ N(0, sigma)
     gyro_noise_radps: float = 0.01  # white noise per axis per sample
-    gyro_bias_sigma_radps: float = 0.003  # constant bias per axis per walk (calibrated Android gyro)
+    gyro_bias_sigma_radps: float = 0.001  # constant bias per axis per walk (Android's calibrated gyroscope)
     heading_smoothing_s: float = 0.1  # a walker turns over about a step, not instantly
     turn_on_spot_s: float = 0.8  # after standing, the turn to the next goal takes this long
     rotvec_heading_sigma_deg: float = 5.0  # constant azimuth error of the rotation vector (indoor magnetism)
@@ -317,7 +318,10 @@ def _segments_wall_runs(wall_mask, uv0, uv1):
 
 
 def segments_min_clearance_m(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
-    """Smallest distance to a wall (m) over the pixels each segment a->b touches; 0 = crosses a wall.
+    """Smallest distance to a wall (m) over the pixels each segment a->b touches; 0 = touches a wall.
+
+    Distances are ``FloorPlan.wall_distance_px`` (pixel centre to wall pixel centre); route
+    planning uses them to keep walkers off walls.
 
     Parameters
     ----------
@@ -330,8 +334,12 @@ def segments_min_clearance_m(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndar
 
 
 def segments_cross_wall(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
-    """(N,) bool: does the move a->b touch a wall pixel (or leave the map)? Exact pixel walk."""
-    return segments_min_clearance_m(floorplan, a_m, b_m) <= 0.0
+    """(N,) bool: does the move a->b touch a wall pixel (or leave the map)?
+
+    The filter's own exact check (``mapfilter.walls.crosses_wall``, closed-pixel rule), so a
+    simulated walk is wall-free by the very rule that kills particles.
+    """
+    return crosses_wall(floorplan, np.atleast_2d(a_m), np.atleast_2d(b_m))
 
 
 def count_walls_crossed(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
@@ -405,7 +413,7 @@ def _build_route_graph(floorplan: FloorPlan, config: SimConfig) -> _RouteGraph:
         dst.append(j[keep])
     src_a, dst_a = np.concatenate(src), np.concatenate(dst)
     edge_clear = segments_min_clearance_m(floorplan, xy[src_a], xy[dst_a])
-    keep = edge_clear > 0.0  # exact check: an edge never touches a wall pixel
+    keep = (edge_clear > 0.0) & ~segments_cross_wall(floorplan, xy[src_a], xy[dst_a])  # exact: never touches a wall
     src_a, dst_a, edge_clear = src_a[keep], dst_a[keep], edge_clear[keep]
     length = np.linalg.norm(xy[src_a] - xy[dst_a], axis=1)
     # Prefer to stay `preferred_clearance_m` off the walls: edges closer cost more.
@@ -450,6 +458,7 @@ def _string_pull(floorplan: FloorPlan, graph: _RouteGraph, nodes: list[int], pre
             path_clear = np.minimum.accumulate(clear[i:])[cand - i]  # grid path's clearance up to each node
             needed = np.minimum(path_clear, preferred_m) - tolerance_m
             good = (seg_clear > 0.0) & (seg_clear >= needed)
+            good[good] = ~segments_cross_wall(floorplan, np.repeat(xy[i:i + 1], good.sum(), axis=0), xy[cand[good]])
             bad = np.nonzero(~good)[0]
             last_good = (bad[0] if bad.size else cand.size) - 1  # longest all-visible prefix
             if last_good >= 0:

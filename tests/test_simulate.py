@@ -15,12 +15,14 @@ from mapfilter.cli import main
 from mapfilter.errors import MapfilterError
 from mapfilter.floorplan import FloorPlan
 from mapfilter.logs import read_ilc
+from mapfilter.walls import crosses_wall
 from mapfilter.simulate import (
     CHANNELS_2G4_MHZ,
     CHANNELS_5G_MHZ,
     SimConfig,
     count_walls_crossed,
     segments_cross_wall,
+    segments_min_clearance_m,
     simulate_walk,
     write_ilc,
 )
@@ -104,6 +106,17 @@ def sampled_pixels(plan: FloorPlan, a_m: np.ndarray, b_m: np.ndarray, spacing_px
     return wall
 
 
+def sampled_min_clearance_m(plan: FloorPlan, a_m, b_m, spacing_px: float = 0.02) -> float:
+    uv0, uv1 = plan.world_to_pixel(a_m), plan.world_to_pixel(b_m)
+    n = int(math.ceil(np.linalg.norm(uv1 - uv0) / spacing_px)) + 1
+    uv = uv0 + np.linspace(0.0, 1.0, n)[:, None] * (uv1 - uv0)
+    rows, cols = np.floor(uv[:, 1]).astype(int), np.floor(uv[:, 0]).astype(int)
+    h, w = plan.shape_px
+    if not ((rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)).all():
+        return 0.0
+    return float(plan.wall_distance_px[rows, cols].min() * plan.resolution_m)
+
+
 def plain_crosses(plan, a_m, b_m) -> bool:
     return bool(sampled_pixels(plan, a_m, b_m).any())
 
@@ -133,11 +146,16 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, rate_hz: float = 50.0) -
 def test_wall_kernels_agree_with_dense_sampling(plan):
     rng = np.random.default_rng(0)
     a, b = plan.sample_free(400, rng), plan.sample_free(400, rng)
-    fast = segments_cross_wall(plan, a, b)
+    clearance = segments_min_clearance_m(plan, a, b)
+    fast = clearance <= 0.0
     plain = np.array([plain_crosses(plan, p, q) for p, q in zip(a, b)])
     assert plain.any() and (~plain).any()
     assert not np.any(plain & ~fast)  # the exact walk never misses what sampling sees
     assert np.count_nonzero(fast != plain) <= 2  # ...and differs only on exact corner clips
+    np.testing.assert_array_equal(fast, crosses_wall(plan, a, b))  # and agrees with the filter's check
+    plain_clearance = np.array([sampled_min_clearance_m(plan, p, q) for p, q in zip(a, b)])
+    assert np.all(clearance <= plain_clearance + 1e-12)
+    assert np.mean(np.isclose(clearance, plain_clearance)) > 0.98
     runs = count_walls_crossed(plan, a, b)
     plain_runs = np.array([plain_wall_runs(plan, p, q) for p, q in zip(a, b)])
     assert runs.max() >= 3
@@ -164,11 +182,8 @@ def test_routes_never_cross_walls(which, request, plan):
     for p, q in zip(xy[:-1], xy[1:]):
         assert not plain_crosses(plan, p, q), (p, q)
     assert not segments_cross_wall(plan, xy[:-1], xy[1:]).any()
-    try:  # the filter's own wall check, when it exists, is a second independent judge
-        from mapfilter.walls import crosses_wall
-    except ImportError:
-        return
-    assert not np.any([crosses_wall(plan, p, q) for p, q in zip(xy[:-1], xy[1:])])
+    assert segments_min_clearance_m(plan, xy[:-1], xy[1:]).min() > 0.0  # our own pixel walk agrees
+    assert not crosses_wall(plan, xy[:-1], xy[1:]).any()
 
 
 def test_route_visits_rooms_through_doors(long_walk):
