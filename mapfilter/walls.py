@@ -21,9 +21,11 @@ plain-Python oracle (:func:`touched_pixels_reference`) does, so the two agree bi
 from __future__ import annotations
 
 import math
+import weakref
 
 import numpy as np
 from numba import njit, prange
+from scipy import ndimage
 
 from mapfilter.floorplan import FloorPlan
 
@@ -165,18 +167,56 @@ def _crosses_uv_kernel(mask, u0, v0, u1, v1, out):
         out[i] = _walk(mask, u0[i], v0[i], u1[i], v1[i], False, no_buffer, no_buffer) == 1
 
 
-@njit(cache=True, parallel=True)
-def _crosses_world_kernel(mask, x0_m, y0_m, resolution_m, from_xy_m, to_xy_m, out):
+@njit(cache=True, inline="always")
+def _segment_crosses_world(mask, clearance_px, x0_m, y0_m, inv_resolution, ax, ay, bx, by, no_buffer):
+    """One move in world metres: does it touch a wall pixel (exact walk, clearance shortcut)?"""
+    h, w = mask.shape
     # world -> continuous pixel coordinates, as FloorPlan.world_to_pixel
-    h = mask.shape[0]
+    u0 = (ax - x0_m) * inv_resolution
+    v0 = h - (ay - y0_m) * inv_resolution
+    u1 = (bx - x0_m) * inv_resolution
+    v1 = h - (by - y0_m) * inv_resolution
+    # shortcut, exact: a segment shorter than its start pixel's clearance touches no wall
+    if 0.0 <= u0 < w and 0.0 <= v0 < h:
+        c = clearance_px[int(v0), int(u0)]
+        if c > 0.0:
+            du = u1 - u0
+            dv = v1 - v0
+            if du * du + dv * dv < c * c:
+                return False
+    return _walk(mask, u0, v0, u1, v1, False, no_buffer, no_buffer) == 1
+
+
+@njit(cache=True, parallel=True)
+def _crosses_world_kernel(mask, clearance_px, x0_m, y0_m, resolution_m, from_xy_m, to_xy_m, out):
     inv = 1.0 / resolution_m
     no_buffer = np.empty(0, dtype=np.int64)  # the walk records nothing in check mode
     for i in prange(from_xy_m.shape[0]):
-        u0 = (from_xy_m[i, 0] - x0_m) * inv
-        v0 = h - (from_xy_m[i, 1] - y0_m) * inv
-        u1 = (to_xy_m[i, 0] - x0_m) * inv
-        v1 = h - (to_xy_m[i, 1] - y0_m) * inv
-        out[i] = _walk(mask, u0, v0, u1, v1, False, no_buffer, no_buffer) == 1
+        out[i] = _segment_crosses_world(mask, clearance_px, x0_m, y0_m, inv, from_xy_m[i, 0], from_xy_m[i, 1],
+                                        to_xy_m[i, 0], to_xy_m[i, 1], no_buffer)
+
+
+_CLEARANCE_CACHE: "weakref.WeakKeyDictionary[FloorPlan, tuple[np.ndarray, np.ndarray]]" = weakref.WeakKeyDictionary()
+
+
+def clearance_px(floorplan: FloorPlan) -> np.ndarray:
+    """(H, W) float32: a segment starting in pixel (r, c) and shorter than this touches no wall.
+
+    With D = distance from the pixel's centre to the nearest wall pixel's centre (the map's
+    outside counts as wall), any point q of a segment of length L from p reaches at most
+    |centre - q| <= L + sqrt(2)/2, and touching a wall pixel needs |q - wall centre| <=
+    sqrt(2)/2; so L < D - sqrt(2) cannot touch one. Cached per FloorPlan (and mask object).
+    """
+    cached = _CLEARANCE_CACHE.get(floorplan)
+    if cached is not None and cached[0] is floorplan.wall_mask:
+        return cached[1]
+    padded = np.pad(floorplan.wall_mask, 1, constant_values=True)
+    distance = ndimage.distance_transform_edt(~padded)[1:-1, 1:-1]
+    clearance = np.maximum(distance - math.sqrt(2.0), 0.0).astype(np.float32)
+    # float32 rounding must not make the bound optimistic: shave a little off
+    clearance = np.maximum(clearance - np.float32(1e-3), np.float32(0.0))
+    _CLEARANCE_CACHE[floorplan] = (floorplan.wall_mask, clearance)
+    return clearance
 
 
 def crosses_wall_uv(wall_mask: np.ndarray, from_uv_px: np.ndarray, to_uv_px: np.ndarray) -> np.ndarray:
@@ -229,7 +269,7 @@ def crosses_wall(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarra
     if a.shape != b.shape:
         raise ValueError(f"from and to must have the same shape, got {a.shape} and {b.shape}")
     out = np.empty(a.shape[0], dtype=np.bool_)
-    _crosses_world_kernel(floorplan.wall_mask, floorplan.origin_m[0], floorplan.origin_m[1],
+    _crosses_world_kernel(floorplan.wall_mask, clearance_px(floorplan), floorplan.origin_m[0], floorplan.origin_m[1],
                           floorplan.resolution_m, a, b, out)
     return out
 
