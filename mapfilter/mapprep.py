@@ -105,6 +105,13 @@ def _positive(value: Any, name: str, path: str | os.PathLike | None) -> float:
     return number
 
 
+def _check_pixel_counts(options: Any, names: tuple[str, ...]) -> None:
+    for name in names:
+        value = getattr(options, name)
+        if not isinstance(value, (int, np.integer)) or value < 0:
+            raise MapfilterError(f"{name} must be a whole number >= 0, got {value!r}")
+
+
 # ---- reading plans --------------------------------------------------------------------------
 def read_plan_image(path: str | os.PathLike) -> np.ndarray:
     """Read a plan as 8-bit BGRA (grey and BGR images get an opaque alpha channel)."""
@@ -140,6 +147,9 @@ class LineOptions:
     remove_below_px: int = 20  # ink blobs whose bounding box is shorter than this are text/specks
     thicken_px: int = 0  # dilate walls by this many pixels after cleaning (0 = off)
     outside_is_wall: bool = True  # free space connected to the image border is outside: wall
+
+    def __post_init__(self) -> None:
+        _check_pixel_counts(self, ("adaptive_block_px", "close_gaps_px", "remove_below_px", "thicken_px"))
 
 
 def prepare_lines(
@@ -311,6 +321,9 @@ class RegionOptions:
     remove_below_px: int = 0  # wall blobs (8-connected) with fewer pixels become free (0 = off)
     open_outlines_px: int = 0  # erode walls by this many pixels along free space (0 = off)
     outside_is_wall: bool = False  # free space connected to the image border becomes wall
+
+    def __post_init__(self) -> None:
+        _check_pixel_counts(self, ("tolerance", "alpha_max", "remove_below_px", "open_outlines_px"))
 
 
 def parse_colour(spec: str) -> tuple[int, int, int] | str:

@@ -412,6 +412,25 @@ def test_cli_prepare_and_import(tmp_path: Path, capsys, ilc_site1):
                            "--out", tmp_path / "m" / "rooms.yaml"], capsys)
     assert code == 0 and err == "" and "rooms_preview.png" in out
     assert FloorPlan.load(tmp_path / "m" / "rooms.yaml").shape_px == (100, 200)
+    # scale from two points 100 px apart that are 5 m apart: 0.05 m/px
+    code, out, err = _run(["map", "prepare", tmp_path / "rooms.png", "--scale-points", 10, 10, 110, 10,
+                           "--scale-distance", 5, "--out", tmp_path / "m" / "pts.yaml"], capsys)
+    assert code == 0 and FloorPlan.load(tmp_path / "m" / "pts.yaml").resolution_m == pytest.approx(0.05)
+    # regions with two walkable colours, and an edit closing a corner
+    _regions_png(tmp_path / "mall.png")
+    (tmp_path / "edits.yaml").write_text("wall:\n  - [[0, 0], [3, 0], [3, 3], [0, 3]]\n")
+    code, out, err = _run(["map", "prepare", tmp_path / "mall.png", "--kind", "regions", "--size", 36, 24,
+                           "--walkable", "transparent", "--walkable", "250,240,180", "--edits", tmp_path / "edits.yaml",
+                           "--out", tmp_path / "m" / "mall.yaml"], capsys)
+    assert code == 0, err
+    mall = FloorPlan.load(tmp_path / "m" / "mall.yaml")
+    assert mall.is_free(np.array([[27.0, 15.0], [10.0, 23.0], [1.0, 1.0], [9.0, 15.0]])).tolist() == [
+        True, True, False, False]  # yellow shop, corridor, closed corner, blue shop
+    # a GeoJSON plan is recognised by its suffix
+    _floor_geojson(tmp_path / "floor.json")
+    code, out, err = _run(["map", "prepare", tmp_path / "floor.json", "--resolution", 0.5, "--inset", 0.2,
+                           "--out", tmp_path / "m" / "floor.yaml"], capsys)
+    assert code == 0 and FloorPlan.load(tmp_path / "m" / "floor.yaml").shape_px == (40, 80)
     code, out, err = _run(["map", "import-ilc", ilc_site1 / "F2", "--route", "geojson", "--resolution", "1.0",
                            "--out", tmp_path / "m" / "f2.yaml"], capsys)
     assert code == 0, err
@@ -433,6 +452,8 @@ def _bad_inputs(tmp: Path) -> list[tuple[list, str, str]]:
     rooms = tmp / "rooms.png"
     return [
         (["map", "prepare", tmp / "missing.png", "--resolution", "0.1"], "missing.png", "not found"),
+        (["map", "prepare", rooms, "--resolution", "0.1", "--close-gaps", "-1"], "", "close_gaps_px"),
+        (["map", "prepare", rooms, "--kind", "regions", "--resolution", "0.1", "--walkable", "pink"], "", "colour"),
         (["map", "prepare", tmp / "text.png", "--resolution", "0.1"], "text.png", "not a readable image"),
         (["map", "prepare", tmp / "blank.png", "--resolution", "0.1"], "blank.png", "no walls"),
         (["map", "prepare", tmp / "black.png", "--resolution", "0.1"], "black.png", "no free space"),

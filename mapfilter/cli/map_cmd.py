@@ -83,8 +83,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     lines.add_argument("--keep-outside", action="store_true",
                        help="keep free space connected to the image border (default: it is outside, so wall)")
     regions = prepare.add_argument_group("filled-region plans (--kind regions)")
-    regions.add_argument("--walkable", nargs="+", default=["transparent"], metavar="COLOUR",
-                         help="walkable colours: transparent, #rrggbb or r,g,b (default: transparent)")
+    regions.add_argument("--walkable", action="append", metavar="COLOUR",
+                         help="a walkable colour: transparent, #rrggbb or r,g,b; repeat for more (default: transparent)")
     regions.add_argument("--tolerance", type=int, default=24, metavar="N",
                          help="max per-channel difference to a walkable colour (default: 24)")
     regions.add_argument("--open-outlines", type=int, default=0, metavar="PX",
@@ -147,7 +147,7 @@ def run_prepare(args: argparse.Namespace) -> int:
                                           outside_is_wall=not args.keep_outside)
             plan = mapprep.prepare_lines(args.plan, scale, options, args.map_resolution, args.floor)
         else:
-            options = mapprep.RegionOptions(tuple(args.walkable), args.tolerance, remove_below_px=args.remove_below,
+            options = mapprep.RegionOptions(tuple(args.walkable or [mapprep.TRANSPARENT]), args.tolerance, remove_below_px=args.remove_below,
                                             open_outlines_px=args.open_outlines, outside_is_wall=args.outside_wall)
             plan = mapprep.prepare_regions(args.plan, scale, options, args.map_resolution, args.floor)
     if edits is not None:
