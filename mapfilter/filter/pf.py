@@ -1,0 +1,359 @@
+"""The map-aware regularised particle filter: the step loop, collapse detection and recovery.
+
+One step (Evennou & Marx, with the Regularised Particle Filter of Musso, Oudjane & Le Gland):
+
+  propagate -> wall kill -> measurement update -> collapse check / recovery -> ESS ->
+  resample + regularise (+ optional AMCL random injection) -> estimate
+
+The filter calls only ``motion.propagate`` and ``model.log_likelihood`` (``filter/models.py``);
+it reports what happened as a ``StepReport`` and never draws anything itself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+from mapfilter.filter.ancestry import Ancestry
+from mapfilter.filter.estimate import circular_mean, weighted_estimate
+from mapfilter.filter.events import CollapseEvent, StepReport
+from mapfilter.filter.measurement import PositionFix
+from mapfilter.filter.models import MeasurementModel, MotionModel
+from mapfilter.filter.motion import PDRMotion
+from mapfilter.filter.particles import Particles
+from mapfilter.filter.regularise import KERNELS, regularise, weighted_covariance
+from mapfilter.filter.resample import get_resampler
+from mapfilter.floorplan import FloorPlan
+from mapfilter.walls import crosses_wall
+
+__all__ = ["FilterConfig", "ParticleFilter"]
+
+# exp(x) of a float64 underflows to 0 below about -745: the linear weights are gone
+_LOG_UNDERFLOW = -745.0
+
+
+def _logsumexp(log_w: np.ndarray) -> float:
+    """log(sum(exp(log_w))) for an array with at least one finite entry (-inf entries allowed)."""
+    m = float(np.max(log_w))
+    return m + math.log(float(np.sum(np.exp(log_w - m))))
+
+
+@dataclasses.dataclass
+class FilterConfig:
+    """Settings of :class:`ParticleFilter` (defaults follow Evennou & Marx where they say)."""
+
+    n_particles: int = 10_000  # Evennou & Marx use 10,000
+    resample_ess_fraction: float = 0.5  # resample when ESS = 1/sum(w^2) < fraction * N
+    resampler: str = "systematic"  # systematic | stratified | residual | multinomial
+    regularise: bool = True  # jitter after resampling (Regularised Particle Filter)
+    kernel: str = "gaussian"  # gaussian | epanechnikov
+    bandwidth_scale: float = 1.0  # times the optimal bandwidth; < 1 for multimodal clouds
+    regularise_tries: int = 3  # redraws of a jitter that crosses a wall, then stay at the parent
+    wall_survival_probability: float = 0.0  # P_m: weight factor of a crossing move; 0 = hard walls
+    alpha_slow: float = 0.0  # AMCL long-term likelihood average rate; 0 = no random injection
+    alpha_fast: float = 0.0  # AMCL short-term rate (> alpha_slow); 0 = no random injection
+    init_samples: int = 50_000  # free-space candidates weighed when initialising from a measurement
+    initial_step_length_m: float = 0.7  # PDR state at initialisation
+    min_log_likelihood: float | None = None  # best particle's log-likelihood below this = collapse; None = off
+    recovery_radius_m: float = 3.0  # first radius around the last estimate when no measurement is at hand
+    recovery_radius_growth: float = 2.0  # the radius multiplies by this after each further collapse
+    recovery_reset_steps: int = 10  # healthy steps after which the radius starts small again
+    recovery_measurement_max_age_s: float = 10.0  # an older measurement is not used to recover
+    keep_ancestry: bool = False  # record lineage for smoothed_track() (N * 20 bytes per step)
+
+    def __post_init__(self) -> None:
+        if int(self.n_particles) < 1:
+            raise MapfilterError(f"n_particles must be at least 1, got {self.n_particles}")
+        if not 0.0 <= self.resample_ess_fraction <= 1.0:
+            raise MapfilterError(f"resample_ess_fraction must be in [0, 1], got {self.resample_ess_fraction}")
+        get_resampler(self.resampler)
+        if self.kernel not in KERNELS:
+            raise MapfilterError(f"kernel must be one of {KERNELS}, got {self.kernel!r}")
+        if not 0.0 <= self.wall_survival_probability < 1.0:
+            raise MapfilterError(f"wall_survival_probability must be in [0, 1), got {self.wall_survival_probability}")
+        if not (0.0 <= self.alpha_slow <= 1.0 and 0.0 <= self.alpha_fast <= 1.0):
+            raise MapfilterError("alpha_slow and alpha_fast must be in [0, 1]")
+        if self.init_samples < 1 or self.recovery_radius_m <= 0 or self.recovery_radius_growth < 1.0:
+            raise MapfilterError("init_samples, recovery_radius_m must be positive and recovery_radius_growth >= 1")
+
+
+class ParticleFilter:
+    """A particle filter over one floor plan.
+
+    Parameters
+    ----------
+    floorplan : the map; particles live on its free pixels.
+    motion : a ``MotionModel``.
+    config : ``FilterConfig``.
+    rng : the only source of randomness (same seed, same result).
+    """
+
+    def __init__(self, floorplan: FloorPlan, motion: MotionModel, config: FilterConfig | None = None,
+                 rng: np.random.Generator | None = None) -> None:
+        if rng is None:
+            raise ValueError("pass an explicit numpy.random.Generator (same seed, same result)")
+        self.floorplan = floorplan
+        self.motion = motion
+        self.config = config or FilterConfig()
+        self.rng = rng
+        self._resample = get_resampler(self.config.resampler)
+        self.particles: Particles | None = None
+        self.estimate_xy_m: np.ndarray | None = None
+        self.estimate_std_m: float = math.inf
+        self.collapses: list[CollapseEvent] = []
+        self.ancestry: Ancestry | None = Ancestry() if self.config.keep_ancestry else None
+        self._step_index = 0
+        self._lineage_broken = True
+        self._last_measurement: tuple[float, Any, Any] | None = None  # (t_s, model, measurement)
+        self._recovery_level = 0
+        self._healthy_steps = 0
+        self._log_w_slow: float | None = None
+        self._log_w_fast: float | None = None
+
+    @property
+    def n(self) -> int:
+        return int(self.config.n_particles)
+
+    # ---- initialisation --------------------------------------------------------------------
+    def _new_particles(self, xy_m: np.ndarray, heading_rad: float | None) -> Particles:
+        n = xy_m.shape[0]
+        heading = (self.rng.uniform(-math.pi, math.pi, n) if heading_rad is None
+                   else np.full(n, float(heading_rad)))
+        return Particles.at(xy_m, heading_rad=heading, step_length_m=self.config.initial_step_length_m)
+
+    def _set(self, particles: Particles) -> None:
+        self.particles = particles
+        self.estimate_xy_m, self.estimate_std_m, _ = weighted_estimate(self.floorplan, particles.xy_m,
+                                                                       particles.weight)
+        self._lineage_broken = True
+
+    def initialise_uniform(self, heading_rad: float | None = None) -> None:
+        """N particles uniformly over the free space of the map."""
+        self._set(self._new_particles(self.floorplan.sample_free(self.n, self.rng), heading_rad))
+
+    def initialise_around(self, xy_m, radius_m: float, heading_rad: float | None = None) -> None:
+        """N particles uniformly over the free space within ``radius_m`` of ``xy_m``.
+
+        If no free pixel lies that close, the free pixels nearest to ``xy_m`` are used.
+        """
+        self._set(self._new_particles(self._sample_free_near(np.asarray(xy_m, dtype=np.float64), radius_m),
+                                      heading_rad))
+
+    def initialise_from_measurement(self, t_s: float, model: MeasurementModel, measurement: Any,
+                                    heading_rad: float | None = None) -> None:
+        """Draw ``init_samples`` free points, weigh them by the measurement, sample N of them.
+
+        Works with any measurement model. Raises ``MapfilterError`` if the measurement has
+        zero likelihood everywhere on the map.
+        """
+        xy = self._sample_from_likelihood(model, measurement)
+        if xy is None:
+            raise MapfilterError("the measurement has zero likelihood everywhere on the free space of the map")
+        self._last_measurement = (float(t_s), model, measurement)
+        self._set(self._new_particles(xy, heading_rad))
+
+    def _sample_free_near(self, centre_xy_m: np.ndarray, radius_m: float) -> np.ndarray:
+        fp = self.floorplan
+        rows, cols = fp.free_pixels
+        if rows.size == 0:
+            raise MapfilterError("the map has no free space to place particles in")
+        centres = fp.pixel_to_world(np.stack([cols + 0.5, rows + 0.5], axis=-1))
+        d2 = ((centres - centre_xy_m.reshape(1, 2)) ** 2).sum(axis=1)
+        near = np.flatnonzero(d2 <= radius_m * radius_m)
+        if near.size == 0:
+            near = np.argsort(d2)[:64]
+        pick = near[self.rng.integers(0, near.size, self.n)]
+        uv = np.stack([cols[pick] + self.rng.random(self.n), rows[pick] + self.rng.random(self.n)], axis=-1)
+        return fp.pixel_to_world(uv)
+
+    def _sample_from_likelihood(self, model: MeasurementModel, measurement: Any) -> np.ndarray | None:
+        candidates = self.floorplan.sample_free(int(self.config.init_samples), self.rng)
+        ll = self._checked_log_likelihood(model, Particles.at(candidates), measurement)
+        if not np.isfinite(ll).any():
+            return None
+        w = np.exp(ll - ll.max())
+        picked = self._resample(w, self.n, self.rng)
+        xy = candidates[picked]
+        # the candidates repeat: spread the copies like after any resampling (wall-safe jitter)
+        if self.config.regularise:
+            cov = weighted_covariance(candidates, w)
+            xy, _ = regularise(self.floorplan, xy, cov, self.rng, self.config.kernel,
+                               self.config.bandwidth_scale, self.config.regularise_tries)
+        return xy
+
+    def _checked_log_likelihood(self, model: MeasurementModel, particles: Particles, measurement: Any) -> np.ndarray:
+        ll = np.asarray(model.log_likelihood(particles, measurement), dtype=np.float64)
+        if ll.shape != (len(particles),):
+            raise ValueError(f"log_likelihood returned shape {ll.shape}, expected ({len(particles)},)")
+        # NaN or +inf is a model defect: such a particle gets no weight instead of poisoning the sum
+        return np.where(np.isfinite(ll), ll, -np.inf)
+
+    # ---- the step ----------------------------------------------------------------------------
+    def step(self, t_s: float, dt_s: float, motion_input: Any = None, model: MeasurementModel | None = None,
+             measurement: Any = None) -> StepReport:
+        """Advance the filter by ``dt_s`` seconds to time ``t_s`` and report what happened."""
+        if self.particles is None:
+            raise RuntimeError("initialise the filter before stepping it")
+        cfg = self.config
+        k = self._step_index
+        self._step_index += 1
+        prev = self.particles
+        alive_before = np.isfinite(prev.log_weight)
+
+        # 1. propagate, 2. wall kill (Evennou & Marx: P_m = 0 -> weight 0)
+        moved = self.motion.propagate(prev, motion_input, dt_s, self.rng)
+        crossed = crosses_wall(self.floorplan, prev.xy_m, moved.xy_m)
+        killed = crossed & alive_before
+        log_w = prev.log_weight.copy()
+        if cfg.wall_survival_probability > 0.0:
+            # soft map: a crossing survives with P_m, but a particle never lives inside a wall
+            ends_free = self.floorplan.is_free(moved.xy_m)
+            log_w[killed & ends_free] += math.log(cfg.wall_survival_probability)
+            log_w[killed & ~ends_free] = -np.inf
+        else:
+            log_w[killed] = -np.inf
+        killed_idx = np.flatnonzero(killed)
+        cause = None if np.isfinite(log_w).any() else "all_killed_by_walls"
+
+        # 3. measurement update
+        kind = None
+        if model is not None and measurement is not None:
+            kind = getattr(model, "kind", None) or ("fix" if isinstance(measurement, PositionFix) else "other")
+            self._last_measurement = (float(t_s), model, measurement)
+            ll = self._checked_log_likelihood(model, moved, measurement)
+            if cause is None:
+                live = np.isfinite(log_w)
+                updated = log_w + ll
+                best_ll = ll[live].max() if live.any() else -np.inf
+                if cfg.min_log_likelihood is not None and best_ll < cfg.min_log_likelihood:
+                    cause = "measurement_inconsistent"
+                elif not np.isfinite(updated).any() or updated.max() < _LOG_UNDERFLOW:
+                    cause = "weights_underflow"
+                elif cfg.alpha_slow > 0 and cfg.alpha_fast > 0:
+                    self._update_amcl_averages(_logsumexp(updated))
+                log_w = updated
+        n_alive = int(np.count_nonzero(np.isfinite(log_w))) if cause is None else 0
+
+        collapse = None
+        resampled = False
+        if cause is not None:
+            # 4. collapse: record and re-initialise (the lineage breaks here)
+            lost = int(np.count_nonzero(alive_before))
+            before_xy = self.estimate_xy_m
+            recovery, new = self._recover(t_s)
+            parent = np.full(self.n, -1, dtype=np.int64)
+            ess = float(self.n)
+            self._recovery_level += 1
+            self._healthy_steps = 0
+        else:
+            self._healthy_steps += 1
+            if self._healthy_steps >= cfg.recovery_reset_steps:
+                self._recovery_level = 0
+            log_w = log_w - _logsumexp(log_w)
+            w = np.exp(log_w)
+            ess = float(1.0 / np.dot(w, w))
+            if ess < cfg.resample_ess_fraction * self.n:
+                # 5. resample + regularise (+ random injection)
+                resampled = True
+                parent = self._resample(w, self.n, self.rng)
+                new = moved.take(parent)
+                if cfg.regularise:
+                    cov = weighted_covariance(moved.xy_m, w)
+                    new.xy_m, _ = regularise(self.floorplan, new.xy_m, cov, self.rng, cfg.kernel,
+                                             cfg.bandwidth_scale, cfg.regularise_tries,
+                                             origin_xy_m=prev.xy_m[parent])
+                parent = self._inject(new, parent)
+                new.log_weight = np.full(self.n, -math.log(self.n))
+            else:
+                parent = np.arange(self.n)
+                new = dataclasses.replace(moved, log_weight=log_w)
+        self.particles = new
+        weights = new.weight
+        self.estimate_xy_m, self.estimate_std_m, _ = weighted_estimate(self.floorplan, new.xy_m, weights)
+        if cause is not None:
+            collapse = CollapseEvent(
+                t_s=float(t_s), step_index=k,
+                xy_m=(float(before_xy[0]), float(before_xy[1])) if before_xy is not None else (math.nan, math.nan),
+                cause=cause, particles_lost=lost, recovery=recovery,
+                recovered_xy_m=(float(self.estimate_xy_m[0]), float(self.estimate_xy_m[1])))
+            self.collapses.append(collapse)
+        if self.ancestry is not None:
+            self.ancestry.record(t_s, np.full(self.n, -1) if self._lineage_broken or cause else parent,
+                                 new.xy_m, weights)
+        self._lineage_broken = False
+
+        pdr = isinstance(self.motion, PDRMotion)
+        fix_xy = None
+        if isinstance(measurement, PositionFix):
+            fix_xy = np.asarray(measurement.xy_m, dtype=np.float64).ravel()[:2].copy()
+        return StepReport(
+            t_s=float(t_s), step_index=k, estimate_xy_m=self.estimate_xy_m.copy(),
+            estimate_std_m=float(self.estimate_std_m), ess=ess, n_particles=self.n, n_alive=n_alive,
+            n_killed=int(killed_idx.size), resampled=resampled, particles_xy_m=new.xy_m,
+            particles_weight=weights, killed_from_xy_m=prev.xy_m[killed_idx], killed_to_xy_m=moved.xy_m[killed_idx],
+            collapse=collapse,
+            heading_rad=circular_mean(new.heading_rad, weights) if pdr else None,
+            step_length_m=float(weights @ new.step_length_m) if pdr else None,
+            measurement_kind=kind, fix_xy_m=fix_xy,
+            heard_ap_xy_m=getattr(measurement, "heard_ap_xy_m", None) if measurement is not None else None,
+        )
+
+    # ---- collapse recovery and random injection ---------------------------------------------
+    def _recover(self, t_s: float) -> tuple[str, Particles]:
+        """Re-initialise after a collapse: from the latest measurement's likelihood over the map,
+        else uniformly around the last estimate with a radius growing with repeated collapses."""
+        cfg = self.config
+        last = self._last_measurement
+        if last is not None and float(t_s) - last[0] <= cfg.recovery_measurement_max_age_s:
+            xy = self._sample_from_likelihood(last[1], last[2])
+            if xy is not None:
+                return "likelihood_over_map", self._new_particles(xy, None)
+        x_min, x_max, y_min, y_max = self.floorplan.extent_m
+        centre = self.estimate_xy_m if self.estimate_xy_m is not None else ((x_min + x_max) / 2, (y_min + y_max) / 2)
+        radius = cfg.recovery_radius_m * cfg.recovery_radius_growth ** self._recovery_level
+        width_m, height_m = self.floorplan.size_m
+        if radius >= math.hypot(width_m, height_m):
+            return "uniform", self._new_particles(self.floorplan.sample_free(self.n, self.rng), None)
+        xy = self._sample_free_near(np.asarray(centre, dtype=np.float64), radius)
+        return f"around_estimate_r{radius:.1f}m", self._new_particles(xy, None)
+
+    def _update_amcl_averages(self, log_w_avg: float) -> None:
+        """AMCL: w_slow += a_slow (w_avg - w_slow), w_fast likewise, kept in log space."""
+        cfg = self.config
+        if cfg.alpha_slow <= 0 or cfg.alpha_fast <= 0:
+            return
+        if self._log_w_slow is None:
+            self._log_w_slow = self._log_w_fast = log_w_avg
+            return
+        self._log_w_slow = float(np.logaddexp(math.log1p(-cfg.alpha_slow) + self._log_w_slow,
+                                              math.log(cfg.alpha_slow) + log_w_avg))
+        self._log_w_fast = float(np.logaddexp(math.log1p(-cfg.alpha_fast) + self._log_w_fast,
+                                              math.log(cfg.alpha_fast) + log_w_avg))
+
+    def _inject(self, particles: Particles, parent: np.ndarray) -> np.ndarray:
+        """Replace a share max(0, 1 - w_fast / w_slow) of the particles by uniform free ones (AMCL)."""
+        if self._log_w_slow is None or self._log_w_fast is None:
+            return parent
+        p = max(0.0, 1.0 - math.exp(min(self._log_w_fast - self._log_w_slow, 0.0)))
+        n_inject = int(self.rng.binomial(self.n, p)) if p > 0 else 0
+        if n_inject == 0:
+            return parent
+        idx = self.rng.choice(self.n, size=n_inject, replace=False)
+        particles.xy_m[idx] = self.floorplan.sample_free(n_inject, self.rng)
+        particles.velocity_mps[idx] = 0.0
+        particles.heading_rad[idx] = self.rng.uniform(-math.pi, math.pi, n_inject)
+        particles.step_length_m[idx] = self.config.initial_step_length_m
+        parent = np.array(parent, dtype=np.int64)
+        parent[idx] = -1
+        return parent
+
+    # ---- outputs -----------------------------------------------------------------------------
+    def smoothed_track(self) -> tuple[np.ndarray, np.ndarray]:
+        """(t_s (T,), xy_m (T, 2)): the lineage of the final best particle (needs keep_ancestry)."""
+        if self.ancestry is None:
+            raise RuntimeError("smoothed_track needs FilterConfig(keep_ancestry=True)")
+        return self.ancestry.smoothed_track()
