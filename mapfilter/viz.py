@@ -82,8 +82,8 @@ _GT_COLOUR = (40, 200, 40)
 _ESTIMATE_COLOUR = (255, 140, 0)
 
 # Draw orders: pictures at the bottom, then paths, particles, the estimate, event markers on top.
-_Z_IMAGE, _Z_MASK, _Z_TRACK, _Z_GT, _Z_PARTICLES, _Z_KILLED, _Z_MEAS, _Z_ESTIMATE, _Z_EVENTS = (
-    -20.0, -10.0, 5.0, 6.0, 10.0, 12.0, 15.0, 20.0, 30.0,
+_Z_IMAGE, _Z_MASK, _Z_GT, _Z_TRACK, _Z_PARTICLES, _Z_KILLED, _Z_MEAS, _Z_ESTIMATE, _Z_EVENTS = (
+    -20.0, -10.0, 4.0, 5.0, 10.0, 12.0, 15.0, 20.0, 30.0,
 )
 
 
@@ -184,7 +184,7 @@ class NullLogger:
     def log_step(self, report: StepReport) -> None:
         pass
 
-    def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray, std_m: np.ndarray | None = None) -> None:
+    def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray) -> None:
         pass
 
     def close(self) -> None:
@@ -254,6 +254,7 @@ class RerunLogger:
         self._recovery_xy: list[tuple[float, float]] = []
         self._collapse_labels: list[str] = []
         self._n_tracks = 0
+        self._picture: np.ndarray | None = None
         self._closed = False
         self._stack = contextlib.ExitStack()
 
@@ -349,18 +350,22 @@ class RerunLogger:
     # ---- map ------------------------------------------------------------------------------
     def _source_extent_m(self) -> tuple[float, float, float, float]:
         source = self.floorplan.source_image
-        height, width = self._source_shape_px()
+        height, width = self._source_picture().shape[:2]
         x0, y0 = source.origin_m
         return x0, x0 + width * source.resolution_m, y0, y0 + height * source.resolution_m
 
-    def _source_shape_px(self) -> tuple[int, int]:
+    def _source_picture(self) -> np.ndarray:
+        """The floor-plan picture as OpenCV reads it (read once)."""
         import cv2
 
-        source = self.floorplan.source_image
-        image = cv2.imread(str(source.path), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise MapfilterError("not a readable image", source.path)
-        return image.shape[0], image.shape[1]
+        if self._picture is None:
+            source = self.floorplan.source_image
+            if not Path(source.path).is_file():
+                raise MapfilterError("file not found", source.path)
+            self._picture = cv2.imread(str(source.path), cv2.IMREAD_UNCHANGED)
+            if self._picture is None:
+                raise MapfilterError("not a readable image", source.path)
+        return self._picture
 
     def _image_transform(self, height_px: int, resolution_m: float, origin_m: tuple[float, float]) -> Any:
         # pixel (u, v) -> world (x0 + u res, y_top - v res): rows grow downwards, world y upwards
@@ -377,11 +382,7 @@ class RerunLogger:
         fp = self.floorplan
         source = fp.source_image
         if source is not None:
-            if not Path(source.path).is_file():
-                raise MapfilterError("file not found", source.path)
-            image = cv2.imread(str(source.path), cv2.IMREAD_UNCHANGED)
-            if image is None:
-                raise MapfilterError("not a readable image", source.path)
+            image = self._source_picture()
             self.rec.log("map/world/floorplan",
                          self._image_transform(image.shape[0], source.resolution_m, source.origin_m), static=True)
             # rerun 0.41 draws transparent image pixels with their RGB (black in ILC plans), so
@@ -565,11 +566,10 @@ class RerunLogger:
                                  draw_order=_Z_EVENTS))
 
     # ---- finished tracks ------------------------------------------------------------------
-    def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray, std_m: np.ndarray | None = None) -> None:
+    def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray) -> None:
         """Log a finished track: its path (static) and its position over ``trace_time``.
 
         With ground truth logged before, its error over time goes to ``plots/error_m/<name>``.
-        ``std_m`` (optional) is drawn as the radius of the moving position marker.
         """
         rr = self._rr
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
@@ -585,13 +585,9 @@ class RerunLogger:
         self.rec.log(f"{base}/path", rr.LineStrips2D([xy], colors=colour, radii=-1.5, labels=[name],
                                                      draw_order=_Z_TRACK), static=True)
         time_column = self._time_column(t)
-        radii = -5.0 * np.ones(t.size) if std_m is None else np.asarray(std_m, dtype=np.float64).reshape(-1)
-        self.rec.send_columns(
-            f"{base}/position",
-            indexes=[time_column],
-            columns=rr.Points2D.columns(positions=xy, radii=radii.astype(np.float32)),
-        )
-        self.rec.log(f"{base}/position", rr.Points2D.from_fields(colors=colour, draw_order=_Z_ESTIMATE), static=True)
+        self.rec.send_columns(f"{base}/position", indexes=[time_column], columns=rr.Points2D.columns(positions=xy))
+        self.rec.log(f"{base}/position", rr.Points2D.from_fields(colors=colour, radii=-5.0, draw_order=_Z_ESTIMATE),
+                     static=True)
         if self._gt_t_s.size:
             gt = self._ground_truth_at(t)
             ok = np.all(np.isfinite(gt), axis=1)
