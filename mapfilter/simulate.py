@@ -35,7 +35,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 from scipy import sparse
 from scipy.ndimage import gaussian_filter1d
 from scipy.sparse.csgraph import connected_components, dijkstra
@@ -258,10 +258,12 @@ def _segment_min_clearance_px(clearance_px, u0, v0, u1, v1):
     return best
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def _segments_min_clearance_px(clearance_px, uv0, uv1):
+    # serial on purpose: the planner calls this with a few dozen segments at a time, where a
+    # parallel launch costs milliseconds on a busy machine and the work only microseconds
     out = np.empty(uv0.shape[0])
-    for i in prange(uv0.shape[0]):
+    for i in range(uv0.shape[0]):
         out[i] = _segment_min_clearance_px(clearance_px, uv0[i, 0], uv0[i, 1], uv1[i, 0], uv1[i, 1])
     return out
 
@@ -309,10 +311,11 @@ def _segment_wall_runs(wall_mask, u0, v0, u1, v1):
     return runs
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def _segments_wall_runs(wall_mask, uv0, uv1):
+    # serial: one scan is a few dozen AP->phone lines (see _segments_min_clearance_px)
     out = np.empty(uv0.shape[0], dtype=np.int64)
-    for i in prange(uv0.shape[0]):
+    for i in range(uv0.shape[0]):
         out[i] = _segment_wall_runs(wall_mask, uv0[i, 0], uv0[i, 1], uv1[i, 0], uv1[i, 1])
     return out
 
@@ -334,12 +337,12 @@ def segments_min_clearance_m(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndar
 
 
 def segments_cross_wall(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
-    """(N,) bool: does the move a->b touch a wall pixel (or leave the map)?
+    """(N,) bool: does the move a->b touch a wall pixel (or leave the map)? Exact pixel walk.
 
-    The filter's own exact check (``mapfilter.walls.crosses_wall``, closed-pixel rule), so a
-    simulated walk is wall-free by the very rule that kills particles.
+    The planner's fast serial check. The finished ground truth is checked once more with the
+    filter's own ``mapfilter.walls.crosses_wall`` (closed-pixel rule) in ``simulate_walk``.
     """
-    return crosses_wall(floorplan, np.atleast_2d(a_m), np.atleast_2d(b_m))
+    return segments_min_clearance_m(floorplan, a_m, b_m) <= 0.0
 
 
 def count_walls_crossed(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
@@ -413,7 +416,7 @@ def _build_route_graph(floorplan: FloorPlan, config: SimConfig) -> _RouteGraph:
         dst.append(j[keep])
     src_a, dst_a = np.concatenate(src), np.concatenate(dst)
     edge_clear = segments_min_clearance_m(floorplan, xy[src_a], xy[dst_a])
-    keep = (edge_clear > 0.0) & ~segments_cross_wall(floorplan, xy[src_a], xy[dst_a])  # exact: never touches a wall
+    keep = edge_clear > 0.0  # exact pixel walk: an edge never touches a wall pixel
     src_a, dst_a, edge_clear = src_a[keep], dst_a[keep], edge_clear[keep]
     length = np.linalg.norm(xy[src_a] - xy[dst_a], axis=1)
     # Prefer to stay `preferred_clearance_m` off the walls: edges closer cost more.
@@ -458,7 +461,6 @@ def _string_pull(floorplan: FloorPlan, graph: _RouteGraph, nodes: list[int], pre
             path_clear = np.minimum.accumulate(clear[i:])[cand - i]  # grid path's clearance up to each node
             needed = np.minimum(path_clear, preferred_m) - tolerance_m
             good = (seg_clear > 0.0) & (seg_clear >= needed)
-            good[good] = ~segments_cross_wall(floorplan, np.repeat(xy[i:i + 1], good.sum(), axis=0), xy[cand[good]])
             bad = np.nonzero(~good)[0]
             last_good = (bad[0] if bad.size else cand.size) - 1  # longest all-visible prefix
             if last_good >= 0:
@@ -745,6 +747,9 @@ def simulate_walk(floorplan: FloorPlan, ap_table: AccessPointTable, config: SimC
     if wp_t[-1] < end_t:  # the walker stands where the last step left him
         wp_t = np.append(wp_t, end_t)
         wp_xy = np.vstack([wp_xy, wp_xy[-1:]])
+    # the filter's own wall rule must find no crossing in the ground truth
+    if crosses_wall(floorplan, wp_xy[:-1], wp_xy[1:]).any():
+        raise AssertionError("simulate: a planned step crosses a wall (bug in the route planner)")
 
     imu = _imu(step_start, step_end, xy0, xy1, end_t, config, rng)
 
