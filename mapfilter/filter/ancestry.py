@@ -40,6 +40,14 @@ class Ancestry:
         self._xy_m.append(np.asarray(xy_m, dtype=np.float64).copy())
         self._best.append(int(np.argmax(weights)))
 
+    def parents(self, k: int) -> np.ndarray:
+        """(N,) parent indices of record ``k`` into record ``k - 1`` (-1 = broken lineage)."""
+        return self._parent[k]
+
+    def positions(self, k: int) -> np.ndarray:
+        """(N, 2) particle positions of record ``k``."""
+        return self._xy_m[k]
+
     def break_lineage(self) -> None:
         """Mark the last record's particles as having no parent (called after a recovery)."""
         if self._parent:
