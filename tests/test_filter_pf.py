@@ -257,3 +257,32 @@ def test_soft_walls_keep_particles_out_of_walls():
         live = np.isfinite(pf.particles.log_weight)
         assert ROOMS.is_free(pf.particles.xy_m[live]).all()
         assert r.n_killed > 0
+
+
+def test_real_ilc_floor_and_waypoints(ilc_site1):
+    """ILC site1/F1 map and a real trace's waypoints; fixes = interpolated truth + 4 m noise."""
+    from mapfilter.logs import read_ilc
+    from mapfilter.mapprep import import_ilc
+
+    floor = ilc_site1 / "F1"
+    fp = import_ilc(floor)
+    rec = read_ilc(sorted((floor / "path_data_files").glob("*.txt.gz"))[0])
+    t_wp = rec.waypoint_t_s - rec.waypoint_t_s[0]
+    t = np.arange(0.0, t_wp[-1], 1.0)
+    truth = np.column_stack([np.interp(t, t_wp, rec.waypoint_xy_m[:, 0]), np.interp(t, t_wp, rec.waypoint_xy_m[:, 1])])
+    rng = np.random.default_rng(20)
+    fixes = truth + rng.normal(0.0, 4.0, truth.shape)
+    model = GaussianFixLikelihood(4.0)
+    pf = ParticleFilter(fp, RandomWalkMotion(), FilterConfig(n_particles=5000, keep_ancestry=True), rng)
+    pf.initialise_from_measurement(0.0, model, PositionFix(tuple(fixes[0])))
+    est = []
+    for k in range(1, len(t)):
+        r = pf.step(t[k], 1.0, None, model, PositionFix(tuple(fixes[k])))
+        assert fp.is_free(r.estimate_xy_m[None])[0]
+        est.append(r.estimate_xy_m)
+    err = np.linalg.norm(np.array(est) - truth[1:], axis=1)
+    raw = np.linalg.norm(fixes[1:] - truth[1:], axis=1)
+    assert err.mean() < 0.8 * raw.mean(), (err.mean(), raw.mean())
+    _, track = pf.smoothed_track()
+    assert count_wall_crossings(fp, track) == 0
+    assert not pf.collapses
