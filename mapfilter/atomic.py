@@ -25,7 +25,12 @@ def atomic_paths(*final_paths: str | os.PathLike) -> Iterator[list[Path]]:
             os.close(fd)
             temps.append(Path(tmp))
         yield temps
+        # mkstemp makes files private (0600); give them the usual mode (0666 minus the umask)
+        umask = os.umask(0)
+        os.umask(umask)
         for tmp, final in zip(temps, finals):
+            if tmp.exists():
+                os.chmod(tmp, 0o666 & ~umask)
             os.replace(tmp, final)
         temps = []
     finally:

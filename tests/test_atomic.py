@@ -1,0 +1,26 @@
+import os
+
+import pytest
+
+from mapfilter.atomic import atomic_paths
+
+
+def test_files_appear_together_with_normal_permissions(tmp_path):
+    a, b = tmp_path / "a.txt", tmp_path / "sub" / "b.txt"
+    with atomic_paths(a, b) as (ta, tb):
+        ta.write_text("A")
+        tb.write_text("B")
+        assert not a.exists() and not b.exists()
+    assert a.read_text() == "A" and b.read_text() == "B"
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (a.stat().st_mode & 0o777) == (0o666 & ~umask)
+
+
+def test_a_failure_leaves_nothing(tmp_path):
+    a = tmp_path / "a.txt"
+    with pytest.raises(RuntimeError):
+        with atomic_paths(a) as (ta,):
+            ta.write_text("half")
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
