@@ -104,8 +104,12 @@ def synthetic_steps(floor: FloorPlan, n_steps: int, n_particles: int, rng: np.ra
             n_particles=n_particles, n_alive=int(np.count_nonzero(w)), n_killed=int(killed.sum()),
             resampled=(i % resample_every == 0), particles_xy_m=moved, particles_weight=w,
             killed_from_xy_m=start[killed], killed_to_xy_m=moved[killed], collapse=collapse,
-            heading_rad=0.1 * i, step_length_m=0.7, measurement_kind="fix" if i % 2 == 0 else None,
+            heading_rad=0.1 * i, step_length_m=0.7,
+            # even steps: a fingerprint fix; steps 1 and 3 mod 6: three heard APs; others nothing
+            measurement_kind="fix" if i % 2 == 0 else ("wifi" if i % 6 in (1, 3) else None),
             fix_xy_m=truth.copy() if i % 2 == 0 else None,
+            heard_ap_xy_m=(truth + np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])).astype(np.float32)
+            if i % 6 in (1, 3) else None,
         )
 
 
@@ -246,6 +250,30 @@ def test_killed_moves_are_red_segments(filter_recording):
     assert sum(len(s) for s in strips if s) == sum(min(r.n_killed, 500) for r in with_kills)
     segment = np.array(next(s for s in strips if s)[0])
     assert segment.shape == (2, 2)
+
+
+def test_measurements_show_only_on_their_steps(filter_recording):
+    path, _, reports = filter_recording
+    entities = read_rrd(path)
+
+    def shown_steps(entity):
+        out = []
+        for batch in entities[entity]:
+            if "Points2D:positions" in batch.schema.names:
+                out += [s for s, p in zip(batch.column("step").to_pylist(),
+                                          batch.column("Points2D:positions").to_pylist()) if p]
+        return sorted(out)
+
+    assert shown_steps("/map/world/measurement/fix") == [r.step_index for r in reports if r.fix_xy_m is not None]
+    assert shown_steps("/map/world/measurement/aps") == [r.step_index for r in reports
+                                                         if r.heard_ap_xy_m is not None]
+    aps = rows(entities["/map/world/measurement/aps"], "Points2D:positions")
+    assert all(len(a) == 3 for a in aps if a)
+    # a step without a fix clears the previous one rather than leaving it on screen
+    clears = sorted(s for b in entities["/map/world/measurement/fix"] if "Clear:is_recursive" in b.schema.names
+                    for s, c in zip(b.column("step").to_pylist(), b.column("Clear:is_recursive").to_pylist())
+                    if c is not None)
+    assert clears == [r.step_index for r in reports if r.fix_xy_m is None]
 
 
 def test_collapses_are_warnings_and_markers(filter_recording):
