@@ -1,0 +1,277 @@
+"""Tracking: one walk (map + log) through the particle filter, from WiFi scans and PDR steps.
+
+This is the pipeline behind ``mapfilter track`` and the ``pf*`` methods of ``mapfilter
+evaluate``: it reads nothing and writes nothing, it turns a ``Recording`` into a ``Track``.
+
+Events, in time order: every detected step moves the particles (PDR motion, one filter step
+per step, so the wall check sees each short move) or, for the ``cv``/``rw`` motion models,
+a prediction tick every ``tick_s``; every WiFi scan weighs them. The filter starts at the
+first scan that gives a usable measurement, drawn over the map's free space from that
+scan's likelihood (the starting position is unknown).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+from mapfilter.filter.events import CollapseEvent, StepReport
+from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix
+from mapfilter.filter.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
+from mapfilter.filter.pf import FilterConfig, ParticleFilter
+from mapfilter.floorplan import FloorPlan
+from mapfilter.logs.recording import Recording
+from mapfilter.pdr import PDRConfig, Steps, detect_steps
+from mapfilter.radiomap import RadioMap, RadioMapLikelihood, kwnn_fix_many
+from mapfilter.trackio import Track
+from mapfilter.wifi import AccessPointTable, TrilaterationLikelihood, WifiScan, match_scan, scans_of
+
+MOTION_MODELS = ("pdr", "cv", "rw")
+FINGERPRINT_MODELS = ("fix", "likelihood")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackingConfig:
+    """How a walk is tracked (defaults in comments are what ``mapfilter track`` uses)."""
+
+    motion: str = "pdr"  # pdr | cv (constant velocity) | rw (random walk on a circle)
+    n_particles: int = 10_000  # Evennou & Marx use 10,000
+    use_map: bool = True  # False: walls ignored (the "pf-nomap" comparison)
+    fingerprint_model: str = "fix"  # fix: KWNN fix + Gaussian (Evennou & Marx) | likelihood: per-particle radio map
+    fix_sigma_m: float = 5.0  # Gaussian of the fingerprint fix (Evennou & Marx: 5 m)
+    fix_outlier_probability: float = 0.2  # share of fixes that are far off (heavy tail); 0 = pure Gaussian
+    kwnn_k: int = 4  # Chang et al.
+    rssi_variance_db2: float = 25.0  # trilateration (Lund thesis)
+    tick_s: float = 1.0  # cv / rw: prediction interval between scans
+    use_abs_heading: bool = True  # PDR: start headings from the rotation vector when the log has one
+    initial_heading_sigma_rad: float = math.radians(30.0)  # spread around that start heading
+    smooth: bool = False  # also return the smoothed (ancestry) track; costs memory
+    filter: FilterConfig = dataclasses.field(default_factory=FilterConfig)  # n_particles above wins
+    pdr: PDRConfig = dataclasses.field(default_factory=PDRConfig)
+    pdr_motion: PDRMotion = dataclasses.field(default_factory=PDRMotion)
+
+    def __post_init__(self) -> None:
+        if self.motion not in MOTION_MODELS:
+            raise MapfilterError(f"unknown motion model {self.motion!r}: choose one of {', '.join(MOTION_MODELS)}")
+        if self.fingerprint_model not in FINGERPRINT_MODELS:
+            raise MapfilterError(f"unknown fingerprint model {self.fingerprint_model!r}: "
+                                 f"choose one of {', '.join(FINGERPRINT_MODELS)}")
+        if self.n_particles < 1:
+            raise MapfilterError(f"the number of particles must be at least 1, got {self.n_particles}")
+
+
+@dataclasses.dataclass
+class TrackingResult:
+    track: Track  # causal: the estimate after every filter step
+    smoothed: Track | None  # from particle ancestry (only with config.smooth)
+    collapses: list[CollapseEvent]
+    n_filter_steps: int
+    n_scans_used: int
+    runtime_s: float
+
+
+class WifiMeasurements:
+    """Turns a walk's WiFi scans into (model, measurement) pairs for the filter.
+
+    Fingerprinting (a radio map): ``fix`` makes one KWNN fix per scan (Chang et al.) and
+    weighs it with a Gaussian (Evennou & Marx); ``likelihood`` weighs each particle by the
+    radio map's own probability of the scan. Trilateration (an access-point table): the Lund
+    thesis path-loss likelihood.
+    """
+
+    def __init__(self, scans: list[WifiScan], radio_map: RadioMap | None, ap_table: AccessPointTable | None,
+                 floorplan: FloorPlan, config: TrackingConfig, log_name: str = "the log"):
+        if (radio_map is None) == (ap_table is None):
+            raise MapfilterError("give either a radio map (fingerprinting) or an access-point table (trilateration)")
+        self.scans = scans
+        self.fix_xy_m: np.ndarray | None = None
+        self.usable = np.ones(len(scans), dtype=bool)
+        if radio_map is not None:
+            shared = np.array([sum(k in radio_map.key_index for k in s.ap_keys) for s in scans])
+            if not shared.any():
+                raise MapfilterError(f"the radio map shares no access point with {log_name}")
+            if config.fingerprint_model == "fix":
+                self.fix_xy_m = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=config.kwnn_k).xy_m
+                self.usable = np.all(np.isfinite(self.fix_xy_m), axis=1)
+                if config.fix_outlier_probability > 0:
+                    area_m2 = max(np.count_nonzero(~floorplan.wall_mask) * floorplan.resolution_m**2, 1.0)
+                    self.model: Any = RobustFixLikelihood(config.fix_sigma_m, config.fix_outlier_probability, area_m2)
+                else:
+                    self.model = GaussianFixLikelihood(sigma_m=config.fix_sigma_m)
+            else:
+                self.model = RadioMapLikelihood(radio_map, floorplan)
+                self.usable = shared >= 1
+        else:
+            assert ap_table is not None
+            rows = [match_scan(ap_table, s)[0] for s in scans]
+            self.usable = np.array([r.size > 0 for r in rows])
+            if not self.usable.any():
+                raise MapfilterError(f"the access-point table shares no access point with {log_name}")
+            self.model = TrilaterationLikelihood(ap_table, variance_db2=config.rssi_variance_db2)
+            self.heard_ap_xy_m = [ap_table.xy_m[r] for r in rows]
+        if not self.usable.any():
+            raise MapfilterError(f"no WiFi scan of {log_name} gives a fingerprint fix with this radio map")
+
+    def measurement(self, index: int) -> Any:
+        """The measurement the filter weighs for scan ``index`` (None when the scan is unusable)."""
+        if not self.usable[index]:
+            return None
+        if self.fix_xy_m is not None:
+            return PositionFix(self.fix_xy_m[index], None)
+        return self.scans[index]
+
+
+def track_recording(
+    floorplan: FloorPlan,
+    recording: Recording,
+    radio_map: RadioMap | None = None,
+    ap_table: AccessPointTable | None = None,
+    config: TrackingConfig = TrackingConfig(),
+    rng: np.random.Generator | None = None,
+    on_step: Callable[[StepReport], None] | None = None,
+    steps: Steps | None = None,
+) -> TrackingResult:
+    """Track one walk with the particle filter.
+
+    Parameters
+    ----------
+    floorplan : the map (walls kill particles unless ``config.use_map`` is False).
+    recording : the walk (WiFi scans; IMU for PDR).
+    radio_map / ap_table : fingerprinting or trilateration (exactly one).
+    config : ``TrackingConfig``.
+    rng : the only source of randomness; same seed, same track.
+    on_step : called with every ``StepReport`` (the rerun viewer, progress).
+    steps : PDR steps if already detected (else detected here when the motion is PDR).
+    """
+    started = time.perf_counter()
+    rng = rng if rng is not None else np.random.default_rng(0)
+    log_name = str(recording.path) if recording.path is not None else "the log"
+    scans = scans_of(recording)
+    wifi = WifiMeasurements(scans, radio_map, ap_table, floorplan, config, log_name)
+    plan = floorplan if config.use_map else FloorPlan(np.zeros_like(floorplan.wall_mask), floorplan.resolution_m,
+                                                       floorplan.origin_m, floorplan.floor_name)
+    filter_config = dataclasses.replace(config.filter, n_particles=config.n_particles,
+                                        keep_ancestry=config.smooth or config.filter.keep_ancestry)
+    if config.motion == "pdr":
+        motion: Any = config.pdr_motion
+        if steps is None:
+            steps = detect_steps(recording, config.pdr)
+    else:
+        motion = ConstantVelocityMotion() if config.motion == "cv" else RandomWalkMotion()
+    pf = ParticleFilter(plan, motion, filter_config, rng)
+
+    first = int(np.argmax(wifi.usable))
+    t0 = float(scans[first].t_s)
+    pf.initialise_from_measurement(t0, wifi.model, wifi.measurement(first))
+    if config.motion == "pdr":
+        _set_start_headings(pf, steps, t0, config, rng)
+
+    out_t, out_xy, out_std, out_heading = [t0], [pf.estimate_xy_m.copy()], [pf.estimate_std_m], [math.nan]
+    last_t = t0
+    n_scans = 1
+    for kind, t_s, index in _events(scans, first, steps if config.motion == "pdr" else None, config.tick_s):
+        dt = max(t_s - last_t, 0.0)
+        if kind == "scan":
+            measurement = wifi.measurement(index)
+            if measurement is None:
+                continue
+            n_scans += 1
+            # cv / rw move over dt_s by themselves; PDR moves only on steps
+            report = pf.step(t_s, dt, None, wifi.model, _with_heard_aps(measurement, wifi, index))
+        elif kind == "step":
+            report = pf.step(t_s, dt, StepInput(1, float(steps.heading_change_rad[index])))
+        else:  # prediction tick for cv / rw
+            report = pf.step(t_s, dt, None)
+        last_t = t_s
+        out_t.append(t_s)
+        out_xy.append(report.estimate_xy_m)
+        out_std.append(report.estimate_std_m)
+        out_heading.append(report.heading_rad if report.heading_rad is not None else math.nan)
+        if on_step is not None:
+            on_step(report)
+
+    heading = np.array(out_heading)
+    track = Track(np.array(out_t), np.array(out_xy), np.array(out_std),
+                  heading if np.isfinite(heading).any() else None, name="pf")
+    smoothed = None
+    if config.smooth:
+        t_s, xy_m = pf.smoothed_track()
+        smoothed = Track(t_s, xy_m, name="pf-smooth")
+    return TrackingResult(track, smoothed, list(pf.collapses), len(out_t) - 1, n_scans,
+                          time.perf_counter() - started)
+
+
+def _events(scans: list[WifiScan], first: int, steps: Steps | None, tick_s: float):
+    """(kind, t_s, index) after the first measurement, in time order; a scan after a step at equal times."""
+    t0 = scans[first].t_s
+    events = [(s.t_s, 1, "scan", i) for i, s in enumerate(scans) if i > first]
+    if steps is not None:
+        events += [(t, 0, "step", i) for i, t in enumerate(steps.t_s) if t > t0]
+    else:
+        t_end = scans[-1].t_s
+        events += [(t, 0, "tick", -1) for t in np.arange(t0 + tick_s, t_end, tick_s)]
+    events.sort(key=lambda e: (e[0], e[1]))
+    return [(kind, float(t), i) for t, _, kind, i in events]
+
+
+def _with_heard_aps(measurement: Any, wifi: WifiMeasurements, index: int) -> Any:
+    heard = getattr(wifi, "heard_ap_xy_m", None)
+    if heard is None:
+        return measurement
+    return _ScanWithAps(measurement, heard[index])
+
+
+class _ScanWithAps:
+    """A scan that also carries the positions of the APs it heard (for the viewer)."""
+
+    def __init__(self, scan: WifiScan, heard_ap_xy_m: np.ndarray):
+        self.scan = scan
+        self.heard_ap_xy_m = heard_ap_xy_m
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.scan, name)
+
+
+def _set_start_headings(pf: ParticleFilter, steps: Steps, t0_s: float, config: TrackingConfig,
+                        rng: np.random.Generator) -> None:
+    """PDR particles start with the rotation vector's heading (plus spread), else uniform.
+
+    The gyro heading is relative; the rotation vector (magnetometer) gives the map heading,
+    biased by the building's steel. Only steps up to the start time are used (causal).
+    """
+    n = pf.n
+    if config.use_abs_heading and steps.abs_heading_rad is not None and len(steps):
+        upto = max(1, int(np.searchsorted(steps.t_s, t0_s, side="right")))
+        heading = float(steps.abs_heading_rad[upto - 1])
+        pf.particles.heading_rad = heading + config.initial_heading_sigma_rad * rng.standard_normal(n)
+    else:
+        pf.particles.heading_rad = rng.uniform(-math.pi, math.pi, n)
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustFixLikelihood:
+    """Gaussian fix with an outlier floor: p = (1 - eps) N(fix; x, sigma^2 I) + eps / area.
+
+    Fingerprint fixes have heavy tails (a scan that matches a far-away reference point puts
+    the fix tens of metres off); a pure Gaussian would kill the right particles on such a
+    fix, the floor keeps them.
+    """
+
+    sigma_m: float = 5.0
+    outlier_probability: float = 0.2
+    area_m2: float = 1e4  # free area of the map: the outlier density is uniform over it
+    kind: str = "fix"
+
+    def log_likelihood(self, particles, measurement: PositionFix) -> np.ndarray:
+        sigma = self.sigma_m if measurement.sigma_m is None else measurement.sigma_m
+        fx, fy = (float(v) for v in np.asarray(measurement.xy_m, dtype=np.float64).ravel()[:2])
+        d2 = (particles.xy_m[:, 0] - fx) ** 2 + (particles.xy_m[:, 1] - fy) ** 2
+        gauss = -0.5 * d2 / (sigma * sigma) - math.log(2 * math.pi * sigma * sigma)
+        return np.logaddexp(math.log1p(-self.outlier_probability) + gauss,
+                            math.log(self.outlier_probability / self.area_m2))
