@@ -90,6 +90,8 @@ class SimConfig:
     magnet_noise_ut: float = 0.6
     magnet_offset_sigma_ut: float = 5.0  # hard-iron offset per axis per walk
     drop_probability: float = 0.01  # each sample of each sensor is lost with this probability
+    gaps_per_minute: float = 0.5  # ...and now and then all sensors stall together (Poisson)
+    gap_s: tuple[float, float] = (0.1, 0.3)  # length of such a stall, uniform
     timestamp_jitter_ms: float = 1.0  # sigma of the timestamp error
     # --- WiFi ---
     scan_interval_s: tuple[float, float] = (2.0, 4.0)  # uniform
@@ -126,6 +128,8 @@ class SimConfig:
             raise MapfilterError(f"shadowing sigma must be >= 0 dB, got {self.shadowing_sigma_db}")
         if self.survey_scans_per_point < 1:
             raise MapfilterError(f"scans per point must be >= 1, got {self.survey_scans_per_point}")
+        if self.gaps_per_minute < 0 or not 0 <= self.gap_s[0] <= self.gap_s[1]:
+            raise MapfilterError(f"gaps_per_minute must be >= 0 and gap_s a range, got {self.gaps_per_minute}, {self.gap_s}")
         for name in ("drop_probability", "miss_probability", "stale_probability", "cache_probability"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise MapfilterError(f"{name} must be in [0, 1), got {getattr(self, name)}")
@@ -660,9 +664,15 @@ def _imu(tl_start: np.ndarray, tl_end: np.ndarray, xy0: np.ndarray, xy1: np.ndar
     # --- reported timestamps: jitter, kept strictly increasing; samples dropped per sensor
     t_rep = t + config.timestamp_jitter_ms * 1e-3 * rng.standard_normal(m)
     t_rep = np.maximum.accumulate(np.round(t_rep * 1000.0)) / 1000.0
+    stalled = np.zeros(m, bool)
+    n_gaps = rng.poisson(config.gaps_per_minute * end_t / 60.0)
+    gap_start = rng.uniform(0.0, end_t, size=n_gaps)
+    gap_end = gap_start + rng.uniform(*config.gap_s, size=n_gaps)
+    for a, b in zip(gap_start, gap_end):
+        stalled |= (t >= a) & (t < b)
     out: dict[str, np.ndarray] = {"t_nominal": t, "heading": heading, "gyro_bias": gyro_bias}
     for name, values in (("acc", acc), ("magnet", magnet), ("gyro", gyro), ("rotvec", quat[:, :3])):
-        keep = rng.random(m) >= config.drop_probability
+        keep = (rng.random(m) >= config.drop_probability) & ~stalled
         out[name + "_t"] = t_rep[keep]
         out[name] = values[keep]
     return out

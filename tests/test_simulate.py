@@ -214,12 +214,26 @@ def test_imu_has_one_bump_per_step(long_walk):
     rate = 1.0 / np.median(np.diff(walk.acc_t_s))
     assert 45 < rate < 55
     assert 0 < walk.acc_t_s.size < walk.heading_t_s.size  # some samples dropped
+    assert np.diff(walk.acc_t_s).max() > 0.1  # and a stall or two
     assert np.all(np.diff(walk.acc_t_s) > 0)
     detected = detect_steps(walk.acc_t_s, walk.acc_mps2)
     assert abs(detected - walk.n_steps) <= max(2, 0.01 * walk.n_steps), (detected, walk.n_steps)
     # standing still: the accelerometer reads gravity
     still = walk.acc_t_s < walk.start_t_s + SimConfig().initial_still_s
     assert abs(np.linalg.norm(walk.acc_mps2[still].mean(axis=0)) - 9.81) < 0.1
+
+
+def test_the_pdr_step_detector_counts_the_route_steps(tmp_path, long_walk):
+    """The project's own PDR (thesis detector) on the written file finds the simulated steps."""
+    from mapfilter import pdr
+
+    write_ilc(long_walk, tmp_path / "walk.txt")
+    steps = pdr.detect_steps(read_ilc(tmp_path / "walk.txt"))
+    assert abs(len(steps) - long_walk.n_steps) <= 0.02 * long_walk.n_steps, (len(steps), long_walk.n_steps)
+    # each detected step lies within a simulated step (give or take half a step)
+    nearest = np.min(np.abs(steps.t_s[:, None] - 0.5 * (long_walk.step_start_t_s + long_walk.step_end_t_s)[None]),
+                     axis=1)
+    assert np.percentile(nearest, 95) < 0.3
 
 
 def test_gyro_about_gravity_integrates_to_the_heading(long_walk):
