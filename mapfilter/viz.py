@@ -471,16 +471,20 @@ class RerunLogger:
         self._show("map/world/killed", segments)
 
         # the estimate, its spread, and the trail so far
+        # (a filter with no live particle may report a NaN estimate: show nothing then)
         est = np.asarray(report.estimate_xy_m, dtype=np.float64).reshape(2)
         std = float(report.estimate_std_m)
-        log("map/world/estimate/position",
-            rr.Points2D([est], colors=_ESTIMATE_COLOUR, radii=-6.0, draw_order=_Z_ESTIMATE))
+        has_estimate = bool(np.all(np.isfinite(est)))
+        self._show("map/world/estimate/position",
+                   rr.Points2D([est], colors=_ESTIMATE_COLOUR, radii=-6.0, draw_order=_Z_ESTIMATE)
+                   if has_estimate else None)
         spread = None
-        if math.isfinite(std) and std > 0.0:
+        if has_estimate and math.isfinite(std) and std > 0.0:
             spread = rr.LineStrips2D([circle_xy(est, std)], colors=_ESTIMATE_COLOUR, radii=-1.0,
                                      draw_order=_Z_ESTIMATE)
         self._show("map/world/estimate/spread", spread)
-        self._extend_trail(est)
+        if has_estimate:
+            self._extend_trail(est)
 
         # the measurement of this step
         fix = None
@@ -498,15 +502,14 @@ class RerunLogger:
         error_m = math.nan
         if self._gt_t_s.size:
             gt = self._ground_truth_at(np.array([report.t_s]))[0]
-            if np.all(np.isfinite(gt)):
+            gt_now = bool(np.all(np.isfinite(gt)))
+            if gt_now and has_estimate:
                 error_m = float(np.hypot(*(est - gt)))
-                self._show("map/world/ground_truth/now",
-                           rr.Points2D([gt], colors=_GT_COLOUR, radii=-6.0, draw_order=_Z_GT))
-                self._show("map/world/estimate/error",
-                           rr.LineStrips2D([[est, gt]], colors=(120, 120, 120), radii=-0.75, draw_order=_Z_GT))
-            else:
-                self._show("map/world/ground_truth/now", None)
-                self._show("map/world/estimate/error", None)
+            self._show("map/world/ground_truth/now",
+                       rr.Points2D([gt], colors=_GT_COLOUR, radii=-6.0, draw_order=_Z_GT) if gt_now else None)
+            self._show("map/world/estimate/error",
+                       rr.LineStrips2D([[est, gt]], colors=(120, 120, 120), radii=-0.75, draw_order=_Z_GT)
+                       if math.isfinite(error_m) else None)
 
         # plots
         log("plots/particles/ess", rr.Scalars(float(report.ess)))

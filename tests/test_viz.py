@@ -469,3 +469,21 @@ def test_view_cli_subprocess_exit_code(tmp_path):
     assert result.returncode == 1
     assert len(result.stderr.strip().splitlines()) == 1
     assert "Traceback" not in result.stderr
+
+
+def test_a_step_without_estimate_or_live_particles_is_drawn_empty(tmp_path):
+    floor = small_floor(tmp_path, with_picture=False)
+    report = next(synthetic_steps(floor, 1, 50, np.random.default_rng(2)))
+    report.estimate_xy_m = np.array([np.nan, np.nan])
+    report.estimate_std_m = float("inf")
+    report.particles_weight = np.zeros(50)
+    out = tmp_path / "empty.rrd"
+    with make_logger(floor, rrd_path=out) as logger:
+        logger.log_ground_truth(np.array([report.t_s - 1, report.t_s + 1]), np.array([[1.0, 3.0], [5.0, 3.0]]))
+        logger.log_step(report)
+    entities = read_rrd(out)
+    assert rows(entities["/map/world/particles"], "Points2D:positions") == [[]]
+    assert "/map/world/estimate/position" not in entities
+    assert "/plots/error_m/filter" not in entities
+    assert len(rows(entities["/map/world/ground_truth/now"], "Points2D:positions")) == 1  # the truth still shows
+    verify(out)
