@@ -403,6 +403,8 @@ def test_cli_writes_a_trace(map_files, capsys):
     (["{d}/office.yaml", "--aps", "{d}/missing.csv"], "missing.csv: file not found"),
     (["{d}/office.yaml"], "no access points"),
     (["{d}/office.yaml", "--aps", "{d}/aps.csv", "--duration", "-5"], "duration must be a positive"),
+    (["{d}/office.yaml", "--aps", "{d}/aps.csv", "--seed", "-1"], "--seed must be a non-negative"),
+    (["{d}/office.yaml", "--aps", "{d}/aps.csv", "--survey", "--scans-per-point", "0"], "scans per point"),
 ])
 def test_cli_bad_inputs_are_one_line(map_files, capsys, args, message):
     out = map_files / "never.txt"

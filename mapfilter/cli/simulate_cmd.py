@@ -48,6 +48,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.seed < 0:
+        raise MapfilterError(f"--seed must be a non-negative integer, got {args.seed}")
     floorplan = FloorPlan.load(args.map)
     aps_path = args.aps if args.aps is not None else floorplan.access_points_csv
     if aps_path is None:
