@@ -45,6 +45,7 @@ import contextlib
 import math
 import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -681,7 +682,7 @@ def make_logger(
 
 def view_map(
     floorplan: FloorPlan,
-    tracks: list[Track] = (),  # type: ignore[assignment]
+    tracks: Sequence[Track] = (),
     recording: Recording | None = None,
     rrd_path: str | os.PathLike | None = None,
     spawn: bool = False,

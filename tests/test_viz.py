@@ -10,7 +10,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pytest
 
 from mapfilter.cli import main as cli_main
