@@ -21,6 +21,7 @@ plain-Python oracle (:func:`touched_pixels_reference`) does, so the two agree bi
 from __future__ import annotations
 
 import math
+import os
 import weakref
 
 import numpy as np
@@ -28,6 +29,9 @@ from numba import njit, prange
 from scipy import ndimage
 
 from mapfilter.floorplan import FloorPlan
+
+# see mapfilter/filter/__init__.py: idle OpenMP threads must sleep, not spin, on a shared machine
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __all__ = [
     "crosses_wall",

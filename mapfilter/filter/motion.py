@@ -11,6 +11,7 @@ import dataclasses
 import math
 
 import numpy as np
+from numba import njit, prange
 
 from mapfilter.filter.particles import Particles
 
@@ -23,6 +24,14 @@ def _moved(particles: Particles, **fields: np.ndarray) -> Particles:
     for name, value in out.items():
         out[name] = fields[name] if name in fields else value.copy()
     return Particles(**out)
+
+
+@njit(cache=True, parallel=True)
+def _circle_walk(xy, phi, noise, radius_m, sigma_m, out):
+    # eq. 6.6: x_k = x_{k-1} + r (cos phi, sin phi) + sigma e
+    for i in prange(xy.shape[0]):
+        out[i, 0] = xy[i, 0] + radius_m * math.cos(phi[i]) + sigma_m * noise[i, 0]
+        out[i, 1] = xy[i, 1] + radius_m * math.sin(phi[i]) + sigma_m * noise[i, 1]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,8 +52,9 @@ class RandomWalkMotion:
         dt = max(float(dt_s), 0.0)
         phi = rng.uniform(0.0, 2.0 * math.pi, n)
         noise = rng.standard_normal((n, 2))
-        xy = particles.xy_m + (self.radius_mps * dt) * np.stack([np.cos(phi), np.sin(phi)], axis=1)
-        xy += (self.sigma_mps * dt) * noise
+        xy = np.empty((n, 2))
+        _circle_walk(np.ascontiguousarray(particles.xy_m, dtype=np.float64), phi, noise,
+                     self.radius_mps * dt, self.sigma_mps * dt, xy)
         return _moved(particles, xy_m=xy)
 
 

@@ -1,0 +1,290 @@
+"""Particle-filter throughput benchmark: particle-steps per second, numba vs a plain-numpy reference.
+
+For N = 1k, 10k, 100k, 1M particles on an ILC floor map (site1/F1 from ../shared) and on
+the bundled map maps/office.yaml, it times
+
+- ``wall_check``: ``mapfilter.walls.crosses_wall`` alone on random-walk moves;
+- ``full_step``: ``ParticleFilter.step`` with random-walk motion + wall check + a 20-access-point
+  RSSI Gaussian likelihood + resampling (forced every step) + wall-safe regularisation + estimate;
+- ``reference_step``: the same step in plain numpy (points sampled every half pixel along each
+  segment for the wall check, float32 numpy RSSI likelihood, cumsum + searchsorted resampling),
+  in the same process, and the speed-up ``full_step / reference_step``.
+
+Prints one JSON document. ``--quick`` runs fewer repetitions and skips 1M for the reference.
+Usage: ``.venv/bin/python tools/bench_filter.py [--quick] [--maps ilc,office]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from mapfilter.filter.measurement import rssi_log_likelihood  # noqa: E402
+from mapfilter.filter.motion import RandomWalkMotion  # noqa: E402
+from mapfilter.filter.particles import Particles  # noqa: E402
+from mapfilter.filter.pf import FilterConfig, ParticleFilter  # noqa: E402
+from mapfilter.filter.regularise import optimal_bandwidth, weighted_covariance  # noqa: E402
+from mapfilter.floorplan import FloorPlan  # noqa: E402
+from mapfilter.walls import crosses_wall  # noqa: E402
+
+ILC_FLOOR = REPO.parent / "shared" / "data" / "ilc20" / "site1" / "F1"
+OFFICE_YAML = REPO / "maps" / "office.yaml"
+N_APS = 20
+DT_S = 1.0
+VARIANCE_DB2 = 25.0
+
+
+# ---- maps ------------------------------------------------------------------------------------
+def load_ilc_map() -> tuple[FloorPlan, str]:
+    try:
+        from mapfilter.mapprep import import_ilc
+        return import_ilc(ILC_FLOOR), "mapfilter.mapprep.import_ilc(site1/F1)"
+    except ImportError:
+        import cv2
+        import json as _json
+        info = _json.loads((ILC_FLOOR / "floor_info.json").read_text())["map_info"]
+        rgba = cv2.imread(str(ILC_FLOOR / "floor_image.png"), cv2.IMREAD_UNCHANGED)
+        wall = rgba[..., 3] > 0  # transparent = corridor
+        return FloorPlan(wall, info["width"] / wall.shape[1]), "alpha threshold of site1/F1 floor_image.png"
+
+
+def load_office_map() -> tuple[FloorPlan, str]:
+    if OFFICE_YAML.is_file():
+        return FloorPlan.load(OFFICE_YAML), "maps/office.yaml"
+    wall = np.zeros((200, 300), dtype=bool)
+    wall[[0, -1], :] = True
+    wall[:, [0, -1]] = True
+    wall[100, :] = True
+    wall[100, 140:160] = False
+    for c in range(50, 300, 50):
+        wall[:100, c] = True
+        wall[40:50, c] = False
+    return FloorPlan(wall, 0.1), "synthetic office stand-in"
+
+
+# ---- the measurement used by both implementations -------------------------------------------
+class RssiModel:
+    """20 access points with the thesis path-loss model; the numba kernel."""
+
+    kind = "wifi"
+
+    def __init__(self, ap_xy_m: np.ndarray) -> None:
+        k = ap_xy_m.shape[0]
+        self.ap_xy_m = ap_xy_m
+        self.c_dbm = np.full(k, -38.0)
+        self.n = np.full(k, 2.0)
+        self.alpha = np.full(k, 0.4)
+        self.d_max = np.full(k, 30.0)
+
+    def expected(self, xy_m: np.ndarray) -> np.ndarray:
+        d = np.maximum(np.linalg.norm(xy_m[:, None, :] - self.ap_xy_m[None], axis=-1), 1.0)
+        return self.c_dbm - 10 * self.n * np.log10(d) - self.alpha * np.minimum(d, self.d_max)
+
+    def log_likelihood(self, particles: Particles, observed_rssi_dbm: np.ndarray) -> np.ndarray:
+        return rssi_log_likelihood(particles.xy_m, self.ap_xy_m, self.c_dbm, self.n, self.alpha, self.d_max,
+                                   observed_rssi_dbm, VARIANCE_DB2)
+
+
+# ---- plain-numpy reference ---------------------------------------------------------------------
+def numpy_crosses(fp: FloorPlan, a_xy: np.ndarray, b_xy: np.ndarray) -> np.ndarray:
+    """Sample points every half pixel along each segment (misses corner clips)."""
+    uv_a = fp.world_to_pixel(a_xy)
+    uv_b = fp.world_to_pixel(b_xy)
+    length_px = np.abs(uv_b - uv_a).max(axis=1)
+    n_samples = int(min(np.ceil(length_px.max() * 2.0) + 1, 2000)) if length_px.size else 1
+    h, w = fp.wall_mask.shape
+    out = np.zeros(a_xy.shape[0], dtype=bool)
+    for s in np.linspace(0.0, 1.0, max(n_samples, 2)):
+        uv = uv_a + s * (uv_b - uv_a)
+        cols = np.floor(uv[:, 0]).astype(np.int64)
+        rows = np.floor(uv[:, 1]).astype(np.int64)
+        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+        hit = ~inside
+        hit[inside] = fp.wall_mask[rows[inside], cols[inside]]
+        out |= hit
+    return out
+
+
+def numpy_rssi_ll(xy_m: np.ndarray, model: RssiModel, observed: np.ndarray) -> np.ndarray:
+    f32 = np.float32
+    d = np.linalg.norm(xy_m.astype(f32)[:, None, :] - model.ap_xy_m.astype(f32)[None], axis=-1)
+    d = np.maximum(d, f32(1.0))
+    pred = model.c_dbm.astype(f32) - f32(10) * model.n.astype(f32) * np.log10(d) \
+        - model.alpha.astype(f32) * np.minimum(d, model.d_max.astype(f32))
+    r = observed.astype(f32) - pred
+    return -(r * r).sum(axis=1).astype(np.float64) / (2 * VARIANCE_DB2)
+
+
+class NumpyReferenceFilter:
+    """The same step as ParticleFilter with the configuration used here, in plain numpy."""
+
+    def __init__(self, fp: FloorPlan, xy_m: np.ndarray, rng: np.random.Generator) -> None:
+        self.fp = fp
+        self.xy = xy_m.copy()
+        self.log_w = np.full(xy_m.shape[0], -math.log(xy_m.shape[0]))
+        self.rng = rng
+
+    def step(self, model: RssiModel, observed: np.ndarray) -> None:
+        n = self.xy.shape[0]
+        rng = self.rng
+        phi = rng.uniform(0, 2 * math.pi, n)
+        new = self.xy + 1.5 * DT_S * np.stack([np.cos(phi), np.sin(phi)], 1) + 0.5 * DT_S * rng.standard_normal((n, 2))
+        log_w = self.log_w.copy()
+        log_w[numpy_crosses(self.fp, self.xy, new)] = -np.inf
+        log_w = log_w + numpy_rssi_ll(new, model, observed)
+        if not np.isfinite(log_w).any():
+            log_w = np.zeros(n)
+        log_w -= np.logaddexp.reduce(log_w[np.isfinite(log_w)])
+        w = np.exp(log_w)
+        cumsum = np.cumsum(w)
+        cumsum[-1] = 1.0
+        parent = np.minimum(np.searchsorted(cumsum, (np.arange(n) + rng.random()) / n, side="right"), n - 1)
+        cov = weighted_covariance(new, w) + self.fp.resolution_m ** 2 * np.eye(2)
+        root = np.linalg.cholesky(cov)
+        h = optimal_bandwidth(n)
+        base = new[parent]
+        origin = self.xy[parent]
+        out = base.copy()
+        pending = np.arange(n)
+        for _ in range(3):
+            cand = base[pending] + h * (rng.standard_normal((pending.size, 2)) @ root.T)
+            ok = ~numpy_crosses(self.fp, base[pending], cand) & ~numpy_crosses(self.fp, origin[pending], cand)
+            out[pending[ok]] = cand[ok]
+            pending = pending[~ok]
+        self.xy = out
+        self.log_w = np.full(n, -math.log(n))
+        w = np.exp(self.log_w)
+        mean = w @ self.xy
+        _ = self.fp.is_free(mean[None])
+
+
+# ---- timing ----------------------------------------------------------------------------------
+def timed(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+def per_step_seconds(fn, reps: int) -> float:
+    """Median wall time of ``reps`` calls (after one warm-up call)."""
+    fn()
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: int, seed: int) -> dict:
+    rng = np.random.default_rng(seed)
+    ap_xy = fp.sample_free(N_APS, rng)
+    model = RssiModel(ap_xy)
+    true_xy = fp.sample_free(1, rng)
+    observed = model.expected(true_xy)[0] + rng.normal(0, 5.0, N_APS)
+    rows = []
+    for n in sizes:
+        row: dict = {"n_particles": n}
+        a = fp.sample_free(n, rng)
+        motion = RandomWalkMotion()
+        moved = motion.propagate(Particles.at(a), None, DT_S, rng).xy_m
+        t = per_step_seconds(lambda: crosses_wall(fp, a, moved), reps)
+        row["wall_check_per_s"] = n / t
+        row["wall_check_crossing_share"] = float(crosses_wall(fp, a, moved).mean())
+
+        # the filter starts around the truth so that the cloud is realistic (not map-wide)
+        pf = ParticleFilter(fp, motion, FilterConfig(n_particles=n, resample_ess_fraction=1.0),
+                            np.random.default_rng(seed))
+        pf.initialise_around(true_xy[0], 5.0)
+        stats = {"resampled": 0, "steps": 0, "killed": 0}
+
+        def full_step():
+            report = pf.step(0.0, DT_S, None, model, observed)
+            stats["resampled"] += report.resampled
+            stats["steps"] += 1
+            stats["killed"] += report.n_killed
+
+        full_step()  # warm-up at this size
+        if n <= ref_max_n:
+            # full and reference steps alternate, so that both see the same load on a shared machine
+            ref = NumpyReferenceFilter(fp, pf.particles.xy_m, np.random.default_rng(seed))
+            ref_step = lambda: ref.step(model, observed)  # noqa: E731
+            ref_step()
+            n_pairs = reps if n < 1_000_000 else max(3, reps // 3)
+            t_full_all, t_ref_all = [], []
+            for _ in range(n_pairs):
+                t_full_all.append(timed(full_step))
+                t_ref_all.append(timed(ref_step))
+            t_full, t_ref = float(np.median(t_full_all)), float(np.median(t_ref_all))
+            row["full_step_per_s"] = n / t_full
+            row["full_step_ms"] = 1e3 * t_full
+            row["reference_step_per_s"] = n / t_ref
+            row["reference_step_ms"] = 1e3 * t_ref
+            row["speedup_full_vs_reference"] = t_ref / t_full
+        else:
+            t_full = per_step_seconds(full_step, reps)
+            row["full_step_per_s"] = n / t_full
+            row["full_step_ms"] = 1e3 * t_full
+        row["resampled_share"] = stats["resampled"] / stats["steps"]
+        row["killed_per_step_share"] = stats["killed"] / stats["steps"] / n
+        rows.append(row)
+        print(f"{name} N={n}: " + ", ".join(f"{k}={v:.4g}" for k, v in row.items() if k != "n_particles"),
+              file=sys.stderr, flush=True)
+    return {"map": name, "shape_px": list(fp.wall_mask.shape), "resolution_m": fp.resolution_m,
+            "free_fraction": fp.free_fraction, "results": rows}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="few repetitions, no 1M reference run")
+    parser.add_argument("--maps", default="ilc,office", help="comma list of: ilc, office")
+    parser.add_argument("--sizes", default="1000,10000,100000,1000000", help="particle counts")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    sizes = [int(s) for s in args.sizes.split(",")]
+    reps = 5 if args.quick else 15
+    ref_max_n = 100_000 if args.quick else 1_000_000
+
+    load_before = os.getloadavg()[0]
+    # warm up numba (compile or load from cache) before any timing
+    t0 = time.perf_counter()
+    warm_fp = FloorPlan(np.zeros((8, 8), dtype=bool), 1.0)
+    warm = ParticleFilter(warm_fp, RandomWalkMotion(), FilterConfig(n_particles=64, resample_ess_fraction=1.0),
+                          np.random.default_rng(0))
+    warm.initialise_uniform()
+    warm_model = RssiModel(np.array([[1.0, 1.0], [6.0, 6.0]]))
+    warm.step(0.0, 1.0, None, warm_model, np.array([-40.0, -50.0]))
+    warmup_s = time.perf_counter() - t0
+
+    loaders = {"ilc": load_ilc_map, "office": load_office_map}
+    maps = []
+    for key in args.maps.split(","):
+        fp, source = loaders[key]()
+        maps.append({"source": source, **bench_map(fp, key, sizes, reps, ref_max_n, args.seed)})
+    import numba
+    doc = {
+        "unit": "particle-steps per second (median step time; full step forces resampling every step)",
+        "machine": {"cpus": os.cpu_count(), "numba_threads": numba.get_num_threads(),
+                    "python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__},
+        "numba_warmup_s": warmup_s,
+        "load_average_1min_before_after": [load_before, os.getloadavg()[0]],
+        "quick": args.quick,
+        "maps": maps,
+    }
+    print(json.dumps(doc, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
