@@ -11,7 +11,7 @@ import dataclasses
 import math
 import functools
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -295,15 +295,22 @@ class ApFitConfig:
     max_rmse_db: float = 12.0  # fits worse than this are dropped
 
 
-def estimate_access_points(radio_map: RadioMap, config: ApFitConfig = ApFitConfig()) -> AccessPointTable:
+def estimate_access_points(labelled: RadioMap | Sequence[Recording],
+                           config: ApFitConfig = ApFitConfig()) -> AccessPointTable:
     """Fit each AP's position and path-loss parameters from waypoint-labelled scans.
 
-    For every AP heard in at least ``config.min_observations`` reference points of the
-    radio map, bounded robust least squares fits (x, y, C, n) (and alpha if
-    ``config.fit_alpha``) of the Lund model to the observed RSSI, starting from the strongest
-    observations. ``MapfilterError`` if no AP can be fitted.
+    ``labelled`` is a radio map (labelled scans) or survey logs with waypoints (labelled
+    here by ``mapfilter.radiomap.build_radio_map``). For every AP heard in at least
+    ``config.min_observations`` labelled scans, bounded robust least squares fits
+    (x, y, C, n) (and alpha if ``config.fit_alpha``) of the Lund model to the observed RSSI,
+    starting at the RSSI-weighted centroid of the strongest observations; fits with an RMS
+    residual above ``config.max_rmse_db`` are dropped. ``MapfilterError`` if no AP can be fitted.
     """
     from scipy.optimize import least_squares
+
+    from mapfilter.radiomap import RadioMap, build_radio_map
+
+    radio_map = labelled if isinstance(labelled, RadioMap) else build_radio_map(list(labelled))
 
     xy_ref = radio_map.xy_m
     bssids, bands, rows = [], [], []

@@ -129,3 +129,14 @@ def test_trilateration_uses_a_kernel_equal_to_the_plain_formula():
     np.testing.assert_allclose(ll - ll.max(), plain - plain.max(), rtol=1e-3, atol=1e-2)
     with pytest.raises(MapfilterError, match="variance"):
         TrilaterationLikelihood(table, variance_db2=0.0)
+
+
+def test_estimate_access_points_from_real_logs(ilc_site1):
+    recs = [read_ilc(p) for p in sorted((ilc_site1 / "F1" / "path_data_files").glob("*.txt.gz"))[:4]]
+    table = estimate_access_points(recs, ApFitConfig(min_observations=10))
+    assert len(table) > 20
+    # every fitted AP lies near the surveyed area (bounded fit) with a plausible exponent
+    wp = np.concatenate([r.waypoint_xy_m for r in recs])
+    lo, hi = wp.min(axis=0) - 15.0 - 1e-6, wp.max(axis=0) + 15.0 + 1e-6
+    assert np.all((table.xy_m >= lo) & (table.xy_m <= hi))
+    assert np.all((table.n >= 1.5) & (table.n <= 5.0)) and np.all(table.c_dbm <= -15.0)

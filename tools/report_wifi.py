@@ -12,6 +12,9 @@ between its waypoints (linear in time, the same labelling the radio map uses):
 - least-squares trilateration (``least_squares_position``) with the AP table fitted by
   ``estimate_access_points`` (scans with fewer than 3 known APs count as failures).
 
+A last row, not a method, gives the distance from each true position to the nearest
+reference point of the other traces: where no other trace walked, no fingerprint can help.
+
 Prints a markdown table, then JSON (also written with ``--json PATH``).
 
     .venv/bin/python tools/report_wifi.py [--floor DIR] [--jobs 2] [--json out.json]
@@ -27,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from mapfilter.errors import MapfilterError
 from mapfilter.logs import read_ilc
@@ -36,6 +40,9 @@ from mapfilter.wifi import estimate_access_points, iter_scans, least_squares_pos
 
 DEFAULT_FLOOR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ilc20" / "site1" / "F1"
 METHODS = ("kwnn", "radiomap_likelihood", "ls_trilateration")
+# not a method: the distance from each truth to the nearest reference point of the other
+# traces, a floor under what any fingerprint method can reach where the survey is thin
+COVERAGE = "coverage_nearest_reference"
 
 _STATE: dict = {}  # per worker process: the recordings, the full radio map, the floor plan
 
@@ -72,6 +79,7 @@ def _fold(index: int) -> dict:
     t3 = time.perf_counter()
     timings = {"kwnn_s": t1 - t0, "radiomap_likelihood_s": t2 - t1, "ap_fit_and_ls_s": t3 - t2}
     errors = {m: np.linalg.norm(xy - truth, axis=1).tolist() for m, xy in zip(METHODS, (fix, best, ls))}
+    errors[COVERAGE] = cKDTree(others.xy_m).query(truth)[0].tolist()
     return {"trace": test.name, "scans": len(scans), "reference_points": len(others), "aps_fitted": len(aps),
             "errors_m": errors, "timings": timings}
 
@@ -105,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         _init(*init_args)
         results = [_fold(i) for i in folds]
 
-    summary = {m: summarise([e for r in results for e in r["errors_m"][m]]) for m in METHODS}
+    summary = {m: summarise([e for r in results for e in r["errors_m"][m]]) for m in (*METHODS, COVERAGE)}
     report = {
         "floor": str(args.floor), "folds": len(results), "max_wifi_age_s": args.max_wifi_age,
         "summary": summary,
