@@ -16,6 +16,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numba import njit, prange
 
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.ancestry import Ancestry
@@ -34,6 +35,28 @@ __all__ = ["FilterConfig", "ParticleFilter"]
 
 # exp(x) of a float64 underflows to 0 below about -745: the linear weights are gone
 _LOG_UNDERFLOW = -745.0
+
+
+@njit(cache=True, parallel=True)
+def _gather_rows(a, index, out):
+    # out[i] = a[index[i]] for (N, 2) arrays: numpy's fancy indexing of 2-D rows is ~5x slower
+    for i in prange(index.shape[0]):
+        j = index[i]
+        out[i, 0] = a[j, 0]
+        out[i, 1] = a[j, 1]
+
+
+def _rows(a: np.ndarray, index: np.ndarray) -> np.ndarray:
+    out = np.empty((index.shape[0], 2), dtype=np.float64)
+    _gather_rows(np.ascontiguousarray(a, dtype=np.float64), index, out)
+    return out
+
+
+def _take(particles: Particles, index: np.ndarray) -> Particles:
+    """``particles.take(index)`` with the fast row gather."""
+    return Particles(xy_m=_rows(particles.xy_m, index), log_weight=particles.log_weight[index],
+                     velocity_mps=_rows(particles.velocity_mps, index), heading_rad=particles.heading_rad[index],
+                     step_length_m=particles.step_length_m[index])
 
 
 def _logsumexp(log_w: np.ndarray) -> float:
@@ -260,12 +283,12 @@ class ParticleFilter:
                 # 5. resample + regularise (+ random injection)
                 resampled = True
                 parent = self._resample(w, self.n, self.rng)
-                new = moved.take(parent)
+                new = _take(moved, parent)
                 if cfg.regularise:
                     cov = weighted_covariance(moved.xy_m, w)
                     new.xy_m, _ = regularise(self.floorplan, new.xy_m, cov, self.rng, cfg.kernel,
                                              cfg.bandwidth_scale, cfg.regularise_tries,
-                                             origin_xy_m=prev.xy_m[parent])
+                                             origin_xy_m=_rows(prev.xy_m, parent))
                 parent = self._inject(new, parent)
                 new.log_weight = np.full(self.n, -math.log(self.n))
             else:
