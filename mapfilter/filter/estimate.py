@@ -11,10 +11,42 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from mapfilter.floorplan import FloorPlan
 
-__all__ = ["circular_mean", "weighted_estimate"]
+__all__ = ["circular_mean", "weighted_estimate", "weighted_moments"]
+
+
+@njit(cache=True)
+def _moments(xy, w):
+    # two passes (mean, then centred sums) for accuracy; serial: memory-bound and cheap
+    total = 0.0
+    mx = 0.0
+    my = 0.0
+    for i in range(w.shape[0]):
+        total += w[i]
+        mx += w[i] * xy[i, 0]
+        my += w[i] * xy[i, 1]
+    mx /= total
+    my /= total
+    sxx = 0.0
+    sxy = 0.0
+    syy = 0.0
+    for i in range(w.shape[0]):
+        dx = xy[i, 0] - mx
+        dy = xy[i, 1] - my
+        sxx += w[i] * dx * dx
+        sxy += w[i] * dx * dy
+        syy += w[i] * dy * dy
+    return mx, my, sxx / total, sxy / total, syy / total
+
+
+def weighted_moments(xy_m: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(mean (2,), covariance (2, 2)) of positions under (not necessarily normalised) weights."""
+    mx, my, sxx, sxy, syy = _moments(np.ascontiguousarray(xy_m, dtype=np.float64),
+                                     np.ascontiguousarray(weights, dtype=np.float64))
+    return np.array([mx, my]), np.array([[sxx, sxy], [sxy, syy]])
 
 
 def weighted_estimate(floorplan: FloorPlan, xy_m: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float, bool]:
@@ -24,10 +56,8 @@ def weighted_estimate(floorplan: FloorPlan, xy_m: np.ndarray, weights: np.ndarra
     True when the mean was in a wall and the nearest live particle was reported instead.
     """
     w = np.asarray(weights, dtype=np.float64)
-    w = w / w.sum()
-    mean = w @ xy_m
-    var = w @ (xy_m - mean) ** 2
-    std = float(math.sqrt(max(float(var.mean()), 0.0)))
+    mean, cov = weighted_moments(xy_m, w)
+    std = float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
     if floorplan.is_free(mean[None, :])[0]:
         return mean, std, False
     live = np.flatnonzero(w > 0)

@@ -30,8 +30,13 @@ def _moved(particles: Particles, **fields: np.ndarray) -> Particles:
 def _circle_walk(xy, phi, noise, radius_m, sigma_m, out):
     # eq. 6.6: x_k = x_{k-1} + r (cos phi, sin phi) + sigma e
     for i in prange(xy.shape[0]):
-        out[i, 0] = xy[i, 0] + radius_m * math.cos(phi[i]) + sigma_m * noise[i, 0]
-        out[i, 1] = xy[i, 1] + radius_m * math.sin(phi[i]) + sigma_m * noise[i, 1]
+        c = math.cos(phi[i])
+        # sin from cos (one libm call instead of two): sin >= 0 on [0, pi)
+        s = math.sqrt(max(1.0 - c * c, 0.0))
+        if phi[i] >= math.pi:
+            s = -s
+        out[i, 0] = xy[i, 0] + radius_m * c + sigma_m * noise[i, 0]
+        out[i, 1] = xy[i, 1] + radius_m * s + sigma_m * noise[i, 1]
 
 
 @dataclasses.dataclass(frozen=True)

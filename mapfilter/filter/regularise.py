@@ -16,10 +16,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
-from mapfilter.floorplan import FloorPlan
 from numba import njit, prange
 
+from mapfilter.filter.estimate import weighted_moments
+from mapfilter.floorplan import FloorPlan
 from mapfilter.walls import _segment_crosses_world, clearance_px
 
 __all__ = ["KERNELS", "optimal_bandwidth", "regularise", "sample_kernel", "weighted_covariance"]
@@ -53,10 +53,7 @@ def sample_kernel(kernel: str, n: int, rng: np.random.Generator) -> np.ndarray:
 
 def weighted_covariance(xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """(2, 2) covariance of the positions under normalised weights."""
-    w = weights / weights.sum()
-    mean = w @ xy_m
-    centred = xy_m - mean
-    return (centred * w[:, None]).T @ centred
+    return weighted_moments(xy_m, weights)[1]
 
 
 @njit(cache=True, parallel=True)
