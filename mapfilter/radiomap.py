@@ -2,8 +2,9 @@
 
 A radio map is a set of reference points, each a WiFi scan labelled with the position where
 it was taken. Survey logs with waypoints give the labels: a scan's position is interpolated
-linearly in time between the waypoints around it (the walker went roughly straight between
-consecutive waypoints); scans before the first or after the last waypoint are dropped.
+between the waypoints around it (the walker went roughly straight between consecutive
+waypoints), linearly in time or, optionally, in proportion to the detected steps; scans
+before the first or after the last waypoint are dropped.
 
 File format (``.npz``, numpy's zip of arrays, written compressed)
 ------------------------------------------------------------------
@@ -32,7 +33,7 @@ import os
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -42,6 +43,9 @@ from mapfilter.errors import MapfilterError
 from mapfilter.floorplan import FloorPlan
 from mapfilter.logs.recording import Recording
 from mapfilter.wifi import WifiScan
+
+if TYPE_CHECKING:
+    from mapfilter.pdr import Steps
 
 FORMAT_NAME = "mapfilter-radiomap"
 FORMAT_VERSION = 1
@@ -162,8 +166,14 @@ class RadioMap:
 
 
 # ---- building ---------------------------------------------------------------------------------
-def label_scans(recording: Recording) -> tuple[np.ndarray, np.ndarray]:
-    """Positions of a recording's scans interpolated linearly in time between waypoints.
+def label_scans(recording: Recording, steps: Steps | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Positions of a recording's scans interpolated between waypoints.
+
+    Without ``steps``: linear in time. With detected steps (``mapfilter.pdr.detect_steps``):
+    along each waypoint segment, progress is proportional to the step lengths walked so far
+    (linear in time between steps), so stops and speed changes between two waypoints move
+    the labels the right way, in the spirit of the smoothing in Seitz et al.; segments with
+    fewer than two steps fall back to linear in time.
 
     Returns ``(xy_m, inside)``: (S, 2) positions and (S,) True for scans within the
     waypoint time span (the others get NaN and must be dropped).
@@ -178,11 +188,28 @@ def label_scans(recording: Recording) -> tuple[np.ndarray, np.ndarray]:
     xy = np.full((t.shape[0], 2), np.nan)
     xy[inside, 0] = np.interp(t[inside], wp_t, wp_xy[:, 0])
     xy[inside, 1] = np.interp(t[inside], wp_t, wp_xy[:, 1])
+    if steps is None:
+        return xy, inside
+    for a in range(wp_t.shape[0] - 1):
+        t0, t1 = wp_t[a], wp_t[a + 1]
+        in_segment = inside & (t >= t0) & (t <= t1)
+        sel = (steps.t_s > t0) & (steps.t_s < t1)
+        if not in_segment.any() or np.count_nonzero(sel) < 2 or t1 <= t0:
+            continue
+        # walked distance as a function of time: 0 until one step period before the first
+        # step (standing still before it), +length at each step, all of it at t1
+        step_t = steps.t_s[sel]
+        walk_start = max(t0, step_t[0] - float(np.median(np.diff(step_t))))
+        knots_t = np.concatenate([[t0, walk_start], step_t, [t1]])
+        walked = np.concatenate([[0.0, 0.0], np.cumsum(steps.step_length_m[sel])])
+        walked = np.append(walked, walked[-1] + np.mean(steps.step_length_m[sel]))  # the step into the waypoint
+        fraction = np.interp(t[in_segment], knots_t, walked) / walked[-1]
+        xy[in_segment] = wp_xy[a] + fraction[:, None] * (wp_xy[a + 1] - wp_xy[a])
     return xy, inside
 
 
 def build_radio_map(recordings: Sequence[Recording], floorplan: FloorPlan | None = None,
-                    min_aps_per_scan: int = 1) -> RadioMap:
+                    min_aps_per_scan: int = 1, use_steps: bool = False) -> RadioMap:
     """Radio map from survey logs with waypoints (module docstring: labelling).
 
     Parameters
@@ -190,6 +217,8 @@ def build_radio_map(recordings: Sequence[Recording], floorplan: FloorPlan | None
     recordings : survey logs of one floor; each needs waypoints and WiFi scans.
     floorplan : optional; gives the floor name if the logs do not.
     min_aps_per_scan : scans hearing fewer APs are dropped.
+    use_steps : label with detected steps between waypoints (``label_scans``) instead of
+        linearly in time; logs without IMU data fall back to time.
 
     ``MapfilterError`` naming the log if one has no waypoints or no WiFi, or if no scan
     falls in a waypoint span.
@@ -201,7 +230,8 @@ def build_radio_map(recordings: Sequence[Recording], floorplan: FloorPlan | None
     for trace, rec in enumerate(recordings):
         if len(rec.wifi) == 0:
             raise MapfilterError("the log has no usable WiFi scans", rec.path)
-        xy, inside = label_scans(rec)
+        steps = _steps_or_none(rec) if use_steps else None
+        xy, inside = label_scans(rec, steps)
         heard_count = np.bincount(rec.wifi.row_scan, minlength=len(rec.wifi))
         keep = inside & (heard_count >= min_aps_per_scan)
         scan_ids = np.nonzero(keep)[0]
@@ -228,6 +258,14 @@ def build_radio_map(recordings: Sequence[Recording], floorplan: FloorPlan | None
         t_s=np.concatenate([b[1] for b in blocks]), trace=np.concatenate([b[2] for b in blocks]),
         source_traces=[rec.name for rec in recordings], floor_name=floor,
     )
+
+
+def _steps_or_none(recording: Recording) -> Steps | None:
+    from mapfilter.pdr import detect_steps
+
+    if recording.acc_t_s.shape[0] < 100:  # no IMU to speak of (2 s at 50 Hz)
+        return None
+    return detect_steps(recording)
 
 
 # ---- KWNN (Chang et al.) -------------------------------------------------------------------------

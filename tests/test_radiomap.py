@@ -232,3 +232,24 @@ def test_kwnn_fix_likelihood_is_a_gaussian_around_the_fix():
     assert np.linalg.norm(fix - [21.0, 9.0]) < 2.0
     unknown = WifiScan(0.0, ("aa:aa:aa:aa:aa:aa@5",), np.array([-40.0], np.float32))
     assert np.all(model.log_likelihood(Particles.at(xy), unknown) == 0) and model.last_fix_xy_m is None
+
+
+def test_step_labelling_follows_the_steps_not_the_clock():
+    from mapfilter.logs.recording import Beacons, Recording, WifiScans
+    from mapfilter.pdr import Steps
+
+    empty = np.empty((0, 3))
+    scan_t = np.array([2.0, 5.0, 7.5, 9.0])
+    wifi = WifiScans(scan_t, ["aa:bb:cc:dd:ee:01@2.4"], np.arange(4), np.zeros(4, int), np.full(4, -50, np.float32),
+                     np.full(4, 2412, np.float32), np.zeros(4, np.float32))
+    rec = Recording(None, "F1", 0.0, np.array([0.0, 10.0]), np.array([[0.0, 0.0], [10.0, 0.0]]), np.empty(0), empty,
+                    np.empty(0), empty, np.empty(0), empty, np.empty(0), empty, wifi,
+                    Beacons(np.empty(0), [], np.empty(0), np.empty(0)))
+    # the walker stood still for 5 s, then took 9 steps of 1 m, one per 0.5 s, plus one into the waypoint
+    step_t = 5.0 + 0.5 * np.arange(1, 10)
+    steps = Steps(step_t, np.zeros(9), np.zeros(9), None, np.ones(9), np.ones(9), 0.0)
+    by_time, _ = label_scans(rec)
+    by_steps, inside = label_scans(rec, steps)
+    assert inside.all()
+    np.testing.assert_allclose(by_time[:, 0], [2.0, 5.0, 7.5, 9.0])
+    np.testing.assert_allclose(by_steps[:, 0], [0.0, 0.0, 5.0, 8.0])

@@ -29,6 +29,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     build = sub.add_parser("build", help="build a radio map (.npz)")
     common(build)
     build.add_argument("--out", type=Path, required=True, metavar="RADIOMAP", help="output radio map (.npz)")
+    build.add_argument("--steps", action="store_true",
+                       help="label scans by the detected steps between waypoints instead of linearly in time")
     build.set_defaults(func=run_build)
 
     fit = sub.add_parser("fit-aps", help="estimate access-point positions and path-loss parameters (CSV)")
@@ -61,7 +63,7 @@ def _trace_id(path: Path) -> str:
 
 def run_build(args: argparse.Namespace) -> int:
     floorplan, recordings = _load(args)
-    radio_map = build_radio_map(recordings, floorplan)
+    radio_map = build_radio_map(recordings, floorplan, use_steps=args.steps)
     radio_map.save(args.out)
     print(f"radio map: {len(radio_map)} reference points, {len(radio_map.ap_keys)} access points "
           f"from {len(recordings)} logs -> {args.out}")
