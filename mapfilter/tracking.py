@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from mapfilter.errors import MapfilterError
+from mapfilter.filter.estimate import circular_mean
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix
 from mapfilter.filter.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
@@ -172,7 +173,8 @@ def track_recording(
     if config.motion == "pdr":
         _set_start_headings(pf, steps, t0, config, rng)
 
-    out_t, out_xy, out_std, out_heading = [t0], [pf.estimate_xy_m.copy()], [pf.estimate_std_m], [math.nan]
+    start_heading = circular_mean(pf.particles.heading_rad, pf.particles.weight) if config.motion == "pdr" else math.nan
+    out_t, out_xy, out_std, out_heading = [t0], [pf.estimate_xy_m.copy()], [pf.estimate_std_m], [start_heading]
     last_t = t0
     n_scans = 1
     for kind, t_s, index in _events(scans, first, steps if config.motion == "pdr" else None, config.tick_s):

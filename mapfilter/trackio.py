@@ -1,4 +1,4 @@
-"""Track files: our CSV (``t_s,x_m,y_m[,floor][,heading_rad][,std_m]``) and TUM (``t x y z qx qy qz qw``).
+"""Track files: our CSV (``t_s,x_m,y_m[,floor][,std_m][,heading_rad]``) and TUM (``t x y z qx qy qz qw``).
 
 TUM is what evo and most trajectory tools read: z = 0, the orientation a yaw rotation about z
 (identity when no heading is known).
@@ -34,14 +34,14 @@ class Track:
 
 
 def write_track_csv(track: Track, path: str | os.PathLike) -> None:
-    """Write ``t_s,x_m,y_m[,floor][,heading_rad][,std_m]`` atomically."""
+    """Write ``t_s,x_m,y_m[,floor][,std_m][,heading_rad]`` atomically."""
     header = ["t_s", "x_m", "y_m"]
     if track.floor is not None:
         header.append("floor")
-    if track.heading_rad is not None:
-        header.append("heading_rad")
     if track.std_m is not None:
         header.append("std_m")
+    if track.heading_rad is not None:
+        header.append("heading_rad")
     with atomic_paths(path) as (tmp,):
         with tmp.open("w", newline="") as handle:
             writer = csv.writer(handle)
@@ -50,10 +50,10 @@ def write_track_csv(track: Track, path: str | os.PathLike) -> None:
                 row = [f"{track.t_s[i]:.3f}", f"{track.xy_m[i, 0]:.3f}", f"{track.xy_m[i, 1]:.3f}"]
                 if track.floor is not None:
                     row.append(track.floor[i])
-                if track.heading_rad is not None:
-                    row.append(f"{track.heading_rad[i]:.4f}")
                 if track.std_m is not None:
                     row.append(f"{track.std_m[i]:.3f}")
+                if track.heading_rad is not None:
+                    row.append(f"{track.heading_rad[i]:.4f}")
                 writer.writerow(row)
 
 

@@ -1,0 +1,161 @@
+"""``mapfilter track MAP LOG``: track one walk, write the track, print the errors."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+from mapfilter.evaluate import errors_at_waypoints, summarise_errors
+from mapfilter.floorplan import FloorPlan
+from mapfilter.logs import read_ilc
+from mapfilter.radiomap import RadioMap
+from mapfilter.trackio import write_track_csv, write_track_tum
+from mapfilter.tracking import FINGERPRINT_MODELS, MOTION_MODELS, TrackingConfig, track_recording
+from mapfilter.walls import count_wall_crossings
+from mapfilter.wifi import AccessPointTable
+
+_EPILOG = """\
+WiFi: --radiomap RM (fingerprinting; build one with `mapfilter radiomap build`) or --aps
+APS.csv (trilateration with the path-loss model); without either, the map's own
+access-point table (mapfilter: access_points in its YAML) is used for trilateration.
+
+The starting position is unknown: the filter starts from the first usable WiFi scan, drawn
+over the map's free space. If the log has waypoints, the errors at the waypoint times are
+printed (the latest estimate at or before each waypoint).
+
+example:
+  mapfilter track maps/office.yaml maps/office_walk.txt --radiomap maps/office_radiomap.npz
+"""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "track", help="track a walk (map + phone log) with the particle filter",
+        description="Track a walk on a floor plan with the map-aware particle filter.",
+        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("map", type=Path, metavar="MAP", help="map YAML (ROS map_server)")
+    parser.add_argument("log", type=Path, metavar="LOG", help="phone log in the ILC trace format (.txt or .txt.gz)")
+    wifi = parser.add_mutually_exclusive_group()
+    wifi.add_argument("--radiomap", type=Path, metavar="RM", help="radio map (.npz) for fingerprinting")
+    wifi.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table for trilateration")
+    parser.add_argument("--motion", choices=MOTION_MODELS, default="pdr",
+                        help="motion model: pdr (steps + gyro), cv (constant velocity), rw (random walk) (default: pdr)")
+    parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=TrackingConfig.fingerprint_model,
+                        help="fix: KWNN fix weighed by a Gaussian; likelihood: per-particle radio-map likelihood "
+                             f"(default: {TrackingConfig.fingerprint_model})")
+    parser.add_argument("--particles", type=int, default=TrackingConfig.n_particles, metavar="N",
+                        help=f"number of particles (default: {TrackingConfig.n_particles})")
+    parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
+    parser.add_argument("--no-map", action="store_true", help="ignore the walls (to see what the map buys)")
+    parser.add_argument("--smooth", action="store_true",
+                        help="write the smoothed track from particle ancestry (offline; never crosses a wall)")
+    parser.add_argument("--out", type=Path, metavar="FILE", help="write the track here")
+    parser.add_argument("--format", choices=("csv", "tum"), default="csv",
+                        help="csv: t_s,x_m,y_m,std_m,heading_rad; tum: t x y z qx qy qz qw (evo) (default: csv)")
+    view = parser.add_mutually_exclusive_group()
+    view.add_argument("--rerun", type=Path, metavar="FILE.rrd", help="write a rerun recording of the run")
+    view.add_argument("--spawn", action="store_true", help="stream the run to a new rerun viewer")
+    parser.add_argument("--max-drawn-particles", type=int, default=5000, metavar="N",
+                        help="cap on particles drawn per step in rerun (default: 5000)")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.particles < 1:
+        raise MapfilterError(f"--particles must be at least 1, got {args.particles}")
+    floorplan = FloorPlan.load(args.map)
+    recording = read_ilc(args.log)
+    radio_map = RadioMap.load(args.radiomap) if args.radiomap else None
+    ap_table = None
+    if radio_map is None:
+        aps_path = args.aps or floorplan.access_points_csv
+        if aps_path is None:
+            raise MapfilterError("no WiFi model: give --radiomap RM or --aps APS.csv (the map has no access points)",
+                                 args.map)
+        ap_table = AccessPointTable.read_csv(aps_path)
+    if recording.has_ground_truth:
+        in_walls = ~floorplan.is_free(recording.waypoint_xy_m)
+        if in_walls.any():
+            print(f"mapfilter: warning: {args.log}: {int(in_walls.sum())} of {in_walls.size} waypoints lie in walls "
+                  f"or outside the map {args.map}", file=sys.stderr)
+    config = TrackingConfig(motion=args.motion, n_particles=args.particles, use_map=not args.no_map,
+                            fingerprint_model=args.fingerprint_model, smooth=args.smooth)
+
+    from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
+
+    logger = make_logger(floorplan, rrd_path=args.rerun, spawn=args.spawn, max_particles=args.max_drawn_particles,
+                         recording_name=recording.name)
+    progress = _Progress(recording)
+    with logger:
+        if recording.has_ground_truth:
+            logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
+
+        def on_step(report) -> None:
+            logger.log_step(report)
+            progress.update(report.t_s)
+
+        result = track_recording(floorplan, recording, radio_map, ap_table, config, np.random.default_rng(args.seed),
+                                 on_step=on_step)
+        progress.done()
+        if result.smoothed is not None:
+            logger.log_track("smoothed", result.smoothed.t_s, result.smoothed.xy_m)
+        output = result.smoothed if args.smooth else result.track
+        if args.out is not None:
+            (write_track_tum if args.format == "tum" else write_track_csv)(output, args.out)
+
+    _print_summary(floorplan, recording, result, args)
+    return 0
+
+
+def _print_summary(floorplan, recording, result, args) -> None:
+    lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans, "
+             f"{len(result.collapses)} collapses (all recovered), {result.runtime_s:.1f} s"]
+    tracks = [("causal", result.track, True)]
+    if result.smoothed is not None:
+        tracks.append(("smoothed", result.smoothed, False))
+    for label, track, causal in tracks:
+        crossings = count_wall_crossings(floorplan, track.xy_m)
+        text = f"  {label:8s} wall crossings {crossings}"
+        if recording.has_ground_truth:
+            err = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, causal)
+            s = summarise_errors(err.errors_m)
+            text += (f"; error at {s['n']} waypoints: mean {s['mean']:.2f} m, median {s['median']:.2f} m, "
+                     f"p75 {s['p75']:.2f} m, max {s['max']:.2f} m")
+            if err.missed:
+                text += f" ({err.missed} waypoints before the first estimate)"
+        lines.append(text)
+    for event in result.collapses:
+        lines.append(f"  collapse at t={event.t_s - recording.wifi.t_s[0]:+.1f} s ({event.cause}, "
+                     f"{event.particles_lost} particles lost) -> recovered by {event.recovery}")
+    if args.out is not None:
+        lines.append(f"  wrote {args.out}")
+    if args.rerun is not None:
+        lines.append(f"  wrote {args.rerun}")
+    print("\n".join(lines))
+
+
+class _Progress:
+    """A one-line progress indicator on stderr (only on a terminal)."""
+
+    def __init__(self, recording) -> None:
+        self.enabled = sys.stderr.isatty()
+        times = recording.wifi.t_s
+        self.t0 = float(times[0]) if times.size else 0.0
+        self.span = max(float(times[-1]) - self.t0, 1e-9) if times.size else 1.0
+        self.last_percent = -1
+
+    def update(self, t_s: float) -> None:
+        if not self.enabled:
+            return
+        percent = int(100 * min(max((t_s - self.t0) / self.span, 0.0), 1.0))
+        if percent != self.last_percent:
+            self.last_percent = percent
+            print(f"\rtracking {percent:3d} %", end="", file=sys.stderr, flush=True)
+
+    def done(self) -> None:
+        if self.enabled:
+            print("\r" + " " * 20 + "\r", end="", file=sys.stderr, flush=True)

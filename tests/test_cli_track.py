@@ -1,0 +1,128 @@
+"""`mapfilter track` end to end: the bundled example, a real ILC trace, and bad inputs."""
+
+import gzip
+
+import numpy as np
+import pytest
+
+from conftest import REPO
+from mapfilter.cli import main
+from mapfilter.floorplan import FloorPlan
+from mapfilter.logs import read_ilc
+from mapfilter.mapprep import import_ilc
+from mapfilter.radiomap import build_radio_map
+from mapfilter.trackio import read_track
+from mapfilter.walls import count_wall_crossings
+
+MAPS = REPO / "maps"
+OFFICE = MAPS / "office.yaml"
+WALK = MAPS / "office_walk.txt.gz"
+RADIOMAP = MAPS / "office_radiomap.npz"
+
+
+def _errors(track, recording):
+    gt = np.column_stack([np.interp(track.t_s, recording.waypoint_t_s, recording.waypoint_xy_m[:, i]) for i in (0, 1)])
+    return np.linalg.norm(track.xy_m - gt, axis=1)
+
+
+def test_bundled_example_tracks_within_a_few_metres(tmp_path, capsys):
+    out = tmp_path / "track.csv"
+    assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "3000",
+                 "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "error at" in printed and "wall crossings" in printed
+    track = read_track(out)
+    recording = read_ilc(WALK)
+    assert np.median(_errors(track, recording)) < 3.0
+    assert track.std_m is not None and np.all(track.std_m >= 0)
+
+
+def test_smoothed_track_never_crosses_a_wall_and_tum_parses(tmp_path):
+    out = tmp_path / "track.tum"
+    assert main(["track", str(OFFICE), str(WALK), "--aps", str(MAPS / "office_fitted_aps.csv"),
+                 "--particles", "2000", "--smooth", "--format", "tum", "--out", str(out)]) == 0
+    track = read_track(out)
+    assert len(track) > 50
+    assert count_wall_crossings(FloorPlan.load(OFFICE), track.xy_m) == 0
+    assert np.median(_errors(track, read_ilc(WALK))) < 4.0
+
+
+def test_same_seed_same_track(tmp_path):
+    paths = [tmp_path / "a.csv", tmp_path / "b.csv"]
+    for path in paths:
+        assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "500",
+                     "--seed", "3", "--out", str(path)]) == 0
+    assert paths[0].read_text() == paths[1].read_text()
+
+
+@pytest.mark.slow
+def test_real_ilc_trace_with_a_leave_one_out_radio_map(ilc_site1, tmp_path, capsys):
+    floor = ilc_site1 / "F1"
+    import_ilc(floor, route="geojson").save(tmp_path / "F1.yaml")
+    logs = sorted((floor / "path_data_files").glob("*.txt.gz"))
+    test_log, survey = logs[1], logs[:1] + logs[2:]
+    build_radio_map([read_ilc(p) for p in survey]).save(tmp_path / "rm.npz")
+    out = tmp_path / "track.csv"
+    assert main(["track", str(tmp_path / "F1.yaml"), str(test_log), "--radiomap", str(tmp_path / "rm.npz"),
+                 "--particles", "5000", "--out", str(out)]) == 0
+    recording = read_ilc(test_log)
+    track = read_track(out)
+    causal = np.searchsorted(track.t_s, recording.waypoint_t_s, side="right") - 1
+    have = causal >= 0
+    errors = np.linalg.norm(track.xy_m[causal[have]] - recording.waypoint_xy_m[have], axis=1)
+    assert np.mean(errors) < 12.0  # KWNN alone is about 6 m on this trace, a lost filter 30+ m
+
+
+def _run_expect_error(args, capsys, *needles):
+    assert main(args) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    for needle in needles:
+        assert needle in err
+    return err
+
+
+def test_missing_map_or_log_is_one_line(tmp_path, capsys):
+    out = tmp_path / "t.csv"
+    _run_expect_error(["track", str(tmp_path / "nope.yaml"), str(WALK), "--radiomap", str(RADIOMAP),
+                       "--out", str(out)], capsys, "nope.yaml", "not found")
+    _run_expect_error(["track", str(OFFICE), str(tmp_path / "nope.txt"), "--radiomap", str(RADIOMAP),
+                       "--out", str(out)], capsys, "nope.txt")
+    assert not out.exists()
+
+
+def test_log_without_wifi_is_one_line(tmp_path, capsys):
+    log = tmp_path / "nowifi.txt"
+    with gzip.open(WALK, "rt") as handle:
+        log.write_text("".join(line for line in handle if "TYPE_WIFI" not in line))
+    out = tmp_path / "t.csv"
+    _run_expect_error(["track", str(OFFICE), str(log), "--radiomap", str(RADIOMAP), "--out", str(out)], capsys,
+                      "nowifi.txt", "WiFi")
+    assert not out.exists()
+
+
+def test_radio_map_sharing_no_access_point_is_one_line(tmp_path, capsys):
+    log = tmp_path / "other_aps.txt"
+    with gzip.open(WALK, "rt") as handle:
+        # same walk, but every BSSID renamed: nothing in common with the radio map
+        log.write_text(handle.read().replace("02:00:00:00:00:", "0a:bb:cc:dd:ee:"))
+    out = tmp_path / "t.csv"
+    _run_expect_error(["track", str(OFFICE), str(log), "--radiomap", str(RADIOMAP), "--out", str(out)], capsys,
+                      "other_aps.txt", "shares no access point")
+    assert not out.exists()
+
+
+def test_waypoints_in_walls_warn_but_track(tmp_path, capsys):
+    log = tmp_path / "wall_wp.txt"
+    with gzip.open(WALK, "rt") as handle:
+        lines = handle.readlines()
+    first_wp = next(i for i, line in enumerate(lines) if "TYPE_WAYPOINT" in line)
+    t = lines[first_wp].split("\t")[0]
+    lines[first_wp] = f"{t}\tTYPE_WAYPOINT\t0.05\t0.05\n"  # the map's corner: outer wall
+    log.write_text("".join(lines))
+    out = tmp_path / "t.csv"
+    assert main(["track", str(OFFICE), str(log), "--radiomap", str(RADIOMAP), "--particles", "500",
+                 "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "warning" in err and "1 of" in err and "waypoints lie in walls" in err
+    assert out.exists()
