@@ -74,17 +74,18 @@ _WEIGHT_DECADES = 3.0
 _RAMP = np.array(
     [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], dtype=np.float64
 )
-_TRACK_COLOURS = [
-    (255, 127, 14), (31, 119, 180), (148, 103, 189), (23, 190, 207), (227, 119, 194), (188, 189, 34),
-]
+# finished tracks: none orange (the live estimate), green (ground truth), red or magenta (events)
+_TRACK_COLOURS = [(31, 119, 180), (148, 103, 189), (23, 190, 207), (188, 189, 34), (140, 86, 75), (127, 127, 127)]
 _RED = (230, 40, 40)
 _BACKGROUND = (235, 235, 235)  # the map view's background, also under transparent plan pixels
 _GT_COLOUR = (40, 200, 40)
+_RECOVERY_COLOUR = (220, 0, 220)
 _ESTIMATE_COLOUR = (255, 140, 0)
 
 # Draw orders: pictures at the bottom, then paths, particles, the estimate, event markers on top.
-_Z_IMAGE, _Z_MASK, _Z_GT, _Z_TRACK, _Z_PARTICLES, _Z_KILLED, _Z_MEAS, _Z_ESTIMATE, _Z_EVENTS = (
-    -20.0, -10.0, 4.0, 5.0, 10.0, 12.0, 15.0, 20.0, 30.0,
+# The ground truth (thin) lies over the tracks (wider), so both stay visible where they agree.
+_Z_IMAGE, _Z_MASK, _Z_TRACK, _Z_GT, _Z_PARTICLES, _Z_KILLED, _Z_MEAS, _Z_ESTIMATE, _Z_EVENTS = (
+    -20.0, -10.0, 5.0, 6.0, 10.0, 12.0, 15.0, 20.0, 30.0,
 )
 
 
@@ -319,6 +320,8 @@ class RerunLogger:
         log = self.rec.log
         # the flip that lets everything below map/world be logged in y-up metres
         log("map/world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+        if not self.filter_plots:
+            return
         log("plots/particles/ess", rr.SeriesLines(colors=[(31, 119, 180)], names=["ESS"], widths=[1.5]), static=True)
         log("plots/particles/alive", rr.SeriesLines(colors=[(44, 160, 44)], names=["alive"], widths=[1.5]), static=True)
         log(
@@ -327,6 +330,8 @@ class RerunLogger:
                             marker_sizes=[3.0]),
             static=True,
         )
+        log("plots/error_m/filter", rr.SeriesLines(colors=[_ESTIMATE_COLOUR], names=["filter"], widths=[1.5]),
+            static=True)
         log("plots/kills", rr.SeriesLines(colors=[_RED], names=["killed by walls"], widths=[1.5]), static=True)
         log("plots/pdr/step_length_m", rr.SeriesLines(colors=[(148, 103, 189)], names=["step length (m)"]), static=True)
         log("plots/pdr/heading_deg", rr.SeriesLines(colors=[(140, 86, 75)], names=["heading (deg)"]), static=True)
@@ -427,8 +432,9 @@ class RerunLogger:
         if t.size == 0:
             return
         labels = [f"wp{i}" for i in range(t.size)]
+        radius = -5.0 if t.size <= 50 else -2.5  # a simulated walk has a waypoint per step
         self.rec.log("map/world/ground_truth/waypoints",
-                     rr.Points2D(self._gt_xy_m, radii=-5.0, colors=_GT_COLOUR, labels=labels, show_labels=False,
+                     rr.Points2D(self._gt_xy_m, radii=radius, colors=_GT_COLOUR, labels=labels, show_labels=False,
                                  draw_order=_Z_GT),
                      static=True)
         self.rec.log("map/world/ground_truth/path",
@@ -564,9 +570,9 @@ class RerunLogger:
         self.rec.log("map/world/events/collapses",
                      rr.Points2D(collapse, colors=_RED, radii=-8.0, labels=self._collapse_labels, draw_order=_Z_EVENTS))
         self.rec.log("map/world/events/recoveries",
-                     rr.Points2D(recovery, colors=(0, 160, 255), radii=-6.0, draw_order=_Z_EVENTS))
+                     rr.Points2D(recovery, colors=_RECOVERY_COLOUR, radii=-6.0, draw_order=_Z_EVENTS))
         self.rec.log("map/world/events/jumps",
-                     rr.Arrows2D(origins=collapse, vectors=recovery - collapse, colors=(0, 160, 255), radii=-1.0,
+                     rr.Arrows2D(origins=collapse, vectors=recovery - collapse, colors=_RECOVERY_COLOUR, radii=-1.0,
                                  draw_order=_Z_EVENTS))
 
     # ---- finished tracks ------------------------------------------------------------------
@@ -586,7 +592,7 @@ class RerunLogger:
         colour = _TRACK_COLOURS[self._n_tracks % len(_TRACK_COLOURS)]
         self._n_tracks += 1
         base = f"map/world/tracks/{entity}"
-        self.rec.log(f"{base}/path", rr.LineStrips2D([xy], colors=colour, radii=-1.5, labels=[name],
+        self.rec.log(f"{base}/path", rr.LineStrips2D([xy], colors=colour, radii=-2.0, labels=[name],
                                                      draw_order=_Z_TRACK), static=True)
         time_column = self._time_column(t)
         self.rec.send_columns(f"{base}/position", indexes=[time_column], columns=rr.Points2D.columns(positions=xy))

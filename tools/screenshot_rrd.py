@@ -6,7 +6,8 @@ Needs a Vulkan driver; on a machine without a GPU, Mesa's software one (Debian:
 ``apt-get install -y mesa-vulkan-drivers``) with ``WGPU_BACKEND=vulkan`` (set here: the GL
 backend fails headless). Uses rerun's experimental ``ViewerClient`` API (rerun-sdk 0.41): spawn
 a headless viewer (1920x1080), open the file, pause the time cursor at ``--fraction`` of the
-timeline's span (read from the file with ``rerun.chunk.RrdReader``), take a screenshot, quit.
+timeline's span (read from the file with ``rerun.chunk.RrdReader``), take a screenshot, quit;
+the PNG is quantised to a 256-colour palette (``--palette 0`` keeps it as the viewer sent it).
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="where to put the time cursor, as a fraction of the timeline's span (default 1 = end)")
     parser.add_argument("--settle-s", type=float, default=4.0, help="seconds to let the viewer load and lay out")
     parser.add_argument("--max-size", type=int, default=None, help="scale the PNG so its longest side fits")
+    parser.add_argument("--palette", type=int, default=256,
+                        help="quantise to this many colours to keep the PNG small (the UI has few); 0 = off")
     parser.add_argument("--port", type=int, default=9877)
     args = parser.parse_args(argv)
     if not args.rrd.is_file():
@@ -89,6 +92,16 @@ def main(argv: list[str] | None = None) -> int:
         print("screenshot_rrd: error: the viewer returned no image", file=sys.stderr)
         return 1
     args.png.parent.mkdir(parents=True, exist_ok=True)
+    if args.palette:
+        import io
+
+        from PIL import Image  # Pillow comes with matplotlib
+
+        image = Image.open(io.BytesIO(png)).convert("RGB")
+        image = image.quantize(colors=args.palette, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+        buffer = io.BytesIO()
+        image.save(buffer, format="PNG", optimize=True)
+        png = buffer.getvalue()
     args.png.write_bytes(png)
     print(f"wrote {args.png} ({len(png) / 1e3:.0f} kB)")
     return 0
