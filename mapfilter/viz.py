@@ -265,14 +265,17 @@ class RerunLogger:
         if recording_name:
             self.rec.send_recording_name(recording_name)
         blueprint = self.blueprint()
-        if rrd_path is not None:
-            self.rrd_path: Path | None = Path(rrd_path)
-            (tmp,) = self._stack.enter_context(atomic_paths(self.rrd_path))
-            self.rec.save(tmp, default_blueprint=blueprint)
-        else:
-            self.rrd_path = None
-            self.rec.spawn(default_blueprint=blueprint)
-        self._log_styles()
+        self.rrd_path: Path | None = None if rrd_path is None else Path(rrd_path)
+        try:
+            if self.rrd_path is not None:
+                (tmp,) = self._stack.enter_context(atomic_paths(self.rrd_path))
+                self.rec.save(tmp, default_blueprint=blueprint)
+            else:
+                self.rec.spawn(default_blueprint=blueprint)
+            self._log_styles()
+        except BaseException:
+            self.abort()  # leave no temporary file behind
+            raise
 
     # ---- layout ---------------------------------------------------------------------------
     def blueprint(self) -> Any:
