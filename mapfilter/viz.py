@@ -35,7 +35,7 @@ Entities (all under ``map/world`` are in world metres)
 - ``map/world/events/{collapses,recoveries,jumps}``
 - ``map/world/tracks/<name>/{path,position}``
 - ``plots/particles/{ess,alive,resampled}``, ``plots/kills``, ``plots/error_m/<name>``,
-  ``plots/pdr/{step_length_m,heading_deg}``
+  ``plots/pdr/step_length_m``, ``plots/pdr/heading_deg/{filter,ground_truth}``
 - ``events`` (text log: collapses and recoveries as WARN, resampling as DEBUG)
 """
 
@@ -65,6 +65,9 @@ DEFAULT_MAX_PARTICLES = 5000
 # piece, so the data logged per step stays bounded (re-logging the whole trail each step
 # would be quadratic in the walk length).
 TRAIL_PIECE_STEPS = 100
+# Ground-truth walking direction: over this window, and only if the walker moved this far in it.
+_GT_HEADING_WINDOW_S = 1.0
+_GT_HEADING_MIN_MOVE_M = 0.3
 # Times at or above this are taken as Unix seconds (2001-09-09 onwards).
 _UNIX_TIME_MIN_S = 1.0e9
 # Particle colours: relative weight w / w_max shown over this many decades (log scale).
@@ -306,8 +309,8 @@ class RerunLogger:
             rrb.TimeSeriesView(name="Killed by walls per step", origin="plots/kills"),
             error_view,
             rrb.Tabs(
-                rrb.TimeSeriesView(name="PDR step length (m)", origin="plots/pdr/step_length_m"),
                 rrb.TimeSeriesView(name="PDR heading (deg)", origin="plots/pdr/heading_deg"),
+                rrb.TimeSeriesView(name="PDR step length (m)", origin="plots/pdr/step_length_m"),
             ),
             rrb.TextLogView(name="Events", origin="events"),
             row_shares=[1, 1, 1, 1, 1.2],
@@ -337,7 +340,10 @@ class RerunLogger:
             static=True)
         log("plots/kills", rr.SeriesLines(colors=[_RED], names=["killed by walls"], widths=[1.5]), static=True)
         log("plots/pdr/step_length_m", rr.SeriesLines(colors=[(148, 103, 189)], names=["step length (m)"]), static=True)
-        log("plots/pdr/heading_deg", rr.SeriesLines(colors=[(140, 86, 75)], names=["heading (deg)"]), static=True)
+        log("plots/pdr/heading_deg/filter", rr.SeriesLines(colors=[_ESTIMATE_COLOUR], names=["filter"]), static=True)
+        log("plots/pdr/heading_deg/ground_truth",
+            rr.SeriesPoints(colors=[_GT_COLOUR], names=["walking direction (ground truth)"], marker_sizes=[1.5]),
+            static=True)
 
     # ---- time -----------------------------------------------------------------------------
     def _set_time(self, t_s: float, step: int | None = None) -> None:
@@ -447,6 +453,20 @@ class RerunLogger:
     def _ground_truth_at(self, t_s: np.ndarray) -> np.ndarray:
         return interpolate_ground_truth(self._gt_t_s, self._gt_xy_m, t_s)
 
+    def _ground_truth_heading_rad(self, t_s: float) -> float | None:
+        """Direction of walking on the ground-truth path around ``t_s`` (None when standing or unknown).
+
+        Points only (no line) in the plot: the interpolated path turns abruptly at waypoints.
+        """
+        if self._gt_t_s.size < 2:
+            return None
+        half_s = 0.5 * _GT_HEADING_WINDOW_S
+        a, b = self._ground_truth_at(np.array([t_s - half_s, t_s + half_s]))
+        delta = b - a
+        if not np.all(np.isfinite(delta)) or np.hypot(*delta) < _GT_HEADING_MIN_MOVE_M:
+            return None
+        return math.atan2(delta[1], delta[0])
+
     # ---- one filter step ------------------------------------------------------------------
     def _show(self, path: str, archetype: Any | None) -> None:
         """Log ``archetype`` at ``path``, or clear ``path`` if it showed something before."""
@@ -530,7 +550,10 @@ class RerunLogger:
         if report.step_length_m is not None:
             log("plots/pdr/step_length_m", rr.Scalars(float(report.step_length_m)))
         if report.heading_rad is not None:
-            log("plots/pdr/heading_deg", rr.Scalars(_wrap_deg(float(report.heading_rad))))
+            log("plots/pdr/heading_deg/filter", rr.Scalars(_wrap_deg(float(report.heading_rad))))
+            true_heading = self._ground_truth_heading_rad(report.t_s)
+            if true_heading is not None:
+                log("plots/pdr/heading_deg/ground_truth", rr.Scalars(_wrap_deg(true_heading)))
 
         # events
         if report.resampled:

@@ -212,7 +212,7 @@ def test_recording_has_one_row_per_step(filter_recording):
     path, _, reports = filter_recording
     entities = read_rrd(path)
     for entity in ("/map/world/particles", "/map/world/estimate/position", "/plots/particles/ess",
-                   "/plots/particles/alive", "/plots/kills", "/plots/pdr/heading_deg", "/plots/pdr/step_length_m",
+                   "/plots/particles/alive", "/plots/kills", "/plots/pdr/heading_deg/filter", "/plots/pdr/step_length_m",
                    "/plots/error_m/filter"):
         batches = [b for b in entities[entity] if "step" in b.schema.names]  # not the static style
         steps = sorted(s for b in batches for s in b.column("step").to_pylist())
@@ -223,6 +223,14 @@ def test_recording_has_one_row_per_step(filter_recording):
     assert len(rows(entities["/plots/particles/resampled"], "Scalars:scalars")) == n_resampled
     kills = mono_rows(entities["/plots/kills"], "Scalars:scalars")
     assert kills == [r.n_killed for r in reports]
+
+
+def test_ground_truth_walking_direction_is_plotted(filter_recording):
+    path, _, reports = filter_recording
+    # the synthetic walk goes left to right (+x): heading 0 deg wherever the waypoints cover it
+    headings = np.array(mono_rows(read_rrd(path)["/plots/pdr/heading_deg/ground_truth"], "Scalars:scalars"))
+    assert headings.size >= len(reports) - 2  # the first and last step lack a full window
+    np.testing.assert_allclose(headings, 0.0, atol=1e-3)
 
 
 def test_particles_are_capped_and_weight_coloured(filter_recording):
