@@ -1,0 +1,139 @@
+"""``mapfilter evaluate MAP LOG...``: every method on the same walks, one table, one CDF plot."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+from mapfilter.atomic import atomic_paths
+from mapfilter.comparison import ALL_METHODS, EvaluationSetup, evaluate_logs, nan_to_none
+from mapfilter.errors import MapfilterError
+from mapfilter.evaluate import format_table, plot_error_cdf, plot_tracks_on_map
+from mapfilter.floorplan import FloorPlan
+from mapfilter.logs import read_ilc
+from mapfilter.trackio import write_track_csv
+from mapfilter.tracking import TrackingConfig
+
+_EPILOG = f"""\
+methods: {', '.join(ALL_METHODS)} (default: all that the WiFi source allows)
+  pf        particle filter: map + WiFi + PDR       kwnn      KWNN fixes (Chang et al.)
+  pf-nomap  the same, walls ignored                 pdr-kwnn  KWNN with PDR (Chang et al.)
+  pf-nopdr  the same, constant velocity, no PDR     kf        Kalman filter on fixes + PDR
+  pdr       dead reckoning from the first fix       ls        least-squares trilateration
+
+Errors are taken at the ground-truth waypoint times from each method's latest estimate at
+or before that time (causal); waypoints before a method's first estimate are counted as
+missed. --smooth adds pf-smooth, the offline track from particle ancestry (not causal).
+
+writes into OUT: summary.csv, summary.json (with per-trace rows), traces.csv, cdf.png,
+tracks/<trace>.png (tracks on the floor plan) and tracks/<trace>/<method>.csv.
+
+example (ILC floor, each walk's radio map from the other walks):
+  mapfilter evaluate F1.yaml ../shared/data/ilc20/site1/F1/path_data_files/*.txt.gz \\
+      --leave-one-out --out results/F1 --jobs 2
+"""
+
+SUMMARY_COLUMNS = ("method", "mean", "median", "p75", "p90", "max", "rmse", "n", "missed", "wall_crossings",
+                   "collapses", "runtime_s")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "evaluate", help="compare every method on the same walks (errors, CDF plot, tracks)",
+        description="Run every method on the same walks and compare their errors against ground truth.",
+        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("map", type=Path, metavar="MAP", help="map YAML")
+    parser.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="walks with waypoints (ILC format)")
+    parser.add_argument("--methods", default=",".join(ALL_METHODS), metavar="M1,M2",
+                        help="comma-separated methods (default: all)")
+    parser.add_argument("--radiomap", type=Path, metavar="RM", help="one radio map for all walks")
+    parser.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table (ls; pf if no radio map)")
+    parser.add_argument("--leave-one-out", action="store_true",
+                        help="each walk's radio map (and fitted APs for ls) from the other walks only")
+    parser.add_argument("--particles", type=int, default=TrackingConfig.n_particles, metavar="N",
+                        help=f"particles for the pf methods (default: {TrackingConfig.n_particles})")
+    parser.add_argument("--fingerprint-model", choices=("fix", "likelihood"), default=TrackingConfig.fingerprint_model,
+                        help=f"how pf weighs fingerprints (default: {TrackingConfig.fingerprint_model})")
+    parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
+    parser.add_argument("--smooth", action="store_true", help="also report the smoothed pf track (pf-smooth)")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N", help="walks in parallel processes (default: 1)")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    unknown = [m for m in methods if m not in ALL_METHODS]
+    if unknown:
+        raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(ALL_METHODS)}")
+    if args.particles < 1 or args.jobs < 1:
+        raise MapfilterError("--particles and --jobs must be at least 1")
+    if args.out.exists() and not args.out.is_dir():
+        raise MapfilterError("the output must be a directory", args.out)
+    floorplan = FloorPlan.load(args.map)
+    setup = EvaluationSetup(
+        methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps, leave_one_out=args.leave_one_out,
+        smooth=args.smooth, seed=args.seed,
+        tracking=TrackingConfig(n_particles=args.particles, fingerprint_model=args.fingerprint_model))
+
+    def progress(done: int, total: int, name: str) -> None:
+        bar = "#" * int(30 * done / total)
+        print(f"\r[{bar:<30}] {done}/{total} {name[:40]:<40}", end="" if done < total else "\n",
+              file=sys.stderr, flush=True)
+
+    evaluation = evaluate_logs(floorplan, args.logs, setup, jobs=args.jobs, progress=progress, map_path=args.map)
+    summary = evaluation.summary_rows()
+    table = format_table(summary, SUMMARY_COLUMNS)
+    print(f"{evaluation.n_traces} walks, {sum(r['n'] for r in summary[:1])} waypoints, "
+          f"{evaluation.wall_time_s:.1f} s\n{table}")
+    _write_outputs(args, floorplan, evaluation, summary)
+    print(f"wrote {args.out}/summary.csv, summary.json, traces.csv, cdf.png, tracks/")
+    return 0
+
+
+def _write_outputs(args, floorplan, evaluation, summary) -> None:
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_paths(out / "summary.csv", out / "traces.csv", out / "summary.json") as (s_csv, t_csv, s_json):
+        _write_csv(s_csv, summary, SUMMARY_COLUMNS)
+        trace_rows = evaluation.trace_rows()
+        _write_csv(t_csv, trace_rows, ("trace",) + SUMMARY_COLUMNS)
+        s_json.write_text(json.dumps({
+            "map": str(args.map), "logs": [str(p) for p in args.logs], "leave_one_out": args.leave_one_out,
+            "particles": args.particles, "seed": args.seed, "wall_time_s": evaluation.wall_time_s,
+            "summary": [{k: nan_to_none(v) for k, v in row.items()} for row in summary],
+            "traces": [{k: nan_to_none(v) for k, v in row.items()} for row in trace_rows],
+        }, indent=1))
+    plot_error_cdf(evaluation.errors_by_method(), out / "cdf.png",
+                   title=f"{evaluation.n_traces} walks on {args.map.name}")
+    tracks_dir = out / "tracks"
+    by_trace: dict[str, list] = {}
+    for result in evaluation.results:
+        by_trace.setdefault(result.trace, []).append(result)
+    for log_path in args.logs:
+        recording = read_ilc(log_path)
+        results = by_trace.get(recording.name, [])
+        for result in results:
+            write_track_csv(dataclasses.replace(result.track, name=result.method),
+                            tracks_dir / recording.name / f"{result.method}.csv")
+        shown = {r.method: r.track.xy_m for r in results if r.method in ("pf", "pf-smooth", "kwnn", "kf", "pdr")}
+        plot_tracks_on_map(floorplan, shown, tracks_dir / f"{recording.name}.png", recording.waypoint_xy_m,
+                           title=recording.name)
+
+
+def _write_csv(path: Path, rows: list[dict], columns) -> None:
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(columns)
+        for row in rows:
+            writer.writerow([_cell(row.get(c)) for c in columns])
+
+
+def _cell(value) -> str:
+    if isinstance(value, float):
+        return "" if value != value else f"{value:.4f}"
+    return "" if value is None else str(value)

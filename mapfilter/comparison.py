@@ -1,0 +1,274 @@
+"""Every method on the same walks in one run: the engine behind ``mapfilter evaluate``.
+
+Methods (same inputs, same output: a track; errors at the ground-truth waypoint times,
+causal: each method's latest estimate at or before the waypoint):
+
+=============  ==========================================================================
+``pf``         particle filter: map + WiFi + PDR (the project's method)
+``pf-nomap``   the same with the walls ignored (what the map buys)
+``pf-nopdr``   the same with a constant-velocity motion model instead of PDR
+``kwnn``       K-weighted nearest-neighbour fixes (Chang et al.), one per scan
+``pdr-kwnn``   KWNN with the PDR-predicted position and heading in the distance (Chang et al.)
+``kf``         Kalman filter on the KWNN fixes with PDR steps as input (Evennou & Marx; Seitz)
+``pdr``        dead reckoning from the first fix
+``ls``         least-squares trilateration per scan (needs an access-point table)
+=============  ==========================================================================
+
+With ``leave_one_out`` the radio map (and the fitted access-point table) of each walk is
+built from the *other* walks only, as the ILC evaluation needs. The smoothed PF track
+(``pf-smooth``, offline) is reported as a separate, non-causal row.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from mapfilter.baselines import kalman_track, pdr_track
+from mapfilter.errors import MapfilterError
+from mapfilter.evaluate import errors_at_waypoints, summarise_errors
+from mapfilter.floorplan import FloorPlan
+from mapfilter.logs import Recording, read_ilc
+from mapfilter.pdr import detect_steps
+from mapfilter.radiomap import RadioMap, build_radio_map, kwnn_fix_many
+from mapfilter.trackio import Track
+from mapfilter.tracking import TrackingConfig, track_recording
+from mapfilter.walls import count_wall_crossings
+from mapfilter.wifi import AccessPointTable, estimate_access_points, least_squares_position, match_scan, scans_of
+
+ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls")
+PF_METHODS = {"pf": {}, "pf-nomap": {"use_map": False}, "pf-nopdr": {"motion": "cv"}}
+
+
+@dataclasses.dataclass(frozen=True)
+class EvaluationSetup:
+    """What every walk is evaluated with."""
+
+    methods: tuple[str, ...] = ALL_METHODS
+    radio_map_path: Path | None = None  # one radio map for all walks
+    ap_table_path: Path | None = None  # one access-point table for all walks
+    leave_one_out: bool = False  # radio map (and fitted APs for ls) of each walk from the other walks
+    fit_aps: bool = False  # with leave_one_out: fit an AP table per walk for ls (and pf if no radio map)
+    smooth: bool = False  # also report the smoothed PF track (pf-smooth)
+    seed: int = 0
+    tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)
+
+
+@dataclasses.dataclass
+class MethodResult:
+    """One method on one walk."""
+
+    method: str
+    trace: str
+    track: Track
+    errors_m: np.ndarray
+    missed: int
+    wall_crossings: int
+    collapses: int
+    runtime_s: float
+    causal: bool = True
+
+
+def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, setup: EvaluationSetup,
+                   all_walks_radio_map: RadioMap | None = None) -> list[MethodResult]:
+    """Run every method of ``setup`` on walk ``log_paths[index]``.
+
+    With leave-one-out, ``all_walks_radio_map`` (built from every walk) loses this walk's
+    reference points. Random draws come from ``default_rng([seed, index, method])``, so the
+    result does not depend on how walks are spread over processes.
+    """
+    recording = read_ilc(log_paths[index])
+    if not recording.has_ground_truth:
+        raise MapfilterError("the log has no waypoints to evaluate against", log_paths[index])
+    radio_map, ap_table = _wifi_sources(recording, setup, all_walks_radio_map)
+    scans = scans_of(recording)
+    steps = detect_steps(recording, setup.tracking.pdr)
+    scan_t = np.array([s.t_s for s in scans])
+    fixes = None
+    if radio_map is not None:
+        fixes = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=setup.tracking.kwnn_k).xy_m
+    elif ap_table is not None:
+        fixes = _ls_fixes(ap_table, scans)
+    results: list[MethodResult] = []
+
+    def add(method: str, make: Callable[[], tuple[Track, int]], causal: bool = True) -> None:
+        started = time.perf_counter()
+        track, collapses = make()
+        runtime = time.perf_counter() - started
+        err = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, causal)
+        results.append(MethodResult(method, recording.name, track, err.errors_m, err.missed,
+                                    count_wall_crossings(floorplan, track.xy_m) if len(track) else 0,
+                                    collapses, runtime, causal))
+
+    for method in setup.methods:
+        if method in PF_METHODS:
+            if radio_map is None and ap_table is None:
+                continue
+            config = dataclasses.replace(setup.tracking, smooth=setup.smooth and method == "pf", **PF_METHODS[method])
+            rng = np.random.default_rng([setup.seed, index, ALL_METHODS.index(method)])
+            outcome = track_recording(floorplan, recording, radio_map, ap_table if radio_map is None else None,
+                                      config, rng, steps=steps)
+            add(method, lambda: (outcome.track, len(outcome.collapses)))
+            results[-1].runtime_s = outcome.runtime_s
+            if outcome.smoothed is not None:
+                add("pf-smooth", lambda: (outcome.smoothed, len(outcome.collapses)), causal=False)
+                results[-1].runtime_s = outcome.runtime_s
+        elif method == "kwnn" and radio_map is not None:
+            add(method, lambda: (_fix_track(scan_t, fixes, "kwnn"), 0))
+        elif method == "pdr-kwnn" and radio_map is not None:
+            add(method, lambda: (_pdr_kwnn(radio_map, scans, steps), 0))
+        elif method == "kf" and fixes is not None:
+            ok = np.all(np.isfinite(fixes), axis=1)
+            add(method, lambda: (kalman_track(scan_t[ok], fixes[ok], steps), 0))
+        elif method == "pdr" and fixes is not None:
+            ok = np.flatnonzero(np.all(np.isfinite(fixes), axis=1))
+            if ok.size:
+                add(method, lambda: (pdr_track(steps, scan_t[ok[0]], fixes[ok[0]]), 0))
+        elif method == "ls" and ap_table is not None:
+            add(method, lambda: (_fix_track(scan_t, _ls_fixes(ap_table, scans), "ls"), 0))
+    return results
+
+
+def _wifi_sources(recording: Recording, setup: EvaluationSetup,
+                  all_walks_radio_map: RadioMap | None) -> tuple[RadioMap | None, AccessPointTable | None]:
+    radio_map = RadioMap.load(setup.radio_map_path) if setup.radio_map_path else None
+    ap_table = AccessPointTable.read_csv(setup.ap_table_path) if setup.ap_table_path else None
+    if setup.leave_one_out:
+        if all_walks_radio_map is None:
+            raise ValueError("leave-one-out needs the radio map of all walks")
+        radio_map = _drop_unheard_aps(all_walks_radio_map.without_traces([recording.name]))
+        if len(radio_map) == 0:
+            raise MapfilterError("leave-one-out needs other walks with waypoints and WiFi", recording.path)
+        if ap_table is None and (setup.fit_aps or "ls" in setup.methods):
+            ap_table = estimate_access_points(radio_map)
+    return radio_map, ap_table
+
+
+def _drop_unheard_aps(radio_map: RadioMap) -> RadioMap:
+    """Without the walk under test, some APs are heard nowhere: drop them, as a radio map built
+    from the other walks alone would never have had them."""
+    heard = ~np.all(np.isnan(radio_map.rssi_dbm), axis=0)
+    keys = [k for k, h in zip(radio_map.ap_keys, heard) if h]
+    return RadioMap(radio_map.xy_m, keys, radio_map.rssi_dbm[:, heard], radio_map.t_s, radio_map.trace,
+                    radio_map.source_traces, radio_map.floor_name)
+
+
+def _fix_track(scan_t: np.ndarray, fixes: np.ndarray, name: str) -> Track:
+    ok = np.all(np.isfinite(fixes), axis=1)
+    return Track(scan_t[ok], fixes[ok], name=name)
+
+
+def _ls_fixes(ap_table: AccessPointTable, scans) -> np.ndarray:
+    fixes = np.full((len(scans), 2), np.nan)
+    for i, scan in enumerate(scans):
+        if match_scan(ap_table, scan)[0].size >= 3:
+            fixes[i] = least_squares_position(ap_table, scan)
+    return fixes
+
+
+def _pdr_kwnn(radio_map: RadioMap, scans, steps) -> Track:
+    from mapfilter.baselines import pdr_kwnn_track  # written alongside the paper experiments
+
+    return pdr_kwnn_track(radio_map, scans, steps)
+
+
+# ---- many walks ------------------------------------------------------------------------------
+@dataclasses.dataclass
+class Evaluation:
+    """All methods on all walks."""
+
+    results: list[MethodResult]
+    n_traces: int
+    wall_time_s: float
+
+    def methods(self) -> list[str]:
+        seen: list[str] = []
+        for r in self.results:
+            if r.method not in seen:
+                seen.append(r.method)
+        return seen
+
+    def errors_by_method(self) -> dict[str, np.ndarray]:
+        return {m: np.concatenate([r.errors_m for r in self.results if r.method == m]) for m in self.methods()}
+
+    def summary_rows(self) -> list[dict]:
+        """One row per method: error statistics over all waypoints of all walks, and totals."""
+        rows = []
+        for method in self.methods():
+            mine = [r for r in self.results if r.method == method]
+            stats = summarise_errors(np.concatenate([r.errors_m for r in mine]))
+            rows.append({"method": method, **stats, "missed": sum(r.missed for r in mine),
+                         "wall_crossings": sum(r.wall_crossings for r in mine),
+                         "collapses": sum(r.collapses for r in mine),
+                         "runtime_s": sum(r.runtime_s for r in mine), "traces": len(mine),
+                         "causal": mine[0].causal})
+        return rows
+
+    def trace_rows(self) -> list[dict]:
+        """One row per walk and method."""
+        return [{"trace": r.trace, "method": r.method, **summarise_errors(r.errors_m), "missed": r.missed,
+                 "wall_crossings": r.wall_crossings, "collapses": r.collapses, "runtime_s": r.runtime_s}
+                for r in self.results]
+
+
+def evaluate_logs(floorplan: FloorPlan, log_paths: Sequence[str | os.PathLike], setup: EvaluationSetup,
+                  jobs: int = 1, progress: Callable[[int, int, str], None] | None = None,
+                  map_path: str | os.PathLike | None = None) -> Evaluation:
+    """Evaluate every method on every walk; ``jobs`` > 1 runs walks in parallel processes
+    (the map is then re-read from ``map_path`` in each worker)."""
+    paths = [Path(p) for p in log_paths]
+    for path in paths:
+        if not path.is_file():
+            raise MapfilterError("file not found", path)
+    unknown = [m for m in setup.methods if m not in ALL_METHODS]
+    if unknown:
+        raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(ALL_METHODS)}")
+    if setup.radio_map_path is None and setup.ap_table_path is None and not setup.leave_one_out:
+        raise MapfilterError("no WiFi source: give a radio map, an access-point table or leave-one-out")
+    started = time.perf_counter()
+    all_walks = None
+    if setup.leave_one_out:
+        if len(paths) < 2:
+            raise MapfilterError("leave-one-out needs at least two logs")
+        all_walks = build_radio_map([read_ilc(p) for p in paths], floorplan)
+    results: list[list[MethodResult] | None] = [None] * len(paths)
+    if jobs <= 1 or len(paths) == 1:
+        for i in range(len(paths)):
+            results[i] = evaluate_trace(floorplan, paths, i, setup, all_walks)
+            if progress:
+                progress(i + 1, len(paths), paths[i].name)
+    else:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        if map_path is None:
+            raise ValueError("parallel evaluation needs map_path")
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = {pool.submit(_evaluate_in_worker, str(map_path), paths, i, setup, all_walks): i
+                       for i in range(len(paths))}
+            done = 0
+            for future in as_completed(futures):
+                i = futures[future]
+                results[i] = future.result()
+                done += 1
+                if progress:
+                    progress(done, len(paths), paths[i].name)
+    flat = [r for per_trace in results for r in (per_trace or [])]
+    return Evaluation(flat, len(paths), time.perf_counter() - started)
+
+
+def _evaluate_in_worker(map_path: str, paths: list[Path], index: int, setup: EvaluationSetup,
+                        all_walks: RadioMap | None) -> list[MethodResult]:
+    return evaluate_trace(FloorPlan.load(map_path), paths, index, setup, all_walks)
+
+
+def nan_to_none(value):
+    """JSON has no NaN: write null."""
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    return value
