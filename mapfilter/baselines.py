@@ -11,6 +11,7 @@ KWNN fixes and LS trilateration come from ``mapfilter.radiomap`` / ``mapfilter.w
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -151,3 +152,144 @@ def pdr_track(steps: Steps, start_t_s: float, start_xy_m: np.ndarray, step_lengt
     t_s = t_s.copy()
     t_s[0] = start_t_s
     return Track(t_s, xy_m, name="pdr")
+
+
+@dataclasses.dataclass(frozen=True)
+class PdrKwnnConfig:
+    """PDR-KWNN (Chang et al.): eps_i = D_rss,i + lambda D_loc,i + gamma D_agl,i, k nearest by eps.
+
+    The three terms carry different units (dB, m, rad). Each is divided by a scale first so
+    that one unit of each means "about as unlikely as the others":
+
+    - ``D_rss`` by the scan's best (smallest) signal distance over all reference points: what
+      a perfect match still costs with RSSI noise (about sqrt(#APs) x sigma), so 1 = as good
+      as the best match, 2 = twice as far in signal space;
+    - ``D_loc`` by ``loc_scale_m``: the PDR prediction is trusted to about this many metres
+      (reference-point spacing plus PDR drift over one scan interval);
+    - ``D_agl`` by pi: 1 = the reference point lies straight behind the walker.
+
+    With ``lambda = 1`` a reference point 2 m (= loc_scale_m) from the PDR prediction costs as
+    much as one twice as far in signal space as the best match. The defaults were set by
+    reasoning on these scales, not fitted to any paper's figure.
+    """
+
+    k: int = 4  # Chang et al.: k = 4
+    p: float = 2.0  # Minkowski exponent of the signal distance (Euclidean)
+    q: float = 2.0  # weights 1 / eps^q
+    lambda_loc: float = 1.0  # weight of D_loc / loc_scale_m
+    gamma_agl: float = 0.5  # weight of D_agl / pi
+    loc_scale_m: float = 2.0
+    min_move_for_angle_m: float = 0.5  # below this PDR displacement the heading is meaningless: no angle term
+    missing_dbm: float = -100.0  # an AP heard on one side only counts as this on the other (as in KWNN)
+    min_shared_aps: int = 3  # reference points sharing fewer heard APs with the scan are no candidates
+    use_abs_heading: bool = True  # gyro-to-map heading offset from the rotation vector (if the steps have it)
+
+
+def pdr_kwnn_track(radio_map, scans, steps: Steps | None, config: PdrKwnnConfig = PdrKwnnConfig()) -> Track:
+    """PDR-KWNN track (Chang et al., "Wi-Fi fingerprint positioning updated by PDR"), one
+    estimate per WiFi scan.
+
+    The first scan (with any candidate reference point) is a plain KWNN fix. For every later
+    scan the PDR prediction is ``p = previous estimate + sum of the steps since the previous
+    scan``, each step ``L_i (cos(h_i + psi), sin(h_i + psi))`` with the Weinberg length
+    ``steps.step_length_m``, the gyro heading ``steps.heading_rad`` and the gyro-to-map
+    offset ``psi`` from the rotation vector (``heading_offset_prior``, causal). Then over the
+    reference points RP_i:
+
+        eps_i = D_rss,i / s_rss + lambda |RP_i - p| / loc_scale_m + gamma D_agl,i / pi
+
+    with D_agl,i the wrapped angle between RP_i - previous estimate and the PDR displacement,
+    and the estimate is sum w_i RP_i / sum w_i over the k smallest eps, w_i = 1 / eps_i^q.
+    Without steps (or without any heading) it is plain KWNN on every scan.
+
+    Parameters
+    ----------
+    radio_map : ``mapfilter.radiomap.RadioMap``.
+    scans : sequence of ``WifiScan`` in time order.
+    steps : PDR steps (``mapfilter.pdr.detect_steps``) or None.
+    config : ``PdrKwnnConfig``.
+
+    Returns
+    -------
+    Track named "pdr-kwnn": one row per scan from the first one with a fix on (scans before
+    that, or without a fix and without a previous estimate, give no row).
+    """
+    from mapfilter.radiomap import kwnn_fix_many
+
+    scans = list(scans)
+    name = "pdr-kwnn"
+    if not scans or len(radio_map) == 0:
+        return Track(np.zeros(0), np.zeros((0, 2)), name=name)
+    n_refs = len(radio_map)
+    # all signal distances, sorted per scan (KWNN's own kernel; inf where too few shared APs)
+    every = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=n_refs, p=config.p, q=config.q,
+                          missing_dbm=config.missing_dbm, min_shared_aps=config.min_shared_aps)
+    d_rss = np.full((len(scans), n_refs), np.inf)
+    rows = np.repeat(np.arange(len(scans))[:, None], every.neighbours.shape[1], axis=1)
+    ok = every.neighbours >= 0
+    d_rss[rows[ok], every.neighbours[ok]] = every.distance_db[ok]
+    plain = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=config.k, p=config.p, q=config.q,
+                          missing_dbm=config.missing_dbm, min_shared_aps=config.min_shared_aps).xy_m
+    scan_t = np.array([s.t_s for s in scans], dtype=np.float64)
+    use_pdr = steps is not None and len(steps) > 0
+    out_t: list[float] = []
+    out_xy: list[np.ndarray] = []
+    previous: np.ndarray | None = None
+    for j in range(len(scans)):
+        candidates = np.isfinite(d_rss[j])
+        if previous is None:
+            if np.all(np.isfinite(plain[j])):
+                previous = plain[j].copy()
+                out_t.append(scan_t[j])
+                out_xy.append(previous.copy())
+            continue
+        if not use_pdr:
+            estimate = plain[j] if np.all(np.isfinite(plain[j])) else previous
+        else:
+            displacement = _pdr_displacement(steps, scan_t[j - 1], scan_t[j], config)
+            predicted = previous + displacement
+            if not candidates.any():
+                estimate = predicted  # no fingerprint: dead-reckon to the next scan
+            else:
+                estimate = _pdr_kwnn_fix(radio_map.xy_m, d_rss[j], candidates, previous, predicted, displacement,
+                                         config)
+        previous = np.asarray(estimate, dtype=np.float64).copy()
+        out_t.append(scan_t[j])
+        out_xy.append(previous.copy())
+    if not out_t:
+        return Track(np.zeros(0), np.zeros((0, 2)), name=name)
+    return Track(np.array(out_t), np.array(out_xy), name=name)
+
+
+def _pdr_displacement(steps: Steps, t0_s: float, t1_s: float, config: PdrKwnnConfig) -> np.ndarray:
+    """Sum of the step vectors with t0 < t <= t1 in the map frame (gyro heading + offset)."""
+    i0 = int(np.searchsorted(steps.t_s, t0_s, side="right"))
+    i1 = int(np.searchsorted(steps.t_s, t1_s, side="right"))
+    if i1 <= i0:
+        return np.zeros(2)
+    offset = heading_offset_prior(steps, t1_s) if config.use_abs_heading else None
+    heading = steps.heading_rad[i0:i1] + (offset or 0.0)
+    length = steps.step_length_m[i0:i1]
+    return np.array([np.sum(length * np.cos(heading)), np.sum(length * np.sin(heading))])
+
+
+def _pdr_kwnn_fix(ref_xy_m: np.ndarray, d_rss_db: np.ndarray, candidates: np.ndarray, previous_xy_m: np.ndarray,
+                  predicted_xy_m: np.ndarray, displacement_m: np.ndarray, config: PdrKwnnConfig) -> np.ndarray:
+    """One PDR-KWNN estimate (Chang et al.'s eps with normalised terms; see ``PdrKwnnConfig``)."""
+    idx = np.flatnonzero(candidates)
+    xy = ref_xy_m[idx]
+    rss_scale = max(float(d_rss_db[idx].min()), 1e-6)
+    eps = d_rss_db[idx] / rss_scale
+    eps = eps + config.lambda_loc * np.linalg.norm(xy - predicted_xy_m, axis=1) / config.loc_scale_m
+    if np.hypot(*displacement_m) >= config.min_move_for_angle_m:
+        heading = math.atan2(displacement_m[1], displacement_m[0])
+        to_ref = xy - previous_xy_m
+        angle = np.arctan2(to_ref[:, 1], to_ref[:, 0])
+        d_agl = np.abs(wrap_angle(angle - heading))
+        # a reference point on the previous estimate itself has no direction: no angle cost
+        d_agl = np.where(np.hypot(to_ref[:, 0], to_ref[:, 1]) > 1e-9, d_agl, 0.0)
+        eps = eps + config.gamma_agl * d_agl / math.pi
+    kk = min(config.k, idx.size)
+    nearest = np.argsort(eps, kind="stable")[:kk]
+    weight = 1.0 / np.maximum(eps[nearest], 1e-9) ** config.q
+    return (weight[:, None] * xy[nearest]).sum(axis=0) / weight.sum()
