@@ -343,7 +343,19 @@ def estimate_access_points(labelled: RadioMap | Sequence[Recording],
             d = np.hypot(obs_xy[:, 0] - p[0], obs_xy[:, 1] - p[1])
             return path_loss_rssi_dbm(d, p[2], p[3], alpha, config.d_max_m) - obs_rssi
 
-        fit = least_squares(residual, start, bounds=(lo, hi), loss="soft_l1", f_scale=config.f_scale_db)
+        def jacobian(p, obs_xy=obs_xy):
+            # analytic: d R / d d = -10 n / (d ln 10) - alpha [d < d_max], zero where d is clamped at 1 m
+            alpha = p[4] if config.fit_alpha else config.alpha_db_per_m
+            dx, dy = p[0] - obs_xy[:, 0], p[1] - obs_xy[:, 1]
+            d_raw = np.hypot(dx, dy)
+            d = np.maximum(d_raw, MIN_DISTANCE_M)
+            dr_dd = np.where(d_raw > MIN_DISTANCE_M, -10.0 * p[3] / (d * np.log(10.0)) - alpha * (d < config.d_max_m), 0.0)
+            columns = [dr_dd * dx / d, dr_dd * dy / d, np.ones_like(d), -10.0 * np.log10(d)]
+            if config.fit_alpha:
+                columns.append(-np.minimum(d, config.d_max_m))
+            return np.column_stack(columns)
+
+        fit = least_squares(residual, start, jac=jacobian, bounds=(lo, hi), loss="soft_l1", f_scale=config.f_scale_db)
         rmse = float(np.sqrt(np.mean(fit.fun ** 2)))
         if not (fit.success and rmse <= config.max_rmse_db):
             continue

@@ -140,3 +140,16 @@ def test_estimate_access_points_from_real_logs(ilc_site1):
     lo, hi = wp.min(axis=0) - 15.0 - 1e-6, wp.max(axis=0) + 15.0 + 1e-6
     assert np.all((table.xy_m >= lo) & (table.xy_m <= hi))
     assert np.all((table.n >= 1.5) & (table.n <= 5.0)) and np.all(table.c_dbm <= -15.0)
+
+
+def test_estimate_access_points_with_alpha_fitted_stays_close():
+    rng = np.random.default_rng(8)
+    true_xy = np.array([[12.0, 8.0], [33.0, 25.0]])
+    table = _table(true_xy, c=-39.0, n=2.0, alpha=0.4)
+    xs, ys = np.meshgrid(np.arange(0, 50, 2.5), np.arange(0, 35, 2.5))
+    xy = np.column_stack([xs.ravel(), ys.ravel()])
+    rssi = table.expected_rssi_dbm(xy) + rng.normal(0, 3.0, (xy.shape[0], 2))
+    radio_map = RadioMap(xy, table.keys, rssi, np.zeros(xy.shape[0]), np.zeros(xy.shape[0]), ["syn"])
+    fitted = estimate_access_points(radio_map, ApFitConfig(fit_alpha=True))
+    assert np.all(np.linalg.norm(fitted.xy_m - true_xy, axis=1) < 2.0)
+    assert np.all((fitted.alpha_db_per_m >= 0) & (fitted.alpha_db_per_m <= 2.0))
