@@ -1,7 +1,5 @@
 """Radio map: building from real logs, file round trip, KWNN against brute force, likelihood, CLI."""
 
-import itertools
-
 import numpy as np
 import pytest
 

@@ -11,8 +11,6 @@ from mapfilter.wifi import (AccessPointTable, ApFitConfig, TrilaterationLikeliho
                             estimate_access_points, iter_scans, least_squares_position, path_loss_rssi_dbm,
                             rssi_log_likelihood, scans_of)
 
-from conftest import ILC_SITE1
-
 
 def _table(xy, c=-38.0, n=2.0, alpha=0.4, d_max=30.0):
     k = len(xy)
