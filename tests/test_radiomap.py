@@ -126,6 +126,10 @@ def test_build_needs_waypoints(tmp_path):
     log.write_text("1000\tTYPE_WIFI\tx\taa:bb:cc:dd:ee:01\t-50\t2412\t1000\n")
     with pytest.raises(MapfilterError, match="fewer than two waypoints"):
         build_radio_map([read_ilc(log)])
+    nowifi = tmp_path / "nowifi.txt"
+    nowifi.write_text("1000\tTYPE_WAYPOINT\t1.0\t2.0\n3000\tTYPE_WAYPOINT\t3.0\t2.0\n")
+    with pytest.raises(MapfilterError, match="nowifi.txt: the log has no usable WiFi"):
+        build_radio_map([read_ilc(nowifi)])
 
 
 def _synthetic_radio_map():
