@@ -180,14 +180,31 @@ def _segment_crosses_world(mask, clearance_px, x0_m, y0_m, inv_resolution, ax, a
     v0 = h - (ay - y0_m) * inv_resolution
     u1 = (bx - x0_m) * inv_resolution
     v1 = h - (by - y0_m) * inv_resolution
-    # shortcut, exact: a segment shorter than its start pixel's clearance touches no wall
-    if 0.0 <= u0 < w and 0.0 <= v0 < h:
+    # Shortcut ("sphere tracing" on the clearance map): a piece of the segment shorter than
+    # the clearance of the pixel it starts in touches no wall, so skip it; walk exactly only
+    # the rest, from where the clearance gets small. Splitting a segment does not change the
+    # set of pixels it touches (a pixel is touched by a point of the segment).
+    if 0.0 <= u0 < w and 0.0 <= v0 < h and math.isfinite(u1) and math.isfinite(v1):
         c = clearance_px[int(v0), int(u0)]
         if c > 0.0:
             du = u1 - u0
             dv = v1 - v0
-            if du * du + dv * dv < c * c:
+            length2 = du * du + dv * dv
+            if length2 < c * c:
                 return False
+            length = math.sqrt(length2)
+            t = 0.0
+            pu = u0
+            pv = v0
+            while c >= 2.0:
+                t += 0.999 * c / length  # a jump strictly shorter than the clearance
+                pu = u0 + t * du
+                pv = v0 + t * dv
+                c = clearance_px[int(pv), int(pu)]  # inside: the outside counts as wall
+                remaining = (1.0 - t) * length
+                if remaining < c:
+                    return False
+            return _walk(mask, pu, pv, u1, v1, False, no_buffer, no_buffer) == 1
     return _walk(mask, u0, v0, u1, v1, False, no_buffer, no_buffer) == 1
 
 

@@ -69,6 +69,7 @@ def test_world_check_with_clearance_shortcut_agrees_with_oracle():
     fp = FloorPlan(mask, 0.25, origin_m=(-3.0, 2.0))
     a_xy = fp.sample_free(4000, rng)
     b_xy = a_xy + rng.normal(0.0, 1.0, a_xy.shape)
+    b_xy[::4] = a_xy[::4] + rng.normal(0.0, 6.0, (1000, 2))  # long moves: several clearance jumps
     fast = crosses_wall(fp, a_xy, b_xy)
     ua, ub = fp.world_to_pixel(a_xy), fp.world_to_pixel(b_xy)
     h, w = mask.shape
@@ -77,7 +78,7 @@ def test_world_check_with_clearance_shortcut_agrees_with_oracle():
         for i in range(a_xy.shape[0])
     ])
     assert np.array_equal(fast, expected)
-    assert 0.02 < expected.mean() < 0.5
+    assert 0.02 < expected.mean() < 0.6
     rows, cols, _ = fp.pixel_index(a_xy)
     length_px = np.linalg.norm(ub - ua, axis=1)
     assert (length_px < clearance_px(fp)[rows, cols]).mean() > 0.3  # the shortcut really is exercised

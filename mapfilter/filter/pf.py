@@ -288,7 +288,7 @@ class ParticleFilter:
                     cov = weighted_covariance(moved.xy_m, w)
                     new.xy_m, _ = regularise(self.floorplan, new.xy_m, cov, self.rng, cfg.kernel,
                                              cfg.bandwidth_scale, cfg.regularise_tries,
-                                             origin_xy_m=_rows(prev.xy_m, parent))
+                                             origin_xy_m=_rows(prev.xy_m, parent) if self.ancestry else None)
                 parent = self._inject(new, parent)
                 new.log_weight = np.full(self.n, -math.log(self.n))
             else:
