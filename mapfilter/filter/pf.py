@@ -86,6 +86,7 @@ class FilterConfig:
     recovery_radius_growth: float = 2.0  # the radius multiplies by this after each further collapse
     recovery_reset_steps: int = 10  # healthy steps after which the radius starts small again
     recovery_measurement_max_age_s: float = 10.0  # an older measurement is not used to recover
+    recovery_heading_keep_fraction: float = 0.5  # PDR: share of recovered particles keeping an old heading
     keep_ancestry: bool = False  # record lineage for smoothed_track() (N * 20 bytes per step)
 
     def __post_init__(self) -> None:
@@ -268,6 +269,12 @@ class ParticleFilter:
             lost = int(np.count_nonzero(alive_before))
             before_xy = self.estimate_xy_m
             recovery, new = self._recover(t_s)
+            # PDR state: the walker's stride survives a collapse; the heading may be what failed,
+            # so a share keeps an old particle's heading and the rest start with a random one
+            donors = self.rng.integers(0, len(prev), self.n)
+            keep = self.rng.random(self.n) < cfg.recovery_heading_keep_fraction
+            new.heading_rad = np.where(keep, prev.heading_rad[donors], new.heading_rad)
+            new.step_length_m = prev.step_length_m[donors].copy()
             parent = np.full(self.n, -1, dtype=np.int64)
             ess = float(self.n)
             self._recovery_level += 1
