@@ -57,7 +57,7 @@ def _check_invariants(pf, report, prev_xy):
     assert report.n_particles == len(p) == pf.config.n_particles
 
 
-@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2 ** 31 - 1), motion_kind=st.sampled_from(["rw", "cv", "pdr"]),
        resampler=st.sampled_from(["systematic", "stratified", "residual", "multinomial"]),
        kernel=st.sampled_from(["gaussian", "epanechnikov"]), fix_every=st.integers(1, 3))
@@ -286,3 +286,23 @@ def test_real_ilc_floor_and_waypoints(ilc_site1):
     _, track = pf.smoothed_track()
     assert count_wall_crossings(fp, track) == 0
     assert not pf.collapses
+
+
+def test_report_carries_heard_access_points_from_the_model():
+    rng = np.random.default_rng(21)
+
+    class Aps:
+        kind = "wifi"
+
+        def log_likelihood(self, particles, measurement):
+            return -0.5 * ((particles.xy_m - measurement) ** 2).sum(axis=1)
+
+        def heard_ap_xy_m(self, measurement):
+            return np.array([[1.0, 2.0]])
+
+    pf = ParticleFilter(ROOMS, RandomWalkMotion(), FilterConfig(n_particles=200), rng)
+    pf.initialise_uniform()
+    report = pf.step(0.0, 1.0, None, Aps(), np.array([5.0, 5.0]))
+    assert report.measurement_kind == "wifi"
+    assert report.heard_ap_xy_m.tolist() == [[1.0, 2.0]]
+    assert pf.step(1.0, 1.0).measurement_kind is None

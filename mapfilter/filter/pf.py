@@ -59,6 +59,17 @@ def _take(particles: Particles, index: np.ndarray) -> Particles:
                      step_length_m=particles.step_length_m[index])
 
 
+def _heard_ap_xy_m(model: Any, measurement: Any) -> np.ndarray | None:
+    """Positions of the access points heard, for the viewer: ``model.heard_ap_xy_m(measurement)``
+    if the model offers it, else a ``heard_ap_xy_m`` attribute of the measurement, else None."""
+    if model is None or measurement is None:
+        return None
+    hook = getattr(model, "heard_ap_xy_m", None)
+    if callable(hook):
+        return hook(measurement)
+    return getattr(measurement, "heard_ap_xy_m", None)
+
+
 def _logsumexp(log_w: np.ndarray) -> float:
     """log(sum(exp(log_w))) for an array with at least one finite entry (-inf entries allowed)."""
     m = float(np.max(log_w))
@@ -329,7 +340,7 @@ class ParticleFilter:
             heading_rad=circular_mean(new.heading_rad, weights) if pdr else None,
             step_length_m=float(weights @ new.step_length_m) if pdr else None,
             measurement_kind=kind, fix_xy_m=fix_xy,
-            heard_ap_xy_m=getattr(measurement, "heard_ap_xy_m", None) if measurement is not None else None,
+            heard_ap_xy_m=_heard_ap_xy_m(model, measurement),
         )
 
     # ---- collapse recovery and random injection ---------------------------------------------
