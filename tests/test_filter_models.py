@@ -143,3 +143,12 @@ def test_estimate_never_in_a_wall():
     est2, _, fb2 = weighted_estimate(fp, xy[:1], np.ones(1))
     assert not fb2 and est2.tolist() == [5.0, 10.0]
     assert circular_mean(np.array([math.pi - 0.1, -math.pi + 0.1]), np.ones(2)) == pytest.approx(math.pi)
+
+
+def test_circle_walk_directions_match_cos_sin():
+    from mapfilter.filter.motion import _circle_walk
+
+    phi = np.linspace(0.0, 2.0 * math.pi, 20001)[:-1]
+    out = np.empty((phi.size, 2))
+    _circle_walk(np.zeros((phi.size, 2)), phi, np.zeros((phi.size, 2)), 1.0, 0.0, out)
+    np.testing.assert_allclose(out, np.column_stack([np.cos(phi), np.sin(phi)]), atol=1e-7)
