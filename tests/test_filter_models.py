@@ -152,3 +152,22 @@ def test_circle_walk_directions_match_cos_sin():
     out = np.empty((phi.size, 2))
     _circle_walk(np.zeros((phi.size, 2)), phi, np.zeros((phi.size, 2)), 1.0, 0.0, out)
     np.testing.assert_allclose(out, np.column_stack([np.cos(phi), np.sin(phi)]), atol=1e-7)
+
+
+def test_fast_standard_normal_is_box_muller_on_the_generators_uniforms():
+    from scipy import stats
+
+    from mapfilter.filter.gaussian import standard_normal
+
+    z = standard_normal(np.random.default_rng(8), (7,))  # odd size
+    u = np.random.default_rng(8).random(8)
+    r = np.sqrt(-2.0 * np.log(1.0 - u[0::2]))
+    exact = np.empty(8)
+    exact[0::2] = r * np.cos(2 * np.pi * u[1::2])
+    exact[1::2] = r * np.sin(2 * np.pi * u[1::2])
+    np.testing.assert_allclose(z, exact[:7], atol=1e-7)
+    big = standard_normal(np.random.default_rng(9), (200_000, 2))
+    assert big.shape == (200_000, 2)
+    assert abs(big.mean()) < 0.01 and abs(big.std() - 1.0) < 0.01
+    assert stats.kstest(big.ravel(), "norm").pvalue > 1e-3
+    assert np.isfinite(big).all()

@@ -233,7 +233,7 @@ def test_random_injection_after_a_kidnap():
     for k in range(10):
         pf.step(float(k), 0.5, None, model, PositionFix((3.0, 5.0)))
     injected = 0
-    for k in range(10, 16):  # kidnapped into the upper-right room
+    for k in range(10, 25):  # kidnapped into the upper-right room
         pf.step(float(k), 0.5, None, model, PositionFix((17.5, 8.0)))
         injected += int(np.count_nonzero(pf.ancestry.parents(len(pf.ancestry) - 1) < 0))
     assert injected > 0

@@ -13,6 +13,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from mapfilter.filter.gaussian import standard_normal
 from mapfilter.filter.particles import Particles
 
 __all__ = ["ConstantVelocityMotion", "PDRMotion", "RandomWalkMotion", "StepInput"]
@@ -61,7 +62,7 @@ class RandomWalkMotion:
         n = len(particles)
         dt = max(float(dt_s), 0.0)
         phi = rng.uniform(0.0, 2.0 * math.pi, n)
-        noise = rng.standard_normal((n, 2))
+        noise = standard_normal(rng, (n, 2))
         xy = np.empty((n, 2))
         _circle_walk(np.ascontiguousarray(particles.xy_m, dtype=np.float64), phi, noise,
                      self.radius_mps * dt, self.sigma_mps * dt, xy)
@@ -82,7 +83,7 @@ class ConstantVelocityMotion:
     def propagate(self, particles: Particles, inputs: object, dt_s: float, rng: np.random.Generator) -> Particles:
         n = len(particles)
         dt = max(float(dt_s), 0.0)
-        accel = self.accel_sigma_mps2 * rng.standard_normal((n, 2))
+        accel = self.accel_sigma_mps2 * standard_normal(rng, (n, 2))
         xy = particles.xy_m + particles.velocity_mps * dt + 0.5 * dt * dt * accel
         velocity = particles.velocity_mps + accel * dt
         speed = np.hypot(velocity[:, 0], velocity[:, 1])

@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit, prange
 
 from mapfilter.filter.estimate import weighted_moments
+from mapfilter.filter.gaussian import standard_normal
 from mapfilter.floorplan import FloorPlan
 from mapfilter.walls import _segment_crosses_world, clearance_px
 
@@ -42,7 +43,7 @@ def optimal_bandwidth(n: int, kernel: str = "gaussian", d: int = 2) -> float:
 def sample_kernel(kernel: str, n: int, rng: np.random.Generator) -> np.ndarray:
     """(n, 2) draws from the unit-covariance-shaped kernel (standard normal, or Epanechnikov on the unit disc)."""
     if kernel == "gaussian":
-        return rng.standard_normal((n, 2))
+        return standard_normal(rng, (n, 2))
     if kernel == "epanechnikov":
         # density ~ (1 - |e|^2) on the unit disc: |e|^2 ~ Beta(d/2, 2) with d = 2, uniform direction
         r = np.sqrt(rng.beta(1.0, 2.0, n))
