@@ -171,40 +171,108 @@ def _crosses_uv_kernel(mask, u0, v0, u1, v1, out):
         out[i] = _walk(mask, u0[i], v0[i], u1[i], v1[i], False, no_buffer, no_buffer) == 1
 
 
+_MIN_JUMP_PX = 2.0  # jump ahead on the clearance map only when it skips at least this much
+
+
+@njit(cache=True, inline="always")
+def _walk_until_clear(mask, clearance_px, u0, v0, u1, v1):
+    """The check-mode walk of a segment with du != 0 and dv != 0 that stops on entering a
+    pixel whose clearance is at least ``_MIN_JUMP_PX`` (not the end pixel).
+
+    Returns (1, t, 0) on touching a wall, (0, 1, 0) on reaching the end without, or
+    (2, t, c): stopped where the segment enters a clear pixel at parameter t, clearance c.
+    Same touching rule as ``_walk`` (corners, end points on grid lines).
+    """
+    du = u1 - u0
+    dv = v1 - v0
+    ix = int(math.floor(u0))
+    iy = int(math.floor(v0))
+    sx = 1 if du > 0 else -1
+    sy = 1 if dv > 0 else -1
+    nx = abs(int(math.floor(u1)) - ix)
+    ny = abs(int(math.floor(v1)) - iy)
+    if _hit(mask, iy, ix):
+        return 1, 0.0, 0.0
+    for e in range(2):
+        pu = u0 if e == 0 else u1
+        pv = v0 if e == 0 else v1
+        cu = int(math.floor(pu))
+        cv = int(math.floor(pv))
+        if pu == cu or pv == cv:
+            for dc in range(-1 if pu == cu else 0, 1):
+                for dr in range(-1 if pv == cv else 0, 1):
+                    if _hit(mask, cv + dr, cu + dc):
+                        return 1, 0.0, 0.0
+    while nx > 0 or ny > 0:
+        tx = ((ix + 1 if sx > 0 else ix) - u0) / du if nx > 0 else math.inf
+        ty = ((iy + 1 if sy > 0 else iy) - v0) / dv if ny > 0 else math.inf
+        if tx == ty:
+            if _hit(mask, iy, ix + sx) or _hit(mask, iy + sy, ix):
+                return 1, 0.0, 0.0
+            ix += sx
+            iy += sy
+            nx -= 1
+            ny -= 1
+            t_enter = tx
+        elif tx < ty:
+            ix += sx
+            nx -= 1
+            t_enter = tx
+        else:
+            iy += sy
+            ny -= 1
+            t_enter = ty
+        if _hit(mask, iy, ix):
+            return 1, 0.0, 0.0
+        if nx > 0 or ny > 0:
+            c = clearance_px[iy, ix]
+            if c >= _MIN_JUMP_PX:
+                return 2, t_enter, c
+    return 0, 1.0, 0.0
+
+
 @njit(cache=True, inline="always")
 def _segment_crosses_world(mask, clearance_px, x0_m, y0_m, inv_resolution, ax, ay, bx, by, no_buffer):
-    """One move in world metres: does it touch a wall pixel (exact walk, clearance shortcut)?"""
+    """One move in world metres: does it touch a wall pixel (exact walk, clearance jumps)?"""
     h, w = mask.shape
     # world -> continuous pixel coordinates, as FloorPlan.world_to_pixel
     u0 = (ax - x0_m) * inv_resolution
     v0 = h - (ay - y0_m) * inv_resolution
     u1 = (bx - x0_m) * inv_resolution
     v1 = h - (by - y0_m) * inv_resolution
-    # Shortcut ("sphere tracing" on the clearance map): a piece of the segment shorter than
-    # the clearance of the pixel it starts in touches no wall, so skip it; walk exactly only
-    # the rest, from where the clearance gets small. Splitting a segment does not change the
-    # set of pixels it touches (a pixel is touched by a point of the segment).
-    if 0.0 <= u0 < w and 0.0 <= v0 < h and math.isfinite(u1) and math.isfinite(v1):
-        c = clearance_px[int(v0), int(u0)]
-        if c > 0.0:
-            du = u1 - u0
-            dv = v1 - v0
-            length2 = du * du + dv * dv
-            if length2 < c * c:
+    if not (math.isfinite(u0) and math.isfinite(v0) and math.isfinite(u1) and math.isfinite(v1)):
+        return True
+    du = u1 - u0
+    dv = v1 - v0
+    length = math.sqrt(du * du + dv * dv)
+    if du == 0.0 or dv == 0.0:
+        # axis-aligned (measure zero for particles): the plain walk handles grid-line cases
+        pass
+    else:
+        # "Sphere tracing" on the clearance map: a piece of the segment shorter than the
+        # clearance of the pixel it starts in touches no wall, so it is skipped; the pieces in
+        # between are walked exactly until they enter a clear pixel again. Splitting a segment
+        # does not change the set of pixels it touches (a pixel is touched by a point of it).
+        t = 0.0
+        while True:
+            pu = u0 + t * du
+            pv = v0 + t * dv
+            c = 0.0
+            if 0.0 <= pu < w and 0.0 <= pv < h:
+                c = clearance_px[int(pv), int(pu)]
+            remaining = (1.0 - t) * length
+            if c > 0.0 and remaining < c:
                 return False
-            length = math.sqrt(length2)
-            t = 0.0
-            pu = u0
-            pv = v0
-            while c >= 2.0:
+            if c >= _MIN_JUMP_PX:
                 t += 0.999 * c / length  # a jump strictly shorter than the clearance
-                pu = u0 + t * du
-                pv = v0 + t * dv
-                c = clearance_px[int(pv), int(pu)]  # inside: the outside counts as wall
-                remaining = (1.0 - t) * length
-                if remaining < c:
-                    return False
-            return _walk(mask, pu, pv, u1, v1, False, no_buffer, no_buffer) == 1
+                continue
+            status, s, c_stop = _walk_until_clear(mask, clearance_px, pu, pv, u1, v1)
+            if status != 2:
+                return status == 1
+            t_entry = t + s * (1.0 - t)
+            if (1.0 - t_entry) * length < c_stop:
+                return False
+            t = t_entry + 0.999 * c_stop / length
     return _walk(mask, u0, v0, u1, v1, False, no_buffer, no_buffer) == 1
 
 

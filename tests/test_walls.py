@@ -131,3 +131,23 @@ def test_long_segment_visits_a_connected_chain():
     touched = touched_pixels((0.3, 0.7), (57.9, 23.1))
     assert len(touched) >= 58 + 23
     assert touched == touched_pixels_reference((0.3, 0.7), (57.9, 23.1))
+
+
+def test_world_check_agrees_with_oracle_on_the_bundled_office_map():
+    """Small rooms at 0.1 m: most moves alternate exact walking and clearance jumps."""
+    from pathlib import Path
+
+    fp = FloorPlan.load(Path(__file__).resolve().parents[1] / "maps" / "office.yaml")
+    rng = np.random.default_rng(3)
+    a_xy = fp.sample_free(2500, rng)
+    b_xy = a_xy + rng.normal(0.0, 1.5, a_xy.shape)
+    fast = crosses_wall(fp, a_xy, b_xy)
+    ua, ub = fp.world_to_pixel(a_xy), fp.world_to_pixel(b_xy)
+    mask = fp.wall_mask
+    h, w = mask.shape
+    expected = np.array([
+        any(not (0 <= r < h and 0 <= c < w) or mask[r, c] for r, c in touched_pixels_reference(ua[i], ub[i]))
+        for i in range(a_xy.shape[0])
+    ])
+    assert np.array_equal(fast, expected)
+    assert 0.1 < expected.mean() < 0.6
