@@ -14,8 +14,11 @@ when it meets the *closed* square ``[col, col + 1] x [row, row + 1]``. Consequen
 - an end point exactly on a grid line touches the pixels on both sides of it.
 
 Leaving the map counts as touching a wall. A segment with a non-finite coordinate crosses.
-The kernels compare crossing parameters computed as ``(boundary - u0) / du`` exactly as the
-plain-Python oracle (:func:`touched_pixels_reference`) does, so the two agree bit for bit.
+The walk decides which grid line comes next by comparing dist_x |dv| with dist_y |du| (no
+division), which is exact for lattice-aligned coordinates, where exact corner passes happen;
+the plain-Python oracle (:func:`touched_pixels_reference`, a brute-force clip of the segment
+against every pixel square) agrees with it except on float ties a few ulps apart. The numba
+check also skips pieces of a move that the clearance map proves wall free (``clearance_px``).
 """
 
 from __future__ import annotations
@@ -52,6 +55,26 @@ def _hit(mask, row, col):
     return mask[row, col]
 
 
+@njit(cache=True, inline="always")
+def _next_crossing(ix, iy, sx, sy, u0, v0, adu, adv, nx, ny):
+    """Which boundary the segment meets next from pixel (iy, ix): -1 the column boundary,
+    1 the row boundary, 0 both at once (a lattice corner).
+
+    Compares t_x = dist_x / |du| with t_y = dist_y / |dv| as dist_x |dv| vs dist_y |du|
+    (no division in the loop); exact for lattice-aligned (dyadic) coordinates, where the
+    corner cases live.
+    """
+    if nx == 0:
+        return 1
+    if ny == 0:
+        return -1
+    ex = abs((ix + 1 if sx > 0 else ix) - u0) * adv
+    ey = abs((iy + 1 if sy > 0 else iy) - v0) * adu
+    if ex == ey:
+        return 0
+    return -1 if ex < ey else 1
+
+
 @njit(cache=True)
 def _walk(mask, u0, v0, u1, v1, record, rows_out, cols_out):
     """Walk every pixel the closed segment (u0, v0)-(u1, v1) touches.
@@ -84,19 +107,11 @@ def _walk(mask, u0, v0, u1, v1, record, rows_out, cols_out):
         k += 1
     elif _hit(mask, iy, ix):
         return 1
+    adu = abs(du)
+    adv = abs(dv)
     while nx > 0 or ny > 0:
-        # parameter t in [0, 1] where the segment meets the next column / row boundary
-        if nx > 0:
-            bx = ix + 1 if sx > 0 else ix
-            tx = (bx - u0) / du
-        else:
-            tx = math.inf
-        if ny > 0:
-            by = iy + 1 if sy > 0 else iy
-            ty = (by - v0) / dv
-        else:
-            ty = math.inf
-        if tx == ty:
+        order = _next_crossing(ix, iy, sx, sy, u0, v0, adu, adv, nx, ny)
+        if order == 0:
             # exactly through a lattice corner: touch both diagonal neighbours, then go diagonal
             if record:
                 rows_out[k] = iy
@@ -110,7 +125,7 @@ def _walk(mask, u0, v0, u1, v1, record, rows_out, cols_out):
             iy += sy
             nx -= 1
             ny -= 1
-        elif tx < ty:
+        elif order < 0:
             ix += sx
             nx -= 1
         else:
@@ -203,30 +218,33 @@ def _walk_until_clear(mask, clearance_px, u0, v0, u1, v1):
                 for dr in range(-1 if pv == cv else 0, 1):
                     if _hit(mask, cv + dr, cu + dc):
                         return 1, 0.0, 0.0
+    adu = abs(du)
+    adv = abs(dv)
     while nx > 0 or ny > 0:
-        tx = ((ix + 1 if sx > 0 else ix) - u0) / du if nx > 0 else math.inf
-        ty = ((iy + 1 if sy > 0 else iy) - v0) / dv if ny > 0 else math.inf
-        if tx == ty:
+        order = _next_crossing(ix, iy, sx, sy, u0, v0, adu, adv, nx, ny)
+        if order == 0:
             if _hit(mask, iy, ix + sx) or _hit(mask, iy + sy, ix):
                 return 1, 0.0, 0.0
             ix += sx
             iy += sy
             nx -= 1
             ny -= 1
-            t_enter = tx
-        elif tx < ty:
+        elif order < 0:
             ix += sx
             nx -= 1
-            t_enter = tx
         else:
             iy += sy
             ny -= 1
-            t_enter = ty
         if _hit(mask, iy, ix):
             return 1, 0.0, 0.0
         if nx > 0 or ny > 0:
             c = clearance_px[iy, ix]
             if c >= _MIN_JUMP_PX:
+                # parameter where the segment entered this pixel (the boundary just crossed)
+                if order <= 0:
+                    t_enter = abs((ix if sx > 0 else ix + 1) - u0) / adu
+                else:
+                    t_enter = abs((iy if sy > 0 else iy + 1) - v0) / adv
                 return 2, t_enter, c
     return 0, 1.0, 0.0
 
@@ -415,7 +433,6 @@ def _segment_meets_square(u0, v0, du, dv, col, row) -> bool:
             if p0 < lo or p0 > lo + 1:
                 return False
             continue
-        # the same expressions as the walk: (boundary - p0) / dp
         ta = (lo - p0) / dp
         tb = (lo + 1 - p0) / dp
         t_enter, t_exit = (ta, tb) if ta <= tb else (tb, ta)
