@@ -39,7 +39,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 __all__ = [
     "crosses_wall",
     "crosses_wall_uv",
+    "clearance_px",
     "count_wall_crossings",
+    "forget_clearance",
     "wall_crossing_mask",
     "touched_pixels",
     "touched_pixels_reference",
@@ -312,7 +314,9 @@ def clearance_px(floorplan: FloorPlan) -> np.ndarray:
     With D = distance from the pixel's centre to the nearest wall pixel's centre (the map's
     outside counts as wall), any point q of a segment of length L from p reaches at most
     |centre - q| <= L + sqrt(2)/2, and touching a wall pixel needs |q - wall centre| <=
-    sqrt(2)/2; so L < D - sqrt(2) cannot touch one. Cached per FloorPlan (and mask object).
+    sqrt(2)/2; so L < D - sqrt(2) cannot touch one. Cached per FloorPlan (and mask object):
+    after editing a mask *in place*, call :func:`forget_clearance` (a new mask array or a new
+    FloorPlan is picked up by itself).
     """
     cached = _CLEARANCE_CACHE.get(floorplan)
     if cached is not None and cached[0] is floorplan.wall_mask:
@@ -324,6 +328,11 @@ def clearance_px(floorplan: FloorPlan) -> np.ndarray:
     clearance = np.maximum(clearance - np.float32(1e-3), np.float32(0.0))
     _CLEARANCE_CACHE[floorplan] = (floorplan.wall_mask, clearance)
     return clearance
+
+
+def forget_clearance(floorplan: FloorPlan) -> None:
+    """Drop the cached clearance map of ``floorplan`` (needed only after editing its mask in place)."""
+    _CLEARANCE_CACHE.pop(floorplan, None)
 
 
 def crosses_wall_uv(wall_mask: np.ndarray, from_uv_px: np.ndarray, to_uv_px: np.ndarray) -> np.ndarray:

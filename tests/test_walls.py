@@ -151,3 +151,27 @@ def test_world_check_agrees_with_oracle_on_the_bundled_office_map():
     ])
     assert np.array_equal(fast, expected)
     assert 0.1 < expected.mean() < 0.6
+
+
+def test_clearance_is_conservative_and_refreshable():
+    mask = np.zeros((30, 30), dtype=bool)
+    fp = FloorPlan(mask, 1.0)
+    a, b = np.array([[15.5, 15.5]]), np.array([[16.0, 20.5]])  # not axis-aligned: uses the clearance
+    assert not crosses_wall(fp, a, b)[0]
+    fp.wall_mask[10, :] = True  # edit in place: row 10 is y in [19, 20)
+    from mapfilter.walls import forget_clearance
+
+    forget_clearance(fp)
+    assert crosses_wall(fp, a, b)[0]
+    c = clearance_px(fp)
+    rows, cols = np.nonzero(~fp.wall_mask)
+    # brute force: every segment shorter than the clearance from a pixel centre stays clear
+    rng = np.random.default_rng(0)
+    pick = rng.integers(0, rows.size, 300)
+    for r, col in zip(rows[pick], cols[pick]):
+        for angle in np.linspace(0, 2 * np.pi, 16, endpoint=False):
+            start = (col + rng.random(), r + rng.random())
+            length = 0.999 * c[r, col]
+            end = (start[0] + length * np.cos(angle), start[1] + length * np.sin(angle))
+            touched = touched_pixels_reference(start, end)
+            assert not any(not (0 <= rr < 30 and 0 <= cc < 30) or fp.wall_mask[rr, cc] for rr, cc in touched)
