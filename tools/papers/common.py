@@ -137,13 +137,12 @@ def run_parallel(func: Callable, items: Iterable, jobs: int, setup: Callable | N
     Fresh (spawned) processes, never forked ones: a process forked after numba's parallel
     kernels have started their thread pool hangs. Each worker calls ``setup(*setup_args)``
     first (build its own state from seeds) and runs numba single-threaded, so ``jobs``
-    workers use ``jobs`` cores. With jobs <= 1 the caller must have run ``setup`` itself.
+    workers use ``jobs`` cores. With jobs <= 1 everything runs here, after one ``setup`` call.
     """
     items = list(items)
     if jobs <= 1 or len(items) <= 1:
-        if setup is not None and not _WORKER_READY:
+        if setup is not None:
             setup(*setup_args)
-            _WORKER_READY.append(True)
         return [func(x) for x in items]
     ctx = multiprocessing.get_context("spawn")
     with ctx.Pool(jobs, _worker_init, (setup, setup_args)) as pool:
