@@ -38,6 +38,7 @@ class GaussianFixLikelihood:
 
     sigma_m: float = 5.0
     kind: str = "fix"
+    log_likelihood_peak: float = 0.0  # at the fix: lets the filter tell a hopeless fix (weights underflow)
 
     def log_likelihood(self, particles: Particles, measurement: PositionFix) -> np.ndarray:
         sigma = self.sigma_m if measurement.sigma_m is None else measurement.sigma_m

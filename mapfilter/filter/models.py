@@ -28,6 +28,8 @@ class MeasurementModel(Protocol):
         """log p(measurement | particle state) for each particle, shape (N,), finite or -inf.
 
         Constant offsets do not matter (the filter normalises), but the values must be
-        comparable across particles of one call.
+        comparable across particles of one call. A model that knows the largest value it can
+        return may say so in an attribute ``log_likelihood_peak``; the filter then treats a
+        step whose every particle falls ~745 (float64 underflow) below it as a collapse.
         """
         ...

@@ -37,6 +37,18 @@ __all__ = ["FilterConfig", "ParticleFilter"]
 _LOG_UNDERFLOW = -745.0
 
 
+def _underflows(model: MeasurementModel, log_w: np.ndarray) -> bool:
+    """Every weight would underflow *relative to the model's best possible value*.
+
+    Only models that declare ``log_likelihood_peak`` (the largest value they can return,
+    e.g. 0 for a Gaussian fix without its constant) can say this; for the others a large
+    negative log-likelihood may be a constant offset, which the interface allows, and the
+    normalisation in log space keeps the weights intact.
+    """
+    peak = getattr(model, "log_likelihood_peak", None)
+    return peak is not None and float(log_w.max()) - float(peak) < _LOG_UNDERFLOW
+
+
 @njit(cache=True, parallel=True)
 def _gather_rows(a, index, out):
     # out[i] = a[index[i]] for (N, 2) arrays: numpy's fancy indexing of 2-D rows is ~5x slower
@@ -266,7 +278,7 @@ class ParticleFilter:
                 best_ll = ll[live].max() if live.any() else -np.inf
                 if cfg.min_log_likelihood is not None and best_ll < cfg.min_log_likelihood:
                     cause = "measurement_inconsistent"
-                elif not np.isfinite(updated).any() or updated.max() < _LOG_UNDERFLOW:
+                elif not np.isfinite(updated).any() or _underflows(model, updated):
                     cause = "weights_underflow"
                 elif cfg.alpha_slow > 0 and cfg.alpha_fast > 0:
                     self._update_amcl_averages(_logsumexp(updated))
