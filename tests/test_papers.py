@@ -106,8 +106,10 @@ def test_evennou_marx_quick_run(papers, tmp_path):
     assert [r[1] for r in main_rows[:5]] == ["3.50", "", "2.29", "", "1.99"]
     assert all(float(r[2]) > 0 for r in main_rows)
     study = [r for r in _table_rows(text, "") if r[0].isdigit()]
-    assert [int(r[0]) for r in study] == list(em.QUICK_PARTICLES)
+    # the particle study, then the study with collapse detection on (N <= the largest quick N)
+    assert [int(r[0]) for r in study] == list(em.QUICK_PARTICLES) + [1000]
     assert all(int(r[1]) == 2 for r in study)  # 2 walks x 1 seed
+    assert all(int(r[-2]) >= 0 for r in study)  # runs lost
     assert "Checks (mean error over all walks)" in text
 
 
