@@ -124,3 +124,11 @@ def test_lund_thesis_quick_run(papers, tmp_path):
     step_rows = [r for r in _table_rows(text, "") if r[0].isdigit()]
     assert step_rows and float(step_rows[0][1]) == pytest.approx(lund.WRONG_START_M, abs=0.05)
     assert (tmp_path / "lund_step_length.png").stat().st_size > 1000
+
+
+def test_run_parallel_spawns_workers_and_keeps_order(papers):
+    import math
+
+    common = papers["common"]
+    assert common.run_parallel(math.sqrt, [9.0, 1.0, 4.0, 16.0], jobs=2) == [3.0, 1.0, 2.0, 4.0]
+    assert common.run_parallel(math.sqrt, [9.0], jobs=2) == [3.0]  # one item: no pool

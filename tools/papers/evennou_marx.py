@@ -114,17 +114,16 @@ def _lost(track: Track, walk) -> bool:
     return False
 
 
-def _collapse_threshold(sigma_m: float = 5.0, outlier_probability: float = 0.2) -> float:
+def _collapse_threshold(floorplan, sigma_m: float = 5.0, outlier_probability: float = 0.2) -> float:
     """The fix log-likelihood of a particle 3 sigma from the fix (the tracker's robust Gaussian):
     a best particle below it means the fix and the whole cloud disagree."""
-    floorplan = _STATE["floorplan"]
     area_m2 = max(np.count_nonzero(~floorplan.wall_mask) * floorplan.resolution_m ** 2, 1.0)
     gauss = -0.5 * 9.0 - math.log(2 * math.pi * sigma_m ** 2)
     return float(np.logaddexp(math.log1p(-outlier_probability) + gauss, math.log(outlier_probability / area_m2)))
 
 
 def _pf(w: Walk, motion: str, use_map: bool, n_particles: int, seed: int, detect: bool = False) -> dict:
-    filter_config = FilterConfig(min_log_likelihood=_collapse_threshold()) if detect else FilterConfig()
+    filter_config = FilterConfig(min_log_likelihood=_collapse_threshold(_STATE["floorplan"])) if detect else FilterConfig()
     config = TrackingConfig(motion=motion, n_particles=n_particles, use_map=use_map, kwnn_k=1, fix_sigma_m=5.0,
                             filter=filter_config)
     result = track_recording(_STATE["floorplan"], w.recording, radio_map=_STATE["radio_map"], config=config,
@@ -335,7 +334,7 @@ the table also counts runs **lost**: the error above {LOST_ERROR_M:.0f} m for {L
 
 ### With collapse detection on
 
-The same filter with `FilterConfig(min_log_likelihood={_collapse_threshold():.2f})`: a collapse is also
+The same filter with `FilterConfig(min_log_likelihood={_collapse_threshold(common.load_office()[0]):.2f})`: a collapse is also
 declared when the best particle's fix log-likelihood is below that of a particle 3 sigma
 (15 m) from the fix, i.e. the fix and the whole cloud disagree; the filter then
 re-initialises from the fix's likelihood over the map. {study_walks} walks x 1 seed per N.
