@@ -556,3 +556,34 @@ def _add_heard_corrections(out, cols, rssi, ap_ptr, cell, mu, inv_var, offset, p
             c = cell[e]
             d = r - mu[e]
             out[c] += (offset[e] - 0.5 * inv_var[e] * d * d) - (prior_offset[c] - prior_quad)
+
+
+def cross_validated_fix_errors(radio_map: RadioMap, k: int = 4, max_groups: int = 200,
+                               min_separation_m: float = 1.0) -> np.ndarray:
+    """KWNN fix errors (m) of the radio map's own reference points, each fixed without its group.
+
+    A group is a source trace when the map comes from several survey walks (leave one walk
+    out, as a new walk would be fixed), else the points within ``min_separation_m`` of one
+    location (leave one surveyed spot out). At most ``max_groups`` groups, evenly picked.
+    What it measures is how far off a fix from this radio map typically is: the spread that
+    a filter should give fixes from it.
+    """
+    if len(radio_map) < 2:
+        return np.zeros(0)
+    if len(radio_map.source_traces) > 1:
+        group = radio_map.trace
+    else:
+        cell = np.floor(radio_map.xy_m / min_separation_m).astype(np.int64)
+        _, group = np.unique(cell, axis=0, return_inverse=True)
+        group = group.ravel()
+    groups = np.unique(group)
+    if groups.size < 2:
+        return np.zeros(0)
+    picked = groups[np.linspace(0, groups.size - 1, min(max_groups, groups.size)).round().astype(int)]
+    errors = []
+    for g in np.unique(picked):
+        inside = group == g
+        fixes = kwnn_fix_many(radio_map.select(~inside), radio_map.rssi_dbm[inside], k=k).xy_m
+        ok = np.all(np.isfinite(fixes), axis=1)
+        errors.append(np.linalg.norm(fixes[ok] - radio_map.xy_m[inside][ok], axis=1))
+    return np.concatenate(errors)

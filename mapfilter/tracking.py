@@ -29,7 +29,8 @@ from mapfilter.filter.pf import FilterConfig, ParticleFilter
 from mapfilter.floorplan import FloorPlan
 from mapfilter.logs.recording import Recording
 from mapfilter.pdr import PDRConfig, Steps, detect_steps
-from mapfilter.radiomap import RadioMap, RadioMapLikelihood, kwnn_fix_many
+from mapfilter.radiomap import (RadioMap, RadioMapLikelihood, RadioMapLikelihoodConfig,
+                                cross_validated_fix_errors, kwnn_fix_many)
 from mapfilter.trackio import Track
 from mapfilter.wifi import AccessPointTable, TrilaterationLikelihood, WifiScan, match_scan, scans_of
 
@@ -45,17 +46,25 @@ class TrackingConfig:
     n_particles: int = 10_000  # Evennou & Marx use 10,000
     use_map: bool = True  # False: walls ignored (the "pf-nomap" comparison)
     fingerprint_model: str = "fix"  # fix: KWNN fix + Gaussian (Evennou & Marx) | likelihood: per-particle radio map
-    fix_sigma_m: float = 5.0  # Gaussian of the fingerprint fix (Evennou & Marx: 5 m)
-    fix_outlier_probability: float = 0.2  # share of fixes that are far off (heavy tail); 0 = pure Gaussian
+    # Gaussian of the fingerprint fix; None = calibrated from the radio map itself: the RMS of
+    # its cross-validated KWNN errors over sqrt(2) (a 2-D Gaussian's E|d|^2 = 2 sigma^2). Evennou
+    # & Marx fix 5 m for a dense office survey; the bundled office calibrates to 2.4 m, ILC
+    # site1 F1 (leave-one-trace-out) to about 18 m, where 5-30 m tried by tools/tune_ilc.py put
+    # the best at 15-20 m: the calibration lands where tuning would.
+    fix_sigma_m: float | None = None
     kwnn_k: int = 4  # Chang et al.
     rssi_variance_db2: float = 25.0  # trilateration (Lund thesis)
     tick_s: float = 1.0  # cv / rw: prediction interval between scans
     use_abs_heading: bool = True  # PDR: start headings from the rotation vector when the log has one
+    heading_source: str = "gyro"  # PDR per step: gyro (heading change) | rotation_vector (absolute heading)
     initial_heading_sigma_rad: float = math.radians(30.0)  # spread around that start heading
     smooth: bool = False  # also return the smoothed (ancestry) track; costs memory
     filter: FilterConfig = dataclasses.field(default_factory=FilterConfig)  # n_particles above wins
     pdr: PDRConfig = dataclasses.field(default_factory=PDRConfig)
-    pdr_motion: PDRMotion = dataclasses.field(default_factory=PDRMotion)
+    # heading noise per step 0.02 rad: the gyro is good over a step; 0.05 (the PDRMotion default,
+    # for coarser filter steps) let clouds fan out and measured worse on ILC F1
+    pdr_motion: PDRMotion = dataclasses.field(default_factory=lambda: PDRMotion(heading_sigma_rad=0.02))
+    radio_map_likelihood: RadioMapLikelihoodConfig = dataclasses.field(default_factory=RadioMapLikelihoodConfig)
 
     def __post_init__(self) -> None:
         if self.motion not in MOTION_MODELS:
@@ -98,15 +107,14 @@ class WifiMeasurements:
             if not shared.any():
                 raise MapfilterError(f"the radio map shares no access point with {log_name}")
             if config.fingerprint_model == "fix":
-                self.fix_xy_m = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=config.kwnn_k).xy_m
+                fixes = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=config.kwnn_k)
+                self.fix_xy_m = fixes.xy_m
                 self.usable = np.all(np.isfinite(self.fix_xy_m), axis=1)
-                if config.fix_outlier_probability > 0:
-                    area_m2 = max(np.count_nonzero(~floorplan.wall_mask) * floorplan.resolution_m**2, 1.0)
-                    self.model: Any = RobustFixLikelihood(config.fix_sigma_m, config.fix_outlier_probability, area_m2)
-                else:
-                    self.model = GaussianFixLikelihood(sigma_m=config.fix_sigma_m)
+                sigma_m = config.fix_sigma_m if config.fix_sigma_m is not None else calibrated_fix_sigma_m(
+                    radio_map, config.kwnn_k)
+                self.model = GaussianFixLikelihood(sigma_m=sigma_m)
             else:
-                self.model = RadioMapLikelihood(radio_map, floorplan)
+                self.model = RadioMapLikelihood(radio_map, floorplan, config.radio_map_likelihood)
                 self.usable = shared >= 1
         else:
             assert ap_table is not None
@@ -124,8 +132,19 @@ class WifiMeasurements:
         if not self.usable[index]:
             return None
         if self.fix_xy_m is not None:
-            return PositionFix(self.fix_xy_m[index], None)
+            return PositionFix(self.fix_xy_m[index])
         return self.scans[index]
+
+
+def calibrated_fix_sigma_m(radio_map: RadioMap, k: int = 4, default_m: float = 5.0) -> float:
+    """Fix sigma from the radio map's cross-validated KWNN errors: RMS / sqrt(2), in [1, 50] m.
+
+    ``default_m`` (Evennou & Marx's 5 m) when the map is too small to cross-validate.
+    """
+    errors = cross_validated_fix_errors(radio_map, k=k)
+    if errors.size < 10:
+        return default_m
+    return float(np.clip(np.sqrt(np.mean(errors**2) / 2.0), 1.0, 50.0))
 
 
 def track_recording(
@@ -187,7 +206,10 @@ def track_recording(
             # cv / rw move over dt_s by themselves; PDR moves only on steps
             report = pf.step(t_s, dt, None, wifi.model, _with_heard_aps(measurement, wifi, index))
         elif kind == "step":
-            report = pf.step(t_s, dt, StepInput(1, float(steps.heading_change_rad[index])))
+            absolute = None
+            if config.heading_source == "rotation_vector" and steps.abs_heading_rad is not None:
+                absolute = float(steps.abs_heading_rad[index])
+            report = pf.step(t_s, dt, StepInput(1, float(steps.heading_change_rad[index]), absolute))
         else:  # prediction tick for cv / rw
             report = pf.step(t_s, dt, None)
         last_t = t_s
@@ -255,25 +277,3 @@ def _set_start_headings(pf: ParticleFilter, steps: Steps, t0_s: float, config: T
     else:
         pf.particles.heading_rad = rng.uniform(-math.pi, math.pi, n)
 
-
-@dataclasses.dataclass(frozen=True)
-class RobustFixLikelihood:
-    """Gaussian fix with an outlier floor: p = (1 - eps) N(fix; x, sigma^2 I) + eps / area.
-
-    Fingerprint fixes have heavy tails (a scan that matches a far-away reference point puts
-    the fix tens of metres off); a pure Gaussian would kill the right particles on such a
-    fix, the floor keeps them.
-    """
-
-    sigma_m: float = 5.0
-    outlier_probability: float = 0.2
-    area_m2: float = 1e4  # free area of the map: the outlier density is uniform over it
-    kind: str = "fix"
-
-    def log_likelihood(self, particles, measurement: PositionFix) -> np.ndarray:
-        sigma = self.sigma_m if measurement.sigma_m is None else measurement.sigma_m
-        fx, fy = (float(v) for v in np.asarray(measurement.xy_m, dtype=np.float64).ravel()[:2])
-        d2 = (particles.xy_m[:, 0] - fx) ** 2 + (particles.xy_m[:, 1] - fy) ** 2
-        gauss = -0.5 * d2 / (sigma * sigma) - math.log(2 * math.pi * sigma * sigma)
-        return np.logaddexp(math.log1p(-self.outlier_probability) + gauss,
-                            math.log(self.outlier_probability / self.area_m2))

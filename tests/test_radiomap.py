@@ -255,3 +255,25 @@ def test_step_labelling_follows_the_steps_not_the_clock():
     assert inside.all()
     np.testing.assert_allclose(by_time[:, 0], [2.0, 5.0, 7.5, 9.0])
     np.testing.assert_allclose(by_steps[:, 0], [0.0, 0.0, 5.0, 8.0])
+
+
+def test_cross_validated_fix_errors_grow_with_rssi_noise():
+    from mapfilter.radiomap import RadioMap, cross_validated_fix_errors
+
+    rng = np.random.default_rng(5)
+    # a 20 m x 20 m grid of points, 3 scans each, 12 APs with a log-distance model
+    grid = np.stack(np.meshgrid(np.arange(0, 20, 2.0), np.arange(0, 20, 2.0)), axis=-1).reshape(-1, 2)
+    xy = np.repeat(grid, 3, axis=0)
+    aps = rng.uniform(0, 20, (12, 2))
+    clean = -40 - 20 * np.log10(np.maximum(np.linalg.norm(xy[:, None] - aps[None], axis=2), 1.0))
+
+    def sigma(noise_db):
+        rssi = (clean + rng.normal(0, noise_db, clean.shape)).astype(np.float32)
+        rm = RadioMap(xy, [f"ap{i}@2.4" for i in range(12)], rssi, np.zeros(len(xy)), np.zeros(len(xy), int), ["s"])
+        errors = cross_validated_fix_errors(rm)
+        assert errors.size == len(xy)  # every point fixed once, without its own location
+        return np.sqrt(np.mean(errors**2) / 2)
+
+    quiet, noisy = sigma(1.0), sigma(8.0)
+    assert 0.5 < quiet < 3.0  # neighbours 2 m away: about a grid step
+    assert noisy > 1.5 * quiet

@@ -1,0 +1,84 @@
+"""Compare particle-filter settings on the real ILC walks (leave-one-trace-out), several seeds.
+
+How the tracking defaults were chosen. Each setting is a JSON object of ``TrackingConfig``
+fields (``pdr_motion`` and ``filter`` as nested objects); the KWNN fixes of the same walks are
+the reference. Example:
+
+    .venv/bin/python tools/tune_ilc.py --floor F1 --seeds 1 2 3 \\
+        '{"fix_sigma_m": 5}' '{"fix_sigma_m": 15}' '{"pdr_motion": {"heading_sigma_rad": 0.05}}'
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from mapfilter.comparison import EvaluationSetup, evaluate_trace  # noqa: E402
+from mapfilter.evaluate import format_table, summarise_errors  # noqa: E402
+from mapfilter.filter.motion import PDRMotion  # noqa: E402
+from mapfilter.filter.pf import FilterConfig  # noqa: E402
+from mapfilter.logs import read_ilc  # noqa: E402
+from mapfilter.mapprep import import_ilc  # noqa: E402
+from mapfilter.radiomap import build_radio_map  # noqa: E402
+from mapfilter.tracking import TrackingConfig  # noqa: E402
+
+ILC = REPO.parent / "shared" / "data" / "ilc20" / "site1"
+
+
+def config_from_json(text: str) -> TrackingConfig:
+    fields = json.loads(text)
+    base = TrackingConfig()
+    if "pdr_motion" in fields:
+        fields["pdr_motion"] = dataclasses.replace(base.pdr_motion, **fields["pdr_motion"])
+    if "filter" in fields:
+        fields["filter"] = dataclasses.replace(base.filter, **fields["filter"])
+    return dataclasses.replace(base, **fields)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("settings", nargs="*", default=["{}"], help="JSON TrackingConfig overrides ({} = defaults)")
+    parser.add_argument("--floor", default="F1")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    parser.add_argument("--every", type=int, default=1, help="use every k-th walk (1 = all)")
+    args = parser.parse_args()
+
+    floor_dir = ILC / args.floor
+    floorplan = import_ilc(floor_dir, route="geojson")
+    paths = sorted((floor_dir / "path_data_files").glob("*.txt.gz"))[:: args.every]
+    all_walks = build_radio_map([read_ilc(p) for p in sorted((floor_dir / "path_data_files").glob("*.txt.gz"))])
+    rows = []
+    for text in args.settings:
+        config = config_from_json(text)
+        for seed in args.seeds:
+            started = time.perf_counter()
+            errors: dict[str, list[float]] = {"pf": [], "kwnn": []}
+            for i in range(len(paths)):
+                setup = EvaluationSetup(methods=("pf", "kwnn"), leave_one_out=True, tracking=config, seed=seed)
+                for result in evaluate_trace(floorplan, paths, i, setup, all_walks):
+                    errors[result.method] += list(result.errors_m)
+            pf, kwnn = summarise_errors(errors["pf"]), summarise_errors(errors["kwnn"])
+            rows.append({"setting": text, "seed": seed, "pf mean": pf["mean"], "pf p75": pf["p75"],
+                         "kwnn mean": kwnn["mean"], "kwnn p75": kwnn["p75"],
+                         "mean ratio": pf["mean"] / kwnn["mean"], "p75 ratio": pf["p75"] / kwnn["p75"],
+                         "s": time.perf_counter() - started})
+            print(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in rows[-1].items()}),
+                  file=sys.stderr, flush=True)
+    print(format_table(rows, list(rows[0])))
+    for text in args.settings:
+        mine = np.array([r["mean ratio"] for r in rows if r["setting"] == text])
+        print(f"{text}: mean ratio {mine.mean():.3f} (seeds {mine.min():.3f}-{mine.max():.3f})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
