@@ -38,7 +38,7 @@ from mapfilter.logs import Recording, read_ilc
 from mapfilter.pdr import detect_steps
 from mapfilter.radiomap import RadioMap, build_radio_map, kwnn_fix_many
 from mapfilter.trackio import Track
-from mapfilter.tracking import TrackingConfig, track_recording
+from mapfilter.tracking import TrackingConfig, calibrated_fix_sigma_m, track_recording
 from mapfilter.walls import count_wall_crossings
 from mapfilter.wifi import AccessPointTable, estimate_access_points, least_squares_position, match_scan, scans_of
 
@@ -95,6 +95,10 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
         fixes = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=setup.tracking.kwnn_k).xy_m
     elif ap_table is not None:
         fixes = _ls_fixes(ap_table, scans)
+    tracking = setup.tracking
+    if radio_map is not None and tracking.fix_sigma_m is None and tracking.fingerprint_model == "fix":
+        # calibrate once for the three pf variants, not once each
+        tracking = dataclasses.replace(tracking, fix_sigma_m=calibrated_fix_sigma_m(radio_map, tracking.kwnn_k))
     results: list[MethodResult] = []
 
     def add(method: str, make: Callable[[], tuple[Track, int]], causal: bool = True) -> None:
@@ -110,7 +114,7 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
         if method in PF_METHODS:
             if radio_map is None and ap_table is None:
                 continue
-            config = dataclasses.replace(setup.tracking, smooth=setup.smooth and method == "pf", **PF_METHODS[method])
+            config = dataclasses.replace(tracking, smooth=setup.smooth and method == "pf", **PF_METHODS[method])
             rng = np.random.default_rng([setup.seed, index, ALL_METHODS.index(method)])
             outcome = track_recording(floorplan, recording, radio_map, ap_table if radio_map is None else None,
                                       config, rng, steps=steps)
