@@ -44,7 +44,7 @@ from scipy.spatial.transform import Rotation
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
 from mapfilter.floorplan import FloorPlan
-from mapfilter.walls import crosses_wall
+from mapfilter.walls import crosses_wall, touched_pixels_capacity, touched_pixels_into
 from mapfilter.wifi import AccessPointTable, path_loss_rssi_dbm
 
 GRAVITY_MPS2 = 9.80665
@@ -190,137 +190,94 @@ class SimulatedWalk:
 
 
 # ---------------------------------------------------------------------------------------
-# pixel walks on the mask (exact, numba)
+# pixel walks on the mask (exact, numba): one walk, mapfilter.walls.touched_pixels_into
 # ---------------------------------------------------------------------------------------
 @njit(cache=True)
-def _segment_min_clearance_px(clearance_px, u0, v0, u1, v1):
-    """Smallest ``clearance_px`` over every pixel the segment (u0,v0)->(u1,v1) touches.
-
-    Amanatides-Woo traversal in continuous pixel coordinates (u = column, v = row). Where
-    the segment passes exactly through a pixel corner both side pixels count, so a move
-    that only clips a wall corner is caught. Outside the mask counts as 0 (wall).
-    """
-    h, w = clearance_px.shape
-    col = int(math.floor(u0))
-    row = int(math.floor(v0))
-    end_col = int(math.floor(u1))
-    end_row = int(math.floor(v1))
-    du = u1 - u0
-    dv = v1 - v0
-    step_c = 1 if du > 0 else -1
-    step_r = 1 if dv > 0 else -1
-    inf = math.inf
-    t_delta_c = abs(1.0 / du) if du != 0 else inf
-    t_delta_r = abs(1.0 / dv) if dv != 0 else inf
-    if du > 0:
-        t_max_c = (col + 1 - u0) / du
-    elif du < 0:
-        t_max_c = (u0 - col) / -du
-    else:
-        t_max_c = inf
-    if dv > 0:
-        t_max_r = (row + 1 - v0) / dv
-    elif dv < 0:
-        t_max_r = (v0 - row) / -dv
-    else:
-        t_max_r = inf
-    best = inf
-    n_cells = abs(end_col - col) + abs(end_row - row) + 1
-    for _ in range(n_cells + 2):
-        if 0 <= row < h and 0 <= col < w:
-            c = clearance_px[row, col]
-        else:
-            c = 0.0
-        if c < best:
-            best = c
-        if row == end_row and col == end_col:
-            break
-        if t_max_c < t_max_r:
-            col += step_c
-            t_max_c += t_delta_c
-        elif t_max_r < t_max_c:
-            row += step_r
-            t_max_r += t_delta_r
-        else:
-            if t_max_c > 1.0:
-                break
-            # exact corner: look at both side pixels, then step diagonally
-            for rr, cc in ((row + step_r, col), (row, col + step_c)):
-                if 0 <= rr < h and 0 <= cc < w:
-                    c = clearance_px[rr, cc]
-                else:
-                    c = 0.0
-                if c < best:
-                    best = c
-            col += step_c
-            row += step_r
-            t_max_c += t_delta_c
-            t_max_r += t_delta_r
-        if min(t_max_c, t_max_r) > 1.0 + 1e-12 and not (row == end_row and col == end_col):
-            # numerical guard: never walk past the end point
-            break
-    return best
+def _grow(buffer, length):
+    """``buffer`` if it holds ``length`` entries, else a new one twice that long."""
+    return buffer if buffer.shape[0] >= length else np.empty(2 * length, dtype=np.int64)
 
 
 @njit(cache=True)
 def _segments_min_clearance_px(clearance_px, uv0, uv1):
+    """Per segment, the smallest ``clearance_px`` over every pixel it touches.
+
+    The pixels are those of the filter's own wall check (``touched_pixels_into``, closed
+    pixels: a pass exactly through a lattice corner touches all four pixels there, so a move
+    that only clips a wall corner is caught). Outside the mask counts as 0 (wall); so does a
+    segment with a non-finite coordinate.
+    """
     # serial on purpose: the planner calls this with a few dozen segments at a time, where a
     # parallel launch costs milliseconds on a busy machine and the work only microseconds
+    h, w = clearance_px.shape
     out = np.empty(uv0.shape[0])
+    rows = np.empty(64, dtype=np.int64)
+    cols = np.empty(64, dtype=np.int64)
     for i in range(uv0.shape[0]):
-        out[i] = _segment_min_clearance_px(clearance_px, uv0[i, 0], uv0[i, 1], uv1[i, 0], uv1[i, 1])
+        u0, v0, u1, v1 = uv0[i, 0], uv0[i, 1], uv1[i, 0], uv1[i, 1]
+        cap = touched_pixels_capacity(u0, v0, u1, v1)
+        rows = _grow(rows, cap)
+        cols = _grow(cols, cap)
+        k = touched_pixels_into(u0, v0, u1, v1, rows, cols)
+        best = math.inf if k > 0 else 0.0
+        for j in range(k):
+            r = rows[j]
+            c = cols[j]
+            value = clearance_px[r, c] if (0 <= r < h and 0 <= c < w) else 0.0
+            if value < best:
+                best = value
+        out[i] = best
     return out
 
 
 @njit(cache=True)
-def _segment_wall_runs(wall_mask, u0, v0, u1, v1):
-    """Number of walls the segment enters: free->wall transitions along its pixel walk.
+def _segments_wall_runs(wall_mask, uv0, uv1):
+    """Per segment, the number of walls it enters: free->wall transitions along its pixel walk.
 
     A thick wall is one wall (one run of wall pixels). The start pixel's own state is the
     initial state, so an AP mounted inside a wall pixel is not attenuated by that wall.
-    Outside the mask counts as free (no wall there to attenuate).
+    Outside the mask counts as free (no wall there to attenuate). The walk is
+    ``touched_pixels_into`` from the start pixel to the end pixel, in order; where the line
+    passes exactly through a lattice corner, the two side pixels there are one position of
+    the line (wall if either is: the corner point belongs to both closed squares). The
+    closed-rule extras after the end pixel (far sides of grid lines) are not walls the line
+    passes through and are ignored. A non-finite segment crosses no wall.
     """
-    h, w = wall_mask.shape
-    col = int(math.floor(u0))
-    row = int(math.floor(v0))
-    end_col = int(math.floor(u1))
-    end_row = int(math.floor(v1))
-    du = u1 - u0
-    dv = v1 - v0
-    step_c = 1 if du > 0 else -1
-    step_r = 1 if dv > 0 else -1
-    inf = math.inf
-    t_delta_c = abs(1.0 / du) if du != 0 else inf
-    t_delta_r = abs(1.0 / dv) if dv != 0 else inf
-    t_max_c = (col + 1 - u0) / du if du > 0 else ((u0 - col) / -du if du < 0 else inf)
-    t_max_r = (row + 1 - v0) / dv if dv > 0 else ((v0 - row) / -dv if dv < 0 else inf)
-    in_wall = (0 <= row < h and 0 <= col < w) and wall_mask[row, col]
-    runs = 0
-    n_cells = abs(end_col - col) + abs(end_row - row) + 1
-    for _ in range(n_cells + 2):
-        if row == end_row and col == end_col:
-            break
-        if t_max_c <= t_max_r:
-            col += step_c
-            t_max_c += t_delta_c
-        else:
-            row += step_r
-            t_max_r += t_delta_r
-        wall = (0 <= row < h and 0 <= col < w) and wall_mask[row, col]
-        if wall and not in_wall:
-            runs += 1
-        in_wall = wall
-        if min(t_max_c, t_max_r) > 1.0 + 1e-12 and not (row == end_row and col == end_col):
-            break
-    return runs
-
-
-@njit(cache=True)
-def _segments_wall_runs(wall_mask, uv0, uv1):
     # serial: one scan is a few dozen AP->phone lines (see _segments_min_clearance_px)
-    out = np.empty(uv0.shape[0], dtype=np.int64)
+    h, w = wall_mask.shape
+    out = np.zeros(uv0.shape[0], dtype=np.int64)
+    rows = np.empty(64, dtype=np.int64)
+    cols = np.empty(64, dtype=np.int64)
     for i in range(uv0.shape[0]):
-        out[i] = _segment_wall_runs(wall_mask, uv0[i, 0], uv0[i, 1], uv1[i, 0], uv1[i, 1])
+        u0, v0, u1, v1 = uv0[i, 0], uv0[i, 1], uv1[i, 0], uv1[i, 1]
+        cap = touched_pixels_capacity(u0, v0, u1, v1)
+        rows = _grow(rows, cap)
+        cols = _grow(cols, cap)
+        k = touched_pixels_into(u0, v0, u1, v1, rows, cols)
+        end_row = int(math.floor(v1)) if k > 0 else 0
+        end_col = int(math.floor(u1)) if k > 0 else 0
+        runs = 0
+        in_wall = False
+        corner_wall = False  # the first side pixel of a lattice corner was a wall
+        for j in range(k):
+            r = rows[j]
+            c = cols[j]
+            wall = 0 <= r < h and 0 <= c < w and wall_mask[r, c]
+            if j + 1 < k and abs(rows[j + 1] - r) == 1 and abs(cols[j + 1] - c) == 1 and not (
+                    r == end_row and c == end_col):
+                # the first of the two side pixels of a lattice corner (they are diagonal to
+                # each other; a side pixel is never the end pixel): the next entry is the same
+                # position of the line
+                corner_wall = wall
+                continue
+            wall = wall or corner_wall
+            corner_wall = False
+            if wall and not in_wall and j > 0:
+                runs += 1
+            in_wall = wall
+            if r == end_row and c == end_col:
+                break  # the rest are the closed rule's extras
+        out[i] = runs
     return out
 
 
@@ -343,14 +300,19 @@ def segments_min_clearance_m(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndar
 def segments_cross_wall(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
     """(N,) bool: does the move a->b touch a wall pixel (or leave the map)? Exact pixel walk.
 
-    The planner's fast serial check. The finished ground truth is checked once more with the
-    filter's own ``mapfilter.walls.crosses_wall`` (closed-pixel rule) in ``simulate_walk``.
+    The planner's serial check: the same pixels as the filter's own
+    ``mapfilter.walls.crosses_wall`` (closed-pixel rule), which checks the finished ground
+    truth once more in ``simulate_walk``.
     """
     return segments_min_clearance_m(floorplan, a_m, b_m) <= 0.0
 
 
 def count_walls_crossed(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
-    """(N,) int: walls (runs of wall pixels) on each line a->b, Motley-Keenan style."""
+    """(N,) int: walls (runs of wall pixels) on each line a->b, Motley-Keenan style.
+
+    Outside the map is free; a line starting inside a wall is not attenuated by that wall; a
+    pass exactly through a lattice corner touches both side pixels there (``_segments_wall_runs``).
+    """
     uv0 = np.ascontiguousarray(floorplan.world_to_pixel(np.atleast_2d(a_m)))
     uv1 = np.ascontiguousarray(floorplan.world_to_pixel(np.atleast_2d(b_m)))
     return _segments_wall_runs(floorplan.wall_mask, uv0, uv1)

@@ -44,6 +44,8 @@ __all__ = [
     "forget_clearance",
     "wall_crossing_mask",
     "touched_pixels",
+    "touched_pixels_capacity",
+    "touched_pixels_into",
     "touched_pixels_reference",
 ]
 
@@ -407,14 +409,50 @@ def count_wall_crossings(floorplan: FloorPlan, track_xy_m: np.ndarray) -> int:
     return int(np.count_nonzero(wall_crossing_mask(floorplan, track_xy_m)))
 
 
+_NO_MASK = np.zeros((1, 1), dtype=np.bool_)  # the recording walk ignores the mask
+
+
+@njit(cache=True)
+def touched_pixels_capacity(u0, v0, u1, v1):
+    """Buffer length that :func:`touched_pixels_into` never overruns for this segment (0 if non-finite).
+
+    The walk writes 1 start pixel, 1 per grid line crossed and 3 per lattice corner (which
+    uses up 2 crossings), so at most 1.5 per crossing; a segment lying on a grid line adds one
+    row/column per crossing (+1), and each end point on grid lines at most 4 more.
+    """
+    if not (math.isfinite(u0) and math.isfinite(v0) and math.isfinite(u1) and math.isfinite(v1)):
+        return 0
+    n_crossings = abs(int(math.floor(u1)) - int(math.floor(u0))) + abs(int(math.floor(v1)) - int(math.floor(v0)))
+    return 2 * n_crossings + 16
+
+
+@njit(cache=True)
+def touched_pixels_into(u0, v0, u1, v1, rows_out, cols_out):
+    """Record every pixel the closed segment (u0, v0)-(u1, v1) touches; returns how many.
+
+    The same walk and touching rule as :func:`crosses_wall` (module docstring): a pass
+    exactly through a lattice corner touches all four pixels there. ``rows_out``/``cols_out``
+    (int64) need :func:`touched_pixels_capacity` entries. A non-finite coordinate records
+    nothing (returns 0). Duplicates are possible.
+
+    Order: first the walk from the start pixel ``(floor(v0), floor(u0))`` to the end pixel
+    ``(floor(v1), floor(u1))``, each pixel once, consecutive pixels sharing an edge, except
+    at a lattice corner, where the two side pixels (diagonal to each other) come between the
+    pixel before the corner and the diagonal pixel after it; then the extra pixels of the
+    closed rule (the far side of a grid line the segment lies on or ends on), in no
+    particular order.
+    """
+    return _walk(_NO_MASK, u0, v0, u1, v1, True, rows_out, cols_out)
+
+
 def touched_pixels(from_uv_px, to_uv_px) -> set[tuple[int, int]]:
     """The set of (row, col) pixels the numba walk touches for one segment (for tests/debug)."""
     u0, v0 = float(from_uv_px[0]), float(from_uv_px[1])
     u1, v1 = float(to_uv_px[0]), float(to_uv_px[1])
-    cap = 2 * (abs(math.floor(u1) - math.floor(u0)) + abs(math.floor(v1) - math.floor(v0))) + 16
+    cap = touched_pixels_capacity(u0, v0, u1, v1)
     rows = np.empty(cap, dtype=np.int64)
     cols = np.empty(cap, dtype=np.int64)
-    k = _walk(np.zeros((1, 1), dtype=np.bool_), u0, v0, u1, v1, True, rows, cols)
+    k = touched_pixels_into(u0, v0, u1, v1, rows, cols)
     return set(zip(rows[:k].tolist(), cols[:k].tolist()))
 
 

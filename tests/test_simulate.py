@@ -15,7 +15,7 @@ from mapfilter.cli import main
 from mapfilter.errors import MapfilterError
 from mapfilter.floorplan import FloorPlan
 from mapfilter.logs import read_ilc
-from mapfilter.walls import crosses_wall
+from mapfilter.walls import crosses_wall, touched_pixels_reference
 from mapfilter.simulate import (
     CHANNELS_2G4_MHZ,
     CHANNELS_5G_MHZ,
@@ -160,6 +160,92 @@ def test_wall_kernels_agree_with_dense_sampling(plan):
     plain_runs = np.array([plain_wall_runs(plan, p, q) for p, q in zip(a, b)])
     assert runs.max() >= 3
     assert np.count_nonzero(runs != plain_runs) <= 4
+
+
+def _enter_exit(u0, v0, u1, v1, row, col):
+    """Segment parameters (t_in, t_out) over which the segment is inside the closed square."""
+    t_lo, t_hi = 0.0, 1.0
+    for p0, dp, lo in ((u0, u1 - u0, col), (v0, v1 - v0, row)):
+        if dp != 0.0:
+            ta, tb = (lo - p0) / dp, (lo + 1 - p0) / dp
+            t_lo, t_hi = max(t_lo, min(ta, tb)), min(t_hi, max(ta, tb))
+    return t_lo, t_hi
+
+
+def oracle_min_clearance_and_runs(plan: FloorPlan, a_m, b_m) -> tuple[float, int]:
+    """Brute force, no grid walk: the pixels whose closed square the segment meets (walls.py's
+    oracle), clearance = their smallest ``wall_distance_px`` (outside = 0); walls = free->wall
+    transitions over those pixels ordered by where the segment is inside them, pixels touched over
+    the same parameter interval (the side pixels of a lattice corner: one point) being one
+    position, wall if any is; outside = free; the start pixel's state is the initial state.
+    Needs end points off grid lines and no segment along a grid line (true below)."""
+    (u0, v0), (u1, v1) = plan.world_to_pixel(a_m), plan.world_to_pixel(b_m)
+    h, w = plan.shape_px
+    touched = touched_pixels_reference((u0, v0), (u1, v1))
+    inside = [(r, c) for r, c in touched if 0 <= r < h and 0 <= c < w]
+    clearance = 0.0 if len(inside) < len(touched) else min(plan.wall_distance_px[r, c] for r, c in inside)
+    positions: dict[tuple[float, float], bool] = {}
+    for r, c in touched:
+        key = _enter_exit(u0, v0, u1, v1, r, c)
+        positions[key] = positions.get(key, False) or (0 <= r < h and 0 <= c < w and bool(plan.wall_mask[r, c]))
+    states = [positions[key] for key in sorted(positions)]
+    runs = sum(1 for prev, cur in zip(states, states[1:]) if cur and not prev)
+    return clearance * plan.resolution_m, runs
+
+
+def test_wall_kernels_equal_a_brute_force_oracle_with_corner_passes():
+    """Exact equality on a 1 m grid: pixel-centre to pixel-centre moves (many pass exactly through
+    lattice corners: a corner clip touches all four pixels) and random ones, some leaving the map,
+    over a mask with thick, thin and diagonal (8-connected) walls."""
+    rng = np.random.default_rng(11)
+    size = 30
+    mask = rng.random((size, size)) < 0.05
+    mask[10:13, 2:25] = True  # a thick wall: one wall
+    mask[20, 5:28] = True
+    idx = np.arange(4, 20)
+    mask[idx + 2, idx] = True  # a diagonal wall, closed for corner passes
+    plan_1m = FloorPlan(mask, 1.0)
+    n = 600
+    centres = rng.integers(0, size, (n, 4)) + 0.5
+    a = np.concatenate([centres[:, :2], rng.uniform(-2.0, size + 2.0, (n, 2))])
+    b = np.concatenate([centres[:, 2:], rng.uniform(-2.0, size + 2.0, (n, 2))])
+    on_grid_line = (a == np.floor(a)).any(axis=1) | (b == np.floor(b)).any(axis=1)
+    a, b = a[~on_grid_line], b[~on_grid_line]
+    clearance = segments_min_clearance_m(plan_1m, a, b)
+    runs = count_walls_crossed(plan_1m, a, b)
+    expected = [oracle_min_clearance_and_runs(plan_1m, p, q) for p, q in zip(a, b)]
+    np.testing.assert_array_equal(clearance, [e[0] for e in expected])
+    np.testing.assert_array_equal(runs, [e[1] for e in expected])
+    assert runs.max() >= 3 and (clearance <= 0).any() and (clearance > 0).any()
+    # the test has corner passes whose side pixels differ (one wall, one free)
+    corner_clips = [
+        i for i in range(n) if abs(b[i, 0] - a[i, 0]) == abs(b[i, 1] - a[i, 1]) > 0
+        and any(mask[int(r), int(c)] for r, c in touched_pixels_reference(
+            plan_1m.world_to_pixel(a[i]), plan_1m.world_to_pixel(b[i])) if 0 <= r < size and 0 <= c < size)]
+    assert len(corner_clips) > 5
+    # a non-finite move touches a wall for the planner, and crosses none for the radio model
+    assert segments_min_clearance_m(plan_1m, np.array([[np.nan, 1.0]]), np.array([[2.5, 2.5]]))[0] == 0.0
+    assert count_walls_crossed(plan_1m, np.array([[np.nan, 1.0]]), np.array([[2.5, 2.5]]))[0] == 0
+
+
+def test_wall_count_treats_a_lattice_corner_as_one_point():
+    """A diagonal line through the corner between a wall pixel and a free one enters one wall
+    (the corner point, then the wall pixel beyond), not two; on a diagonal wall, one wall."""
+    mask = np.zeros((6, 6), bool)
+    mask[2, 3] = True  # side pixel of the corner (3, 3) on the line (0.5, 0.5)->(5.5, 5.5) in (u, v)
+    mask[3, 3] = True  # the diagonal pixel after that corner
+    plan_1m = FloorPlan(mask, 1.0)
+
+    def uv_to_xy(u, v):
+        return plan_1m.pixel_to_world(np.array([[u, v]]))
+
+    a, b = uv_to_xy(0.5, 0.5), uv_to_xy(5.5, 5.5)
+    assert count_walls_crossed(plan_1m, a, b)[0] == 1
+    assert segments_min_clearance_m(plan_1m, a, b)[0] == 0.0
+    diagonal = np.zeros((6, 6), bool)
+    diagonal[[1, 2, 3, 4], [4, 3, 2, 1]] = True  # an 8-connected wall across the line
+    plan_diag = FloorPlan(diagonal, 1.0)
+    assert count_walls_crossed(plan_diag, a, b)[0] == 1
 
 
 def test_wall_count_of_a_known_line(plan):

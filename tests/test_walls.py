@@ -10,6 +10,8 @@ from mapfilter.walls import (
     crosses_wall,
     crosses_wall_uv,
     touched_pixels,
+    touched_pixels_capacity,
+    touched_pixels_into,
     touched_pixels_reference,
 )
 
@@ -39,6 +41,38 @@ def test_walk_touches_exactly_the_oracle_pixels():
     a, b = _random_segments(rng, 3000, 12)
     for i in range(a.shape[0]):
         assert touched_pixels(a[i], b[i]) == touched_pixels_reference(a[i], b[i]), (a[i], b[i])
+
+
+def test_recording_walk_fits_its_capacity_and_walks_in_order():
+    """touched_pixels_into: the oracle's pixels, within touched_pixels_capacity, and in walk order
+    (start pixel first; edge neighbours, except the two side pixels of a lattice corner, which
+    are diagonal to each other; the end pixel closes the walk), as simulate.py relies on."""
+    rng = np.random.default_rng(5)
+    a, b = _random_segments(rng, 3000, 12)
+    n_corners = 0
+    for i in range(a.shape[0]):
+        (u0, v0), (u1, v1) = a[i], b[i]
+        cap = touched_pixels_capacity(u0, v0, u1, v1)
+        rows, cols = np.full(cap + 8, -99, np.int64), np.full(cap + 8, -99, np.int64)
+        k = touched_pixels_into(u0, v0, u1, v1, rows, cols)
+        assert 0 < k <= cap and (rows[k:] == -99).all()
+        assert set(zip(rows[:k].tolist(), cols[:k].tolist())) == touched_pixels_reference(a[i], b[i])
+        start, end = (int(np.floor(v0)), int(np.floor(u0))), (int(np.floor(v1)), int(np.floor(u1)))
+        assert (rows[0], cols[0]) == start
+        j = 0
+        while (rows[j], cols[j]) != end:
+            dr, dc = abs(rows[j + 1] - rows[j]), abs(cols[j + 1] - cols[j])
+            if dr == 1 and dc == 1:  # corner side pixels: both are edge neighbours of the one before
+                n_corners += 1
+                assert abs(rows[j + 1] - rows[j - 1]) + abs(cols[j + 1] - cols[j - 1]) == 1
+            else:
+                assert dr + dc == 1
+            j += 1
+        assert j + 1 <= k
+    assert n_corners > 100  # the mix has many exact corner passes
+    nan_rows = np.empty(0, np.int64)
+    assert touched_pixels_capacity(np.nan, 0.0, 1.0, 1.0) == 0
+    assert touched_pixels_into(np.nan, 0.0, 1.0, 1.0, nan_rows, nan_rows) == 0
 
 
 def test_crosses_wall_agrees_with_oracle_on_masks():
