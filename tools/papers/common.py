@@ -81,6 +81,23 @@ def office_reference_points(corridor_spacing_m: float = 2.0) -> tuple[np.ndarray
     return np.vstack([np.array(rooms, dtype=np.float64), corridor]), len(rooms)
 
 
+def office_in_corridor(xy_m: np.ndarray) -> np.ndarray:
+    """True for points inside the corridor loop of the bundled office (between its walls)."""
+    sys.path.insert(0, str(REPO / "tools"))
+    try:
+        import draw_office
+    finally:
+        sys.path.pop(0)
+    xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    b0, b1 = draw_office.MARGIN_M, draw_office.MARGIN_M + draw_office.BUILDING_M
+
+    def inside(offset_m: float) -> np.ndarray:
+        lo, hi = b0 + offset_m, b1 - offset_m
+        return np.all((xy > lo) & (xy < hi), axis=1)
+
+    return inside(draw_office.RING_OUT_M) & ~inside(draw_office.RING_IN_M)
+
+
 def simulate_recording(floorplan: FloorPlan, aps: AccessPointTable, config: SimConfig,
                        seed: int) -> tuple[SimulatedWalk, Recording]:
     """Simulate one walk and read it back through the ILC reader (the path every real log takes)."""
