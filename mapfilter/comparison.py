@@ -75,18 +75,26 @@ class MethodResult:
     causal: bool = True
 
 
+@dataclasses.dataclass
+class AllWalks:
+    """Leave-one-out material built once from every walk: each walk's fold removes its share."""
+
+    radio_map: RadioMap
+    ap_table: AccessPointTable | None  # APs fitted on every walk (None when no method needs them)
+
+
 def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, setup: EvaluationSetup,
-                   all_walks_radio_map: RadioMap | None = None) -> list[MethodResult]:
+                   all_walks: AllWalks | None = None) -> list[MethodResult]:
     """Run every method of ``setup`` on walk ``log_paths[index]``.
 
-    With leave-one-out, ``all_walks_radio_map`` (built from every walk) loses this walk's
-    reference points. Random draws come from ``default_rng([seed, index, method])``, so the
-    result does not depend on how walks are spread over processes.
+    With leave-one-out, ``all_walks`` (built from every walk) loses this walk's reference
+    points. Random draws come from ``default_rng([seed, index, method])``, so the result does
+    not depend on how walks are spread over processes.
     """
     recording = read_ilc(log_paths[index])
     if not recording.has_ground_truth:
         raise MapfilterError("the log has no waypoints to evaluate against", log_paths[index])
-    radio_map, ap_table = _wifi_sources(recording, setup, all_walks_radio_map)
+    radio_map, ap_table = _wifi_sources(recording, setup, all_walks)
     scans = scans_of(recording)
     steps = detect_steps(recording, setup.tracking.pdr)
     scan_t = np.array([s.t_s for s in scans])
@@ -140,18 +148,55 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
 
 
 def _wifi_sources(recording: Recording, setup: EvaluationSetup,
-                  all_walks_radio_map: RadioMap | None) -> tuple[RadioMap | None, AccessPointTable | None]:
+                  all_walks: AllWalks | None) -> tuple[RadioMap | None, AccessPointTable | None]:
     radio_map = RadioMap.load(setup.radio_map_path) if setup.radio_map_path else None
     ap_table = AccessPointTable.read_csv(setup.ap_table_path) if setup.ap_table_path else None
     if setup.leave_one_out:
-        if all_walks_radio_map is None:
+        if all_walks is None:
             raise ValueError("leave-one-out needs the radio map of all walks")
-        radio_map = _drop_unheard_aps(all_walks_radio_map.without_traces([recording.name]))
+        radio_map = _drop_unheard_aps(all_walks.radio_map.without_traces([recording.name]))
         if len(radio_map) == 0:
             raise MapfilterError("leave-one-out needs other walks with waypoints and WiFi", recording.path)
-        if ap_table is None and (setup.fit_aps or "ls" in setup.methods):
-            ap_table = estimate_access_points(radio_map)
+        if ap_table is None and all_walks.ap_table is not None:
+            ap_table = _leave_one_out_aps(all_walks, radio_map, recording.name)
     return radio_map, ap_table
+
+
+def _needs_fitted_aps(setup: EvaluationSetup) -> bool:
+    return setup.leave_one_out and setup.ap_table_path is None and (setup.fit_aps or "ls" in setup.methods)
+
+
+def _leave_one_out_aps(all_walks: AllWalks, fold_map: RadioMap, trace: str) -> AccessPointTable:
+    """The AP table fitted without ``trace``: an AP's fit depends only on its own observations,
+    so only the APs this walk heard are fitted again (on the fold's radio map); the others keep
+    their all-walks fit, which is exactly what a fit without this walk gives them."""
+    full = all_walks.radio_map
+    mine = np.isin(full.trace, [i for i, name in enumerate(full.source_traces) if name == trace])
+    heard = set(np.array(full.ap_keys)[~np.all(np.isnan(full.rssi_dbm[mine]), axis=0)].tolist())
+    columns = [j for j, key in enumerate(fold_map.ap_keys) if key in heard]
+    table = all_walks.ap_table
+    keep = [i for i, key in enumerate(table.keys) if key not in heard]
+    parts = [_select_aps(table, keep)]
+    if columns:
+        subset = RadioMap(fold_map.xy_m, [fold_map.ap_keys[j] for j in columns], fold_map.rssi_dbm[:, columns],
+                          fold_map.t_s, fold_map.trace, fold_map.source_traces, fold_map.floor_name)
+        try:
+            parts.append(estimate_access_points(subset))
+        except MapfilterError:
+            pass  # none of this walk's APs can be fitted from the other walks
+    return _concat_aps(parts)
+
+
+def _select_aps(table: AccessPointTable, rows: list[int]) -> AccessPointTable:
+    return AccessPointTable([table.bssid[i] for i in rows], [table.band[i] for i in rows], table.xy_m[rows],
+                            table.c_dbm[rows], table.n[rows], table.alpha_db_per_m[rows], table.d_max_m[rows])
+
+
+def _concat_aps(tables: list[AccessPointTable]) -> AccessPointTable:
+    return AccessPointTable(
+        [b for t in tables for b in t.bssid], [b for t in tables for b in t.band],
+        np.concatenate([t.xy_m for t in tables]).reshape(-1, 2),
+        *(np.concatenate([getattr(t, f) for t in tables]) for f in ("c_dbm", "n", "alpha_db_per_m", "d_max_m")))
 
 
 def _drop_unheard_aps(radio_map: RadioMap) -> RadioMap:
@@ -240,7 +285,8 @@ def evaluate_logs(floorplan: FloorPlan, log_paths: Sequence[str | os.PathLike], 
     if setup.leave_one_out:
         if len(paths) < 2:
             raise MapfilterError("leave-one-out needs at least two logs")
-        all_walks = build_radio_map([read_ilc(p) for p in paths], floorplan)
+        radio_map = build_radio_map([read_ilc(p) for p in paths], floorplan)
+        all_walks = AllWalks(radio_map, estimate_access_points(radio_map) if _needs_fitted_aps(setup) else None)
     results: list[list[MethodResult] | None] = [None] * len(paths)
     if jobs <= 1 or len(paths) == 1:
         for i in range(len(paths)):
@@ -267,7 +313,7 @@ def evaluate_logs(floorplan: FloorPlan, log_paths: Sequence[str | os.PathLike], 
 
 
 def _evaluate_in_worker(map_path: str, paths: list[Path], index: int, setup: EvaluationSetup,
-                        all_walks: RadioMap | None) -> list[MethodResult]:
+                        all_walks: AllWalks | None) -> list[MethodResult]:
     return evaluate_trace(FloorPlan.load(map_path), paths, index, setup, all_walks)
 
 

@@ -72,6 +72,8 @@ class TrackingConfig:
         if self.fingerprint_model not in FINGERPRINT_MODELS:
             raise MapfilterError(f"unknown fingerprint model {self.fingerprint_model!r}: "
                                  f"choose one of {', '.join(FINGERPRINT_MODELS)}")
+        if self.heading_source not in ("gyro", "rotation_vector"):
+            raise MapfilterError(f"unknown heading source {self.heading_source!r}: choose gyro or rotation_vector")
         if self.n_particles < 1:
             raise MapfilterError(f"the number of particles must be at least 1, got {self.n_particles}")
 
@@ -100,7 +102,8 @@ class WifiMeasurements:
         if (radio_map is None) == (ap_table is None):
             raise MapfilterError("give either a radio map (fingerprinting) or an access-point table (trilateration)")
         self.scans = scans
-        self.fix_xy_m: np.ndarray | None = None
+        self.fix_xy_m: np.ndarray | None = None  # fingerprint fixes, one per scan (NaN: none)
+        self.heard_ap_xy_m: list[np.ndarray] | None = None  # trilateration: the APs each scan heard
         self.usable = np.ones(len(scans), dtype=bool)
         if radio_map is not None:
             shared = np.array([sum(k in radio_map.key_index for k in s.ap_keys) for s in scans])
@@ -245,10 +248,9 @@ def _events(scans: list[WifiScan], first: int, steps: Steps | None, tick_s: floa
 
 
 def _with_heard_aps(measurement: Any, wifi: WifiMeasurements, index: int) -> Any:
-    heard = getattr(wifi, "heard_ap_xy_m", None)
-    if heard is None:
+    if wifi.heard_ap_xy_m is None:
         return measurement
-    return _ScanWithAps(measurement, heard[index])
+    return _ScanWithAps(measurement, wifi.heard_ap_xy_m[index])
 
 
 class _ScanWithAps:
@@ -267,7 +269,8 @@ def _set_start_headings(pf: ParticleFilter, steps: Steps, t0_s: float, config: T
     """PDR particles start with the rotation vector's heading (plus spread), else uniform.
 
     The gyro heading is relative; the rotation vector (magnetometer) gives the map heading,
-    biased by the building's steel. Only steps up to the start time are used (causal).
+    biased by the building's steel: the heading of the last step at or before the start
+    (the first step if the walk starts standing).
     """
     n = pf.n
     if config.use_abs_heading and steps.abs_heading_rad is not None and len(steps):

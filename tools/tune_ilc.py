@@ -22,7 +22,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from mapfilter.comparison import EvaluationSetup, evaluate_trace  # noqa: E402
+from mapfilter.comparison import AllWalks, EvaluationSetup, evaluate_trace  # noqa: E402
 from mapfilter.evaluate import format_table, summarise_errors  # noqa: E402
 from mapfilter.filter.motion import PDRMotion  # noqa: E402
 from mapfilter.filter.pf import FilterConfig  # noqa: E402
@@ -55,7 +55,7 @@ def main() -> int:
     floor_dir = ILC / args.floor
     floorplan = import_ilc(floor_dir, route="geojson")
     paths = sorted((floor_dir / "path_data_files").glob("*.txt.gz"))[:: args.every]
-    all_walks = build_radio_map([read_ilc(p) for p in sorted((floor_dir / "path_data_files").glob("*.txt.gz"))])
+    all_walks = AllWalks(build_radio_map([read_ilc(p) for p in sorted((floor_dir / "path_data_files").glob("*.txt.gz"))]), None)
     rows = []
     for text in args.settings:
         config = config_from_json(text)
