@@ -122,7 +122,8 @@ def survey_radio_map(floorplan: FloorPlan, aps: AccessPointTable, reference_xy_m
     xy = np.repeat(ref, k_ap, axis=0)
     mean_dbm, _ = model_rssi_dbm(floorplan, aps, ap_index, xy, config)
     mean_dbm = mean_dbm.reshape(ref.shape[0], k_ap)
-    draws = np.round(mean_dbm[None] + config.shadowing_sigma_db * rng.standard_normal((scans_per_point, *mean_dbm.shape)))
+    noise_db = config.shadowing_sigma_db * rng.standard_normal((scans_per_point, *mean_dbm.shape))
+    draws = np.round(mean_dbm[None] + noise_db)
     draws = np.where(draws >= config.sensitivity_dbm, draws, np.nan)
     with np.errstate(invalid="ignore"), _quiet_nanmean():
         rssi = np.nanmean(draws, axis=0)
@@ -148,7 +149,8 @@ def track_errors(track: Track, walk: SimulatedWalk) -> np.ndarray:
     return errors_at_waypoints(track.t_s, track.xy_m, walk.waypoint_t_s, walk.waypoint_xy_m).errors_m
 
 
-def run_parallel(func: Callable, items: Iterable, jobs: int, setup: Callable | None = None, setup_args: tuple = ()) -> list:
+def run_parallel(func: Callable, items: Iterable, jobs: int, setup: Callable | None = None,
+                 setup_args: tuple = ()) -> list:
     """``[func(x) for x in items]``, in ``jobs`` fresh processes when jobs > 1 (order kept).
 
     Fresh (spawned) processes, never forked ones: a process forked after numba's parallel

@@ -124,7 +124,8 @@ def _collapse_threshold(floorplan, sigma_m: float = 5.0, outlier_probability: fl
 
 
 def _pf(w: Walk, motion: str, use_map: bool, n_particles: int, seed: int, detect: bool = False) -> dict:
-    filter_config = FilterConfig(min_log_likelihood=_collapse_threshold(_STATE["floorplan"])) if detect else FilterConfig()
+    threshold = _collapse_threshold(_STATE["floorplan"]) if detect else None
+    filter_config = FilterConfig(min_log_likelihood=threshold)
     config = TrackingConfig(motion=motion, n_particles=n_particles, use_map=use_map, kwnn_k=1, fix_sigma_m=5.0,
                             filter=filter_config)
     result = track_recording(_STATE["floorplan"], w.recording, radio_map=_STATE["radio_map"], config=config,
