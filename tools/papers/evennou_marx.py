@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import sys
 import time
 from pathlib import Path
@@ -115,16 +114,15 @@ def _lost(track: Track, walk) -> bool:
     return False
 
 
-def _collapse_threshold(floorplan, sigma_m: float = 5.0, outlier_probability: float = 0.2) -> float:
-    """The fix log-likelihood of a particle 3 sigma from the fix (the tracker's robust Gaussian):
-    a best particle below it means the fix and the whole cloud disagree."""
-    area_m2 = max(np.count_nonzero(~floorplan.wall_mask) * floorplan.resolution_m ** 2, 1.0)
-    gauss = -0.5 * 9.0 - math.log(2 * math.pi * sigma_m ** 2)
-    return float(np.logaddexp(math.log1p(-outlier_probability) + gauss, math.log(outlier_probability / area_m2)))
+def _collapse_threshold(sigmas: float = 3.0) -> float:
+    """The fix log-likelihood of a particle ``sigmas`` standard deviations from the fix: the
+    tracker's ``GaussianFixLikelihood`` is -d^2 / (2 sigma^2) with its peak at 0, so a best
+    particle below this means the fix and the whole cloud disagree."""
+    return -0.5 * sigmas * sigmas
 
 
 def _pf(w: Walk, motion: str, use_map: bool, n_particles: int, seed: int, detect: bool = False) -> dict:
-    threshold = _collapse_threshold(_STATE["floorplan"]) if detect else None
+    threshold = _collapse_threshold() if detect else None
     filter_config = FilterConfig(min_log_likelihood=threshold)
     config = TrackingConfig(motion=motion, n_particles=n_particles, use_map=use_map, kwnn_k=1, fix_sigma_m=5.0,
                             filter=filter_config)
@@ -335,7 +333,7 @@ a database of {len(reference)} reference points ({n_rooms} room centres + {len(r
 each the mean of {SURVEY_SCANS_PER_POINT} simulated scans. {n_walks} simulated walks of {duration:.0f} s
 (seeds {args.seed * 1000 + 1}..{args.seed * 1000 + n_walks}), scans every 2-4 s; errors at every step
 (ground-truth waypoint), causal. PF: {main_particles} particles, NN fix with a 5 m Gaussian
-(plus a 20 % outlier floor, the tracker's default).
+(their sigma, set explicitly: the tracker would otherwise calibrate it from the database).
 
 ## Database only, Kalman filter, particle filter
 
@@ -373,7 +371,7 @@ the table also counts runs **lost**: the error above {LOST_ERROR_M:.0f} m for {L
 
 ### With collapse detection on
 
-The same filter with `FilterConfig(min_log_likelihood={_collapse_threshold(common.load_office()[0]):.2f})`: a collapse is also
+The same filter with `FilterConfig(min_log_likelihood={_collapse_threshold():.2f})`: a collapse is also
 declared when the best particle's fix log-likelihood is below that of a particle 3 sigma
 (15 m) from the fix, i.e. the fix and the whole cloud disagree; the filter then
 re-initialises from the fix's likelihood over the map. {study_walks} walks x 1 seed per N.
