@@ -241,8 +241,9 @@ The filter's model has no wall term. The main rows use `maps/office_fitted_aps.c
 positions and path-loss parameters fitted from a simulated survey by
 `mapfilter radiomap fit-aps` (the thesis also adapted its path-loss parameters to the
 building; the fit absorbs the walls into n of about 3). The last rows use the true table
-(the simulator's own parameters, no walls): through up to ten walls the model then expects
-RSSI 20-40 dB stronger than measured, and every method is pulled far off.
+(the simulator's own parameters, no walls): behind walls the model then expects RSSI
+3.5-5 dB stronger per wall than measured (tens of dB across the building), and every
+method is pulled far off.
 
 ## LS vs PF (WiFi only) vs PDR vs PF + PDR
 
