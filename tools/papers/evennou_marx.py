@@ -264,10 +264,13 @@ def _figure(runs: list[dict], particles: tuple[int, ...], path: Path) -> None:
     ax.set_title("Evennou & Marx particle-count study on the simulated office (CV motion, map)")
     ax.grid(alpha=0.3)
     rate = [100.0 * np.mean([r["collapses"] > 0 for r in runs if r["n"] == n]) for n in particles]
-    ax2.plot(positions, rate, "o-")
-    ax2.set_ylabel("runs with a collapse (%)")
+    lost = [100.0 * np.mean([r["lost"] for r in runs if r["n"] == n]) for n in particles]
+    ax2.plot(positions, rate, "o-", label="runs with a collapse")
+    ax2.plot(positions, lost, "s--", label=f"runs lost (> {LOST_ERROR_M:.0f} m for {LOST_FOR_S:.0f} s)")
+    ax2.set_ylabel("runs (%)")
     ax2.set_xlabel("particles N")
-    ax2.set_xticks(positions, [str(n) for n in particles])
+    ax2.set_xticks(positions, [str(n) for n in particles], rotation=45)
+    ax2.legend(fontsize=8)
     ax2.grid(alpha=0.3)
     fig.tight_layout()
     with atomic_paths(path) as (tmp,):

@@ -276,7 +276,8 @@ in these runs: {_causes(step_runs)} ("all_killed_by_walls": every particle's ste
 wall, which with PDR motion happens when the cloud's heading or position is off). After a collapse the filter re-initialises from the scan's likelihood over the map with the *initial*
 step length and uniformly random headings, so the learned step length is lost and the
 curve drops back to {WRONG_START_M} m (the vertical drops in the figure). The thesis' state
-converged within its walk; ours does not converge in {duration:.0f} s for that reason.
+converged within its walk; ours does not within {duration:.0f} s: the collapses reset it, and
+between them the random walk climbs slowly.
 
 ## Why our numbers differ from theirs
 
