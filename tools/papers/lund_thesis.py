@@ -273,11 +273,12 @@ How to read it: between collapses the estimate climbs from {WRONG_START_M} m tow
 (resampling favours the longer steps that keep up with the WiFi), but at 0.02 m per step the
 random walk needs about a minute of consistent WiFi to get there. Causes of the collapses
 in these runs: {_causes(step_runs)} ("all_killed_by_walls": every particle's step crossed a
-wall, which with PDR motion happens when the cloud's heading or position is off). After a collapse the filter re-initialises from the scan's likelihood over the map with the *initial*
-step length and uniformly random headings, so the learned step length is lost and the
-curve drops back to {WRONG_START_M} m (the vertical drops in the figure). The thesis' state
-converged within its walk; ours does not within {duration:.0f} s: the collapses reset it, and
-between them the random walk climbs slowly.
+wall, which with PDR motion happens when the cloud's heading or position is off). The estimate
+does not hold: it falls back towards {WRONG_START_M} m several times (the vertical drops), mostly near
+collapses. The recovery draws new positions from the scan's likelihood but keeps the lost
+particles' step lengths (and half their headings), so the drops come from which of those
+lengths survive the following resamplings; we have not pinned the cause down further. The
+thesis' state converged within its walk; ours does not within {duration:.0f} s.
 
 ## Why our numbers differ from theirs
 
