@@ -112,7 +112,7 @@ def plot_error_cdf(errors_by_method: dict[str, np.ndarray], path: str | os.PathL
     if title:
         ax.set_title(title)
     fig.tight_layout()
-    _save_figure(fig, path)
+    save_figure(fig, path)
 
 
 def plot_tracks_on_map(floorplan, tracks: dict[str, np.ndarray], path: str | os.PathLike,
@@ -142,12 +142,13 @@ def plot_tracks_on_map(floorplan, tracks: dict[str, np.ndarray], path: str | os.
     if title:
         ax.set_title(title)
     fig.tight_layout()
-    _save_figure(fig, path)
+    save_figure(fig, path)
 
 
-def _save_figure(fig, path: str | os.PathLike) -> None:
+def save_figure(fig, path: str | os.PathLike, dpi: float | None = None) -> None:
+    """Write a matplotlib figure as PNG atomically and close it."""
     import matplotlib.pyplot as plt
 
     with atomic_paths(path) as (tmp,):
-        fig.savefig(tmp, format="png")
+        fig.savefig(tmp, format="png", dpi=dpi)
     plt.close(fig)

@@ -136,6 +136,17 @@ class AccessPointTable:
                                      f"{self.d_max_m[i]:.1f}"])
 
 
+def access_points_for_map(aps_path: str | os.PathLike | None, floorplan, map_path: str | os.PathLike,
+                          hint: str = "pass --aps APS.csv") -> AccessPointTable:
+    """The access-point table at ``aps_path``, else the map's own (``mapfilter: access_points``
+    in its YAML); ``MapfilterError`` naming the map if there is neither."""
+    path = aps_path if aps_path is not None else floorplan.access_points_csv
+    if path is None:
+        raise MapfilterError(f"no access points: {hint}, or name a table in the map (mapfilter: access_points)",
+                             map_path)
+    return AccessPointTable.read_csv(path)
+
+
 # ---- measurements ---------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True, eq=False)
 class WifiScan:

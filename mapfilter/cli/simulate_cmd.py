@@ -12,7 +12,7 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.floorplan import FloorPlan
 from mapfilter.simulate import SimConfig, simulate_walk, write_ilc
-from mapfilter.wifi import AccessPointTable
+from mapfilter.wifi import access_points_for_map
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -51,10 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise MapfilterError(f"--seed must be a non-negative integer, got {args.seed}")
     floorplan = FloorPlan.load(args.map)
-    aps_path = args.aps if args.aps is not None else floorplan.access_points_csv
-    if aps_path is None:
-        raise MapfilterError("no access points: pass --aps or set mapfilter.access_points in the map", args.map)
-    ap_table = AccessPointTable.read_csv(aps_path)
+    ap_table = access_points_for_map(args.aps, floorplan, args.map)
     duration = args.duration
     if duration is None and not args.survey:
         duration = SimConfig.duration_s

@@ -16,7 +16,7 @@ from mapfilter.radiomap import RadioMap
 from mapfilter.trackio import write_track_csv, write_track_tum
 from mapfilter.tracking import FINGERPRINT_MODELS, MOTION_MODELS, TrackingConfig, track_recording
 from mapfilter.walls import count_wall_crossings
-from mapfilter.wifi import AccessPointTable
+from mapfilter.wifi import access_points_for_map
 
 _EPILOG = """\
 WiFi: --radiomap RM (fingerprinting; build one with `mapfilter radiomap build`) or --aps
@@ -72,11 +72,7 @@ def run(args: argparse.Namespace) -> int:
     radio_map = RadioMap.load(args.radiomap) if args.radiomap else None
     ap_table = None
     if radio_map is None:
-        aps_path = args.aps or floorplan.access_points_csv
-        if aps_path is None:
-            raise MapfilterError("no WiFi model: give --radiomap RM or --aps APS.csv (the map has no access points)",
-                                 args.map)
-        ap_table = AccessPointTable.read_csv(aps_path)
+        ap_table = access_points_for_map(args.aps, floorplan, args.map, hint="give --radiomap RM or --aps APS.csv")
     if recording.has_ground_truth:
         in_walls = ~floorplan.is_free(recording.waypoint_xy_m)
         if in_walls.any():

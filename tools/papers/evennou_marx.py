@@ -254,7 +254,7 @@ def _figure(runs: list[dict], particles: tuple[int, ...], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mapfilter.atomic import atomic_paths
+    from mapfilter.evaluate import save_figure
 
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     data = [[r["mean"] for r in runs if r["n"] == n] for n in particles]
@@ -273,9 +273,7 @@ def _figure(runs: list[dict], particles: tuple[int, ...], path: Path) -> None:
     ax2.legend(fontsize=8)
     ax2.grid(alpha=0.3)
     fig.tight_layout()
-    with atomic_paths(path) as (tmp,):
-        fig.savefig(tmp, format="png", dpi=90)
-    plt.close(fig)
+    save_figure(fig, path, dpi=90)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -179,7 +179,7 @@ def _figure(step_runs: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mapfilter.atomic import atomic_paths
+    from mapfilter.evaluate import save_figure
 
     fig, ax = plt.subplots(figsize=(8, 4))
     for i, r in enumerate(step_runs):
@@ -190,9 +190,7 @@ def _figure(step_runs: list[dict], path: Path) -> None:
     ax.set_title(f"PF + PDR step-length state from a wrong start ({WRONG_START_M} m); dotted: true mean per walk")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    with atomic_paths(path) as (tmp,):
-        fig.savefig(tmp, format="png", dpi=90)
-    plt.close(fig)
+    save_figure(fig, path, dpi=90)
 
 
 def main(argv: list[str] | None = None) -> int:
