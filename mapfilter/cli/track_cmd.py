@@ -108,8 +108,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print_summary(floorplan, recording, result, args) -> None:
+    collapses = f"{len(result.collapses)} collapses" + (" (all recovered)" if result.collapses else "")
     lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans, "
-             f"{len(result.collapses)} collapses (all recovered), {result.runtime_s:.1f} s"]
+             f"{collapses}, {result.runtime_s:.1f} s"]
     tracks = [("causal", result.track, True)]
     if result.smoothed is not None:
         tracks.append(("smoothed", result.smoothed, False))
@@ -122,7 +123,7 @@ def _print_summary(floorplan, recording, result, args) -> None:
             text += (f"; error at {s['n']} waypoints: mean {s['mean']:.2f} m, median {s['median']:.2f} m, "
                      f"p75 {s['p75']:.2f} m, max {s['max']:.2f} m")
             if err.missed:
-                text += f" ({err.missed} waypoints before the first estimate)"
+                text += f" ({err.missed} waypoint{'s' if err.missed != 1 else ''} before the first estimate)"
         lines.append(text)
     for event in result.collapses:
         lines.append(f"  collapse at t={event.t_s - recording.wifi.t_s[0]:+.1f} s ({event.cause}, "
