@@ -1,7 +1,8 @@
 """Command line: ``mapfilter <command> ...``. Thin: parse, load, call the library, write.
 
-Each command lives in its own module here with ``register(subparsers)``; the module sets
-``func=run`` on its parser, and ``run(args) -> int`` returns the exit code. A
+Each command lives in its own module here (listed in ``COMMAND_MODULES``) with
+``register(subparsers)``; the module sets ``func=run`` on its parser, and ``run(args) -> int``
+returns the exit code. A
 ``MapfilterError`` (an error the user caused) becomes one line on stderr and exit code 1;
 anything else is a bug and crashes loudly.
 """
@@ -27,13 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"mapfilter {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(f"mapfilter.cli.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"mapfilter.cli.{name}":
-                continue  # command not built yet
-            raise
-        module.register(subparsers)
+        importlib.import_module(f"mapfilter.cli.{name}").register(subparsers)
     return parser
 
 
