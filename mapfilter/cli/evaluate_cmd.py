@@ -88,8 +88,8 @@ def run(args: argparse.Namespace) -> int:
     evaluation = evaluate_logs(floorplan, args.logs, setup, jobs=args.jobs, progress=progress, map_path=args.map)
     summary = evaluation.summary_rows()
     table = format_table(summary, SUMMARY_COLUMNS)
-    print(f"{evaluation.n_traces} walks, {sum(r['n'] for r in summary[:1])} waypoints, "
-          f"{evaluation.wall_time_s:.1f} s\n{table}")
+    waypoints = summary[0]["n"] + summary[0]["missed"] if summary else 0
+    print(f"{evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s\n{table}")
     _write_outputs(args, floorplan, evaluation, summary)
     print(f"wrote {args.out}/summary.csv, summary.json, traces.csv, cdf.png, tracks/")
     return 0
