@@ -96,7 +96,7 @@ def _pdr_ekf(fix_t: np.ndarray, fix_xy: np.ndarray, steps: Steps, config: Kalman
     out_t, out_xy, out_std = [fix_t[0]], [state[:2].copy()], [config.fix_sigma_m]
     rejected = 0
     while step_i < len(steps) or fix_i < fix_t.size:
-        take_step = fix_i >= fix_t.size or (step_i < len(steps) and steps.t_s[step_i] < fix_t[fix_i])
+        take_step = fix_i >= fix_t.size or (step_i < len(steps) and steps.t_s[step_i] <= fix_t[fix_i])
         if take_step:
             length = steps.step_length_m[step_i]
             theta = state[2] + steps.heading_rad[step_i]

@@ -35,6 +35,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.evaluate import errors_at_waypoints, summarise_errors
 from mapfilter.floorplan import FloorPlan
 from mapfilter.logs import Recording, read_ilc
+from mapfilter.logs.recording import trace_name
 from mapfilter.pdr import detect_steps
 from mapfilter.radiomap import RadioMap, build_radio_map, kwnn_fix_many
 from mapfilter.trackio import Track
@@ -54,7 +55,7 @@ class EvaluationSetup:
     radio_map_path: Path | None = None  # one radio map for all walks
     ap_table_path: Path | None = None  # one access-point table for all walks
     leave_one_out: bool = False  # radio map (and fitted APs for ls) of each walk from the other walks
-    fit_aps: bool = False  # with leave_one_out: fit an AP table per walk for ls (and pf if no radio map)
+    fit_aps: bool = False  # with leave_one_out: fit an AP table per walk even if no method asks for it
     smooth: bool = False  # also report the smoothed PF track (pf-smooth)
     seed: int = 0
     tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)
@@ -96,7 +97,10 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
         raise MapfilterError("the log has no waypoints to evaluate against", log_paths[index])
     radio_map, ap_table = _wifi_sources(recording, setup, all_walks)
     scans = scans_of(recording)
-    steps = detect_steps(recording, setup.tracking.pdr)
+    try:
+        steps = detect_steps(recording, setup.tracking.pdr)
+    except MapfilterError:
+        steps = None  # no usable IMU: the PDR methods are left out, kf and pdr-kwnn go without steps
     scan_t = np.array([s.t_s for s in scans])
     fixes = None
     if radio_map is not None:
@@ -122,6 +126,8 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
         if method in PF_METHODS:
             if radio_map is None and ap_table is None:
                 continue
+            if steps is None and PF_METHODS[method].get("motion", "pdr") == "pdr":
+                continue
             config = dataclasses.replace(tracking, smooth=setup.smooth and method == "pf", **PF_METHODS[method])
             rng = np.random.default_rng([setup.seed, index, ALL_METHODS.index(method)])
             outcome = track_recording(floorplan, recording, radio_map, ap_table if radio_map is None else None,
@@ -138,7 +144,7 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
         elif method == "kf" and fixes is not None:
             ok = np.all(np.isfinite(fixes), axis=1)
             add(method, lambda: (kalman_track(scan_t[ok], fixes[ok], steps), 0))
-        elif method == "pdr" and fixes is not None:
+        elif method == "pdr" and fixes is not None and steps is not None:
             ok = np.flatnonzero(np.all(np.isfinite(fixes), axis=1))
             if ok.size:
                 add(method, lambda: (pdr_track(steps, scan_t[ok[0]], fixes[ok[0]]), 0))
@@ -280,6 +286,12 @@ def evaluate_logs(floorplan: FloorPlan, log_paths: Sequence[str | os.PathLike], 
         raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(ALL_METHODS)}")
     if setup.radio_map_path is None and setup.ap_table_path is None and not setup.leave_one_out:
         raise MapfilterError("no WiFi source: give a radio map, an access-point table or leave-one-out")
+    if setup.radio_map_path is not None and setup.leave_one_out:
+        raise MapfilterError("give a radio map or leave-one-out, not both (leave-one-out builds its own)")
+    names = [trace_name(p) for p in paths]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise MapfilterError(f"two logs share the trace name {repeated[0]}: walks are told apart by name")
     started = time.perf_counter()
     all_walks = None
     if setup.leave_one_out:

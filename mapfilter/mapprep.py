@@ -612,6 +612,12 @@ def write_map(plan: FloorPlan, yaml_path: str | os.PathLike, preview: bool = Tru
     if yaml_path.suffix not in (".yaml", ".yml"):
         raise MapfilterError("the output map must be a .yaml file", yaml_path)
     written = [yaml_path, yaml_path.with_name(yaml_path.stem + ".png")]
+    if plan.source_image is not None:
+        source = Path(plan.source_image.path).resolve()
+        for path in [*written, preview_path_for(yaml_path)]:
+            if path.resolve() == source:
+                raise MapfilterError(f"writing the map would overwrite the plan {source.name}: "
+                                     "choose another --out name", yaml_path)
     if not preview:
         plan.save(yaml_path)
         return written

@@ -31,6 +31,7 @@ import dataclasses
 import math
 import os
 import zipfile
+import zlib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
@@ -140,7 +141,7 @@ class RadioMap:
         try:
             with np.load(path, allow_pickle=False) as data:
                 arrays = {key: data[key] for key in data.files}
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error) as exc:
             raise MapfilterError(f"not a radio map file (.npz): {exc}", path) from None
         if str(arrays.get("format", "")) != FORMAT_NAME:
             raise MapfilterError(f"not a radio map file: no format key {FORMAT_NAME!r}", path)

@@ -129,5 +129,6 @@ def _read_tum(path: Path) -> Track:
     if not rows:
         raise MapfilterError("the track has no rows", path)
     data = np.array(rows)
-    yaw = 2.0 * np.arctan2(data[:, 6], data[:, 7])  # yaw-only quaternion: qz = sin(yaw/2), qw = cos(yaw/2)
+    # yaw of a (yaw-only) quaternion, wrapped to [-pi, pi): other tools may write qw < 0
+    yaw = np.mod(2.0 * np.arctan2(data[:, 6], data[:, 7]) + np.pi, 2.0 * np.pi) - np.pi
     return Track(t_s=data[:, 0], xy_m=data[:, 1:3].copy(), heading_rad=yaw, name=path.stem)

@@ -59,3 +59,28 @@ def test_unknown_method_and_missing_log_are_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "missing.txt" in err
     assert not out.exists()
+
+
+def test_logs_without_imu_still_get_the_wifi_methods(tmp_path):
+    import gzip
+
+    log = tmp_path / "wifi_only.txt"
+    with gzip.open(MAPS / "office_walk.txt.gz", "rt") as handle:
+        log.write_text("".join(line for line in handle if "TYPE_ACCELEROMETER" not in line))
+    out = tmp_path / "eval"
+    assert main(["evaluate", str(MAPS / "office.yaml"), str(log), "--radiomap", str(MAPS / "office_radiomap.npz"),
+                 "--methods", "pf,pf-nopdr,kwnn,kf,pdr", "--particles", "500", "--out", str(out)]) == 0
+    with (out / "summary.csv").open() as handle:
+        methods = {row["method"] for row in csv.DictReader(handle)}
+    assert methods == {"pf-nopdr", "kwnn", "kf"}  # pf and pdr need steps
+
+
+def test_two_logs_with_one_trace_name_are_refused(tmp_path, capsys):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "office_walk.txt.gz").write_bytes((MAPS / "office_walk.txt.gz").read_bytes())
+    out = tmp_path / "eval"
+    assert main(["evaluate", str(MAPS / "office.yaml"), str(MAPS / "office_walk.txt.gz"),
+                 str(tmp_path / "a" / "office_walk.txt.gz"), "--radiomap", str(MAPS / "office_radiomap.npz"),
+                 "--out", str(out)]) == 1
+    assert "office_walk" in capsys.readouterr().err
+    assert not out.exists()

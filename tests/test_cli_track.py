@@ -126,3 +126,13 @@ def test_waypoints_in_walls_warn_but_track(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "warning" in err and "1 of" in err and "waypoints lie in walls" in err
     assert out.exists()
+
+
+def test_smoothing_does_not_change_the_causal_track():
+    from mapfilter.radiomap import RadioMap
+    from mapfilter.tracking import TrackingConfig, track_recording
+
+    recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
+    tracks = [track_recording(floorplan, recording, radio_map, config=TrackingConfig(n_particles=500, smooth=smooth),
+                              rng=np.random.default_rng(1)).track for smooth in (False, True)]
+    np.testing.assert_array_equal(tracks[0].xy_m, tracks[1].xy_m)

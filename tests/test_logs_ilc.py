@@ -82,3 +82,15 @@ def test_log_without_wifi_reads_but_has_no_scans(tmp_path):
     assert len(rec.wifi) == 0 and rec.acc_mps2.shape == (1, 3)
     with pytest.raises(MapfilterError, match="no usable WiFi"):
         scans_of(rec)
+
+
+def test_corrupted_gzip_is_one_error_naming_the_file(tmp_path):
+    path = tmp_path / "log.txt.gz"
+    with gzip.open(path, "wt") as handle:
+        handle.write(HEADER + GOOD * 50)
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # flip bits in the middle of the deflate stream
+    path.write_bytes(bytes(data))
+    with pytest.raises(MapfilterError) as caught:
+        read_ilc(path)
+    assert str(path) in str(caught.value)

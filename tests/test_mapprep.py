@@ -489,3 +489,13 @@ def test_cli_malformed_floor_info(tmp_path: Path, capsys, ilc_site1):
     code, _, err = _run(["map", "import-ilc", floor, "--out", tmp_path / "o.yaml"], capsys)
     assert code == 1 and len(err.strip().splitlines()) == 1 and "floor_info.json" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["F9"]
+
+
+def test_cli_never_overwrites_the_plan_with_its_mask(tmp_path: Path, capsys):
+    plan = tmp_path / "plan.png"
+    _two_rooms_png(plan)
+    before = plan.read_bytes()
+    code, out, err = _run(["map", "prepare", plan, "--resolution", "0.1", "--out", tmp_path / "plan.yaml"], capsys)
+    assert code == 1 and "overwrite the plan" in err and len(err.strip().splitlines()) == 1
+    assert plan.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.png"]

@@ -10,14 +10,15 @@ import numpy as np
 
 @dataclasses.dataclass
 class CollapseEvent:
-    """Every particle was killed or every weight underflowed; the filter re-initialised."""
+    """Every particle was killed, every weight underflowed, or (with a gate) the measurement
+    disagreed with the whole cloud; the filter re-initialised."""
 
     t_s: float
     step_index: int
     xy_m: tuple[float, float]  # last estimate before the collapse
-    cause: str  # "all_killed_by_walls" | "weights_underflow" | ...
+    cause: str  # "all_killed_by_walls" | "weights_underflow" | "measurement_inconsistent"
     particles_lost: int
-    recovery: str  # how it re-initialised, e.g. "around_fix" / "likelihood_over_map"
+    recovery: str  # "likelihood_over_map" | "around_estimate_r<radius>m" | "uniform"
     recovered_xy_m: tuple[float, float]  # estimate right after the re-initialisation
 
 
@@ -46,6 +47,6 @@ class StepReport:
     collapse: CollapseEvent | None = None
     heading_rad: float | None = None  # PDR: weighted circular mean heading
     step_length_m: float | None = None  # PDR: weighted mean step length
-    measurement_kind: str | None = None  # "fix", "wifi", None when the step had no measurement
+    measurement_kind: str | None = None  # the model's ``kind`` ("fix", ...) or "other"; None: no measurement
     fix_xy_m: np.ndarray | None = None  # fingerprint fix used this step, if any
     heard_ap_xy_m: np.ndarray | None = None  # trilateration: positions of the APs heard this step

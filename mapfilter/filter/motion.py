@@ -118,7 +118,7 @@ class PDRMotion:
     of particles ignores a change of at least ``turn_threshold_rad``: "false turns"),
     step length L += N(0, step_length_walk_sigma^2) clipped to [min, max] (a random walk the
     filter adapts through resampling), then xy += n_steps * L * (cos h, sin h) + N(0, (
-    position_sigma * n_steps)^2). With ``fixed_step_length_m`` or a step length in the input,
+    position_sigma^2 * n_steps)). With ``fixed_step_length_m`` or a step length in the input,
     that length (plus ``step_length_input_sigma_m`` noise) is used instead of the state.
     """
 

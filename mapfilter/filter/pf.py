@@ -318,7 +318,7 @@ class ParticleFilter:
                     cov = weighted_covariance(moved.xy_m, w)
                     new.xy_m, _ = regularise(self.floorplan, new.xy_m, cov, self.rng, cfg.kernel,
                                              cfg.bandwidth_scale, cfg.regularise_tries,
-                                             origin_xy_m=_rows(prev.xy_m, parent) if self.ancestry else None)
+                                             origin_xy_m=_rows(prev.xy_m, parent))
                 parent = self._inject(new, parent)
                 new.log_weight = np.full(self.n, -math.log(self.n))
             else:
@@ -335,8 +335,11 @@ class ParticleFilter:
                 recovered_xy_m=(float(self.estimate_xy_m[0]), float(self.estimate_xy_m[1])))
             self.collapses.append(collapse)
         if self.ancestry is not None:
+            # the lineage's "best" particle: by the weights that chose the survivors (after a
+            # resampling every new weight is equal and would say nothing)
+            best_weights = np.where(parent >= 0, w[np.maximum(parent, 0)], 0.0) if resampled else weights
             self.ancestry.record(t_s, np.full(self.n, -1) if self._lineage_broken or cause else parent,
-                                 new.xy_m, weights)
+                                 new.xy_m, best_weights)
         self._lineage_broken = False
 
         pdr = isinstance(self.motion, PDRMotion)

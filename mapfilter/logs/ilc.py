@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import gzip
 import math
+import zlib
 import os
 from pathlib import Path
 
@@ -83,12 +84,13 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
                         raise MapfilterError("malformed TYPE_WIFI line: empty BSSID", path, line_no)
                     wifi_rows.append((t_ms / 1000.0, bssid, rssi, freq, (t_ms - seen_ms) / 1000.0))
                 elif kind == "TYPE_BEACON":
-                    if len(fields) < 9:
-                        raise MapfilterError(f"malformed TYPE_BEACON line: {len(fields)} fields, expected 10", path, line_no)
+                    if len(fields) < 8:
+                        raise MapfilterError(f"malformed TYPE_BEACON line: {len(fields)} fields, expected 10",
+                                             path, line_no)
                     t_ms, rssi, distance = _numbers(fields, (0, 6, 7), path, line_no)
                     beacon_rows.append((t_ms / 1000.0, f"{fields[2]}:{fields[3]}:{fields[4]}", rssi, distance))
                 # other record types are skipped
-    except (OSError, EOFError, gzip.BadGzipFile) as exc:
+    except (OSError, EOFError, gzip.BadGzipFile, zlib.error) as exc:
         raise MapfilterError(f"cannot read log: {exc}", path) from None
     if n_lines == 0:
         raise MapfilterError("empty log", path)

@@ -79,9 +79,12 @@ class Recording:
 
     @property
     def name(self) -> str:
-        if self.path is None:
-            return "recording"
-        name = self.path.name
-        for suffix in (".gz", ".txt"):
-            name = name.removesuffix(suffix)
-        return name
+        return "recording" if self.path is None else trace_name(self.path)
+
+
+def trace_name(path: str | Path) -> str:
+    """A log's trace name: its file name without ``.gz`` and ``.txt`` (the ILC trace id)."""
+    name = Path(path).name
+    for suffix in (".gz", ".txt"):
+        name = name.removesuffix(suffix)
+    return name
