@@ -186,27 +186,6 @@ def scans_of(recording: Recording) -> list[WifiScan]:
 
 
 # ---- trilateration ---------------------------------------------------------------------------
-def rssi_log_likelihood(xy_m: np.ndarray, ap_xy_m: np.ndarray, c_dbm: np.ndarray, n: np.ndarray,
-                        alpha_db_per_m: np.ndarray, d_max_m: np.ndarray, observed_rssi_dbm: np.ndarray,
-                        variance_db2: float) -> np.ndarray:
-    """Gaussian log-likelihood (up to a constant) of observed RSSI at each point, shape (N,).
-
-    log p = -sum_k (r_k - R_k(|x - a_k|))^2 / (2 variance), R the Lund path-loss model. Float32
-    on purpose: the filter calls this for 10^4-10^5 particles each scan and float32 is about
-    7x faster than float64 here while the error is far below the 5 dB noise.
-    """
-    xy = np.asarray(xy_m, dtype=np.float32)
-    ap = np.asarray(ap_xy_m, dtype=np.float32)
-    out = np.zeros(xy.shape[0], dtype=np.float32)
-    scale = np.float32(-0.5 / variance_db2)
-    for k in range(ap.shape[0]):  # loop over the few APs of one scan, vectorised over particles
-        d = np.hypot(xy[:, 0] - ap[k, 0], xy[:, 1] - ap[k, 1])
-        expected = path_loss_rssi_dbm(d, np.float32(c_dbm[k]), np.float32(n[k]),
-                                      np.float32(alpha_db_per_m[k]), np.float32(d_max_m[k]))
-        out += scale * (np.float32(observed_rssi_dbm[k]) - expected) ** 2
-    return out.astype(np.float64)
-
-
 def match_scan(ap_table: AccessPointTable, scan: WifiScan) -> tuple[np.ndarray, np.ndarray]:
     """(table rows, RSSI in dBm) of the scan's APs that the table knows (by key bssid@band)."""
     index = ap_table.key_index
@@ -242,18 +221,11 @@ class TrilaterationLikelihood:
         rows, rssi = match_scan(self.ap_table, measurement)
         if rows.size == 0:
             return np.zeros(len(particles))
+        from mapfilter.filter.measurement import rssi_log_likelihood  # measurement imports this module
+
         t = self.ap_table
-        return _rssi_kernel()(particles.xy_m, t.xy_m[rows], t.c_dbm[rows], t.n[rows], t.alpha_db_per_m[rows],
-                              t.d_max_m[rows], rssi, self.variance_db2)
-
-
-def _rssi_kernel():
-    """The filter engineer's fast kernel if it is there, else ours (same maths, same signature)."""
-    try:
-        from mapfilter.filter.measurement import rssi_log_likelihood as fast
-    except ImportError:
-        return rssi_log_likelihood
-    return fast
+        return rssi_log_likelihood(particles.xy_m, t.xy_m[rows], t.c_dbm[rows], t.n[rows], t.alpha_db_per_m[rows],
+                                   t.d_max_m[rows], rssi, self.variance_db2)
 
 
 def least_squares_position(ap_table: AccessPointTable, scan: WifiScan, min_aps: int = 3,

@@ -7,9 +7,10 @@ from mapfilter.errors import MapfilterError
 from mapfilter.filter.particles import Particles
 from mapfilter.logs import read_ilc
 from mapfilter.radiomap import RadioMap
+from mapfilter.filter.measurement import rssi_log_likelihood
 from mapfilter.wifi import (AccessPointTable, ApFitConfig, TrilaterationLikelihood, WifiScan,
                             estimate_access_points, iter_scans, least_squares_position, path_loss_rssi_dbm,
-                            rssi_log_likelihood, scans_of)
+                            scans_of)
 
 
 def _table(xy, c=-38.0, n=2.0, alpha=0.4, d_max=30.0):
