@@ -297,11 +297,13 @@ def estimate_access_points(labelled: RadioMap | Sequence[Recording],
 
     xy_ref = radio_map.xy_m
     bssids, bands, rows = [], [], []
+    tried = 0  # APs heard often enough to fit
     heard = ~np.isnan(radio_map.rssi_dbm)
     for k, key in enumerate(radio_map.ap_keys):
         seen = np.nonzero(heard[:, k])[0]
         if seen.size < config.min_observations:
             continue
+        tried += 1
         obs_xy = xy_ref[seen]
         obs_rssi = radio_map.rssi_dbm[seen, k].astype(np.float64)
         strongest = np.argsort(-obs_rssi)[: config.strongest]
@@ -348,8 +350,11 @@ def estimate_access_points(labelled: RadioMap | Sequence[Recording],
         rows.append([fit.x[0], fit.x[1], fit.x[2], fit.x[3],
                      fit.x[4] if config.fit_alpha else config.alpha_db_per_m, config.d_max_m])
     if not rows:
-        raise MapfilterError(f"no access point was heard in at least {config.min_observations} labelled scans: "
-                             "nothing to fit")
+        if tried == 0:
+            raise MapfilterError(f"no access point was heard in at least {config.min_observations} labelled scans: "
+                                 "nothing to fit")
+        raise MapfilterError(f"{tried} access points were heard often enough, but none fitted the path-loss model "
+                             f"within {config.max_rmse_db} dB RMS")
     table = np.array(rows, dtype=np.float64)
     return AccessPointTable(bssid=bssids, band=bands, xy_m=table[:, :2].copy(), c_dbm=table[:, 2].copy(),
                             n=table[:, 3].copy(), alpha_db_per_m=table[:, 4].copy(), d_max_m=table[:, 5].copy())
