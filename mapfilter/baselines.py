@@ -34,8 +34,9 @@ class KalmanConfig:
 
 
 def heading_offset_prior(steps: Steps, until_t_s: float) -> float | None:
-    """Gyro-to-map heading offset from the rotation vector's absolute heading (circular mean),
-    using only steps up to ``until_t_s`` (causal); None when there is no absolute heading."""
+    """Gyro-to-map heading offset from the rotation vector's absolute heading (circular mean)
+    over the steps up to ``until_t_s`` (at least the first step, even if it comes later);
+    None when there is no absolute heading."""
     if steps.abs_heading_rad is None or len(steps) == 0:
         return None
     upto = max(1, int(np.searchsorted(steps.t_s, until_t_s, side="right")))
