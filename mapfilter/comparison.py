@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapfilter.baselines import kalman_track, pdr_track
+from mapfilter.baselines import kalman_track, pdr_kwnn_track, pdr_track
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluate import errors_at_waypoints, summarise_errors
 from mapfilter.floorplan import FloorPlan
@@ -140,7 +140,7 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
         elif method == "kwnn" and radio_map is not None:
             add(method, lambda: (_fix_track(scan_t, fixes, "kwnn"), 0))
         elif method == "pdr-kwnn" and radio_map is not None:
-            add(method, lambda: (_pdr_kwnn(radio_map, scans, steps), 0))
+            add(method, lambda: (pdr_kwnn_track(radio_map, scans, steps), 0))
         elif method == "kf" and fixes is not None:
             ok = np.all(np.isfinite(fixes), axis=1)
             add(method, lambda: (kalman_track(scan_t[ok], fixes[ok], steps), 0))
@@ -225,12 +225,6 @@ def _ls_fixes(ap_table: AccessPointTable, scans) -> np.ndarray:
         if match_scan(ap_table, scan)[0].size >= 3:
             fixes[i] = least_squares_position(ap_table, scan)
     return fixes
-
-
-def _pdr_kwnn(radio_map: RadioMap, scans, steps) -> Track:
-    from mapfilter.baselines import pdr_kwnn_track  # written alongside the paper experiments
-
-    return pdr_kwnn_track(radio_map, scans, steps)
 
 
 # ---- many walks ------------------------------------------------------------------------------
