@@ -193,9 +193,14 @@ class SimulatedWalk:
 # pixel walks on the mask (exact, numba): one walk, mapfilter.walls.touched_pixels_into
 # ---------------------------------------------------------------------------------------
 @njit(cache=True)
-def _grow(buffer, length):
-    """``buffer`` if it holds ``length`` entries, else a new one twice that long."""
-    return buffer if buffer.shape[0] >= length else np.empty(2 * length, dtype=np.int64)
+def _touched(u0, v0, u1, v1, rows, cols):
+    """The segment's pixels (walls.touched_pixels_into) in ``rows``/``cols``, which are replaced
+    by buffers twice as long when too short: returns (rows, cols, count)."""
+    cap = touched_pixels_capacity(u0, v0, u1, v1)
+    if rows.shape[0] < cap:
+        rows = np.empty(2 * cap, dtype=np.int64)
+        cols = np.empty(2 * cap, dtype=np.int64)
+    return rows, cols, touched_pixels_into(u0, v0, u1, v1, rows, cols)
 
 
 @njit(cache=True)
@@ -215,10 +220,7 @@ def _segments_min_clearance_px(clearance_px, uv0, uv1):
     cols = np.empty(64, dtype=np.int64)
     for i in range(uv0.shape[0]):
         u0, v0, u1, v1 = uv0[i, 0], uv0[i, 1], uv1[i, 0], uv1[i, 1]
-        cap = touched_pixels_capacity(u0, v0, u1, v1)
-        rows = _grow(rows, cap)
-        cols = _grow(cols, cap)
-        k = touched_pixels_into(u0, v0, u1, v1, rows, cols)
+        rows, cols, k = _touched(u0, v0, u1, v1, rows, cols)
         best = math.inf if k > 0 else 0.0
         for j in range(k):
             r = rows[j]
@@ -250,10 +252,7 @@ def _segments_wall_runs(wall_mask, uv0, uv1):
     cols = np.empty(64, dtype=np.int64)
     for i in range(uv0.shape[0]):
         u0, v0, u1, v1 = uv0[i, 0], uv0[i, 1], uv1[i, 0], uv1[i, 1]
-        cap = touched_pixels_capacity(u0, v0, u1, v1)
-        rows = _grow(rows, cap)
-        cols = _grow(cols, cap)
-        k = touched_pixels_into(u0, v0, u1, v1, rows, cols)
+        rows, cols, k = _touched(u0, v0, u1, v1, rows, cols)
         end_row = int(math.floor(v1)) if k > 0 else 0
         end_col = int(math.floor(u1)) if k > 0 else 0
         runs = 0
