@@ -23,16 +23,17 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.estimate import circular_mean
 from mapfilter.filter.events import CollapseEvent, StepReport
-from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix
+from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix, TrilaterationLikelihood
 from mapfilter.filter.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.pf import FilterConfig, ParticleFilter
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs.recording import Recording
-from mapfilter.pdr import PDRConfig, Steps, detect_steps
-from mapfilter.radiomap import (RadioMap, RadioMapLikelihood, RadioMapLikelihoodConfig,
-                                cross_validated_fix_errors, kwnn_fix_many)
+from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLikelihoodConfig
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.pathloss import AccessPointTable, match_scan
+from mapfilter.sensors.pdr import PDRConfig, Steps, detect_steps
+from mapfilter.sensors.radiomap import RadioMap, cross_validated_fix_errors, kwnn_fix_many
+from mapfilter.sensors.recording import Recording
+from mapfilter.sensors.wifi import WifiScan, scans_of
 from mapfilter.trackio import Track
-from mapfilter.wifi import AccessPointTable, TrilaterationLikelihood, WifiScan, match_scan, scans_of
 
 MOTION_MODELS = ("pdr", "cv", "rw")
 FINGERPRINT_MODELS = ("fix", "likelihood")
@@ -110,7 +111,6 @@ class WifiMeasurements:
             raise MapfilterError("give either a radio map (fingerprinting) or an access-point table (trilateration)")
         self.scans = scans
         self.fix_xy_m: np.ndarray | None = None  # fingerprint fixes, one per scan (NaN: none)
-        self.heard_ap_xy_m: list[np.ndarray] | None = None  # trilateration: the APs each scan heard
         self.usable = np.ones(len(scans), dtype=bool)
         if radio_map is not None:
             shared = np.array([sum(k in radio_map.key_index for k in s.ap_keys) for s in scans])
@@ -133,7 +133,6 @@ class WifiMeasurements:
             if not self.usable.any():
                 raise MapfilterError(f"the access-point table shares no access point with {log_name}")
             self.model = TrilaterationLikelihood(ap_table, variance_db2=config.rssi_variance_db2)
-            self.heard_ap_xy_m = [ap_table.xy_m[r] for r in rows]
         if not self.usable.any():
             raise MapfilterError(f"no WiFi scan of {log_name} gives a fingerprint fix with this radio map")
 
@@ -201,6 +200,8 @@ def track_recording(
     pf.initialise_from_measurement(t0, wifi.model, wifi.measurement(first))
     if config.motion == "pdr":
         _set_start_headings(pf, steps, t0, config, rng)
+        step_input = step_inputs(steps, use_abs_heading=config.heading_source == "rotation_vector",
+                                 with_step_length=config.step_length_source == "weinberg")
 
     start_heading = circular_mean(pf.particles.heading_rad, pf.particles.weight) if config.motion == "pdr" else math.nan
     out_t, out_xy, out_std, out_heading = [t0], [pf.estimate_xy_m.copy()], [pf.estimate_std_m], [start_heading]
@@ -214,13 +215,9 @@ def track_recording(
                 continue
             n_scans += 1
             # cv / rw move over dt_s by themselves; PDR moves only on steps
-            report = pf.step(t_s, dt, None, wifi.model, _with_heard_aps(measurement, wifi, index))
+            report = pf.step(t_s, dt, None, wifi.model, measurement)
         elif kind == "step":
-            absolute = None
-            if config.heading_source == "rotation_vector" and steps.abs_heading_rad is not None:
-                absolute = float(steps.abs_heading_rad[index])
-            length = float(steps.step_length_m[index]) if config.step_length_source == "weinberg" else None
-            report = pf.step(t_s, dt, StepInput(1, float(steps.heading_change_rad[index]), absolute, length))
+            report = pf.step(t_s, dt, step_input[index])
         else:  # prediction tick for cv / rw
             report = pf.step(t_s, dt, None)
         last_t = t_s
@@ -242,6 +239,19 @@ def track_recording(
                           time.perf_counter() - started)
 
 
+def step_inputs(steps: Steps, use_abs_heading: bool = False, with_step_length: bool = False) -> list[StepInput]:
+    """One ``StepInput`` per detected step: the filter moves its particles once per step.
+
+    ``use_abs_heading`` gives each step the rotation vector's map heading (when the log has
+    one) instead of only the gyro's change; ``with_step_length`` gives the Weinberg length,
+    else the particles walk their own adapted length (thesis eq. 8.23).
+    """
+    absolute = steps.abs_heading_rad if use_abs_heading else None
+    return [StepInput(1, float(steps.heading_change_rad[i]), None if absolute is None else float(absolute[i]),
+                      float(steps.step_length_m[i]) if with_step_length else None)
+            for i in range(len(steps))]
+
+
 def _events(scans: list[WifiScan], first: int, steps: Steps | None, tick_s: float):
     """(kind, t_s, index) after the first measurement, in time order; a scan after a step at equal times."""
     t0 = scans[first].t_s
@@ -253,23 +263,6 @@ def _events(scans: list[WifiScan], first: int, steps: Steps | None, tick_s: floa
         events += [(t, 0, "tick", -1) for t in np.arange(t0 + tick_s, t_end, tick_s)]
     events.sort(key=lambda e: (e[0], e[1]))
     return [(kind, float(t), i) for t, _, kind, i in events]
-
-
-def _with_heard_aps(measurement: Any, wifi: WifiMeasurements, index: int) -> Any:
-    if wifi.heard_ap_xy_m is None:
-        return measurement
-    return _ScanWithAps(measurement, wifi.heard_ap_xy_m[index])
-
-
-class _ScanWithAps:
-    """A scan that also carries the positions of the APs it heard (for the viewer)."""
-
-    def __init__(self, scan: WifiScan, heard_ap_xy_m: np.ndarray):
-        self.scan = scan
-        self.heard_ap_xy_m = heard_ap_xy_m
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.scan, name)
 
 
 def _set_start_headings(pf: ParticleFilter, steps: Steps, t0_s: float, config: TrackingConfig,

@@ -1,7 +1,7 @@
 import numpy as np
 
-from mapfilter.baselines import kalman_track, pdr_track
-from mapfilter.pdr import Steps
+from mapfilter.evaluation.baselines import kalman_track, pdr_track
+from mapfilter.sensors.pdr import Steps
 
 
 def _square_walk(n_steps=120, step_m=0.7, dt_s=0.5):
@@ -55,8 +55,8 @@ def test_pdr_track_follows_the_square_with_the_absolute_heading_offset():
 def _grid_radio_map_and_scans(seed=5, noise_db=5.0):
     """A 1 m grid of reference points heard from 8 APs (log-distance model), the square walk,
     and one noisy scan every 4 steps at the walker's position."""
-    from mapfilter.radiomap import RadioMap
-    from mapfilter.wifi import WifiScan
+    from mapfilter.sensors.radiomap import RadioMap
+    from mapfilter.sensors.wifi import WifiScan
 
     rng = np.random.default_rng(seed)
     t, xy, heading = _square_walk()
@@ -79,8 +79,8 @@ def _grid_radio_map_and_scans(seed=5, noise_db=5.0):
 
 
 def test_pdr_kwnn_beats_plain_kwnn_on_a_synthetic_walk():
-    from mapfilter.baselines import pdr_kwnn_track
-    from mapfilter.radiomap import kwnn_fix_many
+    from mapfilter.evaluation.baselines import pdr_kwnn_track
+    from mapfilter.sensors.radiomap import kwnn_fix_many
 
     radio_map, scans, t, xy, heading, scan_idx = _grid_radio_map_and_scans()
     rng = np.random.default_rng(11)
@@ -96,8 +96,8 @@ def test_pdr_kwnn_beats_plain_kwnn_on_a_synthetic_walk():
 
 
 def test_pdr_kwnn_without_steps_is_plain_kwnn():
-    from mapfilter.baselines import pdr_kwnn_track
-    from mapfilter.radiomap import kwnn_fix_many
+    from mapfilter.evaluation.baselines import pdr_kwnn_track
+    from mapfilter.sensors.radiomap import kwnn_fix_many
 
     radio_map, scans, t, _, heading, _ = _grid_radio_map_and_scans()
     kwnn = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans)).xy_m
@@ -111,8 +111,8 @@ def test_pdr_kwnn_without_steps_is_plain_kwnn():
 
 
 def test_pdr_kwnn_dead_reckons_through_a_scan_with_no_candidate():
-    from mapfilter.baselines import pdr_kwnn_track
-    from mapfilter.wifi import WifiScan
+    from mapfilter.evaluation.baselines import pdr_kwnn_track
+    from mapfilter.sensors.wifi import WifiScan
 
     radio_map, scans, t, xy, heading, scan_idx = _grid_radio_map_and_scans()
     steps = _steps(t, heading, gyro_offset_rad=0.3)

@@ -4,8 +4,8 @@ import csv
 import json
 
 import numpy as np
-
 from conftest import REPO
+
 from mapfilter.cli import main
 from mapfilter.trackio import read_track
 

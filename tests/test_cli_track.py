@@ -4,15 +4,15 @@ import gzip
 
 import numpy as np
 import pytest
-
 from conftest import REPO
+
 from mapfilter.cli import main
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs import read_ilc
-from mapfilter.mapprep import import_ilc
-from mapfilter.radiomap import build_radio_map
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.prepare import import_ilc
+from mapfilter.maps.walls import count_wall_crossings
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.radiomap import build_radio_map
 from mapfilter.trackio import read_track
-from mapfilter.walls import count_wall_crossings
 
 MAPS = REPO / "maps"
 OFFICE = MAPS / "office.yaml"
@@ -129,7 +129,7 @@ def test_waypoints_in_walls_warn_but_track(tmp_path, capsys):
 
 
 def test_smoothing_does_not_change_the_causal_track():
-    from mapfilter.radiomap import RadioMap
+    from mapfilter.sensors.radiomap import RadioMap
     from mapfilter.tracking import TrackingConfig, track_recording
 
     recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)

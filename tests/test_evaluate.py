@@ -3,7 +3,8 @@ import math
 import numpy as np
 import pytest
 
-from mapfilter.evaluate import errors_at_waypoints, format_table, plot_error_cdf, summarise_errors
+from mapfilter.evaluation.metrics import errors_at_waypoints, format_table, summarise_errors
+from mapfilter.evaluation.plots import plot_error_cdf
 
 
 def test_causal_errors_use_latest_estimate_and_count_missed_waypoints():

@@ -10,9 +10,9 @@ from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix, rss
 from mapfilter.filter.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.particles import Particles
 from mapfilter.filter.regularise import optimal_bandwidth, regularise, sample_kernel
-from mapfilter.floorplan import FloorPlan
-from mapfilter.walls import crosses_wall
-from mapfilter.wifi import path_loss_rssi_dbm
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import crosses_wall
+from mapfilter.sensors.pathloss import path_loss_rssi_dbm
 
 
 def _particles(n, xy=(0.0, 0.0), heading=0.0):

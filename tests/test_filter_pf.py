@@ -11,8 +11,8 @@ from mapfilter.errors import MapfilterError
 from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix
 from mapfilter.filter.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.pf import FilterConfig, ParticleFilter
-from mapfilter.floorplan import FloorPlan
-from mapfilter.walls import count_wall_crossings, crosses_wall
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import count_wall_crossings, crosses_wall
 
 
 def _rooms_map(resolution_m=0.1):
@@ -261,8 +261,8 @@ def test_soft_walls_keep_particles_out_of_walls():
 
 def test_real_ilc_floor_and_waypoints(ilc_site1):
     """ILC site1/F1 map and a real trace's waypoints; fixes = interpolated truth + 4 m noise."""
-    from mapfilter.logs import read_ilc
-    from mapfilter.mapprep import import_ilc
+    from mapfilter.maps.prepare import import_ilc
+    from mapfilter.sensors.ilc import read_ilc
 
     floor = ilc_site1 / "F1"
     fp = import_ilc(floor)

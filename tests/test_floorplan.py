@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mapfilter.errors import MapfilterError
-from mapfilter.floorplan import FloorPlan, SourceImage
+from mapfilter.maps.floorplan import FloorPlan, SourceImage
 
 
 def _plan_5x5() -> FloorPlan:

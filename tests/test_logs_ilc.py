@@ -4,11 +4,11 @@ import gzip
 
 import numpy as np
 import pytest
-
 from conftest import ILC_SITE1 as ILC
+
 from mapfilter.errors import MapfilterError
-from mapfilter.logs import read_ilc
-from mapfilter.wifi import scans_of
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.wifi import scans_of
 
 
 def test_reads_a_real_trace_with_stale_rows_dropped():

@@ -13,12 +13,12 @@ import pytest
 import yaml
 from scipy import ndimage
 
-from mapfilter import mapprep
 from mapfilter.cli import main as cli_main
 from mapfilter.errors import MapfilterError
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs import read_ilc
-from mapfilter.mapprep import LineOptions, PlanScale, RegionOptions
+from mapfilter.maps import prepare as mapprep
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.prepare import LineOptions, PlanScale, RegionOptions
+from mapfilter.sensors.ilc import read_ilc
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -388,7 +388,7 @@ def test_bundled_office_map():
     assert _free_components(plan) == 1  # every room reachable through its door
     assert plan.wall_mask[0].all() and plan.wall_mask[:, 0].all()  # outside is wall
     assert 0.6 < plan.free_fraction < 0.85
-    from mapfilter.wifi import AccessPointTable
+    from mapfilter.sensors.pathloss import AccessPointTable
 
     aps = AccessPointTable.read_csv(plan.access_points_csv)
     assert len(aps) >= 24 and set(aps.band) == {"2.4", "5"}

@@ -3,7 +3,6 @@ and oracle/property tests of their shared helpers."""
 
 from __future__ import annotations
 
-import dataclasses
 import importlib
 import re
 import sys
@@ -51,7 +50,7 @@ def test_office_reference_points_follow_evennou_marx(papers):
 
 def test_noise_free_survey_is_the_simulator_model(papers):
     common = papers["common"]
-    from mapfilter.simulate import model_rssi_dbm
+    from mapfilter.simulate.walk import model_rssi_dbm
 
     floorplan, aps = common.load_office()
     xy = np.array([[5.0, 5.0], [19.0, 8.5], [30.0, 30.0]])

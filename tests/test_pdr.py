@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mapfilter import pdr
 from mapfilter.errors import MapfilterError
-from mapfilter.logs import read_ilc
-from mapfilter.logs.recording import Beacons, Recording, WifiScans
+from mapfilter.sensors import pdr
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.recording import Beacons, Recording, WifiScans
 
 G_MPS2 = 9.81
 EMPTY = np.zeros(0)
@@ -221,36 +221,28 @@ def _fake_steps(t_s, heading_rad, length_m=0.7):
                      t0_s=0.0)
 
 
-def test_steps_between_and_to_step_inputs_partition_the_steps():
+def test_step_inputs_give_one_filter_move_per_step():
+    from mapfilter.tracking import step_inputs
+
     rng = np.random.default_rng(11)
     t = np.sort(rng.uniform(0, 30, 50))
     heading = np.cumsum(rng.normal(0, 0.2, 50))
     steps = _fake_steps(t, heading)
-    edges = np.arange(1.0, 31.0, 1.0)  # the filter's update times
-    inputs = pdr.to_step_inputs(steps, edges, use_abs_heading=True)
-    assert len(inputs) == edges.size
-    assert sum(s.n_steps for s in inputs) == 50
+    inputs = step_inputs(steps, use_abs_heading=True, with_step_length=True)
+    assert len(inputs) == 50 and [s.n_steps for s in inputs] == [1] * 50
     assert sum(s.heading_change_rad for s in inputs) == pytest.approx(heading[-1])
-    for interval, t1 in zip(inputs, edges):
-        if interval.n_steps:
-            last = np.searchsorted(t, t1, side="right") - 1
-            assert interval.heading_abs_rad == pytest.approx(heading[last] + 1.0)
-            assert interval.step_length_m == pytest.approx(0.7)
-        else:
-            assert interval.heading_change_rad == 0.0
-    per_step = pdr.to_step_inputs(steps, t, with_step_length=False)
-    assert [s.n_steps for s in per_step] == [1] * 50
+    assert [s.heading_abs_rad for s in inputs] == pytest.approx(heading + 1.0)
+    assert all(s.step_length_m == pytest.approx(0.7) for s in inputs)
+    per_step = step_inputs(steps)
     assert all(s.step_length_m is None and s.heading_abs_rad is None for s in per_step)
     assert [s.heading_change_rad for s in per_step] == pytest.approx(steps.heading_change_rad)
-    empty = pdr.steps_between(steps, 100.0, 101.0)
-    assert (empty.n_steps, empty.heading_change_rad, empty.heading_abs_rad) == (0, 0.0, None)
+    no_rotvec = dataclasses.replace(steps, abs_heading_rad=None)
+    assert all(s.heading_abs_rad is None for s in step_inputs(no_rotvec, use_abs_heading=True))
+    assert step_inputs(steps.between(100.0, 101.0)) == []
 
 
-def test_step_interval_maps_onto_the_filter_step_input():
+def test_step_length_prior_lies_within_the_filter_bounds():
     motion = pytest.importorskip("mapfilter.filter.motion")
-    interval = pdr.StepInterval(n_steps=3, heading_change_rad=0.2, heading_abs_rad=None, step_length_m=0.65)
-    step_input = motion.StepInput(**dataclasses.asdict(interval))
-    assert (step_input.n_steps, step_input.heading_change_rad, step_input.step_length_m) == (3, 0.2, 0.65)
     # the per-particle step-length prior the filter starts from is within PDRMotion's bounds
     config, model = pdr.PDRConfig(), motion.PDRMotion()
     assert model.step_length_min_m < config.step_length_m - 2 * config.step_length_std_m
@@ -330,6 +322,7 @@ def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1):
     """The filter's PDRMotion, noise off, fed one StepInput per detected step = dead_reckon."""
     motion = pytest.importorskip("mapfilter.filter.motion")
     from mapfilter.filter.particles import Particles
+    from mapfilter.tracking import step_inputs
 
     rec = read_ilc(ilc_site1 / "F1" / "path_data_files" / "5dd9e7c29191710006b57061.txt.gz")
     steps = pdr.detect_steps(rec)
@@ -339,8 +332,8 @@ def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1):
     # dead_reckon walks the first step along start_heading; the filter adds that step's change
     particles = Particles.at(start_xy[None, :], heading_rad=start_heading - steps.heading_change_rad[0])
     rng = np.random.default_rng(0)
-    for interval in pdr.to_step_inputs(steps, steps.t_s):
-        particles = model.propagate(particles, motion.StepInput(**dataclasses.asdict(interval)), 0.5, rng)
+    for step_input in step_inputs(steps, with_step_length=True):
+        particles = model.propagate(particles, step_input, 0.5, rng)
     _, xy = pdr.dead_reckon(steps, start_xy, start_heading)
     assert particles.xy_m[0] == pytest.approx(xy[-1], abs=1e-6)
 

@@ -2,17 +2,17 @@
 
 import numpy as np
 import pytest
+from conftest import ILC_SITE1
 
 from mapfilter.cli import main
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.particles import Particles
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs import read_ilc
-from mapfilter.radiomap import (RadioMap, RadioMapLikelihood, RadioMapLikelihoodConfig, build_radio_map, kwnn_fix,
-                                kwnn_fix_many, label_scans)
-from mapfilter.wifi import AccessPointTable, WifiScan, iter_scans
-
-from conftest import ILC_SITE1
+from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLikelihoodConfig
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.pathloss import AccessPointTable
+from mapfilter.sensors.radiomap import RadioMap, build_radio_map, kwnn_fix, kwnn_fix_many, label_scans
+from mapfilter.sensors.wifi import WifiScan, iter_scans
 
 F1_LOGS = sorted((ILC_SITE1 / "F1" / "path_data_files").glob("*.txt.gz"))
 
@@ -222,23 +222,26 @@ def test_cli_errors_are_one_line_and_write_nothing(tmp_path, f1_map, capsys, ext
     assert list(tmp_path.glob("rm*")) == [] and not list(tmp_path.glob(".rm*"))
 
 
-def test_kwnn_fix_likelihood_is_a_gaussian_around_the_fix():
-    from mapfilter.radiomap import KwnnFixLikelihood
+def test_tracker_weighs_the_kwnn_fix_with_a_gaussian():
+    from mapfilter.tracking import TrackingConfig, WifiMeasurements
 
     aps, radio_map = _synthetic_radio_map()
     scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
-    model = KwnnFixLikelihood(radio_map, sigma_m=5.0)
+    unknown = WifiScan(1.0, ("aa:aa:aa:aa:aa:aa@5",), np.array([-40.0], np.float32))
+    plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
+    wifi = WifiMeasurements([scan, unknown], radio_map, None, plan, TrackingConfig(fix_sigma_m=5.0))
     fix = kwnn_fix(radio_map, scan.ap_keys, scan.rssi_dbm).xy_m
+    measurement = wifi.measurement(0)
+    np.testing.assert_allclose(measurement.xy_m, fix)
     xy = fix[None] + np.array([[0.0, 0.0], [5.0, 0.0], [0.0, -10.0]])
-    np.testing.assert_allclose(model.log_likelihood(Particles.at(xy), scan), [0.0, -0.5, -2.0], atol=1e-9)
+    np.testing.assert_allclose(wifi.model.log_likelihood(Particles.at(xy), measurement), [0.0, -0.5, -2.0], atol=1e-9)
     assert np.linalg.norm(fix - [21.0, 9.0]) < 2.0
-    unknown = WifiScan(0.0, ("aa:aa:aa:aa:aa:aa@5",), np.array([-40.0], np.float32))
-    assert np.all(model.log_likelihood(Particles.at(xy), unknown) == 0) and model.last_fix_xy_m is None
+    assert wifi.measurement(1) is None  # no fix from a scan of unknown APs: the filter skips it
 
 
 def test_step_labelling_follows_the_steps_not_the_clock():
-    from mapfilter.logs.recording import Beacons, Recording, WifiScans
-    from mapfilter.pdr import Steps
+    from mapfilter.sensors.pdr import Steps
+    from mapfilter.sensors.recording import Beacons, Recording, WifiScans
 
     empty = np.empty((0, 3))
     scan_t = np.array([2.0, 5.0, 7.5, 9.0])
@@ -258,7 +261,7 @@ def test_step_labelling_follows_the_steps_not_the_clock():
 
 
 def test_cross_validated_fix_errors_grow_with_rssi_noise():
-    from mapfilter.radiomap import RadioMap, cross_validated_fix_errors
+    from mapfilter.sensors.radiomap import RadioMap, cross_validated_fix_errors
 
     rng = np.random.default_rng(5)
     # a 20 m x 20 m grid of points, 3 scans each, 12 APs with a log-distance model

@@ -13,10 +13,12 @@ from scipy import signal
 
 from mapfilter.cli import main
 from mapfilter.errors import MapfilterError
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs import read_ilc
-from mapfilter.walls import crosses_wall, touched_pixels_reference
-from mapfilter.simulate import (
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import crosses_wall, touched_pixels_reference
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.pathloss import AccessPointTable, path_loss_rssi_dbm
+from mapfilter.simulate.ilc_writer import write_ilc
+from mapfilter.simulate.walk import (
     CHANNELS_2G4_MHZ,
     CHANNELS_5G_MHZ,
     SimConfig,
@@ -24,9 +26,7 @@ from mapfilter.simulate import (
     segments_cross_wall,
     segments_min_clearance_m,
     simulate_walk,
-    write_ilc,
 )
-from mapfilter.wifi import AccessPointTable, path_loss_rssi_dbm
 
 RES_M = 0.1
 
@@ -173,7 +173,7 @@ def _enter_exit(u0, v0, u1, v1, row, col):
 
 
 def oracle_min_clearance_and_runs(plan: FloorPlan, a_m, b_m) -> tuple[float, int]:
-    """Brute force, no grid walk: the pixels whose closed square the segment meets (walls.py's
+    """Brute force, no grid walk: the pixels whose closed square the segment meets (maps/walls.py's
     oracle), clearance = their smallest ``wall_distance_px`` (outside = 0); walls = free->wall
     transitions over those pixels ordered by where the segment is inside them, pixels touched over
     the same parameter interval (the side pixels of a lattice corner: one point) being one
@@ -311,7 +311,7 @@ def test_imu_has_one_bump_per_step(long_walk):
 
 def test_the_pdr_step_detector_counts_the_route_steps(tmp_path, long_walk):
     """The project's own PDR (thesis detector) on the written file finds the simulated steps."""
-    from mapfilter import pdr
+    from mapfilter.sensors import pdr
 
     write_ilc(long_walk, tmp_path / "walk.txt")
     steps = pdr.detect_steps(read_ilc(tmp_path / "walk.txt"))

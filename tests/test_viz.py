@@ -15,7 +15,7 @@ import pytest
 from mapfilter.cli import main as cli_main
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.events import CollapseEvent, StepReport
-from mapfilter.floorplan import FloorPlan, SourceImage
+from mapfilter.maps.floorplan import FloorPlan, SourceImage
 from mapfilter.trackio import Track, write_track_csv
 from mapfilter.viz import (
     NullLogger,
@@ -402,7 +402,7 @@ def ilc_map(ilc_site1, tmp_path):
 
 
 def test_view_cli_writes_tracks_and_ground_truth(ilc_map, ilc_site1, tmp_path, capsys):
-    from mapfilter.logs import read_ilc
+    from mapfilter.sensors.ilc import read_ilc
 
     log = ilc_site1 / "F1" / "path_data_files" / ILC_TRACE
     recording = read_ilc(log)

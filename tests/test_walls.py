@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from mapfilter.floorplan import FloorPlan
-from mapfilter.walls import (
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import (
     clearance_px,
     count_wall_crossings,
     crosses_wall,
@@ -46,7 +46,7 @@ def test_walk_touches_exactly_the_oracle_pixels():
 def test_recording_walk_fits_its_capacity_and_walks_in_order():
     """touched_pixels_into: the oracle's pixels, within touched_pixels_capacity, and in walk order
     (start pixel first; edge neighbours, except the two side pixels of a lattice corner, which
-    are diagonal to each other; the end pixel closes the walk), as simulate.py relies on."""
+    are diagonal to each other; the end pixel closes the walk), as simulate/segments.py relies on."""
     rng = np.random.default_rng(5)
     a, b = _random_segments(rng, 3000, 12)
     n_corners = 0
@@ -193,7 +193,7 @@ def test_clearance_is_conservative_and_refreshable():
     a, b = np.array([[15.5, 15.5]]), np.array([[16.0, 20.5]])  # not axis-aligned: uses the clearance
     assert not crosses_wall(fp, a, b)[0]
     fp.wall_mask[10, :] = True  # edit in place: row 10 is y in [19, 20)
-    from mapfilter.walls import forget_clearance
+    from mapfilter.maps.walls import forget_clearance
 
     forget_clearance(fp)
     assert crosses_wall(fp, a, b)[0]

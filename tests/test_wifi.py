@@ -4,13 +4,18 @@ import numpy as np
 import pytest
 
 from mapfilter.errors import MapfilterError
+from mapfilter.filter.measurement import TrilaterationLikelihood, rssi_log_likelihood
 from mapfilter.filter.particles import Particles
-from mapfilter.logs import read_ilc
-from mapfilter.radiomap import RadioMap
-from mapfilter.filter.measurement import rssi_log_likelihood
-from mapfilter.wifi import (AccessPointTable, ApFitConfig, TrilaterationLikelihood, WifiScan,
-                            estimate_access_points, iter_scans, least_squares_position, path_loss_rssi_dbm,
-                            scans_of)
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.pathloss import (
+    AccessPointTable,
+    ApFitConfig,
+    estimate_access_points,
+    least_squares_position,
+    path_loss_rssi_dbm,
+)
+from mapfilter.sensors.radiomap import RadioMap
+from mapfilter.sensors.wifi import WifiScan, iter_scans, scans_of
 
 
 def _table(xy, c=-38.0, n=2.0, alpha=0.4, d_max=30.0):

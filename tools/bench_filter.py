@@ -3,7 +3,7 @@
 For N = 1k, 10k, 100k, 1M particles on an ILC floor map (site1/F1 from ../shared) and on
 the bundled map maps/office.yaml, it times
 
-- ``wall_check``: ``mapfilter.walls.crosses_wall`` alone on random-walk moves;
+- ``wall_check``: ``mapfilter.maps.walls.crosses_wall`` alone on random-walk moves;
 - ``full_step``: ``ParticleFilter.step`` with random-walk motion + wall check + a 20-access-point
   RSSI Gaussian likelihood + resampling (forced every step) + wall-safe regularisation + estimate;
 - ``reference_step``: the same step in plain numpy (points sampled every half pixel along each
@@ -35,8 +35,8 @@ from mapfilter.filter.motion import RandomWalkMotion  # noqa: E402
 from mapfilter.filter.particles import Particles  # noqa: E402
 from mapfilter.filter.pf import FilterConfig, ParticleFilter  # noqa: E402
 from mapfilter.filter.regularise import optimal_bandwidth, weighted_covariance  # noqa: E402
-from mapfilter.floorplan import FloorPlan  # noqa: E402
-from mapfilter.walls import crosses_wall  # noqa: E402
+from mapfilter.maps.floorplan import FloorPlan  # noqa: E402
+from mapfilter.maps.walls import crosses_wall  # noqa: E402
 
 ILC_FLOOR = REPO.parent / "shared" / "data" / "ilc20" / "site1" / "F1"
 OFFICE_YAML = REPO / "maps" / "office.yaml"
@@ -48,11 +48,12 @@ VARIANCE_DB2 = 25.0
 # ---- maps ------------------------------------------------------------------------------------
 def load_ilc_map() -> tuple[FloorPlan, str]:
     try:
-        from mapfilter.mapprep import import_ilc
-        return import_ilc(ILC_FLOOR), "mapfilter.mapprep.import_ilc(site1/F1)"
+        from mapfilter.maps.prepare import import_ilc
+        return import_ilc(ILC_FLOOR), "mapfilter.maps.prepare.import_ilc(site1/F1)"
     except ImportError:
-        import cv2
         import json as _json
+
+        import cv2
         info = _json.loads((ILC_FLOOR / "floor_info.json").read_text())["map_info"]
         rgba = cv2.imread(str(ILC_FLOOR / "floor_image.png"), cv2.IMREAD_UNCHANGED)
         wall = rgba[..., 3] > 0  # transparent = corridor

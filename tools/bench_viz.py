@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.filter.events import CollapseEvent, StepReport
-from mapfilter.floorplan import FloorPlan
+from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.viz import make_logger
 
 

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs import read_ilc
-from mapfilter.mapprep import import_ilc, read_geojson_floor
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.prepare import import_ilc, read_geojson_floor
+from mapfilter.sensors.ilc import read_ilc
 
 DEFAULT_SITE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ilc20" / "site1"
 

@@ -29,9 +29,16 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.logs import read_ilc
-from mapfilter.pdr import (PDRConfig, dead_reckon, detect_steps, gyro_heading, resample_imu,
-                          rotation_vector_heading, wrap_angle)
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.pdr import (
+    PDRConfig,
+    dead_reckon,
+    detect_steps,
+    gyro_heading,
+    resample_imu,
+    rotation_vector_heading,
+    wrap_angle,
+)
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ilc20" / "site1"
 TURN_MIN_DEG = 30.0  # a leg pair whose directions differ by more is a "turn"

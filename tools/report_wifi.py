@@ -33,10 +33,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mapfilter.errors import MapfilterError
-from mapfilter.logs import read_ilc
-from mapfilter.mapprep import import_ilc
-from mapfilter.radiomap import RadioMapLikelihood, build_radio_map, kwnn_fix_many, label_scans
-from mapfilter.wifi import estimate_access_points, iter_scans, least_squares_position
+from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood
+from mapfilter.maps.prepare import import_ilc
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.pathloss import estimate_access_points, least_squares_position
+from mapfilter.sensors.radiomap import build_radio_map, kwnn_fix_many, label_scans
+from mapfilter.sensors.wifi import iter_scans
 
 DEFAULT_FLOOR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ilc20" / "site1" / "F1"
 METHODS = ("kwnn", "radiomap_likelihood", "ls_trilateration")

@@ -22,13 +22,11 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from mapfilter.comparison import AllWalks, EvaluationSetup, evaluate_trace  # noqa: E402
-from mapfilter.evaluate import format_table, summarise_errors  # noqa: E402
-from mapfilter.filter.motion import PDRMotion  # noqa: E402
-from mapfilter.filter.pf import FilterConfig  # noqa: E402
-from mapfilter.logs import read_ilc  # noqa: E402
-from mapfilter.mapprep import import_ilc  # noqa: E402
-from mapfilter.radiomap import build_radio_map  # noqa: E402
+from mapfilter.evaluation.comparison import AllWalks, EvaluationSetup, evaluate_trace  # noqa: E402
+from mapfilter.evaluation.metrics import format_table, summarise_errors  # noqa: E402
+from mapfilter.maps.prepare import import_ilc  # noqa: E402
+from mapfilter.sensors.ilc import read_ilc  # noqa: E402
+from mapfilter.sensors.radiomap import build_radio_map  # noqa: E402
 from mapfilter.tracking import TrackingConfig  # noqa: E402
 
 ILC = REPO.parent / "shared" / "data" / "ilc20" / "site1"

@@ -21,8 +21,8 @@ import numpy as np
 from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix
 from mapfilter.filter.motion import RandomWalkMotion
 from mapfilter.filter.pf import FilterConfig, ParticleFilter
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs import read_ilc
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.ilc import read_ilc
 from mapfilter.viz import interpolate_ground_truth, make_logger
 
 DT_S = 0.5

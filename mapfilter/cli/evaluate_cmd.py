@@ -10,13 +10,14 @@ import sys
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.comparison import ALL_METHODS, EvaluationSetup, evaluate_logs, nan_to_none
 from mapfilter.errors import MapfilterError
-from mapfilter.evaluate import format_table, plot_error_cdf, plot_tracks_on_map
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs import read_ilc
-from mapfilter.trackio import write_track_csv
+from mapfilter.evaluation.comparison import ALL_METHODS, EvaluationSetup, evaluate_logs, nan_to_none
+from mapfilter.evaluation.metrics import format_table
+from mapfilter.evaluation.plots import plot_error_cdf, plot_tracks_on_map
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.ilc import read_ilc
 from mapfilter.tracking import TrackingConfig
+from mapfilter.trackio import write_track_csv
 
 _EPILOG = f"""\
 methods: {', '.join(ALL_METHODS)} (default: all that the WiFi source allows)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mapfilter import mapprep
 from mapfilter.errors import MapfilterError
+from mapfilter.maps import prepare
 
 _PREPARE_EPILOG = """\
 kinds:
@@ -56,15 +56,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     commands = parser.add_subparsers(dest="map_command", metavar="SUBCOMMAND")
     parser.set_defaults(func=lambda args: _missing_subcommand(parser))
 
-    prepare = commands.add_parser(
+    prepare_parser = commands.add_parser(
         "prepare", help="a floor plan (line drawing, filled regions or GeoJSON) -> map YAML + mask",
         description="Turn a floor plan into a wall mask (ROS map_server YAML + PNG) and a preview.",
         epilog=_PREPARE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    prepare.add_argument("plan", type=Path, metavar="PLAN", help="plan image (PNG, JPEG, PGM, ...) or GeoJSON file")
-    prepare.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output map YAML")
-    prepare.add_argument("--kind", choices=("lines", "regions", "geojson"), default=None,
-                         help="kind of plan (default: geojson for .json/.geojson, else lines)")
-    scale = prepare.add_argument_group("scale")
+    prepare_parser.add_argument("plan", type=Path, metavar="PLAN", help="plan image (PNG, JPEG, PGM, ...) or GeoJSON file")
+    prepare_parser.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output map YAML")
+    prepare_parser.add_argument("--kind", choices=("lines", "regions", "geojson"), default=None,
+                                help="kind of plan (default: geojson for .json/.geojson, else lines)")
+    scale = prepare_parser.add_argument_group("scale")
     scale.add_argument("--resolution", type=float, metavar="M", help="metres per plan pixel (geojson: per output pixel)")
     scale.add_argument("--size", type=float, nargs=2, metavar=("W", "H"), help="real width and height of the plan in metres")
     scale.add_argument("--scale-points", type=float, nargs=4, metavar=("U1", "V1", "U2", "V2"),
@@ -72,7 +72,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     scale.add_argument("--scale-distance", type=float, metavar="M", help="... and their real distance in metres")
     scale.add_argument("--map-resolution", type=float, metavar="M",
                        help="metres per pixel of the output mask (default: the plan's own; coarser keeps walls closed)")
-    lines = prepare.add_argument_group("line drawings (--kind lines)")
+    lines = prepare_parser.add_argument_group("line drawings (--kind lines)")
     lines.add_argument("--threshold", choices=("otsu", "adaptive"), default="otsu",
                        help="ink threshold: global Otsu, or adaptive for uneven scans (default: otsu)")
     lines.add_argument("--close-gaps", type=int, default=3, metavar="PX",
@@ -82,7 +82,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     lines.add_argument("--thicken", type=int, default=0, metavar="PX", help="dilate walls by PX pixels (default: 0)")
     lines.add_argument("--keep-outside", action="store_true",
                        help="keep free space connected to the image border (default: it is outside, so wall)")
-    regions = prepare.add_argument_group("filled-region plans (--kind regions)")
+    regions = prepare_parser.add_argument_group("filled-region plans (--kind regions)")
     regions.add_argument("--walkable", action="append", metavar="COLOUR",
                          help="a walkable colour: transparent, #rrggbb or r,g,b; repeat for more (default: transparent)")
     regions.add_argument("--tolerance", type=int, default=24, metavar="N",
@@ -93,16 +93,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                          help="wall blobs of fewer than PX pixels become free (text in corridors; default: 0)")
     regions.add_argument("--outside-wall", action="store_true",
                          help="free space connected to the image border becomes wall")
-    vector = prepare.add_argument_group("GeoJSON floors (--kind geojson)")
+    vector = prepare_parser.add_argument_group("GeoJSON floors (--kind geojson)")
     vector.add_argument("--units", choices=("lonlat", "m"), default="lonlat",
                         help="coordinates: lon/lat (Web Mercator, ILC convention) or metres (default: lonlat)")
     vector.add_argument("--inset", type=float, default=0.0, metavar="M",
                         help="shrink obstacle polygons by M metres (default: 0)")
-    prepare.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall (see below)")
-    prepare.add_argument("--floor", metavar="NAME", help="floor name stored in the YAML")
-    prepare.add_argument("--access-points", type=Path, metavar="CSV",
-                         help="access-point table (bssid,x,y,band,C,n,alpha,d_max) referenced from the YAML")
-    prepare.set_defaults(func=run_prepare)
+    prepare_parser.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall (see below)")
+    prepare_parser.add_argument("--floor", metavar="NAME", help="floor name stored in the YAML")
+    prepare_parser.add_argument("--access-points", type=Path, metavar="CSV",
+                                help="access-point table (bssid,x,y,band,C,n,alpha,d_max) referenced from the YAML")
+    prepare_parser.set_defaults(func=run_prepare)
 
     ilc = commands.add_parser(
         "import-ilc", help="an ILC 2.0 floor directory -> map YAML + mask in one step",
@@ -125,33 +125,33 @@ def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
 
 def run_prepare(args: argparse.Namespace) -> int:
     kind = args.kind or ("geojson" if args.plan.suffix.lower() in (".json", ".geojson") else "lines")
-    edits = mapprep.read_edits(args.edits) if args.edits else None
+    edits = prepare.read_edits(args.edits) if args.edits else None
     if args.access_points is not None and not args.access_points.is_file():
         raise MapfilterError("file not found", args.access_points)
     if kind == "geojson":
         if args.size or args.scale_points or args.scale_distance:
             raise MapfilterError("a GeoJSON floor is already in real units: give only --resolution (m per pixel)",
                                  args.plan)
-        plan = mapprep.prepare_geojson(args.plan, args.resolution or args.map_resolution, args.units,
+        plan = prepare.prepare_geojson(args.plan, args.resolution or args.map_resolution, args.units,
                                        args.inset, 0.0, args.floor)
     else:
         points = None
         if args.scale_points is not None:
             u1, v1, u2, v2 = args.scale_points
             points = ((u1, v1), (u2, v2))
-        scale = mapprep.PlanScale(args.resolution, tuple(args.size) if args.size else None, points,
+        scale = prepare.PlanScale(args.resolution, tuple(args.size) if args.size else None, points,
                                   args.scale_distance)
         if kind == "lines":
-            options = mapprep.LineOptions(args.threshold, close_gaps_px=args.close_gaps,
+            options = prepare.LineOptions(args.threshold, close_gaps_px=args.close_gaps,
                                           remove_below_px=args.remove_text, thicken_px=args.thicken,
                                           outside_is_wall=not args.keep_outside)
-            plan = mapprep.prepare_lines(args.plan, scale, options, args.map_resolution, args.floor)
+            plan = prepare.prepare_lines(args.plan, scale, options, args.map_resolution, args.floor)
         else:
-            options = mapprep.RegionOptions(tuple(args.walkable or [mapprep.TRANSPARENT]), args.tolerance, remove_below_px=args.remove_below,
+            options = prepare.RegionOptions(tuple(args.walkable or [prepare.TRANSPARENT]), args.tolerance, remove_below_px=args.remove_below,
                                             open_outlines_px=args.open_outlines, outside_is_wall=args.outside_wall)
-            plan = mapprep.prepare_regions(args.plan, scale, options, args.map_resolution, args.floor)
+            plan = prepare.prepare_regions(args.plan, scale, options, args.map_resolution, args.floor)
     if edits is not None:
-        plan = mapprep.apply_edits(plan, edits)
+        plan = prepare.apply_edits(plan, edits)
     if args.access_points is not None:
         plan.access_points_csv = args.access_points.resolve()
     _write(plan, args.out)
@@ -159,16 +159,16 @@ def run_prepare(args: argparse.Namespace) -> int:
 
 
 def run_import_ilc(args: argparse.Namespace) -> int:
-    edits = mapprep.read_edits(args.edits) if args.edits else None
-    plan = mapprep.import_ilc(args.floor_dir, args.route, args.resolution)
+    edits = prepare.read_edits(args.edits) if args.edits else None
+    plan = prepare.import_ilc(args.floor_dir, args.route, args.resolution)
     if edits is not None:
-        plan = mapprep.apply_edits(plan, edits)
+        plan = prepare.apply_edits(plan, edits)
     _write(plan, args.out)
     return 0
 
 
 def _write(plan, out: Path) -> None:
-    written = mapprep.write_map(plan, out)
+    written = prepare.write_map(plan, out)
     rows, cols = plan.shape_px
     print(f"wrote {', '.join(str(p) for p in written)}: {cols}x{rows} px at {plan.resolution_m:.4g} m/px, "
           f"{plan.free_fraction:.1%} free")

@@ -6,10 +6,10 @@ import argparse
 from pathlib import Path
 
 from mapfilter.errors import MapfilterError
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs import read_ilc
-from mapfilter.radiomap import build_radio_map
-from mapfilter.wifi import ApFitConfig, estimate_access_points
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.pathloss import ApFitConfig, estimate_access_points
+from mapfilter.sensors.radiomap import build_radio_map
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

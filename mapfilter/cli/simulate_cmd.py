@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.floorplan import FloorPlan
-from mapfilter.simulate import SimConfig, simulate_walk, write_ilc
-from mapfilter.wifi import access_points_for_map
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.pathloss import access_points_for_map
+from mapfilter.simulate.ilc_writer import write_ilc
+from mapfilter.simulate.walk import SimConfig, simulate_walk
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.evaluate import errors_at_waypoints, summarise_errors
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs import read_ilc
-from mapfilter.radiomap import RadioMap
-from mapfilter.trackio import write_track_csv, write_track_tum
+from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import count_wall_crossings
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.pathloss import access_points_for_map
+from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.tracking import FINGERPRINT_MODELS, MOTION_MODELS, TrackingConfig, track_recording
-from mapfilter.walls import count_wall_crossings
-from mapfilter.wifi import access_points_for_map
+from mapfilter.trackio import write_track_csv, write_track_tum
 
 _EPILOG = """\
 WiFi: --radiomap RM (fingerprinting; build one with `mapfilter radiomap build`) or --aps

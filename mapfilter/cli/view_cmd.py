@@ -35,8 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mapfilter.floorplan import FloorPlan
-    from mapfilter.logs import read_ilc
+    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.sensors.ilc import read_ilc
     from mapfilter.trackio import read_track
     from mapfilter.viz import view_map
 

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from mapfilter.floorplan import FloorPlan
+from mapfilter.maps.floorplan import FloorPlan
 
 __all__ = ["circular_mean", "weighted_estimate", "weighted_moments"]
 

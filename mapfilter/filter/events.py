@@ -1,4 +1,4 @@
-"""What the filter reports after each step. The viewer (viz.py) and the CLI draw/print these;
+"""What the filter reports after each step. The viewer (``mapfilter.viz``) and the CLI draw/print these;
 the filter itself never imports rerun."""
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 - :class:`GaussianFixLikelihood` weights particles by a position fix (a fingerprint/KWNN
   result) with an isotropic Gaussian, sigma = 5 m by default (Evennou & Marx).
 - :func:`rssi_log_likelihood` is the per-particle Gaussian RSSI log-likelihood under the
-  Lund thesis path-loss model; ``mapfilter.wifi`` wraps it into the trilateration model.
+  Lund thesis path-loss model; :class:`TrilaterationLikelihood` weighs a WiFi scan with it.
 """
 
 from __future__ import annotations
@@ -14,10 +14,12 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from mapfilter.errors import MapfilterError
 from mapfilter.filter.particles import Particles
-from mapfilter.wifi import MIN_DISTANCE_M
+from mapfilter.sensors.pathloss import MIN_DISTANCE_M, AccessPointTable, match_scan
+from mapfilter.sensors.wifi import WifiScan
 
-__all__ = ["GaussianFixLikelihood", "PositionFix", "rssi_log_likelihood"]
+__all__ = ["GaussianFixLikelihood", "PositionFix", "TrilaterationLikelihood", "rssi_log_likelihood"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,7 +112,7 @@ def rssi_log_likelihood(xy_m: np.ndarray, ap_xy_m: np.ndarray, c_dbm: np.ndarray
                         variance_db2: float = 25.0) -> np.ndarray:
     """Per-particle Gaussian RSSI log-likelihood -sum_k (z_k - R_k(d_ik))^2 / (2 var).
 
-    R is the Lund thesis path-loss model (``mapfilter.wifi.path_loss_rssi_dbm``: distance
+    R is the Lund thesis path-loss model (``mapfilter.sensors.pathloss.path_loss_rssi_dbm``: distance
     clamped at 1 m). float32 inside (RSSI is integer dBm; float32 is ~7 significant digits),
     float64 out, parallel over particles. Access points whose observed RSSI is NaN are left
     out (not heard).
@@ -144,3 +146,35 @@ def rssi_log_likelihood(xy_m: np.ndarray, ap_xy_m: np.ndarray, c_dbm: np.ndarray
                     per_ap(c_dbm), 5.0 * per_ap(n), per_ap(alpha_db_per_m), per_ap(d_max_m),
                     np.ascontiguousarray(observed[heard], dtype=f32), f32(0.5 / float(variance_db2)), out)
     return out.astype(np.float64)
+
+
+class TrilaterationLikelihood:
+    """Per-particle Gaussian RSSI likelihood of the Lund path-loss model (a ``MeasurementModel``).
+
+    Each heard AP that the table knows (matched by bssid *and* band) contributes
+    N(r; R(d), variance); APs the table does not know are ignored, and a scan sharing no AP
+    with the table leaves the weights unchanged (log-likelihood 0 everywhere).
+
+    Parameters
+    ----------
+    ap_table : positions and path-loss parameters of the access points.
+    variance_db2 : RSSI noise variance; 25 dB^2 is the thesis value.
+    """
+
+    def __init__(self, ap_table: AccessPointTable, variance_db2: float = 25.0):
+        if not variance_db2 > 0:
+            raise MapfilterError(f"RSSI variance must be positive, got {variance_db2}")
+        self.ap_table = ap_table
+        self.variance_db2 = float(variance_db2)
+
+    def heard_ap_xy_m(self, scan: WifiScan) -> np.ndarray:
+        """(M, 2) positions of the scan's access points that the table knows (for the viewer)."""
+        return self.ap_table.xy_m[match_scan(self.ap_table, scan)[0]]
+
+    def log_likelihood(self, particles, measurement: WifiScan) -> np.ndarray:
+        rows, rssi = match_scan(self.ap_table, measurement)
+        if rows.size == 0:
+            return np.zeros(len(particles))
+        t = self.ap_table
+        return rssi_log_likelihood(particles.xy_m, t.xy_m[rows], t.c_dbm[rows], t.n[rows], t.alpha_db_per_m[rows],
+                                   t.d_max_m[rows], rssi, self.variance_db2)

@@ -1,7 +1,8 @@
 """The two small interfaces the filter calls. A new model implements one; the filter never changes.
 
 Motion models (random walk, constant velocity, PDR) live in ``filter/motion.py``; measurement
-models for position fixes live in ``filter/measurement.py``, WiFi ones in ``mapfilter/wifi.py``.
+models live in ``filter/measurement.py`` (position fixes, trilateration) and
+``filter/radiomap_likelihood.py``.
 """
 
 from __future__ import annotations

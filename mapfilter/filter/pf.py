@@ -28,8 +28,8 @@ from mapfilter.filter.motion import PDRMotion
 from mapfilter.filter.particles import Particles
 from mapfilter.filter.regularise import KERNELS, regularise, weighted_covariance
 from mapfilter.filter.resample import get_resampler
-from mapfilter.floorplan import FloorPlan
-from mapfilter.walls import crosses_wall
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import crosses_wall
 
 __all__ = ["FilterConfig", "ParticleFilter"]
 
@@ -73,13 +73,11 @@ def _take(particles: Particles, index: np.ndarray) -> Particles:
 
 def _heard_ap_xy_m(model: Any, measurement: Any) -> np.ndarray | None:
     """Positions of the access points heard, for the viewer: ``model.heard_ap_xy_m(measurement)``
-    if the model offers it, else a ``heard_ap_xy_m`` attribute of the measurement, else None."""
+    if the model offers it, else None."""
     if model is None or measurement is None:
         return None
     hook = getattr(model, "heard_ap_xy_m", None)
-    if callable(hook):
-        return hook(measurement)
-    return getattr(measurement, "heard_ap_xy_m", None)
+    return hook(measurement) if callable(hook) else None
 
 
 def _logsumexp(log_w: np.ndarray) -> float:

@@ -20,8 +20,8 @@ from numba import njit, prange
 
 from mapfilter.filter.estimate import weighted_moments
 from mapfilter.filter.gaussian import standard_normal
-from mapfilter.floorplan import FloorPlan
-from mapfilter.walls import _segment_crosses_world, clearance_px
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import _segment_crosses_world, clearance_px
 
 __all__ = ["KERNELS", "optimal_bandwidth", "regularise", "sample_kernel", "weighted_covariance"]
 

@@ -37,11 +37,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import common  # noqa: E402
 
-from mapfilter.baselines import PdrKwnnConfig, pdr_kwnn_track  # noqa: E402
-from mapfilter.pdr import Steps, detect_steps  # noqa: E402
-from mapfilter.radiomap import kwnn_fix_many  # noqa: E402
+from mapfilter.evaluation.baselines import PdrKwnnConfig, pdr_kwnn_track  # noqa: E402
+from mapfilter.sensors.pdr import Steps, detect_steps  # noqa: E402
+from mapfilter.sensors.radiomap import kwnn_fix_many  # noqa: E402
+from mapfilter.sensors.wifi import scans_of  # noqa: E402
 from mapfilter.trackio import Track  # noqa: E402
-from mapfilter.wifi import scans_of  # noqa: E402
 
 PAPER = {"kwnn": 1.91, "pdr_kwnn": 1.58}
 N_REFERENCE = 300

@@ -21,14 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
-from mapfilter.evaluate import errors_at_waypoints, format_table
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs import read_ilc
-from mapfilter.logs.recording import Recording
-from mapfilter.radiomap import RadioMap
-from mapfilter.simulate import SimConfig, SimulatedWalk, model_rssi_dbm, simulate_walk, write_ilc
+from mapfilter.evaluation.metrics import errors_at_waypoints, format_table  # noqa: F401 (the paper scripts use common.format_table)
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.pathloss import AccessPointTable
+from mapfilter.sensors.radiomap import RadioMap
+from mapfilter.sensors.recording import Recording
+from mapfilter.simulate.ilc_writer import write_ilc
+from mapfilter.simulate.walk import SimConfig, SimulatedWalk, model_rssi_dbm, simulate_walk
 from mapfilter.trackio import Track
-from mapfilter.wifi import AccessPointTable
 
 REPO = Path(__file__).resolve().parents[2]
 OFFICE_YAML = REPO / "maps" / "office.yaml"

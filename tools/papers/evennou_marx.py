@@ -42,14 +42,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import common  # noqa: E402
 
-from mapfilter.baselines import kalman_track  # noqa: E402
-from mapfilter.evaluate import errors_at_waypoints  # noqa: E402
+from mapfilter.evaluation.baselines import kalman_track  # noqa: E402
+from mapfilter.evaluation.metrics import errors_at_waypoints  # noqa: E402
 from mapfilter.filter.pf import FilterConfig  # noqa: E402
-from mapfilter.pdr import detect_steps  # noqa: E402
-from mapfilter.radiomap import kwnn_fix_many  # noqa: E402
+from mapfilter.sensors.pdr import detect_steps  # noqa: E402
+from mapfilter.sensors.radiomap import kwnn_fix_many  # noqa: E402
+from mapfilter.sensors.wifi import scans_of  # noqa: E402
 from mapfilter.tracking import TrackingConfig, track_recording  # noqa: E402
 from mapfilter.trackio import Track  # noqa: E402
-from mapfilter.wifi import scans_of  # noqa: E402
 
 PAPER = {"db": 3.50, "kf": 2.29, "pf": 1.99}
 FULL_PARTICLES = (100, 250, 500, 1000, 2000, 4000, 8000, 10000, 20000)
@@ -254,7 +254,7 @@ def _figure(runs: list[dict], particles: tuple[int, ...], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mapfilter.evaluate import save_figure
+    from mapfilter.evaluation.plots import save_figure
 
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     data = [[r["mean"] for r in runs if r["n"] == n] for n in particles]

@@ -37,13 +37,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import common  # noqa: E402
 
-from mapfilter.baselines import pdr_track  # noqa: E402
 from mapfilter.errors import MapfilterError  # noqa: E402
+from mapfilter.evaluation.baselines import pdr_track  # noqa: E402
 from mapfilter.filter.pf import FilterConfig  # noqa: E402
-from mapfilter.pdr import detect_steps  # noqa: E402
+from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position  # noqa: E402
+from mapfilter.sensors.pdr import detect_steps  # noqa: E402
+from mapfilter.sensors.wifi import scans_of  # noqa: E402
 from mapfilter.tracking import TrackingConfig, track_recording  # noqa: E402
 from mapfilter.trackio import Track  # noqa: E402
-from mapfilter.wifi import AccessPointTable, least_squares_position, scans_of  # noqa: E402
 
 PAPER = {"ls": 4.8, "pf_wifi": 3.5, "pdr": 4.2, "pf_pdr": 1.8}
 WRONG_START_M = 0.4
@@ -179,7 +180,7 @@ def _figure(step_runs: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mapfilter.evaluate import save_figure
+    from mapfilter.evaluation.plots import save_figure
 
     fig, ax = plt.subplots(figsize=(8, 4))
     for i, r in enumerate(step_runs):

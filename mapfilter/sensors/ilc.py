@@ -14,15 +14,15 @@ from __future__ import annotations
 
 import gzip
 import math
-import zlib
 import os
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.logs.recording import Beacons, Recording, WifiScans
-from mapfilter.wifi import ap_key, band_of_frequency
+from mapfilter.sensors.recording import Beacons, Recording, WifiScans
+from mapfilter.sensors.wifi import ap_key, band_of_frequency
 
 DEFAULT_MAX_WIFI_AGE_S = 5.0
 

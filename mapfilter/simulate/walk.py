@@ -12,7 +12,7 @@ A simulated walk has what a real phone log has, plus the truth behind it:
   and noise, rotation vector (Android convention), a simple magnetometer; timestamp jitter
   and dropped samples;
 - **WiFi scans** every 2-4 s from a multi-wall path-loss model: the Lund thesis model
-  ``mapfilter.wifi.path_loss_rssi_dbm`` plus a loss per wall crossed on the AP->phone line
+  ``mapfilter.sensors.pathloss.path_loss_rssi_dbm`` plus a loss per wall crossed on the AP->phone line
   (Motley-Keenan), log-normal shadowing, a sensitivity floor, and stale cached rows;
 - a **survey mode**: stand at reference points on a grid for a few scans each (radio-map
   collection, as in Evennou & Marx), with a waypoint at every scan.
@@ -29,23 +29,19 @@ file, byte for byte.
 from __future__ import annotations
 
 import dataclasses
-import gzip
 import math
-import os
-from pathlib import Path
 
 import numpy as np
-from numba import njit
 from scipy import sparse
 from scipy.ndimage import gaussian_filter1d
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial.transform import Rotation
 
-from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
-from mapfilter.floorplan import FloorPlan
-from mapfilter.walls import crosses_wall, touched_pixels_capacity, touched_pixels_into
-from mapfilter.wifi import AccessPointTable, path_loss_rssi_dbm
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import crosses_wall
+from mapfilter.sensors.pathloss import AccessPointTable, path_loss_rssi_dbm
+from mapfilter.simulate.segments import count_walls_crossed, segments_cross_wall, segments_min_clearance_m
 
 GRAVITY_MPS2 = 9.80665
 # Channel centre frequencies: 2.4 GHz channels 1-13, 5 GHz UNII-1..3 (36-165).
@@ -187,134 +183,6 @@ class SimulatedWalk:
         t = np.asarray(t_s, dtype=np.float64)
         return np.stack([np.interp(t, self.waypoint_t_s, self.waypoint_xy_m[:, 0]),
                          np.interp(t, self.waypoint_t_s, self.waypoint_xy_m[:, 1])], axis=-1)
-
-
-# ---------------------------------------------------------------------------------------
-# pixel walks on the mask (exact, numba): one walk, mapfilter.walls.touched_pixels_into
-# ---------------------------------------------------------------------------------------
-@njit(cache=True)
-def _touched(u0, v0, u1, v1, rows, cols):
-    """The segment's pixels (walls.touched_pixels_into) in ``rows``/``cols``, which are replaced
-    by buffers twice as long when too short: returns (rows, cols, count)."""
-    cap = touched_pixels_capacity(u0, v0, u1, v1)
-    if rows.shape[0] < cap:
-        rows = np.empty(2 * cap, dtype=np.int64)
-        cols = np.empty(2 * cap, dtype=np.int64)
-    return rows, cols, touched_pixels_into(u0, v0, u1, v1, rows, cols)
-
-
-@njit(cache=True)
-def _segments_min_clearance_px(clearance_px, uv0, uv1):
-    """Per segment, the smallest ``clearance_px`` over every pixel it touches.
-
-    The pixels are those of the filter's own wall check (``touched_pixels_into``, closed
-    pixels: a pass exactly through a lattice corner touches all four pixels there, so a move
-    that only clips a wall corner is caught). Outside the mask counts as 0 (wall); so does a
-    segment with a non-finite coordinate.
-    """
-    # serial on purpose: the planner calls this with a few dozen segments at a time, where a
-    # parallel launch costs milliseconds on a busy machine and the work only microseconds
-    h, w = clearance_px.shape
-    out = np.empty(uv0.shape[0])
-    rows = np.empty(64, dtype=np.int64)
-    cols = np.empty(64, dtype=np.int64)
-    for i in range(uv0.shape[0]):
-        u0, v0, u1, v1 = uv0[i, 0], uv0[i, 1], uv1[i, 0], uv1[i, 1]
-        rows, cols, k = _touched(u0, v0, u1, v1, rows, cols)
-        best = math.inf if k > 0 else 0.0
-        for j in range(k):
-            r = rows[j]
-            c = cols[j]
-            value = clearance_px[r, c] if (0 <= r < h and 0 <= c < w) else 0.0
-            if value < best:
-                best = value
-        out[i] = best
-    return out
-
-
-@njit(cache=True)
-def _segments_wall_runs(wall_mask, uv0, uv1):
-    """Per segment, the number of walls it enters: free->wall transitions along its pixel walk.
-
-    A thick wall is one wall (one run of wall pixels). The start pixel's own state is the
-    initial state, so an AP mounted inside a wall pixel is not attenuated by that wall.
-    Outside the mask counts as free (no wall there to attenuate). The walk is
-    ``touched_pixels_into`` from the start pixel to the end pixel, in order; where the line
-    passes exactly through a lattice corner, the two side pixels there are one position of
-    the line (wall if either is: the corner point belongs to both closed squares). The
-    closed-rule extras after the end pixel (far sides of grid lines) are not walls the line
-    passes through and are ignored. A non-finite segment crosses no wall.
-    """
-    # serial: one scan is a few dozen AP->phone lines (see _segments_min_clearance_px)
-    h, w = wall_mask.shape
-    out = np.zeros(uv0.shape[0], dtype=np.int64)
-    rows = np.empty(64, dtype=np.int64)
-    cols = np.empty(64, dtype=np.int64)
-    for i in range(uv0.shape[0]):
-        u0, v0, u1, v1 = uv0[i, 0], uv0[i, 1], uv1[i, 0], uv1[i, 1]
-        rows, cols, k = _touched(u0, v0, u1, v1, rows, cols)
-        end_row = int(math.floor(v1)) if k > 0 else 0
-        end_col = int(math.floor(u1)) if k > 0 else 0
-        runs = 0
-        in_wall = False
-        corner_wall = False  # the first side pixel of a lattice corner was a wall
-        for j in range(k):
-            r = rows[j]
-            c = cols[j]
-            wall = 0 <= r < h and 0 <= c < w and wall_mask[r, c]
-            if j + 1 < k and abs(rows[j + 1] - r) == 1 and abs(cols[j + 1] - c) == 1 and not (
-                    r == end_row and c == end_col):
-                # the first of the two side pixels of a lattice corner (they are diagonal to
-                # each other; a side pixel is never the end pixel): the next entry is the same
-                # position of the line
-                corner_wall = wall
-                continue
-            wall = wall or corner_wall
-            corner_wall = False
-            if wall and not in_wall and j > 0:
-                runs += 1
-            in_wall = wall
-            if r == end_row and c == end_col:
-                break  # the rest are the closed rule's extras
-        out[i] = runs
-    return out
-
-
-def segments_min_clearance_m(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
-    """Smallest distance to a wall (m) over the pixels each segment a->b touches; 0 = touches a wall.
-
-    Distances are ``FloorPlan.wall_distance_px`` (pixel centre to wall pixel centre); route
-    planning uses them to keep walkers off walls.
-
-    Parameters
-    ----------
-    a_m, b_m : (N, 2) world points.
-    """
-    uv0 = np.ascontiguousarray(floorplan.world_to_pixel(np.atleast_2d(a_m)))
-    uv1 = np.ascontiguousarray(floorplan.world_to_pixel(np.atleast_2d(b_m)))
-    clearance = np.ascontiguousarray(floorplan.wall_distance_px, dtype=np.float64)
-    return _segments_min_clearance_px(clearance, uv0, uv1) * floorplan.resolution_m
-
-
-def segments_cross_wall(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
-    """(N,) bool: does the move a->b touch a wall pixel (or leave the map)? Exact pixel walk.
-
-    The planner's serial check: the same pixels as the filter's own
-    ``mapfilter.walls.crosses_wall`` (closed-pixel rule), which checks the finished ground
-    truth once more in ``simulate_walk``.
-    """
-    return segments_min_clearance_m(floorplan, a_m, b_m) <= 0.0
-
-
-def count_walls_crossed(floorplan: FloorPlan, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
-    """(N,) int: walls (runs of wall pixels) on each line a->b, Motley-Keenan style.
-
-    Outside the map is free; a line starting inside a wall is not attenuated by that wall; a
-    pass exactly through a lattice corner touches both side pixels there (``_segments_wall_runs``).
-    """
-    uv0 = np.ascontiguousarray(floorplan.world_to_pixel(np.atleast_2d(a_m)))
-    uv1 = np.ascontiguousarray(floorplan.world_to_pixel(np.atleast_2d(b_m)))
-    return _segments_wall_runs(floorplan.wall_mask, uv0, uv1)
 
 
 def model_rssi_dbm(floorplan: FloorPlan, ap_table: AccessPointTable, ap_index: np.ndarray, xy_m: np.ndarray,
@@ -750,62 +618,3 @@ def simulate_walk(floorplan: FloorPlan, ap_table: AccessPointTable, config: SimC
         seen_t_s=t0 + wifi["seen"], stale=wifi["stale"], expected_rssi_dbm=wifi["expected"],
         walls_crossed=wifi["walls"],
     )
-
-
-# ---------------------------------------------------------------------------------------
-# output
-# ---------------------------------------------------------------------------------------
-def _ms(t_s: np.ndarray) -> np.ndarray:
-    return np.round(np.asarray(t_s, dtype=np.float64) * 1000.0).astype(np.int64)
-
-
-def format_ilc(walk: SimulatedWalk, ssid: str = SimConfig.ssid) -> str:
-    """The whole trace as ILC text (header, records sorted by time, end line)."""
-    times: list[np.ndarray] = []
-    ranks: list[np.ndarray] = []
-    lines: list[str] = []
-
-    def add(t_s: np.ndarray, rank: int, texts: list[str]) -> None:
-        times.append(_ms(t_s))
-        ranks.append(np.full(len(texts), rank, dtype=np.int64))
-        lines.extend(texts)
-
-    wp_ms = _ms(walk.waypoint_t_s)
-    add(walk.waypoint_t_s, 0, [f"{t}\tTYPE_WAYPOINT\t{x:.6f}\t{y:.6f}"
-                               for t, (x, y) in zip(wp_ms.tolist(), walk.waypoint_xy_m.tolist())])
-    # same order within one millisecond as the real logs: acc, magnet, gyro, rotation vector
-    for rank, (kind, t_s, values, accuracy) in enumerate((
-            ("TYPE_ACCELEROMETER", walk.acc_t_s, walk.acc_mps2, 2),
-            ("TYPE_MAGNETIC_FIELD", walk.magnet_t_s, walk.magnet_ut, 3),
-            ("TYPE_GYROSCOPE", walk.gyro_t_s, walk.gyro_radps, 3),
-            ("TYPE_ROTATION_VECTOR", walk.rotvec_t_s, walk.rotvec_xyz, 3)), start=1):
-        add(t_s, rank, [f"{t}\t{kind}\t{a:.7g}\t{b:.7g}\t{c:.7g}\t{accuracy}"
-                        for t, (a, b, c) in zip(_ms(t_s).tolist(), values.tolist())])
-    scan_ms = _ms(walk.scan_t_s)[walk.row_scan]
-    seen_ms = _ms(walk.seen_t_s)
-    add(walk.scan_t_s[walk.row_scan], 5, [
-        f"{t}\tTYPE_WIFI\t{ssid}\t{walk.ap_bssid[a]}\t{r}\t{walk.ap_freq_mhz[a]}\t{seen}"
-        for t, a, r, seen in zip(scan_ms.tolist(), walk.row_ap.tolist(), walk.rssi_dbm.tolist(), seen_ms.tolist())])
-    t_all = np.concatenate(times)
-    r_all = np.concatenate(ranks)
-    order = np.lexsort((np.arange(t_all.size), r_all, t_all))
-    floor = walk.floor_name or ""
-    head = [f"#\tstartTime:{_ms(walk.start_t_s)}",
-            f"#\tSiteID:{walk.site_id}\tSiteName:{walk.site_id}\tFloorId:{walk.site_id}-{floor}\tFloorName:{floor}"]
-    tail = [f"#\tendTime:{_ms(walk.end_t_s)}"]
-    return "\n".join(head + [lines[i] for i in order.tolist()] + tail) + "\n"
-
-
-def write_ilc(walk: SimulatedWalk, path: str | os.PathLike, ssid: str = SimConfig.ssid) -> None:
-    """Write the walk as an ILC trace, gzip-compressed if ``path`` ends in ``.gz``, atomically.
-
-    The gzip header carries no time stamp or name, so the same walk gives the same bytes.
-    """
-    path = Path(path)
-    data = format_ilc(walk, ssid).encode("utf-8")
-    with atomic_paths(path) as (tmp,):
-        if path.suffix == ".gz":
-            with tmp.open("wb") as raw, gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0) as handle:
-                handle.write(data)
-        else:
-            tmp.write_bytes(data)

@@ -30,18 +30,19 @@ from pathlib import Path
 
 import numpy as np
 
-from mapfilter.baselines import kalman_track, pdr_kwnn_track, pdr_track
 from mapfilter.errors import MapfilterError
-from mapfilter.evaluate import errors_at_waypoints, summarise_errors
-from mapfilter.floorplan import FloorPlan
-from mapfilter.logs import Recording, read_ilc
-from mapfilter.logs.recording import trace_name
-from mapfilter.pdr import detect_steps
-from mapfilter.radiomap import RadioMap, build_radio_map, kwnn_fix_many
-from mapfilter.trackio import Track
+from mapfilter.evaluation.baselines import kalman_track, pdr_kwnn_track, pdr_track
+from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import count_wall_crossings
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.pathloss import AccessPointTable, estimate_access_points, least_squares_position, match_scan
+from mapfilter.sensors.pdr import detect_steps
+from mapfilter.sensors.radiomap import RadioMap, build_radio_map, kwnn_fix_many
+from mapfilter.sensors.recording import Recording, trace_name
+from mapfilter.sensors.wifi import scans_of
 from mapfilter.tracking import TrackingConfig, calibrated_fix_sigma_m, track_recording
-from mapfilter.walls import count_wall_crossings
-from mapfilter.wifi import AccessPointTable, estimate_access_points, least_squares_position, match_scan, scans_of
+from mapfilter.trackio import Track
 
 ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls")
 PF_METHODS = {"pf": {}, "pf-nomap": {"use_map": False}, "pf-nopdr": {"motion": "cv"}}

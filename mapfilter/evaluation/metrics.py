@@ -1,4 +1,4 @@
-"""Errors against ground truth, summary tables, and the pictures that go with them.
+"""Errors against ground truth and the summary tables.
 
 Error = horizontal distance from the estimate to the ground truth at the ground-truth
 (waypoint) times. A causal method is judged by its latest estimate at or before each
@@ -10,12 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from collections.abc import Sequence
 
 import numpy as np
-
-from mapfilter.atomic import atomic_paths
 
 SUMMARY_FIELDS = ("mean", "median", "p75", "p90", "max", "rmse")
 
@@ -86,69 +83,3 @@ def format_table(rows: list[dict], columns: Sequence[str], float_format: str = "
     lines = ["| " + " | ".join(columns) + " |", "|" + "|".join(" --- " for _ in columns) + "|"]
     lines += ["| " + " | ".join(cell(row.get(c, "")) for c in columns) + " |" for row in rows]
     return "\n".join(lines)
-
-
-def plot_error_cdf(errors_by_method: dict[str, np.ndarray], path: str | os.PathLike, title: str = "") -> None:
-    """Write a PNG with the empirical CDF of the errors of each method."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
-    for method, errors in errors_by_method.items():
-        errors = np.sort(np.asarray(errors, dtype=np.float64))
-        if errors.size == 0:
-            continue
-        share = np.arange(1, errors.size + 1) / errors.size
-        ax.step(errors, share, where="post", label=f"{method} (median {np.median(errors):.2f} m)")
-    ax.axhline(0.75, color="0.6", lw=0.8, ls=":")
-    ax.set_xlabel("horizontal error (m)")
-    ax.set_ylabel("share of waypoints")
-    ax.set_ylim(0, 1)
-    ax.set_xlim(left=0)
-    ax.grid(alpha=0.3)
-    ax.legend(loc="lower right", fontsize=8)
-    if title:
-        ax.set_title(title)
-    fig.tight_layout()
-    save_figure(fig, path)
-
-
-def plot_tracks_on_map(floorplan, tracks: dict[str, np.ndarray], path: str | os.PathLike,
-                       ground_truth_xy_m: np.ndarray | None = None, title: str = "") -> None:
-    """Write a PNG of tracks (name -> (T, 2) metres) and the ground truth over the floor plan."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    x0, x1, y0, y1 = floorplan.extent_m
-    aspect = (y1 - y0) / max(x1 - x0, 1e-9)
-    fig, ax = plt.subplots(figsize=(8, max(3.0, 8 * aspect)), dpi=120)
-    ax.imshow(np.where(floorplan.wall_mask, 0.35, 1.0), cmap="gray", vmin=0, vmax=1,
-              extent=(x0, x1, y0, y1), origin="upper", interpolation="nearest")
-    if ground_truth_xy_m is not None and len(ground_truth_xy_m):
-        gt = np.asarray(ground_truth_xy_m)
-        ax.plot(gt[:, 0], gt[:, 1], "k--", lw=1.2, marker="o", ms=3, label="ground truth")
-    for name, xy in tracks.items():
-        xy = np.asarray(xy)
-        if len(xy):
-            ax.plot(xy[:, 0], xy[:, 1], lw=1.0, label=name)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_aspect("equal")
-    ax.legend(loc="best", fontsize=7)
-    if title:
-        ax.set_title(title)
-    fig.tight_layout()
-    save_figure(fig, path)
-
-
-def save_figure(fig, path: str | os.PathLike, dpi: float | None = None) -> None:
-    """Write a matplotlib figure as PNG atomically and close it."""
-    import matplotlib.pyplot as plt
-
-    with atomic_paths(path) as (tmp,):
-        fig.savefig(tmp, format="png", dpi=dpi)
-    plt.close(fig)

@@ -1,17 +1,20 @@
-"""WiFi: access points, path-loss models, radio maps, fingerprint and trilateration models.
+"""Access points and the path-loss model: the table, trilateration, fitting APs from surveys.
 
-Access points are keyed by BSSID *and* band (``"aa:bb:cc:dd:ee:ff@2.4"`` / ``"...@5"``):
-one physical box often serves both bands with one BSSID, at different power and loss.
+The Lund thesis (Karlsson & Karlsson) model R(d) = C - 10 n log10(d) - alpha min(d, d_max)
+per access point and band; an ``AccessPointTable`` holds its parameters (CSV on disk),
+``least_squares_position`` is the trilateration baseline and ``estimate_access_points`` fits
+the table from waypoint-labelled scans. The per-particle likelihood of this model lives with
+the other measurement models in ``mapfilter.filter.measurement``.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
-import math
 import functools
+import math
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -19,10 +22,11 @@ import numpy as np
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
+from mapfilter.sensors.radiomap import RadioMap, build_radio_map
+from mapfilter.sensors.wifi import WifiScan, ap_key
 
-if TYPE_CHECKING:  # only for annotations: these modules import this one
-    from mapfilter.logs.recording import Recording
-    from mapfilter.radiomap import RadioMap
+if TYPE_CHECKING:  # only for annotations
+    from mapfilter.sensors.recording import Recording
 
 # Lund thesis (Karlsson & Karlsson) defaults for R(d) = C - 10 n log10(d) - alpha min(d, d_max).
 DEFAULT_C_DBM = -38.0
@@ -30,15 +34,6 @@ DEFAULT_PATH_LOSS_EXPONENT = 2.0
 DEFAULT_ALPHA_DB_PER_M = 0.4
 DEFAULT_D_MAX_M = 30.0
 MIN_DISTANCE_M = 1.0  # C is the RSSI at the 1 m reference distance; closer is not modelled
-
-
-def band_of_frequency(freq_mhz: float) -> str:
-    """"2.4" for 2.4 GHz channels, "5" for 5 GHz (and 6 GHz) channels."""
-    return "2.4" if freq_mhz < 3000 else "5"
-
-
-def ap_key(bssid: str, band: str) -> str:
-    return f"{bssid.lower()}@{band}"
 
 
 def path_loss_rssi_dbm(distance_m, c_dbm, n, alpha_db_per_m, d_max_m):
@@ -49,6 +44,7 @@ def path_loss_rssi_dbm(distance_m, c_dbm, n, alpha_db_per_m, d_max_m):
     """
     d = np.maximum(distance_m, MIN_DISTANCE_M)
     return c_dbm - 10.0 * n * np.log10(d) - alpha_db_per_m * np.minimum(d, d_max_m)
+
 
 
 @dataclasses.dataclass
@@ -147,44 +143,6 @@ def access_points_for_map(aps_path: str | os.PathLike | None, floorplan, map_pat
     return AccessPointTable.read_csv(path)
 
 
-# ---- measurements ---------------------------------------------------------------------------
-@dataclasses.dataclass(frozen=True, eq=False)
-class WifiScan:
-    """One WiFi scan: the measurement the WiFi models weigh particles with.
-
-    ``ap_keys[i]`` ("bssid@2.4" / "bssid@5") was heard at ``rssi_dbm[i]``; APs not heard are
-    simply absent. ``t_s`` is the scan time (Unix seconds).
-    """
-
-    t_s: float
-    ap_keys: tuple[str, ...]
-    rssi_dbm: np.ndarray  # (M,) float32
-
-    def __len__(self) -> int:
-        return len(self.ap_keys)
-
-
-def iter_scans(recording: Recording) -> Iterator[WifiScan]:
-    """Yield the WiFi scans of a recording in time order, as ``WifiScan`` objects."""
-    wifi = recording.wifi
-    if len(wifi) == 0:
-        return
-    # rows are grouped by scan (the reader's contract), so scan s spans bounds[s]:bounds[s + 1]
-    bounds = np.searchsorted(wifi.row_scan, np.arange(len(wifi) + 1))
-    for s in range(len(wifi)):
-        rows = slice(bounds[s], bounds[s + 1])
-        yield WifiScan(float(wifi.t_s[s]), tuple(wifi.ap_keys[a] for a in wifi.row_ap[rows]),
-                       np.asarray(wifi.rssi_dbm[rows], dtype=np.float32))
-
-
-def scans_of(recording: Recording) -> list[WifiScan]:
-    """All scans of a recording; ``MapfilterError`` if it has none (a log with no usable WiFi)."""
-    scans = list(iter_scans(recording))
-    if not scans:
-        raise MapfilterError("the log has no usable WiFi scans", recording.path)
-    return scans
-
-
 # ---- trilateration ---------------------------------------------------------------------------
 def match_scan(ap_table: AccessPointTable, scan: WifiScan) -> tuple[np.ndarray, np.ndarray]:
     """(table rows, RSSI in dBm) of the scan's APs that the table knows (by key bssid@band)."""
@@ -197,35 +155,6 @@ def match_scan(ap_table: AccessPointTable, scan: WifiScan) -> tuple[np.ndarray, 
             rssi.append(value)
     return np.array(rows, dtype=np.int64), np.array(rssi, dtype=np.float64)
 
-
-class TrilaterationLikelihood:
-    """Per-particle Gaussian RSSI likelihood of the Lund path-loss model (a ``MeasurementModel``).
-
-    Each heard AP that the table knows (matched by bssid *and* band) contributes
-    N(r; R(d), variance); APs the table does not know are ignored, and a scan sharing no AP
-    with the table leaves the weights unchanged (log-likelihood 0 everywhere).
-
-    Parameters
-    ----------
-    ap_table : positions and path-loss parameters of the access points.
-    variance_db2 : RSSI noise variance; 25 dB^2 is the thesis value.
-    """
-
-    def __init__(self, ap_table: AccessPointTable, variance_db2: float = 25.0):
-        if not variance_db2 > 0:
-            raise MapfilterError(f"RSSI variance must be positive, got {variance_db2}")
-        self.ap_table = ap_table
-        self.variance_db2 = float(variance_db2)
-
-    def log_likelihood(self, particles, measurement: WifiScan) -> np.ndarray:
-        rows, rssi = match_scan(self.ap_table, measurement)
-        if rows.size == 0:
-            return np.zeros(len(particles))
-        from mapfilter.filter.measurement import rssi_log_likelihood  # measurement imports this module
-
-        t = self.ap_table
-        return rssi_log_likelihood(particles.xy_m, t.xy_m[rows], t.c_dbm[rows], t.n[rows], t.alpha_db_per_m[rows],
-                                   t.d_max_m[rows], rssi, self.variance_db2)
 
 
 def least_squares_position(ap_table: AccessPointTable, scan: WifiScan, min_aps: int = 3,
@@ -283,15 +212,13 @@ def estimate_access_points(labelled: RadioMap | Sequence[Recording],
     """Fit each AP's position and path-loss parameters from waypoint-labelled scans.
 
     ``labelled`` is a radio map (labelled scans) or survey logs with waypoints (labelled
-    here by ``mapfilter.radiomap.build_radio_map``). For every AP heard in at least
+    here by ``mapfilter.sensors.radiomap.build_radio_map``). For every AP heard in at least
     ``config.min_observations`` labelled scans, bounded robust least squares fits
     (x, y, C, n) (and alpha if ``config.fit_alpha``) of the Lund model to the observed RSSI,
     starting at the RSSI-weighted centroid of the strongest observations; fits with an RMS
     residual above ``config.max_rmse_db`` are dropped. ``MapfilterError`` if no AP can be fitted.
     """
     from scipy.optimize import least_squares
-
-    from mapfilter.radiomap import RadioMap, build_radio_map
 
     radio_map = labelled if isinstance(labelled, RadioMap) else build_radio_map(list(labelled))
 

@@ -1,6 +1,6 @@
 """Map preparation: floor plans (line drawings, filled-region images, GeoJSON) -> FloorPlan.
 
-One function per kind of plan, each returning a :class:`~mapfilter.floorplan.FloorPlan`:
+One function per kind of plan, each returning a :class:`~mapfilter.maps.floorplan.FloorPlan`:
 
 - :func:`prepare_lines`: dark walls on a light background (scanned or anti-aliased drawings):
   Otsu or adaptive threshold, morphological closing of small gaps, removal of text and specks
@@ -34,7 +34,7 @@ from shapely.geometry import shape as geojson_shape
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
-from mapfilter.floorplan import FloorPlan, SourceImage
+from mapfilter.maps.floorplan import FloorPlan, SourceImage
 
 EARTH_RADIUS_M = 6378137.0  # Web Mercator sphere (ILC README)
 # Two scale sources that disagree by more than this (relative) are contradictory; ILC floors

@@ -24,7 +24,7 @@ import numpy as np
 from scipy import signal
 
 from mapfilter.errors import MapfilterError
-from mapfilter.logs.recording import Recording
+from mapfilter.sensors.recording import Recording
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,16 +103,6 @@ class Steps:
                      heading_rad=self.heading_rad[sel],
                      abs_heading_rad=None if self.abs_heading_rad is None else self.abs_heading_rad[sel],
                      step_length_m=self.step_length_m[sel], weinberg_unit=self.weinberg_unit[sel], t0_s=self.t0_s)
-
-
-@dataclasses.dataclass(frozen=True)
-class StepInterval:
-    """What PDR says happened between two filter times; field names match the filter's ``StepInput``."""
-
-    n_steps: int
-    heading_change_rad: float  # gyro heading change over the interval's steps
-    heading_abs_rad: float | None = None  # map-frame heading at the last step, if the rotation vector is used
-    step_length_m: float | None = None  # mean Weinberg length of the interval's steps
 
 
 # --------------------------------------------------------------------------------------------
@@ -315,45 +305,6 @@ def detect_steps_on_grid(grid: ImuGrid, config: PDRConfig = PDRConfig()) -> Step
 def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
     """Wrap to [-pi, pi)."""
     return (np.asarray(angle_rad) + np.pi) % (2 * np.pi) - np.pi
-
-
-def steps_between(steps: Steps, t0_s: float, t1_s: float, use_abs_heading: bool = False,
-                  with_step_length: bool = True) -> StepInterval:
-    """Steps in the half-open interval (t0_s, t1_s], summarised for one filter update.
-
-    ``heading_change_rad`` is the sum of the per-step changes, i.e. the gyro heading at the
-    interval's last step minus that at the step before the interval (zero if no step).
-    ``use_abs_heading`` fills ``heading_abs_rad`` with the rotation-vector heading at the last
-    step. ``with_step_length=False`` leaves ``step_length_m`` None, so that ``PDRMotion`` walks
-    its per-particle adaptive step length (thesis eq. 8.23) instead of the Weinberg mean.
-    """
-    i0, i1 = np.searchsorted(steps.t_s, [t0_s, t1_s], side="right")
-    n = int(i1 - i0)
-    if n == 0:
-        return StepInterval(n_steps=0, heading_change_rad=0.0)
-    abs_heading = None
-    if use_abs_heading and steps.abs_heading_rad is not None:
-        abs_heading = float(steps.abs_heading_rad[i1 - 1])
-    return StepInterval(
-        n_steps=n,
-        heading_change_rad=float(np.sum(steps.heading_change_rad[i0:i1])),
-        heading_abs_rad=abs_heading,
-        step_length_m=float(np.mean(steps.step_length_m[i0:i1])) if with_step_length else None,
-    )
-
-
-def to_step_inputs(steps: Steps, t_s: np.ndarray, use_abs_heading: bool = False,
-                   with_step_length: bool = True) -> list[StepInterval]:
-    """One ``StepInterval`` per filter interval (t_s[i-1], t_s[i]]; the first covers (-inf, t_s[0]].
-
-    Each maps one-to-one onto the filter's ``StepInput(n_steps, heading_change_rad,
-    heading_abs_rad, step_length_m)``: ``StepInput(**dataclasses.asdict(interval))``.
-    ``to_step_inputs(steps, steps.t_s)`` gives one interval per detected step. Options as in
-    ``steps_between``.
-    """
-    edges = np.concatenate([[-np.inf], np.asarray(t_s, dtype=np.float64)])
-    return [steps_between(steps, edges[i], edges[i + 1], use_abs_heading, with_step_length)
-            for i in range(len(edges) - 1)]
 
 
 def dead_reckon(steps: Steps, start_xy_m: np.ndarray, start_heading_rad: float | None,

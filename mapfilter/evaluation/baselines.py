@@ -5,7 +5,7 @@
 - ``pdr_kwnn_track``: PDR-KWNN (Chang et al.): the fingerprint distance plus the distance and
   angle to the PDR-predicted position.
 - ``pdr_track``: dead reckoning from the first fix.
-KWNN fixes and LS trilateration come from ``mapfilter.radiomap`` / ``mapfilter.wifi``.
+KWNN fixes and LS trilateration come from ``mapfilter.sensors.radiomap`` / ``mapfilter.sensors.pathloss``.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from mapfilter.pdr import Steps, wrap_angle
+from mapfilter.sensors.pdr import Steps, wrap_angle
 from mapfilter.trackio import Track
 
 # chi-square 2-dof quantile at 99.9 %: a fix farther than this (Mahalanobis) is an outlier
@@ -136,7 +136,7 @@ def _update(state, cov, z, measurement, noise_r, config: KalmanConfig, rejected:
 def pdr_track(steps: Steps, start_t_s: float, start_xy_m: np.ndarray, step_length_m: float | None = None) -> Track:
     """Dead reckoning from a start fix: heading offset from the rotation vector (if any, else 0),
     positions at each step after ``start_t_s``."""
-    from mapfilter.pdr import dead_reckon
+    from mapfilter.sensors.pdr import dead_reckon
 
     first = int(np.searchsorted(steps.t_s, start_t_s, side="right"))
     later = Steps(
@@ -205,9 +205,9 @@ def pdr_kwnn_track(radio_map, scans, steps: Steps | None, config: PdrKwnnConfig 
 
     Parameters
     ----------
-    radio_map : ``mapfilter.radiomap.RadioMap``.
+    radio_map : ``mapfilter.sensors.radiomap.RadioMap``.
     scans : sequence of ``WifiScan`` in time order.
-    steps : PDR steps (``mapfilter.pdr.detect_steps``) or None.
+    steps : PDR steps (``mapfilter.sensors.pdr.detect_steps``) or None.
     config : ``PdrKwnnConfig``.
 
     Returns
@@ -215,7 +215,7 @@ def pdr_kwnn_track(radio_map, scans, steps: Steps | None, config: PdrKwnnConfig 
     Track named "pdr-kwnn": one row per scan from the first one with a fix on (scans before
     that, or without a fix and without a previous estimate, give no row).
     """
-    from mapfilter.radiomap import kwnn_fix_many
+    from mapfilter.sensors.radiomap import kwnn_fix_many
 
     scans = list(scans)
     name = "pdr-kwnn"

@@ -31,7 +31,7 @@ import numpy as np
 from numba import njit, prange
 from scipy import ndimage
 
-from mapfilter.floorplan import FloorPlan
+from mapfilter.maps.floorplan import FloorPlan
 
 # see mapfilter/filter/__init__.py: idle OpenMP threads must sleep, not spin, on a shared machine
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")

@@ -1,0 +1,1 @@
+"""Evaluation: baselines, every method on the same walks, error metrics and plots."""

@@ -1,0 +1,185 @@
+"""The radio map as a per-particle likelihood (a ``MeasurementModel``): no point fix, every particle
+weighed by the radio map's own probability of the scan at its position."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numba import njit
+
+from mapfilter.errors import MapfilterError
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.radiomap import RadioMap
+from mapfilter.sensors.wifi import WifiScan
+
+
+@dataclasses.dataclass(frozen=True)
+class RadioMapLikelihoodConfig:
+    """How the radio map is spread over space (defaults in brackets)."""
+
+    cell_m: float = 1.0  # grid cell; particles read their nearest cell
+    bandwidth_m: float = 3.0  # Gaussian kernel sigma for averaging reference points
+    support_sigmas: float = 3.0  # cells farther than this many sigmas from every point: no data
+    sigma_floor_db: float = 4.0  # added in quadrature: the kernel average underestimates spread
+    prior_sigma_db: float = 6.0  # spread where an AP has few observations (pseudo-count below)
+    prior_weight: float = 0.5  # pseudo-count of the prior, in kernel-weight units
+    prior_heard: float = 0.05  # P(heard) where there is no data
+    prior_rssi_dbm: float = -95.0  # mean RSSI assumed where an AP is heard without data there
+    heard_clip: float = 0.02  # P(heard) kept in [clip, 1 - clip]: APs drop out / pop up at random
+    min_observations: int = 2  # APs heard in fewer reference points are ignored
+    min_weight: float = 0.02  # an AP's kernel weight below which a cell keeps the prior (sparsity)
+    exponent: float = 1.0  # tempering: APs are not independent; < 1 flattens the likelihood
+
+
+class RadioMapLikelihood:
+    """Per-particle likelihood of a WiFi scan from the radio map itself (a ``MeasurementModel``).
+
+    On a grid over the floor, each AP's RSSI mean mu_k, spread sigma_k and probability of
+    being heard h_k are Gaussian-kernel averages of the reference points, shrunk toward a
+    weak prior (pseudo-count ``prior_weight``) where data are thin. A scan's log-likelihood
+    at a cell is
+
+        sum_{k heard} [log h_k + log N(r_k; mu_k, sigma_k^2)] + sum_{k not heard} log(1 - h_k)
+
+    over the map's APs. Storage is sparse: an AP's statistics are kept only on the cells
+    near reference points that heard it; elsewhere they equal the prior, which depends on
+    the cell's total kernel weight alone. A scan then costs O(cells + stored cells of the
+    heard APs): a per-cell constant sum_k log(1 - h_k), a vectorised prior term for the
+    heard APs, and sparse corrections. Particles read the value of their cell (nearest
+    lookup); off the grid, on walls or far from all data they get the prior cell's value.
+    """
+
+    def __init__(self, radio_map: RadioMap, floorplan: FloorPlan | None = None,
+                 config: RadioMapLikelihoodConfig = RadioMapLikelihoodConfig()):
+        from scipy.spatial import cKDTree
+
+        cfg = self.config = config
+        heard = ~np.isnan(radio_map.rssi_dbm)
+        use_aps = np.nonzero(heard.sum(axis=0) >= cfg.min_observations)[0]
+        if use_aps.size == 0 or len(radio_map) == 0:
+            raise MapfilterError(f"the radio map has no AP heard in {cfg.min_observations} reference points")
+        self.ap_keys = [radio_map.ap_keys[j] for j in use_aps]
+        self.key_index = {key: j for j, key in enumerate(self.ap_keys)}
+        n_aps = use_aps.size
+        # grid: the floor plan's extent, else the reference points' bounding box plus the kernel support
+        reach = cfg.bandwidth_m * cfg.support_sigmas
+        if floorplan is not None:
+            x0, x1, y0, y1 = floorplan.extent_m
+        else:
+            (x0, y0), (x1, y1) = radio_map.xy_m.min(axis=0) - reach, radio_map.xy_m.max(axis=0) + reach
+        self.origin_m = (float(x0), float(y0))
+        self.shape = (max(int(math.ceil((y1 - y0) / cfg.cell_m)), 1), max(int(math.ceil((x1 - x0) / cfg.cell_m)), 1))
+        rows, cols = np.indices(self.shape)
+        centres = np.column_stack([x0 + (cols.ravel() + 0.5) * cfg.cell_m, y0 + (rows.ravel() + 0.5) * cfg.cell_m])
+        near = cKDTree(radio_map.xy_m).query(centres, distance_upper_bound=reach)[0] < np.inf
+        if floorplan is not None:
+            near &= floorplan.is_free(centres)
+        active = np.nonzero(near)[0]
+        n_cells = active.size
+        self.cell_of = np.full(centres.shape[0], n_cells, dtype=np.int64)  # row n_cells = the prior cell
+        self.cell_of[active] = np.arange(n_cells)
+        self.cell_xy_m = centres[active]
+
+        prior_var = cfg.prior_sigma_db ** 2 + cfg.sigma_floor_db ** 2
+        w_all = np.zeros(n_cells + 1)
+        entries: list[tuple[np.ndarray, ...]] = []  # (ap, cell, mu, var, p_heard) where an AP has data
+        h = heard[:, use_aps].astype(np.float32)
+        r0 = np.where(heard[:, use_aps], radio_map.rssi_dbm[:, use_aps], 0.0).astype(np.float32)
+        r2 = r0 * r0
+        chunk = 1024
+        for start in range(0, n_cells, chunk):
+            c = self.cell_xy_m[start:start + chunk]
+            d2 = ((c[:, None, :] - radio_map.xy_m[None, :, :]) ** 2).sum(axis=-1)
+            w = np.where(d2 <= reach ** 2, np.exp(-0.5 * d2 / cfg.bandwidth_m ** 2), 0.0).astype(np.float32)
+            w_all[start:start + c.shape[0]] = w.sum(axis=1)
+            w_heard = w @ h
+            # below the threshold the prior's pseudo-count dominates: keep the prior there
+            cell_local, ap = np.nonzero(w_heard > cfg.min_weight)
+            wh = w_heard[cell_local, ap].astype(np.float64)
+            s1 = (w @ r0)[cell_local, ap].astype(np.float64)
+            s2 = (w @ r2)[cell_local, ap].astype(np.float64)
+            pw = cfg.prior_weight
+            mu = (s1 + pw * cfg.prior_rssi_dbm) / (wh + pw)
+            # weighted spread around mu, the prior's spread counting as pw pseudo-observations
+            var = (s2 - 2 * mu * s1 + mu * mu * wh + pw * cfg.prior_sigma_db ** 2) / (wh + pw)
+            var = np.maximum(var, 0.0) + cfg.sigma_floor_db ** 2
+            p_heard = (wh + pw * cfg.prior_heard) / (w_all[start + cell_local] + pw)
+            entries.append((ap, start + cell_local, mu, var, p_heard))
+        ap, cell, mu, var, p_heard = (np.concatenate([e[i] for e in entries]) if entries else np.empty(0)
+                                      for i in range(5))
+        ap, cell = ap.astype(np.int64), cell.astype(np.int64)
+        clip = cfg.heard_clip
+        # the prior per cell: an AP never heard near the cell
+        p0 = np.clip(cfg.prior_weight * cfg.prior_heard / (w_all + cfg.prior_weight), clip, 1 - clip)
+        p_heard = np.clip(p_heard, clip, 1 - clip)
+        self._prior_mu_dbm = cfg.prior_rssi_dbm
+        self._prior_inv_var = 1.0 / prior_var
+        self._prior_offset = np.log(p0) - 0.5 * np.log(2 * np.pi * prior_var) - np.log1p(-p0)  # (cells + 1,)
+        # every AP unheard: the prior everywhere, corrected where an AP has data
+        self.base = n_aps * np.log1p(-p0)
+        np.add.at(self.base, cell, np.log1p(-p_heard) - np.log1p(-p0[cell]))
+        # sparse per-AP tables (CSR by AP): log h + log N normaliser - log(1 - h), mean, 1/var
+        order = np.argsort(ap, kind="stable")
+        self._ap_ptr = np.searchsorted(ap[order], np.arange(n_aps + 1))
+        self._cell = cell[order].astype(np.int32)
+        self._mu = mu[order].astype(np.float32)
+        self._inv_var = (1.0 / var[order]).astype(np.float32)
+        self._offset = (np.log(p_heard) - 0.5 * np.log(2 * np.pi * var) - np.log1p(-p_heard))[order].astype(np.float32)
+
+    @property
+    def n_cells(self) -> int:
+        """Active grid cells (the prior cell not counted)."""
+        return self.cell_xy_m.shape[0]
+
+    def grid_log_likelihood(self, scan: WifiScan) -> np.ndarray:
+        """Log-likelihood of the scan at every active cell plus the prior cell, shape (cells + 1,)."""
+        cols, rssi = [], []
+        for key, value in zip(scan.ap_keys, scan.rssi_dbm):
+            j = self.key_index.get(key)
+            if j is not None:
+                cols.append(j)
+                rssi.append(float(value))
+        out = np.zeros(self.n_cells + 1)
+        if not cols:
+            return out  # nothing known heard: no information
+        r = np.array(rssi)
+        # every heard AP at its prior, then the cells where it has data replace that term
+        out += self.base + len(cols) * self._prior_offset
+        out -= 0.5 * self._prior_inv_var * float(((r - self._prior_mu_dbm) ** 2).sum())
+        _add_heard_corrections(out, np.array(cols, dtype=np.int64), r, self._ap_ptr, self._cell, self._mu,
+                               self._inv_var, self._offset, self._prior_offset, self._prior_mu_dbm,
+                               self._prior_inv_var)
+        return self.config.exponent * out
+
+    def cell_index(self, xy_m: np.ndarray) -> np.ndarray:
+        """Row of the grid tables for each point (the prior cell off the grid or without data)."""
+        xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+        col = np.floor((xy[:, 0] - self.origin_m[0]) / self.config.cell_m).astype(np.int64)
+        row = np.floor((xy[:, 1] - self.origin_m[1]) / self.config.cell_m).astype(np.int64)
+        inside = (row >= 0) & (row < self.shape[0]) & (col >= 0) & (col < self.shape[1])
+        flat = np.where(inside, row * self.shape[1] + col, 0)
+        return np.where(inside, self.cell_of[flat], self.n_cells)
+
+    def log_likelihood(self, particles, measurement: WifiScan) -> np.ndarray:
+        return self.grid_log_likelihood(measurement)[self.cell_index(particles.xy_m)]
+
+    def best_position(self, scan: WifiScan) -> np.ndarray:
+        """Centre of the active cell with the highest likelihood: the radio-map likelihood used alone."""
+        ll = self.grid_log_likelihood(scan)[:-1]
+        if ll.size == 0:
+            return np.full(2, np.nan)
+        return self.cell_xy_m[int(np.argmax(ll))]
+
+
+@njit(cache=True)
+def _add_heard_corrections(out, cols, rssi, ap_ptr, cell, mu, inv_var, offset, prior_offset, prior_mu, prior_inv_var):
+    """Swap the prior term of each heard AP for its own on the cells where it has data."""
+    for i in range(cols.shape[0]):
+        r = rssi[i]
+        prior_quad = 0.5 * prior_inv_var * (r - prior_mu) ** 2
+        for e in range(ap_ptr[cols[i]], ap_ptr[cols[i] + 1]):
+            c = cell[e]
+            d = r - mu[e]
+            out[c] += (offset[e] - 0.5 * inv_var[e] * d * d) - (prior_offset[c] - prior_quad)

@@ -1,0 +1,1 @@
+"""Maps: the floor plan (wall mask, map files), map preparation from plans, the wall walk."""

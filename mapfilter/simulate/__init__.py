@@ -1,0 +1,1 @@
+"""Synthetic walks and surveys over a map, written in the ILC trace format (``walk``, ``ilc_writer``)."""

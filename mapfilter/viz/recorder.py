@@ -1,0 +1,305 @@
+"""The rerun recorder: one recording stream, its layout, and the layers that draw into it.
+
+:class:`RerunLogger` owns the stream (an ``.rrd`` file written atomically, or a spawned
+viewer) and hands each call to the layer that draws it: :class:`~mapfilter.viz.map.MapLayer`,
+:class:`~mapfilter.viz.particles.ParticleLayer`, :class:`~mapfilter.viz.plots.PlotLayer`,
+:class:`~mapfilter.viz.events.EventLayer` and the ground-truth and track layers
+(:mod:`mapfilter.viz.tracks`). :class:`NullLogger` does nothing, for runs without a viewer.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from mapfilter.atomic import atomic_paths
+from mapfilter.errors import MapfilterError
+from mapfilter.viz.canvas import Canvas
+from mapfilter.viz.events import EventLayer
+from mapfilter.viz.map import MapLayer
+from mapfilter.viz.particles import ParticleLayer
+from mapfilter.viz.plots import PlotLayer
+from mapfilter.viz.style import BACKGROUND, DEFAULT_MAX_PARTICLES
+from mapfilter.viz.tracks import GroundTruthLayer, TrackLayer
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mapfilter.filter.events import StepReport
+    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.sensors.recording import Recording
+    from mapfilter.trackio import Track
+
+
+class NullLogger:
+    """The logger used when visualisation is off: every method does nothing."""
+
+    enabled = False
+
+    def log_map(self) -> None:
+        pass
+
+    def log_ground_truth(self, t_s: np.ndarray, xy_m: np.ndarray) -> None:
+        pass
+
+    def log_step(self, report: StepReport) -> None:
+        pass
+
+    def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def abort(self) -> None:
+        pass
+
+    def __enter__(self) -> NullLogger:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        pass
+
+
+class RerunLogger:
+    """Draws a FloorPlan, filter steps and finished tracks into one rerun recording.
+
+    Parameters
+    ----------
+    floorplan : the map everything is drawn on.
+    rrd_path : write the recording to this ``.rrd`` file (atomically: it appears on
+        :meth:`close`; :meth:`abort` or an exception in a ``with`` block leaves nothing).
+    spawn : open a rerun viewer and stream to it instead (never in tests: with no display
+        it blocks for seconds and drops data).
+    max_particles : cap on the particles drawn per step (weight-faithful subsample, see
+        :func:`weight_faithful_subsample`); the killed moves drawn per step share this cap.
+    application_id : rerun application id (the viewer groups recordings by it).
+    recording_name : shown in the viewer's recording list.
+    filter_plots : lay out the filter's plots (particles, kills, PDR, events); off for
+        looking at finished tracks only, which leaves the map and the error plot.
+
+    Exactly one of ``rrd_path`` and ``spawn`` must be given. Call :meth:`log_map` first
+    (:func:`make_logger` does), then :meth:`log_ground_truth` if there is ground truth, then
+    :meth:`log_step` per filter step and :meth:`log_track` for finished tracks.
+    """
+
+    enabled = True
+
+    def __init__(
+        self,
+        floorplan: FloorPlan,
+        rrd_path: str | os.PathLike | None = None,
+        spawn: bool = False,
+        max_particles: int = DEFAULT_MAX_PARTICLES,
+        application_id: str = "mapfilter",
+        recording_name: str | None = None,
+        filter_plots: bool = True,
+    ) -> None:
+        import rerun as rr  # lazy: only a live logger pays for importing rerun
+
+        if (rrd_path is None) == (not spawn):
+            raise ValueError("give exactly one of rrd_path and spawn=True")
+        if max_particles < 1:
+            raise MapfilterError(f"the particle cap must be at least 1, got {max_particles}")
+        self.floorplan = floorplan
+        self.max_particles = int(max_particles)
+        self.filter_plots = filter_plots
+        self._closed = False
+        self._stack = contextlib.ExitStack()
+
+        self.rec = rr.RecordingStream(application_id)
+        self.rec.set_log_time_enabled(False)  # our clock is the walk's: see the package docstring
+        if recording_name:
+            self.rec.send_recording_name(recording_name)
+        canvas = self.canvas = Canvas(rr, self.rec)
+        self.map = MapLayer(canvas, floorplan)
+        self.particles = ParticleLayer(canvas, self.max_particles)
+        self.plots = PlotLayer(canvas)
+        self.events = EventLayer(canvas)
+        self.truth = GroundTruthLayer(canvas)
+        self.tracks = TrackLayer(canvas, self.truth)
+        blueprint = self.blueprint()
+        self.rrd_path: Path | None = None if rrd_path is None else Path(rrd_path)
+        try:
+            if self.rrd_path is not None:
+                (tmp,) = self._stack.enter_context(atomic_paths(self.rrd_path))
+                self.rec.save(tmp, default_blueprint=blueprint)
+            else:
+                self.rec.spawn(default_blueprint=blueprint)
+            # the flip that lets everything below map/world be logged in y-up metres
+            canvas.log("map/world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+            if self.filter_plots:
+                self.plots.style()
+        except BaseException:
+            self.abort()  # leave no temporary file behind
+            raise
+
+    # ---- layout ---------------------------------------------------------------------------
+    def blueprint(self) -> Any:
+        """The default layout: the map large on the left; plots and the event log beside it."""
+        import rerun.blueprint as rrb
+
+        x_min, x_max, y_min, y_max = self.map.extent_m()
+        map_view = rrb.Spatial2DView(
+            name="Floor",
+            origin="map",
+            # view coordinates are (x, -y): see the module docstring
+            visual_bounds=rrb.VisualBounds2D(x_range=[x_min, x_max], y_range=[-y_max, -y_min]),
+            background=rrb.Background(color=BACKGROUND),
+        )
+        error_view = rrb.TimeSeriesView(name="Position error (m)", origin="plots/error_m")
+        if not self.filter_plots:
+            return rrb.Blueprint(
+                rrb.Horizontal(map_view, error_view, column_shares=[3, 1]),
+                rrb.TimePanel(timeline="trace_time", state="expanded"),
+                collapse_panels=True,
+            )
+        plots = rrb.Vertical(
+            rrb.TimeSeriesView(name="Particles: ESS, alive", origin="plots/particles"),
+            rrb.TimeSeriesView(name="Killed by walls per step", origin="plots/kills"),
+            error_view,
+            rrb.Tabs(
+                rrb.TimeSeriesView(name="PDR heading (deg)", origin="plots/pdr/heading_deg"),
+                rrb.TimeSeriesView(name="PDR step length (m)", origin="plots/pdr/step_length_m"),
+            ),
+            rrb.TextLogView(name="Events", origin="events"),
+            row_shares=[1, 1, 1, 1, 1.2],
+        )
+        return rrb.Blueprint(
+            rrb.Horizontal(map_view, plots, column_shares=[3, 2]),
+            rrb.TimePanel(timeline="trace_time", state="expanded"),
+            collapse_panels=True,
+        )
+
+    # ---- what callers draw -----------------------------------------------------------------
+    def log_map(self) -> None:
+        """Log the floor-plan picture (if any) and the wall mask overlay, both static."""
+        self.map.draw()
+
+    def log_ground_truth(self, t_s: np.ndarray, xy_m: np.ndarray) -> None:
+        """Log the ground-truth waypoints and the path through them (static).
+
+        Later steps and tracks are compared with the path interpolated at their times
+        (``plots/error_m/...``); times outside the waypoints' span get no error value.
+        """
+        self.truth.draw(t_s, xy_m)
+
+    def log_step(self, report: StepReport) -> None:
+        """Draw one filter step on both timelines (``trace_time`` and ``step``)."""
+        self.canvas.set_time(report.t_s, report.step_index)
+        estimate_xy_m, has_estimate = self.particles.draw(report)
+        error_m = self.truth.draw_now(report.t_s, estimate_xy_m, has_estimate) if self.truth else float("nan")
+        true_heading = self.truth.heading_rad(report.t_s) if report.heading_rad is not None else None
+        self.plots.draw(report, error_m, true_heading)
+        self.events.draw(report)
+
+    def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray) -> None:
+        """Log a finished track: its path (static) and its position over ``trace_time``.
+
+        With ground truth logged before, its error over time goes to ``plots/error_m/<name>``.
+        """
+        self.tracks.draw(name, t_s, xy_m)
+
+    # ---- end ------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Flush and finish the recording; the ``.rrd`` file (if any) appears now."""
+        if self._closed:
+            return
+        self._closed = True
+        self.rec.flush()
+        self.rec.disconnect()
+        self._stack.close()
+
+    def abort(self) -> None:
+        """Finish without keeping the ``.rrd`` file (e.g. the run failed)."""
+        if self._closed:
+            return
+        self._closed = True
+        self.rec.disconnect()
+        self._stack.__exit__(RuntimeError, RuntimeError("aborted"), None)
+
+    def __enter__(self) -> RerunLogger:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def make_logger(
+    floorplan: FloorPlan,
+    rrd_path: str | os.PathLike | None = None,
+    spawn: bool = False,
+    max_particles: int = DEFAULT_MAX_PARTICLES,
+    recording_name: str | None = None,
+    filter_plots: bool = True,
+) -> RerunLogger | NullLogger:
+    """A :class:`RerunLogger` with the map already logged, or a :class:`NullLogger`.
+
+    Parameters
+    ----------
+    floorplan : the map.
+    rrd_path : write a ``.rrd`` file here (appears on ``close()``).
+    spawn : stream to a newly spawned viewer instead.
+    max_particles : cap on particles drawn per step (default 5,000).
+    recording_name : name shown in the viewer (e.g. the trace's name).
+    filter_plots : lay out the filter's plots (off when only showing finished tracks).
+
+    Returns a NullLogger (no rerun import) when neither ``rrd_path`` nor ``spawn`` is given.
+    Giving both is an error (one sink per run).
+    """
+    if rrd_path is None and not spawn:
+        return NullLogger()
+    if rrd_path is not None and spawn:
+        raise MapfilterError("give either an .rrd file to write or spawn a viewer, not both")
+    logger = RerunLogger(floorplan, rrd_path=rrd_path, spawn=spawn, max_particles=max_particles,
+                         recording_name=recording_name, filter_plots=filter_plots)
+    try:
+        logger.log_map()
+    except BaseException:
+        logger.abort()
+        raise
+    return logger
+
+
+def view_map(
+    floorplan: FloorPlan,
+    tracks: Sequence[Track] = (),
+    recording: Recording | None = None,
+    rrd_path: str | os.PathLike | None = None,
+    spawn: bool = False,
+    recording_name: str | None = None,
+) -> None:
+    """Show a map, finished tracks and a recording's ground truth (no filtering).
+
+    Parameters
+    ----------
+    floorplan : the map.
+    tracks : finished tracks (:class:`mapfilter.trackio.Track`), each drawn under
+        ``map/world/tracks/<name>`` (names made unique).
+    recording : a walk whose waypoints are drawn as ground truth (if it has any); tracks
+        then get an error plot against them.
+    rrd_path, spawn : where to send the recording (exactly one).
+    recording_name : name shown in the viewer.
+    """
+    if rrd_path is None and not spawn:
+        raise MapfilterError("give an .rrd file to write or spawn a viewer")
+    logger = make_logger(floorplan, rrd_path=rrd_path, spawn=spawn, recording_name=recording_name,
+                         filter_plots=False)
+    with logger:
+        if recording is not None and recording.has_ground_truth:
+            logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
+        used: dict[str, int] = {}
+        for track in tracks:
+            name = track.name
+            if name in used:  # two files with the same stem: keep both
+                used[name] += 1
+                name = f"{name}_{used[name]}"
+            else:
+                used[name] = 1
+            logger.log_track(name, track.t_s, track.xy_m)
