@@ -1,0 +1,60 @@
+"""The package's stages import one way only (docs/architecture.md)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "mapfilter"
+# stage -> the stages it must never import (also not lazily, inside a function)
+FORBIDDEN = {
+    "maps": {"sensors", "filter", "tracking", "evaluation", "simulate", "viz", "cli"},
+    "sensors": {"filter", "tracking", "evaluation", "simulate", "viz", "cli"},
+    "filter": {"tracking", "evaluation", "simulate", "viz", "cli"},
+    "tracking": {"evaluation", "simulate", "viz", "cli"},
+    "evaluation": {"simulate", "viz", "cli"},
+    "simulate": {"filter", "tracking", "evaluation", "viz", "cli"},
+    "viz": {"tracking", "evaluation", "simulate", "cli"},
+}
+
+
+def _imports() -> dict[str, set[str]]:
+    """Module name -> the mapfilter modules it imports (anywhere in the file)."""
+    graph: dict[str, set[str]] = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        found = graph.setdefault(name, set())
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("mapfilter."):
+                found.add(node.module)
+            elif isinstance(node, ast.Import):
+                found.update(a.name for a in node.names if a.name.startswith("mapfilter."))
+    return graph
+
+
+def _stage(module: str) -> str:
+    return module.split(".")[1]
+
+
+def test_stages_import_one_way():
+    graph = _imports()
+    assert "mapfilter.sensors.wifi" in graph and "mapfilter.filter.pf" in graph  # the walk found the package
+    wrong = sorted((a, b) for a, targets in graph.items() if a.count(".") >= 1
+                   for b in targets if _stage(b) in FORBIDDEN.get(_stage(a), ()))
+    assert wrong == []
+
+
+def test_no_module_imports_itself_back():
+    graph = _imports()
+
+    def reachable(start: str) -> set[str]:
+        seen, todo = set(), [start]
+        while todo:
+            for nxt in graph.get(todo.pop(), ()):
+                if nxt not in seen:
+                    seen.add(nxt)
+                    todo.append(nxt)
+        return seen
+
+    assert sorted(m for m in graph if m in reachable(m)) == []
