@@ -1,0 +1,113 @@
+"""Shortest wall-free paths on the floor plan, and tracks made wall-free with them.
+
+A track that jumps (a particle lineage broken by a collapse recovery) may cross a wall between
+two free points. ``detour_wall_crossings`` replaces every such segment with the shortest path
+between its ends over free pixels (Dijkstra on the 8-connected pixel grid of a window around
+the segment), so the track walks round the wall as the person must have.
+
+Moves between pixel centres are wall-free by the wall walk's own rule (``maps.walls``): a move
+to a side neighbour touches the two pixels only; a diagonal move passes through a lattice
+corner, which touches all four pixels around it, so it is allowed only when all four are free.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import wall_crossing_mask
+
+__all__ = ["free_path", "detour_wall_crossings"]
+
+
+def free_path(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarray,
+              margin_m: float = 20.0) -> np.ndarray | None:
+    """Shortest wall-free polyline (K, 2) from ``from_xy_m`` to ``to_xy_m``, both ends included.
+
+    The search covers the segment's bounding box plus ``margin_m`` on every side (then the whole
+    map if that fails). None when either end is in a wall or no free path joins them.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    a = np.asarray(from_xy_m, dtype=np.float64).reshape(2)
+    b = np.asarray(to_xy_m, dtype=np.float64).reshape(2)
+    height, width = floorplan.shape_px
+    uv = floorplan.world_to_pixel(np.stack([a, b]))
+    cols, rows = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+    if np.any((cols < 0) | (cols >= width) | (rows < 0) | (rows >= height)):
+        return None
+    free = ~floorplan.wall_mask
+    if not (free[rows[0], cols[0]] and free[rows[1], cols[1]]):
+        return None
+    margin_px = int(math.ceil(margin_m / floorplan.resolution_m))
+    for pad in (margin_px, max(height, width)):
+        r0, r1 = max(rows.min() - pad, 0), min(rows.max() + pad + 1, height)
+        c0, c1 = max(cols.min() - pad, 0), min(cols.max() + pad + 1, width)
+        window = free[r0:r1, c0:c1]
+        cells = _grid_path(window, (rows[0] - r0, cols[0] - c0), (rows[1] - r0, cols[1] - c0), coo_matrix, dijkstra)
+        if cells is not None:
+            centres = floorplan.pixel_to_world(np.column_stack([cells[:, 1] + c0 + 0.5, cells[:, 0] + r0 + 0.5]))
+            return np.vstack([a, centres, b])
+    return None
+
+
+def _grid_path(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int], coo_matrix, dijkstra) -> np.ndarray | None:
+    """(K, 2) rows/cols of the shortest 8-connected path over ``free`` (corner rule above)."""
+    h, w = free.shape
+    index = np.full(free.shape, -1, dtype=np.int64)
+    index[free] = np.arange(int(free.sum()))
+    src, dst, cost = [], [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        r = np.arange(max(0, -dr), h - max(0, dr))
+        c = np.arange(max(0, -dc), w - max(0, dc))
+        rr, cc = np.meshgrid(r, c, indexing="ij")
+        ok = free[rr, cc] & free[rr + dr, cc + dc]
+        if dr and dc:  # diagonal: through a lattice corner, the two other pixels must be free too
+            ok &= free[rr + dr, cc] & free[rr, cc + dc]
+        src.append(index[rr[ok], cc[ok]])
+        dst.append(index[rr[ok] + dr, cc[ok] + dc])
+        cost.append(np.full(int(ok.sum()), math.hypot(dr, dc)))
+    n = int(free.sum())
+    s, d, c = np.concatenate(src), np.concatenate(dst), np.concatenate(cost)
+    graph = coo_matrix((np.concatenate([c, c]), (np.concatenate([s, d]), np.concatenate([d, s]))), shape=(n, n)).tocsr()
+    i0, i1 = index[start], index[goal]
+    dist, pred = dijkstra(graph, indices=int(i0), return_predecessors=True)
+    if not np.isfinite(dist[i1]):
+        return None
+    chain = [int(i1)]
+    while chain[-1] != i0:
+        chain.append(int(pred[chain[-1]]))
+    flat_rows, flat_cols = np.nonzero(free)
+    chain = np.array(chain[::-1])
+    return np.column_stack([flat_rows[chain], flat_cols[chain]])
+
+
+def detour_wall_crossings(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The track with every wall-crossing segment replaced by the shortest free path between its ends.
+
+    The detour's points get times spread over the segment's time span in proportion to the
+    distance along the path. A segment whose ends are in walls or not joined by free space is
+    kept as it was.
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    if xy.shape[0] < 2:
+        return t.copy(), xy.copy()
+    crossing = wall_crossing_mask(floorplan, xy)
+    if not crossing.any():
+        return t.copy(), xy.copy()
+    out_t, out_xy = [t[:1]], [xy[:1]]
+    for k in range(1, xy.shape[0]):
+        path = free_path(floorplan, xy[k - 1], xy[k]) if crossing[k - 1] else None
+        if path is not None and path.shape[0] > 2:
+            along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+            fraction = along / along[-1] if along[-1] > 0 else np.linspace(0, 1, path.shape[0])
+            out_t.append(t[k - 1] + fraction[1:] * (t[k] - t[k - 1]))
+            out_xy.append(path[1:])
+        else:
+            out_t.append(t[k:k + 1])
+            out_xy.append(xy[k:k + 1])
+    return np.concatenate(out_t), np.concatenate(out_xy)
