@@ -83,32 +83,40 @@ class RadioMapLikelihood:
         self.cell_xy_m = centres[active]
 
         prior_var = cfg.prior_sigma_db ** 2 + cfg.sigma_floor_db ** 2
+        # kernel weights cell x reference point, sparse: only points within the support count,
+        # and a point hears a few per cent of the APs, so W @ H is a sparse product
+        from scipy import sparse
+
+        pairs = cKDTree(self.cell_xy_m).sparse_distance_matrix(cKDTree(radio_map.xy_m), reach,
+                                                                 output_type="coo_matrix")
+        weight = sparse.csr_matrix((np.exp(-0.5 * pairs.data ** 2 / cfg.bandwidth_m ** 2).astype(np.float32),
+                                    (pairs.row, pairs.col)), shape=(n_cells, len(radio_map)))
         w_all = np.zeros(n_cells + 1)
-        entries: list[tuple[np.ndarray, ...]] = []  # (ap, cell, mu, var, p_heard) where an AP has data
-        h = heard[:, use_aps].astype(np.float32)
-        r0 = np.where(heard[:, use_aps], radio_map.rssi_dbm[:, use_aps], 0.0).astype(np.float32)
-        r2 = r0 * r0
-        chunk = 1024
-        for start in range(0, n_cells, chunk):
-            c = self.cell_xy_m[start:start + chunk]
-            d2 = ((c[:, None, :] - radio_map.xy_m[None, :, :]) ** 2).sum(axis=-1)
-            w = np.where(d2 <= reach ** 2, np.exp(-0.5 * d2 / cfg.bandwidth_m ** 2), 0.0).astype(np.float32)
-            w_all[start:start + c.shape[0]] = w.sum(axis=1)
-            w_heard = w @ h
-            # below the threshold the prior's pseudo-count dominates: keep the prior there
-            cell_local, ap = np.nonzero(w_heard > cfg.min_weight)
-            wh = w_heard[cell_local, ap].astype(np.float64)
-            s1 = (w @ r0)[cell_local, ap].astype(np.float64)
-            s2 = (w @ r2)[cell_local, ap].astype(np.float64)
-            pw = cfg.prior_weight
-            mu = (s1 + pw * cfg.prior_rssi_dbm) / (wh + pw)
-            # weighted spread around mu, the prior's spread counting as pw pseudo-observations
-            var = (s2 - 2 * mu * s1 + mu * mu * wh + pw * cfg.prior_sigma_db ** 2) / (wh + pw)
-            var = np.maximum(var, 0.0) + cfg.sigma_floor_db ** 2
-            p_heard = (wh + pw * cfg.prior_heard) / (w_all[start + cell_local] + pw)
-            entries.append((ap, start + cell_local, mu, var, p_heard))
-        ap, cell, mu, var, p_heard = (np.concatenate([e[i] for e in entries]) if entries else np.empty(0)
-                                      for i in range(5))
+        w_all[:n_cells] = np.asarray(weight.sum(axis=1)).ravel()
+        observed = heard[:, use_aps]
+        ref, ap_col = np.nonzero(observed)
+        values = radio_map.rssi_dbm[:, use_aps][ref, ap_col].astype(np.float32)
+        # one product for the three sums (heard weight, sum w r, sum w r^2): their patterns are
+        # the same (sparse products drop exact zeros only, and r < 0), so the entries line up
+        stacked = sparse.csr_matrix(
+            (np.concatenate([np.ones_like(values), values, values * values]),
+             (np.tile(ref, 3), np.concatenate([ap_col, ap_col + n_aps, ap_col + 2 * n_aps]))),
+            shape=(len(radio_map), 3 * n_aps))
+        sums = (weight @ stacked).tocsr()
+        sums.sort_indices()
+        sums = sums.tocoo()
+        block = sums.col // n_aps
+        w_heard, s1, s2 = (sums.data[block == b].astype(np.float64) for b in range(3))
+        cell, ap = sums.row[block == 0].astype(np.int64), sums.col[block == 0].astype(np.int64)
+        # below the threshold the prior's pseudo-count dominates: keep the prior there
+        keep = w_heard > cfg.min_weight
+        cell, ap, wh, s1, s2 = cell[keep], ap[keep], w_heard[keep], s1[keep], s2[keep]
+        pw = cfg.prior_weight
+        mu = (s1 + pw * cfg.prior_rssi_dbm) / (wh + pw)
+        # weighted spread around mu, the prior's spread counting as pw pseudo-observations
+        var = (s2 - 2 * mu * s1 + mu * mu * wh + pw * cfg.prior_sigma_db ** 2) / (wh + pw)
+        var = np.maximum(var, 0.0) + cfg.sigma_floor_db ** 2
+        p_heard = (wh + pw * cfg.prior_heard) / (w_all[cell] + pw)
         ap, cell = ap.astype(np.int64), cell.astype(np.int64)
         clip = cfg.heard_clip
         # the prior per cell: an AP never heard near the cell
