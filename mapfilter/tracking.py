@@ -26,9 +26,11 @@ from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix, TrilaterationLikelihood
 from mapfilter.filter.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.pf import FilterConfig, ParticleFilter
+from mapfilter.filter.placement import WalkPlacement, place_walk
 from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLikelihoodConfig
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.sensors.pathloss import AccessPointTable, match_scan
+from mapfilter.maps.paths import detour_wall_crossings
+from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position, match_scan
 from mapfilter.sensors.pdr import PDRConfig, Steps, detect_steps
 from mapfilter.sensors.radiomap import RadioMap, cross_validated_fix_errors, kwnn_fix_many
 from mapfilter.sensors.recording import Recording
@@ -64,7 +66,13 @@ class TrackingConfig:
     # 0.775 vs 0.785-0.850)
     initial_heading_sigma_rad: float = 0.2
     step_length_source: str = "state"  # PDR: state (per-particle, adapted; thesis eq. 8.23) | weinberg (per step)
-    smooth: bool = False  # also return the smoothed (ancestry) track; costs memory
+    # also return the offline track: with PDR the whole-walk estimate (``whole_walk_track``),
+    # otherwise the lineage of the final best particle (ancestry; costs memory)
+    smooth: bool = False
+    # whole-walk track: the placed dead-reckoned shape is followed by a second particle filter
+    # weighing it as a fix of this sigma at every step, so that walls bend it where it would
+    # cross one; tighter follows the shape (and its drift) more, looser lets walls pull more
+    whole_walk_sigma_m: float = 3.0
     filter: FilterConfig = dataclasses.field(default_factory=FilterConfig)  # n_particles above wins
     pdr: PDRConfig = dataclasses.field(default_factory=PDRConfig)
     # heading noise per step 0.02 rad: the gyro is good over a step; 0.05 (the PDRMotion default,
@@ -89,7 +97,7 @@ class TrackingConfig:
 @dataclasses.dataclass
 class TrackingResult:
     track: Track  # causal: the estimate after every filter step
-    smoothed: Track | None  # from particle ancestry (only with config.smooth)
+    smoothed: Track | None  # offline, whole walk (only with config.smooth)
     collapses: list[CollapseEvent]
     n_filter_steps: int
     n_scans_used: int
@@ -143,6 +151,21 @@ class WifiMeasurements:
         if self.fix_xy_m is not None:
             return PositionFix(self.fix_xy_m[index])
         return self.scans[index]
+
+    def position_fixes(self) -> np.ndarray:
+        """(S, 2) one position per scan (NaN where none): the KWNN fixes, the radio-map
+        likelihood's best cell, or the least-squares trilateration (3 APs or more)."""
+        if self.fix_xy_m is not None:
+            return self.fix_xy_m
+        out = np.full((len(self.scans), 2), np.nan)
+        for i, scan in enumerate(self.scans):
+            if not self.usable[i]:
+                continue
+            if isinstance(self.model, RadioMapLikelihood):
+                out[i] = self.model.best_position(scan)
+            elif match_scan(self.model.ap_table, scan)[0].size >= 3:
+                out[i] = least_squares_position(self.model.ap_table, scan)
+        return out
 
 
 def calibrated_fix_sigma_m(radio_map: RadioMap, k: int = 4, default_m: float = 5.0) -> float:
@@ -232,11 +255,68 @@ def track_recording(
     track = Track(np.array(out_t), np.array(out_xy), np.array(out_std),
                   heading if np.isfinite(heading).any() else None, name="pf")
     smoothed = None
-    if config.smooth:
-        t_s, xy_m = pf.smoothed_track()
+    if config.smooth and config.motion == "pdr" and len(steps) > 0:
+        evidence_t, evidence_xy = placement_evidence(wifi, radio_map, floorplan, np.array(out_t), np.array(out_xy))
+        placement = place_walk(steps, evidence_t, evidence_xy)
+        smoothed = whole_walk_track(plan, steps, placement, config, rng)
+    if config.smooth and smoothed is None:
+        t_s, xy_m = detour_wall_crossings(plan, *pf.smoothed_track())
         smoothed = Track(t_s, xy_m, name="pf-smooth")
     return TrackingResult(track, smoothed, list(pf.collapses), len(out_t) - 1, n_scans,
                           time.perf_counter() - started)
+
+
+def placement_evidence(wifi: WifiMeasurements, radio_map: RadioMap | None, floorplan: FloorPlan,
+                       causal_t_s: np.ndarray, causal_xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the walk was at each scan, by every estimator at hand: (times (E,), positions (E, 2)).
+
+    Three estimators with different failure modes, each once per scan: the scan's own position
+    fix (KWNN, or trilateration), with a radio map also the radio-map likelihood's best cell
+    (a per-AP model of mean, spread and P(heard) errs differently from nearest neighbours where
+    the survey is thin), and the causal filter's estimate at the scan (map-aware). On ILC
+    site 1 (sparse and dense F1, F2) placing the walk by all three measured better than by
+    any one or two of them.
+    """
+    scan_t = np.array([s.t_s for s in wifi.scans])
+    parts_t, parts_xy = [scan_t], [wifi.position_fixes()]
+    if radio_map is not None and not isinstance(wifi.model, RadioMapLikelihood):
+        model = RadioMapLikelihood(radio_map, floorplan)
+        parts_t.append(scan_t)
+        parts_xy.append(np.array([model.best_position(s) if wifi.usable[i] else np.full(2, np.nan)
+                                  for i, s in enumerate(wifi.scans)]))
+    latest = np.searchsorted(causal_t_s, scan_t, side="right") - 1
+    have = latest >= 0
+    parts_t.append(scan_t[have])
+    parts_xy.append(causal_xy_m[latest[have]])
+    return np.concatenate(parts_t), np.concatenate(parts_xy)
+
+
+def whole_walk_track(floorplan: FloorPlan, steps: Steps, placement: WalkPlacement, config: TrackingConfig,
+                     rng: np.random.Generator) -> Track:
+    """The offline track: the walk's placed dead-reckoned shape, bent by the walls.
+
+    ``placement`` (``filter.placement.place_walk``) puts the shape where every fix of the walk
+    says, on average and robustly; taken alone it can run through walls where the shape has
+    drifted. A second particle filter walks the same steps (gyro heading changes, Weinberg
+    lengths) from the placed start and weighs each step's particles by their distance to the
+    placed position (Gaussian, ``config.whole_walk_sigma_m``); the lineage of its final best
+    particle is the track, so every move of it is wall checked; where a collapse broke the
+    lineage, the jump is replaced by the shortest free path (``maps.paths``).
+    """
+    filter_config = dataclasses.replace(config.filter, n_particles=config.n_particles, keep_ancestry=True)
+    pf = ParticleFilter(floorplan, config.pdr_motion, filter_config, rng)
+    pf.initialise_around(placement.xy_m[0], config.whole_walk_sigma_m)
+    first_heading = placement.heading_offset_rad - float(steps.heading_change_rad[0])
+    pf.particles.heading_rad = first_heading + config.pdr_motion.heading_sigma_rad * rng.standard_normal(pf.n)
+    model = GaussianFixLikelihood(sigma_m=config.whole_walk_sigma_m)
+    inputs = step_inputs(steps, with_step_length=True)
+    last_t = float(placement.t_s[0])
+    for i, t_s in enumerate(steps.t_s):
+        pf.step(float(t_s), float(t_s) - last_t, inputs[i], model, PositionFix(placement.xy_m[i + 1]))
+        last_t = float(t_s)
+    # the lineage jumps where a collapse broke it: walk round the walls there
+    t_s, xy_m = detour_wall_crossings(floorplan, *pf.smoothed_track())
+    return Track(t_s, xy_m, name="pf-smooth")
 
 
 def step_inputs(steps: Steps, use_abs_heading: bool = False, with_step_length: bool = False) -> list[StepInput]:

@@ -136,3 +136,22 @@ def test_smoothing_does_not_change_the_causal_track():
     tracks = [track_recording(floorplan, recording, radio_map, config=TrackingConfig(n_particles=500, smooth=smooth),
                               rng=np.random.default_rng(1)).track for smooth in (False, True)]
     np.testing.assert_array_equal(tracks[0].xy_m, tracks[1].xy_m)
+
+
+def test_whole_walk_track_beats_the_causal_one_and_crosses_no_wall():
+    from mapfilter.evaluation.metrics import errors_at_waypoints
+    from mapfilter.sensors.radiomap import RadioMap
+    from mapfilter.tracking import TrackingConfig, track_recording
+
+    recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
+    result = track_recording(floorplan, recording, radio_map, config=TrackingConfig(n_particles=1000, smooth=True),
+                             rng=np.random.default_rng(2))
+    causal = errors_at_waypoints(result.track.t_s, result.track.xy_m, recording.waypoint_t_s,
+                                 recording.waypoint_xy_m, causal=True).errors_m
+    smoothed = errors_at_waypoints(result.smoothed.t_s, result.smoothed.xy_m, recording.waypoint_t_s,
+                                   recording.waypoint_xy_m, causal=False)
+    # the whole walk covers every waypoint, also those before the first scan
+    assert smoothed.missed == 0 and smoothed.errors_m.size == recording.waypoint_t_s.size
+    assert smoothed.errors_m.mean() < 0.8 * causal.mean()
+    assert count_wall_crossings(floorplan, result.smoothed.xy_m) == 0
+    assert np.all(np.diff(result.smoothed.t_s) >= 0)
