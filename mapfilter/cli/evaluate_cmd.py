@@ -92,22 +92,27 @@ def run(args: argparse.Namespace) -> int:
     waypoints = summary[0]["n"] + summary[0]["missed"] if summary else 0
     print(f"{evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s\n{table}")
     _write_outputs(args, floorplan, evaluation, summary)
-    print(f"wrote {args.out}/summary.csv, summary.json, traces.csv, cdf.png, tracks/")
+    print(f"wrote {args.out}/summary.csv, summary.json, traces.csv, walks.csv (why each walk went wrong), "
+          "cdf.png, tracks/")
     return 0
 
 
 def _write_outputs(args, floorplan, evaluation, summary) -> None:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    with atomic_paths(out / "summary.csv", out / "traces.csv", out / "summary.json") as (s_csv, t_csv, s_json):
+    with atomic_paths(out / "summary.csv", out / "traces.csv", out / "walks.csv",
+                      out / "summary.json") as (s_csv, t_csv, w_csv, s_json):
         _write_csv(s_csv, summary, SUMMARY_COLUMNS)
         trace_rows = evaluation.trace_rows()
         _write_csv(t_csv, trace_rows, ("trace",) + SUMMARY_COLUMNS)
+        walk_rows = evaluation.walk_rows()
+        _write_csv(w_csv, walk_rows, list(dict.fromkeys(k for row in walk_rows for k in row)) or ["trace"])
         s_json.write_text(json.dumps({
             "map": str(args.map), "logs": [str(p) for p in args.logs], "leave_one_out": args.leave_one_out,
             "particles": args.particles, "seed": args.seed, "wall_time_s": evaluation.wall_time_s,
             "summary": [{k: nan_to_none(v) for k, v in row.items()} for row in summary],
             "traces": [{k: nan_to_none(v) for k, v in row.items()} for row in trace_rows],
+            "walks": [{k: nan_to_none(v) for k, v in row.items()} for row in walk_rows],
         }, indent=1))
     plot_error_cdf(evaluation.errors_by_method(), out / "cdf.png",
                    title=f"{evaluation.n_traces} walks on {args.map.name}")

@@ -32,6 +32,7 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.baselines import kalman_track, pdr_kwnn_track, pdr_track
+from mapfilter.evaluation.diagnostics import DIAGNOSTIC_COLUMNS, walk_diagnostics
 from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import count_wall_crossings
@@ -75,6 +76,7 @@ class MethodResult:
     collapses: int
     runtime_s: float
     causal: bool = True
+    diagnostics: dict[str, float] = dataclasses.field(default_factory=dict)  # the walk's (same for every method)
 
 
 @dataclasses.dataclass
@@ -151,6 +153,9 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
                 add(method, lambda: (pdr_track(steps, scan_t[ok[0]], fixes[ok[0]]), 0))
         elif method == "ls" and ap_table is not None:
             add(method, lambda: (_fix_track(scan_t, _ls_fixes(ap_table, scans), "ls"), 0))
+    diagnostics = walk_diagnostics(recording, scan_t, fixes, radio_map, steps)
+    for result in results:
+        result.diagnostics = diagnostics
     return results
 
 
@@ -259,6 +264,16 @@ class Evaluation:
                          "runtime_s": sum(r.runtime_s for r in mine), "traces": len(mine),
                          "causal": mine[0].causal})
         return rows
+
+    def walk_rows(self) -> list[dict]:
+        """One row per walk: why it went well or wrong (``evaluation.diagnostics``) and each
+        method's mean error on it."""
+        rows: dict[str, dict] = {}
+        for r in self.results:
+            row = rows.setdefault(r.trace, {"trace": r.trace, **{c: r.diagnostics.get(c, math.nan)
+                                                                  for c in DIAGNOSTIC_COLUMNS}})
+            row[f"{r.method} mean"] = float(r.errors_m.mean()) if r.errors_m.size else math.nan
+        return list(rows.values())
 
     def trace_rows(self) -> list[dict]:
         """One row per walk and method."""
