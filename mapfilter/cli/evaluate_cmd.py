@@ -16,7 +16,7 @@ from mapfilter.evaluation.metrics import format_table
 from mapfilter.evaluation.plots import plot_error_cdf, plot_tracks_on_map
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.ilc import read_ilc
-from mapfilter.tracking import TrackingConfig
+from mapfilter.tracking import FINGERPRINT_MODELS, TrackingConfig
 from mapfilter.trackio import write_track_csv
 
 _EPILOG = f"""\
@@ -57,7 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="each walk's radio map (and fitted APs for ls) from the other walks only")
     parser.add_argument("--particles", type=int, default=TrackingConfig.n_particles, metavar="N",
                         help=f"particles for the pf methods (default: {TrackingConfig.n_particles})")
-    parser.add_argument("--fingerprint-model", choices=("fix", "likelihood"), default=TrackingConfig.fingerprint_model,
+    parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=TrackingConfig.fingerprint_model,
                         help=f"how pf weighs fingerprints (default: {TrackingConfig.fingerprint_model})")
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
     parser.add_argument("--smooth", action="store_true", help="also report the smoothed pf track (pf-smooth)")

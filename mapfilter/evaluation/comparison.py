@@ -42,7 +42,7 @@ from mapfilter.sensors.pdr import detect_steps
 from mapfilter.sensors.radiomap import RadioMap, build_radio_map, kwnn_fix_many
 from mapfilter.sensors.recording import Recording, trace_name
 from mapfilter.sensors.wifi import scans_of
-from mapfilter.tracking import TrackingConfig, calibrated_fix_sigma_m, track_recording
+from mapfilter.tracking import TrackingConfig, WifiMeasurements, calibrated_fix_sigma_m, track_recording
 from mapfilter.trackio import Track
 
 ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls")
@@ -111,10 +111,14 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
     elif ap_table is not None:
         fixes = _ls_fixes(ap_table, scans)
     tracking = setup.tracking
-    if radio_map is not None and tracking.fix_sigma_m is None and tracking.fingerprint_model == "fix":
+    if radio_map is not None and tracking.fix_sigma_m is None and tracking.fingerprint_model in ("fix", "blend"):
         # calibrate once for the three pf variants, not once each
         tracking = dataclasses.replace(tracking, fix_sigma_m=calibrated_fix_sigma_m(radio_map, tracking.kwnn_k))
     results: list[MethodResult] = []
+    wifi = None  # the pf variants share one set of WiFi measurements (fixes, radio-map likelihood)
+    if any(m in PF_METHODS for m in setup.methods) and (radio_map is not None or ap_table is not None):
+        wifi = WifiMeasurements(scans, radio_map, ap_table if radio_map is None else None, floorplan, tracking,
+                                str(log_paths[index]))
 
     def add(method: str, make: Callable[[], tuple[Track, int]], causal: bool = True) -> None:
         started = time.perf_counter()
@@ -134,7 +138,7 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
             config = dataclasses.replace(tracking, smooth=setup.smooth and method == "pf", **PF_METHODS[method])
             rng = np.random.default_rng([setup.seed, index, ALL_METHODS.index(method)])
             outcome = track_recording(floorplan, recording, radio_map, ap_table if radio_map is None else None,
-                                      config, rng, steps=steps)
+                                      config, rng, steps=steps, wifi=wifi)
             add(method, lambda: (outcome.track, len(outcome.collapses)))
             results[-1].runtime_s = outcome.runtime_s
             if outcome.smoothed is not None:

@@ -19,7 +19,33 @@ import numpy as np
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import wall_crossing_mask
 
-__all__ = ["free_path", "detour_wall_crossings"]
+__all__ = ["free_path", "detour_wall_crossings", "nearest_free", "wall_free_track"]
+
+
+def nearest_free(floorplan: FloorPlan, xy_m: np.ndarray) -> np.ndarray:
+    """(N, 2) each point, or the centre of the free pixel nearest to it if it is in a wall or off
+    the map (Euclidean distance transform; the map must have free space)."""
+    from scipy import ndimage
+
+    xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    height, width = floorplan.shape_px
+    uv = floorplan.world_to_pixel(xy)
+    cols = np.clip(np.floor(uv[:, 0]).astype(np.int64), 0, width - 1)
+    rows = np.clip(np.floor(uv[:, 1]).astype(np.int64), 0, height - 1)
+    off_map = (uv[:, 0] < 0) | (uv[:, 0] >= width) | (uv[:, 1] < 0) | (uv[:, 1] >= height)
+    blocked = floorplan.wall_mask[rows, cols] | off_map
+    out = xy.copy()
+    if blocked.any():
+        _, (near_rows, near_cols) = ndimage.distance_transform_edt(floorplan.wall_mask, return_indices=True)
+        r, c = near_rows[rows[blocked], cols[blocked]], near_cols[rows[blocked], cols[blocked]]
+        out[blocked] = floorplan.pixel_to_world(np.column_stack([c + 0.5, r + 0.5]))
+    return out
+
+
+def wall_free_track(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A track moved onto the map's free space: points in walls go to the nearest free pixel,
+    then every move that still crosses a wall walks round it (``detour_wall_crossings``)."""
+    return detour_wall_crossings(floorplan, t_s, nearest_free(floorplan, xy_m))
 
 
 def free_path(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarray,
