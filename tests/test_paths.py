@@ -3,7 +3,7 @@
 import numpy as np
 
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.maps.paths import detour_wall_crossings, free_path
+from mapfilter.maps.paths import detour_wall_crossings, free_path, nearest_free
 from mapfilter.maps.walls import count_wall_crossings
 
 
@@ -53,3 +53,25 @@ def test_detour_removes_every_crossing_and_keeps_time_order():
     free_track = np.array([[3.0, 2.0], [5.0, 2.0]])
     t3, xy3 = detour_wall_crossings(plan, t[:2], free_track)
     assert np.array_equal(xy3, free_track) and np.array_equal(t3, t[:2])
+
+
+def test_nearest_free_moves_only_blocked_points_and_lands_next_to_the_wall():
+    plan = two_rooms()
+    xy = np.array([[5.0, 2.0], [10.02, 2.0], [-3.0, 5.0]])  # free, inside the wall, off the map
+    out = nearest_free(plan, xy)
+    assert np.array_equal(out[0], xy[0])
+    assert plan.is_free(out[1:]).all()
+    assert abs(out[1, 0] - 10.0) < 0.2 and abs(out[1, 1] - 2.0) < 0.1  # beside the wall, not through the door
+    assert 0.0 < out[2, 0] < 0.25 and abs(out[2, 1] - 5.0) < 0.1
+
+
+def test_wall_free_track_of_a_track_through_a_wall():
+    from mapfilter.maps.paths import wall_free_track
+
+    plan = two_rooms()
+    t = np.linspace(0.0, 10.0, 21)
+    xy = np.column_stack([np.linspace(6.0, 14.0, 21), np.full(21, 3.0)])  # straight through the wall
+    t2, xy2 = wall_free_track(plan, t, xy)
+    assert count_wall_crossings(plan, xy2) == 0 and plan.is_free(xy2).all()
+    assert np.all(np.diff(t2) >= 0) and t2[0] == t[0] and t2[-1] == t[-1]
+    assert xy2[:, 1].max() > 7.0  # it went round by the door
