@@ -75,3 +75,17 @@ def test_wall_free_track_of_a_track_through_a_wall():
     assert count_wall_crossings(plan, xy2) == 0 and plan.is_free(xy2).all()
     assert np.all(np.diff(t2) >= 0) and t2[0] == t[0] and t2[-1] == t[-1]
     assert xy2[:, 1].max() > 7.0  # it went round by the door
+
+
+def test_wall_free_track_keeps_the_walk_in_one_free_area():
+    from mapfilter.maps.paths import wall_free_track
+
+    wall = two_rooms().wall_mask.copy()
+    wall[60:80, 40:42] = wall[60:80, 58:60] = True  # a closed 1.6 x 1.8 m cell in the left room
+    wall[60:62, 40:60] = wall[78:80, 40:60] = True
+    plan = FloorPlan(wall, 0.1, (0.0, 0.0))
+    t = np.arange(6.0)
+    xy = np.array([[2.0, 5.0], [3.0, 4.0], [5.0, 3.0], [6.0, 3.0], [7.0, 4.0], [8.0, 5.0]])  # [5, 3] is in the cell
+    assert not free_path(plan, xy[1], xy[2])
+    t2, xy2 = wall_free_track(plan, t, xy)
+    assert count_wall_crossings(plan, xy2) == 0 and plan.is_free(xy2).all()

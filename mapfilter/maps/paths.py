@@ -17,35 +17,62 @@ import math
 import numpy as np
 
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.maps.walls import wall_crossing_mask
+from mapfilter.maps.walls import crosses_wall, wall_crossing_mask
 
 __all__ = ["free_path", "detour_wall_crossings", "nearest_free", "wall_free_track"]
 
 
-def nearest_free(floorplan: FloorPlan, xy_m: np.ndarray) -> np.ndarray:
+def nearest_free(floorplan: FloorPlan, xy_m: np.ndarray, blocked_mask: np.ndarray | None = None) -> np.ndarray:
     """(N, 2) each point, or the centre of the free pixel nearest to it if it is in a wall or off
-    the map (Euclidean distance transform; the map must have free space)."""
+    the map (Euclidean distance transform). ``blocked_mask`` (default: the walls) says which
+    pixels count as not free; it must leave some pixel free."""
     from scipy import ndimage
 
+    blocked_px = floorplan.wall_mask if blocked_mask is None else blocked_mask
     xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
-    height, width = floorplan.shape_px
-    uv = floorplan.world_to_pixel(xy)
-    cols = np.clip(np.floor(uv[:, 0]).astype(np.int64), 0, width - 1)
-    rows = np.clip(np.floor(uv[:, 1]).astype(np.int64), 0, height - 1)
-    off_map = (uv[:, 0] < 0) | (uv[:, 0] >= width) | (uv[:, 1] < 0) | (uv[:, 1] >= height)
-    blocked = floorplan.wall_mask[rows, cols] | off_map
+    rows, cols, off_map = _pixels(floorplan, xy)
+    blocked = blocked_px[rows, cols] | off_map
     out = xy.copy()
     if blocked.any():
-        _, (near_rows, near_cols) = ndimage.distance_transform_edt(floorplan.wall_mask, return_indices=True)
+        _, (near_rows, near_cols) = ndimage.distance_transform_edt(blocked_px, return_indices=True)
         r, c = near_rows[rows[blocked], cols[blocked]], near_cols[rows[blocked], cols[blocked]]
         out[blocked] = floorplan.pixel_to_world(np.column_stack([c + 0.5, r + 0.5]))
     return out
 
 
+def _pixels(floorplan: FloorPlan, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows and columns of points (clipped to the map) and whether each was off the map."""
+    height, width = floorplan.shape_px
+    uv = floorplan.world_to_pixel(xy)
+    cols = np.clip(np.floor(uv[:, 0]).astype(np.int64), 0, width - 1)
+    rows = np.clip(np.floor(uv[:, 1]).astype(np.int64), 0, height - 1)
+    return rows, cols, (uv[:, 0] < 0) | (uv[:, 0] >= width) | (uv[:, 1] < 0) | (uv[:, 1] >= height)
+
+
 def wall_free_track(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A track moved onto the map's free space: points in walls go to the nearest free pixel,
-    then every move that still crosses a wall walks round it (``detour_wall_crossings``)."""
-    return detour_wall_crossings(floorplan, t_s, nearest_free(floorplan, xy_m))
+    """A track moved onto the map's free space, in one piece.
+
+    A person stays in one connected free area, so every point goes to the nearest pixel of the
+    area (4-connected free pixels) that holds most of the track once it is off the walls; then
+    every move that still crosses a wall walks round it (``detour_wall_crossings``), which
+    within one area always finds a way.
+    """
+    from scipy import ndimage
+
+    xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    if xy.shape[0] == 0 or not (~floorplan.wall_mask).any():
+        return np.asarray(t_s, dtype=np.float64).copy(), xy.copy()
+    areas, _ = ndimage.label(~floorplan.wall_mask)  # 4-connected: the wall walk passes no corner
+    rows, cols, _ = _pixels(floorplan, nearest_free(floorplan, xy))
+    main_area = np.bincount(areas[rows, cols]).argmax()
+    moved = nearest_free(floorplan, xy, areas != main_area)
+    # a point exactly on a pixel edge touches the pixels on both sides (the wall walk's rule):
+    # beside a wall, take its own pixel's centre instead
+    on_edge = crosses_wall(floorplan, moved, moved)
+    if on_edge.any():
+        rows, cols, _ = _pixels(floorplan, moved[on_edge])
+        moved[on_edge] = floorplan.pixel_to_world(np.column_stack([cols + 0.5, rows + 0.5]))
+    return detour_wall_crossings(floorplan, t_s, moved)
 
 
 def free_path(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarray,
