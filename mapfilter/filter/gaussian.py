@@ -24,7 +24,7 @@ __all__ = ["standard_normal"]
 _BLOCK = 1024  # pairs per block; each block's loops vectorise
 
 
-@njit(cache=True, nogil=True, fastmath=True)
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _box_muller(first_block, end_block, u, out):
     # blocks [first_block, end_block) of _BLOCK pairs; the caller slices by blocks
     n_pairs = u.shape[0] // 2

@@ -55,7 +55,7 @@ class GaussianFixLikelihood:
 _CHUNK = 512  # particles per block: the per-AP loops over a block vectorise (SIMD)
 
 
-@njit(cache=True, nogil=True, fastmath=True)
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _rssi_ll_kernel(first_block, end_block, x, y, ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed, inv_two_var,
                     out):
     """-sum_k (z_k - R_k)^2 / (2 var) per particle, in blocks of particles, float32.

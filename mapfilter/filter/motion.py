@@ -28,7 +28,7 @@ def _moved(particles: Particles, **fields: np.ndarray) -> Particles:
     return Particles(**out)
 
 
-@njit(cache=True, nogil=True, fastmath=True)
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _circle_walk(lo, hi, xy, phi, noise, radius_m, sigma_m, out):
     # eq. 6.6: x_k = x_{k-1} + r (cos phi, sin phi) + sigma e, phi in [0, 2 pi).
     # cos/sin from Taylor series of b = phi/2 - pi/2 in [-pi/2, pi/2] (|error| < 1e-7) and the

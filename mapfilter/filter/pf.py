@@ -50,7 +50,7 @@ def _underflows(model: MeasurementModel, log_w: np.ndarray) -> bool:
     return peak is not None and float(log_w.max()) - float(peak) < _LOG_UNDERFLOW
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _gather_rows(lo, hi, a, index, out):
     # out[i] = a[index[i]] for (N, 2) arrays: numpy's fancy indexing of 2-D rows is ~5x slower
     for i in range(lo, hi):
