@@ -32,6 +32,17 @@ _pool: ThreadPoolExecutor | None = None
 _pool_threads = 0
 
 
+def _forget_pool_after_fork() -> None:
+    # a forked child (e.g. a ProcessPoolExecutor worker) inherits the pool object but none of
+    # its threads: work submitted to it would wait forever, so the child starts its own
+    global _pool, _pool_threads
+    _pool, _pool_threads = None, 0
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool_after_fork)
+
+
 def n_threads() -> int:
     """Threads for large kernels: ``MAPFILTER_THREADS`` if set, else the CPUs this process may use."""
     value = os.environ.get("MAPFILTER_THREADS")

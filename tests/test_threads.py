@@ -60,3 +60,14 @@ def test_for_slices_covers_every_element_once_and_raises_kernel_errors(monkeypat
         assert "boom" in str(exc)
     else:
         raise AssertionError("the kernel's error was swallowed")
+
+
+def test_a_forked_child_gets_its_own_threads(monkeypatch):
+    import multiprocessing
+
+    monkeypatch.setenv("MAPFILTER_THREADS", "2")
+    _run_all(70_001)  # the parent's pool exists now
+    ctx = multiprocessing.get_context("fork")
+    with ctx.Pool(1) as pool:
+        crossed = pool.apply_async(_run_all, (70_001,)).get(timeout=120)[0]
+    np.testing.assert_array_equal(crossed, _run_all(70_001)[0])
