@@ -4,8 +4,8 @@ numpy's ziggurat costs about 9 ns per normal on this machine and was the largest
 part of a 100k-particle step (400k normals: motion noise and regularisation jitter). Here the
 uniforms come from the same ``numpy.random.Generator`` (so a seed still fixes everything)
 and the Box-Muller transform z = sqrt(-2 ln u1) (cos 2 pi u2, sin 2 pi u2) runs in a
-numba kernel (threaded for large draws) whose ln, cos and sin are series that the compiler vectorises:
-ln from the float's exponent plus 2 atanh((m - 1)/(m + 1)) of its mantissa m in [1, 2)
+numba kernel (on several threads for large draws) whose ln, cos and sin are series that the
+compiler vectorises: ln from the float's exponent plus 2 atanh((m - 1)/(m + 1)) of its mantissa m in [1, 2)
 (8 odd terms), cos/sin by the double-angle formulas from Taylor series on [-pi/2, pi/2];
 the draws agree with exact Box-Muller on the same uniforms to 1e-7.
 """

@@ -144,8 +144,8 @@ def rssi_log_likelihood(xy_m: np.ndarray, ap_xy_m: np.ndarray, c_dbm: np.ndarray
     xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
     out = np.empty(xy.shape[0], dtype=f32)
     n_blocks = (xy.shape[0] + _CHUNK - 1) // _CHUNK
-    for_slices(_rssi_ll_kernel, n_blocks, xy[:, 0].astype(f32), xy[:, 1].astype(f32), ap_xy[:, 0].astype(f32), ap_xy[:, 1].astype(f32),
-                    per_ap(c_dbm), 5.0 * per_ap(n), per_ap(alpha_db_per_m), per_ap(d_max_m),
+    for_slices(_rssi_ll_kernel, n_blocks, xy[:, 0].astype(f32), xy[:, 1].astype(f32), ap_xy[:, 0].astype(f32),
+               ap_xy[:, 1].astype(f32), per_ap(c_dbm), 5.0 * per_ap(n), per_ap(alpha_db_per_m), per_ap(d_max_m),
                np.ascontiguousarray(observed[heard], dtype=f32), f32(0.5 / float(variance_db2)), out,
                min_per_thread=max(MIN_PER_THREAD // _CHUNK, 1))
     return out.astype(np.float64)
