@@ -33,7 +33,6 @@ needed. Nothing in the file is pickled (``allow_pickle=False`` on load).
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import zipfile
 import zlib
