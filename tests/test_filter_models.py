@@ -150,7 +150,7 @@ def test_circle_walk_directions_match_cos_sin():
 
     phi = np.linspace(0.0, 2.0 * math.pi, 20001)[:-1]
     out = np.empty((phi.size, 2))
-    _circle_walk(np.zeros((phi.size, 2)), phi, np.zeros((phi.size, 2)), 1.0, 0.0, out)
+    _circle_walk(0, phi.size, np.zeros((phi.size, 2)), phi, np.zeros((phi.size, 2)), 1.0, 0.0, out)
     np.testing.assert_allclose(out, np.column_stack([np.cos(phi), np.sin(phi)]), atol=1e-7)
 
 

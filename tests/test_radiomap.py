@@ -280,3 +280,60 @@ def test_cross_validated_fix_errors_grow_with_rssi_noise():
     quiet, noisy = sigma(1.0), sigma(8.0)
     assert 0.5 < quiet < 3.0  # neighbours 2 m away: about a grid step
     assert noisy > 1.5 * quiet
+
+
+def _traced_map(seed=11, p=60, k=16, traces=5):
+    rm = _random_map(np.random.default_rng(seed), p, k)
+    rm.rssi_dbm = np.round(rm.rssi_dbm)  # integer dBm, as phones report
+    rm.trace = np.arange(p) % traces
+    rm.source_traces = [f"t{i}" for i in range(traces)]
+    return rm
+
+
+def test_cross_validation_equals_kwnn_on_the_map_without_each_walk():
+    """Oracle: the masked all-points distances give the fixes of select(~walk) to the last bit."""
+    from mapfilter.sensors.radiomap import cross_validated_fix_errors
+
+    rm = _traced_map()
+    expected = []
+    for g in range(5):
+        inside = rm.trace == g
+        fixes = kwnn_fix_many(rm.select(~inside), rm.rssi_dbm[inside], k=4).xy_m
+        ok = np.all(np.isfinite(fixes), axis=1)
+        expected.append(np.linalg.norm(fixes[ok] - rm.xy_m[inside][ok], axis=1))
+    np.testing.assert_array_equal(cross_validated_fix_errors(rm, 4), np.concatenate(expected))
+
+
+def test_radio_map_file_keeps_the_cross_validation_and_old_files_load(tmp_path, monkeypatch):
+    import mapfilter.sensors.radiomap as radiomap_module
+    from mapfilter.sensors.radiomap import cross_validated_fix_errors
+    from mapfilter.tracking import calibrated_fix_sigma_m
+
+    rm = _traced_map()
+    errors = cross_validated_fix_errors(rm, 4)
+    sigma = calibrated_fix_sigma_m(rm, 4)
+    rm.save(tmp_path / "v2.npz")
+    with np.load(tmp_path / "v2.npz") as data:
+        assert int(data["version"]) == 2
+        np.testing.assert_array_equal(data["cv_fix_errors_m"], errors)
+    # a version 1 file: the same arrays without the stored cross-validation
+    with np.load(tmp_path / "v2.npz") as data:
+        v1 = {key: data[key] for key in data.files if not key.startswith("cv_")}
+    v1["version"] = np.array(1, dtype=np.int64)
+    np.savez_compressed(tmp_path / "v1.npz", **v1)
+    old = RadioMap.load(tmp_path / "v1.npz")
+    np.testing.assert_array_equal(old.rssi_dbm, rm.rssi_dbm)
+    assert calibrated_fix_sigma_m(old, 4) == sigma  # computed on first use
+    # the version 2 file is not cross-validated again: its stored errors are used
+    monkeypatch.setattr(radiomap_module, "_cross_validated_fix_errors",
+                        lambda *a: pytest.fail("cross-validated again despite the stored errors"))
+    new = RadioMap.load(tmp_path / "v2.npz")
+    assert calibrated_fix_sigma_m(new, 4) == sigma
+    # a changed map is not answered from the memo of the old one
+    new.rssi_dbm = new.rssi_dbm + np.float32(1.0)
+    with pytest.raises(pytest.fail.Exception):
+        calibrated_fix_sigma_m(new, 4)
+    v1["version"] = np.array(3, dtype=np.int64)
+    np.savez_compressed(tmp_path / "v3.npz", **v1)
+    with pytest.raises(MapfilterError, match="version 3 is not supported"):
+        RadioMap.load(tmp_path / "v3.npz")

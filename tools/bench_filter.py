@@ -10,8 +10,22 @@ the bundled map maps/office.yaml, it times
   segment for the wall check, float32 numpy RSSI likelihood, cumsum + searchsorted resampling),
   in the same process, and the speed-up ``full_step / reference_step``.
 
+It also times what a user feels (``--skip-user`` leaves it out):
+
+- ``first_run``: the README's first command (``mapfilter track maps/office.yaml ... --smooth``)
+  in a fresh process with an empty numba cache (``NUMBA_CACHE_DIR`` pointed at a new folder:
+  every kernel compiles, as on a fresh install), then again with that cache filled (warm);
+- ``help``: ``mapfilter --help`` and ``mapfilter track --help``;
+- ``real_walk``: one real ILC site1/F1 walk of about a minute (not one of the sparse set's
+  walks), 10,000 particles, with the sparse (36 walks, ``sparse_set.txt``) and the dense
+  (all 76 walks) F1 radio maps, built here with ``mapfilter radiomap build`` (timed too): the
+  tracker's own time (``track_recording``) and the whole ``mapfilter track`` command.
+
+Every step time comes with the CPU time the process used for it (``cpu_ms``): on a shared
+machine, the wall time moves with the other jobs; the CPU time much less.
+
 Prints one JSON document. ``--quick`` runs fewer repetitions and skips 1M for the reference.
-Usage: ``.venv/bin/python tools/bench_filter.py [--quick] [--maps ilc,office]``
+Usage: ``.venv/bin/python tools/bench_filter.py [--quick] [--maps ilc,office] [--skip-user]``
 """
 
 from __future__ import annotations
@@ -21,7 +35,11 @@ import json
 import math
 import os
 import platform
+import re
+import resource
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -40,6 +58,10 @@ from mapfilter.maps.walls import crosses_wall  # noqa: E402
 
 ILC_FLOOR = REPO.parent / "shared" / "data" / "ilc20" / "site1" / "F1"
 OFFICE_YAML = REPO / "maps" / "office.yaml"
+# 58.6 s of WiFi scans, 119 PDR steps; not in sparse_set.txt (so not in the sparse radio map)
+REAL_WALK = "5dd9e7d1c5b77e0006b17343"
+README_TRACK = ["track", "maps/office.yaml", "maps/office_walk.txt.gz", "--radiomap", "maps/office_radiomap.npz",
+                "--smooth"]
 N_APS = 20
 DT_S = 1.0
 VARIANCE_DB2 = 25.0
@@ -177,6 +199,13 @@ def timed(fn) -> float:
     return time.perf_counter() - t0
 
 
+def timed_cpu(fn) -> tuple[float, float]:
+    """(wall s, CPU s of this process, every thread) of one call."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    fn()
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
 def per_step_seconds(fn, reps: int) -> float:
     """Median wall time of ``reps`` calls (after one warm-up call)."""
     fn()
@@ -223,20 +252,28 @@ def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: 
             ref_step = lambda: ref.step(model, observed)  # noqa: E731
             ref_step()
             n_pairs = reps if n < 1_000_000 else max(3, reps // 3)
-            t_full_all, t_ref_all = [], []
+            t_full_all, t_ref_all, c_full_all, c_ref_all = [], [], [], []
             for _ in range(n_pairs):
-                t_full_all.append(timed(full_step))
-                t_ref_all.append(timed(ref_step))
+                wall, cpu = timed_cpu(full_step)
+                t_full_all.append(wall)
+                c_full_all.append(cpu)
+                wall, cpu = timed_cpu(ref_step)
+                t_ref_all.append(wall)
+                c_ref_all.append(cpu)
             t_full, t_ref = float(np.median(t_full_all)), float(np.median(t_ref_all))
             row["full_step_per_s"] = n / t_full
             row["full_step_ms"] = 1e3 * t_full
+            row["full_step_cpu_ms"] = 1e3 * float(np.median(c_full_all))
             row["reference_step_per_s"] = n / t_ref
             row["reference_step_ms"] = 1e3 * t_ref
+            row["reference_step_cpu_ms"] = 1e3 * float(np.median(c_ref_all))
             row["speedup_full_vs_reference"] = t_ref / t_full
         else:
-            t_full = per_step_seconds(full_step, reps)
+            walls, cpus = zip(*(timed_cpu(full_step) for _ in range(reps)))
+            t_full = float(np.median(walls))
             row["full_step_per_s"] = n / t_full
             row["full_step_ms"] = 1e3 * t_full
+            row["full_step_cpu_ms"] = 1e3 * float(np.median(cpus))
         row["resampled_share"] = stats["resampled"] / stats["steps"]
         row["killed_per_step_share"] = stats["killed"] / stats["steps"] / n
         rows.append(row)
@@ -246,12 +283,95 @@ def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: 
             "free_fraction": fp.free_fraction, "results": rows}
 
 
+# ---- what a user feels: first run, --help, a real walk ------------------------------------------
+def _children_cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _mapfilter(args: list[str], env: dict | None = None, cwd: Path = REPO) -> tuple[float, float, str]:
+    """(wall s, CPU s, stdout) of ``python -m mapfilter ARGS`` in a fresh process; raises on failure.
+
+    The CPU time (user + system, all threads) moves much less with the machine's load than
+    the wall time; for a process that mostly runs one thread (start-up, numba compiling) it
+    is about what the wall time would be on a quiet machine.
+    """
+    t0, c0 = time.perf_counter(), _children_cpu_s()
+    done = subprocess.run([sys.executable, "-m", "mapfilter", *args], cwd=cwd, env={**os.environ, **(env or {})},
+                          capture_output=True, text=True)
+    wall, cpu = time.perf_counter() - t0, _children_cpu_s() - c0
+    if done.returncode != 0:
+        raise RuntimeError(f"mapfilter {' '.join(args)} failed: {done.stderr.strip()[-500:]}")
+    return wall, cpu, done.stdout
+
+
+def bench_first_run(tmp: Path) -> dict:
+    """The README's first command, cold (empty numba cache) then warm (that cache filled)."""
+    cache = tmp / "numba_cache"
+    env = {"NUMBA_CACHE_DIR": str(cache)}
+    out_csv = tmp / "office_track.csv"
+    cold_s, cold_cpu_s, stdout = _mapfilter(README_TRACK + ["--out", str(out_csv)], env)
+    warm_s, warm_cpu_s, _ = _mapfilter(README_TRACK + ["--out", str(out_csv)], env)
+    tracker_s = re.search(r"collapses?[^,]*, ([0-9.]+) s", stdout)
+    return {"command": "mapfilter " + " ".join(README_TRACK) + " --out office_track.csv",
+            "cold_s": cold_s, "warm_s": warm_s, "cold_cpu_s": cold_cpu_s, "warm_cpu_s": warm_cpu_s,
+            "tracker_s_as_printed_cold": float(tracker_s.group(1)) if tracker_s else None,
+            "numba_cache_dir": "a new empty folder (NUMBA_CACHE_DIR)"}
+
+
+def bench_help(reps: int = 3) -> dict:
+    """Median wall and CPU seconds of ``mapfilter --help`` and ``mapfilter track --help``."""
+    out = {}
+    for args in (["--help"], ["track", "--help"]):
+        runs = [_mapfilter(args)[:2] for _ in range(reps)]
+        out[" ".join(args)] = {"wall_s": float(np.median([r[0] for r in runs])),
+                               "cpu_s": float(np.median([r[1] for r in runs]))}
+    return out
+
+
+def bench_real_walk(tmp: Path) -> dict:
+    """One real F1 walk of about a minute with the sparse and the dense radio maps (10,000 particles)."""
+    from mapfilter.sensors.ilc import read_ilc
+    from mapfilter.sensors.radiomap import RadioMap
+    from mapfilter.tracking import TrackingConfig, track_recording
+
+    logs_dir = ILC_FLOOR / "path_data_files"
+    sparse = [logs_dir / f"{name}.txt.gz" for name in (ILC_FLOOR / "sparse_set.txt").read_text().split()]
+    dense = sorted(logs_dir.glob("*.txt.gz"))
+    walk = logs_dir / f"{REAL_WALK}.txt.gz"
+    map_yaml = tmp / "F1.yaml"
+    _mapfilter(["map", "import-ilc", str(ILC_FLOOR), "--route", "geojson", "--out", str(map_yaml)])
+    floorplan = FloorPlan.load(map_yaml)
+    recording = read_ilc(walk)
+    doc: dict = {"walk": REAL_WALK, "wifi_span_s": float(recording.wifi.t_s[-1] - recording.wifi.t_s[0]),
+                 "n_particles": TrackingConfig.n_particles, "radio_maps": {}}
+    for name, logs in (("sparse", sparse), ("dense", dense)):
+        rm_path = tmp / f"F1_{name}.npz"
+        build_s, build_cpu_s, _ = _mapfilter(["radiomap", "build", str(map_yaml), *map(str, logs),
+                                              "--out", str(rm_path)])
+        radio_map = RadioMap.load(rm_path)
+        c0 = time.process_time()
+        result = track_recording(floorplan, recording, radio_map, None, TrackingConfig(), np.random.default_rng(0))
+        track_cpu_s = time.process_time() - c0
+        command_s, command_cpu_s, _ = _mapfilter(["track", str(map_yaml), str(walk), "--radiomap", str(rm_path),
+                                                  "--out", str(tmp / f"track_{name}.csv")])
+        doc["radio_maps"][name] = {"walks": len(logs), "reference_points": len(radio_map),
+                                   "access_points": len(radio_map.ap_keys), "radiomap_build_s": build_s,
+                                   "radiomap_build_cpu_s": build_cpu_s, "track_recording_s": result.runtime_s,
+                                   "track_recording_cpu_s": track_cpu_s, "filter_steps": result.n_filter_steps,
+                                   "track_command_s": command_s, "track_command_cpu_s": command_cpu_s}
+        print(f"real walk, {name} map: " + ", ".join(f"{k}={v:.4g}" for k, v in doc["radio_maps"][name].items()),
+              file=sys.stderr, flush=True)
+    return doc
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="few repetitions, no 1M reference run")
     parser.add_argument("--maps", default="ilc,office", help="comma list of: ilc, office")
     parser.add_argument("--sizes", default="1000,10000,100000,1000000", help="particle counts")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--skip-user", action="store_true", help="leave out the first run, --help and the real walk")
     args = parser.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
     reps = 5 if args.quick else 15
@@ -268,19 +388,32 @@ def main(argv: list[str] | None = None) -> int:
     warm.step(0.0, 1.0, None, warm_model, np.array([-40.0, -50.0]))
     warmup_s = time.perf_counter() - t0
 
+    user: dict = {}
+    if not args.skip_user:
+        with tempfile.TemporaryDirectory(prefix="bench_filter_") as tmp:
+            user["first_run"] = bench_first_run(Path(tmp))
+            print(f"first run: {user['first_run']}", file=sys.stderr, flush=True)
+            user["help_s"] = bench_help()
+            print(f"help: {user['help_s']}", file=sys.stderr, flush=True)
+            user["real_walk"] = bench_real_walk(Path(tmp))
+
     loaders = {"ilc": load_ilc_map, "office": load_office_map}
     maps = []
     for key in args.maps.split(","):
         fp, source = loaders[key]()
         maps.append({"source": source, **bench_map(fp, key, sizes, reps, ref_max_n, args.seed)})
     import numba
+
+    from mapfilter.threads import n_threads
     doc = {
-        "unit": "particle-steps per second (median step time; full step forces resampling every step)",
-        "machine": {"cpus": os.cpu_count(), "numba_threads": numba.get_num_threads(),
+        "unit": "particle-steps per second (median step time; full step forces resampling every step); "
+                "*_cpu_ms: CPU time of the process (all threads) for one step",
+        "machine": {"cpus": os.cpu_count(), "kernel_threads": n_threads(),
                     "python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__},
         "numba_warmup_s": warmup_s,
         "load_average_1min_before_after": [load_before, os.getloadavg()[0]],
         "quick": args.quick,
+        **user,
         "maps": maps,
     }
     print(json.dumps(doc, indent=2))

@@ -10,14 +10,12 @@ import sys
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
+from mapfilter.cli.track_cmd import DEFAULT_FINGERPRINT_MODEL, DEFAULT_PARTICLES, FINGERPRINT_MODELS
 from mapfilter.errors import MapfilterError
-from mapfilter.evaluation.comparison import ALL_METHODS, EvaluationSetup, evaluate_logs, nan_to_none
-from mapfilter.evaluation.metrics import format_table
-from mapfilter.evaluation.plots import plot_error_cdf, plot_tracks_on_map
-from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.sensors.ilc import read_ilc
-from mapfilter.tracking import FINGERPRINT_MODELS, TrackingConfig
-from mapfilter.trackio import write_track_csv
+
+# mapfilter.evaluation.comparison.ALL_METHODS, written out so that --help imports no numerical
+# library (tests/test_cli_startup.py holds the two equal)
+ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls")
 
 _EPILOG = f"""\
 methods: {', '.join(ALL_METHODS)} (default: all that the WiFi source allows)
@@ -28,7 +26,8 @@ methods: {', '.join(ALL_METHODS)} (default: all that the WiFi source allows)
 
 Errors are taken at the ground-truth waypoint times from each method's latest estimate at
 or before that time (causal); waypoints before a method's first estimate are counted as
-missed. --smooth adds pf-smooth, the offline track from particle ancestry (not causal).
+missed. --smooth adds pf-smooth, the offline whole-walk track (not causal). walks.csv says
+why each walk went wrong: radio-map coverage, fix error and bias, heading offset, step scale.
 
 writes into OUT: summary.csv, summary.json (with per-trace rows), traces.csv, cdf.png,
 tracks/<trace>.png (tracks on the floor plan) and tracks/<trace>/<method>.csv.
@@ -55,10 +54,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table (ls; pf if no radio map)")
     parser.add_argument("--leave-one-out", action="store_true",
                         help="each walk's radio map (and fitted APs for ls) from the other walks only")
-    parser.add_argument("--particles", type=int, default=TrackingConfig.n_particles, metavar="N",
-                        help=f"particles for the pf methods (default: {TrackingConfig.n_particles})")
-    parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=TrackingConfig.fingerprint_model,
-                        help=f"how pf weighs fingerprints (default: {TrackingConfig.fingerprint_model})")
+    parser.add_argument("--particles", type=int, default=DEFAULT_PARTICLES, metavar="N",
+                        help=f"particles for the pf methods (default: {DEFAULT_PARTICLES})")
+    parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=DEFAULT_FINGERPRINT_MODEL,
+                        help=f"how pf weighs fingerprints (default: {DEFAULT_FINGERPRINT_MODEL})")
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
     parser.add_argument("--smooth", action="store_true", help="also report the smoothed pf track (pf-smooth)")
     parser.add_argument("--jobs", type=int, default=1, metavar="N", help="walks in parallel processes (default: 1)")
@@ -67,6 +66,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mapfilter.evaluation.comparison import EvaluationSetup, evaluate_logs
+    from mapfilter.evaluation.metrics import format_table
+    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.tracking import TrackingConfig
+
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     unknown = [m for m in methods if m not in ALL_METHODS]
     if unknown:
@@ -98,6 +102,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _write_outputs(args, floorplan, evaluation, summary) -> None:
+    from mapfilter.evaluation.comparison import nan_to_none
+    from mapfilter.evaluation.plots import plot_error_cdf, plot_tracks_on_map
+    from mapfilter.sensors.ilc import read_ilc
+    from mapfilter.trackio import write_track_csv
+
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     with atomic_paths(out / "summary.csv", out / "traces.csv", out / "walks.csv",

@@ -6,7 +6,6 @@ import argparse
 from pathlib import Path
 
 from mapfilter.errors import MapfilterError
-from mapfilter.maps import prepare
 
 _PREPARE_EPILOG = """\
 kinds:
@@ -124,6 +123,8 @@ def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
 
 
 def run_prepare(args: argparse.Namespace) -> int:
+    from mapfilter.maps import prepare
+
     kind = args.kind or ("geojson" if args.plan.suffix.lower() in (".json", ".geojson") else "lines")
     edits = prepare.read_edits(args.edits) if args.edits else None
     if args.access_points is not None and not args.access_points.is_file():
@@ -159,6 +160,8 @@ def run_prepare(args: argparse.Namespace) -> int:
 
 
 def run_import_ilc(args: argparse.Namespace) -> int:
+    from mapfilter.maps import prepare
+
     edits = prepare.read_edits(args.edits) if args.edits else None
     plan = prepare.import_ilc(args.floor_dir, args.route, args.resolution)
     if edits is not None:
@@ -168,6 +171,8 @@ def run_import_ilc(args: argparse.Namespace) -> int:
 
 
 def _write(plan, out: Path) -> None:
+    from mapfilter.maps import prepare
+
     written = prepare.write_map(plan, out)
     rows, cols = plan.shape_px
     print(f"wrote {', '.join(str(p) for p in written)}: {cols}x{rows} px at {plan.resolution_m:.4g} m/px, "

@@ -6,10 +6,10 @@ import argparse
 from pathlib import Path
 
 from mapfilter.errors import MapfilterError
-from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.sensors.ilc import read_ilc
-from mapfilter.sensors.pathloss import ApFitConfig, estimate_access_points
-from mapfilter.sensors.radiomap import build_radio_map
+
+# mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
+# no numerical library (tests/test_cli_startup.py holds the two equal)
+_MIN_OBSERVATIONS = 8
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -37,12 +37,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     common(fit)
     fit.add_argument("--out", type=Path, required=True, metavar="APS_CSV",
                      help="output table bssid,x,y,band,C,n,alpha,d_max")
-    fit.add_argument("--min-observations", type=int, default=ApFitConfig.min_observations, metavar="N",
-                     help=f"fit only APs heard in N labelled scans (default {ApFitConfig.min_observations})")
+    fit.add_argument("--min-observations", type=int, default=_MIN_OBSERVATIONS, metavar="N",
+                     help=f"fit only APs heard in N labelled scans (default {_MIN_OBSERVATIONS})")
     fit.set_defaults(func=run_fit_aps)
 
 
 def _load(args: argparse.Namespace):
+    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.sensors.ilc import read_ilc
+
     floorplan = FloorPlan.load(args.map)
     excluded = set(args.exclude)
     paths = [p for p in args.logs if not excluded & {p.name, _trace_id(p)}]
@@ -62,6 +65,8 @@ def _trace_id(path: Path) -> str:
 
 
 def run_build(args: argparse.Namespace) -> int:
+    from mapfilter.sensors.radiomap import build_radio_map
+
     floorplan, recordings = _load(args)
     radio_map = build_radio_map(recordings, floorplan, use_steps=args.steps)
     radio_map.save(args.out)
@@ -73,6 +78,9 @@ def run_build(args: argparse.Namespace) -> int:
 def run_fit_aps(args: argparse.Namespace) -> int:
     if args.min_observations < 3:
         raise MapfilterError(f"--min-observations must be at least 3 (4 parameters per AP), got {args.min_observations}")
+    from mapfilter.sensors.pathloss import ApFitConfig, estimate_access_points
+    from mapfilter.sensors.radiomap import build_radio_map
+
     floorplan, recordings = _load(args)
     table = estimate_access_points(build_radio_map(recordings, floorplan),
                                    ApFitConfig(min_observations=args.min_observations))

@@ -7,17 +7,17 @@ import dataclasses
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from mapfilter.errors import MapfilterError
-from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.sensors.pathloss import access_points_for_map
-from mapfilter.simulate.ilc_writer import write_ilc
-from mapfilter.simulate.walk import SimConfig, simulate_walk
+
+# The defaults of mapfilter.simulate.walk.SimConfig that the options show, written out so that
+# --help imports no numerical library (tests/test_cli_startup.py holds them equal to SimConfig).
+_SIM_DEFAULTS = {"duration_s": 120.0, "survey_spacing_m": 2.0, "survey_scans_per_point": 3,
+                 "shadowing_sigma_db": 5.0, "wall_loss_2g4_db": 3.5, "wall_loss_5g_db": 5.0,
+                 "start_time_ms": 1_600_000_000_000}
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    defaults = SimConfig()
+    defaults = argparse.Namespace(**_SIM_DEFAULTS)
     parser = subparsers.add_parser(
         "simulate",
         help="simulate a phone walk (or a radio-map survey) over a map, written as an ILC trace",
@@ -49,6 +49,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.sensors.pathloss import access_points_for_map
+    from mapfilter.simulate.ilc_writer import write_ilc
+    from mapfilter.simulate.walk import SimConfig, simulate_walk
+
     if args.seed < 0:
         raise MapfilterError(f"--seed must be a non-negative integer, got {args.seed}")
     floorplan = FloorPlan.load(args.map)

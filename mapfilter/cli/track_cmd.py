@@ -6,17 +6,15 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from mapfilter.errors import MapfilterError
-from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
-from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.maps.walls import count_wall_crossings
-from mapfilter.sensors.ilc import read_ilc
-from mapfilter.sensors.pathloss import access_points_for_map
-from mapfilter.sensors.radiomap import RadioMap
-from mapfilter.tracking import FINGERPRINT_MODELS, MOTION_MODELS, TrackingConfig, track_recording
-from mapfilter.trackio import write_track_csv, write_track_tum
+
+# What mapfilter.tracking defines (MOTION_MODELS, FINGERPRINT_MODELS, TrackingConfig defaults),
+# written out so that --help imports no numerical library: tests/test_cli_startup.py holds
+# them equal to the library's.
+MOTION_MODELS = ("pdr", "cv", "rw")
+FINGERPRINT_MODELS = ("fix", "blend", "likelihood")
+DEFAULT_FINGERPRINT_MODEL = "fix"
+DEFAULT_PARTICLES = 10_000
 
 _EPILOG = """\
 WiFi: --radiomap RM (fingerprinting; build one with `mapfilter radiomap build`) or --aps
@@ -44,15 +42,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     wifi.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table for trilateration")
     parser.add_argument("--motion", choices=MOTION_MODELS, default="pdr",
                         help="motion model: pdr (steps + gyro), cv (constant velocity), rw (random walk) (default: pdr)")
-    parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=TrackingConfig.fingerprint_model,
-                        help="fix: KWNN fix weighed by a Gaussian; likelihood: per-particle radio-map likelihood "
-                             f"(default: {TrackingConfig.fingerprint_model})")
-    parser.add_argument("--particles", type=int, default=TrackingConfig.n_particles, metavar="N",
-                        help=f"number of particles (default: {TrackingConfig.n_particles})")
+    parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=DEFAULT_FINGERPRINT_MODEL,
+                        help="fix: KWNN fix weighed by a Gaussian; blend: that fix averaged with the radio-map "
+                             "likelihood's best cell; likelihood: per-particle radio-map likelihood "
+                             f"(default: {DEFAULT_FINGERPRINT_MODEL})")
+    parser.add_argument("--particles", type=int, default=DEFAULT_PARTICLES, metavar="N",
+                        help=f"number of particles (default: {DEFAULT_PARTICLES})")
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
     parser.add_argument("--no-map", action="store_true", help="ignore the walls (to see what the map buys)")
     parser.add_argument("--smooth", action="store_true",
-                        help="write the smoothed track from particle ancestry (offline; never crosses a wall)")
+                        help="write the offline track from the whole walk: the dead-reckoned shape placed by every "
+                             "scan, kept to free space (never crosses a wall)")
     parser.add_argument("--out", type=Path, metavar="FILE", help="write the track here")
     parser.add_argument("--format", choices=("csv", "tum"), default="csv",
                         help="csv: t_s,x_m,y_m,std_m,heading_rad; tum: t x y z qx qy qz qw (evo) (default: csv)")
@@ -65,6 +65,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.sensors.ilc import read_ilc
+    from mapfilter.sensors.pathloss import access_points_for_map
+    from mapfilter.sensors.radiomap import RadioMap
+    from mapfilter.tracking import TrackingConfig, track_recording
+    from mapfilter.trackio import write_track_csv, write_track_tum
+
     if args.particles < 1:
         raise MapfilterError(f"--particles must be at least 1, got {args.particles}")
     floorplan = FloorPlan.load(args.map)
@@ -108,6 +117,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print_summary(floorplan, recording, result, args) -> None:
+    from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
+    from mapfilter.maps.walls import count_wall_crossings
+
     collapses = f"{len(result.collapses)} collapses" + (" (all recovered)" if result.collapses else "")
     lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans, "
              f"{collapses}, {result.runtime_s:.1f} s"]

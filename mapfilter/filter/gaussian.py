@@ -4,8 +4,8 @@ numpy's ziggurat costs about 9 ns per normal on this machine and was the largest
 part of a 100k-particle step (400k normals: motion noise and regularisation jitter). Here the
 uniforms come from the same ``numpy.random.Generator`` (so a seed still fixes everything)
 and the Box-Muller transform z = sqrt(-2 ln u1) (cos 2 pi u2, sin 2 pi u2) runs in a
-parallel numba kernel whose ln, cos and sin are series that the compiler vectorises:
-ln from the float's exponent plus 2 atanh((m - 1)/(m + 1)) of its mantissa m in [1, 2)
+numba kernel (on several threads for large draws) whose ln, cos and sin are series that the
+compiler vectorises: ln from the float's exponent plus 2 atanh((m - 1)/(m + 1)) of its mantissa m in [1, 2)
 (8 odd terms), cos/sin by the double-angle formulas from Taylor series on [-pi/2, pi/2];
 the draws agree with exact Box-Muller on the same uniforms to 1e-7.
 """
@@ -15,19 +15,21 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from mapfilter.threads import MIN_PER_THREAD, for_slices
 
 __all__ = ["standard_normal"]
 
 _BLOCK = 1024  # pairs per block; each block's loops vectorise
 
 
-@njit(cache=True, parallel=True, fastmath=True)
-def _box_muller(u, out):
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _box_muller(first_block, end_block, u, out):
+    # blocks [first_block, end_block) of _BLOCK pairs; the caller slices by blocks
     n_pairs = u.shape[0] // 2
-    n_blocks = (n_pairs + _BLOCK - 1) // _BLOCK
     ln2 = math.log(2.0)
-    for block in prange(n_blocks):
+    for block in range(first_block, end_block):
         lo = block * _BLOCK
         m = min(n_pairs, lo + _BLOCK) - lo
         u1 = np.empty(_BLOCK, dtype=np.float64)
@@ -64,5 +66,6 @@ def standard_normal(rng: np.random.Generator, shape: int | tuple[int, ...]) -> n
     n_uniform = size + (size & 1)
     u = rng.random(n_uniform)
     out = np.empty(n_uniform, dtype=np.float64)
-    _box_muller(u, out)
+    n_blocks = (n_uniform // 2 + _BLOCK - 1) // _BLOCK
+    for_slices(_box_muller, n_blocks, u, out, min_per_thread=max(MIN_PER_THREAD // (2 * _BLOCK), 1))
     return out[:size].reshape(shape)

@@ -12,12 +12,13 @@ import dataclasses
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.particles import Particles
 from mapfilter.sensors.pathloss import MIN_DISTANCE_M, AccessPointTable, match_scan
 from mapfilter.sensors.wifi import WifiScan
+from mapfilter.threads import MIN_PER_THREAD, for_slices
 
 __all__ = ["GaussianFixLikelihood", "PositionFix", "TrilaterationLikelihood", "rssi_log_likelihood"]
 
@@ -54,8 +55,9 @@ class GaussianFixLikelihood:
 _CHUNK = 512  # particles per block: the per-AP loops over a block vectorise (SIMD)
 
 
-@njit(cache=True, parallel=True, fastmath=True)
-def _rssi_ll_kernel(x, y, ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed, inv_two_var, out):
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _rssi_ll_kernel(first_block, end_block, x, y, ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed, inv_two_var,
+                    out):
     """-sum_k (z_k - R_k)^2 / (2 var) per particle, in blocks of particles, float32.
 
     log10(d^2) comes from the float's exponent and a 5-term series of the mantissa,
@@ -65,11 +67,10 @@ def _rssi_ll_kernel(x, y, ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed, inv
     """
     n_particles = x.shape[0]
     k_ap = ap_x.shape[0]
-    n_blocks = (n_particles + _CHUNK - 1) // _CHUNK
     ln2 = np.float32(math.log(2.0))
     inv_ln10 = np.float32(1.0 / math.log(10.0))
     one = np.float32(MIN_DISTANCE_M * MIN_DISTANCE_M)
-    for block in prange(n_blocks):
+    for block in range(first_block, end_block):  # blocks of _CHUNK particles
         lo = block * _CHUNK
         m = min(n_particles, lo + _CHUNK) - lo
         acc = np.zeros(_CHUNK, dtype=np.float32)
@@ -142,9 +143,11 @@ def rssi_log_likelihood(xy_m: np.ndarray, ap_xy_m: np.ndarray, c_dbm: np.ndarray
     ap_xy = np.asarray(ap_xy_m, dtype=np.float64).reshape(-1, 2)[heard]
     xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
     out = np.empty(xy.shape[0], dtype=f32)
-    _rssi_ll_kernel(xy[:, 0].astype(f32), xy[:, 1].astype(f32), ap_xy[:, 0].astype(f32), ap_xy[:, 1].astype(f32),
-                    per_ap(c_dbm), 5.0 * per_ap(n), per_ap(alpha_db_per_m), per_ap(d_max_m),
-                    np.ascontiguousarray(observed[heard], dtype=f32), f32(0.5 / float(variance_db2)), out)
+    n_blocks = (xy.shape[0] + _CHUNK - 1) // _CHUNK
+    for_slices(_rssi_ll_kernel, n_blocks, xy[:, 0].astype(f32), xy[:, 1].astype(f32), ap_xy[:, 0].astype(f32),
+               ap_xy[:, 1].astype(f32), per_ap(c_dbm), 5.0 * per_ap(n), per_ap(alpha_db_per_m), per_ap(d_max_m),
+               np.ascontiguousarray(observed[heard], dtype=f32), f32(0.5 / float(variance_db2)), out,
+               min_per_thread=max(MIN_PER_THREAD // _CHUNK, 1))
     return out.astype(np.float64)
 
 

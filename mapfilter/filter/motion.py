@@ -11,10 +11,11 @@ import dataclasses
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from mapfilter.filter.gaussian import standard_normal
 from mapfilter.filter.particles import Particles
+from mapfilter.threads import for_slices
 
 __all__ = ["ConstantVelocityMotion", "PDRMotion", "RandomWalkMotion", "StepInput"]
 
@@ -27,12 +28,12 @@ def _moved(particles: Particles, **fields: np.ndarray) -> Particles:
     return Particles(**out)
 
 
-@njit(cache=True, parallel=True, fastmath=True)
-def _circle_walk(xy, phi, noise, radius_m, sigma_m, out):
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _circle_walk(lo, hi, xy, phi, noise, radius_m, sigma_m, out):
     # eq. 6.6: x_k = x_{k-1} + r (cos phi, sin phi) + sigma e, phi in [0, 2 pi).
     # cos/sin from Taylor series of b = phi/2 - pi/2 in [-pi/2, pi/2] (|error| < 1e-7) and the
     # double-angle formulas: unlike libm's, they vectorise (3x faster than math.cos/sin).
-    for i in prange(xy.shape[0]):
+    for i in range(lo, hi):
         b = 0.5 * phi[i] - 0.5 * math.pi
         b2 = b * b
         sin_b = b * (1.0 - b2 / 6.0 * (1.0 - b2 / 20.0 * (1.0 - b2 / 42.0 * (1.0 - b2 / 72.0 * (1.0 - b2 / 110.0)))))
@@ -64,8 +65,8 @@ class RandomWalkMotion:
         phi = rng.uniform(0.0, 2.0 * math.pi, n)
         noise = standard_normal(rng, (n, 2))
         xy = np.empty((n, 2))
-        _circle_walk(np.ascontiguousarray(particles.xy_m, dtype=np.float64), phi, noise,
-                     self.radius_mps * dt, self.sigma_mps * dt, xy)
+        for_slices(_circle_walk, n, np.ascontiguousarray(particles.xy_m, dtype=np.float64), phi, noise,
+                   self.radius_mps * dt, self.sigma_mps * dt, xy)
         return _moved(particles, xy_m=xy)
 
 

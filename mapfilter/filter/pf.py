@@ -16,7 +16,7 @@ import math
 from typing import Any
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.ancestry import Ancestry
@@ -30,6 +30,7 @@ from mapfilter.filter.regularise import KERNELS, regularise, weighted_covariance
 from mapfilter.filter.resample import get_resampler
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall
+from mapfilter.threads import for_slices
 
 __all__ = ["FilterConfig", "ParticleFilter"]
 
@@ -49,10 +50,10 @@ def _underflows(model: MeasurementModel, log_w: np.ndarray) -> bool:
     return peak is not None and float(log_w.max()) - float(peak) < _LOG_UNDERFLOW
 
 
-@njit(cache=True, parallel=True)
-def _gather_rows(a, index, out):
+@njit(cache=True, nogil=True, error_model="numpy")
+def _gather_rows(lo, hi, a, index, out):
     # out[i] = a[index[i]] for (N, 2) arrays: numpy's fancy indexing of 2-D rows is ~5x slower
-    for i in prange(index.shape[0]):
+    for i in range(lo, hi):
         j = index[i]
         out[i, 0] = a[j, 0]
         out[i, 1] = a[j, 1]
@@ -60,7 +61,7 @@ def _gather_rows(a, index, out):
 
 def _rows(a: np.ndarray, index: np.ndarray) -> np.ndarray:
     out = np.empty((index.shape[0], 2), dtype=np.float64)
-    _gather_rows(np.ascontiguousarray(a, dtype=np.float64), index, out)
+    for_slices(_gather_rows, index.shape[0], np.ascontiguousarray(a, dtype=np.float64), index, out)
     return out
 
 

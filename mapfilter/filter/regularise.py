@@ -16,12 +16,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from mapfilter.filter.estimate import weighted_moments
 from mapfilter.filter.gaussian import standard_normal
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.maps.walls import _segment_crosses_world, clearance_px
+from mapfilter.maps.walls import NO_BUFFER, _segment_crosses_world, clearance_px
+from mapfilter.threads import for_slices
 
 __all__ = ["KERNELS", "optimal_bandwidth", "regularise", "sample_kernel", "weighted_covariance"]
 
@@ -57,14 +58,13 @@ def weighted_covariance(xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return weighted_moments(xy_m, weights)[1]
 
 
-@njit(cache=True, parallel=True)
-def _jitter_kernel(mask, clearance, x0_m, y0_m, resolution_m, parent_xy, origin_xy, index, eps, root, h,
-                   new_xy, accepted):
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)  # no refcounting: see maps/walls.py
+def _jitter_kernel(lo, hi, mask, clearance, x0_m, y0_m, resolution_m, parent_xy, origin_xy, index, eps, root, h,
+                   new_xy, accepted, no_buffer):
     """Candidates parent + h * root @ eps for the particles ``index``; accept those whose move
     from the parent (and from the origin, the position before the step) touches no wall."""
     inv = 1.0 / resolution_m
-    no_buffer = np.empty(0, dtype=np.int64)
-    for j in prange(index.shape[0]):
+    for j in range(lo, hi):
         i = index[j]
         px = parent_xy[i, 0]
         py = parent_xy[i, 1]
@@ -124,8 +124,9 @@ def regularise(floorplan: FloorPlan, xy_m: np.ndarray, covariance_m2: np.ndarray
             break
         eps = sample_kernel(kernel, pending.size, rng)
         accepted = np.empty(pending.size, dtype=np.bool_)
-        _jitter_kernel(floorplan.wall_mask, clearance, floorplan.origin_m[0], floorplan.origin_m[1],
-                       floorplan.resolution_m, xy, origin, pending, eps, root, h, new_xy, accepted)
+        for_slices(_jitter_kernel, pending.size, floorplan.wall_mask, clearance, floorplan.origin_m[0],
+                   floorplan.origin_m[1], floorplan.resolution_m, xy, origin, pending, eps, root, h, new_xy, accepted,
+                   NO_BUFFER)
         moved[pending[accepted]] = True
         pending = pending[~accepted]
     return new_xy, moved

@@ -12,7 +12,7 @@ File format (``.npz``, numpy's zip of arrays, written compressed)
 key                       dtype, shape               meaning
 ========================  =========================  ================================================
 ``format``                str scalar                 ``"mapfilter-radiomap"``
-``version``               int64 scalar               ``1``
+``version``               int64 scalar               ``2`` (``1`` still loads)
 ``xy_m``                  float64 (P, 2)             reference-point positions, world metres
 ``t_s``                   float64 (P,)               scan times, Unix seconds
 ``trace``                 int64 (P,)                 index into ``source_traces`` of each point
@@ -20,15 +20,19 @@ key                       dtype, shape               meaning
 ``rssi_dbm``              float32 (P, K)             RSSI; NaN = the AP was not heard in that scan
 ``source_traces``         str (T,)                   names of the survey logs (trace ids)
 ``floor_name``            str scalar                 floor label, ``""`` if unknown
+``cv_fix_errors_m``       float64 (E,)               version 2: ``cross_validated_fix_errors`` of
+                                                     the map (what calibrates the fix sigma)
+``cv_fix_errors_params``  float64 (3,)               version 2: the k, max_groups and
+                                                     min_separation_m they were computed with
 ========================  =========================  ================================================
 
-Nothing in the file is pickled (``allow_pickle=False`` on load).
+Version 1 files (without the last two keys) still load; their errors are computed when first
+needed. Nothing in the file is pickled (``allow_pickle=False`` on load).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import zipfile
 import zlib
@@ -37,7 +41,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
@@ -47,7 +51,10 @@ from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import WifiScan
 
 FORMAT_NAME = "mapfilter-radiomap"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+# the cross-validation stored in every file: what the tracker's calibration asks for by default
+_STORED_CV_PARAMS = (4, 200, 1.0)
 
 
 @dataclasses.dataclass(eq=False)
@@ -120,14 +127,21 @@ class RadioMap:
 
     # ---- files ----------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:
-        """Write the radio map as a compressed ``.npz`` (format in the module docstring), atomically."""
+        """Write the radio map as a compressed ``.npz`` (format in the module docstring), atomically.
+
+        The file carries the map's cross-validated fix errors (computed here if not known yet),
+        so that every walk tracked with it skips that (points)^2 work.
+        """
+        k, max_groups, min_separation_m = _STORED_CV_PARAMS
+        cv_errors = cross_validated_fix_errors(self, k, max_groups, min_separation_m)
         with atomic_paths(path) as (tmp,):
             with tmp.open("wb") as handle:
                 np.savez_compressed(
                     handle, format=np.array(FORMAT_NAME), version=np.array(FORMAT_VERSION, dtype=np.int64),
                     xy_m=self.xy_m, t_s=self.t_s, trace=self.trace, ap_keys=np.array(self.ap_keys, dtype=str),
                     rssi_dbm=self.rssi_dbm, source_traces=np.array(self.source_traces, dtype=str),
-                    floor_name=np.array(self.floor_name or ""),
+                    floor_name=np.array(self.floor_name or ""), cv_fix_errors_m=cv_errors,
+                    cv_fix_errors_params=np.array(_STORED_CV_PARAMS, dtype=np.float64),
                 )
 
     @classmethod
@@ -144,8 +158,9 @@ class RadioMap:
         if str(arrays.get("format", "")) != FORMAT_NAME:
             raise MapfilterError(f"not a radio map file: no format key {FORMAT_NAME!r}", path)
         version = int(arrays.get("version", -1))
-        if version != FORMAT_VERSION:
-            raise MapfilterError(f"radio map format version {version} is not supported (this is {FORMAT_VERSION})", path)
+        if version not in READABLE_VERSIONS:
+            raise MapfilterError(f"radio map format version {version} is not supported (this reads "
+                                 f"{', '.join(map(str, READABLE_VERSIONS))})", path)
         missing = {"xy_m", "t_s", "trace", "ap_keys", "rssi_dbm", "source_traces"} - set(arrays)
         if missing:
             raise MapfilterError(f"radio map lacks the arrays {sorted(missing)}", path)
@@ -161,7 +176,14 @@ class RadioMap:
         if p and (arrays["trace"].min() < 0 or arrays["trace"].max() >= len(traces)):
             raise MapfilterError("radio map trace indices out of range", path)
         floor = str(arrays.get("floor_name", ""))
-        return cls(xy, [str(k) for k in keys], rssi, arrays["t_s"], arrays["trace"], traces, floor or None)
+        radio_map = cls(xy, [str(k) for k in keys], rssi, arrays["t_s"], arrays["trace"], traces, floor or None)
+        cv_errors, cv_params = arrays.get("cv_fix_errors_m"), arrays.get("cv_fix_errors_params")
+        if version >= 2 and cv_errors is not None and cv_params is not None:
+            if cv_errors.ndim != 1 or cv_params.shape != (3,) or not np.all(np.isfinite(cv_errors)):
+                raise MapfilterError("radio map has malformed cv_fix_errors_m / cv_fix_errors_params", path)
+            params = (int(cv_params[0]), int(cv_params[1]), float(cv_params[2]))
+            _cv_memo(radio_map)[params] = cv_errors.astype(np.float64)
+        return radio_map
 
 
 # ---- building ---------------------------------------------------------------------------------
@@ -275,32 +297,108 @@ class KwnnFix(NamedTuple):
     n_shared_aps: np.ndarray  # APs the scan shares with the radio map (scalar or (S,))
 
 
-@njit(cache=True, parallel=True)
-def _signal_distances(scans, refs, p, missing_dbm, out_dist, out_shared):
-    """Minkowski-p signal distance between every scan and reference point (NaN = not heard)."""
-    n_scans, n_aps = scans.shape
-    n_refs = refs.shape[0]
-    for s in prange(n_scans):
+class _SparseRows(NamedTuple):
+    """Rows of an RSSI matrix as lists of the heard APs (CSR): row i is ``col``/``val`` in
+    ``ptr[i]:ptr[i + 1]``, columns ascending; ``val`` in float64 as the distances use it."""
+
+    ptr: np.ndarray  # (R + 1,) int64
+    col: np.ndarray  # (nnz,) int64
+    val: np.ndarray  # (nnz,) float64
+
+
+def _sparse_rows(rssi_dbm: np.ndarray) -> _SparseRows:
+    heard = ~np.isnan(rssi_dbm)
+    rows, cols = np.nonzero(heard)  # row-major: columns ascending within each row
+    ptr = np.zeros(rssi_dbm.shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.count_nonzero(heard, axis=1), out=ptr[1:])
+    return _SparseRows(ptr, cols.astype(np.int64), rssi_dbm[rows, cols].astype(np.float64))
+
+
+def _reference_rows(radio_map: RadioMap) -> _SparseRows:
+    """The radio map's reference points as sparse rows, computed once per RSSI array."""
+    cached = getattr(radio_map, "_sparse_refs", None)
+    if cached is None or cached[0] is not radio_map.rssi_dbm:
+        cached = (radio_map.rssi_dbm, _sparse_rows(radio_map.rssi_dbm))
+        radio_map._sparse_refs = cached
+    return cached[1]
+
+
+@njit(cache=True)
+def _signal_distances(s_ptr, s_col, s_val, r_ptr, r_col, r_val, p, missing_dbm, out_dist, out_shared):
+    """Minkowski-p signal distance between every scan and reference point, over sparse rows.
+
+    Walks the two sorted lists of heard APs together, so that a pair costs the APs heard by
+    either side, not every AP of the map (a well-surveyed floor has thousands, a scan hears
+    tens). The terms are added in ascending AP order, as a loop over every AP that skips the
+    ones heard by neither side would add them: the same sums to the last bit (for p = 2 the
+    square is a product, which equals libm's pow to the last bit on integer dBm, what phones
+    and the ILC logs give).
+    """
+    n_scans = s_ptr.shape[0] - 1
+    n_refs = r_ptr.shape[0] - 1
+    past_end = np.iinfo(np.int64).max
+    square = p == 2.0
+    for s in range(n_scans):
+        i0 = s_ptr[s]
+        i1 = s_ptr[s + 1]
         for r in range(n_refs):
+            i = i0
+            j = r_ptr[r]
+            j1 = r_ptr[r + 1]
             acc = 0.0
             shared = 0
-            for k in range(n_aps):
-                a = scans[s, k]
-                b = refs[r, k]
-                a_heard = not math.isnan(a)
-                b_heard = not math.isnan(b)
-                if not (a_heard or b_heard):
-                    continue  # heard by neither: both would be missing_dbm, contributes 0
-                if a_heard and b_heard:
+            while i < i1 or j < j1:
+                ka = s_col[i] if i < i1 else past_end
+                kb = r_col[j] if j < j1 else past_end
+                if ka == kb:
+                    a = s_val[i]
+                    b = r_val[j]
                     shared += 1
-                else:  # heard by one side only: the other side gets missing_dbm explicitly
-                    if not a_heard:
-                        a = missing_dbm
-                    if not b_heard:
-                        b = missing_dbm
-                acc += abs(a - b) ** p
+                    i += 1
+                    j += 1
+                elif ka < kb:  # heard by the scan only: the reference gets missing_dbm explicitly
+                    a = s_val[i]
+                    b = missing_dbm
+                    i += 1
+                else:  # heard by the reference only
+                    a = missing_dbm
+                    b = r_val[j]
+                    j += 1
+                d = abs(a - b)
+                # d * d is what pow(d, 2) returns for integer dBm (exact squares), 20x cheaper
+                acc += d * d if square else d ** p
             out_dist[s, r] = acc ** (1.0 / p)
             out_shared[s, r] = shared
+
+
+def _distances_to_references(radio_map: RadioMap, scans: np.ndarray, p: float,
+                             missing_dbm: float) -> tuple[np.ndarray, np.ndarray]:
+    """(S, P) signal distances and (S, P) numbers of shared APs of the scans (S, K) to every reference point."""
+    refs = _reference_rows(radio_map)
+    rows = _sparse_rows(scans)
+    dist = np.empty((scans.shape[0], len(radio_map)))
+    shared = np.empty((scans.shape[0], len(radio_map)), dtype=np.int64)
+    _signal_distances(rows.ptr, rows.col, rows.val, refs.ptr, refs.col, refs.val, float(p), float(missing_dbm),
+                      dist, shared)
+    return dist, shared
+
+
+def _kwnn_from_distances(ref_xy_m: np.ndarray, dist: np.ndarray, shared: np.ndarray, n_shared_aps: np.ndarray,
+                         k: int, q: float, min_shared_aps: int) -> KwnnFix:
+    """KWNN fixes from the (S, P) distances and shared-AP counts (``dist`` is overwritten)."""
+    n_scans, n_refs = dist.shape
+    dist[shared < max(min_shared_aps, 1)] = np.inf
+    kk = min(k, n_refs)
+    order = np.argsort(dist, axis=1, kind="stable")[:, :kk]
+    d_nn = np.take_along_axis(dist, order, axis=1)
+    valid = np.isfinite(d_nn)
+    # an exact match (D = 0) takes all the weight instead of dividing by zero
+    weight = np.where(valid, 1.0 / np.maximum(d_nn, 1e-9) ** q, 0.0)
+    total = weight.sum(axis=1)
+    xy = np.full((n_scans, 2), np.nan)
+    ok = total > 0
+    xy[ok] = (weight[ok, :, None] * ref_xy_m[order[ok]]).sum(axis=1) / total[ok, None]
+    return KwnnFix(xy, np.where(valid, order, -1), np.where(valid, d_nn, np.nan), n_shared_aps)
 
 
 def kwnn_fix_many(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4, p: float = 2.0, q: float = 2.0,
@@ -318,24 +416,9 @@ def kwnn_fix_many(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4, p:
     scans = np.ascontiguousarray(scan_rssi_dbm, dtype=np.float64)
     if scans.ndim != 2 or scans.shape[1] != len(radio_map.ap_keys):
         raise MapfilterError(f"scan matrix has shape {scans.shape}, expected (S, {len(radio_map.ap_keys)})")
-    refs = np.ascontiguousarray(radio_map.rssi_dbm, dtype=np.float64)
-    n_scans, n_refs = scans.shape[0], refs.shape[0]
-    dist = np.empty((n_scans, n_refs))
-    shared = np.empty((n_scans, n_refs), dtype=np.int64)
-    _signal_distances(scans, refs, float(p), float(missing_dbm), dist, shared)
+    dist, shared = _distances_to_references(radio_map, scans, p, missing_dbm)
     n_shared_aps = np.count_nonzero(~np.isnan(scans), axis=1)
-    dist[shared < max(min_shared_aps, 1)] = np.inf
-    kk = min(k, n_refs)
-    order = np.argsort(dist, axis=1, kind="stable")[:, :kk]
-    d_nn = np.take_along_axis(dist, order, axis=1)
-    valid = np.isfinite(d_nn)
-    # an exact match (D = 0) takes all the weight instead of dividing by zero
-    weight = np.where(valid, 1.0 / np.maximum(d_nn, 1e-9) ** q, 0.0)
-    total = weight.sum(axis=1)
-    xy = np.full((n_scans, 2), np.nan)
-    ok = total > 0
-    xy[ok] = (weight[ok, :, None] * radio_map.xy_m[order[ok]]).sum(axis=1) / total[ok, None]
-    return KwnnFix(xy, np.where(valid, order, -1), np.where(valid, d_nn, np.nan), n_shared_aps)
+    return _kwnn_from_distances(radio_map.xy_m, dist, shared, n_shared_aps, k, q, min_shared_aps)
 
 
 def kwnn_fix(radio_map: RadioMap, scan_keys: Sequence[str], scan_rssi_dbm: np.ndarray, k: int = 4, p: float = 2.0,
@@ -365,7 +448,29 @@ def cross_validated_fix_errors(radio_map: RadioMap, k: int = 4, max_groups: int 
     location (leave one surveyed spot out). At most ``max_groups`` groups, evenly picked.
     What it measures is how far off a fix from this radio map typically is: the spread that
     a filter should give fixes from it.
+
+    It depends on the radio map only, and costs (points)^2 signal distances: the result is
+    kept with the map (and written to its file by ``RadioMap.save``), so it is computed once
+    per map, not once per tracked walk. A map whose arrays are replaced is computed afresh.
     """
+    params = (int(k), int(max_groups), float(min_separation_m))
+    memo = _cv_memo(radio_map)
+    if params not in memo:
+        memo[params] = _cross_validated_fix_errors(radio_map, *params)
+    return memo[params].copy()
+
+
+def _cv_memo(radio_map: RadioMap) -> dict:
+    """The map's memo of cross-validated errors, emptied when its arrays were replaced."""
+    arrays = (radio_map.xy_m, radio_map.rssi_dbm, radio_map.trace)
+    cached = getattr(radio_map, "_cv_errors", None)
+    if cached is None or any(a is not b for a, b in zip(cached[0], arrays)):
+        cached = (arrays, {})
+        radio_map._cv_errors = cached
+    return cached[1]
+
+
+def _cross_validated_fix_errors(radio_map: RadioMap, k: int, max_groups: int, min_separation_m: float) -> np.ndarray:
     if len(radio_map) < 2:
         return np.zeros(0)
     if len(radio_map.source_traces) > 1:
@@ -381,7 +486,13 @@ def cross_validated_fix_errors(radio_map: RadioMap, k: int = 4, max_groups: int 
     errors = []
     for g in np.unique(picked):
         inside = group == g
-        fixes = kwnn_fix_many(radio_map.select(~inside), radio_map.rssi_dbm[inside], k=k).xy_m
+        scans = radio_map.rssi_dbm[inside].astype(np.float64)
+        # distances to every reference point, the group's own taken out of the candidates:
+        # the same fixes as kwnn_fix_many on radio_map.select(~inside), without copying the map
+        dist, shared = _distances_to_references(radio_map, scans, 2.0, -100.0)
+        dist[:, inside] = np.inf
+        fixes = _kwnn_from_distances(radio_map.xy_m, dist, shared, np.count_nonzero(~np.isnan(scans), axis=1),
+                                     k, 2.0, 3).xy_m
         ok = np.all(np.isfinite(fixes), axis=1)
         errors.append(np.linalg.norm(fixes[ok] - radio_map.xy_m[inside][ok], axis=1))
     return np.concatenate(errors)

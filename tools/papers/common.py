@@ -171,9 +171,8 @@ def run_parallel(func: Callable, items: Iterable, jobs: int, setup: Callable | N
 
 
 def _worker_init(setup: Callable | None, setup_args: tuple) -> None:
-    import numba
-
-    numba.set_num_threads(1)
+    # one kernel thread per worker process: the processes already fill the cores
+    os.environ["MAPFILTER_THREADS"] = "1"
     if setup is not None:
         setup(*setup_args)
 

@@ -1,0 +1,36 @@
+"""Start-up: --help imports no numerical library, and the CLI's copies of defaults match the library's."""
+
+import dataclasses
+import subprocess
+import sys
+
+import pytest
+
+from mapfilter.cli import evaluate_cmd, radiomap_cmd, simulate_cmd, track_cmd
+
+HEAVY = ("numpy", "numba", "scipy", "cv2", "shapely", "rerun", "matplotlib")
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["track", "--help"], ["evaluate", "--help"], ["map", "prepare", "--help"],
+                                  ["radiomap", "build", "--help"], ["simulate", "--help"], ["view", "--help"]])
+def test_help_imports_no_numerical_library(argv):
+    code = ("import sys\nfrom mapfilter.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+            f"print('imported:', ','.join(m for m in {HEAVY!r} if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, check=True).stdout
+    assert "usage: mapfilter" in out
+    assert out.strip().splitlines()[-1] == "imported:"  # none of HEAVY
+
+
+def test_cli_defaults_are_the_librarys():
+    from mapfilter.evaluation.comparison import ALL_METHODS
+    from mapfilter.sensors.pathloss import ApFitConfig
+    from mapfilter.simulate.walk import SimConfig
+    from mapfilter.tracking import FINGERPRINT_MODELS, MOTION_MODELS, TrackingConfig
+
+    assert track_cmd.MOTION_MODELS == MOTION_MODELS and track_cmd.FINGERPRINT_MODELS == FINGERPRINT_MODELS
+    assert track_cmd.DEFAULT_PARTICLES == TrackingConfig.n_particles
+    assert track_cmd.DEFAULT_FINGERPRINT_MODEL == TrackingConfig.fingerprint_model
+    assert evaluate_cmd.ALL_METHODS == ALL_METHODS
+    assert radiomap_cmd._MIN_OBSERVATIONS == ApFitConfig.min_observations
+    sim = dataclasses.asdict(SimConfig())
+    assert {key: sim[key] for key in simulate_cmd._SIM_DEFAULTS} == simulate_cmd._SIM_DEFAULTS
