@@ -59,6 +59,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help=f"particles for the pf methods (default: {TrackingConfig.n_particles})")
     parser.add_argument("--fingerprint-model", choices=("fix", "likelihood"), default=TrackingConfig.fingerprint_model,
                         help=f"how pf weighs fingerprints (default: {TrackingConfig.fingerprint_model})")
+    parser.add_argument("--adapt", action="store_true",
+                        help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
+                             "is below when a scan's strongest RSSI is above -36 dBm, alpha per band; Lund thesis 7.1-7.2)")
+    parser.add_argument("--no-blocking-compensation", action="store_true",
+                        help="trilateration: do not compensate signal blocking (by default a term H is taken off "
+                             "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
     parser.add_argument("--smooth", action="store_true", help="also report the smoothed pf track (pf-smooth)")
     parser.add_argument("--jobs", type=int, default=1, metavar="N", help="walks in parallel processes (default: 1)")
@@ -79,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
     setup = EvaluationSetup(
         methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps, leave_one_out=args.leave_one_out,
         smooth=args.smooth, seed=args.seed,
-        tracking=TrackingConfig(n_particles=args.particles, fingerprint_model=args.fingerprint_model))
+        tracking=TrackingConfig(n_particles=args.particles, fingerprint_model=args.fingerprint_model,
+                                adapt_path_loss=args.adapt, blocking_compensation=not args.no_blocking_compensation))
 
     def progress(done: int, total: int, name: str) -> None:
         bar = "#" * int(30 * done / total)
