@@ -11,6 +11,7 @@ from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
+from mapfilter.filter.adaptive_pathloss import AdaptationConfig
 from mapfilter.evaluation.comparison import ALL_METHODS, EvaluationSetup, evaluate_logs, nan_to_none
 from mapfilter.evaluation.metrics import format_table
 from mapfilter.evaluation.plots import plot_error_cdf, plot_tracks_on_map
@@ -62,6 +63,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--adapt", action="store_true",
                         help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
                              "is below when a scan's strongest RSSI is above -36 dBm, alpha per band; Lund thesis 7.1-7.2)")
+    parser.add_argument("--adapt-rssi-limit", type=float, default=AdaptationConfig.rssi_limit_dbm, metavar="DBM",
+                        help="with --adapt: a scan whose strongest RSSI is above this adapts (default: %(default)s, "
+                             "the thesis' value; about the RSSI 1-1.5 m from an AP of your building)")
     parser.add_argument("--no-blocking-compensation", action="store_true",
                         help="trilateration: do not compensate signal blocking (by default a term H is taken off "
                              "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
@@ -86,7 +90,9 @@ def run(args: argparse.Namespace) -> int:
         methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps, leave_one_out=args.leave_one_out,
         smooth=args.smooth, seed=args.seed,
         tracking=TrackingConfig(n_particles=args.particles, fingerprint_model=args.fingerprint_model,
-                                adapt_path_loss=args.adapt, blocking_compensation=not args.no_blocking_compensation))
+                                adapt_path_loss=args.adapt,
+                                adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
+                                blocking_compensation=not args.no_blocking_compensation))
 
     def progress(done: int, total: int, name: str) -> None:
         bar = "#" * int(30 * done / total)

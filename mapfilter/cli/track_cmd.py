@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
+from mapfilter.filter.adaptive_pathloss import AdaptationConfig
 from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import count_wall_crossings
@@ -52,6 +53,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--adapt", action="store_true",
                         help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
                              "is below when a scan's strongest RSSI is above -36 dBm, alpha per band; Lund thesis 7.1-7.2)")
+    parser.add_argument("--adapt-rssi-limit", type=float, default=AdaptationConfig.rssi_limit_dbm, metavar="DBM",
+                        help="with --adapt: a scan whose strongest RSSI is above this adapts (default: %(default)s, "
+                             "the thesis' value; about the RSSI 1-1.5 m from an AP of your building)")
     parser.add_argument("--no-blocking-compensation", action="store_true",
                         help="trilateration: do not compensate signal blocking (by default a term H is taken off "
                              "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
@@ -93,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
                   f"or outside the map {args.map}", file=sys.stderr)
     config = TrackingConfig(motion=args.motion, n_particles=args.particles, use_map=not args.no_map,
                             fingerprint_model=args.fingerprint_model, smooth=args.smooth,
-                            adapt_path_loss=args.adapt, blocking_compensation=not args.no_blocking_compensation)
+                            adapt_path_loss=args.adapt,
+                            adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit), blocking_compensation=not args.no_blocking_compensation)
 
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
 
