@@ -318,3 +318,27 @@ def test_ap_key_of_the_wrong_table_matches(office_aps):
     assert offset_access_points(office_aps, 1.0).keys == office_aps.keys == [
         ap_key(b, band) for b, band in zip(office_aps.bssid, office_aps.band)]
     assert path_loss_rssi_dbm(1.0, -38.0, 2.0, 0.3, 30.0) == pytest.approx(-38.3)
+
+
+def test_optional_together_test_tells_walls_from_a_hand(office_aps):
+    """The strongest half of the APs 12 dB weaker, the others 1 dB stronger (walking behind walls):
+    the thesis' top-6 rule calls it blocking; with min_fraction_dropped = 0.75 it is not, until
+    max_ambiguous_scans such scans in a row restart the reference there."""
+    xy = np.array([12.0, 9.0])
+    first = _model_scan(office_aps, xy, 0.0)
+    order = np.argsort(-first.rssi_dbm)
+    shift = np.full(len(office_aps), 1.0)
+    shift[order[: len(order) // 2]] = -12.0
+    walls = dataclasses.replace(first, rssi_dbm=first.rssi_dbm + shift)
+    thesis = AdaptiveTrilaterationLikelihood(office_aps, adaptation=None, blocking=BlockingConfig())
+    together = AdaptiveTrilaterationLikelihood(office_aps, adaptation=None,
+                                               blocking=BlockingConfig(min_fraction_dropped=0.75, max_ambiguous_scans=2))
+    particles = _one_particle(xy)
+    for model in (thesis, together):
+        model.log_likelihood(particles, first)
+        model.log_likelihood(particles, dataclasses.replace(walls, t_s=2.0))
+    assert thesis.state.blocked  # the top-6 mean fell by more than 6 dB
+    assert not together.state.blocked  # but half of the APs rose
+    together.log_likelihood(particles, dataclasses.replace(walls, t_s=4.0))  # 2nd ambiguous scan: new reference
+    together.log_likelihood(particles, dataclasses.replace(walls, rssi_dbm=walls.rssi_dbm - 10.0, t_s=6.0))
+    assert together.state.blocked  # now every AP fell together below the new reference
