@@ -342,3 +342,18 @@ def test_optional_together_test_tells_walls_from_a_hand(office_aps):
     together.log_likelihood(particles, dataclasses.replace(walls, t_s=4.0))  # 2nd ambiguous scan: new reference
     together.log_likelihood(particles, dataclasses.replace(walls, rssi_dbm=walls.rssi_dbm - 10.0, t_s=6.0))
     assert together.state.blocked  # now every AP fell together below the new reference
+
+
+def test_cli_evaluate_takes_the_adaptation_flags(tmp_path):
+    """`evaluate` passes --adapt / --no-blocking-compensation to the trilateration pf: the flags change its track."""
+    import csv
+
+    means = {}
+    for name, extra in (("plain", ["--no-blocking-compensation"]), ("adapt", ["--adapt", "--adapt-rssi-limit", "-50"])):
+        out = tmp_path / name
+        assert main(["evaluate", str(OFFICE), str(REPO / "maps" / "office_walk.txt.gz"), "--aps", str(OFFICE_APS),
+                     "--methods", "pf-nopdr,ls", "--particles", "500", "--out", str(out), *extra]) == 0
+        with (out / "summary.csv").open() as handle:
+            means[name] = {row["method"]: float(row["mean"]) for row in csv.DictReader(handle)}
+    assert means["plain"]["ls"] == means["adapt"]["ls"]  # LS has no adaptation
+    assert means["plain"]["pf-nopdr"] != means["adapt"]["pf-nopdr"]

@@ -62,7 +62,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help=f"how pf weighs fingerprints (default: {TrackingConfig.fingerprint_model})")
     parser.add_argument("--adapt", action="store_true",
                         help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
-                             "is below when a scan's strongest RSSI is above -36 dBm, alpha per band; Lund thesis 7.1-7.2)")
+                             "is below when a scan's strongest RSSI is above the limit, alpha per band; "
+                             "Lund thesis 7.1-7.2)")
     parser.add_argument("--adapt-rssi-limit", type=float, default=AdaptationConfig.rssi_limit_dbm, metavar="DBM",
                         help="with --adapt: a scan whose strongest RSSI is above this adapts (default: %(default)s, "
                              "the thesis' value; about the RSSI 1-1.5 m from an AP of your building)")

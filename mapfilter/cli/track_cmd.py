@@ -52,7 +52,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help=f"number of particles (default: {TrackingConfig.n_particles})")
     parser.add_argument("--adapt", action="store_true",
                         help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
-                             "is below when a scan's strongest RSSI is above -36 dBm, alpha per band; Lund thesis 7.1-7.2)")
+                             "is below when a scan's strongest RSSI is above the limit, alpha per band; "
+                             "Lund thesis 7.1-7.2)")
     parser.add_argument("--adapt-rssi-limit", type=float, default=AdaptationConfig.rssi_limit_dbm, metavar="DBM",
                         help="with --adapt: a scan whose strongest RSSI is above this adapts (default: %(default)s, "
                              "the thesis' value; about the RSSI 1-1.5 m from an AP of your building)")
@@ -98,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
     config = TrackingConfig(motion=args.motion, n_particles=args.particles, use_map=not args.no_map,
                             fingerprint_model=args.fingerprint_model, smooth=args.smooth,
                             adapt_path_loss=args.adapt,
-                            adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit), blocking_compensation=not args.no_blocking_compensation)
+                            adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
+                            blocking_compensation=not args.no_blocking_compensation)
 
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
 
