@@ -337,7 +337,7 @@ Thesis: blocked once, 38.5 m without compensation, 7.3 m with it (7.2 m unblocke
         lines.append(f"""
 ### Real walks: ILC site1 F1
 
-{len(ilc)} traces of `site1/F1` (the first {len(ilc)} in name order of the 76), each with the
+{len(ilc)} traces of `site1/F1` (in name order), each with the
 access-point table fitted (`estimate_access_points`) from the *other* traces
 (leave-one-trace-out), PDR from the phone's IMU, {ilc_particles} particles (fewer than above:
 shared 2-core machine), map from `import_ilc`. Errors at the waypoints, causal. Reported as
