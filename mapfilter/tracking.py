@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from mapfilter.errors import MapfilterError
+from mapfilter.filter.adaptive_pathloss import AdaptationConfig, AdaptiveTrilaterationLikelihood, BlockingConfig
 from mapfilter.filter.estimate import circular_mean
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix, TrilaterationLikelihood
@@ -77,6 +78,11 @@ class TrackingConfig:
     # for coarser filter steps) let clouds fan out and measured worse on ILC F1
     pdr_motion: PDRMotion = dataclasses.field(default_factory=lambda: PDRMotion(heading_sigma_rad=0.02))
     radio_map_likelihood: RadioMapLikelihoodConfig = dataclasses.field(default_factory=RadioMapLikelihoodConfig)
+    # trilateration only (Lund thesis chapter 7, ``filter/adaptive_pathloss.py``):
+    adapt_path_loss: bool = False  # online adaptation of C (per AP) and alpha (per band) (7.1-7.2)
+    blocking_compensation: bool = True  # H dB off every AP while all drop together (7.3)
+    adaptation: AdaptationConfig = dataclasses.field(default_factory=AdaptationConfig)
+    blocking: BlockingConfig = dataclasses.field(default_factory=BlockingConfig)
 
     def __post_init__(self) -> None:
         if self.motion not in MOTION_MODELS:
@@ -100,6 +106,7 @@ class TrackingResult:
     n_filter_steps: int
     n_scans_used: int
     runtime_s: float
+    ap_table: AccessPointTable | None = None  # trilateration: the table at the end (adapted with adapt_path_loss)
 
 
 class WifiMeasurements:
@@ -147,7 +154,7 @@ class WifiMeasurements:
             self.usable = np.array([r.size > 0 for r in rows])
             if not self.usable.any():
                 raise MapfilterError(f"the access-point table shares no access point with {log_name}")
-            self.model = TrilaterationLikelihood(ap_table, variance_db2=config.rssi_variance_db2)
+            self.model = trilateration_model(ap_table, config)
         if not self.usable.any():
             raise MapfilterError(f"no WiFi scan of {log_name} gives a fingerprint fix with this radio map")
 
@@ -184,6 +191,16 @@ class WifiMeasurements:
             if self.usable[i] and match_scan(self.model.ap_table, scan)[0].size >= 3:
                 out[i] = least_squares_position(self.model.ap_table, scan)
         return [out]
+
+
+def trilateration_model(ap_table: AccessPointTable, config: TrackingConfig):
+    """The path-loss likelihood, adaptive (Lund thesis ch. 7) when the config asks for adaptation or blocking."""
+    if not (config.adapt_path_loss or config.blocking_compensation):
+        return TrilaterationLikelihood(ap_table, variance_db2=config.rssi_variance_db2)
+    return AdaptiveTrilaterationLikelihood(
+        ap_table, variance_db2=config.rssi_variance_db2,
+        adaptation=config.adaptation if config.adapt_path_loss else None,
+        blocking=config.blocking if config.blocking_compensation else None)
 
 
 def calibrated_fix_sigma_m(radio_map: RadioMap, k: int = 4, default_m: float = 5.0) -> float:
@@ -268,6 +285,8 @@ def track_recording(
         else:  # prediction tick for cv / rw
             report = pf.step(t_s, dt, None)
         last_t = t_s
+        if kind == "scan":
+            report.path_loss = getattr(wifi.model, "state", None)  # adaptive trilateration: H, C (viewer)
         out_t.append(t_s)
         out_xy.append(report.estimate_xy_m)
         out_std.append(report.estimate_std_m)
@@ -287,7 +306,7 @@ def track_recording(
         t_s, xy_m = detour_wall_crossings(plan, *pf.smoothed_track())
         smoothed = Track(t_s, xy_m, name="pf-smooth")
     return TrackingResult(track, smoothed, list(pf.collapses), len(out_t) - 1, n_scans,
-                          time.perf_counter() - started)
+                          time.perf_counter() - started, getattr(wifi.model, "ap_table", None) if ap_table else None)
 
 
 def placement_evidence(wifi: WifiMeasurements, causal_t_s: np.ndarray, causal_xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

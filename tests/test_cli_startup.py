@@ -23,6 +23,7 @@ def test_help_imports_no_numerical_library(argv):
 
 def test_cli_defaults_are_the_librarys():
     from mapfilter.evaluation.comparison import ALL_METHODS
+    from mapfilter.filter.adaptive_pathloss import AdaptationConfig
     from mapfilter.sensors.pathloss import ApFitConfig
     from mapfilter.simulate.walk import SimConfig
     from mapfilter.tracking import FINGERPRINT_MODELS, MOTION_MODELS, TrackingConfig
@@ -31,6 +32,7 @@ def test_cli_defaults_are_the_librarys():
     assert track_cmd.DEFAULT_PARTICLES == TrackingConfig.n_particles
     assert track_cmd.DEFAULT_FINGERPRINT_MODEL == TrackingConfig.fingerprint_model
     assert evaluate_cmd.ALL_METHODS == ALL_METHODS
+    assert track_cmd.DEFAULT_ADAPT_RSSI_LIMIT_DBM == AdaptationConfig.rssi_limit_dbm
     assert radiomap_cmd._MIN_OBSERVATIONS == ApFitConfig.min_observations
     sim = dataclasses.asdict(SimConfig())
     assert {key: sim[key] for key in simulate_cmd._SIM_DEFAULTS} == simulate_cmd._SIM_DEFAULTS

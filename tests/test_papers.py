@@ -124,6 +124,11 @@ def test_lund_thesis_quick_run(papers, tmp_path):
     step_rows = [r for r in _table_rows(text, "") if r[0].isdigit()]
     assert step_rows and float(step_rows[0][1]) == pytest.approx(lund.WRONG_START_M, abs=0.05)
     assert (tmp_path / "lund_step_length.png").stat().st_size > 1000
+    # chapter 7: adaptation from a wrong table, the parameter table, blocking with and without compensation
+    assert "## Chapter 7" in text and "adaptation closes" in text
+    ch7 = {r[0]: r for r in _table_rows(text.split("## Chapter 7")[1], "")}
+    assert np.isfinite(float(ch7["PF, WiFi only (random walk): wrong table, adapted (-42 dBm)"][1]))
+    assert np.isfinite(float(ch7["PF, WiFi + PDR: blocked repeatedly, no compensation"][1]))
 
 
 def test_run_parallel_spawns_workers_and_keeps_order(papers):

@@ -10,7 +10,8 @@ import sys
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.track_cmd import DEFAULT_FINGERPRINT_MODEL, DEFAULT_PARTICLES, FINGERPRINT_MODELS
+from mapfilter.cli.track_cmd import (DEFAULT_ADAPT_RSSI_LIMIT_DBM, DEFAULT_FINGERPRINT_MODEL, DEFAULT_PARTICLES,
+                                     FINGERPRINT_MODELS)
 from mapfilter.errors import MapfilterError
 
 # mapfilter.evaluation.comparison.ALL_METHODS, written out so that --help imports no numerical
@@ -58,6 +59,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help=f"particles for the pf methods (default: {DEFAULT_PARTICLES})")
     parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=DEFAULT_FINGERPRINT_MODEL,
                         help=f"how pf weighs fingerprints (default: {DEFAULT_FINGERPRINT_MODEL})")
+    parser.add_argument("--adapt", action="store_true",
+                        help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
+                             "is below when a scan's strongest RSSI is above the limit, alpha per band; "
+                             "Lund thesis 7.1-7.2)")
+    parser.add_argument("--adapt-rssi-limit", type=float, default=DEFAULT_ADAPT_RSSI_LIMIT_DBM, metavar="DBM",
+                        help="with --adapt: a scan whose strongest RSSI is above this adapts (default: %(default)s, "
+                             "the thesis' value; about the RSSI 1-1.5 m from an AP of your building)")
+    parser.add_argument("--no-blocking-compensation", action="store_true",
+                        help="trilateration: do not compensate signal blocking (by default a term H is taken off "
+                             "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
     parser.add_argument("--smooth", action="store_true", help="also report the smoothed pf track (pf-smooth)")
     parser.add_argument("--jobs", type=int, default=1, metavar="N", help="walks in parallel processes (default: 1)")
@@ -67,6 +78,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mapfilter.evaluation.comparison import EvaluationSetup, evaluate_logs
+    from mapfilter.filter.adaptive_pathloss import AdaptationConfig
     from mapfilter.evaluation.metrics import format_table
     from mapfilter.maps.floorplan import FloorPlan
     from mapfilter.tracking import TrackingConfig
@@ -83,7 +95,10 @@ def run(args: argparse.Namespace) -> int:
     setup = EvaluationSetup(
         methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps, leave_one_out=args.leave_one_out,
         smooth=args.smooth, seed=args.seed,
-        tracking=TrackingConfig(n_particles=args.particles, fingerprint_model=args.fingerprint_model))
+        tracking=TrackingConfig(n_particles=args.particles, fingerprint_model=args.fingerprint_model,
+                                adapt_path_loss=args.adapt,
+                                adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
+                                blocking_compensation=not args.no_blocking_compensation))
 
     def progress(done: int, total: int, name: str) -> None:
         bar = "#" * int(30 * done / total)

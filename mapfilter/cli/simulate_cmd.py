@@ -43,6 +43,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--wall-loss-db", type=float, nargs=2, metavar=("DB_2G4", "DB_5G"),
                         default=(defaults.wall_loss_2g4_db, defaults.wall_loss_5g_db),
                         help="attenuation per wall crossed at 2.4 and 5 GHz (default %(default)s)")
+    parser.add_argument("--blocking", type=float, nargs=3, action="append", default=[],
+                        metavar=("START_S", "END_S", "H_DB"),
+                        help="signal blocking (a hand over the phone): every AP reads H_DB weaker from START_S to "
+                             "END_S after the walk's start (repeatable)")
+    parser.add_argument("--write-aps", type=Path, default=None, metavar="OUT.csv",
+                        help="also write the access-point table the walk was simulated with, shifted by "
+                             "--aps-c-offset / --aps-alpha-offset (a deliberately wrong table for --adapt)")
+    parser.add_argument("--aps-c-offset", type=float, default=0.0, metavar="DB",
+                        help="added to every AP's C in --write-aps (default 0)")
+    parser.add_argument("--aps-alpha-offset", type=float, default=0.0, metavar="DB_PER_M",
+                        help="added to every AP's alpha in --write-aps, clipped at 0 (default 0)")
     parser.add_argument("--start-time-ms", type=int, default=defaults.start_time_ms,
                         help="Unix time (ms) of the first record (default %(default)s)")
     parser.set_defaults(func=run)
@@ -54,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.maps.floorplan import FloorPlan
     from mapfilter.sensors.pathloss import access_points_for_map
     from mapfilter.simulate.ilc_writer import write_ilc
-    from mapfilter.simulate.walk import SimConfig, simulate_walk
+    from mapfilter.simulate.walk import SimConfig, offset_access_points, simulate_walk
 
     if args.seed < 0:
         raise MapfilterError(f"--seed must be a non-negative integer, got {args.seed}")
@@ -67,10 +78,14 @@ def run(args: argparse.Namespace) -> int:
         SimConfig(), duration_s=duration, start_time_ms=args.start_time_ms, survey=args.survey,
         survey_spacing_m=args.survey_spacing, survey_scans_per_point=args.scans_per_point,
         shadowing_sigma_db=args.shadowing_db, wall_loss_2g4_db=args.wall_loss_db[0],
-        wall_loss_5g_db=args.wall_loss_db[1],
+        wall_loss_5g_db=args.wall_loss_db[1], blocking_episodes=tuple(tuple(e) for e in args.blocking),
     )
+    if (args.aps_c_offset or args.aps_alpha_offset) and args.write_aps is None:
+        raise MapfilterError("--aps-c-offset / --aps-alpha-offset need --write-aps OUT.csv")
     walk = simulate_walk(floorplan, ap_table, config, np.random.default_rng(args.seed), site_id=args.map.stem)
     write_ilc(walk, args.out)
+    if args.write_aps is not None:
+        offset_access_points(ap_table, args.aps_c_offset, args.aps_alpha_offset).write_csv(args.write_aps)
     print(f"{args.out}: {walk.end_t_s - walk.start_t_s:.1f} s, {walk.n_steps} steps, "
           f"{walk.waypoint_t_s.size} waypoints, {walk.scan_t_s.size} WiFi scans ({walk.row_ap.size} rows)"
           + (f", {walk.reference_xy_m.shape[0]} reference points" if args.survey else ""), file=sys.stderr)

@@ -15,6 +15,7 @@ MOTION_MODELS = ("pdr", "cv", "rw")
 FINGERPRINT_MODELS = ("fix", "blend", "likelihood")
 DEFAULT_FINGERPRINT_MODEL = "fix"
 DEFAULT_PARTICLES = 10_000
+DEFAULT_ADAPT_RSSI_LIMIT_DBM = -36.0  # AdaptationConfig.rssi_limit_dbm (the thesis' limit)
 
 _EPILOG = """\
 WiFi: --radiomap RM (fingerprinting; build one with `mapfilter radiomap build`) or --aps
@@ -48,6 +49,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              f"(default: {DEFAULT_FINGERPRINT_MODEL})")
     parser.add_argument("--particles", type=int, default=DEFAULT_PARTICLES, metavar="N",
                         help=f"number of particles (default: {DEFAULT_PARTICLES})")
+    parser.add_argument("--adapt", action="store_true",
+                        help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
+                             "is below when a scan's strongest RSSI is above the limit, alpha per band; "
+                             "Lund thesis 7.1-7.2)")
+    parser.add_argument("--adapt-rssi-limit", type=float, default=DEFAULT_ADAPT_RSSI_LIMIT_DBM, metavar="DBM",
+                        help="with --adapt: a scan whose strongest RSSI is above this adapts (default: %(default)s, "
+                             "the thesis' value; about the RSSI 1-1.5 m from an AP of your building)")
+    parser.add_argument("--no-blocking-compensation", action="store_true",
+                        help="trilateration: do not compensate signal blocking (by default a term H is taken off "
+                             "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
+    parser.add_argument("--adapted-aps", type=Path, metavar="OUT.csv",
+                        help="with --adapt: write the access-point table as adapted at the end of the walk")
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
     parser.add_argument("--no-map", action="store_true", help="ignore the walls (to see what the map buys)")
     parser.add_argument("--smooth", action="store_true",
@@ -67,6 +80,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from mapfilter.filter.adaptive_pathloss import AdaptationConfig
     from mapfilter.maps.floorplan import FloorPlan
     from mapfilter.sensors.ilc import read_ilc
     from mapfilter.sensors.pathloss import access_points_for_map
@@ -76,6 +90,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.particles < 1:
         raise MapfilterError(f"--particles must be at least 1, got {args.particles}")
+    if args.radiomap is not None and (args.adapt or args.adapted_aps is not None):
+        raise MapfilterError("--adapt and --adapted-aps adapt a path-loss table: they need trilateration "
+                             "(--aps APS.csv or the map's table), not --radiomap")
+    if args.adapted_aps is not None and not args.adapt:
+        raise MapfilterError("--adapted-aps writes the adapted table: give --adapt too")
     floorplan = FloorPlan.load(args.map)
     recording = read_ilc(args.log)
     radio_map = RadioMap.load(args.radiomap) if args.radiomap else None
@@ -88,7 +107,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"mapfilter: warning: {args.log}: {int(in_walls.sum())} of {in_walls.size} waypoints lie in walls "
                   f"or outside the map {args.map}", file=sys.stderr)
     config = TrackingConfig(motion=args.motion, n_particles=args.particles, use_map=not args.no_map,
-                            fingerprint_model=args.fingerprint_model, smooth=args.smooth)
+                            fingerprint_model=args.fingerprint_model, smooth=args.smooth,
+                            adapt_path_loss=args.adapt,
+                            adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
+                            blocking_compensation=not args.no_blocking_compensation)
 
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
 
@@ -111,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
         output = result.smoothed if args.smooth else result.track
         if args.out is not None:
             (write_track_tum if args.format == "tum" else write_track_csv)(output, args.out)
+        if args.adapted_aps is not None:
+            result.ap_table.write_csv(args.adapted_aps)
 
     _print_summary(floorplan, recording, result, args)
     return 0
@@ -142,6 +166,8 @@ def _print_summary(floorplan, recording, result, args) -> None:
                      f"{event.particles_lost} particles lost) -> recovered by {event.recovery}")
     if args.out is not None:
         lines.append(f"  wrote {args.out}")
+    if getattr(args, "adapted_aps", None) is not None:
+        lines.append(f"  wrote {args.adapted_aps} (adapted access-point table)")
     if args.rerun is not None:
         lines.append(f"  wrote {args.rerun}")
     print("\n".join(lines))

@@ -115,10 +115,11 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
         # calibrate once for the three pf variants, not once each
         tracking = dataclasses.replace(tracking, fix_sigma_m=calibrated_fix_sigma_m(radio_map, tracking.kwnn_k))
     results: list[MethodResult] = []
-    wifi = None  # the pf variants share one set of WiFi measurements (fixes, radio-map likelihood)
-    if any(m in PF_METHODS for m in setup.methods) and (radio_map is not None or ap_table is not None):
-        wifi = WifiMeasurements(scans, radio_map, ap_table if radio_map is None else None, floorplan, tracking,
-                                str(log_paths[index]))
+    # the pf variants share one set of fingerprint measurements (fixes, radio-map likelihood: no
+    # state); trilateration models may adapt during a run, so each run makes its own
+    wifi = None
+    if any(m in PF_METHODS for m in setup.methods) and radio_map is not None:
+        wifi = WifiMeasurements(scans, radio_map, None, floorplan, tracking, str(log_paths[index]))
 
     def add(method: str, make: Callable[[], tuple[Track, int]], causal: bool = True) -> None:
         started = time.perf_counter()

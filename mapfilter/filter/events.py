@@ -4,6 +4,7 @@ the filter itself never imports rerun."""
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -50,3 +51,5 @@ class StepReport:
     measurement_kind: str | None = None  # the model's ``kind`` ("fix", ...) or "other"; None: no measurement
     fix_xy_m: np.ndarray | None = None  # fingerprint fix used this step, if any
     heard_ap_xy_m: np.ndarray | None = None  # trilateration: positions of the APs heard this step
+    # adaptive trilateration (``filter.adaptive_pathloss.PathLossState``): H, the nearest AP's C
+    path_loss: Any = None

@@ -101,6 +101,9 @@ class SimConfig:
     cache_probability: float = 0.5  # an AP not heard now still shows its cached row
     cache_max_age_s: float = 30.0  # cached rows older than this are gone
     ssid: str = "mapfilter-sim"
+    # signal blocking (a hand over the phone, Lund thesis 7.3): (start_s, end_s, H_db) since the
+    # walk's start; every AP reads H_db weaker while a reading's time is in [start_s, end_s)
+    blocking_episodes: tuple[tuple[float, float, float], ...] = ()
     # --- survey (radio-map collection) ---
     survey: bool = False
     survey_spacing_m: float = 2.0  # reference points on a grid with this spacing
@@ -120,6 +123,12 @@ class SimConfig:
             lo, hi = getattr(self, name)
             if not (0 <= lo <= hi) or (name in ("speed_mps", "scan_interval_s") and lo <= 0):
                 raise MapfilterError(f"{name} must be a range 0 < low <= high, got {(lo, hi)}")
+        for episode in self.blocking_episodes:
+            if len(episode) != 3 or not all(math.isfinite(v) for v in episode):
+                raise MapfilterError(f"a blocking episode is (start_s, end_s, H_db), got {episode}")
+            start, end, h_db = episode
+            if not (0 <= start < end) or h_db < 0:
+                raise MapfilterError(f"a blocking episode needs 0 <= start < end and H >= 0 dB, got {episode}")
         if self.shadowing_sigma_db < 0:
             raise MapfilterError(f"shadowing sigma must be >= 0 dB, got {self.shadowing_sigma_db}")
         if self.survey_scans_per_point < 1:
@@ -204,6 +213,30 @@ def model_rssi_dbm(floorplan: FloorPlan, ap_table: AccessPointTable, ap_index: n
     loss_db = np.where(np.array(ap_table.band)[k] == "5", config.wall_loss_5g_db, config.wall_loss_2g4_db)
     rssi = path_loss_rssi_dbm(d_m, ap_table.c_dbm[k], ap_table.n[k], ap_table.alpha_db_per_m[k], ap_table.d_max_m[k])
     return rssi - loss_db * walls, walls
+
+
+def blocking_db(t_s: np.ndarray, episodes) -> np.ndarray:
+    """Blocking loss (dB, >= 0) at times ``t_s`` (since the walk's start): the sum of the
+    episodes (start_s, end_s, H_db) that cover each time."""
+    t = np.asarray(t_s, dtype=np.float64)
+    loss = np.zeros_like(t)
+    for start, end, h_db in episodes:
+        loss += np.where((t >= start) & (t < end), float(h_db), 0.0)
+    return loss
+
+
+def offset_access_points(ap_table: AccessPointTable, c_offset_db: float = 0.0,
+                         alpha_offset_db_per_m: float = 0.0) -> AccessPointTable:
+    """A deliberately wrong copy of ``ap_table``: C + ``c_offset_db`` and alpha +
+    ``alpha_offset_db_per_m`` (clipped at 0) on every AP; positions, n and d_max unchanged.
+    The Lund thesis started its adaptation from such a table (C = -25 dBm, alpha = 0.3 dB/m)."""
+    for name, value in (("C offset", c_offset_db), ("alpha offset", alpha_offset_db_per_m)):
+        if not math.isfinite(value):
+            raise MapfilterError(f"the {name} must be a finite number, got {value}")
+    return dataclasses.replace(ap_table, xy_m=ap_table.xy_m.copy(), c_dbm=ap_table.c_dbm + float(c_offset_db),
+                               alpha_db_per_m=np.maximum(ap_table.alpha_db_per_m + float(alpha_offset_db_per_m), 0.0),
+                               n=ap_table.n.copy(), d_max_m=ap_table.d_max_m.copy(),
+                               bssid=list(ap_table.bssid), band=list(ap_table.band))
 
 
 # ---------------------------------------------------------------------------------------
@@ -521,6 +554,7 @@ def _wifi(floorplan: FloorPlan, ap_table: AccessPointTable, position_at, scan_t:
         seen = t_scan - rng.uniform(*config.fresh_age_s, size=k_ap)
         xy = position_at(seen)
         expected, walls = model_rssi_dbm(floorplan, ap_table, np.arange(k_ap), xy, config)
+        expected = expected - blocking_db(seen, config.blocking_episodes)
         measured = np.round(expected + config.shadowing_sigma_db * rng.standard_normal(k_ap))
         audible = (measured >= config.sensitivity_dbm) & (rng.random(k_ap) >= config.miss_probability)
         cached_ok = np.isfinite(cache_rssi) & (t_scan - cache_seen <= config.cache_max_age_s)

@@ -1,4 +1,5 @@
-"""The plot layer: ESS and live particles, wall kills, the error, PDR step length and heading."""
+"""The plot layer: ESS and live particles, wall kills, the error, PDR step length and heading, and
+for adaptive trilateration the blocking term H and the nearest AP's C (Lund thesis ch. 7)."""
 
 from __future__ import annotations
 
@@ -37,6 +38,10 @@ class PlotLayer:
         log("plots/pdr/heading_deg/ground_truth",
             rr.SeriesPoints(colors=[GT_COLOUR], names=["walking direction (ground truth)"], marker_sizes=[1.5]),
             static=True)
+        log("plots/path_loss/blocking_H_db", rr.SeriesLines(colors=[RED], names=["blocking H (dB)"]), static=True)
+        log("plots/path_loss/nearest_C_dbm",
+            rr.SeriesPoints(colors=[(31, 119, 180)], names=["C of the nearest AP (dBm)"], marker_sizes=[2.0]),
+            static=True)
 
     def draw(self, report: StepReport, error_m: float, true_heading_rad: float | None) -> None:
         """One step's values; ``error_m`` NaN and ``true_heading_rad`` None when there is no ground truth."""
@@ -53,3 +58,11 @@ class PlotLayer:
             log("plots/pdr/heading_deg/filter", rr.Scalars(wrap_deg(float(report.heading_rad))))
             if true_heading_rad is not None:
                 log("plots/pdr/heading_deg/ground_truth", rr.Scalars(wrap_deg(true_heading_rad)))
+        state = report.path_loss  # adaptive trilateration only (filter.adaptive_pathloss.PathLossState)
+        if state is not None:
+            log("plots/path_loss/blocking_H_db", rr.Scalars(float(state.blocking_db)))
+            if math.isfinite(state.nearest_c_dbm):
+                log("plots/path_loss/nearest_C_dbm", rr.Scalars(float(state.nearest_c_dbm)))
+            if state.adapted:
+                log("events", rr.TextLog(f"path loss adapted at {state.nearest_ap}: C = {state.nearest_c_dbm:.1f} dBm",
+                                         level=rr.TextLogLevel.INFO))

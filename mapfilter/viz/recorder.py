@@ -164,6 +164,8 @@ class RerunLogger:
             rrb.Tabs(
                 rrb.TimeSeriesView(name="PDR heading (deg)", origin="plots/pdr/heading_deg"),
                 rrb.TimeSeriesView(name="PDR step length (m)", origin="plots/pdr/step_length_m"),
+                rrb.TimeSeriesView(name="Blocking H (dB)", origin="plots/path_loss/blocking_H_db"),
+                rrb.TimeSeriesView(name="Nearest AP's C (dBm)", origin="plots/path_loss/nearest_C_dbm"),
             ),
             rrb.TextLogView(name="Events", origin="events"),
             row_shares=[1, 1, 1, 1, 1.2],

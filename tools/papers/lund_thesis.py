@@ -36,6 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import common  # noqa: E402
+import lund_ch7  # noqa: E402
 
 from mapfilter.errors import MapfilterError  # noqa: E402
 from mapfilter.evaluation.baselines import pdr_track  # noqa: E402
@@ -54,8 +55,9 @@ REPORT_TIMES_S = (0, 15, 30, 60, 90, 120, 180, 240)
 _STATE: dict = {}
 
 
-def _setup(seed: int, duration_s: float, n_walks: int, n_particles: int) -> None:
+def _setup(seed: int, duration_s: float, n_walks: int, n_particles: int, ch7: tuple) -> None:
     """This process's state from seeds: map, APs, walks (the same in every process)."""
+    lund_ch7.setup(*ch7)
     floorplan, aps = common.load_office()
     walks = []
     for i in range(n_walks):
@@ -98,6 +100,9 @@ def _main(index: int) -> dict:
             out["fitted/pdr"] = common.track_errors(pdr_track(steps, ls.t_s[0], ls.xy_m[0]), walk)
             runs["pf_wifi_nomap"] = TrackingConfig(motion="rw", n_particles=n, use_map=False)
             runs["pf_pdr_nomap"] = TrackingConfig(motion="pdr", n_particles=n, use_map=False)
+            # blocking compensation is on by default (chapter 7): what it costs where nothing blocks
+            runs["pf_wifi_nocomp"] = TrackingConfig(motion="rw", n_particles=n, blocking_compensation=False)
+            runs["pf_pdr_nocomp"] = TrackingConfig(motion="pdr", n_particles=n, blocking_compensation=False)
         for key, config in runs.items():
             result = _pf(index, config, seed, table)
             out[f"{table}/{key}"] = common.track_errors(result.track, walk)
@@ -133,6 +138,8 @@ def _causes(runs: list[dict]) -> str:
 
 
 def _work(item: tuple) -> dict:
+    if item[0] in ("adapt", "block", "ilc"):
+        return lund_ch7.work(item)
     return _main(item[1]) if item[0] == "main" else _step_length(item[1])
 
 
@@ -143,6 +150,8 @@ ROWS = (
     ("fitted/pdr", "PDR only (from the first LS fix)", PAPER["pdr"]),
     ("fitted/pf_pdr", "PF, WiFi + PDR, map", PAPER["pf_pdr"]),
     ("fitted/pf_pdr_nomap", "PF, WiFi + PDR, no map", ""),
+    ("fitted/pf_wifi_nocomp", "PF, WiFi only (random walk), map, no blocking compensation", ""),
+    ("fitted/pf_pdr_nocomp", "PF, WiFi + PDR, map, no blocking compensation", ""),
     ("true/ls", "LS trilateration, true table (no wall term)", ""),
     ("true/pf_wifi", "PF, WiFi only, true table (no wall term), map", ""),
     ("true/pf_pdr", "PF, WiFi + PDR, true table (no wall term), map", ""),
@@ -201,6 +210,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=None, help="walk length, s (default 180; quick 30)")
     parser.add_argument("--particles", type=int, default=None, help="particles (default 10,000; quick 1000)")
     parser.add_argument("--seed", type=int, default=0, help="base seed of the walks")
+    parser.add_argument("--ch7-walks", type=int, default=None,
+                        help="chapter 7: simulated walks, seeds SEED*1000 + 0.. (default 5; quick 2)")
+    parser.add_argument("--ilc-traces", type=int, default=None,
+                        help="chapter 7: ILC site1 F1 traces, in name order (default all 76; quick 0)")
+    parser.add_argument("--ilc-particles", type=int, default=2000, help="chapter 7: particles on ILC (default 2000)")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     parser.add_argument("--out", type=Path, default=common.DOCS / "lund_thesis.md", help="markdown page to write")
     args = parser.parse_args(argv)
@@ -210,8 +224,14 @@ def main(argv: list[str] | None = None) -> int:
     n_particles = args.particles or (1000 if args.quick else 10_000)
     figure = args.out.with_name(args.out.stem + "_step_length.png")
 
-    items = [("step", i) for i in range(n_walks)] + [("main", i) for i in range(n_walks)]
-    results = common.run_parallel(_work, items, args.jobs, _setup, (args.seed, duration, n_walks, n_particles))
+    ch7_walks = args.ch7_walks if args.ch7_walks is not None else (2 if args.quick else 5)
+    ilc_traces = args.ilc_traces if args.ilc_traces is not None else (0 if args.quick else 76)
+    ch7 = (args.seed, ch7_walks, duration, n_particles, ilc_traces, args.ilc_particles)
+    ch7_items = lund_ch7.items(ch7_walks, ilc_traces)
+    items = ch7_items + [("step", i) for i in range(n_walks)] + [("main", i) for i in range(n_walks)]
+    results = common.run_parallel(_work, items, args.jobs, _setup, (args.seed, duration, n_walks, n_particles, ch7))
+    ch7_md = lund_ch7.section(list(zip(items, results))[: len(ch7_items)], args.seed, duration, n_particles,
+                              args.ilc_particles)
     step_runs = [r for it, r in zip(items, results) if it[0] == "step"]
     per_walk = [r for it, r in zip(items, results) if it[0] == "main"]
     main_md, step_md, means = _tables(per_walk, step_runs, duration)
@@ -253,6 +273,13 @@ Checks (mean error over all walks):
 {check("fitted/pf_pdr", "fitted/pf_wifi", "PF WiFi + PDR beats PF WiFi only")}
 {check("fitted/pf_pdr", "fitted/pf_pdr_nomap", "PF WiFi + PDR: the map beats no map")}
 {check("fitted/pf_wifi", "fitted/pf_wifi_nomap", "PF WiFi only: the map beats no map")}
+{check("fitted/pf_wifi", "fitted/pf_wifi_nocomp", "PF WiFi only: blocking compensation (the default) beats none")}
+{check("fitted/pf_pdr", "fitted/pf_pdr_nocomp", "PF WiFi + PDR: blocking compensation (the default) beats none")}
+
+The PF rows use the tracker's defaults, which since chapter 7 include blocking compensation.
+Nothing blocks in these walks, but walking behind walls drops the six strongest APs together
+too, and a false detection then takes H off the model: the "no blocking compensation" rows
+show what that costs here (see chapter 7 below for the walks that do block).
 
 ## Step length from a wrong start ({WRONG_START_M} m)
 
@@ -294,6 +321,8 @@ thesis' state converged within its walk; ours does not within {duration:.0f} s.
   (fingerprint fixes, fewer APs, `tools/papers/evennou_marx.py`).
 - Nothing is tuned to their figures: thesis values (r = 1.5 dt, sigma = 0.5 dt,
   25 dB^2, 15 % false turns) and the tracker's defaults.
+
+{ch7_md}
 """
     common.write_page(args.out, text)
     return 0
