@@ -13,7 +13,7 @@ from mapfilter.errors import MapfilterError
 # them equal to the library's.
 MOTION_MODELS = ("pdr", "cv", "rw")
 FINGERPRINT_MODELS = ("fix", "blend", "likelihood")
-DEFAULT_FINGERPRINT_MODEL = "fix"
+DEFAULT_FINGERPRINT_MODEL = "blend"
 DEFAULT_PARTICLES = 10_000
 DEFAULT_ADAPT_RSSI_LIMIT_DBM = -36.0  # AdaptationConfig.rssi_limit_dbm (the thesis' limit)
 
