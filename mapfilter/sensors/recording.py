@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # the reader imports this module; the report type is only named here
+    from mapfilter.sensors.ilc import ReadReport
 
 
 @dataclasses.dataclass
@@ -72,6 +76,7 @@ class Recording:
     rotvec_xyz: np.ndarray  # x, y, z of the unit quaternion
     wifi: WifiScans
     beacons: Beacons
+    read_report: ReadReport | None = None  # what the log reader skipped (None: not read from a log)
 
     @property
     def has_ground_truth(self) -> bool:
