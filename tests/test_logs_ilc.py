@@ -7,7 +7,7 @@ import pytest
 from conftest import ILC_SITE1 as ILC
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.ilc import LogReadWarning, read_ilc
 from mapfilter.sensors.wifi import scans_of
 
 
@@ -123,7 +123,8 @@ def test_non_finite_row_in_an_unused_type_is_skipped_even_with_strict(tmp_path, 
 
 def test_nan_in_a_needed_type_is_skipped_by_default_and_refused_with_strict(tmp_path):
     path = _write(tmp_path, HEADER + GOOD + "1574559499000\tTYPE_ACCELEROMETER\tNaN\t0.2\t9.8\t3\n")
-    assert read_ilc(path).acc_mps2.shape == (1, 3)
+    with pytest.warns(LogReadWarning, match="1 bad TYPE_ACCELEROMETER row .needed; first at line 11"):
+        assert read_ilc(path).acc_mps2.shape == (1, 3)
     with pytest.raises(MapfilterError, match=r":11: malformed TYPE_ACCELEROMETER line: column 3 is not finite"):
         read_ilc(path, strict=True)
 

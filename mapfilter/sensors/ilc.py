@@ -23,11 +23,11 @@ What was skipped is in ``Recording.read_report`` (``ReadReport.warning()`` is on
 
 from __future__ import annotations
 
-import dataclasses
 import gzip
 import math
 import os
 import re
+import warnings
 import zlib
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.recording import Beacons, Recording, WifiScans
+from mapfilter.sensors.recording import Beacons, ReadReport, Recording, WifiScans
 from mapfilter.sensors.wifi import ap_key, band_of_frequency
 
 DEFAULT_MAX_WIFI_AGE_S = 5.0
@@ -60,40 +60,8 @@ _TIME_DIGITS = 13
 _RECORD_TYPE = re.compile(r"TYPE_[A-Z0-9_]+")
 
 
-@dataclasses.dataclass
-class ReadReport:
-    """What one log held and what the reader skipped."""
-
-    path: Path
-    n_lines: int = 0
-    rows: dict[str, int] = dataclasses.field(default_factory=dict)  # good rows per record type
-    bad_rows: dict[str, int] = dataclasses.field(default_factory=dict)  # skipped rows per record type
-    first_bad: dict[str, str] = dataclasses.field(default_factory=dict)  # type -> "line N: reason"
-    joined_lines: int = 0  # lines that held more than one record (missing newline), split
-    truncated_after_line: int | None = None  # the gzip stream ended early after this line
-    unknown_rows: int = 0  # rows of record types this reader does not know (skipped, not an error)
-    needed: frozenset[str] = NEEDED_TYPES
-
-    @property
-    def n_bad_rows(self) -> int:
-        return sum(self.bad_rows.values())
-
-    @property
-    def clean(self) -> bool:
-        return not self.bad_rows and self.truncated_after_line is None
-
-    def warning(self) -> str | None:
-        """One line naming what was skipped (None when nothing was)."""
-        parts = []
-        for kind in sorted(self.bad_rows):
-            use = "needed" if kind in self.needed else "not used"
-            parts.append(f"{self.bad_rows[kind]} bad {kind} row{'s' if self.bad_rows[kind] != 1 else ''} ({use}; "
-                         f"first at {self.first_bad[kind]})")
-        if self.truncated_after_line is not None:
-            parts.append(f"gzip stream ends early: kept the {self.truncated_after_line} lines before the cut")
-        if not parts:
-            return None
-        return f"{self.path}: skipped " + "; ".join(parts)
+class LogReadWarning(UserWarning):
+    """Rows of a log were skipped (the message is one line naming the file, types and lines)."""
 
 
 class _BadRow(Exception):
@@ -116,8 +84,8 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
 
     Bad rows of a type outside ``needed`` are always skipped; bad rows of a needed type and
     a truncated gzip stream are skipped unless ``strict``, which refuses them with a
-    ``MapfilterError`` naming the file and line. ``warn`` (if given) receives the report's
-    one-line warning when anything was skipped.
+    ``MapfilterError`` naming the file and line. When anything was skipped, the report's
+    one-line warning goes to ``warn`` if given, else to ``warnings.warn`` as a ``LogReadWarning``.
     """
     path = Path(path)
     if not path.is_file():
@@ -173,8 +141,12 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
         detail = f" ({report.n_bad_rows} bad rows, first at {next(iter(report.first_bad.values()))})" \
             if report.bad_rows else ""
         raise MapfilterError(f"no usable record in the log{detail}", path)
-    if warn is not None and report.warning():
-        warn(report.warning())
+    message = report.warning()
+    if message is not None:
+        if warn is not None:
+            warn(message)
+        else:
+            warnings.warn(message, LogReadWarning, stacklevel=2)
 
     def vector_arrays(name: str) -> tuple[np.ndarray, np.ndarray]:
         rows = np.array(vectors[name], dtype=np.float64).reshape(-1, 4)
