@@ -3,6 +3,7 @@
 import csv
 import gzip
 
+import pytest
 from conftest import REPO
 
 from mapfilter.cli import main
@@ -48,6 +49,8 @@ def test_batch_tracks_every_walk_reports_the_failed_one_and_matches_the_single_w
     assert "3 walks (serial): 2 tracked, 1 failed, 0 crashed" in captured.out
     assert "mapfilter: failed: " in captured.err and "nowifi.txt: the log has no usable WiFi" in captured.err
     assert "beacon.txt.gz: skipped 1 bad TYPE_BEACON row (not used" in captured.err
+    # not a terminal: no progress bar, only the warning and failure lines
+    assert all(line.startswith("mapfilter: ") for line in captured.err.splitlines())
     with (out / "summary.csv").open() as handle:
         rows = {row["trace"]: row for row in csv.DictReader(handle)}
     assert [rows[t]["status"] for t in ("good", "nowifi", "beacon")] == ["ok", "failed", "ok"]
@@ -66,6 +69,18 @@ def test_batch_with_every_walk_tracked_exits_zero_and_tum_files(tmp_path, capsys
     assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "200",
                  "--format", "tum", "--out-dir", str(out)]) == 0
     assert (out / "office_walk.tum").is_file() and (out / "summary.csv").is_file()
+
+
+def test_batch_on_two_local_dask_workers_writes_the_serial_tracks(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    lines = _walk_lines()
+    logs = [_write(tmp_path / f"walk{i}.txt.gz", lines) for i in range(3)]
+    common = ["track", str(OFFICE), *map(str, logs), "--radiomap", str(RADIOMAP), "--particles", "200"]
+    assert main(common + ["--out-dir", str(tmp_path / "serial")]) == 0
+    assert main(common + ["--jobs", "2", "--out-dir", str(tmp_path / "jobs2")]) == 0
+    assert "3 walks (2 local Dask worker processes): 3 tracked" in capsys.readouterr().out
+    for i in range(3):
+        assert (tmp_path / "serial" / f"walk{i}.csv").read_bytes() == (tmp_path / "jobs2" / f"walk{i}.csv").read_bytes()
 
 
 def test_several_logs_need_out_dir_and_one_walk_options_are_refused_in_a_batch(tmp_path, capsys):
