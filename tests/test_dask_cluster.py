@@ -31,7 +31,8 @@ def cluster(tmp_path):
     distributed = pytest.importorskip("distributed")
     address = f"tcp://{LOOPBACK}:{_free_port()}"
     dask = [sys.executable, "-m", "dask"]
-    common = ["--host", LOOPBACK, "--no-dashboard"]
+    # the HTTP (health) server too: --no-dashboard alone still listens on every interface
+    common = ["--host", LOOPBACK, "--no-dashboard", "--dashboard-address", f"{LOOPBACK}:0"]
     logs = tmp_path / "dask-logs"
     logs.mkdir()
     processes = []

@@ -108,7 +108,8 @@ class LoopbackCluster:
         self.address = f"tcp://{LOOPBACK}:{port}"
         self.tmp = tempfile.TemporaryDirectory(prefix="sweep-dask-")
         dask = [sys.executable, "-m", "dask"]
-        common = ["--host", LOOPBACK, "--no-dashboard"]
+        # the HTTP (health) server too: --no-dashboard alone still listens on every interface
+        common = ["--host", LOOPBACK, "--no-dashboard", "--dashboard-address", f"{LOOPBACK}:0"]
         log = open(Path(self.tmp.name) / "dask.log", "w")
         self.processes = [subprocess.Popen(dask + ["scheduler", "--port", str(port), *common], stdout=log,
                                            stderr=subprocess.STDOUT)]
