@@ -63,7 +63,8 @@ def run_each(function: Callable[..., Any], items: Sequence[Any], engine: Engine,
     after each task.
     """
     total = len(items)
-    if not engine.uses_dask or total == 0:
+    # one walk on local processes gains nothing from starting a cluster; a named scheduler is always used
+    if not engine.uses_dask or total == 0 or (engine.scheduler is None and total == 1):
         for i, item in enumerate(items):
             result = function(*common, item)
             if progress:
