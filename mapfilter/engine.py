@@ -71,7 +71,7 @@ def run_each(function: Callable[..., Any], items: Sequence[Any], engine: Engine,
                 progress(i + 1, total, label(item))
             yield i, result
         return
-    with _client(engine) as client:
+    with _DaskClient(engine) as client:
         from distributed import as_completed
 
         # broadcast: every worker gets its own copy up front, instead of fetching it from the
@@ -89,7 +89,7 @@ def run_each(function: Callable[..., Any], items: Sequence[Any], engine: Engine,
             client.cancel(list(futures))
 
 
-class _client:
+class _DaskClient:
     """A Dask client on a new local cluster (``jobs`` worker processes) or on ``scheduler``."""
 
     def __init__(self, engine: Engine) -> None:
@@ -110,9 +110,10 @@ class _client:
                 raise MapfilterError(f"cannot reach the Dask scheduler at {self.engine.scheduler}: {exc}") from None
         else:
             # one thread per worker: the filter's numba kernels already use the cores, and a
-            # walk per process keeps the GIL out of the way
+            # walk per process keeps the GIL out of the way. Workers log a failed task with its
+            # traceback at ERROR level; the failure reaches the user as our own one line instead.
             self.cluster = LocalCluster(n_workers=self.engine.jobs, threads_per_worker=1, processes=True,
-                                        dashboard_address=None, silence_logs=logging.ERROR)
+                                        dashboard_address=None, silence_logs=logging.CRITICAL)
             self.client = Client(self.cluster)
         return self.client
 
