@@ -113,7 +113,10 @@ class _DaskClient:
             # walk per process keeps the GIL out of the way. Workers log a failed task with its
             # traceback at ERROR level; the failure reaches the user as our own one line instead.
             self.cluster = LocalCluster(n_workers=self.engine.jobs, threads_per_worker=1, processes=True,
-                                        dashboard_address=None, silence_logs=logging.CRITICAL)
+                                        dashboard_address=None, silence_logs=logging.CRITICAL,
+                                        # the scheduler's HTTP (health) server on any free loopback port:
+                                        # its default, 8787, is often taken by another run (a warning)
+                                        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
             self.client = Client(self.cluster)
         return self.client
 
