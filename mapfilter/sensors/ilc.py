@@ -47,7 +47,6 @@ _VECTOR_TYPES = {
     "TYPE_MAGNETIC_FIELD": "magnet",
     "TYPE_ROTATION_VECTOR": "rotvec",
 }
-KNOWN_TYPES = ("TYPE_WAYPOINT", *_VECTOR_TYPES, "TYPE_WIFI", "TYPE_BEACON")
 # What tracking, evaluation and radio maps read: ground truth, WiFi, and the IMU streams that
 # dead reckoning uses (accelerometer, gyroscope, rotation vector). The magnetometer and the
 # beacons are read but used by no stage.
@@ -193,7 +192,8 @@ def _split_records(fields: list[str]) -> list[list[str]]:
         glued = fields[j - 1]
         if len(glued) < _TIME_DIGITS or not glued[-_TIME_DIGITS:].isdigit():
             continue  # not a glued time: leave the field to the row check
-        records.append([head, *fields[begin + 1:j - 1]] + ([glued[:-_TIME_DIGITS]] if len(glued) > _TIME_DIGITS else []))
+        last_field = [glued[:-_TIME_DIGITS]] if len(glued) > _TIME_DIGITS else []  # empty: it was cut off
+        records.append([head, *fields[begin + 1:j - 1], *last_field])
         head, begin = glued[-_TIME_DIGITS:], j - 1
     records.append([head, *fields[begin + 1:]])
     return records
