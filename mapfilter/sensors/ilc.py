@@ -192,7 +192,7 @@ def _split_records(fields: list[str]) -> list[list[str]]:
         glued = fields[j - 1]
         if len(glued) < _TIME_DIGITS or not glued[-_TIME_DIGITS:].isdigit():
             continue  # not a glued time: leave the field to the row check
-        last_field = [glued[:-_TIME_DIGITS]] if len(glued) > _TIME_DIGITS else []  # empty: it was cut off
+        last_field = [glued[:-_TIME_DIGITS]] if len(glued) > _TIME_DIGITS else []  # [] : the previous record had lost its last field
         records.append([head, *fields[begin + 1:j - 1], *last_field])
         head, begin = glued[-_TIME_DIGITS:], j - 1
     records.append([head, *fields[begin + 1:]])
