@@ -192,7 +192,8 @@ def _split_records(fields: list[str]) -> list[list[str]]:
         glued = fields[j - 1]
         if len(glued) < _TIME_DIGITS or not glued[-_TIME_DIGITS:].isdigit():
             continue  # not a glued time: leave the field to the row check
-        last_field = [glued[:-_TIME_DIGITS]] if len(glued) > _TIME_DIGITS else []  # [] : the previous record had lost its last field
+        # exactly 13 digits: the previous record had lost its last field before the join
+        last_field = [glued[:-_TIME_DIGITS]] if len(glued) > _TIME_DIGITS else []
         records.append([head, *fields[begin + 1:j - 1], *last_field])
         head, begin = glued[-_TIME_DIGITS:], j - 1
     records.append([head, *fields[begin + 1:]])
