@@ -56,12 +56,14 @@ def main() -> int:
     for name in args.sets:
         floor, paths = set_paths(name)
         floorplan = import_ilc(SITE1 / floor, route="geojson")
+        map_path = args.out / f"{floor}.yaml"
+        floorplan.save(map_path)
         for seed in args.seeds:
             setup = EvaluationSetup(methods=METHODS, leave_one_out=True, smooth=True, seed=seed,
                                     tracking=TrackingConfig(n_particles=args.particles,
                                                             fingerprint_model=args.fingerprint_model))
             started = time.perf_counter()
-            evaluation = evaluate_logs(floorplan, paths, setup, jobs=args.jobs)
+            evaluation = evaluate_logs(floorplan, paths, setup, jobs=args.jobs, map_path=map_path)
             summary = {row["method"]: row for row in evaluation.summary_rows()}
             kwnn = summary["kwnn"]
             for method, row in summary.items():

@@ -6,12 +6,12 @@ import argparse
 import csv
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.cli.track_cmd import (DEFAULT_ADAPT_RSSI_LIMIT_DBM, DEFAULT_FINGERPRINT_MODEL, DEFAULT_PARTICLES,
                                      FINGERPRINT_MODELS)
+from mapfilter.cli.common import ProgressBar, add_engine_arguments, add_strict_argument, engine_from, warn
 from mapfilter.errors import MapfilterError
 
 # mapfilter.evaluation.comparison.ALL_METHODS, written out so that --help imports no numerical
@@ -30,12 +30,18 @@ or before that time (causal); waypoints before a method's first estimate are cou
 missed. --smooth adds pf-smooth, the offline whole-walk track (not causal). walks.csv says
 why each walk went wrong: radio-map coverage, fix error and bias, heading offset, step scale.
 
-writes into OUT: summary.csv, summary.json (with per-trace rows), traces.csv, cdf.png,
+writes into OUT: summary.csv, summary.json (with per-trace and per-walk rows), traces.csv, walks.csv, cdf.png,
 tracks/<trace>.png (tracks on the floor plan) and tracks/<trace>/<method>.csv.
 
 example (ILC floor, each walk's radio map from the other walks):
   mapfilter evaluate F1.yaml ../shared/data/ilc20/site1/F1/path_data_files/*.txt.gz \\
       --leave-one-out --out results/F1 --jobs 2
+
+--jobs N runs the walks on N local Dask worker processes; --scheduler tcp://HOST:PORT on an
+existing Dask cluster (pip install 'mapfilter[distributed]'; start one with
+`dask scheduler --host HOST --port PORT` and `dask worker tcp://HOST:PORT --nworkers N
+--nthreads 1`; the workers need the logs at the same paths). Every walk seeds its own
+generator: serial, --jobs and a cluster give the same numbers.
 """
 
 SUMMARY_COLUMNS = ("method", "mean", "median", "p75", "p90", "max", "rmse", "n", "missed", "wall_crossings",
@@ -71,7 +77,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
     parser.add_argument("--smooth", action="store_true", help="also report the smoothed pf track (pf-smooth)")
-    parser.add_argument("--jobs", type=int, default=1, metavar="N", help="walks in parallel processes (default: 1)")
+    add_engine_arguments(parser)
+    add_strict_argument(parser)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.set_defaults(func=run)
 
@@ -87,25 +94,24 @@ def run(args: argparse.Namespace) -> int:
     unknown = [m for m in methods if m not in ALL_METHODS]
     if unknown:
         raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(ALL_METHODS)}")
-    if args.particles < 1 or args.jobs < 1:
-        raise MapfilterError("--particles and --jobs must be at least 1")
+    if args.particles < 1:
+        raise MapfilterError(f"--particles must be at least 1, got {args.particles}")
+    engine = engine_from(args)
     if args.out.exists() and not args.out.is_dir():
         raise MapfilterError("the output must be a directory", args.out)
     floorplan = FloorPlan.load(args.map)
     setup = EvaluationSetup(
         methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps, leave_one_out=args.leave_one_out,
-        smooth=args.smooth, seed=args.seed,
+        smooth=args.smooth, seed=args.seed, strict=args.strict,
         tracking=TrackingConfig(n_particles=args.particles, fingerprint_model=args.fingerprint_model,
                                 adapt_path_loss=args.adapt,
                                 adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
                                 blocking_compensation=not args.no_blocking_compensation))
 
-    def progress(done: int, total: int, name: str) -> None:
-        bar = "#" * int(30 * done / total)
-        print(f"\r[{bar:<30}] {done}/{total} {name[:40]:<40}", end="" if done < total else "\n",
-              file=sys.stderr, flush=True)
-
-    evaluation = evaluate_logs(floorplan, args.logs, setup, jobs=args.jobs, progress=progress, map_path=args.map)
+    with ProgressBar("evaluate", len(args.logs)) as progress:
+        evaluation = evaluate_logs(floorplan, args.logs, setup, progress=progress, engine=engine)
+    for message in evaluation.read_warnings:
+        warn(message)
     summary = evaluation.summary_rows()
     table = format_table(summary, SUMMARY_COLUMNS)
     waypoints = summary[0]["n"] + summary[0]["missed"] if summary else 0
@@ -145,7 +151,7 @@ def _write_outputs(args, floorplan, evaluation, summary) -> None:
     for result in evaluation.results:
         by_trace.setdefault(result.trace, []).append(result)
     for log_path in args.logs:
-        recording = read_ilc(log_path)
+        recording = read_ilc(log_path, warn=lambda message: None)  # its warning was printed above
         results = by_trace.get(recording.name, [])
         for result in results:
             write_track_csv(dataclasses.replace(result.track, name=result.method),

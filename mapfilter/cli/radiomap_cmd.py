@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from mapfilter.cli.common import add_strict_argument, warn
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
@@ -25,6 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="leave out a log, by file name or trace id (repeatable)")
         p.add_argument("--max-wifi-age", type=float, default=5.0, metavar="S",
                        help="drop WiFi rows last seen more than S seconds before their scan (default 5)")
+        add_strict_argument(p)
 
     build = sub.add_parser("build", help="build a radio map (.npz)")
     common(build)
@@ -54,7 +56,7 @@ def _load(args: argparse.Namespace):
         raise MapfilterError(f"--exclude {sorted(unused)[0]!r} matches none of the logs")
     if not paths:
         raise MapfilterError("every log is excluded: nothing to build from")
-    return floorplan, [read_ilc(p, max_wifi_age_s=args.max_wifi_age) for p in paths]
+    return floorplan, [read_ilc(p, max_wifi_age_s=args.max_wifi_age, strict=args.strict, warn=warn) for p in paths]
 
 
 def _trace_id(path: Path) -> str:

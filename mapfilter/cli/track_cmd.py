@@ -1,11 +1,16 @@
-"""``mapfilter track MAP LOG``: track one walk, write the track, print the errors."""
+"""``mapfilter track MAP LOG``: track one walk, write the track, print the errors.
+``mapfilter track MAP LOG... --out-dir DIR``: track many walks, one track file each + a summary."""
 
 from __future__ import annotations
 
 import argparse
+import csv
 import sys
+import time
 from pathlib import Path
 
+from mapfilter.atomic import atomic_paths
+from mapfilter.cli.common import ProgressBar, add_engine_arguments, add_strict_argument, engine_from, warn
 from mapfilter.errors import MapfilterError
 
 # What mapfilter.tracking defines (MOTION_MODELS, FINGERPRINT_MODELS, TrackingConfig defaults),
@@ -26,8 +31,16 @@ The starting position is unknown: the filter starts from the first usable WiFi s
 over the map's free space. If the log has waypoints, the errors at the waypoint times are
 printed (the latest estimate at or before each waypoint).
 
+Many walks: give several logs and --out-dir DIR: one track per walk (DIR/<trace>.csv or
+.tum) and DIR/summary.csv (one row per walk: status ok | failed | crashed, the reason,
+errors). A walk that fails is reported and the others go on; the exit code is 1 if any
+walk failed. Each walk is tracked as `mapfilter track MAP LOG --seed S` tracks it alone.
+--jobs N runs the walks on N local Dask worker processes, --scheduler tcp://HOST:PORT on an
+existing Dask cluster (see `mapfilter evaluate --help`).
+
 example:
   mapfilter track maps/office.yaml maps/office_walk.txt --radiomap maps/office_radiomap.npz
+  mapfilter track F1.yaml walks/*.txt.gz --radiomap F1_radiomap.npz --out-dir tracks --jobs 2
 """
 
 
@@ -37,7 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Track a walk on a floor plan with the map-aware particle filter.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("map", type=Path, metavar="MAP", help="map YAML (ROS map_server)")
-    parser.add_argument("log", type=Path, metavar="LOG", help="phone log in the ILC trace format (.txt or .txt.gz)")
+    parser.add_argument("logs", type=Path, nargs="+", metavar="LOG",
+                        help="phone log(s) in the ILC trace format (.txt or .txt.gz); several need --out-dir")
     wifi = parser.add_mutually_exclusive_group()
     wifi.add_argument("--radiomap", type=Path, metavar="RM", help="radio map (.npz) for fingerprinting")
     wifi.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table for trilateration")
@@ -66,7 +80,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--smooth", action="store_true",
                         help="write the offline track from the whole walk: the dead-reckoned shape placed by every "
                              "scan, kept to free space (never crosses a wall)")
-    parser.add_argument("--out", type=Path, metavar="FILE", help="write the track here")
+    parser.add_argument("--out", type=Path, metavar="FILE", help="write the track here (one log)")
+    parser.add_argument("--out-dir", type=Path, metavar="DIR",
+                        help="track every LOG: one track file per walk and summary.csv in DIR")
     parser.add_argument("--format", choices=("csv", "tum"), default="csv",
                         help="csv: t_s,x_m,y_m,std_m,heading_rad; tum: t x y z qx qy qz qw (evo) (default: csv)")
     view = parser.add_mutually_exclusive_group()
@@ -74,50 +90,51 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     view.add_argument("--spawn", action="store_true", help="stream the run to a new rerun viewer")
     parser.add_argument("--max-drawn-particles", type=int, default=5000, metavar="N",
                         help="cap on particles drawn per step in rerun (default: 5000)")
+    add_engine_arguments(parser)
+    add_strict_argument(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from mapfilter.filter.adaptive_pathloss import AdaptationConfig
     from mapfilter.maps.floorplan import FloorPlan
     from mapfilter.sensors.ilc import read_ilc
-    from mapfilter.sensors.pathloss import access_points_for_map
-    from mapfilter.sensors.radiomap import RadioMap
-    from mapfilter.tracking import TrackingConfig, track_recording
+    from mapfilter.tracking import track_recording
     from mapfilter.trackio import write_track_csv, write_track_tum
 
     if args.particles < 1:
         raise MapfilterError(f"--particles must be at least 1, got {args.particles}")
+    if args.adapted_aps is not None and args.out_dir is not None:
+        raise MapfilterError("--adapted-aps is for one walk, not for --out-dir")
+    if args.out_dir is not None:
+        return _run_batch(args)
+    if len(args.logs) > 1:
+        raise MapfilterError(f"{len(args.logs)} logs: tracking several walks needs --out-dir DIR")
+    if args.jobs != 1 or args.scheduler:
+        raise MapfilterError("--jobs and --scheduler spread many walks: give them with --out-dir DIR")
+    args.log = args.logs[0]
     if args.radiomap is not None and (args.adapt or args.adapted_aps is not None):
         raise MapfilterError("--adapt and --adapted-aps adapt a path-loss table: they need trilateration "
                              "(--aps APS.csv or the map's table), not --radiomap")
     if args.adapted_aps is not None and not args.adapt:
         raise MapfilterError("--adapted-aps writes the adapted table: give --adapt too")
     floorplan = FloorPlan.load(args.map)
-    recording = read_ilc(args.log)
-    radio_map = RadioMap.load(args.radiomap) if args.radiomap else None
-    ap_table = None
-    if radio_map is None:
-        ap_table = access_points_for_map(args.aps, floorplan, args.map, hint="give --radiomap RM or --aps APS.csv")
+    recording = read_ilc(args.log, strict=args.strict, warn=warn)
+    radio_map, ap_table = _wifi_source(args, floorplan)
     if recording.has_ground_truth:
         in_walls = ~floorplan.is_free(recording.waypoint_xy_m)
         if in_walls.any():
             print(f"mapfilter: warning: {args.log}: {int(in_walls.sum())} of {in_walls.size} waypoints lie in walls "
                   f"or outside the map {args.map}", file=sys.stderr)
-    config = TrackingConfig(motion=args.motion, n_particles=args.particles, use_map=not args.no_map,
-                            fingerprint_model=args.fingerprint_model, smooth=args.smooth,
-                            adapt_path_loss=args.adapt,
-                            adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
-                            blocking_compensation=not args.no_blocking_compensation)
+    config = _tracking_config(args)
 
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
 
     logger = make_logger(floorplan, rrd_path=args.rerun, spawn=args.spawn, max_particles=args.max_drawn_particles,
                          recording_name=recording.name)
     progress = _Progress(recording)
-    with logger:
+    with logger, progress:
         if recording.has_ground_truth:
             logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
 
@@ -127,7 +144,6 @@ def run(args: argparse.Namespace) -> int:
 
         result = track_recording(floorplan, recording, radio_map, ap_table, config, np.random.default_rng(args.seed),
                                  on_step=on_step)
-        progress.done()
         if result.smoothed is not None:
             logger.log_track("smoothed", result.smoothed.t_s, result.smoothed.xy_m)
         output = result.smoothed if args.smooth else result.track
@@ -173,24 +189,102 @@ def _print_summary(floorplan, recording, result, args) -> None:
     print("\n".join(lines))
 
 
+def _wifi_source(args: argparse.Namespace, floorplan):
+    from mapfilter.sensors.pathloss import access_points_for_map
+    from mapfilter.sensors.radiomap import RadioMap
+
+    radio_map = RadioMap.load(args.radiomap) if args.radiomap else None
+    ap_table = None
+    if radio_map is None:
+        ap_table = access_points_for_map(args.aps, floorplan, args.map, hint="give --radiomap RM or --aps APS.csv")
+    return radio_map, ap_table
+
+
+def _tracking_config(args: argparse.Namespace):
+    from mapfilter.filter.adaptive_pathloss import AdaptationConfig
+    from mapfilter.tracking import TrackingConfig
+
+    return TrackingConfig(motion=args.motion, n_particles=args.particles, use_map=not args.no_map,
+                          fingerprint_model=args.fingerprint_model, smooth=args.smooth, adapt_path_loss=args.adapt,
+                          adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
+                          blocking_compensation=not args.no_blocking_compensation)
+
+
+def _run_batch(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from mapfilter.batch import SUMMARY_COLUMNS, BatchSetup, WalkResult, summary_row, track_logs
+    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.trackio import write_track_csv, write_track_tum
+
+    for option in ("out", "rerun"):
+        if getattr(args, option) is not None:
+            raise MapfilterError(f"--{option} is for one walk: with --out-dir every walk gets its own track file")
+    if args.spawn:
+        raise MapfilterError("--spawn is for one walk, not for --out-dir")
+    if args.out_dir.exists() and not args.out_dir.is_dir():
+        raise MapfilterError("the output must be a directory", args.out_dir)
+    for path in args.logs:
+        if not path.is_file():
+            raise MapfilterError("file not found", path)
+    engine = engine_from(args)
+    floorplan = FloorPlan.load(args.map)
+    radio_map, ap_table = _wifi_source(args, floorplan)
+    setup = BatchSetup(tracking=_tracking_config(args), seed=args.seed, strict=args.strict)
+    suffix = ".tum" if args.format == "tum" else ".csv"
+    track_files: dict[str, str] = {}
+
+    def write(result: WalkResult) -> None:
+        # each track is written as its walk finishes (atomically): an interrupted batch keeps them
+        if result.read_warning:
+            warn(result.read_warning)
+        if result.ok:
+            path = args.out_dir / f"{result.trace}{suffix}"
+            (write_track_tum if args.format == "tum" else write_track_csv)(result.track, path)
+            track_files[result.trace] = path.name
+
+    started = time.perf_counter()
+    with ProgressBar("track", len(args.logs)) as progress:
+        results = track_logs(floorplan, args.logs, radio_map, ap_table, setup, engine, progress=progress,
+                             on_result=write)
+    wall_time_s = time.perf_counter() - started
+    summary = args.out_dir / "summary.csv"
+    with atomic_paths(summary) as (tmp,), tmp.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, SUMMARY_COLUMNS)
+        writer.writeheader()
+        for result in results:
+            row = summary_row(result, track_files.get(result.trace))
+            writer.writerow({k: (f"{v:.4f}" if isinstance(v, float) else ("" if v is None else v))
+                             for k, v in row.items()})
+    bad = [r for r in results if not r.ok]
+    for result in bad:
+        print(f"mapfilter: {result.status}: {result.reason}", file=sys.stderr)
+    tracked = [r for r in results if r.ok]
+    errors = [r.error_stats["mean"] for r in tracked if r.error_stats and r.error_stats["n"]]
+    line = (f"{len(results)} walks ({engine.describe()}): {len(tracked)} tracked, "
+            f"{sum(r.status == 'failed' for r in results)} failed, {sum(r.status == 'crashed' for r in results)} "
+            f"crashed; {wall_time_s:.1f} s, {60 * len(results) / max(wall_time_s, 1e-9):.1f} walks/min")
+    if errors:
+        line += f"; mean of per-walk mean errors {np.mean(errors):.2f} m"
+    print(line)
+    print(f"wrote {len(tracked)} tracks and {summary}")
+    return 1 if bad else 0
+
+
 class _Progress:
-    """A one-line progress indicator on stderr (only on a terminal)."""
+    """Progress through the walk's time span on a tqdm bar (drawn only on a terminal)."""
 
     def __init__(self, recording) -> None:
-        self.enabled = sys.stderr.isatty()
         times = recording.wifi.t_s
         self.t0 = float(times[0]) if times.size else 0.0
-        self.span = max(float(times[-1]) - self.t0, 1e-9) if times.size else 1.0
-        self.last_percent = -1
+        self.span_s = max(float(times[-1]) - self.t0, 1e-9) if times.size else 1.0
+        self.bar = ProgressBar("tracking", 100, unit="%")
 
     def update(self, t_s: float) -> None:
-        if not self.enabled:
-            return
-        percent = int(100 * min(max((t_s - self.t0) / self.span, 0.0), 1.0))
-        if percent != self.last_percent:
-            self.last_percent = percent
-            print(f"\rtracking {percent:3d} %", end="", file=sys.stderr, flush=True)
+        self.bar.update_to(int(100 * min(max((t_s - self.t0) / self.span_s, 0.0), 1.0)))
 
-    def done(self) -> None:
-        if self.enabled:
-            print("\r" + " " * 20 + "\r", end="", file=sys.stderr, flush=True)
+    def __enter__(self) -> _Progress:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.bar.close()

@@ -35,6 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mapfilter.cli.common import warn
     from mapfilter.maps.floorplan import FloorPlan
     from mapfilter.sensors.ilc import read_ilc
     from mapfilter.trackio import read_track
@@ -45,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     # load everything before writing anything: a bad input leaves no half-made recording
     floorplan = FloorPlan.load(args.map)
     tracks = [read_track(path) for path in args.tracks]
-    recording = read_ilc(args.log) if args.log is not None else None
+    recording = read_ilc(args.log, warn=warn) if args.log is not None else None
     if recording is not None and not recording.has_ground_truth:
         print(f"note: {args.log} has no waypoints: no ground truth to show")
     view_map(floorplan, tracks, recording, rrd_path=args.rerun, spawn=args.spawn,

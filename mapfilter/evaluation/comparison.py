@@ -25,18 +25,20 @@ import dataclasses
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from mapfilter.engine import Engine, run_each
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.baselines import kalman_track, pdr_kwnn_track, pdr_track
 from mapfilter.evaluation.diagnostics import DIAGNOSTIC_COLUMNS, walk_diagnostics
 from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import count_wall_crossings
-from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.ilc import LogReadWarning, read_ilc
 from mapfilter.sensors.pathloss import AccessPointTable, estimate_access_points, least_squares_position, match_scan
 from mapfilter.sensors.pdr import detect_steps
 from mapfilter.sensors.radiomap import RadioMap, build_radio_map, kwnn_fix_many
@@ -60,6 +62,7 @@ class EvaluationSetup:
     fit_aps: bool = False  # with leave_one_out: fit an AP table per walk even if no method asks for it
     smooth: bool = False  # also report the smoothed PF track (pf-smooth)
     seed: int = 0
+    strict: bool = False  # refuse a walk with a bad row in a record type it needs (default: skip the row, warn)
     tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)
 
 
@@ -95,7 +98,7 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
     points. Random draws come from ``default_rng([seed, index, method])``, so the result does
     not depend on how walks are spread over processes.
     """
-    recording = read_ilc(log_paths[index])
+    recording = read_ilc(log_paths[index], strict=setup.strict)
     if not recording.has_ground_truth:
         raise MapfilterError("the log has no waypoints to evaluate against", log_paths[index])
     radio_map, ap_table = _wifi_sources(recording, setup, all_walks)
@@ -246,6 +249,7 @@ class Evaluation:
     results: list[MethodResult]
     n_traces: int
     wall_time_s: float
+    read_warnings: list[str] = dataclasses.field(default_factory=list)  # rows the log reader skipped, per log
 
     def methods(self) -> list[str]:
         seen: list[str] = []
@@ -289,9 +293,12 @@ class Evaluation:
 
 def evaluate_logs(floorplan: FloorPlan, log_paths: Sequence[str | os.PathLike], setup: EvaluationSetup,
                   jobs: int = 1, progress: Callable[[int, int, str], None] | None = None,
-                  map_path: str | os.PathLike | None = None) -> Evaluation:
-    """Evaluate every method on every walk; ``jobs`` > 1 runs walks in parallel processes
-    (the map is then re-read from ``map_path`` in each worker)."""
+                  map_path: str | os.PathLike | None = None, engine: Engine | None = None) -> Evaluation:
+    """Evaluate every method on every walk, one walk per task on ``engine`` (default:
+    ``Engine(jobs)``: serial for 1, else ``jobs`` local Dask worker processes). Each walk seeds
+    its own generator, so the numbers do not depend on the engine. ``map_path`` is not needed
+    any more (the map itself is sent to the workers) and is ignored."""
+    engine = engine if engine is not None else Engine(jobs=jobs)
     paths = [Path(p) for p in log_paths]
     for path in paths:
         if not path.is_file():
@@ -309,39 +316,56 @@ def evaluate_logs(floorplan: FloorPlan, log_paths: Sequence[str | os.PathLike], 
         raise MapfilterError(f"two logs share the trace name {repeated[0]}: walks are told apart by name")
     started = time.perf_counter()
     all_walks = None
+    read_warnings: list[str] = []
     if setup.leave_one_out:
         if len(paths) < 2:
             raise MapfilterError("leave-one-out needs at least two logs")
-        radio_map = build_radio_map([read_ilc(p) for p in paths], floorplan)
+        with _collect_read_warnings(read_warnings):
+            recordings = [read_ilc(p, strict=setup.strict) for p in paths]
+        radio_map = build_radio_map(recordings, floorplan)
         all_walks = AllWalks(radio_map, estimate_access_points(radio_map) if _needs_fitted_aps(setup) else None)
     results: list[list[MethodResult] | None] = [None] * len(paths)
-    if jobs <= 1 or len(paths) == 1:
-        for i in range(len(paths)):
-            results[i] = evaluate_trace(floorplan, paths, i, setup, all_walks)
-            if progress:
-                progress(i + 1, len(paths), paths[i].name)
-    else:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        if map_path is None:
-            raise ValueError("parallel evaluation needs map_path")
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = {pool.submit(_evaluate_in_worker, str(map_path), paths, i, setup, all_walks): i
-                       for i in range(len(paths))}
-            done = 0
-            for future in as_completed(futures):
-                i = futures[future]
-                results[i] = future.result()
-                done += 1
-                if progress:
-                    progress(done, len(paths), paths[i].name)
+    # the path list goes with the shared inputs (sent once), each task carries only its index
+    for i, (per_trace, warned) in run_each(_evaluate_walk, range(len(paths)), engine,
+                                           common=(floorplan, setup, all_walks, paths),
+                                           progress=progress, label=lambda index: paths[index].name):
+        results[i] = per_trace
+        read_warnings.extend(w for w in warned if w not in read_warnings)
     flat = [r for per_trace in results for r in (per_trace or [])]
-    return Evaluation(flat, len(paths), time.perf_counter() - started)
+    return Evaluation(flat, len(paths), time.perf_counter() - started, read_warnings)
 
 
-def _evaluate_in_worker(map_path: str, paths: list[Path], index: int, setup: EvaluationSetup,
-                        all_walks: AllWalks | None) -> list[MethodResult]:
-    return evaluate_trace(FloorPlan.load(map_path), paths, index, setup, all_walks)
+def _evaluate_walk(floorplan: FloorPlan, setup: EvaluationSetup, all_walks: AllWalks | None, paths: list[Path],
+                   index: int) -> tuple[list[MethodResult], list[str]]:
+    """One task: ``evaluate_trace`` on walk ``index``, with the reader's warnings brought back
+    (a worker's warnings would otherwise end, if anywhere, in the worker's log)."""
+    warned: list[str] = []
+    with _collect_read_warnings(warned):
+        results = evaluate_trace(floorplan, paths, index, setup, all_walks)
+    return results, warned
+
+
+class _collect_read_warnings(warnings.catch_warnings):
+    """Append the message of every ``LogReadWarning`` raised inside to ``into``; others pass."""
+
+    def __init__(self, into: list[str]) -> None:
+        super().__init__(record=True)
+        self.into = into
+
+    def __enter__(self):
+        self.caught = super().__enter__()
+        warnings.simplefilter("always", LogReadWarning)
+        return self.caught
+
+    def __exit__(self, *exc_info):
+        super().__exit__(*exc_info)
+        for w in self.caught:
+            if issubclass(w.category, LogReadWarning):
+                message = str(w.message)
+                if message not in self.into:
+                    self.into.append(message)
+            else:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 def nan_to_none(value):

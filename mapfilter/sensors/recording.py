@@ -54,6 +54,42 @@ class Beacons:
 
 
 @dataclasses.dataclass
+class ReadReport:
+    """What one log held and what the log reader skipped."""
+
+    path: Path
+    n_lines: int = 0
+    rows: dict[str, int] = dataclasses.field(default_factory=dict)  # good rows per record type
+    bad_rows: dict[str, int] = dataclasses.field(default_factory=dict)  # skipped rows per record type
+    first_bad: dict[str, str] = dataclasses.field(default_factory=dict)  # type -> "line N: reason"
+    joined_lines: int = 0  # lines that held more than one record (missing newline), split
+    truncated_after_line: int | None = None  # the gzip stream ended early after this line
+    unknown_rows: int = 0  # rows of record types this reader does not know (skipped, not an error)
+    needed: frozenset[str] = frozenset()  # the record types the run needs (the reader fills it in)
+
+    @property
+    def n_bad_rows(self) -> int:
+        return sum(self.bad_rows.values())
+
+    @property
+    def clean(self) -> bool:
+        return not self.bad_rows and self.truncated_after_line is None
+
+    def warning(self) -> str | None:
+        """One line naming what was skipped (None when nothing was)."""
+        parts = []
+        for kind in sorted(self.bad_rows):
+            use = "needed" if kind in self.needed else "not used"
+            parts.append(f"{self.bad_rows[kind]} bad {kind} row{'s' if self.bad_rows[kind] != 1 else ''} ({use}; "
+                         f"first at {self.first_bad[kind]})")
+        if self.truncated_after_line is not None:
+            parts.append(f"gzip stream ends early: kept the {self.truncated_after_line} lines before the cut")
+        if not parts:
+            return None
+        return f"{self.path}: skipped " + "; ".join(parts)
+
+
+@dataclasses.dataclass
 class Recording:
     """One walk. Times are Unix seconds (float64); IMU arrays are (M, 3) in the phone frame."""
 
@@ -72,6 +108,7 @@ class Recording:
     rotvec_xyz: np.ndarray  # x, y, z of the unit quaternion
     wifi: WifiScans
     beacons: Beacons
+    read_report: ReadReport | None = None  # what the log reader skipped (None: not read from a log)
 
     @property
     def has_ground_truth(self) -> bool:

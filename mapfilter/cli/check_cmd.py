@@ -1,0 +1,80 @@
+"""``mapfilter check LOG...``: what each log holds and what the reader skipped, without tracking."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from mapfilter.cli.common import add_strict_argument
+from mapfilter.errors import MapfilterError
+
+_EPILOG = """\
+One line per log: floor, duration, waypoints, WiFi scans and access points, IMU rows (and
+whether dead reckoning is possible), then what was skipped: bad rows per record type (with
+the first bad line), lines that held two records (split), a gzip stream cut short. A last
+line counts the logs. The exit code is 1 if any log cannot be read (each is named).
+
+example:
+  mapfilter check ../shared/data/ilc20/site1/*/path_data_files/*.txt.gz
+"""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "check", help="report what logs hold and what the reader skips (no tracking)",
+        description="Read logs as track and evaluate would, and report what each holds and what was skipped.",
+        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="logs in the ILC trace format")
+    add_strict_argument(parser)
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from mapfilter.sensors.ilc import read_ilc  # not at import: --help loads no numerical library
+
+    counts = {"readable": 0, "pdr": 0, "skipped": 0, "refused": 0}
+    for path in args.logs:
+        try:
+            # the warning is part of this command's own line, not a separate one
+            recording = read_ilc(path, strict=args.strict, warn=lambda message: None)
+        except MapfilterError as exc:
+            counts["refused"] += 1
+            print(f"{exc} [refused]")
+            continue
+        counts["readable"] += 1
+        counts["pdr"] += _has_imu(recording)
+        report = recording.read_report
+        if not report.clean or report.joined_lines:
+            counts["skipped"] += 1
+        print(describe(recording))
+    print(f"{len(args.logs)} logs: {counts['readable']} readable ({counts['pdr']} with IMU for dead reckoning), "
+          f"{counts['skipped']} with rows skipped or split, {counts['refused']} refused")
+    return 1 if counts["refused"] else 0
+
+
+def _has_imu(recording) -> bool:
+    return recording.acc_t_s.size >= 2 and recording.gyro_t_s.size >= 2
+
+
+def describe(recording) -> str:
+    """One line: what the log holds and what its reader skipped."""
+    report = recording.read_report
+    wifi = recording.wifi
+    times = [t for t in (recording.wifi.t_s, recording.acc_t_s, recording.waypoint_t_s) if t.size]
+    duration_s = max(float(t[-1]) for t in times) - min(float(t[0]) for t in times) if times else 0.0
+    parts = [f"floor {recording.floor_name or '?'}", f"{duration_s:.0f} s",
+             f"{recording.waypoint_t_s.size} waypoints", f"{len(wifi)} WiFi scans ({len(wifi.ap_keys)} APs)"]
+    if _has_imu(recording):
+        parts.append(f"IMU {recording.acc_t_s.size} acc / {recording.gyro_t_s.size} gyro / "
+                     f"{recording.rotvec_t_s.size} rotvec rows")
+    else:
+        parts.append("no IMU (WiFi only: no dead reckoning)")
+    if recording.beacons.t_s.size:
+        parts.append(f"{recording.beacons.t_s.size} beacon rows")
+    text = f"{recording.path}: " + ", ".join(parts)
+    skipped = report.warning() if report is not None else None
+    if skipped:
+        text += "; " + skipped.removeprefix(f"{recording.path}: ")
+    if report is not None and report.joined_lines:
+        text += f"; {report.joined_lines} line{'s' if report.joined_lines != 1 else ''} held two records (split)"
+    return text

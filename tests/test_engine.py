@@ -1,0 +1,47 @@
+"""The engine: walks as tasks, serially or on local Dask workers; errors reach the user as one line."""
+
+import pytest
+from conftest import REPO
+
+from mapfilter.cli import main
+from mapfilter.engine import Engine, run_each
+from mapfilter.errors import MapfilterError
+
+MAPS = REPO / "maps"
+
+
+def _scaled(factor, offset, x):
+    return factor * x + offset
+
+
+def test_serial_runs_in_order_with_progress_and_shared_inputs():
+    seen = []
+    out = list(run_each(_scaled, [1, 2, 3], Engine(), common=(10, 1),
+                        progress=lambda done, total, name: seen.append((done, total, name))))
+    assert out == [(0, 11), (1, 21), (2, 31)]
+    assert seen == [(1, 3, "1"), (2, 3, "2"), (3, 3, "3")]
+
+
+def test_bad_engine_options_are_user_errors():
+    with pytest.raises(MapfilterError, match="--jobs must be at least 1"):
+        Engine(jobs=0)
+    with pytest.raises(MapfilterError, match="tcp://HOST:PORT"):
+        Engine(scheduler="127.0.0.1:8786")
+
+
+def test_local_workers_give_every_result_and_a_failing_walk_is_one_line(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    results = dict(run_each(_scaled, list(range(6)), Engine(jobs=2), common=(3, 0)))
+    assert results == {i: 3 * i for i in range(6)}
+    # a walk without waypoints, evaluated on two local workers: the worker's error is our one line
+    import gzip
+
+    no_waypoints = tmp_path / "nowp.txt"
+    with gzip.open(MAPS / "office_walk.txt.gz", "rt") as handle:
+        no_waypoints.write_text("".join(line for line in handle if "TYPE_WAYPOINT" not in line))
+    assert main(["evaluate", str(MAPS / "office.yaml"), str(MAPS / "office_walk.txt.gz"), str(no_waypoints),
+                 "--radiomap", str(MAPS / "office_radiomap.npz"), "--methods", "kwnn", "--jobs", "2",
+                 "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == f"mapfilter: error: {no_waypoints}: the log has no waypoints to evaluate against"
+    assert not (tmp_path / "out").exists()
