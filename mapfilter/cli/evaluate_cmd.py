@@ -9,8 +9,8 @@ import json
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.track_cmd import (DEFAULT_ADAPT_RSSI_LIMIT_DBM, DEFAULT_FINGERPRINT_MODEL, DEFAULT_PARTICLES,
-                                     FINGERPRINT_MODELS)
+from mapfilter.cli.track_cmd import (DEFAULT_FINGERPRINT_MODEL, DEFAULT_PARTICLES, FINGERPRINT_MODELS,
+                                     add_trilateration_arguments)
 from mapfilter.cli.common import ProgressBar, add_engine_arguments, add_strict_argument, engine_from, warn
 from mapfilter.errors import MapfilterError
 
@@ -65,16 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help=f"particles for the pf methods (default: {DEFAULT_PARTICLES})")
     parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=DEFAULT_FINGERPRINT_MODEL,
                         help=f"how pf weighs fingerprints (default: {DEFAULT_FINGERPRINT_MODEL})")
-    parser.add_argument("--adapt", action="store_true",
-                        help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
-                             "is below when a scan's strongest RSSI is above the limit, alpha per band; "
-                             "Lund thesis 7.1-7.2)")
-    parser.add_argument("--adapt-rssi-limit", type=float, default=DEFAULT_ADAPT_RSSI_LIMIT_DBM, metavar="DBM",
-                        help="with --adapt: a scan whose strongest RSSI is above this adapts (default: %(default)s, "
-                             "the thesis' value; about the RSSI 1-1.5 m from an AP of your building)")
-    parser.add_argument("--no-blocking-compensation", action="store_true",
-                        help="trilateration: do not compensate signal blocking (by default a term H is taken off "
-                             "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
+    add_trilateration_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
     parser.add_argument("--smooth", action="store_true", help="also report the smoothed pf track (pf-smooth)")
     add_engine_arguments(parser)

@@ -44,6 +44,20 @@ example:
 """
 
 
+def add_trilateration_arguments(parser: argparse.ArgumentParser) -> None:
+    """The Lund thesis chapter 7 options (track and evaluate)."""
+    parser.add_argument("--adapt", action="store_true",
+                        help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
+                             "is below when a scan's strongest RSSI is above the limit, alpha per band; "
+                             "Lund thesis 7.1-7.2)")
+    parser.add_argument("--adapt-rssi-limit", type=float, default=DEFAULT_ADAPT_RSSI_LIMIT_DBM, metavar="DBM",
+                        help="with --adapt: a scan whose strongest RSSI is above this adapts (default: %(default)s, "
+                             "the thesis' value; about the RSSI 1-1.5 m from an AP of your building)")
+    parser.add_argument("--no-blocking-compensation", action="store_true",
+                        help="trilateration: do not compensate signal blocking (by default a term H is taken off "
+                             "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "track", help="track a walk (map + phone log) with the particle filter",
@@ -63,16 +77,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              f"(default: {DEFAULT_FINGERPRINT_MODEL})")
     parser.add_argument("--particles", type=int, default=DEFAULT_PARTICLES, metavar="N",
                         help=f"number of particles (default: {DEFAULT_PARTICLES})")
-    parser.add_argument("--adapt", action="store_true",
-                        help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
-                             "is below when a scan's strongest RSSI is above the limit, alpha per band; "
-                             "Lund thesis 7.1-7.2)")
-    parser.add_argument("--adapt-rssi-limit", type=float, default=DEFAULT_ADAPT_RSSI_LIMIT_DBM, metavar="DBM",
-                        help="with --adapt: a scan whose strongest RSSI is above this adapts (default: %(default)s, "
-                             "the thesis' value; about the RSSI 1-1.5 m from an AP of your building)")
-    parser.add_argument("--no-blocking-compensation", action="store_true",
-                        help="trilateration: do not compensate signal blocking (by default a term H is taken off "
-                             "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
+    add_trilateration_arguments(parser)
     parser.add_argument("--adapted-aps", type=Path, metavar="OUT.csv",
                         help="with --adapt: write the access-point table as adapted at the end of the walk")
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
