@@ -229,7 +229,8 @@ def test_tracker_weighs_the_kwnn_fix_with_a_gaussian():
     scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
     unknown = WifiScan(1.0, ("aa:aa:aa:aa:aa:aa@5",), np.array([-40.0], np.float32))
     plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
-    wifi = WifiMeasurements([scan, unknown], radio_map, None, plan, TrackingConfig(fix_sigma_m=5.0))
+    wifi = WifiMeasurements([scan, unknown], radio_map, None, plan,
+                            TrackingConfig(fix_sigma_m=5.0, fingerprint_model="fix"))
     fix = kwnn_fix(radio_map, scan.ap_keys, scan.rssi_dbm).xy_m
     measurement = wifi.measurement(0)
     np.testing.assert_allclose(measurement.xy_m, fix)
@@ -337,3 +338,19 @@ def test_radio_map_file_keeps_the_cross_validation_and_old_files_load(tmp_path, 
     np.savez_compressed(tmp_path / "v3.npz", **v1)
     with pytest.raises(MapfilterError, match="version 3 is not supported"):
         RadioMap.load(tmp_path / "v3.npz")
+
+
+def test_blend_fix_is_the_mean_of_the_kwnn_fix_and_the_best_cell():
+    from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood
+    from mapfilter.tracking import TrackingConfig, WifiMeasurements
+
+    aps, radio_map = _synthetic_radio_map()
+    scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
+    plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
+    wifi = WifiMeasurements([scan], radio_map, None, plan, TrackingConfig(fix_sigma_m=5.0, fingerprint_model="blend"))
+    kwnn = kwnn_fix(radio_map, scan.ap_keys, scan.rssi_dbm).xy_m
+    best = RadioMapLikelihood(radio_map, plan).best_position(scan)
+    np.testing.assert_allclose(wifi.measurement(0).xy_m, 0.5 * (kwnn + best))
+    fixes = wifi.position_fixes()  # the whole-walk placement sees both estimators separately
+    assert len(fixes) == 2 and np.allclose(fixes[0][0], kwnn) and np.allclose(fixes[1][0], best)
+    assert np.linalg.norm(wifi.measurement(0).xy_m - [21.0, 9.0]) < 2.0
