@@ -126,6 +126,7 @@ class WifiMeasurements:
             raise MapfilterError("give either a radio map (fingerprinting) or an access-point table (trilateration)")
         self.scans = scans
         self._radio_map, self._floorplan, self._config = radio_map, floorplan, config.radio_map_likelihood
+        self._heard_keys = {key for scan in scans for key in scan.ap_keys}  # only these APs need tables
         self.fix_xy_m: np.ndarray | None = None  # fingerprint fixes, one per scan (NaN: none)
         self.kwnn_xy_m: np.ndarray | None = None  # KWNN fixes, one per scan (NaN: none)
         self.radio_map_model: RadioMapLikelihood | None = None
@@ -139,7 +140,8 @@ class WifiMeasurements:
                 self.kwnn_xy_m = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=config.kwnn_k).xy_m
                 self.fix_xy_m = self.kwnn_xy_m
                 if config.fingerprint_model == "blend":
-                    self.radio_map_model = RadioMapLikelihood(radio_map, floorplan, config.radio_map_likelihood)
+                    self.radio_map_model = RadioMapLikelihood(radio_map, floorplan, config.radio_map_likelihood,
+                                                              heard_keys=self._heard_keys)
                     best = self.best_cell_xy_m()
                     self.fix_xy_m = np.where(np.isfinite(best), 0.5 * (self.kwnn_xy_m + best), self.kwnn_xy_m)
                 self.usable = np.all(np.isfinite(self.fix_xy_m), axis=1)
@@ -147,8 +149,8 @@ class WifiMeasurements:
                     radio_map, config.kwnn_k)
                 self.model = GaussianFixLikelihood(sigma_m=sigma_m)
             else:
-                self.model = self.radio_map_model = RadioMapLikelihood(radio_map, floorplan,
-                                                                       config.radio_map_likelihood)
+                self.model = self.radio_map_model = RadioMapLikelihood(
+                    radio_map, floorplan, config.radio_map_likelihood, heard_keys=self._heard_keys)
                 self.usable = shared >= 1
         else:
             assert ap_table is not None
@@ -186,7 +188,8 @@ class WifiMeasurements:
         trilateration (3 APs or more)."""
         if self.kwnn_xy_m is not None or self.radio_map_model is not None:
             if self.radio_map_model is None:
-                self.radio_map_model = RadioMapLikelihood(self._radio_map, self._floorplan, self._config)
+                self.radio_map_model = RadioMapLikelihood(self._radio_map, self._floorplan, self._config,
+                                                          heard_keys=self._heard_keys)
             return [f for f in (self.kwnn_xy_m, self.best_cell_xy_m()) if f is not None]
         out = np.full((len(self.scans), 2), np.nan)
         for i, scan in enumerate(self.scans):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Collection
 
 import numpy as np
 from numba import njit
@@ -52,7 +53,13 @@ class RadioMapLikelihood:
     """
 
     def __init__(self, radio_map: RadioMap, floorplan: FloorPlan | None = None,
-                 config: RadioMapLikelihoodConfig = RadioMapLikelihoodConfig()):
+                 config: RadioMapLikelihoodConfig = RadioMapLikelihoodConfig(),
+                 heard_keys: Collection[str] | None = None):
+        """``heard_keys``: the APs the scans to be weighed can hear (e.g. every AP of one walk).
+        Only their per-AP tables are built (a walk hears a tenth of a mall's APs: most of the
+        build's time and memory); every AP still counts where it is *not* heard. An AP outside
+        the set, heard by a scan anyway, is ignored like an AP the radio map does not know.
+        None: all APs."""
         from scipy.spatial import cKDTree
 
         cfg = self.config = config
@@ -61,7 +68,8 @@ class RadioMapLikelihood:
         if use_aps.size == 0 or len(radio_map) == 0:
             raise MapfilterError(f"the radio map has no AP heard in {cfg.min_observations} reference points")
         self.ap_keys = [radio_map.ap_keys[j] for j in use_aps]
-        self.key_index = {key: j for j, key in enumerate(self.ap_keys)}
+        tabled = np.ones(use_aps.size, dtype=bool) if heard_keys is None else np.isin(self.ap_keys, list(heard_keys))
+        self.key_index = {key: j for j, key in enumerate(self.ap_keys) if tabled[j]}
         n_aps = use_aps.size
         # grid: the floor plan's extent, else the reference points' bounding box plus the kernel support
         reach = cfg.bandwidth_m * cfg.support_sigmas
@@ -96,21 +104,29 @@ class RadioMapLikelihood:
         observed = heard[:, use_aps]
         ref, ap_col = np.nonzero(observed)
         values = radio_map.rssi_dbm[:, use_aps][ref, ap_col].astype(np.float32)
-        # one product for the three sums (heard weight, sum w r, sum w r^2): their patterns are
-        # the same (sparse products drop exact zeros only, and r < 0), so the entries line up
-        stacked = sparse.csr_matrix(
-            (np.concatenate([np.ones_like(values), values, values * values]),
-             (np.tile(ref, 3), np.concatenate([ap_col, ap_col + n_aps, ap_col + 2 * n_aps]))),
-            shape=(len(radio_map), 3 * n_aps))
-        sums = (weight @ stacked).tocsr()
-        sums.sort_indices()
-        sums = sums.tocoo()
-        block = sums.col // n_aps
-        w_heard, s1, s2 = (sums.data[block == b].astype(np.float64) for b in range(3))
-        cell, ap = sums.row[block == 0].astype(np.int64), sums.col[block == 0].astype(np.int64)
+        # P(heard) of every AP (for the not-heard term) and the RSSI sums of the tabled APs, as
+        # sparse products; an entry's pattern is the same in all three (sparse products drop
+        # exact zeros only, and r < 0), so after sorting the entries line up
+        heard_sum = (weight @ sparse.csr_matrix((np.ones_like(values), (ref, ap_col)),
+                                                shape=(len(radio_map), n_aps))).tocsr()
+        heard_sum.sort_indices()
+        heard_sum = heard_sum.tocoo()
+        all_cell, all_ap = heard_sum.row.astype(np.int64), heard_sum.col.astype(np.int64)
+        all_wh = heard_sum.data.astype(np.float64)
+        mine = tabled[ap_col]
+        rssi_sums = (weight @ sparse.csr_matrix(
+            (np.concatenate([values[mine], values[mine] ** 2]),
+             (np.tile(ref[mine], 2), np.concatenate([ap_col[mine], ap_col[mine] + n_aps]))),
+            shape=(len(radio_map), 2 * n_aps))).tocsr()
+        rssi_sums.sort_indices()
+        rssi_sums = rssi_sums.tocoo()
+        block = rssi_sums.col // n_aps
+        s1, s2 = (rssi_sums.data[block == b].astype(np.float64) for b in range(2))
+        in_table = tabled[all_ap]
+        cell, ap, wh = all_cell[in_table], all_ap[in_table], all_wh[in_table]
         # below the threshold the prior's pseudo-count dominates: keep the prior there
-        keep = w_heard > cfg.min_weight
-        cell, ap, wh, s1, s2 = cell[keep], ap[keep], w_heard[keep], s1[keep], s2[keep]
+        keep = wh > cfg.min_weight
+        cell, ap, wh, s1, s2 = cell[keep], ap[keep], wh[keep], s1[keep], s2[keep]
         pw = cfg.prior_weight
         mu = (s1 + pw * cfg.prior_rssi_dbm) / (wh + pw)
         # weighted spread around mu, the prior's spread counting as pw pseudo-observations
@@ -125,9 +141,12 @@ class RadioMapLikelihood:
         self._prior_mu_dbm = cfg.prior_rssi_dbm
         self._prior_inv_var = 1.0 / prior_var
         self._prior_offset = np.log(p0) - 0.5 * np.log(2 * np.pi * prior_var) - np.log1p(-p0)  # (cells + 1,)
-        # every AP unheard: the prior everywhere, corrected where an AP has data
+        # every AP unheard: the prior everywhere, corrected where an AP has data (all APs)
         self.base = n_aps * np.log1p(-p0)
-        np.add.at(self.base, cell, np.log1p(-p_heard) - np.log1p(-p0[cell]))
+        data = all_wh > cfg.min_weight
+        base_cell = all_cell[data]
+        p_heard_all = np.clip((all_wh[data] + pw * cfg.prior_heard) / (w_all[base_cell] + pw), clip, 1 - clip)
+        np.add.at(self.base, base_cell, np.log1p(-p_heard_all) - np.log1p(-p0[base_cell]))
         # sparse per-AP tables (CSR by AP): log h + log N normaliser - log(1 - h), mean, 1/var
         order = np.argsort(ap, kind="stable")
         self._ap_ptr = np.searchsorted(ap[order], np.arange(n_aps + 1))
