@@ -115,7 +115,8 @@ class WifiMeasurements:
     """Turns a walk's WiFi scans into (model, measurement) pairs for the filter.
 
     Fingerprinting (a radio map): ``fix`` makes one KWNN fix per scan (Chang et al.) and
-    weighs it with a Gaussian (Evennou & Marx); ``likelihood`` weighs each particle by the
+    weighs it with a Gaussian (Evennou & Marx); ``blend`` weighs the mean of that fix and the
+    radio-map likelihood's best cell the same way; ``likelihood`` weighs each particle by the
     radio map's own probability of the scan. Trilateration (an access-point table): the Lund
     thesis path-loss likelihood.
     """
@@ -176,7 +177,10 @@ class WifiMeasurements:
             out = np.full((len(self.scans), 2), np.nan)
             if self.radio_map_model is not None:
                 for i, scan in enumerate(self.scans):
-                    if self.kwnn_xy_m is None or np.isfinite(self.kwnn_xy_m[i]).all():
+                    # a scan without a KWNN fix (or, for the likelihood model, without a known AP)
+                    # says nothing about where it was
+                    known = self.usable[i] if self.kwnn_xy_m is None else np.isfinite(self.kwnn_xy_m[i]).all()
+                    if known:
                         out[i] = self.radio_map_model.best_position(scan)
             self._best_cell_xy_m = out
         return self._best_cell_xy_m
