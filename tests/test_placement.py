@@ -74,3 +74,23 @@ def test_no_fix_or_no_step_is_an_error():
     empty = Steps(np.zeros(0), np.zeros(0), np.zeros(0), None, np.zeros(0), np.zeros(0), 0.0)
     with pytest.raises(MapfilterError):
         pdr_shape(empty, 0.0)
+
+
+def test_the_map_moves_a_placement_into_the_corridor_within_its_radius():
+    from mapfilter.filter.placement import WalkPlacement, shift_onto_free_space
+    from mapfilter.maps.floorplan import FloorPlan
+
+    wall = np.ones((200, 400), dtype=bool)  # 40 x 20 m at 0.1 m/px, one corridor y in [8, 10] m
+    wall[100:120, :] = False
+    plan = FloorPlan(wall, 0.1, (0.0, 0.0))
+    xy = np.column_stack([np.linspace(5.0, 35.0, 61), np.full(61, 12.0)])  # placed 3 m north of it
+
+    def placed(residual_m):
+        return WalkPlacement(np.arange(61.0), xy, 0.0, np.array([5.0, 12.0]), residual_m, 20)
+
+    moved = shift_onto_free_space(plan, placed(8.0))  # radius 4 m reaches the corridor
+    assert plan.is_free(moved.xy_m).all() and np.allclose(moved.xy_m[:, 0], xy[:, 0])
+    assert 2.0 <= 12.0 - moved.xy_m[0, 1] <= 3.5  # the shortest shift that gets it all in
+    assert np.allclose(moved.offset_xy_m - [5.0, 12.0], moved.xy_m[0] - xy[0])
+    kept = shift_onto_free_space(plan, placed(2.0))  # radius 1 m: the corridor is out of reach
+    assert np.array_equal(kept.xy_m, xy)
