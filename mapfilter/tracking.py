@@ -127,10 +127,9 @@ class WifiMeasurements:
             raise MapfilterError("give either a radio map (fingerprinting) or an access-point table (trilateration)")
         self.scans = scans
         self._radio_map, self._floorplan, self._config = radio_map, floorplan, config.radio_map_likelihood
-        self._heard_keys = {key for scan in scans for key in scan.ap_keys}  # only these APs need tables
         self.fix_xy_m: np.ndarray | None = None  # fingerprint fixes, one per scan (NaN: none)
         self.kwnn_xy_m: np.ndarray | None = None  # KWNN fixes, one per scan (NaN: none)
-        self.radio_map_model: RadioMapLikelihood | None = None
+        self._radio_map_model: RadioMapLikelihood | None = None
         self._best_cell_xy_m: np.ndarray | None = None
         self.usable = np.ones(len(scans), dtype=bool)
         if radio_map is not None:
@@ -141,8 +140,6 @@ class WifiMeasurements:
                 self.kwnn_xy_m = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=config.kwnn_k).xy_m
                 self.fix_xy_m = self.kwnn_xy_m
                 if config.fingerprint_model == "blend":
-                    self.radio_map_model = RadioMapLikelihood(radio_map, floorplan, config.radio_map_likelihood,
-                                                              heard_keys=self._heard_keys)
                     best = self.best_cell_xy_m()
                     self.fix_xy_m = np.where(np.isfinite(best), 0.5 * (self.kwnn_xy_m + best), self.kwnn_xy_m)
                 self.usable = np.all(np.isfinite(self.fix_xy_m), axis=1)
@@ -150,8 +147,7 @@ class WifiMeasurements:
                     radio_map, config.kwnn_k)
                 self.model = GaussianFixLikelihood(sigma_m=sigma_m)
             else:
-                self.model = self.radio_map_model = RadioMapLikelihood(
-                    radio_map, floorplan, config.radio_map_likelihood, heard_keys=self._heard_keys)
+                self.model = self.radio_map_model()
                 self.usable = shared >= 1
         else:
             assert ap_table is not None
@@ -171,29 +167,33 @@ class WifiMeasurements:
             return PositionFix(self.fix_xy_m[index])
         return self.scans[index]
 
+    def radio_map_model(self) -> RadioMapLikelihood:
+        """The radio-map likelihood of this walk's scans, built once on first use (needs a radio
+        map): per-AP tables only for the APs the walk hears."""
+        if self._radio_map_model is None:
+            heard = {key for scan in self.scans for key in scan.ap_keys}
+            self._radio_map_model = RadioMapLikelihood(self._radio_map, self._floorplan, self._config,
+                                                       heard_keys=heard)
+        return self._radio_map_model
+
     def best_cell_xy_m(self) -> np.ndarray:
-        """(S, 2) the radio-map likelihood's best cell per scan (NaN: unusable scan or no radio map)."""
+        """(S, 2) the radio-map likelihood's best cell per scan (NaN: scan without a fix, or for
+        the likelihood model without a known AP: it says nothing about where it was)."""
         if self._best_cell_xy_m is None:
+            model = self.radio_map_model()
             out = np.full((len(self.scans), 2), np.nan)
-            if self.radio_map_model is not None:
-                for i, scan in enumerate(self.scans):
-                    # a scan without a KWNN fix (or, for the likelihood model, without a known AP)
-                    # says nothing about where it was
-                    known = self.usable[i] if self.kwnn_xy_m is None else np.isfinite(self.kwnn_xy_m[i]).all()
-                    if known:
-                        out[i] = self.radio_map_model.best_position(scan)
+            for i, scan in enumerate(self.scans):
+                known = self.usable[i] if self.kwnn_xy_m is None else np.isfinite(self.kwnn_xy_m[i]).all()
+                if known:
+                    out[i] = model.best_position(scan)
             self._best_cell_xy_m = out
         return self._best_cell_xy_m
 
     def position_fixes(self) -> list[np.ndarray]:
         """Position estimates per scan from each WiFi estimator at hand, each (S, 2), NaN where
-        none: with a radio map the KWNN fixes and the radio-map likelihood's best cell (built
-        here if the filter did not use it), with an access-point table the least-squares
-        trilateration (3 APs or more)."""
-        if self.kwnn_xy_m is not None or self.radio_map_model is not None:
-            if self.radio_map_model is None:
-                self.radio_map_model = RadioMapLikelihood(self._radio_map, self._floorplan, self._config,
-                                                          heard_keys=self._heard_keys)
+        none: with a radio map the KWNN fixes (fix, blend) and the radio-map likelihood's best
+        cell, with an access-point table the least-squares trilateration (3 APs or more)."""
+        if self._radio_map is not None:
             return [f for f in (self.kwnn_xy_m, self.best_cell_xy_m()) if f is not None]
         out = np.full((len(self.scans), 2), np.nan)
         for i, scan in enumerate(self.scans):

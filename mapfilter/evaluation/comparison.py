@@ -108,11 +108,6 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
     except MapfilterError:
         steps = None  # no usable IMU: the PDR methods are left out, kf and pdr-kwnn go without steps
     scan_t = np.array([s.t_s for s in scans])
-    fixes = None
-    if radio_map is not None:
-        fixes = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=setup.tracking.kwnn_k).xy_m
-    elif ap_table is not None:
-        fixes = _ls_fixes(ap_table, scans)
     tracking = setup.tracking
     if radio_map is not None and tracking.fix_sigma_m is None and tracking.fingerprint_model in ("fix", "blend"):
         # calibrate once for the three pf variants, not once each
@@ -123,6 +118,13 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
     wifi = None
     if any(m in PF_METHODS for m in setup.methods) and radio_map is not None:
         wifi = WifiMeasurements(scans, radio_map, None, floorplan, tracking, str(log_paths[index]))
+    fixes = None
+    if wifi is not None and wifi.kwnn_xy_m is not None:
+        fixes = wifi.kwnn_xy_m  # the same KWNN fixes the filter weighs: made once
+    elif radio_map is not None:
+        fixes = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=setup.tracking.kwnn_k).xy_m
+    elif ap_table is not None:
+        fixes = _ls_fixes(ap_table, scans)
 
     def add(method: str, make: Callable[[], tuple[Track, int]], causal: bool = True) -> None:
         started = time.perf_counter()
