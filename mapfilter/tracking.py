@@ -33,7 +33,8 @@ from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.paths import detour_wall_crossings, wall_free_track
 from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position, match_scan
 from mapfilter.sensors.pdr import PDRConfig, Steps, detect_steps
-from mapfilter.sensors.radiomap import RadioMap, cross_validated_fix_errors, kwnn_fix_many
+from mapfilter.sensors.radiomap import (STRONG_MIN_RSSI_DBM, RadioMap, cross_validated_fix_errors, kwnn_fix_many,
+                                       strong_kwnn_fixes)
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import WifiScan, scans_of
 from mapfilter.trackio import Track
@@ -61,6 +62,9 @@ class TrackingConfig:
     # the best at 15-20 m: the calibration lands where tuning would.
     fix_sigma_m: float | None = None
     kwnn_k: int = 4  # Chang et al.
+    # the filter's KWNN fixes use readings at or above this only (``strong_kwnn_fixes``: phones
+    # disagree most on weak APs); None = plain KWNN over every reading, as the kwnn baseline
+    kwnn_min_rssi_dbm: float | None = STRONG_MIN_RSSI_DBM
     rssi_variance_db2: float = 25.0  # trilateration (Lund thesis)
     tick_s: float = 1.0  # cv / rw: prediction interval between scans
     use_abs_heading: bool = True  # PDR: start headings from the rotation vector when the log has one
@@ -137,7 +141,11 @@ class WifiMeasurements:
             if not shared.any():
                 raise MapfilterError(f"the radio map shares no access point with {log_name}")
             if config.fingerprint_model in ("fix", "blend"):
-                self.kwnn_xy_m = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=config.kwnn_k).xy_m
+                matrix = radio_map.scan_matrix(scans)
+                if config.kwnn_min_rssi_dbm is None:
+                    self.kwnn_xy_m = kwnn_fix_many(radio_map, matrix, k=config.kwnn_k).xy_m
+                else:
+                    self.kwnn_xy_m = strong_kwnn_fixes(radio_map, matrix, config.kwnn_k, config.kwnn_min_rssi_dbm)
                 self.fix_xy_m = self.kwnn_xy_m
                 if config.fingerprint_model == "blend":
                     best = self.best_cell_xy_m()

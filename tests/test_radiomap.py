@@ -11,7 +11,8 @@ from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLik
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.pathloss import AccessPointTable
-from mapfilter.sensors.radiomap import RadioMap, build_radio_map, kwnn_fix, kwnn_fix_many, label_scans
+from mapfilter.sensors.radiomap import (RadioMap, build_radio_map, kwnn_fix, kwnn_fix_many, label_scans,
+                                       strong_kwnn_fixes)
 from mapfilter.sensors.wifi import WifiScan, iter_scans
 
 F1_LOGS = sorted((ILC_SITE1 / "F1" / "path_data_files").glob("*.txt.gz"))
@@ -57,6 +58,41 @@ def test_kwnn_matches_brute_force_with_missing_aps(k, p, q):
         keys = [key for key, h in zip(radio_map.ap_keys, heard) if h] + ["ff:ff:ff:ff:ff:ff@5"]
         one = kwnn_fix(radio_map, keys, np.append(scans[s][heard], -30.0), k=k, p=p, q=q, min_shared_aps=2)
         np.testing.assert_allclose(one.xy_m, expected, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("floor_dbm", [-85.0, -70.0])
+def test_strong_kwnn_is_plain_kwnn_on_the_strong_readings(floor_dbm):
+    rng = np.random.default_rng(int(-floor_dbm))
+    radio_map = _random_map(rng, heard=0.9)
+    scans = radio_map.rssi_dbm[:8].copy() + rng.normal(0, 3, (8, len(radio_map.ap_keys))).astype(np.float32)
+    fixes = kwnn_fix_many(radio_map, scans, k=4, missing_dbm=floor_dbm - 5, min_shared_aps=2, min_rssi_dbm=floor_dbm)
+    # the oracle: readings below the floor removed by hand from both sides, then plain KWNN
+    strong_map = RadioMap(radio_map.xy_m, radio_map.ap_keys,
+                          np.where(radio_map.rssi_dbm < floor_dbm, np.nan, radio_map.rssi_dbm), radio_map.t_s,
+                          radio_map.trace, radio_map.source_traces)
+    strong_scans = np.where(scans < floor_dbm, np.nan, scans)
+    for s in range(scans.shape[0]):
+        expected = _kwnn_brute(strong_map, strong_scans[s], 4, 2.0, 2.0, floor_dbm - 5, 2)
+        np.testing.assert_allclose(fixes.xy_m[s], expected, rtol=1e-9, atol=1e-9)
+    # the map's own arrays are untouched, and plain KWNN on it afterwards is unchanged
+    assert np.sum(radio_map.rssi_dbm < floor_dbm) > 0
+    plain = kwnn_fix_many(radio_map, scans, k=4, min_shared_aps=2)
+    np.testing.assert_allclose(plain.xy_m[0], _kwnn_brute(radio_map, scans[0], 4, 2.0, 2.0, -100.0, 2), rtol=1e-9)
+
+
+def test_strong_kwnn_ignores_how_a_phone_reports_weak_aps_and_falls_back_without_strong_ones():
+    rng = np.random.default_rng(7)
+    radio_map = _random_map(rng, p=60, k=20, heard=1.0)
+    scans = radio_map.rssi_dbm[:6].copy()
+    quiet = scans.copy()
+    quiet[quiet < -85] -= 12.0  # a phone that reports weak APs 12 dB lower (or drops them)
+    np.testing.assert_array_equal(strong_kwnn_fixes(radio_map, scans), strong_kwnn_fixes(radio_map, quiet))
+    # a scan with fewer than three strong APs has no strong fix: it takes the plain one
+    weak = np.full((1, 20), np.nan, np.float32)
+    weak[0, :6] = [-60.0, -88.0, -90.0, -91.0, -93.0, -95.0]
+    plain = kwnn_fix_many(radio_map, weak, k=4).xy_m
+    assert np.all(np.isnan(kwnn_fix_many(radio_map, weak, k=4, min_rssi_dbm=-85.0).xy_m))
+    np.testing.assert_array_equal(strong_kwnn_fixes(radio_map, weak), plain)
 
 
 def test_kwnn_exact_fingerprint_returns_its_position():
@@ -348,7 +384,7 @@ def test_blend_fix_is_the_mean_of_the_kwnn_fix_and_the_best_cell():
     scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
     plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
     wifi = WifiMeasurements([scan], radio_map, None, plan, TrackingConfig(fix_sigma_m=5.0, fingerprint_model="blend"))
-    kwnn = kwnn_fix(radio_map, scan.ap_keys, scan.rssi_dbm).xy_m
+    kwnn = strong_kwnn_fixes(radio_map, radio_map.scan_matrix([scan]))[0]  # the default: strong readings only
     best = RadioMapLikelihood(radio_map, plan).best_position(scan)
     np.testing.assert_allclose(wifi.measurement(0).xy_m, 0.5 * (kwnn + best))
     fixes = wifi.position_fixes()  # the whole-walk placement sees both estimators separately

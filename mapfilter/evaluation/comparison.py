@@ -119,9 +119,9 @@ def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, 
     if any(m in PF_METHODS for m in setup.methods) and radio_map is not None:
         wifi = WifiMeasurements(scans, radio_map, None, floorplan, tracking, str(log_paths[index]))
     fixes = None
-    if wifi is not None and wifi.kwnn_xy_m is not None:
+    if wifi is not None and wifi.kwnn_xy_m is not None and tracking.kwnn_min_rssi_dbm is None:
         fixes = wifi.kwnn_xy_m  # the same KWNN fixes the filter weighs: made once
-    elif radio_map is not None:
+    elif radio_map is not None:  # the baselines keep plain KWNN (Chang et al.) over every reading
         fixes = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=setup.tracking.kwnn_k).xy_m
     elif ap_table is not None:
         fixes = _ls_fixes(ap_table, scans)

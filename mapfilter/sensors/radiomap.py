@@ -314,13 +314,24 @@ def _sparse_rows(rssi_dbm: np.ndarray) -> _SparseRows:
     return _SparseRows(ptr, cols.astype(np.int64), rssi_dbm[rows, cols].astype(np.float64))
 
 
-def _reference_rows(radio_map: RadioMap) -> _SparseRows:
-    """The radio map's reference points as sparse rows, computed once per RSSI array."""
+def _reference_rows(radio_map: RadioMap, min_rssi_dbm: float | None = None) -> _SparseRows:
+    """The radio map's reference points as sparse rows (readings below ``min_rssi_dbm`` left
+    out), computed once per RSSI array and floor."""
     cached = getattr(radio_map, "_sparse_refs", None)
     if cached is None or cached[0] is not radio_map.rssi_dbm:
-        cached = (radio_map.rssi_dbm, _sparse_rows(radio_map.rssi_dbm))
+        cached = (radio_map.rssi_dbm, {})
         radio_map._sparse_refs = cached
-    return cached[1]
+    if min_rssi_dbm not in cached[1]:
+        cached[1][min_rssi_dbm] = _sparse_rows(_below_floor_unheard(radio_map.rssi_dbm, min_rssi_dbm))
+    return cached[1][min_rssi_dbm]
+
+
+def _below_floor_unheard(rssi_dbm: np.ndarray, min_rssi_dbm: float | None) -> np.ndarray:
+    """``rssi_dbm`` with readings below ``min_rssi_dbm`` set to NaN (not heard); as is for None."""
+    if min_rssi_dbm is None:
+        return rssi_dbm
+    with np.errstate(invalid="ignore"):
+        return np.where(rssi_dbm < min_rssi_dbm, np.nan, rssi_dbm).astype(rssi_dbm.dtype)
 
 
 @njit(cache=True)
@@ -371,11 +382,12 @@ def _signal_distances(s_ptr, s_col, s_val, r_ptr, r_col, r_val, p, missing_dbm, 
             out_shared[s, r] = shared
 
 
-def _distances_to_references(radio_map: RadioMap, scans: np.ndarray, p: float,
-                             missing_dbm: float) -> tuple[np.ndarray, np.ndarray]:
-    """(S, P) signal distances and (S, P) numbers of shared APs of the scans (S, K) to every reference point."""
-    refs = _reference_rows(radio_map)
-    rows = _sparse_rows(scans)
+def _distances_to_references(radio_map: RadioMap, scans: np.ndarray, p: float, missing_dbm: float,
+                             min_rssi_dbm: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(S, P) signal distances and (S, P) numbers of shared APs of the scans (S, K) to every
+    reference point; readings below ``min_rssi_dbm`` count as not heard on both sides."""
+    refs = _reference_rows(radio_map, min_rssi_dbm)
+    rows = _sparse_rows(_below_floor_unheard(scans, min_rssi_dbm))
     dist = np.empty((scans.shape[0], len(radio_map)))
     shared = np.empty((scans.shape[0], len(radio_map)), dtype=np.int64)
     _signal_distances(rows.ptr, rows.col, rows.val, refs.ptr, refs.col, refs.val, float(p), float(missing_dbm),
@@ -402,23 +414,47 @@ def _kwnn_from_distances(ref_xy_m: np.ndarray, dist: np.ndarray, shared: np.ndar
 
 
 def kwnn_fix_many(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4, p: float = 2.0, q: float = 2.0,
-                  missing_dbm: float = -100.0, min_shared_aps: int = 3) -> KwnnFix:
+                  missing_dbm: float = -100.0, min_shared_aps: int = 3, min_rssi_dbm: float | None = None) -> KwnnFix:
     """KWNN fixes for many scans given as an (S, K) matrix over the radio map's APs (NaN = not heard).
 
     Signal distance (Chang et al.): D = (sum_k |r_k - f_k|^p)^(1/p) over the APs heard by the
     scan or the reference point, an AP missing on one side taking ``missing_dbm``. Only
     reference points sharing at least ``min_shared_aps`` heard APs with the scan are
     candidates; the fix is sum_i w_i x_i / sum_i w_i over the k nearest, w_i = 1 / D_i^q.
-    Scans without any candidate get a NaN fix.
+    Scans without any candidate get a NaN fix. ``min_rssi_dbm``: readings below it count as
+    not heard, in the scans and in the radio map (``strong_kwnn_fixes``).
     """
     if k < 1 or p <= 0 or q < 0:
         raise MapfilterError(f"KWNN needs k >= 1, p > 0, q >= 0; got k={k}, p={p}, q={q}")
     scans = np.ascontiguousarray(scan_rssi_dbm, dtype=np.float64)
     if scans.ndim != 2 or scans.shape[1] != len(radio_map.ap_keys):
         raise MapfilterError(f"scan matrix has shape {scans.shape}, expected (S, {len(radio_map.ap_keys)})")
-    dist, shared = _distances_to_references(radio_map, scans, p, missing_dbm)
-    n_shared_aps = np.count_nonzero(~np.isnan(scans), axis=1)
+    dist, shared = _distances_to_references(radio_map, scans, p, missing_dbm, min_rssi_dbm)
+    n_shared_aps = np.count_nonzero(~np.isnan(_below_floor_unheard(scans, min_rssi_dbm)), axis=1)
     return _kwnn_from_distances(radio_map.xy_m, dist, shared, n_shared_aps, k, q, min_shared_aps)
+
+
+# Strong-reading KWNN: readings below this count as not heard, and an AP heard on one side only
+# counts as STRONG_MISSING_DBM on the other (5 dB under the floor: just not heard). Phones differ
+# by 10-20 dB in what they report for weak APs and in how many they hear at all (an ILC F1 walk
+# reports 20 dB less than the survey walk beside it and hears 40-110 APs where the survey heard
+# 300), and with -100 dBm for every AP heard on one side the plain distance is decided by those.
+# Leave-one-walk-out on ILC site 1 (tools/accuracy_ilc.py sets), fix error at the scans,
+# mean / p75 m, plain -> floor -85: F1 sparse 15.6/16.3 -> 14.0/15.2, F1 dense 7.10/7.92 ->
+# 7.11/7.53, F2 30.2/48.7 -> 25.2/42.9; floor -90 (missing -95) changed little, -80 about as -85.
+STRONG_MIN_RSSI_DBM = -85.0
+STRONG_MISSING_DBM = -90.0
+
+
+def strong_kwnn_fixes(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4,
+                      min_rssi_dbm: float = STRONG_MIN_RSSI_DBM, missing_dbm: float = STRONG_MISSING_DBM) -> np.ndarray:
+    """(S, 2) KWNN fixes from the strong readings only (``kwnn_fix_many`` with ``min_rssi_dbm``);
+    a scan with too few strong APs for a fix takes its plain KWNN fix (NaN if it has none either)."""
+    fixes = kwnn_fix_many(radio_map, scan_rssi_dbm, k=k, missing_dbm=missing_dbm, min_rssi_dbm=min_rssi_dbm).xy_m
+    none = ~np.all(np.isfinite(fixes), axis=1)
+    if none.any():
+        fixes[none] = kwnn_fix_many(radio_map, np.asarray(scan_rssi_dbm)[none], k=k).xy_m
+    return fixes
 
 
 def kwnn_fix(radio_map: RadioMap, scan_keys: Sequence[str], scan_rssi_dbm: np.ndarray, k: int = 4, p: float = 2.0,
