@@ -141,7 +141,7 @@ class FloorChanges:
     the same building-frame point when that is inside the connector there, else on a random
     free pixel of the connector's polygon on that floor. Without connectors (ILC plans mark
     none): anywhere at ``anywhere_rate_per_s``, to the same building-frame point of another
-    floor (chosen alike), dying where that point is no free space.
+    floor (chosen alike), dying (where it stood) where that point is no free space.
     """
 
     def __init__(self, stack: FloorStack, config: FloorChangeConfig = FloorChangeConfig()) -> None:
@@ -222,9 +222,10 @@ class FloorChanges:
                 sel = dest[on] == d
                 point = stack.building.floors[d].from_building(building_xy[sel])
                 idx = movers[on][sel]
-                xy[idx] = stack.to_stack(point, d)
-                out[idx[~stack.building.floors[d].plan.is_free(point)]] = -np.inf
-        self.changed_last_step = int(movers.size)
+                free = stack.building.floors[d].plan.is_free(point)
+                xy[idx[free]] = stack.to_stack(point[free], d)
+                out[idx[~free]] = -np.inf  # no floor there: it dies where it stood
+        self.changed_last_step = int(np.count_nonzero(np.isfinite(out[movers])))
         return out
 
 
