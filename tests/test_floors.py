@@ -289,3 +289,21 @@ def test_real_walks_are_tracked_on_their_floor_without_its_label(site1_building,
         score = floor_at_waypoints(track.t_s, track.floor, recording.waypoint_t_s, header_floor)
         assert score.n_judged >= 5 and score.accuracy == 1.0, printed
         assert f"on {header_floor} at {score.n_right} of {score.n_judged} waypoints" in printed
+
+
+def test_evaluate_in_a_building_reports_floor_accuracy_per_method(site1_building, ilc_site1, tmp_path, capsys):
+    import json
+
+    f1 = sorted((ilc_site1 / "F1" / "path_data_files").glob("*.txt.gz"))[:2]
+    wifi_only = sorted((ilc_site1 / "B1" / "path_data_files").glob("*.txt.gz"))[:2]
+    out = tmp_path / "ev"
+    assert main(["evaluate", str(site1_building), *map(str, f1 + wifi_only), "--leave-one-out",
+                 "--particles", "500", "--out", str(out)]) == 0
+    table = capsys.readouterr().out
+    assert "floor_accuracy" in table
+    summary = {row["method"]: row for row in json.loads((out / "summary.json").read_text())["summary"]}
+    assert set(summary) == {"pf", "pf-floor", "kwnn"}
+    assert summary["pf-floor"]["floor_accuracy"] == 1.0  # the floor given
+    assert all(0.0 <= row["floor_accuracy"] <= 1.0 for row in summary.values())
+    assert summary["pf"]["traces"] == 2 and summary["kwnn"]["traces"] == 4  # no PDR on WiFi-only walks
+    assert "floor_accuracy" in (out / "traces.csv").read_text().splitlines()[0]

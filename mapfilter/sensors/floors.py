@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from collections.abc import Sequence
 
 import numpy as np
@@ -158,10 +157,3 @@ def walk_floor(path: FloorPath) -> int:
     """The floor a walk spent most scans on (Viterbi path), for walks that keep one floor."""
     return int(np.bincount(path.path).argmax())
 
-
-def trace_name(path: str | os.PathLike) -> str:
-    """The trace id of a log file name (``abc.txt.gz`` -> ``abc``)."""
-    name = os.path.basename(os.fspath(path))
-    for suffix in (".gz", ".txt"):
-        name = name.removesuffix(suffix)
-    return name
