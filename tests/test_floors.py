@@ -307,3 +307,48 @@ def test_evaluate_in_a_building_reports_floor_accuracy_per_method(site1_building
     assert all(0.0 <= row["floor_accuracy"] <= 1.0 for row in summary.values())
     assert summary["pf"]["traces"] == 2 and summary["kwnn"]["traces"] == 4  # no PDR on WiFi-only walks
     assert "floor_accuracy" in (out / "traces.csv").read_text().splitlines()[0]
+
+
+def test_rerun_shows_the_current_floor_the_share_per_floor_and_floor_changes(tmp_path):
+    """A filter run across three floors whose evidence moves from L0 to L2: the viewer logs the
+    share of weight per floor every step, the plan again when the estimate's floor changes, and
+    the change in the event log; particles are drawn in the current floor's frame."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_viz import mono_rows, read_rrd, rows, verify
+
+    from mapfilter.viz import make_logger
+
+    building = _building(tmp_path, connectors=False)
+    stack, _, pf = _filter(building, 0.0, 0.2)
+    model = FloorFixLikelihood(stack, np.full(3, 3.0))
+
+    def fix(floor: int) -> FloorFix:
+        votes = np.full(3, 0.05)
+        votes[floor] = 0.9
+        return FloorFix(stack.to_stack(np.array([[10.0, 5.0]] * 3), np.arange(3)), np.log(votes))
+
+    rrd = tmp_path / "floors.rrd"
+    pf.initialise_from_measurement(0.0, model, fix(0))
+    floors_seen = []
+    with make_logger(building.floors[0].plan, rrd_path=rrd, stack=stack) as logger:
+        for k in range(1, 41):
+            report = pf.step(float(k), 1.0, None, model, fix(0 if k <= 15 else 2))
+            floors_seen.append(report.floor_index)
+            logger.log_step(report)
+    assert floors_seen[0] == 0 and floors_seen[-1] == 2
+    verify(rrd)
+    entities = read_rrd(rrd)
+    texts = mono_rows(entities["/events"], "TextLog:text")
+    changes = [t for t in texts if "floor change" in t]
+    assert len(changes) == sum(a != b for a, b in zip(floors_seen, floors_seen[1:])) and "L0 -> " in changes[0]
+    shares = {name: mono_rows(entities[f"/plots/floors/{name}"], "Scalars:scalars") for name in ("L0", "L1", "L2")}
+    assert all(len(v) == 40 for v in shares.values())
+    assert np.allclose(np.sum([shares[n] for n in shares], axis=0), 1.0)
+    # the mask is logged once per floor that became current, not as static data
+    masks = rows(entities["/map/world/walls/mask"], "SegmentationImage:buffer")
+    assert len(masks) == len(changes) + 1
+    # particles drawn in the floor's own frame: inside the 20 m floor
+    last = np.array(rows(entities["/map/world/particles"], "Points2D:positions")[-1])
+    assert (last >= 0).all() and (last <= 20).all()

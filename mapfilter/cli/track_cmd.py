@@ -207,15 +207,25 @@ def _run_building(args: argparse.Namespace, building) -> int:
 
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
 
-    logger = make_logger(building.floors[header_floor or 0].plan, rrd_path=args.rerun, spawn=args.spawn,
-                         max_particles=args.max_drawn_particles, recording_name=recording.name)
+    from mapfilter.filter.floors import FloorStack
+
+    stack = FloorStack(building) if args.floor is None else None
+    plan = building.floors[building.floor_index(args.floor) if args.floor else (header_floor or 0)].plan
+    logger = make_logger(plan, rrd_path=args.rerun, spawn=args.spawn, max_particles=args.max_drawn_particles,
+                         recording_name=recording.name, stack=stack)
     progress = _Progress(recording)
     with logger, progress:
+        if recording.has_ground_truth and (header_floor is not None or args.floor is not None):
+            logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
+
         def on_step(report) -> None:
+            logger.log_step(report)
             progress.update(report.t_s)
 
         result = track_building(building, recording, radio_map, config, np.random.default_rng(args.seed),
                                 on_step=on_step, floor=args.floor)
+        if result.smoothed is not None:
+            logger.log_track("smoothed", result.smoothed.t_s, result.smoothed.xy_m)
         output = result.smoothed if args.smooth and result.smoothed is not None else result.track
         if args.out is not None:
             (write_track_tum if args.format == "tum" else write_track_csv)(output, args.out)
@@ -250,6 +260,8 @@ def _print_building_summary(building, recording, result, header_floor, args) -> 
         lines.append(text)
     if args.out is not None:
         lines.append(f"  wrote {args.out}")
+    if args.rerun is not None:
+        lines.append(f"  wrote {args.rerun}")
     print("\n".join(lines))
 
 
