@@ -352,3 +352,28 @@ def test_rerun_shows_the_current_floor_the_share_per_floor_and_floor_changes(tmp
     # particles drawn in the floor's own frame: inside the 20 m floor
     last = np.array(rows(entities["/map/world/particles"], "Points2D:positions")[-1])
     assert (last >= 0).all() and (last <= 20).all()
+
+
+def test_the_fix_weighs_positions_within_a_floor_and_only_the_vote_weighs_floors(tmp_path):
+    """A floor whose particles sit right on its (wrong-floor) fix must not gain weight from
+    that: each floor's total weight changes by its vote alone."""
+    from mapfilter.filter.particles import Particles
+
+    stack = FloorStack(_building(tmp_path, connectors=False))
+    rng = np.random.default_rng(0)
+    local = np.concatenate([rng.normal([10.0, 5.0], 0.2, (300, 2)), rng.normal([15.0, 15.0], 3.0, (300, 2))])
+    floor = np.repeat([0, 1], 300)
+    particles = Particles.at(stack.to_stack(local, floor))
+    particles.log_weight = np.log(rng.uniform(0.5, 1.5, 600))
+    particles.log_weight -= np.log(np.exp(particles.log_weight).sum())
+    fixes = stack.to_stack(np.array([[10.0, 5.0], [2.0, 2.0], [10.0, 10.0]]), np.arange(3))
+    vote = np.log([0.2, 0.7, 0.1])
+    ll = FloorFixLikelihood(stack, np.full(3, 3.0)).log_likelihood(particles, FloorFix(fixes, vote))
+    prior = np.exp(particles.log_weight)
+    posterior = prior * np.exp(ll)
+    for f in (0, 1):
+        assert math.isclose(posterior[floor == f].sum() / prior[floor == f].sum(), math.exp(vote[f]), rel_tol=1e-9)
+    # within floor 1, particles nearer its fix gain
+    on1 = np.flatnonzero(floor == 1)
+    d = np.linalg.norm(local[on1] - [2.0, 2.0], axis=1)
+    assert ll[on1[np.argmin(d)]] > ll[on1[np.argmax(d)]]

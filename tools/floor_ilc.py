@@ -56,6 +56,7 @@ def main() -> int:
     parser.add_argument("--particles", type=int, default=10_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--limit", type=int, default=0, help="track only the first N walks with IMU (0: all)")
+    parser.add_argument("--traces", default="", metavar="ID1,ID2", help="track only these walks with IMU")
     parser.add_argument("--out", type=Path, help="write the numbers (JSON)")
     args = parser.parse_args()
 
@@ -80,6 +81,8 @@ def main() -> int:
 
     imu_rows, wifi_rows = [], []
     with_imu = [(r, f) for r, f in zip(recordings, floors) if r.acc_t_s.shape[0] >= 100]
+    if args.traces:
+        with_imu = [(r, f) for r, f in with_imu if r.name in args.traces.split(",")]
     if args.limit:
         with_imu = with_imu[:args.limit]
     for i, (rec, f) in enumerate(with_imu):

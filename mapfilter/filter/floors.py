@@ -176,6 +176,7 @@ class FloorChanges:
         """Change the floor of some live particles in place (``particles.xy_m``); returns the
         log weights with particles that landed on no floor killed."""
         self.changed_last_step = 0
+        particles.log_weight = log_weight  # the weights after the wall check, for the measurement
         stack = self.stack
         if stack.n_floors < 2 or dt_s <= 0.0:
             return log_weight
@@ -226,6 +227,7 @@ class FloorChanges:
                 xy[idx[free]] = stack.to_stack(point[free], d)
                 out[idx[~free]] = -np.inf  # no floor there: it dies where it stood
         self.changed_last_step = int(np.count_nonzero(np.isfinite(out[movers])))
+        particles.log_weight = out
         return out
 
 
@@ -240,20 +242,26 @@ class FloorFix:
 
 @dataclasses.dataclass(frozen=True)
 class FloorFixLikelihood:
-    """log p(scan | particle on floor f at x) = floor_ll[f] - |x - fix_f|^2 / (2 sigma_f^2).
+    """The WiFi floor vote weighs the floors; within a floor, the fix weighs positions.
 
-    The floor term is the WiFi floor vote (``sensors.floors.floor_vote_log_likelihood``); the
-    position term is the Gaussian fix of Evennou & Marx with the fix made from that floor's
-    fingerprints only (a floor without a fix gives the value of a fix 3 sigma away). The
-    position terms' normalising constants are left out on purpose: a fix made from the
-    fingerprints of a floor the walker is not on is not a measurement of anything, so it must
-    not weigh floors; the vote does that.
+    For a particle i on floor f with prior weight w_i:
+
+        log L_i = vote_f + pos_i - log( sum_{j on f} w_j exp(pos_j) / sum_{j on f} w_j )
+        pos_i   = -|x_i - fix_f|^2 / (2 sigma_f^2)
+
+    where ``vote_f`` is the scan's floor log-likelihood (``sensors.floors.
+    floor_vote_log_likelihood``) and ``fix_f`` the fix made from floor f's fingerprints only
+    (a floor without a fix gives every particle there the value of a fix 3 sigma away). The
+    normaliser makes the position term a reweighting *within* each floor: the weight of a
+    whole floor changes by exp(vote_f) only, as in the floor HMM's forward step, while
+    positions are weighed as on one floor (Evennou & Marx). Without it a wrong floor whose
+    fingerprints happen to agree with its particles (a self-consistent wrong fix) could
+    outweigh the right floor where the walk's fixes are poor and the cloud disagrees with them.
     """
 
     stack: FloorStack
     sigma_m: np.ndarray  # (F,) fix sigma per floor
     kind: str = "floor_fix"
-    log_likelihood_peak: float = 0.0  # both terms are <= 0
 
     def log_likelihood(self, particles: Particles, measurement: FloorFix) -> np.ndarray:
         floor = self.stack.floor_of(particles.xy_m)
@@ -261,4 +269,15 @@ class FloorFixLikelihood:
         sigma = np.asarray(self.sigma_m, dtype=np.float64)[floor]
         d2 = ((particles.xy_m - fix) ** 2).sum(axis=1) / (sigma * sigma)
         position = np.where(np.isfinite(d2), -0.5 * d2, -4.5)
-        return measurement.floor_log_likelihood[floor] + position
+        prior = np.asarray(particles.log_weight, dtype=np.float64)
+        live = np.isfinite(prior)
+        out = measurement.floor_log_likelihood[floor] + position
+        for f in np.unique(floor[live]):
+            on = live & (floor == f)
+            out[on] -= _logsumexp(prior[on] + position[on]) - _logsumexp(prior[on])
+        return out
+
+
+def _logsumexp(values: np.ndarray) -> float:
+    m = float(values.max())
+    return m + math.log(float(np.exp(values - m).sum()))
