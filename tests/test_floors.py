@@ -361,7 +361,8 @@ def test_the_fix_weighs_positions_within_a_floor_and_only_the_vote_weighs_floors
 
     stack = FloorStack(_building(tmp_path, connectors=False))
     rng = np.random.default_rng(0)
-    local = np.concatenate([rng.normal([10.0, 5.0], 0.2, (300, 2)), rng.normal([15.0, 15.0], 3.0, (300, 2))])
+    local = np.concatenate([rng.normal([10.0, 5.0], 0.2, (300, 2)),
+                            np.clip(rng.normal([15.0, 15.0], 3.0, (300, 2)), 1.0, 19.0)])
     floor = np.repeat([0, 1], 300)
     particles = Particles.at(stack.to_stack(local, floor))
     particles.log_weight = np.log(rng.uniform(0.5, 1.5, 600))
