@@ -28,6 +28,16 @@ from mapfilter.tracking import TrackingConfig, TrackingResult, WifiMeasurements,
 from mapfilter.trackio import Track
 
 
+# A phone barometer's height is good to about 0.25 m per sample and drifts with the weather by
+# well under a metre in ten minutes; 1 m keeps a storey (4-5 m) four sigmas or more away.
+BARO_SIGMA_M = 1.0
+# the filter is sure of its floor (the barometer's reference may be moved to it) above this share
+BARO_ANCHOR_SHARE = 0.95
+# ... and only while the height is steady: less than this change over the last few seconds
+BARO_STEADY_M = 0.5
+BARO_STEADY_WINDOW_S = 3.0
+
+
 class BuildingWifi:
     """A walk's scans as the multi-floor filter weighs them (``FloorFix`` per scan).
 
@@ -35,10 +45,18 @@ class BuildingWifi:
     (so ``blend``, ``fix`` and the fix-sigma calibration work as on one floor), moved into the
     stack frame; per scan, the floor vote of ``sensors.floors.floor_vote_log_likelihood`` over
     the whole building's fingerprints.
+
+    With a barometer (``pressure``: times and hPa), each scan also weighs floors by height:
+    the barometer measures height *changes* only (the weather moves its zero), so it is read
+    against a reference, the floor the filter was sure of (``observe``: more than
+    ``BARO_ANCHOR_SHARE`` of the weight, height steady) and the barometer's height then; a floor
+    of elevation e gets -(e - (e_ref + h - h_ref))^2 / (2 BARO_SIGMA_M^2).
     """
 
     def __init__(self, scans: list[WifiScan], radio_map: RadioMap, stack: FloorStack, config: TrackingConfig,
-                 fix_sigma_per_floor_m: dict[str, float] | None = None, log_name: str = "the log"):
+                 fix_sigma_per_floor_m: dict[str, float] | None = None, log_name: str = "the log",
+                 pressure: tuple[np.ndarray, np.ndarray] | None = None,
+                 floor_evidence: np.ndarray | None = None):
         if not radio_map.has_floors:
             raise MapfilterError("tracking across floors needs a building's radio map (floor labels): "
                                  "mapfilter radiomap build BUILDING.yaml LOGS...")
@@ -66,18 +84,58 @@ class BuildingWifi:
                                      "model fix or blend")
             self.fix_xy_m[:, f] = stack.to_stack(wifi.fix_xy_m, f)
             sigma[f] = wifi.model.sigma_m
-        self.floor_log_likelihood = floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans),
-                                                              k=config.kwnn_k)
+        if floor_evidence is not None:
+            self.floor_log_likelihood = np.asarray(floor_evidence, dtype=np.float64)
+        else:
+            self.floor_log_likelihood = floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans),
+                                                                  k=config.kwnn_k)
+        self.elevation_m = np.array([f.elevation_m for f in stack.building.floors])
+        self.baro = None if pressure is None or len(pressure[0]) < 2 else barometric_height(*pressure)
+        self.anchor: tuple[int, float] | None = None  # (floor, barometer height) the filter was sure of
         self.usable = np.isfinite(self.fix_xy_m).all(axis=2).any(axis=1)
         if not self.usable.any():
             raise MapfilterError(f"no WiFi scan of {log_name} gives a fingerprint fix with this radio map")
         self.model = FloorFixLikelihood(stack, sigma)
 
+    def height_m(self, t_s: float) -> float:
+        """The barometer's height at ``t_s`` (relative to its first sample), NaN without one."""
+        if self.baro is None:
+            return float("nan")
+        return float(np.interp(t_s, self.baro[0], self.baro[1]))
+
+    def observe(self, report: StepReport) -> None:
+        """After each filter step: move the barometer's reference to the filter's floor when it is
+        sure of it and the height is steady (not in a lift or on stairs)."""
+        if self.baro is None or report.floor_shares is None:
+            return
+        h = self.height_m(report.t_s)
+        steady = abs(h - self.height_m(report.t_s - BARO_STEADY_WINDOW_S)) < BARO_STEADY_M
+        if steady and float(np.max(report.floor_shares)) >= BARO_ANCHOR_SHARE:
+            self.anchor = (int(np.argmax(report.floor_shares)), h)
+
     def measurement(self, index: int) -> FloorFix | None:
         """The scan ``index`` as a ``FloorFix`` (None when no floor gives it a fix)."""
         if not self.usable[index]:
             return None
-        return FloorFix(self.fix_xy_m[index], self.floor_log_likelihood[index])
+        floor_ll = self.floor_log_likelihood[index]
+        if self.anchor is not None:
+            floor, h_ref = self.anchor
+            expected = self.elevation_m[floor] + self.height_m(self.scans[index].t_s) - h_ref
+            floor_ll = floor_ll - 0.5 * ((self.elevation_m - expected) / BARO_SIGMA_M) ** 2
+        return FloorFix(self.fix_xy_m[index], floor_ll)
+
+
+def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """(times, heights in metres relative to the first sample) from barometer readings: the
+    international barometric formula h = 44330.8 (1 - (p / p_first)^(1 / 5.25588)), on a moving
+    mean over ``window_s`` (a phone barometer's noise is about 0.25 m per sample)."""
+    t = np.asarray(t_s, dtype=np.float64)
+    p = np.asarray(pressure_hpa, dtype=np.float64)
+    cum = np.concatenate([[0.0], np.cumsum(p)])
+    lo = np.searchsorted(t, t - window_s / 2, side="left")
+    hi = np.searchsorted(t, t + window_s / 2, side="right")
+    mean = (cum[hi] - cum[lo]) / np.maximum(hi - lo, 1)
+    return t, 44330.8 * (1.0 - (mean / mean[0]) ** (1.0 / 5.25588))
 
 
 def track_building(
@@ -90,6 +148,8 @@ def track_building(
     floor: str | None = None,
     fix_sigma_per_floor_m: dict[str, float] | None = None,
     floor_changes: FloorChangeConfig = FloorChangeConfig(),
+    use_barometer: bool = True,
+    floor_evidence: np.ndarray | None = None,
 ) -> TrackingResult:
     """Track one walk in a building; tracks in each floor's own frame with a floor per row.
 
@@ -103,6 +163,9 @@ def track_building(
     fix_sigma_per_floor_m : the fix Gaussian of each floor by name, instead of calibrating it
         from each floor's fingerprints.
     floor_changes : how particles change floor.
+    use_barometer : weigh floors by the log's barometer (``TYPE_PRESSURE`` rows) when it has one.
+    floor_evidence : (S, F) floor log-likelihood per scan instead of the WiFi floor vote (e.g.
+        the true floor, to measure what finding the floor costs on a walk that changes floor).
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     if building.is_single_floor or floor is not None:
@@ -125,9 +188,19 @@ def track_building(
                              "drop --no-map or give the floor")
     stack = FloorStack(building)
     log_name = str(recording.path) if recording.path is not None else "the log"
-    wifi = BuildingWifi(scans_of(recording), radio_map, stack, config, fix_sigma_per_floor_m, log_name)
+    pressure = None
+    if use_barometer and recording.pressure_t_s.size >= 2:
+        pressure = (recording.pressure_t_s, recording.pressure_hpa)
+    wifi = BuildingWifi(scans_of(recording), radio_map, stack, config, fix_sigma_per_floor_m, log_name,
+                        pressure=pressure, floor_evidence=floor_evidence)
     changes = FloorChanges(stack, floor_changes)
-    result = track_recording(stack.plan, recording, None, None, config, rng, on_step=on_step, wifi=wifi,
+
+    def step_hook(report: StepReport) -> None:
+        wifi.observe(report)
+        if on_step is not None:
+            on_step(report)
+
+    result = track_recording(stack.plan, recording, None, None, config, rng, on_step=step_hook, wifi=wifi,
                              floors=changes)
     result.track = _to_floors(stack, result.track)
     if result.smoothed is not None:
