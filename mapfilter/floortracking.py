@@ -110,8 +110,16 @@ class BuildingWifi:
             return
         h = self.height_m(report.t_s)
         steady = abs(h - self.height_m(report.t_s - BARO_STEADY_WINDOW_S)) < BARO_STEADY_M
-        if steady and float(np.max(report.floor_shares)) >= BARO_ANCHOR_SHARE:
-            self.anchor = (int(np.argmax(report.floor_shares)), h)
+        floor = int(np.argmax(report.floor_shares))
+        if not (steady and float(np.max(report.floor_shares)) >= BARO_ANCHOR_SHARE):
+            return
+        if self.anchor is not None:
+            # never move the reference to a floor the barometer disagrees with: a filter that
+            # missed a floor change would otherwise silence the barometer for good
+            ref_floor, h_ref = self.anchor
+            if abs((self.elevation_m[floor] - self.elevation_m[ref_floor]) - (h - h_ref)) > 2.0 * BARO_SIGMA_M:
+                return
+        self.anchor = (floor, h)
 
     def measurement(self, index: int) -> FloorFix | None:
         """The scan ``index`` as a ``FloorFix`` (None when no floor gives it a fix)."""

@@ -262,6 +262,15 @@ class FloorFixLikelihood:
     stack: FloorStack
     sigma_m: np.ndarray  # (F,) fix sigma per floor
     kind: str = "floor_fix"
+    # When the floor evidence puts every live particle's floor this far (nats) below the best
+    # floor, no particle is where the walker can be: every value is -inf, and the filter
+    # collapses and re-draws its particles from this measurement over every floor. The WiFi
+    # vote alone never gets there (its pseudo-count keeps floors within log(k + 1) = 1.6 nats
+    # for k = 4); a barometer 2.6 m or more past the storey half-way (-(4 m - h)^2 / 2 against
+    # -h^2 / 2 at 1 m sigma) or a given floor does: PDR walks particles off the stairs faster
+    # than a climber goes (a stair is about 0.25 m deep), so on stairs this is often how the
+    # filter follows the barometer.
+    floor_collapse_nats: float = 2.5
 
     def log_likelihood(self, particles: Particles, measurement: FloorFix) -> np.ndarray:
         floor = self.stack.floor_of(particles.xy_m)
@@ -271,7 +280,10 @@ class FloorFixLikelihood:
         position = np.where(np.isfinite(d2), -0.5 * d2, -4.5)
         prior = np.asarray(particles.log_weight, dtype=np.float64)
         live = np.isfinite(prior)
-        out = measurement.floor_log_likelihood[floor] + position
+        floor_ll = np.asarray(measurement.floor_log_likelihood, dtype=np.float64)
+        if live.any() and floor_ll[floor[live]].max() < floor_ll.max() - self.floor_collapse_nats:
+            return np.full(len(particles), -np.inf)
+        out = floor_ll[floor] + position
         for f in np.unique(floor[live]):
             on = live & (floor == f)
             out[on] -= _logsumexp(prior[on] + position[on]) - _logsumexp(prior[on])
