@@ -241,6 +241,7 @@ def track_recording(
     on_step: Callable[[StepReport], None] | None = None,
     steps: Steps | None = None,
     wifi: WifiMeasurements | None = None,
+    floors: Any = None,
 ) -> TrackingResult:
     """Track one walk with the particle filter.
 
@@ -255,6 +256,9 @@ def track_recording(
     steps : PDR steps if already detected (else detected here when the motion is PDR).
     wifi : the walk's ``WifiMeasurements`` if already made with this radio map or AP table and
         config (several filters on one walk share them), else made here.
+    floors : a building's ``filter.floors.FloorChanges`` (``floortracking.track_building``):
+        ``floorplan`` is its stack plan and ``wifi`` weighs floors; the offline track is then
+        the lineage of the final best particle.
     """
     started = time.perf_counter()
     rng = rng if rng is not None else np.random.default_rng(0)
@@ -270,11 +274,11 @@ def track_recording(
             steps = detect_steps(recording, config.pdr)
     else:
         motion = ConstantVelocityMotion() if config.motion == "cv" else RandomWalkMotion()
-    whole_walk = config.smooth and config.motion == "pdr" and len(steps) > 0
+    whole_walk = config.smooth and config.motion == "pdr" and len(steps) > 0 and floors is None
     # without steps to place, the offline track is the lineage of the final best particle
     filter_config = dataclasses.replace(config.filter, n_particles=config.n_particles,
                                         keep_ancestry=(config.smooth and not whole_walk) or config.filter.keep_ancestry)
-    pf = ParticleFilter(plan, motion, filter_config, rng)
+    pf = ParticleFilter(plan, motion, filter_config, rng, floors=floors)
 
     first = int(np.argmax(wifi.usable))
     t0 = float(scans[first].t_s)

@@ -8,16 +8,17 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "mapfilter"
 # stage -> the stages it must never import (also not lazily, inside a function)
 FORBIDDEN = {
-    "maps": {"sensors", "filter", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "sensors": {"filter", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "filter": {"tracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "tracking": {"evaluation", "batch", "simulate", "viz", "cli"},
+    "maps": {"sensors", "filter", "tracking", "floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
+    "sensors": {"filter", "tracking", "floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
+    "filter": {"tracking", "floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
+    "tracking": {"floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
+    "floortracking": {"evaluation", "batch", "simulate", "viz", "cli"},
     "evaluation": {"batch", "simulate", "viz", "cli"},
     "batch": {"simulate", "viz", "cli"},
     # how walks are dispatched knows nothing of what a walk is
     "engine": {"maps", "sensors", "filter", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "simulate": {"filter", "tracking", "evaluation", "batch", "viz", "cli"},
-    "viz": {"tracking", "evaluation", "batch", "simulate", "cli"},
+    "simulate": {"filter", "tracking", "floortracking", "evaluation", "batch", "viz", "cli"},
+    "viz": {"tracking", "floortracking", "evaluation", "batch", "simulate", "cli"},
 }
 
 

@@ -370,10 +370,10 @@ def test_radio_map_file_keeps_the_cross_validation_and_old_files_load(tmp_path, 
     new.rssi_dbm = new.rssi_dbm + np.float32(1.0)
     with pytest.raises(pytest.fail.Exception):
         calibrated_fix_sigma_m(new, 4)
-    v1["version"] = np.array(3, dtype=np.int64)
-    np.savez_compressed(tmp_path / "v3.npz", **v1)
-    with pytest.raises(MapfilterError, match="version 3 is not supported"):
-        RadioMap.load(tmp_path / "v3.npz")
+    v1["version"] = np.array(4, dtype=np.int64)  # 3 is a building's radio map (floor labels)
+    np.savez_compressed(tmp_path / "v4.npz", **v1)
+    with pytest.raises(MapfilterError, match="version 4 is not supported"):
+        RadioMap.load(tmp_path / "v4.npz")
 
 
 def test_blend_fix_is_the_mean_of_the_kwnn_fix_and_the_best_cell():

@@ -37,6 +37,14 @@ example (ILC floor, each walk's radio map from the other walks):
   mapfilter evaluate F1.yaml ../shared/data/ilc20/site1/F1/path_data_files/*.txt.gz \\
       --leave-one-out --out results/F1 --jobs 2
 
+A building (MAP a building YAML with several floors, docs/building.md): every walk's true
+floor is its header's (FloorName); the methods are pf (the floor in the filter's state, not
+given), pf-floor (the same filter on the true floor) and kwnn (each scan on the floor of the
+causal WiFi floor HMM); the table adds floor_accuracy, the share of waypoints at which a
+method was on the right floor. Each floor's fix sigma is calibrated once from its whole radio map.
+  mapfilter evaluate site1.yaml ../shared/data/ilc20/site1/*/path_data_files/*.txt.gz \
+      --leave-one-out --out results/site1
+
 --jobs N runs the walks on N local Dask worker processes; --scheduler tcp://HOST:PORT on an
 existing Dask cluster (pip install 'mapfilter[distributed]'; start one with
 `dask scheduler --host HOST --port PORT` and `dask worker tcp://HOST:PORT --nworkers N
@@ -53,7 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "evaluate", help="compare every method on the same walks (errors, CDF plot, tracks)",
         description="Run every method on the same walks and compare their errors against ground truth.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("map", type=Path, metavar="MAP", help="map YAML")
+    parser.add_argument("map", type=Path, metavar="MAP", help="map YAML or building YAML")
     parser.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="walks with waypoints (ILC format)")
     parser.add_argument("--methods", default=",".join(ALL_METHODS), metavar="M1,M2",
                         help="comma-separated methods (default: all)")
@@ -78,11 +86,10 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.evaluation.comparison import EvaluationSetup, evaluate_logs
     from mapfilter.filter.adaptive_pathloss import AdaptationConfig
     from mapfilter.evaluation.metrics import format_table
-    from mapfilter.maps.floorplan import FloorPlan
     from mapfilter.tracking import TrackingConfig
 
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-    unknown = [m for m in methods if m not in ALL_METHODS]
+    unknown = [m for m in methods if m not in ALL_METHODS + ("pf-floor",)]
     if unknown:
         raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(ALL_METHODS)}")
     if args.particles < 1:
@@ -90,7 +97,10 @@ def run(args: argparse.Namespace) -> int:
     engine = engine_from(args)
     if args.out.exists() and not args.out.is_dir():
         raise MapfilterError("the output must be a directory", args.out)
-    floorplan = FloorPlan.load(args.map)
+    from mapfilter.maps.building import Building
+
+    building = Building.load(args.map)
+    floorplan = building.floors[0].plan
     setup = EvaluationSetup(
         methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps, leave_one_out=args.leave_one_out,
         smooth=args.smooth, seed=args.seed, strict=args.strict,
@@ -99,21 +109,31 @@ def run(args: argparse.Namespace) -> int:
                                 adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
                                 blocking_compensation=not args.no_blocking_compensation))
 
+    columns = SUMMARY_COLUMNS
     with ProgressBar("evaluate", len(args.logs)) as progress:
-        evaluation = evaluate_logs(floorplan, args.logs, setup, progress=progress, engine=engine)
+        if building.is_single_floor:
+            evaluation = evaluate_logs(floorplan, args.logs, setup, progress=progress, engine=engine)
+        else:
+            from mapfilter.evaluation.floors import evaluate_building_logs
+
+            if args.methods == ",".join(ALL_METHODS):  # the default: every method a building has
+                setup = dataclasses.replace(setup, methods=("pf", "pf-floor", "kwnn"))
+            evaluation = evaluate_building_logs(building, args.logs, setup, engine=engine, progress=progress)
+            floorplan = building
+            columns = SUMMARY_COLUMNS + ("floor_accuracy",)
     for message in evaluation.read_warnings:
         warn(message)
     summary = evaluation.summary_rows()
-    table = format_table(summary, SUMMARY_COLUMNS)
+    table = format_table(summary, columns)
     waypoints = summary[0]["n"] + summary[0]["missed"] if summary else 0
     print(f"{evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s\n{table}")
-    _write_outputs(args, floorplan, evaluation, summary)
+    _write_outputs(args, floorplan, evaluation, summary, columns)
     print(f"wrote {args.out}/summary.csv, summary.json, traces.csv, walks.csv (why each walk went wrong), "
           "cdf.png, tracks/")
     return 0
 
 
-def _write_outputs(args, floorplan, evaluation, summary) -> None:
+def _write_outputs(args, floorplan, evaluation, summary, columns=SUMMARY_COLUMNS) -> None:
     from mapfilter.evaluation.comparison import nan_to_none
     from mapfilter.evaluation.plots import plot_error_cdf, plot_tracks_on_map
     from mapfilter.sensors.ilc import read_ilc
@@ -123,9 +143,9 @@ def _write_outputs(args, floorplan, evaluation, summary) -> None:
     out.mkdir(parents=True, exist_ok=True)
     with atomic_paths(out / "summary.csv", out / "traces.csv", out / "walks.csv",
                       out / "summary.json") as (s_csv, t_csv, w_csv, s_json):
-        _write_csv(s_csv, summary, SUMMARY_COLUMNS)
+        _write_csv(s_csv, summary, columns)
         trace_rows = evaluation.trace_rows()
-        _write_csv(t_csv, trace_rows, ("trace",) + SUMMARY_COLUMNS)
+        _write_csv(t_csv, trace_rows, ("trace",) + columns)
         walk_rows = evaluation.walk_rows()
         _write_csv(w_csv, walk_rows, list(dict.fromkeys(k for row in walk_rows for k in row)) or ["trace"])
         s_json.write_text(json.dumps({
@@ -148,7 +168,10 @@ def _write_outputs(args, floorplan, evaluation, summary) -> None:
             write_track_csv(dataclasses.replace(result.track, name=result.method),
                             tracks_dir / recording.name / f"{result.method}.csv")
         shown = {r.method: r.track.xy_m for r in results if r.method in ("pf", "pf-smooth", "kwnn", "kf", "pdr")}
-        plot_tracks_on_map(floorplan, shown, tracks_dir / f"{recording.name}.png", recording.waypoint_xy_m,
+        plan = floorplan
+        if not hasattr(floorplan, "wall_mask"):  # a building: the walk's own floor (rows elsewhere drawn on it too)
+            plan = floorplan.floors[floorplan.floor_of_log(recording.floor_name, log_path) or 0].plan
+        plot_tracks_on_map(plan, shown, tracks_dir / f"{recording.name}.png", recording.waypoint_xy_m,
                            title=recording.name)
 
 

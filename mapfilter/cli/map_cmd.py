@@ -44,8 +44,16 @@ floor's lower-left corner) and record floor_image.png for display under the mask
   image    transparent pixels walkable, shop outlines opened by 2 px, scale from floor_info.json
   geojson  outline minus shops (shrunk by 0.6 m) rasterised at --resolution (default 0.25 m)
 
+A SITE_DIR (a folder of floor folders, e.g. site1 with B1, F1, ..., F4) becomes one building:
+every floor is imported (route geojson unless --route says otherwise) and written beside
+--out as NAME_<floor>.yaml (+ mask and preview), and --out is the building YAML that lists
+them, placed in one frame by the GeoJSON longitudes/latitudes (the ground floor's frame;
+docs/building.md). ILC gives no elevations: storeys come from the names (B1 = -1, F1 = 0,
+F2 = 1, ...) times --storey-height (default 5 m).
+
 example:
   mapfilter map import-ilc ../shared/data/ilc20/site1/F1 --out F1.yaml
+  mapfilter map import-ilc ../shared/data/ilc20/site1 --out site1.yaml
 """
 
 
@@ -107,13 +115,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "import-ilc", help="an ILC 2.0 floor directory -> map YAML + mask in one step",
         description="Make a map of an ILC (Indoor Location Competition 2.0) floor directory.",
         epilog=_IMPORT_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ilc.add_argument("floor_dir", type=Path, metavar="FLOOR_DIR", help="e.g. ../shared/data/ilc20/site1/F1")
+    ilc.add_argument("floor_dir", type=Path, metavar="FLOOR_DIR|SITE_DIR",
+                     help="e.g. ../shared/data/ilc20/site1/F1, or site1 for every floor as one building")
     ilc.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output map YAML")
-    ilc.add_argument("--route", choices=("image", "geojson"), default="image",
-                     help="from the floor image or the GeoJSON polygons (default: image)")
+    ilc.add_argument("--route", choices=("image", "geojson"), default=None,
+                     help="from the floor image or the GeoJSON polygons (default: image for a floor, "
+                          "geojson for a site)")
     ilc.add_argument("--resolution", type=float, metavar="M",
                      help="metres per output pixel (default: the image's ~0.3 m, or 0.25 m for geojson)")
     ilc.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall")
+    ilc.add_argument("--storey-height", type=float, default=5.0, metavar="M",
+                     help="a site: metres between storeys for the elevations (default: 5)")
     ilc.set_defaults(func=run_import_ilc)
 
 
@@ -161,12 +173,39 @@ def run_prepare(args: argparse.Namespace) -> int:
 
 def run_import_ilc(args: argparse.Namespace) -> int:
     from mapfilter.maps import prepare
+    from mapfilter.maps.building import is_ilc_site_dir
 
+    if is_ilc_site_dir(args.floor_dir):
+        return _import_ilc_site(args)
     edits = prepare.read_edits(args.edits) if args.edits else None
-    plan = prepare.import_ilc(args.floor_dir, args.route, args.resolution)
+    plan = prepare.import_ilc(args.floor_dir, args.route or "image", args.resolution)
     if edits is not None:
         plan = prepare.apply_edits(plan, edits)
     _write(plan, args.out)
+    return 0
+
+
+def _import_ilc_site(args: argparse.Namespace) -> int:
+    from mapfilter.maps import prepare
+    from mapfilter.maps.building import import_ilc_site
+
+    if args.edits is not None:
+        raise MapfilterError("--edits names one floor's polygons: import that floor alone, or edit the floor maps "
+                             "of the building afterwards", args.edits)
+    if args.out.suffix not in (".yaml", ".yml"):
+        raise MapfilterError("the output building must be a .yaml file", args.out)
+    if not (args.storey_height > 0):
+        raise MapfilterError(f"--storey-height must be positive, got {args.storey_height}")
+    # everything is imported and checked before the first file is written
+    building = import_ilc_site(args.floor_dir, args.route or "geojson", args.resolution, args.storey_height)
+    for floor in building.floors:
+        floor.map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml").resolve()
+        prepare.preview_image(floor.plan)  # fails here, before anything is written, if it fails at all
+    for floor in building.floors:
+        _write(floor.plan, floor.map_path)
+    building.save(args.out)
+    print(f"wrote {args.out}: {len(building.floors)} floors ({', '.join(building.floor_names)}), "
+          f"storey height {args.storey_height:g} m")
     return 0
 
 

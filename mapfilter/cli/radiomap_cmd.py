@@ -20,7 +20,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sub = parser.add_subparsers(dest="radiomap_command", metavar="SUBCOMMAND", required=True)
 
     def common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("map", type=Path, metavar="MAP", help="floor map YAML (ROS map_server)")
+        p.add_argument("map", type=Path, metavar="MAP",
+                       help="floor map YAML (ROS map_server), or a building YAML (build: each log's floor from "
+                            "its header, FloorName)")
         p.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="survey logs with waypoints")
         p.add_argument("--exclude", action="append", default=[], metavar="TRACE",
                        help="leave out a log, by file name or trace id (repeatable)")
@@ -45,10 +47,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _load(args: argparse.Namespace):
-    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.maps.building import Building
     from mapfilter.sensors.ilc import read_ilc
 
-    floorplan = FloorPlan.load(args.map)
+    building = Building.load(args.map)
+    floorplan = building.floors[0].plan if building.is_single_floor else building
     excluded = set(args.exclude)
     paths = [p for p in args.logs if not excluded & {p.name, _trace_id(p)}]
     unused = excluded - {n for p in args.logs for n in (p.name, _trace_id(p))}
@@ -67,9 +70,26 @@ def _trace_id(path: Path) -> str:
 
 
 def run_build(args: argparse.Namespace) -> int:
+    from mapfilter.maps.building import Building
+    from mapfilter.sensors.floors import build_building_radio_map
     from mapfilter.sensors.radiomap import build_radio_map
 
     floorplan, recordings = _load(args)
+    if isinstance(floorplan, Building):
+        building = floorplan
+        floors = []
+        for rec in recordings:
+            index = building.floor_of_log(rec.floor_name, rec.path)
+            if index is None:
+                raise MapfilterError("the log's header names no floor (FloorName): a building's radio map needs "
+                                     "the floor of every log", rec.path)
+            floors.append(index)
+        radio_map = build_building_radio_map(recordings, floors, building.floor_names, use_steps=args.steps)
+        radio_map.save(args.out)
+        counts = ", ".join(f"{name} {floors.count(i)}" for i, name in enumerate(building.floor_names))
+        print(f"radio map: {len(radio_map)} reference points, {len(radio_map.ap_keys)} access points "
+              f"from {len(recordings)} logs ({counts}) -> {args.out}")
+        return 0
     radio_map = build_radio_map(recordings, floorplan, use_steps=args.steps)
     radio_map.save(args.out)
     print(f"radio map: {len(radio_map)} reference points, {len(radio_map.ap_keys)} access points "
@@ -84,6 +104,8 @@ def run_fit_aps(args: argparse.Namespace) -> int:
     from mapfilter.sensors.radiomap import build_radio_map
 
     floorplan, recordings = _load(args)
+    if not hasattr(floorplan, "wall_mask"):
+        raise MapfilterError("fit-aps fits one floor's access points: give that floor's map YAML", args.map)
     table = estimate_access_points(build_radio_map(recordings, floorplan),
                                    ApFitConfig(min_observations=args.min_observations))
     table.write_csv(args.out)

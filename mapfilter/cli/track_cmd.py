@@ -38,8 +38,16 @@ walk failed. Each walk is tracked as `mapfilter track MAP LOG --seed S` tracks i
 --jobs N runs the walks on N local Dask worker processes, --scheduler tcp://HOST:PORT on an
 existing Dask cluster (see `mapfilter evaluate --help`).
 
+A building (MAP a building YAML, docs/building.md) with a building's radio map (built with
+`mapfilter radiomap build BUILDING.yaml LOGS...`): the floor is part of the filter's state
+and found from the WiFi (or given with --floor NAME); the track's x, y are in the frame of
+the floor it is on, and a `floor` column names that floor. The log's header floor
+(FloorName), when it names one, must be a floor of the building; it is used only to print
+how often the track was on it.
+
 example:
   mapfilter track maps/office.yaml maps/office_walk.txt --radiomap maps/office_radiomap.npz
+  mapfilter track site1.yaml walk.txt.gz --radiomap site1_radiomap.npz --out track.csv
   mapfilter track F1.yaml walks/*.txt.gz --radiomap F1_radiomap.npz --out-dir tracks --jobs 2
 """
 
@@ -63,7 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "track", help="track a walk (map + phone log) with the particle filter",
         description="Track a walk on a floor plan with the map-aware particle filter.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("map", type=Path, metavar="MAP", help="map YAML (ROS map_server)")
+    parser.add_argument("map", type=Path, metavar="MAP", help="map YAML (ROS map_server) or building YAML")
     parser.add_argument("logs", type=Path, nargs="+", metavar="LOG",
                         help="phone log(s) in the ILC trace format (.txt or .txt.gz); several need --out-dir")
     wifi = parser.add_mutually_exclusive_group()
@@ -80,6 +88,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_trilateration_arguments(parser)
     parser.add_argument("--adapted-aps", type=Path, metavar="OUT.csv",
                         help="with --adapt: write the access-point table as adapted at the end of the walk")
+    parser.add_argument("--floor", metavar="NAME",
+                        help="a building: track on this floor only (default: find the floor)")
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
     parser.add_argument("--no-map", action="store_true", help="ignore the walls (to see what the map buys)")
     parser.add_argument("--smooth", action="store_true",
@@ -119,12 +129,19 @@ def run(args: argparse.Namespace) -> int:
     if args.jobs != 1 or args.scheduler:
         raise MapfilterError("--jobs and --scheduler spread many walks: give them with --out-dir DIR")
     args.log = args.logs[0]
+    from mapfilter.maps.building import Building
+
+    building = Building.load(args.map)
+    if not building.is_single_floor:
+        return _run_building(args, building)
+    if args.floor is not None:
+        raise MapfilterError("--floor picks a floor of a building: this map has one floor", args.map)
     if args.radiomap is not None and (args.adapt or args.adapted_aps is not None):
         raise MapfilterError("--adapt and --adapted-aps adapt a path-loss table: they need trilateration "
                              "(--aps APS.csv or the map's table), not --radiomap")
     if args.adapted_aps is not None and not args.adapt:
         raise MapfilterError("--adapted-aps writes the adapted table: give --adapt too")
-    floorplan = FloorPlan.load(args.map)
+    floorplan = building.floors[0].plan
     recording = read_ilc(args.log, strict=args.strict, warn=warn)
     radio_map, ap_table = _wifi_source(args, floorplan)
     if recording.has_ground_truth:
@@ -159,6 +176,93 @@ def run(args: argparse.Namespace) -> int:
 
     _print_summary(floorplan, recording, result, args)
     return 0
+
+
+def _run_building(args: argparse.Namespace, building) -> int:
+    """One walk in a several-floor building: the floor in the filter's state (or --floor)."""
+    import numpy as np
+
+    from mapfilter.floortracking import track_building
+    from mapfilter.sensors.ilc import read_ilc
+    from mapfilter.sensors.radiomap import RadioMap
+    from mapfilter.trackio import write_track_csv, write_track_tum
+
+    if args.radiomap is None:
+        raise MapfilterError("tracking in a building needs a building's radio map: --radiomap RM (mapfilter "
+                             "radiomap build BUILDING.yaml LOGS...)")
+    if args.adapt or args.adapted_aps is not None:
+        raise MapfilterError("--adapt is for trilateration on one floor, not for a building")
+    if args.floor is not None:
+        building.floor_index(args.floor, args.map)
+    recording = read_ilc(args.log, strict=args.strict, warn=warn)
+    header_floor = building.floor_of_log(recording.floor_name, args.log)  # refuses a floor not in the building
+    radio_map = RadioMap.load(args.radiomap)
+    if not radio_map.has_floors:
+        raise MapfilterError("not a building's radio map (no floor labels): build it with mapfilter radiomap "
+                             "build BUILDING.yaml LOGS...", args.radiomap)
+    if list(radio_map.floor_names) != building.floor_names:
+        raise MapfilterError(f"the radio map's floors ({', '.join(radio_map.floor_names)}) are not the "
+                             f"building's ({', '.join(building.floor_names)})", args.radiomap)
+    config = _tracking_config(args)
+
+    from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
+
+    from mapfilter.filter.floors import FloorStack
+
+    stack = FloorStack(building) if args.floor is None else None
+    plan = building.floors[building.floor_index(args.floor) if args.floor else (header_floor or 0)].plan
+    logger = make_logger(plan, rrd_path=args.rerun, spawn=args.spawn, max_particles=args.max_drawn_particles,
+                         recording_name=recording.name, stack=stack)
+    progress = _Progress(recording)
+    with logger, progress:
+        if recording.has_ground_truth and (header_floor is not None or args.floor is not None):
+            logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
+
+        def on_step(report) -> None:
+            logger.log_step(report)
+            progress.update(report.t_s)
+
+        result = track_building(building, recording, radio_map, config, np.random.default_rng(args.seed),
+                                on_step=on_step, floor=args.floor)
+        if result.smoothed is not None:
+            logger.log_track("smoothed", result.smoothed.t_s, result.smoothed.xy_m)
+        output = result.smoothed if args.smooth and result.smoothed is not None else result.track
+        if args.out is not None:
+            (write_track_tum if args.format == "tum" else write_track_csv)(output, args.out)
+    _print_building_summary(building, recording, result, header_floor, args)
+    return 0
+
+
+def _print_building_summary(building, recording, result, header_floor, args) -> None:
+    import numpy as np
+
+    from mapfilter.evaluation.metrics import errors_at_waypoints, floor_at_waypoints, summarise_errors
+
+    lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans, "
+             f"{len(result.collapses)} collapses, {result.runtime_s:.1f} s"]
+    tracks = [("causal", result.track, True)]
+    if result.smoothed is not None:
+        tracks.append(("smoothed", result.smoothed, False))
+    for label, track, causal in tracks:
+        floors = sorted(set(track.floor), key=building.floor_names.index)
+        text = f"  {label:8s} floors {', '.join(floors)}"
+        if recording.has_ground_truth and header_floor is not None:
+            truth = building.floor_names[header_floor]
+            score = floor_at_waypoints(track.t_s, track.floor, recording.waypoint_t_s, truth, causal)
+            on_floor = np.array([f == truth for f in track.floor])
+            err = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, causal)
+            s = summarise_errors(err.errors_m)
+            text += (f"; on {truth} at {score.n_right} of {score.n_judged} waypoints ({score.accuracy:.0%}); "
+                     f"error at {s['n']} waypoints: mean {s['mean']:.2f} m, median {s['median']:.2f} m, "
+                     f"p75 {s['p75']:.2f} m, max {s['max']:.2f} m")
+            if not on_floor.all():
+                text += " (rows on another floor compared in their own floor's frame)"
+        lines.append(text)
+    if args.out is not None:
+        lines.append(f"  wrote {args.out}")
+    if args.rerun is not None:
+        lines.append(f"  wrote {args.rerun}")
+    print("\n".join(lines))
 
 
 def _print_summary(floorplan, recording, result, args) -> None:
@@ -233,7 +337,15 @@ def _run_batch(args: argparse.Namespace) -> int:
         if not path.is_file():
             raise MapfilterError("file not found", path)
     engine = engine_from(args)
-    floorplan = FloorPlan.load(args.map)
+    from mapfilter.maps.building import Building
+
+    building = Building.load(args.map)
+    if not building.is_single_floor:
+        raise MapfilterError("--out-dir with a building is not supported yet: track its walks one at a time",
+                             args.map)
+    if args.floor is not None:
+        raise MapfilterError("--floor picks a floor of a building: this map has one floor", args.map)
+    floorplan = building.floors[0].plan
     radio_map, ap_table = _wifi_source(args, floorplan)
     setup = BatchSetup(tracking=_tracking_config(args), seed=args.seed, strict=args.strict)
     suffix = ".tum" if args.format == "tum" else ".csv"

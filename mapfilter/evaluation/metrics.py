@@ -83,3 +83,38 @@ def format_table(rows: list[dict], columns: Sequence[str], float_format: str = "
     lines = ["| " + " | ".join(columns) + " |", "|" + "|".join(" --- " for _ in columns) + "|"]
     lines += ["| " + " | ".join(cell(row.get(c, "")) for c in columns) + " |" for row in rows]
     return "\n".join(lines)
+
+
+@dataclasses.dataclass
+class FloorScore:
+    """How often a track with a floor column is on the right floor at the waypoints."""
+
+    n_right: int  # waypoints where the track's floor is the true one
+    n_judged: int  # waypoints that had an estimate
+    missed: int  # waypoints before the first estimate (left out, as for the errors)
+
+    @property
+    def accuracy(self) -> float:
+        """Share of the judged waypoints on the right floor (NaN with none judged)."""
+        return self.n_right / self.n_judged if self.n_judged else math.nan
+
+
+def floor_at_waypoints(track_t_s: np.ndarray, track_floor: Sequence[str], waypoint_t_s: np.ndarray,
+                       true_floor: str | Sequence[str], causal: bool = True) -> FloorScore:
+    """Is the track on the right floor at each waypoint time? ``true_floor``: one name for the
+    whole walk (an ILC log's header) or one per waypoint. Causal: the latest row at or before
+    the waypoint, as ``errors_at_waypoints``; else the nearest row in time (smoothed tracks)."""
+    track_t = np.asarray(track_t_s, dtype=np.float64)
+    wp_t = np.asarray(waypoint_t_s, dtype=np.float64)
+    truth = [true_floor] * wp_t.size if isinstance(true_floor, str) else list(true_floor)
+    if track_t.size == 0:
+        return FloorScore(0, 0, int(wp_t.size))
+    if causal:
+        row = np.searchsorted(track_t, wp_t, side="right") - 1
+    else:
+        after = np.clip(np.searchsorted(track_t, wp_t), 0, track_t.size - 1)
+        before = np.clip(after - 1, 0, track_t.size - 1)
+        row = np.where(np.abs(track_t[before] - wp_t) <= np.abs(track_t[after] - wp_t), before, after)
+    have = row >= 0
+    right = sum(1 for i in np.flatnonzero(have) if track_floor[row[i]] == truth[i])
+    return FloorScore(int(right), int(have.sum()), int((~have).sum()))

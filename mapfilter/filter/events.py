@@ -53,3 +53,8 @@ class StepReport:
     heard_ap_xy_m: np.ndarray | None = None  # trilateration: positions of the APs heard this step
     # adaptive trilateration (``filter.adaptive_pathloss.PathLossState``): H, the nearest AP's C
     path_loss: Any = None
+    # a building (``filter.floors``): the share of the weight on each floor after the step, the
+    # estimate's floor, and how many particles changed floor this step
+    floor_shares: np.ndarray | None = None
+    floor_index: int | None = None
+    floor_changes: int = 0

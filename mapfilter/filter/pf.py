@@ -136,13 +136,18 @@ class ParticleFilter:
     motion : a ``MotionModel``.
     config : ``FilterConfig``.
     rng : the only source of randomness (same seed, same result).
+    floors : a building's floors (``filter.floors.FloorChanges``): ``floorplan`` is then its
+        stack plan, particles change floor after the wall check, the estimate is taken on the
+        floor with most weight and the jitter's spread in the building frame. None: one floor
+        (and not a single extra random draw: the same seed gives the same track as ever).
     """
 
     def __init__(self, floorplan: FloorPlan, motion: MotionModel, config: FilterConfig | None = None,
-                 rng: np.random.Generator | None = None) -> None:
+                 rng: np.random.Generator | None = None, floors: Any = None) -> None:
         if rng is None:
             raise ValueError("pass an explicit numpy.random.Generator (same seed, same result)")
         self.floorplan = floorplan
+        self.floors = floors
         self.motion = motion
         self.config = config or FilterConfig()
         self.rng = rng
@@ -173,8 +178,7 @@ class ParticleFilter:
 
     def _set(self, particles: Particles) -> None:
         self.particles = particles
-        self.estimate_xy_m, self.estimate_std_m, _ = weighted_estimate(self.floorplan, particles.xy_m,
-                                                                       particles.weight)
+        self.estimate_xy_m, self.estimate_std_m, _ = self._estimate(particles.xy_m, particles.weight)
         self._lineage_broken = True
 
     def initialise_uniform(self, heading_rad: float | None = None) -> None:
@@ -226,7 +230,7 @@ class ParticleFilter:
         xy = candidates[picked]
         # the candidates repeat: spread the copies like after any resampling (wall-safe jitter)
         if self.config.regularise:
-            cov = weighted_covariance(candidates, w)
+            cov = self._covariance(candidates, w)
             xy, _ = regularise(self.floorplan, xy, cov, self.rng, self.config.kernel,
                                self.config.bandwidth_scale, self.config.regularise_tries)
         return xy
@@ -262,6 +266,9 @@ class ParticleFilter:
             log_w[killed & ~ends_free] = -np.inf
         else:
             log_w[killed] = -np.inf
+        if self.floors is not None:
+            # floor changes after the wall check: the jump between floors is not a wall crossing
+            log_w = self.floors.apply(moved, log_w, dt_s, self.rng)
         killed_idx = np.flatnonzero(killed)
         cause = None if np.isfinite(log_w).any() else "all_killed_by_walls"
 
@@ -314,7 +321,7 @@ class ParticleFilter:
                 parent = self._resample(w, self.n, self.rng)
                 new = _take(moved, parent)
                 if cfg.regularise:
-                    cov = weighted_covariance(moved.xy_m, w)
+                    cov = self._covariance(moved.xy_m, w)
                     new.xy_m, _ = regularise(self.floorplan, new.xy_m, cov, self.rng, cfg.kernel,
                                              cfg.bandwidth_scale, cfg.regularise_tries,
                                              origin_xy_m=_rows(prev.xy_m, parent))
@@ -325,7 +332,7 @@ class ParticleFilter:
                 new = dataclasses.replace(moved, log_weight=log_w)
         self.particles = new
         weights = new.weight
-        self.estimate_xy_m, self.estimate_std_m, _ = weighted_estimate(self.floorplan, new.xy_m, weights)
+        self.estimate_xy_m, self.estimate_std_m, _ = self._estimate(new.xy_m, weights)
         if cause is not None:
             collapse = CollapseEvent(
                 t_s=float(t_s), step_index=k,
@@ -355,7 +362,27 @@ class ParticleFilter:
             step_length_m=float(weights @ new.step_length_m) if pdr else None,
             measurement_kind=kind, fix_xy_m=fix_xy,
             heard_ap_xy_m=_heard_ap_xy_m(model, measurement),
+            **self._floor_report(new.xy_m, weights),
         )
+
+    def _floor_report(self, xy_m: np.ndarray, weights: np.ndarray) -> dict:
+        if self.floors is None:
+            return {}
+        shares = self.floors.stack.floor_shares(xy_m, weights)
+        return {"floor_shares": shares, "floor_index": int(self.floors.stack.floor_of(self.estimate_xy_m[None, :])[0]),
+                "floor_changes": self.floors.changed_last_step}
+
+    def _estimate(self, xy_m: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float, bool]:
+        if self.floors is None:
+            return weighted_estimate(self.floorplan, xy_m, weights)
+        return self.floors.stack.estimate(xy_m, weights)
+
+    def _covariance(self, xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        # the cloud's spread where the floors lie over each other (the building frame), not
+        # across the stack's tiles, which would make the jitter as wide as the building
+        if self.floors is None:
+            return weighted_covariance(xy_m, weights)
+        return weighted_covariance(self.floors.stack.to_building(xy_m), weights)
 
     # ---- collapse recovery and random injection ---------------------------------------------
     def _recover(self, t_s: float) -> tuple[str, Particles]:

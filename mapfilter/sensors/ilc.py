@@ -6,7 +6,9 @@ Tab-separated records, first column Unix time in ms::
     1574559495401	TYPE_ACCELEROMETER	-0.85	1.82	9.83	2
     1574559497191	TYPE_WIFI	ssid	a8:0c:ca:03:9d:d7	-49	2422	1574559495450
 
-Header lines start with '#'. Unknown record types are skipped. Real logs hold oddities, and
+Header lines start with '#'. Unknown record types are skipped. Two additions of ours, written
+by the simulator: ``TYPE_PRESSURE`` rows (``time TYPE_PRESSURE hPa accuracy``, a barometer) and
+a fifth ``TYPE_WAYPOINT`` column naming the waypoint's floor (a walk over several floors). Real logs hold oddities, and
 the reader keeps the walk where it can:
 
 - a bad row (too few fields, a value that is not a number, ``Infinity`` or ``NaN``) in a
@@ -93,6 +95,8 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
     opener = gzip.open if path.suffix == ".gz" else open
     vectors: dict[str, list[list[float]]] = {name: [] for name in _VECTOR_TYPES.values()}
     waypoints: list[tuple[float, float, float]] = []
+    waypoint_floors: list[str] = []  # a fifth TYPE_WAYPOINT column (several floors), if any
+    pressure: list[tuple[float, float]] = []  # t_s, hPa
     wifi_rows: list[tuple[float, str, float, float, float]] = []  # t_s, bssid, rssi, freq, age_s
     beacon_rows: list[tuple[float, str, float, float]] = []  # t_s, id, rssi, distance
     header: dict[str, str] = {}
@@ -114,7 +118,8 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
                     report.joined_lines += 1
                 for fields in records:
                     try:
-                        kind = _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows)
+                        kind = _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows, waypoint_floors,
+                                             pressure)
                     except _BadRow as bad:
                         if strict and (bad.kind in report.needed or bad.kind == "?"):
                             raise MapfilterError(bad.reason, path, line_no) from None
@@ -157,7 +162,13 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
     mag_t, mag = vector_arrays("magnet")
     rot_t, rot = vector_arrays("rotvec")
     wp = np.array(waypoints, dtype=np.float64).reshape(-1, 3)
-    wp = wp[np.argsort(wp[:, 0], kind="stable")]
+    wp_order = np.argsort(wp[:, 0], kind="stable")
+    wp = wp[wp_order]
+    wp_floor = None
+    if waypoint_floors and len(waypoint_floors) == len(waypoints):
+        wp_floor = [waypoint_floors[i] for i in wp_order]
+    baro = np.array(pressure, dtype=np.float64).reshape(-1, 2)
+    baro = baro[np.argsort(baro[:, 0], kind="stable")]
     start_ms = header.get("startTime")
     return Recording(
         path=path,
@@ -177,6 +188,8 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
             distance_m=np.array([r[3] for r in beacon_rows], dtype=np.float32),
         ),
         read_report=report,
+        pressure_t_s=baro[:, 0], pressure_hpa=baro[:, 1],
+        waypoint_floor=wp_floor,
     )
 
 
@@ -200,7 +213,8 @@ def _split_records(fields: list[str]) -> list[list[str]]:
     return records
 
 
-def _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows) -> str | None:
+def _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows, waypoint_floors=None,
+                  pressure=None) -> str | None:
     """Append one record to its list; return its type (None: unknown type). Raises ``_BadRow``."""
     if len(fields) < 2:
         raise _BadRow("?", "malformed line: expected a time and a record type")
@@ -208,6 +222,8 @@ def _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows) -> str | N
     if kind == "TYPE_WAYPOINT":
         t_ms, x, y = _numbers(fields, (0, 2, 3))
         waypoints.append((t_ms / 1000.0, x, y))
+        if waypoint_floors is not None and len(fields) > 4 and fields[4].strip():
+            waypoint_floors.append(fields[4].strip())  # the floor (a walk over several floors)
     elif kind in _VECTOR_TYPES:
         t_ms, vx, vy, vz = _numbers(fields, (0, 2, 3, 4))
         vectors[_VECTOR_TYPES[kind]].append([t_ms / 1000.0, vx, vy, vz])
@@ -219,6 +235,9 @@ def _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows) -> str | N
         if not bssid:
             raise _BadRow(kind, "malformed TYPE_WIFI line: empty BSSID")
         wifi_rows.append((t_ms / 1000.0, bssid, rssi, freq, (t_ms - seen_ms) / 1000.0))
+    elif kind == "TYPE_PRESSURE" and pressure is not None:
+        t_ms, hpa = _numbers(fields, (0, 2))
+        pressure.append((t_ms / 1000.0, hpa))
     elif kind == "TYPE_BEACON":
         if len(fields) < 8:
             raise _BadRow(kind, f"malformed TYPE_BEACON line: {len(fields)} fields, expected 10")

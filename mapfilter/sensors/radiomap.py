@@ -28,6 +28,18 @@ key                       dtype, shape               meaning
 
 Version 1 files (without the last two keys) still load; their errors are computed when first
 needed. Nothing in the file is pickled (``allow_pickle=False`` on load).
+
+A radio map of a building (several floors, ``mapfilter radiomap build BUILDING.yaml``) is
+version 3: every point also carries its floor, and positions are in that floor's own frame.
+
+========================  =========================  ================================================
+``floor``                 int64 (P,)                 index into ``floor_names`` of each point
+``floor_names``           str (F,)                   the building's floors, bottom to top
+``cv_fix_errors_floor``   int64 (E,)                 the floor of each ``cv_fix_errors_m`` entry
+                                                     (cross-validated within each floor)
+========================  =========================  ================================================
+
+Single-floor maps are still written as version 2, so older readers keep reading them.
 """
 
 from __future__ import annotations
@@ -52,7 +64,8 @@ from mapfilter.sensors.wifi import WifiScan
 
 FORMAT_NAME = "mapfilter-radiomap"
 FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
+FLOORS_FORMAT_VERSION = 3  # a building's radio map (floor labels)
+READABLE_VERSIONS = (1, 2, 3)
 # the cross-validation stored in every file: what the tracker's calibration asks for by default
 _STORED_CV_PARAMS = (4, 200, 1.0)
 
@@ -70,6 +83,9 @@ class RadioMap:
     trace : (P,) index into ``source_traces``.
     source_traces : names of the survey logs the points came from.
     floor_name : floor label or None.
+    floor : (P,) int64 index into ``floor_names`` of each point (a building's radio map; each
+        point's position is in its floor's frame), or None for one floor.
+    floor_names : the building's floors, or None.
     """
 
     xy_m: np.ndarray
@@ -79,6 +95,8 @@ class RadioMap:
     trace: np.ndarray
     source_traces: list[str]
     floor_name: str | None = None
+    floor: np.ndarray | None = None
+    floor_names: list[str] | None = None
 
     def __post_init__(self) -> None:
         self.xy_m = np.asarray(self.xy_m, dtype=np.float64).reshape(-1, 2)
@@ -87,6 +105,28 @@ class RadioMap:
         self.trace = np.asarray(self.trace, dtype=np.int64)
         self.ap_keys = list(self.ap_keys)
         self.source_traces = list(self.source_traces)
+        if self.floor is not None:
+            self.floor = np.asarray(self.floor, dtype=np.int64).reshape(self.xy_m.shape[0])
+            self.floor_names = list(self.floor_names or [])
+
+    @property
+    def has_floors(self) -> bool:
+        """True for a building's radio map (every point labelled with its floor)."""
+        return self.floor is not None
+
+    def floor_map(self, index: int) -> RadioMap:
+        """The points of floor ``index`` as a one-floor radio map (all APs kept).
+
+        It carries the floor's stored cross-validated fix errors when this map came whole from
+        ``build`` or a file (not from ``select``)."""
+        if self.floor is None:
+            raise ValueError("not a building's radio map (no floor labels)")
+        sub = self.select(self.floor == index)
+        sub.floor, sub.floor_names, sub.floor_name = None, None, self.floor_names[index]
+        stored = getattr(self, "_floor_cv_errors", None)
+        if stored is not None and index in stored:
+            _cv_memo(sub)[_STORED_CV_PARAMS] = stored[index].copy()
+        return sub
 
     def __len__(self) -> int:
         return self.xy_m.shape[0]
@@ -118,7 +158,8 @@ class RadioMap:
         """A new radio map with the reference points where ``keep`` is True (all APs kept)."""
         keep = np.asarray(keep)
         return RadioMap(self.xy_m[keep], self.ap_keys, self.rssi_dbm[keep], self.t_s[keep], self.trace[keep],
-                        self.source_traces, self.floor_name)
+                        self.source_traces, self.floor_name, None if self.floor is None else self.floor[keep],
+                        self.floor_names)
 
     def without_traces(self, names: Sequence[str]) -> RadioMap:
         """A new radio map without the points of the named source traces (leave-one-trace-out)."""
@@ -133,15 +174,27 @@ class RadioMap:
         so that every walk tracked with it skips that (points)^2 work.
         """
         k, max_groups, min_separation_m = _STORED_CV_PARAMS
-        cv_errors = cross_validated_fix_errors(self, k, max_groups, min_separation_m)
+        floors: dict[str, np.ndarray] = {}
+        version = FORMAT_VERSION
+        if self.floor is not None:
+            # positions of different floors are in different frames: cross-validate per floor
+            per_floor = [cross_validated_fix_errors(self.floor_map(i), k, max_groups, min_separation_m)
+                         for i in range(len(self.floor_names))]
+            cv_errors = np.concatenate(per_floor) if per_floor else np.zeros(0)
+            floors = {"floor": self.floor, "floor_names": np.array(self.floor_names, dtype=str),
+                      "cv_fix_errors_floor": np.concatenate(
+                          [np.full(e.size, i, dtype=np.int64) for i, e in enumerate(per_floor)] or [np.zeros(0, np.int64)])}
+            version = FLOORS_FORMAT_VERSION
+        else:
+            cv_errors = cross_validated_fix_errors(self, k, max_groups, min_separation_m)
         with atomic_paths(path) as (tmp,):
             with tmp.open("wb") as handle:
                 np.savez_compressed(
-                    handle, format=np.array(FORMAT_NAME), version=np.array(FORMAT_VERSION, dtype=np.int64),
+                    handle, format=np.array(FORMAT_NAME), version=np.array(version, dtype=np.int64),
                     xy_m=self.xy_m, t_s=self.t_s, trace=self.trace, ap_keys=np.array(self.ap_keys, dtype=str),
                     rssi_dbm=self.rssi_dbm, source_traces=np.array(self.source_traces, dtype=str),
                     floor_name=np.array(self.floor_name or ""), cv_fix_errors_m=cv_errors,
-                    cv_fix_errors_params=np.array(_STORED_CV_PARAMS, dtype=np.float64),
+                    cv_fix_errors_params=np.array(_STORED_CV_PARAMS, dtype=np.float64), **floors,
                 )
 
     @classmethod
@@ -176,13 +229,28 @@ class RadioMap:
         if p and (arrays["trace"].min() < 0 or arrays["trace"].max() >= len(traces)):
             raise MapfilterError("radio map trace indices out of range", path)
         floor = str(arrays.get("floor_name", ""))
-        radio_map = cls(xy, [str(k) for k in keys], rssi, arrays["t_s"], arrays["trace"], traces, floor or None)
+        point_floor = floor_names = None
+        if version >= 3:
+            if "floor" not in arrays or "floor_names" not in arrays:
+                raise MapfilterError("a version 3 radio map needs the arrays floor and floor_names", path)
+            point_floor, floor_names = arrays["floor"], [str(n) for n in arrays["floor_names"]]
+            if point_floor.shape != (p,) or (p and (point_floor.min() < 0 or point_floor.max() >= len(floor_names))):
+                raise MapfilterError("radio map floor labels out of range", path)
+        radio_map = cls(xy, [str(k) for k in keys], rssi, arrays["t_s"], arrays["trace"], traces, floor or None,
+                        point_floor, floor_names)
         cv_errors, cv_params = arrays.get("cv_fix_errors_m"), arrays.get("cv_fix_errors_params")
         if version >= 2 and cv_errors is not None and cv_params is not None:
             if cv_errors.ndim != 1 or cv_params.shape != (3,) or not np.all(np.isfinite(cv_errors)):
                 raise MapfilterError("radio map has malformed cv_fix_errors_m / cv_fix_errors_params", path)
             params = (int(cv_params[0]), int(cv_params[1]), float(cv_params[2]))
-            _cv_memo(radio_map)[params] = cv_errors.astype(np.float64)
+            if point_floor is None:
+                _cv_memo(radio_map)[params] = cv_errors.astype(np.float64)
+            elif params == _STORED_CV_PARAMS:
+                of_floor = arrays.get("cv_fix_errors_floor")
+                if of_floor is None or of_floor.shape != cv_errors.shape:
+                    raise MapfilterError("radio map has malformed cv_fix_errors_floor", path)
+                radio_map._floor_cv_errors = {i: cv_errors[of_floor == i].astype(np.float64)
+                                              for i in range(len(floor_names))}
         return radio_map
 
 

@@ -109,6 +109,12 @@ class Recording:
     wifi: WifiScans
     beacons: Beacons
     read_report: ReadReport | None = None  # what the log reader skipped (None: not read from a log)
+    # a barometer (TYPE_PRESSURE rows: the simulator writes them; ILC logs have none)
+    pressure_t_s: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    pressure_hpa: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    # the floor of each waypoint when a log names one (a walk over several floors: a fifth
+    # TYPE_WAYPOINT column, written by the simulator); None: the header's floor throughout
+    waypoint_floor: list[str] | None = None
 
     @property
     def has_ground_truth(self) -> bool:

@@ -28,8 +28,13 @@ def format_ilc(walk: SimulatedWalk, ssid: str = SimConfig.ssid) -> str:
         lines.extend(texts)
 
     wp_ms = _ms(walk.waypoint_t_s)
-    add(walk.waypoint_t_s, 0, [f"{t}\tTYPE_WAYPOINT\t{x:.6f}\t{y:.6f}"
-                               for t, (x, y) in zip(wp_ms.tolist(), walk.waypoint_xy_m.tolist())])
+    if walk.waypoint_floor is None:
+        add(walk.waypoint_t_s, 0, [f"{t}\tTYPE_WAYPOINT\t{x:.6f}\t{y:.6f}"
+                                   for t, (x, y) in zip(wp_ms.tolist(), walk.waypoint_xy_m.tolist())])
+    else:  # several floors: the waypoint's floor in a fifth column (floor frame x, y)
+        add(walk.waypoint_t_s, 0, [f"{t}\tTYPE_WAYPOINT\t{x:.6f}\t{y:.6f}\t{floor}"
+                                   for t, (x, y), floor in zip(wp_ms.tolist(), walk.waypoint_xy_m.tolist(),
+                                                               walk.waypoint_floor)])
     # same order within one millisecond as the real logs: acc, magnet, gyro, rotation vector
     for rank, (kind, t_s, values, accuracy) in enumerate((
             ("TYPE_ACCELEROMETER", walk.acc_t_s, walk.acc_mps2, 2),
@@ -38,6 +43,9 @@ def format_ilc(walk: SimulatedWalk, ssid: str = SimConfig.ssid) -> str:
             ("TYPE_ROTATION_VECTOR", walk.rotvec_t_s, walk.rotvec_xyz, 3)), start=1):
         add(t_s, rank, [f"{t}\t{kind}\t{a:.7g}\t{b:.7g}\t{c:.7g}\t{accuracy}"
                         for t, (a, b, c) in zip(_ms(t_s).tolist(), values.tolist())])
+    if walk.pressure_t_s is not None:
+        add(walk.pressure_t_s, 6, [f"{t}\tTYPE_PRESSURE\t{p:.4f}\t3"
+                                   for t, p in zip(_ms(walk.pressure_t_s).tolist(), walk.pressure_hpa.tolist())])
     scan_ms = _ms(walk.scan_t_s)[walk.row_scan]
     seen_ms = _ms(walk.seen_t_s)
     add(walk.scan_t_s[walk.row_scan], 5, [

@@ -182,6 +182,11 @@ class SimulatedWalk:
     stale: np.ndarray  # (R,) bool: a cached row repeated from an earlier scan
     expected_rssi_dbm: np.ndarray  # (R,) model mean (path loss + walls) at the position at seen_t_s
     walls_crossed: np.ndarray  # (R,) walls on the AP->phone line at seen_t_s
+    # a walk over several floors (``simulate.building``): each waypoint's floor (written as a
+    # fifth TYPE_WAYPOINT column) and a barometer (TYPE_PRESSURE rows); None for one floor
+    waypoint_floor: list[str] | None = None
+    pressure_t_s: np.ndarray | None = None
+    pressure_hpa: np.ndarray | None = None
 
     @property
     def n_steps(self) -> int:
@@ -541,7 +546,9 @@ def _imu(tl_start: np.ndarray, tl_end: np.ndarray, xy0: np.ndarray, xy1: np.ndar
 
 
 def _wifi(floorplan: FloorPlan, ap_table: AccessPointTable, position_at, scan_t: np.ndarray,
-          config: SimConfig, rng: np.random.Generator) -> dict:
+          config: SimConfig, rng: np.random.Generator, rssi_at=None) -> dict:
+    """WiFi rows of every scan; ``rssi_at(seen_t_s (K,)) -> (expected dBm (K,), walls (K,))``
+    replaces the one-floor multi-wall model (a building: ``simulate.building``)."""
     k_ap = len(ap_table)
     freq = np.array([rng.choice(CHANNELS_5G_MHZ) if band == "5" else rng.choice(CHANNELS_2G4_MHZ)
                      for band in ap_table.band], dtype=np.int64)
@@ -552,8 +559,10 @@ def _wifi(floorplan: FloorPlan, ap_table: AccessPointTable, position_at, scan_t:
     rows: dict[str, list] = {key: [] for key in ("scan", "ap", "rssi", "seen", "stale", "expected", "walls")}
     for s, t_scan in enumerate(scan_t):
         seen = t_scan - rng.uniform(*config.fresh_age_s, size=k_ap)
-        xy = position_at(seen)
-        expected, walls = model_rssi_dbm(floorplan, ap_table, np.arange(k_ap), xy, config)
+        if rssi_at is None:
+            expected, walls = model_rssi_dbm(floorplan, ap_table, np.arange(k_ap), position_at(seen), config)
+        else:
+            expected, walls = rssi_at(seen)
         expected = expected - blocking_db(seen, config.blocking_episodes)
         measured = np.round(expected + config.shadowing_sigma_db * rng.standard_normal(k_ap))
         audible = (measured >= config.sensitivity_dbm) & (rng.random(k_ap) >= config.miss_probability)
@@ -588,7 +597,7 @@ def _wifi(floorplan: FloorPlan, ap_table: AccessPointTable, position_at, scan_t:
 
 
 def simulate_walk(floorplan: FloorPlan, ap_table: AccessPointTable, config: SimConfig,
-                  rng: np.random.Generator, site_id: str = "mapfilter-sim") -> SimulatedWalk:
+                  rng: np.random.Generator, site_id: str = "mapfilter-sim", rssi_model=None) -> SimulatedWalk:
     """Simulate one phone walk (or a radio-map survey with ``config.survey``) over a floor plan.
 
     Parameters
@@ -598,6 +607,9 @@ def simulate_walk(floorplan: FloorPlan, ap_table: AccessPointTable, config: SimC
     config : every knob; see ``SimConfig``.
     rng : the only source of randomness.
     site_id : written into the header.
+    rssi_model : ``rssi_model(xy_m (K, 2)) -> (expected dBm (K,), walls (K,))``, AP i heard at
+        ``xy_m[i]``, instead of the one-floor multi-wall model (``simulate.building``: APs of
+        other floors).
 
     Returns
     -------
@@ -636,7 +648,8 @@ def simulate_walk(floorplan: FloorPlan, ap_table: AccessPointTable, config: SimC
     def position_at(t_rel: np.ndarray) -> np.ndarray:
         return np.stack([np.interp(t_rel, wp_t, wp_xy[:, 0]), np.interp(t_rel, wp_t, wp_xy[:, 1])], axis=-1)
 
-    wifi = _wifi(floorplan, ap_table, position_at, scan_t, config, rng)
+    wifi = _wifi(floorplan, ap_table, position_at, scan_t, config, rng,
+                 rssi_at=None if rssi_model is None else (lambda seen: rssi_model(position_at(seen))))
     t0 = config.start_time_ms / 1000.0
     return SimulatedWalk(
         floor_name=floorplan.floor_name, site_id=site_id, start_t_s=t0, end_t_s=t0 + end_t,

@@ -58,8 +58,9 @@ class MapLayer:
             translation=[origin_m[0], y_top, 0.0], scale=[resolution_m, -resolution_m, 1.0]
         )
 
-    def draw(self) -> None:
-        """Log the floor-plan picture (if any) and the wall mask overlay, both static."""
+    def draw(self, static: bool = True) -> None:
+        """Log the floor-plan picture (if any) and the wall mask overlay, static or (for the
+        current floor of a building, which changes) at the current time."""
         import cv2
 
         rr = self.canvas.rr
@@ -69,27 +70,27 @@ class MapLayer:
         if source is not None:
             image = self._source_picture()
             log("map/world/floorplan", self._image_transform(image.shape[0], source.resolution_m, source.origin_m),
-                static=True)
+                static=static)
             # rerun 0.41 draws transparent image pixels with their RGB (black in ILC plans), so
             # flatten onto the view's background colour; PNG-encode to keep the recording small
             ok, png = cv2.imencode(".png", flatten_bgr(image, BACKGROUND))
             if not ok:
                 raise MapfilterError("could not re-encode the floor-plan picture", source.path)
             log("map/world/floorplan/image",
-                rr.EncodedImage(contents=png.tobytes(), media_type="image/png", draw_order=Z_IMAGE), static=True)
-        log("map/world/walls", self._image_transform(fp.shape_px[0], fp.resolution_m, fp.origin_m), static=True)
+                rr.EncodedImage(contents=png.tobytes(), media_type="image/png", draw_order=Z_IMAGE), static=static)
+        log("map/world/walls", self._image_transform(fp.shape_px[0], fp.resolution_m, fp.origin_m), static=static)
         log(
             "map/world/walls",
             rr.AnnotationContext([
                 rr.AnnotationInfo(id=0, label="free", color=(0, 0, 0, 0)),
                 rr.AnnotationInfo(id=1, label="wall", color=(200, 30, 30, 255)),
             ]),
-            static=True,
+            static=static,
         )
         # with a picture underneath the mask is a light overlay; alone it is the map itself
         opacity = 0.35 if source is not None else 0.8
         log("map/world/walls/mask", rr.SegmentationImage(fp.wall_mask.astype(np.uint8), opacity=opacity,
-                                                         draw_order=Z_MASK), static=True)
+                                                         draw_order=Z_MASK), static=static)
 
 
 def flatten_bgr(image: np.ndarray, background_rgb: tuple[int, int, int]) -> np.ndarray:

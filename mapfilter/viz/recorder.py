@@ -80,6 +80,9 @@ class RerunLogger:
     recording_name : shown in the viewer's recording list.
     filter_plots : lay out the filter's plots (particles, kills, PDR, events); off for
         looking at finished tracks only, which leaves the map and the error plot.
+    stack : a building's ``filter.floors.FloorStack`` when the filter runs across floors: the
+        current floor's plan is drawn (again at each floor change), steps are drawn in that
+        floor's frame, and a plot shows the weight on each floor (``viz.floors``).
 
     Exactly one of ``rrd_path`` and ``spawn`` must be given. Call :meth:`log_map` first
     (:func:`make_logger` does), then :meth:`log_ground_truth` if there is ground truth, then
@@ -97,6 +100,7 @@ class RerunLogger:
         application_id: str = "mapfilter",
         recording_name: str | None = None,
         filter_plots: bool = True,
+        stack: Any = None,
     ) -> None:
         import rerun as rr  # lazy: only a live logger pays for importing rerun
 
@@ -121,6 +125,11 @@ class RerunLogger:
         self.events = EventLayer(canvas)
         self.truth = GroundTruthLayer(canvas)
         self.tracks = TrackLayer(canvas, self.truth)
+        self.floors = None
+        if stack is not None:
+            from mapfilter.viz.floors import FloorLayer
+
+            self.floors = FloorLayer(canvas, stack)
         blueprint = self.blueprint()
         self.rrd_path: Path | None = None if rrd_path is None else Path(rrd_path)
         try:
@@ -133,6 +142,8 @@ class RerunLogger:
             canvas.log("map/world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
             if self.filter_plots:
                 self.plots.style()
+            if self.floors is not None:
+                self.floors.style()
         except BaseException:
             self.abort()  # leave no temporary file behind
             raise
@@ -142,7 +153,7 @@ class RerunLogger:
         """The default layout: the map large on the left; plots and the event log beside it."""
         import rerun.blueprint as rrb
 
-        x_min, x_max, y_min, y_max = self.map.extent_m()
+        x_min, x_max, y_min, y_max = (self.floors or self.map).extent_m()
         map_view = rrb.Spatial2DView(
             name="Floor",
             origin="map",
@@ -166,6 +177,7 @@ class RerunLogger:
                 rrb.TimeSeriesView(name="PDR step length (m)", origin="plots/pdr/step_length_m"),
                 rrb.TimeSeriesView(name="Blocking H (dB)", origin="plots/path_loss/blocking_H_db"),
                 rrb.TimeSeriesView(name="Nearest AP's C (dBm)", origin="plots/path_loss/nearest_C_dbm"),
+                *([rrb.TimeSeriesView(name="Weight per floor", origin="plots/floors")] if self.floors else []),
             ),
             rrb.TextLogView(name="Events", origin="events"),
             row_shares=[1, 1, 1, 1, 1.2],
@@ -178,8 +190,10 @@ class RerunLogger:
 
     # ---- what callers draw -----------------------------------------------------------------
     def log_map(self) -> None:
-        """Log the floor-plan picture (if any) and the wall mask overlay, both static."""
-        self.map.draw()
+        """Log the floor-plan picture (if any) and the wall mask overlay, both static (a
+        building's floors are drawn as they become current, see ``viz.floors``)."""
+        if self.floors is None:
+            self.map.draw()
 
     def log_ground_truth(self, t_s: np.ndarray, xy_m: np.ndarray) -> None:
         """Log the ground-truth waypoints and the path through them (static).
@@ -192,6 +206,8 @@ class RerunLogger:
     def log_step(self, report: StepReport) -> None:
         """Draw one filter step on both timelines (``trace_time`` and ``step``)."""
         self.canvas.set_time(report.t_s, report.step_index)
+        if self.floors is not None:
+            report = self.floors.draw(report)  # the current floor's plan and frame
         estimate_xy_m, has_estimate = self.particles.draw(report)
         error_m = self.truth.draw_now(report.t_s, estimate_xy_m, has_estimate) if self.truth else float("nan")
         true_heading = self.truth.heading_rad(report.t_s) if report.heading_rad is not None else None
@@ -240,6 +256,7 @@ def make_logger(
     max_particles: int = DEFAULT_MAX_PARTICLES,
     recording_name: str | None = None,
     filter_plots: bool = True,
+    stack: Any = None,
 ) -> RerunLogger | NullLogger:
     """A :class:`RerunLogger` with the map already logged, or a :class:`NullLogger`.
 
@@ -251,6 +268,7 @@ def make_logger(
     max_particles : cap on particles drawn per step (default 5,000).
     recording_name : name shown in the viewer (e.g. the trace's name).
     filter_plots : lay out the filter's plots (off when only showing finished tracks).
+    stack : a building's ``FloorStack`` when the filter runs across floors (``RerunLogger``).
 
     Returns a NullLogger (no rerun import) when neither ``rrd_path`` nor ``spawn`` is given.
     Giving both is an error (one sink per run).
@@ -260,7 +278,7 @@ def make_logger(
     if rrd_path is not None and spawn:
         raise MapfilterError("give either an .rrd file to write or spawn a viewer, not both")
     logger = RerunLogger(floorplan, rrd_path=rrd_path, spawn=spawn, max_particles=max_particles,
-                         recording_name=recording_name, filter_plots=filter_plots)
+                         recording_name=recording_name, filter_plots=filter_plots, stack=stack)
     try:
         logger.log_map()
     except BaseException:

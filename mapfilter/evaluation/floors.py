@@ -1,0 +1,178 @@
+"""Evaluation in a building: errors and floor accuracy per method (``mapfilter evaluate
+BUILDING.yaml LOGS``).
+
+Every walk's true floor is its log header's (``FloorName``). The methods:
+
+- ``pf``: the particle filter with the floor in its state (``floortracking.track_building``),
+  the floor not given;
+- ``pf-floor``: the same filter on the true floor (the floor given): the reference for what
+  finding the floor costs in horizontal error; its floor accuracy is 1 by construction;
+- ``kwnn``: per scan, the floor of the causal WiFi floor HMM (``sensors.floors``: forward
+  probabilities of the KWNN floor vote) and the KWNN fix from that floor's fingerprints.
+
+``floor_accuracy`` is the share of waypoints (with an estimate) at which the method's causal
+track is on the true floor; errors are horizontal, each row compared in its own floor's frame.
+With leave-one-out, each walk's radio map is the building's radio map without that walk; the
+fix Gaussian of each floor is calibrated once from the floor's whole radio map (cross-validating
+it again for every walk costs tens of seconds a walk; ``tools/sweep_ilc.py`` does the same).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from mapfilter.engine import Engine, run_each
+from mapfilter.errors import MapfilterError
+from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, MethodResult, _collect_read_warnings
+from mapfilter.evaluation.metrics import FloorScore, errors_at_waypoints, floor_at_waypoints
+from mapfilter.floortracking import track_building
+from mapfilter.maps.building import Building
+from mapfilter.maps.walls import count_wall_crossings
+from mapfilter.sensors.floors import build_building_radio_map, floor_hmm, floor_vote_log_likelihood
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.pdr import detect_steps
+from mapfilter.sensors.radiomap import RadioMap, kwnn_fix_many
+from mapfilter.sensors.recording import trace_name
+from mapfilter.sensors.wifi import scans_of
+from mapfilter.tracking import calibrated_fix_sigma_m
+from mapfilter.trackio import Track
+
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn")
+
+
+@dataclasses.dataclass
+class FloorMethodResult(MethodResult):
+    """One method on one walk in a building: also how often it was on the right floor."""
+
+    floor_score: FloorScore | None = None
+
+
+@dataclasses.dataclass
+class BuildingEvaluation(Evaluation):
+    """All methods on all walks of a building; summary rows carry ``floor_accuracy``."""
+
+    def summary_rows(self) -> list[dict]:
+        rows = super().summary_rows()
+        for row in rows:
+            scores = [r.floor_score for r in self.results if r.method == row["method"] and r.floor_score]
+            judged = sum(s.n_judged for s in scores)
+            row["floor_accuracy"] = sum(s.n_right for s in scores) / judged if judged else float("nan")
+        return rows
+
+    def trace_rows(self) -> list[dict]:
+        rows = super().trace_rows()
+        for row, result in zip(rows, self.results):
+            row["floor_accuracy"] = result.floor_score.accuracy if result.floor_score else float("nan")
+        return rows
+
+
+def evaluate_building_logs(building: Building, log_paths: Sequence[str | Path], setup: EvaluationSetup,
+                           engine: Engine | None = None,
+                           progress: Callable[[int, int, str], None] | None = None) -> BuildingEvaluation:
+    """Every method of ``setup`` that a building supports (``BUILDING_METHODS``) on every walk."""
+    engine = engine if engine is not None else Engine()
+    paths = [Path(p) for p in log_paths]
+    for path in paths:
+        if not path.is_file():
+            raise MapfilterError("file not found", path)
+    methods = tuple(m for m in setup.methods if m in BUILDING_METHODS)
+    if not methods:
+        raise MapfilterError(f"in a building, evaluate compares {', '.join(BUILDING_METHODS)}: none was asked for")
+    if setup.ap_table_path is not None:
+        raise MapfilterError("a building is evaluated with a building's radio map, not an access-point table")
+    if (setup.radio_map_path is None) == (not setup.leave_one_out):
+        raise MapfilterError("give a building's radio map (--radiomap) or --leave-one-out, one of the two")
+    names = [trace_name(p) for p in paths]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise MapfilterError(f"two logs share the trace name {repeated[0]}: walks are told apart by name")
+    started = time.perf_counter()
+    read_warnings: list[str] = []
+    with _collect_read_warnings(read_warnings):
+        recordings = [read_ilc(p, strict=setup.strict) for p in paths]
+    true_floors = []
+    for rec, path in zip(recordings, paths):
+        index = building.floor_of_log(rec.floor_name, path)
+        if index is None:
+            raise MapfilterError("the log's header names no floor (FloorName): its floor cannot be judged", path)
+        true_floors.append(index)
+    if setup.leave_one_out:
+        if len(paths) < 2:
+            raise MapfilterError("leave-one-out needs at least two logs")
+        radio_map = build_building_radio_map(recordings, true_floors, building.floor_names)
+    else:
+        radio_map = RadioMap.load(setup.radio_map_path)
+        if not radio_map.has_floors or list(radio_map.floor_names) != building.floor_names:
+            raise MapfilterError("not a radio map of this building's floors (build it with mapfilter radiomap build "
+                                 "BUILDING.yaml LOGS...)", setup.radio_map_path)
+    sigma = None
+    if setup.tracking.fix_sigma_m is None:
+        sigma = {name: calibrated_fix_sigma_m(radio_map.floor_map(i), setup.tracking.kwnn_k)
+                 for i, name in enumerate(building.floor_names)}
+    setup = dataclasses.replace(setup, methods=methods)
+    results: list[list[FloorMethodResult] | None] = [None] * len(paths)
+    for i, per_trace in run_each(_evaluate_walk, range(len(paths)), engine,
+                                 common=(building, setup, radio_map, sigma, paths, true_floors),
+                                 progress=progress, label=lambda index: paths[index].name):
+        results[i] = per_trace
+    flat = [r for per_trace in results for r in (per_trace or [])]
+    return BuildingEvaluation(flat, len(paths), time.perf_counter() - started, read_warnings)
+
+
+def _evaluate_walk(building: Building, setup: EvaluationSetup, radio_map: RadioMap, sigma: dict | None,
+                   paths: list[Path], true_floors: list[int], index: int) -> list[FloorMethodResult]:
+    recording = read_ilc(paths[index], strict=setup.strict, warn=lambda message: None)
+    if not recording.has_ground_truth:
+        raise MapfilterError("the log has no waypoints to evaluate against", paths[index])
+    if setup.leave_one_out:
+        radio_map = radio_map.without_traces([recording.name])
+    truth = building.floor_names[true_floors[index]]
+    results: list[FloorMethodResult] = []
+
+    def add(method: str, track: Track, collapses: int, runtime_s: float) -> None:
+        err = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, True)
+        crossings = sum(count_wall_crossings(building.floor(name).plan, track.xy_m[np.array(track.floor) == name])
+                        for name in set(track.floor))
+        results.append(FloorMethodResult(method, recording.name, track, err.errors_m, err.missed, crossings,
+                                         collapses, runtime_s, True,
+                                         floor_score=floor_at_waypoints(track.t_s, track.floor,
+                                                                        recording.waypoint_t_s, truth)))
+
+    try:
+        has_steps = setup.tracking.motion != "pdr" or len(detect_steps(recording, setup.tracking.pdr)) > 0
+    except MapfilterError:
+        has_steps = False  # no usable IMU (a WiFi-only walk): the PDR filter is left out, as in comparison
+    for method in setup.methods:
+        rng = np.random.default_rng([setup.seed, index, BUILDING_METHODS.index(method)])
+        if method in ("pf", "pf-floor"):
+            if not has_steps:
+                continue
+            outcome = track_building(building, recording, radio_map, setup.tracking, rng,
+                                     floor=truth if method == "pf-floor" else None, fix_sigma_per_floor_m=sigma)
+            add(method, outcome.track, len(outcome.collapses), outcome.runtime_s)
+        elif method == "kwnn":
+            started = time.perf_counter()
+            add(method, kwnn_floor_track(radio_map, scans_of(recording), setup.tracking.kwnn_k,
+                                         building.floor_names), 0, time.perf_counter() - started)
+    return results
+
+
+def kwnn_floor_track(radio_map: RadioMap, scans, k: int, floor_names: list[str]) -> Track:
+    """KWNN across floors: each scan on the causal floor HMM's floor, fixed from that floor's
+    fingerprints; scans without a fix there are left out."""
+    scan_t = np.array([s.t_s for s in scans])
+    path = floor_hmm(floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans), k=k), scan_t)
+    floor = path.causal_floor()
+    xy = np.full((len(scans), 2), np.nan)
+    for f in np.unique(floor):
+        on = np.flatnonzero(floor == f)
+        sub = radio_map.floor_map(int(f))
+        if len(sub):
+            xy[on] = kwnn_fix_many(sub, sub.scan_matrix([scans[i] for i in on]), k=k).xy_m
+    ok = np.all(np.isfinite(xy), axis=1)
+    return Track(scan_t[ok], xy[ok], floor=[floor_names[f] for f in floor[ok]], name="kwnn")

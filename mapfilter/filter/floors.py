@@ -1,0 +1,295 @@
+"""The floor in the filter's state: a building's floors as one state space, floor changes, and
+a WiFi measurement that weighs floors.
+
+The particle filter works on one ``FloorPlan``. A building becomes one by :class:`FloorStack`:
+every floor's wall mask is laid side by side in a "stack" plan, each in its own tile,
+separated by wall. A particle's tile *is* its floor (``FloorStack.floor_of``), so
+
+- the existing wall check (one call of the numba kernel for all particles) checks each move
+  on the particle's own floor's mask: a move can never leave its tile, because the tiles are
+  fenced by wall; this is the same as grouping the particles by floor and calling the kernel
+  once per floor, without the grouping;
+- the regularisation jitter stays on the particle's floor for the same reason;
+- a floor change is a jump from one tile to another, made by :class:`FloorChanges` after the
+  wall check (so the jump itself is not a wall crossing), only inside a connector (stairs,
+  escalator, lift) or, when the building has none, anywhere at a small rate.
+
+Positions in the stack plan are ``floor-frame position + FloorStack.shift_m[floor]``; every
+output goes back to the floor's own frame (``FloorStack.to_floor``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import shapely
+
+from mapfilter.errors import MapfilterError
+from mapfilter.filter.estimate import weighted_estimate
+from mapfilter.filter.particles import Particles
+from mapfilter.maps.building import Building, connector_pixels
+from mapfilter.maps.floorplan import FloorPlan
+
+# wall pixels between two floors' tiles (and around the stack): wider than any jitter
+_TILE_GAP_PX = 4
+
+
+class FloorStack:
+    """A building's floors side by side in one wall mask (the filter's state space).
+
+    Attributes
+    ----------
+    building : the building.
+    plan : the stack plan (origin (0, 0); each floor in its tile, walls between).
+    shift_m : (F, 2) stack position = floor-frame position + shift_m[floor].
+    tile_x_min_m : (F,) x where each floor's tile starts in the stack (tiles ordered by x).
+    """
+
+    def __init__(self, building: Building) -> None:
+        resolutions = {round(f.plan.resolution_m, 9) for f in building.floors}
+        if len(resolutions) != 1:
+            raise MapfilterError(f"the floors' maps have different resolutions ({', '.join(map(str, sorted(resolutions)))} "
+                                 f"m/px): make them at one resolution to track across floors", building.path)
+        self.building = building
+        res = building.floors[0].plan.resolution_m
+        gap = _TILE_GAP_PX
+        height_px = max(f.plan.shape_px[0] for f in building.floors) + 2 * gap
+        width_px = sum(f.plan.shape_px[1] for f in building.floors) + gap * (len(building.floors) + 1)
+        mask = np.ones((height_px, width_px), dtype=bool)
+        shifts, starts = [], []
+        col = gap
+        for floor in building.floors:
+            rows, cols = floor.plan.shape_px
+            # bottom-aligned: the tile's lower-left pixel corner sits `gap` pixels above the stack's
+            mask[height_px - gap - rows:height_px - gap, col:col + cols] = floor.plan.wall_mask
+            x0, y0 = floor.plan.origin_m
+            shifts.append((col * res - x0, gap * res - y0))
+            starts.append((col - gap / 2.0) * res)
+            col += cols + gap
+        self.plan = FloorPlan(mask, res, (0.0, 0.0), None)
+        self.shift_m = np.array(shifts, dtype=np.float64)
+        self.tile_x_min_m = np.array(starts, dtype=np.float64)
+
+    @property
+    def n_floors(self) -> int:
+        return len(self.building.floors)
+
+    def floor_of(self, stack_xy_m: np.ndarray) -> np.ndarray:
+        """(N,) floor index of stack positions (N, 2)."""
+        x = np.asarray(stack_xy_m, dtype=np.float64)[..., 0]
+        return np.clip(np.searchsorted(self.tile_x_min_m, x, side="right") - 1, 0, self.n_floors - 1)
+
+    def to_stack(self, xy_m: np.ndarray, floor: np.ndarray | int) -> np.ndarray:
+        """Floor-frame positions (N, 2) on ``floor`` (index or (N,) indices) -> stack positions."""
+        return np.asarray(xy_m, dtype=np.float64) + self.shift_m[floor]
+
+    def to_floor(self, stack_xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stack positions (N, 2) -> (floor-frame positions (N, 2), floor indices (N,))."""
+        xy = np.asarray(stack_xy_m, dtype=np.float64)
+        floor = self.floor_of(xy)
+        return xy - self.shift_m[floor], floor
+
+    def to_building(self, stack_xy_m: np.ndarray) -> np.ndarray:
+        """Stack positions (N, 2) -> building-frame positions (N, 2) (floors placed as the file says)."""
+        local, floor = self.to_floor(stack_xy_m)
+        out = np.empty_like(local)
+        for f, fl in enumerate(self.building.floors):
+            on = floor == f
+            if on.any():
+                out[on] = fl.to_building(local[on])
+        return out
+
+    def floor_shares(self, stack_xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """(F,) share of the weight on each floor."""
+        return np.bincount(self.floor_of(stack_xy_m), weights=weights, minlength=self.n_floors)
+
+    def estimate(self, stack_xy_m: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float, bool]:
+        """The estimate on the floor holding most of the weight: ``weighted_estimate`` of that
+        floor's particles (a mean over several floors would lie between tiles, in a wall)."""
+        floor = self.floor_of(stack_xy_m)
+        best = int(np.argmax(np.bincount(floor, weights=weights, minlength=self.n_floors)))
+        w = np.where(floor == best, weights, 0.0)
+        total = w.sum()
+        return weighted_estimate(self.plan, stack_xy_m, w / total if total > 0 else weights)
+
+    def free_in_building(self, building_xy_m: np.ndarray, floor: int) -> np.ndarray:
+        """(N,) True where building-frame points fall on free space of ``floor``."""
+        return self.building.floors[floor].plan.is_free(self.building.floors[floor].from_building(building_xy_m))
+
+
+@dataclasses.dataclass
+class FloorChangeConfig:
+    """How particles change floor (defaults in comments)."""
+
+    # inside a connector, the rate at which a particle takes it: a walker standing 10 s in a
+    # lift or on stairs has changed floor with probability 1 - exp(-1) = 63 %
+    connector_rate_per_s: float = 0.1
+    # a building without connectors: a particle changes floor anywhere at this rate (to the same
+    # building-frame point of another floor; where that is no floor, it dies); the WiFi floor
+    # vote then keeps or kills it. 1 / 300 s puts about 0.3 % of the cloud on other floors
+    # per second: enough to follow a real change within a few scans, too few to matter otherwise
+    anywhere_rate_per_s: float = 1.0 / 300.0
+
+
+class FloorChanges:
+    """Moves particles between floors; the filter calls ``apply`` after the wall check.
+
+    With connectors: a live particle on a free pixel of a connector changes floor at
+    ``connector_rate_per_s`` to another floor the connector links (chosen alike), landing at
+    the same building-frame point when that is inside the connector there, else on a random
+    free pixel of the connector's polygon on that floor. Without connectors (ILC plans mark
+    none): anywhere at ``anywhere_rate_per_s``, to the same building-frame point of another
+    floor (chosen alike), dying (where it stood) where that point is no free space.
+    """
+
+    def __init__(self, stack: FloorStack, config: FloorChangeConfig = FloorChangeConfig()) -> None:
+        self.stack = stack
+        self.config = config
+        plan = stack.plan
+        self.connector_id = np.full(plan.shape_px, -1, dtype=np.int32)  # stack pixel -> connector
+        # per connector: {floor index: stack positions of its free pixel centres on that floor}
+        self.connector_cells: list[dict[int, np.ndarray]] = []
+        self.connector_polygons: list[dict[int, shapely.Geometry]] = []
+        for c, connector in enumerate(stack.building.connectors):
+            cells, polygons = {}, {}
+            for name, polygon in connector.polygons.items():
+                f = stack.building.floor_index(name)
+                fplan = stack.building.floors[f].plan
+                rows, cols = connector_pixels(fplan, polygon)
+                centres = stack.to_stack(fplan.pixel_to_world(np.stack([cols + 0.5, rows + 0.5], axis=-1)), f)
+                srows, scols, _ = plan.pixel_index(centres)
+                self.connector_id[srows, scols] = c
+                cells[f] = centres
+                polygons[f] = polygon
+            self.connector_cells.append(cells)
+            self.connector_polygons.append(polygons)
+        self.changed_last_step = 0  # particles that changed floor in the last ``apply``
+
+    @property
+    def has_connectors(self) -> bool:
+        return bool(self.connector_cells)
+
+    def apply(self, particles: Particles, log_weight: np.ndarray, dt_s: float,
+              rng: np.random.Generator) -> np.ndarray:
+        """Change the floor of some live particles in place (``particles.xy_m``); returns the
+        log weights with particles that landed on no floor killed."""
+        self.changed_last_step = 0
+        particles.log_weight = log_weight  # the weights after the wall check, for the measurement
+        stack = self.stack
+        if stack.n_floors < 2 or dt_s <= 0.0:
+            return log_weight
+        live = np.isfinite(log_weight)
+        xy = particles.xy_m
+        if self.has_connectors:
+            rows, cols, inside = stack.plan.pixel_index(xy)
+            conn = np.full(len(particles), -1, dtype=np.int32)
+            conn[inside] = self.connector_id[rows[inside], cols[inside]]
+            p = -math.expm1(-self.config.connector_rate_per_s * dt_s)
+            movers = np.flatnonzero(live & (conn >= 0) & (rng.random(len(particles)) < p))
+            if movers.size == 0:
+                return log_weight
+            local, floor = stack.to_floor(xy[movers])
+            building_xy = np.empty_like(local)
+            for f in np.unique(floor):
+                on = floor == f
+                building_xy[on] = stack.building.floors[f].to_building(local[on])
+            for i, m in enumerate(movers):
+                cells = self.connector_cells[conn[m]]
+                choices = [f for f in cells if f != floor[i]]
+                dest = choices[int(rng.integers(0, len(choices)))]
+                dest_floor = stack.building.floors[dest]
+                point = dest_floor.from_building(building_xy[i])
+                inside_polygon = shapely.contains_xy(self.connector_polygons[conn[m]][dest], point[0], point[1])
+                if inside_polygon and dest_floor.plan.is_free(point[None, :])[0]:
+                    xy[m] = stack.to_stack(point, dest)
+                else:
+                    xy[m] = cells[dest][int(rng.integers(0, cells[dest].shape[0]))]
+            self.changed_last_step = int(movers.size)
+            return log_weight
+        p = -math.expm1(-self.config.anywhere_rate_per_s * dt_s)
+        movers = np.flatnonzero(live & (rng.random(len(particles)) < p))
+        if movers.size == 0:
+            return log_weight
+        local, floor = stack.to_floor(xy[movers])
+        # another floor, alike: add 1..F-1 to the floor index modulo F
+        dest = (floor + rng.integers(1, stack.n_floors, movers.size)) % stack.n_floors
+        out = log_weight.copy()
+        for f in np.unique(floor):
+            on = floor == f
+            building_xy = stack.building.floors[f].to_building(local[on])
+            for d in np.unique(dest[on]):
+                sel = dest[on] == d
+                point = stack.building.floors[d].from_building(building_xy[sel])
+                idx = movers[on][sel]
+                free = stack.building.floors[d].plan.is_free(point)
+                xy[idx[free]] = stack.to_stack(point[free], d)
+                out[idx[~free]] = -np.inf  # no floor there: it dies where it stood
+        self.changed_last_step = int(np.count_nonzero(np.isfinite(out[movers])))
+        particles.log_weight = out
+        return out
+
+
+@dataclasses.dataclass(frozen=True)
+class FloorFix:
+    """A scan as the multi-floor filter weighs it: a position fix per floor (stack frame, NaN =
+    none from that floor's fingerprints) and the scan's log-likelihood of each floor."""
+
+    xy_m: np.ndarray  # (F, 2) stack positions
+    floor_log_likelihood: np.ndarray  # (F,)
+
+
+@dataclasses.dataclass(frozen=True)
+class FloorFixLikelihood:
+    """The WiFi floor vote weighs the floors; within a floor, the fix weighs positions.
+
+    For a particle i on floor f with prior weight w_i:
+
+        log L_i = vote_f + pos_i - log( sum_{j on f} w_j exp(pos_j) / sum_{j on f} w_j )
+        pos_i   = -|x_i - fix_f|^2 / (2 sigma_f^2)
+
+    where ``vote_f`` is the scan's floor log-likelihood (``sensors.floors.
+    floor_vote_log_likelihood``) and ``fix_f`` the fix made from floor f's fingerprints only
+    (a floor without a fix gives every particle there the value of a fix 3 sigma away). The
+    normaliser makes the position term a reweighting *within* each floor: the weight of a
+    whole floor changes by exp(vote_f) only, as in the floor HMM's forward step, while
+    positions are weighed as on one floor (Evennou & Marx). Without it a wrong floor whose
+    fingerprints happen to agree with its particles (a self-consistent wrong fix) could
+    outweigh the right floor where the walk's fixes are poor and the cloud disagrees with them.
+    """
+
+    stack: FloorStack
+    sigma_m: np.ndarray  # (F,) fix sigma per floor
+    kind: str = "floor_fix"
+    # When the floor evidence puts every live particle's floor this far (nats) below the best
+    # floor, no particle is where the walker can be: every value is -inf, and the filter
+    # collapses and re-draws its particles from this measurement over every floor. The WiFi
+    # vote alone never gets there (its pseudo-count keeps floors within log(k + 1) = 1.6 nats
+    # for k = 4); a barometer 2.6 m or more past the storey half-way (-(4 m - h)^2 / 2 against
+    # -h^2 / 2 at 1 m sigma) or a given floor does: PDR walks particles off the stairs faster
+    # than a climber goes (a stair is about 0.25 m deep), so on stairs this is often how the
+    # filter follows the barometer.
+    floor_collapse_nats: float = 2.5
+
+    def log_likelihood(self, particles: Particles, measurement: FloorFix) -> np.ndarray:
+        floor = self.stack.floor_of(particles.xy_m)
+        fix = measurement.xy_m[floor]
+        sigma = np.asarray(self.sigma_m, dtype=np.float64)[floor]
+        d2 = ((particles.xy_m - fix) ** 2).sum(axis=1) / (sigma * sigma)
+        position = np.where(np.isfinite(d2), -0.5 * d2, -4.5)
+        prior = np.asarray(particles.log_weight, dtype=np.float64)
+        live = np.isfinite(prior)
+        floor_ll = np.asarray(measurement.floor_log_likelihood, dtype=np.float64)
+        if live.any() and floor_ll[floor[live]].max() < floor_ll.max() - self.floor_collapse_nats:
+            return np.full(len(particles), -np.inf)
+        out = floor_ll[floor] + position
+        for f in np.unique(floor[live]):
+            on = live & (floor == f)
+            out[on] -= _logsumexp(prior[on] + position[on]) - _logsumexp(prior[on])
+        return out
+
+
+def _logsumexp(values: np.ndarray) -> float:
+    m = float(values.max())
+    return m + math.log(float(np.exp(values - m).sum()))

@@ -1,0 +1,224 @@
+"""Tracking in a building: one walk through the filter with the floor in its state.
+
+``track_building`` is ``tracking.track_recording`` for a ``maps.building.Building``: with one
+floor, or with the floor given, it is exactly that on the floor's plan (the same track for the
+same seed); with several floors and the floor not given, the filter runs on the building's
+stack plan (``filter.floors.FloorStack``): particles carry their floor, change floor only in
+connectors (or anywhere at a small rate without any), and every scan weighs floors by the WiFi
+floor vote and positions by the fix made from each floor's own fingerprints. Tracks come back
+in each floor's own frame with the floor's name per row.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+from mapfilter.filter.events import StepReport
+from mapfilter.filter.floors import FloorChangeConfig, FloorChanges, FloorFix, FloorFixLikelihood, FloorStack
+from mapfilter.maps.building import Building
+from mapfilter.sensors.floors import floor_vote_log_likelihood
+from mapfilter.sensors.radiomap import RadioMap
+from mapfilter.sensors.recording import Recording
+from mapfilter.sensors.wifi import WifiScan, scans_of
+from mapfilter.tracking import TrackingConfig, TrackingResult, WifiMeasurements, track_recording
+from mapfilter.trackio import Track
+
+
+# A phone barometer's height is good to about 0.25 m per sample and drifts with the weather by
+# well under a metre in ten minutes; 1 m keeps a storey (4-5 m) four sigmas or more away.
+BARO_SIGMA_M = 1.0
+# the filter is sure of its floor (the barometer's reference may be moved to it) above this share
+BARO_ANCHOR_SHARE = 0.95
+# ... and only while the height is steady: less than this change over the last few seconds
+BARO_STEADY_M = 0.5
+BARO_STEADY_WINDOW_S = 3.0
+
+
+class BuildingWifi:
+    """A walk's scans as the multi-floor filter weighs them (``FloorFix`` per scan).
+
+    Per floor, the fix of ``tracking.WifiMeasurements`` made from that floor's fingerprints only
+    (so ``blend``, ``fix`` and the fix-sigma calibration work as on one floor), moved into the
+    stack frame; per scan, the floor vote of ``sensors.floors.floor_vote_log_likelihood`` over
+    the whole building's fingerprints.
+
+    With a barometer (``pressure``: times and hPa), each scan also weighs floors by height:
+    the barometer measures height *changes* only (the weather moves its zero), so it is read
+    against a reference, the floor the filter was sure of (``observe``: more than
+    ``BARO_ANCHOR_SHARE`` of the weight, height steady) and the barometer's height then; a floor
+    of elevation e gets -(e - (e_ref + h - h_ref))^2 / (2 BARO_SIGMA_M^2).
+    """
+
+    def __init__(self, scans: list[WifiScan], radio_map: RadioMap, stack: FloorStack, config: TrackingConfig,
+                 fix_sigma_per_floor_m: dict[str, float] | None = None, log_name: str = "the log",
+                 pressure: tuple[np.ndarray, np.ndarray] | None = None,
+                 floor_evidence: np.ndarray | None = None):
+        if not radio_map.has_floors:
+            raise MapfilterError("tracking across floors needs a building's radio map (floor labels): "
+                                 "mapfilter radiomap build BUILDING.yaml LOGS...")
+        names = stack.building.floor_names
+        if list(radio_map.floor_names) != names:
+            raise MapfilterError(f"the radio map's floors ({', '.join(radio_map.floor_names)}) are not the "
+                                 f"building's ({', '.join(names)})")
+        self.scans = scans
+        n_scans, n_floors = len(scans), len(names)
+        self.fix_xy_m = np.full((n_scans, n_floors, 2), np.nan)
+        sigma = np.full(n_floors, 5.0)
+        for f, floor in enumerate(stack.building.floors):
+            sub = radio_map.floor_map(f)
+            if len(sub) == 0:
+                continue
+            floor_config = config
+            if fix_sigma_per_floor_m and floor.name in fix_sigma_per_floor_m:
+                floor_config = dataclasses.replace(config, fix_sigma_m=fix_sigma_per_floor_m[floor.name])
+            try:
+                wifi = WifiMeasurements(scans, sub, None, floor.plan, floor_config, log_name)
+            except MapfilterError:
+                continue  # this floor's fingerprints share nothing with the walk: no fix there
+            if wifi.fix_xy_m is None:
+                raise MapfilterError("tracking across floors weighs fingerprint fixes: use the fingerprint "
+                                     "model fix or blend")
+            self.fix_xy_m[:, f] = stack.to_stack(wifi.fix_xy_m, f)
+            sigma[f] = wifi.model.sigma_m
+        if floor_evidence is not None:
+            self.floor_log_likelihood = np.asarray(floor_evidence, dtype=np.float64)
+        else:
+            self.floor_log_likelihood = floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans),
+                                                                  k=config.kwnn_k)
+        self.elevation_m = np.array([f.elevation_m for f in stack.building.floors])
+        self.baro = None if pressure is None or len(pressure[0]) < 2 else barometric_height(*pressure)
+        self.anchor: tuple[int, float] | None = None  # (floor, barometer height) the filter was sure of
+        self.usable = np.isfinite(self.fix_xy_m).all(axis=2).any(axis=1)
+        if not self.usable.any():
+            raise MapfilterError(f"no WiFi scan of {log_name} gives a fingerprint fix with this radio map")
+        self.model = FloorFixLikelihood(stack, sigma)
+
+    def height_m(self, t_s: float) -> float:
+        """The barometer's height at ``t_s`` (relative to its first sample), NaN without one."""
+        if self.baro is None:
+            return float("nan")
+        return float(np.interp(t_s, self.baro[0], self.baro[1]))
+
+    def observe(self, report: StepReport) -> None:
+        """After each filter step: move the barometer's reference to the filter's floor when it is
+        sure of it and the height is steady (not in a lift or on stairs)."""
+        if self.baro is None or report.floor_shares is None:
+            return
+        h = self.height_m(report.t_s)
+        steady = abs(h - self.height_m(report.t_s - BARO_STEADY_WINDOW_S)) < BARO_STEADY_M
+        floor = int(np.argmax(report.floor_shares))
+        if not (steady and float(np.max(report.floor_shares)) >= BARO_ANCHOR_SHARE):
+            return
+        if self.anchor is not None:
+            # never move the reference to a floor the barometer disagrees with: a filter that
+            # missed a floor change would otherwise silence the barometer for good
+            ref_floor, h_ref = self.anchor
+            if abs((self.elevation_m[floor] - self.elevation_m[ref_floor]) - (h - h_ref)) > 2.0 * BARO_SIGMA_M:
+                return
+        self.anchor = (floor, h)
+
+    def measurement(self, index: int) -> FloorFix | None:
+        """The scan ``index`` as a ``FloorFix`` (None when no floor gives it a fix)."""
+        if not self.usable[index]:
+            return None
+        floor_ll = self.floor_log_likelihood[index]
+        if self.anchor is not None:
+            floor, h_ref = self.anchor
+            expected = self.elevation_m[floor] + self.height_m(self.scans[index].t_s) - h_ref
+            floor_ll = floor_ll - 0.5 * ((self.elevation_m - expected) / BARO_SIGMA_M) ** 2
+        return FloorFix(self.fix_xy_m[index], floor_ll)
+
+
+def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """(times, heights in metres relative to the first sample) from barometer readings: the
+    international barometric formula h = 44330.8 (1 - (p / p_first)^(1 / 5.25588)), on a moving
+    mean over ``window_s`` (a phone barometer's noise is about 0.25 m per sample)."""
+    t = np.asarray(t_s, dtype=np.float64)
+    p = np.asarray(pressure_hpa, dtype=np.float64)
+    cum = np.concatenate([[0.0], np.cumsum(p)])
+    lo = np.searchsorted(t, t - window_s / 2, side="left")
+    hi = np.searchsorted(t, t + window_s / 2, side="right")
+    mean = (cum[hi] - cum[lo]) / np.maximum(hi - lo, 1)
+    return t, 44330.8 * (1.0 - (mean / mean[0]) ** (1.0 / 5.25588))
+
+
+def track_building(
+    building: Building,
+    recording: Recording,
+    radio_map: RadioMap,
+    config: TrackingConfig = TrackingConfig(),
+    rng: np.random.Generator | None = None,
+    on_step: Callable[[StepReport], None] | None = None,
+    floor: str | None = None,
+    fix_sigma_per_floor_m: dict[str, float] | None = None,
+    floor_changes: FloorChangeConfig = FloorChangeConfig(),
+    use_barometer: bool = True,
+    floor_evidence: np.ndarray | None = None,
+) -> TrackingResult:
+    """Track one walk in a building; tracks in each floor's own frame with a floor per row.
+
+    Parameters
+    ----------
+    building : the floors (a one-floor building is a single map).
+    recording : the walk.
+    radio_map : a building's radio map (floor labels), or any radio map for one floor.
+    config, rng, on_step : as for ``tracking.track_recording``.
+    floor : track on this floor only (the floor given) instead of finding it.
+    fix_sigma_per_floor_m : the fix Gaussian of each floor by name, instead of calibrating it
+        from each floor's fingerprints.
+    floor_changes : how particles change floor.
+    use_barometer : weigh floors by the log's barometer (``TYPE_PRESSURE`` rows) when it has one.
+    floor_evidence : (S, F) floor log-likelihood per scan instead of the WiFi floor vote (e.g.
+        the true floor, to measure what finding the floor costs on a walk that changes floor).
+    """
+    rng = rng if rng is not None else np.random.default_rng(0)
+    if building.is_single_floor or floor is not None:
+        index = 0 if building.is_single_floor else building.floor_index(floor)
+        plan = building.floors[index].plan
+        floor_map = radio_map.floor_map(index) if radio_map.has_floors else radio_map
+        if radio_map.has_floors and radio_map.floor_names[index] != building.floors[index].name:
+            raise MapfilterError(f"the radio map's floor {radio_map.floor_names[index]!r} is not the building's "
+                                 f"{building.floors[index].name!r}")
+        if fix_sigma_per_floor_m and building.floors[index].name in fix_sigma_per_floor_m:
+            config = dataclasses.replace(config, fix_sigma_m=fix_sigma_per_floor_m[building.floors[index].name])
+        result = track_recording(plan, recording, floor_map, None, config, rng, on_step=on_step)
+        name = building.floors[index].name
+        result.track.floor = [name] * len(result.track)
+        if result.smoothed is not None:
+            result.smoothed.floor = [name] * len(result.smoothed)
+        return result
+    if not config.use_map:
+        raise MapfilterError("tracking across floors needs the walls (the floors are kept apart by them): "
+                             "drop --no-map or give the floor")
+    stack = FloorStack(building)
+    log_name = str(recording.path) if recording.path is not None else "the log"
+    pressure = None
+    if use_barometer and recording.pressure_t_s.size >= 2:
+        pressure = (recording.pressure_t_s, recording.pressure_hpa)
+    wifi = BuildingWifi(scans_of(recording), radio_map, stack, config, fix_sigma_per_floor_m, log_name,
+                        pressure=pressure, floor_evidence=floor_evidence)
+    changes = FloorChanges(stack, floor_changes)
+
+    def step_hook(report: StepReport) -> None:
+        wifi.observe(report)
+        if on_step is not None:
+            on_step(report)
+
+    result = track_recording(stack.plan, recording, None, None, config, rng, on_step=step_hook, wifi=wifi,
+                             floors=changes)
+    result.track = _to_floors(stack, result.track)
+    if result.smoothed is not None:
+        result.smoothed = _to_floors(stack, result.smoothed)
+    return result
+
+
+def _to_floors(stack: FloorStack, track: Track) -> Track:
+    """A stack-frame track -> each row in its floor's own frame, with the floor's name."""
+    xy, floor = stack.to_floor(track.xy_m)
+    names = stack.building.floor_names
+    return dataclasses.replace(track, xy_m=xy, floor=[names[f] for f in floor])
+

@@ -1,0 +1,159 @@
+"""Floors from WiFi: a building's radio map with floor labels, a per-scan floor vote, an HMM.
+
+- :func:`build_building_radio_map` makes one radio map of survey logs of several floors, each
+  log's floor taken from its header (``FloorName``); every reference point keeps its floor and
+  its position in that floor's frame.
+- :func:`floor_vote_log_likelihood` weighs each floor for each scan: the k nearest reference
+  points in signal space over *all* floors (the KWNN distance of Chang et al.) vote, and a
+  floor's likelihood is its share of the votes, softened by a pseudo-count so one scan can
+  never rule a floor out (the Lund thesis detects the floor from the summed RSSI per floor;
+  nearest neighbours use the same fingerprints without a per-floor AP model).
+- :func:`floor_hmm` smooths those per-scan likelihoods over the walk with a hidden Markov
+  model whose floor changes are rare (a rate per second): forward probabilities (causal)
+  and the Viterbi path (the whole walk).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+from mapfilter.sensors.radiomap import RadioMap, _distances_to_references, build_radio_map
+from mapfilter.sensors.recording import Recording
+
+# k = 4 as for the KWNN fixes (Chang et al.), and a pseudo-count of one vote per floor: a
+# unanimous scan weighs its floor (4 + 1) / 1 = 5 times (1.6 nats) above a floor with no vote,
+# so a few scans decide and one odd scan cannot outvote a walk. On ILC site 1 (191 walks, five
+# floors, leave-one-walk-out; tools/floor_ilc.py) k = 3-5 with a pseudo-count of 0.25-1 all
+# put 190 walks on the right floor; k = 2 or 6-16 put 188-189.
+DEFAULT_VOTE_K = 4
+DEFAULT_VOTE_PSEUDO_COUNT = 1.0
+# A floor change every 10 minutes or so at most: walkers ride a lift or stairs rarely
+DEFAULT_FLOOR_CHANGE_RATE_PER_S = 1.0 / 600.0
+
+
+def build_building_radio_map(recordings: Sequence[Recording], floor_of_recording: Sequence[int],
+                             floor_names: Sequence[str], use_steps: bool = False) -> RadioMap:
+    """One radio map of a building: the points of every survey log, labelled with its floor.
+
+    ``floor_of_recording[i]`` is the index (into ``floor_names``) of log ``i``'s floor (from
+    its header, see ``maps.building.Building.floor_of_log``). Positions stay in each floor's frame.
+    """
+    if len(recordings) != len(floor_of_recording):
+        raise ValueError("one floor per recording")
+    radio_map = build_radio_map(recordings, None, use_steps=use_steps)
+    trace_floor = np.asarray(floor_of_recording, dtype=np.int64)
+    labelled = RadioMap(radio_map.xy_m, radio_map.ap_keys, radio_map.rssi_dbm, radio_map.t_s, radio_map.trace,
+                        radio_map.source_traces, None, trace_floor[radio_map.trace], list(floor_names))
+    labelled._floor_cv_errors = None  # computed (per floor) when saved
+    return labelled
+
+
+def floor_vote_log_likelihood(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = DEFAULT_VOTE_K,
+                              pseudo_count: float = DEFAULT_VOTE_PSEUDO_COUNT,
+                              min_shared_aps: int = 3) -> np.ndarray:
+    """(S, F) log-likelihood of each floor for each scan (an (S, K) matrix over the map's APs).
+
+    The k nearest reference points (signal distance, p = 2, missing AP = -100 dBm, at least
+    ``min_shared_aps`` shared APs) vote for their floors with weight 1 each; the likelihood of
+    floor f is ``(votes_f + pseudo_count) / (k + F * pseudo_count)``. A scan with no candidate
+    says nothing (a row of equal values).
+    """
+    if not radio_map.has_floors:
+        raise MapfilterError("the radio map has no floor labels: build it from a building (mapfilter radiomap "
+                             "build BUILDING.yaml LOGS...)")
+    n_floors = len(radio_map.floor_names)
+    scans = np.ascontiguousarray(scan_rssi_dbm, dtype=np.float64)
+    out = np.full((scans.shape[0], n_floors), -math.log(n_floors))
+    if scans.shape[0] == 0 or len(radio_map) == 0:
+        return out
+    dist, shared = _distances_to_references(radio_map, scans, 2.0, -100.0)
+    dist = np.where(shared >= min_shared_aps, dist, np.inf)
+    kk = min(k, dist.shape[1])
+    nearest = np.argpartition(dist, kk - 1, axis=1)[:, :kk]
+    for s in range(scans.shape[0]):
+        ok = np.isfinite(dist[s, nearest[s]])
+        if not ok.any():
+            continue
+        votes = np.bincount(radio_map.floor[nearest[s][ok]], minlength=n_floors).astype(np.float64)
+        out[s] = np.log(votes + pseudo_count) - math.log(votes.sum() + n_floors * pseudo_count)
+    return out
+
+
+@dataclasses.dataclass
+class FloorPath:
+    """What the HMM says about a walk's floors, one row per scan."""
+
+    t_s: np.ndarray  # (S,) scan times
+    forward: np.ndarray  # (S, F) P(floor | scans so far): causal
+    path: np.ndarray  # (S,) int64 Viterbi floor sequence: the whole walk
+
+    def causal_floor(self) -> np.ndarray:
+        """(S,) the most probable floor given the scans so far."""
+        return np.argmax(self.forward, axis=1)
+
+
+def floor_hmm(log_likelihood: np.ndarray, t_s: np.ndarray,
+              change_rate_per_s: float = DEFAULT_FLOOR_CHANGE_RATE_PER_S,
+              prior: np.ndarray | None = None) -> FloorPath:
+    """Forward filter and Viterbi path of a floor HMM over per-scan floor log-likelihoods.
+
+    Between scans ``dt`` seconds apart, the walker leaves the floor with probability
+    ``1 - exp(-rate dt)``, to any other floor alike (without connectors and elevations every
+    floor is as reachable; a building with stairs only between neighbours could weigh them).
+    """
+    ll = np.asarray(log_likelihood, dtype=np.float64)
+    times = np.asarray(t_s, dtype=np.float64)
+    n_scans, n_floors = ll.shape
+    if n_scans == 0:
+        return FloorPath(times, np.zeros((0, n_floors)), np.zeros(0, np.int64))
+    log_prior = np.log(prior) if prior is not None else np.full(n_floors, -math.log(n_floors))
+    forward = np.empty_like(ll)
+    delta = np.empty_like(ll)
+    back = np.zeros((n_scans, n_floors), dtype=np.int64)
+    log_alpha = log_prior + ll[0]
+    delta[0] = log_alpha
+    forward[0] = _normalised(log_alpha)
+    for s in range(1, n_scans):
+        log_trans = _log_transition(n_floors, max(times[s] - times[s - 1], 0.0), change_rate_per_s)
+        log_alpha = _logsumexp_rows(log_alpha[:, None] + log_trans) + ll[s]
+        forward[s] = _normalised(log_alpha)
+        log_alpha = np.log(np.maximum(forward[s], 1e-300))  # keep it from drifting to -inf
+        scores = delta[s - 1][:, None] + log_trans
+        back[s] = np.argmax(scores, axis=0)
+        delta[s] = scores[back[s], np.arange(n_floors)] + ll[s]
+    path = np.empty(n_scans, dtype=np.int64)
+    path[-1] = int(np.argmax(delta[-1]))
+    for s in range(n_scans - 1, 0, -1):
+        path[s - 1] = back[s, path[s]]
+    return FloorPath(times, forward, path)
+
+
+def _log_transition(n_floors: int, dt_s: float, rate_per_s: float) -> np.ndarray:
+    if n_floors == 1:
+        return np.zeros((1, 1))
+    leave = -math.expm1(-rate_per_s * dt_s)
+    leave = min(max(leave, 1e-12), 1.0 - 1e-12)
+    out = np.full((n_floors, n_floors), math.log(leave / (n_floors - 1)))
+    np.fill_diagonal(out, math.log1p(-leave))
+    return out
+
+
+def _logsumexp_rows(a: np.ndarray) -> np.ndarray:
+    m = a.max(axis=0)
+    return m + np.log(np.exp(a - m).sum(axis=0))
+
+
+def _normalised(log_p: np.ndarray) -> np.ndarray:
+    p = np.exp(log_p - log_p.max())
+    return p / p.sum()
+
+
+def walk_floor(path: FloorPath) -> int:
+    """The floor a walk spent most scans on (Viterbi path), for walks that keep one floor."""
+    return int(np.bincount(path.path).argmax())
+

@@ -1,0 +1,126 @@
+"""Simulated walks over several floors: stairs and lifts, WiFi through floors, the barometer,
+and the filter following the floor changes."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+
+from mapfilter.maps.walls import crosses_wall
+from mapfilter.sensors.floors import build_building_radio_map
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.simulate.building import (
+    BuildingSimConfig,
+    FloorChange,
+    pressure_hpa,
+    simulate_building_survey,
+    simulate_building_walk,
+)
+from mapfilter.simulate.ilc_writer import format_ilc, write_ilc
+from mapfilter.simulate.walk import SimConfig
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+from floor_sim import floor_scores, make_office_building  # noqa: E402
+
+CHANGES = [FloorChange("stairs", "F1"), FloorChange("lift", "F2")]
+FAST = BuildingSimConfig(segment_s=(12.0, 15.0))
+# a reference point every 4 m, one scan each: a coarse survey keeps the test fast
+SURVEY = BuildingSimConfig(walk=SimConfig(survey_spacing_m=4.0, survey_scans_per_point=1))
+
+
+@pytest.fixture(scope="module")
+def office3(tmp_path_factory):
+    return make_office_building(tmp_path_factory.mktemp("office3"))
+
+
+@pytest.fixture(scope="module")
+def walk(office3):
+    building, tables = office3
+    return simulate_building_walk(building, tables, "F0", CHANGES, FAST, np.random.default_rng(5))
+
+
+def test_floor_changes_follow_the_plan_inside_connectors_and_no_step_crosses_a_wall(office3, walk):
+    building, _ = office3
+    sim, happened = walk
+    assert [(c[3], c[4], c[5]) for c in happened] == [("F0", "F1", "stairs"), ("F1", "F2", "lift")]
+    floors = sim.waypoint_floor
+    assert floors[0] == "F0" and floors[-1] == "F2" and sim.floor_name == "F0"
+    # the ground truth's floor changes only inside the connector, on both floors
+    for i in np.flatnonzero(np.array(floors[1:]) != np.array(floors[:-1])) + 1:
+        connector = next(c for c in building.connectors if c.kind == ("stairs" if floors[i] == "F1" else "lift"))
+        for name, j in ((floors[i - 1], i - 1), (floors[i], i)):
+            assert connector.polygons[name].buffer(0.05).contains(shapely.Point(*sim.waypoint_xy_m[j]))
+    # every move between waypoints on one floor stays off that floor's walls
+    for name in ("F0", "F1", "F2"):
+        on = np.array([f == name for f in floors])
+        pairs = np.flatnonzero(on[:-1] & on[1:])
+        plan = building.floor(name).plan
+        assert not crosses_wall(plan, sim.waypoint_xy_m[pairs], sim.waypoint_xy_m[pairs + 1]).any()
+
+
+def test_barometer_follows_the_elevation(walk):
+    sim, happened = walk
+    t, p = sim.pressure_t_s, sim.pressure_hpa
+    before = p[t < happened[0][0]].mean()
+    after = p[t > happened[1][2]].mean()
+    # F0 -> F2: 8 m up, about 0.96 hPa less (noise 0.03 hPa per sample averages out)
+    assert abs((before - after) - (pressure_hpa(0.0) - pressure_hpa(8.0))) < 0.1
+
+
+def test_the_log_round_trips_with_floors_and_pressure_and_is_the_same_for_a_seed(office3, walk, tmp_path):
+    building, tables = office3
+    sim, _ = walk
+    write_ilc(sim, tmp_path / "w.txt.gz")
+    rec = read_ilc(tmp_path / "w.txt.gz")
+    assert rec.waypoint_floor == sim.waypoint_floor
+    assert np.allclose(rec.pressure_hpa, sim.pressure_hpa, atol=1e-4) and rec.pressure_t_s.size == sim.pressure_t_s.size
+    again, _ = simulate_building_walk(building, tables, "F0", CHANGES, FAST, np.random.default_rng(5))
+    assert format_ilc(again) == format_ilc(sim)
+
+
+def test_wifi_through_floors_is_path_loss_in_3d_minus_a_loss_per_floor(office3):
+    from mapfilter.sensors.pathloss import path_loss_rssi_dbm
+    from mapfilter.simulate.building import building_access_points, building_rssi_dbm
+
+    building, tables = office3
+    table, ap_floor = building_access_points(building, tables)
+    config = BuildingSimConfig()
+    k_f0 = 0  # the first AP of F0; the same place two floors up is AP k_f0 + len(F0's table)
+    k_f2 = k_f0 + 2 * len(tables["F0"])
+    assert ap_floor[k_f0] == 0 and ap_floor[k_f2] == 2 and np.allclose(table.xy_m[k_f0], table.xy_m[k_f2])
+    phone = table.xy_m[k_f0] + [1.0, 0.5]  # in the same room as the AP: no wall between
+    rssi, walls = building_rssi_dbm(building, table, ap_floor, np.array([k_f0, k_f2]), np.array([0, 0]),
+                                    np.array([phone, phone]), np.array([0.0, 0.0]), config)
+    assert list(walls) == [0, 0]
+    d2, d3 = np.hypot(1.0, 0.5), np.sqrt(1.0 + 0.25 + 8.0 ** 2)
+    same = path_loss_rssi_dbm(np.array([d2]), table.c_dbm[[k_f0]], table.n[[k_f0]], table.alpha_db_per_m[[k_f0]],
+                              table.d_max_m[[k_f0]])[0]
+    up = path_loss_rssi_dbm(np.array([d3]), table.c_dbm[[k_f2]], table.n[[k_f2]], table.alpha_db_per_m[[k_f2]],
+                            table.d_max_m[[k_f2]])[0]
+    assert np.isclose(rssi[0], same) and np.isclose(rssi[1], up - 2 * config.floor_loss_db)
+
+
+def test_the_filter_follows_stairs_and_a_lift_with_the_barometer(office3, walk, tmp_path):
+    """A radio map from one survey per floor; the walk tracked without its floors: right most of
+    the time, and each change found within a few seconds of the walker's half-way point."""
+    from mapfilter.floortracking import track_building
+    from mapfilter.tracking import TrackingConfig
+
+    building, tables = office3
+    surveys = []
+    for i, name in enumerate(("F0", "F1", "F2")):
+        survey = simulate_building_survey(building, tables, name, SURVEY, np.random.default_rng([9, i]))
+        write_ilc(survey, tmp_path / f"survey_{name}.txt")
+        surveys.append(read_ilc(tmp_path / f"survey_{name}.txt"))
+    radio_map = build_building_radio_map(surveys, [0, 1, 2], building.floor_names)
+    sim, happened = walk
+    write_ilc(sim, tmp_path / "walk.txt")
+    rec = read_ilc(tmp_path / "walk.txt")
+    result = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000), np.random.default_rng(1))
+    scores = floor_scores(result.track, rec.waypoint_t_s, rec.waypoint_floor, happened)
+    assert scores["time_right"] >= 0.9
+    assert all(d["delay_s"] is not None and d["delay_s"] <= 8.0 for d in scores["delays"]), scores
