@@ -31,6 +31,7 @@ def test_cli_defaults_are_the_librarys():
     assert track_cmd.MOTION_MODELS == MOTION_MODELS and track_cmd.FINGERPRINT_MODELS == FINGERPRINT_MODELS
     assert track_cmd.DEFAULT_PARTICLES == TrackingConfig.n_particles
     assert track_cmd.DEFAULT_FINGERPRINT_MODEL == TrackingConfig.fingerprint_model
+    assert track_cmd.DEFAULT_KWNN_MIN_RSSI_DBM == TrackingConfig.kwnn_min_rssi_dbm
     assert evaluate_cmd.ALL_METHODS == ALL_METHODS
     assert track_cmd.DEFAULT_ADAPT_RSSI_LIMIT_DBM == AdaptationConfig.rssi_limit_dbm
     assert radiomap_cmd._MIN_OBSERVATIONS == ApFitConfig.min_observations

@@ -155,3 +155,23 @@ def test_whole_walk_track_beats_the_causal_one_and_crosses_no_wall():
     assert smoothed.errors_m.mean() < 0.8 * causal.mean()
     assert count_wall_crossings(floorplan, result.smoothed.xy_m) == 0
     assert np.all(np.diff(result.smoothed.t_s) >= 0)
+
+
+def test_kwnn_min_rssi_option_reaches_the_filter(tmp_path, capsys):
+    from mapfilter.sensors.radiomap import RadioMap
+    from mapfilter.tracking import TrackingConfig, track_recording
+
+    paths = {}
+    for value in ("none", "-85", "-60"):
+        paths[value] = tmp_path / f"{value}.csv"
+        assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "2000",
+                     "--kwnn-min-rssi", value, "--out", str(paths[value])]) == 0
+    tracks = {value: read_track(path) for value, path in paths.items()}
+    # the library with the same setting gives the CLI's track; a different floor a different one
+    plain = track_recording(FloorPlan.load(OFFICE), read_ilc(WALK), RadioMap.load(RADIOMAP), None,
+                            TrackingConfig(n_particles=2000, kwnn_min_rssi_dbm=None), np.random.default_rng(0))
+    np.testing.assert_allclose(tracks["none"].xy_m, plain.track.xy_m, atol=1e-3)  # CSV: mm
+    assert not np.allclose(tracks["-60"].xy_m, tracks["none"].xy_m)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--kwnn-min-rssi", "loud"])
+    assert exit_info.value.code == 2 and "dBm value or none" in capsys.readouterr().err

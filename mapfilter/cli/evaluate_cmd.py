@@ -10,6 +10,7 @@ from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.cli.track_cmd import (DEFAULT_FINGERPRINT_MODEL, DEFAULT_PARTICLES, FINGERPRINT_MODELS,
+                                     add_kwnn_min_rssi_argument,
                                      add_trilateration_arguments)
 from mapfilter.cli.common import ProgressBar, add_engine_arguments, add_strict_argument, engine_from, warn
 from mapfilter.errors import MapfilterError
@@ -73,6 +74,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help=f"particles for the pf methods (default: {DEFAULT_PARTICLES})")
     parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=DEFAULT_FINGERPRINT_MODEL,
                         help=f"how pf weighs fingerprints (default: {DEFAULT_FINGERPRINT_MODEL})")
+    add_kwnn_min_rssi_argument(parser)
     add_trilateration_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
     parser.add_argument("--smooth", action="store_true", help="also report the smoothed pf track (pf-smooth)")
@@ -105,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
         methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps, leave_one_out=args.leave_one_out,
         smooth=args.smooth, seed=args.seed, strict=args.strict,
         tracking=TrackingConfig(n_particles=args.particles, fingerprint_model=args.fingerprint_model,
+                                kwnn_min_rssi_dbm=args.kwnn_min_rssi,
                                 adapt_path_loss=args.adapt,
                                 adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
                                 blocking_compensation=not args.no_blocking_compensation))

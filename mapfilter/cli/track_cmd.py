@@ -19,6 +19,24 @@ from mapfilter.errors import MapfilterError
 MOTION_MODELS = ("pdr", "cv", "rw")
 FINGERPRINT_MODELS = ("fix", "blend", "likelihood")
 DEFAULT_FINGERPRINT_MODEL = "blend"
+DEFAULT_KWNN_MIN_RSSI_DBM = -85.0  # TrackingConfig.kwnn_min_rssi_dbm
+
+
+def kwnn_min_rssi(text: str) -> float | None:
+    """``--kwnn-min-rssi``: a dBm value, or ``none`` for plain KWNN over every reading."""
+    if text.strip().lower() == "none":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a dBm value or none, got {text!r}") from None
+
+
+def add_kwnn_min_rssi_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--kwnn-min-rssi", type=kwnn_min_rssi, default=DEFAULT_KWNN_MIN_RSSI_DBM, metavar="DBM",
+                        help="the filter's KWNN fixes use readings at or above this only (phones disagree most "
+                             "on weak APs); none: every reading, as the kwnn baseline "
+                             f"(default: {DEFAULT_KWNN_MIN_RSSI_DBM:g})")
 DEFAULT_PARTICLES = 10_000
 DEFAULT_ADAPT_RSSI_LIMIT_DBM = -36.0  # AdaptationConfig.rssi_limit_dbm (the thesis' limit)
 
@@ -85,6 +103,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              f"(default: {DEFAULT_FINGERPRINT_MODEL})")
     parser.add_argument("--particles", type=int, default=DEFAULT_PARTICLES, metavar="N",
                         help=f"number of particles (default: {DEFAULT_PARTICLES})")
+    add_kwnn_min_rssi_argument(parser)
     add_trilateration_arguments(parser)
     parser.add_argument("--adapted-aps", type=Path, metavar="OUT.csv",
                         help="with --adapt: write the access-point table as adapted at the end of the walk")
@@ -315,6 +334,7 @@ def _tracking_config(args: argparse.Namespace):
 
     return TrackingConfig(motion=args.motion, n_particles=args.particles, use_map=not args.no_map,
                           fingerprint_model=args.fingerprint_model, smooth=args.smooth, adapt_path_loss=args.adapt,
+                          kwnn_min_rssi_dbm=args.kwnn_min_rssi,
                           adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
                           blocking_compensation=not args.no_blocking_compensation)
 
