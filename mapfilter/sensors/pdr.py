@@ -124,7 +124,8 @@ def resample_imu(recording: Recording, config: PDRConfig = PDRConfig()) -> ImuGr
     where = recording.path
     for name, t_s in (("accelerometer", recording.acc_t_s), ("gyroscope", recording.gyro_t_s)):
         if t_s.shape[0] < 2 or t_s[-1] - t_s[0] < 2.0:
-            raise MapfilterError(f"no usable {name} data for PDR (need at least 2 s)", where)
+            raise MapfilterError(f"no usable {name} data for PDR (need at least 2 s; "
+                                 "a WiFi-only log tracks with --motion cv)", where)
     t0_s = max(recording.acc_t_s[0], recording.gyro_t_s[0])
     t1_s = min(recording.acc_t_s[-1], recording.gyro_t_s[-1])
     if t1_s - t0_s < 2.0:
