@@ -51,7 +51,7 @@ from shapely.geometry import shape as geojson_shape
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
-from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.floorplan import FloorPlan, is_number, read_yaml_mapping
 
 CONNECTOR_KINDS = ("stairs", "escalator", "lift")
 
@@ -196,7 +196,7 @@ class Building:
     def load(cls, path: str | os.PathLike) -> Building:
         """Read a building YAML, or a map YAML as a one-floor building (see the module docstring)."""
         path = Path(path)
-        meta = _read_yaml(path)
+        meta = read_yaml_mapping(path, "a map or building YAML")
         if "floors" not in meta:
             if "image" in meta:  # a ROS map_server map: one floor
                 plan = FloorPlan.load(path)
@@ -213,7 +213,7 @@ class Building:
             connectors += read_connectors_geojson(_resolve(path, meta["connectors_geojson"]))
         storey = meta.get("storey_height_m")
         building = cls(floors, connectors, None if meta.get("building") is None else str(meta["building"]), path,
-                       float(storey) if _is_number(storey) else None)
+                       float(storey) if is_number(storey) else None)
         building.validate()
         return building
 
@@ -266,7 +266,7 @@ def read_connectors_geojson(path: str | os.PathLike) -> list[Connector]:
     """Connectors from a GeoJSON FeatureCollection of floor-metre polygons with properties
     ``name``, ``kind`` and ``floor``; features sharing a name make one connector."""
     path = Path(path)
-    meta = _read_yaml(path)  # YAML reads JSON
+    meta = read_yaml_mapping(path, "a connector file")  # YAML reads JSON
     features = meta.get("features")
     if not isinstance(features, list):
         raise MapfilterError("connector GeoJSON has no 'features' list", path)
@@ -298,13 +298,13 @@ def _read_floor(path: Path, index: int, meta: Any) -> Floor:
             raise MapfilterError(f"floors[{index}] lacks '{key}'", path)
     name = str(meta["name"])
     elevation = meta.get("elevation_m", 0.0)
-    if not _is_number(elevation):
+    if not is_number(elevation):
         raise MapfilterError(f"floor {name!r}: elevation_m must be a number, got {elevation!r}", path)
     offset = meta.get("offset_m", [0.0, 0.0])
-    if not (isinstance(offset, list) and len(offset) == 2 and all(_is_number(v) for v in offset)):
+    if not (isinstance(offset, list) and len(offset) == 2 and all(is_number(v) for v in offset)):
         raise MapfilterError(f"floor {name!r}: offset_m must be [x, y] numbers, got {offset!r}", path)
     rotation = meta.get("rotation_deg", 0.0)
-    if not _is_number(rotation):
+    if not is_number(rotation):
         raise MapfilterError(f"floor {name!r}: rotation_deg must be a number, got {rotation!r}", path)
     map_path = _resolve(path, meta["map"])
     plan = FloorPlan.load(map_path)
@@ -330,26 +330,6 @@ def _read_connector(path: Path, index: int, meta: Any) -> Connector:
                                  f"[x, y] points", path) from None
         polygons[str(floor_name)] = shapely.make_valid(shapely.Polygon(points))
     return Connector(name, str(meta["kind"]), polygons)
-
-
-def _read_yaml(path: Path) -> dict:
-    if not path.is_file():
-        raise MapfilterError("file not found", path)
-    try:
-        meta = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise MapfilterError(f"malformed YAML: {getattr(exc, 'problem', None) or 'malformed YAML'}", path,
-                             None if mark is None else mark.line + 1) from None
-    except UnicodeDecodeError:
-        raise MapfilterError("not a text YAML file", path) from None
-    if not isinstance(meta, dict):
-        raise MapfilterError("expected a mapping of keys", path)
-    return meta
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _resolve(yaml_path: Path, name: Any) -> Path:

@@ -168,19 +168,19 @@ class FloorPlan:
     def load(cls, yaml_path: str | os.PathLike) -> FloorPlan:
         """Read a ROS map_server map (``NAME.yaml`` + image) with our optional extra keys."""
         yaml_path = Path(yaml_path)
-        meta = _read_yaml(yaml_path)
+        meta = read_yaml_mapping(yaml_path)
         for key in ("image", "resolution", "origin"):
             if key not in meta:
                 raise MapfilterError(f"map YAML lacks the required key '{key}'", yaml_path)
         resolution = _positive_float(meta["resolution"], "resolution", yaml_path)
         origin = meta["origin"]
-        if not (isinstance(origin, list) and len(origin) in (2, 3) and all(_is_number(v) for v in origin)):
+        if not (isinstance(origin, list) and len(origin) in (2, 3) and all(is_number(v) for v in origin)):
             raise MapfilterError(f"'origin' must be [x, y, yaw] numbers, got {origin!r}", yaml_path)
         if len(origin) == 3 and abs(float(origin[2])) > 1e-9:
             raise MapfilterError(f"a rotated map (origin yaw {origin[2]}) is not supported", yaml_path)
         occupied_thresh = meta.get("occupied_thresh", DEFAULT_OCCUPIED_THRESH)
         free_thresh = meta.get("free_thresh", DEFAULT_FREE_THRESH)
-        if not (_is_number(occupied_thresh) and _is_number(free_thresh)):
+        if not (is_number(occupied_thresh) and is_number(free_thresh)):
             raise MapfilterError(f"thresholds must be numbers, got occupied_thresh {occupied_thresh!r}, "
                                  f"free_thresh {free_thresh!r}", yaml_path)
         occupied_thresh, free_thresh = float(occupied_thresh), float(free_thresh)
@@ -212,7 +212,7 @@ class FloorPlan:
         source = None
         if ours.get("source_image"):
             src_origin = ours.get("source_origin", origin[:2])
-            if not (isinstance(src_origin, list) and len(src_origin) >= 2 and all(_is_number(v) for v in src_origin[:2])):
+            if not (isinstance(src_origin, list) and len(src_origin) >= 2 and all(is_number(v) for v in src_origin[:2])):
                 raise MapfilterError(f"'source_origin' must be [x, y] numbers, got {src_origin!r}", yaml_path)
             source = SourceImage(
                 path=_resolve(yaml_path, ours["source_image"]),
@@ -275,7 +275,9 @@ def read_gray_image(path: str | os.PathLike) -> np.ndarray:
     return image
 
 
-def _read_yaml(path: Path) -> dict:
+def read_yaml_mapping(path: Path, what: str = "a map YAML") -> dict:
+    """The mapping of keys in a YAML file (also JSON); ``MapfilterError`` naming the file (and
+    the line of a syntax error) when it is missing, malformed or not a mapping."""
     if not path.is_file():
         raise MapfilterError("file not found", path)
     try:
@@ -288,16 +290,17 @@ def _read_yaml(path: Path) -> dict:
     except UnicodeDecodeError:
         raise MapfilterError("not a text YAML file", path) from None
     if not isinstance(meta, dict):
-        raise MapfilterError("a map YAML must be a mapping of keys", path)
+        raise MapfilterError(f"{what} must be a mapping of keys", path)
     return meta
 
 
-def _is_number(value: Any) -> bool:
+def is_number(value: Any) -> bool:
+    """A finite int or float (not a bool)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _positive_float(value: Any, key: str, path: Path) -> float:
-    if not _is_number(value) or value <= 0:
+    if not is_number(value) or value <= 0:
         raise MapfilterError(f"'{key}' must be a positive number, got {value!r}", path)
     return float(value)
 
