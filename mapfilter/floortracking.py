@@ -121,6 +121,16 @@ class BuildingWifi:
                 return
         self.anchor = (floor, h)
 
+    def between_scans(self, t_s: float) -> FloorFix | None:
+        """The barometer alone at ``t_s`` (a step between scans): floors weighed by height as in
+        ``measurement``, no position fix; None without a barometer or before a reference."""
+        if self.baro is None or self.anchor is None:
+            return None
+        floor, h_ref = self.anchor
+        expected = self.elevation_m[floor] + self.height_m(t_s) - h_ref
+        return FloorFix(np.full((len(self.elevation_m), 2), np.nan),
+                        -0.5 * ((self.elevation_m - expected) / BARO_SIGMA_M) ** 2)
+
     def measurement(self, index: int) -> FloorFix | None:
         """The scan ``index`` as a ``FloorFix`` (None when no floor gives it a fix)."""
         if not self.usable[index]:

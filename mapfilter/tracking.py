@@ -302,7 +302,9 @@ def track_recording(
             # cv / rw move over dt_s by themselves; PDR moves only on steps
             report = pf.step(t_s, dt, None, wifi.model, measurement)
         elif kind == "step":
-            report = pf.step(t_s, dt, step_input[index])
+            # in a building with a barometer, the height weighs floors at every step, not only at scans
+            between = wifi.between_scans(t_s) if floors is not None and hasattr(wifi, "between_scans") else None
+            report = pf.step(t_s, dt, step_input[index], wifi.model if between is not None else None, between)
         else:  # prediction tick for cv / rw
             report = pf.step(t_s, dt, None)
         last_t = t_s

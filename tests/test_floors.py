@@ -378,3 +378,27 @@ def test_the_fix_weighs_positions_within_a_floor_and_only_the_vote_weighs_floors
     on1 = np.flatnonzero(floor == 1)
     d = np.linalg.norm(local[on1] - [2.0, 2.0], axis=1)
     assert ll[on1[np.argmin(d)]] > ll[on1[np.argmax(d)]]
+
+
+def test_barometer_between_scans_weighs_floors_only_and_never_collapses_or_becomes_the_redraw_source(tmp_path):
+    """The height alone (no fix on any floor) moves weight between floors, keeps positions, and a
+    later collapse still re-draws from the last measurement that said where."""
+    stack, _, pf = _filter(_building(tmp_path, connectors=False), 0.0, 0.0)
+    model = FloorFixLikelihood(stack, np.full(3, 3.0))
+    fix = FloorFix(stack.to_stack(np.array([[10.0, 5.0]] * 3), np.arange(3)), np.log([0.1, 0.8, 0.1]))
+    pf.initialise_from_measurement(0.0, model, fix)
+    pf.step(1.0, 1.0, None, model, fix)
+    from mapfilter.filter.particles import Particles
+
+    height = FloorFix(np.full((3, 2), np.nan), np.array([-8.0, -8.0, 0.0]))  # the barometer says floor 2
+    assert height.evidence_only and not fix.evidence_only
+    on_floor_0 = Particles.at(stack.to_stack(np.array([[10.0, 5.0], [12.0, 6.0]]), np.array([0, 0])))
+    on_floor_0.log_weight = np.log([0.5, 0.5])
+    # every particle off floor 2: a fix-carrying measurement would collapse (-inf); the height
+    # alone gives a per-floor constant (positions keep their relative weights)
+    assert np.isneginf(model.log_likelihood(on_floor_0, FloorFix(fix.xy_m, height.floor_log_likelihood))).all()
+    np.testing.assert_array_equal(model.log_likelihood(on_floor_0, height), [-8.0, -8.0])
+    floor = stack.floor_of(pf.particles.xy_m)
+    np.testing.assert_array_equal(model.log_likelihood(pf.particles, height), height.floor_log_likelihood[floor])
+    pf.step(2.0, 1.0, None, model, height)
+    assert pf._last_measurement[2] is fix

@@ -239,6 +239,11 @@ class FloorFix:
     xy_m: np.ndarray  # (F, 2) stack positions
     floor_log_likelihood: np.ndarray  # (F,)
 
+    @property
+    def evidence_only(self) -> bool:
+        """No position fix on any floor (the barometer between scans): floors only."""
+        return not np.isfinite(self.xy_m).any()
+
 
 @dataclasses.dataclass(frozen=True)
 class FloorFixLikelihood:
@@ -281,6 +286,10 @@ class FloorFixLikelihood:
         prior = np.asarray(particles.log_weight, dtype=np.float64)
         live = np.isfinite(prior)
         floor_ll = np.asarray(measurement.floor_log_likelihood, dtype=np.float64)
+        if measurement.evidence_only:
+            # floor evidence alone (the barometer between scans): it reweighs floors and never
+            # collapses the cloud, whose re-draw needs a position; the next scan can
+            return floor_ll[floor]
         if live.any() and floor_ll[floor[live]].max() < floor_ll.max() - self.floor_collapse_nats:
             return np.full(len(particles), -np.inf)
         out = floor_ll[floor] + position

@@ -276,7 +276,9 @@ class ParticleFilter:
         kind = None
         if model is not None and measurement is not None:
             kind = getattr(model, "kind", None) or ("fix" if isinstance(measurement, PositionFix) else "other")
-            self._last_measurement = (float(t_s), model, measurement)
+            if not getattr(measurement, "evidence_only", False):
+                # a collapse re-draws from the latest measurement that says where, not only which floor
+                self._last_measurement = (float(t_s), model, measurement)
             ll = self._checked_log_likelihood(model, moved, measurement)
             if cause is None:
                 live = np.isfinite(log_w)
