@@ -244,6 +244,20 @@ def _ls_fixes(ap_table: AccessPointTable, scans) -> np.ndarray:
 
 
 # ---- many walks ------------------------------------------------------------------------------
+def checked_log_paths(log_paths: Sequence[str | os.PathLike]) -> list[Path]:
+    """The logs as paths; ``MapfilterError`` for a missing file or two logs with one trace name
+    (walks are told apart by name: leave-one-out drops a walk's points by it)."""
+    paths = [Path(p) for p in log_paths]
+    for path in paths:
+        if not path.is_file():
+            raise MapfilterError("file not found", path)
+    names = [trace_name(p) for p in paths]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise MapfilterError(f"two logs share the trace name {repeated[0]}: walks are told apart by name")
+    return paths
+
+
 @dataclasses.dataclass
 class Evaluation:
     """All methods on all walks."""
@@ -301,10 +315,7 @@ def evaluate_logs(floorplan: FloorPlan, log_paths: Sequence[str | os.PathLike], 
     its own generator, so the numbers do not depend on the engine. ``map_path`` is not needed
     any more (the map itself is sent to the workers) and is ignored."""
     engine = engine if engine is not None else Engine(jobs=jobs)
-    paths = [Path(p) for p in log_paths]
-    for path in paths:
-        if not path.is_file():
-            raise MapfilterError("file not found", path)
+    paths = checked_log_paths(log_paths)
     unknown = [m for m in setup.methods if m not in ALL_METHODS]
     if unknown:
         raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(ALL_METHODS)}")
@@ -312,10 +323,6 @@ def evaluate_logs(floorplan: FloorPlan, log_paths: Sequence[str | os.PathLike], 
         raise MapfilterError("no WiFi source: give a radio map, an access-point table or leave-one-out")
     if setup.radio_map_path is not None and setup.leave_one_out:
         raise MapfilterError("give a radio map or leave-one-out, not both (leave-one-out builds its own)")
-    names = [trace_name(p) for p in paths]
-    repeated = sorted({n for n in names if names.count(n) > 1})
-    if repeated:
-        raise MapfilterError(f"two logs share the trace name {repeated[0]}: walks are told apart by name")
     started = time.perf_counter()
     all_walks = None
     read_warnings: list[str] = []

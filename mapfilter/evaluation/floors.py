@@ -28,7 +28,8 @@ import numpy as np
 
 from mapfilter.engine import Engine, run_each
 from mapfilter.errors import MapfilterError
-from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, MethodResult, _collect_read_warnings
+from mapfilter.evaluation.comparison import (Evaluation, EvaluationSetup, MethodResult, _collect_read_warnings,
+                                              checked_log_paths)
 from mapfilter.evaluation.metrics import FloorScore, errors_at_waypoints, floor_at_waypoints
 from mapfilter.floortracking import track_building
 from mapfilter.maps.building import Building
@@ -37,7 +38,6 @@ from mapfilter.sensors.floors import build_building_radio_map, floor_hmm, floor_
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.pdr import detect_steps
 from mapfilter.sensors.radiomap import RadioMap, kwnn_fix_many
-from mapfilter.sensors.recording import trace_name
 from mapfilter.sensors.wifi import scans_of
 from mapfilter.tracking import calibrated_fix_sigma_m
 from mapfilter.trackio import Track
@@ -76,10 +76,7 @@ def evaluate_building_logs(building: Building, log_paths: Sequence[str | Path], 
                            progress: Callable[[int, int, str], None] | None = None) -> BuildingEvaluation:
     """Every method of ``setup`` that a building supports (``BUILDING_METHODS``) on every walk."""
     engine = engine if engine is not None else Engine()
-    paths = [Path(p) for p in log_paths]
-    for path in paths:
-        if not path.is_file():
-            raise MapfilterError("file not found", path)
+    paths = checked_log_paths(log_paths)
     methods = tuple(m for m in setup.methods if m in BUILDING_METHODS)
     if not methods:
         raise MapfilterError(f"in a building, evaluate compares {', '.join(BUILDING_METHODS)}: none was asked for")
@@ -87,10 +84,6 @@ def evaluate_building_logs(building: Building, log_paths: Sequence[str | Path], 
         raise MapfilterError("a building is evaluated with a building's radio map, not an access-point table")
     if (setup.radio_map_path is None) == (not setup.leave_one_out):
         raise MapfilterError("give a building's radio map (--radiomap) or --leave-one-out, one of the two")
-    names = [trace_name(p) for p in paths]
-    repeated = sorted({n for n in names if names.count(n) > 1})
-    if repeated:
-        raise MapfilterError(f"two logs share the trace name {repeated[0]}: walks are told apart by name")
     started = time.perf_counter()
     read_warnings: list[str] = []
     with _collect_read_warnings(read_warnings):
