@@ -175,6 +175,11 @@ class WifiMeasurements:
             return PositionFix(self.fix_xy_m[index])
         return self.scans[index]
 
+    def between_scans(self, t_s: float) -> Any:
+        """What the filter weighs at a step between scans: nothing on one floor (a building's
+        ``floortracking.BuildingWifi`` gives the barometer's floor evidence there)."""
+        return None
+
     def radio_map_model(self) -> RadioMapLikelihood:
         """The radio-map likelihood of this walk's scans, built once on first use (needs a radio
         map): per-AP tables only for the APs the walk hears."""
@@ -303,7 +308,7 @@ def track_recording(
             report = pf.step(t_s, dt, None, wifi.model, measurement)
         elif kind == "step":
             # in a building with a barometer, the height weighs floors at every step, not only at scans
-            between = wifi.between_scans(t_s) if floors is not None and hasattr(wifi, "between_scans") else None
+            between = wifi.between_scans(t_s)
             report = pf.step(t_s, dt, step_input[index], wifi.model if between is not None else None, between)
         else:  # prediction tick for cv / rw
             report = pf.step(t_s, dt, None)
