@@ -25,22 +25,55 @@ def _random_map(rng, p=40, k=12, heard=0.6):
     return RadioMap(rng.uniform(0, 50, (p, 2)), keys, rssi, np.arange(p, dtype=float), np.zeros(p, int), ["t0"])
 
 
-def _kwnn_brute(radio_map, scan_row, k, p, q, missing, min_shared):
-    """Plain loops: the reference KWNN."""
+def _kwnn_brute(radio_map, scan_row, k, p, q, missing, min_shared, per_ap=False):
+    """Plain loops: the reference KWNN (``per_ap``: the power mean over the APs either side heard)."""
     dists = []
     for i in range(len(radio_map)):
-        total, shared = 0.0, 0
+        total, shared, either = 0.0, 0, 0
         for j in range(len(radio_map.ap_keys)):
             a, b = float(scan_row[j]), float(radio_map.rssi_dbm[i, j])
             if np.isnan(a) and np.isnan(b):
                 continue
+            either += 1
             shared += int(not np.isnan(a) and not np.isnan(b))
             total += abs((missing if np.isnan(a) else a) - (missing if np.isnan(b) else b)) ** p
         if shared >= min_shared:
-            dists.append((total ** (1 / p), i))
+            dists.append(((total / either if per_ap else total) ** (1 / p), i))
     nearest = sorted(dists)[:k]
     w = np.array([1 / d ** q for d, _ in nearest])
     return (w[:, None] * radio_map.xy_m[[i for _, i in nearest]]).sum(axis=0) / w.sum()
+
+
+@pytest.mark.parametrize("k,p,q", [(4, 2, 2), (1, 1, 1), (3, 1.5, 0), (6, 3, 2)])
+def test_per_ap_kwnn_matches_brute_force(k, p, q):
+    rng = np.random.default_rng(k * 7 + int(p * 5))
+    radio_map = _random_map(rng)
+    scans = radio_map.rssi_dbm[10:18].copy() + rng.normal(0, 3, (8, len(radio_map.ap_keys))).astype(np.float32)
+    scans[rng.random(scans.shape) > 0.7] = np.nan
+    fixes = kwnn_fix_many(radio_map, scans, k=k, p=p, q=q, missing_dbm=-100, min_shared_aps=2, per_ap=True)
+    plain = kwnn_fix_many(radio_map, scans, k=k, p=p, q=q, missing_dbm=-100, min_shared_aps=2)
+    for s in range(scans.shape[0]):
+        expected = _kwnn_brute(radio_map, scans[s], k, p, q, -100.0, 2, per_ap=True)
+        np.testing.assert_allclose(fixes.xy_m[s], expected, rtol=1e-9, atol=1e-9)
+    # the mean is not the sum: on these maps (APs heard 40-100 % of the time) some fix moves
+    assert np.nanmax(np.abs(fixes.xy_m - plain.xy_m)) > 0.1
+
+
+def test_per_ap_distance_does_not_favour_references_that_heard_few_aps():
+    """A reference that heard the scan's APs at its levels plus four more (just heard, -84 dBm)
+    is the right one; plain KWNN takes a far one that heard only the scan's three APs, 6 dB off,
+    because it pays for fewer APs."""
+    keys = [f"02:00:00:00:02:{j:02x}@5" for j in range(7)]
+    rssi = np.full((2, 7), np.nan, np.float32)
+    rssi[0, :3] = [-50.0, -60.0, -70.0]
+    rssi[0, 3:] = -84.0
+    rssi[1, :3] = [-56.0, -66.0, -76.0]
+    radio_map = RadioMap(np.array([[0.0, 0.0], [30.0, 0.0]]), keys, rssi, np.zeros(2), np.zeros(2, int), ["t0"])
+    scan = np.full((1, 7), np.nan)
+    scan[0, :3] = [-50.0, -60.0, -70.0]
+    args = dict(k=1, missing_dbm=-90.0, min_rssi_dbm=-85.0)
+    assert kwnn_fix_many(radio_map, scan, **args).xy_m[0, 0] == pytest.approx(30.0)  # plain: 12.0 dB against 10.4 dB
+    assert kwnn_fix_many(radio_map, scan, per_ap=True, **args).xy_m[0, 0] == pytest.approx(0.0)  # per AP: 4.5 against 6.0 dB
 
 
 @pytest.mark.parametrize("k,p,q", [(4, 2, 2), (1, 1, 1), (3, 1.5, 0), (6, 3, 2)])

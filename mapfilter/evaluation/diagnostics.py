@@ -4,6 +4,10 @@ Measured on ILC site 1, most of a walk's error is one of three things, and each 
 
 - ``coverage_m``: median distance from the walk's waypoints to the nearest reference point of
   the radio map it was tracked with. Fingerprints cannot place a walk where nobody surveyed.
+- ``signal_distance_db``: the same in signal space, with no ground truth needed: median over
+  the walk's scans of the RMS difference per AP (strong readings, as the filter's fixes) to the
+  nearest reference point. Large where the walk went beyond the survey, or the phone hears
+  unlike the survey phones.
 - ``fix_error_m``, ``fix_bias_m``, ``fix_scatter_m``: the WiFi fixes against the ground truth
   interpolated at the scan times: median error, the length of the median offset (one bias
   per walk: averaging more fixes cannot remove it) and the median scatter around that offset.
@@ -21,10 +25,11 @@ import numpy as np
 
 from mapfilter.filter.placement import pdr_shape, rotation_vector_heading_offset
 from mapfilter.sensors.pdr import Steps
-from mapfilter.sensors.radiomap import RadioMap
+from mapfilter.sensors.radiomap import STRONG_MIN_RSSI_DBM, STRONG_MISSING_DBM, RadioMap, kwnn_fix_many
 from mapfilter.sensors.recording import Recording
+from mapfilter.sensors.wifi import iter_scans
 
-DIAGNOSTIC_COLUMNS = ("coverage_m", "fix_error_m", "fix_bias_m", "fix_scatter_m", "heading_offset_error_deg",
+DIAGNOSTIC_COLUMNS = ("coverage_m", "signal_distance_db", "fix_error_m", "fix_bias_m", "fix_scatter_m", "heading_offset_error_deg",
                       "step_scale")
 MIN_LEG_M = 3.0  # waypoint legs shorter than this say little about the heading
 
@@ -40,6 +45,12 @@ def walk_diagnostics(recording: Recording, scan_t_s: np.ndarray, fix_xy_m: np.nd
         from scipy.spatial import cKDTree
 
         out["coverage_m"] = float(np.median(cKDTree(radio_map.xy_m).query(wp_xy)[0]))
+        scans = list(iter_scans(recording))
+        if scans:
+            nearest = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=1, missing_dbm=STRONG_MISSING_DBM,
+                                    min_rssi_dbm=STRONG_MIN_RSSI_DBM, per_ap=True).distance_db[:, 0]
+            if np.isfinite(nearest).any():
+                out["signal_distance_db"] = float(np.nanmedian(nearest))
     if fix_xy_m is not None and wp_t.size >= 2:
         t = np.asarray(scan_t_s, dtype=np.float64)
         ok = np.all(np.isfinite(fix_xy_m), axis=1) & (t >= wp_t[0]) & (t <= wp_t[-1])
