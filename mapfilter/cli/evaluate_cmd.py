@@ -29,7 +29,8 @@ methods: {', '.join(ALL_METHODS)} (default: all that the WiFi source allows)
 Errors are taken at the ground-truth waypoint times from each method's latest estimate at
 or before that time (causal); waypoints before a method's first estimate are counted as
 missed. --smooth adds pf-smooth, the offline whole-walk track (not causal). walks.csv says
-why each walk went wrong: radio-map coverage, fix error and bias, heading offset, step scale.
+why each walk went wrong: radio-map coverage (metres, and dB per AP from the nearest
+reference point), fix error and bias, heading offset, step scale.
 
 writes into OUT: summary.csv, summary.json (with per-trace and per-walk rows), traces.csv, walks.csv, cdf.png,
 tracks/<trace>.png (tracks on the floor plan) and tracks/<trace>/<method>.csv.
