@@ -402,3 +402,22 @@ def test_barometer_between_scans_weighs_floors_only_and_never_collapses_or_becom
     np.testing.assert_array_equal(model.log_likelihood(pf.particles, height), height.floor_log_likelihood[floor])
     pf.step(2.0, 1.0, None, model, height)
     assert pf._last_measurement[2] is fix
+
+
+def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_step_or_scan():
+    from mapfilter.sensors.pdr import Steps
+    from mapfilter.sensors.wifi import WifiScan
+    from mapfilter.tracking import _events
+
+    scans = [WifiScan(t, ("a@2.4",), np.array([-50.0], np.float32)) for t in (0.0, 3.0, 12.0)]
+    t_steps = np.array([0.5, 1.0, 1.5, 2.0, 2.5, 9.0, 9.5])  # then standing 2.5 s -> 9 s (a lift)
+    zeros = np.zeros(t_steps.size)
+    steps = Steps(t_steps, zeros, zeros, None, zeros + 0.7, zeros + 1.0, 0.0)
+    events = _events(scans, 0, steps, 1.0)
+    times = np.array([t for _, t, _ in events])
+    assert np.all(np.diff(times) >= 0) and np.diff(times).max() <= 1.0 + 1e-9
+    idle = [t for kind, t, _ in events if kind == "idle"]
+    assert idle == [4.0, 5.0, 6.0, 7.0, 8.0, 10.5, 11.5]  # only in the gaps, never among steps
+    # without steps (cv / rw): prediction ticks as before, no idle events
+    assert {kind for kind, _, _ in _events(scans, 0, None, 1.0)} == {"tick", "scan"}
+
