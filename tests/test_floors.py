@@ -421,3 +421,31 @@ def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_ste
     # without steps (cv / rw): prediction ticks as before, no idle events
     assert {kind for kind, _, _ in _events(scans, 0, None, 1.0)} == {"tick", "scan"}
 
+
+def test_barometer_reference_follows_the_weather_not_a_pausing_climber():
+    from mapfilter.floortracking import BARO_DRIFT_M_PER_S, BarometerReference
+
+    ref = BarometerReference(np.array([0.0, 4.0, 8.0]))
+    sure_0 = np.array([0.99, 0.01, 0.0])
+    assert ref.floor_log_likelihood(0.0) is None  # no reference yet
+    ref.update(0.0, 0.0, True, sure_0)
+    # a climber pauses 1 m up the stairs (steady for a few seconds, the filter still on floor 0)
+    ref.update(10.0, 1.0, True, sure_0)
+    assert ref.anchor[1] <= 10.0 * BARO_DRIFT_M_PER_S + 1e-12
+    # 2.2 m up: floor 1 already weighs more, as it would have without the pause
+    ll = ref.floor_log_likelihood(2.2)
+    assert ll[1] > ll[0]
+    # the weather moves the barometer 0.3 m in 5 minutes on floor 0: the reference follows it
+    ref = BarometerReference(np.array([0.0, 4.0, 8.0]))
+    for t in np.arange(0.0, 301.0, 1.0):
+        ref.update(float(t), 0.001 * t, True, sure_0)
+    assert abs(ref.anchor[1] - 0.3) < 1e-9 and np.argmax(ref.floor_log_likelihood(0.3)) == 0
+    # unsure or not steady: no move; a floor the barometer disagrees with (4 m expected, 0.3 m seen): no move
+    before = ref.anchor
+    ref.update(301.0, 0.3, False, sure_0)
+    ref.update(302.0, 0.3, True, np.array([0.6, 0.4, 0.0]))
+    ref.update(303.0, 0.3, True, np.array([0.0, 1.0, 0.0]))
+    assert ref.anchor == before
+    # after a real change (4 m up, the filter sure of floor 1) the reference moves to floor 1
+    ref.update(330.0, 4.3, True, np.array([0.0, 1.0, 0.0]))
+    assert ref.anchor[0] == 1 and np.argmax(ref.floor_log_likelihood(4.3)) == 1
