@@ -166,18 +166,20 @@ class BuildingWifi:
         floor_ll = self.reference.floor_log_likelihood(self.height_m(t_s))
         if floor_ll is None:
             return None
-        return FloorFix(np.full((len(self.elevation_m), 2), np.nan), floor_ll)
+        return FloorFix(np.full((len(self.elevation_m), 2), np.nan), floor_ll, int(np.argmax(floor_ll)))
 
     def measurement(self, index: int) -> FloorFix | None:
         """The scan ``index`` as a ``FloorFix`` (None when no floor gives it a fix)."""
         if not self.usable[index]:
             return None
         floor_ll = self.floor_log_likelihood[index]
+        height_floor = None
         if self.baro is not None:
             height_ll = self.reference.floor_log_likelihood(self.height_m(self.scans[index].t_s))
             if height_ll is not None:
                 floor_ll = floor_ll + height_ll
-        return FloorFix(self.fix_xy_m[index], floor_ll)
+                height_floor = int(np.argmax(height_ll))
+        return FloorFix(self.fix_xy_m[index], floor_ll, height_floor)
 
 
 def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float = 2.0) -> tuple[np.ndarray, np.ndarray]:

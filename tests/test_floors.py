@@ -449,3 +449,36 @@ def test_barometer_reference_follows_the_weather_not_a_pausing_climber():
     # after a real change (4 m up, the filter sure of floor 1) the reference moves to floor 1
     ref.update(330.0, 4.3, True, np.array([0.0, 1.0, 0.0]))
     assert ref.anchor[0] == 1 and np.argmax(ref.floor_log_likelihood(4.3)) == 1
+
+
+def test_in_a_connector_the_barometers_floor_decides_and_elsewhere_nothing_moves(tmp_path):
+    """A step whose height is nearest floor 1: every live particle inside the stairs (which link
+    floor 1) lands there, inside the stairs; nobody outside them changes floor; without a
+    barometer (no ``height_floor``) or with the rule off, only the rate moves particles."""
+    import shapely
+
+    from mapfilter.filter.particles import Particles
+
+    building = _building(tmp_path)
+    rng = np.random.default_rng(5)
+    local = np.concatenate([rng.uniform(2.2, 4.8, (300, 2)), rng.uniform(8.0, 19.0, (300, 2))])
+    keep = building.floors[0].plan.is_free(local)
+    local = local[keep]
+    in_stairs = np.arange(len(local)) < np.count_nonzero(keep[:300])
+    stack = FloorStack(building)
+
+    def run(config: FloorChangeConfig, height_floor):
+        changes = FloorChanges(stack, config)
+        particles = Particles.at(stack.to_stack(local, 0))
+        particles.log_weight[-1] = -np.inf  # a dead particle stays where it is
+        measurement = FloorFix(np.full((3, 2), np.nan), np.array([-2.0, 0.0, -8.0]), height_floor)
+        changes.apply(particles, particles.log_weight.copy(), 0.6, rng, measurement)
+        return stack.to_floor(particles.xy_m)
+
+    after_local, after_floor = run(FloorChangeConfig(0.0, 0.0), 1)
+    assert (after_floor[in_stairs] == 1).all() and (after_floor[~in_stairs] == 0).all()
+    stairs_1 = shapely.Polygon(building.connectors[0].polygons["L1"]).buffer(0.3)
+    assert shapely.contains_xy(stairs_1, after_local[in_stairs, 0], after_local[in_stairs, 1]).all()
+    assert (run(FloorChangeConfig(0.0, 0.0), None)[1] == 0).all()
+    assert (run(FloorChangeConfig(0.0, 0.0, height_decides_in_connector=False), 1)[1] == 0).all()
+

@@ -268,7 +268,7 @@ class ParticleFilter:
             log_w[killed] = -np.inf
         if self.floors is not None:
             # floor changes after the wall check: the jump between floors is not a wall crossing
-            log_w = self.floors.apply(moved, log_w, dt_s, self.rng)
+            log_w = self.floors.apply(moved, log_w, dt_s, self.rng, measurement)
         killed_idx = np.flatnonzero(killed)
         cause = None if np.isfinite(log_w).any() else "all_killed_by_walls"
 
