@@ -482,3 +482,31 @@ def test_in_a_connector_the_barometers_floor_decides_and_elsewhere_nothing_moves
     assert (run(FloorChangeConfig(0.0, 0.0), None)[1] == 0).all()
     assert (run(FloorChangeConfig(0.0, 0.0, height_decides_in_connector=False), 1)[1] == 0).all()
 
+
+def test_a_pdr_step_that_starts_on_stairs_advances_a_tread_not_a_stride(tmp_path):
+    from mapfilter.filter.motion import PDRMotion, StepInput
+    from mapfilter.filter.particles import Particles
+
+    building = _building(tmp_path)
+    stack = FloorStack(building)
+    changes = FloorChanges(stack, FloorChangeConfig(0.0, 0.0))
+    lo, hi = changes.config.stairs_tread_m
+    rng = np.random.default_rng(6)
+    on = np.column_stack([rng.uniform(2.3, 3.0, 200), rng.uniform(2.3, 4.7, 200)])  # west end of the stairs
+    off = np.column_stack([rng.uniform(8.0, 12.0, 200), rng.uniform(2.3, 4.7, 200)])
+    start = stack.to_stack(np.concatenate([on, off]), 0)
+    end = start + [0.7, 0.0]  # a 0.7 m stride east
+    out = changes.stairs_steps(start, end, rng)
+    step_m = np.linalg.norm(out - start, axis=1)
+    assert ((step_m[:200] >= lo - 1e-9) & (step_m[:200] <= hi + 1e-9)).all()
+    assert np.allclose(out[:200, 1], start[:200, 1])  # along the step's own direction
+    np.testing.assert_array_equal(out[200:], end[200:])
+    # in the filter: PDR particles on the stairs keep to treads, the rest stride on
+    pf = ParticleFilter(stack.plan, PDRMotion(heading_sigma_rad=0.0, position_sigma_m=0.0),
+                        FilterConfig(n_particles=400, regularise=False), rng, floors=changes)
+    pf.particles = Particles.at(start)
+    pf.particles.heading_rad[:] = 0.0
+    pf.particles.step_length_m[:] = 0.7
+    pf.step(1.0, 0.6, StepInput(1, 0.0, None, None))
+    moved_m = np.linalg.norm(pf.particles.xy_m - start, axis=1)
+    assert (moved_m[:200] <= hi + 0.05).all() and (moved_m[200:] >= 0.6).all()

@@ -256,6 +256,9 @@ class ParticleFilter:
 
         # 1. propagate, 2. wall kill (Evennou & Marx: P_m = 0 -> weight 0)
         moved = self.motion.propagate(prev, motion_input, dt_s, self.rng)
+        if self.floors is not None and isinstance(self.motion, PDRMotion) and motion_input is not None:
+            # a step on stairs advances a tread, not a stride
+            moved.xy_m = self.floors.stairs_steps(prev.xy_m, moved.xy_m, self.rng)
         crossed = crosses_wall(self.floorplan, prev.xy_m, moved.xy_m)
         killed = crossed & alive_before
         log_w = prev.log_weight.copy()
