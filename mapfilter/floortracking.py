@@ -147,7 +147,9 @@ class BuildingWifi:
         """The barometer's height at ``t_s`` (relative to its first sample), NaN without one."""
         if self.baro is None:
             return float("nan")
-        return float(np.interp(t_s, self.baro[0], self.baro[1]))
+        # the last reading at or before t_s: nothing from the future
+        i = int(np.searchsorted(self.baro[0], t_s, side="right")) - 1
+        return float(self.baro[1][max(i, 0)])
 
     def observe(self, report: StepReport) -> None:
         """After each filter step: move the barometer's reference (``BarometerReference.update``);
@@ -184,15 +186,29 @@ class BuildingWifi:
 
 def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """(times, heights in metres relative to the first sample) from barometer readings: the
-    international barometric formula h = 44330.8 (1 - (p / p_first)^(1 / 5.25588)), on a moving
-    mean over ``window_s`` (a phone barometer's noise is about 0.25 m per sample)."""
+    international barometric formula h = 44330.8 (1 - (p / p_first)^(1 / 5.25588)) of the
+    pressure smoothed causally, from the readings of the last ``window_s`` only (a phone
+    barometer's noise is about 0.25 m per sample): the end of a straight line fitted to them,
+    which, unlike their mean, does not lag a climb or a ride by half the window."""
     t = np.asarray(t_s, dtype=np.float64)
-    p = np.asarray(pressure_hpa, dtype=np.float64)
-    cum = np.concatenate([[0.0], np.cumsum(p)])
-    lo = np.searchsorted(t, t - window_s / 2, side="left")
-    hi = np.searchsorted(t, t + window_s / 2, side="right")
-    mean = (cum[hi] - cum[lo]) / np.maximum(hi - lo, 1)
-    return t, 44330.8 * (1.0 - (mean / mean[0]) ** (1.0 / 5.25588))
+    p_hpa = np.asarray(pressure_hpa, dtype=np.float64)
+    p = p_hpa - p_hpa[0]  # small numbers keep the windowed sums exact over long logs
+    tr = t - t[0]
+    lo = np.searchsorted(t, t - window_s, side="left")
+    hi = np.arange(1, t.size + 1)  # reading i's window ends at reading i
+
+    def window_sum(x: np.ndarray) -> np.ndarray:
+        cum = np.concatenate([[0.0], np.cumsum(x)])
+        return cum[hi] - cum[lo]
+
+    # least squares p = mean_p + slope (t - mean_t) over each window, at the window's last reading
+    n = (hi - lo).astype(np.float64)
+    mean_t, mean_p = window_sum(tr) / n, window_sum(p) / n
+    var_t = window_sum(tr * tr) / n - mean_t ** 2
+    cov = window_sum(tr * p) / n - mean_t * mean_p
+    slope = np.where(var_t > 1e-9, cov / np.maximum(var_t, 1e-9), 0.0)
+    smooth = p_hpa[0] + mean_p + slope * (tr - mean_t)
+    return t, 44330.8 * (1.0 - (smooth / smooth[0]) ** (1.0 / 5.25588))
 
 
 def track_building(

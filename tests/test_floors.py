@@ -510,3 +510,21 @@ def test_a_pdr_step_that_starts_on_stairs_advances_a_tread_not_a_stride(tmp_path
     pf.step(1.0, 0.6, StepInput(1, 0.0, None, None))
     moved_m = np.linalg.norm(pf.particles.xy_m - start, axis=1)
     assert (moved_m[:200] <= hi + 0.05).all() and (moved_m[200:] >= 0.6).all()
+
+
+def test_barometric_height_is_causal_and_follows_a_climb_without_lag():
+    from mapfilter.floortracking import barometric_height
+    from mapfilter.simulate.building import pressure_hpa
+
+    t = 1.6e9 + np.arange(0.0, 60.0, 0.5)
+    height = np.clip((t - t[0] - 20.0) * 0.3, 0.0, 6.0)  # 0.3 m/s up from 20 s to 40 s
+    noise = 0.03 * np.random.default_rng(0).standard_normal(t.size)
+    _, h = barometric_height(t, pressure_hpa(height) + noise)
+    # the value at a reading never depends on later readings
+    for i in (10, 50, 70):
+        _, h_cut = barometric_height(t[:i + 1], (pressure_hpa(height) + noise)[:i + 1])
+        assert h_cut[i] == pytest.approx(h[i], abs=1e-9)
+    # mid-climb it is on the true height (a trailing mean lags it by 0.3 m/s x 1 s = 0.3 m)
+    mid = (t - t[0] > 25.0) & (t - t[0] < 38.0)
+    assert abs(np.mean(h[mid] - height[mid])) < 0.1
+    assert np.sqrt(np.mean((h[mid] - height[mid]) ** 2)) < 0.35
