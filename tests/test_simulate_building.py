@@ -135,7 +135,7 @@ def test_the_filter_follows_stairs_and_a_lift_with_the_barometer(office3, walk, 
 
 def test_a_lift_ride_without_steps_is_followed_by_the_barometer_within_3_s(office3, radio_map, tmp_path):
     """Two storeys up by lift (6 s of ride, no steps): the filter steps on the barometer alone at
-    least every second while the walker stands, finds the new floor within 3 s of the ride's
+    least every ``idle_tick_s`` while the walker stands, finds the new floor within 3 s of the ride's
     half-way point, and no barometer-only step collapses the cloud."""
     from mapfilter.floortracking import track_building
     from mapfilter.tracking import TrackingConfig
@@ -148,7 +148,7 @@ def test_a_lift_ride_without_steps_is_followed_by_the_barometer_within_3_s(offic
     result = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000), np.random.default_rng(2))
     t_enter, t_switch, t_leave = happened[0][:3]
     ride = (result.track.t_s > t_enter + 1.0) & (result.track.t_s < t_leave)
-    assert np.diff(result.track.t_s[ride]).max() <= 1.0 + 1e-6
+    assert np.diff(result.track.t_s[ride]).max() <= TrackingConfig().idle_tick_s + 1e-6
     scores = floor_scores(result.track, rec.waypoint_t_s, rec.waypoint_floor, happened)
     assert scores["delays"][0]["delay_s"] is not None and scores["delays"][0]["delay_s"] <= 3.0, scores
     scan_t = np.unique(rec.wifi.t_s)
