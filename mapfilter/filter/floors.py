@@ -331,10 +331,10 @@ class FloorFixLikelihood:
     # floor, no particle is where the walker can be: every value is -inf, and the filter
     # collapses and re-draws its particles from this measurement over every floor. The WiFi
     # vote alone never gets there (its pseudo-count keeps floors within log(k + 1) = 1.6 nats
-    # for k = 4); a barometer 2.6 m or more past the storey half-way (-(4 m - h)^2 / 2 against
-    # -h^2 / 2 at 1 m sigma) or a given floor does: PDR walks particles off the stairs faster
-    # than a climber goes (a stair is about 0.25 m deep), so on stairs this is often how the
-    # filter follows the barometer.
+    # for k = 4); a barometer 2.6 m up a 4 m storey, 0.6 m past its half-way (-(4 m - h)^2 / 2
+    # against -h^2 / 2 at 1 m sigma), or a given floor does. With connectors the height moves
+    # their particles first (``FloorChangeConfig.height_decides_in_connector``), so this is
+    # for a cloud that is nowhere near one.
     floor_collapse_nats: float = 2.5
 
     def log_likelihood(self, particles: Particles, measurement: FloorFix) -> np.ndarray:
