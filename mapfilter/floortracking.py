@@ -36,6 +36,54 @@ BARO_ANCHOR_SHARE = 0.95
 # ... and only while the height is steady: less than this change over the last few seconds
 BARO_STEADY_M = 0.5
 BARO_STEADY_WINDOW_S = 3.0
+# The reference follows the weather only, at most this fast: 0.01 m/s is 36 m/h, about 4 hPa/h,
+# above any weather front (1-3 hPa/h). A climber pausing on the stairs looks steady for a few
+# seconds; without this limit the reference crept up with each pause (1.25 m half-way up a
+# simulated flight) and the new floor was found seconds late.
+BARO_DRIFT_M_PER_S = 0.01
+
+
+class BarometerReference:
+    """The barometer's zero for floor evidence: a barometer measures height *changes* only (the
+    weather moves its zero), so it is read against a reference, a floor the filter was sure of
+    and the barometer's height then.
+
+    ``update`` sets the reference when the filter is sure of its floor (``BARO_ANCHOR_SHARE``)
+    while the height is steady, and afterwards moves it no faster than the weather moves a
+    barometer (``BARO_DRIFT_M_PER_S``), never to a floor the barometer disagrees with;
+    ``floor_log_likelihood`` gives a floor of elevation e the value
+    -(e - (e_ref + h - h_ref))^2 / (2 BARO_SIGMA_M^2).
+    """
+
+    def __init__(self, elevation_m: np.ndarray) -> None:
+        self.elevation_m = np.asarray(elevation_m, dtype=np.float64)
+        self.anchor: tuple[int, float, float] | None = None  # (floor, barometer height, time)
+
+    def update(self, t_s: float, height_m: float, steady: bool, floor_shares: np.ndarray) -> None:
+        """After a filter step at ``t_s``: the barometer's height, whether it was steady, and the
+        filter's share of weight per floor."""
+        floor = int(np.argmax(floor_shares))
+        if not (steady and float(np.max(floor_shares)) >= BARO_ANCHOR_SHARE):
+            return
+        if self.anchor is None:
+            self.anchor = (floor, height_m, t_s)
+            return
+        ref_floor, h_ref, t_ref = self.anchor
+        h_floor = h_ref + self.elevation_m[floor] - self.elevation_m[ref_floor]  # the floor's height by the reference
+        # never move the reference to a floor the barometer disagrees with: a filter that
+        # missed a floor change would otherwise silence the barometer for good
+        if abs(height_m - h_floor) > 2.0 * BARO_SIGMA_M:
+            return
+        drift = BARO_DRIFT_M_PER_S * max(t_s - t_ref, 0.0)
+        self.anchor = (floor, h_floor + float(np.clip(height_m - h_floor, -drift, drift)), t_s)
+
+    def floor_log_likelihood(self, height_m: float) -> np.ndarray | None:
+        """(F,) log-likelihood of each floor at barometer height ``height_m``; None before a reference."""
+        if self.anchor is None:
+            return None
+        floor, h_ref, _ = self.anchor
+        expected = self.elevation_m[floor] + height_m - h_ref
+        return -0.5 * ((self.elevation_m - expected) / BARO_SIGMA_M) ** 2
 
 
 class BuildingWifi:
@@ -46,11 +94,9 @@ class BuildingWifi:
     stack frame; per scan, the floor vote of ``sensors.floors.floor_vote_log_likelihood`` over
     the whole building's fingerprints.
 
-    With a barometer (``pressure``: times and hPa), each scan also weighs floors by height:
-    the barometer measures height *changes* only (the weather moves its zero), so it is read
-    against a reference, the floor the filter was sure of (``observe``: more than
-    ``BARO_ANCHOR_SHARE`` of the weight, height steady) and the barometer's height then; a floor
-    of elevation e gets -(e - (e_ref + h - h_ref))^2 / (2 BARO_SIGMA_M^2).
+    With a barometer (``pressure``: times and hPa), each scan, and each filter step between
+    scans (``between_scans``), also weighs floors by height against a ``BarometerReference``
+    that ``observe`` keeps.
     """
 
     def __init__(self, scans: list[WifiScan], radio_map: RadioMap, stack: FloorStack, config: TrackingConfig,
@@ -91,7 +137,7 @@ class BuildingWifi:
                                                                   k=config.kwnn_k)
         self.elevation_m = np.array([f.elevation_m for f in stack.building.floors])
         self.baro = None if pressure is None or len(pressure[0]) < 2 else barometric_height(*pressure)
-        self.anchor: tuple[int, float] | None = None  # (floor, barometer height) the filter was sure of
+        self.reference = BarometerReference(self.elevation_m)
         self.usable = np.isfinite(self.fix_xy_m).all(axis=2).any(axis=1)
         if not self.usable.any():
             raise MapfilterError(f"no WiFi scan of {log_name} gives a fingerprint fix with this radio map")
@@ -101,59 +147,68 @@ class BuildingWifi:
         """The barometer's height at ``t_s`` (relative to its first sample), NaN without one."""
         if self.baro is None:
             return float("nan")
-        return float(np.interp(t_s, self.baro[0], self.baro[1]))
+        # the last reading at or before t_s: nothing from the future
+        i = int(np.searchsorted(self.baro[0], t_s, side="right")) - 1
+        return float(self.baro[1][max(i, 0)])
 
     def observe(self, report: StepReport) -> None:
-        """After each filter step: move the barometer's reference to the filter's floor when it is
-        sure of it and the height is steady (not in a lift or on stairs)."""
+        """After each filter step: move the barometer's reference (``BarometerReference.update``);
+        steady = less than ``BARO_STEADY_M`` of height change over ``BARO_STEADY_WINDOW_S``."""
         if self.baro is None or report.floor_shares is None:
             return
         h = self.height_m(report.t_s)
         steady = abs(h - self.height_m(report.t_s - BARO_STEADY_WINDOW_S)) < BARO_STEADY_M
-        floor = int(np.argmax(report.floor_shares))
-        if not (steady and float(np.max(report.floor_shares)) >= BARO_ANCHOR_SHARE):
-            return
-        if self.anchor is not None:
-            # never move the reference to a floor the barometer disagrees with: a filter that
-            # missed a floor change would otherwise silence the barometer for good
-            ref_floor, h_ref = self.anchor
-            if abs((self.elevation_m[floor] - self.elevation_m[ref_floor]) - (h - h_ref)) > 2.0 * BARO_SIGMA_M:
-                return
-        self.anchor = (floor, h)
+        self.reference.update(report.t_s, h, steady, report.floor_shares)
 
     def between_scans(self, t_s: float) -> FloorFix | None:
         """The barometer alone at ``t_s`` (a step between scans): floors weighed by height as in
         ``measurement``, no position fix; None without a barometer or before a reference."""
-        if self.baro is None or self.anchor is None:
+        if self.baro is None:
             return None
-        floor, h_ref = self.anchor
-        expected = self.elevation_m[floor] + self.height_m(t_s) - h_ref
-        return FloorFix(np.full((len(self.elevation_m), 2), np.nan),
-                        -0.5 * ((self.elevation_m - expected) / BARO_SIGMA_M) ** 2)
+        floor_ll = self.reference.floor_log_likelihood(self.height_m(t_s))
+        if floor_ll is None:
+            return None
+        return FloorFix(np.full((len(self.elevation_m), 2), np.nan), floor_ll, int(np.argmax(floor_ll)))
 
     def measurement(self, index: int) -> FloorFix | None:
         """The scan ``index`` as a ``FloorFix`` (None when no floor gives it a fix)."""
         if not self.usable[index]:
             return None
         floor_ll = self.floor_log_likelihood[index]
-        if self.anchor is not None:
-            floor, h_ref = self.anchor
-            expected = self.elevation_m[floor] + self.height_m(self.scans[index].t_s) - h_ref
-            floor_ll = floor_ll - 0.5 * ((self.elevation_m - expected) / BARO_SIGMA_M) ** 2
-        return FloorFix(self.fix_xy_m[index], floor_ll)
+        height_floor = None
+        if self.baro is not None:
+            height_ll = self.reference.floor_log_likelihood(self.height_m(self.scans[index].t_s))
+            if height_ll is not None:
+                floor_ll = floor_ll + height_ll
+                height_floor = int(np.argmax(height_ll))
+        return FloorFix(self.fix_xy_m[index], floor_ll, height_floor)
 
 
 def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """(times, heights in metres relative to the first sample) from barometer readings: the
-    international barometric formula h = 44330.8 (1 - (p / p_first)^(1 / 5.25588)), on a moving
-    mean over ``window_s`` (a phone barometer's noise is about 0.25 m per sample)."""
+    international barometric formula h = 44330.8 (1 - (p / p_first)^(1 / 5.25588)) of the
+    pressure smoothed causally, from the readings of the last ``window_s`` only (a phone
+    barometer's noise is about 0.25 m per sample): the end of a straight line fitted to them,
+    which, unlike their mean, does not lag a climb or a ride by half the window."""
     t = np.asarray(t_s, dtype=np.float64)
-    p = np.asarray(pressure_hpa, dtype=np.float64)
-    cum = np.concatenate([[0.0], np.cumsum(p)])
-    lo = np.searchsorted(t, t - window_s / 2, side="left")
-    hi = np.searchsorted(t, t + window_s / 2, side="right")
-    mean = (cum[hi] - cum[lo]) / np.maximum(hi - lo, 1)
-    return t, 44330.8 * (1.0 - (mean / mean[0]) ** (1.0 / 5.25588))
+    p_hpa = np.asarray(pressure_hpa, dtype=np.float64)
+    p = p_hpa - p_hpa[0]  # small numbers keep the windowed sums exact over long logs
+    tr = t - t[0]
+    lo = np.searchsorted(t, t - window_s, side="left")
+    hi = np.arange(1, t.size + 1)  # reading i's window ends at reading i
+
+    def window_sum(x: np.ndarray) -> np.ndarray:
+        cum = np.concatenate([[0.0], np.cumsum(x)])
+        return cum[hi] - cum[lo]
+
+    # least squares p = mean_p + slope (t - mean_t) over each window, at the window's last reading
+    n = (hi - lo).astype(np.float64)
+    mean_t, mean_p = window_sum(tr) / n, window_sum(p) / n
+    var_t = window_sum(tr * tr) / n - mean_t ** 2
+    cov = window_sum(tr * p) / n - mean_t * mean_p
+    slope = np.where(var_t > 1e-9, cov / np.maximum(var_t, 1e-9), 0.0)
+    smooth = p_hpa[0] + mean_p + slope * (tr - mean_t)
+    return t, 44330.8 * (1.0 - (smooth / smooth[0]) ** (1.0 / 5.25588))
 
 
 def track_building(

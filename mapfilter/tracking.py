@@ -67,6 +67,10 @@ class TrackingConfig:
     kwnn_min_rssi_dbm: float | None = STRONG_MIN_RSSI_DBM
     rssi_variance_db2: float = 25.0  # trilateration (Lund thesis)
     tick_s: float = 1.0  # cv / rw: prediction interval between scans
+    # PDR: the longest gap between filter steps while a barometer can weigh floors (a lift ride
+    # has no steps, and scans are 2-4 s apart): about a walker's step interval, so the height
+    # weighs floors as often standing as walking
+    idle_tick_s: float = 0.5
     use_abs_heading: bool = True  # PDR: start headings from the rotation vector when the log has one
     heading_source: str = "gyro"  # PDR per step: gyro (heading change) | rotation_vector (absolute heading)
     # spread around that start heading: the rotation vector's heading deviates from the ILC
@@ -297,9 +301,17 @@ def track_recording(
     out_t, out_xy, out_std, out_heading = [t0], [pf.estimate_xy_m.copy()], [pf.estimate_std_m], [start_heading]
     last_t = t0
     n_scans = 1
-    for kind, t_s, index in _events(scans, first, steps if config.motion == "pdr" else None, config.tick_s):
+    pdr = config.motion == "pdr"
+    for kind, t_s, index in _events(scans, first, steps if pdr else None,
+                                    config.idle_tick_s if pdr else config.tick_s):
         dt = max(t_s - last_t, 0.0)
-        if kind == "scan":
+        if kind == "idle":
+            # PDR standing still (a lift ride): only the barometer has news; on one floor, nothing
+            between = wifi.between_scans(t_s)
+            if between is None:
+                continue
+            report = pf.step(t_s, dt, None, wifi.model, between)
+        elif kind == "scan":
             measurement = wifi.measurement(index)
             if measurement is None:
                 continue
@@ -387,11 +399,18 @@ def step_inputs(steps: Steps, use_abs_heading: bool = False, with_step_length: b
 
 
 def _events(scans: list[WifiScan], first: int, steps: Steps | None, tick_s: float):
-    """(kind, t_s, index) after the first measurement, in time order; a scan after a step at equal times."""
+    """(kind, t_s, index) after the first measurement, in time order; a scan after a step at equal times.
+
+    Without steps (cv / rw): a "tick" every ``tick_s``. With steps (PDR): an "idle" event
+    wherever ``tick_s`` (``TrackingConfig.idle_tick_s``) passed without a step or scan
+    (standing, riding a lift), for evidence that needs no motion (the barometer)."""
     t0 = scans[first].t_s
     events = [(s.t_s, 1, "scan", i) for i, s in enumerate(scans) if i > first]
     if steps is not None:
         events += [(t, 0, "step", i) for i, t in enumerate(steps.t_s) if t > t0]
+        times = np.array(sorted([t0] + [e[0] for e in events]))
+        for a, b in zip(times[:-1], times[1:]):
+            events += [(t, 0, "idle", -1) for t in np.arange(a + tick_s, b - 1e-9, tick_s)]
     else:
         t_end = scans[-1].t_s
         events += [(t, 0, "tick", -1) for t in np.arange(t0 + tick_s, t_end, tick_s)]

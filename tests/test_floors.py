@@ -402,3 +402,129 @@ def test_barometer_between_scans_weighs_floors_only_and_never_collapses_or_becom
     np.testing.assert_array_equal(model.log_likelihood(pf.particles, height), height.floor_log_likelihood[floor])
     pf.step(2.0, 1.0, None, model, height)
     assert pf._last_measurement[2] is fix
+
+
+def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_step_or_scan():
+    from mapfilter.sensors.pdr import Steps
+    from mapfilter.sensors.wifi import WifiScan
+    from mapfilter.tracking import _events
+
+    scans = [WifiScan(t, ("a@2.4",), np.array([-50.0], np.float32)) for t in (0.0, 3.0, 12.0)]
+    t_steps = np.array([0.5, 1.0, 1.5, 2.0, 2.5, 9.0, 9.5])  # then standing 2.5 s -> 9 s (a lift)
+    zeros = np.zeros(t_steps.size)
+    steps = Steps(t_steps, zeros, zeros, None, zeros + 0.7, zeros + 1.0, 0.0)
+    events = _events(scans, 0, steps, 1.0)
+    times = np.array([t for _, t, _ in events])
+    assert np.all(np.diff(times) >= 0) and np.diff(times).max() <= 1.0 + 1e-9
+    idle = [t for kind, t, _ in events if kind == "idle"]
+    assert idle == [4.0, 5.0, 6.0, 7.0, 8.0, 10.5, 11.5]  # only in the gaps, never among steps
+    # without steps (cv / rw): prediction ticks as before, no idle events
+    assert {kind for kind, _, _ in _events(scans, 0, None, 1.0)} == {"tick", "scan"}
+
+
+def test_barometer_reference_follows_the_weather_not_a_pausing_climber():
+    from mapfilter.floortracking import BARO_DRIFT_M_PER_S, BarometerReference
+
+    ref = BarometerReference(np.array([0.0, 4.0, 8.0]))
+    sure_0 = np.array([0.99, 0.01, 0.0])
+    assert ref.floor_log_likelihood(0.0) is None  # no reference yet
+    ref.update(0.0, 0.0, True, sure_0)
+    # a climber pauses 1 m up the stairs (steady for a few seconds, the filter still on floor 0)
+    ref.update(10.0, 1.0, True, sure_0)
+    assert ref.anchor[1] <= 10.0 * BARO_DRIFT_M_PER_S + 1e-12
+    # 2.2 m up: floor 1 already weighs more, as it would have without the pause
+    ll = ref.floor_log_likelihood(2.2)
+    assert ll[1] > ll[0]
+    # the weather moves the barometer 0.3 m in 5 minutes on floor 0: the reference follows it
+    ref = BarometerReference(np.array([0.0, 4.0, 8.0]))
+    for t in np.arange(0.0, 301.0, 1.0):
+        ref.update(float(t), 0.001 * t, True, sure_0)
+    assert abs(ref.anchor[1] - 0.3) < 1e-9 and np.argmax(ref.floor_log_likelihood(0.3)) == 0
+    # unsure or not steady: no move; a floor the barometer disagrees with (4 m expected, 0.3 m seen): no move
+    before = ref.anchor
+    ref.update(301.0, 0.3, False, sure_0)
+    ref.update(302.0, 0.3, True, np.array([0.6, 0.4, 0.0]))
+    ref.update(303.0, 0.3, True, np.array([0.0, 1.0, 0.0]))
+    assert ref.anchor == before
+    # after a real change (4 m up, the filter sure of floor 1) the reference moves to floor 1
+    ref.update(330.0, 4.3, True, np.array([0.0, 1.0, 0.0]))
+    assert ref.anchor[0] == 1 and np.argmax(ref.floor_log_likelihood(4.3)) == 1
+
+
+def test_in_a_connector_the_barometers_floor_decides_and_elsewhere_nothing_moves(tmp_path):
+    """A step whose height is nearest floor 1: every live particle inside the stairs (which link
+    floor 1) lands there, inside the stairs; nobody outside them changes floor; without a
+    barometer (no ``height_floor``) or with the rule off, only the rate moves particles."""
+    import shapely
+
+    from mapfilter.filter.particles import Particles
+
+    building = _building(tmp_path)
+    rng = np.random.default_rng(5)
+    local = np.concatenate([rng.uniform(2.2, 4.8, (300, 2)), rng.uniform(8.0, 19.0, (300, 2))])
+    keep = building.floors[0].plan.is_free(local)
+    local = local[keep]
+    in_stairs = np.arange(len(local)) < np.count_nonzero(keep[:300])
+    stack = FloorStack(building)
+
+    def run(config: FloorChangeConfig, height_floor):
+        changes = FloorChanges(stack, config)
+        particles = Particles.at(stack.to_stack(local, 0))
+        particles.log_weight[-1] = -np.inf  # a dead particle stays where it is
+        measurement = FloorFix(np.full((3, 2), np.nan), np.array([-2.0, 0.0, -8.0]), height_floor)
+        changes.apply(particles, particles.log_weight.copy(), 0.6, rng, measurement)
+        return stack.to_floor(particles.xy_m)
+
+    after_local, after_floor = run(FloorChangeConfig(0.0, 0.0), 1)
+    assert (after_floor[in_stairs] == 1).all() and (after_floor[~in_stairs] == 0).all()
+    stairs_1 = shapely.Polygon(building.connectors[0].polygons["L1"]).buffer(0.3)
+    assert shapely.contains_xy(stairs_1, after_local[in_stairs, 0], after_local[in_stairs, 1]).all()
+    assert (run(FloorChangeConfig(0.0, 0.0), None)[1] == 0).all()
+    assert (run(FloorChangeConfig(0.0, 0.0, height_decides_in_connector=False), 1)[1] == 0).all()
+
+
+def test_a_pdr_step_that_starts_on_stairs_advances_a_tread_not_a_stride(tmp_path):
+    from mapfilter.filter.motion import PDRMotion, StepInput
+    from mapfilter.filter.particles import Particles
+
+    building = _building(tmp_path)
+    stack = FloorStack(building)
+    changes = FloorChanges(stack, FloorChangeConfig(0.0, 0.0))
+    lo, hi = changes.config.stairs_tread_m
+    rng = np.random.default_rng(6)
+    on = np.column_stack([rng.uniform(2.3, 3.0, 200), rng.uniform(2.3, 4.7, 200)])  # west end of the stairs
+    off = np.column_stack([rng.uniform(8.0, 12.0, 200), rng.uniform(2.3, 4.7, 200)])
+    start = stack.to_stack(np.concatenate([on, off]), 0)
+    end = start + [0.7, 0.0]  # a 0.7 m stride east
+    out = changes.stairs_steps(start, end, rng)
+    step_m = np.linalg.norm(out - start, axis=1)
+    assert ((step_m[:200] >= lo - 1e-9) & (step_m[:200] <= hi + 1e-9)).all()
+    assert np.allclose(out[:200, 1], start[:200, 1])  # along the step's own direction
+    np.testing.assert_array_equal(out[200:], end[200:])
+    # in the filter: PDR particles on the stairs keep to treads, the rest stride on
+    pf = ParticleFilter(stack.plan, PDRMotion(heading_sigma_rad=0.0, position_sigma_m=0.0),
+                        FilterConfig(n_particles=400, regularise=False), rng, floors=changes)
+    pf.particles = Particles.at(start)
+    pf.particles.heading_rad[:] = 0.0
+    pf.particles.step_length_m[:] = 0.7
+    pf.step(1.0, 0.6, StepInput(1, 0.0, None, None))
+    moved_m = np.linalg.norm(pf.particles.xy_m - start, axis=1)
+    assert (moved_m[:200] <= hi + 0.05).all() and (moved_m[200:] >= 0.6).all()
+
+
+def test_barometric_height_is_causal_and_follows_a_climb_without_lag():
+    from mapfilter.floortracking import barometric_height
+    from mapfilter.simulate.building import pressure_hpa
+
+    t = 1.6e9 + np.arange(0.0, 60.0, 0.5)
+    height = np.clip((t - t[0] - 20.0) * 0.3, 0.0, 6.0)  # 0.3 m/s up from 20 s to 40 s
+    noise = 0.03 * np.random.default_rng(0).standard_normal(t.size)
+    _, h = barometric_height(t, pressure_hpa(height) + noise)
+    # the value at a reading never depends on later readings
+    for i in (10, 50, 70):
+        _, h_cut = barometric_height(t[:i + 1], (pressure_hpa(height) + noise)[:i + 1])
+        assert h_cut[i] == pytest.approx(h[i], abs=1e-9)
+    # mid-climb it is on the true height (a trailing mean lags it by 0.3 m/s x 1 s = 0.3 m)
+    mid = (t - t[0] > 25.0) & (t - t[0] < 38.0)
+    assert abs(np.mean(h[mid] - height[mid])) < 0.1
+    assert np.sqrt(np.mean((h[mid] - height[mid]) ** 2)) < 0.35

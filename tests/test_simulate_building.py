@@ -104,19 +104,26 @@ def test_wifi_through_floors_is_path_loss_in_3d_minus_a_loss_per_floor(office3):
     assert np.isclose(rssi[0], same) and np.isclose(rssi[1], up - 2 * config.floor_loss_db)
 
 
-def test_the_filter_follows_stairs_and_a_lift_with_the_barometer(office3, walk, tmp_path):
+@pytest.fixture(scope="module")
+def radio_map(office3, tmp_path_factory):
+    """One coarse survey per floor, labelled with its floor."""
+    building, tables = office3
+    tmp_path = tmp_path_factory.mktemp("surveys")
+    surveys = []
+    for i, name in enumerate(("F0", "F1", "F2")):
+        survey = simulate_building_survey(building, tables, name, SURVEY, np.random.default_rng([9, i]))
+        write_ilc(survey, tmp_path / f"survey_{name}.txt")
+        surveys.append(read_ilc(tmp_path / f"survey_{name}.txt"))
+    return build_building_radio_map(surveys, [0, 1, 2], building.floor_names)
+
+
+def test_the_filter_follows_stairs_and_a_lift_with_the_barometer(office3, walk, radio_map, tmp_path):
     """A radio map from one survey per floor; the walk tracked without its floors: right most of
     the time, and each change found within a few seconds of the walker's half-way point."""
     from mapfilter.floortracking import track_building
     from mapfilter.tracking import TrackingConfig
 
     building, tables = office3
-    surveys = []
-    for i, name in enumerate(("F0", "F1", "F2")):
-        survey = simulate_building_survey(building, tables, name, SURVEY, np.random.default_rng([9, i]))
-        write_ilc(survey, tmp_path / f"survey_{name}.txt")
-        surveys.append(read_ilc(tmp_path / f"survey_{name}.txt"))
-    radio_map = build_building_radio_map(surveys, [0, 1, 2], building.floor_names)
     sim, happened = walk
     write_ilc(sim, tmp_path / "walk.txt")
     rec = read_ilc(tmp_path / "walk.txt")
@@ -124,3 +131,25 @@ def test_the_filter_follows_stairs_and_a_lift_with_the_barometer(office3, walk, 
     scores = floor_scores(result.track, rec.waypoint_t_s, rec.waypoint_floor, happened)
     assert scores["time_right"] >= 0.9
     assert all(d["delay_s"] is not None and d["delay_s"] <= 8.0 for d in scores["delays"]), scores
+
+
+def test_a_lift_ride_without_steps_is_followed_by_the_barometer_within_3_s(office3, radio_map, tmp_path):
+    """Two storeys up by lift (6 s of ride, no steps): the filter steps on the barometer alone at
+    least every ``idle_tick_s`` while the walker stands, finds the new floor within 3 s of the ride's
+    half-way point, and no barometer-only step collapses the cloud."""
+    from mapfilter.floortracking import track_building
+    from mapfilter.tracking import TrackingConfig
+
+    building, tables = office3
+    sim, happened = simulate_building_walk(building, tables, "F0", [FloorChange("lift", "F2")], FAST,
+                                           np.random.default_rng(11))
+    write_ilc(sim, tmp_path / "lift.txt")
+    rec = read_ilc(tmp_path / "lift.txt")
+    result = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000), np.random.default_rng(2))
+    t_enter, t_switch, t_leave = happened[0][:3]
+    ride = (result.track.t_s > t_enter + 1.0) & (result.track.t_s < t_leave)
+    assert np.diff(result.track.t_s[ride]).max() <= TrackingConfig().idle_tick_s + 1e-6
+    scores = floor_scores(result.track, rec.waypoint_t_s, rec.waypoint_floor, happened)
+    assert scores["delays"][0]["delay_s"] is not None and scores["delays"][0]["delay_s"] <= 3.0, scores
+    scan_t = np.unique(rec.wifi.t_s)
+    assert all(np.isclose(scan_t, c.t_s).any() for c in result.collapses)  # a collapse only ever at a scan

@@ -131,6 +131,18 @@ class FloorChangeConfig:
     # vote then keeps or kills it. 1 / 300 s puts about 0.3 % of the cloud on other floors
     # per second: enough to follow a real change within a few scans, too few to matter otherwise
     anywhere_rate_per_s: float = 1.0 / 300.0
+    # with a barometer, inside a connector the height decides the floor: a particle in a
+    # connector linking the floor the height is nearest (``FloorFix.height_floor``) is moved
+    # there at once. A climber's or rider's floor flips where their height passes half a storey;
+    # the memoryless rate above has only a few per cent of the cloud on the new floor then (the
+    # barometer kills those that jumped early), and the new floor won only after 1-3 s
+    height_decides_in_connector: bool = True
+    # on stairs a step advances one tread, not a stride: building codes ask 0.22-0.30 m of
+    # going (tread depth) and most stairs have 0.25-0.30 m; a particle starting a step on a
+    # stairs polygon moves this far instead (drawn per step), so the cloud stays on the stairs
+    # while the climber does and can take them when the height says so. PDR's 0.4-1.0 m stride
+    # walked it off a 6 m flight before the climber was half-way up
+    stairs_tread_m: tuple[float, float] = (0.22, 0.32)
 
 
 class FloorChanges:
@@ -139,9 +151,11 @@ class FloorChanges:
     With connectors: a live particle on a free pixel of a connector changes floor at
     ``connector_rate_per_s`` to another floor the connector links (chosen alike), landing at
     the same building-frame point when that is inside the connector there, else on a random
-    free pixel of the connector's polygon on that floor. Without connectors (ILC plans mark
-    none): anywhere at ``anywhere_rate_per_s``, to the same building-frame point of another
-    floor (chosen alike), dying (where it stood) where that point is no free space.
+    free pixel of the connector's polygon on that floor; with a barometer, every particle in a
+    connector to the floor the height is nearest goes there (``height_decides_in_connector``).
+    Without connectors (ILC plans mark none): anywhere at ``anywhere_rate_per_s``, to the same
+    building-frame point of another floor (chosen alike), dying (where it stood) where that
+    point is no free space.
     """
 
     def __init__(self, stack: FloorStack, config: FloorChangeConfig = FloorChangeConfig()) -> None:
@@ -165,16 +179,41 @@ class FloorChanges:
                 polygons[f] = polygon
             self.connector_cells.append(cells)
             self.connector_polygons.append(polygons)
+        self.on_stairs = np.zeros(plan.shape_px, dtype=bool)  # stack pixel -> inside a flight of stairs
+        for c, connector in enumerate(stack.building.connectors):
+            if connector.kind == "stairs":
+                self.on_stairs |= self.connector_id == c
         self.changed_last_step = 0  # particles that changed floor in the last ``apply``
 
     @property
     def has_connectors(self) -> bool:
         return bool(self.connector_cells)
 
+    def stairs_steps(self, from_xy_m: np.ndarray, to_xy_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """One PDR step's end points, with every step that starts on stairs shortened to a tread
+        (``stairs_tread_m``) along its own direction; the rest as given (a new array)."""
+        out = np.array(to_xy_m, dtype=np.float64, copy=True)
+        if not self.on_stairs.any():
+            return out
+        rows, cols, inside = self.stack.plan.pixel_index(from_xy_m)
+        stairs = np.zeros(len(out), dtype=bool)
+        stairs[inside] = self.on_stairs[rows[inside], cols[inside]]
+        idx = np.flatnonzero(stairs)
+        if idx.size == 0:
+            return out
+        move = out[idx] - from_xy_m[idx]
+        length = np.linalg.norm(move, axis=1)
+        tread = rng.uniform(*self.config.stairs_tread_m, idx.size)
+        scale = np.where(length > tread, tread / np.maximum(length, 1e-12), 1.0)
+        out[idx] = from_xy_m[idx] + scale[:, None] * move
+        return out
+
     def apply(self, particles: Particles, log_weight: np.ndarray, dt_s: float,
-              rng: np.random.Generator) -> np.ndarray:
+              rng: np.random.Generator, measurement: object = None) -> np.ndarray:
         """Change the floor of some live particles in place (``particles.xy_m``); returns the
-        log weights with particles that landed on no floor killed."""
+        log weights with particles that landed on no floor killed. ``measurement``: the step's
+        measurement; a ``FloorFix`` with a ``height_floor`` moves the connectors' particles there
+        (``height_decides_in_connector``)."""
         self.changed_last_step = 0
         particles.log_weight = log_weight  # the weights after the wall check, for the measurement
         stack = self.stack
@@ -186,26 +225,26 @@ class FloorChanges:
             rows, cols, inside = stack.plan.pixel_index(xy)
             conn = np.full(len(particles), -1, dtype=np.int32)
             conn[inside] = self.connector_id[rows[inside], cols[inside]]
+            in_connector = live & (conn >= 0)
             p = -math.expm1(-self.config.connector_rate_per_s * dt_s)
-            movers = np.flatnonzero(live & (conn >= 0) & (rng.random(len(particles)) < p))
+            movers = np.flatnonzero(in_connector & (rng.random(len(particles)) < p))
+            floor = stack.floor_of(xy[movers])
+            dest = np.empty(movers.size, dtype=np.int64)
+            for i, m in enumerate(movers):
+                choices = [f for f in self.connector_cells[conn[m]] if f != floor[i]]
+                dest[i] = choices[int(rng.integers(0, len(choices)))]
+            height_floor = measurement.height_floor if isinstance(measurement, FloorFix) else None
+            if self.config.height_decides_in_connector and height_floor is not None:
+                # the height's floor wins over the random choice, for every particle in a connector to it
+                leads = np.array([height_floor in cells for cells in self.connector_cells])
+                follow = np.flatnonzero(in_connector & leads[np.maximum(conn, 0)]
+                                        & (stack.floor_of(xy) != height_floor))
+                keep = ~np.isin(movers, follow)
+                movers = np.concatenate([movers[keep], follow])
+                dest = np.concatenate([dest[keep], np.full(follow.size, height_floor, dtype=np.int64)])
             if movers.size == 0:
                 return log_weight
-            local, floor = stack.to_floor(xy[movers])
-            building_xy = np.empty_like(local)
-            for f in np.unique(floor):
-                on = floor == f
-                building_xy[on] = stack.building.floors[f].to_building(local[on])
-            for i, m in enumerate(movers):
-                cells = self.connector_cells[conn[m]]
-                choices = [f for f in cells if f != floor[i]]
-                dest = choices[int(rng.integers(0, len(choices)))]
-                dest_floor = stack.building.floors[dest]
-                point = dest_floor.from_building(building_xy[i])
-                inside_polygon = shapely.contains_xy(self.connector_polygons[conn[m]][dest], point[0], point[1])
-                if inside_polygon and dest_floor.plan.is_free(point[None, :])[0]:
-                    xy[m] = stack.to_stack(point, dest)
-                else:
-                    xy[m] = cells[dest][int(rng.integers(0, cells[dest].shape[0]))]
+            self._land(xy, movers, conn[movers], dest, rng)
             self.changed_last_step = int(movers.size)
             return log_weight
         p = -math.expm1(-self.config.anywhere_rate_per_s * dt_s)
@@ -230,6 +269,26 @@ class FloorChanges:
         particles.log_weight = out
         return out
 
+    def _land(self, xy: np.ndarray, movers: np.ndarray, conn: np.ndarray, dest: np.ndarray,
+              rng: np.random.Generator) -> None:
+        """Move ``xy[movers]`` through connectors ``conn`` to floors ``dest``: the same building-frame
+        point when that is inside the connector there and free, else a random free pixel of it."""
+        stack = self.stack
+        local, floor = stack.to_floor(xy[movers])
+        building_xy = np.empty_like(local)
+        for f in np.unique(floor):
+            on = floor == f
+            building_xy[on] = stack.building.floors[f].to_building(local[on])
+        for i, m in enumerate(movers):
+            cells = self.connector_cells[conn[i]]
+            dest_floor = stack.building.floors[dest[i]]
+            point = dest_floor.from_building(building_xy[i])
+            inside_polygon = shapely.contains_xy(self.connector_polygons[conn[i]][dest[i]], point[0], point[1])
+            if inside_polygon and dest_floor.plan.is_free(point[None, :])[0]:
+                xy[m] = stack.to_stack(point, dest[i])
+            else:
+                xy[m] = cells[dest[i]][int(rng.integers(0, cells[dest[i]].shape[0]))]
+
 
 @dataclasses.dataclass(frozen=True)
 class FloorFix:
@@ -238,6 +297,7 @@ class FloorFix:
 
     xy_m: np.ndarray  # (F, 2) stack positions
     floor_log_likelihood: np.ndarray  # (F,)
+    height_floor: int | None = None  # the floor the barometer's height is nearest (None: no barometer)
 
     @property
     def evidence_only(self) -> bool:
@@ -271,10 +331,10 @@ class FloorFixLikelihood:
     # floor, no particle is where the walker can be: every value is -inf, and the filter
     # collapses and re-draws its particles from this measurement over every floor. The WiFi
     # vote alone never gets there (its pseudo-count keeps floors within log(k + 1) = 1.6 nats
-    # for k = 4); a barometer 2.6 m or more past the storey half-way (-(4 m - h)^2 / 2 against
-    # -h^2 / 2 at 1 m sigma) or a given floor does: PDR walks particles off the stairs faster
-    # than a climber goes (a stair is about 0.25 m deep), so on stairs this is often how the
-    # filter follows the barometer.
+    # for k = 4); a barometer 2.6 m up a 4 m storey, 0.6 m past its half-way (-(4 m - h)^2 / 2
+    # against -h^2 / 2 at 1 m sigma), or a given floor does. With connectors the height moves
+    # their particles first (``FloorChangeConfig.height_decides_in_connector``), so this is
+    # for a cloud that is nowhere near one.
     floor_collapse_nats: float = 2.5
 
     def log_likelihood(self, particles: Particles, measurement: FloorFix) -> np.ndarray:

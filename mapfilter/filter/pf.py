@@ -256,6 +256,9 @@ class ParticleFilter:
 
         # 1. propagate, 2. wall kill (Evennou & Marx: P_m = 0 -> weight 0)
         moved = self.motion.propagate(prev, motion_input, dt_s, self.rng)
+        if self.floors is not None and isinstance(self.motion, PDRMotion) and motion_input is not None:
+            # a step on stairs advances a tread, not a stride
+            moved.xy_m = self.floors.stairs_steps(prev.xy_m, moved.xy_m, self.rng)
         crossed = crosses_wall(self.floorplan, prev.xy_m, moved.xy_m)
         killed = crossed & alive_before
         log_w = prev.log_weight.copy()
@@ -268,7 +271,7 @@ class ParticleFilter:
             log_w[killed] = -np.inf
         if self.floors is not None:
             # floor changes after the wall check: the jump between floors is not a wall crossing
-            log_w = self.floors.apply(moved, log_w, dt_s, self.rng)
+            log_w = self.floors.apply(moved, log_w, dt_s, self.rng, measurement)
         killed_idx = np.flatnonzero(killed)
         cause = None if np.isfinite(log_w).any() else "all_killed_by_walls"
 
