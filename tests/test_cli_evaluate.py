@@ -108,3 +108,5 @@ def test_whole_walk_track_on_real_walks_beats_kwnn_and_crosses_no_wall(ilc_site1
     assert rows["pf-smooth"]["p75"] < 0.85 * rows["kwnn"]["p75"]
     walks = evaluation.walk_rows()
     assert len(walks) == 12 and all(w["coverage_m"] >= 0 and w["fix_error_m"] > 0 for w in walks)
+    # dB per AP to the nearest reference point: phones and days differ by several dB, never by 40
+    assert all(1.0 < w["signal_distance_db"] < 40.0 for w in walks)

@@ -29,8 +29,8 @@ from mapfilter.sensors.radiomap import STRONG_MIN_RSSI_DBM, STRONG_MISSING_DBM, 
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import iter_scans
 
-DIAGNOSTIC_COLUMNS = ("coverage_m", "signal_distance_db", "fix_error_m", "fix_bias_m", "fix_scatter_m", "heading_offset_error_deg",
-                      "step_scale")
+DIAGNOSTIC_COLUMNS = ("coverage_m", "signal_distance_db", "fix_error_m", "fix_bias_m", "fix_scatter_m",
+                      "heading_offset_error_deg", "step_scale")
 MIN_LEG_M = 3.0  # waypoint legs shorter than this say little about the heading
 
 
