@@ -24,6 +24,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.filter.adaptive_pathloss import AdaptationConfig, AdaptiveTrilaterationLikelihood, BlockingConfig
 from mapfilter.filter.estimate import circular_mean
 from mapfilter.filter.events import CollapseEvent, StepReport
+from mapfilter.filter.map_matching import map_match
 from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix, TrilaterationLikelihood
 from mapfilter.filter.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.pf import FilterConfig, ParticleFilter
@@ -341,7 +342,7 @@ def track_recording(
     if whole_walk:
         evidence_t, evidence_xy = placement_evidence(wifi, np.array(out_t), np.array(out_xy))
         placement = place_walk(steps, evidence_t, evidence_xy)
-        smoothed = whole_walk_track(plan, placement)
+        smoothed = whole_walk_track(plan, placement, np.array([scan.t_s for scan in wifi.scans]))
     if config.smooth and smoothed is None:
         t_s, xy_m = detour_wall_crossings(plan, *pf.smoothed_track())
         smoothed = Track(t_s, xy_m, name="pf-smooth")
@@ -369,19 +370,22 @@ def placement_evidence(wifi: WifiMeasurements, causal_t_s: np.ndarray, causal_xy
     return np.concatenate(parts_t), np.concatenate(parts_xy)
 
 
-def whole_walk_track(floorplan: FloorPlan, placement: WalkPlacement) -> Track:
-    """The offline track: the walk's placed dead-reckoned shape, kept to the free space.
+def whole_walk_track(floorplan: FloorPlan, placement: WalkPlacement, scan_t_s: np.ndarray) -> Track:
+    """The offline track: the walk's placed dead-reckoned shape, map-matched and wall-free.
 
     ``placement`` (``filter.placement.place_walk``) puts the shape where every estimate of the
     walk says, robustly; within half a typical fix error of there, the shape moves to where
-    most of it lies in free space (``filter.placement.shift_onto_free_space``); it can still
-    run through walls where the shape has drifted. Points in walls move to the nearest free pixel and moves that still
-    cross a wall walk round it by the shortest free path (``maps.paths.wall_free_track``).
+    most of it lies in free space (``filter.placement.shift_onto_free_space``). A forward-backward
+    pass over the plan's free cells (``filter.map_matching.map_match``), observing the placed
+    shape at the scan times ``scan_t_s``, then lets the walk bend where the walls say it must
+    (the rigid shape drifts). Points still in walls move to the nearest free pixel and moves
+    that still cross a wall walk round it by the shortest free path (``maps.paths.wall_free_track``).
     (A second particle filter following the placed shape did the same job with more error:
     ILC F2 18.9 m mean / 31.7 m p75 against 18.5 / 29.0, and cost a filter run.)
     """
     placement = shift_onto_free_space(floorplan, placement)
-    t_s, xy_m = wall_free_track(floorplan, placement.t_s, placement.xy_m)
+    matched = map_match(floorplan, placement.t_s, placement.xy_m, scan_t_s)
+    t_s, xy_m = wall_free_track(floorplan, matched.t_s, matched.xy_m)
     return Track(t_s, xy_m, name="pf-smooth")
 
 

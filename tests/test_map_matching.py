@@ -1,0 +1,141 @@
+"""Map matching of a placed walk: forward-backward over the free cells of the plan."""
+
+import numpy as np
+import pytest
+
+from mapfilter.filter.map_matching import MapMatchConfig, map_match
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import crosses_wall
+
+
+def block_plan(free_cells: np.ndarray, cell_px: int = 4, resolution_m: float = 0.25) -> FloorPlan:
+    """A plan whose walls fill whole 1 m cells: ``free_cells[row, col]`` with row 0 at y = 0."""
+    wall = ~np.kron(free_cells, np.ones((cell_px, cell_px), dtype=bool))
+    return FloorPlan(wall[::-1].copy(), resolution_m, (0.0, 0.0))  # mask row 0 is the top
+
+
+def brute_force_means(free: np.ndarray, moves_x: list[int], step_var_cells2: float,
+                      anchors: dict[int, tuple[float, float]], sigma_m: float) -> np.ndarray:
+    """Posterior means by explicit transition matrices (an independent forward-backward)."""
+    ny, nx = free.shape
+    n = nx * ny
+    m = np.diag(free.ravel().astype(float))
+    shift_x = np.zeros((n, n))  # mass at (r, c) -> (r, c + 1)
+    for r in range(ny):
+        for c in range(nx - 1):
+            shift_x[r * nx + c + 1, r * nx + c] = 1.0
+    w = step_var_cells2 / 2.0
+    tri_x, tri_y = (np.diag(np.full(k, 1 - 2 * w)) + np.diag(np.full(k - 1, w), 1) + np.diag(np.full(k - 1, w), -1)
+                    for k in (nx, ny))
+    blur = np.kron(tri_y, np.eye(nx)) @ np.kron(np.eye(ny), tri_x)
+    xs, ys = np.meshgrid(np.arange(nx) + 0.5, np.arange(ny) + 0.5)
+    X, Y = xs.ravel(), ys.ravel()
+
+    def like(k):
+        if k not in anchors:
+            return np.ones(n)
+        ax, ay = anchors[k]
+        return np.exp(-0.5 * ((X - ax) ** 2 + (Y - ay) ** 2) / sigma_m ** 2)
+
+    transitions = []
+    for dx in moves_x:
+        t = np.eye(n)
+        for _ in range(dx):
+            t = m @ shift_x @ t
+        transitions.append(m @ blur @ t)
+    alpha = [free.ravel() * like(0)]
+    alpha[0] = alpha[0] / alpha[0].sum()
+    for k, t in enumerate(transitions, start=1):
+        a = like(k) * (t @ alpha[-1])
+        alpha.append(a / a.sum())
+    beta = free.ravel().astype(float)
+    means = np.zeros((len(alpha), 2))
+    for k in range(len(alpha) - 1, -1, -1):
+        p = alpha[k] * beta
+        p = p / p.sum()
+        means[k] = [(p * X).sum(), (p * Y).sum()]
+        if k:
+            beta = transitions[k - 1].T @ (like(k) * beta)
+            beta = beta / beta.max()
+    return means
+
+
+def test_forward_backward_equals_explicit_transition_matrices():
+    free = np.ones((5, 9), dtype=bool)
+    free[2, 3:7] = False  # a wall bar in the middle: the cloud must go round it
+    free[0, 0] = False
+    plan = block_plan(free)
+    moves_x = [1, 1, 2, 1, 0, 1]
+    xy = np.column_stack([0.5 + np.concatenate([[0], np.cumsum(moves_x)]), np.full(7, 2.5)])
+    t = np.arange(7.0)
+    anchors_t = np.array([0.0, 2.0, 3.0, 6.0])
+    config = MapMatchConfig(cell_m=1.0, step_sigma_m=0.5, anchor_sigma_m=1.5, window_margin_m=50.0)
+    got = map_match(plan, t, xy, anchors_t, config)
+    expected = brute_force_means(free, moves_x, 0.25, {int(k): tuple(xy[int(k)]) for k in anchors_t}, 1.5)
+    assert got.restarts == 0
+    np.testing.assert_allclose(got.xy_m, expected, atol=1e-9)
+
+
+def test_checkpointed_backward_pass_equals_keeping_every_message():
+    rng = np.random.default_rng(3)
+    free = rng.random((20, 30)) > 0.15
+    plan = block_plan(free)
+    xy = np.column_stack([5 + np.cumsum(rng.normal(0.3, 0.4, 90)), 10 + np.cumsum(rng.normal(0, 0.4, 90))])
+    t = np.arange(90.0)
+    results = [map_match(plan, t, xy, t[::4], MapMatchConfig(cell_m=1.0, checkpoint_every=every)).xy_m
+               for every in (1, 7, 32, 200)]
+    for other in results[1:]:
+        np.testing.assert_allclose(other, results[0], rtol=0, atol=1e-9)
+
+
+def test_a_walk_placed_beside_its_corridor_is_pulled_into_it():
+    wall = np.ones((200, 600), dtype=bool)  # 60 x 20 m at 0.1 m/px
+    wall[100:125, :] = False  # a corridor, y in [7.5, 10] m
+    wall[20:200, 280:305] = False  # and a side corridor north-south, x in [28, 30.5] m, y <= 18 m
+    plan = FloorPlan(wall, 0.1, (0.0, 0.0))
+    # the truth: east along y = 8.75, then north up the side corridor
+    truth = np.vstack([np.column_stack([np.arange(5.0, 29.5, 0.7), np.full(35, 8.75)]),
+                       np.column_stack([np.full(12, 29.25), 8.75 + 0.7 * np.arange(1, 13)])])
+    placed = truth + [2.0, 2.5]  # the placement's bias: 3.2 m, most of it into the wall
+    t = np.arange(len(truth), dtype=float)
+    matched = map_match(plan, t, placed, t[::3])
+    before = np.linalg.norm(placed - truth, axis=1).mean()
+    after = np.linalg.norm(matched.xy_m - truth, axis=1).mean()
+    assert after < 0.5 * before
+    assert plan.is_free(matched.xy_m).mean() > 0.9 > plan.is_free(placed).mean()
+
+
+def test_in_open_space_the_walk_keeps_its_shape():
+    plan = FloorPlan(np.zeros((400, 400), dtype=bool), 0.25, (0.0, 0.0))  # 100 x 100 m, no wall
+    k = np.arange(120)
+    xy = np.column_stack([30 + 8 * np.cos(k / 20), 50 + 8 * np.sin(k / 20)]) + [0.0, 0.0]
+    matched = map_match(plan, k * 0.5, xy, k[::5] * 0.5)
+    assert np.abs(matched.xy_m - xy).max() < 0.35  # within the grid's own rounding of the moves
+    assert matched.restarts == 0
+
+
+def test_whole_walk_track_after_matching_crosses_no_wall():
+    from mapfilter.filter.placement import WalkPlacement
+    from mapfilter.tracking import whole_walk_track
+
+    wall = np.ones((200, 400), dtype=bool)
+    wall[40:80, :] = False   # corridor y in [12, 16] m
+    wall[120:160, :] = False  # corridor y in [4, 8] m, a wall between them
+    plan = FloorPlan(wall, 0.1, (0.0, 0.0))
+    xy = np.column_stack([np.linspace(3, 37, 50), np.full(50, 10.0)])  # placed on the wall between
+    placement = WalkPlacement(np.arange(50.0), xy, 0.0, xy[0], 4.0, 20)
+    track = whole_walk_track(plan, placement, np.arange(0.0, 50.0, 3.0))
+    assert plan.is_free(track.xy_m).all()
+    assert not crosses_wall(plan, track.xy_m[:-1], track.xy_m[1:]).any()
+
+
+def test_bad_input_is_refused():
+    plan = FloorPlan(np.zeros((40, 40), dtype=bool), 0.25, (0.0, 0.0))
+    with pytest.raises(ValueError, match="one per time"):
+        map_match(plan, np.arange(3.0), np.zeros((4, 2)), np.arange(3.0))
+    with pytest.raises(ValueError, match="one per time"):
+        map_match(plan, np.arange(2.0), np.array([[1.0, 1.0], [np.nan, 2.0]]), np.arange(2.0))
+    with pytest.raises(ValueError, match="anchor_sigma_m"):
+        MapMatchConfig(anchor_sigma_m=0.0)
+    with pytest.raises(ValueError, match="checkpoint_every"):
+        MapMatchConfig(checkpoint_every=0)
