@@ -298,11 +298,12 @@ def test_evaluate_in_a_building_reports_floor_accuracy_per_method(site1_building
     wifi_only = sorted((ilc_site1 / "B1" / "path_data_files").glob("*.txt.gz"))[:2]
     out = tmp_path / "ev"
     assert main(["evaluate", str(site1_building), *map(str, f1 + wifi_only), "--leave-one-out",
-                 "--particles", "500", "--out", str(out)]) == 0
+                 "--particles", "500", "--smooth", "--out", str(out)]) == 0
     table = capsys.readouterr().out
     assert "floor_accuracy" in table
     summary = {row["method"]: row for row in json.loads((out / "summary.json").read_text())["summary"]}
-    assert set(summary) == {"pf", "pf-floor", "kwnn"}
+    assert set(summary) == {"pf", "pf-floor", "kwnn", "pf-smooth"}
+    assert summary["pf-smooth"]["traces"] == 2 and (out / "tracks" / f1[0].name.split(".")[0] / "pf-smooth.csv").exists()
     assert summary["pf-floor"]["floor_accuracy"] == 1.0  # the floor given
     assert all(0.0 <= row["floor_accuracy"] <= 1.0 for row in summary.values())
     assert summary["pf"]["traces"] == 2 and summary["kwnn"]["traces"] == 4  # no PDR on WiFi-only walks
