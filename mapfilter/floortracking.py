@@ -6,7 +6,8 @@ same seed); with several floors and the floor not given, the filter runs on the 
 stack plan (``filter.floors.FloorStack``): particles carry their floor, change floor only in
 connectors (or anywhere at a small rate without any), and every scan weighs floors by the WiFi
 floor vote and positions by the fix made from each floor's own fingerprints. Tracks come back
-in each floor's own frame with the floor's name per row.
+in each floor's own frame with the floor's name per row; the offline track's floor
+(``config.smooth``) is decided from the whole walk (``whole_walk_floors``).
 """
 
 from __future__ import annotations
@@ -300,8 +301,8 @@ def whole_walk_floors(changes: FloorChanges, wifi: BuildingWifi, t_s: np.ndarray
     inside it on the floor left (at ``connector_rate_per_s``), without any anywhere (at
     ``anywhere_rate_per_s``); unlike the filter's particles, one storey at a time (to the next
     floor up or down, ``_next_floors``), as the walker's height passes every floor between. With
-    a barometer, the height (centred, the whole walk at hand)
-    weighs every row against the floors' elevations with one unknown offset for the walk.
+    a barometer, the height (centred, the whole walk at hand) weighs every row against the
+    floors' elevations with one unknown offset for the walk.
     """
     stack, config = changes.stack, changes.config
     times = np.asarray(t_s, dtype=np.float64)
