@@ -6,7 +6,8 @@ same seed); with several floors and the floor not given, the filter runs on the 
 stack plan (``filter.floors.FloorStack``): particles carry their floor, change floor only in
 connectors (or anywhere at a small rate without any), and every scan weighs floors by the WiFi
 floor vote and positions by the fix made from each floor's own fingerprints. Tracks come back
-in each floor's own frame with the floor's name per row.
+in each floor's own frame with the floor's name per row; the offline track's floor
+(``config.smooth``) is decided from the whole walk (``whole_walk_floors``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.floors import FloorChangeConfig, FloorChanges, FloorFix, FloorFixLikelihood, FloorStack
 from mapfilter.maps.building import Building
-from mapfilter.sensors.floors import floor_vote_log_likelihood
+from mapfilter.sensors.floors import floor_vote_log_likelihood, whole_walk_floor_path
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import WifiScan, scans_of
@@ -136,7 +137,8 @@ class BuildingWifi:
             self.floor_log_likelihood = floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans),
                                                                   k=config.kwnn_k)
         self.elevation_m = np.array([f.elevation_m for f in stack.building.floors])
-        self.baro = None if pressure is None or len(pressure[0]) < 2 else barometric_height(*pressure)
+        self.pressure = pressure if pressure is not None and len(pressure[0]) >= 2 else None
+        self.baro = None if self.pressure is None else barometric_height(*self.pressure)
         self.reference = BarometerReference(self.elevation_m)
         self.usable = np.isfinite(self.fix_xy_m).all(axis=2).any(axis=1)
         if not self.usable.any():
@@ -184,12 +186,16 @@ class BuildingWifi:
         return FloorFix(self.fix_xy_m[index], floor_ll, height_floor)
 
 
-def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float = 2.0,
+                      centred: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(times, heights in metres relative to the first sample) from barometer readings: the
     international barometric formula h = 44330.8 (1 - (p / p_first)^(1 / 5.25588)) of the
     pressure smoothed causally, from the readings of the last ``window_s`` only (a phone
     barometer's noise is about 0.25 m per sample): the end of a straight line fitted to them,
-    which, unlike their mean, does not lag a climb or a ride by half the window."""
+    which, unlike their mean, does not lag a climb or a ride by half the window.
+
+    ``centred`` (offline, the whole walk at hand): the same line read at its middle, i.e. the
+    window's mean at the window's mean time, with half the noise of its end."""
     t = np.asarray(t_s, dtype=np.float64)
     p_hpa = np.asarray(pressure_hpa, dtype=np.float64)
     p = p_hpa - p_hpa[0]  # small numbers keep the windowed sums exact over long logs
@@ -207,7 +213,10 @@ def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float
     var_t = window_sum(tr * tr) / n - mean_t ** 2
     cov = window_sum(tr * p) / n - mean_t * mean_p
     slope = np.where(var_t > 1e-9, cov / np.maximum(var_t, 1e-9), 0.0)
-    smooth = p_hpa[0] + mean_p + slope * (tr - mean_t)
+    if centred:
+        t, smooth = t[0] + mean_t, p_hpa[0] + mean_p
+    else:
+        smooth = p_hpa[0] + mean_p + slope * (tr - mean_t)
     return t, 44330.8 * (1.0 - (smooth / smooth[0]) ** (1.0 / 5.25588))
 
 
@@ -277,8 +286,86 @@ def track_building(
                              floors=changes)
     result.track = _to_floors(stack, result.track)
     if result.smoothed is not None:
-        result.smoothed = _to_floors(stack, result.smoothed)
+        floor = whole_walk_floors(changes, wifi, result.smoothed.t_s, result.smoothed.xy_m)
+        result.smoothed = _on_floors(stack, result.smoothed, floor)
     return result
+
+
+def whole_walk_floors(changes: FloorChanges, wifi: BuildingWifi, t_s: np.ndarray, stack_xy_m: np.ndarray) -> np.ndarray:
+    """(T,) the floor of every row of an offline track (stack frame), decided from the whole walk.
+
+    The filter's own model, smoothed instead of filtered (``sensors.floors.whole_walk_floor_path``,
+    Viterbi): each usable scan weighs floors by the filter's floor evidence (the WiFi vote);
+    the walker changes floor at the filter's rates (``FloorChangeConfig``): with connectors only
+    between floors a connector links and only at rows where the track's building-frame point is
+    inside it on the floor left (at ``connector_rate_per_s``), without any anywhere (at
+    ``anywhere_rate_per_s``); unlike the filter's particles, one storey at a time (to the next
+    floor up or down, ``_next_floors``), as the walker's height passes every floor between. With
+    a barometer, the height (centred, the whole walk at hand) weighs every row against the
+    floors' elevations with one unknown offset for the walk.
+    """
+    stack, config = changes.stack, changes.config
+    times = np.asarray(t_s, dtype=np.float64)
+    n_rows, n_floors = times.size, stack.n_floors
+    evidence = np.zeros((n_rows, n_floors))
+    scan_t = np.array([s.t_s for s in wifi.scans])
+    # a scan weighs the last row at or before it (the row of the filter step it made); the scan
+    # the filter started from comes before the lineage's first row: it weighs that row
+    row = np.maximum(np.searchsorted(times, scan_t, side="right") - 1, 0)
+    for i in np.flatnonzero(wifi.usable):
+        evidence[row[i]] += wifi.floor_log_likelihood[i]
+    rates = np.zeros((max(n_rows - 1, 0), n_floors, n_floors))
+    if changes.has_connectors:
+        building_xy = stack.to_building(stack_xy_m)
+        for f, floor in enumerate(stack.building.floors):
+            local = floor.from_building(building_xy)
+            _, _, inside = floor.plan.pixel_index(local)
+            rows_px, cols_px, inside_stack = stack.plan.pixel_index(stack.to_stack(local, f))
+            conn = np.full(n_rows, -1, dtype=np.int64)
+            ok = inside & inside_stack
+            conn[ok] = changes.connector_id[rows_px[ok], cols_px[ok]]
+            # the filter moves a particle after its step's move: the position at the row reached
+            for k in np.flatnonzero(conn[1:] >= 0):
+                linked = list(changes.connector_cells[conn[k + 1]])
+                if f in linked:
+                    nearest = _next_floors(f, linked, wifi.elevation_m)
+                    rates[k, f, nearest] += config.connector_rate_per_s / len(nearest)
+    else:
+        for f in range(n_floors):
+            nearest = _next_floors(f, list(range(n_floors)), wifi.elevation_m)
+            rates[:, f, nearest] = config.anywhere_rate_per_s / len(nearest)
+    height = elevation = None
+    if wifi.pressure is not None:
+        baro_t, baro_h = barometric_height(*wifi.pressure, centred=True)
+        height = np.interp(times, baro_t, baro_h)
+        elevation = wifi.elevation_m
+    return whole_walk_floor_path(times, evidence, rates, height, elevation, BARO_SIGMA_M).path
+
+
+def _next_floors(floor: int, linked: list[int], elevation_m: np.ndarray) -> list[int]:
+    """The floors of ``linked`` next above and next below ``floor`` by elevation: a walker's height
+    passes every floor in between (a lift ride two storeys up passes the middle floor's height
+    half-way), so over a walk's rows a floor change goes one storey at a time."""
+    above = [g for g in linked if elevation_m[g] > elevation_m[floor]]
+    below = [g for g in linked if elevation_m[g] < elevation_m[floor]]
+    out = []
+    if above:
+        out.append(min(above, key=lambda g: elevation_m[g]))
+    if below:
+        out.append(max(below, key=lambda g: elevation_m[g]))
+    # floors at one elevation (a building file without elevations): any of them
+    return out or [g for g in linked if g != floor]
+
+
+def _on_floors(stack: FloorStack, track: Track, floor: np.ndarray) -> Track:
+    """A stack-frame track -> row k on floor ``floor[k]``, at the same building-frame point."""
+    building_xy = stack.to_building(track.xy_m)
+    xy = np.empty_like(building_xy)
+    for f in np.unique(floor):
+        on = floor == f
+        xy[on] = stack.building.floors[f].from_building(building_xy[on])
+    names = stack.building.floor_names
+    return dataclasses.replace(track, xy_m=xy, floor=[names[f] for f in floor])
 
 
 def _to_floors(stack: FloorStack, track: Track) -> Track:

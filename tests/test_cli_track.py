@@ -157,6 +157,23 @@ def test_whole_walk_track_beats_the_causal_one_and_crosses_no_wall():
     assert np.all(np.diff(result.smoothed.t_s) >= 0)
 
 
+def test_a_one_floor_building_smooths_as_one_map_did():
+    """The whole-walk floor is for several floors: a single map through track_building gives the
+    same causal and offline tracks as track_recording (the whole-walk placement, one floor name)."""
+    from mapfilter.floortracking import track_building
+    from mapfilter.maps.building import Building
+    from mapfilter.sensors.radiomap import RadioMap
+    from mapfilter.tracking import TrackingConfig, track_recording
+
+    recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
+    config = TrackingConfig(n_particles=500, smooth=True)
+    plain = track_recording(floorplan, recording, radio_map, config=config, rng=np.random.default_rng(3))
+    built = track_building(Building.load(OFFICE), recording, radio_map, config, np.random.default_rng(3))
+    np.testing.assert_array_equal(plain.track.xy_m, built.track.xy_m)
+    np.testing.assert_array_equal(plain.smoothed.xy_m, built.smoothed.xy_m)
+    assert len(set(built.smoothed.floor)) == 1 and len(built.smoothed.floor) == len(built.smoothed)
+
+
 def test_kwnn_min_rssi_option_reaches_the_filter(tmp_path, capsys):
     from mapfilter.sensors.radiomap import RadioMap
     from mapfilter.tracking import TrackingConfig, track_recording

@@ -298,11 +298,12 @@ def test_evaluate_in_a_building_reports_floor_accuracy_per_method(site1_building
     wifi_only = sorted((ilc_site1 / "B1" / "path_data_files").glob("*.txt.gz"))[:2]
     out = tmp_path / "ev"
     assert main(["evaluate", str(site1_building), *map(str, f1 + wifi_only), "--leave-one-out",
-                 "--particles", "500", "--out", str(out)]) == 0
+                 "--particles", "500", "--smooth", "--out", str(out)]) == 0
     table = capsys.readouterr().out
     assert "floor_accuracy" in table
     summary = {row["method"]: row for row in json.loads((out / "summary.json").read_text())["summary"]}
-    assert set(summary) == {"pf", "pf-floor", "kwnn"}
+    assert set(summary) == {"pf", "pf-floor", "kwnn", "pf-smooth"}
+    assert summary["pf-smooth"]["traces"] == 2 and (out / "tracks" / f1[0].name.split(".")[0] / "pf-smooth.csv").exists()
     assert summary["pf-floor"]["floor_accuracy"] == 1.0  # the floor given
     assert all(0.0 <= row["floor_accuracy"] <= 1.0 for row in summary.values())
     assert summary["pf"]["traces"] == 2 and summary["kwnn"]["traces"] == 4  # no PDR on WiFi-only walks
@@ -528,3 +529,109 @@ def test_barometric_height_is_causal_and_follows_a_climb_without_lag():
     mid = (t - t[0] > 25.0) & (t - t[0] < 38.0)
     assert abs(np.mean(h[mid] - height[mid])) < 0.1
     assert np.sqrt(np.mean((h[mid] - height[mid]) ** 2)) < 0.35
+
+
+def _rates(n_rows: int, n_floors: int, rate_per_s: float) -> np.ndarray:
+    rates = np.full((n_rows - 1, n_floors, n_floors), rate_per_s / (n_floors - 1))
+    return rates
+
+
+def test_whole_walk_floor_outvotes_a_wrong_start_that_the_causal_filter_follows():
+    """Five floors; the first five scans (2 s apart) vote two storeys down unanimously (as ILC F2 walk
+    ...17717 votes B1), the rest the walk's own floor: the whole-walk floor is right everywhere (one
+    storey at a time, that start would take two changes); the causal (forward) floor is not."""
+    from mapfilter.sensors.floors import whole_walk_floor_path
+
+    n, truth, wrong = 150, 2, 0
+    ll = np.full((n, 5), math.log(1.0 / 9.0))  # k = 4, one pseudo-vote per floor
+    ll[:, truth] = math.log(5.0 / 9.0)
+    ll[:5, truth] = math.log(1.0 / 9.0)
+    ll[:5, wrong] = math.log(5.0 / 9.0)
+    t = np.arange(n) * 2.0
+    rate = FloorChangeConfig().anywhere_rate_per_s
+    rates = np.zeros((n - 1, 5, 5))
+    for f in range(5):  # one storey at a time, as floortracking.whole_walk_floors
+        nearest = [g for g in (f - 1, f + 1) if 0 <= g < 5]
+        rates[:, f, nearest] = rate / len(nearest)
+    whole = whole_walk_floor_path(t, ll, rates)
+    assert np.all(whole.path == truth) and math.isnan(whole.height_offset_m)
+    assert floor_hmm(ll, t, change_rate_per_s=rate).causal_floor()[4] == wrong  # causally the start is wrong
+    # ... and the evidence still decides: a long enough wrong start (here 30 scans) is followed
+    ll[:30, truth], ll[:30, wrong] = math.log(1.0 / 9.0), math.log(5.0 / 9.0)
+    path = whole_walk_floor_path(t, ll, rates).path
+    assert np.all(path[:25] == wrong) and np.all(path[35:] == truth)
+
+
+def test_whole_walk_floor_changes_only_where_a_change_is_possible():
+    """Evidence says floor 0 then floor 2 with the switch at row 40; a change is possible only at
+    rows 50-55 (a connector): the path changes there, once, and nowhere else."""
+    from mapfilter.sensors.floors import whole_walk_floor_path
+
+    n = 100
+    ll = np.full((n, 3), math.log(1 / 7))
+    ll[:40, 0] = ll[40:, 2] = math.log(5 / 7)
+    rates = np.zeros((n - 1, 3, 3))
+    rates[50:55] = 0.05  # between rows 50 and 55 only
+    path = whole_walk_floor_path(np.arange(n) * 1.0, ll, rates).path
+    changes = np.flatnonzero(np.diff(path)) + 1
+    assert path[0] == 0 and path[-1] == 2 and changes.size == 1 and 51 <= changes[0] <= 55
+    # with no change possible at all, the walk keeps the floor of most of its evidence
+    assert np.all(whole_walk_floor_path(np.arange(n) * 1.0, ll, np.zeros((n - 1, 3, 3))).path == 2)
+
+
+def test_whole_walk_floor_follows_the_barometer_with_an_unknown_zero():
+    """Uninformative WiFi, a barometer whose zero is 37 m off: a climb from floor 0 to floor 2 (4 m
+    storeys) at 0.5 m/s flips the floor where the height passes each half-way (+-1 row), and the
+    offset found puts the heights on the elevations."""
+    from mapfilter.sensors.floors import whole_walk_floor_path
+
+    t = np.arange(0.0, 120.0, 0.5)
+    elevation = np.clip((t - 40.0) * 0.5, 0.0, 8.0)
+    height = elevation - 37.0 + 0.1 * np.random.default_rng(0).standard_normal(t.size)
+    n = t.size
+    whole = whole_walk_floor_path(t, np.zeros((n, 3)), _rates(n, 3, 0.1), height, np.array([0.0, 4.0, 8.0]))
+    expected = np.floor((elevation + 2.0) / 4.0).astype(int)  # the nearest floor
+    assert np.count_nonzero(whole.path != expected) <= 2, np.flatnonzero(whole.path != expected)
+    assert whole.height_offset_m == pytest.approx(37.0, abs=0.3)
+
+
+def test_whole_walk_floor_of_a_one_floor_walk_is_that_floor():
+    from mapfilter.sensors.floors import whole_walk_floor_path
+
+    path = whole_walk_floor_path(np.arange(10.0), np.zeros((10, 1)), np.zeros((9, 1, 1))).path
+    assert np.array_equal(path, np.zeros(10, dtype=np.int64))
+
+
+def test_centred_barometric_height_has_no_lag_and_less_noise_than_the_causal_one():
+    from mapfilter.floortracking import barometric_height
+    from mapfilter.simulate.building import pressure_hpa
+
+    t = 1.6e9 + np.arange(0.0, 60.0, 0.5)
+    height = np.clip((t - t[0] - 20.0) * 0.3, 0.0, 6.0)
+    noise = 0.03 * np.random.default_rng(0).standard_normal(t.size)
+    tc, hc = barometric_height(t, pressure_hpa(height) + noise, centred=True)
+    _, h = barometric_height(t, pressure_hpa(height) + noise)
+    truth_c = np.clip((tc - t[0] - 20.0) * 0.3, 0.0, 6.0)
+    flat = (t - t[0] > 3.0) & (t - t[0] < 19.0)
+    # the spread (the zero is the first reading's, alike in both): about half, as a line's middle against its end
+    assert np.std(hc[flat] - truth_c[flat]) < 0.7 * np.std(h[flat] - height[flat])
+    mid = (tc - t[0] > 25.0) & (tc - t[0] < 38.0)
+    assert abs(np.mean(hc[mid] - truth_c[mid])) < 0.1
+
+
+def test_whole_walk_floors_weighs_the_scan_the_filter_started_from(tmp_path):
+    """The lineage's first row comes after the scan the filter started from; a walk whose only
+    evidence is that scan still gets its floor (the lineage's own floor, L0, is not it)."""
+    from types import SimpleNamespace
+
+    from mapfilter.floortracking import whole_walk_floors
+
+    building = _building(tmp_path, connectors=False)
+    stack = FloorStack(building)
+    changes = FloorChanges(stack, FloorChangeConfig())
+    wifi = SimpleNamespace(scans=[SimpleNamespace(t_s=10.0)], usable=np.array([True]),
+                           floor_log_likelihood=np.log([[1 / 7, 1 / 7, 5 / 7]]), pressure=None,
+                           elevation_m=np.array([0.0, 4.0, 8.0]))
+    t = 10.4 + 0.5 * np.arange(20)
+    xy = stack.to_stack(np.tile([10.0, 5.0], (20, 1)), 0)  # the lineage on L0
+    assert np.all(whole_walk_floors(changes, wifi, t, xy) == 2)

@@ -153,3 +153,67 @@ def test_a_lift_ride_without_steps_is_followed_by_the_barometer_within_3_s(offic
     assert scores["delays"][0]["delay_s"] is not None and scores["delays"][0]["delay_s"] <= 3.0, scores
     scan_t = np.unique(rec.wifi.t_s)
     assert all(np.isclose(scan_t, c.t_s).any() for c in result.collapses)  # a collapse only ever at a scan
+
+
+def _changes_inside_connectors(building, track, tolerance_m: float = 0.3) -> bool:
+    """Every floor change of a track is at a row inside a connector linking both floors (on both)."""
+    floors = np.array(track.floor)
+    for k in np.flatnonzero(floors[1:] != floors[:-1]) + 1:
+        a, b = floors[k - 1], floors[k]
+        point = building.floor(b).to_building(track.xy_m[k])
+        if not any(a in c.polygons and b in c.polygons
+                   and c.polygons[a].buffer(tolerance_m).contains(shapely.Point(*building.floor(a).from_building(point)))
+                   and c.polygons[b].buffer(tolerance_m).contains(shapely.Point(*track.xy_m[k]))
+                   for c in building.connectors):
+            return False
+    return True
+
+
+def test_the_whole_walk_floor_changes_where_the_walker_does_and_only_in_connectors(office3, walk, radio_map, tmp_path):
+    """--smooth in a building: the causal track is the same as without it; the offline track's floor,
+    decided from the whole walk (WiFi vote + barometer), changes where the walker's does (within 1 s)
+    and only inside a connector."""
+    from mapfilter.floortracking import track_building
+    from mapfilter.tracking import TrackingConfig
+
+    building, _ = office3
+    sim, happened = walk
+    write_ilc(sim, tmp_path / "walk.txt")
+    rec = read_ilc(tmp_path / "walk.txt")
+    plain = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000), np.random.default_rng(1))
+    result = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000, smooth=True),
+                            np.random.default_rng(1))
+    assert np.array_equal(plain.track.xy_m, result.track.xy_m) and plain.track.floor == result.track.floor
+    # one change per true change, each within 1 s of the true one (the walker's half-way point)
+    floors = np.array(result.smoothed.floor)
+    at = np.flatnonzero(floors[1:] != floors[:-1]) + 1
+    true_at = np.flatnonzero(np.array(rec.waypoint_floor[1:]) != np.array(rec.waypoint_floor[:-1])) + 1
+    assert [(floors[k - 1], floors[k]) for k in at] == [("F0", "F1"), ("F1", "F2")]
+    assert np.all(np.abs(result.smoothed.t_s[at] - rec.waypoint_t_s[true_at]) < 1.0)
+    assert _changes_inside_connectors(building, result.smoothed)
+
+
+def test_a_wrong_start_of_the_floor_evidence_is_outvoted_in_the_whole_walk_floor(office3, walk, tmp_path, radio_map):
+    """No barometer; the first five scans vote F2 unanimously, every later one the walker's floor:
+    the whole-walk floor is F0 from the start until the walker's first change (the stairs), and
+    right at least 95 % of the time."""
+    from mapfilter.floortracking import track_building
+    from mapfilter.tracking import TrackingConfig
+
+    building, _ = office3
+    sim, happened = walk
+    write_ilc(sim, tmp_path / "walk.txt")
+    rec = read_ilc(tmp_path / "walk.txt")
+    scan_t = np.unique(rec.wifi.t_s)
+    truth = np.array([building.floor_index(f) for f in rec.waypoint_floor])
+    true_scan_floor = truth[np.clip(np.searchsorted(rec.waypoint_t_s, scan_t, side="right") - 1, 0, None)]
+    vote = np.full((scan_t.size, 3), np.log(1 / 7))  # a unanimous k = 4 vote, one pseudo-vote per floor
+    vote[np.arange(scan_t.size), true_scan_floor] = np.log(5 / 7)
+    vote[:5] = np.log(np.array([1, 1, 5]) / 7)
+    result = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000, smooth=True),
+                            np.random.default_rng(1), use_barometer=False, floor_evidence=vote)
+    smoothed = result.smoothed
+    before = smoothed.t_s < happened[0][0]  # before the walker enters the stairs
+    assert np.all(np.array(smoothed.floor)[before] == "F0")
+    assert floor_scores(smoothed, rec.waypoint_t_s, rec.waypoint_floor, happened)["time_right"] >= 0.95
+    assert _changes_inside_connectors(building, smoothed)

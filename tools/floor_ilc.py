@@ -9,7 +9,10 @@ its header names. Every walk is then judged with that radio map *without its own
 - every walk with IMU (F1: 76, F2: the 12 of ``full_set.txt``) is tracked by the particle
   filter with the floor in its state (``floortracking.track_building``); the score is the
   share of waypoints at which the causal track is on the header's floor (waypoints before the
-  first estimate are left out, as for the errors). The same walk is also tracked with the
+  first estimate are left out, as for the errors). The same run also gives the offline track
+  (``--smooth``: the filter's lineage, its floor decided from the whole walk,
+  ``floortracking.whole_walk_floors``), judged at the row nearest each waypoint in time, as
+  ``mapfilter evaluate --smooth`` judges ``pf-smooth``. The same walk is also tracked with the
   floor given, to compare the horizontal error (causal, at the waypoints);
 - every WiFi-only walk (B1 25, F2's other 28, F3 25, F4 25) gets the floor the WiFi floor
   HMM puts it on (``sensors.floors``: the KWNN floor vote per scan, Viterbi path over the walk,
@@ -78,6 +81,9 @@ def main() -> int:
     print(f"{len(recordings)} logs, {len(radio_map)} reference points; fix sigma per floor: "
           + ", ".join(f"{n} {s:.1f} m" for n, s in sigma.items()), flush=True)
     config = TrackingConfig(n_particles=args.particles)
+    # the floor found also gives the offline track (--smooth), its floor decided from the whole
+    # walk; recording the lineage leaves the causal track as it is
+    smooth_config = TrackingConfig(n_particles=args.particles, smooth=True)
 
     imu_rows, wifi_rows = [], []
     with_imu = [(r, f) for r, f in zip(recordings, floors) if r.acc_t_s.shape[0] >= 100]
@@ -87,18 +93,26 @@ def main() -> int:
         with_imu = with_imu[:args.limit]
     for i, (rec, f) in enumerate(with_imu):
         loo = radio_map.without_traces([rec.name])
-        found = track_building(building, rec, loo, config, np.random.default_rng(args.seed),
+        found = track_building(building, rec, loo, smooth_config, np.random.default_rng(args.seed),
                                fix_sigma_per_floor_m=sigma)
         given = track_building(building, rec, loo, config, np.random.default_rng(args.seed), floor=names[f],
                                fix_sigma_per_floor_m=sigma)
         score = floor_at_waypoints(found.track.t_s, found.track.floor, rec.waypoint_t_s, names[f])
         err_found = errors_at_waypoints(found.track.t_s, found.track.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m)
         err_given = errors_at_waypoints(given.track.t_s, given.track.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m)
+        # the offline track: the nearest row in time, as mapfilter evaluate judges pf-smooth
+        smoothed = found.smoothed
+        score_smoothed = floor_at_waypoints(smoothed.t_s, smoothed.floor, rec.waypoint_t_s, names[f], causal=False)
+        err_smoothed = errors_at_waypoints(smoothed.t_s, smoothed.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m,
+                                           causal=False)
         imu_rows.append({"trace": rec.name, "floor": names[f], "right": score.n_right, "judged": score.n_judged,
                          "missed": score.missed, "floors_visited": sorted(set(found.track.floor)),
-                         "errors_found_m": err_found.errors_m.tolist(), "errors_given_m": err_given.errors_m.tolist()})
+                         "errors_found_m": err_found.errors_m.tolist(), "errors_given_m": err_given.errors_m.tolist(),
+                         "smoothed_right": score_smoothed.n_right, "smoothed_judged": score_smoothed.n_judged,
+                         "smoothed_floors_visited": sorted(set(smoothed.floor)),
+                         "errors_smoothed_m": err_smoothed.errors_m.tolist()})
         print(f"[{i + 1}/{len(with_imu)}] {rec.name} {names[f]}: floor right at {score.n_right}/{score.n_judged} "
-              f"waypoints; mean error {np.mean(err_found.errors_m):.2f} m (floor given "
+              f"waypoints (whole walk {score_smoothed.n_right}/{score_smoothed.n_judged}); mean error {np.mean(err_found.errors_m):.2f} m (floor given "
               f"{np.mean(err_given.errors_m):.2f} m)", flush=True)
 
     for rec, f in zip(recordings, floors):
@@ -132,7 +146,12 @@ def summarise(imu_rows: list[dict], wifi_rows: list[dict], names: list[str]) -> 
                 "walks": len(rows), "waypoints": int(sum(r["judged"] for r in rows)),
                 "floor_accuracy": sum(r["right"] for r in rows) / max(sum(r["judged"] for r in rows), 1),
                 "walks_all_right": sum(r["right"] == r["judged"] for r in rows),
-                "error_found_m": summarise_errors(found), "error_given_m": summarise_errors(given)}
+                "error_found_m": summarise_errors(found), "error_given_m": summarise_errors(given),
+                "smoothed_waypoints": int(sum(r["smoothed_judged"] for r in rows)),
+                "smoothed_floor_accuracy": sum(r["smoothed_right"] for r in rows)
+                / max(sum(r["smoothed_judged"] for r in rows), 1),
+                "smoothed_walks_all_right": sum(r["smoothed_right"] == r["smoothed_judged"] for r in rows),
+                "error_smoothed_m": summarise_errors(np.concatenate([r["errors_smoothed_m"] for r in rows]))}
         rows = [r for r in wifi_rows if floor in ("all", r["floor"])]
         if rows:
             out["wifi_only"][floor] = {
@@ -152,6 +171,14 @@ def print_report(report: dict, names: list[str]) -> None:
         print(f"| {floor} | {s['walks']} | {s['waypoints']} | {100 * s['floor_accuracy']:.1f} % "
               f"| {s['error_found_m']['mean']:.2f} m | {s['error_given_m']['mean']:.2f} m "
               f"| {s['error_found_m']['p75']:.2f} m | {s['error_given_m']['p75']:.2f} m |")
+    print("\nThe same walks, offline (--smooth): the lineage track, its floor from the whole walk (Viterbi):")
+    print("| floor | waypoints | floor right, causal | floor right, whole walk | walks all right (whole walk) "
+          "| mean error, smoothed | p75 smoothed |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for floor, s in report["imu"].items():
+        print(f"| {floor} | {s['smoothed_waypoints']} | {100 * s['floor_accuracy']:.1f} % "
+              f"| {100 * s['smoothed_floor_accuracy']:.1f} % | {s['smoothed_walks_all_right']} of {s['walks']} "
+              f"| {s['error_smoothed_m']['mean']:.2f} m | {s['error_smoothed_m']['p75']:.2f} m |")
     print("\nWiFi-only walks, floor of the walk from the WiFi floor HMM:")
     print("| floor | walks | walks right | scans right (causal) | wrong |")
     print("| --- | ---: | ---: | ---: | --- |")

@@ -127,7 +127,9 @@ def main() -> int:
         radio_map = build_building_radio_map(surveys, [building.floor_index(s.floor_name) for s in surveys],
                                              building.floor_names)
         print(f"radio map: {len(radio_map)} points, {len(radio_map.ap_keys)} APs", flush=True)
-        config = TrackingConfig(n_particles=args.particles)
+        # smooth: also the offline track, its floor decided from the whole walk (the causal
+        # track is the same with or without it: the lineage is only recorded)
+        smooth_config = TrackingConfig(n_particles=args.particles, smooth=True)
         for w in range(args.walks):
             rng = np.random.default_rng([args.seed, w])
             start, changes = schedule(rng)
@@ -144,16 +146,20 @@ def main() -> int:
                    "duration_s": float(rec.waypoint_t_s[-1] - rec.waypoint_t_s[0])}
             for label, kwargs in (("found", {}), ("found_no_baro", {"use_barometer": False}),
                                   ("given", {"floor_evidence": oracle})):
-                result = track_building(building, rec, radio_map, config, np.random.default_rng([args.seed, w, 1]),
-                                        **kwargs)
+                result = track_building(building, rec, radio_map, smooth_config,
+                                        np.random.default_rng([args.seed, w, 1]), **kwargs)
                 err = errors_at_waypoints(result.track.t_s, result.track.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m)
                 row[label] = {"errors_m": err.errors_m.tolist(),
                               **floor_scores(result.track, rec.waypoint_t_s, rec.waypoint_floor, happened)}
+                if label != "given":
+                    smoothed = floor_scores(result.smoothed, rec.waypoint_t_s, rec.waypoint_floor, happened)
+                    row[label]["smoothed_time_right"] = smoothed["time_right"]
             rows.append(row)
             f, g, n = row["found"], row["given"], row["found_no_baro"]
             print(f"walk {w} ({start} then {', '.join(f'{c}->{t}' for c, t in row['changes'])}, "
                   f"{row['duration_s']:.0f} s): floor right {100 * f['time_right']:.1f} % of the time "
-                  f"(no barometer {100 * n['time_right']:.1f} %), change delays "
+                  f"(no barometer {100 * n['time_right']:.1f} %; whole walk {100 * f['smoothed_time_right']:.1f} %, "
+                  f"no barometer {100 * n['smoothed_time_right']:.1f} %), change delays "
                   f"{[d['delay_s'] if d['delay_s'] is None else round(d['delay_s'], 1) for d in f['delays']]} s; "
                   f"mean error {np.mean(f['errors_m']):.2f} m (floor given {np.mean(g['errors_m']):.2f} m)",
                   flush=True)
@@ -167,6 +173,8 @@ def main() -> int:
                          "max_delay_s": max((d for d in delays if d is not None), default=None),
                          "changes_within_5s": sum(d is not None and d <= 5.0 for d in delays),
                          "error_m": summarise_errors(errors)}
+        if label != "given":
+            report[label]["smoothed_time_right"] = float(np.mean([r[label]["smoothed_time_right"] for r in rows]))
     print("\n| tracking | floor right (time) | changes found within 5 s | max delay | mean error | p75 error |")
     print("| --- | ---: | ---: | ---: | ---: | ---: |")
     for label, name in (("found", "floor found (WiFi + barometer)"), ("found_no_baro", "floor found (WiFi only)"),
@@ -175,6 +183,9 @@ def main() -> int:
         max_delay = "-" if s["max_delay_s"] is None else f"{s['max_delay_s']:.1f} s"
         print(f"| {name} | {100 * s['time_right']:.1f} % | {s['changes_within_5s']} of {s['changes']} "
               f"| {max_delay} | {s['error_m']['mean']:.2f} m | {s['error_m']['p75']:.2f} m |")
+    print("\nWhole walk (offline, --smooth): floor right "
+          f"{100 * report['found']['smoothed_time_right']:.2f} % of the time with the barometer, "
+          f"{100 * report['found_no_baro']['smoothed_time_right']:.2f} % without")
     print(f"\n{report['runtime_s']:.0f} s")
     if args.out is not None:
         with atomic_paths(args.out) as (tmp_out,):

@@ -8,10 +8,12 @@ Every walk's true floor is its log header's (``FloorName``). The methods:
 - ``pf-floor``: the same filter on the true floor (the floor given): the reference for what
   finding the floor costs in horizontal error; its floor accuracy is 1 by construction;
 - ``kwnn``: per scan, the floor of the causal WiFi floor HMM (``sensors.floors``: forward
-  probabilities of the KWNN floor vote) and the KWNN fix from that floor's fingerprints.
+  probabilities of the KWNN floor vote) and the KWNN fix from that floor's fingerprints;
+- ``pf-smooth`` (with ``--smooth``, offline, not causal): ``pf``'s lineage track with its floor
+  decided from the whole walk (``floortracking.whole_walk_floors``).
 
 ``floor_accuracy`` is the share of waypoints (with an estimate) at which the method's causal
-track is on the true floor; errors are horizontal, each row compared in its own floor's frame.
+track is on the true floor (``pf-smooth``: its row nearest in time); errors are horizontal, each row compared in its own floor's frame.
 With leave-one-out, each walk's radio map is the building's radio map without that walk; the
 fix Gaussian of each floor is calibrated once from the floor's whole radio map (cross-validating
 it again for every walk costs tens of seconds a walk; ``tools/sweep_ilc.py`` does the same).
@@ -127,14 +129,14 @@ def _evaluate_walk(building: Building, setup: EvaluationSetup, radio_map: RadioM
     truth = building.floor_names[true_floors[index]]
     results: list[FloorMethodResult] = []
 
-    def add(method: str, track: Track, collapses: int, runtime_s: float) -> None:
-        err = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, True)
+    def add(method: str, track: Track, collapses: int, runtime_s: float, causal: bool = True) -> None:
+        err = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, causal)
         crossings = sum(count_wall_crossings(building.floor(name).plan, track.xy_m[np.array(track.floor) == name])
                         for name in set(track.floor))
         results.append(FloorMethodResult(method, recording.name, track, err.errors_m, err.missed, crossings,
-                                         collapses, runtime_s, True,
+                                         collapses, runtime_s, causal,
                                          floor_score=floor_at_waypoints(track.t_s, track.floor,
-                                                                        recording.waypoint_t_s, truth)))
+                                                                        recording.waypoint_t_s, truth, causal)))
 
     try:
         has_steps = setup.tracking.motion != "pdr" or len(detect_steps(recording, setup.tracking.pdr)) > 0
@@ -145,9 +147,12 @@ def _evaluate_walk(building: Building, setup: EvaluationSetup, radio_map: RadioM
         if method in ("pf", "pf-floor"):
             if not has_steps:
                 continue
-            outcome = track_building(building, recording, radio_map, setup.tracking, rng,
+            config = dataclasses.replace(setup.tracking, smooth=setup.smooth and method == "pf")
+            outcome = track_building(building, recording, radio_map, config, rng,
                                      floor=truth if method == "pf-floor" else None, fix_sigma_per_floor_m=sigma)
             add(method, outcome.track, len(outcome.collapses), outcome.runtime_s)
+            if outcome.smoothed is not None:
+                add("pf-smooth", outcome.smoothed, len(outcome.collapses), outcome.runtime_s, causal=False)
         elif method == "kwnn":
             started = time.perf_counter()
             add(method, kwnn_floor_track(radio_map, scans_of(recording), setup.tracking.kwnn_k,

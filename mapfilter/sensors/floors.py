@@ -11,6 +11,9 @@
 - :func:`floor_hmm` smooths those per-scan likelihoods over the walk with a hidden Markov
   model whose floor changes are rare (a rate per second): forward probabilities (causal)
   and the Viterbi path (the whole walk).
+- :func:`whole_walk_floor_path` is the Viterbi path over a tracked walk's rows with per-pair
+  change rates (zero where no connector allows a change) and, with a barometer, its heights
+  against the floors' elevations (one unknown zero per walk): the offline track's floor.
 """
 
 from __future__ import annotations
@@ -157,3 +160,87 @@ def walk_floor(path: FloorPath) -> int:
     """The floor a walk spent most scans on (Viterbi path), for walks that keep one floor."""
     return int(np.bincount(path.path).argmax())
 
+
+
+@dataclasses.dataclass
+class WholeWalkFloors:
+    """The floor of every row of a walk decided from the whole walk (``whole_walk_floor_path``)."""
+
+    path: np.ndarray  # (T,) int64 floor per row: the Viterbi path
+    height_offset_m: float  # elevation = barometer height + this (NaN without a barometer)
+
+
+def whole_walk_floor_path(t_s: np.ndarray, floor_log_likelihood: np.ndarray, change_rate_per_s: np.ndarray,
+                          height_m: np.ndarray | None = None, elevation_m: np.ndarray | None = None,
+                          height_sigma_m: float = 1.0, offset_step_m: float = 0.1) -> WholeWalkFloors:
+    """The most probable floor sequence of a whole walk (Viterbi), from floor evidence per row,
+    floor changes at given rates and, with a barometer, its heights.
+
+    Parameters
+    ----------
+    t_s : (T,) row times (non-decreasing).
+    floor_log_likelihood : (T, F) evidence per row (a WiFi floor vote where a scan is, 0 elsewhere).
+    change_rate_per_s : (T - 1, F, F) rate of going from floor i to floor j between rows k and
+        k + 1 (0: not possible there, e.g. outside every connector linking i and j); the diagonal
+        is ignored. The walker leaves i with probability 1 - exp(-R dt), R the row's sum, to j
+        with share rate_ij / R, as the filter's particles do (``filter.floors.FloorChanges``).
+    height_m : (T,) barometer heights (any zero) or None. A barometer measures height changes
+        only: the walk's elevation is ``height_m + c`` with one unknown offset ``c`` for the
+        walk, on a grid of ``offset_step_m``; a floor of elevation e gets
+        -(e - (h + c))^2 / (2 height_sigma_m^2) at every row, and the path and ``c`` are chosen
+        together. One offset per walk assumes the weather moves the barometer well under half a
+        storey during the walk (1 hPa/h is about 8 m/h: true of walks of minutes).
+    elevation_m : (F,) floor elevations (needed with ``height_m``).
+    """
+    times = np.asarray(t_s, dtype=np.float64)
+    evidence = np.asarray(floor_log_likelihood, dtype=np.float64)
+    rates = np.asarray(change_rate_per_s, dtype=np.float64)
+    n_rows, n_floors = evidence.shape
+    if n_rows == 0:
+        return WholeWalkFloors(np.zeros(0, np.int64), math.nan)
+    if rates.shape != (max(n_rows - 1, 0), n_floors, n_floors):
+        raise ValueError("change_rate_per_s must be (T - 1, F, F)")
+    if height_m is not None:
+        heights = np.asarray(height_m, dtype=np.float64)
+        elev = np.asarray(elevation_m, dtype=np.float64)
+        # every offset that puts the walk within 3 sigma of some floor at some time
+        lo = elev.min() - np.nanmax(heights) - 3.0 * height_sigma_m
+        hi = elev.max() - np.nanmin(heights) + 3.0 * height_sigma_m
+        offsets = np.arange(lo, hi + offset_step_m, offset_step_m)
+    else:
+        heights, elev, offsets = None, None, np.array([math.nan])
+
+    def emission(k: int) -> np.ndarray:  # (C, F)
+        out = np.broadcast_to(evidence[k], (offsets.size, n_floors))
+        if heights is not None and np.isfinite(heights[k]):
+            out = out - 0.5 * ((elev[None, :] - heights[k] - offsets[:, None]) / height_sigma_m) ** 2
+        return out
+
+    # uniform prior over floors and offsets; the offset never changes within the walk
+    delta = emission(0) - math.log(n_floors)
+    back = np.zeros((n_rows, offsets.size, n_floors), dtype=np.int8 if n_floors < 128 else np.int64)
+    columns = np.arange(n_floors)
+    for k in range(1, n_rows):
+        log_trans = _log_transition_rates(rates[k - 1], max(times[k] - times[k - 1], 0.0))
+        scores = delta[:, :, None] + log_trans[None, :, :]  # (C, from, to)
+        back[k] = np.argmax(scores, axis=1)
+        delta = np.take_along_axis(scores, back[k][:, None, :].astype(np.int64), axis=1)[:, 0, :] + emission(k)
+        delta -= delta.max()  # only differences matter; keeps long walks finite
+    c, last = np.unravel_index(int(np.argmax(delta)), delta.shape)
+    path = np.empty(n_rows, dtype=np.int64)
+    path[-1] = last
+    for k in range(n_rows - 1, 0, -1):
+        path[k - 1] = back[k, c, path[k]]
+    return WholeWalkFloors(path, float(offsets[c]))
+
+
+def _log_transition_rates(rate_per_s: np.ndarray, dt_s: float) -> np.ndarray:
+    """(F, F) log transition probabilities over ``dt_s`` from per-pair rates (diagonal ignored)."""
+    rate = np.array(rate_per_s, dtype=np.float64, copy=True)
+    np.fill_diagonal(rate, 0.0)
+    total = rate.sum(axis=1)
+    leave = -np.expm1(-total * dt_s)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.log(leave[:, None] * rate / np.where(total > 0, total, 1.0)[:, None])
+        np.fill_diagonal(out, np.log1p(-np.minimum(leave, 1.0 - 1e-12)))
+    return out
