@@ -157,11 +157,20 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     anchor_t = anchor_t[(anchor_t >= t[0]) & (anchor_t <= t[-1])]
     anchor_xy = np.column_stack([np.interp(anchor_t, t, xy[:, 0]), np.interp(anchor_t, t, xy[:, 1])])
     nearest = np.clip(np.searchsorted(t, anchor_t), 0, K - 1)
-    observed: dict[int, np.ndarray] = {}
-    for k, (ax, ay) in zip(nearest.tolist(), anchor_xy):
-        log_l = -0.5 * ((grid.X - ax) ** 2 + (grid.Y - ay) ** 2) / config.anchor_sigma_m ** 2
-        observed[k] = observed.get(k, 0.0) + log_l
-    likelihood = {k: np.exp(v - v.max()) * free for k, v in observed.items()}
+    anchors_at: dict[int, list[np.ndarray]] = {}
+    for k, anchor in zip(nearest.tolist(), anchor_xy):
+        anchors_at.setdefault(k, []).append(anchor)
+    inv_var = 0.5 / config.anchor_sigma_m ** 2
+
+    def likelihood(k: int) -> np.ndarray | None:
+        """The observations at step k on the free cells (separable Gaussians, made when needed:
+        one grid per scan kept for the whole walk would cost more memory than the messages)."""
+        if k not in anchors_at:
+            return None
+        out = free
+        for ax, ay in anchors_at[k]:
+            out = out * np.outer(np.exp(-inv_var * (grid.y_m - ay) ** 2), np.exp(-inv_var * (grid.x_m - ax) ** 2))
+        return out
 
     units = _unit_moves(xy, config.cell_m)
     variance_cells2 = (config.step_sigma_m / config.cell_m) ** 2
@@ -178,12 +187,13 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     def forward(a: np.ndarray | None, k: int) -> tuple[np.ndarray, bool]:
         """alpha_k from alpha_{k-1} (None at k = 0); True when the pass restarted here."""
         a = free.copy() if a is None else predict(a, k)
-        if k in likelihood:
-            a = a * likelihood[k]
+        observed = likelihood(k)
+        if observed is not None:
+            a = a * observed
         total = a.sum()
         restarted = False
         if not total > 1e-250:
-            a, restarted = free * likelihood.get(k, 1.0), k > 0
+            a, restarted = (free if observed is None else observed), k > 0
             total = a.sum()
             if not total > 0:  # no free cell near the walk: nothing to match against
                 a, total = np.ones_like(free), float(free.size)
@@ -219,7 +229,8 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
             if restarted_at[k]:  # the forward pass forgot everything before k: so does the backward one
                 beta = free.copy()
                 continue
-            g = beta * likelihood[k] if k in likelihood else beta
+            observed = likelihood(k)
+            g = beta if observed is None else beta * observed
             for _ in range(n_blur):
                 g = _blur(g * free, blur_weight)
             for dx, dy in reversed(units[k - 1]):
