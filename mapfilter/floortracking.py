@@ -20,12 +20,14 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.floors import FloorChangeConfig, FloorChanges, FloorFix, FloorFixLikelihood, FloorStack
+from mapfilter.filter.placement import place_walk
 from mapfilter.maps.building import Building
 from mapfilter.sensors.floors import floor_vote_log_likelihood, whole_walk_floor_path
+from mapfilter.sensors.pdr import detect_steps
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import WifiScan, scans_of
-from mapfilter.tracking import TrackingConfig, TrackingResult, WifiMeasurements, track_recording
+from mapfilter.tracking import TrackingConfig, TrackingResult, WifiMeasurements, track_recording, whole_walk_track
 from mapfilter.trackio import Track
 
 
@@ -284,11 +286,41 @@ def track_building(
 
     result = track_recording(stack.plan, recording, None, None, config, rng, on_step=step_hook, wifi=wifi,
                              floors=changes)
+    stack_track = result.track
     result.track = _to_floors(stack, result.track)
     if result.smoothed is not None:
         floor = whole_walk_floors(changes, wifi, result.smoothed.t_s, result.smoothed.xy_m)
-        result.smoothed = _on_floors(stack, result.smoothed, floor)
+        placed = None
+        if config.motion == "pdr" and np.all(floor == floor[0]):
+            placed = _whole_walk_on_one_floor(stack, wifi, recording, config, stack_track, int(floor[0]))
+        result.smoothed = placed if placed is not None else _on_floors(stack, result.smoothed, floor)
     return result
+
+
+def _whole_walk_on_one_floor(stack: FloorStack, wifi: BuildingWifi, recording: Recording, config: TrackingConfig,
+                             causal_stack: Track, floor: int) -> Track | None:
+    """The one-floor offline track (``tracking.whole_walk_track``) of a walk the whole-walk floor
+    keeps on ``floor``: its dead-reckoned shape placed by the fixes from that floor's fingerprints
+    and the causal estimates on that floor, map-matched on that floor's plan. The particle
+    lineage it replaces keeps the causal filter's errors (ILC site 1: see the README). None when
+    the walk has no steps or no evidence on that floor."""
+    steps = detect_steps(recording, config.pdr)
+    if len(steps) == 0:
+        return None
+    scan_t = np.array([scan.t_s for scan in wifi.scans])
+    fixes_local = wifi.fix_xy_m[:, floor] - stack.shift_m[floor]  # NaN where that floor made no fix
+    causal_local, causal_floor = stack.to_floor(causal_stack.xy_m)
+    latest = np.searchsorted(causal_stack.t_s, scan_t, side="right") - 1
+    at_scan = latest >= 0
+    at_scan[at_scan] = causal_floor[latest[at_scan]] == floor
+    evidence_t = np.concatenate([scan_t, scan_t[at_scan]])
+    evidence_xy = np.vstack([fixes_local, causal_local[latest[at_scan]]])
+    if not np.isfinite(evidence_xy).all(axis=1).any():
+        return None
+    placement = place_walk(steps, evidence_t, evidence_xy)
+    track = whole_walk_track(stack.building.floors[floor].plan, placement, scan_t)
+    track.floor = [stack.building.floor_names[floor]] * len(track)
+    return track
 
 
 def whole_walk_floors(changes: FloorChanges, wifi: BuildingWifi, t_s: np.ndarray, stack_xy_m: np.ndarray) -> np.ndarray:
