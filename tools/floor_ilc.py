@@ -10,8 +10,9 @@ its header names. Every walk is then judged with that radio map *without its own
   filter with the floor in its state (``floortracking.track_building``); the score is the
   share of waypoints at which the causal track is on the header's floor (waypoints before the
   first estimate are left out, as for the errors). The same run also gives the offline track
-  (``--smooth``: the filter's lineage, its floor decided from the whole walk,
-  ``floortracking.whole_walk_floors``), judged at the row nearest each waypoint in time, as
+  (``--smooth``: its floor decided from the whole walk, ``floortracking.whole_walk_floors``;
+  on one floor throughout, that floor's placed and map-matched whole-walk track, else the
+  filter's lineage), judged at the row nearest each waypoint in time, as
   ``mapfilter evaluate --smooth`` judges ``pf-smooth``. The same walk is also tracked with the
   floor given, to compare the horizontal error (causal, at the waypoints);
 - every WiFi-only walk (B1 25, F2's other 28, F3 25, F4 25) gets the floor the WiFi floor
@@ -171,7 +172,8 @@ def print_report(report: dict, names: list[str]) -> None:
         print(f"| {floor} | {s['walks']} | {s['waypoints']} | {100 * s['floor_accuracy']:.1f} % "
               f"| {s['error_found_m']['mean']:.2f} m | {s['error_given_m']['mean']:.2f} m "
               f"| {s['error_found_m']['p75']:.2f} m | {s['error_given_m']['p75']:.2f} m |")
-    print("\nThe same walks, offline (--smooth): the lineage track, its floor from the whole walk (Viterbi):")
+    print("\nThe same walks, offline (--smooth): the floor from the whole walk (Viterbi); on one floor "
+          "throughout, that floor's whole-walk track, else the lineage:")
     print("| floor | waypoints | floor right, causal | floor right, whole walk | walks all right (whole walk) "
           "| mean error, smoothed | p75 smoothed |")
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
