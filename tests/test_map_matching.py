@@ -139,3 +139,12 @@ def test_bad_input_is_refused():
         MapMatchConfig(anchor_sigma_m=0.0)
     with pytest.raises(ValueError, match="checkpoint_every"):
         MapMatchConfig(checkpoint_every=0)
+
+
+def test_a_walk_far_from_any_free_space_is_returned_as_it_is():
+    wall = np.ones((80, 80), dtype=bool)
+    wall[:8, :8] = False  # a little free room in one corner, 20 m x 20 m plan at 0.25 m/px
+    plan = FloorPlan(wall, 0.25, (0.0, 0.0))
+    xy = np.column_stack([np.linspace(60.0, 70.0, 15), np.full(15, 100.0)])  # off the plan
+    matched = map_match(plan, np.arange(15.0), xy, np.arange(0.0, 15.0, 3.0))
+    np.testing.assert_array_equal(matched.xy_m, xy)

@@ -151,6 +151,8 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
         raise ValueError("map_match needs finite positions, one per time")
     grid = _Grid(floorplan, xy, config)
     free = grid.free
+    if not free.any():  # the walk is nowhere near the plan's free space: nothing to match against
+        return MapMatch(t, xy.copy(), np.zeros(t.shape[0]), 0)
     K = t.shape[0]
     # observations: the placed position at each anchor time, on the nearest shape index
     anchor_t = np.asarray(anchor_t_s, dtype=np.float64).reshape(-1)
