@@ -154,7 +154,7 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     if not free.any():  # the walk is nowhere near the plan's free space: nothing to match against
         return MapMatch(t, xy.copy(), np.zeros(t.shape[0]), 0)
     K = t.shape[0]
-    # observations: the placed position at each anchor time, on the nearest shape index
+    # observations: the placed position at each anchor time, on the first shape time at or after it
     anchor_t = np.asarray(anchor_t_s, dtype=np.float64).reshape(-1)
     anchor_t = anchor_t[(anchor_t >= t[0]) & (anchor_t <= t[-1])]
     anchor_xy = np.column_stack([np.interp(anchor_t, t, xy[:, 0]), np.interp(anchor_t, t, xy[:, 1])])
