@@ -23,7 +23,7 @@ from mapfilter.filter.floors import FloorChangeConfig, FloorChanges, FloorFix, F
 from mapfilter.filter.placement import place_walk
 from mapfilter.maps.building import Building
 from mapfilter.sensors.floors import floor_vote_log_likelihood, whole_walk_floor_path
-from mapfilter.sensors.pdr import detect_steps
+from mapfilter.sensors.pdr import Steps, detect_steps
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import WifiScan, scans_of
@@ -290,35 +290,77 @@ def track_building(
     result.track = _to_floors(stack, result.track)
     if result.smoothed is not None:
         floor = whole_walk_floors(changes, wifi, result.smoothed.t_s, result.smoothed.xy_m)
-        placed = None
-        if config.motion == "pdr" and np.all(floor == floor[0]):
-            placed = _whole_walk_on_one_floor(stack, wifi, recording, config, stack_track, int(floor[0]))
-        result.smoothed = placed if placed is not None else _on_floors(stack, result.smoothed, floor)
+        lineage = _on_floors(stack, result.smoothed, floor)
+        result.smoothed = (_whole_walk_by_floor(stack, wifi, recording, config, stack_track, lineage, floor)
+                           if config.motion == "pdr" else lineage)
     return result
 
 
-def _whole_walk_on_one_floor(stack: FloorStack, wifi: BuildingWifi, recording: Recording, config: TrackingConfig,
-                             causal_stack: Track, floor: int) -> Track | None:
-    """The one-floor offline track (``tracking.whole_walk_track``) of a walk the whole-walk floor
-    keeps on ``floor``: its dead-reckoned shape placed by the fixes from that floor's fingerprints
-    and the causal estimates on that floor, map-matched on that floor's plan. The particle
-    lineage it replaces keeps the causal filter's errors (ILC site 1: see the README). None when
-    the walk has no steps or no evidence on that floor."""
+def _whole_walk_by_floor(stack: FloorStack, wifi: BuildingWifi, recording: Recording, config: TrackingConfig,
+                         causal_stack: Track, lineage: Track, floor: np.ndarray) -> Track:
+    """The offline track, one stretch per floor of the whole-walk floor path: each stretch the
+    one-floor whole-walk track of its floor (``_whole_walk_on_one_floor``), or the lineage's rows
+    where a stretch has too few steps or no evidence on its floor."""
     steps = detect_steps(recording, config.pdr)
-    if len(steps) == 0:
+    change = np.flatnonzero(floor[1:] != floor[:-1]) + 1
+    starts, ends = np.concatenate([[0], change]), np.concatenate([change, [floor.size]])
+    pieces: list[Track] = []
+    for i, (start, end) in enumerate(zip(starts, ends)):
+        # a stretch runs from the change into its floor to the change out of it; the first and
+        # the last take every step before and after
+        t0 = -np.inf if i == 0 else lineage.t_s[start]
+        t1 = np.inf if i == len(starts) - 1 else lineage.t_s[end]
+        placed = _whole_walk_on_one_floor(stack, wifi, steps.between(t0, t1), causal_stack, int(floor[start]), t0, t1)
+        rows = np.arange(start, end)
+        placed_t, placed_xy = np.zeros(0), np.zeros((0, 2))
+        if placed is not None:
+            # the stretch's first and last rows stay the lineage's, where the floor changes (in a
+            # connector, as the whole-walk floor had it); so do its rows outside the placed steps
+            # (a lift ride has none); the placed steps fill the rest
+            first, last = lineage.t_s[start], lineage.t_s[end - 1]
+            inner = ((placed.t_s > first) | (i == 0)) & ((placed.t_s < last) | (i == len(starts) - 1))
+            placed_t, placed_xy = placed.t_s[inner], placed.xy_m[inner]
+            if placed_t.size:
+                outside = (lineage.t_s[rows] < placed_t[0]) | (lineage.t_s[rows] > placed_t[-1])
+                rows = rows[outside | ((rows == start) & (i > 0)) | ((rows == end - 1) & (i < len(starts) - 1))]
+        if placed is not None and len(starts) == 1:  # one floor throughout: the one-map offline track
+            return placed
+        t_s = np.concatenate([lineage.t_s[rows], placed_t])
+        order = np.argsort(t_s, kind="stable")
+        piece = Track(t_s[order], np.vstack([lineage.xy_m[rows], placed_xy])[order],
+                      floor=[lineage.floor[start]] * len(order), name=lineage.name)
+        if pieces:  # keep time increasing across stretches
+            keep = piece.t_s > pieces[-1].t_s[-1]
+            piece = Track(piece.t_s[keep], piece.xy_m[keep], floor=[f for f, k in zip(piece.floor, keep) if k],
+                          name=piece.name)
+        pieces.append(piece)
+    return Track(np.concatenate([p.t_s for p in pieces]), np.vstack([p.xy_m for p in pieces]),
+                 floor=[f for p in pieces for f in p.floor], name=lineage.name)
+
+
+def _whole_walk_on_one_floor(stack: FloorStack, wifi: BuildingWifi, steps: Steps, causal_stack: Track, floor: int,
+                             t0_s: float = -np.inf, t1_s: float = np.inf) -> Track | None:
+    """The one-floor offline track (``tracking.whole_walk_track``) of the stretch of a walk from
+    ``t0_s`` to ``t1_s`` that the whole-walk floor keeps on ``floor`` (``steps``: its steps): its
+    dead-reckoned shape placed by the fixes from that floor's fingerprints and the causal
+    estimates on that floor, map-matched on that floor's plan. The particle lineage it replaces
+    keeps the causal filter's errors (ILC site 1: see the README). None when the stretch has
+    fewer than two steps or no evidence on that floor."""
+    if len(steps) < 2:
         return None
     scan_t = np.array([scan.t_s for scan in wifi.scans])
-    fixes_local = wifi.fix_xy_m[:, floor] - stack.shift_m[floor]  # NaN where that floor made no fix
+    inside = (scan_t > t0_s) & (scan_t <= t1_s)
+    fixes_local = np.where(inside[:, None], wifi.fix_xy_m[:, floor] - stack.shift_m[floor], np.nan)  # NaN: no fix
     causal_local, causal_floor = stack.to_floor(causal_stack.xy_m)
     latest = np.searchsorted(causal_stack.t_s, scan_t, side="right") - 1
-    at_scan = latest >= 0
+    at_scan = (latest >= 0) & inside
     at_scan[at_scan] = causal_floor[latest[at_scan]] == floor
     evidence_t = np.concatenate([scan_t, scan_t[at_scan]])
     evidence_xy = np.vstack([fixes_local, causal_local[latest[at_scan]]])
     if not np.isfinite(evidence_xy).all(axis=1).any():
         return None
     placement = place_walk(steps, evidence_t, evidence_xy)
-    track = whole_walk_track(stack.building.floors[floor].plan, placement, scan_t)
+    track = whole_walk_track(stack.building.floors[floor].plan, placement, scan_t[inside])
     track.floor = [stack.building.floor_names[floor]] * len(track)
     return track
 

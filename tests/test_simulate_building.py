@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import shapely
 
+from mapfilter.evaluation.metrics import errors_at_waypoints
 from mapfilter.maps.walls import crosses_wall
 from mapfilter.sensors.floors import build_building_radio_map
 from mapfilter.sensors.ilc import read_ilc
@@ -191,6 +192,11 @@ def test_the_whole_walk_floor_changes_where_the_walker_does_and_only_in_connecto
     assert [(floors[k - 1], floors[k]) for k in at] == [("F0", "F1"), ("F1", "F2")]
     assert np.all(np.abs(result.smoothed.t_s[at] - rec.waypoint_t_s[true_at]) < 1.0)
     assert _changes_inside_connectors(building, result.smoothed)
+    # each floor's stretch is placed and map-matched on its floor: closer than the causal track
+    causal = errors_at_waypoints(result.track.t_s, result.track.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m, True)
+    offline = errors_at_waypoints(result.smoothed.t_s, result.smoothed.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m,
+                                  False)
+    assert offline.errors_m.mean() < causal.errors_m.mean()
 
 
 def test_a_wrong_start_of_the_floor_evidence_is_outvoted_in_the_whole_walk_floor(office3, walk, tmp_path, radio_map):
@@ -223,7 +229,6 @@ def test_a_walk_that_keeps_its_floor_gets_the_one_floor_offline_track(office3, r
     """--smooth in a building, floor not given: a walk the whole-walk floor keeps on one floor gets
     the placed, map-matched offline track of that floor (not the particle lineage): every row on
     that floor, no wall crossed on its plan, and less than half the causal track's error."""
-    from mapfilter.evaluation.metrics import errors_at_waypoints
     from mapfilter.floortracking import track_building
     from mapfilter.tracking import TrackingConfig
 

@@ -154,6 +154,8 @@ def main() -> int:
                 if label != "given":
                     smoothed = floor_scores(result.smoothed, rec.waypoint_t_s, rec.waypoint_floor, happened)
                     row[label]["smoothed_time_right"] = smoothed["time_right"]
+                    row[label]["smoothed_errors_m"] = errors_at_waypoints(
+                        result.smoothed.t_s, result.smoothed.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m, False).errors_m.tolist()
             rows.append(row)
             f, g, n = row["found"], row["given"], row["found_no_baro"]
             print(f"walk {w} ({start} then {', '.join(f'{c}->{t}' for c, t in row['changes'])}, "
@@ -175,6 +177,8 @@ def main() -> int:
                          "error_m": summarise_errors(errors)}
         if label != "given":
             report[label]["smoothed_time_right"] = float(np.mean([r[label]["smoothed_time_right"] for r in rows]))
+            report[label]["smoothed_error_m"] = summarise_errors(
+                np.concatenate([r[label]["smoothed_errors_m"] for r in rows]))
     print("\n| tracking | floor right (time) | changes found within 5 s | max delay | mean error | p75 error |")
     print("| --- | ---: | ---: | ---: | ---: | ---: |")
     for label, name in (("found", "floor found (WiFi + barometer)"), ("found_no_baro", "floor found (WiFi only)"),
@@ -185,7 +189,9 @@ def main() -> int:
               f"| {max_delay} | {s['error_m']['mean']:.2f} m | {s['error_m']['p75']:.2f} m |")
     print("\nWhole walk (offline, --smooth): floor right "
           f"{100 * report['found']['smoothed_time_right']:.2f} % of the time with the barometer, "
-          f"{100 * report['found_no_baro']['smoothed_time_right']:.2f} % without")
+          f"{100 * report['found_no_baro']['smoothed_time_right']:.2f} % without; error at every waypoint "
+          f"{report['found']['smoothed_error_m']['mean']:.2f} m mean, {report['found']['smoothed_error_m']['p75']:.2f} m p75 "
+          f"(without the barometer {report['found_no_baro']['smoothed_error_m']['mean']:.2f} m)")
     print(f"\n{report['runtime_s']:.0f} s")
     if args.out is not None:
         with atomic_paths(args.out) as (tmp_out,):
