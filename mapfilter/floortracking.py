@@ -284,24 +284,27 @@ def track_building(
         if on_step is not None:
             on_step(report)
 
-    result = track_recording(stack.plan, recording, None, None, config, rng, on_step=step_hook, wifi=wifi,
-                             floors=changes)
+    steps = detect_steps(recording, config.pdr) if config.motion == "pdr" else None  # once: filter and offline track
+    result = track_recording(stack.plan, recording, None, None, config, rng, on_step=step_hook, steps=steps,
+                             wifi=wifi, floors=changes)
     stack_track = result.track
     result.track = _to_floors(stack, result.track)
     if result.smoothed is not None:
         floor = whole_walk_floors(changes, wifi, result.smoothed.t_s, result.smoothed.xy_m)
         lineage = _on_floors(stack, result.smoothed, floor)
-        result.smoothed = (_whole_walk_by_floor(stack, wifi, recording, config, stack_track, lineage, floor)
-                           if config.motion == "pdr" else lineage)
+        result.smoothed = (_whole_walk_by_floor(stack, wifi, steps, stack_track, lineage, floor)
+                           if steps is not None else lineage)
     return result
 
 
-def _whole_walk_by_floor(stack: FloorStack, wifi: BuildingWifi, recording: Recording, config: TrackingConfig,
-                         causal_stack: Track, lineage: Track, floor: np.ndarray) -> Track:
+def _whole_walk_by_floor(stack: FloorStack, wifi: BuildingWifi, steps: Steps, causal_stack: Track, lineage: Track,
+                         floor: np.ndarray) -> Track:
     """The offline track, one stretch per floor of the whole-walk floor path: each stretch the
     one-floor whole-walk track of its floor (``_whole_walk_on_one_floor``), or the lineage's rows
     where a stretch has too few steps or no evidence on its floor."""
-    steps = detect_steps(recording, config.pdr)
+    if np.all(floor == floor[0]):  # one floor throughout: the one-map offline track
+        placed = _whole_walk_on_one_floor(stack, wifi, steps, causal_stack, int(floor[0]))
+        return placed if placed is not None else lineage
     change = np.flatnonzero(floor[1:] != floor[:-1]) + 1
     starts, ends = np.concatenate([[0], change]), np.concatenate([change, [floor.size]])
     pieces: list[Track] = []
@@ -323,8 +326,6 @@ def _whole_walk_by_floor(stack: FloorStack, wifi: BuildingWifi, recording: Recor
             if placed_t.size:
                 outside = (lineage.t_s[rows] < placed_t[0]) | (lineage.t_s[rows] > placed_t[-1])
                 rows = rows[outside | ((rows == start) & (i > 0)) | ((rows == end - 1) & (i < len(starts) - 1))]
-        if placed is not None and len(starts) == 1:  # one floor throughout: the one-map offline track
-            return placed
         t_s = np.concatenate([lineage.t_s[rows], placed_t])
         order = np.argsort(t_s, kind="stable")
         piece = Track(t_s[order], np.vstack([lineage.xy_m[rows], placed_xy])[order],

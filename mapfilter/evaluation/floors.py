@@ -9,8 +9,9 @@ Every walk's true floor is its log header's (``FloorName``). The methods:
   finding the floor costs in horizontal error; its floor accuracy is 1 by construction;
 - ``kwnn``: per scan, the floor of the causal WiFi floor HMM (``sensors.floors``: forward
   probabilities of the KWNN floor vote) and the KWNN fix from that floor's fingerprints;
-- ``pf-smooth`` (with ``--smooth``, offline, not causal): ``pf``'s lineage track with its floor
-  decided from the whole walk (``floortracking.whole_walk_floors``).
+- ``pf-smooth`` (with ``--smooth``, offline, not causal): ``pf``'s offline track, its floor
+  decided from the whole walk (``floortracking.whole_walk_floors``), each floor's stretch placed
+  and map-matched on that floor (the lineage where a stretch has no steps).
 
 ``floor_accuracy`` is the share of waypoints (with an estimate) at which the method's causal
 track is on the true floor (``pf-smooth``: its row nearest in time); errors are horizontal, each row compared in its own floor's frame.

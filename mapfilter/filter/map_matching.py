@@ -68,7 +68,6 @@ class MapMatch:
 
     t_s: np.ndarray  # (K,)
     xy_m: np.ndarray  # (K, 2) posterior mean (may sit in a wall between two likely corridors)
-    std_m: np.ndarray  # (K,) posterior spread, sqrt of the trace of the covariance / 2
     restarts: int  # times every path was blocked (the plan closes where the walk went) and the pass restarted
 
 
@@ -152,7 +151,7 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     grid = _Grid(floorplan, xy, config)
     free = grid.free
     if not free.any():  # the walk is nowhere near the plan's free space: nothing to match against
-        return MapMatch(t, xy.copy(), np.zeros(t.shape[0]), 0)
+        return MapMatch(t, xy.copy(), 0)
     K = t.shape[0]
     # observations: the placed position at each anchor time, on the first shape time at or after it
     anchor_t = np.asarray(anchor_t_s, dtype=np.float64).reshape(-1)
@@ -211,7 +210,6 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
             checkpoints[k] = a
 
     out_xy = np.zeros((K, 2))
-    out_std = np.zeros(K)
     beta = free.copy()
     for start in range(((K - 1) // every) * every, -1, -every):
         segment = [checkpoints[start]]
@@ -223,9 +221,7 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
             if not total > 0:
                 p, total = segment[k - start], segment[k - start].sum()
             p = p / total
-            mx, my = float((p * grid.X).sum()), float((p * grid.Y).sum())
-            out_xy[k] = mx, my
-            out_std[k] = math.sqrt(max(float((p * ((grid.X - mx) ** 2 + (grid.Y - my) ** 2)).sum()) / 2.0, 0.0))
+            out_xy[k] = float((p * grid.X).sum()), float((p * grid.Y).sum())
             if k == 0:
                 break
             if restarted_at[k]:  # the forward pass forgot everything before k: so does the backward one
@@ -240,4 +236,4 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
             beta = g * free
             peak = beta.max()
             beta = beta / peak if peak > 0 else free.copy()
-    return MapMatch(t, out_xy, out_std, int(restarted_at.sum()))
+    return MapMatch(t, out_xy, int(restarted_at.sum()))
