@@ -203,25 +203,14 @@ def _run_building(args: argparse.Namespace, building) -> int:
 
     from mapfilter.floortracking import track_building
     from mapfilter.sensors.ilc import read_ilc
-    from mapfilter.sensors.radiomap import RadioMap
     from mapfilter.trackio import write_track_csv, write_track_tum
 
-    if args.radiomap is None:
-        raise MapfilterError("tracking in a building needs a building's radio map: --radiomap RM (mapfilter "
-                             "radiomap build BUILDING.yaml LOGS...)")
-    if args.adapt or args.adapted_aps is not None:
-        raise MapfilterError("--adapt is for trilateration on one floor, not for a building")
-    if args.floor is not None:
-        building.floor_index(args.floor, args.map)
+    from mapfilter.sensors.floors import load_building_radio_map
+
+    _check_building_options(args, building)
     recording = read_ilc(args.log, strict=args.strict, warn=warn)
     header_floor = building.floor_of_log(recording.floor_name, args.log)  # refuses a floor not in the building
-    radio_map = RadioMap.load(args.radiomap)
-    if not radio_map.has_floors:
-        raise MapfilterError("not a building's radio map (no floor labels): build it with mapfilter radiomap "
-                             "build BUILDING.yaml LOGS...", args.radiomap)
-    if list(radio_map.floor_names) != building.floor_names:
-        raise MapfilterError(f"the radio map's floors ({', '.join(radio_map.floor_names)}) are not the "
-                             f"building's ({', '.join(building.floor_names)})", args.radiomap)
+    radio_map = load_building_radio_map(args.radiomap, building.floor_names)
     config = _tracking_config(args)
 
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
@@ -252,10 +241,20 @@ def _run_building(args: argparse.Namespace, building) -> int:
     return 0
 
 
-def _print_building_summary(building, recording, result, header_floor, args) -> None:
-    import numpy as np
+def _check_building_options(args: argparse.Namespace, building) -> None:
+    """The options of a building run (one walk or --out-dir)."""
+    if args.radiomap is None:
+        raise MapfilterError("tracking in a building needs a building's radio map: --radiomap RM (mapfilter "
+                             "radiomap build BUILDING.yaml LOGS...)")
+    if args.adapt or args.adapted_aps is not None:
+        raise MapfilterError("--adapt is for trilateration on one floor, not for a building")
+    if args.floor is not None:
+        building.floor_index(args.floor, args.map)
 
-    from mapfilter.evaluation.metrics import errors_at_waypoints, floor_at_waypoints, summarise_errors
+
+def _print_building_summary(building, recording, result, header_floor, args) -> None:
+    from mapfilter.evaluation.floors import score_building_track
+    from mapfilter.evaluation.metrics import summarise_errors
 
     lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans, "
              f"{len(result.collapses)} collapses, {result.runtime_s:.1f} s"]
@@ -263,18 +262,16 @@ def _print_building_summary(building, recording, result, header_floor, args) -> 
     if result.smoothed is not None:
         tracks.append(("smoothed", result.smoothed, False))
     for label, track, causal in tracks:
-        floors = sorted(set(track.floor), key=building.floor_names.index)
-        text = f"  {label:8s} floors {', '.join(floors)}"
-        if recording.has_ground_truth and header_floor is not None:
-            truth = building.floor_names[header_floor]
-            score = floor_at_waypoints(track.t_s, track.floor, recording.waypoint_t_s, truth, causal)
-            on_floor = np.array([f == truth for f in track.floor])
-            err = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, causal)
-            s = summarise_errors(err.errors_m)
-            text += (f"; on {truth} at {score.n_right} of {score.n_judged} waypoints ({score.accuracy:.0%}); "
+        score = score_building_track(building, recording, track, header_floor, causal)
+        text = f"  {label:8s} floors {', '.join(score.floors)}"
+        if score.errors is not None:
+            right = score.floor_score
+            where = score.true_floor if isinstance(score.true_floor, str) else "the walker's floor"
+            s = summarise_errors(score.errors.errors_m)
+            text += (f"; on {where} at {right.n_right} of {right.n_judged} waypoints ({right.accuracy:.0%}); "
                      f"error at {s['n']} waypoints: mean {s['mean']:.2f} m, median {s['median']:.2f} m, "
                      f"p75 {s['p75']:.2f} m, max {s['max']:.2f} m")
-            if not on_floor.all():
+            if score.off_floor:
                 text += " (rows on another floor compared in their own floor's frame)"
         lines.append(text)
     if args.out is not None:

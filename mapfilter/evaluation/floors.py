@@ -13,6 +13,9 @@ Every walk's true floor is its log header's (``FloorName``). The methods:
   decided from the whole walk (``floortracking.whole_walk_floors``), each floor's stretch placed
   and map-matched on that floor (the lineage where a stretch has no steps).
 
+``score_building_track`` scores one track of one walk as ``mapfilter track BUILDING.yaml LOG``
+(one walk or ``--out-dir``) reports it.
+
 ``floor_accuracy`` is the share of waypoints (with an estimate) at which the method's causal
 track is on the true floor (``pf-smooth``: its row nearest in time); errors are horizontal, each row compared in its own floor's frame.
 With leave-one-out, each walk's radio map is the building's radio map without that walk; the
@@ -33,7 +36,7 @@ from mapfilter.engine import Engine, run_each
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.comparison import (Evaluation, EvaluationSetup, MethodResult, _collect_read_warnings,
                                               checked_log_paths)
-from mapfilter.evaluation.metrics import FloorScore, errors_at_waypoints, floor_at_waypoints
+from mapfilter.evaluation.metrics import FloorScore, WaypointErrors, errors_at_waypoints, floor_at_waypoints
 from mapfilter.floortracking import track_building
 from mapfilter.maps.building import Building
 from mapfilter.maps.walls import count_wall_crossings
@@ -41,6 +44,7 @@ from mapfilter.sensors.floors import build_building_radio_map, floor_hmm, floor_
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.pdr import detect_steps
 from mapfilter.sensors.radiomap import RadioMap, kwnn_fix_many
+from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import scans_of
 from mapfilter.tracking import calibrated_fix_sigma_m
 from mapfilter.trackio import Track
@@ -175,3 +179,49 @@ def kwnn_floor_track(radio_map: RadioMap, scans, k: int, floor_names: list[str])
             xy[on] = kwnn_fix_many(sub, sub.scan_matrix([scans[i] for i in on]), k=k).xy_m
     ok = np.all(np.isfinite(xy), axis=1)
     return Track(scan_t[ok], xy[ok], floor=[floor_names[f] for f in floor[ok]], name="kwnn")
+
+
+@dataclasses.dataclass(frozen=True)
+class BuildingTrackScore:
+    """One building track of one walk, as ``mapfilter track BUILDING.yaml LOG`` reports it."""
+
+    floors: list[str]  # the floors the track visits, in the building's order
+    wall_crossings: int  # moves through a wall, each stretch on a floor against that floor's walls
+    true_floor: str | list[str] | None  # the walker's floor: per waypoint (simulated logs) or the header's
+    errors: WaypointErrors | None  # at the waypoints; None without ground truth or a known floor for it
+    floor_score: FloorScore | None  # on ``true_floor`` at the waypoints; None when errors is None
+
+    @property
+    def off_floor(self) -> bool:
+        """Some judged waypoint's estimate is on another floor (compared in its own floor's frame)."""
+        return self.floor_score is not None and self.floor_score.n_right < self.floor_score.n_judged
+
+
+def score_building_track(building: Building, recording: Recording, track: Track, header_floor: int | None,
+                         causal: bool = True) -> BuildingTrackScore:
+    """Floors visited, wall crossings, and (with ground truth whose floor is known) the horizontal
+    errors and the floor accuracy at the waypoints of a track with a floor column.
+
+    The walker's floor is each waypoint's own (a fifth waypoint column, written by the
+    simulator for walks that change floor) where the log has it, else the header's
+    (``header_floor``, an index into ``building.floors``; ILC walks keep one floor). Errors are
+    horizontal, each row in its own floor's frame (as ``mapfilter evaluate`` compares them).
+    """
+    names = building.floor_names
+    floor = np.array(track.floor if track.floor is not None else [names[header_floor or 0]] * len(track))
+    visited = sorted(set(floor.tolist()), key=names.index)
+    crossings = 0
+    if floor.size:
+        change = np.flatnonzero(floor[1:] != floor[:-1]) + 1
+        for start, end in zip(np.concatenate([[0], change]), np.concatenate([change, [floor.size]])):
+            crossings += count_wall_crossings(building.floor(str(floor[start])).plan, track.xy_m[start:end])
+    true_floor: str | list[str] | None = None
+    if recording.waypoint_floor is not None:
+        true_floor = list(recording.waypoint_floor)
+    elif header_floor is not None:
+        true_floor = names[header_floor]
+    errors = score = None
+    if recording.has_ground_truth and true_floor is not None:
+        errors = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, causal)
+        score = floor_at_waypoints(track.t_s, list(floor), recording.waypoint_t_s, true_floor, causal)
+    return BuildingTrackScore(visited, crossings, true_floor, errors, score)
