@@ -5,6 +5,11 @@ Each walk is tracked exactly as ``mapfilter track MAP LOG --seed S`` tracks it a
 task ran. A walk that fails becomes a ``WalkResult`` with ``status`` "failed" (an error in
 its input, e.g. no usable WiFi) or "crashed" (a bug: the exception's type and message) and
 the other walks go on.
+
+A building (``maps.building.Building`` with several floors) is tracked the same way, each walk
+as ``mapfilter track BUILDING.yaml LOG --seed S`` tracks it (``track_building_logs``), and its
+results also carry the floors the track visits and how often it was on the walker's floor.
+Logs whose header names a floor the building does not have are refused before any walk runs.
 """
 
 from __future__ import annotations
@@ -21,10 +26,14 @@ import numpy as np
 
 from mapfilter.engine import Engine, run_each
 from mapfilter.errors import MapfilterError
-from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
+from mapfilter.evaluation.floors import score_building_track
+from mapfilter.evaluation.metrics import FloorScore, errors_at_waypoints, summarise_errors
+from mapfilter.floortracking import track_building
+from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import count_wall_crossings
-from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.ilc import read_ilc, read_ilc_header
+from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import trace_name
@@ -41,6 +50,7 @@ class BatchSetup:
     tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)
     seed: int = 0  # every walk uses default_rng(seed), as `mapfilter track --seed` does for one walk
     strict: bool = False  # refuse a walk with a bad row in a record type it needs (default: skip the row, warn)
+    floor: str | None = None  # a building: track every walk on this floor (default: find the floor)
 
 
 @dataclasses.dataclass
@@ -60,6 +70,10 @@ class WalkResult:
     missed_waypoints: int = 0
     runtime_s: float = 0.0
     read_warning: str | None = None  # what the log reader skipped
+    # a building only (None on one floor):
+    floors: list[str] | None = None  # the floors the track visits, in the building's order
+    header_floor: str | None = None  # the log header's floor (FloorName), if it names one
+    floor_score: FloorScore | None = None  # on the walker's floor at the waypoints (with ground truth)
 
     @property
     def ok(self) -> bool:
@@ -69,20 +83,10 @@ class WalkResult:
 def track_walk(floorplan: FloorPlan, radio_map: RadioMap | None, ap_table: AccessPointTable | None,
                setup: BatchSetup, log_path: Path) -> WalkResult:
     """Track one walk; never raises: a failure is returned as the result's status and reason."""
-    started = time.perf_counter()
-    warned: list[str] = []
-    result = WalkResult(Path(log_path), trace_name(log_path), "ok")
-    try:
-        recording = read_ilc(log_path, strict=setup.strict, warn=warned.append)
+
+    def track(recording: Recording, result: WalkResult) -> None:
         outcome = track_recording(floorplan, recording, radio_map, ap_table, setup.tracking,
                                   np.random.default_rng(setup.seed))
-    except MapfilterError as exc:
-        result.status, result.reason = "failed", str(exc)
-    except Exception as exc:  # noqa: BLE001 - a bug in one walk must not lose the other walks' work
-        where = traceback.extract_tb(exc.__traceback__)[-1]
-        result.status = "crashed"
-        result.reason = f"{type(exc).__name__}: {exc} (at {Path(where.filename).name}:{where.lineno})"
-    else:
         track = outcome.smoothed if setup.tracking.smooth else outcome.track
         result.track = track
         result.n_filter_steps, result.n_scans_used = outcome.n_filter_steps, outcome.n_scans_used
@@ -93,6 +97,49 @@ def track_walk(floorplan: FloorPlan, radio_map: RadioMap | None, ap_table: Acces
                                       causal=not setup.tracking.smooth)
             result.error_stats = summarise_errors(err.errors_m)
             result.missed_waypoints = err.missed
+
+    return _guarded(log_path, setup, track)
+
+
+def track_building_walk(building: Building, radio_map: RadioMap, setup: BatchSetup, log_path: Path) -> WalkResult:
+    """Track one walk in a building as ``mapfilter track BUILDING.yaml LOG`` does
+    (``floortracking.track_building``, the floor found or ``setup.floor``); never raises."""
+
+    def track(recording: Recording, result: WalkResult) -> None:
+        header_floor = building.floor_of_log(recording.floor_name, log_path)  # a floor not in the building
+        outcome = track_building(building, recording, radio_map, setup.tracking, np.random.default_rng(setup.seed),
+                                 floor=setup.floor)
+        smoothed = setup.tracking.smooth and outcome.smoothed is not None
+        track = outcome.smoothed if smoothed else outcome.track
+        result.track = track
+        result.n_filter_steps, result.n_scans_used = outcome.n_filter_steps, outcome.n_scans_used
+        result.collapses = len(outcome.collapses)
+        score = score_building_track(building, recording, track, header_floor, causal=not smoothed)
+        result.wall_crossings, result.floors = score.wall_crossings, score.floors
+        result.header_floor = None if header_floor is None else building.floor_names[header_floor]
+        if score.errors is not None:
+            result.error_stats = summarise_errors(score.errors.errors_m)
+            result.missed_waypoints = score.errors.missed
+            result.floor_score = score.floor_score
+
+    return _guarded(log_path, setup, track)
+
+
+def _guarded(log_path: Path, setup: BatchSetup, track: Callable[[Recording, WalkResult], None]) -> WalkResult:
+    """Read the log and ``track(recording, result)`` into a ``WalkResult``; an error becomes its
+    status and reason instead of an exception."""
+    started = time.perf_counter()
+    warned: list[str] = []
+    result = WalkResult(Path(log_path), trace_name(log_path), "ok")
+    try:
+        recording = read_ilc(log_path, strict=setup.strict, warn=warned.append)
+        track(recording, result)
+    except MapfilterError as exc:
+        result = WalkResult(result.log_path, result.trace, "failed", str(exc))
+    except Exception as exc:  # noqa: BLE001 - a bug in one walk must not lose the other walks' work
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        result = WalkResult(result.log_path, result.trace, "crashed",
+                            f"{type(exc).__name__}: {exc} (at {Path(where.filename).name}:{where.lineno})")
     result.read_warning = warned[0] if warned else None
     result.runtime_s = time.perf_counter() - started
     return result
@@ -107,16 +154,52 @@ def track_logs(floorplan: FloorPlan, log_paths: Sequence[str | os.PathLike], rad
     ``on_result`` sees each result as it arrives (to write its track file at once, so that an
     interrupted batch keeps the walks already done).
     """
+    paths = _distinct_paths(log_paths)
+    if radio_map is None and ap_table is None:
+        raise MapfilterError("no WiFi source: give a radio map or an access-point table")
+    return _run_walks(track_walk, paths, (floorplan, radio_map, ap_table, setup), engine, progress, on_result)
+
+
+def track_building_logs(building: Building, log_paths: Sequence[str | os.PathLike], radio_map: RadioMap,
+                        setup: BatchSetup, engine: Engine = Engine(),
+                        progress: Callable[[int, int, str], None] | None = None,
+                        on_result: Callable[[WalkResult], None] | None = None) -> list[WalkResult]:
+    """``track_logs`` in a building (``track_building_walk`` per walk).
+
+    Before any walk runs, every log's header is read: one whose floor (``FloorName``) the
+    building does not have is refused with a ``MapfilterError`` naming it (a wrong building for
+    these logs, not a walk to skip). A header that cannot be read is left to its walk, which
+    then fails as any unreadable log does.
+    """
+    paths = _distinct_paths(log_paths)
+    if not radio_map.has_floors or list(radio_map.floor_names) != building.floor_names:
+        raise MapfilterError("not a radio map of this building's floors (build it with mapfilter radiomap build "
+                             "BUILDING.yaml LOGS...)")
+    if setup.floor is not None:
+        building.floor_index(setup.floor)
+    for path in paths:
+        try:
+            floor_name = read_ilc_header(path).get("FloorName") or None
+        except MapfilterError:
+            continue
+        building.floor_of_log(floor_name, path)
+    return _run_walks(track_building_walk, paths, (building, radio_map, setup), engine, progress, on_result)
+
+
+def _distinct_paths(log_paths: Sequence[str | os.PathLike]) -> list[Path]:
     paths = [Path(p) for p in log_paths]
     names = [trace_name(p) for p in paths]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise MapfilterError(f"two logs share the trace name {repeated[0]}: their track files would collide")
-    if radio_map is None and ap_table is None:
-        raise MapfilterError("no WiFi source: give a radio map or an access-point table")
+    return paths
+
+
+def _run_walks(walk: Callable[..., WalkResult], paths: list[Path], common: tuple, engine: Engine,
+               progress: Callable[[int, int, str], None] | None,
+               on_result: Callable[[WalkResult], None] | None) -> list[WalkResult]:
     results: list[WalkResult | None] = [None] * len(paths)
-    for i, result in run_each(track_walk, paths, engine, common=(floorplan, radio_map, ap_table, setup),
-                              progress=progress, label=lambda path: path.name):
+    for i, result in run_each(walk, paths, engine, common=common, progress=progress, label=lambda path: path.name):
         results[i] = result
         if on_result is not None:
             on_result(result)
@@ -128,17 +211,28 @@ SUMMARY_COLUMNS = ("trace", "status", "reason", "track_file", "filter_steps", "s
                    "runtime_s", "skipped_rows", "log")
 
 
-def summary_row(result: WalkResult, track_file: str | None) -> dict:
-    """One line of a batch's summary.csv."""
+# a building's summary.csv: the floors the track visits, the header's floor, and the share of
+# the waypoints (with an estimate) at which the track was on the walker's floor
+BUILDING_SUMMARY_COLUMNS = (SUMMARY_COLUMNS[:4] + ("header_floor", "floors") + SUMMARY_COLUMNS[4:-3]
+                            + ("floor_accuracy",) + SUMMARY_COLUMNS[-3:])
+
+
+def summary_row(result: WalkResult, track_file: str | None, columns: Sequence[str] = SUMMARY_COLUMNS) -> dict:
+    """One line of a batch's summary.csv: ``columns`` (``BUILDING_SUMMARY_COLUMNS`` in a building)."""
     stats = result.error_stats or {}
 
     def stat(name: str) -> float | None:
         value = stats.get(name)
         return None if value is None or math.isnan(value) else value
 
-    return {"trace": result.trace, "status": result.status, "reason": result.reason, "track_file": track_file,
-            "filter_steps": result.n_filter_steps, "scans_used": result.n_scans_used,
-            "collapses": result.collapses, "wall_crossings": result.wall_crossings,
-            "waypoints": stats.get("n"), "missed_waypoints": result.missed_waypoints if stats else None,
-            "mean_m": stat("mean"), "median_m": stat("median"), "p75_m": stat("p75"), "max_m": stat("max"),
-            "runtime_s": result.runtime_s, "skipped_rows": result.read_warning, "log": str(result.log_path)}
+    row = {"trace": result.trace, "status": result.status, "reason": result.reason, "track_file": track_file,
+           "filter_steps": result.n_filter_steps, "scans_used": result.n_scans_used,
+           "collapses": result.collapses, "wall_crossings": result.wall_crossings,
+           "waypoints": stats.get("n"), "missed_waypoints": result.missed_waypoints if stats else None,
+           "mean_m": stat("mean"), "median_m": stat("median"), "p75_m": stat("p75"), "max_m": stat("max"),
+           "runtime_s": result.runtime_s, "skipped_rows": result.read_warning, "log": str(result.log_path),
+           "header_floor": result.header_floor,
+           "floors": None if result.floors is None else ";".join(result.floors),
+           "floor_accuracy": None if result.floor_score is None or not result.floor_score.n_judged
+           else result.floor_score.accuracy}
+    return {name: row[name] for name in columns}

@@ -61,12 +61,16 @@ A building (MAP a building YAML, docs/building.md) with a building's radio map (
 and found from the WiFi (or given with --floor NAME); the track's x, y are in the frame of
 the floor it is on, and a `floor` column names that floor. The log's header floor
 (FloorName), when it names one, must be a floor of the building; it is used only to print
-how often the track was on it.
+how often the track was on it (on each waypoint's own floor where the log names it, as
+simulated walks that change floor do). With --out-dir, summary.csv adds header_floor, floors
+(the floors the track visits) and floor_accuracy; a log whose header floor the building
+does not have is refused before any walk is tracked.
 
 example:
   mapfilter track maps/office.yaml maps/office_walk.txt --radiomap maps/office_radiomap.npz
   mapfilter track site1.yaml walk.txt.gz --radiomap site1_radiomap.npz --out track.csv
   mapfilter track F1.yaml walks/*.txt.gz --radiomap F1_radiomap.npz --out-dir tracks --jobs 2
+  mapfilter track site1.yaml walks/*.txt.gz --radiomap site1_radiomap.npz --out-dir tracks
 """
 
 
@@ -339,8 +343,8 @@ def _tracking_config(args: argparse.Namespace):
 def _run_batch(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from mapfilter.batch import SUMMARY_COLUMNS, BatchSetup, WalkResult, summary_row, track_logs
-    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.batch import (BUILDING_SUMMARY_COLUMNS, SUMMARY_COLUMNS, BatchSetup, WalkResult, summary_row,
+                                 track_building_logs, track_logs)
     from mapfilter.trackio import write_track_csv, write_track_tum
 
     for option in ("out", "rerun"):
@@ -357,14 +361,25 @@ def _run_batch(args: argparse.Namespace) -> int:
     from mapfilter.maps.building import Building
 
     building = Building.load(args.map)
-    if not building.is_single_floor:
-        raise MapfilterError("--out-dir with a building is not supported yet: track its walks one at a time",
-                             args.map)
-    if args.floor is not None:
-        raise MapfilterError("--floor picks a floor of a building: this map has one floor", args.map)
-    floorplan = building.floors[0].plan
-    radio_map, ap_table = _wifi_source(args, floorplan)
-    setup = BatchSetup(tracking=_tracking_config(args), seed=args.seed, strict=args.strict)
+    setup = BatchSetup(tracking=_tracking_config(args), seed=args.seed, strict=args.strict, floor=args.floor)
+    if building.is_single_floor:
+        if args.floor is not None:
+            raise MapfilterError("--floor picks a floor of a building: this map has one floor", args.map)
+        floorplan = building.floors[0].plan
+        radio_map, ap_table = _wifi_source(args, floorplan)
+        columns = SUMMARY_COLUMNS
+
+        def track_all(**kwargs):
+            return track_logs(floorplan, args.logs, radio_map, ap_table, setup, engine, **kwargs)
+    else:
+        from mapfilter.sensors.floors import load_building_radio_map
+
+        _check_building_options(args, building)
+        radio_map = load_building_radio_map(args.radiomap, building.floor_names)
+        columns = BUILDING_SUMMARY_COLUMNS
+
+        def track_all(**kwargs):
+            return track_building_logs(building, args.logs, radio_map, setup, engine, **kwargs)
     suffix = ".tum" if args.format == "tum" else ".csv"
     track_files: dict[str, str] = {}
 
@@ -379,15 +394,14 @@ def _run_batch(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     with ProgressBar("track", len(args.logs)) as progress:
-        results = track_logs(floorplan, args.logs, radio_map, ap_table, setup, engine, progress=progress,
-                             on_result=write)
+        results = track_all(progress=progress, on_result=write)
     wall_time_s = time.perf_counter() - started
     summary = args.out_dir / "summary.csv"
     with atomic_paths(summary) as (tmp,), tmp.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, SUMMARY_COLUMNS)
+        writer = csv.DictWriter(handle, columns)
         writer.writeheader()
         for result in results:
-            row = summary_row(result, track_files.get(result.trace))
+            row = summary_row(result, track_files.get(result.trace), columns)
             writer.writerow({k: (f"{v:.4f}" if isinstance(v, float) else ("" if v is None else v))
                              for k, v in row.items()})
     bad = [r for r in results if not r.ok]
@@ -400,6 +414,10 @@ def _run_batch(args: argparse.Namespace) -> int:
             f"crashed; {wall_time_s:.1f} s, {60 * len(results) / max(wall_time_s, 1e-9):.1f} walks/min")
     if errors:
         line += f"; mean of per-walk mean errors {np.mean(errors):.2f} m"
+    judged = sum(r.floor_score.n_judged for r in tracked if r.floor_score)
+    if judged:
+        right = sum(r.floor_score.n_right for r in tracked if r.floor_score)
+        line += f"; on the walker's floor at {right} of {judged} waypoints ({right / judged:.0%})"
     print(line)
     print(f"wrote {len(tracked)} tracks and {summary}")
     return 1 if bad else 0

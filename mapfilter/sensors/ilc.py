@@ -108,10 +108,7 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
                 if not line.strip():
                     continue
                 if line.startswith("#"):
-                    for field in line[1:].split("\t"):
-                        key, sep, value = field.strip().partition(":")
-                        if sep:
-                            header.setdefault(key, value)
+                    _read_header_line(line, header)
                     continue
                 records = _split_records(line.split("\t"))
                 if len(records) > 1:
@@ -191,6 +188,36 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
         pressure_t_s=baro[:, 0], pressure_hpa=baro[:, 1],
         waypoint_floor=wp_floor,
     )
+
+
+def read_ilc_header(path: str | os.PathLike) -> dict[str, str]:
+    """The header of an ILC trace (``key:value`` fields of its leading ``#`` lines, e.g.
+    ``FloorName``) without reading the records: a cheap look before a long run."""
+    path = Path(path)
+    if not path.is_file():
+        raise MapfilterError("file not found", path)
+    opener = gzip.open if path.suffix == ".gz" else open
+    header: dict[str, str] = {}
+    try:
+        with opener(path, "rt", encoding="utf-8", errors="replace") as handle:
+            for raw in handle:
+                line = raw.rstrip("\r\n")
+                if not line.strip():
+                    continue
+                if not line.startswith("#"):
+                    break
+                _read_header_line(line, header)
+    except (OSError, EOFError, gzip.BadGzipFile, zlib.error) as exc:
+        raise MapfilterError(f"cannot read log: {exc}", path) from None
+    return header
+
+
+def _read_header_line(line: str, header: dict[str, str]) -> None:
+    """The ``key:value`` fields of one ``#`` line into ``header`` (the first value of a key wins)."""
+    for field in line[1:].split("\t"):
+        key, sep, value = field.strip().partition(":")
+        if sep:
+            header.setdefault(key, value)
 
 
 def _split_records(fields: list[str]) -> list[list[str]]:

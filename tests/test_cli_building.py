@@ -1,0 +1,166 @@
+"""``mapfilter track BUILDING.yaml LOG... --out-dir DIR`` and ``mapfilter view BUILDING.yaml TRACK...``
+on a simulated three-floor office: files, floor columns, summary rows, and bad input refused
+with one line naming the file and nothing written."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import dataclasses
+import io
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from mapfilter.cli import main
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.ilc import read_ilc
+from mapfilter.trackio import read_track
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tools"))
+from floor_sim import FLOORS, make_office_building  # noqa: E402
+
+PARTICLES = ["--particles", "300"]
+
+
+@pytest.fixture(scope="module")
+def office3(tmp_path_factory) -> SimpleNamespace:
+    """Three stacked office floors (stairs, lift), a coarse survey per floor in one radio map, and
+    two walks that change floor once (walk1: F1 -> F0 by lift, walk2: F2 -> F1 by stairs)."""
+    out = tmp_path_factory.mktemp("office3")
+    _, tables = make_office_building(out)
+    for name, table in tables.items():
+        table.write_csv(out / f"{name}_aps.csv")
+        plan = FloorPlan.load(out / f"{name}.yaml")
+        dataclasses.replace(plan, access_points_csv=(out / f"{name}_aps.csv").resolve()).save(out / f"{name}.yaml")
+    building = out / "building.yaml"
+    surveys = [out / f"survey_{name}.txt" for name in FLOORS]
+    for name, survey in zip(FLOORS, surveys):
+        assert main(["simulate", str(building), "--out", str(survey), "--survey", "--floor", name,
+                     "--survey-spacing", "8", "--scans-per-point", "1"]) == 0
+    radiomap = out / "rm.npz"
+    assert main(["radiomap", "build", str(building), *map(str, surveys), "--out", str(radiomap)]) == 0
+    walks = [out / f"walk{seed}.txt" for seed in (1, 2)]
+    for seed, walk in zip((1, 2), walks):
+        assert main(["simulate", str(building), "--out", str(walk), "--seed", str(seed), "--floor-changes", "1",
+                     "--segment-s", "4", "6"]) == 0
+    return SimpleNamespace(dir=out, building=building, radiomap=radiomap, walks=walks)
+
+
+@pytest.fixture(scope="module")
+def tracked(office3, tmp_path_factory) -> SimpleNamespace:
+    """Both walks tracked with --out-dir (floor found), and what the command printed."""
+    out = tmp_path_factory.mktemp("batch") / "tracks"
+    printed = io.StringIO()  # capsys is for one test only
+    with contextlib.redirect_stdout(printed):
+        code = main(["track", str(office3.building), *map(str, office3.walks), "--radiomap", str(office3.radiomap),
+                     *PARTICLES, "--out-dir", str(out)])
+    return SimpleNamespace(code=code, out=out, stdout=printed.getvalue())
+
+
+def _summary(out_dir: Path) -> dict[str, dict]:
+    with (out_dir / "summary.csv").open() as handle:
+        return {row["trace"]: row for row in csv.DictReader(handle)}
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("mapfilter: error: "), err
+    return err
+
+
+# ---- track --out-dir ------------------------------------------------------------------------
+def test_out_dir_writes_a_track_with_floors_per_walk_and_a_summary_row_per_walk(office3, tracked):
+    assert tracked.code == 0
+    assert "2 walks (serial): 2 tracked, 0 failed, 0 crashed" in tracked.stdout
+    assert "on the walker's floor at" in tracked.stdout
+    assert sorted(p.name for p in tracked.out.iterdir()) == ["summary.csv", "walk1.csv", "walk2.csv"]
+    rows = _summary(tracked.out)
+    assert list(rows) == ["walk1", "walk2"]
+    for walk, (start, end) in zip(office3.walks, (("F1", "F0"), ("F2", "F1"))):
+        trace = walk.name.split(".")[0]
+        track = read_track(tracked.out / f"{trace}.csv")
+        recording = read_ilc(walk)
+        assert recording.waypoint_floor[0] == start and recording.waypoint_floor[-1] == end
+        # every row names a floor of the building; the walk's floor change is in the track
+        assert set(track.floor) <= set(FLOORS) and {start, end} <= set(track.floor)
+        row = rows[trace]
+        assert row["status"] == "ok" and row["track_file"] == f"{trace}.csv"
+        assert row["header_floor"] == recording.floor_name == start
+        assert row["floors"] == ";".join(sorted(set(track.floor), key=FLOORS.index))
+        assert int(row["waypoints"]) > 30 and float(row["floor_accuracy"]) > 0.8
+        assert float(row["mean_m"]) < 10.0
+
+
+def test_a_walk_of_a_batch_is_the_walk_tracked_alone(office3, tracked, tmp_path, capsys):
+    single = tmp_path / "walk1.csv"
+    assert main(["track", str(office3.building), str(office3.walks[0]), "--radiomap", str(office3.radiomap),
+                 *PARTICLES, "--out", str(single)]) == 0
+    assert single.read_bytes() == (tracked.out / "walk1.csv").read_bytes()
+
+
+def test_out_dir_smoothed_tum_tracks_on_a_given_floor(office3, tmp_path, capsys):
+    out = tmp_path / "tracks"
+    assert main(["track", str(office3.building), *map(str, office3.walks), "--radiomap", str(office3.radiomap),
+                 *PARTICLES, "--smooth", "--format", "tum", "--floor", "F1", "--out-dir", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["summary.csv", "walk1.tum", "walk2.tum"]
+    rows = _summary(out)
+    for trace in ("walk1", "walk2"):
+        assert len(read_track(out / f"{trace}.tum")) > 30
+        assert rows[trace]["floors"] == "F1"  # the floor given
+        # judged against the walker's floor at each waypoint: both walks leave or reach F1 half-way
+        assert 0.0 < float(rows[trace]["floor_accuracy"]) < 1.0
+
+
+def test_a_walk_that_fails_is_reported_and_the_others_are_tracked(office3, tmp_path, capsys):
+    lines = office3.walks[0].read_text().splitlines(keepends=True)
+    no_wifi = tmp_path / "nowifi.txt"
+    no_wifi.write_text("".join(line for line in lines if "\tTYPE_WIFI\t" not in line))
+    out = tmp_path / "tracks"
+    assert main(["track", str(office3.building), str(no_wifi), str(office3.walks[1]), "--radiomap",
+                 str(office3.radiomap), *PARTICLES, "--out-dir", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert "2 walks (serial): 1 tracked, 1 failed" in captured.out
+    assert "mapfilter: failed: " in captured.err and str(no_wifi) in captured.err
+    rows = _summary(out)
+    assert rows["nowifi"]["status"] == "failed" and rows["nowifi"]["track_file"] == ""
+    assert rows["walk2"]["status"] == "ok"
+    assert sorted(p.name for p in out.iterdir()) == ["summary.csv", "walk2.csv"]
+
+
+@pytest.mark.parametrize("problem", ["log_floor", "radiomap_without_floors", "floor_option"])
+def test_bad_input_is_one_line_naming_the_file_and_nothing_is_written(office3, tmp_path, capsys, problem):
+    walks = [str(w) for w in office3.walks]
+    radiomap = str(office3.radiomap)
+    extra: list[str] = []
+    if problem == "log_floor":  # the second log of another building: refused before any walk runs
+        bad = tmp_path / "walk_f9.txt"
+        bad.write_text(office3.walks[0].read_text().replace("FloorName:F1", "FloorName:F9"))
+        walks.append(str(bad))
+        named, message = str(bad), "'F9' is not in the building"
+    elif problem == "radiomap_without_floors":
+        radiomap = str(REPO / "maps" / "office_radiomap.npz")
+        named, message = radiomap, "no floor labels"
+    else:
+        extra = ["--floor", "F9"]
+        named, message = str(office3.building), "'F9' is not in the building"
+    out = tmp_path / "tracks"
+    assert main(["track", str(office3.building), *walks, "--radiomap", radiomap, *PARTICLES, *extra,
+                 "--out-dir", str(out)]) == 1
+    err = _one_error_line(capsys)
+    assert named in err and message in err
+    assert not out.exists()
+
+
+def test_out_dir_on_two_local_dask_workers_writes_the_serial_tracks(office3, tracked, tmp_path, capsys):
+    pytest.importorskip("distributed")
+    out = tmp_path / "jobs2"
+    assert main(["track", str(office3.building), *map(str, office3.walks), "--radiomap", str(office3.radiomap),
+                 *PARTICLES, "--jobs", "2", "--out-dir", str(out)]) == 0
+    assert "2 walks (2 local Dask worker processes): 2 tracked" in capsys.readouterr().out
+    for name in ("walk1.csv", "walk2.csv"):
+        assert (out / name).read_bytes() == (tracked.out / name).read_bytes()
+    assert _summary(out)["walk1"]["floors"] == _summary(tracked.out)["walk1"]["floors"]
