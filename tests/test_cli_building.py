@@ -164,3 +164,107 @@ def test_out_dir_on_two_local_dask_workers_writes_the_serial_tracks(office3, tra
     for name in ("walk1.csv", "walk2.csv"):
         assert (out / name).read_bytes() == (tracked.out / name).read_bytes()
     assert _summary(out)["walk1"]["floors"] == _summary(tracked.out)["walk1"]["floors"]
+
+
+# ---- view -----------------------------------------------------------------------------------
+def _entities(rrd: Path) -> dict:
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_viz import read_rrd, verify
+
+    verify(rrd)
+    return read_rrd(rrd)
+
+
+def _points_per_row(batches) -> list[int]:
+    """How many points each logged row of a Points2D entity holds (its static row left out)."""
+    counts = []
+    for batch in batches:
+        if "Points2D:positions" in batch.schema.names and "trace_time" in batch.schema.names:
+            counts += [len(v) for v in batch.column("Points2D:positions").to_pylist()]
+    return counts
+
+
+def test_view_draws_every_floor_and_each_track_row_and_waypoint_on_its_floor(office3, tracked, tmp_path, capsys):
+    rrd = tmp_path / "view.rrd"
+    tracks = [tracked.out / "walk1.csv", tracked.out / "walk2.csv"]
+    assert main(["view", str(office3.building), *map(str, tracks), "--log", str(office3.walks[0]),
+                 "--rerun", str(rrd)]) == 0
+    assert f"wrote {rrd}" in capsys.readouterr().out
+    assert rrd.stat().st_size > 0
+    entities = _entities(rrd)
+    assert not any(e.startswith("/map") for e in entities)  # no single map: a view per floor
+    for floor in FLOORS:
+        assert f"/floors/{floor}/world/walls/mask" in entities and f"/floors/{floor}/world/floorplan/image" in entities
+    for path in tracks:
+        track = read_track(path)
+        for floor in FLOORS:
+            on_floor = sum(f == floor for f in track.floor)
+            entity = f"/floors/{floor}/world/tracks/{path.stem}"
+            assert (f"{entity}/path" in entities) == (on_floor > 0)
+            if on_floor:
+                # one row per track row: a point while the track is on this floor, none elsewhere
+                counts = _points_per_row(entities[f"{entity}/position"])
+                assert len(counts) == len(track) and sum(counts) == on_floor
+        assert f"/plots/error_m/{path.stem}" in entities
+    # the ground truth of walk1 (F1, then F0 by lift): each waypoint on its own floor
+    recording = read_ilc(office3.walks[0])
+    for floor in FLOORS:
+        n = sum(f == floor for f in recording.waypoint_floor)
+        entity = f"/floors/{floor}/world/ground_truth/waypoints"
+        assert (entity in entities) == (n > 0)
+        if n:
+            batch = next(b for b in entities[entity] if "Points2D:positions" in b.schema.names)
+            assert len(batch.column("Points2D:positions").to_pylist()[0]) == n
+
+
+def test_view_puts_a_track_without_floors_on_the_logs_header_floor(office3, tmp_path, capsys):
+    """A TUM track has no floor column: it is drawn on the floor the log's header names."""
+    out = tmp_path / "tracks"
+    assert main(["track", str(office3.building), str(office3.walks[1]), "--radiomap", str(office3.radiomap),
+                 *PARTICLES, "--format", "tum", "--out", str(out / "walk2.tum")]) == 0
+    rrd = tmp_path / "view.rrd"
+    assert main(["view", str(office3.building), str(out / "walk2.tum"), "--log", str(office3.walks[1]),
+                 "--rerun", str(rrd)]) == 0
+    entities = _entities(rrd)
+    assert [f for f in FLOORS if f"/floors/{f}/world/tracks/walk2/path" in entities] == ["F2"]
+
+
+@pytest.mark.parametrize("problem", ["track_floor", "no_floor_no_log", "log_floor"])
+def test_view_bad_input_is_one_line_naming_the_file_and_writes_nothing(office3, tracked, tmp_path, capsys, problem):
+    track = tmp_path / "walk.csv"
+    lines = (tracked.out / "walk1.csv").read_text().splitlines(keepends=True)
+    track.write_text("".join(lines))
+    extra = ["--log", str(office3.walks[0])]
+    if problem == "track_floor":  # the third row (line 4) on a floor the building does not have
+        header = lines[0].strip().split(",")
+        fields = lines[3].strip().split(",")
+        fields[header.index("floor")] = "F9"
+        lines[3] = ",".join(fields) + "\n"
+        track.write_text("".join(lines))
+        named, message = f"{track}:4", "'F9' is not in the building"
+    elif problem == "no_floor_no_log":
+        track.write_text("t_s,x_m,y_m\n1.0,20.0,8.5\n2.0,21.0,8.5\n")
+        extra = []
+        named, message = str(track), "no floor column"
+    else:
+        bad = tmp_path / "walk_f9.txt"
+        bad.write_text(office3.walks[0].read_text().replace("FloorName:F1", "FloorName:F9"))
+        extra = ["--log", str(bad)]
+        named, message = str(bad), "'F9' is not in the building"
+    rrd = tmp_path / "view.rrd"
+    assert main(["view", str(office3.building), str(track), *extra, "--rerun", str(rrd)]) == 1
+    err = _one_error_line(capsys)
+    assert named in err and message in err
+    assert not rrd.exists() and not list(tmp_path.glob("*.rrd"))
+
+
+def test_view_of_a_one_floor_map_ignores_a_floor_column(tracked, tmp_path, capsys):
+    """A one-floor map draws as it always did (under map/world), whatever the track's floor says."""
+    rrd = tmp_path / "view.rrd"
+    assert main(["view", str(REPO / "maps" / "office.yaml"), str(tracked.out / "walk1.csv"), "--rerun",
+                 str(rrd)]) == 0
+    entities = _entities(rrd)
+    assert "/map/world/walls/mask" in entities and "/map/world/tracks/walk1/path" in entities
+    assert not any(e.startswith("/floors") for e in entities)
+    counts = _points_per_row(entities["/map/world/tracks/walk1/position"])
+    assert len(counts) == len(read_track(tracked.out / "walk1.csv")) and set(counts) == {1}

@@ -37,6 +37,11 @@ Entities (all under ``map/world`` are in world metres)
 - ``plots/particles/{ess,alive,resampled}``, ``plots/kills``, ``plots/error_m/<name>``,
   ``plots/pdr/step_length_m``, ``plots/pdr/heading_deg/{filter,ground_truth}``
 - ``events`` (text log: collapses and recoveries as WARN, resampling as DEBUG)
+
+A building seen whole (``view_map`` with a building: finished tracks, no filter) draws no
+``map``: each floor has its own root and 2D view, ``floors/<floor>/world/...`` with the same
+children as ``map/world`` (``floorplan``, ``walls``, ``ground_truth``, ``tracks/<name>``), each
+row of a track and each waypoint under the floor it is on (``viz.floors.FloorPlansLayer``).
 """
 
 from mapfilter.viz.recorder import NullLogger, RerunLogger, make_logger, view_map

@@ -1,10 +1,15 @@
-"""The floor layer (a building): the current floor's plan, the share of particles per floor,
-and floor changes in the event log.
+"""The floor layers of a building.
 
-The filter works on the building's stack plan (``filter.floors.FloorStack``: every floor in its
-own tile). This layer draws what a person looks at: the plan of the floor the estimate is on
-(re-drawn whenever that floor changes), the particles on that floor in its own frame, and a
-plot of how the weight is shared between the floors.
+:class:`FloorLayer` (a tracking run): the current floor's plan, the share of particles per
+floor, and floor changes in the event log. The filter works on the building's stack plan
+(``filter.floors.FloorStack``: every floor in its own tile). This layer draws what a person
+looks at: the plan of the floor the estimate is on (re-drawn whenever that floor changes), the
+particles on that floor in its own frame, and a plot of how the weight is shared between the
+floors.
+
+:class:`FloorPlansLayer` (finished tracks, ``mapfilter view BUILDING.yaml``): every floor's plan
+at once, each under its own root ``floors/<floor>`` (in the floor's own frame, with its own 2D
+view), and the root each row of a track or each waypoint is drawn under, by its floor.
 """
 
 from __future__ import annotations
@@ -16,10 +21,12 @@ import numpy as np
 
 from mapfilter.viz.canvas import Canvas
 from mapfilter.viz.map import MapLayer
+from mapfilter.viz.style import BACKGROUND, entity_name
 
 if TYPE_CHECKING:  # pragma: no cover
     from mapfilter.filter.events import StepReport
     from mapfilter.filter.floors import FloorStack
+    from mapfilter.maps.building import Building
 
 # one colour per floor in the share plot (matplotlib's tab10)
 _FLOOR_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
@@ -85,3 +92,42 @@ class FloorLayer:
         return dataclasses.replace(report, estimate_xy_m=estimate, particles_xy_m=xy[keep],
                                    particles_weight=weight / total if total > 0 else weight,
                                    killed_from_xy_m=killed_from[mine], killed_to_xy_m=killed_to[mine], fix_xy_m=None)
+
+
+class FloorPlansLayer:
+    """Every floor of a building, each under ``floors/<floor>/world/...`` in its own frame (static),
+    with one 2D view per floor; ``on(floors)`` says under which root each row is drawn."""
+
+    def __init__(self, canvas: Canvas, building: Building) -> None:
+        self.canvas = canvas
+        self.names = building.floor_names
+        self.roots: dict[str, str] = {}
+        for i, name in enumerate(self.names):
+            root = f"floors/{entity_name(name)}"
+            self.roots[name] = root if root not in self.roots.values() else f"{root}_{i}"  # "F 1" and "F_1"
+        self.maps = [MapLayer(canvas, floor.plan, root=self.roots[floor.name]) for floor in building.floors]
+
+    def draw(self) -> None:
+        """Each floor's y-up flip (as ``map/world``'s, see ``viz``) and its plan, static."""
+        for layer in self.maps:
+            self.canvas.log(f"{layer.root}/world", self.canvas.rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+            layer.draw(static=True)
+
+    def on(self, floors: list[str]) -> dict[str, np.ndarray]:
+        """Root -> which rows are on that floor, for rows on the floors named by ``floors``."""
+        floor = np.asarray(floors, dtype=object)
+        return {self.roots[name]: floor == name for name in self.names}
+
+    def views(self) -> list:
+        """One 2D view per floor, bottom floor first, each framing its floor's plan."""
+        import rerun.blueprint as rrb
+
+        views = []
+        for name, layer in zip(self.names, self.maps):
+            x_min, x_max, y_min, y_max = layer.extent_m()
+            views.append(rrb.Spatial2DView(
+                name=f"Floor {name}", origin=layer.root,
+                # view coordinates are (x, -y): see the viz package docstring
+                visual_bounds=rrb.VisualBounds2D(x_range=[x_min, x_max], y_range=[-y_max, -y_min]),
+                background=rrb.Background(color=BACKGROUND)))
+        return views

@@ -16,11 +16,13 @@ if TYPE_CHECKING:  # pragma: no cover
 
 
 class MapLayer:
-    """Draws ``map/world/floorplan/image`` (the source picture, if any) and ``map/world/walls/mask``."""
+    """Draws ``<root>/world/floorplan/image`` (the source picture, if any) and ``<root>/world/walls/mask``
+    (``root``: ``map``, or ``floors/<floor>`` for one floor of a building seen whole, ``viz.floors``)."""
 
-    def __init__(self, canvas: Canvas, floorplan: FloorPlan) -> None:
+    def __init__(self, canvas: Canvas, floorplan: FloorPlan, root: str = "map") -> None:
         self.canvas = canvas
         self.floorplan = floorplan
+        self.root = root
         self._picture: np.ndarray | None = None
 
     def extent_m(self) -> tuple[float, float, float, float]:
@@ -66,21 +68,22 @@ class MapLayer:
         rr = self.canvas.rr
         log = self.canvas.log
         fp = self.floorplan
+        world = f"{self.root}/world"
         source = fp.source_image
         if source is not None:
             image = self._source_picture()
-            log("map/world/floorplan", self._image_transform(image.shape[0], source.resolution_m, source.origin_m),
+            log(f"{world}/floorplan", self._image_transform(image.shape[0], source.resolution_m, source.origin_m),
                 static=static)
             # rerun 0.41 draws transparent image pixels with their RGB (black in ILC plans), so
             # flatten onto the view's background colour; PNG-encode to keep the recording small
             ok, png = cv2.imencode(".png", flatten_bgr(image, BACKGROUND))
             if not ok:
                 raise MapfilterError("could not re-encode the floor-plan picture", source.path)
-            log("map/world/floorplan/image",
+            log(f"{world}/floorplan/image",
                 rr.EncodedImage(contents=png.tobytes(), media_type="image/png", draw_order=Z_IMAGE), static=static)
-        log("map/world/walls", self._image_transform(fp.shape_px[0], fp.resolution_m, fp.origin_m), static=static)
+        log(f"{world}/walls", self._image_transform(fp.shape_px[0], fp.resolution_m, fp.origin_m), static=static)
         log(
-            "map/world/walls",
+            f"{world}/walls",
             rr.AnnotationContext([
                 rr.AnnotationInfo(id=0, label="free", color=(0, 0, 0, 0)),
                 rr.AnnotationInfo(id=1, label="wall", color=(200, 30, 30, 255)),
@@ -89,7 +92,7 @@ class MapLayer:
         )
         # with a picture underneath the mask is a light overlay; alone it is the map itself
         opacity = 0.35 if source is not None else 0.8
-        log("map/world/walls/mask", rr.SegmentationImage(fp.wall_mask.astype(np.uint8), opacity=opacity,
+        log(f"{world}/walls/mask", rr.SegmentationImage(fp.wall_mask.astype(np.uint8), opacity=opacity,
                                                          draw_order=Z_MASK), static=static)
 
 

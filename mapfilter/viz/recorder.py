@@ -29,6 +29,7 @@ from mapfilter.viz.tracks import GroundTruthLayer, TrackLayer
 
 if TYPE_CHECKING:  # pragma: no cover
     from mapfilter.filter.events import StepReport
+    from mapfilter.maps.building import Building
     from mapfilter.maps.floorplan import FloorPlan
     from mapfilter.sensors.recording import Recording
     from mapfilter.trackio import Track
@@ -42,13 +43,13 @@ class NullLogger:
     def log_map(self) -> None:
         pass
 
-    def log_ground_truth(self, t_s: np.ndarray, xy_m: np.ndarray) -> None:
+    def log_ground_truth(self, t_s: np.ndarray, xy_m: np.ndarray, floor: Sequence[str] | None = None) -> None:
         pass
 
     def log_step(self, report: StepReport) -> None:
         pass
 
-    def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray) -> None:
+    def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray, floor: Sequence[str] | None = None) -> None:
         pass
 
     def close(self) -> None:
@@ -83,6 +84,10 @@ class RerunLogger:
     stack : a building's ``filter.floors.FloorStack`` when the filter runs across floors: the
         current floor's plan is drawn (again at each floor change), steps are drawn in that
         floor's frame, and a plot shows the weight on each floor (``viz.floors``).
+    building : a building with several floors whose finished tracks are shown (``view_map``):
+        every floor's plan at once, each in its own view under ``floors/<floor>``
+        (``viz.floors.FloorPlansLayer``); tracks and ground truth are then logged with the floor
+        of each row (instead of ``floorplan``, unused; no filter steps).
 
     Exactly one of ``rrd_path`` and ``spawn`` must be given. Call :meth:`log_map` first
     (:func:`make_logger` does), then :meth:`log_ground_truth` if there is ground truth, then
@@ -101,6 +106,7 @@ class RerunLogger:
         recording_name: str | None = None,
         filter_plots: bool = True,
         stack: Any = None,
+        building: Any = None,
     ) -> None:
         import rerun as rr  # lazy: only a live logger pays for importing rerun
 
@@ -130,6 +136,11 @@ class RerunLogger:
             from mapfilter.viz.floors import FloorLayer
 
             self.floors = FloorLayer(canvas, stack)
+        self.plans = None
+        if building is not None:
+            from mapfilter.viz.floors import FloorPlansLayer
+
+            self.plans = FloorPlansLayer(canvas, building)
         blueprint = self.blueprint()
         self.rrd_path: Path | None = None if rrd_path is None else Path(rrd_path)
         try:
@@ -139,7 +150,8 @@ class RerunLogger:
             else:
                 self.rec.spawn(default_blueprint=blueprint)
             # the flip that lets everything below map/world be logged in y-up metres
-            canvas.log("map/world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+            if self.plans is None:
+                canvas.log("map/world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
             if self.filter_plots:
                 self.plots.style()
             if self.floors is not None:
@@ -153,6 +165,14 @@ class RerunLogger:
         """The default layout: the map large on the left; plots and the event log beside it."""
         import rerun.blueprint as rrb
 
+        if self.plans is not None:  # a building's finished tracks: a view per floor
+            return rrb.Blueprint(
+                rrb.Horizontal(rrb.Grid(*self.plans.views()),
+                               rrb.TimeSeriesView(name="Position error (m)", origin="plots/error_m"),
+                               column_shares=[3, 1]),
+                rrb.TimePanel(timeline="trace_time", state="expanded"),
+                collapse_panels=True,
+            )
         x_min, x_max, y_min, y_max = (self.floors or self.map).extent_m()
         map_view = rrb.Spatial2DView(
             name="Floor",
@@ -191,17 +211,21 @@ class RerunLogger:
     # ---- what callers draw -----------------------------------------------------------------
     def log_map(self) -> None:
         """Log the floor-plan picture (if any) and the wall mask overlay, both static (a
-        building's floors are drawn as they become current, see ``viz.floors``)."""
-        if self.floors is None:
+        building's floors are drawn as they become current, see ``viz.floors``; a building
+        seen whole draws every floor)."""
+        if self.plans is not None:
+            self.plans.draw()
+        elif self.floors is None:
             self.map.draw()
 
-    def log_ground_truth(self, t_s: np.ndarray, xy_m: np.ndarray) -> None:
+    def log_ground_truth(self, t_s: np.ndarray, xy_m: np.ndarray, floor: Sequence[str] | None = None) -> None:
         """Log the ground-truth waypoints and the path through them (static).
 
         Later steps and tracks are compared with the path interpolated at their times
         (``plots/error_m/...``); times outside the waypoints' span get no error value.
+        ``floor``: a building seen whole: each waypoint's floor (drawn on that floor's plan).
         """
-        self.truth.draw(t_s, xy_m)
+        self.truth.draw(t_s, xy_m, on=self._on(floor, len(t_s)))
 
     def log_step(self, report: StepReport) -> None:
         """Draw one filter step on both timelines (``trace_time`` and ``step``)."""
@@ -214,12 +238,21 @@ class RerunLogger:
         self.plots.draw(report, error_m, true_heading)
         self.events.draw(report)
 
-    def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray) -> None:
+    def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray, floor: Sequence[str] | None = None) -> None:
         """Log a finished track: its path (static) and its position over ``trace_time``.
 
         With ground truth logged before, its error over time goes to ``plots/error_m/<name>``.
+        ``floor``: a building seen whole: each row's floor (drawn on that floor's plan).
         """
-        self.tracks.draw(name, t_s, xy_m)
+        self.tracks.draw(name, t_s, xy_m, on=self._on(floor, len(t_s)))
+
+    def _on(self, floor: Sequence[str] | None, n_rows: int) -> dict[str, np.ndarray] | None:
+        """Which rows go on which floor's plan (None: all on the one map)."""
+        if self.plans is None:
+            return None
+        if floor is None or len(floor) != n_rows:
+            raise ValueError("a building seen whole needs the floor of every row")
+        return self.plans.on(list(floor))
 
     # ---- end ------------------------------------------------------------------------------
     def close(self) -> None:
@@ -257,6 +290,7 @@ def make_logger(
     recording_name: str | None = None,
     filter_plots: bool = True,
     stack: Any = None,
+    building: Any = None,
 ) -> RerunLogger | NullLogger:
     """A :class:`RerunLogger` with the map already logged, or a :class:`NullLogger`.
 
@@ -269,6 +303,7 @@ def make_logger(
     recording_name : name shown in the viewer (e.g. the trace's name).
     filter_plots : lay out the filter's plots (off when only showing finished tracks).
     stack : a building's ``FloorStack`` when the filter runs across floors (``RerunLogger``).
+    building : a several-floor building whose finished tracks are shown (``RerunLogger``).
 
     Returns a NullLogger (no rerun import) when neither ``rrd_path`` nor ``spawn`` is given.
     Giving both is an error (one sink per run).
@@ -278,7 +313,8 @@ def make_logger(
     if rrd_path is not None and spawn:
         raise MapfilterError("give either an .rrd file to write or spawn a viewer, not both")
     logger = RerunLogger(floorplan, rrd_path=rrd_path, spawn=spawn, max_particles=max_particles,
-                         recording_name=recording_name, filter_plots=filter_plots, stack=stack)
+                         recording_name=recording_name, filter_plots=filter_plots, stack=stack,
+                         building=building)
     try:
         logger.log_map()
     except BaseException:
@@ -288,32 +324,50 @@ def make_logger(
 
 
 def view_map(
-    floorplan: FloorPlan,
+    floorplan: FloorPlan | Building,
     tracks: Sequence[Track] = (),
     recording: Recording | None = None,
     rrd_path: str | os.PathLike | None = None,
     spawn: bool = False,
     recording_name: str | None = None,
+    truth_floor: str | Sequence[str] | None = None,
 ) -> None:
     """Show a map, finished tracks and a recording's ground truth (no filtering).
 
     Parameters
     ----------
-    floorplan : the map.
+    floorplan : the map; or a building with several floors: every floor is drawn in its own
+        view (``floors/<floor>/...``), each track row on the plan of its floor (``Track.floor``,
+        which every track then needs) and the ground truth on ``truth_floor``.
     tracks : finished tracks (:class:`mapfilter.trackio.Track`), each drawn under
         ``map/world/tracks/<name>`` (names made unique).
     recording : a walk whose waypoints are drawn as ground truth (if it has any); tracks
         then get an error plot against them.
     rrd_path, spawn : where to send the recording (exactly one).
     recording_name : name shown in the viewer.
+    truth_floor : a building: the floor of the waypoints, one name or one per waypoint; None
+        leaves the ground truth out (its floor unknown).
     """
     if rrd_path is None and not spawn:
         raise MapfilterError("give an .rrd file to write or spawn a viewer")
-    logger = make_logger(floorplan, rrd_path=rrd_path, spawn=spawn, recording_name=recording_name,
-                         filter_plots=False)
+    building = floorplan if hasattr(floorplan, "floors") and len(floorplan.floors) > 1 else None
+    if building is not None:
+        for track in tracks:
+            if track.floor is None or len(track.floor) != len(track):
+                raise MapfilterError(f"track {track.name!r} has no floor for every row: a building needs one")
+        plan = building.floors[0].plan
+    else:
+        plan = floorplan.floors[0].plan if hasattr(floorplan, "floors") else floorplan
+    logger = make_logger(plan, rrd_path=rrd_path, spawn=spawn, recording_name=recording_name,
+                         filter_plots=False, building=building)
     with logger:
         if recording is not None and recording.has_ground_truth:
-            logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
+            if building is None:
+                logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
+            elif truth_floor is not None:
+                n = recording.waypoint_t_s.size
+                floors = [truth_floor] * n if isinstance(truth_floor, str) else list(truth_floor)
+                logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m, floors)
         used: dict[str, int] = {}
         for track in tracks:
             name = track.name
@@ -322,4 +376,4 @@ def view_map(
                 name = f"{name}_{used[name]}"
             else:
                 used[name] = 1
-            logger.log_track(name, track.t_s, track.xy_m)
+            logger.log_track(name, track.t_s, track.xy_m, track.floor if building is not None else None)

@@ -20,8 +20,18 @@ from mapfilter.viz.style import (
 )
 
 
+def runs(on: np.ndarray) -> list[slice]:
+    """The stretches of consecutive True rows of ``on`` (a track's rows on one floor)."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[False], np.asarray(on, dtype=bool), [False]]).astype(np.int8)))
+    return [slice(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+
+
 class GroundTruthLayer:
-    """Draws ``map/world/ground_truth/{waypoints,path}`` (static) and ``.../now`` per step."""
+    """Draws ``map/world/ground_truth/{waypoints,path}`` (static) and ``.../now`` per step.
+
+    ``draw(..., on=...)`` draws each waypoint under the root of its floor instead
+    (``<root>/world/ground_truth/...``, a building seen whole: ``viz.floors.FloorPlansLayer``).
+    """
 
     def __init__(self, canvas: Canvas) -> None:
         self.canvas = canvas
@@ -31,8 +41,13 @@ class GroundTruthLayer:
     def __bool__(self) -> bool:
         return bool(self.t_s.size)
 
-    def draw(self, t_s: np.ndarray, xy_m: np.ndarray) -> None:
-        """Log the ground-truth waypoints and the path through them (static)."""
+    def draw(self, t_s: np.ndarray, xy_m: np.ndarray, on: dict[str, np.ndarray] | None = None) -> None:
+        """Log the ground-truth waypoints and the path through them (static).
+
+        ``on``: entity root -> (W,) bool, the waypoints drawn under that root (the path through
+        each stretch of consecutive ones); default: every waypoint under ``map``. All of them
+        are the truth that errors are measured against.
+        """
         rr = self.canvas.rr
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
         xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
@@ -42,14 +57,19 @@ class GroundTruthLayer:
         self.t_s, self.xy_m = t[order], xy[order]
         if t.size == 0:
             return
-        labels = [f"wp{i}" for i in range(t.size)]
         radius = -5.0 if t.size <= 50 else -2.5  # a simulated walk has a waypoint per step
-        self.canvas.log("map/world/ground_truth/waypoints",
-                        rr.Points2D(self.xy_m, radii=radius, colors=GT_COLOUR, labels=labels, show_labels=False,
-                                    draw_order=Z_GT),
-                        static=True)
-        self.canvas.log("map/world/ground_truth/path",
-                        rr.LineStrips2D([self.xy_m], radii=-1.0, colors=GT_COLOUR, draw_order=Z_GT), static=True)
+        on = {"map": np.ones(t.size, dtype=bool)} if on is None else {r: np.asarray(m)[order] for r, m in on.items()}
+        for root, mine in on.items():
+            if not mine.any():
+                continue
+            labels = [f"wp{i}" for i in np.flatnonzero(mine)]
+            self.canvas.log(f"{root}/world/ground_truth/waypoints",
+                            rr.Points2D(self.xy_m[mine], radii=radius, colors=GT_COLOUR, labels=labels,
+                                        show_labels=False, draw_order=Z_GT),
+                            static=True)
+            self.canvas.log(f"{root}/world/ground_truth/path",
+                            rr.LineStrips2D([self.xy_m[r] for r in runs(mine)], radii=-1.0, colors=GT_COLOUR,
+                                            draw_order=Z_GT), static=True)
 
     def at(self, t_s: np.ndarray) -> np.ndarray:
         return interpolate_ground_truth(self.t_s, self.xy_m, t_s)
@@ -85,15 +105,21 @@ class GroundTruthLayer:
 
 
 class TrackLayer:
-    """Draws finished tracks under ``map/world/tracks/<name>`` and their errors under ``plots/error_m``."""
+    """Draws finished tracks under ``map/world/tracks/<name>`` (or, row by row, under the root of
+    the floor each row is on: ``<root>/world/tracks/<name>``) and their errors under ``plots/error_m``."""
 
     def __init__(self, canvas: Canvas, truth: GroundTruthLayer) -> None:
         self.canvas = canvas
         self.truth = truth
         self._n_tracks = 0
 
-    def draw(self, name: str, t_s: np.ndarray, xy_m: np.ndarray) -> None:
-        """Log a finished track: its path (static) and its position over ``trace_time``."""
+    def draw(self, name: str, t_s: np.ndarray, xy_m: np.ndarray, on: dict[str, np.ndarray] | None = None) -> None:
+        """Log a finished track: its path (static) and its position over ``trace_time``.
+
+        ``on``: entity root -> (T,) bool, the rows drawn under that root (the path through each
+        stretch of consecutive ones; the position shown there only while the track is on it);
+        default: every row under ``map``.
+        """
         rr = self.canvas.rr
         rec = self.canvas.rec
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
@@ -105,13 +131,20 @@ class TrackLayer:
         entity = entity_name(name)
         colour = TRACK_COLOURS[self._n_tracks % len(TRACK_COLOURS)]
         self._n_tracks += 1
-        base = f"map/world/tracks/{entity}"
-        rec.log(f"{base}/path", rr.LineStrips2D([xy], colors=colour, radii=-2.0, labels=[name], draw_order=Z_TRACK),
-                static=True)
-        rec.send_columns(f"{base}/position", indexes=[self.canvas.time_column(t)],
-                         columns=rr.Points2D.columns(positions=xy))
-        rec.log(f"{base}/position", rr.Points2D.from_fields(colors=colour, radii=-5.0, draw_order=Z_ESTIMATE),
-                static=True)
+        for root, mine in ({"map": np.ones(t.size, dtype=bool)} if on is None else on).items():
+            mine = np.asarray(mine, dtype=bool)
+            if not mine.any():
+                continue
+            base = f"{root}/world/tracks/{entity}"
+            rec.log(f"{base}/path", rr.LineStrips2D([xy[r] for r in runs(mine)], colors=colour, radii=-2.0,
+                                                    labels=[name], draw_order=Z_TRACK),
+                    static=True)
+            # a row on another floor: no position here at that time (an empty batch clears it)
+            positions = rr.Points2D.columns(positions=xy[mine])
+            rec.send_columns(f"{base}/position", indexes=[self.canvas.time_column(t)],
+                             columns=positions if mine.all() else positions.partition(mine.astype(np.int64)))
+            rec.log(f"{base}/position", rr.Points2D.from_fields(colors=colour, radii=-5.0, draw_order=Z_ESTIMATE),
+                    static=True)
         if self.truth:
             gt = self.truth.at(t)
             ok = np.all(np.isfinite(gt), axis=1)
