@@ -27,8 +27,10 @@ import dataclasses
 import math
 
 import numpy as np
+from numba import njit
 
 from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.threads import MIN_PER_THREAD, for_slices
 
 __all__ = ["MapMatchConfig", "MapMatch", "map_match"]
 
@@ -95,30 +97,238 @@ class _Grid:
         self.free = (free_count >= 5).astype(np.float64)
 
 
-def _shift(a: np.ndarray, dx: int, dy: int) -> np.ndarray:
-    """Move the content one cell along x (dx = +-1) or y (dy = +-1), zero-filled."""
-    out = np.zeros_like(a)
-    if dx == 1:
-        out[:, 1:] = a[:, :-1]
-    elif dx == -1:
-        out[:, :-1] = a[:, 1:]
-    elif dy == 1:
-        out[1:, :] = a[:-1, :]
-    elif dy == -1:
-        out[:-1, :] = a[1:, :]
-    return out
+# The passes below are numba kernels over a slice [lo, hi) of the grid's rows (run through
+# ``threads.for_slices``); each writes only its own rows, and sums are kept per row and added
+# in row order, so results do not depend on the slicing. A message is shifted, blurred and
+# masked in a few fused passes over the grid instead of one numpy array per operation (about
+# 20 per step). Element-wise they repeat numpy's operations in numpy's order (the mask is
+# 0.0 or 1.0, an exact factor), so the messages differ from numpy's only through the sums.
+# They allocate nothing: compiled without reference counting (see maps/walls.py).
 
 
-def _blur(a: np.ndarray, weight: float) -> np.ndarray:
-    """Three-tap blur [w, 1 - 2w, w] along both axes: adds variance 2w (cells^2) per axis."""
-    out = (1.0 - 2.0 * weight) * a
-    out[:, 1:] += weight * a[:, :-1]
-    out[:, :-1] += weight * a[:, 1:]
-    both = (1.0 - 2.0 * weight) * out
-    both[1:, :] += weight * out[:-1, :]
-    both[:-1, :] += weight * out[1:, :]
-    return both
+# Loops run over 1-D row views indexed from 0 (``row[lo:hi]``): an index such as ``c - 1`` that
+# numba cannot prove non-negative gets a wrap-around branch, which stops LLVM from vectorising
+# the loop (4-8x slower here).
 
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _move_row(a, free, path, r, out_row):
+    """``out_row`` = the values that a path of unit moves brings from ``a`` to row r: 0 where the
+    path leaves the grid or enters a wall. ``path[j] = (dy, dx, kind)``, the path's cells relative
+    to the destination; kind 1: must be free, 2: read there, 3: both."""
+    ny, nx = a.shape
+    c_lo, c_hi = 0, nx  # the columns whose whole path lies in the grid
+    src_r, src_dx = r, 0
+    for j in range(path.shape[0]):
+        if r + path[j, 0] < 0 or r + path[j, 0] >= ny:
+            c_lo = nx
+        c_lo = max(c_lo, -path[j, 1])
+        c_hi = min(c_hi, nx - path[j, 1])
+        if path[j, 2] & 2:
+            src_r, src_dx = r + path[j, 0], path[j, 1]
+    c_hi = max(c_hi, c_lo)
+    for c in range(c_lo):
+        out_row[c] = 0.0
+    for c in range(c_hi, nx):
+        out_row[c] = 0.0
+    if c_hi == c_lo:
+        return
+    out = out_row[c_lo:c_hi]
+    src = a[src_r, c_lo + src_dx:c_hi + src_dx]
+    for i in range(c_hi - c_lo):
+        out[i] = src[i]
+    for j in range(path.shape[0]):
+        if path[j, 2] & 1:  # the mask is 0.0 or 1.0: multiplying by it is exact
+            mask = free[r + path[j, 0], c_lo + path[j, 1]:c_hi + path[j, 1]]
+            for i in range(c_hi - c_lo):
+                out[i] = out[i] * mask[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _observe_row(row, free_row, gy, gx, r):
+    """row = (row * free) * the product of the anchors' separable Gaussians at row r (numpy's order)."""
+    n = gy.shape[0]
+    if n == 0:
+        for c in range(row.shape[0]):
+            row[c] = row[c] * free_row[c]
+    elif n == 1:
+        g, gx0 = gy[0, r], gx[0]
+        for c in range(row.shape[0]):
+            row[c] = (row[c] * free_row[c]) * (g * gx0[c])
+    else:
+        for c in range(row.shape[0]):
+            o = gy[0, r] * gx[0, c]
+            for i in range(1, n):
+                o = o * (gy[i, r] * gx[i, c])
+            row[c] = (row[c] * free_row[c]) * o
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _blur_row(src, out, center, side):
+    """out = src blurred with [side, center, side] (numpy's order: centre, left, right; 0 outside)."""
+    nx = src.shape[0]
+    if nx == 1:
+        out[0] = center * src[0]
+        return
+    out[0] = center * src[0] + side * src[1]
+    mid, left, right, inner = src[1:nx - 1], src[:nx - 2], src[2:], out[1:nx - 1]
+    for i in range(nx - 2):
+        inner[i] = (center * mid[i] + side * left[i]) + side * right[i]
+    out[nx - 1] = center * src[nx - 1] + side * src[nx - 2]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _blur_column(t, r, center, side, out):
+    """out = t blurred along its rows at row r (centre, the row below, the row above)."""
+    ny, nx = t.shape
+    mid = t[r]
+    if r > 0 and r < ny - 1:
+        below, above = t[r - 1], t[r + 1]
+        for c in range(nx):
+            out[c] = (center * mid[c] + side * below[c]) + side * above[c]
+    elif r > 0:
+        below = t[r - 1]
+        for c in range(nx):
+            out[c] = center * mid[c] + side * below[c]
+    elif r < ny - 1:
+        above = t[r + 1]
+        for c in range(nx):
+            out[c] = center * mid[c] + side * above[c]
+    else:
+        for c in range(nx):
+            out[c] = center * mid[c]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _sum(row):
+    # four running sums: one would wait on each addition's latency
+    s0 = s1 = s2 = s3 = 0.0
+    n4 = row.shape[0] // 4 * 4
+    for c in range(0, n4, 4):
+        s0 += row[c]
+        s1 += row[c + 1]
+        s2 += row[c + 2]
+        s3 += row[c + 3]
+    for c in range(n4, row.shape[0]):
+        s0 += row[c]
+    return (s0 + s1) + (s2 + s3)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _observe_rows(lo, hi, a, free, gy, gx, out, row_sums):
+    """out = (a * free) * observation, and its row sums."""
+    for r in range(lo, hi):
+        src, dst = a[r], out[r]
+        for c in range(dst.shape[0]):
+            dst[c] = src[c]
+        _observe_row(dst, free[r], gy, gx, r)
+        row_sums[r] = _sum(dst)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _move_blur_rows(lo, hi, a, free, path, center, side, scratch, out):
+    """Forward: the moves of one step (masked after each unit move), then the first blur along x."""
+    for r in range(lo, hi):
+        _move_row(a, free, path, r, scratch[r])
+        _blur_row(scratch[r], out[r], center, side)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _observe_blur_rows(lo, hi, beta, free, gy, gx, center, side, scratch, out):
+    """Backward: (beta * observation) masked, then the first blur along x."""
+    for r in range(lo, hi):
+        src, dst = beta[r], scratch[r]
+        for c in range(dst.shape[0]):
+            dst[c] = src[c]
+        _observe_row(dst, free[r], gy, gx, r)
+        _blur_row(dst, out[r], center, side)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _blur_columns_rows(lo, hi, t, free, center, side, scratch, out):
+    """End a blur along y, mask, and start the next blur along x."""
+    for r in range(lo, hi):
+        row, mask = scratch[r], free[r]
+        _blur_column(t, r, center, side, row)
+        for c in range(row.shape[0]):
+            row[c] = row[c] * mask[c]
+        _blur_row(row, out[r], center, side)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _blur_columns_observe(lo, hi, t, free, gy, gx, center, side, out, row_sums):
+    """Forward: end the last blur along y, mask, multiply by the observation; row sums."""
+    for r in range(lo, hi):
+        _blur_column(t, r, center, side, out[r])
+        _observe_row(out[r], free[r], gy, gx, r)
+        row_sums[r] = _sum(out[r])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _blur_columns(lo, hi, t, center, side, out):
+    """Backward: end the last blur along y (no mask: the moves back mask)."""
+    for r in range(lo, hi):
+        _blur_column(t, r, center, side, out[r])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _move_back_rows(lo, hi, g, free, path, out, row_max):
+    """Backward: the adjoint of a step's moves (mask, move back, mask, ...); row maxima."""
+    for r in range(lo, hi):
+        row = out[r]
+        _move_row(g, free, path, r, row)
+        m0 = m1 = 0.0  # the values are >= 0
+        n2 = row.shape[0] // 2 * 2
+        for c in range(0, n2, 2):
+            m0 = max(m0, row[c])
+            m1 = max(m1, row[c + 1])
+        for c in range(n2, row.shape[0]):
+            m0 = max(m0, row[c])
+        row_max[r] = max(m0, m1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _divide_rows(lo, hi, a, divisor):
+    for r in range(lo, hi):
+        row = a[r]
+        for c in range(row.shape[0]):
+            row[c] = row[c] / divisor
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _moment_rows(lo, hi, alpha, beta, use_beta, x_m, row_moments):
+    """Per row: the sum of p = alpha * beta (alpha alone without ``use_beta``) and of p * x."""
+    for r in range(lo, hi):
+        a, b = alpha[r], beta[r]
+        s0 = s1 = x0 = x1 = 0.0
+        n2 = a.shape[0] // 2 * 2
+        for c in range(0, n2, 2):
+            p0 = a[c] * b[c] if use_beta else a[c]
+            p1 = a[c + 1] * b[c + 1] if use_beta else a[c + 1]
+            s0 += p0
+            s1 += p1
+            x0 += p0 * x_m[c]
+            x1 += p1 * x_m[c + 1]
+        for c in range(n2, a.shape[0]):
+            p0 = a[c] * b[c] if use_beta else a[c]
+            s0 += p0
+            x0 += p0 * x_m[c]
+        row_moments[r, 0] = s0 + s1
+        row_moments[r, 1] = x0 + x1
+
+
+def _cell_paths(units: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """A step's unit moves as the cell paths of ``_moved``: (forward, backward), relative to the
+    destination cell. Forward: mass from the start moves one cell at a time and is dropped in
+    a wall cell after each move. Backward (the adjoint): mask, move back, mask, ... mask."""
+    dy_dx = np.zeros((len(units) + 1, 2), dtype=np.int64)  # cells of the path, start at (0, 0)
+    for j, (dx, dy) in enumerate(units, start=1):
+        dy_dx[j] = dy_dx[j - 1] + (dy, dx)
+    forward = np.column_stack([dy_dx - dy_dx[-1], np.ones(len(dy_dx), dtype=np.int64)])
+    forward[0, 2] = 2  # the start: read there, not masked (the message is masked already, or all ones)
+    backward = np.column_stack([dy_dx, np.ones(len(dy_dx), dtype=np.int64)])
+    backward[-1, 2] = 3
+    return forward, backward
 
 def _unit_moves(xy_m: np.ndarray, cell_m: float) -> list[list[tuple[int, int]]]:
     """Per transition, the unit cell moves that follow the shape (remainders carried on)."""
@@ -153,6 +363,7 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     if not free.any():  # the walk is nowhere near the plan's free space: nothing to match against
         return MapMatch(t, xy.copy(), 0)
     K = t.shape[0]
+    ny, nx = free.shape
     # observations: the placed position at each anchor time, on the first shape time at or after it
     anchor_t = np.asarray(anchor_t_s, dtype=np.float64).reshape(-1)
     anchor_t = anchor_t[(anchor_t >= t[0]) & (anchor_t <= t[-1])]
@@ -162,78 +373,98 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     for k, anchor in zip(nearest.tolist(), anchor_xy):
         anchors_at.setdefault(k, []).append(anchor)
     inv_var = 0.5 / config.anchor_sigma_m ** 2
+    # the observations at step k as separable Gaussians, (anchors, ny) along y and (anchors, nx)
+    # along x: a grid per scan kept for the whole walk would cost more memory than the messages
+    observations = {k: (np.array([np.exp(-inv_var * (grid.y_m - ay) ** 2) for _, ay in anchors]),
+                        np.array([np.exp(-inv_var * (grid.x_m - ax) ** 2) for ax, _ in anchors]))
+                    for k, anchors in anchors_at.items()}
+    unobserved = (np.zeros((0, ny)), np.zeros((0, nx)))
 
-    def likelihood(k: int) -> np.ndarray | None:
-        """The observations at step k on the free cells (separable Gaussians, made when needed:
-        one grid per scan kept for the whole walk would cost more memory than the messages)."""
-        if k not in anchors_at:
-            return None
-        out = free
-        for ax, ay in anchors_at[k]:
-            out = out * np.outer(np.exp(-inv_var * (grid.y_m - ay) ** 2), np.exp(-inv_var * (grid.x_m - ax) ** 2))
-        return out
-
-    units = _unit_moves(xy, config.cell_m)
+    paths = [_cell_paths(u) for u in _unit_moves(xy, config.cell_m)]  # transition k - 1 -> k at k - 1
     variance_cells2 = (config.step_sigma_m / config.cell_m) ** 2
     n_blur = int(math.ceil(variance_cells2 / 0.5 - 1e-9))  # one blur adds at most 0.5 cells^2
     blur_weight = variance_cells2 / (2.0 * n_blur)
+    center = 1.0 - 2.0 * blur_weight
 
-    def predict(a: np.ndarray, k: int) -> np.ndarray:  # transition k - 1 -> k
-        for dx, dy in units[k - 1]:
-            a = _shift(a, dx, dy) * free
-        for _ in range(n_blur):
-            a = _blur(a, blur_weight) * free
-        return a
+    def rows(kernel, *args) -> None:
+        for_slices(kernel, ny, *args, min_per_thread=max(MIN_PER_THREAD // nx, 1))
 
-    def forward(a: np.ndarray | None, k: int) -> tuple[np.ndarray, bool]:
-        """alpha_k from alpha_{k-1} (None at k = 0); True when the pass restarted here."""
-        a = free.copy() if a is None else predict(a, k)
-        observed = likelihood(k)
-        if observed is not None:
-            a = a * observed
-        total = a.sum()
+    # working buffers, reused by every step
+    scratch, blur_a, blur_b, g = (np.empty_like(free) for _ in range(4))
+    row_sums = np.empty(ny)
+    row_moments = np.empty((ny, 2))
+
+    def forward(a: np.ndarray | None, k: int, out: np.ndarray) -> bool:
+        """alpha_k from alpha_{k-1} (None at k = 0) into ``out``; True when the pass restarted here."""
+        gy, gx = observations.get(k, unobserved)
+        if a is None:
+            rows(_observe_rows, free, free, gy, gx, out, row_sums)
+        else:  # the step's moves, then n_blur blurs (each masked), then the observation
+            rows(_move_blur_rows, a, free, paths[k - 1][0], center, blur_weight, scratch, blur_a)
+            src, dst = blur_a, blur_b
+            for _ in range(n_blur - 1):
+                rows(_blur_columns_rows, src, free, center, blur_weight, scratch, dst)
+                src, dst = dst, src
+            rows(_blur_columns_observe, src, free, gy, gx, center, blur_weight, out, row_sums)
+        total = row_sums.sum()
         restarted = False
         if not total > 1e-250:
-            a, restarted = (free if observed is None else observed), k > 0
-            total = a.sum()
+            restarted = k > 0
+            rows(_observe_rows, free, free, gy, gx, out, row_sums)  # the observation alone (free without one)
+            total = row_sums.sum()
             if not total > 0:  # no free cell near the walk: nothing to match against
-                a, total = np.ones_like(free), float(free.size)
-        return a / total, restarted
+                out[:], total = 1.0, float(free.size)
+        rows(_divide_rows, out, total)
+        return restarted
+
+    def backward(beta: np.ndarray, k: int) -> None:
+        """beta_{k-1} from beta_k, in place (scaled to a peak of 1)."""
+        gy, gx = observations.get(k, unobserved)
+        rows(_observe_blur_rows, beta, free, gy, gx, center, blur_weight, scratch, blur_a)
+        src, dst = blur_a, blur_b
+        for _ in range(n_blur - 1):
+            rows(_blur_columns_rows, src, free, center, blur_weight, scratch, dst)
+            src, dst = dst, src
+        rows(_blur_columns, src, center, blur_weight, g)
+        rows(_move_back_rows, g, free, paths[k - 1][1], beta, row_sums)
+        peak = row_sums.max()
+        if peak > 0:
+            rows(_divide_rows, beta, peak)
+        else:
+            beta[:] = free
+
+    def posterior_mean(alpha: np.ndarray, beta: np.ndarray) -> tuple[float, float]:
+        rows(_moment_rows, alpha, beta, True, grid.x_m, row_moments)
+        total = row_moments[:, 0].sum()
+        if not total > 0:
+            rows(_moment_rows, alpha, beta, False, grid.x_m, row_moments)
+            total = row_moments[:, 0].sum()
+        return float(row_moments[:, 1].sum() / total), float((row_moments[:, 0] * grid.y_m).sum() / total)
 
     every = config.checkpoint_every
     checkpoints: dict[int, np.ndarray] = {}
     restarted_at = np.zeros(K, dtype=bool)
-    a = None
+    a, a_next = np.empty_like(free), np.empty_like(free)
     for k in range(K):
-        a, restarted_at[k] = forward(a, k)
+        restarted_at[k] = forward(None if k == 0 else a, k, a_next)
+        a, a_next = a_next, a
         if k % every == 0:
-            checkpoints[k] = a
+            checkpoints[k] = a.copy()
 
     out_xy = np.zeros((K, 2))
     beta = free.copy()
+    segment_buffer = np.empty((min(every, K), ny, nx))  # the forward messages of one segment
     for start in range(((K - 1) // every) * every, -1, -every):
-        segment = [checkpoints[start]]
+        segment = [checkpoints.pop(start)]
         for k in range(start + 1, min(start + every, K)):
-            segment.append(forward(segment[-1], k)[0])
+            forward(segment[-1], k, segment_buffer[k - start])
+            segment.append(segment_buffer[k - start])
         for k in range(min(start + every, K) - 1, start - 1, -1):
-            p = segment[k - start] * beta
-            total = p.sum()
-            if not total > 0:
-                p, total = segment[k - start], segment[k - start].sum()
-            p = p / total
-            out_xy[k] = float((p * grid.X).sum()), float((p * grid.Y).sum())
+            out_xy[k] = posterior_mean(segment[k - start], beta)
             if k == 0:
                 break
             if restarted_at[k]:  # the forward pass forgot everything before k: so does the backward one
-                beta = free.copy()
+                beta[:] = free
                 continue
-            observed = likelihood(k)
-            g = beta if observed is None else beta * observed
-            for _ in range(n_blur):
-                g = _blur(g * free, blur_weight)
-            for dx, dy in reversed(units[k - 1]):
-                g = _shift(g * free, -dx, -dy)
-            beta = g * free
-            peak = beta.max()
-            beta = beta / peak if peak > 0 else free.copy()
+            backward(beta, k)
     return MapMatch(t, out_xy, int(restarted_at.sum()))
