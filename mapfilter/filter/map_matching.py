@@ -30,7 +30,6 @@ import numpy as np
 from numba import njit
 
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.threads import MIN_PER_THREAD, for_slices
 
 __all__ = ["MapMatchConfig", "MapMatch", "map_match"]
 
@@ -97,23 +96,25 @@ class _Grid:
         self.free = (free_count >= 5).astype(np.float64)
 
 
-# The passes below are numba kernels over a slice [lo, hi) of the grid's rows (run through
-# ``threads.for_slices``); each writes only its own rows, and sums are kept per row and added
-# in row order, so results do not depend on the slicing. A message is shifted, blurred and
-# masked in a few fused passes over the grid instead of one numpy array per operation (about
-# 20 per step). Element-wise they repeat numpy's operations in numpy's order (the mask is
-# 0.0 or 1.0, an exact factor), so the messages differ from numpy's only through the sums.
-# They allocate nothing: compiled without reference counting (see maps/walls.py).
-
-
-# Loops run over 1-D row views indexed from 0 (``row[lo:hi]``): an index such as ``c - 1`` that
-# numba cannot prove non-negative gets a wrap-around branch, which stops LLVM from vectorising
-# the loop (4-8x slower here).
+# The passes below are numba kernels over the whole grid. A forward step (moves, n_blur blurs
+# and masks, observation, row sums) is one sweep down the rows: each blur's pass along x feeds
+# a ring of three rows, from which its pass along y makes the row below the newest, so the
+# step's intermediate grids never leave the cache; a backward step is such a sweep and the
+# moves back. Element-wise the kernels repeat the numpy operations in numpy's order (a mask is
+# 0.0 or 1.0, an exact factor), except that a message's normalisation is multiplied out (by
+# its reciprocal) where the message is read instead of dividing the array: messages differ
+# from a plain numpy pass by rounding only, that product and the order of the sums (kept per
+# row, added in row order). Loops run over 1-D row views indexed from 0: an index such as
+# ``c - 1``, which numba cannot prove non-negative, gets a wrap-around branch that keeps LLVM
+# from vectorising the loop (4-8x slower here). Serial: run on row slices with
+# ``threads.for_slices`` (two threads), four ILC walks took 0.72 s instead of 0.52 s, the
+# hand-over of each slice costing more than its share of a 0.1-0.3 ms pass. They allocate
+# nothing: compiled without reference counting (see maps/walls.py).
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _move_row(a, free, path, r, out_row):
-    """``out_row`` = the values that a path of unit moves brings from ``a`` to row r: 0 where the
+def _move_row(a, factor, free, path, r, out_row):
+    """``out_row`` = what a path of unit moves brings from ``a * factor`` to row r: 0 where the
     path leaves the grid or enters a wall. ``path[j] = (dy, dx, kind)``, the path's cells relative
     to the destination; kind 1: must be free, 2: read there, 3: both."""
     ny, nx = a.shape
@@ -136,7 +137,7 @@ def _move_row(a, free, path, r, out_row):
     out = out_row[c_lo:c_hi]
     src = a[src_r, c_lo + src_dx:c_hi + src_dx]
     for i in range(c_hi - c_lo):
-        out[i] = src[i]
+        out[i] = src[i] * factor
     for j in range(path.shape[0]):
         if path[j, 2] & 1:  # the mask is 0.0 or 1.0: multiplying by it is exact
             mask = free[r + path[j, 0], c_lo + path[j, 1]:c_hi + path[j, 1]]
@@ -178,24 +179,19 @@ def _blur_row(src, out, center, side):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _blur_column(t, r, center, side, out):
-    """out = t blurred along its rows at row r (centre, the row below, the row above)."""
-    ny, nx = t.shape
-    mid = t[r]
-    if r > 0 and r < ny - 1:
-        below, above = t[r - 1], t[r + 1]
-        for c in range(nx):
+def _blur_column(below, mid, above, has_below, has_above, center, side, out):
+    """out = the middle of three rows blurred across them (centre, below, above; 0 outside the grid)."""
+    if has_below and has_above:
+        for c in range(out.shape[0]):
             out[c] = (center * mid[c] + side * below[c]) + side * above[c]
-    elif r > 0:
-        below = t[r - 1]
-        for c in range(nx):
+    elif has_below:
+        for c in range(out.shape[0]):
             out[c] = center * mid[c] + side * below[c]
-    elif r < ny - 1:
-        above = t[r + 1]
-        for c in range(nx):
+    elif has_above:
+        for c in range(out.shape[0]):
             out[c] = center * mid[c] + side * above[c]
     else:
-        for c in range(nx):
+        for c in range(out.shape[0]):
             out[c] = center * mid[c]
 
 
@@ -215,68 +211,62 @@ def _sum(row):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _observe_rows(lo, hi, a, free, gy, gx, out, row_sums):
-    """out = (a * free) * observation, and its row sums."""
-    for r in range(lo, hi):
-        src, dst = a[r], out[r]
+def _blur_sweep(a, factor, free, path, gy, gx, center, side, forward, ring, row, out, row_sums):
+    """One step, forward (``forward``) or backward, into ``out``.
+
+    Forward (transition k - 1 -> k, a * factor = alpha_{k-1}): the moves of ``path`` (masked after
+    each unit move), n_blur blurs each masked, the observation of step k; ``row_sums`` of the result.
+    Backward (a * factor = beta_k): (beta_k * observation_k) masked, then n_blur blurs each of a
+    masked input; not masked at the end (the moves back do it), no sums.
+    Scratch: ``ring`` (n_blur, 3, nx), blur b's pass along x at row r in ``ring[b, r % 3]``; ``row`` (nx,).
+    """
+    ny, nx = a.shape
+    n_blur = ring.shape[0]
+    for i in range(ny + n_blur):
+        if i < ny:  # the step's input at row i, blurred along x
+            if forward:
+                _move_row(a, factor, free, path, i, row)
+            else:
+                src = a[i]
+                for c in range(nx):
+                    row[c] = src[c] * factor
+                _observe_row(row, free[i], gy, gx, i)
+            _blur_row(row, ring[0, i % 3], center, side)
+        for b in range(n_blur):  # blur b along y at row i - 1 - b: its rows up to i - b are made
+            r = i - 1 - b
+            if r < 0 or r >= ny:
+                continue
+            below, mid, above = ring[b, (r + 2) % 3], ring[b, r % 3], ring[b, (r + 1) % 3]
+            if b < n_blur - 1:  # masked, then the next blur along x
+                _blur_column(below, mid, above, r > 0, r < ny - 1, center, side, row)
+                mask = free[r]
+                for c in range(nx):
+                    row[c] = row[c] * mask[c]
+                _blur_row(row, ring[b + 1, r % 3], center, side)
+            else:
+                _blur_column(below, mid, above, r > 0, r < ny - 1, center, side, out[r])
+                if forward:
+                    _observe_row(out[r], free[r], gy, gx, r)
+                    row_sums[r] = _sum(out[r])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _observe_rows(free, gy, gx, out, row_sums):
+    """out = the observation on the free cells (the free cells without one), and its row sums."""
+    for r in range(out.shape[0]):
+        src, dst = free[r], out[r]
         for c in range(dst.shape[0]):
             dst[c] = src[c]
-        _observe_row(dst, free[r], gy, gx, r)
+        _observe_row(dst, src, gy, gx, r)
         row_sums[r] = _sum(dst)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _move_blur_rows(lo, hi, a, free, path, center, side, scratch, out):
-    """Forward: the moves of one step (masked after each unit move), then the first blur along x."""
-    for r in range(lo, hi):
-        _move_row(a, free, path, r, scratch[r])
-        _blur_row(scratch[r], out[r], center, side)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _observe_blur_rows(lo, hi, beta, free, gy, gx, center, side, scratch, out):
-    """Backward: (beta * observation) masked, then the first blur along x."""
-    for r in range(lo, hi):
-        src, dst = beta[r], scratch[r]
-        for c in range(dst.shape[0]):
-            dst[c] = src[c]
-        _observe_row(dst, free[r], gy, gx, r)
-        _blur_row(dst, out[r], center, side)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _blur_columns_rows(lo, hi, t, free, center, side, scratch, out):
-    """End a blur along y, mask, and start the next blur along x."""
-    for r in range(lo, hi):
-        row, mask = scratch[r], free[r]
-        _blur_column(t, r, center, side, row)
-        for c in range(row.shape[0]):
-            row[c] = row[c] * mask[c]
-        _blur_row(row, out[r], center, side)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _blur_columns_observe(lo, hi, t, free, gy, gx, center, side, out, row_sums):
-    """Forward: end the last blur along y, mask, multiply by the observation; row sums."""
-    for r in range(lo, hi):
-        _blur_column(t, r, center, side, out[r])
-        _observe_row(out[r], free[r], gy, gx, r)
-        row_sums[r] = _sum(out[r])
-
-
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _blur_columns(lo, hi, t, center, side, out):
-    """Backward: end the last blur along y (no mask: the moves back mask)."""
-    for r in range(lo, hi):
-        _blur_column(t, r, center, side, out[r])
-
-
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _move_back_rows(lo, hi, g, free, path, out, row_max):
+def _move_back(g, free, path, out, row_max):
     """Backward: the adjoint of a step's moves (mask, move back, mask, ...); row maxima."""
-    for r in range(lo, hi):
+    for r in range(out.shape[0]):
         row = out[r]
-        _move_row(g, free, path, r, row)
+        _move_row(g, 1.0, free, path, r, row)
         m0 = m1 = 0.0  # the values are >= 0
         n2 = row.shape[0] // 2 * 2
         for c in range(0, n2, 2):
@@ -288,29 +278,28 @@ def _move_back_rows(lo, hi, g, free, path, out, row_max):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _divide_rows(lo, hi, a, divisor):
-    for r in range(lo, hi):
-        row = a[r]
-        for c in range(row.shape[0]):
-            row[c] = row[c] / divisor
-
-
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _moment_rows(lo, hi, alpha, beta, use_beta, x_m, row_moments):
-    """Per row: the sum of p = alpha * beta (alpha alone without ``use_beta``) and of p * x."""
-    for r in range(lo, hi):
+def _moments(alpha, alpha_factor, beta, beta_factor, x_m, row_moments):
+    """Per row: the sum of p = (alpha * alpha_factor) * (beta * beta_factor) and of p * x
+    (alpha * alpha_factor alone when ``beta_factor`` is 0)."""
+    for r in range(alpha.shape[0]):
         a, b = alpha[r], beta[r]
         s0 = s1 = x0 = x1 = 0.0
         n2 = a.shape[0] // 2 * 2
+        use_beta = beta_factor != 0.0
         for c in range(0, n2, 2):
-            p0 = a[c] * b[c] if use_beta else a[c]
-            p1 = a[c + 1] * b[c + 1] if use_beta else a[c + 1]
+            p0 = a[c] * alpha_factor
+            p1 = a[c + 1] * alpha_factor
+            if use_beta:
+                p0 = p0 * (b[c] * beta_factor)
+                p1 = p1 * (b[c + 1] * beta_factor)
             s0 += p0
             s1 += p1
             x0 += p0 * x_m[c]
             x1 += p1 * x_m[c + 1]
         for c in range(n2, a.shape[0]):
-            p0 = a[c] * b[c] if use_beta else a[c]
+            p0 = a[c] * alpha_factor
+            if use_beta:
+                p0 = p0 * (b[c] * beta_factor)
             s0 += p0
             x0 += p0 * x_m[c]
         row_moments[r, 0] = s0 + s1
@@ -318,7 +307,7 @@ def _moment_rows(lo, hi, alpha, beta, use_beta, x_m, row_moments):
 
 
 def _cell_paths(units: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
-    """A step's unit moves as the cell paths of ``_moved``: (forward, backward), relative to the
+    """A step's unit moves as the cell paths of ``_move_row``: (forward, backward), relative to the
     destination cell. Forward: mass from the start moves one cell at a time and is dropped in
     a wall cell after each move. Backward (the adjoint): mask, move back, mask, ... mask."""
     dy_dx = np.zeros((len(units) + 1, 2), dtype=np.int64)  # cells of the path, start at (0, 0)
@@ -386,85 +375,83 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     blur_weight = variance_cells2 / (2.0 * n_blur)
     center = 1.0 - 2.0 * blur_weight
 
-    def rows(kernel, *args) -> None:
-        for_slices(kernel, ny, *args, min_per_thread=max(MIN_PER_THREAD // nx, 1))
-
-    # working buffers, reused by every step
-    scratch, blur_a, blur_b, g = (np.empty_like(free) for _ in range(4))
+    # A message is an array and a factor, the message being array * factor: its normalisation
+    # (1 / sum forward, 1 / peak backward) is applied where the message is read.
     row_sums = np.empty(ny)
     row_moments = np.empty((ny, 2))
+    g = np.empty_like(free)  # a backward step before its moves back
+    ring, row = np.empty((n_blur, 3, nx)), np.empty(nx)  # the sweeps' scratch
 
-    def forward(a: np.ndarray | None, k: int, out: np.ndarray) -> bool:
-        """alpha_k from alpha_{k-1} (None at k = 0) into ``out``; True when the pass restarted here."""
+    def forward(a: tuple[np.ndarray, float] | None, k: int, out: np.ndarray) -> tuple[float, bool]:
+        """alpha_k (``out`` * factor) from alpha_{k-1} (None at k = 0): (factor, True when the pass restarted here)."""
         gy, gx = observations.get(k, unobserved)
         if a is None:
-            rows(_observe_rows, free, free, gy, gx, out, row_sums)
-        else:  # the step's moves, then n_blur blurs (each masked), then the observation
-            rows(_move_blur_rows, a, free, paths[k - 1][0], center, blur_weight, scratch, blur_a)
-            src, dst = blur_a, blur_b
-            for _ in range(n_blur - 1):
-                rows(_blur_columns_rows, src, free, center, blur_weight, scratch, dst)
-                src, dst = dst, src
-            rows(_blur_columns_observe, src, free, gy, gx, center, blur_weight, out, row_sums)
+            _observe_rows(free, gy, gx, out, row_sums)
+        else:
+            _blur_sweep(*a, free, paths[k - 1][0], gy, gx, center, blur_weight, True, ring, row, out, row_sums)
         total = row_sums.sum()
         restarted = False
         if not total > 1e-250:
             restarted = k > 0
-            rows(_observe_rows, free, free, gy, gx, out, row_sums)  # the observation alone (free without one)
+            _observe_rows(free, gy, gx, out, row_sums)  # the observation alone (free without one)
             total = row_sums.sum()
             if not total > 0:  # no free cell near the walk: nothing to match against
                 out[:], total = 1.0, float(free.size)
-        rows(_divide_rows, out, total)
-        return restarted
+        return 1.0 / float(total), restarted
 
-    def backward(beta: np.ndarray, k: int) -> None:
-        """beta_{k-1} from beta_k, in place (scaled to a peak of 1)."""
+    def backward(beta: np.ndarray, beta_factor: float, k: int) -> float:
+        """beta_{k-1} from beta_k (``beta`` * ``beta_factor``), in place; returns its factor (1 / its peak)."""
         gy, gx = observations.get(k, unobserved)
-        rows(_observe_blur_rows, beta, free, gy, gx, center, blur_weight, scratch, blur_a)
-        src, dst = blur_a, blur_b
-        for _ in range(n_blur - 1):
-            rows(_blur_columns_rows, src, free, center, blur_weight, scratch, dst)
-            src, dst = dst, src
-        rows(_blur_columns, src, center, blur_weight, g)
-        rows(_move_back_rows, g, free, paths[k - 1][1], beta, row_sums)
+        path = paths[k - 1][1]
+        _blur_sweep(beta, beta_factor, free, path, gy, gx, center, blur_weight, False, ring, row, g, row_sums)
+        _move_back(g, free, path, beta, row_sums)
         peak = row_sums.max()
         if peak > 0:
-            rows(_divide_rows, beta, peak)
-        else:
-            beta[:] = free
+            return 1.0 / float(peak)
+        beta[:] = free
+        return 1.0
 
-    def posterior_mean(alpha: np.ndarray, beta: np.ndarray) -> tuple[float, float]:
-        rows(_moment_rows, alpha, beta, True, grid.x_m, row_moments)
+    def posterior_mean(alpha: np.ndarray, alpha_factor: float, beta: np.ndarray, beta_factor: float) -> np.ndarray:
+        _moments(alpha, alpha_factor, beta, beta_factor, grid.x_m, row_moments)
         total = row_moments[:, 0].sum()
-        if not total > 0:
-            rows(_moment_rows, alpha, beta, False, grid.x_m, row_moments)
+        if not total > 0:  # alpha and beta share no cell: alpha alone
+            _moments(alpha, alpha_factor, beta, 0.0, grid.x_m, row_moments)
             total = row_moments[:, 0].sum()
-        return float(row_moments[:, 1].sum() / total), float((row_moments[:, 0] * grid.y_m).sum() / total)
+        return np.array([row_moments[:, 1].sum(), (row_moments[:, 0] * grid.y_m).sum()]) / total
 
     every = config.checkpoint_every
-    checkpoints: dict[int, np.ndarray] = {}
+    last_start = ((K - 1) // every) * every
+    segment_buffer = np.empty((min(every, K), ny, nx))  # the forward messages of one segment
+    # forward: checkpoints at every `every` steps; the last segment's messages are kept whole
+    checkpoints: dict[int, tuple[np.ndarray, float]] = {}
     restarted_at = np.zeros(K, dtype=bool)
-    a, a_next = np.empty_like(free), np.empty_like(free)
+    buffers = (np.empty_like(free), np.empty_like(free)) if last_start > 0 else ()
+    segment: list[tuple[np.ndarray, float]] = []
+    a = None
     for k in range(K):
-        restarted_at[k] = forward(None if k == 0 else a, k, a_next)
-        a, a_next = a_next, a
-        if k % every == 0:
-            checkpoints[k] = a.copy()
+        out = buffers[k % 2] if k < last_start else segment_buffer[k - last_start]
+        factor, restarted_at[k] = forward(a, k, out)
+        a = (out, factor)
+        if k >= last_start:
+            segment.append(a)
+        elif k % every == 0:
+            checkpoints[k] = (out.copy(), factor)
+    del buffers
 
     out_xy = np.zeros((K, 2))
-    beta = free.copy()
-    segment_buffer = np.empty((min(every, K), ny, nx))  # the forward messages of one segment
-    for start in range(((K - 1) // every) * every, -1, -every):
-        segment = [checkpoints.pop(start)]
-        for k in range(start + 1, min(start + every, K)):
-            forward(segment[-1], k, segment_buffer[k - start])
-            segment.append(segment_buffer[k - start])
-        for k in range(min(start + every, K) - 1, start - 1, -1):
-            out_xy[k] = posterior_mean(segment[k - start], beta)
+    beta, beta_factor = free.copy(), 1.0
+    for start in range(last_start, -1, -every):
+        if start < last_start:  # recompute the segment's messages from its checkpoint
+            segment = [checkpoints.pop(start)]
+            for k in range(start + 1, start + every):
+                out = segment_buffer[k - start]
+                segment.append((out, forward(segment[-1], k, out)[0]))
+        for k in range(start + len(segment) - 1, start - 1, -1):
+            out_xy[k] = posterior_mean(*segment[k - start], beta, beta_factor)
             if k == 0:
                 break
             if restarted_at[k]:  # the forward pass forgot everything before k: so does the backward one
-                beta[:] = free
+                beta[:], beta_factor = free, 1.0
                 continue
-            backward(beta, k)
+            beta_factor = backward(beta, beta_factor, k)
     return MapMatch(t, out_xy, int(restarted_at.sum()))
