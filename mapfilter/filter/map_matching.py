@@ -84,15 +84,21 @@ class _Grid:
         nx, ny = (int(math.ceil(v)) for v in (hi - lo) / cell)
         self.x_m = lo[0] + (np.arange(nx) + 0.5) * cell
         self.y_m = lo[1] + (np.arange(ny) + 0.5) * cell
-        X, Y = np.meshgrid(self.x_m, self.y_m)  # row = y index, column = x index
-        self.X, self.Y = X, Y
         # most of a 3 x 3 sample of the cell free: a wall thinner than the cell still blocks
-        # the cells it crosses the middle of
+        # the cells it crosses the middle of. A sample's plan column depends on its x alone and
+        # its plan row on its y alone: each is looked up once per grid column or row.
         offsets = (np.arange(3) - 1) * cell / 3
-        free_count = np.zeros(X.shape)
+        h, w = floorplan.wall_mask.shape
+        free_px = ~floorplan.wall_mask
+        free_count = np.zeros((ny, nx))
         for ox in offsets:
+            cols = floorplan.pixel_index(np.column_stack([self.x_m + ox, np.zeros(nx)]))[1]
+            col_inside = (cols >= 0) & (cols < w)
             for oy in offsets:
-                free_count += floorplan.is_free(np.stack([X + ox, Y + oy], axis=-1))
+                rows = floorplan.pixel_index(np.column_stack([np.zeros(ny), self.y_m + oy]))[0]
+                row_inside = (rows >= 0) & (rows < h)
+                sample = free_px[np.ix_(np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1))]
+                free_count += sample & row_inside[:, None] & col_inside[None, :]  # outside the plan: wall
         self.free = (free_count >= 5).astype(np.float64)
 
 
