@@ -102,20 +102,22 @@ class _Grid:
         self.free = (free_count >= 5).astype(np.float64)
 
 
-# The passes below are numba kernels over the whole grid. A forward step (moves, n_blur blurs
-# and masks, observation, row sums) is one sweep down the rows: each blur's pass along x feeds
-# a ring of three rows, from which its pass along y makes the row below the newest, so the
-# step's intermediate grids never leave the cache; a backward step is such a sweep and the
-# moves back. Element-wise the kernels repeat the numpy operations in numpy's order (a mask is
-# 0.0 or 1.0, an exact factor), except that a message's normalisation is multiplied out (by
-# its reciprocal) where the message is read instead of dividing the array: messages differ
-# from a plain numpy pass by rounding only, that product and the order of the sums (kept per
-# row, added in row order). Loops run over 1-D row views indexed from 0: an index such as
-# ``c - 1``, which numba cannot prove non-negative, gets a wrap-around branch that keeps LLVM
-# from vectorising the loop (4-8x slower here). Serial: run on row slices with
-# ``threads.for_slices`` (two threads), four ILC walks took 0.72 s instead of 0.52 s, the
-# hand-over of each slice costing more than its share of a 0.1-0.3 ms pass. They allocate
-# nothing: compiled without reference counting (see maps/walls.py).
+# The passes below are numba kernels. A forward step (moves, n_blur blurs and masks,
+# observation, row sums) is one sweep down the rows: each blur's pass along x feeds a ring of
+# three rows, from which its pass along y makes the row below the newest, so the step's
+# intermediate grids never leave the cache; a backward step is such a sweep and the moves
+# back. Element-wise the kernels repeat the numpy operations in numpy's order (a mask is 0.0
+# or 1.0, an exact factor), except that a message's normalisation is multiplied out (by its
+# reciprocal) where the message is read instead of dividing the array: messages differ from a
+# plain numpy pass by rounding only, that product and the order of the sums (kept per row,
+# added in row order). Loops run over 1-D row views indexed from 0: an index such as ``c - 1``,
+# which numba cannot prove non-negative, gets a wrap-around branch that keeps LLVM from
+# vectorising the loop (4-8x slower here). Serial: on row slices over two threads
+# (``threads.for_slices``) a first version of these passes (a kernel per operation) ran four
+# ILC walks in 0.72 s instead of 0.52 s, a slice's hand-over costing more than its share of a
+# 0.1-0.3 ms pass; and ``mapfilter evaluate`` runs a walk per core. They allocate nothing:
+# compiled without reference counting (see maps/walls.py). Compiling them takes about 2.5 s on
+# first use (then cached): the plain numpy steps compiled nothing but ran 4-5x slower.
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -173,26 +175,20 @@ def _observe_row(row, free, gy, gx, r, lo, hi):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _blur_row(src, out, center, side):
-    """out = src blurred with [side, center, side] (numpy's order: centre, left, right; 0 outside)."""
-    nx = src.shape[0]
-    if nx == 1:
-        out[0] = center * src[0]
-        return
-    out[0] = center * src[0] + side * src[1]
-    mid, left, right, inner = src[1:nx - 1], src[:nx - 2], src[2:], out[1:nx - 1]
-    for i in range(nx - 2):
-        inner[i] = (center * mid[i] + side * left[i]) + side * right[i]
-    out[nx - 1] = center * src[nx - 1] + side * src[nx - 2]
-
-
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _blur_span(src, out, lo, hi, out_span, center, side):
-    """out[lo:hi] = src[lo:hi] blurred along the row (0 outside the span), out = 0 outside it.
-    ``out_span``: where ``out`` may be non-zero, [lo, hi) when done (zeroing only the rest of it
-    instead of the whole row saved a fifth of a sweep)."""
-    if hi > lo:
-        _blur_row(src[lo:hi], out[lo:hi], center, side)
+    """out[lo:hi] = src[lo:hi] blurred along the row with [side, center, side] (numpy's order:
+    centre, left, right; 0 outside the span), out = 0 outside it. ``out_span``: where ``out``
+    may be non-zero, [lo, hi) when done (zeroing only the rest of it instead of the whole row
+    saved a fifth of a sweep)."""
+    n = hi - lo
+    if n == 1:
+        out[lo] = center * src[lo]
+    elif n > 1:
+        out[lo] = center * src[lo] + side * src[lo + 1]
+        mid, left, right, inner = src[lo + 1:hi - 1], src[lo:hi - 2], src[lo + 2:hi], out[lo + 1:hi - 1]
+        for i in range(n - 2):
+            inner[i] = (center * mid[i] + side * left[i]) + side * right[i]
+        out[hi - 1] = center * src[hi - 1] + side * src[hi - 2]
     for c in range(out_span[0], min(lo, out_span[1])):
         out[c] = 0.0
     for c in range(max(hi, out_span[0]), out_span[1]):
@@ -201,28 +197,11 @@ def _blur_span(src, out, lo, hi, out_span, center, side):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _zero_outside(row, lo, hi):
-    for c in range(lo):
-        row[c] = 0.0
-    for c in range(hi, row.shape[0]):
-        row[c] = 0.0
-
-
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _blur_column(below, mid, above, has_below, has_above, center, side, out):
-    """out = the middle of three rows blurred across them (centre, below, above; 0 outside the grid)."""
-    if has_below and has_above:
-        for c in range(out.shape[0]):
-            out[c] = (center * mid[c] + side * below[c]) + side * above[c]
-    elif has_below:
-        for c in range(out.shape[0]):
-            out[c] = center * mid[c] + side * below[c]
-    elif has_above:
-        for c in range(out.shape[0]):
-            out[c] = center * mid[c] + side * above[c]
-    else:
-        for c in range(out.shape[0]):
-            out[c] = center * mid[c]
+def _blur_column(below, mid, above, center, side, mask, out):
+    """out = (the middle of three rows blurred across them: centre, below, above) * mask. A row
+    beyond the grid is passed as zeros: adding 0.0 changes nothing, as numpy added nothing."""
+    for c in range(out.shape[0]):
+        out[c] = ((center * mid[c] + side * below[c]) + side * above[c]) * mask[c]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -241,8 +220,8 @@ def _sum(row):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _blur_sweep(a, factor, free, path, gy, gx, center, side, forward, spans, clear, ring, ring_spans, row, out,
-                row_sums):
+def _blur_sweep(a, factor, free, path, gy, gx, center, side, forward, spans, clear, ring, ring_spans, ring_edges,
+                row, out, row_sums):
     """One step, forward (``forward``) or backward, into ``out``.
 
     Forward (transition k - 1 -> k, a * factor = alpha_{k-1}): the moves of ``path`` (masked after
@@ -252,10 +231,12 @@ def _blur_sweep(a, factor, free, path, gy, gx, center, side, forward, spans, cle
     Only the columns ``spans[r, 0]:spans[r, 1]`` of row r are computed; the rest of ``out`` is set to
     0 with ``clear``, else left as it is (0 already: out of the spans, only the all-ones fallback writes).
     Scratch: ``ring`` (n_blur, 3, nx), blur b's pass along x at row r in ``ring[b, r % 3]``, zero
-    outside ``ring_spans`` (n_blur, 3, 2) (zeros at first); ``row`` (nx,).
+    outside ``ring_spans`` (n_blur, 3, 2) (zeros at first); ``ring_edges`` (2, nx): a row of zeros
+    (beyond the grid) and a row of ones (no mask); ``row`` (nx,).
     """
     ny, nx = a.shape
     n_blur = ring.shape[0]
+    zeros, ones = ring_edges[0], ring_edges[1]
     for i in range(ny + n_blur):
         if i < ny:  # the step's input at row i, blurred along x
             lo, hi = spans[i, 0], spans[i, 1]
@@ -272,34 +253,19 @@ def _blur_sweep(a, factor, free, path, gy, gx, center, side, forward, spans, cle
             if r < 0 or r >= ny:
                 continue
             lo, hi = spans[r, 0], spans[r, 1]
-            below, mid, above = ring[b, (r + 2) % 3, lo:hi], ring[b, r % 3, lo:hi], ring[b, (r + 1) % 3, lo:hi]
+            below = ring[b, (r + 2) % 3, lo:hi] if r > 0 else zeros[lo:hi]
+            above = ring[b, (r + 1) % 3, lo:hi] if r < ny - 1 else zeros[lo:hi]
             if b < n_blur - 1:  # masked, then the next blur along x
-                part, mask = row[lo:hi], free[r, lo:hi]
-                _blur_column(below, mid, above, r > 0, r < ny - 1, center, side, part)
-                for c in range(hi - lo):
-                    part[c] = part[c] * mask[c]
+                _blur_column(below, ring[b, r % 3, lo:hi], above, center, side, free[r, lo:hi], row[lo:hi])
                 _blur_span(row, ring[b + 1, r % 3], lo, hi, ring_spans[b + 1, r % 3], center, side)
             else:
-                _blur_column(below, mid, above, r > 0, r < ny - 1, center, side, out[r, lo:hi])
+                _blur_column(below, ring[b, r % 3, lo:hi], above, center, side, ones[lo:hi], out[r, lo:hi])
                 if clear:
-                    _zero_outside(out[r], lo, hi)
+                    out[r, :lo] = 0.0
+                    out[r, hi:] = 0.0
                 if forward:
                     _observe_row(out[r], free, gy, gx, r, lo, hi)
                     row_sums[r] = _sum(out[r, lo:hi])
-
-
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _observe_rows(free, gy, gx, spans, out, row_sums):
-    """out = the observation on the free cells (the free cells without one), and its row sums;
-    ``spans`` as in ``_blur_sweep`` (the free cells' columns are enough)."""
-    for r in range(out.shape[0]):
-        lo, hi = spans[r, 0], spans[r, 1]
-        src, dst = free[r, lo:hi], out[r, lo:hi]
-        for c in range(hi - lo):
-            dst[c] = src[c]
-        _zero_outside(out[r], lo, hi)
-        _observe_row(out[r], free, gy, gx, r, lo, hi)
-        row_sums[r] = _sum(dst)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -309,7 +275,8 @@ def _move_back(g, free, path, spans, out, row_max):
     for r in range(out.shape[0]):
         lo, hi = spans[r, 0], spans[r, 1]
         _move_row(g, 1.0, free, path, r, lo, hi, out[r])
-        _zero_outside(out[r], lo, hi)
+        out[r, :lo] = 0.0
+        out[r, hi:] = 0.0
         row = out[r, lo:hi]
         m0 = m1 = 0.0  # the values are >= 0
         n2 = row.shape[0] // 2 * 2
@@ -450,23 +417,35 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     # cleared from the first all-ones fallback on (``ones_written``)
     g = np.zeros_like(free)  # a backward step before its moves back
     ring, ring_spans, row = np.zeros((n_blur, 3, nx)), np.zeros((n_blur, 3, 2), dtype=np.int64), np.empty(nx)
+    ring_edges = np.array([np.zeros(nx), np.ones(nx)])
     ones_written = False
 
     Message = tuple[np.ndarray, float]
+
+    def observe(gy: np.ndarray, gx: np.ndarray, out: np.ndarray) -> None:
+        """out = the observation alone on the free cells (the free cells without one), as
+        ``_observe_row`` makes it; row sums. (At the start and at restarts only: plain numpy.)"""
+        out[:] = free * free
+        if gy.shape[0]:
+            observation = np.outer(gy[0], gx[0])
+            for i in range(1, gy.shape[0]):
+                observation = observation * np.outer(gy[i], gx[i])
+            out *= observation
+        row_sums[:] = out.sum(axis=1)
 
     def forward(a: Message | None, k: int, out: np.ndarray) -> tuple[Message, bool]:
         """alpha_k (in ``out``) from alpha_{k-1} (None at k = 0); True when the pass restarted here."""
         nonlocal ones_written
         gy, gx = observations.get(k, unobserved)
         if a is None:
-            _observe_rows(free, gy, gx, free_spans, out, row_sums)
+            observe(gy, gx, out)
         else:
             _blur_sweep(*a, free, paths[k - 1][0], gy, gx, center, blur_weight, True, support, ones_written, ring,
-                        ring_spans, row, out, row_sums)
+                        ring_spans, ring_edges, row, out, row_sums)
         total, restarted = row_sums.sum(), False
         if not total > 1e-250:
             restarted = k > 0
-            _observe_rows(free, gy, gx, free_spans, out, row_sums)  # the observation alone (free without one)
+            observe(gy, gx, out)
             total = row_sums.sum()
             if not total > 0:  # no free cell near the walk: nothing to match against
                 out[:], total, ones_written = 1.0, float(free.size), True
@@ -477,7 +456,7 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
         gy, gx = observations.get(k, unobserved)
         path = paths[k - 1][1]
         _blur_sweep(beta, beta_factor, free, path, gy, gx, center, blur_weight, False, support, False, ring, ring_spans,
-                    row, g, row_sums)
+                    ring_edges, row, g, row_sums)
         _move_back(g, free, path, free_spans, beta, row_sums)
         peak = row_sums.max()
         if peak > 0:
