@@ -116,8 +116,9 @@ class _Grid:
 # (``threads.for_slices``) a first version of these passes (a kernel per operation) ran four
 # ILC walks in 0.72 s instead of 0.52 s, a slice's hand-over costing more than its share of a
 # 0.1-0.3 ms pass; and ``mapfilter evaluate`` runs a walk per core. They allocate nothing:
-# compiled without reference counting (see maps/walls.py). Compiling them takes about 2.5 s on
-# first use (then cached): the plain numpy steps compiled nothing but ran 4-5x slower.
+# compiled without reference counting (see maps/walls.py). A first call with an empty numba
+# cache takes about 3 s, compiling them (then cached); the plain numpy steps compiled nothing
+# but ran 4-5x slower.
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
