@@ -68,7 +68,8 @@ def reference_map_match(git_rev: str | None, tmp: Path):
                             check=True, capture_output=True, text=True).stdout
     path = tmp / "map_matching_reference.py"
     path.write_text(source)
-    return load_module(path, "_bench_map_matching_reference").map_match, f"git {git_rev}:mapfilter/filter/map_matching.py"
+    module = load_module(path, "_bench_map_matching_reference")
+    return module.map_match, f"git {git_rev}:mapfilter/filter/map_matching.py"
 
 
 def walk_input(floorplan: FloorPlan, walk_id: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
