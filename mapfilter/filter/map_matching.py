@@ -118,7 +118,7 @@ class _Grid:
 # 0.1-0.3 ms pass; and ``mapfilter evaluate`` runs a walk per core. They allocate nothing:
 # compiled without reference counting (see maps/walls.py). A first call with an empty numba
 # cache takes about 3 s, compiling them (then cached); the plain numpy steps compiled nothing
-# but ran 4-5x slower.
+# but ran about 4x slower (tools/bench_map_matching.py).
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
