@@ -1,9 +1,11 @@
 """Map matching of a placed walk: forward-backward over the free cells of the plan."""
 
+import math
+
 import numpy as np
 import pytest
 
-from mapfilter.filter.map_matching import MapMatchConfig, map_match
+from mapfilter.filter.map_matching import MapMatch, MapMatchConfig, _Grid, _unit_moves, map_match
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall
 
@@ -58,6 +60,127 @@ def brute_force_means(free: np.ndarray, moves_x: list[int], step_var_cells2: flo
             beta = transitions[k - 1].T @ (like(k) * beta)
             beta = beta / beta.max()
     return means
+
+
+
+# ---- the plain numpy forward-backward that the numba kernels must repeat -----------------------
+# (map_match as it was before its numba kernels: one numpy array per operation)
+def _shift(a: np.ndarray, dx: int, dy: int) -> np.ndarray:
+    """Move the content one cell along x (dx = +-1) or y (dy = +-1), zero-filled."""
+    out = np.zeros_like(a)
+    if dx == 1:
+        out[:, 1:] = a[:, :-1]
+    elif dx == -1:
+        out[:, :-1] = a[:, 1:]
+    elif dy == 1:
+        out[1:, :] = a[:-1, :]
+    elif dy == -1:
+        out[:-1, :] = a[1:, :]
+    return out
+
+
+def _blur(a: np.ndarray, weight: float) -> np.ndarray:
+    """Three-tap blur [w, 1 - 2w, w] along both axes: adds variance 2w (cells^2) per axis."""
+    out = (1.0 - 2.0 * weight) * a
+    out[:, 1:] += weight * a[:, :-1]
+    out[:, :-1] += weight * a[:, 1:]
+    both = (1.0 - 2.0 * weight) * out
+    both[1:, :] += weight * out[:-1, :]
+    both[:-1, :] += weight * out[1:, :]
+    return both
+
+
+def numpy_map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_s: np.ndarray,
+                    config: MapMatchConfig = MapMatchConfig()) -> MapMatch:
+    """``map_match`` in plain numpy, step by step as the kernels do it (same grid, moves, checkpoints)."""
+    t = np.asarray(t_s, dtype=np.float64).reshape(-1)
+    xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    grid = _Grid(floorplan, xy, config)
+    free = grid.free
+    if not free.any():
+        return MapMatch(t, xy.copy(), 0)
+    K = t.shape[0]
+    X, Y = np.meshgrid(grid.x_m, grid.y_m)
+    anchor_t = np.asarray(anchor_t_s, dtype=np.float64).reshape(-1)
+    anchor_t = anchor_t[(anchor_t >= t[0]) & (anchor_t <= t[-1])]
+    anchor_xy = np.column_stack([np.interp(anchor_t, t, xy[:, 0]), np.interp(anchor_t, t, xy[:, 1])])
+    nearest = np.clip(np.searchsorted(t, anchor_t), 0, K - 1)
+    anchors_at: dict[int, list[np.ndarray]] = {}
+    for k, anchor in zip(nearest.tolist(), anchor_xy):
+        anchors_at.setdefault(k, []).append(anchor)
+    inv_var = 0.5 / config.anchor_sigma_m ** 2
+
+    def likelihood(k: int) -> np.ndarray | None:
+        if k not in anchors_at:
+            return None
+        out = free
+        for ax, ay in anchors_at[k]:
+            out = out * np.outer(np.exp(-inv_var * (grid.y_m - ay) ** 2), np.exp(-inv_var * (grid.x_m - ax) ** 2))
+        return out
+
+    units = _unit_moves(xy, config.cell_m)
+    variance_cells2 = (config.step_sigma_m / config.cell_m) ** 2
+    n_blur = int(math.ceil(variance_cells2 / 0.5 - 1e-9))
+    blur_weight = variance_cells2 / (2.0 * n_blur)
+
+    def predict(a: np.ndarray, k: int) -> np.ndarray:
+        for dx, dy in units[k - 1]:
+            a = _shift(a, dx, dy) * free
+        for _ in range(n_blur):
+            a = _blur(a, blur_weight) * free
+        return a
+
+    def forward(a: np.ndarray | None, k: int) -> tuple[np.ndarray, bool]:
+        a = free.copy() if a is None else predict(a, k)
+        observed = likelihood(k)
+        if observed is not None:
+            a = a * observed
+        total = a.sum()
+        restarted = False
+        if not total > 1e-250:
+            a, restarted = (free if observed is None else observed), k > 0
+            total = a.sum()
+            if not total > 0:
+                a, total = np.ones_like(free), float(free.size)
+        return a / total, restarted
+
+    every = config.checkpoint_every
+    checkpoints: dict[int, np.ndarray] = {}
+    restarted_at = np.zeros(K, dtype=bool)
+    a = None
+    for k in range(K):
+        a, restarted_at[k] = forward(a, k)
+        if k % every == 0:
+            checkpoints[k] = a
+
+    out_xy = np.zeros((K, 2))
+    beta = free.copy()
+    for start in range(((K - 1) // every) * every, -1, -every):
+        segment = [checkpoints[start]]
+        for k in range(start + 1, min(start + every, K)):
+            segment.append(forward(segment[-1], k)[0])
+        for k in range(min(start + every, K) - 1, start - 1, -1):
+            p = segment[k - start] * beta
+            total = p.sum()
+            if not total > 0:
+                p, total = segment[k - start], segment[k - start].sum()
+            p = p / total
+            out_xy[k] = float((p * X).sum()), float((p * Y).sum())
+            if k == 0:
+                break
+            if restarted_at[k]:
+                beta = free.copy()
+                continue
+            observed = likelihood(k)
+            g = beta if observed is None else beta * observed
+            for _ in range(n_blur):
+                g = _blur(g * free, blur_weight)
+            for dx, dy in reversed(units[k - 1]):
+                g = _shift(g * free, -dx, -dy)
+            beta = g * free
+            peak = beta.max()
+            beta = beta / peak if peak > 0 else free.copy()
+    return MapMatch(t, out_xy, int(restarted_at.sum()))
 
 
 def test_forward_backward_equals_explicit_transition_matrices():
@@ -148,3 +271,43 @@ def test_a_walk_far_from_any_free_space_is_returned_as_it_is():
     xy = np.column_stack([np.linspace(60.0, 70.0, 15), np.full(15, 100.0)])  # off the plan
     matched = map_match(plan, np.arange(15.0), xy, np.arange(0.0, 15.0, 3.0))
     np.testing.assert_array_equal(matched.xy_m, xy)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_numba_kernels_equal_the_plain_numpy_steps(seed):
+    # random walls, a walk that wanders (several unit moves a step, both signs, along both
+    # axes, steps with no move), scans at random steps (two on one step too), blurs 1 to 3
+    rng = np.random.default_rng(seed)
+    free = rng.random((rng.integers(8, 25), rng.integers(8, 25))) > rng.uniform(0.1, 0.4)
+    plan = block_plan(free)
+    n = int(rng.integers(2, 70))
+    moves = rng.normal(0, rng.uniform(0.3, 2.5), (n - 1, 2)) * (rng.random((n - 1, 1)) > 0.1)
+    xy = np.array([free.shape[1] / 2, free.shape[0] / 2]) + np.vstack([[0, 0], np.cumsum(moves, axis=0)])
+    t = np.arange(n, dtype=float)
+    anchors_t = np.sort(np.concatenate([rng.choice(t, size=max(1, n // 4)), t[-1:] + 0.0]))
+    config = MapMatchConfig(cell_m=float(rng.choice([0.5, 1.0])), step_sigma_m=float(rng.uniform(0.2, 1.2)),
+                            anchor_sigma_m=float(rng.uniform(0.5, 6.0)), window_margin_m=float(rng.uniform(0, 5)),
+                            checkpoint_every=int(rng.integers(1, 12)))
+    got = map_match(plan, t, xy, anchors_t, config)
+    expected = numpy_map_match(plan, t, xy, anchors_t, config)
+    assert got.restarts == expected.restarts
+    np.testing.assert_allclose(got.xy_m, expected.xy_m, rtol=0, atol=1e-9)
+
+
+def test_numba_kernels_equal_the_plain_numpy_steps_through_restarts():
+    # a walk that leaves its corridor: the plan blocks every path (restart), and an anchor too
+    # far from every free cell for its Gaussian (the all-ones fallback, ones on the walls too),
+    # where the walker then stands (steps without a move carry the ones into the blurs)
+    wall = np.ones((12, 400), dtype=bool)  # 400 x 12 m at 1 m/px
+    wall[4:8, :40] = False  # a corridor along the west end only
+    wall[2:10, 8:12] = False  # a room across it
+    plan = FloorPlan(wall, 1.0, (0.0, 0.0))
+    x = np.concatenate([np.linspace(2, 35, 12), np.linspace(36, 395, 10), np.full(6, 395.0), np.linspace(390, 300, 6)])
+    xy = np.column_stack([x, np.full(x.size, 6.0)])
+    t = np.arange(float(x.size))
+    config = MapMatchConfig(cell_m=1.0, step_sigma_m=1.2, anchor_sigma_m=2.0, window_margin_m=5.0, checkpoint_every=5)
+    anchors_t = np.array([0.0, 5.0, 11.0, 21.0, 24.0, 31.0, 33.0])
+    got = map_match(plan, t, xy, anchors_t, config)
+    expected = numpy_map_match(plan, t, xy, anchors_t, config)
+    assert got.restarts == expected.restarts >= 2
+    np.testing.assert_allclose(got.xy_m, expected.xy_m, rtol=0, atol=1e-9)

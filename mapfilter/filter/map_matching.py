@@ -27,6 +27,7 @@ import dataclasses
 import math
 
 import numpy as np
+from numba import njit
 
 from mapfilter.maps.floorplan import FloorPlan
 
@@ -83,41 +84,261 @@ class _Grid:
         nx, ny = (int(math.ceil(v)) for v in (hi - lo) / cell)
         self.x_m = lo[0] + (np.arange(nx) + 0.5) * cell
         self.y_m = lo[1] + (np.arange(ny) + 0.5) * cell
-        X, Y = np.meshgrid(self.x_m, self.y_m)  # row = y index, column = x index
-        self.X, self.Y = X, Y
         # most of a 3 x 3 sample of the cell free: a wall thinner than the cell still blocks
-        # the cells it crosses the middle of
+        # the cells it crosses the middle of. A sample's plan column depends on its x alone and
+        # its plan row on its y alone: each is looked up once per grid column or row.
         offsets = (np.arange(3) - 1) * cell / 3
-        free_count = np.zeros(X.shape)
+        h, w = floorplan.wall_mask.shape
+        free_px = ~floorplan.wall_mask
+        free_count = np.zeros((ny, nx))
         for ox in offsets:
+            cols = floorplan.pixel_index(np.column_stack([self.x_m + ox, np.zeros(nx)]))[1]
+            col_inside = (cols >= 0) & (cols < w)
             for oy in offsets:
-                free_count += floorplan.is_free(np.stack([X + ox, Y + oy], axis=-1))
+                rows = floorplan.pixel_index(np.column_stack([np.zeros(ny), self.y_m + oy]))[0]
+                row_inside = (rows >= 0) & (rows < h)
+                sample = free_px[np.ix_(np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1))]
+                free_count += sample & row_inside[:, None] & col_inside[None, :]  # outside the plan: wall
         self.free = (free_count >= 5).astype(np.float64)
 
 
-def _shift(a: np.ndarray, dx: int, dy: int) -> np.ndarray:
-    """Move the content one cell along x (dx = +-1) or y (dy = +-1), zero-filled."""
-    out = np.zeros_like(a)
-    if dx == 1:
-        out[:, 1:] = a[:, :-1]
-    elif dx == -1:
-        out[:, :-1] = a[:, 1:]
-    elif dy == 1:
-        out[1:, :] = a[:-1, :]
-    elif dy == -1:
-        out[:-1, :] = a[1:, :]
-    return out
+# The passes below are numba kernels. A forward step (moves, n_blur blurs and masks,
+# observation, row sums) is one sweep down the rows: each blur's pass along x feeds a ring of
+# three rows, from which its pass along y makes the row below the newest, so the step's
+# intermediate grids never leave the cache; a backward step is such a sweep and the moves
+# back. Element-wise the kernels repeat the numpy operations in numpy's order (a mask is 0.0
+# or 1.0, an exact factor), except that a message's normalisation is multiplied out (by its
+# reciprocal) where the message is read instead of dividing the array: messages differ from a
+# plain numpy pass by rounding only, that product and the order of the sums (kept per row,
+# added in row order). Loops run over 1-D row views indexed from 0: an index such as ``c - 1``,
+# which numba cannot prove non-negative, gets a wrap-around branch that keeps LLVM from
+# vectorising the loop (4-8x slower here). Serial: on row slices over two threads
+# (``threads.for_slices``) a first version of these passes (a kernel per operation) ran four
+# ILC walks in 0.72 s instead of 0.52 s, a slice's hand-over costing more than its share of a
+# 0.1-0.3 ms pass; and ``mapfilter evaluate`` runs a walk per core. They allocate nothing:
+# compiled without reference counting (see maps/walls.py). A first call with an empty numba
+# cache takes about 3 s, compiling them (then cached); the plain numpy steps compiled nothing
+# but ran about 4x slower (tools/bench_map_matching.py).
 
 
-def _blur(a: np.ndarray, weight: float) -> np.ndarray:
-    """Three-tap blur [w, 1 - 2w, w] along both axes: adds variance 2w (cells^2) per axis."""
-    out = (1.0 - 2.0 * weight) * a
-    out[:, 1:] += weight * a[:, :-1]
-    out[:, :-1] += weight * a[:, 1:]
-    both = (1.0 - 2.0 * weight) * out
-    both[1:, :] += weight * out[:-1, :]
-    both[:-1, :] += weight * out[1:, :]
-    return both
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _move_row(a, factor, free, path, r, lo, hi, out_row):
+    """``out_row[lo:hi]`` = what a path of unit moves brings from ``a * factor`` to row r: 0 where
+    the path leaves the grid or enters a wall. ``path[j] = (dy, dx, kind)``, the path's cells
+    relative to the destination; kind 1: must be free, 2: read there, 3: both."""
+    ny, nx = a.shape
+    c_lo, c_hi = lo, hi  # the columns whose whole path lies in the grid
+    src_r, src_dx = r, 0
+    for j in range(path.shape[0]):
+        if r + path[j, 0] < 0 or r + path[j, 0] >= ny:
+            c_lo = nx
+        c_lo = max(c_lo, -path[j, 1])
+        c_hi = min(c_hi, nx - path[j, 1])
+        if path[j, 2] & 2:
+            src_r, src_dx = r + path[j, 0], path[j, 1]
+    c_lo = min(c_lo, hi)
+    c_hi = max(c_hi, c_lo)
+    for c in range(lo, c_lo):
+        out_row[c] = 0.0
+    for c in range(c_hi, hi):
+        out_row[c] = 0.0
+    if c_hi == c_lo:
+        return
+    out = out_row[c_lo:c_hi]
+    src = a[src_r, c_lo + src_dx:c_hi + src_dx]
+    for i in range(c_hi - c_lo):
+        out[i] = src[i] * factor
+    for j in range(path.shape[0]):
+        if path[j, 2] & 1:  # the mask is 0.0 or 1.0: multiplying by it is exact
+            mask = free[r + path[j, 0], c_lo + path[j, 1]:c_hi + path[j, 1]]
+            for i in range(c_hi - c_lo):
+                out[i] = out[i] * mask[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _observe_row(row, free, gy, gx, r, lo, hi):
+    """row[lo:hi] = (row * free) * the product of the anchors' separable Gaussians at row r (numpy's order)."""
+    n = gy.shape[0]
+    part, mask = row[lo:hi], free[r, lo:hi]
+    if n == 0:
+        for c in range(hi - lo):
+            part[c] = part[c] * mask[c]
+    elif n == 1:
+        g, gx0 = gy[0, r], gx[0, lo:hi]
+        for c in range(hi - lo):
+            part[c] = (part[c] * mask[c]) * (g * gx0[c])
+    else:
+        for c in range(hi - lo):
+            o = gy[0, r] * gx[0, lo + c]
+            for i in range(1, n):
+                o = o * (gy[i, r] * gx[i, lo + c])
+            part[c] = (part[c] * mask[c]) * o
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _blur_span(src, out, lo, hi, out_span, center, side):
+    """out[lo:hi] = src[lo:hi] blurred along the row with [side, center, side] (numpy's order:
+    centre, left, right; 0 outside the span), out = 0 outside it. ``out_span``: where ``out``
+    may be non-zero, [lo, hi) when done (zeroing only the rest of it instead of the whole row
+    saved a fifth of a sweep)."""
+    n = hi - lo
+    if n == 1:
+        out[lo] = center * src[lo]
+    elif n > 1:
+        out[lo] = center * src[lo] + side * src[lo + 1]
+        mid, left, right, inner = src[lo + 1:hi - 1], src[lo:hi - 2], src[lo + 2:hi], out[lo + 1:hi - 1]
+        for i in range(n - 2):
+            inner[i] = (center * mid[i] + side * left[i]) + side * right[i]
+        out[hi - 1] = center * src[hi - 1] + side * src[hi - 2]
+    for c in range(out_span[0], min(lo, out_span[1])):
+        out[c] = 0.0
+    for c in range(max(hi, out_span[0]), out_span[1]):
+        out[c] = 0.0
+    out_span[0], out_span[1] = lo, hi
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _blur_column(below, mid, above, center, side, mask, out):
+    """out = (the middle of three rows blurred across them: centre, below, above) * mask. A row
+    beyond the grid is passed as zeros: adding 0.0 changes nothing, as numpy added nothing."""
+    for c in range(out.shape[0]):
+        out[c] = ((center * mid[c] + side * below[c]) + side * above[c]) * mask[c]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _sum(row):
+    # four running sums: one would wait on each addition's latency
+    s0 = s1 = s2 = s3 = 0.0
+    n4 = row.shape[0] // 4 * 4
+    for c in range(0, n4, 4):
+        s0 += row[c]
+        s1 += row[c + 1]
+        s2 += row[c + 2]
+        s3 += row[c + 3]
+    for c in range(n4, row.shape[0]):
+        s0 += row[c]
+    return (s0 + s1) + (s2 + s3)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _blur_sweep(a, factor, free, path, gy, gx, center, side, forward, spans, clear, ring, ring_spans, ring_edges,
+                row, out, row_sums):
+    """One step, forward (``forward``) or backward, into ``out``.
+
+    Forward (transition k - 1 -> k, a * factor = alpha_{k-1}): the moves of ``path`` (masked after
+    each unit move), n_blur blurs each masked, the observation of step k; ``row_sums`` of the result.
+    Backward (a * factor = beta_k): (beta_k * observation_k) masked, then n_blur blurs each of a
+    masked input; not masked at the end (the moves back do it), no sums.
+    Only the columns ``spans[r, 0]:spans[r, 1]`` of row r are computed; the rest of ``out`` is set to
+    0 with ``clear``, else left as it is (0 already: out of the spans, only the all-ones fallback writes).
+    Scratch: ``ring`` (n_blur, 3, nx), blur b's pass along x at row r in ``ring[b, r % 3]``, zero
+    outside ``ring_spans`` (n_blur, 3, 2) (zeros at first); ``ring_edges`` (2, nx): a row of zeros
+    (beyond the grid) and a row of ones (no mask); ``row`` (nx,).
+    """
+    ny, nx = a.shape
+    n_blur = ring.shape[0]
+    zeros, ones = ring_edges[0], ring_edges[1]
+    for i in range(ny + n_blur):
+        if i < ny:  # the step's input at row i, blurred along x
+            lo, hi = spans[i, 0], spans[i, 1]
+            if forward:
+                _move_row(a, factor, free, path, i, lo, hi, row)
+            else:
+                src, dst = a[i, lo:hi], row[lo:hi]
+                for c in range(hi - lo):
+                    dst[c] = src[c] * factor
+                _observe_row(row, free, gy, gx, i, lo, hi)
+            _blur_span(row, ring[0, i % 3], lo, hi, ring_spans[0, i % 3], center, side)
+        for b in range(n_blur):  # blur b along y at row i - 1 - b: its rows up to i - b are made
+            r = i - 1 - b
+            if r < 0 or r >= ny:
+                continue
+            lo, hi = spans[r, 0], spans[r, 1]
+            below = ring[b, (r + 2) % 3, lo:hi] if r > 0 else zeros[lo:hi]
+            above = ring[b, (r + 1) % 3, lo:hi] if r < ny - 1 else zeros[lo:hi]
+            if b < n_blur - 1:  # masked, then the next blur along x
+                _blur_column(below, ring[b, r % 3, lo:hi], above, center, side, free[r, lo:hi], row[lo:hi])
+                _blur_span(row, ring[b + 1, r % 3], lo, hi, ring_spans[b + 1, r % 3], center, side)
+            else:
+                _blur_column(below, ring[b, r % 3, lo:hi], above, center, side, ones[lo:hi], out[r, lo:hi])
+                if clear:
+                    out[r, :lo] = 0.0
+                    out[r, hi:] = 0.0
+                if forward:
+                    _observe_row(out[r], free, gy, gx, r, lo, hi)
+                    row_sums[r] = _sum(out[r, lo:hi])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _move_back(g, free, path, spans, out, row_max):
+    """Backward: the adjoint of a step's moves (mask, move back, mask, ...); row maxima; ``spans``
+    as in ``_blur_sweep`` (the free cells' columns are enough: the last mask is the cell's own)."""
+    for r in range(out.shape[0]):
+        lo, hi = spans[r, 0], spans[r, 1]
+        _move_row(g, 1.0, free, path, r, lo, hi, out[r])
+        out[r, :lo] = 0.0
+        out[r, hi:] = 0.0
+        row = out[r, lo:hi]
+        m0 = m1 = 0.0  # the values are >= 0
+        n2 = row.shape[0] // 2 * 2
+        for c in range(0, n2, 2):
+            m0 = max(m0, row[c])
+            m1 = max(m1, row[c + 1])
+        for c in range(n2, row.shape[0]):
+            m0 = max(m0, row[c])
+        row_max[r] = max(m0, m1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _moments(alpha, alpha_factor, beta, beta_factor, x_m, spans, row_moments):
+    """Per row: the sum of p = (alpha * alpha_factor) * (beta * beta_factor) and of p * x
+    (alpha * alpha_factor alone when ``beta_factor`` is 0) over the columns ``spans[r, 0]:spans[r, 1]``."""
+    for r in range(alpha.shape[0]):
+        lo, hi = spans[r, 0], spans[r, 1]
+        a, b, x_m_row = alpha[r, lo:hi], beta[r, lo:hi], x_m[lo:hi]
+        s0 = s1 = x0 = x1 = 0.0
+        n2 = a.shape[0] // 2 * 2
+        use_beta = beta_factor != 0.0
+        for c in range(0, n2, 2):
+            p0 = a[c] * alpha_factor
+            p1 = a[c + 1] * alpha_factor
+            if use_beta:
+                p0 = p0 * (b[c] * beta_factor)
+                p1 = p1 * (b[c + 1] * beta_factor)
+            s0 += p0
+            s1 += p1
+            x0 += p0 * x_m_row[c]
+            x1 += p1 * x_m_row[c + 1]
+        for c in range(n2, a.shape[0]):
+            p0 = a[c] * alpha_factor
+            if use_beta:
+                p0 = p0 * (b[c] * beta_factor)
+            s0 += p0
+            x0 += p0 * x_m_row[c]
+        row_moments[r, 0] = s0 + s1
+        row_moments[r, 1] = x0 + x1
+
+
+def _cell_paths(units: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """A step's unit moves as the cell paths of ``_move_row``: (forward, backward), relative to the
+    destination cell. Forward: mass from the start moves one cell at a time and is dropped in
+    a wall cell after each move. Backward (the adjoint): mask, move back, mask, ... mask."""
+    dy_dx = np.zeros((len(units) + 1, 2), dtype=np.int64)  # cells of the path, start at (0, 0)
+    for j, (dx, dy) in enumerate(units, start=1):
+        dy_dx[j] = dy_dx[j - 1] + (dy, dx)
+    forward = np.column_stack([dy_dx - dy_dx[-1], np.ones(len(dy_dx), dtype=np.int64)])
+    forward[0, 2] = 2  # the start: read there, not masked (the message is masked already, or all ones)
+    backward = np.column_stack([dy_dx, np.ones(len(dy_dx), dtype=np.int64)])
+    backward[-1, 2] = 3
+    return forward, backward
+
+
+def _row_spans(mask: np.ndarray) -> np.ndarray:
+    """(ny, 2): per row, the columns from its first True cell to its last ((0, 0) for none)."""
+    any_true = mask.any(axis=1)
+    lo = np.where(any_true, mask.argmax(axis=1), 0)
+    hi = np.where(any_true, mask.shape[1] - mask[:, ::-1].argmax(axis=1), 0)
+    return np.column_stack([lo, hi]).astype(np.int64)
 
 
 def _unit_moves(xy_m: np.ndarray, cell_m: float) -> list[list[tuple[int, int]]]:
@@ -153,6 +374,7 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     if not free.any():  # the walk is nowhere near the plan's free space: nothing to match against
         return MapMatch(t, xy.copy(), 0)
     K = t.shape[0]
+    ny, nx = free.shape
     # observations: the placed position at each anchor time, on the first shape time at or after it
     anchor_t = np.asarray(anchor_t_s, dtype=np.float64).reshape(-1)
     anchor_t = anchor_t[(anchor_t >= t[0]) & (anchor_t <= t[-1])]
@@ -162,78 +384,125 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     for k, anchor in zip(nearest.tolist(), anchor_xy):
         anchors_at.setdefault(k, []).append(anchor)
     inv_var = 0.5 / config.anchor_sigma_m ** 2
+    # the observations at step k as separable Gaussians, (anchors, ny) along y and (anchors, nx)
+    # along x: a grid per scan kept for the whole walk would cost more memory than the messages
+    observations = {k: (np.array([np.exp(-inv_var * (grid.y_m - ay) ** 2) for _, ay in anchors]),
+                        np.array([np.exp(-inv_var * (grid.x_m - ax) ** 2) for ax, _ in anchors]))
+                    for k, anchors in anchors_at.items()}
+    unobserved = (np.zeros((0, ny)), np.zeros((0, nx)))
 
-    def likelihood(k: int) -> np.ndarray | None:
-        """The observations at step k on the free cells (separable Gaussians, made when needed:
-        one grid per scan kept for the whole walk would cost more memory than the messages)."""
-        if k not in anchors_at:
-            return None
-        out = free
-        for ax, ay in anchors_at[k]:
-            out = out * np.outer(np.exp(-inv_var * (grid.y_m - ay) ** 2), np.exp(-inv_var * (grid.x_m - ax) ** 2))
-        return out
-
-    units = _unit_moves(xy, config.cell_m)
+    paths = [_cell_paths(u) for u in _unit_moves(xy, config.cell_m)]  # transition k - 1 -> k at k - 1
     variance_cells2 = (config.step_sigma_m / config.cell_m) ** 2
     n_blur = int(math.ceil(variance_cells2 / 0.5 - 1e-9))  # one blur adds at most 0.5 cells^2
     blur_weight = variance_cells2 / (2.0 * n_blur)
+    center = 1.0 - 2.0 * blur_weight
 
-    def predict(a: np.ndarray, k: int) -> np.ndarray:  # transition k - 1 -> k
-        for dx, dy in units[k - 1]:
-            a = _shift(a, dx, dy) * free
-        for _ in range(n_blur):
-            a = _blur(a, blur_weight) * free
-        return a
+    # A message is (array, factor), the message being array * factor: its normalisation
+    # (1 / sum forward, 1 / peak backward) is applied where the message is read.
+    # What a step keeps is its values on free cells (the forward result is masked; the moves back
+    # read free cells only), and a blur moves mass by at most one cell along each axis before
+    # the next mask: so a step needs only the cells within one cell (diagonals too) of a free
+    # cell. Each row is computed over the columns from its first such cell to its last
+    # (``support``), the rest set to 0: the same numbers, about a third fewer cells on ILC F1.
+    # Results that are masked need only the columns of their row's free cells (``free_spans``).
+    near = free > 0
+    near[:, 1:] |= free[:, :-1] > 0
+    near[:, :-1] |= free[:, 1:] > 0
+    near[1:] |= near[:-1].copy()
+    near[:-1] |= near[1:].copy()
+    support, free_spans = _row_spans(near), _row_spans(free > 0)
+    full = np.tile(np.array([0, nx], dtype=np.int64), (ny, 1))
+    row_sums = np.empty(ny)
+    row_moments = np.empty((ny, 2))
+    # a sweep leaves its output as it is outside the spans: its buffers start at zero, and are
+    # cleared from the first all-ones fallback on (``ones_written``)
+    g = np.zeros_like(free)  # a backward step before its moves back
+    ring, ring_spans, row = np.zeros((n_blur, 3, nx)), np.zeros((n_blur, 3, 2), dtype=np.int64), np.empty(nx)
+    ring_edges = np.array([np.zeros(nx), np.ones(nx)])
+    ones_written = False
 
-    def forward(a: np.ndarray | None, k: int) -> tuple[np.ndarray, bool]:
-        """alpha_k from alpha_{k-1} (None at k = 0); True when the pass restarted here."""
-        a = free.copy() if a is None else predict(a, k)
-        observed = likelihood(k)
-        if observed is not None:
-            a = a * observed
-        total = a.sum()
-        restarted = False
+    Message = tuple[np.ndarray, float]
+
+    def observe(gy: np.ndarray, gx: np.ndarray, out: np.ndarray) -> None:
+        """out = the observation alone on the free cells (the free cells without one), as
+        ``_observe_row`` makes it; row sums. (At the start and at restarts only: plain numpy.)"""
+        out[:] = free * free
+        if gy.shape[0]:
+            observation = np.outer(gy[0], gx[0])
+            for i in range(1, gy.shape[0]):
+                observation = observation * np.outer(gy[i], gx[i])
+            out *= observation
+        row_sums[:] = out.sum(axis=1)
+
+    def forward(a: Message | None, k: int, out: np.ndarray) -> tuple[Message, bool]:
+        """alpha_k (in ``out``) from alpha_{k-1} (None at k = 0); True when the pass restarted here."""
+        nonlocal ones_written
+        gy, gx = observations.get(k, unobserved)
+        if a is None:
+            observe(gy, gx, out)
+        else:
+            _blur_sweep(*a, free, paths[k - 1][0], gy, gx, center, blur_weight, True, support, ones_written, ring,
+                        ring_spans, ring_edges, row, out, row_sums)
+        total, restarted = row_sums.sum(), False
         if not total > 1e-250:
-            a, restarted = (free if observed is None else observed), k > 0
-            total = a.sum()
+            restarted = k > 0
+            observe(gy, gx, out)
+            total = row_sums.sum()
             if not total > 0:  # no free cell near the walk: nothing to match against
-                a, total = np.ones_like(free), float(free.size)
-        return a / total, restarted
+                out[:], total, ones_written = 1.0, float(free.size), True
+        return (out, 1.0 / float(total)), restarted
+
+    def backward(beta: np.ndarray, beta_factor: float, k: int) -> float:
+        """beta_{k-1} from beta_k (``beta`` * ``beta_factor``), in place; returns its factor (1 / its peak)."""
+        gy, gx = observations.get(k, unobserved)
+        path = paths[k - 1][1]
+        _blur_sweep(beta, beta_factor, free, path, gy, gx, center, blur_weight, False, support, False, ring, ring_spans,
+                    ring_edges, row, g, row_sums)
+        _move_back(g, free, path, free_spans, beta, row_sums)
+        peak = row_sums.max()
+        if peak > 0:
+            return 1.0 / float(peak)
+        beta[:] = free
+        return 1.0
+
+    def posterior_mean(alpha: Message, beta: np.ndarray, beta_factor: float) -> np.ndarray:
+        _moments(alpha[0], alpha[1], beta, beta_factor, grid.x_m, free_spans, row_moments)  # beta is masked
+        total = row_moments[:, 0].sum()
+        if not total > 0:  # alpha and beta share no cell: alpha alone (all ones after the fallback)
+            _moments(alpha[0], alpha[1], beta, 0.0, grid.x_m, full, row_moments)
+            total = row_moments[:, 0].sum()
+        return np.array([row_moments[:, 1].sum(), (row_moments[:, 0] * grid.y_m).sum()]) / total
 
     every = config.checkpoint_every
-    checkpoints: dict[int, np.ndarray] = {}
+    last_start = ((K - 1) // every) * every
+    segment_buffer = np.zeros((min(every, K), ny, nx))  # the forward messages of one segment
+    # forward: checkpoints at every `every` steps; the last segment's messages are kept whole
+    checkpoints: dict[int, Message] = {}
     restarted_at = np.zeros(K, dtype=bool)
+    buffers = (np.zeros_like(free), np.zeros_like(free)) if last_start > 0 else ()
+    segment: list[Message] = []
     a = None
     for k in range(K):
-        a, restarted_at[k] = forward(a, k)
-        if k % every == 0:
-            checkpoints[k] = a
+        a, restarted_at[k] = forward(a, k, buffers[k % 2] if k < last_start else segment_buffer[k - last_start])
+        if k >= last_start:
+            segment.append(a)
+        elif k % every == 0:
+            checkpoints[k] = (a[0].copy(), a[1])
+    del buffers
 
     out_xy = np.zeros((K, 2))
-    beta = free.copy()
-    for start in range(((K - 1) // every) * every, -1, -every):
-        segment = [checkpoints[start]]
-        for k in range(start + 1, min(start + every, K)):
-            segment.append(forward(segment[-1], k)[0])
-        for k in range(min(start + every, K) - 1, start - 1, -1):
-            p = segment[k - start] * beta
-            total = p.sum()
-            if not total > 0:
-                p, total = segment[k - start], segment[k - start].sum()
-            p = p / total
-            out_xy[k] = float((p * grid.X).sum()), float((p * grid.Y).sum())
+    beta, beta_factor = free.copy(), 1.0
+    for start in range(last_start, -1, -every):
+        if start < last_start:  # recompute the segment's messages from its checkpoint
+            segment = [checkpoints.pop(start)]
+            for k in range(start + 1, start + every):
+                segment.append(forward(segment[-1], k, segment_buffer[k - start])[0])
+        for k in range(start + len(segment) - 1, start - 1, -1):
+            out_xy[k] = posterior_mean(segment[k - start], beta, beta_factor)
             if k == 0:
                 break
             if restarted_at[k]:  # the forward pass forgot everything before k: so does the backward one
-                beta = free.copy()
+                beta[:], beta_factor = free, 1.0
                 continue
-            observed = likelihood(k)
-            g = beta if observed is None else beta * observed
-            for _ in range(n_blur):
-                g = _blur(g * free, blur_weight)
-            for dx, dy in reversed(units[k - 1]):
-                g = _shift(g * free, -dx, -dy)
-            beta = g * free
-            peak = beta.max()
-            beta = beta / peak if peak > 0 else free.copy()
+            beta_factor = backward(beta, beta_factor, k)
     return MapMatch(t, out_xy, int(restarted_at.sum()))
