@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import dataclasses
 import io
 import sys
 from pathlib import Path
@@ -15,13 +14,12 @@ from types import SimpleNamespace
 import pytest
 
 from mapfilter.cli import main
-from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.trackio import read_track
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
-from floor_sim import FLOORS, make_office_building  # noqa: E402
+from floor_sim import FLOORS, make_office_building_with_ap_files  # noqa: E402
 
 PARTICLES = ["--particles", "300"]
 
@@ -31,12 +29,7 @@ def office3(tmp_path_factory) -> SimpleNamespace:
     """Three stacked office floors (stairs, lift), a coarse survey per floor in one radio map, and
     two walks that change floor once (walk1: F1 -> F0 by lift, walk2: F2 -> F1 by stairs)."""
     out = tmp_path_factory.mktemp("office3")
-    _, tables = make_office_building(out)
-    for name, table in tables.items():
-        table.write_csv(out / f"{name}_aps.csv")
-        plan = FloorPlan.load(out / f"{name}.yaml")
-        dataclasses.replace(plan, access_points_csv=(out / f"{name}_aps.csv").resolve()).save(out / f"{name}.yaml")
-    building = out / "building.yaml"
+    building = make_office_building_with_ap_files(out)
     surveys = [out / f"survey_{name}.txt" for name in FLOORS]
     for name, survey in zip(FLOORS, surveys):
         assert main(["simulate", str(building), "--out", str(survey), "--survey", "--floor", name,

@@ -3,7 +3,6 @@ one-floor survey, the same file for a seed, and bad input refused without writin
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -12,13 +11,12 @@ import pytest
 import yaml
 
 from mapfilter.cli import main, simulate_cmd
-from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.simulate.building import BuildingSimConfig
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
-from floor_sim import make_office_building  # noqa: E402
+from floor_sim import make_office_building_with_ap_files  # noqa: E402
 
 FAST = ["--segment-s", "4", "6"]
 
@@ -26,13 +24,7 @@ FAST = ["--segment-s", "4", "6"]
 @pytest.fixture(scope="module")
 def office3(tmp_path_factory) -> Path:
     """Three stacked office floors (stairs, lift), each map naming its own access-point table."""
-    out = tmp_path_factory.mktemp("office3")
-    _, tables = make_office_building(out)
-    for name, table in tables.items():
-        table.write_csv(out / f"{name}_aps.csv")
-        plan = FloorPlan.load(out / f"{name}.yaml")
-        dataclasses.replace(plan, access_points_csv=(out / f"{name}_aps.csv").resolve()).save(out / f"{name}.yaml")
-    return out / "building.yaml"
+    return make_office_building_with_ap_files(tmp_path_factory.mktemp("office3"))
 
 
 def test_cli_defaults_are_the_librarys():

@@ -21,6 +21,7 @@ horizontal error at the waypoints (each row in its own floor's frame). Example:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import tempfile
@@ -75,6 +76,17 @@ def make_office_building(out_dir: Path) -> tuple[Building, dict[str, AccessPoint
         {"name": "lift", "kind": "lift", "floors": {n: LIFT for n in FLOORS}}]}
     (out_dir / "building.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
     return Building.load(out_dir / "building.yaml"), tables
+
+
+def make_office_building_with_ap_files(out_dir: Path) -> Path:
+    """``make_office_building``, each floor's map also naming its access-point table (written as
+    ``<floor>_aps.csv`` beside it), as ``mapfilter simulate BUILDING.yaml`` needs; the building YAML."""
+    _, tables = make_office_building(out_dir)
+    for name, table in tables.items():
+        table.write_csv(out_dir / f"{name}_aps.csv")
+        plan = FloorPlan.load(out_dir / f"{name}.yaml")
+        dataclasses.replace(plan, access_points_csv=(out_dir / f"{name}_aps.csv").resolve()).save(out_dir / f"{name}.yaml")
+    return out_dir / "building.yaml"
 
 
 def schedule(rng: np.random.Generator) -> tuple[str, list[FloorChange]]:
