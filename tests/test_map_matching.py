@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from mapfilter.filter.map_matching import MapMatch, MapMatchConfig, _Grid, _unit_moves, map_match
+from mapfilter.filter.map_matching import MapMatch, MapMatchConfig, _anchors_by_step, _Grid, _unit_moves, map_match
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall
 
@@ -92,7 +92,8 @@ def _blur(a: np.ndarray, weight: float) -> np.ndarray:
 
 def numpy_map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_s: np.ndarray,
                     config: MapMatchConfig = MapMatchConfig()) -> MapMatch:
-    """``map_match`` in plain numpy, step by step as the kernels do it (same grid, moves, checkpoints)."""
+    """``map_match`` in plain numpy, step by step as the kernels do it (same grid, moves, observations,
+    checkpoints)."""
     t = np.asarray(t_s, dtype=np.float64).reshape(-1)
     xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
     grid = _Grid(floorplan, xy, config)
@@ -101,13 +102,7 @@ def numpy_map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anc
         return MapMatch(t, xy.copy(), 0)
     K = t.shape[0]
     X, Y = np.meshgrid(grid.x_m, grid.y_m)
-    anchor_t = np.asarray(anchor_t_s, dtype=np.float64).reshape(-1)
-    anchor_t = anchor_t[(anchor_t >= t[0]) & (anchor_t <= t[-1])]
-    anchor_xy = np.column_stack([np.interp(anchor_t, t, xy[:, 0]), np.interp(anchor_t, t, xy[:, 1])])
-    nearest = np.clip(np.searchsorted(t, anchor_t), 0, K - 1)
-    anchors_at: dict[int, list[np.ndarray]] = {}
-    for k, anchor in zip(nearest.tolist(), anchor_xy):
-        anchors_at.setdefault(k, []).append(anchor)
+    anchors_at = _anchors_by_step(t, xy, anchor_t_s)
     inv_var = 0.5 / config.anchor_sigma_m ** 2
 
     def likelihood(k: int) -> np.ndarray | None:

@@ -356,6 +356,19 @@ def _unit_moves(xy_m: np.ndarray, cell_m: float) -> list[list[tuple[int, int]]]:
     return moves
 
 
+def _anchors_by_step(t_s: np.ndarray, xy_m: np.ndarray, anchor_t_s: np.ndarray) -> dict[int, list[np.ndarray]]:
+    """The observations: step index -> the placed positions at the anchor times (within the
+    shape's times) that land on it, each on the first shape time at or after it."""
+    anchor_t = np.asarray(anchor_t_s, dtype=np.float64).reshape(-1)
+    anchor_t = anchor_t[(anchor_t >= t_s[0]) & (anchor_t <= t_s[-1])]
+    anchor_xy = np.column_stack([np.interp(anchor_t, t_s, xy_m[:, 0]), np.interp(anchor_t, t_s, xy_m[:, 1])])
+    nearest = np.clip(np.searchsorted(t_s, anchor_t), 0, t_s.shape[0] - 1)
+    anchors_at: dict[int, list[np.ndarray]] = {}
+    for k, anchor in zip(nearest.tolist(), anchor_xy):
+        anchors_at.setdefault(k, []).append(anchor)
+    return anchors_at
+
+
 def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_s: np.ndarray,
               config: MapMatchConfig = MapMatchConfig()) -> MapMatch:
     """Map-match a placed walk (positions ``xy_m`` at times ``t_s``, one per step) on the plan.
@@ -375,14 +388,7 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
         return MapMatch(t, xy.copy(), 0)
     K = t.shape[0]
     ny, nx = free.shape
-    # observations: the placed position at each anchor time, on the first shape time at or after it
-    anchor_t = np.asarray(anchor_t_s, dtype=np.float64).reshape(-1)
-    anchor_t = anchor_t[(anchor_t >= t[0]) & (anchor_t <= t[-1])]
-    anchor_xy = np.column_stack([np.interp(anchor_t, t, xy[:, 0]), np.interp(anchor_t, t, xy[:, 1])])
-    nearest = np.clip(np.searchsorted(t, anchor_t), 0, K - 1)
-    anchors_at: dict[int, list[np.ndarray]] = {}
-    for k, anchor in zip(nearest.tolist(), anchor_xy):
-        anchors_at.setdefault(k, []).append(anchor)
+    anchors_at = _anchors_by_step(t, xy, anchor_t_s)
     inv_var = 0.5 / config.anchor_sigma_m ** 2
     # the observations at step k as separable Gaussians, (anchors, ny) along y and (anchors, nx)
     # along x: a grid per scan kept for the whole walk would cost more memory than the messages
