@@ -32,11 +32,11 @@ from mapfilter.floortracking import track_building
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import count_wall_crossings
+from mapfilter.sensors.floors import check_building_radio_map
 from mapfilter.sensors.ilc import read_ilc, read_ilc_header
-from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap
-from mapfilter.sensors.recording import trace_name
+from mapfilter.sensors.recording import Recording, trace_name
 from mapfilter.tracking import TrackingConfig, track_recording
 from mapfilter.trackio import Track
 
@@ -172,9 +172,7 @@ def track_building_logs(building: Building, log_paths: Sequence[str | os.PathLik
     then fails as any unreadable log does.
     """
     paths = _distinct_paths(log_paths)
-    if not radio_map.has_floors or list(radio_map.floor_names) != building.floor_names:
-        raise MapfilterError("not a radio map of this building's floors (build it with mapfilter radiomap build "
-                             "BUILDING.yaml LOGS...)")
+    check_building_radio_map(radio_map, building.floor_names)
     if setup.floor is not None:
         building.floor_index(setup.floor)
     for path in paths:

@@ -22,7 +22,7 @@ from mapfilter.filter.events import StepReport
 from mapfilter.filter.floors import FloorChangeConfig, FloorChanges, FloorFix, FloorFixLikelihood, FloorStack
 from mapfilter.filter.placement import place_walk
 from mapfilter.maps.building import Building
-from mapfilter.sensors.floors import floor_vote_log_likelihood, whole_walk_floor_path
+from mapfilter.sensors.floors import check_building_radio_map, floor_vote_log_likelihood, whole_walk_floor_path
 from mapfilter.sensors.pdr import Steps, detect_steps
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording
@@ -106,13 +106,8 @@ class BuildingWifi:
                  fix_sigma_per_floor_m: dict[str, float] | None = None, log_name: str = "the log",
                  pressure: tuple[np.ndarray, np.ndarray] | None = None,
                  floor_evidence: np.ndarray | None = None):
-        if not radio_map.has_floors:
-            raise MapfilterError("tracking across floors needs a building's radio map (floor labels): "
-                                 "mapfilter radiomap build BUILDING.yaml LOGS...")
         names = stack.building.floor_names
-        if list(radio_map.floor_names) != names:
-            raise MapfilterError(f"the radio map's floors ({', '.join(radio_map.floor_names)}) are not the "
-                                 f"building's ({', '.join(names)})")
+        check_building_radio_map(radio_map, names)
         self.scans = scans
         n_scans, n_floors = len(scans), len(names)
         self.fix_xy_m = np.full((n_scans, n_floors, 2), np.nan)

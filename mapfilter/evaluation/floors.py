@@ -40,7 +40,8 @@ from mapfilter.evaluation.metrics import FloorScore, WaypointErrors, errors_at_w
 from mapfilter.floortracking import track_building
 from mapfilter.maps.building import Building
 from mapfilter.maps.walls import count_wall_crossings
-from mapfilter.sensors.floors import build_building_radio_map, floor_hmm, floor_vote_log_likelihood
+from mapfilter.sensors.floors import (build_building_radio_map, floor_hmm, floor_vote_log_likelihood,
+                                     load_building_radio_map)
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.pdr import detect_steps
 from mapfilter.sensors.radiomap import RadioMap, kwnn_fix_many
@@ -106,10 +107,7 @@ def evaluate_building_logs(building: Building, log_paths: Sequence[str | Path], 
             raise MapfilterError("leave-one-out needs at least two logs")
         radio_map = build_building_radio_map(recordings, true_floors, building.floor_names)
     else:
-        radio_map = RadioMap.load(setup.radio_map_path)
-        if not radio_map.has_floors or list(radio_map.floor_names) != building.floor_names:
-            raise MapfilterError("not a radio map of this building's floors (build it with mapfilter radiomap build "
-                                 "BUILDING.yaml LOGS...)", setup.radio_map_path)
+        radio_map = load_building_radio_map(setup.radio_map_path, building.floor_names)
     sigma = None
     if setup.tracking.fix_sigma_m is None:
         sigma = {name: calibrated_fix_sigma_m(radio_map.floor_map(i), setup.tracking.kwnn_k)
@@ -136,9 +134,8 @@ def _evaluate_walk(building: Building, setup: EvaluationSetup, radio_map: RadioM
 
     def add(method: str, track: Track, collapses: int, runtime_s: float, causal: bool = True) -> None:
         err = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, causal)
-        crossings = sum(count_wall_crossings(building.floor(name).plan, track.xy_m[np.array(track.floor) == name])
-                        for name in set(track.floor))
-        results.append(FloorMethodResult(method, recording.name, track, err.errors_m, err.missed, crossings,
+        results.append(FloorMethodResult(method, recording.name, track, err.errors_m, err.missed,
+                                         building_wall_crossings(building, track.xy_m, track.floor),
                                          collapses, runtime_s, causal,
                                          floor_score=floor_at_waypoints(track.t_s, track.floor,
                                                                         recording.waypoint_t_s, truth, causal)))
@@ -197,6 +194,17 @@ class BuildingTrackScore:
         return self.floor_score is not None and self.floor_score.n_right < self.floor_score.n_judged
 
 
+def building_wall_crossings(building: Building, xy_m: np.ndarray, floor) -> int:
+    """Moves of a track (rows ``xy_m`` on floors named ``floor``) through a wall: each unbroken
+    stretch on one floor against that floor's walls; the move from one floor to the next is none."""
+    floor = np.asarray(floor)
+    if floor.size == 0:
+        return 0
+    change = np.flatnonzero(floor[1:] != floor[:-1]) + 1
+    return sum(count_wall_crossings(building.floor(str(floor[start])).plan, xy_m[start:end])
+               for start, end in zip(np.concatenate([[0], change]), np.concatenate([change, [floor.size]])))
+
+
 def score_building_track(building: Building, recording: Recording, track: Track, header_floor: int | None,
                          causal: bool = True) -> BuildingTrackScore:
     """Floors visited, wall crossings, and (with ground truth whose floor is known) the horizontal
@@ -210,11 +218,7 @@ def score_building_track(building: Building, recording: Recording, track: Track,
     names = building.floor_names
     floor = np.array(track.floor if track.floor is not None else [names[header_floor or 0]] * len(track))
     visited = sorted(set(floor.tolist()), key=names.index)
-    crossings = 0
-    if floor.size:
-        change = np.flatnonzero(floor[1:] != floor[:-1]) + 1
-        for start, end in zip(np.concatenate([[0], change]), np.concatenate([change, [floor.size]])):
-            crossings += count_wall_crossings(building.floor(str(floor[start])).plan, track.xy_m[start:end])
+    crossings = building_wall_crossings(building, track.xy_m, floor)
     true_floor: str | list[str] | None = None
     if recording.waypoint_floor is not None:
         true_floor = list(recording.waypoint_floor)

@@ -4,7 +4,7 @@
   log's floor taken from its header (``FloorName``); every reference point keeps its floor and
   its position in that floor's frame.
 - :func:`load_building_radio_map` reads such a radio map and refuses one whose floors are not a
-  building's.
+  building's (:func:`check_building_radio_map`).
 - :func:`floor_vote_log_likelihood` weighs each floor for each scan: the k nearest reference
   points in signal space over *all* floors (the KWNN distance of Chang et al.) vote, and a
   floor's likelihood is its share of the votes, softened by a pseudo-count so one scan can
@@ -62,13 +62,19 @@ def load_building_radio_map(path, floor_names: Sequence[str]) -> RadioMap:
     """A building's radio map from ``path``, refused (``MapfilterError`` naming the file) when it
     has no floor labels or its floors are not ``floor_names``, in that order."""
     radio_map = RadioMap.load(path)
+    check_building_radio_map(radio_map, floor_names, path)
+    return radio_map
+
+
+def check_building_radio_map(radio_map: RadioMap, floor_names: Sequence[str], path=None) -> None:
+    """Refuse (``MapfilterError``, naming ``path`` if given) a radio map without floor labels or
+    whose floors are not ``floor_names``, in that order."""
     if not radio_map.has_floors:
         raise MapfilterError("not a building's radio map (no floor labels): build it with mapfilter radiomap "
                              "build BUILDING.yaml LOGS...", path)
     if list(radio_map.floor_names) != list(floor_names):
         raise MapfilterError(f"the radio map's floors ({', '.join(radio_map.floor_names)}) are not the "
                              f"building's ({', '.join(floor_names)})", path)
-    return radio_map
 
 
 def floor_vote_log_likelihood(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = DEFAULT_VOTE_K,
