@@ -157,6 +157,35 @@ def test_whole_walk_track_beats_the_causal_one_and_crosses_no_wall():
     assert np.all(np.diff(result.smoothed.t_s) >= 0)
 
 
+def test_the_offline_track_restarts_the_filter_where_the_whole_walk_puts_the_start():
+    """A first fix 35 m off starts the causal filter there; the second run (the offline track's
+    evidence) starts where the whole walk places the start, and stays closer for the first minute."""
+    from mapfilter.sensors.radiomap import RadioMap
+    from mapfilter.sensors.wifi import scans_of
+    from mapfilter.tracking import RESTART_RADIUS_M, TrackingConfig, WifiMeasurements, track_recording
+
+    recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
+    results = {}
+    for restart in (False, True):
+        config = TrackingConfig(n_particles=1000, smooth=True, restart_from_placement=restart)
+        wifi = WifiMeasurements(scans_of(recording), radio_map, None, floorplan, config)
+        first = int(np.argmax(wifi.usable))
+        t0 = wifi.scans[first].t_s
+        truth0 = np.array([np.interp(t0, recording.waypoint_t_s, recording.waypoint_xy_m[:, i]) for i in (0, 1)])
+        free = floorplan.sample_free(2000, np.random.default_rng(0))
+        wifi.fix_xy_m[first] = free[np.argmax(np.linalg.norm(free - truth0, axis=1))]  # the far side of the office
+        results[restart] = track_recording(floorplan, recording, radio_map, config=config, rng=np.random.default_rng(0),
+                                           wifi=wifi)
+    assert results[False].restarted is None
+    result = results[True]
+    np.testing.assert_array_equal(result.track.xy_m, results[False].track.xy_m)  # the causal track is the first run
+    assert np.linalg.norm(result.track.xy_m[0] - truth0) > 20.0
+    assert np.linalg.norm(result.restarted.xy_m[0] - truth0) < RESTART_RADIUS_M
+    early = result.track.t_s < t0 + 60.0
+    assert _errors(result.restarted, recording)[early].mean() < 0.5 * _errors(result.track, recording)[early].mean()
+    assert count_wall_crossings(floorplan, result.smoothed.xy_m) == 0
+
+
 def test_a_one_floor_building_smooths_as_one_map_did():
     """The whole-walk floor is for several floors: a single map through track_building gives the
     same causal and offline tracks as track_recording (the whole-walk placement, one floor name)."""

@@ -494,3 +494,17 @@ def test_a_step_without_estimate_or_live_particles_is_drawn_empty(tmp_path):
     assert rows(entities["/plots/error_m/filter"], "Scalars:scalars") == []  # only its static style
     assert len(rows(entities["/map/world/ground_truth/now"], "Points2D:positions")) == 1  # the truth still shows
     verify(out)
+
+
+def test_track_smooth_records_the_restarted_run_and_the_smoothed_track(tmp_path):
+    """`track --smooth --rerun`: besides the causal steps, the second causal run (from the placed
+    start) and the offline track it placed, each a path of as many points as the filter has steps."""
+    maps = Path(__file__).resolve().parent.parent / "maps"
+    out = tmp_path / "office.rrd"
+    assert cli_main(["track", str(maps / "office.yaml"), str(maps / "office_walk.txt.gz"), "--radiomap",
+                     str(maps / "office_radiomap.npz"), "--smooth", "--particles", "500", "--rerun", str(out)]) == 0
+    entities = read_rrd(out)
+    restarted = np.array(rows(entities["/map/world/tracks/restarted/path"], "LineStrips2D:strips")[0][0])
+    assert "/map/world/tracks/smoothed/path" in entities
+    steps = sum(b.num_rows for b in entities["/map/world/particles"] if "step" in b.schema.names)
+    assert restarted.shape == (steps + 1, 2)

@@ -189,6 +189,9 @@ def run(args: argparse.Namespace) -> int:
 
         result = track_recording(floorplan, recording, radio_map, ap_table, config, np.random.default_rng(args.seed),
                                  on_step=on_step)
+        if result.restarted is not None:
+            # the second causal run, from the placed start, whose estimates placed the offline track
+            logger.log_track("restarted", result.restarted.t_s, result.restarted.xy_m)
         if result.smoothed is not None:
             logger.log_track("smoothed", result.smoothed.t_s, result.smoothed.xy_m)
         output = result.smoothed if args.smooth else result.track
