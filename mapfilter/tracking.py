@@ -261,6 +261,7 @@ def track_recording(
     steps: Steps | None = None,
     wifi: WifiMeasurements | None = None,
     floors: Any = None,
+    on_restart_step: Callable[[StepReport], None] | None = None,
 ) -> TrackingResult:
     """Track one walk with the particle filter.
 
@@ -272,6 +273,8 @@ def track_recording(
     config : ``TrackingConfig``.
     rng : the only source of randomness; same seed, same track.
     on_step : called with every ``StepReport`` (the rerun viewer, progress).
+    on_restart_step : called with every ``StepReport`` of the offline track's second filter run
+        (``TrackingConfig.restart_from_placement``; progress: that run takes as long as the first).
     steps : PDR steps if already detected (else detected here when the motion is PDR).
     wifi : the walk's ``WifiMeasurements`` if already made with this radio map or AP table and
         config (several filters on one walk share them), else made here.
@@ -309,8 +312,8 @@ def track_recording(
             # causal evidence (the first run's cloud can stay in the wrong corridor for good when
             # the first fixes are tens of metres off and the walls then keep it there)
             start_xy = smoothed.xy_m[int(np.clip(np.searchsorted(smoothed.t_s, track.t_s[0]), 0, smoothed.t_s.size - 1))]
-            _, restarted, _ = _filter_walk(plan, motion, filter_config, rng, wifi, scans, steps, config, floors, None,
-                                           start_xy_m=start_xy)
+            _, restarted, _ = _filter_walk(plan, motion, filter_config, rng, wifi, scans, steps, config, floors,
+                                           on_restart_step, start_xy_m=start_xy)
             placement = place_walk(steps, *placement_evidence(wifi, restarted.t_s, restarted.xy_m))
             smoothed = whole_walk_track(plan, placement, scan_t)
     if config.smooth and smoothed is None:

@@ -221,3 +221,34 @@ def test_kwnn_min_rssi_option_reaches_the_filter(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--kwnn-min-rssi", "loud"])
     assert exit_info.value.code == 2 and "dBm value or none" in capsys.readouterr().err
+
+
+def test_progress_runs_to_the_end_once_over_both_filter_runs(tmp_path, monkeypatch):
+    """The bar follows the walk's time; with --smooth the second filter run (the offline track's)
+    is its second half, so the bar does not sit at 100 % while that run works."""
+    import mapfilter.cli.track_cmd as track_cmd
+
+    seen = {}
+
+    for smooth in (False, True):
+        values = seen[smooth] = []
+
+        class Recorder:
+            def __init__(self, *args, **kwargs):
+                pass
+
+            def update_to(self, value, values=values):
+                values.append(value)
+
+            def close(self):
+                pass
+
+        monkeypatch.setattr(track_cmd, "ProgressBar", Recorder)
+        args = ["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "300",
+                "--out", str(tmp_path / "t.csv")]
+        assert main(args + (["--smooth"] if smooth else [])) == 0
+        assert values and np.all(np.diff(values) >= 0) and values[-1] == 100
+    one_run, two_runs = seen[False], seen[True]
+    # one update per filter step: twice as many with --smooth, the first run's within 0-50 %
+    assert len(two_runs) == 2 * len(one_run)
+    assert max(two_runs[:len(one_run)]) == 50 and min(two_runs[len(one_run):]) >= 50

@@ -178,7 +178,8 @@ def run(args: argparse.Namespace) -> int:
 
     logger = make_logger(floorplan, rrd_path=args.rerun, spawn=args.spawn, max_particles=args.max_drawn_particles,
                          recording_name=recording.name)
-    progress = _Progress(recording)
+    # with --smooth the whole-walk track runs the filter a second time (restart_from_placement)
+    progress = _Progress(recording, runs=2 if config.smooth and config.restart_from_placement else 1)
     with logger, progress:
         if recording.has_ground_truth:
             logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
@@ -188,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
             progress.update(report.t_s)
 
         result = track_recording(floorplan, recording, radio_map, ap_table, config, np.random.default_rng(args.seed),
-                                 on_step=on_step)
+                                 on_step=on_step, on_restart_step=lambda report: progress.update(report.t_s, run=1))
         if result.restarted is not None:
             # the second causal run, from the placed start, whose estimates placed the offline track
             logger.log_track("restarted", result.restarted.t_s, result.restarted.xy_m)
@@ -429,14 +430,16 @@ def _run_batch(args: argparse.Namespace) -> int:
 class _Progress:
     """Progress through the walk's time span on a tqdm bar (drawn only on a terminal)."""
 
-    def __init__(self, recording) -> None:
+    def __init__(self, recording, runs: int = 1) -> None:
         times = recording.wifi.t_s
         self.t0 = float(times[0]) if times.size else 0.0
         self.span_s = max(float(times[-1]) - self.t0, 1e-9) if times.size else 1.0
+        self.runs = runs  # filter runs over the walk, each an equal share of the bar
         self.bar = ProgressBar("tracking", 100, unit="%")
 
-    def update(self, t_s: float) -> None:
-        self.bar.update_to(int(100 * min(max((t_s - self.t0) / self.span_s, 0.0), 1.0)))
+    def update(self, t_s: float, run: int = 0) -> None:
+        done = min(max((t_s - self.t0) / self.span_s, 0.0), 1.0)
+        self.bar.update_to(int(100 * (run + done) / self.runs))
 
     def __enter__(self) -> _Progress:
         return self
