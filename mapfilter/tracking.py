@@ -314,6 +314,7 @@ def track_recording(
             start_xy = smoothed.xy_m[int(np.clip(np.searchsorted(smoothed.t_s, track.t_s[0]), 0, smoothed.t_s.size - 1))]
             _, restarted, _ = _filter_walk(plan, motion, filter_config, rng, wifi, scans, steps, config, floors,
                                            on_restart_step, start_xy_m=start_xy)
+            restarted.name = "restarted"
             placement = place_walk(steps, *placement_evidence(wifi, restarted.t_s, restarted.xy_m))
             smoothed = whole_walk_track(plan, placement, scan_t)
     if config.smooth and smoothed is None:

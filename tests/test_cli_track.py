@@ -248,7 +248,31 @@ def test_progress_runs_to_the_end_once_over_both_filter_runs(tmp_path, monkeypat
                 "--out", str(tmp_path / "t.csv")]
         assert main(args + (["--smooth"] if smooth else [])) == 0
         assert values and np.all(np.diff(values) >= 0) and values[-1] == 100
-    one_run, two_runs = seen[False], seen[True]
-    # one update per filter step: twice as many with --smooth, the first run's within 0-50 %
+    # one update per filter step (and a last one at the end): twice as many steps with --smooth,
+    # the first run's within 0-50 %
+    one_run, two_runs = seen[False][:-1], seen[True][:-1]
     assert len(two_runs) == 2 * len(one_run)
     assert max(two_runs[:len(one_run)]) == 50 and min(two_runs[len(one_run):]) >= 50
+
+
+def test_progress_ends_at_100_when_smoothing_has_no_second_run(tmp_path, monkeypatch):
+    """--smooth with constant-velocity motion keeps the lineage as its offline track: no second
+    filter run, and the bar still ends at 100 % rather than at the half it gave the first run."""
+    import mapfilter.cli.track_cmd as track_cmd
+
+    values = []
+
+    class Recorder:
+        def __init__(self, *args, **kwargs):
+            pass
+
+        def update_to(self, value):
+            values.append(value)
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(track_cmd, "ProgressBar", Recorder)
+    assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "300", "--smooth",
+                 "--motion", "cv", "--out", str(tmp_path / "t.csv")]) == 0
+    assert max(values[:-1]) <= 50 and values[-1] == 100

@@ -190,6 +190,7 @@ def run(args: argparse.Namespace) -> int:
 
         result = track_recording(floorplan, recording, radio_map, ap_table, config, np.random.default_rng(args.seed),
                                  on_step=on_step, on_restart_step=lambda report: progress.update(report.t_s, run=1))
+        progress.finish()  # a walk without steps to place has no second run
         if result.restarted is not None:
             # the second causal run, from the placed start, whose estimates placed the offline track
             logger.log_track("restarted", result.restarted.t_s, result.restarted.xy_m)
@@ -440,6 +441,9 @@ class _Progress:
     def update(self, t_s: float, run: int = 0) -> None:
         done = min(max((t_s - self.t0) / self.span_s, 0.0), 1.0)
         self.bar.update_to(int(100 * (run + done) / self.runs))
+
+    def finish(self) -> None:
+        self.bar.update_to(100)
 
     def __enter__(self) -> _Progress:
         return self
