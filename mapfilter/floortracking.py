@@ -27,7 +27,8 @@ from mapfilter.sensors.pdr import Steps, detect_steps
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import WifiScan, scans_of
-from mapfilter.tracking import TrackingConfig, TrackingResult, WifiMeasurements, track_recording, whole_walk_track
+from mapfilter.tracking import (TrackingConfig, TrackingResult, WifiMeasurements, restarted_whole_walk, track_recording,
+                                whole_walk_track)
 from mapfilter.trackio import Track
 
 
@@ -111,6 +112,8 @@ class BuildingWifi:
         self.scans = scans
         n_scans, n_floors = len(scans), len(names)
         self.fix_xy_m = np.full((n_scans, n_floors, 2), np.nan)
+        # each floor's own measurements (None: its fingerprints share nothing with the walk)
+        self.floor_wifi: list[WifiMeasurements | None] = [None] * n_floors
         sigma = np.full(n_floors, 5.0)
         for f, floor in enumerate(stack.building.floors):
             sub = radio_map.floor_map(f)
@@ -127,6 +130,7 @@ class BuildingWifi:
                 raise MapfilterError("tracking across floors weighs fingerprint fixes: use the fingerprint "
                                      "model fix or blend")
             self.fix_xy_m[:, f] = stack.to_stack(wifi.fix_xy_m, f)
+            self.floor_wifi[f] = wifi
             sigma[f] = wifi.model.sigma_m
         if floor_evidence is not None:
             self.floor_log_likelihood = np.asarray(floor_evidence, dtype=np.float64)
@@ -229,6 +233,7 @@ def track_building(
     floor_changes: FloorChangeConfig = FloorChangeConfig(),
     use_barometer: bool = True,
     floor_evidence: np.ndarray | None = None,
+    on_restart_step: Callable[[StepReport], None] | None = None,
 ) -> TrackingResult:
     """Track one walk in a building; tracks in each floor's own frame with a floor per row.
 
@@ -245,6 +250,8 @@ def track_building(
     use_barometer : weigh floors by the log's barometer (``TYPE_PRESSURE`` rows) when it has one.
     floor_evidence : (S, F) floor log-likelihood per scan instead of the WiFi floor vote (e.g.
         the true floor, to measure what finding the floor costs on a walk that changes floor).
+    on_restart_step : as for ``tracking.track_recording``: the offline track's second filter run
+        (``TrackingConfig.restart_from_placement``; here for a walk on one floor throughout).
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     if building.is_single_floor or floor is not None:
@@ -256,11 +263,13 @@ def track_building(
                                  f"{building.floors[index].name!r}")
         if fix_sigma_per_floor_m and building.floors[index].name in fix_sigma_per_floor_m:
             config = dataclasses.replace(config, fix_sigma_m=fix_sigma_per_floor_m[building.floors[index].name])
-        result = track_recording(plan, recording, floor_map, None, config, rng, on_step=on_step)
+        result = track_recording(plan, recording, floor_map, None, config, rng, on_step=on_step,
+                                 on_restart_step=on_restart_step)
         name = building.floors[index].name
         result.track.floor = [name] * len(result.track)
-        if result.smoothed is not None:
-            result.smoothed.floor = [name] * len(result.smoothed)
+        for track in (result.smoothed, result.restarted):
+            if track is not None:
+                track.floor = [name] * len(track)
         return result
     if not config.use_map:
         raise MapfilterError("tracking across floors needs the walls (the floors are kept apart by them): "
@@ -289,6 +298,16 @@ def track_building(
         lineage = _on_floors(stack, result.smoothed, floor)
         result.smoothed = (_whole_walk_by_floor(stack, wifi, steps, stack_track, lineage, floor)
                            if steps is not None else lineage)
+        one_floor = int(floor[0]) if floor.size and np.all(floor == floor[0]) else None
+        if (config.restart_from_placement and one_floor is not None and result.smoothed is not lineage
+                and wifi.floor_wifi[one_floor] is not None):
+            # a walk on one floor throughout: its offline track as --smooth makes it on that floor's
+            # map, from a second (one-floor) filter run started at the placed start
+            result.restarted, result.smoothed = restarted_whole_walk(
+                building.floors[one_floor].plan, wifi.floor_wifi[one_floor], steps, config, rng, result.smoothed,
+                on_restart_step)
+            for track in (result.restarted, result.smoothed):
+                track.floor = [building.floors[one_floor].name] * len(track)
     return result
 
 

@@ -307,16 +307,7 @@ def track_recording(
         placement = place_walk(steps, *placement_evidence(wifi, track.t_s, track.xy_m))
         smoothed = whole_walk_track(plan, placement, scan_t)
         if config.restart_from_placement:
-            # the causal filter started at the walk's first fix; once placed by the whole walk, the
-            # start is known better: a second filter run from there gives the placement its
-            # causal evidence (the first run's cloud can stay in the wrong corridor for good when
-            # the first fixes are tens of metres off and the walls then keep it there)
-            start_xy = smoothed.xy_m[int(np.clip(np.searchsorted(smoothed.t_s, track.t_s[0]), 0, smoothed.t_s.size - 1))]
-            _, restarted, _ = _filter_walk(plan, motion, filter_config, rng, wifi, scans, steps, config, floors,
-                                           on_restart_step, start_xy_m=start_xy)
-            restarted.name = "restarted"
-            placement = place_walk(steps, *placement_evidence(wifi, restarted.t_s, restarted.xy_m))
-            smoothed = whole_walk_track(plan, placement, scan_t)
+            restarted, smoothed = restarted_whole_walk(plan, wifi, steps, config, rng, smoothed, on_restart_step)
     if config.smooth and smoothed is None:
         t_s, xy_m = detour_wall_crossings(plan, *pf.smoothed_track())
         smoothed = Track(t_s, xy_m, name="pf-smooth")
@@ -328,6 +319,28 @@ def track_recording(
 # the restarted filter's particles start uniformly within this radius of the placed start: the
 # whole-walk track's error at a walk's start is a few metres (3, 5 and 10 m measured alike on ILC)
 RESTART_RADIUS_M = 5.0
+
+
+def restarted_whole_walk(plan: FloorPlan, wifi: WifiMeasurements, steps: Steps, config: TrackingConfig,
+                         rng: np.random.Generator, placed: Track,
+                         on_step: Callable[[StepReport], None] | None = None) -> tuple[Track, Track]:
+    """The whole-walk track again, its causal evidence from a second PDR filter run started where
+    the first whole-walk track ``placed`` has the walker at the first usable scan (within
+    ``RESTART_RADIUS_M``): (that run's causal track, named "restarted"; the new whole-walk track).
+
+    The first run started at the walk's first fix; once the whole walk has placed the start, it
+    is known better. A first fix tens of metres off can leave the map-bound cloud in the wrong
+    corridor for the rest of the walk, and its estimates then pull the placement with it.
+    """
+    scans = wifi.scans
+    t0 = float(scans[int(np.argmax(wifi.usable))].t_s)
+    start_xy = placed.xy_m[int(np.clip(np.searchsorted(placed.t_s, t0), 0, placed.t_s.size - 1))]
+    filter_config = dataclasses.replace(config.filter, n_particles=config.n_particles)
+    _, restarted, _ = _filter_walk(plan, config.pdr_motion, filter_config, rng, wifi, scans, steps, config, None,
+                                   on_step, start_xy_m=start_xy)
+    restarted.name = "restarted"
+    placement = place_walk(steps, *placement_evidence(wifi, restarted.t_s, restarted.xy_m))
+    return restarted, whole_walk_track(plan, placement, np.array([scan.t_s for scan in scans]))
 
 
 def _filter_walk(plan: FloorPlan, motion: Any, filter_config: FilterConfig, rng: np.random.Generator,

@@ -261,3 +261,39 @@ def test_view_of_a_one_floor_map_ignores_a_floor_column(tracked, tmp_path, capsy
     assert not any(e.startswith("/floors") for e in entities)
     counts = _points_per_row(entities["/map/world/tracks/walk1/position"])
     assert len(counts) == len(read_track(tracked.out / "walk1.csv")) and set(counts) == {1}
+
+
+def test_smooth_restarts_the_filter_for_a_walk_on_one_floor_only(office3, tmp_path):
+    """--smooth: a walk that stays on one floor gets its offline track as on that floor's map,
+    from a second (one-floor) filter run started at the placed start; a walk that changes floor
+    keeps its stretches. The causal track is the first run either way."""
+    import dataclasses
+
+    import numpy as np
+
+    from mapfilter.floortracking import track_building
+    from mapfilter.maps.building import Building
+    from mapfilter.maps.walls import count_wall_crossings
+    from mapfilter.sensors.radiomap import RadioMap
+    from mapfilter.tracking import TrackingConfig
+
+    one_floor = tmp_path / "walk_f1.txt"
+    assert main(["simulate", str(office3.building), "--out", str(one_floor), "--seed", "3", "--floor-changes", "0",
+                 "--start-floor", "F1"]) == 0
+    building, radio_map = Building.load(office3.building), RadioMap.load(office3.radiomap)
+    config = TrackingConfig(n_particles=500, smooth=True)
+    runs = {restart: track_building(building, read_ilc(one_floor), radio_map,
+                                    dataclasses.replace(config, restart_from_placement=restart), np.random.default_rng(0))
+            for restart in (False, True)}
+    assert runs[False].restarted is None
+    np.testing.assert_array_equal(runs[True].track.xy_m, runs[False].track.xy_m)
+    restarted, smoothed = runs[True].restarted, runs[True].smoothed
+    assert set(restarted.floor) == set(smoothed.floor) == {"F1"}
+    # the one-floor run has no barometer ticks, but spans the walk as the first run does
+    causal_t = runs[True].track.t_s
+    assert abs(restarted.t_s[0] - causal_t[0]) < 3.0 and abs(restarted.t_s[-1] - causal_t[-1]) < 1.0
+    assert not np.array_equal(smoothed.xy_m, runs[False].smoothed.xy_m)
+    assert count_wall_crossings(building.floors[building.floor_index("F1")].plan, smoothed.xy_m) == 0
+    changes_floor = track_building(building, read_ilc(office3.walks[0]), radio_map,
+                                   dataclasses.replace(config, n_particles=2000), np.random.default_rng(0))
+    assert changes_floor.restarted is None and len(set(changes_floor.smoothed.floor)) == 2

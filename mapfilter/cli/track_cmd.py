@@ -230,7 +230,8 @@ def _run_building(args: argparse.Namespace, building) -> int:
     plan = building.floors[building.floor_index(args.floor) if args.floor else (header_floor or 0)].plan
     logger = make_logger(plan, rrd_path=args.rerun, spawn=args.spawn, max_particles=args.max_drawn_particles,
                          recording_name=recording.name, stack=stack)
-    progress = _Progress(recording)
+    # with --smooth a walk on one floor throughout gets a second filter run (restart_from_placement)
+    progress = _Progress(recording, runs=2 if config.smooth and config.restart_from_placement else 1)
     with logger, progress:
         if recording.has_ground_truth and (header_floor is not None or args.floor is not None):
             logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
@@ -240,7 +241,11 @@ def _run_building(args: argparse.Namespace, building) -> int:
             progress.update(report.t_s)
 
         result = track_building(building, recording, radio_map, config, np.random.default_rng(args.seed),
-                                on_step=on_step, floor=args.floor)
+                                on_step=on_step, floor=args.floor,
+                                on_restart_step=lambda report: progress.update(report.t_s, run=1))
+        progress.finish()  # a walk that changes floor has no second run
+        if result.restarted is not None:
+            logger.log_track("restarted", result.restarted.t_s, result.restarted.xy_m)
         if result.smoothed is not None:
             logger.log_track("smoothed", result.smoothed.t_s, result.smoothed.xy_m)
         output = result.smoothed if args.smooth and result.smoothed is not None else result.track
