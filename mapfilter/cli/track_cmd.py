@@ -178,8 +178,7 @@ def run(args: argparse.Namespace) -> int:
 
     logger = make_logger(floorplan, rrd_path=args.rerun, spawn=args.spawn, max_particles=args.max_drawn_particles,
                          recording_name=recording.name)
-    # with --smooth the whole-walk track runs the filter a second time (restart_from_placement)
-    progress = _Progress(recording, runs=2 if config.smooth and config.restart_from_placement else 1)
+    progress = _Progress(recording, config)
     with logger, progress:
         if recording.has_ground_truth:
             logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
@@ -189,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
             progress.update(report.t_s)
 
         result = track_recording(floorplan, recording, radio_map, ap_table, config, np.random.default_rng(args.seed),
-                                 on_step=on_step, on_restart_step=lambda report: progress.update(report.t_s, run=1))
+                                 on_step=on_step, on_restart_step=progress.restart_step)
         progress.finish()  # a walk without steps to place has no second run
         if result.restarted is not None:
             # the second causal run, from the placed start, whose estimates placed the offline track
@@ -230,8 +229,7 @@ def _run_building(args: argparse.Namespace, building) -> int:
     plan = building.floors[building.floor_index(args.floor) if args.floor else (header_floor or 0)].plan
     logger = make_logger(plan, rrd_path=args.rerun, spawn=args.spawn, max_particles=args.max_drawn_particles,
                          recording_name=recording.name, stack=stack)
-    # with --smooth a walk on one floor throughout gets a second filter run (restart_from_placement)
-    progress = _Progress(recording, runs=2 if config.smooth and config.restart_from_placement else 1)
+    progress = _Progress(recording, config)
     with logger, progress:
         if recording.has_ground_truth and (header_floor is not None or args.floor is not None):
             logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
@@ -242,7 +240,7 @@ def _run_building(args: argparse.Namespace, building) -> int:
 
         result = track_building(building, recording, radio_map, config, np.random.default_rng(args.seed),
                                 on_step=on_step, floor=args.floor,
-                                on_restart_step=lambda report: progress.update(report.t_s, run=1))
+                                on_restart_step=progress.restart_step)
         progress.finish()  # a walk that changes floor has no second run
         if result.restarted is not None:
             logger.log_track("restarted", result.restarted.t_s, result.restarted.xy_m)
@@ -436,16 +434,23 @@ def _run_batch(args: argparse.Namespace) -> int:
 class _Progress:
     """Progress through the walk's time span on a tqdm bar (drawn only on a terminal)."""
 
-    def __init__(self, recording, runs: int = 1) -> None:
+    def __init__(self, recording, config) -> None:
         times = recording.wifi.t_s
         self.t0 = float(times[0]) if times.size else 0.0
         self.span_s = max(float(times[-1]) - self.t0, 1e-9) if times.size else 1.0
-        self.runs = runs  # filter runs over the walk, each an equal share of the bar
+        # filter runs over the walk, each an equal share of the bar: with --smooth the offline
+        # track runs the filter a second time (restart_from_placement; ``finish`` ends the bar
+        # where a walk has no second run)
+        self.runs = 2 if config.smooth and config.restart_from_placement else 1
         self.bar = ProgressBar("tracking", 100, unit="%")
 
     def update(self, t_s: float, run: int = 0) -> None:
         done = min(max((t_s - self.t0) / self.span_s, 0.0), 1.0)
         self.bar.update_to(int(100 * (run + done) / self.runs))
+
+    def restart_step(self, report) -> None:
+        """A step of the second filter run (``on_restart_step``)."""
+        self.update(report.t_s, run=1)
 
     def finish(self) -> None:
         self.bar.update_to(100)
