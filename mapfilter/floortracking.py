@@ -296,29 +296,34 @@ def track_building(
     if result.smoothed is not None:
         floor = whole_walk_floors(changes, wifi, result.smoothed.t_s, result.smoothed.xy_m)
         lineage = _on_floors(stack, result.smoothed, floor)
-        result.smoothed = (_whole_walk_by_floor(stack, wifi, steps, stack_track, lineage, floor)
-                           if steps is not None else lineage)
-        one_floor = int(floor[0]) if floor.size and np.all(floor == floor[0]) else None
-        if (config.restart_from_placement and one_floor is not None and result.smoothed is not lineage
-                and wifi.floor_wifi[one_floor] is not None):
+
+        def restart(f: int, placed: Track) -> Track:
             # a walk on one floor throughout: its offline track as --smooth makes it on that floor's
             # map, from a second (one-floor) filter run started at the placed start
-            result.restarted, result.smoothed = restarted_whole_walk(
-                building.floors[one_floor].plan, wifi.floor_wifi[one_floor], steps, config, rng, result.smoothed,
-                on_restart_step)
-            for track in (result.restarted, result.smoothed):
-                track.floor = [building.floors[one_floor].name] * len(track)
+            if not config.restart_from_placement or wifi.floor_wifi[f] is None:
+                return placed
+            result.restarted, smoothed = restarted_whole_walk(building.floors[f].plan, wifi.floor_wifi[f], steps,
+                                                              config, rng, placed, on_restart_step)
+            for track in (result.restarted, smoothed):
+                track.floor = [building.floors[f].name] * len(track)
+            return smoothed
+
+        result.smoothed = (_whole_walk_by_floor(stack, wifi, steps, stack_track, lineage, floor, restart)
+                           if steps is not None else lineage)
     return result
 
 
 def _whole_walk_by_floor(stack: FloorStack, wifi: BuildingWifi, steps: Steps, causal_stack: Track, lineage: Track,
-                         floor: np.ndarray) -> Track:
+                         floor: np.ndarray, restart: Callable[[int, Track], Track] | None = None) -> Track:
     """The offline track, one stretch per floor of the whole-walk floor path: each stretch the
     one-floor whole-walk track of its floor (``_whole_walk_on_one_floor``), or the lineage's rows
-    where a stretch has too few steps or no evidence on its floor."""
+    where a stretch has too few steps or no evidence on its floor. A walk on one floor throughout
+    then goes through ``restart(floor, placed)`` (the restarted whole-walk track)."""
     if np.all(floor == floor[0]):  # one floor throughout: the one-map offline track
         placed = _whole_walk_on_one_floor(stack, wifi, steps, causal_stack, int(floor[0]))
-        return placed if placed is not None else lineage
+        if placed is None:
+            return lineage
+        return restart(int(floor[0]), placed) if restart is not None else placed
     change = np.flatnonzero(floor[1:] != floor[:-1]) + 1
     starts, ends = np.concatenate([[0], change]), np.concatenate([change, [floor.size]])
     pieces: list[Track] = []
