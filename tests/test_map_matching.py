@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from mapfilter.filter.map_matching import MapMatch, MapMatchConfig, _anchors_by_step, _Grid, _unit_moves, map_match
+from mapfilter.offline.map_matching import MapMatch, MapMatchConfig, _anchors_by_step, _Grid, _unit_moves, map_match
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall
 
@@ -233,7 +233,7 @@ def test_in_open_space_the_walk_keeps_its_shape():
 
 
 def test_whole_walk_track_after_matching_crosses_no_wall():
-    from mapfilter.filter.placement import WalkPlacement
+    from mapfilter.offline.placement import WalkPlacement
     from mapfilter.tracking import whole_walk_track
 
     wall = np.ones((200, 400), dtype=bool)

@@ -193,14 +193,20 @@ class Building:
 
     # ---- files ----------------------------------------------------------------------------
     @classmethod
+    def from_plan(cls, plan: FloorPlan, path: str | os.PathLike | None = None) -> Building:
+        """A single map as a one-floor building (as ``load`` makes one from a map YAML)."""
+        path = None if path is None else Path(path)
+        name = plan.floor_name or (path.stem if path is not None else "floor")
+        return cls([Floor(name, plan, map_path=path)], path=path)
+
+    @classmethod
     def load(cls, path: str | os.PathLike) -> Building:
         """Read a building YAML, or a map YAML as a one-floor building (see the module docstring)."""
         path = Path(path)
         meta = read_yaml_mapping(path, "a map or building YAML")
         if "floors" not in meta:
             if "image" in meta:  # a ROS map_server map: one floor
-                plan = FloorPlan.load(path)
-                return cls([Floor(plan.floor_name or path.stem, plan, map_path=path)], path=path)
+                return cls.from_plan(FloorPlan.load(path), path)
             raise MapfilterError("neither a building YAML (no 'floors' list) nor a map YAML (no 'image')", path)
         floors_meta = meta["floors"]
         if not isinstance(floors_meta, list) or not floors_meta:

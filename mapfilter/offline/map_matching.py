@@ -1,6 +1,6 @@
 """Map matching of a placed walk: an exact forward-backward pass over the free space.
 
-The whole-walk placement (``filter.placement``) puts the walk's dead-reckoned shape where all
+The whole-walk placement (``offline.placement``) puts the walk's dead-reckoned shape where all
 of its WiFi evidence says, as one rigid piece. A rigid shape still drifts (heading and step
 length errors add up: placed at the true position it errs 1.7-1.9 m on ILC site 1) and knows
 nothing of walls. This stage lets the walk bend where the walls say it must, as the 3rd place
