@@ -144,18 +144,28 @@ class Building:
     def floor(self, name: str) -> Floor:
         return self.floors[self.floor_index(name)]
 
-    def floor_of_log(self, header_floor: str | None, log_path: str | os.PathLike | None) -> int | None:
-        """The floor index a log's header names (``FloorName``), None if the header names none.
+    def floor_of_log(self, header_floor: str | None, log_path: str | os.PathLike | None,
+                     given: str | None = None) -> int | None:
+        """The floor index a log belongs to: ``given`` (the user's ``--floor``) if any, else the
+        floor its header names (``FloorName``); None if neither names one.
 
-        A one-floor building takes every log (its floor is the building's only floor, whatever
-        the header says, as single-floor maps always did); a several-floor building refuses a
-        log whose floor it does not have.
+        A log whose header names a floor the building does not have is refused with one line
+        (a walk of another floor tracked here goes wrong by the floors' distance), except on a
+        one-floor map that declares no floor name (it takes every log).
         """
-        if self.is_single_floor:
-            return 0
+        if given is not None:
+            return self.floor_index(given, log_path)
         if not header_floor:
-            return None
-        return self.floor_index(header_floor, log_path)
+            return 0 if self.is_single_floor else None
+        for i, floor in enumerate(self.floors):
+            if floor.name == header_floor:
+                return i
+        if self.is_single_floor and self.floors[0].plan.floor_name is None:
+            return 0
+        where = f"the map {self.path}" if self.path is not None else "the map"
+        raise MapfilterError(f"the log is of floor {header_floor!r}, {where} has {', '.join(map(repr, self.floor_names))}: "
+                             f"give the map of that floor (or --floor NAME to track it on a floor of this one)",
+                             log_path)
 
     # ---- validation -----------------------------------------------------------------------
     def validate(self) -> None:

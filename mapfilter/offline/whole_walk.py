@@ -103,7 +103,34 @@ def whole_walk_track(plan: FloorPlan, placement: WalkPlacement, scan_t_s: np.nda
     placement = shift_onto_free_space(plan, placement, config.placement)
     matched = map_match(plan, placement.t_s, placement.xy_m, scan_t_s, config.map_matching)
     t_s, xy_m = wall_free_track(plan, matched.t_s, matched.xy_m)
-    return Track(t_s, xy_m, name="pf-smooth")
+    std_m = None if matched.std_m is None else np.interp(t_s, matched.t_s, matched.std_m)
+    return Track(t_s, xy_m, std_m, _step_headings(placement, t_s), name="pf-smooth")
+
+
+def _step_headings(placement: WalkPlacement, t_s: np.ndarray) -> np.ndarray:
+    """The walker's heading at ``t_s``: the dead-reckoned heading of the step being walked (the
+    placed shape's move into its next point; the first move's before the first step)."""
+    move = np.diff(placement.xy_m, axis=0)
+    if move.shape[0] == 0:
+        return np.full(t_s.shape, np.nan)
+    heading = np.arctan2(move[:, 1], move[:, 0])
+    index = np.clip(np.searchsorted(placement.t_s, t_s, side="left") - 1, 0, heading.size - 1)
+    return heading[index]
+
+
+def motion_headings(t_s: np.ndarray, xy_m: np.ndarray) -> np.ndarray:
+    """The direction of motion along a track (rad): of the move into each row (the first row: of
+    the first move); standing rows keep the heading before them."""
+    move = np.diff(xy_m, axis=0)
+    if move.shape[0] == 0:
+        return np.full(t_s.shape, np.nan)
+    moving = np.hypot(move[:, 0], move[:, 1]) > 1e-9
+    heading = np.arctan2(move[:, 1], move[:, 0])
+    # standing: the last heading while moving (forward fill), the first moving one before any
+    last = np.maximum.accumulate(np.where(moving, np.arange(move.shape[0]), -1))
+    first = int(np.argmax(moving)) if moving.any() else 0
+    heading = heading[np.where(last >= 0, last, first)]
+    return np.concatenate([heading[:1], heading])
 
 
 def placed_track(plan: FloorPlan, evidence: WifiEvidence, steps: Steps, causal: Track,
@@ -144,7 +171,10 @@ def offline_track(plan: FloorPlan, evidence: WifiEvidence, steps: Steps | None, 
         if lineage is None:
             raise ValueError("an offline track without steps needs the filter's lineage (keep_ancestry)")
         t_s, xy_m = detour_wall_crossings(plan, lineage.t_s, lineage.xy_m)
-        return OfflineTrack(Track(t_s, xy_m, name="pf-smooth"))
+        # its spread: the causal cloud's at the same filter step
+        step = np.clip(np.searchsorted(causal.t_s, t_s, side="right") - 1, 0, len(causal.t_s) - 1)
+        std_m = causal.std_m[step] if causal.std_m is not None else None
+        return OfflineTrack(Track(t_s, xy_m, std_m, motion_headings(t_s, xy_m), name="pf-smooth"))
     placed = placed_track(plan, evidence, steps, causal, config)
     if not config.restart_from_placement:
         return OfflineTrack(placed)
