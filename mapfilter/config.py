@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Mapping
+from typing import Any
 
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.barometer import BarometerConfig
@@ -21,7 +23,7 @@ from mapfilter.filter.pf import FilterConfig
 from mapfilter.filter.run import MotionConfig
 from mapfilter.offline.whole_walk import OfflineConfig
 from mapfilter.sensors.pdr import PDRConfig
-from mapfilter.settings import settings_from_yaml, settings_to_dict, settings_to_yaml
+from mapfilter.settings import replace_setting, settings_from_yaml, settings_to_dict, settings_to_yaml
 
 __all__ = ["FloorsConfig", "TrackingConfig"]
 
@@ -61,6 +63,17 @@ class TrackingConfig:
     def with_particles(self, n_particles: int) -> TrackingConfig:
         """The same config with ``n_particles`` particles."""
         return dataclasses.replace(self, filter=dataclasses.replace(self.filter, n_particles=n_particles))
+
+    def override(self, settings: Mapping[str, Any]) -> TrackingConfig:
+        """The same config with the settings named by dotted keys replaced, e.g.
+        ``config.override({"motion.model": "cv", "filter.n_particles": 2000})``."""
+        config = self
+        for dotted, value in settings.items():
+            try:
+                config = replace_setting(config, dotted, value)
+            except (AttributeError, TypeError):
+                raise MapfilterError(f"unknown setting {dotted!r}") from None
+        return config
 
     def to_yaml(self) -> str:
         """Every setting as YAML, with a one-line comment each; ``from_yaml`` reads it back."""

@@ -126,8 +126,8 @@ def _source(text_or_path: str | os.PathLike) -> tuple[str, str]:
 def _apply(config: Any, node: yaml.Node, where: str, prefix: str) -> Any:
     cls = type(config)
     if not isinstance(node, yaml.MappingNode):
-        raise MapfilterError(f"{where} line {node.start_mark.line + 1}: {prefix or 'the config'} must be a mapping "
-                             f"of settings")
+        raise MapfilterError(f"{where} line {node.start_mark.line + 1}: {prefix.rstrip('.') or 'the config'} must "
+                             f"be a mapping of settings")
     fields = {f.name: f for f in _settings_fields(cls)}
     hints = typing.get_type_hints(cls)
     changes = {}

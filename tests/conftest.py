@@ -13,3 +13,28 @@ def ilc_site1() -> Path:
     if not ILC_SITE1.is_dir():
         pytest.fail(f"real data missing: {ILC_SITE1} (../shared must sit beside the checkout)")
     return ILC_SITE1
+
+
+def tracking_config(**settings):
+    """A ``TrackingConfig`` from flat keywords, for tests: motion, n_particles, smooth, seed,
+    use_map, fingerprint_model, kwnn_min_rssi_dbm, fix_sigma_m, adapt_path_loss, adaptation,
+    blocking_compensation, restart_from_placement."""
+    import dataclasses
+
+    from mapfilter.config import TrackingConfig
+
+    config = TrackingConfig()
+    sections = {"motion": ("motion", "model"), "fingerprint_model": ("wifi", None), "kwnn_min_rssi_dbm": ("wifi", None),
+                "fix_sigma_m": ("wifi", None), "adapt_path_loss": ("trilateration", None),
+                "adaptation": ("trilateration", None), "blocking_compensation": ("trilateration", None),
+                "restart_from_placement": ("offline", None)}
+    for name, value in settings.items():
+        if name == "n_particles":
+            config = config.with_particles(value)
+        elif name in sections:
+            section, field = sections[name]
+            config = dataclasses.replace(config, **{section: dataclasses.replace(getattr(config, section),
+                                                                                 **{field or name: value})})
+        else:
+            config = dataclasses.replace(config, **{name: value})
+    return config

@@ -92,16 +92,18 @@ def test_whole_walk_track_on_real_walks_beats_kwnn_and_crosses_no_wall(ilc_site1
     """F1, the first 12 walks of the sparse set, leave-one-out among them: the whole-walk track
     (pf-smooth) against the KWNN fixes of the same walks (all 36: 0.52x; here fewer walks
     survey each other, so a looser bound), and per-walk diagnostics for every walk."""
-    from mapfilter.evaluation.comparison import EvaluationSetup, evaluate_logs
+    from conftest import tracking_config
+
+    from mapfilter.evaluation.comparison import EvaluationSetup, evaluate
+    from mapfilter.maps.building import Building
     from mapfilter.maps.prepare import import_ilc
-    from mapfilter.tracking import TrackingConfig
 
     floor = ilc_site1 / "F1"
     names = (floor / "sparse_set.txt").read_text().split()[:12]
     paths = [floor / "path_data_files" / f"{name}.txt.gz" for name in names]
-    setup = EvaluationSetup(methods=("pf", "kwnn"), leave_one_out=True, smooth=True,
-                            tracking=TrackingConfig(n_particles=2000))
-    evaluation = evaluate_logs(import_ilc(floor, route="geojson"), paths, setup)
+    setup = EvaluationSetup(methods=("pf", "kwnn"), leave_one_out=True,
+                            tracking=tracking_config(n_particles=2000, smooth=True))
+    evaluation = evaluate(Building.from_plan(import_ilc(floor, route="geojson")), paths, setup)
     rows = {row["method"]: row for row in evaluation.summary_rows()}
     assert rows["pf-smooth"]["wall_crossings"] == 0 and rows["pf-smooth"]["missed"] == 0
     assert rows["pf-smooth"]["mean"] < 0.85 * rows["kwnn"]["mean"]

@@ -1,5 +1,7 @@
 """The engine: walks as tasks, serially or on local Dask workers; errors reach the user as one line."""
 
+import json
+
 import pytest
 from conftest import REPO
 
@@ -33,7 +35,8 @@ def test_local_workers_give_every_result_and_a_failing_walk_is_one_line(tmp_path
     pytest.importorskip("distributed")
     results = dict(run_each(_scaled, list(range(6)), Engine(jobs=2), common=(3, 0)))
     assert results == {i: 3 * i for i in range(6)}
-    # a walk without waypoints, evaluated on two local workers: the worker's error is our one line
+    # a walk without waypoints, evaluated on two local workers: the worker's error is our one line,
+    # and the other walk's results are kept
     import gzip
 
     no_waypoints = tmp_path / "nowp.txt"
@@ -43,5 +46,7 @@ def test_local_workers_give_every_result_and_a_failing_walk_is_one_line(tmp_path
                  "--radiomap", str(MAPS / "office_radiomap.npz"), "--methods", "kwnn", "--jobs", "2",
                  "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err.strip()
-    assert err == f"mapfilter: error: {no_waypoints}: the log has no waypoints to evaluate against"
-    assert not (tmp_path / "out").exists()
+    assert err == f"mapfilter: failed: {no_waypoints}: the log has no waypoints to evaluate against"
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert [f["trace"] for f in summary["failed"]] == ["nowp"] and summary["complete"]
+    assert [row["method"] for row in summary["summary"]] == ["kwnn"] and summary["traces"][0]["trace"] == "office_walk"

@@ -222,22 +222,18 @@ def _fake_steps(t_s, heading_rad, length_m=0.7):
 
 
 def test_step_inputs_give_one_filter_move_per_step():
-    from mapfilter.tracking import step_inputs
+    from mapfilter.filter.run import step_inputs
 
     rng = np.random.default_rng(11)
     t = np.sort(rng.uniform(0, 30, 50))
     heading = np.cumsum(rng.normal(0, 0.2, 50))
     steps = _fake_steps(t, heading)
-    inputs = step_inputs(steps, use_abs_heading=True, with_step_length=True)
+    inputs = step_inputs(steps)
     assert len(inputs) == 50 and [s.n_steps for s in inputs] == [1] * 50
     assert sum(s.heading_change_rad for s in inputs) == pytest.approx(heading[-1])
-    assert [s.heading_abs_rad for s in inputs] == pytest.approx(heading + 1.0)
-    assert all(s.step_length_m == pytest.approx(0.7) for s in inputs)
-    per_step = step_inputs(steps)
-    assert all(s.step_length_m is None and s.heading_abs_rad is None for s in per_step)
-    assert [s.heading_change_rad for s in per_step] == pytest.approx(steps.heading_change_rad)
-    no_rotvec = dataclasses.replace(steps, abs_heading_rad=None)
-    assert all(s.heading_abs_rad is None for s in step_inputs(no_rotvec, use_abs_heading=True))
+    # the particles keep their own heading and adapted step length (thesis eq. 8.23)
+    assert all(s.heading_abs_rad is None and s.step_length_m is None for s in inputs)
+    assert [s.heading_change_rad for s in inputs] == pytest.approx(steps.heading_change_rad)
     assert step_inputs(steps.between(100.0, 101.0)) == []
 
 
@@ -322,7 +318,8 @@ def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1):
     """The filter's PDRMotion, noise off, fed one StepInput per detected step = dead_reckon."""
     motion = pytest.importorskip("mapfilter.filter.motion")
     from mapfilter.filter.particles import Particles
-    from mapfilter.tracking import step_inputs
+    from mapfilter.filter.motion import StepInput
+    from mapfilter.filter.run import step_inputs
 
     rec = read_ilc(ilc_site1 / "F1" / "path_data_files" / "5dd9e7c29191710006b57061.txt.gz")
     steps = pdr.detect_steps(rec)
@@ -332,7 +329,9 @@ def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1):
     # dead_reckon walks the first step along start_heading; the filter adds that step's change
     particles = Particles.at(start_xy[None, :], heading_rad=start_heading - steps.heading_change_rad[0])
     rng = np.random.default_rng(0)
-    for step_input in step_inputs(steps, with_step_length=True):
+    for step_input, length_m in zip(step_inputs(steps), steps.step_length_m):
+        # the Weinberg length of each step given, as dead reckoning walks it
+        step_input = StepInput(step_input.n_steps, step_input.heading_change_rad, None, float(length_m))
         particles = model.propagate(particles, step_input, 0.5, rng)
     _, xy = pdr.dead_reckon(steps, start_xy, start_heading)
     assert particles.xy_m[0] == pytest.approx(xy[-1], abs=1e-6)

@@ -292,14 +292,13 @@ def test_cli_errors_are_one_line_and_write_nothing(tmp_path, f1_map, capsys, ext
 
 
 def test_tracker_weighs_the_kwnn_fix_with_a_gaussian():
-    from mapfilter.tracking import TrackingConfig, WifiMeasurements
+    from mapfilter.filter.evidence import WifiConfig, WifiEvidence
 
     aps, radio_map = _synthetic_radio_map()
     scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
     unknown = WifiScan(1.0, ("aa:aa:aa:aa:aa:aa@5",), np.array([-40.0], np.float32))
     plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
-    wifi = WifiMeasurements([scan, unknown], radio_map, None, plan,
-                            TrackingConfig(fix_sigma_m=5.0, fingerprint_model="fix"))
+    wifi = WifiEvidence([scan, unknown], radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="fix"))
     fix = kwnn_fix(radio_map, scan.ap_keys, scan.rssi_dbm).xy_m
     measurement = wifi.measurement(0)
     np.testing.assert_allclose(measurement.xy_m, fix)
@@ -377,7 +376,7 @@ def test_cross_validation_equals_kwnn_on_the_map_without_each_walk():
 def test_radio_map_file_keeps_the_cross_validation_and_old_files_load(tmp_path, monkeypatch):
     import mapfilter.sensors.radiomap as radiomap_module
     from mapfilter.sensors.radiomap import cross_validated_fix_errors
-    from mapfilter.tracking import calibrated_fix_sigma_m
+    from mapfilter.filter.evidence import calibrated_fix_sigma_m
 
     rm = _traced_map()
     errors = cross_validated_fix_errors(rm, 4)
@@ -411,12 +410,12 @@ def test_radio_map_file_keeps_the_cross_validation_and_old_files_load(tmp_path, 
 
 def test_blend_fix_is_the_mean_of_the_kwnn_fix_and_the_best_cell():
     from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood
-    from mapfilter.tracking import TrackingConfig, WifiMeasurements
+    from mapfilter.filter.evidence import WifiConfig, WifiEvidence
 
     aps, radio_map = _synthetic_radio_map()
     scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
     plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
-    wifi = WifiMeasurements([scan], radio_map, None, plan, TrackingConfig(fix_sigma_m=5.0, fingerprint_model="blend"))
+    wifi = WifiEvidence([scan], radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="blend"))
     kwnn = strong_kwnn_fixes(radio_map, radio_map.scan_matrix([scan]))[0]  # the default: strong readings only
     best = RadioMapLikelihood(radio_map, plan).best_position(scan)
     np.testing.assert_allclose(wifi.measurement(0).xy_m, 0.5 * (kwnn + best))

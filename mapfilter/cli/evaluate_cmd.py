@@ -7,6 +7,7 @@ import csv
 import dataclasses
 import json
 import shutil
+import sys
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
@@ -89,7 +90,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mapfilter.evaluation.comparison import EvaluationSetup, Evaluation, evaluate, methods_for
+    from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate, methods_for, validate_setup
     from mapfilter.evaluation.store import read_outcome, run_key, write_outcome
     from mapfilter.maps.building import Building
     from mapfilter.sensors.recording import trace_name
@@ -103,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
     setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,
                             tracking=config)
+    validate_setup(building, args.logs, setup)  # before anything is written
     key = run_key({"map": str(args.map.resolve()), "logs": [str(p.resolve()) for p in args.logs],
                    "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
                    "aps": str(args.aps), "leave_one_out": args.leave_one_out, "methods": methods,
@@ -125,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         # each walk's numbers, tracks and picture as it finishes: an interrupted run keeps them
         write_outcome(outcome, walks_dir / f"{outcome.trace}.json", key)
         if outcome.status != "ok":
-            warn(f"{outcome.status}: {outcome.reason}")
+            print(f"mapfilter: {outcome.status}: {outcome.reason}", file=sys.stderr)
         _write_walk_tracks(args.out, outcome, plans)
 
     from mapfilter.sensors.recording import trace_name as name_of
@@ -227,8 +229,9 @@ def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
     if evaluation.results:
         plot_error_cdf(evaluation.errors_by_method(), out / "cdf.png",
                        title=f"{n_done} walks on {args.map.name}" + ("" if complete else " (partial)"))
-    for item in failed:
-        print(f"  {item['status']}: {item['trace']}: {item['reason']}")
+    if failed:
+        print(f"{len(failed)} walk{'s' if len(failed) != 1 else ''} without results (summary.json lists why): "
+              + ", ".join(item["trace"] for item in failed))
     print(f"wrote {out}/summary.csv, summary.json, traces.csv, walks.csv (why each walk went wrong), cdf.png, "
           f"config.yaml, walks/, tracks/")
 

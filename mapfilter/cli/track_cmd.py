@@ -228,7 +228,10 @@ def _summary(building, recording, result, header_floor, written) -> str:
                 text += f" ({n} waypoint{'s' if n != 1 else ''} before the first estimate, not scored)"
             if score.floor_score is not None:
                 right = score.floor_score
-                text += f"; on the walker's floor at {right.n_right} of {right.n_judged} waypoints ({right.accuracy:.0%})"
+                where = score.true_floor if isinstance(score.true_floor, str) else "the walker's floor"
+                text += f"; on {where} at {right.n_right} of {right.n_judged} waypoints ({right.accuracy:.0%})"
+                if score.off_floor:
+                    text += " (rows on another floor compared in their own floor's frame)"
         lines.append(text)
     t0 = float(recording.wifi.t_s[0]) if len(recording.wifi) else 0.0
     for event in result.collapses:

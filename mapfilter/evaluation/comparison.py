@@ -145,22 +145,7 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: 
     engine. A walk that fails is reported (``WalkOutcome.status``) and the others go on;
     ``on_walk`` sees each walk as it finishes (to write its results at once). ``resumed``: the
     outcomes of walks already done (``evaluation.store``): those walks are not run again."""
-    paths = checked_log_paths(log_paths)
-    survey = checked_log_paths(setup.survey_paths) if setup.survey_paths else []
-    overlap = {trace_name(p) for p in paths} & {trace_name(p) for p in survey}
-    if overlap:
-        raise MapfilterError(f"walk {sorted(overlap)[0]} is both a survey log and an evaluated walk: a walk is "
-                             f"never scored against its own points (use --leave-one-out to let the evaluated "
-                             f"walks survey each other)")
-    methods = _checked_methods(building, setup)
-    sources = sum([setup.radio_map_path is not None, setup.ap_table_path is not None and building.is_single_floor,
-                   bool(survey) or setup.leave_one_out])
-    if sources == 0:
-        raise MapfilterError("no WiFi source: give a radio map, an access-point table, survey logs or --leave-one-out")
-    if setup.radio_map_path is not None and (survey or setup.leave_one_out):
-        raise MapfilterError("give a radio map, or survey logs / --leave-one-out, not both (those build their own)")
-    if not building.is_single_floor and setup.ap_table_path is not None:
-        raise MapfilterError("a building is evaluated with a building's radio map, not an access-point table")
+    paths, survey, methods = validate_setup(building, log_paths, setup)
     started = time.perf_counter()
     read_warnings: list[str] = []
     with _collect_read_warnings(read_warnings):
@@ -180,6 +165,47 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: 
         if on_walk is not None:
             on_walk(outcome)
     return Evaluation.from_outcomes(outcomes, len(paths), time.perf_counter() - started, read_warnings)
+
+
+def validate_setup(building: Building, log_paths: Sequence[str | os.PathLike],
+                   setup: EvaluationSetup) -> tuple[list[Path], list[Path], tuple[str, ...]]:
+    """Check an evaluation before it runs: (the walks, the survey logs, the methods), or a
+    ``MapfilterError`` for a missing log, a repeated trace name, an unknown method or a WiFi
+    source that does not fit."""
+    paths = checked_log_paths(log_paths)
+    survey = checked_log_paths(setup.survey_paths) if setup.survey_paths else []
+    overlap = {trace_name(p) for p in paths} & {trace_name(p) for p in survey}
+    if overlap:
+        raise MapfilterError(f"walk {sorted(overlap)[0]} is both a survey log and an evaluated walk: a walk is "
+                             f"never scored against its own points (use --leave-one-out to let the evaluated "
+                             f"walks survey each other)")
+    methods = _checked_methods(building, setup)
+    sources = sum([setup.radio_map_path is not None, setup.ap_table_path is not None and building.is_single_floor,
+                   bool(survey) or setup.leave_one_out])
+    if sources == 0:
+        raise MapfilterError("no WiFi source: give a radio map, an access-point table, survey logs or --leave-one-out")
+    if setup.radio_map_path is not None and (survey or setup.leave_one_out):
+        raise MapfilterError("give a radio map, or survey logs / --leave-one-out, not both (those build their own)")
+    if not building.is_single_floor and setup.ap_table_path is not None:
+        raise MapfilterError("a building is evaluated with a building's radio map, not an access-point table")
+    if setup.leave_one_out and len(paths) + len(survey) < 2:
+        raise MapfilterError("leave-one-out needs at least two logs")
+    return paths, survey, methods
+
+
+def evaluate_trace(building: Building, log_paths: Sequence[str | os.PathLike], index: int, setup: EvaluationSetup,
+                   all_walks: AllWalks | None = None) -> list[MethodResult]:
+    """Every method of ``setup`` on walk ``log_paths[index]``, for scripts that drive the walks
+    themselves; ``all_walks``: the survey material (leave-one-out drops this walk's points).
+    A walk that cannot be evaluated raises its ``MapfilterError``."""
+    paths = checked_log_paths(log_paths)
+    methods = _checked_methods(building, setup)
+    context = _Context(building, setup, methods, tuple(paths), all_walks,
+                       tuple(_true_floor(building, p) if i == index else None for i, p in enumerate(paths)))
+    outcome = _evaluate_walk(context, index)
+    if outcome.status != "ok":
+        raise MapfilterError(outcome.reason)
+    return outcome.results
 
 
 def _checked_methods(building: Building, setup: EvaluationSetup) -> tuple[str, ...]:

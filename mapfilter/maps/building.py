@@ -162,10 +162,9 @@ class Building:
                 return i
         if self.is_single_floor and self.floors[0].plan.floor_name is None:
             return 0
-        where = f"the map {self.path}" if self.path is not None else "the map"
-        raise MapfilterError(f"the log is of floor {header_floor!r}, {where} has {', '.join(map(repr, self.floor_names))}: "
-                             f"give the map of that floor (or --floor NAME to track it on a floor of this one)",
-                             log_path)
+        raise MapfilterError(f"floor {header_floor!r} is not in the building {self.path or ''} (floors: "
+                             f"{', '.join(self.floor_names)}): give the map of the log's floor, or --floor NAME to "
+                             f"track it on one of these".replace("building  (", "building ("), log_path)
 
     # ---- validation -----------------------------------------------------------------------
     def validate(self) -> None:

@@ -40,20 +40,20 @@ class PDRConfig:
     # a step = upward crossing of this level by the filtered d|a|/dt; walking on the ILC phone
     # gives peaks of 50-120 m/s^3; of 2, 5, 10, 12, 15, 17, 20, 25, 30 on the 48 ILC site1
     # traces, 12-20 fit the waypoint distances best, 2-5 count sway as steps
-    step_threshold_mps3: float = 15.0
+    step_threshold_mps3: float = 15.0  # a step: an upward crossing of this level by the filtered d|a|/dt
     # no two steps closer than this: brisk walking is ~0.45-0.5 s per step; with 0.3 some
     # steps of ILC site1 cross the threshold twice, 0.5 drops the fastest steps
-    min_step_interval_s: float = 0.4
+    min_step_interval_s: float = 0.4  # no two steps closer than this
     gravity_lowpass_hz: float = 0.3  # gravity direction = accelerometer low-passed below the step rhythm
     step_length_m: float = 0.7  # fixed step length; also the prior mean of the adaptive per-particle state
     step_length_std_m: float = 0.1  # prior spread of the per-particle step length (for PDRMotion)
     # Weinberg K for |a| (m/s^2) low-passed at lowpass_hz: sum of waypoint polyline lengths over
     # sum of (a_max - a_min)^(1/4) on all 48 ILC site1 traces (leave-one-out K varies by < 1 %)
-    weinberg_k: float = 0.39
+    weinberg_k: float = 0.39  # Weinberg step length = K (a_max - a_min)^(1/4)
     max_step_window_s: float = 1.0  # Weinberg min/max window before a step when the previous one is older
     # added to pi/2 - azimuth: the angle from magnetic north to the map's +y axis; measured
     # -2.4 deg on ILC site1 (median leg deviation 8.8 deg), so 0 there
-    abs_heading_offset_rad: float = 0.0
+    abs_heading_offset_rad: float = 0.0  # magnetic north to the map's +y axis, added to the rotation vector's heading
 
     def __post_init__(self) -> None:
         positive = ("sample_rate_hz", "lowpass_hz", "gravity_lowpass_hz", "step_length_m", "weinberg_k",
