@@ -74,11 +74,14 @@ def plan_size_px(path: Path) -> tuple[int, int]:
     """(width, height) of an image from its header, without decoding it."""
     from PIL import Image  # Pillow comes with matplotlib; it reads only the header here
 
+    limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None  # the size is checked by the caller
     try:
         with Image.open(path) as image:
             return int(image.size[0]), int(image.size[1])
     except (OSError, ValueError, Image.DecompressionBombError) as exc:
         raise MapfilterError(f"not a readable image ({exc})", path) from None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
 
 
 def import_ipin_venue(cal_path: str | os.PathLike, resolution_m: float = DEFAULT_RESOLUTION_M,
