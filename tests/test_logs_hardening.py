@@ -61,7 +61,7 @@ def test_one_huge_line_in_a_small_gzip_is_skipped_without_being_held(tmp_path):
     assert rec.read_report.bad_rows == {"?": 1} and "line longer than" in rec.read_report.first_bad["?"]
     assert rec.read_report.first_bad["?"].startswith(f"line {line_no}:")
     assert rec.read_report.n_lines == line_no + ILC_GOOD.count("\n")  # the lines after it are read
-    assert len(warnings) == 1
+    assert len(warnings) == 1 and f"1 unreadable line (first at line {line_no}: line longer than" in warnings[0]
     with pytest.raises(MapfilterError, match=f":{line_no}: line longer than"):
         read_ilc(path, strict=True)
 

@@ -85,9 +85,12 @@ class ReadReport:
         """One line naming what was skipped (None when nothing was)."""
         parts = []
         for kind in sorted(self.bad_rows):
+            n = self.bad_rows[kind]
+            if kind == "?":  # a line with no record type, or one too long to read
+                parts.append(f"{n} unreadable line{'s' if n != 1 else ''} (first at {self.first_bad[kind]})")
+                continue
             use = "needed" if kind in self.needed else "not used"
-            parts.append(f"{self.bad_rows[kind]} bad {kind} row{'s' if self.bad_rows[kind] != 1 else ''} ({use}; "
-                         f"first at {self.first_bad[kind]})")
+            parts.append(f"{n} bad {kind} row{'s' if n != 1 else ''} ({use}; first at {self.first_bad[kind]})")
         if self.truncated_after_line is not None:
             parts.append(f"gzip stream ends early: kept the {self.truncated_after_line} lines before the cut")
         if self.duplicates:
