@@ -35,7 +35,7 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.logread import (BadRow, LogReadWarning, check_range, check_usable, count_bad_row, drop_duplicate_records,
                                        drop_duplicate_rows, emit_warning, find_time_gaps, iter_bounded_lines,
-                                       group_scans, open_binary, parse_number, read_lines)
+                                       group_scans, open_binary, parse_number, quick_numbers, read_lines)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording, WifiScans
 
 __all__ = ["DEFAULT_MAX_WIFI_AGE_S", "NEEDED_TYPES", "LogReadWarning", "read_ilc", "read_ilc_header"]
@@ -229,6 +229,11 @@ def _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows, waypoint_f
             waypoint_floors.append(fields[4].strip())  # the floor (a walk over several floors)
     elif kind in _VECTOR_TYPES:
         name, quantity = _VECTOR_TYPES[kind]
+        t_ms = quick_numbers(fields, range(0, 1), "unix_ms")
+        values = quick_numbers(fields, range(2, 5), quantity)
+        if t_ms is not None and values is not None:
+            vectors[name].append((t_ms[0] / 1000.0, *values))  # the fast path: a good row
+            return kind
         t_s = _time_s(fields)
         values = [check_range(kind, axis, parse_number(kind, fields, column), quantity)
                   for axis, column in (("x", 2), ("y", 3), ("z", 4))]

@@ -56,7 +56,7 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.logread import (BadRow, check_range, check_usable, count_bad_row, drop_duplicate_records,
                                        drop_duplicate_rows, emit_warning, find_time_gaps, group_scans,
-                                       iter_bounded_lines, open_binary, parse_number, read_lines)
+                                       iter_bounded_lines, open_binary, parse_number, quick_numbers, read_lines)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 FORMAT_NAME = "GetSensorData"
@@ -276,9 +276,16 @@ def _parse_record(fields: list[str], sensors, wifi_rows, beacon_rows, posi_rows)
     kind = fields[0].strip()
     if kind in _SENSOR_TYPES:
         name, quantity, n_values = _SENSOR_TYPES[kind]
-        app_s = _app_time(kind, fields)
-        sensor_s = parse_number(kind, fields, 2)
         first = 6 if kind == "AHRS" else 3
+        app = quick_numbers(fields, range(1, 2), "log_s")
+        sensor = quick_numbers(fields, range(2, 3), "sensor_s")
+        values = quick_numbers(fields, range(first, first + n_values), quantity)
+        if app is not None and sensor is not None and values is not None and (
+                kind != "AHRS" or values[0] ** 2 + values[1] ** 2 + values[2] ** 2 <= 1.0 + 1e-3):
+            sensors[name].append((app[0], sensor[0], *values))  # the fast path: a good row
+            return kind
+        app_s = _app_time(kind, fields)
+        sensor_s = check_range(kind, "SensorTimestamp", parse_number(kind, fields, 2), "sensor_s")
         values = [check_range(kind, _AXES[j] if n_values > 1 else quantity.split("_")[0],
                               parse_number(kind, fields, first + j), quantity) for j in range(n_values)]
         if kind == "AHRS" and values[0] ** 2 + values[1] ** 2 + values[2] ** 2 > 1.0 + 1e-3:
@@ -292,7 +299,7 @@ def _parse_record(fields: list[str], sensors, wifi_rows, beacon_rows, posi_rows)
         # an SSID may hold ';': BSSID, frequency and RSS are the last three fields
         tail = [fields[0], fields[1], fields[2], fields[-3], fields[-2], fields[-1]]
         app_s = _app_time(kind, tail)
-        sensor_s = parse_number(kind, tail, 2)
+        sensor_s = check_range(kind, "SensorTimestamp", parse_number(kind, tail, 2), "sensor_s")
         freq = check_range(kind, "frequency", parse_number(kind, tail, 4), "freq_mhz")
         rssi = check_range(kind, "RSSI", parse_number(kind, tail, 5), "rssi_dbm")
         bssid = tail[3].strip()

@@ -58,6 +58,8 @@ RANGES: dict[str, tuple[float, float, str]] = {
     "unix_ms": (1.0e12, 4102444800000.0, "ms"),
     # GetSensorData: seconds since the log started; no log runs for a century
     "log_s": (0.0, 100 * 365.25 * 86400.0, "s"),
+    # GetSensorData sensor timestamps: the sensor's own clock (since boot), used for intervals only
+    "sensor_s": (-1.0e10, 1.0e10, "s"),
 }
 
 
@@ -81,6 +83,21 @@ def check_range(kind: str, name: str, value: float, quantity: str) -> float:
         unit = f" {unit}" if unit else ""
         raise BadRow(kind, f"{kind} {name} out of range: {value:g}{unit} (expected {low:g} to {high:g})")
     return value
+
+
+def quick_numbers(fields: list[str], columns: range, quantity: str) -> list[float] | None:
+    """The fields ``columns`` as floats when all are numbers within the range of ``quantity``,
+    else None (then the caller's checked parse says what is wrong). The fast path of the readers:
+    most rows are good, and a comparison chain also turns NaN and infinities away."""
+    low, high, _ = RANGES[quantity]
+    try:
+        values = [float(fields[c]) for c in columns]
+    except (ValueError, IndexError):
+        return None
+    for value in values:
+        if not low <= value <= high:
+            return None
+    return values
 
 
 def parse_number(kind: str, fields: list[str], column: int, separator_name: str = "column") -> float:
