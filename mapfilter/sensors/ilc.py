@@ -11,11 +11,14 @@ by the simulator: ``TYPE_PRESSURE`` rows (``time TYPE_PRESSURE hPa accuracy``, a
 a fifth ``TYPE_WAYPOINT`` column naming the waypoint's floor (a walk over several floors). Real logs hold oddities, and
 the reader keeps the walk where it can:
 
-- a bad row (too few fields, a value that is not a number, ``Infinity`` or ``NaN``) in a
-  record type the run does not need (``needed``; beacons by default) is skipped and counted;
+- a bad row (too few fields, a value that is not a number, ``Infinity`` or ``NaN``, or one
+  outside its physical range: ``logread.RANGES``) in a record type the run does not need
+  (``needed``; beacons and the magnetometer by default) is skipped and counted;
 - a bad row in a needed type is skipped too, unless ``strict``: then it is refused with an
   error naming the file and line;
-- two records on one line (a missing newline) are split back into two records;
+- two records on one line (a missing newline) are split back into two records; a line longer
+  than ``logread.MAX_LINE_BYTES`` is read past without being held, and counted as unreadable;
+- exact duplicate records are kept once; long stretches with no record are reported;
 - a gzip stream that ends early (a cut download) keeps the complete lines before the cut
   (refused with ``strict``); a corrupted stream is refused, since its data cannot be trusted;
 - a log with no usable record left is refused.

@@ -150,10 +150,10 @@ class Recording:
     wifi: WifiScans
     beacons: Beacons
     read_report: ReadReport | None = None  # what the log reader skipped (None: not read from a log)
-    # a barometer (TYPE_PRESSURE rows: the simulator writes them; ILC logs have none)
+    # a barometer (GetSensorData PRES rows; ILC TYPE_PRESSURE rows, which only the simulator writes)
     pressure_t_s: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     pressure_hpa: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
-    # the floor of each waypoint when a log names one (a walk over several floors: a fifth
+    # the floor of each waypoint when a log names one (GetSensorData POSI rows; a fifth
     # TYPE_WAYPOINT column, written by the simulator); None: the header's floor throughout
     waypoint_floor: list[str] | None = None
     # ground truth in WGS-84 (latitude, longitude) degrees when the log gives it so (GetSensorData
