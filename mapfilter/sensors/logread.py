@@ -54,8 +54,8 @@ RANGES: dict[str, tuple[float, float, str]] = {
     "longitude_deg": (-180.0, 180.0, "deg"),
     "position_m": (-1.0e5, 1.0e5, "m"),  # a floor-plan coordinate: within 100 km of the plan's origin
     "distance_m": (0.0, 1.0e5, "m"),
-    # ILC: Unix time in ms from 2001-09-09 (the first 13-digit time) to 2100-01-01
-    "unix_ms": (1.0e12, 4102444800000.0, "ms"),
+    # ILC: Unix time in ms, from 1970 (hand-made logs count from 0) to 2100-01-01
+    "unix_ms": (0.0, 4102444800000.0, "ms"),
     # GetSensorData: seconds since the log started; no log runs for a century
     "log_s": (0.0, 100 * 365.25 * 86400.0, "s"),
     # GetSensorData sensor timestamps: the sensor's own clock (since boot), used for intervals only
