@@ -130,7 +130,8 @@ def test_check_reports_each_oddity_and_refuses_only_what_cannot_be_read(tmp_path
     assert "1 bad TYPE_WIFI row (needed" in line["badwifi"]
     assert "gzip stream ends early" in line["cut"]
     assert "no usable record" in line["empty"] and line["empty"].endswith("[refused]")
-    assert out[-1] == "6 logs: 5 readable (5 with IMU for dead reckoning), 4 with rows skipped or split, 1 refused"
+    assert out[-1] == ("6 logs: 5 readable (5 with IMU for dead reckoning), 4 with rows skipped or split, "
+                       "0 with time gaps, 1 refused")
     # --strict refuses the needed-type row and the cut stream, never the unused beacon
     assert main(["check", "--strict", str(logs["beacon"]), str(logs["badwifi"]), str(cut)]) == 1
     out = capsys.readouterr().out

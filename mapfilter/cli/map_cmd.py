@@ -1,4 +1,4 @@
-"""``mapfilter map prepare|import-ilc``: floor plans -> wall-mask maps (YAML + mask + preview)."""
+"""``mapfilter map prepare|import-ilc|import-ipin``: floor plans -> wall-mask maps (YAML + mask + preview)."""
 
 from __future__ import annotations
 
@@ -54,6 +54,26 @@ F2 = 1, ...) times --storey-height (default 5 m).
 example:
   mapfilter map import-ilc ../shared/data/ilc20/site1/F1 --out F1.yaml
   mapfilter map import-ilc ../shared/data/ilc20/site1 --out site1.yaml
+"""
+
+
+_IPIN_EPILOG = """\
+CAL is an IPIN competition calibration file: for each floor its plan image (looked for next
+to CAL), floor number, building, the image centre's latitude and longitude, the rotation of
+the image to north (degrees) and the scale (m/px). The building it writes (--out, with
+NAME_<floor>.yaml maps, masks, previews and NAME_<floor>_plan.png, the plan turned to north)
+is georeferenced: its frame is east/north metres at the first floor's image centre, so logs
+with latitude/longitude ground truth (GetSensorData POSI rows) and tracks in latitude and
+longitude work with it. Each plan is decoded reduced (a 54-megapixel plan takes about 100 MB),
+its dark strokes become walls (labels shorter than 1.5 m dropped), and the map is walled
+beyond the image's edges. A floor whose image is missing becomes an open floor over the
+same extent, with a warning. Floors are named by the venue's floor numbers (0, -1, -2) and
+stand --storey-height apart (the calibration gives no heights; docs/formats.md shows how the
+IPIN 2023 venue's was measured from a walk's barometer).
+
+example:
+  mapfilter map import-ipin ../shared/data/ipin2023/plans/calib_mapa_Nuremberg.cal \\
+      --out nuremberg.yaml --storey-height 2.8
 """
 
 
@@ -127,6 +147,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ilc.add_argument("--storey-height", type=float, default=5.0, metavar="M",
                      help="a site: metres between storeys for the elevations (default: 5)")
     ilc.set_defaults(func=run_import_ilc)
+
+    ipin = commands.add_parser(
+        "import-ipin", help="an IPIN calibration file and its plans -> a georeferenced building",
+        description="Make a georeferenced building of an IPIN venue's calibration file (.cal) and plan images.",
+        epilog=_IPIN_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ipin.add_argument("cal", type=Path, metavar="CAL", help="the calibration file, e.g. calib_mapa_Nuremberg.cal")
+    ipin.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output building YAML")
+    ipin.add_argument("--resolution", type=float, default=None, metavar="M",
+                      help="metres per map cell (default: 0.1)")
+    ipin.add_argument("--storey-height", type=float, default=None, metavar="M",
+                      help="metres between storeys for the elevations (default: 4)")
+    ipin.set_defaults(func=run_import_ipin)
 
 
 def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
@@ -206,6 +238,38 @@ def _import_ilc_site(args: argparse.Namespace) -> int:
     building.save(args.out)
     print(f"wrote {args.out}: {len(building.floors)} floors ({', '.join(building.floor_names)}), "
           f"storey height {args.storey_height:g} m")
+    return 0
+
+
+def run_import_ipin(args: argparse.Namespace) -> int:
+    import cv2
+
+    from mapfilter.atomic import atomic_paths
+    from mapfilter.cli.common import warn
+    from mapfilter.maps import ipin_venue
+
+    if args.out.suffix not in (".yaml", ".yml"):
+        raise MapfilterError("the output building must be a .yaml file", args.out)
+    resolution = ipin_venue.DEFAULT_RESOLUTION_M if args.resolution is None else args.resolution
+    storey = ipin_venue.DEFAULT_STOREY_HEIGHT_M if args.storey_height is None else args.storey_height
+    # everything is imported and checked before the first file is written
+    building, floors = ipin_venue.import_ipin_venue(args.cal, resolution, storey, warn=warn)
+    for floor, venue_floor in zip(building.floors, floors):
+        floor.map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml").resolve()
+        if venue_floor.display is not None:
+            shown = floor.map_path.with_name(f"{floor.map_path.stem}_plan.png")
+            if venue_floor.image_path is not None and shown.resolve() == venue_floor.image_path.resolve():
+                raise MapfilterError(f"writing the maps would overwrite the plan {shown.name}: choose another --out "
+                                     "name", args.out)
+            with atomic_paths(shown) as (tmp,):
+                if not cv2.imwrite(str(tmp), venue_floor.display):
+                    raise MapfilterError("could not write the plan image", shown)
+            floor.plan = venue_floor.with_display_file(shown)
+        _write(floor.plan, floor.map_path)
+    building.save(args.out)
+    geo = building.georeference
+    print(f"wrote {args.out}: {len(building.floors)} floors ({', '.join(building.floor_names)}), storey height "
+          f"{storey:g} m, georeferenced at {geo.origin_lat_deg:.8f}, {geo.origin_lon_deg:.8f}")
     return 0
 
 
