@@ -25,7 +25,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate as _evaluate
 from mapfilter.maps.building import Building
 from mapfilter.sensors.floors import build_building_radio_map
-from mapfilter.sensors.ilc import read_ilc
+from mapfilter.sensors.logs import read_log as _read_log
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.radiomap import build_radio_map as _build_one_floor
@@ -43,10 +43,14 @@ def load_map(path: str | os.PathLike) -> Building:
     return Building.load(path)
 
 
-def read_log(path: str | os.PathLike, strict: bool = False, warn: Callable[[str], None] | None = None) -> Recording:
-    """One phone log as a ``Recording``. Bad rows are skipped with one warning line (to ``warn``,
-    else a ``LogReadWarning``); ``strict`` refuses a log with a bad row the tracker needs."""
-    return read_ilc(path, strict=strict, warn=warn)
+def read_log(path: str | os.PathLike, strict: bool = False, warn: Callable[[str], None] | None = None,
+             building: Building | None = None) -> Recording:
+    """One phone log as a ``Recording``, its format (ILC trace or GetSensorData) told by its content
+    (``sensors.logs``). Bad rows are skipped with one warning line (to ``warn``, else a
+    ``LogReadWarning``); ``strict`` refuses a log with a bad row the tracker needs. Ground truth
+    in latitude/longitude (IPIN logs) is put in metres by a georeferenced ``building``
+    (``track`` and ``evaluate`` do that themselves)."""
+    return _read_log(path, strict=strict, warn=warn, building=building)
 
 
 def load_radio_map(path: str | os.PathLike) -> RadioMap:

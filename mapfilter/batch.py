@@ -26,7 +26,7 @@ from mapfilter.evaluation.metrics import FloorScore, summarise_errors
 from mapfilter.evaluation.scoring import score_track
 from mapfilter.maps.building import Building
 from mapfilter.sensors.floors import check_building_radio_map
-from mapfilter.sensors.ilc import read_ilc, read_ilc_header
+from mapfilter.sensors.logs import read_log, read_log_header
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording, trace_name
@@ -80,7 +80,7 @@ def track_walk(building: Building, radio_map: RadioMap | None, access_points: Ac
     warned: list[str] = []
     result = WalkResult(Path(log_path), trace_name(log_path), "ok")
     try:
-        recording = read_ilc(log_path, strict=setup.strict, warn=warned.append)
+        recording = read_log(log_path, strict=setup.strict, warn=warned.append, building=building)
         _track_into(result, building, recording, radio_map, access_points, setup)
     except MapfilterError as exc:
         result = WalkResult(result.log_path, result.trace, "failed", str(exc))
@@ -136,7 +136,7 @@ def track_logs(building: Building, log_paths: Sequence[str | os.PathLike], radio
         building.floor_index(setup.floor)
     for path in paths:
         try:
-            floor_name = read_ilc_header(path).get("FloorName") or None
+            floor_name = read_log_header(path).get("FloorName") or None
         except MapfilterError:
             continue
         building.floor_of_log(floor_name, path, setup.floor)

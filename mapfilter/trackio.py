@@ -92,12 +92,14 @@ def write_track_tum(track: Track, path: str | os.PathLike) -> None:
                 handle.write(f"{t:.6f} {x:.4f} {y:.4f} 0.0 0.0 0.0 {qz:.6f} {qw:.6f}\n")
 
 
-def write_track(track: Track, path: str | os.PathLike, track_format: str = "csv") -> None:
-    """Write a track as ``csv`` (``write_track_csv``) or ``tum`` (``write_track_tum``), atomically."""
+def write_track(track: Track, path: str | os.PathLike, track_format: str = "csv",
+                building: Building | None = None) -> None:
+    """Write a track as ``csv`` (``write_track_csv``; with latitude and longitude in a
+    georeferenced ``building``) or ``tum`` (``write_track_tum``), atomically."""
     if track_format == "tum":
         write_track_tum(track, path)
     elif track_format == "csv":
-        write_track_csv(track, path)
+        write_track_csv(track, path, building)
     else:
         raise MapfilterError(f"unknown track format {track_format!r}: csv or tum", path)
 

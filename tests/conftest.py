@@ -13,6 +13,8 @@ def ilc_site1() -> Path:
     if not ILC_SITE1.is_dir():
         pytest.fail(f"real data missing: {ILC_SITE1} (../shared must sit beside the checkout)")
     return ILC_SITE1
+
+
 IPIN2023 = REPO.parent / "shared" / "data" / "ipin2023"
 
 

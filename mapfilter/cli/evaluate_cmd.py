@@ -128,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         write_outcome(outcome, walks_dir / f"{outcome.trace}.json", key)
         if outcome.status != "ok":
             print(f"mapfilter: {outcome.status}: {outcome.reason}", file=sys.stderr)
-        _write_walk_tracks(args.out, outcome, plans)
+        _write_walk_tracks(args.out, outcome, plans, building)
 
     from mapfilter.sensors.recording import trace_name as name_of
 
@@ -164,7 +164,7 @@ def _clear_earlier_run(out: Path) -> None:
 
 def _plans_for_pictures(building, logs) -> dict:
     """The plan each walk's picture is drawn on (a building: the walk's own floor)."""
-    from mapfilter.sensors.ilc import read_ilc_header
+    from mapfilter.sensors.logs import read_log_header
     from mapfilter.sensors.recording import trace_name
 
     plans = {}
@@ -172,24 +172,24 @@ def _plans_for_pictures(building, logs) -> dict:
         index = 0
         if not building.is_single_floor:
             try:
-                index = building.floor_of_log(read_ilc_header(path).get("FloorName") or None, path) or 0
+                index = building.floor_of_log(read_log_header(path).get("FloorName") or None, path) or 0
             except MapfilterError:
                 index = 0
         plans[trace_name(path)] = building.floors[index].plan
     return plans
 
 
-def _write_walk_tracks(out: Path, outcome, plans: dict) -> None:
+def _write_walk_tracks(out: Path, outcome, plans: dict, building) -> None:
     from mapfilter.evaluation.plots import plot_tracks_on_map
-    from mapfilter.sensors.ilc import read_ilc
+    from mapfilter.sensors.logs import read_log
     from mapfilter.trackio import write_track_csv
 
     if not outcome.results:
         return
     for result in outcome.results:
         write_track_csv(dataclasses.replace(result.track, name=result.method),
-                        out / "tracks" / outcome.trace / f"{result.method}.csv")
-    recording = read_ilc(outcome.log_path, warn=lambda message: None)  # its warnings are reported once
+                        out / "tracks" / outcome.trace / f"{result.method}.csv", building=building)
+    recording = read_log(outcome.log_path, warn=lambda message: None, building=building)  # warnings reported once
     shown = {r.method: r.track.xy_m for r in outcome.results if r.method in ("pf", "pf-smooth", "kwnn", "kf", "pdr")}
     plot_tracks_on_map(plans[outcome.trace], shown, out / "tracks" / f"{outcome.trace}.png", recording.waypoint_xy_m,
                        title=outcome.trace)

@@ -140,7 +140,7 @@ def _wifi_source(args: argparse.Namespace, building, config):
 
 def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     from mapfilter.maps.building import Building
-    from mapfilter.sensors.ilc import read_ilc
+    from mapfilter.sensors.logs import read_log
     from mapfilter.tracking import prepare_walk, track_prepared
     from mapfilter.trackio import write_track
 
@@ -148,7 +148,7 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     building = Building.load(args.map)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
-    recording = read_ilc(log_path, strict=args.strict, warn=warn)
+    recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
     header_floor = building.floor_of_log(recording.floor_name, log_path, args.floor)  # refuses another floor
     radio_map, ap_table = _wifi_source(args, building, config)
     floor = None if building.is_single_floor else args.floor
@@ -185,11 +185,11 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
         written = []
         if args.out is not None:
             if result.offline is not None:
-                write_track(result.offline, args.out, out_format)
-                write_track(result.causal, causal_path(args.out), out_format)
+                write_track(result.offline, args.out, out_format, building)
+                write_track(result.causal, causal_path(args.out), out_format, building)
                 written += [(args.out, "offline track"), (causal_path(args.out), "causal track")]
             else:
-                write_track(result.causal, args.out, out_format)
+                write_track(result.causal, args.out, out_format, building)
                 written.append((args.out, "causal track"))
         if args.adapted_aps is not None:
             result.access_points.write_csv(args.adapted_aps)
@@ -277,9 +277,9 @@ def _run_batch(args: argparse.Namespace, config) -> int:
             warn(result.read_warning)
         if result.ok:
             path = args.out_dir / f"{result.trace}.{out_format}"
-            write_track(result.track, path, out_format)
+            write_track(result.track, path, out_format, building)
             if config.smooth and result.causal is not None:
-                write_track(result.causal, causal_path(path), out_format)
+                write_track(result.causal, causal_path(path), out_format, building)
             track_files[result.trace] = path.name
 
     started = time.perf_counter()

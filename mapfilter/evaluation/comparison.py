@@ -50,7 +50,8 @@ from mapfilter.filter.run import MotionConfig
 from mapfilter.maps.building import Building
 from mapfilter.sensors.floors import (build_building_radio_map, check_building_radio_map, floor_hmm,
                                      floor_vote_log_likelihood)
-from mapfilter.sensors.ilc import LogReadWarning, read_ilc
+from mapfilter.sensors.logread import LogReadWarning
+from mapfilter.sensors.logs import read_log, read_log_header
 from mapfilter.sensors.pathloss import AccessPointTable, estimate_access_points, least_squares_position, match_scan
 from mapfilter.sensors.pdr import Steps, detect_steps
 from mapfilter.sensors.radiomap import RadioMap, build_radio_map, kwnn_fix_many
@@ -149,8 +150,8 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: 
     started = time.perf_counter()
     read_warnings: list[str] = []
     with _collect_read_warnings(read_warnings):
-        recordings = [read_ilc(p, strict=setup.strict) for p in paths] if setup.leave_one_out else []
-        survey_recordings = [read_ilc(p, strict=setup.strict) for p in survey]
+        recordings = [read_log(p, strict=setup.strict, building=building) for p in paths] if setup.leave_one_out else []
+        survey_recordings = [read_log(p, strict=setup.strict, building=building) for p in survey]
     true_floors = tuple(_true_floor(building, p) for p in paths)
     all_walks = _all_walks(building, setup, methods, survey_recordings + recordings,
                            [_true_floor(building, p) for p in survey] + list(true_floors))
@@ -225,10 +226,8 @@ def _checked_methods(building: Building, setup: EvaluationSetup) -> tuple[str, .
 
 def _true_floor(building: Building, path: Path) -> int | None:
     """The walk's floor by its header (a building refuses a floor it does not have)."""
-    from mapfilter.sensors.ilc import read_ilc_header
-
     try:
-        header = read_ilc_header(path).get("FloorName") or None
+        header = read_log_header(path).get("FloorName") or None
     except MapfilterError:
         return None  # left to the walk, which fails as any unreadable log does
     return building.floor_of_log(header, path)
@@ -265,7 +264,7 @@ def _evaluate_walk(context: _Context, index: int) -> WalkOutcome:
     started = time.perf_counter()
     try:
         with _collect_read_warnings(outcome.read_warnings):
-            recording = read_ilc(path, strict=context.setup.strict)
+            recording = read_log(path, strict=context.setup.strict, building=context.building)
         if not recording.has_ground_truth:
             raise MapfilterError("the log has no waypoints to evaluate against", path)
         if context.building.is_single_floor:
