@@ -151,7 +151,7 @@ def test_radio_map_save_load_round_trip(tmp_path):
     np.testing.assert_array_equal(back.xy_m, radio_map.xy_m)
     np.testing.assert_array_equal(back.rssi_dbm, radio_map.rssi_dbm)  # NaN positions too
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
-    with pytest.raises(MapfilterError, match="not a radio map"):
+    with pytest.raises(MapfilterError, match="not a mapfilter radio map"):
         RadioMap.load(tmp_path / "bad.npz")
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(MapfilterError, match="no format key"):
