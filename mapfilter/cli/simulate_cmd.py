@@ -245,13 +245,14 @@ def _run_building(args: argparse.Namespace, building) -> int:
 
 def _floor_tables(args: argparse.Namespace, building) -> dict:
     """Each floor's access points in its own frame: its map's table, or --aps copied onto every floor."""
-    from mapfilter.sensors.pathloss import AccessPointTable, access_points_for_map
+    from mapfilter.sensors.pathloss import AccessPointTable, access_points_for_map, check_access_points_on_map
 
     if args.aps is None:
         return {floor.name: access_points_for_map(None, floor.plan, floor.map_path or args.map,
                                                   hint="pass --aps APS.csv (copied onto every floor)")
                 for floor in building.floors}
     base = AccessPointTable.read_csv(args.aps)
+    check_access_points_on_map(base, building, args.map)  # each floor's copy is in that floor's frame
     if len(building.floors) > 256:
         raise MapfilterError("--aps copies the table onto at most 256 floors (one BSSID octet each)", args.aps)
     for bssid in base.bssid:
