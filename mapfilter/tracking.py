@@ -393,8 +393,6 @@ def _filter_walk(plan: FloorPlan, motion: Any, filter_config: FilterConfig, rng:
         else:  # prediction tick for cv / rw
             report = pf.step(t_s, dt, None)
         last_t = t_s
-        if kind == "scan":
-            report.path_loss = getattr(wifi.model, "state", None)  # adaptive trilateration: H, C (viewer)
         out_t.append(t_s)
         out_xy.append(report.estimate_xy_m)
         out_std.append(report.estimate_std_m)

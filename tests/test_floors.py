@@ -105,7 +105,7 @@ def test_floor_changes_happen_only_inside_connectors(tmp_path):
     in_stairs = np.array([
         polygons[f].buffer(1e-9).contains(__import__("shapely").Point(*stack.to_floor(before_xy[i:i + 1])[0][0]))
         for i, f in enumerate(before_floor)])
-    log_w = changes.apply(particles, particles.log_weight.copy(), 1.0, rng)
+    log_w = changes.change_floors(particles, particles.log_weight.copy(), 1.0, rng)
     after_local, after_floor = stack.to_floor(particles.xy_m)
     changed = after_floor != before_floor
     assert changed.sum() > 100  # rate 5 / s over 1 s: most particles in the stairs changed floor
@@ -125,7 +125,7 @@ def test_without_connectors_a_change_keeps_the_building_position_or_dies(tmp_pat
 
     local = building.floors[0].plan.sample_free(2000, rng)
     particles = Particles.at(stack.to_stack(local, 0))
-    log_w = changes.apply(particles, particles.log_weight.copy(), 1.0, rng)
+    log_w = changes.change_floors(particles, particles.log_weight.copy(), 1.0, rng)
     after_local, after_floor = stack.to_floor(particles.xy_m)
     changed = after_floor != 0
     dead = ~np.isfinite(log_w)
@@ -473,7 +473,7 @@ def test_in_a_connector_the_barometers_floor_decides_and_elsewhere_nothing_moves
         particles = Particles.at(stack.to_stack(local, 0))
         particles.log_weight[-1] = -np.inf  # a dead particle stays where it is
         measurement = FloorFix(np.full((3, 2), np.nan), np.array([-2.0, 0.0, -8.0]), height_floor)
-        changes.apply(particles, particles.log_weight.copy(), 0.6, rng, measurement)
+        changes.change_floors(particles, particles.log_weight.copy(), 0.6, rng, measurement)
         return stack.to_floor(particles.xy_m)
 
     after_local, after_floor = run(FloorChangeConfig(0.0, 0.0), 1)
@@ -497,7 +497,7 @@ def test_a_pdr_step_that_starts_on_stairs_advances_a_tread_not_a_stride(tmp_path
     off = np.column_stack([rng.uniform(8.0, 12.0, 200), rng.uniform(2.3, 4.7, 200)])
     start = stack.to_stack(np.concatenate([on, off]), 0)
     end = start + [0.7, 0.0]  # a 0.7 m stride east
-    out = changes.stairs_steps(start, end, rng)
+    out = changes.step_on_stairs(start, end, rng)
     step_m = np.linalg.norm(out - start, axis=1)
     assert ((step_m[:200] >= lo - 1e-9) & (step_m[:200] <= hi + 1e-9)).all()
     assert np.allclose(out[:200, 1], start[:200, 1])  # along the step's own direction

@@ -30,6 +30,7 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.measurement import rssi_log_likelihood
+from mapfilter.filter.models import MeasurementModel
 from mapfilter.sensors.pathloss import MIN_DISTANCE_M, AccessPointTable, match_scan, path_loss_rssi_dbm
 from mapfilter.sensors.wifi import WifiScan
 
@@ -129,7 +130,7 @@ class PathLossState:
     n_adaptations: int  # scans that adapted so far
 
 
-class AdaptiveTrilaterationLikelihood:
+class AdaptiveTrilaterationLikelihood(MeasurementModel):
     """The Lund path-loss likelihood with online adaptation and blocking compensation.
 
     A ``MeasurementModel``: ``log_likelihood(particles, scan)`` is
@@ -143,6 +144,8 @@ class AdaptiveTrilaterationLikelihood:
     adaptation : ``AdaptationConfig`` or None (no parameter adaptation).
     blocking : ``BlockingConfig`` or None (no blocking compensation).
     """
+
+    kind = "trilateration"
 
     def __init__(self, ap_table: AccessPointTable, variance_db2: float = 25.0,
                  adaptation: AdaptationConfig | None = AdaptationConfig(),
@@ -197,6 +200,9 @@ class AdaptiveTrilaterationLikelihood:
     def state(self) -> PathLossState | None:
         """The state after the latest scan (None before the first)."""
         return self.history[-1] if self.history else None
+
+    def viewer_state(self) -> PathLossState | None:
+        return self.state
 
     # ---- the updates ---------------------------------------------------------------------
     def _observe(self, t_s: float, rows: np.ndarray, rssi: np.ndarray, particles) -> None:

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import ClassVar
 
 import numpy as np
 from numba import njit
 
 from mapfilter.filter.gaussian import standard_normal
+from mapfilter.filter.models import MotionModel
 from mapfilter.filter.particles import Particles
 from mapfilter.threads import for_slices
 
@@ -47,7 +49,7 @@ def _circle_walk(lo, hi, xy, phi, noise, radius_m, sigma_m, out):
 
 
 @dataclasses.dataclass(frozen=True)
-class RandomWalkMotion:
+class RandomWalkMotion(MotionModel):
     """Random walk on a circle (Lund thesis eq. 6.6).
 
     Each particle jumps to a uniformly random point of the circle of radius
@@ -71,7 +73,7 @@ class RandomWalkMotion:
 
 
 @dataclasses.dataclass(frozen=True)
-class ConstantVelocityMotion:
+class ConstantVelocityMotion(MotionModel):
     """Constant velocity with random acceleration (Evennou & Marx prediction equation).
 
     x_k = x_{k-1} + v_{k-1} dt + a dt^2 / 2,  v_k = v_{k-1} + a dt,  a ~ N(0, accel_sigma^2 I).
@@ -112,7 +114,7 @@ class StepInput:
 
 
 @dataclasses.dataclass(frozen=True)
-class PDRMotion:
+class PDRMotion(MotionModel):
     """Pedestrian dead reckoning with the state [x, y, heading, step length] (thesis eq. 8.23).
 
     Per particle: heading += change + N(0, heading_sigma^2) (a share ``false_turn_fraction``
@@ -122,6 +124,8 @@ class PDRMotion:
     position_sigma^2 * n_steps)). With ``fixed_step_length_m`` or a step length in the input,
     that length (plus ``step_length_input_sigma_m`` noise) is used instead of the state.
     """
+
+    walks_in_steps: ClassVar[bool] = True
 
     heading_sigma_rad: float = 0.05  # per filter step
     false_turn_fraction: float = 0.15  # thesis: 15 % of particles ignore a detected turn
