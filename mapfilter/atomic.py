@@ -31,8 +31,13 @@ def atomic_paths(*final_paths: str | os.PathLike) -> Iterator[list[Path]]:
     made: list[Path] = []  # directories made here, deepest last
     try:
         for final in finals:
-            made += _make_parents(final.parent)
-            fd, tmp = tempfile.mkstemp(prefix=f".{final.stem}.", suffix=final.suffix, dir=final.parent)
+            if final.is_dir():
+                raise MapfilterError("is a directory; give a file name", final)
+            try:
+                made += _make_parents(final.parent)
+                fd, tmp = tempfile.mkstemp(prefix=f".{final.stem}.", suffix=final.suffix, dir=final.parent)
+            except OSError as exc:  # a parent that is a file, a directory we may not write in
+                raise MapfilterError(f"cannot write here ({exc.strerror or exc})", final) from None
             os.close(fd)
             temps.append(Path(tmp))
         try:
