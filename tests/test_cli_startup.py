@@ -40,3 +40,10 @@ def test_cli_defaults_are_the_librarys():
     assert radiomap_cmd._MIN_OBSERVATIONS == ApFitConfig.min_observations
     sim = dataclasses.asdict(SimConfig())
     assert {key: sim[key] for key in simulate_cmd._SIM_DEFAULTS} == simulate_cmd._SIM_DEFAULTS
+
+
+def test_cli_simulate_limits_are_the_librarys():
+    from mapfilter.simulate import walk
+
+    assert {name: getattr(walk, name) for name in simulate_cmd._SIM_LIMITS} == simulate_cmd._SIM_LIMITS
+    assert simulate_cmd._MIN_SURVEY_SPACING_M == walk.SimConfig.grid_m

@@ -1,5 +1,7 @@
 """Radio map: building from real logs, file round trip, KWNN against brute force, likelihood, CLI."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import ILC_SITE1
@@ -11,10 +13,11 @@ from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLik
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.pathloss import AccessPointTable
-from mapfilter.sensors.radiomap import (RadioMap, build_radio_map, kwnn_fix, kwnn_fix_many, label_scans,
-                                       strong_kwnn_fixes)
+from mapfilter.sensors.radiomap import (RadioMap, build_radio_map, check_radio_map_on_map, kwnn_fix, kwnn_fix_many,
+                                       label_scans, strong_kwnn_fixes)
 from mapfilter.sensors.wifi import WifiScan, iter_scans
 
+REPO = Path(__file__).resolve().parents[1]
 F1_LOGS = sorted((ILC_SITE1 / "F1" / "path_data_files").glob("*.txt.gz"))
 
 
@@ -151,7 +154,7 @@ def test_radio_map_save_load_round_trip(tmp_path):
     np.testing.assert_array_equal(back.xy_m, radio_map.xy_m)
     np.testing.assert_array_equal(back.rssi_dbm, radio_map.rssi_dbm)  # NaN positions too
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
-    with pytest.raises(MapfilterError, match="not a radio map"):
+    with pytest.raises(MapfilterError, match="not a mapfilter radio map"):
         RadioMap.load(tmp_path / "bad.npz")
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(MapfilterError, match="no format key"):
@@ -422,3 +425,83 @@ def test_blend_fix_is_the_mean_of_the_kwnn_fix_and_the_best_cell():
     fixes = wifi.position_fixes()  # the whole-walk placement sees both estimators separately
     assert len(fixes) == 2 and np.allclose(fixes[0][0], kwnn) and np.allclose(fixes[1][0], best)
     assert np.linalg.norm(wifi.measurement(0).xy_m - [21.0, 9.0]) < 2.0
+
+
+# ---- files that are not radio maps, radio maps that are not of this map -------------------------
+def _forged_npz(path, arrays: dict, declared: dict | None = None):
+    """A zip of .npy members; ``declared``: name -> (shape, dtype) written in a header with no data."""
+    import io
+    import zipfile
+
+    from numpy.lib import format as npy
+
+    with zipfile.ZipFile(path, "w") as archive:
+        for name, value in arrays.items():
+            buffer = io.BytesIO()
+            npy.write_array(buffer, np.asarray(value), allow_pickle=True)
+            archive.writestr(f"{name}.npy", buffer.getvalue())
+        for name, (shape, dtype) in (declared or {}).items():
+            buffer = io.BytesIO()
+            npy.write_array_header_1_0(buffer, {"descr": npy.dtype_to_descr(np.dtype(dtype)), "fortran_order": False,
+                                                "shape": shape})
+            archive.writestr(f"{name}.npy", buffer.getvalue() + b"\0" * 64)
+    return path
+
+
+def test_a_header_declaring_a_huge_array_is_refused_before_numpy_allocates(tmp_path):
+    path = _forged_npz(tmp_path / "huge.npz", {"format": np.array("mapfilter-radiomap"), "version": np.array(2)},
+                       {"rssi_dbm": ((100_000, 100_000), np.float32)})
+    with pytest.raises(MapfilterError, match=r"declares shape \(100000, 100000\) \(37.3 GiB\): more than the 1 GiB"):
+        RadioMap.load(path)
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda p: p.write_bytes(np.random.default_rng(1).bytes(5000)), "not a mapfilter radio map (make one with: "
+     "mapfilter radiomap build"),
+    (lambda p: _forged_npz(p, {"format": np.array("mapfilter-radiomap"), "xy_m": np.array([object()])}),
+     "holds Python objects"),
+    (lambda p: _forged_npz(p, {"format": np.array("mapfilter-radiomap")}, {"xy_m": ((1000, 2), np.float64)}),
+     "declares 16000 bytes but holds 192"),
+    (lambda p: p.write_bytes(b"PK\x03\x04" + b"\0" * 100), "not a mapfilter radio map"),
+])
+def test_a_file_that_is_not_a_radio_map_is_one_line_without_numpys_advice(tmp_path, capsys, make, message):
+    path = tmp_path / "rm.npz"
+    make(path)
+    with pytest.raises(MapfilterError) as info:
+        RadioMap.load(path)
+    assert message in str(info.value) and "allow_pickle" not in str(info.value) and info.value.path == str(path)
+    maps = REPO / "maps"
+    assert main(["track", str(maps / "office.yaml"), str(maps / "office_walk.txt.gz"), "--radiomap", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"mapfilter: error: {path}: not a mapfilter radio map") and err.count("\n") == 1
+
+
+def test_values_no_radio_map_holds_are_refused(tmp_path):
+    rng = np.random.default_rng(2)
+    radio_map = _random_map(rng)
+    radio_map.rssi_dbm[3, 4] = 1e30
+    radio_map.save(tmp_path / "loud.npz")
+    with pytest.raises(MapfilterError, match="RSSI from .* to 1e\\+30 dBm, outside"):
+        RadioMap.load(tmp_path / "loud.npz")
+    far = _random_map(rng)
+    far.xy_m[5] = [3e7, 0.0]
+    far.save(tmp_path / "far.npz")
+    with pytest.raises(MapfilterError, match="reference point 5 at .* is more than 1e\\+07 m from the origin"):
+        RadioMap.load(tmp_path / "far.npz")
+
+
+def test_a_radio_map_off_the_floor_is_refused_where_it_meets_the_map(tmp_path, ilc_site1):
+    plan = FloorPlan(np.zeros((100, 100), bool), 0.5, (0.0, 0.0))  # 50 m x 50 m
+    radio_map = _random_map(np.random.default_rng(4))  # points in 0-50 m
+    check_radio_map_on_map(radio_map, plan, "rm.npz")
+    radio_map.xy_m[7] = [1e6, 25.0]  # a million metres east
+    radio_map.xy_m[9] = [-60.0, 25.0]  # 60 m west
+    with pytest.raises(MapfilterError, match=r"reference point 7 \(trace t0\) at \(1e\+06, 25\) m lies 1e\+03 km "
+                                             r"outside the map .*\(2 such points\)") as info:
+        check_radio_map_on_map(radio_map, plan, "rm.npz", "office.yaml")
+    assert info.value.path == "rm.npz"
+    # real data: ILC F1's radio map lies on ILC F1's map
+    from mapfilter.maps.prepare import import_ilc
+
+    real = build_radio_map([read_ilc(p) for p in F1_LOGS[:4]])
+    check_radio_map_on_map(real, import_ilc(ilc_site1 / "F1", route="geojson"))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from mapfilter.cli.common import check_output_path
 from mapfilter.errors import MapfilterError
 
 _PREPARE_EPILOG = """\
@@ -169,6 +170,7 @@ def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
 def run_prepare(args: argparse.Namespace) -> int:
     from mapfilter.maps import prepare
 
+    check_output_path(args.out)
     kind = args.kind or ("geojson" if args.plan.suffix.lower() in (".json", ".geojson") else "lines")
     edits = prepare.read_edits(args.edits) if args.edits else None
     if args.access_points is not None and not args.access_points.is_file():
@@ -207,6 +209,7 @@ def run_import_ilc(args: argparse.Namespace) -> int:
     from mapfilter.maps import prepare
     from mapfilter.maps.building import is_ilc_site_dir
 
+    check_output_path(args.out)
     if is_ilc_site_dir(args.floor_dir):
         return _import_ilc_site(args)
     edits = prepare.read_edits(args.edits) if args.edits else None

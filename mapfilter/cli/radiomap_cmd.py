@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mapfilter.cli.common import add_strict_argument, warn
+from mapfilter.cli.common import add_strict_argument, check_output_path, warn
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
@@ -53,6 +53,7 @@ def _load(args: argparse.Namespace):
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
 
+    check_output_path(args.out)
     building = Building.load(args.map)
     floorplan = building.floors[0].plan if building.is_single_floor else building
     excluded = set(args.exclude)
@@ -77,7 +78,7 @@ def _trace_id(path: Path) -> str:
 def run_build(args: argparse.Namespace) -> int:
     from mapfilter.maps.building import Building
     from mapfilter.sensors.floors import build_building_radio_map
-    from mapfilter.sensors.radiomap import build_radio_map
+    from mapfilter.sensors.radiomap import build_radio_map, check_radio_map_on_map
 
     floorplan, recordings = _load(args)
     if isinstance(floorplan, Building):
@@ -94,12 +95,14 @@ def run_build(args: argparse.Namespace) -> int:
                                      "the floor of every log", rec.path)
             floors.append(index)
         radio_map = build_building_radio_map(recordings, floors, building.floor_names, use_steps=args.steps)
+        check_radio_map_on_map(radio_map, building, map_path=args.map)  # waypoints of another map or frame
         radio_map.save(args.out)
         counts = ", ".join(f"{name} {floors.count(i)}" for i, name in enumerate(building.floor_names))
         print(f"radio map: {len(radio_map)} reference points, {len(radio_map.ap_keys)} access points "
               f"from {len(recordings)} logs ({counts}) -> {args.out}")
         return 0
     radio_map = build_radio_map(recordings, floorplan, use_steps=args.steps)
+    check_radio_map_on_map(radio_map, floorplan, map_path=args.map)
     radio_map.save(args.out)
     print(f"radio map: {len(radio_map)} reference points, {len(radio_map.ap_keys)} access points "
           f"from {len(recordings)} logs -> {args.out}")
