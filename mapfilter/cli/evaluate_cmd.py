@@ -11,7 +11,8 @@ import sys
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.common import ProgressBar, add_engine_arguments, add_strict_argument, engine_from, warn
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path, engine_from,
+                                  warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
 
@@ -98,8 +99,7 @@ def run(args: argparse.Namespace) -> int:
     config = tracking_config_from(args)
     methods = None if args.methods is None else tuple(m.strip() for m in args.methods.split(",") if m.strip())
     engine = engine_from(args)
-    if args.out.exists() and not args.out.is_dir():
-        raise MapfilterError("the output must be a directory", args.out)
+    check_output_path(args.out, directory=True)
     building = Building.load(args.map)
     setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,

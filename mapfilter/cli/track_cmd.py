@@ -11,7 +11,8 @@ import time
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.common import ProgressBar, add_engine_arguments, add_strict_argument, engine_from, warn
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path, engine_from,
+                                  warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
 
@@ -104,6 +105,13 @@ def causal_path(path: Path) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     config = tracking_config_from(args)
+    # every output checked before the work
+    check_output_path(args.out)
+    if args.out is not None and config.smooth:
+        check_output_path(causal_path(args.out))
+    check_output_path(args.rerun, "--rerun")
+    check_output_path(args.adapted_aps, "--adapted-aps")
+    check_output_path(args.out_dir, "--out-dir", directory=True)
     if args.adapted_aps is not None and args.out_dir is not None:
         raise MapfilterError("--adapted-aps is for one walk, not for --out-dir")
     if args.out_dir is not None:
@@ -119,15 +127,18 @@ def _wifi_source(args: argparse.Namespace, building, config):
     """(radio map, access-point table) of the run: --radiomap, --aps, or the map's own table."""
     from mapfilter.sensors.floors import load_building_radio_map
     from mapfilter.sensors.pathloss import access_points_for_map
-    from mapfilter.sensors.radiomap import RadioMap
+    from mapfilter.sensors.radiomap import RadioMap, check_radio_map_on_map
 
     if args.radiomap is not None:
         if args.adapt or args.adapted_aps is not None:
             raise MapfilterError("--adapt and --adapted-aps adapt a path-loss table: they need trilateration "
                                  "(--aps APS.csv or the map's table), not --radiomap")
         if not building.is_single_floor and args.floor is None:
-            return load_building_radio_map(args.radiomap, building.floor_names), None
-        return RadioMap.load(args.radiomap), None
+            radio_map = load_building_radio_map(args.radiomap, building.floor_names)
+        else:
+            radio_map = RadioMap.load(args.radiomap)
+        check_radio_map_on_map(radio_map, building, args.radiomap, args.map)
+        return radio_map, None
     if not building.is_single_floor and args.floor is None:
         raise MapfilterError("tracking in a building needs a building's radio map: --radiomap RM (mapfilter "
                              "radiomap build BUILDING.yaml LOGS...), or --floor NAME with --aps")
@@ -256,8 +267,6 @@ def _run_batch(args: argparse.Namespace, config) -> int:
             raise MapfilterError(f"--{option} is for one walk: with --out-dir every walk gets its own track file")
     if args.spawn:
         raise MapfilterError("--spawn is for one walk, not for --out-dir")
-    if args.out_dir.exists() and not args.out_dir.is_dir():
-        raise MapfilterError("the output must be a directory", args.out_dir)
     for path in args.logs:
         if not path.is_file():
             raise MapfilterError("file not found", path)

@@ -52,9 +52,10 @@ from mapfilter.sensors.floors import (build_building_radio_map, check_building_r
                                      floor_vote_log_likelihood)
 from mapfilter.sensors.logread import LogReadWarning
 from mapfilter.sensors.logs import read_log, read_log_header
-from mapfilter.sensors.pathloss import AccessPointTable, estimate_access_points, least_squares_position, match_scan
+from mapfilter.sensors.pathloss import (AccessPointTable, check_access_points_on_map, estimate_access_points,
+                                       least_squares_position, match_scan)
 from mapfilter.sensors.pdr import Steps, detect_steps
-from mapfilter.sensors.radiomap import RadioMap, build_radio_map, kwnn_fix_many
+from mapfilter.sensors.radiomap import RadioMap, build_radio_map, check_radio_map_on_map, kwnn_fix_many
 from mapfilter.sensors.recording import Recording, trace_name
 from mapfilter.sensors.wifi import scans_of
 from mapfilter.tracking import prepare_walk, track_prepared
@@ -312,7 +313,7 @@ def _detected_steps(recording: Recording, tracking: TrackingConfig) -> Steps | N
 
 def _one_floor_methods(context: _Context, index: int, recording: Recording) -> list[MethodResult]:
     setup, building, methods = context.setup, context.building, context.methods
-    radio_map, ap_table = _wifi_sources(recording, setup, context.all_walks)
+    radio_map, ap_table = _wifi_sources(recording, setup, context.all_walks, building)
     scans = scans_of(recording)
     steps = _detected_steps(recording, setup.tracking)
     scan_t = np.array([s.t_s for s in scans])
@@ -423,7 +424,9 @@ def _building_radio_map(recording: Recording, setup: EvaluationSetup, all_walks:
         return all_walks.radio_map.without_traces([recording.name]) if setup.leave_one_out else all_walks.radio_map
     from mapfilter.sensors.floors import load_building_radio_map
 
-    return load_building_radio_map(setup.radio_map_path, building.floor_names)
+    radio_map = load_building_radio_map(setup.radio_map_path, building.floor_names)
+    check_radio_map_on_map(radio_map, building, setup.radio_map_path, building.path)
+    return radio_map
 
 
 def kwnn_floor_track(radio_map: RadioMap, scans, k: int, floor_names: list[str]) -> Track:
@@ -442,10 +445,14 @@ def kwnn_floor_track(radio_map: RadioMap, scans, k: int, floor_names: list[str])
     return Track(scan_t[ok], xy[ok], floor=[floor_names[f] for f in floor[ok]], name="kwnn")
 
 
-def _wifi_sources(recording: Recording, setup: EvaluationSetup,
-                  all_walks: AllWalks | None) -> tuple[RadioMap | None, AccessPointTable | None]:
+def _wifi_sources(recording: Recording, setup: EvaluationSetup, all_walks: AllWalks | None,
+                  building: Building) -> tuple[RadioMap | None, AccessPointTable | None]:
     radio_map = RadioMap.load(setup.radio_map_path) if setup.radio_map_path else None
     ap_table = AccessPointTable.read_csv(setup.ap_table_path) if setup.ap_table_path else None
+    if radio_map is not None:
+        check_radio_map_on_map(radio_map, building, setup.radio_map_path, building.path)
+    if ap_table is not None:
+        check_access_points_on_map(ap_table, building.floors[0].plan, building.path)
     if all_walks is not None:
         radio_map = _drop_unheard_aps(all_walks.radio_map.without_traces([recording.name]))
         if len(radio_map) == 0:
