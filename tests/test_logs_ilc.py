@@ -4,15 +4,14 @@ import gzip
 
 import numpy as np
 import pytest
-from conftest import ILC_SITE1 as ILC
 
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.ilc import LogReadWarning, read_ilc
 from mapfilter.sensors.wifi import scans_of
 
 
-def test_reads_a_real_trace_with_stale_rows_dropped():
-    path = sorted((ILC / "F1" / "path_data_files").glob("*.txt.gz"))[0]
+def test_reads_a_real_trace_with_stale_rows_dropped(ilc_site1):
+    path = sorted((ilc_site1 / "F1" / "path_data_files").glob("*.txt.gz"))[0]
     everything = read_ilc(path, max_wifi_age_s=np.inf)
     fresh = read_ilc(path)
     assert fresh.floor_name == "F1"

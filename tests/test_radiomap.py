@@ -161,7 +161,7 @@ def test_radio_map_save_load_round_trip(tmp_path):
         RadioMap.load(tmp_path / "other.npz")
 
 
-def test_radio_map_from_real_traces_is_labelled_inside_the_waypoints():
+def test_radio_map_from_real_traces_is_labelled_inside_the_waypoints(ilc_site1):
     recs = [read_ilc(p) for p in F1_LOGS[:2]]
     radio_map = build_radio_map(recs)
     assert radio_map.floor_name == "F1" and radio_map.source_traces == [r.name for r in recs]
@@ -179,7 +179,7 @@ def test_radio_map_from_real_traces_is_labelled_inside_the_waypoints():
     assert len(radio_map.without_traces([recs[0].name])) == (radio_map.trace == 1).sum()
 
 
-def test_leave_one_out_kwnn_on_real_traces_beats_chance():
+def test_leave_one_out_kwnn_on_real_traces_beats_chance(ilc_site1):
     recs = [read_ilc(p) for p in F1_LOGS]
     radio_map = build_radio_map(recs)
     errors = []
@@ -253,7 +253,7 @@ def _dense_cell_stats(radio_map, model, centre):
 
 # ---- CLI ------------------------------------------------------------------------------------------
 @pytest.fixture()
-def f1_map(tmp_path):
+def f1_map(tmp_path, ilc_site1):
     """An all-free map covering ILC site1 F1 (240 m x 177 m at 1 m/px)."""
     path = tmp_path / "f1.yaml"
     FloorPlan(np.zeros((177, 240), bool), 1.0, (0.0, 0.0), "F1").save(path)

@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import difflib
 import importlib
 import os
+import re
 import signal
 import sys
 import threading
@@ -61,7 +63,16 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = _command_parser(parser, argv)
+    argv = _join_negative_values(command, argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        # the command's own usage, not the top level's, and the nearest option by name
+        options = [o for action in command._actions for o in action.option_strings]
+        hints = [difflib.get_close_matches(u.split("=")[0], options, n=1) for u in unknown if u.startswith("-")]
+        hint = "; ".join(f"did you mean {h[0]}?" for h in hints if h)
+        command.error(f"unrecognized arguments: {' '.join(unknown)}" + (f" ({hint})" if hint else ""))
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
@@ -76,6 +87,37 @@ def _main(argv: list[str] | None) -> int:
         # a full disk, a quota, a file that cannot be written: the environment, not a bug
         print(f"mapfilter: error: {describe_os_error(exc)}", file=sys.stderr)
         return 1
+
+
+def _command_parser(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.ArgumentParser:
+    """The (sub)parser of the command ``argv`` names: ``mapfilter radiomap build ...`` -> ``build``'s."""
+    current = parser
+    for token in argv:
+        if token.startswith("-"):
+            continue
+        choices = next((a.choices for a in current._actions if isinstance(a, argparse._SubParsersAction)), None)
+        if not choices or token not in choices:
+            break
+        current = choices[token]
+    return current
+
+
+_NEGATIVE = re.compile(r"^-\d")
+
+
+def _join_negative_values(command: argparse.ArgumentParser, argv: list[str]) -> list[str]:
+    """``--kwnn-min-rssi -90dBm`` as ``--kwnn-min-rssi=-90dBm``: argparse takes a value that starts
+    with '-' for an option unless it is a plain number; no option of ours starts with a digit."""
+    takes_one = {o for action in command._actions if action.nargs is None and action.option_strings
+                 and not isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction))
+                 for o in action.option_strings}
+    out: list[str] = []
+    for token in argv:
+        if out and out[-1] in takes_one and _NEGATIVE.match(token):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
 
 
 def describe_os_error(exc: OSError) -> str:

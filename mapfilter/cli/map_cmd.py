@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 from mapfilter.cli.common import check_output_path
@@ -42,11 +43,14 @@ _IMPORT_EPILOG = """\
 FLOOR_DIR holds floor_image.png, floor_info.json ({"map_info": {"width": .., "height": ..}})
 and geojson_map.json (ILC 2.0 layout). Both routes use the ILC metre frame (origin at the
 floor's lower-left corner) and record floor_image.png for display under the mask.
-  image    transparent pixels walkable, shop outlines opened by 2 px, scale from floor_info.json
-  geojson  outline minus shops (shrunk by 0.6 m) rasterised at --resolution (default 0.25 m)
+  geojson  outline minus shops (shrunk by 0.6 m) rasterised at --resolution (default 0.25 m);
+           outside the building is wall (the default)
+  image    transparent pixels walkable, shop outlines opened by 2 px, scale from floor_info.json;
+           the outside of the building is transparent too, so walkable
+The floor is named by its logs' headers (FloorName in path_data_files), else by the folder.
 
 A SITE_DIR (a folder of floor folders, e.g. site1 with B1, F1, ..., F4) becomes one building:
-every floor is imported (route geojson unless --route says otherwise) and written beside
+every floor is imported and written beside
 --out as NAME_<floor>.yaml (+ mask and preview), and --out is the building YAML that lists
 them, placed in one frame by the GeoJSON longitudes/latitudes (the ground floor's frame;
 docs/building.md). ILC gives no elevations: storeys come from the names (B1 = -1, F1 = 0,
@@ -139,9 +143,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ilc.add_argument("floor_dir", type=Path, metavar="FLOOR_DIR|SITE_DIR",
                      help="e.g. ../shared/data/ilc20/site1/F1, or site1 for every floor as one building")
     ilc.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output map YAML")
-    ilc.add_argument("--route", choices=("image", "geojson"), default=None,
-                     help="from the floor image or the GeoJSON polygons (default: image for a floor, "
-                          "geojson for a site)")
+    ilc.add_argument("--route", choices=("image", "geojson"), default="geojson",
+                     help="from the GeoJSON polygons (the floor's outline minus its shops: outside the building is "
+                          "wall) or the floor image (transparent pixels walkable, the outside too) (default: geojson)")
     ilc.add_argument("--resolution", type=float, metavar="M",
                      help="metres per output pixel (default: the image's ~0.3 m, or 0.25 m for geojson)")
     ilc.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall")
@@ -213,11 +217,29 @@ def run_import_ilc(args: argparse.Namespace) -> int:
     if is_ilc_site_dir(args.floor_dir):
         return _import_ilc_site(args)
     edits = prepare.read_edits(args.edits) if args.edits else None
-    plan = prepare.import_ilc(args.floor_dir, args.route or "image", args.resolution)
+    plan = prepare.import_ilc(args.floor_dir, args.route, args.resolution)
+    named = _ilc_floor_name(args.floor_dir)
+    if named is not None and named != plan.floor_name:
+        plan = dataclasses.replace(plan, floor_name=named)
     if edits is not None:
         plan = prepare.apply_edits(plan, edits)
     _write(plan, args.out)
     return 0
+
+
+def _ilc_floor_name(floor_dir: Path) -> str | None:
+    """The floor name the floor's own logs give (their header's FloorName), if they agree on one:
+    the map then accepts those logs and refuses another floor's."""
+    from mapfilter.sensors.logs import read_log_header
+
+    names = set()
+    for path in sorted((floor_dir / "path_data_files").glob("*.txt*"))[:5]:
+        try:
+            names.add(read_log_header(path).get("FloorName") or None)
+        except MapfilterError:
+            continue
+    names.discard(None)
+    return names.pop() if len(names) == 1 else None
 
 
 def _import_ilc_site(args: argparse.Namespace) -> int:
@@ -232,7 +254,7 @@ def _import_ilc_site(args: argparse.Namespace) -> int:
     if not (args.storey_height > 0):
         raise MapfilterError(f"--storey-height must be positive, got {args.storey_height}")
     # everything is imported and checked before the first file is written
-    building = import_ilc_site(args.floor_dir, args.route or "geojson", args.resolution, args.storey_height)
+    building = import_ilc_site(args.floor_dir, args.route, args.resolution, args.storey_height)
     for floor in building.floors:
         floor.map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml").resolve()
         prepare.preview_image(floor.plan)  # fails here, before anything is written, if it fails at all

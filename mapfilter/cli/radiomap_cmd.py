@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mapfilter.cli.common import add_strict_argument, check_output_path, warn
+from mapfilter.cli.common import ProgressBar, add_strict_argument, check_output_path, warn
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
@@ -64,8 +64,17 @@ def _load(args: argparse.Namespace):
     if not paths:
         raise MapfilterError("every log is excluded: nothing to build from")
     # latitude/longitude ground truth (GetSensorData) is placed in the (georeferenced) building
-    return floorplan, [read_log(p, strict=args.strict, warn=warn, max_wifi_age_s=args.max_wifi_age, building=building)
-                       for p in paths]
+    recordings = []
+    with ProgressBar("reading logs", len(paths), unit="log") as progress:
+        for done, path in enumerate(paths, start=1):
+            recording = read_log(path, strict=args.strict, warn=warn, max_wifi_age_s=args.max_wifi_age,
+                                 building=building)
+            if building.is_single_floor:
+                # a walk of another floor surveys nothing here: refused, as track refuses it
+                building.floor_of_log(recording.floor_name, path)
+            recordings.append(recording)
+            progress(done, len(paths), path.name)
+    return floorplan, recordings
 
 
 def _trace_id(path: Path) -> str:

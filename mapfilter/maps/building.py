@@ -170,8 +170,8 @@ class Building:
         if self.is_single_floor and self.floors[0].plan.floor_name is None:
             return 0
         raise MapfilterError(f"floor {header_floor!r} is not in the building {self.path or ''} (floors: "
-                             f"{', '.join(self.floor_names)}): give the map of the log's floor, or --floor NAME to "
-                             f"track it on one of these".replace("building  (", "building ("), log_path)
+                             f"{', '.join(self.floor_names)}): give the map of the log's floor (track --floor NAME "
+                             f"tracks it on one of these anyway)".replace("building  (", "building ("), log_path)
 
     # ---- georeference ----------------------------------------------------------------------
     def _frame(self, where: str | os.PathLike | None) -> LocalFrame:

@@ -382,7 +382,8 @@ def read_yaml_mapping(path: Path, what: str = "a map YAML") -> dict:
         problem = getattr(exc, "problem", None) or "malformed YAML"
         raise MapfilterError(f"malformed YAML: {problem}", path, line) from None
     except UnicodeDecodeError:
-        raise MapfilterError("not a text YAML file", path) from None
+        raise MapfilterError("not a map YAML (a text file) but binary data: an image? make a map from a floor plan "
+                             "image with `mapfilter map prepare PLAN.png --out MAP.yaml`", path) from None
     if not isinstance(meta, dict):
         raise MapfilterError(f"{what} must be a mapping of keys", path)
     return meta

@@ -195,7 +195,7 @@ def prepare_lines(
     if options.thicken_px > 0:
         ink = _dilate(ink, options.thicken_px)
     if options.outside_is_wall:
-        ink = _fill_outside(ink, plan_path)
+        ink = _fill_outside(ink, plan_path, keep_free_option="--keep-outside")
     return _finish(ink, resolution_m, map_resolution_m, plan_path, floor_name)
 
 
@@ -236,8 +236,9 @@ def _remove_small_areas(mask: np.ndarray, below_px: int) -> np.ndarray:
     return keep[labels]
 
 
-def _fill_outside(wall: np.ndarray, path: Path | None = None) -> np.ndarray:
-    """Mark free space 4-connected to the image border as wall (outside the building)."""
+def _fill_outside(wall: np.ndarray, path: Path | None = None, keep_free_option: str = "--keep-outside") -> np.ndarray:
+    """Mark free space 4-connected to the image border as wall (outside the building).
+    ``keep_free_option``: how the user's kind of plan keeps the outside free (for the message)."""
     count, labels = cv2.connectedComponents((~wall).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     outside = np.isin(labels, border[border > 0])
@@ -245,7 +246,7 @@ def _fill_outside(wall: np.ndarray, path: Path | None = None) -> np.ndarray:
     if filled.all() and not wall.all():
         raise MapfilterError(
             "all free space is connected to the image border, so it all counts as outside: the outer wall has "
-            "an opening (close it with --edits, or keep the outside free with --keep-outside)", path)
+            f"an opening (close it with --edits, or keep the outside free: {keep_free_option})", path)
     return filled
 
 
@@ -386,7 +387,7 @@ def prepare_regions(
     if options.open_outlines_px > 0:
         wall = _erode(wall, options.open_outlines_px)
     if options.outside_is_wall:
-        wall = _fill_outside(wall, plan_path)
+        wall = _fill_outside(wall, plan_path, keep_free_option="no --outside-wall")
     return _finish(wall, resolution_m, map_resolution_m, plan_path, floor_name)
 
 
