@@ -21,7 +21,6 @@ from pathlib import Path
 
 from mapfilter.config import TrackingConfig
 from mapfilter.engine import Engine
-from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate as _evaluate
 from mapfilter.maps.building import Building
 from mapfilter.sensors.floors import build_building_radio_map
@@ -69,10 +68,8 @@ def build_radio_map(building: Building, recordings: Sequence[Recording]) -> Radi
     names (``sensors.floors``)."""
     if building.is_single_floor:
         return _build_one_floor(list(recordings), building.floors[0].plan)
+    # a walk over several floors (waypoints naming their floors) labels each scan by its waypoints
     floors = [building.floor_of_log(rec.floor_name, rec.path) for rec in recordings]
-    for rec, floor in zip(recordings, floors):
-        if floor is None:
-            raise MapfilterError("the log names no floor: it cannot survey a building", rec.path)
     return build_building_radio_map(list(recordings), floors, building.floor_names)
 
 

@@ -1,4 +1,4 @@
-"""Track files: our CSV (``t_s,x_m,y_m[,floor][,latitude_deg,longitude_deg][,std_m][,heading_rad]``)
+"""Track files: our CSV (``t_s,x_m,y_m[,floor][,floor_p][,latitude_deg,longitude_deg][,std_m][,heading_rad]``)
 and TUM (``t x y z qx qy qz qw``).
 
 TUM is what evo and most trajectory tools read: z = 0, the orientation a yaw rotation about z
@@ -35,6 +35,9 @@ class Track:
     floor: list[str] | None = None
     name: str = "track"
     latlon_deg: np.ndarray | None = None  # (T, 2) WGS-84 latitude, longitude (a georeferenced building)
+    # (T,) the track's belief in its row's floor, 0-1 (a building with several floors): causal,
+    # the share of the particles' weight on that floor; offline, the whole-walk floor posterior
+    floor_p: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.t_s.shape[0]
@@ -48,7 +51,7 @@ def with_latlon(track: Track, building: Building) -> Track:
 
 
 def write_track_csv(track: Track, path: str | os.PathLike, building: Building | None = None) -> None:
-    """Write ``t_s,x_m,y_m[,floor][,latitude_deg,longitude_deg][,std_m][,heading_rad]`` atomically.
+    """Write ``t_s,x_m,y_m[,floor][,floor_p][,latitude_deg,longitude_deg][,std_m][,heading_rad]`` atomically.
 
     Latitude and longitude are written when the track has them (``with_latlon``) or when
     ``building`` is given and has a georeference; otherwise the file is as it always was.
@@ -58,6 +61,8 @@ def write_track_csv(track: Track, path: str | os.PathLike, building: Building | 
     header = ["t_s", "x_m", "y_m"]
     if track.floor is not None:
         header.append("floor")
+    if track.floor_p is not None:
+        header.append("floor_p")
     if track.latlon_deg is not None:
         header += ["latitude_deg", "longitude_deg"]
     if track.std_m is not None:
@@ -72,6 +77,8 @@ def write_track_csv(track: Track, path: str | os.PathLike, building: Building | 
                 row = [f"{track.t_s[i]:.3f}", f"{track.xy_m[i, 0]:.3f}", f"{track.xy_m[i, 1]:.3f}"]
                 if track.floor is not None:
                     row.append(track.floor[i])
+                if track.floor_p is not None:
+                    row.append(f"{track.floor_p[i]:.4f}")
                 if track.latlon_deg is not None:
                     # 1e-8 degrees is about a millimetre
                     row += [f"{track.latlon_deg[i, 0]:.8f}", f"{track.latlon_deg[i, 1]:.8f}"]
@@ -144,10 +151,20 @@ def _read_csv(path: Path) -> Track:
         std_m=np.array(columns["std_m"]) if "std_m" in columns else None,
         heading_rad=np.array(columns["heading_rad"]) if "heading_rad" in columns else None,
         floor=columns.get("floor"),
+        floor_p=_probabilities(columns["floor_p"], path) if "floor_p" in columns else None,
         name=path.stem,
         latlon_deg=np.column_stack([columns["latitude_deg"], columns["longitude_deg"]])
         if {"latitude_deg", "longitude_deg"} <= set(columns) else None,
     )
+
+
+def _probabilities(values: list[float], path: Path) -> np.ndarray:
+    out = np.array(values, dtype=np.float64)
+    bad = np.flatnonzero((out < 0.0) | (out > 1.0))
+    if bad.size:
+        # line numbers: the header is line 1
+        raise MapfilterError(f"column floor_p is a probability (0-1), not {out[bad[0]]:g}", path, int(bad[0]) + 2)
+    return out
 
 
 def _read_tum(path: Path) -> Track:

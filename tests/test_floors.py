@@ -639,4 +639,4 @@ def test_whole_walk_floors_weighs_the_scan_the_filter_started_from(tmp_path):
                            elevation_m=np.array([0.0, 4.0, 8.0]), barometer=BarometerConfig())
     t = 10.4 + 0.5 * np.arange(20)
     xy = stack.to_stack(np.tile([10.0, 5.0], (20, 1)), 0)  # the lineage on L0
-    assert np.all(whole_walk_floors(changes, wifi, t, xy) == 2)
+    assert np.all(whole_walk_floors(changes, wifi, t, xy).path == 2)

@@ -42,6 +42,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from mapfilter.atomic import atomic_paths  # noqa: E402
+from mapfilter.errors import MapfilterError  # noqa: E402
 from mapfilter.evaluation.metrics import errors_at_waypoints, floor_at_waypoints, summarise_errors  # noqa: E402
 from mapfilter.maps import prepare  # noqa: E402
 from mapfilter.maps.building import import_ilc_site  # noqa: E402
@@ -62,6 +63,10 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--limit", type=int, default=0, help="track only the first N walks with IMU (0: all)")
     parser.add_argument("--traces", default="", metavar="ID1,ID2", help="track only these walks with IMU")
+    parser.add_argument("--thin", default="", metavar="FLOOR:N",
+                        help="that floor's survey thinned: only its first N logs join the radio map (the "
+                             "ambiguous-floor reproduction; its walks are still all judged)")
+    parser.add_argument("--floors", default="", metavar="F1,F2", help="track only the walks with IMU of these floors")
     parser.add_argument("--out", type=Path, help="write the numbers (JSON)")
     args = parser.parse_args()
 
@@ -79,6 +84,11 @@ def main() -> int:
             recordings.append(rec)
             floors.append(building.floor_of_log(rec.floor_name, path))
     radio_map = build_building_radio_map(recordings, floors, names)
+    if args.thin:
+        thin_floor, _, thin_n = args.thin.partition(":")
+        of_floor = [r.name for r, f in zip(recordings, floors) if names[f] == thin_floor]
+        radio_map = radio_map.without_traces(of_floor[int(thin_n):])
+        print(f"floor {thin_floor}: {min(int(thin_n), len(of_floor))} of its {len(of_floor)} logs in the radio map")
     sigma = {name: calibrated_fix_sigma_m(radio_map.floor_map(i)) for i, name in enumerate(names)}
     print(f"{len(recordings)} logs, {len(radio_map)} reference points; fix sigma per floor: "
           + ", ".join(f"{n} {s:.1f} m" for n, s in sigma.items()), flush=True)
@@ -91,17 +101,23 @@ def main() -> int:
     with_imu = [(r, f) for r, f in zip(recordings, floors) if r.acc_t_s.shape[0] >= 100]
     if args.traces:
         with_imu = [(r, f) for r, f in with_imu if r.name in args.traces.split(",")]
+    if args.floors:
+        with_imu = [(r, f) for r, f in with_imu if names[f] in args.floors.split(",")]
     if args.limit:
         with_imu = with_imu[:args.limit]
     for i, (rec, f) in enumerate(with_imu):
         loo = radio_map.without_traces([rec.name])
         found = track(building, rec, loo, config=smooth_config, rng=np.random.default_rng(args.seed),
                       fix_sigma_by_floor_m=sigma)
-        given = track(building, rec, loo, config=config, rng=np.random.default_rng(args.seed), floor=names[f],
-                      fix_sigma_by_floor_m=sigma)
+        try:
+            given = track(building, rec, loo, config=config, rng=np.random.default_rng(args.seed), floor=names[f],
+                          fix_sigma_by_floor_m=sigma)
+        except MapfilterError:  # a thinned floor (--thin) may give this walk no fix on its own floor
+            given = None
         score = floor_at_waypoints(found.causal.t_s, found.causal.floor, rec.waypoint_t_s, names[f])
         err_found = errors_at_waypoints(found.causal.t_s, found.causal.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m)
-        err_given = errors_at_waypoints(given.causal.t_s, given.causal.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m)
+        err_given = errors_at_waypoints(given.causal.t_s, given.causal.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m) \
+            if given is not None else errors_at_waypoints(np.zeros(0), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2)))
         # the offline track: the nearest row in time, as mapfilter evaluate judges pf-smooth
         smoothed = found.offline
         score_smoothed = floor_at_waypoints(smoothed.t_s, smoothed.floor, rec.waypoint_t_s, names[f], causal=False)
@@ -115,7 +131,7 @@ def main() -> int:
                          "errors_smoothed_m": err_smoothed.errors_m.tolist()})
         print(f"[{i + 1}/{len(with_imu)}] {rec.name} {names[f]}: floor right at {score.n_right}/{score.n_judged} "
               f"waypoints (whole walk {score_smoothed.n_right}/{score_smoothed.n_judged}); mean error {np.mean(err_found.errors_m):.2f} m (floor given "
-              f"{np.mean(err_given.errors_m):.2f} m)", flush=True)
+              f"{np.mean(err_given.errors_m) if err_given.errors_m.size else float('nan'):.2f} m)", flush=True)
 
     for rec, f in zip(recordings, floors):
         if rec.acc_t_s.shape[0] >= 100:

@@ -19,7 +19,7 @@ from mapfilter.errors import MapfilterError
 # mapfilter.evaluation.comparison's methods, written out so that --help imports no numerical
 # library (tests/test_cli_startup.py holds them equal)
 ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls")
-BUILDING_METHODS = ("pf", "pf-floor", "kwnn")
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr")
 
 _EPILOG = f"""\
 methods on one floor: {', '.join(ALL_METHODS)} (default: all that the WiFi source allows)
@@ -29,8 +29,12 @@ methods on one floor: {', '.join(ALL_METHODS)} (default: all that the WiFi sourc
   pdr       dead reckoning from the first fix       ls        least-squares trilateration
 methods in a building with several floors: {', '.join(BUILDING_METHODS)}
   pf        the floor in the filter's state         pf-floor  the same filter on the walker's floor
-  kwnn      each scan on the WiFi floor HMM's floor; floor_accuracy: the share of waypoints
-            at which a method was on the walker's floor (its header's, or each waypoint's own)
+  kwnn      each scan on the WiFi floor HMM's floor
+  kf, pdr   the Kalman filter and dead reckoning on those KWNN fixes, each row on their floor
+  floor_accuracy: the share of waypoints at which a method was on the walker's floor (its
+  header's, or each waypoint's own); ipin_score: the IPIN competitions' score, the 75th
+  percentile of the horizontal error plus 15 m per storey off. Logs that name their phone
+  (GetSensorData) also get the table per phone model.
 
 The radio map: --radiomap (one file for all walks), --survey LOGS (built from these walks,
 which are never scored), or --leave-one-out (each walk's radio map from the other evaluated
@@ -200,12 +204,15 @@ def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
     from mapfilter.evaluation.metrics import format_table
     from mapfilter.evaluation.plots import plot_error_cdf
 
-    columns = SUMMARY_COLUMNS + (("floor_accuracy",) if evaluation.has_floors else ())
+    columns = SUMMARY_COLUMNS + (("floor_accuracy", "ipin_score") if evaluation.has_floors else ())
     summary = evaluation.summary_rows()
+    by_phone = evaluation.summary_rows(by_phone=True)
     table = format_table(summary, columns)
     waypoints = summary[0]["n"] + summary[0]["missed"] if summary else 0
     n_done = len({r.trace for r in evaluation.results}) + len(evaluation.failed)
     print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s\n{table}")
+    if by_phone:
+        print(f"\nper phone model:\n{format_table(by_phone, ('phone',) + columns)}")
     out: Path = args.out
     trace_rows = evaluation.trace_rows()
     walk_rows = evaluation.walk_rows()
@@ -214,7 +221,7 @@ def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
     with atomic_paths(out / "summary.csv", out / "traces.csv", out / "walks.csv", out / "summary.json",
                       out / "config.yaml") as (s_csv, t_csv, w_csv, s_json, c_yaml):
         _write_csv(s_csv, summary, columns)
-        _write_csv(t_csv, trace_rows, ("trace",) + columns)
+        _write_csv(t_csv, trace_rows, ("trace",) + columns + (("phone",) if by_phone else ()))
         _write_csv(w_csv, walk_rows, list(dict.fromkeys(k for row in walk_rows for k in row)) or ["trace"])
         s_json.write_text(json.dumps({
             "map": str(args.map), "logs": [str(p) for p in args.logs], "survey": [str(p) for p in args.survey],
@@ -222,6 +229,7 @@ def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
             "methods": list(methods), "complete": complete, "walks": evaluation.n_traces, "walks_done": n_done,
             "wall_time_s": evaluation.wall_time_s, "config": config.to_dict(), "failed": failed,
             "summary": [{k: nan_to_none(v) for k, v in row.items()} for row in summary],
+            "summary_by_phone": [{k: nan_to_none(v) for k, v in row.items()} for row in by_phone],
             "traces": [{k: nan_to_none(v) for k, v in row.items()} for row in trace_rows],
             "per_walk": [{k: nan_to_none(v) for k, v in row.items()} for row in walk_rows],
         }, indent=1))

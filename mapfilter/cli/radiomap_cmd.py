@@ -85,6 +85,8 @@ def _trace_id(path: Path) -> str:
 
 
 def run_build(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from mapfilter.maps.building import Building
     from mapfilter.sensors.floors import build_building_radio_map
     from mapfilter.sensors.radiomap import build_radio_map, check_radio_map_on_map
@@ -95,20 +97,16 @@ def run_build(args: argparse.Namespace) -> int:
         floors = []
         for rec in recordings:
             index = building.floor_of_log(rec.floor_name, rec.path)
-            if index is None:
-                if rec.waypoint_floor and len(set(rec.waypoint_floor)) > 1:
-                    raise MapfilterError(f"the log walks several floors ({', '.join(dict.fromkeys(rec.waypoint_floor))}): "
-                                         "a building's radio map is built from one-floor logs (leave it out with "
-                                         "--exclude)", rec.path)
+            if index is None and not rec.waypoint_floor:
                 raise MapfilterError("the log's header names no floor (FloorName): a building's radio map needs "
                                      "the floor of every log", rec.path)
-            floors.append(index)
+            floors.append(index)  # None: a walk over several floors, each scan on its waypoints' floor
         radio_map = build_building_radio_map(recordings, floors, building.floor_names, use_steps=args.steps)
         check_radio_map_on_map(radio_map, building, map_path=args.map)  # waypoints of another map or frame
         radio_map.save(args.out)
-        counts = ", ".join(f"{name} {floors.count(i)}" for i, name in enumerate(building.floor_names))
-        print(f"radio map: {len(radio_map)} reference points, {len(radio_map.ap_keys)} access points "
-              f"from {len(recordings)} logs ({counts}) -> {args.out}")
+        counts = ", ".join(f"{name} {int(np.sum(radio_map.floor == i))}" for i, name in enumerate(building.floor_names))
+        print(f"radio map: {len(radio_map)} reference points ({counts}), {len(radio_map.ap_keys)} access points "
+              f"from {len(recordings)} logs -> {args.out}")
         return 0
     radio_map = build_radio_map(recordings, floorplan, use_steps=args.steps)
     check_radio_map_on_map(radio_map, floorplan, map_path=args.map)

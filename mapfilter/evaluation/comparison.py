@@ -15,9 +15,12 @@ causal: each method's latest estimate at or before the waypoint). On one floor:
 =============  ==========================================================================
 
 In a building with several floors: ``pf`` (the floor in the filter's state, not given),
-``pf-floor`` (the same filter on the walker's floor, given: what finding the floor costs) and
-``kwnn`` (each scan on the causal WiFi floor HMM's floor, fixed from that floor's fingerprints),
-each also scored by its floor accuracy at the waypoints.
+``pf-floor`` (the same filter on the walker's floor, given: what finding the floor costs; a
+walk that changes floor has no one floor to give), ``kwnn`` (each scan on the causal WiFi floor
+HMM's floor, fixed from that floor's fingerprints), and ``kf`` and ``pdr`` on those same KWNN
+fixes and floors (the Kalman filter and the dead reckoning run in one floor's frame, each row on
+the floor of the latest scan); each also scored by its floor accuracy at the waypoints and the
+IPIN score (the 75th percentile of the horizontal error plus 15 m per storey off).
 
 With ``smooth`` in the tracking config, ``pf``'s offline track is reported as ``pf-smooth``
 (not causal). The radio map of the walks comes from a radio map file, from survey logs
@@ -43,7 +46,7 @@ from mapfilter.engine import Engine, run_each
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.baselines import kalman_track, pdr_kwnn_track, pdr_track
 from mapfilter.evaluation.diagnostics import DIAGNOSTIC_COLUMNS, walk_diagnostics
-from mapfilter.evaluation.metrics import FloorScore, summarise_errors
+from mapfilter.evaluation.metrics import FloorScore, ipin_errors_m, ipin_score, summarise_errors
 from mapfilter.evaluation.scoring import score_track
 from mapfilter.filter.evidence import calibrated_fix_sigma_m
 from mapfilter.filter.run import MotionConfig
@@ -62,7 +65,7 @@ from mapfilter.tracking import prepare_walk, track_prepared
 from mapfilter.trackio import Track
 
 ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls")
-BUILDING_METHODS = ("pf", "pf-floor", "kwnn")
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr")
 STATUSES = ("ok", "failed", "crashed")
 
 
@@ -100,6 +103,15 @@ class MethodResult:
     causal: bool = True
     diagnostics: dict[str, float] = dataclasses.field(default_factory=dict)  # the walk's (same for every method)
     floor_score: FloorScore | None = None  # several floors: on the walker's floor at the waypoints
+    phone: str | None = None  # the phone model the log names (GetSensorData headers)
+
+    @property
+    def ipin_errors_m(self) -> np.ndarray:
+        """Each judged waypoint's error plus 15 m per storey off (``metrics.ipin_errors_m``)."""
+        storeys = self.floor_score.storeys_off if self.floor_score is not None else None
+        if storeys is None or storeys.shape != self.errors_m.shape:
+            return self.errors_m
+        return ipin_errors_m(self.errors_m, storeys)
 
 
 @dataclasses.dataclass
@@ -226,7 +238,9 @@ def _checked_methods(building: Building, setup: EvaluationSetup) -> tuple[str, .
 
 
 def _true_floor(building: Building, path: Path) -> int | None:
-    """The walk's floor by its header (a building refuses a floor it does not have)."""
+    """The walk's floor by its header (a building refuses a floor it does not have); None when it
+    names none, as a walk over several floors does (a GetSensorData log whose POSI rows name
+    several floors: the scoring takes each waypoint's own floor, the radio map each scan's)."""
     try:
         header = read_log_header(path).get("FloorName") or None
     except MapfilterError:
@@ -244,9 +258,10 @@ def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, .
         fit = setup.ap_table_path is None and (setup.fit_aps or "ls" in methods)
         return AllWalks(radio_map, estimate_access_points(radio_map) if fit else None)
     for rec, floor in zip(recordings, floors):
-        if floor is None:
+        if floor is None and not rec.waypoint_floor:
             raise MapfilterError("the log's header names no floor (FloorName): its points cannot join a building's "
                                  "radio map", rec.path)
+    # a walk over several floors: each scan on the floor of its waypoints (sensors.floors)
     radio_map = build_building_radio_map(recordings, floors, building.floor_names)
     sigma = None
     if setup.tracking.wifi.fix_sigma_m is None:
@@ -296,12 +311,12 @@ class _Scorer:
         self.results.append(MethodResult(
             method, self.recording.name, track, errors.errors_m if errors else np.zeros(0),
             errors.missed if errors else int(self.recording.waypoint_t_s.size), score.wall_crossings, collapses,
-            runtime_s, causal, floor_score=score.floor_score))
+            runtime_s, causal, floor_score=score.floor_score, phone=self.recording.phone_model))
 
-    def timed(self, method: str, make: Callable[[], Track]) -> None:
+    def timed(self, method: str, make: Callable[[], Track], extra_s: float = 0.0) -> None:
         started = time.perf_counter()
         track = make()
-        self.add(method, track, 0, time.perf_counter() - started)
+        self.add(method, track, 0, time.perf_counter() - started + extra_s)
 
 
 def _detected_steps(recording: Recording, tracking: TrackingConfig) -> Steps | None:
@@ -394,6 +409,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
     tracking = setup.tracking
     steps = _detected_steps(recording, tracking)
     has_steps = tracking.motion.model != "pdr" or (steps is not None and len(steps) > 0)
+    fixes = None  # the KWNN fixes and floors, made once for kwnn, kf and pdr
     for method in context.methods:
         rng = np.random.default_rng([tracking.seed, index, BUILDING_METHODS.index(method)])
         if method in ("pf", "pf-floor"):
@@ -407,9 +423,20 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
             if outcome.offline is not None:
                 scorer.add("pf-smooth", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
                            causal=False)
-        elif method == "kwnn":
-            scorer.timed(method, lambda: kwnn_floor_track(radio_map, scans_of(recording), tracking.wifi.kwnn_k,
-                                                          building.floor_names))
+        elif method in ("kwnn", "kf", "pdr"):
+            if fixes is None:
+                started = time.perf_counter()
+                fixes = kwnn_floor_fixes(radio_map, scans_of(recording), tracking.wifi.kwnn_k)
+                fix_s = time.perf_counter() - started
+            scan_t, xy, floor = fixes
+            if method == "kwnn":
+                scorer.timed(method, lambda: _floor_track(building, scan_t, xy, floor, "kwnn"), fix_s)
+            elif method == "kf":
+                scorer.timed(method, lambda: floor_path_baseline(
+                    building, scan_t, xy, floor, lambda t, f: kalman_track(t, f, steps), "kf"))
+            elif steps is not None and len(steps):
+                scorer.timed(method, lambda: floor_path_baseline(
+                    building, scan_t, xy, floor, lambda t, f: pdr_track(steps, t[0], f[0]), "pdr"))
     return scorer.results
 
 
@@ -429,9 +456,10 @@ def _building_radio_map(recording: Recording, setup: EvaluationSetup, all_walks:
     return radio_map
 
 
-def kwnn_floor_track(radio_map: RadioMap, scans, k: int, floor_names: list[str]) -> Track:
-    """KWNN across floors: each scan on the causal floor HMM's floor, fixed from that floor's
-    fingerprints; scans without a fix there are left out."""
+def kwnn_floor_fixes(radio_map: RadioMap, scans, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """KWNN across floors: (scan times (S,), fixes (S, 2) in each scan's floor frame, NaN where
+    that floor's fingerprints give none, floor indices (S,)): each scan on the causal floor HMM's
+    floor (the KWNN floor vote, ``sensors.floors``), fixed from that floor's fingerprints."""
     scan_t = np.array([s.t_s for s in scans])
     path = floor_hmm(floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans), k=k), scan_t)
     floor = path.causal_floor()
@@ -441,8 +469,43 @@ def kwnn_floor_track(radio_map: RadioMap, scans, k: int, floor_names: list[str])
         sub = radio_map.floor_map(int(f))
         if len(sub):
             xy[on] = kwnn_fix_many(sub, sub.scan_matrix([scans[i] for i in on]), k=k).xy_m
+    return scan_t, xy, floor
+
+
+def kwnn_floor_track(radio_map: RadioMap, scans, k: int, floor_names: list[str]) -> Track:
+    """KWNN across floors (``kwnn_floor_fixes``) as a track; scans without a fix are left out."""
+    scan_t, xy, floor = kwnn_floor_fixes(radio_map, scans, k)
     ok = np.all(np.isfinite(xy), axis=1)
     return Track(scan_t[ok], xy[ok], floor=[floor_names[f] for f in floor[ok]], name="kwnn")
+
+
+def _floor_track(building: Building, scan_t: np.ndarray, xy: np.ndarray, floor: np.ndarray, name: str) -> Track:
+    ok = np.all(np.isfinite(xy), axis=1)
+    return Track(scan_t[ok], xy[ok], floor=[building.floor_names[f] for f in floor[ok]], name=name)
+
+
+def floor_path_baseline(building: Building, scan_t: np.ndarray, xy: np.ndarray, floor: np.ndarray,
+                        make: Callable[[np.ndarray, np.ndarray], Track], name: str) -> Track:
+    """A one-floor baseline (``make(fix times, fixes)``: the Kalman filter, dead reckoning) over
+    fixes on several floors (``kwnn_floor_fixes``): run in the frame of the first fix's floor
+    (every fix moved there through the building frame; the rotation vector's heading is that
+    floor's), each row then on the floor of the latest fix at or before it, in that floor's frame."""
+    ok = np.flatnonzero(np.all(np.isfinite(xy), axis=1))
+    if ok.size == 0:
+        return Track(np.zeros(0), np.zeros((0, 2)), floor=[], name=name)
+    floors = building.floors
+    home = floors[int(floor[ok[0]])]
+    local = np.empty((ok.size, 2))
+    for f in np.unique(floor[ok]):
+        on = floor[ok] == f
+        local[on] = home.from_building(floors[int(f)].to_building(xy[ok][on]))
+    track = make(scan_t[ok], local)
+    row_floor = floor[ok][np.clip(np.searchsorted(scan_t[ok], track.t_s, side="right") - 1, 0, None)]
+    out = np.empty_like(track.xy_m)
+    for f in np.unique(row_floor):
+        on = row_floor == f
+        out[on] = floors[int(f)].from_building(home.to_building(track.xy_m[on]))
+    return dataclasses.replace(track, xy_m=out, floor=[building.floor_names[f] for f in row_floor], name=name)
 
 
 def _wifi_sources(recording: Recording, setup: EvaluationSetup, all_walks: AllWalks | None,
@@ -570,11 +633,30 @@ class Evaluation:
     def errors_by_method(self) -> dict[str, np.ndarray]:
         return {m: np.concatenate([r.errors_m for r in self.results if r.method == m]) for m in self.methods()}
 
-    def summary_rows(self) -> list[dict]:
-        """One row per method: error statistics over all waypoints of all walks, and totals."""
+    def phones(self) -> list[str]:
+        """The phone models the walks' logs name, in order of first appearance (GetSensorData logs)."""
+        seen: list[str] = []
+        for r in self.results:
+            if r.phone and r.phone not in seen:
+                seen.append(r.phone)
+        return seen
+
+    def summary_rows(self, by_phone: bool = False) -> list[dict]:
+        """One row per method: error statistics over all waypoints of all walks, and totals; in a
+        building with several floors also the floor accuracy and the IPIN score (the 75th
+        percentile of the error plus 15 m per storey off, over the same waypoints). ``by_phone``:
+        one row per phone model and method (a ``phone`` column first), the walks of that phone."""
+        if by_phone:
+            return [{"phone": phone, **row} for phone in self.phones()
+                    for row in self._rows([r for r in self.results if r.phone == phone])]
+        return self._rows(self.results)
+
+    def _rows(self, results: list[MethodResult]) -> list[dict]:
         rows = []
         for method in self.methods():
-            mine = [r for r in self.results if r.method == method]
+            mine = [r for r in results if r.method == method]
+            if not mine:
+                continue
             stats = summarise_errors(np.concatenate([r.errors_m for r in mine]))
             row = {"method": method, **stats, "missed": sum(r.missed for r in mine),
                    "wall_crossings": sum(r.wall_crossings for r in mine),
@@ -584,6 +666,7 @@ class Evaluation:
                 scores = [r.floor_score for r in mine if r.floor_score]
                 judged = sum(s.n_judged for s in scores)
                 row["floor_accuracy"] = sum(s.n_right for s in scores) / judged if judged else math.nan
+                row["ipin_score"] = ipin_score(np.concatenate([r.ipin_errors_m for r in mine]))
             rows.append(row)
         return rows
 
@@ -605,6 +688,9 @@ class Evaluation:
                    "wall_crossings": r.wall_crossings, "collapses": r.collapses, "runtime_s": r.runtime_s}
             if self.has_floors:
                 row["floor_accuracy"] = r.floor_score.accuracy if r.floor_score else math.nan
+                row["ipin_score"] = ipin_score(r.ipin_errors_m)
+            if r.phone:
+                row["phone"] = r.phone
             rows.append(row)
         return rows
 

@@ -15,6 +15,9 @@ from collections.abc import Sequence
 import numpy as np
 
 SUMMARY_FIELDS = ("mean", "median", "p75", "p90", "max", "rmse")
+# the IPIN competitions' floor penalty: 15 m for each floor the estimate is off by (EvAAL
+# framework; the IPIN 2023 Track 3 rules), added to the horizontal error before the 75th percentile
+IPIN_FLOOR_PENALTY_M = 15.0
 
 
 @dataclasses.dataclass
@@ -92,6 +95,9 @@ class FloorScore:
     n_right: int  # waypoints where the track's floor is the true one
     n_judged: int  # waypoints that had an estimate
     missed: int  # waypoints before the first estimate (left out, as for the errors)
+    # (n_judged,) storeys between the track's floor and the true one at each judged waypoint, in
+    # waypoint order (NaN where a floor is not in the building's order; None: no order given)
+    storeys_off: np.ndarray | None = None
 
     @property
     def accuracy(self) -> float:
@@ -100,15 +106,17 @@ class FloorScore:
 
 
 def floor_at_waypoints(track_t_s: np.ndarray, track_floor: Sequence[str], waypoint_t_s: np.ndarray,
-                       true_floor: str | Sequence[str], causal: bool = True) -> FloorScore:
+                       true_floor: str | Sequence[str], causal: bool = True,
+                       floor_order: Sequence[str] | None = None) -> FloorScore:
     """Is the track on the right floor at each waypoint time? ``true_floor``: one name for the
     whole walk (an ILC log's header) or one per waypoint. Causal: the latest row at or before
-    the waypoint, as ``errors_at_waypoints``; else the nearest row in time (smoothed tracks)."""
+    the waypoint, as ``errors_at_waypoints``; else the nearest row in time (smoothed tracks).
+    ``floor_order``: the building's floors bottom to top, to count the storeys a wrong floor is off by."""
     track_t = np.asarray(track_t_s, dtype=np.float64)
     wp_t = np.asarray(waypoint_t_s, dtype=np.float64)
     truth = [true_floor] * wp_t.size if isinstance(true_floor, str) else list(true_floor)
     if track_t.size == 0:
-        return FloorScore(0, 0, int(wp_t.size))
+        return FloorScore(0, 0, int(wp_t.size), None if floor_order is None else np.zeros(0))
     if causal:
         row = np.searchsorted(track_t, wp_t, side="right") - 1
     else:
@@ -116,5 +124,33 @@ def floor_at_waypoints(track_t_s: np.ndarray, track_floor: Sequence[str], waypoi
         before = np.clip(after - 1, 0, track_t.size - 1)
         row = np.where(np.abs(track_t[before] - wp_t) <= np.abs(track_t[after] - wp_t), before, after)
     have = row >= 0
-    right = sum(1 for i in np.flatnonzero(have) if track_floor[row[i]] == truth[i])
-    return FloorScore(int(right), int(have.sum()), int((~have).sum()))
+    judged = np.flatnonzero(have)
+    right = sum(1 for i in judged if track_floor[row[i]] == truth[i])
+    storeys = None
+    if floor_order is not None:
+        level = {name: float(k) for k, name in enumerate(floor_order)}
+        storeys = np.array([abs(level.get(track_floor[row[i]], math.nan) - level.get(truth[i], math.nan))
+                            for i in judged], dtype=np.float64)
+    return FloorScore(int(right), int(have.sum()), int((~have).sum()), storeys)
+
+
+def ipin_errors_m(errors_m: np.ndarray, storeys_off: np.ndarray | None,
+                  penalty_m: float = IPIN_FLOOR_PENALTY_M) -> np.ndarray:
+    """Each waypoint's error as the IPIN competitions count it: the horizontal error plus
+    ``penalty_m`` for each storey the estimate's floor is off by (``storeys_off``, the same
+    waypoints in the same order; None: one floor, the horizontal error alone)."""
+    errors = np.asarray(errors_m, dtype=np.float64)
+    if storeys_off is None:
+        return errors
+    storeys = np.asarray(storeys_off, dtype=np.float64)
+    if storeys.shape != errors.shape:
+        raise ValueError("one storey count per error")
+    return errors + penalty_m * storeys
+
+
+def ipin_score(errors_m: np.ndarray, storeys_off: np.ndarray | None = None,
+               penalty_m: float = IPIN_FLOOR_PENALTY_M) -> float:
+    """The IPIN competitions' score (lower is better): the 75th percentile of each waypoint's
+    horizontal error plus ``penalty_m`` per storey off (``ipin_errors_m``); NaN without waypoints."""
+    errors = ipin_errors_m(errors_m, storeys_off, penalty_m)
+    return float(np.percentile(errors, 75)) if errors.size else math.nan

@@ -64,5 +64,7 @@ def score_track(building: Building, recording: Recording, track: Track, header_f
     if recording.has_ground_truth and (true_floor is not None or building.is_single_floor):
         errors = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, causal)
         if not building.is_single_floor:
-            score = floor_at_waypoints(track.t_s, list(floor), recording.waypoint_t_s, true_floor, causal)
+            # storeys counted by elevation (floors at one elevation: in the file's order)
+            order = [f.name for f in sorted(building.floors, key=lambda f: f.elevation_m)]
+            score = floor_at_waypoints(track.t_s, list(floor), recording.waypoint_t_s, true_floor, causal, order)
     return TrackScore(visited, crossings, true_floor, errors, score)

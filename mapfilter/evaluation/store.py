@@ -46,7 +46,9 @@ def write_outcome(outcome: WalkOutcome, path: str | os.PathLike, key: str) -> No
             "wall_crossings": r.wall_crossings, "collapses": r.collapses, "runtime_s": r.runtime_s,
             "causal": r.causal, "diagnostics": {k: _number(v) for k, v in r.diagnostics.items()},
             "floor_score": None if r.floor_score is None else
-            [r.floor_score.n_right, r.floor_score.n_judged, r.floor_score.missed],
+            [r.floor_score.n_right, r.floor_score.n_judged, r.floor_score.missed,
+             None if r.floor_score.storeys_off is None else [_number(float(v)) for v in r.floor_score.storeys_off]],
+            "phone": r.phone,
         } for r in outcome.results],
     }
     with atomic_paths(path) as (tmp,):
@@ -69,6 +71,12 @@ def read_outcome(path: str | os.PathLike, key: str) -> WalkOutcome | None:
             m["method"], data["trace"], Track(np.zeros(0), np.zeros((0, 2)), name=m["method"]),
             np.array(m["errors_m"], dtype=np.float64), m["missed"], m["wall_crossings"], m["collapses"],
             m["runtime_s"], m["causal"], {k: (math.nan if v is None else v) for k, v in m["diagnostics"].items()},
-            None if score is None else FloorScore(*score)))
+            None if score is None else _floor_score(score), m.get("phone")))
     return WalkOutcome(data["index"], data["trace"], Path(data["log"]), data["status"], data["reason"], results,
                        list(data.get("read_warnings", [])), data.get("runtime_s", 0.0))
+
+
+def _floor_score(stored: list) -> FloorScore:
+    storeys = stored[3] if len(stored) > 3 else None
+    return FloorScore(*stored[:3], None if storeys is None else
+                      np.array([math.nan if v is None else v for v in storeys], dtype=np.float64))

@@ -80,6 +80,9 @@ class FilterRun:
     n_scans_used: int
     lineage: Track | None  # the final best particle's lineage (with keep_ancestry)
     gaps: tuple[tuple[float, float], ...] = ()  # (from, to) s: gaps over max_gap_s where the filter started afresh
+    # a building: (T, F) the share of the weight on each floor after every step (the track's
+    # rows); the track's ``floor_p`` is the share of its estimate's floor. None on one floor
+    floor_shares: np.ndarray | None = None
 
     @property
     def n_filter_steps(self) -> int:
@@ -109,6 +112,7 @@ def run_filter(plan: FloorPlan, motion: MotionConfig, filter_config: FilterConfi
 
     start_heading = circular_mean(pf.particles.heading_rad, pf.particles.weight) if pdr else math.nan
     out_t, out_xy, out_std, out_heading = [t0], [pf.estimate_xy_m.copy()], [pf.estimate_std_m], [start_heading]
+    out_shares = [_floor_belief(pf)]  # None throughout on one floor (no floor in the state)
     last_t = t0
     n_scans = 1
     gaps: list[tuple[float, float]] = []
@@ -138,6 +142,7 @@ def run_filter(plan: FloorPlan, motion: MotionConfig, filter_config: FilterConfi
             out_xy.append(pf.estimate_xy_m.copy())
             out_std.append(pf.estimate_std_m)
             out_heading.append(circular_mean(pf.particles.heading_rad, pf.particles.weight) if pdr else math.nan)
+            out_shares.append(_floor_belief(pf))
             continue
         dt = max(t_s - last_t, 0.0)
         if kind == "idle":
@@ -164,18 +169,32 @@ def run_filter(plan: FloorPlan, motion: MotionConfig, filter_config: FilterConfi
         out_xy.append(report.estimate_xy_m)
         out_std.append(report.estimate_std_m)
         out_heading.append(report.heading_rad if report.heading_rad is not None else math.nan)
+        out_shares.append(None if report.floor_shares is None else (report.floor_shares, report.floor_index))
         evidence.observe(report)
         if on_step is not None:
             on_step(report)
 
     heading = np.array(out_heading)
+    shares = floor_p = None
+    if all(s is not None for s in out_shares):
+        shares = np.array([s[0] for s in out_shares], dtype=np.float64)
+        floor_p = shares[np.arange(len(out_shares)), [s[1] for s in out_shares]]
     track = Track(np.array(out_t), np.array(out_xy), np.array(out_std),
-                  heading if np.isfinite(heading).any() else None, name="pf")
+                  heading if np.isfinite(heading).any() else None, name="pf", floor_p=floor_p)
     lineage = None
     if pf.ancestry is not None:
         lineage_t, lineage_xy = pf.smoothed_track()
         lineage = Track(lineage_t, lineage_xy, name="lineage")
-    return FilterRun(track, tuple(pf.collapses), n_scans, lineage, tuple(gaps))
+    return FilterRun(track, tuple(pf.collapses), n_scans, lineage, tuple(gaps), shares)
+
+
+def _floor_belief(pf: ParticleFilter) -> tuple[np.ndarray, int] | None:
+    """(the weight share of each floor, the estimate's floor) of the filter as it stands, or None
+    on one floor (``FloorModel.report`` tells nothing there); no random draw."""
+    report = pf.floors.report(pf.particles.xy_m, pf.particles.weight, pf.estimate_xy_m)
+    if report.get("floor_shares") is None:
+        return None
+    return np.asarray(report["floor_shares"], dtype=np.float64), int(report["floor_index"])
 
 
 def _start(pf: ParticleFilter, evidence: WalkEvidence, index: int, steps: Steps | None, motion: MotionConfig,

@@ -1,8 +1,9 @@
 """Floors from WiFi: a building's radio map with floor labels, a per-scan floor vote, an HMM.
 
 - :func:`build_building_radio_map` makes one radio map of survey logs of several floors, each
-  log's floor taken from its header (``FloorName``); every reference point keeps its floor and
-  its position in that floor's frame.
+  scan's floor taken from its waypoints where they name floors (a walk that changes floor), else
+  from the log's header (``FloorName``); every reference point keeps its floor and its position
+  in that floor's frame.
 - :func:`load_building_radio_map` reads such a radio map and refuses one whose floors are not a
   building's (:func:`check_building_radio_map`).
 - :func:`floor_vote_log_likelihood` weighs each floor for each scan: the k nearest reference
@@ -41,21 +42,51 @@ DEFAULT_VOTE_PSEUDO_COUNT = 1.0
 DEFAULT_FLOOR_CHANGE_RATE_PER_S = 1.0 / 600.0
 
 
-def build_building_radio_map(recordings: Sequence[Recording], floor_of_recording: Sequence[int],
+def build_building_radio_map(recordings: Sequence[Recording], floor_of_recording: Sequence[int | None],
                              floor_names: Sequence[str], use_steps: bool = False) -> RadioMap:
-    """One radio map of a building: the points of every survey log, labelled with its floor.
+    """One radio map of a building: the points of every survey log, each labelled with its floor.
 
-    ``floor_of_recording[i]`` is the index (into ``floor_names``) of log ``i``'s floor (from
-    its header, see ``maps.building.Building.floor_of_log``). Positions stay in each floor's frame.
+    A log whose waypoints name their floors (``Recording.waypoint_floor``: GetSensorData POSI
+    rows, simulated walks) labels each scan by the floor of its waypoint interval: a scan
+    between two waypoints of one floor is on that floor, and a scan between waypoints of two
+    floors (the walker on the stairs or in the lift) is left out, its floor and position
+    unknown. Any other log is on ``floor_of_recording[i]``, the index (into ``floor_names``) of
+    its floor (from its header, see ``maps.building.Building.floor_of_log``; None only for a
+    log with waypoint floors). Positions stay in each floor's frame.
     """
     if len(recordings) != len(floor_of_recording):
         raise ValueError("one floor per recording")
     radio_map = build_radio_map(recordings, None, use_steps=use_steps)
-    trace_floor = np.asarray(floor_of_recording, dtype=np.int64)
-    labelled = RadioMap(radio_map.xy_m, radio_map.ap_keys, radio_map.rssi_dbm, radio_map.t_s, radio_map.trace,
-                        radio_map.source_traces, None, trace_floor[radio_map.trace], list(floor_names))
+    point_floor = np.full(len(radio_map), -1, dtype=np.int64)
+    for trace, (rec, floor) in enumerate(zip(recordings, floor_of_recording)):
+        mine = np.flatnonzero(radio_map.trace == trace)
+        if rec.waypoint_floor is not None and len(rec.waypoint_floor) == rec.waypoint_t_s.size:
+            point_floor[mine] = _interval_floors(rec, radio_map.t_s[mine], floor_names)
+        elif floor is None:
+            raise MapfilterError("the log names no floor for its points: it cannot survey a building", rec.path)
+        else:
+            point_floor[mine] = int(floor)
+    keep = point_floor >= 0
+    labelled = RadioMap(radio_map.xy_m[keep], radio_map.ap_keys, radio_map.rssi_dbm[keep], radio_map.t_s[keep],
+                        radio_map.trace[keep], radio_map.source_traces, None, point_floor[keep], list(floor_names))
     labelled._floor_cv_errors = None  # computed (per floor) when saved
     return labelled
+
+
+def _interval_floors(recording: Recording, t_s: np.ndarray, floor_names: Sequence[str]) -> np.ndarray:
+    """(P,) the floor index of each time between two of the log's waypoints when both are on one
+    floor, else -1 (between two floors; a floor the building lacks is refused)."""
+    index = {name: i for i, name in enumerate(floor_names)}
+    unknown = sorted({f for f in recording.waypoint_floor if f not in index})
+    if unknown:
+        raise MapfilterError(f"the log's waypoints are on floor {unknown[0]!r}, which the building does not have "
+                             f"(floors: {', '.join(floor_names)})", recording.path)
+    wp_floor = np.array([index[f] for f in recording.waypoint_floor], dtype=np.int64)
+    wp_t = recording.waypoint_t_s
+    # the interval (k, k + 1) holding each time; a time on the last waypoint is in the last interval
+    k = np.clip(np.searchsorted(wp_t, t_s, side="right") - 1, 0, max(wp_t.size - 2, 0))
+    after = np.minimum(k + 1, wp_t.size - 1)
+    return np.where(wp_floor[k] == wp_floor[after], wp_floor[k], -1)
 
 
 def load_building_radio_map(path, floor_names: Sequence[str]) -> RadioMap:
@@ -189,18 +220,27 @@ class WholeWalkFloors:
 
     path: np.ndarray  # (T,) int64 floor per row: the Viterbi path
     height_offset_m: float  # elevation = barometer height + this (NaN without a barometer)
+    # (T, F) P(floor of row k | the whole walk) (forward-backward, at the walk's height offset)
+    posterior: np.ndarray | None = None
+
+    @property
+    def path_p(self) -> np.ndarray:
+        """(T,) the posterior of the path's floor at each row."""
+        return self.posterior[np.arange(self.path.size), self.path]
 
 
 def whole_walk_floor_path(t_s: np.ndarray, floor_log_likelihood: np.ndarray, change_rate_per_s: np.ndarray,
                           height_m: np.ndarray | None = None, elevation_m: np.ndarray | None = None,
                           height_sigma_m: float = 1.0, offset_step_m: float = 0.1) -> WholeWalkFloors:
     """The most probable floor sequence of a whole walk (Viterbi), from floor evidence per row,
-    floor changes at given rates and, with a barometer, its heights.
+    floor changes at given rates and, with a barometer, its heights; and each row's floor
+    posterior (forward-backward over the same model).
 
     Parameters
     ----------
     t_s : (T,) row times (non-decreasing).
-    floor_log_likelihood : (T, F) evidence per row (a WiFi floor vote where a scan is, 0 elsewhere).
+    floor_log_likelihood : (T, F) evidence per row (a WiFi floor vote where a scan is, 0 elsewhere;
+        or the filter's own floor evidence, ``belief_log_likelihood``).
     change_rate_per_s : (T - 1, F, F) rate of going from floor i to floor j between rows k and
         k + 1 (0: not possible there, e.g. outside every connector linking i and j); the diagonal
         is ignored. The walker leaves i with probability 1 - exp(-R dt), R the row's sum, to j
@@ -212,13 +252,15 @@ def whole_walk_floor_path(t_s: np.ndarray, floor_log_likelihood: np.ndarray, cha
         together. One offset per walk assumes the weather moves the barometer well under half a
         storey during the walk (1 hPa/h is about 8 m/h: true of walks of minutes).
     elevation_m : (F,) floor elevations (needed with ``height_m``).
+
+    The posterior is taken at the offset the path was chosen with (not summed over offsets).
     """
     times = np.asarray(t_s, dtype=np.float64)
     evidence = np.asarray(floor_log_likelihood, dtype=np.float64)
     rates = np.asarray(change_rate_per_s, dtype=np.float64)
     n_rows, n_floors = evidence.shape
     if n_rows == 0:
-        return WholeWalkFloors(np.zeros(0, np.int64), math.nan)
+        return WholeWalkFloors(np.zeros(0, np.int64), math.nan, np.zeros((0, n_floors)))
     if rates.shape != (max(n_rows - 1, 0), n_floors, n_floors):
         raise ValueError("change_rate_per_s must be (T - 1, F, F)")
     if height_m is not None:
@@ -231,19 +273,18 @@ def whole_walk_floor_path(t_s: np.ndarray, floor_log_likelihood: np.ndarray, cha
     else:
         heights, elev, offsets = None, None, np.array([math.nan])
 
-    def emission(k: int) -> np.ndarray:  # (C, F)
-        out = np.broadcast_to(evidence[k], (offsets.size, n_floors))
+    def emission(k: int, at: np.ndarray = offsets) -> np.ndarray:  # (C, F)
+        out = np.broadcast_to(evidence[k], (at.size, n_floors))
         if heights is not None and np.isfinite(heights[k]):
-            out = out - 0.5 * ((elev[None, :] - heights[k] - offsets[:, None]) / height_sigma_m) ** 2
+            out = out - 0.5 * ((elev[None, :] - heights[k] - at[:, None]) / height_sigma_m) ** 2
         return out
 
+    log_trans = [_log_transition_rates(rates[k - 1], max(times[k] - times[k - 1], 0.0)) for k in range(1, n_rows)]
     # uniform prior over floors and offsets; the offset never changes within the walk
     delta = emission(0) - math.log(n_floors)
     back = np.zeros((n_rows, offsets.size, n_floors), dtype=np.int8 if n_floors < 128 else np.int64)
-    columns = np.arange(n_floors)
     for k in range(1, n_rows):
-        log_trans = _log_transition_rates(rates[k - 1], max(times[k] - times[k - 1], 0.0))
-        scores = delta[:, :, None] + log_trans[None, :, :]  # (C, from, to)
+        scores = delta[:, :, None] + log_trans[k - 1][None, :, :]  # (C, from, to)
         back[k] = np.argmax(scores, axis=1)
         delta = np.take_along_axis(scores, back[k][:, None, :].astype(np.int64), axis=1)[:, 0, :] + emission(k)
         delta -= delta.max()  # only differences matter; keeps long walks finite
@@ -252,7 +293,62 @@ def whole_walk_floor_path(t_s: np.ndarray, floor_log_likelihood: np.ndarray, cha
     path[-1] = last
     for k in range(n_rows - 1, 0, -1):
         path[k - 1] = back[k, c, path[k]]
-    return WholeWalkFloors(path, float(offsets[c]))
+    at = offsets[c:c + 1]
+    rows = np.vstack([emission(k, at) for k in range(n_rows)])  # (T, F) at the chosen offset
+    return WholeWalkFloors(path, float(offsets[c]), _forward_backward(rows, log_trans))
+
+
+def _forward_backward(log_emission: np.ndarray, log_trans: list[np.ndarray]) -> np.ndarray:
+    """(T, F) posterior marginals of an HMM with a uniform prior (log space, normalised per row)."""
+    n_rows, n_floors = log_emission.shape
+    alpha = np.empty_like(log_emission)
+    a = log_emission[0] - math.log(n_floors)
+    alpha[0] = a - _logsumexp(a)
+    for k in range(1, n_rows):
+        a = _logsumexp_rows(alpha[k - 1][:, None] + log_trans[k - 1]) + log_emission[k]
+        alpha[k] = a - _logsumexp(a)
+    beta = np.zeros(n_floors)
+    out = np.empty_like(log_emission)
+    out[-1] = _normalised(alpha[-1])
+    for k in range(n_rows - 2, -1, -1):
+        b = _logsumexp_rows((log_trans[k] + (log_emission[k + 1] + beta)[None, :]).T)
+        beta = b - _logsumexp(b)
+        out[k] = _normalised(alpha[k] + beta)
+    return out
+
+
+def _logsumexp(a: np.ndarray) -> float:
+    m = float(np.max(a))
+    return m + math.log(float(np.exp(a - m).sum())) if math.isfinite(m) else m
+
+
+def belief_log_likelihood(t_s: np.ndarray, belief: np.ndarray, change_rate_per_s: np.ndarray,
+                          floor_share: float) -> np.ndarray:
+    """(T, F) per-row floor evidence whose forward filter, with these change rates and a uniform
+    start, is ``belief``: row k gets log b_k - log(b_{k-1} P_k), P_k the rows' transition matrix.
+
+    ``belief`` (T, F): a causal filter's floor probabilities per row (a particle filter's weight
+    share per floor: everything it weighed, WiFi, walls and barometer). Each row is first mixed
+    with ``floor_share`` per floor (a share below one particle's weight says "unlikely", never
+    "impossible"). Smoothing these (``whole_walk_floor_path``) is smoothing the filter's own
+    belief: the forward-backward identity needs only the filtered probabilities and the
+    transitions (the Rauch-Tung-Striebel form of the discrete smoother).
+    """
+    times = np.asarray(t_s, dtype=np.float64)
+    b = np.asarray(belief, dtype=np.float64)
+    n_rows, n_floors = b.shape
+    b = (np.clip(b, 0.0, None) + floor_share) / (b.sum(axis=1, keepdims=True) + n_floors * floor_share)
+    log_b = np.log(b)
+    out = np.empty_like(log_b)
+    if n_rows == 0:
+        return out
+    out[0] = log_b[0]
+    rates = np.asarray(change_rate_per_s, dtype=np.float64)
+    for k in range(1, n_rows):
+        predicted = _logsumexp_rows(log_b[k - 1][:, None]
+                                    + _log_transition_rates(rates[k - 1], max(times[k] - times[k - 1], 0.0)))
+        out[k] = log_b[k] - predicted
+    return out
 
 
 def _log_transition_rates(rate_per_s: np.ndarray, dt_s: float) -> np.ndarray:
