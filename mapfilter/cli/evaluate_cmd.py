@@ -211,7 +211,7 @@ def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
     waypoints = summary[0]["n"] + summary[0]["missed"] if summary else 0
     n_done = len({r.trace for r in evaluation.results}) + len(evaluation.failed)
     print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s\n{table}")
-    if by_phone:
+    if len(evaluation.phones()) > 1:
         print(f"\nper phone model:\n{format_table(by_phone, ('phone',) + columns)}")
     out: Path = args.out
     trace_rows = evaluation.trace_rows()

@@ -178,7 +178,8 @@ def run_filter(plan: FloorPlan, motion: MotionConfig, filter_config: FilterConfi
     shares = floor_p = None
     if all(s is not None for s in out_shares):
         shares = np.array([s[0] for s in out_shares], dtype=np.float64)
-        floor_p = shares[np.arange(len(out_shares)), [s[1] for s in out_shares]]
+        # a probability (the shares of normalised weights may sum to 1 + 1e-16)
+        floor_p = np.clip(shares[np.arange(len(out_shares)), [s[1] for s in out_shares]], 0.0, 1.0)
     track = Track(np.array(out_t), np.array(out_xy), np.array(out_std),
                   heading if np.isfinite(heading).any() else None, name="pf", floor_p=floor_p)
     lineage = None

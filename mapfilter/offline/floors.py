@@ -68,7 +68,7 @@ def _with_floor_p(stack: FloorStack, track: Track, t_s: np.ndarray, posterior: n
     before = np.clip(after - 1, 0, t_s.size - 1)
     row = np.where(np.abs(t_s[before] - track.t_s) <= np.abs(t_s[after] - track.t_s), before, after)
     floor = np.array([stack.building.floor_index(name) for name in track.floor])
-    return dataclasses.replace(track, floor_p=posterior[row, floor])
+    return dataclasses.replace(track, floor_p=np.clip(posterior[row, floor], 0.0, 1.0))
 
 
 def _offline_track(stack: FloorStack, evidence: BuildingEvidence, steps: Steps | None, causal_stack: Track,
