@@ -204,7 +204,7 @@ def _track_in_building(walk: PreparedWalk, config: TrackingConfig, rng: np.rando
     offline = None
     if config.smooth:
         offline = building_offline_track(changes, evidence, steps, run.track, run.lineage, config.motion,
-                                         config.filter, rng, config.offline, on_offline_step, run.floor_shares)
+                                         config.filter, rng, config.offline, on_offline_step)
     return _result(run, offline, config, started, causal_done, None,
                    lambda t: to_floors(stack, t) if t.floor is None else t)
 

@@ -15,7 +15,7 @@ import pytest
 
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.metrics import FloorScore, floor_at_waypoints, ipin_errors_m, ipin_score
-from mapfilter.sensors.floors import belief_log_likelihood, build_building_radio_map, whole_walk_floor_path
+from mapfilter.sensors.floors import build_building_radio_map, whole_walk_floor_path
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.simulate.building import BuildingSimConfig, FloorChange, simulate_building_survey, simulate_building_walk
 from mapfilter.simulate.ilc_writer import write_ilc
@@ -104,61 +104,35 @@ def test_a_floor_p_outside_0_1_is_refused_with_its_line(tmp_path):
         read_track(tmp_path / "t.csv")
 
 
-# ---- the offline floor from the filter's belief -----------------------------------------------
-def _rates(n: int, f: int, rate: float) -> np.ndarray:
-    out = np.zeros((n - 1, f, f))
-    for i in range(f):
-        out[:, i, [j for j in range(f) if j != i]] = rate / (f - 1)
-    return out
+# ---- the whole-walk floor posterior (the offline floor_p) ----------------------------------------
+def test_the_whole_walk_posterior_is_the_brute_force_marginal():
+    """Oracle: the forward-backward posterior of ``whole_walk_floor_path`` equals the marginals of
+    every floor sequence of a small walk weighed by evidence and transitions, one by one."""
+    import itertools
 
+    from mapfilter.sensors.floors import _log_transition_rates
 
-def test_the_belief_evidence_filters_back_to_the_belief():
-    """belief_log_likelihood is the evidence whose forward filter is the belief (mixed with the
-    floor share): the forward-backward posterior's last row is the belief's last row."""
     rng = np.random.default_rng(0)
-    n = 40
-    belief = rng.dirichlet([1.0, 1.0, 1.0], size=n)
-    t = np.arange(n) * 0.5
-    rates = _rates(n, 3, 1 / 300)
-    evidence = belief_log_likelihood(t, belief, rates, 1e-3)
-    mixed = (belief + 1e-3) / (1.0 + 3e-3)
+    n, f = 6, 3
+    t = np.cumsum(rng.uniform(0.5, 3.0, n))
+    evidence = np.log(rng.dirichlet([1.0] * f, size=n))
+    rates = np.zeros((n - 1, f, f))
+    for i in range(f):  # one storey at a time, at a rate high enough to matter
+        rates[:, i, [j for j in (i - 1, i + 1) if 0 <= j < f]] = 0.2
     whole = whole_walk_floor_path(t, evidence, rates)
-    assert np.allclose(whole.posterior[-1], mixed[-1], atol=1e-9)
-    assert np.allclose(whole.posterior.sum(axis=1), 1.0)
-    assert np.allclose(whole.path_p, whole.posterior[np.arange(n), whole.path])
-
-
-def test_an_ambiguous_pair_the_walls_tell_apart_is_decided_as_the_filter_believes(tmp_path):
-    """The reproduction in miniature: the WiFi vote backs the wrong floor (L2) of an ambiguous
-    pair at most scans, while the filter, whose particles on L2 the walls keep killing, believes
-    the right one (L1) at 70 % of the rows. The whole-walk floor from the vote alone commits the
-    walk to L2; from the filter's belief it is on L1 at least as often as the causal filter."""
-    from mapfilter.filter.barometer import BarometerConfig
-    from mapfilter.filter.floors import FloorChangeConfig, FloorChanges, FloorStack
-    from mapfilter.offline.floors import whole_walk_floors
-    from test_floors import _building
-
-    building = _building(tmp_path, connectors=False)
-    stack = FloorStack(building)
-    changes = FloorChanges(stack, FloorChangeConfig())
-    rng = np.random.default_rng(1)
-    n = 120
-    t = 10.0 + 2.0 * np.arange(n)  # a scan a row
-    vote = np.where(rng.random(n) < 0.65, 2, 1)
-    floor_ll = np.log(np.where(np.arange(3)[None, :] == vote[:, None], 5 / 7, 1 / 7))
-    wifi = SimpleNamespace(scans=[SimpleNamespace(t_s=x) for x in t], usable=np.ones(n, bool),
-                           floor_log_likelihood=floor_ll, pressure=None, elevation_m=np.array([0.0, 4.0, 8.0]),
-                           barometer=BarometerConfig())
-    causal = np.where(rng.random(n) < 0.7, 1, 2)
-    belief = np.full((n, 3), 0.02)
-    belief[np.arange(n), causal] = 0.6
-    belief[np.arange(n), 3 - causal] = 0.38
-    xy = stack.to_stack(np.tile([10.0, 5.0], (n, 1)), 1)
-    causal_right = np.mean(causal == 1)
-    by_vote = whole_walk_floors(changes, wifi, t, xy).path
-    by_belief = whole_walk_floors(changes, wifi, t, xy, belief, 2000).path
-    assert np.mean(by_vote == 1) < causal_right  # the failure: committed to the wrong floor
-    assert np.mean(by_belief == 1) >= causal_right
+    trans = [_log_transition_rates(rates[k], t[k + 1] - t[k]) for k in range(n - 1)]
+    marginal = np.zeros((n, f))
+    best, best_path = -np.inf, None
+    for seq in itertools.product(range(f), repeat=n):
+        log_p = evidence[0, seq[0]] + sum(trans[k][seq[k], seq[k + 1]] + evidence[k + 1, seq[k + 1]]
+                                          for k in range(n - 1))
+        marginal[np.arange(n), seq] += np.exp(log_p)
+        if log_p > best:
+            best, best_path = log_p, seq
+    marginal /= marginal.sum(axis=1, keepdims=True)
+    assert np.allclose(whole.posterior, marginal, atol=1e-10)
+    assert tuple(whole.path) == best_path
+    assert np.allclose(whole.path_p, marginal[np.arange(n), whole.path])
 
 
 # ---- a walk over several floors in a building's radio map ---------------------------------------

@@ -302,11 +302,14 @@ def test_evaluate_in_a_building_reports_floor_accuracy_per_method(site1_building
     table = capsys.readouterr().out
     assert "floor_accuracy" in table
     summary = {row["method"]: row for row in json.loads((out / "summary.json").read_text())["summary"]}
-    assert set(summary) == {"pf", "pf-floor", "kwnn", "pf-smooth"}
+    assert set(summary) == {"pf", "pf-floor", "kwnn", "kf", "pdr", "pf-smooth"}
     assert summary["pf-smooth"]["traces"] == 2 and (out / "tracks" / f1[0].name.split(".")[0] / "pf-smooth.csv").exists()
     assert summary["pf-floor"]["floor_accuracy"] == 1.0  # the floor given
     assert all(0.0 <= row["floor_accuracy"] <= 1.0 for row in summary.values())
     assert summary["pf"]["traces"] == 2 and summary["kwnn"]["traces"] == 4  # no PDR on WiFi-only walks
+    assert summary["kf"]["traces"] == 4 and summary["pdr"]["traces"] == 2
+    # one floor per walk: the IPIN score is the p75 plus 15 m per storey off, at least the p75
+    assert all(row["ipin_score"] >= row["p75"] - 1e-9 for row in summary.values())
     assert "floor_accuracy" in (out / "traces.csv").read_text().splitlines()[0]
 
 

@@ -24,7 +24,7 @@ from mapfilter.filter.run import MotionConfig
 from mapfilter.maps.paths import detour_wall_crossings
 from mapfilter.offline.placement import place_walk
 from mapfilter.offline.whole_walk import OfflineConfig, OfflineTrack, restarted_run, placed_track, whole_walk_track
-from mapfilter.sensors.floors import WholeWalkFloors, belief_log_likelihood, whole_walk_floor_path
+from mapfilter.sensors.floors import WholeWalkFloors, whole_walk_floor_path
 from mapfilter.sensors.pdr import Steps
 from mapfilter.trackio import Track
 
@@ -33,32 +33,21 @@ def building_offline_track(changes: FloorChanges, evidence: BuildingEvidence, st
                            causal_stack: Track, lineage_stack: Track, motion: MotionConfig,
                            filter_config: FilterConfig, rng: np.random.Generator,
                            config: OfflineConfig = OfflineConfig(),
-                           on_step: Callable[[StepReport], None] | None = None,
-                           causal_floor_shares: np.ndarray | None = None) -> OfflineTrack:
+                           on_step: Callable[[StepReport], None] | None = None) -> OfflineTrack:
     """The offline track of a walk in a building, each row in its floor's frame with its floor's
     name and ``floor_p``, the whole-walk posterior of that floor.
 
     ``causal_stack`` and ``lineage_stack``: the causal track and the final best particle's
-    lineage in the stack frame; ``causal_floor_shares`` (rows of ``causal_stack``, F): the causal
-    filter's weight share per floor (``filter.run.FilterRun.floor_shares``). The floors come from
-    ``whole_walk_floors`` over the lineage (walked round the stack's walls); with PDR steps each
-    floor's stretch is placed on its floor (``_by_floor``), else the lineage is the offline track.
+    lineage in the stack frame. The floors come from ``whole_walk_floors`` over the lineage
+    (walked round the stack's walls); with PDR steps each floor's stretch is placed on its floor
+    (``_by_floor``), else the lineage is the offline track.
     """
     stack = changes.stack
     t_s, xy_m = detour_wall_crossings(stack.plan, lineage_stack.t_s, lineage_stack.xy_m)
-    belief = None
-    if causal_floor_shares is not None:
-        belief = _shares_at(causal_stack.t_s, causal_floor_shares, t_s)
-    whole = whole_walk_floors(changes, evidence, t_s, xy_m, belief, filter_config.n_particles)
+    whole = whole_walk_floors(changes, evidence, t_s, xy_m)
     track = _offline_track(stack, evidence, steps, causal_stack, t_s, xy_m, whole.path, motion, filter_config, rng,
                            config, on_step)
     return dataclasses.replace(track, track=_with_floor_p(stack, track.track, t_s, whole.posterior))
-
-
-def _shares_at(causal_t_s: np.ndarray, shares: np.ndarray, t_s: np.ndarray) -> np.ndarray:
-    """(T, F) the causal filter's floor shares of its latest step at or before each time."""
-    row = np.clip(np.searchsorted(causal_t_s, t_s, side="right") - 1, 0, len(causal_t_s) - 1)
-    return shares[row]
 
 
 def _with_floor_p(stack: FloorStack, track: Track, t_s: np.ndarray, posterior: np.ndarray) -> Track:
@@ -162,19 +151,13 @@ def _stretch_on_floor(stack: FloorStack, evidence: BuildingEvidence, steps: Step
 
 
 def whole_walk_floors(changes: FloorChanges, evidence: BuildingEvidence, t_s: np.ndarray,
-                      stack_xy_m: np.ndarray, belief: np.ndarray | None = None,
-                      n_particles: int | None = None) -> WholeWalkFloors:
+                      stack_xy_m: np.ndarray) -> WholeWalkFloors:
     """The floor of every row (T,) of an offline track (stack frame), decided from the whole walk,
-    and each row's floor posterior.
+    and each row's floor posterior (``WholeWalkFloors``).
 
     The filter's own model, smoothed instead of filtered (``sensors.floors.whole_walk_floor_path``,
-    Viterbi and forward-backward). The evidence: given the causal filter's floor ``belief`` (T, F:
-    its weight share per floor at each row), the evidence whose forward filter is that belief
-    (``sensors.floors.belief_log_likelihood``, a share below one of ``n_particles`` particles'
-    weight read as that much): so the offline floor weighs all the filter weighed, the WiFi vote
-    and what the walls did to the particles of each floor (a walk whose shape fits one floor's
-    corridors and not another's), and smooths it. Without ``belief``, each usable scan weighs
-    floors by the WiFi vote alone. The walker changes floor at the filter's rates (``FloorChangeConfig``): with connectors only
+    Viterbi; the posterior by forward-backward): each usable scan weighs floors by the filter's
+    floor evidence (the WiFi vote); the walker changes floor at the filter's rates (``FloorChangeConfig``): with connectors only
     between floors a connector links and only at rows where the track's building-frame point is
     inside it on the floor left (at ``connector_rate_per_s``), without any anywhere (at
     ``anywhere_rate_per_s``); unlike the filter's particles, one storey at a time (to the next
@@ -193,7 +176,6 @@ def whole_walk_floors(changes: FloorChanges, evidence: BuildingEvidence, t_s: np
     for i in np.flatnonzero(evidence.usable):
         floor_evidence[row[i]] += evidence.floor_log_likelihood[i]
     rates = np.zeros((max(n_rows - 1, 0), n_floors, n_floors))
-    filter_rates = np.zeros_like(rates)  # the filter's own: to every linked floor alike
     if changes.has_connectors:
         building_xy = stack.to_building(stack_xy_m)
         for f, floor in enumerate(stack.building.floors):
@@ -209,33 +191,16 @@ def whole_walk_floors(changes: FloorChanges, evidence: BuildingEvidence, t_s: np
                 if f in linked:
                     nearest = _next_floors(f, linked, evidence.elevation_m)
                     rates[k, f, nearest] += config.connector_rate_per_s / len(nearest)
-                    others = [g for g in linked if g != f]
-                    filter_rates[k, f, others] += config.connector_rate_per_s / len(others)
     else:
         for f in range(n_floors):
             nearest = _next_floors(f, list(range(n_floors)), evidence.elevation_m)
             rates[:, f, nearest] = config.anywhere_rate_per_s / len(nearest)
-            filter_rates[:, f, [g for g in range(n_floors) if g != f]] = config.anywhere_rate_per_s / (n_floors - 1)
-    if belief is not None:
-        # the evidence whose forward filter under the filter's own changes is its belief
-        floor_evidence = belief_log_likelihood(times, belief, filter_rates, 1.0 / max(n_particles or 1, 1))
     height = elevation = None
     if evidence.pressure is not None:
         baro_t, baro_h = barometric_height(*evidence.pressure, evidence.barometer.smoothing_window_s, centred=True)
         height = np.interp(times, baro_t, baro_h)
         elevation = evidence.elevation_m
-    whole = whole_walk_floor_path(times, floor_evidence, rates, height, elevation, evidence.barometer.sigma_m)
-    if belief is None or n_rows == 0:
-        return whole
-    # The Viterbi path is the most probable sequence: where the evidence is split, it may hold a
-    # floor for a whole walk that each row's posterior backs less than the filter's own choice
-    # (a floor pair the WiFi cannot tell apart; the walls of one of them fit the walk). Each row
-    # takes, of the path's floor and the causal filter's (its largest share), the one the
-    # whole-walk posterior backs more.
-    causal = np.argmax(belief, axis=1)
-    rows = np.arange(n_rows)
-    path = np.where(whole.posterior[rows, causal] > whole.posterior[rows, whole.path], causal, whole.path)
-    return dataclasses.replace(whole, path=path)
+    return whole_walk_floor_path(times, floor_evidence, rates, height, elevation, evidence.barometer.sigma_m)
 
 
 def _next_floors(floor: int, linked: list[int], elevation_m: np.ndarray) -> list[int]:

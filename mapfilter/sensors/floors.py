@@ -16,7 +16,8 @@
   and the Viterbi path (the whole walk).
 - :func:`whole_walk_floor_path` is the Viterbi path over a tracked walk's rows with per-pair
   change rates (zero where no connector allows a change) and, with a barometer, its heights
-  against the floors' elevations (one unknown zero per walk): the offline track's floor.
+  against the floors' elevations (one unknown zero per walk): the offline track's floor; and
+  each row's floor posterior (forward-backward): the offline track's ``floor_p``.
 """
 
 from __future__ import annotations
@@ -239,8 +240,7 @@ def whole_walk_floor_path(t_s: np.ndarray, floor_log_likelihood: np.ndarray, cha
     Parameters
     ----------
     t_s : (T,) row times (non-decreasing).
-    floor_log_likelihood : (T, F) evidence per row (a WiFi floor vote where a scan is, 0 elsewhere;
-        or the filter's own floor evidence, ``belief_log_likelihood``).
+    floor_log_likelihood : (T, F) evidence per row (a WiFi floor vote where a scan is, 0 elsewhere).
     change_rate_per_s : (T - 1, F, F) rate of going from floor i to floor j between rows k and
         k + 1 (0: not possible there, e.g. outside every connector linking i and j); the diagonal
         is ignored. The walker leaves i with probability 1 - exp(-R dt), R the row's sum, to j
@@ -320,35 +320,6 @@ def _forward_backward(log_emission: np.ndarray, log_trans: list[np.ndarray]) -> 
 def _logsumexp(a: np.ndarray) -> float:
     m = float(np.max(a))
     return m + math.log(float(np.exp(a - m).sum())) if math.isfinite(m) else m
-
-
-def belief_log_likelihood(t_s: np.ndarray, belief: np.ndarray, change_rate_per_s: np.ndarray,
-                          floor_share: float) -> np.ndarray:
-    """(T, F) per-row floor evidence whose forward filter, with these change rates and a uniform
-    start, is ``belief``: row k gets log b_k - log(b_{k-1} P_k), P_k the rows' transition matrix.
-
-    ``belief`` (T, F): a causal filter's floor probabilities per row (a particle filter's weight
-    share per floor: everything it weighed, WiFi, walls and barometer). Each row is first mixed
-    with ``floor_share`` per floor (a share below one particle's weight says "unlikely", never
-    "impossible"). Smoothing these (``whole_walk_floor_path``) is smoothing the filter's own
-    belief: the forward-backward identity needs only the filtered probabilities and the
-    transitions (the Rauch-Tung-Striebel form of the discrete smoother).
-    """
-    times = np.asarray(t_s, dtype=np.float64)
-    b = np.asarray(belief, dtype=np.float64)
-    n_rows, n_floors = b.shape
-    b = (np.clip(b, 0.0, None) + floor_share) / (b.sum(axis=1, keepdims=True) + n_floors * floor_share)
-    log_b = np.log(b)
-    out = np.empty_like(log_b)
-    if n_rows == 0:
-        return out
-    out[0] = log_b[0]
-    rates = np.asarray(change_rate_per_s, dtype=np.float64)
-    for k in range(1, n_rows):
-        predicted = _logsumexp_rows(log_b[k - 1][:, None]
-                                    + _log_transition_rates(rates[k - 1], max(times[k] - times[k - 1], 0.0)))
-        out[k] = log_b[k] - predicted
-    return out
 
 
 def _log_transition_rates(rate_per_s: np.ndarray, dt_s: float) -> np.ndarray:
