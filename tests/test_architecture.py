@@ -8,17 +8,20 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "mapfilter"
 # stage -> the stages it must never import (also not lazily, inside a function)
 FORBIDDEN = {
-    "maps": {"sensors", "filter", "tracking", "floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "sensors": {"filter", "tracking", "floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "filter": {"tracking", "floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "tracking": {"floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "floortracking": {"evaluation", "batch", "simulate", "viz", "cli"},
+    "maps": {"sensors", "filter", "tracking", "floortracking", "selftrain", "evaluation", "batch", "simulate", "viz",
+             "cli"},
+    "sensors": {"filter", "tracking", "floortracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "filter": {"tracking", "floortracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "tracking": {"floortracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "floortracking": {"selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    # growing a radio map tracks walks (tracking, floortracking); evaluation may grow maps
+    "selftrain": {"evaluation", "batch", "simulate", "viz", "cli"},
     "evaluation": {"batch", "simulate", "viz", "cli"},
     "batch": {"simulate", "viz", "cli"},
     # how walks are dispatched knows nothing of what a walk is
-    "engine": {"maps", "sensors", "filter", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "simulate": {"filter", "tracking", "floortracking", "evaluation", "batch", "viz", "cli"},
-    "viz": {"tracking", "floortracking", "evaluation", "batch", "simulate", "cli"},
+    "engine": {"maps", "sensors", "filter", "tracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "simulate": {"filter", "tracking", "floortracking", "selftrain", "evaluation", "batch", "viz", "cli"},
+    "viz": {"tracking", "floortracking", "selftrain", "evaluation", "batch", "simulate", "cli"},
 }
 
 
