@@ -485,7 +485,7 @@ def test_bad_grown_radio_map_files_are_refused(tmp_path, change, message):
 
 def test_a_point_with_a_huge_sigma_moves_a_kwnn_fix_less_than_a_surveyed_one():
     """Two reference points equally near the scan in signal space: surveyed, the fix is their
-    midpoint; with one of them grown at sigma 30 m, the fix sits nearly on the other one."""
+    midpoint; with one of them grown at sigma 100 m, the fix sits nearly on the other one."""
     from mapfilter.sensors.radiomap import GROWN
 
     keys = [f"02:00:00:00:03:{j:02x}@5" for j in range(4)]
@@ -495,9 +495,9 @@ def test_a_point_with_a_huge_sigma_moves_a_kwnn_fix_less_than_a_surveyed_one():
     both = kwnn_fix_many(rm, scan, k=2).xy_m[0]
     assert both[0] == pytest.approx(5.0)
     rm.source = np.array([0, GROWN], np.int8)
-    rm.xy_sigma_m = np.array([0.0, 30.0])
+    rm.xy_sigma_m = np.array([0.0, 100.0])
     weighed = kwnn_fix_many(rm, scan, k=2).xy_m[0]
-    assert weighed[0] < 0.2  # weight 9 / (9 + 900) of the surveyed point's: 10 m x 0.0099
+    assert weighed[0] < 0.2  # weight 100 / (100 + 10,000) of the surveyed point's: 10 m x 0.0098
     # a grown point with sigma 0 counts as a surveyed one
     rm.xy_sigma_m = np.array([0.0, 0.0])
     assert kwnn_fix_many(rm, scan, k=2).xy_m[0, 0] == pytest.approx(5.0)
