@@ -43,7 +43,8 @@ from mapfilter.sensors.wifi import scans_of
 from mapfilter.tracking import TrackingConfig, calibrated_fix_sigma_m, track_recording
 from mapfilter.trackio import Track
 
-__all__ = ["GrowConfig", "GrowReport", "OfflineWalk", "grow_radio_map", "offline_track", "labelled_and_unlabelled"]
+__all__ = ["GrowConfig", "GrowReport", "OfflineWalk", "grow_radio_map", "grown_by_fold", "labelled_and_unlabelled",
+           "offline_track"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -312,3 +313,57 @@ def grow_radio_map(space: FloorPlan | Building, radio_map: RadioMap, recordings:
             walks[i].floors = ",".join(dict.fromkeys(floor_names[f] for f in points.floor))
     result = merge_radio_maps([radio_map, *(grown[i] for i in sorted(grown))])
     return result, GrowReport(walks, iterations, 0, [offline[i] for i in sorted(offline)])
+
+
+def grown_by_fold(space: FloorPlan | Building, labelled: Sequence[Recording], unlabelled: Sequence[Recording],
+                  config: GrowConfig = GrowConfig(), folds: int = 4, base_of=None,
+                  progress: Callable[[int, int, str], None] | None = None,
+                  engine: Engine | None = None) -> tuple[list[RadioMap], list[GrowReport], np.ndarray]:
+    """Grown points for a leave-one-out evaluation of the ``labelled`` walks that never uses a
+    scored walk's labels: (grown points of each fold, its report, the fold of each labelled walk).
+
+    Growing over every labelled walk and then scoring each one leave-one-out leaks its labels:
+    the walks grown near it were placed by its points, and their points then stand in for its
+    own (on ILC F1, one growing over all 36 sparse walks gave pf-smooth 5.00 m mean, better than
+    the 40 walks' *true* labels at 5.10 m, against 6.42 m without the leak). Here the labelled
+    walks are split into ``folds`` (walk i in fold i % folds); the unlabelled walks grow once per
+    fold over the labelled walks of the other folds; walk i is then scored with its map (the
+    other labelled walks) plus ``grown[fold[i]]``, points grown without its labels. A fold's
+    base has (folds - 1) / folds of the labelled walks, so this errs on the pessimistic side.
+
+    ``base_of(recordings) -> RadioMap`` builds a base map (default: ``build_radio_map`` on a
+    floor, ``sensors.floors.build_building_radio_map`` with each log's header floor in a building).
+    For a transductive evaluation (the walks being scored grow the map too, without their own
+    labels) grow once with the scored walks among ``recordings`` of ``grow_radio_map`` and score
+    each walk with ``grown.without_traces([walk])``: its own grown points left out.
+    """
+    if folds < 1:
+        raise MapfilterError(f"folds must be at least 1, got {folds}")
+    if base_of is None:
+        base_of = (lambda recs: _building_base(space, recs)) if isinstance(space, Building) else (
+            lambda recs: build_radio_map(recs, space))
+    fold = np.arange(len(labelled)) % folds
+    grown, reports = [], []
+    for f in range(folds):
+        base = base_of([r for r, g in zip(labelled, fold) if g != f or folds == 1])
+
+        def tick(done: int, total: int, name: str, f: int = f) -> None:
+            if progress is not None:
+                progress(f * total + done, folds * total, name)
+
+        result, report = grow_radio_map(space, base, unlabelled, config, progress=tick, engine=engine)
+        grown.append(result.select(result.source == GROWN))
+        reports.append(report)
+    return grown, reports, fold
+
+
+def _building_base(building: Building, recordings: Sequence[Recording]) -> RadioMap:
+    from mapfilter.sensors.floors import build_building_radio_map
+
+    floors = []
+    for rec in recordings:
+        index = building.floor_of_log(rec.floor_name, rec.path)
+        if index is None:
+            raise MapfilterError("the log's header names no floor (FloorName)", rec.path)
+        floors.append(index)
+    return build_building_radio_map(recordings, floors, building.floor_names)

@@ -177,3 +177,23 @@ def test_cli_default_iterations_match_the_library():
     from mapfilter.cli import radiomap_cmd
 
     assert radiomap_cmd._MAX_ITERATIONS == GrowConfig().max_iterations
+
+
+def test_grown_by_fold_never_uses_the_labels_of_the_folds_walks(office, tmp_path):
+    """Fold f's points grow over the labelled walks of the other folds only: moving the
+    waypoints of fold 0's walk changes the points grown for fold 1, never those of fold 0."""
+    import dataclasses
+
+    from mapfilter.selftrain import grown_by_fold
+
+    plan = office["plan"]
+    labelled = [read_ilc(office["survey"]), read_ilc(office["held_out"][0])]
+    unlabelled = [read_ilc(office["unlabelled"][0])]
+    config = GrowConfig(tracking=TrackingConfig(n_particles=300), max_iterations=1)
+    grown, reports, fold = grown_by_fold(plan, labelled, unlabelled, config, folds=2)
+    assert fold.tolist() == [0, 1] and len(grown) == len(reports) == 2
+    assert all(np.all(g.source == GROWN) and len(g) > 0 for g in grown)
+    moved = [dataclasses.replace(labelled[0], waypoint_xy_m=labelled[0].waypoint_xy_m[::-1].copy()), labelled[1]]
+    again, _, _ = grown_by_fold(plan, moved, unlabelled, config, folds=2)
+    np.testing.assert_array_equal(again[0].xy_m, grown[0].xy_m)
+    assert not np.array_equal(again[1].xy_m, grown[1].xy_m)

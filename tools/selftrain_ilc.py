@@ -41,9 +41,9 @@ from mapfilter.engine import Engine, run_each  # noqa: E402
 from mapfilter.evaluation.comparison import AllWalks, EvaluationSetup, evaluate_trace  # noqa: E402
 from mapfilter.evaluation.metrics import format_table, summarise_errors  # noqa: E402
 from mapfilter.maps.prepare import import_ilc  # noqa: E402
-from mapfilter.selftrain import GrowConfig, grow_radio_map  # noqa: E402
+from mapfilter.selftrain import GrowConfig, grown_by_fold  # noqa: E402
 from mapfilter.sensors.ilc import read_ilc  # noqa: E402
-from mapfilter.sensors.radiomap import GROWN, build_radio_map, label_scans, merge_radio_maps  # noqa: E402
+from mapfilter.sensors.radiomap import build_radio_map, label_scans, merge_radio_maps  # noqa: E402
 from mapfilter.tracking import TrackingConfig  # noqa: E402
 
 SITE1 = REPO.parent / "shared" / "data" / "ilc20" / "site1"
@@ -119,19 +119,18 @@ def _spearman(a, b) -> float:
 
 
 def grown_for_folds(floorplan, labelled, unlabelled, folds, grow: GrowConfig, engine, cache: Path | None):
-    """The grown points (a radio map of grown points only) for each fold of the labelled walks."""
-    out = []
-    reports = []
+    """The grown points (a radio map of grown points only) for each fold of the labelled walks
+    (``selftrain.grown_by_fold``, one fold at a time so that each is cached)."""
+    out, reports = [], []
     for f in range(folds):
         path = None if cache is None else cache / f"fold{f}of{folds}.pkl"
         if path is not None and path.exists():
             grown, report = pickle.loads(path.read_bytes())
         else:
-            base = build_radio_map([r for i, r in enumerate(labelled) if i % folds != f or folds == 1], floorplan)
             started = time.perf_counter()
-            result, report = grow_radio_map(floorplan, base, unlabelled, grow, engine=engine)
+            keep = [r for i, r in enumerate(labelled) if i % folds != f or folds == 1]
+            grown, report = (x[0] for x in grown_by_fold(floorplan, keep, unlabelled, grow, folds=1, engine=engine)[:2])
             report.iterations.append({"wall_s": time.perf_counter() - started})
-            grown = result.select(result.source == GROWN)
             if path is not None:
                 path.parent.mkdir(parents=True, exist_ok=True)
                 path.write_bytes(pickle.dumps((grown, report)))
