@@ -197,3 +197,41 @@ def test_grown_by_fold_never_uses_the_labels_of_the_folds_walks(office, tmp_path
     again, _, _ = grown_by_fold(plan, moved, unlabelled, config, folds=2)
     np.testing.assert_array_equal(again[0].xy_m, grown[0].xy_m)
     assert not np.array_equal(again[1].xy_m, grown[1].xy_m)
+
+
+def test_cli_grow_in_a_building_puts_each_point_on_the_offline_tracks_floor(tmp_path, capsys):
+    """Three simulated office floors, a coarse survey per floor; two walks that change floor
+    grow the building's radio map: their points carry floors, mostly the true ones."""
+    import sys
+
+    sys.path.insert(0, str(MAPS.parent / "tools"))
+    from floor_sim import FLOORS, make_office_building_with_ap_files
+
+    from mapfilter.sensors.floors import load_building_radio_map
+
+    building = make_office_building_with_ap_files(tmp_path)
+    surveys = [tmp_path / f"survey_{name}.txt" for name in FLOORS]
+    for name, survey in zip(FLOORS, surveys):
+        assert main(["simulate", str(building), "--out", str(survey), "--survey", "--floor", name,
+                     "--survey-spacing", "8", "--scans-per-point", "1"]) == 0
+    assert main(["radiomap", "build", str(building), *map(str, surveys), "--out", str(tmp_path / "rm.npz")]) == 0
+    walks = [tmp_path / f"walk{seed}.txt" for seed in (1, 2)]
+    for seed, walk in zip((1, 2), walks):
+        assert main(["simulate", str(building), "--out", str(walk), "--seed", str(seed), "--floor-changes", "1",
+                     "--segment-s", "4", "6"]) == 0
+    capsys.readouterr()
+    assert main(["radiomap", "grow", str(building), *map(str, walks), "--radiomap", str(tmp_path / "rm.npz"),
+                 "--ignore-waypoints", "--iterations", "1", "--particles", "300",
+                 "--out", str(tmp_path / "grown.npz")]) == 0
+    assert "grown:" in capsys.readouterr().out
+    base = load_building_radio_map(tmp_path / "rm.npz", FLOORS)
+    grown = load_building_radio_map(tmp_path / "grown.npz", FLOORS)
+    new = np.flatnonzero(grown.source == GROWN)
+    assert new.size > 20 and len(grown) == len(base) + new.size
+    right = []
+    for walk in walks:
+        rec = read_ilc(walk)
+        mine = new[np.array(grown.source_traces)[grown.trace[new]] == rec.name]
+        at = np.clip(np.searchsorted(rec.waypoint_t_s, grown.t_s[mine]), 0, rec.waypoint_t_s.size - 1)
+        right.extend(FLOORS[f] == rec.waypoint_floor[j] for f, j in zip(grown.floor[mine], at))
+    assert np.mean(right) > 0.8
