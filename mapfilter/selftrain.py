@@ -263,6 +263,8 @@ def grow_radio_map(space: FloorPlan | Building, radio_map: RadioMap, recordings:
             walks[i].skipped = "no IMU (WiFi-only walks are not grown)"
         else:
             usable.append(i)
+    if not usable:  # nothing to track: the base map as it is
+        return merge_radio_maps([radio_map]), GrowReport(walks, [])
     blind = {i: _without_waypoints(recordings[i]) for i in usable}
     grown: dict[int, RadioMap] = {}
     positions: dict[int, np.ndarray] = {}
