@@ -173,7 +173,10 @@ def grown_points(recording: Recording, walk: OfflineWalk, sigma_m: np.ndarray,
     (``build_radio_map``): the same scans and readings a survey of that walk would give."""
     if walk.scan_t_s.size == 0:
         return None
-    pseudo = dataclasses.replace(recording, waypoint_t_s=walk.scan_t_s, waypoint_xy_m=walk.xy_m)
+    t, xy = walk.scan_t_s, walk.xy_m
+    if t.size == 1:  # a survey log needs two waypoints: the walker stood there a second longer
+        t, xy = np.append(t, t[0] + 1.0), np.vstack([xy, xy])
+    pseudo = dataclasses.replace(recording, waypoint_t_s=t, waypoint_xy_m=xy)
     try:
         points = build_radio_map([pseudo])
     except MapfilterError:

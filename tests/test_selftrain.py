@@ -103,6 +103,10 @@ def test_grown_points_carry_the_offline_positions_and_sigma(office):
     np.testing.assert_allclose(points.xy_m[:, 0], points.t_s - t[0])
     np.testing.assert_allclose(points.xy_sigma_m, np.searchsorted(t, points.t_s))
     assert np.all(points.source == GROWN) and points.source_traces == [rec.name]
+    # a walk with one scan grows one point
+    one = OfflineWalk(rec.name, t[:1], np.array([[3.0, 4.0]]), None, np.zeros(1))
+    single = grown_points(rec, one, np.array([2.0]))
+    assert len(single) == 1 and single.xy_m.tolist() == [[3.0, 4.0]] and single.xy_sigma_m.tolist() == [2.0]
 
 
 def test_walks_without_imu_are_skipped_unless_asked(office):
