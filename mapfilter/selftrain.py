@@ -32,15 +32,16 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from mapfilter.config import TrackingConfig
 from mapfilter.engine import Engine, run_each
 from mapfilter.errors import MapfilterError
-from mapfilter.floortracking import track_building
+from mapfilter.filter.evidence import calibrated_fix_sigma_m
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.radiomap import GROWN, RadioMap, build_radio_map, merge_radio_maps
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import scans_of
-from mapfilter.tracking import TrackingConfig, calibrated_fix_sigma_m, track_recording
+from mapfilter.tracking import track
 from mapfilter.trackio import Track
 
 __all__ = ["GrowConfig", "GrowReport", "OfflineWalk", "grow_radio_map", "grown_by_fold", "labelled_and_unlabelled",
@@ -118,17 +119,14 @@ def offline_track(space: FloorPlan | Building, recording: Recording, radio_map: 
     """The one call to the tracker: (the walk's offline track, the causal track that placed it).
 
     ``fix_sigma``: the fix Gaussian (m; per floor name in a building), None to calibrate it."""
-    if isinstance(space, Building):
-        per_floor = fix_sigma if isinstance(fix_sigma, dict) else None
-        result = track_building(space, recording, radio_map, dataclasses.replace(config, smooth=True), rng,
-                                fix_sigma_per_floor_m=per_floor)
-    else:
-        config = dataclasses.replace(config, smooth=True, fix_sigma_m=fix_sigma if fix_sigma is not None else
-                                     config.fix_sigma_m)
-        result = track_recording(space, recording, radio_map, None, config, rng)
-    if result.smoothed is None or len(result.smoothed) == 0:
+    config = dataclasses.replace(config, smooth=True)
+    per_floor = fix_sigma if isinstance(fix_sigma, dict) else None
+    if fix_sigma is not None and per_floor is None:
+        config = dataclasses.replace(config, wifi=dataclasses.replace(config.wifi, fix_sigma_m=fix_sigma))
+    result = track(space, recording, radio_map=radio_map, config=config, fix_sigma_by_floor_m=per_floor, rng=rng)
+    if result.offline is None or len(result.offline) == 0:
         raise MapfilterError("the tracker gave no offline track", recording.path)
-    return result.smoothed, (result.restarted if result.restarted is not None else result.track)
+    return result.offline, (result.restarted if result.restarted is not None else result.causal)
 
 
 def _has_imu(recording: Recording) -> bool:
@@ -140,7 +138,7 @@ def track_offline(space: FloorPlan | Building, radio_map: RadioMap, config: Grow
     """Track one walk offline over ``radio_map``: its position and spread at every scan."""
     tracking = config.tracking
     if not _has_imu(recording):  # no steps: a constant-velocity filter's lineage is the offline track
-        tracking = dataclasses.replace(tracking, motion="cv")
+        tracking = dataclasses.replace(tracking, motion=dataclasses.replace(tracking.motion, model="cv"))
     smoothed, causal = offline_track(space, recording, radio_map, tracking, rng, fix_sigma)
     t = np.array([s.t_s for s in scans_of(recording)])
     xy = np.column_stack([np.interp(t, smoothed.t_s, smoothed.xy_m[:, 0]),
@@ -217,12 +215,13 @@ def _grow_walk(space: FloorPlan | Building, base: RadioMap, config: GrowConfig, 
 def _fix_sigma(space: FloorPlan | Building, radio_map: RadioMap, config: GrowConfig):
     """The fix Gaussian of this iteration's map, calibrated once for every walk tracked over it
     (the maps differ by one walk's points: calibrating each would cost (points)^2 per walk)."""
-    if config.tracking.fix_sigma_m is not None:
-        return config.tracking.fix_sigma_m
+    wifi = config.tracking.wifi
+    if wifi.fix_sigma_m is not None:
+        return wifi.fix_sigma_m
     if isinstance(space, Building):
-        return {name: calibrated_fix_sigma_m(radio_map.floor_map(i), config.tracking.kwnn_k)
+        return {name: calibrated_fix_sigma_m(radio_map.floor_map(i), wifi.kwnn_k)
                 for i, name in enumerate(radio_map.floor_names)}
-    return calibrated_fix_sigma_m(radio_map, config.tracking.kwnn_k)
+    return calibrated_fix_sigma_m(radio_map, wifi.kwnn_k)
 
 
 def labelled_and_unlabelled(recordings: Sequence[Recording]) -> tuple[list[Recording], list[Recording]]:

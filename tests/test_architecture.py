@@ -8,20 +8,25 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "mapfilter"
 # stage -> the stages it must never import (also not lazily, inside a function)
 FORBIDDEN = {
-    "maps": {"sensors", "filter", "tracking", "floortracking", "selftrain", "evaluation", "batch", "simulate", "viz",
+    # the bottom: what every stage may use, itself using no stage
+    "settings": {"maps", "sensors", "filter", "offline", "config", "tracking", "selftrain", "evaluation", "batch",
+                 "simulate", "viz", "cli"},
+    "maps": {"sensors", "filter", "offline", "config", "tracking", "selftrain", "evaluation", "batch", "simulate", "viz",
              "cli"},
-    "sensors": {"filter", "tracking", "floortracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
-    "filter": {"tracking", "floortracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
-    "tracking": {"floortracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
-    "floortracking": {"selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
-    # growing a radio map tracks walks (tracking, floortracking); evaluation may grow maps
+    "sensors": {"filter", "offline", "config", "tracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "filter": {"offline", "config", "tracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "offline": {"config", "tracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "config": {"tracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "tracking": {"selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    # growing a radio map tracks walks (tracking); evaluation may grow maps
     "selftrain": {"evaluation", "batch", "simulate", "viz", "cli"},
     "evaluation": {"batch", "simulate", "viz", "cli"},
     "batch": {"simulate", "viz", "cli"},
     # how walks are dispatched knows nothing of what a walk is
-    "engine": {"maps", "sensors", "filter", "tracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
-    "simulate": {"filter", "tracking", "floortracking", "selftrain", "evaluation", "batch", "viz", "cli"},
-    "viz": {"tracking", "floortracking", "selftrain", "evaluation", "batch", "simulate", "cli"},
+    "engine": {"maps", "sensors", "filter", "offline", "config", "tracking", "selftrain", "evaluation", "batch",
+               "simulate", "viz", "cli"},
+    "simulate": {"filter", "offline", "config", "tracking", "selftrain", "evaluation", "batch", "viz", "cli"},
+    "viz": {"offline", "config", "tracking", "selftrain", "evaluation", "batch", "simulate", "cli"},
 }
 
 

@@ -15,7 +15,8 @@ from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import GROWN, SURVEYED, RadioMap, build_radio_map
 from mapfilter.simulate.ilc_writer import write_ilc
 from mapfilter.simulate.walk import SimConfig, simulate_walk
-from mapfilter.tracking import TrackingConfig, track_recording
+from mapfilter.config import TrackingConfig
+from mapfilter.tracking import track
 
 from pathlib import Path
 
@@ -44,9 +45,9 @@ def _mean_error(plan, radio_map, paths) -> float:
     errors = []
     for i, path in enumerate(paths):
         rec = read_ilc(path)
-        out = track_recording(plan, rec, radio_map, None, TrackingConfig(n_particles=PARTICLES),
-                              np.random.default_rng(i))
-        errors.append(errors_at_waypoints(out.track.t_s, out.track.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m,
+        out = track(plan, rec, radio_map=radio_map, config=TrackingConfig().with_particles(PARTICLES),
+                    rng=np.random.default_rng(i))
+        errors.append(errors_at_waypoints(out.causal.t_s, out.causal.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m,
                                           True).errors_m)
     return float(np.concatenate(errors).mean())
 
@@ -58,7 +59,7 @@ def test_growing_from_unlabelled_walks_lowers_a_held_out_walks_error(office):
     plan = office["plan"]
     base = build_radio_map([read_ilc(office["survey"])], plan)
     walks = [read_ilc(p) for p in office["unlabelled"]]
-    grown, report = grow_radio_map(plan, base, walks, GrowConfig(tracking=TrackingConfig(n_particles=PARTICLES),
+    grown, report = grow_radio_map(plan, base, walks, GrowConfig(tracking=TrackingConfig().with_particles(PARTICLES),
                                                                  max_iterations=2))
     assert len(grown) > 3 * len(base) and report.grown_walks == 3 and report.points == len(grown) - len(base)
     assert np.all(grown.source[:len(base)] == SURVEYED) and np.all(grown.source[len(base):] == GROWN)
@@ -80,7 +81,7 @@ def test_growing_never_reads_the_walks_waypoints(office):
 
     plan = office["plan"]
     base = build_radio_map([read_ilc(office["survey"])], plan)
-    config = GrowConfig(tracking=TrackingConfig(n_particles=300), max_iterations=1)
+    config = GrowConfig(tracking=TrackingConfig().with_particles(300), max_iterations=1)
     walk = read_ilc(office["unlabelled"][0])
     moved = dataclasses.replace(walk, waypoint_xy_m=walk.waypoint_xy_m + 50.0)
     a, _ = grow_radio_map(plan, base, [walk], config)
@@ -117,10 +118,10 @@ def test_walks_without_imu_are_skipped_unless_asked(office):
     rec = read_ilc(office["unlabelled"][1])
     wifi_only = dataclasses.replace(rec, acc_t_s=np.zeros(0), acc_mps2=np.zeros((0, 3)), gyro_t_s=np.zeros(0),
                                     gyro_radps=np.zeros((0, 3)), rotvec_t_s=np.zeros(0), rotvec_xyz=np.zeros((0, 3)))
-    grown, report = grow_radio_map(plan, base, [wifi_only], GrowConfig(tracking=TrackingConfig(n_particles=300),
+    grown, report = grow_radio_map(plan, base, [wifi_only], GrowConfig(tracking=TrackingConfig().with_particles(300),
                                                                        max_iterations=1))
     assert len(grown) == len(base) and "no IMU" in report.walks[0].skipped
-    grown, report = grow_radio_map(plan, base, [wifi_only], GrowConfig(tracking=TrackingConfig(n_particles=300),
+    grown, report = grow_radio_map(plan, base, [wifi_only], GrowConfig(tracking=TrackingConfig().with_particles(300),
                                                                        max_iterations=1, wifi_only=True))
     assert report.walks[0].points > 0 and not report.walks[0].skipped
 
@@ -193,7 +194,7 @@ def test_grown_by_fold_never_uses_the_labels_of_the_folds_walks(office, tmp_path
     plan = office["plan"]
     labelled = [read_ilc(office["survey"]), read_ilc(office["held_out"][0])]
     unlabelled = [read_ilc(office["unlabelled"][0])]
-    config = GrowConfig(tracking=TrackingConfig(n_particles=300), max_iterations=1)
+    config = GrowConfig(tracking=TrackingConfig().with_particles(300), max_iterations=1)
     grown, reports, fold = grown_by_fold(plan, labelled, unlabelled, config, folds=2)
     assert fold.tolist() == [0, 1] and len(grown) == len(reports) == 2
     assert all(np.all(g.source == GROWN) and len(g) > 0 for g in grown)

@@ -44,7 +44,8 @@ from mapfilter.maps.prepare import import_ilc  # noqa: E402
 from mapfilter.selftrain import GrowConfig, grown_by_fold  # noqa: E402
 from mapfilter.sensors.ilc import read_ilc  # noqa: E402
 from mapfilter.sensors.radiomap import build_radio_map, label_scans, merge_radio_maps  # noqa: E402
-from mapfilter.tracking import TrackingConfig  # noqa: E402
+from mapfilter.config import TrackingConfig  # noqa: E402
+from mapfilter.maps.building import Building  # noqa: E402
 
 SITE1 = REPO.parent / "shared" / "data" / "ilc20" / "site1"
 METHODS = ("pf", "kwnn")
@@ -60,19 +61,19 @@ def set_paths(name: str) -> tuple[str, list[Path], list[Path]]:
     return floor, labelled, unlabelled
 
 
-def _score(floorplan, setup, paths, all_walks_of, index):
-    return evaluate_trace(floorplan, paths, index, setup, AllWalks(all_walks_of[index], None))
+def _score(building, setup, paths, all_walks_of, index):
+    return evaluate_trace(building, paths, index, setup, AllWalks(all_walks_of[index], None))
 
 
 def score(floorplan, paths, maps_by_walk, seed, particles, engine) -> tuple[dict[str, np.ndarray], dict]:
     """Errors per method over every scored walk, each with its own all-walks map (the walk's
     own points are dropped by evaluate_trace); and each walk's mean error per method."""
-    setup = EvaluationSetup(methods=METHODS, leave_one_out=True, smooth=True, seed=seed,
-                            tracking=TrackingConfig(n_particles=particles))
+    setup = EvaluationSetup(methods=METHODS, leave_one_out=True,
+                            tracking=dataclasses.replace(TrackingConfig(seed=seed), smooth=True).with_particles(particles))
     errors: dict[str, list[np.ndarray]] = {}
     per_walk: dict[str, dict[str, float]] = {}
     for _, results in run_each(_score, list(range(len(paths))), engine,
-                               common=(floorplan, setup, paths, maps_by_walk)):
+                               common=(Building.from_plan(floorplan), setup, paths, maps_by_walk)):
         for r in results:
             errors.setdefault(r.method, []).append(r.errors_m)
             per_walk.setdefault(r.trace, {})[r.method] = float(r.errors_m.mean()) if r.errors_m.size else None

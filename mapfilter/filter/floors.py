@@ -22,13 +22,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import ClassVar
 
 import numpy as np
 import shapely
 
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.estimate import weighted_estimate
+from mapfilter.filter.models import FloorModel, MeasurementModel
 from mapfilter.filter.particles import Particles
+from mapfilter.filter.regularise import weighted_covariance
 from mapfilter.maps.building import Building, connector_pixels
 from mapfilter.maps.floorplan import FloorPlan
 
@@ -119,34 +122,59 @@ class FloorStack:
         return self.building.floors[floor].plan.is_free(self.building.floors[floor].from_building(building_xy_m))
 
 
+class OneFloor(FloorModel):
+    """A single map (``filter.models.FloorModel``): no floor in the state, nothing happens
+    between floors, and not a single random draw."""
+
+    def __init__(self, plan: FloorPlan) -> None:
+        self.plan = plan
+
+    def step_on_stairs(self, from_xy_m: np.ndarray, to_xy_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        return to_xy_m
+
+    def change_floors(self, particles: Particles, log_weight: np.ndarray, dt_s: float, rng: np.random.Generator,
+                      measurement: object = None) -> np.ndarray:
+        return log_weight
+
+    def estimate(self, xy_m: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float, bool]:
+        return weighted_estimate(self.plan, xy_m, weights)
+
+    def covariance(self, xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        return weighted_covariance(xy_m, weights)
+
+    def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray) -> dict:
+        return {}
+
+
 @dataclasses.dataclass
 class FloorChangeConfig:
     """How particles change floor (defaults in comments)."""
 
     # inside a connector, the rate at which a particle takes it: a walker standing 10 s in a
     # lift or on stairs has changed floor with probability 1 - exp(-1) = 63 %
-    connector_rate_per_s: float = 0.1
+    connector_rate_per_s: float = 0.1  # rate at which a particle in a connector takes it
     # a building without connectors: a particle changes floor anywhere at this rate (to the same
     # building-frame point of another floor; where that is no floor, it dies); the WiFi floor
     # vote then keeps or kills it. 1 / 300 s puts about 0.3 % of the cloud on other floors
     # per second: enough to follow a real change within a few scans, too few to matter otherwise
-    anywhere_rate_per_s: float = 1.0 / 300.0
+    anywhere_rate_per_s: float = 1.0 / 300.0  # without connectors: rate of a floor change anywhere
     # with a barometer, inside a connector the height decides the floor: a particle in a
     # connector linking the floor the height is nearest (``FloorFix.height_floor``) is moved
     # there at once. A climber's or rider's floor flips where their height passes half a storey;
     # the memoryless rate above has only a few per cent of the cloud on the new floor then (the
     # barometer kills those that jumped early), and the new floor won only after 1-3 s
-    height_decides_in_connector: bool = True
+    height_decides_in_connector: bool = True  # in a connector, the barometer's floor wins at once
     # on stairs a step advances one tread, not a stride: building codes ask 0.22-0.30 m of
     # going (tread depth) and most stairs have 0.25-0.30 m; a particle starting a step on a
     # stairs polygon moves this far instead (drawn per step), so the cloud stays on the stairs
     # while the climber does and can take them when the height says so. PDR's 0.4-1.0 m stride
     # walked it off a 6 m flight before the climber was half-way up
-    stairs_tread_m: tuple[float, float] = (0.22, 0.32)
+    stairs_tread_m: tuple[float, float] = (0.22, 0.32)  # a step on stairs advances this far (drawn)
 
 
-class FloorChanges:
-    """Moves particles between floors; the filter calls ``apply`` after the wall check.
+class FloorChanges(FloorModel):
+    """A building's floors in the filter's state (``filter.models.FloorModel``): particles live on
+    the stack plan and move between floors; the filter calls ``change_floors`` after the wall check.
 
     With connectors: a live particle on a free pixel of a connector changes floor at
     ``connector_rate_per_s`` to another floor the connector links (chosen alike), landing at
@@ -183,13 +211,30 @@ class FloorChanges:
         for c, connector in enumerate(stack.building.connectors):
             if connector.kind == "stairs":
                 self.on_stairs |= self.connector_id == c
-        self.changed_last_step = 0  # particles that changed floor in the last ``apply``
+        self.changed_last_step = 0  # particles that changed floor in the last ``change_floors``
 
     @property
     def has_connectors(self) -> bool:
         return bool(self.connector_cells)
 
-    def stairs_steps(self, from_xy_m: np.ndarray, to_xy_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    @property
+    def plan(self) -> FloorPlan:
+        return self.stack.plan
+
+    def estimate(self, xy_m: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float, bool]:
+        return self.stack.estimate(xy_m, weights)
+
+    def covariance(self, xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        # the cloud's spread where the floors lie over each other (the building frame), not
+        # across the stack's tiles, which would make the jitter as wide as the building
+        return weighted_covariance(self.stack.to_building(xy_m), weights)
+
+    def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray) -> dict:
+        return {"floor_shares": self.stack.floor_shares(xy_m, weights),
+                "floor_index": int(self.stack.floor_of(estimate_xy_m[None, :])[0]),
+                "floor_changes": self.changed_last_step}
+
+    def step_on_stairs(self, from_xy_m: np.ndarray, to_xy_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One PDR step's end points, with every step that starts on stairs shortened to a tread
         (``stairs_tread_m``) along its own direction; the rest as given (a new array)."""
         out = np.array(to_xy_m, dtype=np.float64, copy=True)
@@ -208,8 +253,8 @@ class FloorChanges:
         out[idx] = from_xy_m[idx] + scale[:, None] * move
         return out
 
-    def apply(self, particles: Particles, log_weight: np.ndarray, dt_s: float,
-              rng: np.random.Generator, measurement: object = None) -> np.ndarray:
+    def change_floors(self, particles: Particles, log_weight: np.ndarray, dt_s: float,
+                      rng: np.random.Generator, measurement: object = None) -> np.ndarray:
         """Change the floor of some live particles in place (``particles.xy_m``); returns the
         log weights with particles that landed on no floor killed. ``measurement``: the step's
         measurement; a ``FloorFix`` with a ``height_floor`` moves the connectors' particles there
@@ -306,7 +351,7 @@ class FloorFix:
 
 
 @dataclasses.dataclass(frozen=True)
-class FloorFixLikelihood:
+class FloorFixLikelihood(MeasurementModel):
     """The WiFi floor vote weighs the floors; within a floor, the fix weighs positions.
 
     For a particle i on floor f with prior weight w_i:
@@ -326,7 +371,7 @@ class FloorFixLikelihood:
 
     stack: FloorStack
     sigma_m: np.ndarray  # (F,) fix sigma per floor
-    kind: str = "floor_fix"
+    kind: ClassVar[str] = "floor_fix"
     # When the floor evidence puts every live particle's floor this far (nats) below the best
     # floor, no particle is where the walker can be: every value is -inf, and the filter
     # collapses and re-draws its particles from this measurement over every floor. The WiFi
@@ -336,6 +381,9 @@ class FloorFixLikelihood:
     # their particles first (``FloorChangeConfig.height_decides_in_connector``), so this is
     # for a cloud that is nowhere near one.
     floor_collapse_nats: float = 2.5
+
+    def locates(self, measurement: FloorFix) -> bool:
+        return not measurement.evidence_only
 
     def log_likelihood(self, particles: Particles, measurement: FloorFix) -> np.ndarray:
         floor = self.stack.floor_of(particles.xy_m)

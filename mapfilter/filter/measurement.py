@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import ClassVar
 
 import numpy as np
 from numba import njit
 
 from mapfilter.errors import MapfilterError
+from mapfilter.filter.models import MeasurementModel
 from mapfilter.filter.particles import Particles
 from mapfilter.sensors.pathloss import MIN_DISTANCE_M, AccessPointTable, match_scan
 from mapfilter.sensors.wifi import WifiScan
@@ -32,7 +34,7 @@ class PositionFix:
 
 
 @dataclasses.dataclass(frozen=True)
-class GaussianFixLikelihood:
+class GaussianFixLikelihood(MeasurementModel):
     """log p(fix | particle) = -|x - fix|^2 / (2 sigma^2) (constant dropped).
 
     The maximum is 0 at the fix, so the value is also a squared distance in sigmas
@@ -40,8 +42,11 @@ class GaussianFixLikelihood:
     """
 
     sigma_m: float = 5.0
-    kind: str = "fix"
-    log_likelihood_peak: float = 0.0  # at the fix: lets the filter tell a hopeless fix (weights underflow)
+    kind: ClassVar[str] = "fix"
+    log_likelihood_peak: ClassVar[float] = 0.0  # at the fix: lets the filter tell a hopeless fix (weights underflow)
+
+    def fix_xy_m(self, measurement: PositionFix) -> np.ndarray:
+        return np.asarray(measurement.xy_m, dtype=np.float64)
 
     def log_likelihood(self, particles: Particles, measurement: PositionFix) -> np.ndarray:
         sigma = self.sigma_m if measurement.sigma_m is None else measurement.sigma_m
@@ -151,7 +156,7 @@ def rssi_log_likelihood(xy_m: np.ndarray, ap_xy_m: np.ndarray, c_dbm: np.ndarray
     return out.astype(np.float64)
 
 
-class TrilaterationLikelihood:
+class TrilaterationLikelihood(MeasurementModel):
     """Per-particle Gaussian RSSI likelihood of the Lund path-loss model (a ``MeasurementModel``).
 
     Each heard AP that the table knows (matched by bssid *and* band) contributes
@@ -163,6 +168,8 @@ class TrilaterationLikelihood:
     ap_table : positions and path-loss parameters of the access points.
     variance_db2 : RSSI noise variance; 25 dB^2 is the thesis value.
     """
+
+    kind = "trilateration"
 
     def __init__(self, ap_table: AccessPointTable, variance_db2: float = 25.0):
         if not variance_db2 > 0:

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import ClassVar
 
 import numpy as np
 from numba import njit
 
 from mapfilter.filter.gaussian import standard_normal
+from mapfilter.filter.models import MotionModel
 from mapfilter.filter.particles import Particles
 from mapfilter.threads import for_slices
 
@@ -47,7 +49,7 @@ def _circle_walk(lo, hi, xy, phi, noise, radius_m, sigma_m, out):
 
 
 @dataclasses.dataclass(frozen=True)
-class RandomWalkMotion:
+class RandomWalkMotion(MotionModel):
     """Random walk on a circle (Lund thesis eq. 6.6).
 
     Each particle jumps to a uniformly random point of the circle of radius
@@ -56,8 +58,8 @@ class RandomWalkMotion:
     e ~ N(0, sigma^2 I). Thesis values: r = 1.5 dt, sigma = 0.5 dt.
     """
 
-    radius_mps: float = 1.5
-    sigma_mps: float = 0.5
+    radius_mps: float = 1.5  # the circle's radius per second (thesis: 1.5 m/s)
+    sigma_mps: float = 0.5  # Gaussian blur per second (thesis: 0.5 m/s)
 
     def propagate(self, particles: Particles, inputs: object, dt_s: float, rng: np.random.Generator) -> Particles:
         n = len(particles)
@@ -71,15 +73,15 @@ class RandomWalkMotion:
 
 
 @dataclasses.dataclass(frozen=True)
-class ConstantVelocityMotion:
+class ConstantVelocityMotion(MotionModel):
     """Constant velocity with random acceleration (Evennou & Marx prediction equation).
 
     x_k = x_{k-1} + v_{k-1} dt + a dt^2 / 2,  v_k = v_{k-1} + a dt,  a ~ N(0, accel_sigma^2 I).
     Speeds above ``max_speed_mps`` (a walking person) are scaled back to it.
     """
 
-    accel_sigma_mps2: float = 0.5
-    max_speed_mps: float = 2.0
+    accel_sigma_mps2: float = 0.5  # random acceleration (per axis)
+    max_speed_mps: float = 2.0  # speeds above this (a walking person) are scaled back
 
     def propagate(self, particles: Particles, inputs: object, dt_s: float, rng: np.random.Generator) -> Particles:
         n = len(particles)
@@ -112,7 +114,7 @@ class StepInput:
 
 
 @dataclasses.dataclass(frozen=True)
-class PDRMotion:
+class PDRMotion(MotionModel):
     """Pedestrian dead reckoning with the state [x, y, heading, step length] (thesis eq. 8.23).
 
     Per particle: heading += change + N(0, heading_sigma^2) (a share ``false_turn_fraction``
@@ -123,12 +125,14 @@ class PDRMotion:
     that length (plus ``step_length_input_sigma_m`` noise) is used instead of the state.
     """
 
+    walks_in_steps: ClassVar[bool] = True
+
     heading_sigma_rad: float = 0.05  # per filter step
     false_turn_fraction: float = 0.15  # thesis: 15 % of particles ignore a detected turn
     turn_threshold_rad: float = 0.35  # a change at least this large counts as a turn (~20 deg)
     step_length_walk_sigma_m: float = 0.02  # per step, random walk of the state (eq. 8.23)
-    step_length_min_m: float = 0.4
-    step_length_max_m: float = 1.0
+    step_length_min_m: float = 0.4  # the state's step length stays within [min, max]
+    step_length_max_m: float = 1.0  # (see step_length_min_m)
     fixed_step_length_m: float | None = None  # set: ignore the state
     step_length_input_sigma_m: float = 0.05  # noise on a given step length
     position_sigma_m: float = 0.05  # per step, lateral/longitudinal slack

@@ -1,12 +1,16 @@
 """The map-aware regularised particle filter: the step loop, collapse detection and recovery.
 
-One step (Evennou & Marx, with the Regularised Particle Filter of Musso, Oudjane & Le Gland):
+One step (Evennou & Marx, with the Regularised Particle Filter of Musso, Oudjane & Le Gland),
+each stage a method of ``ParticleFilter``:
 
-  propagate -> wall kill -> measurement update -> collapse check / recovery -> ESS ->
-  resample + regularise (+ optional AMCL random injection) -> estimate
+  move (``_move``) -> wall kill (``_kill_wall_crossers``) -> floor changes
+  (``FloorModel.change_floors``) -> measurement update and collapse check (``_weigh``) ->
+  recovery from a collapse (``_recover_from_collapse``) | normalise, ESS, resample +
+  regularise (``_normalise_and_resample``) -> estimate -> lineage (``_record_lineage``) ->
+  report (``_report``)
 
-The filter calls only ``motion.propagate`` and ``model.log_likelihood`` (``filter/models.py``);
-it reports what happened as a ``StepReport`` and never draws anything itself.
+The filter calls its models only through the interfaces of ``filter/models.py``; it reports
+what happened as a ``StepReport`` and draws every random number from the generator it is given.
 """
 
 from __future__ import annotations
@@ -20,13 +24,12 @@ from numba import njit
 
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.ancestry import Ancestry
-from mapfilter.filter.estimate import circular_mean, weighted_estimate
+from mapfilter.filter.estimate import circular_mean
 from mapfilter.filter.events import CollapseEvent, StepReport
-from mapfilter.filter.measurement import PositionFix
-from mapfilter.filter.models import MeasurementModel, MotionModel
-from mapfilter.filter.motion import PDRMotion
+from mapfilter.filter.floors import OneFloor
+from mapfilter.filter.models import FloorModel, MeasurementModel, MotionModel
 from mapfilter.filter.particles import Particles
-from mapfilter.filter.regularise import KERNELS, regularise, weighted_covariance
+from mapfilter.filter.regularise import KERNELS, regularise
 from mapfilter.filter.resample import get_resampler
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall
@@ -36,18 +39,6 @@ __all__ = ["FilterConfig", "ParticleFilter"]
 
 # exp(x) of a float64 underflows to 0 below about -745: the linear weights are gone
 _LOG_UNDERFLOW = -745.0
-
-
-def _underflows(model: MeasurementModel, log_w: np.ndarray) -> bool:
-    """Every weight would underflow *relative to the model's best possible value*.
-
-    Only models that declare ``log_likelihood_peak`` (the largest value they can return,
-    e.g. 0 for a Gaussian fix without its constant) can say this; for the others a large
-    negative log-likelihood may be a constant offset, which the interface allows, and the
-    normalisation in log space keeps the weights intact.
-    """
-    peak = getattr(model, "log_likelihood_peak", None)
-    return peak is not None and float(log_w.max()) - float(peak) < _LOG_UNDERFLOW
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -72,22 +63,13 @@ def _take(particles: Particles, index: np.ndarray) -> Particles:
                      step_length_m=particles.step_length_m[index])
 
 
-def _heard_ap_xy_m(model: Any, measurement: Any) -> np.ndarray | None:
-    """Positions of the access points heard, for the viewer: ``model.heard_ap_xy_m(measurement)``
-    if the model offers it, else None."""
-    if model is None or measurement is None:
-        return None
-    hook = getattr(model, "heard_ap_xy_m", None)
-    return hook(measurement) if callable(hook) else None
-
-
 def _logsumexp(log_w: np.ndarray) -> float:
     """log(sum(exp(log_w))) for an array with at least one finite entry (-inf entries allowed)."""
     m = float(np.max(log_w))
     return m + math.log(float(np.sum(np.exp(log_w - m))))
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class FilterConfig:
     """Settings of :class:`ParticleFilter` (defaults follow Evennou & Marx where they say)."""
 
@@ -98,9 +80,6 @@ class FilterConfig:
     kernel: str = "gaussian"  # gaussian | epanechnikov
     bandwidth_scale: float = 1.0  # times the optimal bandwidth; < 1 for multimodal clouds
     regularise_tries: int = 3  # redraws of a jitter that crosses a wall, then stay at the parent
-    wall_survival_probability: float = 0.0  # P_m: weight factor of a crossing move; 0 = hard walls
-    alpha_slow: float = 0.0  # AMCL long-term likelihood average rate; 0 = no random injection
-    alpha_fast: float = 0.0  # AMCL short-term rate (> alpha_slow); 0 = no random injection
     init_samples: int = 50_000  # free-space candidates weighed when initialising from a measurement
     initial_step_length_m: float = 0.7  # PDR state at initialisation
     min_log_likelihood: float | None = None  # best particle's log-likelihood below this = collapse; None = off
@@ -109,7 +88,6 @@ class FilterConfig:
     recovery_reset_steps: int = 10  # healthy steps after which the radius starts small again
     recovery_measurement_max_age_s: float = 10.0  # an older measurement is not used to recover
     recovery_heading_keep_fraction: float = 0.5  # PDR: share of recovered particles keeping an old heading
-    keep_ancestry: bool = False  # record lineage for smoothed_track() (N * 20 bytes per step)
 
     def __post_init__(self) -> None:
         if int(self.n_particles) < 1:
@@ -119,10 +97,6 @@ class FilterConfig:
         get_resampler(self.resampler)
         if self.kernel not in KERNELS:
             raise MapfilterError(f"kernel must be one of {KERNELS}, got {self.kernel!r}")
-        if not 0.0 <= self.wall_survival_probability < 1.0:
-            raise MapfilterError(f"wall_survival_probability must be in [0, 1), got {self.wall_survival_probability}")
-        if not (0.0 <= self.alpha_slow <= 1.0 and 0.0 <= self.alpha_fast <= 1.0):
-            raise MapfilterError("alpha_slow and alpha_fast must be in [0, 1]")
         if self.init_samples < 1 or self.recovery_radius_m <= 0 or self.recovery_radius_growth < 1.0:
             raise MapfilterError("init_samples, recovery_radius_m must be positive and recovery_radius_growth >= 1")
 
@@ -136,18 +110,23 @@ class ParticleFilter:
     motion : a ``MotionModel``.
     config : ``FilterConfig``.
     rng : the only source of randomness (same seed, same result).
-    floors : a building's floors (``filter.floors.FloorChanges``): ``floorplan`` is then its
-        stack plan, particles change floor after the wall check, the estimate is taken on the
-        floor with most weight and the jitter's spread in the building frame. None: one floor
-        (and not a single extra random draw: the same seed gives the same track as ever).
+    floors : the floor in the state (``filter.models.FloorModel``): a building's
+        ``filter.floors.FloorChanges``, whose stack plan ``floorplan`` must then be; particles
+        change floor after the wall check, the estimate is taken on the floor with most weight
+        and the jitter's spread in the building frame. None: one floor (``OneFloor``, not a
+        single extra random draw).
+    keep_ancestry : record every step's parents for ``smoothed_track`` (N * 20 bytes per step).
     """
 
     def __init__(self, floorplan: FloorPlan, motion: MotionModel, config: FilterConfig | None = None,
-                 rng: np.random.Generator | None = None, floors: Any = None) -> None:
+                 rng: np.random.Generator | None = None, floors: FloorModel | None = None,
+                 keep_ancestry: bool = False) -> None:
         if rng is None:
             raise ValueError("pass an explicit numpy.random.Generator (same seed, same result)")
+        if floors is not None and floors.plan is not floorplan:
+            raise ValueError("a FloorModel's particles live on its own plan: pass floors.plan as the floorplan")
         self.floorplan = floorplan
-        self.floors = floors
+        self.floors: FloorModel = floors if floors is not None else OneFloor(floorplan)
         self.motion = motion
         self.config = config or FilterConfig()
         self.rng = rng
@@ -156,14 +135,12 @@ class ParticleFilter:
         self.estimate_xy_m: np.ndarray | None = None
         self.estimate_std_m: float = math.inf
         self.collapses: list[CollapseEvent] = []
-        self.ancestry: Ancestry | None = Ancestry() if self.config.keep_ancestry else None
+        self.ancestry: Ancestry | None = Ancestry() if keep_ancestry else None
         self._step_index = 0
         self._lineage_broken = True
         self._last_measurement: tuple[float, Any, Any] | None = None  # (t_s, model, measurement)
         self._recovery_level = 0
         self._healthy_steps = 0
-        self._log_w_slow: float | None = None
-        self._log_w_fast: float | None = None
 
     @property
     def n(self) -> int:
@@ -178,7 +155,7 @@ class ParticleFilter:
 
     def _set(self, particles: Particles) -> None:
         self.particles = particles
-        self.estimate_xy_m, self.estimate_std_m, _ = self._estimate(particles.xy_m, particles.weight)
+        self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(particles.xy_m, particles.weight)
         self._lineage_broken = True
 
     def initialise_uniform(self, heading_rad: float | None = None) -> None:
@@ -230,7 +207,7 @@ class ParticleFilter:
         xy = candidates[picked]
         # the candidates repeat: spread the copies like after any resampling (wall-safe jitter)
         if self.config.regularise:
-            cov = self._covariance(candidates, w)
+            cov = self.floors.covariance(candidates, w)
             xy, _ = regularise(self.floorplan, xy, cov, self.rng, self.config.kernel,
                                self.config.bandwidth_scale, self.config.regularise_tries)
         return xy
@@ -245,151 +222,156 @@ class ParticleFilter:
     # ---- the step ----------------------------------------------------------------------------
     def step(self, t_s: float, dt_s: float, motion_input: Any = None, model: MeasurementModel | None = None,
              measurement: Any = None) -> StepReport:
-        """Advance the filter by ``dt_s`` seconds to time ``t_s`` and report what happened."""
+        """Advance the filter by ``dt_s`` seconds to time ``t_s`` and report what happened.
+
+        The stages, in the module docstring's order: move, kill the moves through walls, change
+        floors, weigh by the measurement, then either recover from a collapse or normalise (and
+        resample and regularise when the ESS is low), and estimate.
+        """
         if self.particles is None:
             raise RuntimeError("initialise the filter before stepping it")
-        cfg = self.config
-        k = self._step_index
+        step_index = self._step_index
         self._step_index += 1
         prev = self.particles
-        alive_before = np.isfinite(prev.log_weight)
-
-        # 1. propagate, 2. wall kill (Evennou & Marx: P_m = 0 -> weight 0)
-        moved = self.motion.propagate(prev, motion_input, dt_s, self.rng)
-        if self.floors is not None and isinstance(self.motion, PDRMotion) and motion_input is not None:
-            # a step on stairs advances a tread, not a stride
-            moved.xy_m = self.floors.stairs_steps(prev.xy_m, moved.xy_m, self.rng)
-        crossed = crosses_wall(self.floorplan, prev.xy_m, moved.xy_m)
-        killed = crossed & alive_before
-        log_w = prev.log_weight.copy()
-        if cfg.wall_survival_probability > 0.0:
-            # soft map: a crossing survives with P_m, but a particle never lives inside a wall
-            ends_free = self.floorplan.is_free(moved.xy_m)
-            log_w[killed & ends_free] += math.log(cfg.wall_survival_probability)
-            log_w[killed & ~ends_free] = -np.inf
-        else:
-            log_w[killed] = -np.inf
-        if self.floors is not None:
-            # floor changes after the wall check: the jump between floors is not a wall crossing
-            log_w = self.floors.apply(moved, log_w, dt_s, self.rng, measurement)
-        killed_idx = np.flatnonzero(killed)
+        moved = self._move(prev, motion_input, dt_s)
+        log_w, killed = self._kill_wall_crossers(prev, moved)
+        # floor changes after the wall check: the jump between floors is not a wall crossing
+        log_w = self.floors.change_floors(moved, log_w, dt_s, self.rng, measurement)
         cause = None if np.isfinite(log_w).any() else "all_killed_by_walls"
-
-        # 3. measurement update
-        kind = None
-        if model is not None and measurement is not None:
-            kind = getattr(model, "kind", None) or ("fix" if isinstance(measurement, PositionFix) else "other")
-            if not getattr(measurement, "evidence_only", False):
-                # a collapse re-draws from the latest measurement that says where, not only which floor
-                self._last_measurement = (float(t_s), model, measurement)
-            ll = self._checked_log_likelihood(model, moved, measurement)
-            if cause is None:
-                live = np.isfinite(log_w)
-                updated = log_w + ll
-                best_ll = ll[live].max() if live.any() else -np.inf
-                if cfg.min_log_likelihood is not None and best_ll < cfg.min_log_likelihood:
-                    cause = "measurement_inconsistent"
-                elif not np.isfinite(updated).any() or _underflows(model, updated):
-                    cause = "weights_underflow"
-                elif cfg.alpha_slow > 0 and cfg.alpha_fast > 0:
-                    self._update_amcl_averages(_logsumexp(updated))
-                log_w = updated
+        log_w, cause = self._weigh(t_s, moved, log_w, cause, model, measurement)
         n_alive = int(np.count_nonzero(np.isfinite(log_w))) if cause is None else 0
-
-        collapse = None
-        resampled = False
         if cause is not None:
-            # 4. collapse: record and re-initialise (the lineage breaks here)
-            lost = int(np.count_nonzero(alive_before))
             before_xy = self.estimate_xy_m
-            recovery, new = self._recover(t_s)
-            # PDR state: the walker's stride survives a collapse; the heading may be what failed,
-            # so a share keeps an old particle's heading and the rest start with a random one
-            donors = self.rng.integers(0, len(prev), self.n)
-            keep = self.rng.random(self.n) < cfg.recovery_heading_keep_fraction
-            new.heading_rad = np.where(keep, prev.heading_rad[donors], new.heading_rad)
-            new.step_length_m = prev.step_length_m[donors].copy()
-            parent = np.full(self.n, -1, dtype=np.int64)
-            ess = float(self.n)
-            self._recovery_level += 1
-            self._healthy_steps = 0
+            new, parent, ess, recovery = self._recover_from_collapse(t_s, prev)
+            resampled, w = False, None
         else:
-            self._healthy_steps += 1
-            if self._healthy_steps >= cfg.recovery_reset_steps:
-                self._recovery_level = 0
-            log_w = log_w - _logsumexp(log_w)
-            w = np.exp(log_w)
-            ess = float(1.0 / np.dot(w, w))
-            if ess < cfg.resample_ess_fraction * self.n:
-                # 5. resample + regularise (+ random injection)
-                resampled = True
-                parent = self._resample(w, self.n, self.rng)
-                new = _take(moved, parent)
-                if cfg.regularise:
-                    cov = self._covariance(moved.xy_m, w)
-                    new.xy_m, _ = regularise(self.floorplan, new.xy_m, cov, self.rng, cfg.kernel,
-                                             cfg.bandwidth_scale, cfg.regularise_tries,
-                                             origin_xy_m=_rows(prev.xy_m, parent))
-                parent = self._inject(new, parent)
-                new.log_weight = np.full(self.n, -math.log(self.n))
-            else:
-                parent = np.arange(self.n)
-                new = dataclasses.replace(moved, log_weight=log_w)
+            new, parent, ess, resampled, w = self._normalise_and_resample(prev, moved, log_w)
         self.particles = new
         weights = new.weight
-        self.estimate_xy_m, self.estimate_std_m, _ = self._estimate(new.xy_m, weights)
+        self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(new.xy_m, weights)
+        collapse = None
         if cause is not None:
             collapse = CollapseEvent(
-                t_s=float(t_s), step_index=k,
+                t_s=float(t_s), step_index=step_index,
                 xy_m=(float(before_xy[0]), float(before_xy[1])) if before_xy is not None else (math.nan, math.nan),
-                cause=cause, particles_lost=lost, recovery=recovery,
+                cause=cause, particles_lost=int(np.count_nonzero(np.isfinite(prev.log_weight))), recovery=recovery,
                 recovered_xy_m=(float(self.estimate_xy_m[0]), float(self.estimate_xy_m[1])))
             self.collapses.append(collapse)
+        self._record_lineage(t_s, parent, new, weights, w if resampled else None, broken=cause is not None)
+        return self._report(t_s, step_index, prev, moved, new, weights, killed, ess, n_alive, resampled, collapse,
+                            model, measurement)
+
+    def _move(self, prev: Particles, motion_input: Any, dt_s: float) -> Particles:
+        """Stage 1: the motion model moves every particle; on stairs a step advances one tread."""
+        moved = self.motion.propagate(prev, motion_input, dt_s, self.rng)
+        if self.motion.walks_in_steps and motion_input is not None:
+            moved.xy_m = self.floors.step_on_stairs(prev.xy_m, moved.xy_m, self.rng)
+        return moved
+
+    def _kill_wall_crossers(self, prev: Particles, moved: Particles) -> tuple[np.ndarray, np.ndarray]:
+        """Stage 2: a move through a wall kills its particle (Evennou & Marx: P_m = 0 -> weight 0).
+        Returns (log weights, indices of the particles killed this step)."""
+        killed = crosses_wall(self.floorplan, prev.xy_m, moved.xy_m) & np.isfinite(prev.log_weight)
+        log_w = prev.log_weight.copy()
+        log_w[killed] = -np.inf
+        return log_w, np.flatnonzero(killed)
+
+    def _weigh(self, t_s: float, moved: Particles, log_w: np.ndarray, cause: str | None,
+               model: MeasurementModel | None, measurement: Any) -> tuple[np.ndarray, str | None]:
+        """Stage 3: the measurement update, and the collapse checks: (log weights, collapse cause)."""
+        if model is None or measurement is None:
+            return log_w, cause
+        if model.locates(measurement):
+            # a collapse re-draws from the latest measurement that says where, not only which floor
+            self._last_measurement = (float(t_s), model, measurement)
+        ll = self._checked_log_likelihood(model, moved, measurement)
+        if cause is not None:
+            return log_w, cause
+        live = np.isfinite(log_w)
+        updated = log_w + ll
+        best_ll = ll[live].max() if live.any() else -np.inf
+        if self.config.min_log_likelihood is not None and best_ll < self.config.min_log_likelihood:
+            return updated, "measurement_inconsistent"
+        peak = model.log_likelihood_peak
+        # every weight underflows relative to the model's best possible value (only a model that
+        # knows its peak can say: otherwise a large negative value may be a constant offset)
+        if not np.isfinite(updated).any() or (peak is not None and float(updated.max()) - peak < _LOG_UNDERFLOW):
+            return updated, "weights_underflow"
+        return updated, None
+
+    def _recover_from_collapse(self, t_s: float, prev: Particles) -> tuple[Particles, np.ndarray, float, str]:
+        """Stage 4a, a collapse: re-initialise (the lineage breaks here). Returns (particles,
+        parents (all -1), ESS, how it recovered)."""
+        recovery, new = self._recover(t_s)
+        # PDR state: the walker's stride survives a collapse; the heading may be what failed,
+        # so a share keeps an old particle's heading and the rest start with a random one
+        donors = self.rng.integers(0, len(prev), self.n)
+        keep = self.rng.random(self.n) < self.config.recovery_heading_keep_fraction
+        new.heading_rad = np.where(keep, prev.heading_rad[donors], new.heading_rad)
+        new.step_length_m = prev.step_length_m[donors].copy()
+        self._recovery_level += 1
+        self._healthy_steps = 0
+        return new, np.full(self.n, -1, dtype=np.int64), float(self.n), recovery
+
+    def _normalise_and_resample(self, prev: Particles, moved: Particles, log_w: np.ndarray
+                                ) -> tuple[Particles, np.ndarray, float, bool, np.ndarray]:
+        """Stage 4b: normalise; when the ESS 1 / sum(w^2) is low, resample and regularise (the
+        jitter never crosses a wall). Returns (particles, parents, ESS, resampled, the normalised
+        weights before resampling)."""
+        cfg = self.config
+        self._healthy_steps += 1
+        if self._healthy_steps >= cfg.recovery_reset_steps:
+            self._recovery_level = 0
+        log_w = log_w - _logsumexp(log_w)
+        w = np.exp(log_w)
+        ess = float(1.0 / np.dot(w, w))
+        if ess >= cfg.resample_ess_fraction * self.n:
+            return dataclasses.replace(moved, log_weight=log_w), np.arange(self.n), ess, False, w
+        parent = self._resample(w, self.n, self.rng)
+        new = _take(moved, parent)
+        if cfg.regularise:
+            cov = self.floors.covariance(moved.xy_m, w)
+            new.xy_m, _ = regularise(self.floorplan, new.xy_m, cov, self.rng, cfg.kernel, cfg.bandwidth_scale,
+                                     cfg.regularise_tries, origin_xy_m=_rows(prev.xy_m, parent))
+        new.log_weight = np.full(self.n, -math.log(self.n))
+        return new, parent, ess, True, w
+
+    def _record_lineage(self, t_s: float, parent: np.ndarray, new: Particles, weights: np.ndarray,
+                        weights_before_resampling: np.ndarray | None, broken: bool) -> None:
+        """Stage 5 (with ``keep_ancestry``): who descends from whom, for the lineage track."""
         if self.ancestry is not None:
             # the lineage's "best" particle: by the weights that chose the survivors (after a
             # resampling every new weight is equal and would say nothing)
-            best_weights = np.where(parent >= 0, w[np.maximum(parent, 0)], 0.0) if resampled else weights
-            self.ancestry.record(t_s, np.full(self.n, -1) if self._lineage_broken or cause else parent,
-                                 new.xy_m, best_weights)
+            best = weights
+            if weights_before_resampling is not None:
+                best = np.where(parent >= 0, weights_before_resampling[np.maximum(parent, 0)], 0.0)
+            self.ancestry.record(t_s, np.full(self.n, -1) if self._lineage_broken or broken else parent,
+                                 new.xy_m, best)
         self._lineage_broken = False
 
-        pdr = isinstance(self.motion, PDRMotion)
-        fix_xy = None
-        if isinstance(measurement, PositionFix):
-            fix_xy = np.asarray(measurement.xy_m, dtype=np.float64).ravel()[:2].copy()
+    def _report(self, t_s: float, step_index: int, prev: Particles, moved: Particles, new: Particles,
+                weights: np.ndarray, killed: np.ndarray, ess: float, n_alive: int, resampled: bool,
+                collapse: CollapseEvent | None, model: MeasurementModel | None, measurement: Any) -> StepReport:
+        """What happened this step, for the viewer and the tracks."""
+        steps = self.motion.walks_in_steps
+        measured = model is not None and measurement is not None
+        fix_xy = model.fix_xy_m(measurement) if measured else None
         return StepReport(
-            t_s=float(t_s), step_index=k, estimate_xy_m=self.estimate_xy_m.copy(),
+            t_s=float(t_s), step_index=step_index, estimate_xy_m=self.estimate_xy_m.copy(),
             estimate_std_m=float(self.estimate_std_m), ess=ess, n_particles=self.n, n_alive=n_alive,
-            n_killed=int(killed_idx.size), resampled=resampled, particles_xy_m=new.xy_m,
-            particles_weight=weights, killed_from_xy_m=prev.xy_m[killed_idx], killed_to_xy_m=moved.xy_m[killed_idx],
+            n_killed=int(killed.size), resampled=resampled, particles_xy_m=new.xy_m,
+            particles_weight=weights, killed_from_xy_m=prev.xy_m[killed], killed_to_xy_m=moved.xy_m[killed],
             collapse=collapse,
-            heading_rad=circular_mean(new.heading_rad, weights) if pdr else None,
-            step_length_m=float(weights @ new.step_length_m) if pdr else None,
-            measurement_kind=kind, fix_xy_m=fix_xy,
-            heard_ap_xy_m=_heard_ap_xy_m(model, measurement),
-            **self._floor_report(new.xy_m, weights),
+            heading_rad=circular_mean(new.heading_rad, weights) if steps else None,
+            step_length_m=float(weights @ new.step_length_m) if steps else None,
+            measurement_kind=model.kind if measured else None,
+            fix_xy_m=None if fix_xy is None else np.asarray(fix_xy, dtype=np.float64).ravel()[:2].copy(),
+            heard_ap_xy_m=model.heard_ap_xy_m(measurement) if measured else None,
+            path_loss=model.viewer_state() if measured else None,
+            **self.floors.report(new.xy_m, weights, self.estimate_xy_m),
         )
 
-    def _floor_report(self, xy_m: np.ndarray, weights: np.ndarray) -> dict:
-        if self.floors is None:
-            return {}
-        shares = self.floors.stack.floor_shares(xy_m, weights)
-        return {"floor_shares": shares, "floor_index": int(self.floors.stack.floor_of(self.estimate_xy_m[None, :])[0]),
-                "floor_changes": self.floors.changed_last_step}
-
-    def _estimate(self, xy_m: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float, bool]:
-        if self.floors is None:
-            return weighted_estimate(self.floorplan, xy_m, weights)
-        return self.floors.stack.estimate(xy_m, weights)
-
-    def _covariance(self, xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        # the cloud's spread where the floors lie over each other (the building frame), not
-        # across the stack's tiles, which would make the jitter as wide as the building
-        if self.floors is None:
-            return weighted_covariance(xy_m, weights)
-        return weighted_covariance(self.floors.stack.to_building(xy_m), weights)
-
-    # ---- collapse recovery and random injection ---------------------------------------------
+    # ---- collapse recovery -------------------------------------------------------------------
     def _recover(self, t_s: float) -> tuple[str, Particles]:
         """Re-initialise after a collapse: from the latest measurement's likelihood over the map,
         else uniformly around the last estimate with a radius growing with repeated collapses."""
@@ -408,39 +390,9 @@ class ParticleFilter:
         xy = self._sample_free_near(np.asarray(centre, dtype=np.float64), radius)
         return f"around_estimate_r{radius:.1f}m", self._new_particles(xy, None)
 
-    def _update_amcl_averages(self, log_w_avg: float) -> None:
-        """AMCL: w_slow += a_slow (w_avg - w_slow), w_fast likewise, kept in log space."""
-        cfg = self.config
-        if cfg.alpha_slow <= 0 or cfg.alpha_fast <= 0:
-            return
-        if self._log_w_slow is None:
-            self._log_w_slow = self._log_w_fast = log_w_avg
-            return
-        self._log_w_slow = float(np.logaddexp(math.log1p(-cfg.alpha_slow) + self._log_w_slow,
-                                              math.log(cfg.alpha_slow) + log_w_avg))
-        self._log_w_fast = float(np.logaddexp(math.log1p(-cfg.alpha_fast) + self._log_w_fast,
-                                              math.log(cfg.alpha_fast) + log_w_avg))
-
-    def _inject(self, particles: Particles, parent: np.ndarray) -> np.ndarray:
-        """Replace a share max(0, 1 - w_fast / w_slow) of the particles by uniform free ones (AMCL)."""
-        if self._log_w_slow is None or self._log_w_fast is None:
-            return parent
-        p = max(0.0, 1.0 - math.exp(min(self._log_w_fast - self._log_w_slow, 0.0)))
-        n_inject = int(self.rng.binomial(self.n, p)) if p > 0 else 0
-        if n_inject == 0:
-            return parent
-        idx = self.rng.choice(self.n, size=n_inject, replace=False)
-        particles.xy_m[idx] = self.floorplan.sample_free(n_inject, self.rng)
-        particles.velocity_mps[idx] = 0.0
-        particles.heading_rad[idx] = self.rng.uniform(-math.pi, math.pi, n_inject)
-        particles.step_length_m[idx] = self.config.initial_step_length_m
-        parent = np.array(parent, dtype=np.int64)
-        parent[idx] = -1
-        return parent
-
     # ---- outputs -----------------------------------------------------------------------------
     def smoothed_track(self) -> tuple[np.ndarray, np.ndarray]:
         """(t_s (T,), xy_m (T, 2)): the lineage of the final best particle (needs keep_ancestry)."""
         if self.ancestry is None:
-            raise RuntimeError("smoothed_track needs FilterConfig(keep_ancestry=True)")
+            raise RuntimeError("smoothed_track needs ParticleFilter(..., keep_ancestry=True)")
         return self.ancestry.smoothed_track()

@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit
 
 from mapfilter.errors import MapfilterError
+from mapfilter.filter.models import MeasurementModel
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.wifi import WifiScan
@@ -34,7 +35,7 @@ class RadioMapLikelihoodConfig:
     exponent: float = 1.0  # tempering: APs are not independent; < 1 flattens the likelihood
 
 
-class RadioMapLikelihood:
+class RadioMapLikelihood(MeasurementModel):
     """Per-particle likelihood of a WiFi scan from the radio map itself (a ``MeasurementModel``).
 
     On a grid over the floor, each AP's RSSI mean mu_k, spread sigma_k and probability of
@@ -53,6 +54,8 @@ class RadioMapLikelihood:
     heard APs, and sparse corrections. Particles read the value of their cell (nearest
     lookup); off the grid, on walls or far from all data they get the prior cell's value.
     """
+
+    kind = "radio_map"
 
     def __init__(self, radio_map: RadioMap, floorplan: FloorPlan | None = None,
                  config: RadioMapLikelihoodConfig = RadioMapLikelihoodConfig(),
