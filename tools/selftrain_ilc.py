@@ -155,6 +155,8 @@ def main() -> int:
                         help="research: the cached points' sigma replaced by PER_SPREAD x (spread - FLOOR_M)")
     parser.add_argument("--sigma-ref", type=float, default=None, metavar="M",
                         help="research: sensors.radiomap.POSITION_SIGMA_REF_M")
+    parser.add_argument("--grown-seed", type=int, default=None, metavar="SEED",
+                        help="score with the points grown with this seed (cached), not each scoring seed's own")
     parser.add_argument("--label", default="", help="appended to the tag in the rows")
     parser.add_argument("--sigma-override", type=float, default=None, metavar="M",
                         help="research: every grown point's position sigma set to M (the cached positions kept)")
@@ -184,7 +186,8 @@ def main() -> int:
                 elif which == "true":
                     maps = [build_radio_map(labelled + unlabelled, floorplan)] * len(lab_paths)
                 else:
-                    cache = args.out / "grown" / name / args.tag / f"seed{seed}"
+                    grown_seed = seed if args.grown_seed is None else args.grown_seed
+                    cache = args.out / "grown" / name / args.tag / f"seed{grown_seed}"
                     grown, reports = grown_for_folds(floorplan, labelled, unlabelled, args.folds, grow, engine, cache)
                     if args.sigma_override is not None:
                         for g in grown:
