@@ -17,9 +17,17 @@ points, which flatters (c)).
 F2: labelled = the 12 walks with IMU (``full_set.txt``), scored leave-one-out, unlabelled = the
 28 WiFi-only walks (no IMU: placed by ``selftrain``'s WiFi-only path).
 
-Example (the numbers of docs/self-training.md):
+F2's WiFi-only walks grow only with ``--grow '{"wifi_only": true}'`` (``GrowConfig.wifi_only``).
 
-    .venv/bin/python tools/selftrain_ilc.py --sets f1 f2 --seeds 0 1 2 3 4 --out results/selftrain
+Example (the numbers of docs/self-training.md; the grown points of seed 0 cached under
+``--out``, then scored with every seed):
+
+    .venv/bin/python tools/selftrain_ilc.py --sets f1 --seeds 0 --tag final
+    .venv/bin/python tools/selftrain_ilc.py --sets f1 --seeds 1 2 3 4 --tag final --grown-seed 0 --label=-g0
+    .venv/bin/python tools/selftrain_ilc.py --sets f2 --seeds 0 --tag final --grow '{"wifi_only": true}'
+
+``--sigma-override``, ``--resigma`` and ``--sigma-ref`` re-weigh cached grown points (the
+variants of docs/accuracy.md).
 """
 
 from __future__ import annotations
@@ -69,7 +77,8 @@ def score(floorplan, paths, maps_by_walk, seed, particles, engine) -> tuple[dict
     """Errors per method over every scored walk, each with its own all-walks map (the walk's
     own points are dropped by evaluate_trace); and each walk's mean error per method."""
     setup = EvaluationSetup(methods=METHODS, leave_one_out=True,
-                            tracking=dataclasses.replace(TrackingConfig(seed=seed), smooth=True).with_particles(particles))
+                            tracking=dataclasses.replace(TrackingConfig(seed=seed), smooth=True)
+                            .with_particles(particles))
     errors: dict[str, list[np.ndarray]] = {}
     per_walk: dict[str, dict[str, float]] = {}
     for _, results in run_each(_score, list(range(len(paths))), engine,
@@ -209,7 +218,8 @@ def main() -> int:
                                  "s": round(time.perf_counter() - started)})
                     print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
     print(format_table(rows, list(rows[0])))
-    out = args.out / f"rows_{args.tag}{'' if args.sigma_override is None else f'-s{args.sigma_override:g}'}{args.label}_{'_'.join(args.sets)}_{'_'.join(map(str, args.seeds))}.json"
+    variant = args.tag + ("" if args.sigma_override is None else f"-s{args.sigma_override:g}") + args.label
+    out = args.out / f"rows_{variant}_{'_'.join(args.sets)}_{'_'.join(map(str, args.seeds))}.json"
     out.write_text(json.dumps({"rows": rows, "walks": walks}, indent=1))
     return 0
 

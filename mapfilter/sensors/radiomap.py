@@ -767,8 +767,9 @@ def kwnn_fix_many(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4, p:
     reference points sharing at least ``min_shared_aps`` heard APs with the scan are
     candidates; the fix is sum_i w_i x_i / sum_i w_i over the k nearest, w_i = 1 / D_i^q, times
     the point's position weight in a grown map (``RadioMap.position_weights``: a grown point
-    whose position is uncertain counts less). Scans without any candidate get a NaN fix. ``min_rssi_dbm``: readings below it count as
-    not heard, in the scans and in the radio map (``strong_kwnn_fixes``). ``per_ap``: D is the
+    whose position is uncertain counts less). Scans without any candidate get a NaN fix.
+    ``min_rssi_dbm``: readings below it count as not heard, in the scans and in the radio map
+    (``strong_kwnn_fixes``). ``per_ap``: D is the
     p-th power *mean* over the n APs heard by either side, (sum_k |r_k - f_k|^p / n)^(1/p), a
     distance in dB per AP that does not grow with how many APs a reference point heard (the
     walk diagnostic ``signal_distance_db``).
