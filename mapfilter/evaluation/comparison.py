@@ -499,10 +499,7 @@ def _concat_aps(tables: list[AccessPointTable]) -> AccessPointTable:
 def _drop_unheard_aps(radio_map: RadioMap) -> RadioMap:
     """Without the walk under test, some APs are heard nowhere: drop them, as a radio map built
     from the other walks alone would never have had them."""
-    heard = ~np.all(np.isnan(radio_map.rssi_dbm), axis=0)
-    keys = [k for k, h in zip(radio_map.ap_keys, heard) if h]
-    return RadioMap(radio_map.xy_m, keys, radio_map.rssi_dbm[:, heard], radio_map.t_s, radio_map.trace,
-                    radio_map.source_traces, radio_map.floor_name)
+    return radio_map.select_aps(~np.all(np.isnan(radio_map.rssi_dbm), axis=0))
 
 
 def _fix_track(scan_t: np.ndarray, fixes: np.ndarray, name: str) -> Track:

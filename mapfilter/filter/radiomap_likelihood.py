@@ -40,7 +40,9 @@ class RadioMapLikelihood(MeasurementModel):
 
     On a grid over the floor, each AP's RSSI mean mu_k, spread sigma_k and probability of
     being heard h_k are Gaussian-kernel averages of the reference points, shrunk toward a
-    weak prior (pseudo-count ``prior_weight``) where data are thin. A scan's log-likelihood
+    weak prior (pseudo-count ``prior_weight``) where data are thin. A grown point with position
+    uncertainty s (``RadioMap.xy_sigma_m``) enters with its kernel convolved by it (variance
+    bandwidth^2 + s^2, height bandwidth^2 / (bandwidth^2 + s^2)). A scan's log-likelihood
     at a cell is
 
         sum_{k heard} [log h_k + log N(r_k; mu_k, sigma_k^2)] + sum_{k not heard} log(1 - h_k)
@@ -100,8 +102,15 @@ class RadioMapLikelihood(MeasurementModel):
 
         pairs = cKDTree(self.cell_xy_m).sparse_distance_matrix(cKDTree(radio_map.xy_m), reach,
                                                                  output_type="coo_matrix")
-        weight = sparse.csr_matrix((np.exp(-0.5 * pairs.data ** 2 / cfg.bandwidth_m ** 2).astype(np.float32),
-                                    (pairs.row, pairs.col)), shape=(n_cells, len(radio_map)))
+        kernel = np.exp(-0.5 * pairs.data ** 2 / cfg.bandwidth_m ** 2)
+        if radio_map.is_grown:
+            # a point whose position is uncertain (sigma) spreads its reading over the kernel
+            # convolved with that uncertainty: variance b^2 + sigma^2, height b^2 / (b^2 + sigma^2)
+            # (the 2-D Gaussian's peak), so it counts less and less sharply than a surveyed point
+            variance = cfg.bandwidth_m ** 2 + radio_map.xy_sigma_m[pairs.col] ** 2
+            kernel = cfg.bandwidth_m ** 2 / variance * np.exp(-0.5 * pairs.data ** 2 / variance)
+        weight = sparse.csr_matrix((kernel.astype(np.float32), (pairs.row, pairs.col)),
+                                   shape=(n_cells, len(radio_map)))
         w_all = np.zeros(n_cells + 1)
         w_all[:n_cells] = np.asarray(weight.sum(axis=1)).ravel()
         observed = heard[:, use_aps]
