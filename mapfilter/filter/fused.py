@@ -1,0 +1,769 @@
+"""The filter step in two passes over the particles: the fused path of ``ParticleFilter.step``.
+
+The named stages of ``filter/pf.py`` (move, wall kill, weigh, normalise, resample, regularise)
+each make a pass or several over every particle, and numpy adds its own passes in between
+(about two dozen at 100,000 particles). Here the common step is two numba kernels over
+fixed blocks of ``BLOCK`` particles:
+
+1. :func:`advance` -- move (random walk on a circle, constant velocity or PDR), the wall check
+   of every live particle's move (the same exact walk as ``maps.walls.crosses_wall``), the
+   measurement's log-likelihood (a Gaussian fix or the RSSI path-loss model, or values a
+   model computed itself), and per block the sums that the normalisation, the effective
+   sample size, the estimate and the regularisation's covariance need;
+2. :func:`resample_regularise` -- systematic resampling, the gather of the ancestors' state
+   and the wall-safe regularisation jitter of each new particle, with the sums of the new
+   estimate.
+
+Each block's sums are kept apart and added in block order, so the result does not depend on
+how the blocks are spread over threads (``threads.for_slices``). Random numbers come from a
+counter-based generator: word ``s`` of particle ``i`` is SplitMix64's output function of
+``key + (SLOTS i + s) gamma`` (Steele, Lea & Flood, "Fast splittable pseudorandom number
+generators", OOPSLA 2014), with one ``key`` per step drawn from the filter's
+``numpy.random.Generator``; a particle's draws depend on the key and its index only, so the
+same seed gives the same track whatever the number of threads. Normals are Box-Muller on two
+32-bit uniforms of one word, with ln, cos and sin evaluated by series that vectorise (as in
+``filter/gaussian.py``); the tails stop at sqrt(-2 ln 2^-33) = 6.8 sigma.
+
+Models describe themselves to these kernels through ``MotionModel.kernel_move`` and
+``MeasurementModel.kernel_likelihood`` (``filter/models.py``), with the terms made here
+(:func:`circle_walk`, :func:`constant_velocity`, :func:`pdr_step`, :func:`no_move`,
+:func:`gaussian_fix`, :func:`rssi_path_loss`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numba import njit
+
+from mapfilter.maps.walls import NO_BUFFER, _segment_crosses_world
+from mapfilter.sensors.pathloss import MIN_DISTANCE_M
+from mapfilter.threads import MIN_PER_THREAD, for_slices
+
+__all__ = ["BLOCK", "Likelihood", "Move", "advance", "circle_walk", "constant_velocity", "counter_normals",
+           "counter_uniforms", "flat", "gaussian_fix", "no_move", "pdr_step", "resample_regularise", "rssi_path_loss"]
+
+BLOCK = 1024  # particles per block: the draws and per-AP loops over a block vectorise
+SLOTS = 8  # random words per particle and key
+_MIN_BLOCKS_PER_THREAD = max(MIN_PER_THREAD // BLOCK, 1)
+# fast maths that keeps infinities and NaN (a dead particle's log weight is -inf): reassociation
+# lets the block loops vectorise
+_FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
+
+# what the move kernel does (Move.kind)
+MOVE_NONE, MOVE_CIRCLE, MOVE_CV, MOVE_PDR = 0, 1, 2, 3
+# the measurement (Likelihood.kind); LL_GIVEN: values the model computed itself
+LL_NONE, LL_FIX, LL_RSSI, LL_GIVEN = 0, 1, 2, 3
+
+# per-block sums of advance(): the block's largest log weight m and, with e = exp(lw - m),
+# sum e, sum e^2, sum e dx, e dy, e dx^2, e dx dy, e dy^2 (d = position - shift), particles
+# alive after the wall check, with a finite weight after weighing, best live log-likelihood
+A_MAX, A_SUM, A_SUM2, A_X, A_Y, A_XX, A_XY, A_YY, A_ALIVE, A_FINITE, A_BEST_LL = range(11)
+N_ADVANCE_SUMS = 11
+# per-block sums of resample_regularise(): dx, dy, dx^2, dx dy, dy^2, cos h, sin h, step length
+R_X, R_Y, R_XX, R_XY, R_YY, R_COS, R_SIN, R_STEP = range(8)
+N_RESAMPLE_SUMS = 8
+
+
+# ---- the terms models give ---------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Move:
+    """One step's move as the kernel does it (``MotionModel.kernel_move``)."""
+
+    kind: int  # MOVE_*
+    params: np.ndarray  # float64, by kind (see the factories below)
+
+
+def no_move() -> Move:
+    """Particles stay where they are (PDR between steps)."""
+    return Move(MOVE_NONE, np.zeros(1))
+
+
+def circle_walk(radius_m: float, sigma_m: float) -> Move:
+    """x += r (cos phi, sin phi) + sigma e, phi ~ U[0, 2 pi), e ~ N(0, I) (Lund thesis eq. 6.6)."""
+    return Move(MOVE_CIRCLE, np.array([radius_m, sigma_m], dtype=np.float64))
+
+
+def constant_velocity(dt_s: float, accel_sigma_mps2: float, max_speed_mps: float) -> Move:
+    """x += v dt + a dt^2 / 2, v += a dt, a ~ N(0, sigma^2 I), speeds above the maximum scaled back."""
+    return Move(MOVE_CV, np.array([dt_s, accel_sigma_mps2, max_speed_mps], dtype=np.float64))
+
+
+# PDR parameters, in this order
+(P_STEPS, P_CHANGE, P_ABS, P_ABS_HEADING, P_HEADING_SIGMA, P_FALSE_TURN, P_WALK_LENGTH, P_LENGTH_SIGMA,
+ P_LENGTH_MIN, P_LENGTH_MAX, P_GIVEN, P_GIVEN_LENGTH, P_GIVEN_SIGMA, P_POSITION_SIGMA) = range(14)
+
+
+def pdr_step(n_steps: int, heading_change_rad: float, heading_abs_rad: float | None, heading_sigma_rad: float,
+             false_turn_fraction: float, step_length_sigma_m: float, step_length_min_m: float,
+             step_length_max_m: float, given_step_length_m: float | None, given_sigma_m: float,
+             position_sigma_m: float) -> Move:
+    """A PDR step as ``motion.PDRMotion.propagate`` makes it (its docstring has the model):
+    ``false_turn_fraction`` is the share ignoring this change (0 when it is no turn),
+    ``step_length_sigma_m`` and ``position_sigma_m`` are already scaled by sqrt(n_steps)."""
+    p = np.zeros(14)
+    p[P_STEPS] = n_steps
+    p[P_CHANGE] = heading_change_rad
+    p[P_ABS] = heading_abs_rad is not None
+    p[P_ABS_HEADING] = 0.0 if heading_abs_rad is None else heading_abs_rad
+    p[P_HEADING_SIGMA] = heading_sigma_rad
+    p[P_FALSE_TURN] = false_turn_fraction
+    p[P_WALK_LENGTH] = n_steps > 0
+    p[P_LENGTH_SIGMA] = step_length_sigma_m
+    p[P_LENGTH_MIN] = step_length_min_m
+    p[P_LENGTH_MAX] = step_length_max_m
+    p[P_GIVEN] = given_step_length_m is not None
+    p[P_GIVEN_LENGTH] = 0.0 if given_step_length_m is None else given_step_length_m
+    p[P_GIVEN_SIGMA] = given_sigma_m
+    p[P_POSITION_SIGMA] = position_sigma_m
+    return Move(MOVE_PDR, p)
+
+
+@dataclasses.dataclass(frozen=True)
+class Likelihood:
+    """One measurement's log-likelihood as the kernel evaluates it (``MeasurementModel.kernel_likelihood``)."""
+
+    kind: int  # LL_*
+    fix: np.ndarray  # LL_FIX: [x_m, y_m, 1 / (2 sigma^2)]
+    rssi: tuple  # LL_RSSI: float32 (K,) arrays ap_x, ap_y, C, 5 n, alpha, d_max, observed; 1 / (2 var)
+    values: np.ndarray  # LL_GIVEN: (N,) float64
+
+
+_NO_RSSI = tuple(np.zeros(0, dtype=np.float32) for _ in range(7)) + (np.float32(1.0),)
+_NO_FIX = np.zeros(3)
+_NO_VALUES = np.zeros(0)
+
+
+def flat() -> Likelihood:
+    """Log-likelihood 0 everywhere (a measurement that says nothing, or none this step)."""
+    return Likelihood(LL_NONE, _NO_FIX, _NO_RSSI, _NO_VALUES)
+
+
+def gaussian_fix(xy_m, sigma_m: float) -> Likelihood:
+    """-|x - fix|^2 / (2 sigma^2) (``measurement.GaussianFixLikelihood``)."""
+    fx, fy = (float(v) for v in np.asarray(xy_m, dtype=np.float64).ravel()[:2])
+    return Likelihood(LL_FIX, np.array([fx, fy, 0.5 / (sigma_m * sigma_m)]), _NO_RSSI, _NO_VALUES)
+
+
+def rssi_path_loss(ap_xy_m: np.ndarray, c_dbm: np.ndarray, n: np.ndarray, alpha_db_per_m: np.ndarray,
+                   d_max_m: np.ndarray, observed_rssi_dbm: np.ndarray, variance_db2: float) -> Likelihood:
+    """-sum_k (z_k - R_k(d))^2 / (2 var) of the Lund path-loss model, in float32
+    (``measurement.rssi_log_likelihood``; access points with a NaN reading left out)."""
+    if not (math.isfinite(variance_db2) and variance_db2 > 0):
+        raise ValueError(f"variance_db2 must be positive, got {variance_db2}")
+    observed = np.asarray(observed_rssi_dbm, dtype=np.float64).ravel()
+    heard = np.isfinite(observed)
+
+    def per_ap(a):
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64).ravel(), observed.shape)[heard],
+                                    dtype=np.float32)
+
+    ap = np.asarray(ap_xy_m, dtype=np.float64).reshape(-1, 2)[heard]
+    f32 = np.float32
+    return Likelihood(LL_RSSI, _NO_FIX, (np.ascontiguousarray(ap[:, 0], dtype=f32), np.ascontiguousarray(ap[:, 1], dtype=f32),
+                                         per_ap(c_dbm), f32(5.0) * per_ap(n), per_ap(alpha_db_per_m), per_ap(d_max_m),
+                                         np.ascontiguousarray(observed[heard], dtype=f32), f32(0.5 / variance_db2)),
+                      _NO_VALUES)
+
+
+def given_values(values: np.ndarray) -> Likelihood:
+    """Log-likelihoods a model computed itself (non-finite ones count as -inf)."""
+    return Likelihood(LL_GIVEN, _NO_FIX, _NO_RSSI, np.ascontiguousarray(values, dtype=np.float64))
+
+
+# ---- counter-based random numbers ---------------------------------------------------------------
+_GAMMA = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_LOW32 = np.uint64(0xFFFFFFFF)
+_S30, _S27, _S31, _S32 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(32)
+_TWO_M32 = 2.0 ** -32
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _word(key, counter):
+    # SplitMix64: the output function of the state key + counter * gamma
+    z = key + np.uint64(counter) * _GAMMA
+    z = (z ^ (z >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    return z ^ (z >> _S31)
+
+
+_ONE_BITS = np.uint64(0x3FF0000000000000)  # 1.0: a float in [1, 2) takes its mantissa from the word
+_S20 = np.uint64(20)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _uniform_block(key, slot, lo, m, bits_a, bits_b):
+    """The uniforms of word ``slot`` of particles lo + j, j < m, as the bits of floats in [1, 2)
+    (the caller views them as float64 and subtracts 1, or takes 2 minus them for (0, 1]): 32
+    random bits of each half of the word fill the top of a mantissa. The block loop
+    vectorises (no integer-to-float conversion, which AVX2 lacks for 64-bit integers)."""
+    for j in range(m):
+        z = _word(key, np.uint64((lo + j) * SLOTS + slot))
+        bits_a[j] = ((z >> _S32) << _S20) | _ONE_BITS
+        bits_b[j] = ((z & _LOW32) << _S20) | _ONE_BITS
+
+
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _normal_pairs(key, slot, lo, m, z0, z1, u1, mantissa_bits):
+    """z0[j], z1[j] ~ N(0, 1), independent, for particles lo + j, j < m (word ``slot``):
+    Box-Muller, radius sqrt(-2 ln u1) and angle 2 pi u2."""
+    ln2 = math.log(2.0)
+    a_bits = mantissa_bits.view(np.uint64)
+    b_bits = z1.view(np.uint64)
+    _uniform_block(key, slot, lo, m, a_bits, b_bits)
+    a = mantissa_bits.view(np.float64)
+    for j in range(m):
+        u1[j] = 2.0 - a[j]  # in (0, 1]: ln is finite
+    bits = u1.view(np.int64)
+    for j in range(m):
+        mantissa_bits[j] = (bits[j] & 0x000FFFFFFFFFFFFF) | 0x3FF0000000000000
+    mantissa = mantissa_bits.view(np.float64)
+    for j in range(m):
+        # ln u1 from the exponent and 2 atanh((m - 1)/(m + 1)) of the mantissa m in [1, 2)
+        exponent = float((bits[j] >> 52) - 1023)
+        t = (mantissa[j] - 1.0) / (mantissa[j] + 1.0)
+        t2 = t * t
+        ln_m = 2.0 * t * (1.0 + t2 * (1.0 / 3.0 + t2 * (1.0 / 5.0 + t2 * (1.0 / 7.0 + t2 * (
+            1.0 / 9.0 + t2 * (1.0 / 11.0 + t2 * (1.0 / 13.0 + t2 * (1.0 / 15.0))))))))
+        radius = math.sqrt(max(-2.0 * (exponent * ln2 + ln_m), 0.0))
+        # angle 2 pi u2 = 2 (b + pi/2) with b in [-pi/2, pi/2): double-angle formulas from series
+        b = math.pi * (z1[j] - 1.0) - 0.5 * math.pi
+        b2 = b * b
+        sin_b = b * (1.0 - b2 / 6.0 * (1.0 - b2 / 20.0 * (1.0 - b2 / 42.0 * (1.0 - b2 / 72.0 * (
+            1.0 - b2 / 110.0)))))
+        cos_b = 1.0 - b2 / 2.0 * (1.0 - b2 / 12.0 * (1.0 - b2 / 30.0 * (1.0 - b2 / 56.0 * (
+            1.0 - b2 / 90.0 * (1.0 - b2 / 132.0)))))
+        z0[j] = radius * (1.0 - 2.0 * cos_b * cos_b)  # cos(2 b + pi)
+        z1[j] = radius * (-2.0 * cos_b * sin_b)  # sin(2 b + pi)
+
+
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _cos_sin(angle):
+    """(cos, sin) of an angle in [-2 pi, 2 pi] from series on [-pi/2, pi/2] (|error| < 1e-7)."""
+    b = 0.5 * angle
+    # b in [-pi, pi]: fold into [-pi/2, pi/2] with cos(b) -> -cos(b - pi) (the sign cancels below)
+    if b > 0.5 * math.pi:
+        b -= math.pi
+    elif b < -0.5 * math.pi:
+        b += math.pi
+    b2 = b * b
+    sin_b = b * (1.0 - b2 / 6.0 * (1.0 - b2 / 20.0 * (1.0 - b2 / 42.0 * (1.0 - b2 / 72.0 * (1.0 - b2 / 110.0)))))
+    cos_b = 1.0 - b2 / 2.0 * (1.0 - b2 / 12.0 * (1.0 - b2 / 30.0 * (1.0 - b2 / 56.0 * (
+        1.0 - b2 / 90.0 * (1.0 - b2 / 132.0)))))
+    # cos 2b = 1 - 2 sin^2 b, sin 2b = 2 sin b cos b; a shift of b by pi changes neither
+    return 1.0 - 2.0 * sin_b * sin_b, 2.0 * sin_b * cos_b
+
+
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _draws_kernel(lo_block, hi_block, key, slot, n, normal, out0, out1):
+    z0 = np.empty(BLOCK)
+    z1 = np.empty(BLOCK)
+    u1 = np.empty(BLOCK)
+    bits = np.empty(BLOCK, dtype=np.int64)
+    for block in range(lo_block, hi_block):
+        lo = block * BLOCK
+        m = min(n, lo + BLOCK) - lo
+        if normal:
+            _normal_pairs(key, slot, lo, m, z0, z1, u1, bits)
+            for j in range(m):
+                out0[lo + j] = z0[j]
+                out1[lo + j] = z1[j]
+        else:
+            _uniform_block(key, slot, lo, m, z0.view(np.uint64), z1.view(np.uint64))
+            for j in range(m):
+                out0[lo + j] = z0[j] - 1.0
+                out1[lo + j] = z1[j] - 1.0
+
+
+def counter_normals(key: int, slot: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The two standard normals of word ``slot`` of particles 0..n-1 under ``key`` (as the
+    kernels draw them): for tests, and to feed the same draws to the named stages."""
+    out0, out1 = np.empty(n), np.empty(n)
+    _draws_kernel(0, (n + BLOCK - 1) // BLOCK, np.uint64(key), slot, n, True, out0, out1)
+    return out0, out1
+
+
+def counter_uniforms(key: int, slot: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The two uniforms in [0, 1) of word ``slot`` of particles 0..n-1 under ``key``."""
+    out0, out1 = np.empty(n), np.empty(n)
+    _draws_kernel(0, (n + BLOCK - 1) // BLOCK, np.uint64(key), slot, n, False, out0, out1)
+    return out0, out1
+
+
+# random words of a particle in one step: advance() uses slots 0-3 under the move key,
+# resample_regularise() slot t for its try t under the jitter key
+SLOT_MOVE_A, SLOT_MOVE_B, SLOT_MOVE_C, SLOT_MOVE_U = 0, 1, 2, 3
+
+
+# ---- pass 1: move, wall check, weigh, block sums -------------------------------------------------
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy", _nrt=False)
+def _rssi_block(lo, m, x, y, ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed, inv_two_var, xf, yf, d2, mbits,
+                log10_d2, acc, out):
+    """out[j] = -sum_k (z_k - R_k)^2 / (2 var) for particles lo + j (float32 inside), as
+    ``measurement._rssi_ll_kernel``: log10(d^2) from the float's exponent and a series of its mantissa."""
+    ln2 = np.float32(math.log(2.0))
+    inv_ln10 = np.float32(1.0 / math.log(10.0))
+    one = np.float32(MIN_DISTANCE_M * MIN_DISTANCE_M)
+    for j in range(m):
+        xf[j] = np.float32(x[lo + j])
+        yf[j] = np.float32(y[lo + j])
+        acc[j] = np.float32(0.0)
+    bits = d2.view(np.int32)
+    mantissa = mbits.view(np.float32)
+    for k in range(ap_x.shape[0]):
+        ax = ap_x[k]
+        ay = ap_y[k]
+        for j in range(m):
+            dx = xf[j] - ax
+            dy = yf[j] - ay
+            d2[j] = max(dx * dx + dy * dy, one)  # distance clamped at the 1 m reference
+        for j in range(m):
+            mbits[j] = (bits[j] & 0x007FFFFF) | 0x3F800000  # same mantissa, exponent 0
+        for j in range(m):
+            exponent = np.float32((bits[j] >> 23) - 127)
+            t = (mantissa[j] - np.float32(1.0)) / (mantissa[j] + np.float32(1.0))
+            t2 = t * t
+            ln_m = np.float32(2.0) * t * (np.float32(1.0) + t2 * (np.float32(1.0 / 3.0) + t2 * (
+                np.float32(0.2) + t2 * (np.float32(1.0 / 7.0) + t2 * np.float32(1.0 / 9.0)))))
+            log10_d2[j] = (exponent * ln2 + ln_m) * inv_ln10
+        ck = c_dbm[k]
+        nk = five_n[k]
+        ak = alpha[k]
+        dk = d_max[k]
+        zk = observed[k]
+        for j in range(m):
+            # R(d) = C - 10 n log10(d) - alpha min(d, d_max), with 10 n log10(d) = 5 n log10(d^2)
+            r = zk - (ck - nk * log10_d2[j] - ak * min(math.sqrt(d2[j]), dk))
+            acc[j] += r * r
+    for j in range(m):
+        out[j] = -np.float64(acc[j] * inv_two_var)
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST, error_model="numpy")
+def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move_kind, mp, prev_xy, prev_vel,
+                    prev_head, prev_step, prev_lw, mask, clearance, x0_m, y0_m, inv_res, no_buffer, ll_kind, fix,
+                    ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed, inv_two_var, given, shift_x, shift_y,
+                    xy, vel, head, step, lw, killed, e_out, sums):
+    z0 = np.empty(BLOCK)
+    z1 = np.empty(BLOCK)
+    z2 = np.empty(BLOCK)
+    z3 = np.empty(BLOCK)
+    z4 = np.empty(BLOCK)
+    z5 = np.empty(BLOCK)
+    ubuf = np.empty(BLOCK)
+    bits = np.empty(BLOCK, dtype=np.int64)
+    ll = np.empty(BLOCK)
+    xf = np.empty(BLOCK, dtype=np.float32)
+    yf = np.empty(BLOCK, dtype=np.float32)
+    d2 = np.empty(BLOCK, dtype=np.float32)
+    mbits = np.empty(BLOCK, dtype=np.int32)
+    log10_d2 = np.empty(BLOCK, dtype=np.float32)
+    acc = np.empty(BLOCK, dtype=np.float32)
+    two_pi = 2.0 * math.pi
+    for block in range(lo_block, hi_block):
+        lo = block * BLOCK
+        m = min(n, lo + BLOCK) - lo
+        if do_move:
+            if move_kind == MOVE_CIRCLE:
+                _normal_pairs(key, SLOT_MOVE_A, lo, m, z0, z1, ubuf, bits)
+                _uniform_block(key, SLOT_MOVE_U, lo, m, z2.view(np.uint64), z3.view(np.uint64))
+                radius = mp[0]
+                sigma = mp[1]
+                for j in range(m):
+                    i = lo + j
+                    c, s = _cos_sin(two_pi * (z2[j] - 1.0) - math.pi)  # phi = 2 pi u
+                    # phi - pi in [-pi, pi): (cos, sin) of phi are minus those
+                    xy[i, 0] = prev_xy[i, 0] - radius * c + sigma * z0[j]
+                    xy[i, 1] = prev_xy[i, 1] - radius * s + sigma * z1[j]
+                    vel[i, 0] = prev_vel[i, 0]
+                    vel[i, 1] = prev_vel[i, 1]
+                    head[i] = prev_head[i]
+                    step[i] = prev_step[i]
+            elif move_kind == MOVE_CV:
+                _normal_pairs(key, SLOT_MOVE_A, lo, m, z0, z1, ubuf, bits)
+                dt = mp[0]
+                sa = mp[1]
+                vmax = mp[2]
+                for j in range(m):
+                    i = lo + j
+                    ax = sa * z0[j]
+                    ay = sa * z1[j]
+                    xy[i, 0] = prev_xy[i, 0] + prev_vel[i, 0] * dt + 0.5 * dt * dt * ax
+                    xy[i, 1] = prev_xy[i, 1] + prev_vel[i, 1] * dt + 0.5 * dt * dt * ay
+                    vx = prev_vel[i, 0] + ax * dt
+                    vy = prev_vel[i, 1] + ay * dt
+                    speed = math.sqrt(vx * vx + vy * vy)
+                    if speed > vmax:
+                        vx *= vmax / speed
+                        vy *= vmax / speed
+                    vel[i, 0] = vx
+                    vel[i, 1] = vy
+                    head[i] = prev_head[i]
+                    step[i] = prev_step[i]
+            elif move_kind == MOVE_PDR:
+                _normal_pairs(key, SLOT_MOVE_A, lo, m, z0, z1, ubuf, bits)  # heading, step length walk
+                _normal_pairs(key, SLOT_MOVE_B, lo, m, z2, z3, ubuf, bits)  # position
+                _normal_pairs(key, SLOT_MOVE_C, lo, m, z4, z5, ubuf, bits)  # given length (z5 unused)
+                _uniform_block(key, SLOT_MOVE_U, lo, m, z5.view(np.uint64), ubuf.view(np.uint64))  # false turns
+                n_steps = mp[P_STEPS]
+                for j in range(m):
+                    i = lo + j
+                    noise = mp[P_HEADING_SIGMA] * z0[j]
+                    if mp[P_ABS] != 0.0:
+                        h = mp[P_ABS_HEADING] + noise
+                    else:
+                        change = mp[P_CHANGE]
+                        if z5[j] - 1.0 < mp[P_FALSE_TURN]:
+                            change = 0.0
+                        h = prev_head[i] + change + noise
+                    h = ((h + math.pi) % two_pi) - math.pi
+                    if mp[P_WALK_LENGTH] != 0.0:
+                        sl = min(max(prev_step[i] + mp[P_LENGTH_SIGMA] * z1[j], mp[P_LENGTH_MIN]), mp[P_LENGTH_MAX])
+                    else:
+                        sl = prev_step[i]
+                    length = mp[P_GIVEN_LENGTH] + mp[P_GIVEN_SIGMA] * z4[j] if mp[P_GIVEN] != 0.0 else sl
+                    c, s = _cos_sin(h)
+                    distance = n_steps * length
+                    xy[i, 0] = prev_xy[i, 0] + distance * c + mp[P_POSITION_SIGMA] * z2[j]
+                    xy[i, 1] = prev_xy[i, 1] + distance * s + mp[P_POSITION_SIGMA] * z3[j]
+                    head[i] = h
+                    step[i] = sl
+                    vel[i, 0] = prev_vel[i, 0]
+                    vel[i, 1] = prev_vel[i, 1]
+            else:
+                for j in range(m):
+                    i = lo + j
+                    xy[i, 0] = prev_xy[i, 0]
+                    xy[i, 1] = prev_xy[i, 1]
+                    vel[i, 0] = prev_vel[i, 0]
+                    vel[i, 1] = prev_vel[i, 1]
+                    head[i] = prev_head[i]
+                    step[i] = prev_step[i]
+        if do_kill:
+            # a move through a wall kills its particle (Evennou & Marx: P_m = 0); the dead stay dead
+            for j in range(m):
+                i = lo + j
+                w0 = prev_lw[i]
+                dead = not (w0 > -np.inf and w0 < np.inf)
+                hit = False
+                if not dead:
+                    hit = _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, prev_xy[i, 0], prev_xy[i, 1],
+                                                 xy[i, 0], xy[i, 1], no_buffer)
+                killed[i] = hit
+                lw[i] = -np.inf if hit else w0
+        if do_weigh:
+            if ll_kind == LL_RSSI:
+                _rssi_block(lo, m, xy[:, 0], xy[:, 1], ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed,
+                            inv_two_var, xf, yf, d2, mbits, log10_d2, acc, ll)
+            elif ll_kind == LL_FIX:
+                for j in range(m):
+                    dx = xy[lo + j, 0] - fix[0]
+                    dy = xy[lo + j, 1] - fix[1]
+                    ll[j] = -(dx * dx + dy * dy) * fix[2]
+            elif ll_kind == LL_GIVEN:
+                for j in range(m):
+                    ll[j] = given[lo + j]
+            else:
+                for j in range(m):
+                    ll[j] = 0.0
+            alive = 0
+            finite = 0
+            best_ll = -np.inf
+            top = -np.inf
+            for j in range(m):
+                i = lo + j
+                w0 = lw[i]
+                v = ll[j]
+                if not (v > -np.inf and v < np.inf):
+                    v = -np.inf  # NaN or +inf is a model defect: no weight instead of a poisoned sum
+                if w0 > -np.inf:
+                    alive += 1
+                    best_ll = max(best_ll, v)
+                w1 = w0 + v
+                lw[i] = w1
+                if w1 > -np.inf:
+                    finite += 1
+                    top = max(top, w1)
+            s = 0.0
+            s2 = 0.0
+            sx = 0.0
+            sy = 0.0
+            sxx = 0.0
+            sxy = 0.0
+            syy = 0.0
+            if finite > 0:
+                for j in range(m):
+                    i = lo + j
+                    e = math.exp(lw[i] - top)  # 0 for the dead
+                    e_out[i] = e
+                    dx = xy[i, 0] - shift_x
+                    dy = xy[i, 1] - shift_y
+                    s += e
+                    s2 += e * e
+                    sx += e * dx
+                    sy += e * dy
+                    sxx += e * dx * dx
+                    sxy += e * dx * dy
+                    syy += e * dy * dy
+            else:
+                for j in range(m):
+                    e_out[lo + j] = 0.0
+            sums[block, A_MAX] = top
+            sums[block, A_SUM] = s
+            sums[block, A_SUM2] = s2
+            sums[block, A_X] = sx
+            sums[block, A_Y] = sy
+            sums[block, A_XX] = sxx
+            sums[block, A_XY] = sxy
+            sums[block, A_YY] = syy
+            sums[block, A_ALIVE] = alive
+            sums[block, A_FINITE] = finite
+            sums[block, A_BEST_LL] = best_ll
+
+
+@dataclasses.dataclass
+class Advanced:
+    """What :func:`advance` leaves: the moved state, log weights, and the combined block sums."""
+
+    xy_m: np.ndarray
+    velocity_mps: np.ndarray
+    heading_rad: np.ndarray
+    step_length_m: np.ndarray
+    log_weight: np.ndarray  # after the wall check (and the measurement, once weighed)
+    killed: np.ndarray  # (N,) bool: killed by a wall this step
+    e: np.ndarray  # (N,) exp(log_weight - the block's largest)
+    sums: np.ndarray  # (blocks, N_ADVANCE_SUMS)
+
+
+def _blocks(n: int) -> int:
+    return (n + BLOCK - 1) // BLOCK
+
+
+_EMPTY_MASK = np.zeros((1, 1), dtype=np.bool_)
+_EMPTY_CLEARANCE = np.zeros((1, 1), dtype=np.float32)
+
+
+def advance(prev_xy_m, prev_velocity_mps, prev_heading_rad, prev_step_length_m, prev_log_weight, *,
+            move: Move | None, key: int, floorplan=None, clearance=None, likelihood: Likelihood | None = None,
+            shift_xy_m=(0.0, 0.0), state: Advanced | None = None) -> Advanced:
+    """One pass over the particles, in blocks on the shared threads.
+
+    ``move`` (None: the moved state is ``state``'s) moves every particle with draws under
+    ``key``; ``floorplan`` (None: no wall check) kills the live particles whose move touches a
+    wall pixel; ``likelihood`` (None: not weighed yet) adds the measurement's log-likelihood
+    and fills the block sums (about ``shift_xy_m``, a point near the cloud). The three can
+    run in one call (one floor) or in turn on the same ``state`` (a building, whose floor
+    changes happen between the wall check and the measurement).
+    """
+    n = prev_log_weight.shape[0]
+    nb = _blocks(n)
+    if state is None:
+        state = Advanced(np.empty((n, 2)), np.empty((n, 2)), np.empty(n), np.empty(n), np.empty(n),
+                         np.zeros(n, dtype=np.bool_), np.empty(n), np.empty((nb, N_ADVANCE_SUMS)))
+    if floorplan is None and move is not None:
+        state.log_weight[:] = prev_log_weight  # no wall check: the weights stay as they were
+    mv = move if move is not None else no_move()
+    ll = likelihood if likelihood is not None else flat()
+    if floorplan is not None:
+        mask, clear = floorplan.wall_mask, clearance
+        x0, y0, inv = float(floorplan.origin_m[0]), float(floorplan.origin_m[1]), 1.0 / floorplan.resolution_m
+    else:
+        mask, clear, x0, y0, inv = _EMPTY_MASK, _EMPTY_CLEARANCE, 0.0, 0.0, 1.0
+    for_slices(_advance_kernel, nb, n, move is not None, floorplan is not None, likelihood is not None,
+               np.uint64(key), mv.kind, mv.params, prev_xy_m, prev_velocity_mps, prev_heading_rad,
+               prev_step_length_m, prev_log_weight, mask, clear, x0, y0, inv, NO_BUFFER, ll.kind, ll.fix,
+               *ll.rssi, ll.values if ll.kind == LL_GIVEN else _NO_VALUES, float(shift_xy_m[0]),
+               float(shift_xy_m[1]), state.xy_m, state.velocity_mps, state.heading_rad, state.step_length_m,
+               state.log_weight, state.killed, state.e, state.sums, min_per_thread=_MIN_BLOCKS_PER_THREAD)
+    return state
+
+
+@dataclasses.dataclass(frozen=True)
+class Totals:
+    """The block sums of :func:`advance` added up (in block order)."""
+
+    log_normaliser: float  # log sum exp(log_weight): -inf when no weight is left
+    ess: float  # 1 / sum(w^2) of the normalised weights
+    mean_xy_m: np.ndarray  # (2,) weighted mean
+    covariance_m2: np.ndarray  # (2, 2) weighted covariance
+    n_alive_after_kill: int
+    n_finite: int
+    best_log_likelihood: float  # over the particles alive after the wall check
+    max_log_weight: float
+    block_scale: np.ndarray  # (blocks,) exp(block max - log_normaliser): w_i = e_i * scale of its block
+    block_weight: np.ndarray  # (blocks,) normalised weight of each block
+
+
+def totals(state: Advanced, shift_xy_m) -> Totals:
+    s = state.sums
+    top = s[:, A_MAX]
+    n_alive = int(s[:, A_ALIVE].sum())
+    n_finite = int(s[:, A_FINITE].sum())
+    best_ll = float(s[:, A_BEST_LL].max())
+    m = float(top.max())
+    if not n_finite or not math.isfinite(m):
+        zeros = np.zeros(len(s))
+        return Totals(-math.inf, 0.0, np.full(2, np.nan), np.full((2, 2), np.nan), n_alive, n_finite, best_ll,
+                      m, zeros, zeros)
+    f = np.exp(top - m)  # 0 for blocks without weight
+    total = float(f @ s[:, A_SUM])
+    log_norm = m + math.log(total)
+    ess = total * total / float((f * f) @ s[:, A_SUM2])
+    ex, ey = float(f @ s[:, A_X]) / total, float(f @ s[:, A_Y]) / total
+    cxx = float(f @ s[:, A_XX]) / total - ex * ex
+    cxy = float(f @ s[:, A_XY]) / total - ex * ey
+    cyy = float(f @ s[:, A_YY]) / total - ey * ey
+    mean = np.array([float(shift_xy_m[0]) + ex, float(shift_xy_m[1]) + ey])
+    return Totals(log_norm, ess, mean, np.array([[cxx, cxy], [cxy, cyy]]), n_alive, n_finite, best_ll, m,
+                  f / total, f * s[:, A_SUM] / total)
+
+
+# ---- pass 2: systematic resampling, gather, regularisation -----------------------------------------
+@njit(cache=True, nogil=True, fastmath=_FAST, error_model="numpy")
+def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, key, tries, walks, h, root, mask,
+                     clearance,
+                     x0_m, y0_m, inv_res, no_buffer, origin_xy, src_xy, src_vel, src_head, src_step, shift_x, shift_y,
+                     parent, xy, vel, head, step, sums):
+    z0 = np.empty(BLOCK)
+    z1 = np.empty(BLOCK)
+    ubuf = np.empty(BLOCK)
+    bits = np.empty(BLOCK, dtype=np.int64)
+    done = np.empty(BLOCK, dtype=np.bool_)
+    n_in_blocks = block_scale.shape[0]
+    for block in range(lo_block, hi_block):
+        lo = block * BLOCK
+        m = min(n, lo + BLOCK) - lo
+        # systematic resampling: output j takes the particle whose cumulative-weight bin holds
+        # (j + u) / n. The walk starts at the input block where the block's first position falls
+        p0 = (lo + u) / n
+        b = 0
+        hi_b = n_in_blocks - 1
+        while b < hi_b:  # the last input block whose cumulative start is <= p0
+            mid = (b + hi_b + 1) // 2
+            if cum_start[mid] <= p0:
+                b = mid
+            else:
+                hi_b = mid - 1
+        i = b * BLOCK
+        w = e[i] * block_scale[b]
+        cum = cum_start[b] + w
+        for j in range(m):
+            p = (lo + j + u) / n
+            # the last positive weight closes the last bin at 1 (round-off guard); zero weights have empty bins
+            while (p >= cum or w <= 0.0) and i < last:
+                i += 1
+                w = e[i] * block_scale[i // BLOCK]
+                cum += w
+            parent[lo + j] = i
+        # gather, and the jitter of the Regularised Particle Filter: parent + h root eps, redrawn
+        # up to ``tries`` times while the move from the parent or from the parent's position
+        # before the step touches a wall, else the particle stays at its parent
+        for j in range(m):
+            k = parent[lo + j]
+            xy[lo + j, 0] = src_xy[k, 0]
+            xy[lo + j, 1] = src_xy[k, 1]
+            done[j] = False
+        for t in range(tries):
+            _normal_pairs(key, t, lo, m, z0, z1, ubuf, bits)
+            for j in range(m):
+                if done[j]:
+                    continue
+                i = lo + j
+                k = parent[i]
+                px = src_xy[k, 0]
+                py = src_xy[k, 1]
+                cx = px + h * (root[0, 0] * z0[j] + root[0, 1] * z1[j])
+                cy = py + h * (root[1, 0] * z0[j] + root[1, 1] * z1[j])
+                if _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, px, py, cx, cy, no_buffer):
+                    continue
+                if _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, origin_xy[k, 0], origin_xy[k, 1],
+                                          cx, cy, no_buffer):
+                    continue
+                xy[i, 0] = cx
+                xy[i, 1] = cy
+                done[j] = True
+        sx = 0.0
+        sy = 0.0
+        sxx = 0.0
+        sxy = 0.0
+        syy = 0.0
+        sc = 0.0
+        ss = 0.0
+        sl = 0.0
+        for j in range(m):
+            i = lo + j
+            k = parent[i]
+            vel[i, 0] = src_vel[k, 0]
+            vel[i, 1] = src_vel[k, 1]
+            head[i] = src_head[k]
+            step[i] = src_step[k]
+            dx = xy[i, 0] - shift_x
+            dy = xy[i, 1] - shift_y
+            sx += dx
+            sy += dy
+            sxx += dx * dx
+            sxy += dx * dy
+            syy += dy * dy
+            if walks:
+                h = head[i]
+                if not -2.0 * math.pi <= h <= 2.0 * math.pi:
+                    h = ((h + math.pi) % (2.0 * math.pi)) - math.pi
+                c, s = _cos_sin(h)
+                sc += c
+                ss += s
+                sl += step[i]
+        sums[block, R_X] = sx
+        sums[block, R_Y] = sy
+        sums[block, R_XX] = sxx
+        sums[block, R_XY] = sxy
+        sums[block, R_YY] = syy
+        sums[block, R_COS] = sc
+        sums[block, R_SIN] = ss
+        sums[block, R_STEP] = sl
+
+
+@dataclasses.dataclass
+class Resampled:
+    """What :func:`resample_regularise` leaves: the new particles' state and their parents."""
+
+    parent: np.ndarray  # (N,) int64 index into the particles before resampling
+    xy_m: np.ndarray
+    velocity_mps: np.ndarray
+    heading_rad: np.ndarray
+    step_length_m: np.ndarray
+    sums: np.ndarray  # (blocks, N_RESAMPLE_SUMS)
+
+
+def last_positive(state: Advanced, t: Totals) -> int:
+    """Index of the last particle with a positive normalised weight (the resampler's last bin)."""
+    blocks = np.flatnonzero(t.block_weight > 0)
+    b = int(blocks[-1])
+    seg = state.e[b * BLOCK:(b + 1) * BLOCK] * t.block_scale[b]
+    return b * BLOCK + int(np.flatnonzero(seg > 0)[-1])
+
+
+def resample_regularise(state: Advanced, t: Totals, prev_xy_m: np.ndarray, *, u: float, key: int, tries: int,
+                        h: float, root: np.ndarray, floorplan, clearance, shift_xy_m, walks: bool = False) -> Resampled:
+    """Systematic resampling of ``state`` by its weights (positions (j + u) / N), the gather of
+    the parents' state and the regularisation jitter ``h root eps`` (``tries`` draws under
+    ``key``, 0: no jitter), never through a wall from the parent nor from the parent's position
+    before the step (``prev_xy_m``); one pass over the new particles, in blocks on the shared threads.
+    ``walks``: also sum cos and sin of the headings and the step lengths (PDR's report)."""
+    n = state.log_weight.shape[0]
+    nb = _blocks(n)
+    if not 0 <= tries <= SLOTS:
+        raise ValueError(f"the fused regularisation draws at most {SLOTS} tries, got {tries}")
+    cum_start = np.concatenate([[0.0], np.cumsum(t.block_weight)[:-1]])
+    out = Resampled(np.empty(n, dtype=np.int64), np.empty((n, 2)), np.empty((n, 2)), np.empty(n), np.empty(n),
+                    np.empty((nb, N_RESAMPLE_SUMS)))
+    for_slices(_resample_kernel, nb, n, state.e, t.block_scale, cum_start, last_positive(state, t), float(u),
+               np.uint64(key), int(tries), bool(walks), float(h), np.ascontiguousarray(root, dtype=np.float64), floorplan.wall_mask,
+               clearance, float(floorplan.origin_m[0]), float(floorplan.origin_m[1]), 1.0 / floorplan.resolution_m,
+               NO_BUFFER, prev_xy_m, state.xy_m, state.velocity_mps, state.heading_rad, state.step_length_m,
+               float(shift_xy_m[0]), float(shift_xy_m[1]), out.parent, out.xy_m, out.velocity_mps, out.heading_rad,
+               out.step_length_m, out.sums, min_per_thread=_MIN_BLOCKS_PER_THREAD)
+    return out
