@@ -299,6 +299,38 @@ def counter_uniforms(key: int, slot: int, n: int) -> tuple[np.ndarray, np.ndarra
 SLOT_MOVE_A, SLOT_MOVE_B, SLOT_MOVE_C, SLOT_MOVE_U = 0, 1, 2, 3
 
 
+# ---- the wall check -----------------------------------------------------------------------------
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, inline="always")
+def _clearance_at(clearance, u, v):
+    h, w = clearance.shape
+    if 0.0 <= u < w and 0.0 <= v < h:
+        return clearance[int(v), int(u)]
+    return 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, inline="always")
+def _crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer):
+    """``maps.walls.crosses_wall`` of one move (the same answer): first the clearance of the
+    pixels at its ends and its middle (a segment shorter than the clearance of a pixel it starts
+    in touches no wall, and either end or the middle can be its start), then the exact walk.
+    Most moves end here; this small function inlines into the kernels, the walk is a call."""
+    h = mask.shape[0]
+    u0 = (ax - x0_m) * inv_res
+    v0 = h - (ay - y0_m) * inv_res
+    u1 = (bx - x0_m) * inv_res
+    v1 = h - (by - y0_m) * inv_res
+    du = u1 - u0
+    dv = v1 - v0
+    if du != 0.0 and dv != 0.0:  # axis-aligned and zero moves: the walk's own grid-line rules
+        length = math.sqrt(du * du + dv * dv)
+        c = max(_clearance_at(clearance, u0, v0), _clearance_at(clearance, u1, v1))
+        if c > 0.0 and length < c:
+            return False
+        if 0.5 * length < _clearance_at(clearance, 0.5 * (u0 + u1), 0.5 * (v0 + v1)):
+            return False
+    return _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer)
+
+
 # ---- pass 1: move, wall check, weigh, block sums -------------------------------------------------
 @njit(cache=True, nogil=True, fastmath=True, error_model="numpy", _nrt=False)
 def _rssi_block(lo, m, x, y, ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed, inv_two_var, xf, yf, d2, mbits,
@@ -451,8 +483,8 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
                 dead = not (w0 > -np.inf and w0 < np.inf)
                 hit = False
                 if not dead:
-                    hit = _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, prev_xy[i, 0], prev_xy[i, 1],
-                                                 xy[i, 0], xy[i, 1], no_buffer)
+                    hit = _crosses(mask, clearance, x0_m, y0_m, inv_res, prev_xy[i, 0], prev_xy[i, 1], xy[i, 0],
+                                   xy[i, 1], no_buffer)
                 killed[i] = hit
                 lw[i] = -np.inf if hit else w0
         if do_weigh:
@@ -678,10 +710,10 @@ def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, 
                 py = src_xy[k, 1]
                 cx = px + h * (root[0, 0] * z0[j] + root[0, 1] * z1[j])
                 cy = py + h * (root[1, 0] * z0[j] + root[1, 1] * z1[j])
-                if _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, px, py, cx, cy, no_buffer):
+                if _crosses(mask, clearance, x0_m, y0_m, inv_res, px, py, cx, cy, no_buffer):
                     continue
-                if _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, origin_xy[k, 0], origin_xy[k, 1],
-                                          cx, cy, no_buffer):
+                if _crosses(mask, clearance, x0_m, y0_m, inv_res, origin_xy[k, 0], origin_xy[k, 1], cx, cy,
+                            no_buffer):
                     continue
                 xy[i, 0] = cx
                 xy[i, 1] = cy
