@@ -223,7 +223,17 @@ def per_step_seconds(fn, reps: int) -> float:
     return float(np.median(times))
 
 
+def _pf(fp: FloorPlan, n: int, fused_path: bool, true_xy: np.ndarray, seed: int) -> ParticleFilter:
+    # the filter starts around the truth so that the cloud is realistic (not map-wide)
+    pf = ParticleFilter(fp, RandomWalkMotion(), FilterConfig(n_particles=n, resample_ess_fraction=1.0, fused=fused_path),
+                        np.random.default_rng(seed))
+    pf.initialise_around(true_xy, 5.0)
+    return pf
+
+
 def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: int, seed: int) -> dict:
+    """Per N: the wall check alone; then the fused step, the named stages' step and the numpy
+    reference, one step of each in turn (so that all three see the same load), from the same cloud."""
     rng = np.random.default_rng(seed)
     ap_xy = fp.sample_free(N_APS, rng)
     model = RssiModel(ap_xy)
@@ -233,55 +243,50 @@ def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: 
     for n in sizes:
         row: dict = {"n_particles": n}
         a = fp.sample_free(n, rng)
-        motion = RandomWalkMotion()
-        moved = motion.propagate(Particles.at(a), None, DT_S, rng).xy_m
+        moved = RandomWalkMotion().propagate(Particles.at(a), None, DT_S, rng).xy_m
         t = per_step_seconds(lambda: crosses_wall(fp, a, moved), reps)
         row["wall_check_per_s"] = n / t
         row["wall_check_crossing_share"] = float(crosses_wall(fp, a, moved).mean())
 
-        # the filter starts around the truth so that the cloud is realistic (not map-wide)
-        pf = ParticleFilter(fp, motion, FilterConfig(n_particles=n, resample_ess_fraction=1.0),
-                            np.random.default_rng(seed))
-        pf.initialise_around(true_xy[0], 5.0)
-        stats = {"resampled": 0, "steps": 0, "killed": 0}
+        runs: dict = {}
+        for label, fused_path in (("fused", True), ("named", False)):
+            pf = _pf(fp, n, fused_path, true_xy[0], seed)
+            stats = {"resampled": 0, "steps": 0, "killed": 0}
 
-        def full_step():
-            report = pf.step(0.0, DT_S, None, model, observed)
-            stats["resampled"] += report.resampled
-            stats["steps"] += 1
-            stats["killed"] += report.n_killed
+            def step(pf=pf, stats=stats):
+                report = pf.step(0.0, DT_S, None, model, observed)
+                stats["resampled"] += report.resampled
+                stats["steps"] += 1
+                stats["killed"] += report.n_killed
 
-        full_step()  # warm-up at this size
+            step()  # warm-up at this size
+            runs[label] = (step, stats)
         if n <= ref_max_n:
-            # full and reference steps alternate, so that both see the same load on a shared machine
-            ref = NumpyReferenceFilter(fp, pf.particles.xy_m, np.random.default_rng(seed))
-            ref_step = lambda: ref.step(model, observed)  # noqa: E731
-            ref_step()
-            n_pairs = reps if n < 1_000_000 else max(3, reps // 3)
-            t_full_all, t_ref_all, c_full_all, c_ref_all = [], [], [], []
-            for _ in range(n_pairs):
-                wall, cpu = timed_cpu(full_step)
-                t_full_all.append(wall)
-                c_full_all.append(cpu)
-                wall, cpu = timed_cpu(ref_step)
-                t_ref_all.append(wall)
-                c_ref_all.append(cpu)
-            t_full, t_ref = float(np.median(t_full_all)), float(np.median(t_ref_all))
-            row["full_step_per_s"] = n / t_full
-            row["full_step_ms"] = 1e3 * t_full
-            row["full_step_cpu_ms"] = 1e3 * float(np.median(c_full_all))
-            row["reference_step_per_s"] = n / t_ref
-            row["reference_step_ms"] = 1e3 * t_ref
-            row["reference_step_cpu_ms"] = 1e3 * float(np.median(c_ref_all))
-            row["speedup_full_vs_reference"] = t_ref / t_full
-        else:
-            walls, cpus = zip(*(timed_cpu(full_step) for _ in range(reps)))
-            t_full = float(np.median(walls))
-            row["full_step_per_s"] = n / t_full
-            row["full_step_ms"] = 1e3 * t_full
-            row["full_step_cpu_ms"] = 1e3 * float(np.median(cpus))
-        row["resampled_share"] = stats["resampled"] / stats["steps"]
-        row["killed_per_step_share"] = stats["killed"] / stats["steps"] / n
+            ref = NumpyReferenceFilter(fp, _pf(fp, n, False, true_xy[0], seed).particles.xy_m,
+                                       np.random.default_rng(seed))
+            runs["reference"] = (lambda: ref.step(model, observed), None)
+            runs["reference"][0]()
+        n_rounds = reps if n < 1_000_000 else max(3, reps // 3)
+        times: dict = {label: ([], []) for label in runs}
+        for _ in range(n_rounds):
+            for label, (fn, _) in runs.items():
+                wall, cpu = timed_cpu(fn)
+                times[label][0].append(wall)
+                times[label][1].append(cpu)
+        for label, (walls, cpus) in times.items():
+            t_wall, t_cpu = float(np.median(walls)), float(np.median(cpus))
+            row[f"{label}_step_per_s"] = n / t_wall
+            row[f"{label}_step_ms"] = 1e3 * t_wall
+            row[f"{label}_step_cpu_ms"] = 1e3 * t_cpu
+        for label in ("fused", "named"):
+            if "reference" in times:
+                row[f"speedup_{label}_vs_reference"] = row["reference_step_ms"] / row[f"{label}_step_ms"]
+                row[f"speedup_{label}_vs_reference_cpu"] = row["reference_step_cpu_ms"] / row[f"{label}_step_cpu_ms"]
+            stats = runs[label][1]
+            row[f"{label}_resampled_share"] = stats["resampled"] / stats["steps"]
+            row[f"{label}_killed_per_step_share"] = stats["killed"] / stats["steps"] / n
+        row["speedup_fused_vs_named"] = row["named_step_ms"] / row["fused_step_ms"]
+        row["speedup_fused_vs_named_cpu"] = row["named_step_cpu_ms"] / row["fused_step_cpu_ms"]
         rows.append(row)
         print(f"{name} N={n}: " + ", ".join(f"{k}={v:.4g}" for k, v in row.items() if k != "n_particles"),
               file=sys.stderr, flush=True)
