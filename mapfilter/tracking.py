@@ -29,7 +29,7 @@ from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix, Tri
 from mapfilter.filter.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.pf import FilterConfig, ParticleFilter
 from mapfilter.filter.placement import WalkPlacement, place_walk, shift_onto_free_space
-from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLikelihoodConfig
+from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLikelihoodConfig, radio_map_likelihood
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.paths import detour_wall_crossings, wall_free_track
 from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position, match_scan
@@ -195,12 +195,10 @@ class WifiMeasurements:
         return None
 
     def radio_map_model(self) -> RadioMapLikelihood:
-        """The radio-map likelihood of this walk's scans, built once on first use (needs a radio
-        map): per-AP tables only for the APs the walk hears."""
+        """The radio-map likelihood (needs a radio map): built once per radio map and shared with
+        the other walks tracked with it (per-AP tables for the APs the walks hear)."""
         if self._radio_map_model is None:
-            heard = {key for scan in self.scans for key in scan.ap_keys}
-            self._radio_map_model = RadioMapLikelihood(self._radio_map, self._floorplan, self._config,
-                                                       heard_keys=heard)
+            self._radio_map_model = radio_map_likelihood(self._radio_map, self._floorplan, self._config)
         return self._radio_map_model
 
     def best_cell_xy_m(self) -> np.ndarray:
