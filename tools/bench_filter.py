@@ -4,11 +4,13 @@ For N = 1k, 10k, 100k, 1M particles on an ILC floor map (site1/F1 from ../shared
 the bundled map maps/office.yaml, it times
 
 - ``wall_check``: ``mapfilter.maps.walls.crosses_wall`` alone on random-walk moves;
-- ``full_step``: ``ParticleFilter.step`` with random-walk motion + wall check + a 20-access-point
-  RSSI Gaussian likelihood + resampling (forced every step) + wall-safe regularisation + estimate;
+- ``fused_step``: ``ParticleFilter.step`` with random-walk motion + wall check + a 20-access-point
+  RSSI Gaussian likelihood + resampling (forced every step) + wall-safe regularisation + estimate,
+  on its fused path (``filter/fused.py``);
+- ``named_step``: the same step by the named stages (``FilterConfig(fused=False)``);
 - ``reference_step``: the same step in plain numpy (points sampled every half pixel along each
   segment for the wall check, float32 numpy RSSI likelihood, cumsum + searchsorted resampling),
-  in the same process, and the speed-up ``full_step / reference_step``.
+  and the speed-ups over it; one step of each in turn, in the same process.
 
 It also times what a user feels (``--skip-user`` leaves it out):
 
@@ -19,7 +21,9 @@ It also times what a user feels (``--skip-user`` leaves it out):
 - ``real_walk``: one real ILC site1/F1 walk of about a minute (not one of the sparse set's
   walks), 10,000 particles, with the sparse (36 walks, ``sparse_set.txt``) and the dense
   (all 76 walks) F1 radio maps, built here with ``mapfilter radiomap build`` (timed too): the
-  tracker's own time (``track_recording``) and the whole ``mapfilter track`` command.
+  tracker's own time (``track_recording``) for the first walk with a radio map (which builds
+  its likelihood) and for a walk after it (which reuses it), and the whole ``mapfilter track``
+  command (one walk: builds it).
 
 Every step time comes with the CPU time the process used for it (``cpu_ms``): on a shared
 machine, the wall time moves with the other jobs; the CPU time much less.
@@ -361,6 +365,10 @@ def bench_real_walk(tmp: Path) -> dict:
         build_s, build_cpu_s, _ = _mapfilter(["radiomap", "build", str(map_yaml), *map(str, logs),
                                               "--out", str(rm_path)])
         radio_map = RadioMap.load(rm_path)
+        # the first walk builds the radio-map likelihood (once per radio map); the walks after it reuse it
+        c0 = time.process_time()
+        first = track_recording(floorplan, recording, radio_map, None, TrackingConfig(), np.random.default_rng(0))
+        first_cpu_s = time.process_time() - c0
         c0 = time.process_time()
         result = track_recording(floorplan, recording, radio_map, None, TrackingConfig(), np.random.default_rng(0))
         track_cpu_s = time.process_time() - c0
@@ -368,7 +376,10 @@ def bench_real_walk(tmp: Path) -> dict:
                                                   "--out", str(tmp / f"track_{name}.csv")])
         doc["radio_maps"][name] = {"walks": len(logs), "reference_points": len(radio_map),
                                    "access_points": len(radio_map.ap_keys), "radiomap_build_s": build_s,
-                                   "radiomap_build_cpu_s": build_cpu_s, "track_recording_s": result.runtime_s,
+                                   "radiomap_build_cpu_s": build_cpu_s,
+                                   "track_recording_first_walk_s": first.runtime_s,
+                                   "track_recording_first_walk_cpu_s": first_cpu_s,
+                                   "track_recording_s": result.runtime_s,
                                    "track_recording_cpu_s": track_cpu_s, "filter_steps": result.n_filter_steps,
                                    "track_command_s": command_s, "track_command_cpu_s": command_cpu_s}
         print(f"real walk, {name} map: " + ", ".join(f"{k}={v:.4g}" for k, v in doc["radio_maps"][name].items()),

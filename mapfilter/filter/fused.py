@@ -196,25 +196,25 @@ _S20 = np.uint64(20)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _uniform_block(key, slot, lo, m, bits_a, bits_b):
-    """The uniforms of word ``slot`` of particles lo + j, j < m, as the bits of floats in [1, 2)
+def _uniform_block(key, slot, lo, idx, m, bits_a, bits_b):
+    """The uniforms of word ``slot`` of particles lo + idx[j], j < m, as the bits of floats in [1, 2)
     (the caller views them as float64 and subtracts 1, or takes 2 minus them for (0, 1]): 32
     random bits of each half of the word fill the top of a mantissa. The block loop
     vectorises (no integer-to-float conversion, which AVX2 lacks for 64-bit integers)."""
     for j in range(m):
-        z = _word(key, np.uint64((lo + j) * SLOTS + slot))
+        z = _word(key, np.uint64((lo + idx[j]) * SLOTS + slot))
         bits_a[j] = ((z >> _S32) << _S20) | _ONE_BITS
         bits_b[j] = ((z & _LOW32) << _S20) | _ONE_BITS
 
 
 @njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
-def _normal_pairs(key, slot, lo, m, z0, z1, u1, mantissa_bits):
-    """z0[j], z1[j] ~ N(0, 1), independent, for particles lo + j, j < m (word ``slot``):
+def _normal_pairs(key, slot, lo, idx, m, z0, z1, u1, mantissa_bits):
+    """z0[j], z1[j] ~ N(0, 1), independent, for particles lo + idx[j], j < m (word ``slot``):
     Box-Muller, radius sqrt(-2 ln u1) and angle 2 pi u2."""
     ln2 = math.log(2.0)
     a_bits = mantissa_bits.view(np.uint64)
     b_bits = z1.view(np.uint64)
-    _uniform_block(key, slot, lo, m, a_bits, b_bits)
+    _uniform_block(key, slot, lo, idx, m, a_bits, b_bits)
     a = mantissa_bits.view(np.float64)
     for j in range(m):
         u1[j] = 2.0 - a[j]  # in (0, 1]: ln is finite
@@ -243,23 +243,19 @@ def _normal_pairs(key, slot, lo, m, z0, z1, u1, mantissa_bits):
 
 @njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _cos_sin(angle):
-    """(cos, sin) of an angle in [-2 pi, 2 pi] from series on [-pi/2, pi/2] (|error| < 1e-7)."""
+    """(cos, sin) of an angle in [-pi, pi] from series of b = angle / 2 in [-pi/2, pi/2] and the
+    double-angle formulas (|error| < 1e-7; no branch, so the loops calling it vectorise)."""
     b = 0.5 * angle
-    # b in [-pi, pi]: fold into [-pi/2, pi/2] with cos(b) -> -cos(b - pi) (the sign cancels below)
-    if b > 0.5 * math.pi:
-        b -= math.pi
-    elif b < -0.5 * math.pi:
-        b += math.pi
     b2 = b * b
     sin_b = b * (1.0 - b2 / 6.0 * (1.0 - b2 / 20.0 * (1.0 - b2 / 42.0 * (1.0 - b2 / 72.0 * (1.0 - b2 / 110.0)))))
     cos_b = 1.0 - b2 / 2.0 * (1.0 - b2 / 12.0 * (1.0 - b2 / 30.0 * (1.0 - b2 / 56.0 * (
         1.0 - b2 / 90.0 * (1.0 - b2 / 132.0)))))
-    # cos 2b = 1 - 2 sin^2 b, sin 2b = 2 sin b cos b; a shift of b by pi changes neither
     return 1.0 - 2.0 * sin_b * sin_b, 2.0 * sin_b * cos_b
 
 
 @njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _draws_kernel(lo_block, hi_block, key, slot, n, normal, out0, out1):
+    iota = np.arange(BLOCK)
     z0 = np.empty(BLOCK)
     z1 = np.empty(BLOCK)
     u1 = np.empty(BLOCK)
@@ -268,12 +264,12 @@ def _draws_kernel(lo_block, hi_block, key, slot, n, normal, out0, out1):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
         if normal:
-            _normal_pairs(key, slot, lo, m, z0, z1, u1, bits)
+            _normal_pairs(key, slot, lo, iota, m, z0, z1, u1, bits)
             for j in range(m):
                 out0[lo + j] = z0[j]
                 out1[lo + j] = z1[j]
         else:
-            _uniform_block(key, slot, lo, m, z0.view(np.uint64), z1.view(np.uint64))
+            _uniform_block(key, slot, lo, iota, m, z0.view(np.uint64), z1.view(np.uint64))
             for j in range(m):
                 out0[lo + j] = z0[j] - 1.0
                 out1[lo + j] = z1[j] - 1.0
@@ -299,35 +295,83 @@ def counter_uniforms(key: int, slot: int, n: int) -> tuple[np.ndarray, np.ndarra
 SLOT_MOVE_A, SLOT_MOVE_B, SLOT_MOVE_C, SLOT_MOVE_U = 0, 1, 2, 3
 
 
+# ---- exp --------------------------------------------------------------------------------------
+_LOG2E = 1.0 / math.log(2.0)
+_LN2_HI = 6.93147180369123816490e-01  # ln 2 in two parts (Cody & Waite): k ln2_hi is exact
+_LN2_LO = 1.90821492927058770002e-10
+_ROUND = 6755399441055744.0  # 1.5 * 2^52: x + _ROUND rounds x to an integer, held in the low bits
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _exp_block(x, m, out, rounded, scale_bits):
+    """out[j] = exp(x[j]) for x <= 0 (-inf -> 0), in loops that vectorise: exp(x) = 2^k exp(r),
+    k = round(x / ln 2), r = x - k ln 2 in [-ln2/2, ln2/2], exp(r) by its Taylor series to r^12
+    (relative error < 1e-14), 2^k built in the exponent bits; below 2^-1022 the result is 0.
+    ``rounded`` (float64) and ``scale_bits`` (int64) are scratch buffers of at least m."""
+    for j in range(m):
+        rounded[j] = max(x[j], -745.0) * _LOG2E + _ROUND
+    k_bits = rounded.view(np.int64)
+    for j in range(m):
+        # k from the low bits of 1.5 * 2^52 + k (mantissa 2^51 + k): its low 32 bits, sign-extended
+        ki = ((k_bits[j] & 0xFFFFFFFF) ^ 0x80000000) - 0x80000000
+        scale_bits[j] = (ki + 1023) << 52 if ki >= -1022 else 0
+    scale = scale_bits.view(np.float64)
+    for j in range(m):
+        k = rounded[j] - _ROUND
+        r = (max(x[j], -745.0) - k * _LN2_HI) - k * _LN2_LO
+        p = 1.0 + r * (1.0 + r * (1.0 / 2.0 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (
+            1.0 / 720.0 + r * (1.0 / 5040.0 + r * (1.0 / 40320.0 + r * (1.0 / 362880.0 + r * (
+                1.0 / 3628800.0 + r * (1.0 / 39916800.0 + r * (1.0 / 479001600.0))))))))))))
+        out[j] = p * scale[j]
+
+
 # ---- the wall check -----------------------------------------------------------------------------
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, inline="always")
-def _clearance_at(clearance, u, v):
-    h, w = clearance.shape
-    if 0.0 <= u < w and 0.0 <= v < h:
-        return clearance[int(v), int(u)]
-    return 0.0
+_MARCH_STEPS = 12  # clearance steps from each end before the exact walk
+_MIN_MARCH_PX = 0.5  # fronts whose clearance is below this stop the march
 
 
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer):
     """``maps.walls.crosses_wall`` of one move (the same answer): first the clearance of the
-    pixels at its ends and its middle (a segment shorter than the clearance of a pixel it starts
-    in touches no wall, and either end or the middle can be its start), then the exact walk.
-    Most moves end here; this small function inlines into the kernels, the walk is a call."""
-    h = mask.shape[0]
+    pixels at its ends (a segment shorter than the clearance of a pixel it starts in touches no
+    wall, and either end can be its start), whether it ends in a wall, a march along the
+    clearance from both ends, then the exact walk.
+
+    The kernels test the start pixel themselves before they call this: written out in the
+    loop, that test costs a fifth of a call (numba's inline="always" made it slower still)."""
+    h, w = clearance.shape
     u0 = (ax - x0_m) * inv_res
     v0 = h - (ay - y0_m) * inv_res
     u1 = (bx - x0_m) * inv_res
     v1 = h - (by - y0_m) * inv_res
     du = u1 - u0
     dv = v1 - v0
-    if du != 0.0 and dv != 0.0:  # axis-aligned and zero moves: the walk's own grid-line rules
-        length = math.sqrt(du * du + dv * dv)
-        c = max(_clearance_at(clearance, u0, v0), _clearance_at(clearance, u1, v1))
-        if c > 0.0 and length < c:
-            return False
-        if 0.5 * length < _clearance_at(clearance, 0.5 * (u0 + u1), 0.5 * (v0 + v1)):
-            return False
+    length = math.sqrt(du * du + dv * dv)
+    if 0.0 <= u0 < w and 0.0 <= v0 < h and length < clearance[int(v0), int(u0)]:
+        return False
+    if 0.0 <= u1 < w and 0.0 <= v1 < h and length < clearance[int(v1), int(u1)]:
+        return False
+    if not (0.0 <= u1 < w and 0.0 <= v1 < h) or mask[int(v1), int(u1)]:
+        return True  # it ends in a wall pixel or off the map (NaN ends in the walk below)
+    if length > 0.0:
+        # clearance from both ends ("sphere tracing" from each): a piece shorter than the
+        # clearance of the pixel it starts in touches no wall; when the pieces from the start
+        # and from the end meet, no piece of the move does
+        t_lo = 0.0
+        t_hi = 1.0
+        for _ in range(_MARCH_STEPS):
+            pu = u0 + t_lo * du
+            pv = v0 + t_lo * dv
+            c_lo = clearance[int(pv), int(pu)] if 0.0 <= pu < w and 0.0 <= pv < h else 0.0
+            qu = u0 + t_hi * du
+            qv = v0 + t_hi * dv
+            c_hi = clearance[int(qv), int(qu)] if 0.0 <= qu < w and 0.0 <= qv < h else 0.0
+            if c_lo < _MIN_MARCH_PX and c_hi < _MIN_MARCH_PX:
+                break  # against a wall at both fronts: the exact walk decides
+            t_lo += 0.999 * c_lo / length
+            t_hi -= 0.999 * c_hi / length
+            if t_lo >= t_hi:
+                return False
     return _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer)
 
 
@@ -380,6 +424,7 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
                     prev_head, prev_step, prev_lw, mask, clearance, x0_m, y0_m, inv_res, no_buffer, ll_kind, fix,
                     ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed, inv_two_var, given, shift_x, shift_y,
                     xy, vel, head, step, lw, killed, e_out, sums):
+    iota = np.arange(BLOCK)
     z0 = np.empty(BLOCK)
     z1 = np.empty(BLOCK)
     z2 = np.empty(BLOCK)
@@ -396,13 +441,14 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
     log10_d2 = np.empty(BLOCK, dtype=np.float32)
     acc = np.empty(BLOCK, dtype=np.float32)
     two_pi = 2.0 * math.pi
+    mask_h, mask_w = clearance.shape
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
         if do_move:
             if move_kind == MOVE_CIRCLE:
-                _normal_pairs(key, SLOT_MOVE_A, lo, m, z0, z1, ubuf, bits)
-                _uniform_block(key, SLOT_MOVE_U, lo, m, z2.view(np.uint64), z3.view(np.uint64))
+                _normal_pairs(key, SLOT_MOVE_A, lo, iota, m, z0, z1, ubuf, bits)
+                _uniform_block(key, SLOT_MOVE_U, lo, iota, m, z2.view(np.uint64), z3.view(np.uint64))
                 radius = mp[0]
                 sigma = mp[1]
                 for j in range(m):
@@ -416,7 +462,7 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
                     head[i] = prev_head[i]
                     step[i] = prev_step[i]
             elif move_kind == MOVE_CV:
-                _normal_pairs(key, SLOT_MOVE_A, lo, m, z0, z1, ubuf, bits)
+                _normal_pairs(key, SLOT_MOVE_A, lo, iota, m, z0, z1, ubuf, bits)
                 dt = mp[0]
                 sa = mp[1]
                 vmax = mp[2]
@@ -437,10 +483,10 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
                     head[i] = prev_head[i]
                     step[i] = prev_step[i]
             elif move_kind == MOVE_PDR:
-                _normal_pairs(key, SLOT_MOVE_A, lo, m, z0, z1, ubuf, bits)  # heading, step length walk
-                _normal_pairs(key, SLOT_MOVE_B, lo, m, z2, z3, ubuf, bits)  # position
-                _normal_pairs(key, SLOT_MOVE_C, lo, m, z4, z5, ubuf, bits)  # given length (z5 unused)
-                _uniform_block(key, SLOT_MOVE_U, lo, m, z5.view(np.uint64), ubuf.view(np.uint64))  # false turns
+                _normal_pairs(key, SLOT_MOVE_A, lo, iota, m, z0, z1, ubuf, bits)  # heading, step length walk
+                _normal_pairs(key, SLOT_MOVE_B, lo, iota, m, z2, z3, ubuf, bits)  # position
+                _normal_pairs(key, SLOT_MOVE_C, lo, iota, m, z4, z5, ubuf, bits)  # given length (z5 unused)
+                _uniform_block(key, SLOT_MOVE_U, lo, iota, m, z5.view(np.uint64), ubuf.view(np.uint64))  # false turns
                 n_steps = mp[P_STEPS]
                 for j in range(m):
                     i = lo + j
@@ -452,7 +498,8 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
                         if z5[j] - 1.0 < mp[P_FALSE_TURN]:
                             change = 0.0
                         h = prev_head[i] + change + noise
-                    h = ((h + math.pi) % two_pi) - math.pi
+                    if not -math.pi <= h < math.pi:
+                        h = ((h + math.pi) % two_pi) - math.pi
                     if mp[P_WALK_LENGTH] != 0.0:
                         sl = min(max(prev_step[i] + mp[P_LENGTH_SIGMA] * z1[j], mp[P_LENGTH_MIN]), mp[P_LENGTH_MAX])
                     else:
@@ -483,8 +530,20 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
                 dead = not (w0 > -np.inf and w0 < np.inf)
                 hit = False
                 if not dead:
-                    hit = _crosses(mask, clearance, x0_m, y0_m, inv_res, prev_xy[i, 0], prev_xy[i, 1], xy[i, 0],
-                                   xy[i, 1], no_buffer)
+                    # the start pixel's clearance decides most moves (see _crosses)
+                    ax = prev_xy[i, 0]
+                    ay = prev_xy[i, 1]
+                    bx = xy[i, 0]
+                    by = xy[i, 1]
+                    u0 = (ax - x0_m) * inv_res
+                    v0 = mask_h - (ay - y0_m) * inv_res
+                    du = (bx - ax) * inv_res
+                    dv = (by - ay) * inv_res
+                    c = 0.0
+                    if 0.0 <= u0 < mask_w and 0.0 <= v0 < mask_h:
+                        c = clearance[int(v0), int(u0)]
+                    if not du * du + dv * dv < c * c:
+                        hit = _crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer)
                 killed[i] = hit
                 lw[i] = -np.inf if hit else w0
         if do_weigh:
@@ -529,8 +588,11 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
             syy = 0.0
             if finite > 0:
                 for j in range(m):
+                    ll[j] = lw[lo + j] - top
+                _exp_block(ll, m, ll, z0, bits)  # 0 for the dead
+                for j in range(m):
                     i = lo + j
-                    e = math.exp(lw[i] - top)  # 0 for the dead
+                    e = ll[j]
                     e_out[i] = e
                     dx = xy[i, 0] - shift_x
                     dy = xy[i, 1] - shift_y
@@ -664,8 +726,9 @@ def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, 
     z1 = np.empty(BLOCK)
     ubuf = np.empty(BLOCK)
     bits = np.empty(BLOCK, dtype=np.int64)
-    done = np.empty(BLOCK, dtype=np.bool_)
+    pending = np.empty(BLOCK, dtype=np.int64)
     n_in_blocks = block_scale.shape[0]
+    mask_h, mask_w = clearance.shape
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
@@ -698,26 +761,45 @@ def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, 
             k = parent[lo + j]
             xy[lo + j, 0] = src_xy[k, 0]
             xy[lo + j, 1] = src_xy[k, 1]
-            done[j] = False
+            pending[j] = j
+        n_pending = m
         for t in range(tries):
-            _normal_pairs(key, t, lo, m, z0, z1, ubuf, bits)
-            for j in range(m):
-                if done[j]:
-                    continue
+            if n_pending == 0:
+                break
+            # draws for the pending particles only (a particle's draw at try t is the same whichever are)
+            _normal_pairs(key, t, lo, pending, n_pending, z0, z1, ubuf, bits)
+            n_left = 0
+            for q in range(n_pending):
+                j = pending[q]
                 i = lo + j
                 k = parent[i]
                 px = src_xy[k, 0]
                 py = src_xy[k, 1]
-                cx = px + h * (root[0, 0] * z0[j] + root[0, 1] * z1[j])
-                cy = py + h * (root[1, 0] * z0[j] + root[1, 1] * z1[j])
-                if _crosses(mask, clearance, x0_m, y0_m, inv_res, px, py, cx, cy, no_buffer):
-                    continue
-                if _crosses(mask, clearance, x0_m, y0_m, inv_res, origin_xy[k, 0], origin_xy[k, 1], cx, cy,
-                            no_buffer):
+                cx = px + h * (root[0, 0] * z0[q] + root[0, 1] * z1[q])
+                cy = py + h * (root[1, 0] * z0[q] + root[1, 1] * z1[q])
+                hit = False
+                for end in range(2):  # from the parent, then from the parent's position before the step
+                    ax = px if end == 0 else origin_xy[k, 0]
+                    ay = py if end == 0 else origin_xy[k, 1]
+                    # the start pixel's clearance decides most moves (see _crosses)
+                    u0 = (ax - x0_m) * inv_res
+                    v0 = mask_h - (ay - y0_m) * inv_res
+                    du = (cx - ax) * inv_res
+                    dv = (cy - ay) * inv_res
+                    c = 0.0
+                    if 0.0 <= u0 < mask_w and 0.0 <= v0 < mask_h:
+                        c = clearance[int(v0), int(u0)]
+                    if not du * du + dv * dv < c * c:
+                        hit = _crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, cx, cy, no_buffer)
+                        if hit:
+                            break
+                if hit:
+                    pending[n_left] = j  # q >= n_left: already read
+                    n_left += 1
                     continue
                 xy[i, 0] = cx
                 xy[i, 1] = cy
-                done[j] = True
+            n_pending = n_left
         sx = 0.0
         sy = 0.0
         sxx = 0.0
@@ -742,7 +824,7 @@ def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, 
             syy += dy * dy
             if walks:
                 h = head[i]
-                if not -2.0 * math.pi <= h <= 2.0 * math.pi:
+                if not -math.pi <= h <= math.pi:
                     h = ((h + math.pi) % (2.0 * math.pi)) - math.pi
                 c, s = _cos_sin(h)
                 sc += c
