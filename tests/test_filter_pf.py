@@ -67,7 +67,8 @@ def test_invariants_after_every_step(seed, motion_kind, resampler, kernel, fix_e
     motion = {"rw": RandomWalkMotion(), "cv": ConstantVelocityMotion(accel_sigma_mps2=2.0),
               "pdr": PDRMotion()}[motion_kind]
     cfg = FilterConfig(n_particles=500, resampler=resampler, kernel=kernel, keep_ancestry=True,
-                       resample_ess_fraction=0.7, fused=fused)
+                       resample_ess_fraction=0.7,
+                       fused_from_particles=0 if fused else None)
     pf = ParticleFilter(ROOMS, motion, cfg, rng)
     pf.initialise_uniform()
     model = GaussianFixLikelihood(sigma_m=2.0)
@@ -138,7 +139,8 @@ def test_all_killed_by_walls_recovers_around_estimate_with_growing_radius():
 def test_same_seed_same_result(fused):
     def run(seed):
         rng = np.random.default_rng(seed)
-        pf = ParticleFilter(ROOMS, PDRMotion(), FilterConfig(n_particles=800, keep_ancestry=True, fused=fused), rng)
+        pf = ParticleFilter(ROOMS, PDRMotion(), FilterConfig(n_particles=800, keep_ancestry=True,
+                                                      fused_from_particles=0 if fused else None), rng)
         pf.initialise_from_measurement(0.0, GaussianFixLikelihood(3.0), PositionFix((3.0, 5.0)))
         out = []
         for k in range(20):

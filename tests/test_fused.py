@@ -80,7 +80,9 @@ def test_move_is_the_motion_model_fed_the_same_draws(motion):
     u_a, u_b = fused.counter_uniforms(KEY, fused.SLOT_MOVE_A, N)  # the Box-Muller uniforms of the noise
     if motion == "rw":
         model = RandomWalkMotion()
-        phi_u, _ = fused.counter_uniforms(KEY, fused.SLOT_MOVE_U, N)
+        # the kernel's circle direction is that of a second normal pair: its angle is phi
+        b0, b1 = fused.counter_normals(KEY, fused.SLOT_MOVE_B, N)
+        phi_u = np.mod(np.arctan2(b1, b0) / (2 * np.pi), 1.0)
         expected = model.propagate(p, None, 0.7, DrawsInOrder(phi_u, _interleaved(u_a, u_b)))
     else:
         model = ConstantVelocityMotion(accel_sigma_mps2=1.5, max_speed_mps=1.2)
@@ -103,9 +105,9 @@ def test_move_is_the_motion_model_fed_the_same_draws(motion):
 def test_pdr_move_is_the_motion_model_fed_the_same_draws(step_input):
     p = _cloud(N)
     model = PDRMotion(false_turn_fraction=0.3)
-    (h_noise, length_walk), (pos_x, pos_y), (given_noise, _) = (
+    (h_noise, length_walk), (pos_x, pos_y), (given_noise, turn) = (
         fused.counter_normals(KEY, slot, N) for slot in (fused.SLOT_MOVE_A, fused.SLOT_MOVE_B, fused.SLOT_MOVE_C))
-    u_turn, _ = fused.counter_uniforms(KEY, fused.SLOT_MOVE_U, N)
+    u_turn = stats.norm.cdf(turn)  # the kernel compares the normal with the share's quantile
     # the order PDRMotion.propagate draws in, for this input
     draws = [h_noise]
     if step_input.heading_abs_rad is None and abs(step_input.heading_change_rad) >= model.turn_threshold_rad:
@@ -146,13 +148,13 @@ def _table(rng, k=12):
                             alpha_db_per_m=rng.uniform(0.2, 0.5, k), d_max_m=np.full(k, 30.0))
 
 
-@pytest.mark.parametrize("kind", ["fix", "rssi", "given", "flat"])
+@pytest.mark.parametrize("kind", ["fix", "given", "flat"])
 def test_weights_and_sums_are_the_models_and_numpys(kind):
     rng = np.random.default_rng(3)
     p = _cloud(N)
     if kind == "fix":
         model, measurement = GaussianFixLikelihood(2.0), PositionFix((7.0, 5.0))
-    elif kind in ("rssi", "given"):
+    elif kind == "given":  # trilateration: the path-loss model's own kernel, values passed in
         table = _table(rng)
         model = TrilaterationLikelihood(table)
         measurement = WifiScan(0.0, tuple(f"ap{i}@2.4" for i in range(0, 12, 2)), rng.uniform(-90, -40, 6))
@@ -245,7 +247,8 @@ def _run(fused_path, seed, n, motion, steps=8, threads=None, monkeypatch=None):
     if threads is not None:
         monkeypatch.setenv("MAPFILTER_THREADS", str(threads))
     rng = np.random.default_rng(seed)
-    pf = ParticleFilter(ROOMS, motion, FilterConfig(n_particles=n, fused=fused_path, resample_ess_fraction=0.6), rng)
+    cfg = FilterConfig(n_particles=n, fused_from_particles=0 if fused_path else None, resample_ess_fraction=0.6)
+    pf = ParticleFilter(ROOMS, motion, cfg, rng)
     pf.initialise_around((3.0, 5.0), 1.0, heading_rad=0.0)
     model = GaussianFixLikelihood(0.8)
     reports = []
@@ -278,3 +281,15 @@ def test_fused_and_named_steps_give_the_same_distribution(motion):
         assert r_fast.estimate_std_m == pytest.approx(r_named.estimate_std_m, rel=0.04)
         assert r_fast.n_killed == pytest.approx(r_named.n_killed, rel=0.15, abs=60)
         assert r_fast.ess == pytest.approx(r_named.ess, rel=0.04)
+
+
+def test_the_fused_step_from_a_number_of_particles_on():
+    def stepped(n, **config):
+        pf = ParticleFilter(ROOMS, RandomWalkMotion(), FilterConfig(n_particles=n, **config), np.random.default_rng(1))
+        pf.initialise_around((3.0, 5.0), 1.0)
+        return pf._fusable  # noqa: SLF001
+
+    assert stepped(100, fused_from_particles=50) and not stepped(100, fused_from_particles=101)
+    assert not stepped(100, fused_from_particles=None) and stepped(100, fused_from_particles=0)
+    assert not stepped(100, fused_from_particles=0, resampler="residual")  # the named stages' resamplers
+    assert stepped(FilterConfig.fused_from_particles) and not stepped(FilterConfig.fused_from_particles - 1)

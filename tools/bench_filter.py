@@ -6,8 +6,8 @@ the bundled map maps/office.yaml, it times
 - ``wall_check``: ``mapfilter.maps.walls.crosses_wall`` alone on random-walk moves;
 - ``fused_step``: ``ParticleFilter.step`` with random-walk motion + wall check + a 20-access-point
   RSSI Gaussian likelihood + resampling (forced every step) + wall-safe regularisation + estimate,
-  on its fused path (``filter/fused.py``);
-- ``named_step``: the same step by the named stages (``FilterConfig(fused=False)``);
+  on its fused path (``filter/fused.py``, ``FilterConfig(fused_from_particles=0)``);
+- ``named_step``: the same step by the named stages (``FilterConfig(fused_from_particles=None)``);
 - ``reference_step``: the same step in plain numpy (points sampled every half pixel along each
   segment for the wall check, float32 numpy RSSI likelihood, cumsum + searchsorted resampling),
   and the speed-ups over it; one step of each in turn, in the same process.
@@ -52,7 +52,6 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from mapfilter.filter import fused  # noqa: E402
 from mapfilter.filter.measurement import rssi_log_likelihood  # noqa: E402
 from mapfilter.filter.models import MeasurementModel  # noqa: E402
 from mapfilter.filter.motion import RandomWalkMotion  # noqa: E402
@@ -119,10 +118,6 @@ class RssiModel(MeasurementModel):
     def expected(self, xy_m: np.ndarray) -> np.ndarray:
         d = np.maximum(np.linalg.norm(xy_m[:, None, :] - self.ap_xy_m[None], axis=-1), 1.0)
         return self.c_dbm - 10 * self.n * np.log10(d) - self.alpha * np.minimum(d, self.d_max)
-
-    def kernel_likelihood(self, observed_rssi_dbm: np.ndarray) -> fused.Likelihood:
-        return fused.rssi_path_loss(self.ap_xy_m, self.c_dbm, self.n, self.alpha, self.d_max, observed_rssi_dbm,
-                                    VARIANCE_DB2)
 
     def log_likelihood(self, particles: Particles, observed_rssi_dbm: np.ndarray) -> np.ndarray:
         return rssi_log_likelihood(particles.xy_m, self.ap_xy_m, self.c_dbm, self.n, self.alpha, self.d_max,
@@ -229,8 +224,8 @@ def per_step_seconds(fn, reps: int) -> float:
 
 def _pf(fp: FloorPlan, n: int, fused_path: bool, true_xy: np.ndarray, seed: int) -> ParticleFilter:
     # the filter starts around the truth so that the cloud is realistic (not map-wide)
-    pf = ParticleFilter(fp, RandomWalkMotion(), FilterConfig(n_particles=n, resample_ess_fraction=1.0, fused=fused_path),
-                        np.random.default_rng(seed))
+    config = FilterConfig(n_particles=n, resample_ess_fraction=1.0, fused_from_particles=0 if fused_path else None)
+    pf = ParticleFilter(fp, RandomWalkMotion(), config, np.random.default_rng(seed))
     pf.initialise_around(true_xy, 5.0)
     return pf
 

@@ -6,10 +6,10 @@ each make a pass or several over every particle, and numpy adds its own passes i
 fixed blocks of ``BLOCK`` particles:
 
 1. :func:`advance` -- move (random walk on a circle, constant velocity or PDR), the wall check
-   of every live particle's move (the same exact walk as ``maps.walls.crosses_wall``), the
-   measurement's log-likelihood (a Gaussian fix or the RSSI path-loss model, or values a
-   model computed itself), and per block the sums that the normalisation, the effective
-   sample size, the estimate and the regularisation's covariance need;
+   of every live particle's move (the same answer as ``maps.walls.crosses_wall``), the
+   measurement's log-likelihood (a Gaussian fix, or values a model computed itself, such as
+   the RSSI path-loss model's own kernel), and per block the sums that the normalisation, the
+   effective sample size, the estimate and the regularisation's covariance need;
 2. :func:`resample_regularise` -- systematic resampling, the gather of the ancestors' state
    and the wall-safe regularisation jitter of each new particle, with the sums of the new
    estimate.
@@ -27,35 +27,40 @@ same seed gives the same track whatever the number of threads. Normals are Box-M
 Models describe themselves to these kernels through ``MotionModel.kernel_move`` and
 ``MeasurementModel.kernel_likelihood`` (``filter/models.py``), with the terms made here
 (:func:`circle_walk`, :func:`constant_velocity`, :func:`pdr_step`, :func:`no_move`,
-:func:`gaussian_fix`, :func:`rssi_path_loss`).
+:func:`gaussian_fix`; a model without terms is weighed by its own ``log_likelihood``, passed
+in with :func:`given_values`). Every kernel added here adds to the first run's compile time
+(``threads.py``): the RSSI terms stay in ``measurement.rssi_log_likelihood``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import statistics
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import intrinsic
 
 from mapfilter.maps.walls import NO_BUFFER, _segment_crosses_world
-from mapfilter.sensors.pathloss import MIN_DISTANCE_M
 from mapfilter.threads import MIN_PER_THREAD, for_slices
 
 __all__ = ["BLOCK", "Likelihood", "Move", "advance", "circle_walk", "constant_velocity", "counter_normals",
-           "counter_uniforms", "flat", "gaussian_fix", "no_move", "pdr_step", "resample_regularise", "rssi_path_loss"]
+           "counter_uniforms", "flat", "gaussian_fix", "given_values", "no_move", "pdr_step",
+           "resample_regularise", "weigh"]
 
 BLOCK = 1024  # particles per block: the draws and per-AP loops over a block vectorise
 SLOTS = 8  # random words per particle and key
 _MIN_BLOCKS_PER_THREAD = max(MIN_PER_THREAD // BLOCK, 1)
-# fast maths that keeps infinities and NaN (a dead particle's log weight is -inf): reassociation
-# lets the block loops vectorise
-_FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
+# The kernels that call the wall walk, exp or the bit tricks are compiled without fast maths:
+# numba compiles a function called from a kernel with the kernel's flags, and keeps that
+# version for every caller; reassociation would fold (x + 1.5 2^52) - 1.5 2^52 back to x and
+# change the walk's arithmetic. Only the leaf loops (draws, cos/sin) use it.
 
 # what the move kernel does (Move.kind)
 MOVE_NONE, MOVE_CIRCLE, MOVE_CV, MOVE_PDR = 0, 1, 2, 3
 # the measurement (Likelihood.kind); LL_GIVEN: values the model computed itself
-LL_NONE, LL_FIX, LL_RSSI, LL_GIVEN = 0, 1, 2, 3
+LL_NONE, LL_FIX, LL_GIVEN = 0, 1, 3
 
 # per-block sums of advance(): the block's largest log weight m and, with e = exp(lw - m),
 # sum e, sum e^2, sum e dx, e dy, e dx^2, e dx dy, e dy^2 (d = position - shift), particles
@@ -82,7 +87,8 @@ def no_move() -> Move:
 
 
 def circle_walk(radius_m: float, sigma_m: float) -> Move:
-    """x += r (cos phi, sin phi) + sigma e, phi ~ U[0, 2 pi), e ~ N(0, I) (Lund thesis eq. 6.6)."""
+    """x += r (cos phi, sin phi) + sigma e, phi ~ U[0, 2 pi), e ~ N(0, I) (Lund thesis eq. 6.6);
+    (cos phi, sin phi) is the direction of a second normal pair."""
     return Move(MOVE_CIRCLE, np.array([radius_m, sigma_m], dtype=np.float64))
 
 
@@ -109,7 +115,9 @@ def pdr_step(n_steps: int, heading_change_rad: float, heading_abs_rad: float | N
     p[P_ABS] = heading_abs_rad is not None
     p[P_ABS_HEADING] = 0.0 if heading_abs_rad is None else heading_abs_rad
     p[P_HEADING_SIGMA] = heading_sigma_rad
-    p[P_FALSE_TURN] = false_turn_fraction
+    # a particle ignores the change when a standard normal falls below this quantile
+    p[P_FALSE_TURN] = (-math.inf if false_turn_fraction <= 0.0 else math.inf if false_turn_fraction >= 1.0
+                       else statistics.NormalDist().inv_cdf(false_turn_fraction))
     p[P_WALK_LENGTH] = n_steps > 0
     p[P_LENGTH_SIGMA] = step_length_sigma_m
     p[P_LENGTH_MIN] = step_length_min_m
@@ -127,50 +135,53 @@ class Likelihood:
 
     kind: int  # LL_*
     fix: np.ndarray  # LL_FIX: [x_m, y_m, 1 / (2 sigma^2)]
-    rssi: tuple  # LL_RSSI: float32 (K,) arrays ap_x, ap_y, C, 5 n, alpha, d_max, observed; 1 / (2 var)
     values: np.ndarray  # LL_GIVEN: (N,) float64
 
 
-_NO_RSSI = tuple(np.zeros(0, dtype=np.float32) for _ in range(7)) + (np.float32(1.0),)
 _NO_FIX = np.zeros(3)
 _NO_VALUES = np.zeros(0)
 
 
 def flat() -> Likelihood:
     """Log-likelihood 0 everywhere (a measurement that says nothing, or none this step)."""
-    return Likelihood(LL_NONE, _NO_FIX, _NO_RSSI, _NO_VALUES)
+    return Likelihood(LL_NONE, _NO_FIX, _NO_VALUES)
 
 
 def gaussian_fix(xy_m, sigma_m: float) -> Likelihood:
     """-|x - fix|^2 / (2 sigma^2) (``measurement.GaussianFixLikelihood``)."""
     fx, fy = (float(v) for v in np.asarray(xy_m, dtype=np.float64).ravel()[:2])
-    return Likelihood(LL_FIX, np.array([fx, fy, 0.5 / (sigma_m * sigma_m)]), _NO_RSSI, _NO_VALUES)
-
-
-def rssi_path_loss(ap_xy_m: np.ndarray, c_dbm: np.ndarray, n: np.ndarray, alpha_db_per_m: np.ndarray,
-                   d_max_m: np.ndarray, observed_rssi_dbm: np.ndarray, variance_db2: float) -> Likelihood:
-    """-sum_k (z_k - R_k(d))^2 / (2 var) of the Lund path-loss model, in float32
-    (``measurement.rssi_log_likelihood``; access points with a NaN reading left out)."""
-    if not (math.isfinite(variance_db2) and variance_db2 > 0):
-        raise ValueError(f"variance_db2 must be positive, got {variance_db2}")
-    observed = np.asarray(observed_rssi_dbm, dtype=np.float64).ravel()
-    heard = np.isfinite(observed)
-
-    def per_ap(a):
-        return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64).ravel(), observed.shape)[heard],
-                                    dtype=np.float32)
-
-    ap = np.asarray(ap_xy_m, dtype=np.float64).reshape(-1, 2)[heard]
-    f32 = np.float32
-    return Likelihood(LL_RSSI, _NO_FIX, (np.ascontiguousarray(ap[:, 0], dtype=f32), np.ascontiguousarray(ap[:, 1], dtype=f32),
-                                         per_ap(c_dbm), f32(5.0) * per_ap(n), per_ap(alpha_db_per_m), per_ap(d_max_m),
-                                         np.ascontiguousarray(observed[heard], dtype=f32), f32(0.5 / variance_db2)),
-                      _NO_VALUES)
+    return Likelihood(LL_FIX, np.array([fx, fy, 0.5 / (sigma_m * sigma_m)]), _NO_VALUES)
 
 
 def given_values(values: np.ndarray) -> Likelihood:
     """Log-likelihoods a model computed itself (non-finite ones count as -inf)."""
-    return Likelihood(LL_GIVEN, _NO_FIX, _NO_RSSI, np.ascontiguousarray(values, dtype=np.float64))
+    return Likelihood(LL_GIVEN, _NO_FIX, np.ascontiguousarray(values, dtype=np.float64))
+
+
+# ---- bit casts -------------------------------------------------------------------------------------
+@intrinsic
+def _as_float(typingctx, bits):
+    """The float whose bits are the 64- or 32-bit integer ``bits`` (a register bitcast: unlike
+    an array view, the compiler cannot lose track of the memory behind it)."""
+    if not isinstance(bits, types.Integer) or bits.bitwidth not in (32, 64):
+        return None
+    out = types.float64 if bits.bitwidth == 64 else types.float32
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(out))
+    return out(bits), codegen
+
+
+@intrinsic
+def _as_int(typingctx, value):
+    """The bits of a float64 (float32) as an int64 (int32)."""
+    if not isinstance(value, types.Float):
+        return None
+    out = types.int64 if value.bitwidth == 64 else types.int32
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(out))
+    return out(value), codegen
 
 
 # ---- counter-based random numbers ---------------------------------------------------------------
@@ -195,37 +206,24 @@ _ONE_BITS = np.uint64(0x3FF0000000000000)  # 1.0: a float in [1, 2) takes its ma
 _S20 = np.uint64(20)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _uniform_block(key, slot, lo, idx, m, bits_a, bits_b):
-    """The uniforms of word ``slot`` of particles lo + idx[j], j < m, as the bits of floats in [1, 2)
-    (the caller views them as float64 and subtracts 1, or takes 2 minus them for (0, 1]): 32
-    random bits of each half of the word fill the top of a mantissa. The block loop
-    vectorises (no integer-to-float conversion, which AVX2 lacks for 64-bit integers)."""
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _normal_pairs(key, slot, lo, idx, m, z0, z1, u1):
+    """z0[j], z1[j] ~ N(0, 1), independent, for particles lo + idx[j], j < m (word ``slot``):
+    Box-Muller, radius sqrt(-2 ln u1) and angle 2 pi u2 (``u1`` is scratch). The uniforms are
+    the two 32-bit halves of the word as the top of a mantissa (floats in [1, 2), so no
+    integer-to-float conversion, which AVX2 lacks for 64-bit integers)."""
+    ln2 = math.log(2.0)
     for j in range(m):
         z = _word(key, np.uint64((lo + idx[j]) * SLOTS + slot))
-        bits_a[j] = ((z >> _S32) << _S20) | _ONE_BITS
-        bits_b[j] = ((z & _LOW32) << _S20) | _ONE_BITS
-
-
-@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
-def _normal_pairs(key, slot, lo, idx, m, z0, z1, u1, mantissa_bits):
-    """z0[j], z1[j] ~ N(0, 1), independent, for particles lo + idx[j], j < m (word ``slot``):
-    Box-Muller, radius sqrt(-2 ln u1) and angle 2 pi u2."""
-    ln2 = math.log(2.0)
-    a_bits = mantissa_bits.view(np.uint64)
-    b_bits = z1.view(np.uint64)
-    _uniform_block(key, slot, lo, idx, m, a_bits, b_bits)
-    a = mantissa_bits.view(np.float64)
+        u1[j] = _as_float(((z >> _S32) << _S20) | _ONE_BITS)
+        z1[j] = _as_float(((z & _LOW32) << _S20) | _ONE_BITS)
     for j in range(m):
-        u1[j] = 2.0 - a[j]  # in (0, 1]: ln is finite
-    bits = u1.view(np.int64)
-    for j in range(m):
-        mantissa_bits[j] = (bits[j] & 0x000FFFFFFFFFFFFF) | 0x3FF0000000000000
-    mantissa = mantissa_bits.view(np.float64)
-    for j in range(m):
-        # ln u1 from the exponent and 2 atanh((m - 1)/(m + 1)) of the mantissa m in [1, 2)
-        exponent = float((bits[j] >> 52) - 1023)
-        t = (mantissa[j] - 1.0) / (mantissa[j] + 1.0)
+        u = 2.0 - u1[j]  # in (0, 1]: ln is finite
+        bits = _as_int(u)
+        mantissa = _as_float((bits & 0x000FFFFFFFFFFFFF) | 0x3FF0000000000000)
+        # ln u from the exponent and 2 atanh((m - 1)/(m + 1)) of the mantissa m in [1, 2)
+        exponent = float((bits >> 52) - 1023)
+        t = (mantissa - 1.0) / (mantissa + 1.0)
         t2 = t * t
         ln_m = 2.0 * t * (1.0 + t2 * (1.0 / 3.0 + t2 * (1.0 / 5.0 + t2 * (1.0 / 7.0 + t2 * (
             1.0 / 9.0 + t2 * (1.0 / 11.0 + t2 * (1.0 / 13.0 + t2 * (1.0 / 15.0))))))))
@@ -253,26 +251,27 @@ def _cos_sin(angle):
     return 1.0 - 2.0 * sin_b * sin_b, 2.0 * sin_b * cos_b
 
 
-@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _draws_kernel(lo_block, hi_block, key, slot, n, normal, out0, out1):
-    iota = np.arange(BLOCK)
+    iota = np.empty(BLOCK, dtype=np.int64)
+    for j in range(BLOCK):
+        iota[j] = j
     z0 = np.empty(BLOCK)
     z1 = np.empty(BLOCK)
     u1 = np.empty(BLOCK)
-    bits = np.empty(BLOCK, dtype=np.int64)
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
         if normal:
-            _normal_pairs(key, slot, lo, iota, m, z0, z1, u1, bits)
+            _normal_pairs(key, slot, lo, iota, m, z0, z1, u1)
             for j in range(m):
                 out0[lo + j] = z0[j]
                 out1[lo + j] = z1[j]
         else:
-            _uniform_block(key, slot, lo, iota, m, z0.view(np.uint64), z1.view(np.uint64))
             for j in range(m):
-                out0[lo + j] = z0[j] - 1.0
-                out1[lo + j] = z1[j] - 1.0
+                z = _word(key, np.uint64((lo + j) * SLOTS + slot))
+                out0[lo + j] = _as_float(((z >> _S32) << _S20) | _ONE_BITS) - 1.0
+                out1[lo + j] = _as_float(((z & _LOW32) << _S20) | _ONE_BITS) - 1.0
 
 
 def counter_normals(key: int, slot: int, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -284,15 +283,17 @@ def counter_normals(key: int, slot: int, n: int) -> tuple[np.ndarray, np.ndarray
 
 
 def counter_uniforms(key: int, slot: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The two uniforms in [0, 1) of word ``slot`` of particles 0..n-1 under ``key``."""
+    """The two uniforms in [0, 1) of word ``slot`` of particles 0..n-1 under ``key`` (the
+    Box-Muller inputs of :func:`counter_normals`: radius from 1 minus the first, angle 2 pi
+    times the second)."""
     out0, out1 = np.empty(n), np.empty(n)
     _draws_kernel(0, (n + BLOCK - 1) // BLOCK, np.uint64(key), slot, n, False, out0, out1)
     return out0, out1
 
 
-# random words of a particle in one step: advance() uses slots 0-3 under the move key,
-# resample_regularise() slot t for its try t under the jitter key
-SLOT_MOVE_A, SLOT_MOVE_B, SLOT_MOVE_C, SLOT_MOVE_U = 0, 1, 2, 3
+# random words of a particle in one step: advance() uses slots 0-2 under the move key (a normal
+# pair each), resample_regularise() slot t for its try t under the jitter key
+SLOT_MOVE_A, SLOT_MOVE_B, SLOT_MOVE_C = 0, 1, 2
 
 
 # ---- exp --------------------------------------------------------------------------------------
@@ -303,26 +304,22 @@ _ROUND = 6755399441055744.0  # 1.5 * 2^52: x + _ROUND rounds x to an integer, he
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _exp_block(x, m, out, rounded, scale_bits):
-    """out[j] = exp(x[j]) for x <= 0 (-inf -> 0), in loops that vectorise: exp(x) = 2^k exp(r),
+def _exp_block(x, m, out):
+    """out[j] = exp(x[j]) for x <= 0 (-inf -> 0), in a loop that vectorises: exp(x) = 2^k exp(r),
     k = round(x / ln 2), r = x - k ln 2 in [-ln2/2, ln2/2], exp(r) by its Taylor series to r^12
-    (relative error < 1e-14), 2^k built in the exponent bits; below 2^-1022 the result is 0.
-    ``rounded`` (float64) and ``scale_bits`` (int64) are scratch buffers of at least m."""
+    (relative error < 1e-14), 2^k built in the exponent bits; below 2^-1022 the result is 0."""
     for j in range(m):
-        rounded[j] = max(x[j], -745.0) * _LOG2E + _ROUND
-    k_bits = rounded.view(np.int64)
-    for j in range(m):
+        xj = max(x[j], -745.0)
+        rounded = xj * _LOG2E + _ROUND
+        k = rounded - _ROUND
         # k from the low bits of 1.5 * 2^52 + k (mantissa 2^51 + k): its low 32 bits, sign-extended
-        ki = ((k_bits[j] & 0xFFFFFFFF) ^ 0x80000000) - 0x80000000
-        scale_bits[j] = (ki + 1023) << 52 if ki >= -1022 else 0
-    scale = scale_bits.view(np.float64)
-    for j in range(m):
-        k = rounded[j] - _ROUND
-        r = (max(x[j], -745.0) - k * _LN2_HI) - k * _LN2_LO
+        ki = ((_as_int(rounded) & 0xFFFFFFFF) ^ 0x80000000) - 0x80000000
+        scale = _as_float((ki + 1023) << 52) if ki >= -1022 else 0.0
+        r = (xj - k * _LN2_HI) - k * _LN2_LO
         p = 1.0 + r * (1.0 + r * (1.0 / 2.0 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (
             1.0 / 720.0 + r * (1.0 / 5040.0 + r * (1.0 / 40320.0 + r * (1.0 / 362880.0 + r * (
                 1.0 / 3628800.0 + r * (1.0 / 39916800.0 + r * (1.0 / 479001600.0))))))))))))
-        out[j] = p * scale[j]
+        out[j] = p * scale
 
 
 # ---- the wall check -----------------------------------------------------------------------------
@@ -376,152 +373,81 @@ def _crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer):
 
 
 # ---- pass 1: move, wall check, weigh, block sums -------------------------------------------------
-@njit(cache=True, nogil=True, fastmath=True, error_model="numpy", _nrt=False)
-def _rssi_block(lo, m, x, y, ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed, inv_two_var, xf, yf, d2, mbits,
-                log10_d2, acc, out):
-    """out[j] = -sum_k (z_k - R_k)^2 / (2 var) for particles lo + j (float32 inside), as
-    ``measurement._rssi_ll_kernel``: log10(d^2) from the float's exponent and a series of its mantissa."""
-    ln2 = np.float32(math.log(2.0))
-    inv_ln10 = np.float32(1.0 / math.log(10.0))
-    one = np.float32(MIN_DISTANCE_M * MIN_DISTANCE_M)
-    for j in range(m):
-        xf[j] = np.float32(x[lo + j])
-        yf[j] = np.float32(y[lo + j])
-        acc[j] = np.float32(0.0)
-    bits = d2.view(np.int32)
-    mantissa = mbits.view(np.float32)
-    for k in range(ap_x.shape[0]):
-        ax = ap_x[k]
-        ay = ap_y[k]
-        for j in range(m):
-            dx = xf[j] - ax
-            dy = yf[j] - ay
-            d2[j] = max(dx * dx + dy * dy, one)  # distance clamped at the 1 m reference
-        for j in range(m):
-            mbits[j] = (bits[j] & 0x007FFFFF) | 0x3F800000  # same mantissa, exponent 0
-        for j in range(m):
-            exponent = np.float32((bits[j] >> 23) - 127)
-            t = (mantissa[j] - np.float32(1.0)) / (mantissa[j] + np.float32(1.0))
-            t2 = t * t
-            ln_m = np.float32(2.0) * t * (np.float32(1.0) + t2 * (np.float32(1.0 / 3.0) + t2 * (
-                np.float32(0.2) + t2 * (np.float32(1.0 / 7.0) + t2 * np.float32(1.0 / 9.0)))))
-            log10_d2[j] = (exponent * ln2 + ln_m) * inv_ln10
-        ck = c_dbm[k]
-        nk = five_n[k]
-        ak = alpha[k]
-        dk = d_max[k]
-        zk = observed[k]
-        for j in range(m):
-            # R(d) = C - 10 n log10(d) - alpha min(d, d_max), with 10 n log10(d) = 5 n log10(d^2)
-            r = zk - (ck - nk * log10_d2[j] - ak * min(math.sqrt(d2[j]), dk))
-            acc[j] += r * r
-    for j in range(m):
-        out[j] = -np.float64(acc[j] * inv_two_var)
-
-
-@njit(cache=True, nogil=True, fastmath=_FAST, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move_kind, mp, prev_xy, prev_vel,
                     prev_head, prev_step, prev_lw, mask, clearance, x0_m, y0_m, inv_res, no_buffer, ll_kind, fix,
-                    ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed, inv_two_var, given, shift_x, shift_y,
-                    xy, vel, head, step, lw, killed, e_out, sums):
-    iota = np.arange(BLOCK)
-    z0 = np.empty(BLOCK)
-    z1 = np.empty(BLOCK)
-    z2 = np.empty(BLOCK)
-    z3 = np.empty(BLOCK)
-    z4 = np.empty(BLOCK)
-    z5 = np.empty(BLOCK)
+                    given, shift_x, shift_y, xy, vel, head, step, lw, killed, e_out, sums):
+    iota = np.empty(BLOCK, dtype=np.int64)
+    for j in range(BLOCK):
+        iota[j] = j
+    zz = np.empty((6, BLOCK))
     ubuf = np.empty(BLOCK)
-    bits = np.empty(BLOCK, dtype=np.int64)
     ll = np.empty(BLOCK)
-    xf = np.empty(BLOCK, dtype=np.float32)
-    yf = np.empty(BLOCK, dtype=np.float32)
-    d2 = np.empty(BLOCK, dtype=np.float32)
-    mbits = np.empty(BLOCK, dtype=np.int32)
-    log10_d2 = np.empty(BLOCK, dtype=np.float32)
-    acc = np.empty(BLOCK, dtype=np.float32)
     two_pi = 2.0 * math.pi
     mask_h, mask_w = clearance.shape
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
         if do_move:
-            if move_kind == MOVE_CIRCLE:
-                _normal_pairs(key, SLOT_MOVE_A, lo, iota, m, z0, z1, ubuf, bits)
-                _uniform_block(key, SLOT_MOVE_U, lo, iota, m, z2.view(np.uint64), z3.view(np.uint64))
-                radius = mp[0]
-                sigma = mp[1]
-                for j in range(m):
-                    i = lo + j
-                    c, s = _cos_sin(two_pi * (z2[j] - 1.0) - math.pi)  # phi = 2 pi u
-                    # phi - pi in [-pi, pi): (cos, sin) of phi are minus those
-                    xy[i, 0] = prev_xy[i, 0] - radius * c + sigma * z0[j]
-                    xy[i, 1] = prev_xy[i, 1] - radius * s + sigma * z1[j]
-                    vel[i, 0] = prev_vel[i, 0]
-                    vel[i, 1] = prev_vel[i, 1]
-                    head[i] = prev_head[i]
-                    step[i] = prev_step[i]
-            elif move_kind == MOVE_CV:
-                _normal_pairs(key, SLOT_MOVE_A, lo, iota, m, z0, z1, ubuf, bits)
-                dt = mp[0]
-                sa = mp[1]
-                vmax = mp[2]
-                for j in range(m):
-                    i = lo + j
-                    ax = sa * z0[j]
-                    ay = sa * z1[j]
-                    xy[i, 0] = prev_xy[i, 0] + prev_vel[i, 0] * dt + 0.5 * dt * dt * ax
-                    xy[i, 1] = prev_xy[i, 1] + prev_vel[i, 1] * dt + 0.5 * dt * dt * ay
-                    vx = prev_vel[i, 0] + ax * dt
-                    vy = prev_vel[i, 1] + ay * dt
+            # the draws first, from one call site each (every inlined copy costs compile time):
+            # normal pairs of slots A (and B, C for PDR), uniforms of slot U
+            n_pairs = 3 if move_kind == MOVE_PDR else (2 if move_kind == MOVE_CIRCLE else (
+                1 if move_kind == MOVE_CV else 0))
+            for slot in range(n_pairs):
+                _normal_pairs(key, SLOT_MOVE_A + slot, lo, iota, m, zz[2 * slot], zz[2 * slot + 1], ubuf)
+            z0 = zz[0]
+            z1 = zz[1]
+            for j in range(m):
+                i = lo + j
+                x = prev_xy[i, 0]
+                y = prev_xy[i, 1]
+                vx = prev_vel[i, 0]
+                vy = prev_vel[i, 1]
+                h = prev_head[i]
+                sl = prev_step[i]
+                if move_kind == MOVE_CIRCLE:
+                    # (cos phi, sin phi), phi ~ U[0, 2 pi): the direction of the normal pair of slot B
+                    r = math.sqrt(zz[2, j] * zz[2, j] + zz[3, j] * zz[3, j])
+                    x += mp[0] * zz[2, j] / r + mp[1] * z0[j]
+                    y += mp[0] * zz[3, j] / r + mp[1] * z1[j]
+                elif move_kind == MOVE_CV:
+                    dt = mp[0]
+                    ax = mp[1] * z0[j]
+                    ay = mp[1] * z1[j]
+                    x += vx * dt + 0.5 * dt * dt * ax
+                    y += vy * dt + 0.5 * dt * dt * ay
+                    vx += ax * dt
+                    vy += ay * dt
                     speed = math.sqrt(vx * vx + vy * vy)
-                    if speed > vmax:
-                        vx *= vmax / speed
-                        vy *= vmax / speed
-                    vel[i, 0] = vx
-                    vel[i, 1] = vy
-                    head[i] = prev_head[i]
-                    step[i] = prev_step[i]
-            elif move_kind == MOVE_PDR:
-                _normal_pairs(key, SLOT_MOVE_A, lo, iota, m, z0, z1, ubuf, bits)  # heading, step length walk
-                _normal_pairs(key, SLOT_MOVE_B, lo, iota, m, z2, z3, ubuf, bits)  # position
-                _normal_pairs(key, SLOT_MOVE_C, lo, iota, m, z4, z5, ubuf, bits)  # given length (z5 unused)
-                _uniform_block(key, SLOT_MOVE_U, lo, iota, m, z5.view(np.uint64), ubuf.view(np.uint64))  # false turns
-                n_steps = mp[P_STEPS]
-                for j in range(m):
-                    i = lo + j
+                    if speed > mp[2]:
+                        vx *= mp[2] / speed
+                        vy *= mp[2] / speed
+                elif move_kind == MOVE_PDR:
+                    # z0: heading noise, z1: step-length walk, zz[2], zz[3]: position, zz[4]: given
+                    # length, zz[5]: false turns (below the quantile of the false-turn share)
                     noise = mp[P_HEADING_SIGMA] * z0[j]
                     if mp[P_ABS] != 0.0:
                         h = mp[P_ABS_HEADING] + noise
                     else:
                         change = mp[P_CHANGE]
-                        if z5[j] - 1.0 < mp[P_FALSE_TURN]:
+                        if zz[5, j] < mp[P_FALSE_TURN]:
                             change = 0.0
-                        h = prev_head[i] + change + noise
+                        h = h + change + noise
                     if not -math.pi <= h < math.pi:
                         h = ((h + math.pi) % two_pi) - math.pi
                     if mp[P_WALK_LENGTH] != 0.0:
-                        sl = min(max(prev_step[i] + mp[P_LENGTH_SIGMA] * z1[j], mp[P_LENGTH_MIN]), mp[P_LENGTH_MAX])
-                    else:
-                        sl = prev_step[i]
-                    length = mp[P_GIVEN_LENGTH] + mp[P_GIVEN_SIGMA] * z4[j] if mp[P_GIVEN] != 0.0 else sl
+                        sl = min(max(sl + mp[P_LENGTH_SIGMA] * z1[j], mp[P_LENGTH_MIN]), mp[P_LENGTH_MAX])
+                    length = mp[P_GIVEN_LENGTH] + mp[P_GIVEN_SIGMA] * zz[4, j] if mp[P_GIVEN] != 0.0 else sl
                     c, s = _cos_sin(h)
-                    distance = n_steps * length
-                    xy[i, 0] = prev_xy[i, 0] + distance * c + mp[P_POSITION_SIGMA] * z2[j]
-                    xy[i, 1] = prev_xy[i, 1] + distance * s + mp[P_POSITION_SIGMA] * z3[j]
-                    head[i] = h
-                    step[i] = sl
-                    vel[i, 0] = prev_vel[i, 0]
-                    vel[i, 1] = prev_vel[i, 1]
-            else:
-                for j in range(m):
-                    i = lo + j
-                    xy[i, 0] = prev_xy[i, 0]
-                    xy[i, 1] = prev_xy[i, 1]
-                    vel[i, 0] = prev_vel[i, 0]
-                    vel[i, 1] = prev_vel[i, 1]
-                    head[i] = prev_head[i]
-                    step[i] = prev_step[i]
+                    distance = mp[P_STEPS] * length
+                    x += distance * c + mp[P_POSITION_SIGMA] * zz[2, j]
+                    y += distance * s + mp[P_POSITION_SIGMA] * zz[3, j]
+                xy[i, 0] = x
+                xy[i, 1] = y
+                vel[i, 0] = vx
+                vel[i, 1] = vy
+                head[i] = h
+                step[i] = sl
         if do_kill:
             # a move through a wall kills its particle (Evennou & Marx: P_m = 0); the dead stay dead
             for j in range(m):
@@ -547,10 +473,7 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
                 killed[i] = hit
                 lw[i] = -np.inf if hit else w0
         if do_weigh:
-            if ll_kind == LL_RSSI:
-                _rssi_block(lo, m, xy[:, 0], xy[:, 1], ap_x, ap_y, c_dbm, five_n, alpha, d_max, observed,
-                            inv_two_var, xf, yf, d2, mbits, log10_d2, acc, ll)
-            elif ll_kind == LL_FIX:
+            if ll_kind == LL_FIX:
                 for j in range(m):
                     dx = xy[lo + j, 0] - fix[0]
                     dy = xy[lo + j, 1] - fix[1]
@@ -589,7 +512,7 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
             if finite > 0:
                 for j in range(m):
                     ll[j] = lw[lo + j] - top
-                _exp_block(ll, m, ll, z0, bits)  # 0 for the dead
+                _exp_block(ll, m, ll)  # 0 for the dead
                 for j in range(m):
                     i = lo + j
                     e = ll[j]
@@ -670,10 +593,21 @@ def advance(prev_xy_m, prev_velocity_mps, prev_heading_rad, prev_step_length_m, 
     for_slices(_advance_kernel, nb, n, move is not None, floorplan is not None, likelihood is not None,
                np.uint64(key), mv.kind, mv.params, prev_xy_m, prev_velocity_mps, prev_heading_rad,
                prev_step_length_m, prev_log_weight, mask, clear, x0, y0, inv, NO_BUFFER, ll.kind, ll.fix,
-               *ll.rssi, ll.values if ll.kind == LL_GIVEN else _NO_VALUES, float(shift_xy_m[0]),
+               ll.values if ll.kind == LL_GIVEN else _NO_VALUES, float(shift_xy_m[0]),
                float(shift_xy_m[1]), state.xy_m, state.velocity_mps, state.heading_rad, state.step_length_m,
                state.log_weight, state.killed, state.e, state.sums, min_per_thread=_MIN_BLOCKS_PER_THREAD)
     return state
+
+
+def weigh(xy_m: np.ndarray, log_weight: np.ndarray, likelihood: Likelihood, shift_xy_m=(0.0, 0.0)) -> Advanced:
+    """Points weighed by a measurement, with the block sums (the pass of :func:`advance`
+    without the move and the wall check): e.g. candidates to draw particles from."""
+    n = log_weight.shape[0]
+    xy = np.ascontiguousarray(xy_m, dtype=np.float64)
+    state = Advanced(xy, np.zeros((n, 2)), np.zeros(n), np.zeros(n), np.array(log_weight, dtype=np.float64),
+                     np.zeros(n, dtype=np.bool_), np.empty(n), np.empty((_blocks(n), N_ADVANCE_SUMS)))
+    return advance(xy, state.velocity_mps, state.heading_rad, state.step_length_m, state.log_weight, move=None, key=0,
+                   likelihood=likelihood, shift_xy_m=shift_xy_m, state=state)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -717,15 +651,13 @@ def totals(state: Advanced, shift_xy_m) -> Totals:
 
 
 # ---- pass 2: systematic resampling, gather, regularisation -----------------------------------------
-@njit(cache=True, nogil=True, fastmath=_FAST, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, key, tries, walks, h, root, mask,
-                     clearance,
-                     x0_m, y0_m, inv_res, no_buffer, origin_xy, src_xy, src_vel, src_head, src_step, shift_x, shift_y,
+                     clearance, x0_m, y0_m, inv_res, no_buffer, origin_xy, src_xy, src_vel, src_head, src_step, shift_x, shift_y,
                      parent, xy, vel, head, step, sums):
     z0 = np.empty(BLOCK)
     z1 = np.empty(BLOCK)
     ubuf = np.empty(BLOCK)
-    bits = np.empty(BLOCK, dtype=np.int64)
     pending = np.empty(BLOCK, dtype=np.int64)
     n_in_blocks = block_scale.shape[0]
     mask_h, mask_w = clearance.shape
@@ -767,7 +699,7 @@ def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, 
             if n_pending == 0:
                 break
             # draws for the pending particles only (a particle's draw at try t is the same whichever are)
-            _normal_pairs(key, t, lo, pending, n_pending, z0, z1, ubuf, bits)
+            _normal_pairs(key, t, lo, pending, n_pending, z0, z1, ubuf)
             n_left = 0
             for q in range(n_pending):
                 j = pending[q]
@@ -861,13 +793,15 @@ def last_positive(state: Advanced, t: Totals) -> int:
 
 
 def resample_regularise(state: Advanced, t: Totals, prev_xy_m: np.ndarray, *, u: float, key: int, tries: int,
-                        h: float, root: np.ndarray, floorplan, clearance, shift_xy_m, walks: bool = False) -> Resampled:
+                        h: float, root: np.ndarray, floorplan, clearance, shift_xy_m, walks: bool = False,
+                        n_out: int | None = None) -> Resampled:
     """Systematic resampling of ``state`` by its weights (positions (j + u) / N), the gather of
     the parents' state and the regularisation jitter ``h root eps`` (``tries`` draws under
     ``key``, 0: no jitter), never through a wall from the parent nor from the parent's position
     before the step (``prev_xy_m``); one pass over the new particles, in blocks on the shared threads.
-    ``walks``: also sum cos and sin of the headings and the step lengths (PDR's report)."""
-    n = state.log_weight.shape[0]
+    ``walks``: also sum cos and sin of the headings and the step lengths (PDR's report).
+    ``n_out``: how many to draw (default: as many as there are)."""
+    n = state.log_weight.shape[0] if n_out is None else int(n_out)
     nb = _blocks(n)
     if not 0 <= tries <= SLOTS:
         raise ValueError(f"the fused regularisation draws at most {SLOTS} tries, got {tries}")

@@ -90,11 +90,14 @@ class FilterConfig:
     recovery_measurement_max_age_s: float = 10.0  # an older measurement is not used to recover
     recovery_heading_keep_fraction: float = 0.5  # PDR: share of recovered particles keeping an old heading
     keep_ancestry: bool = False  # record lineage for smoothed_track() (N * 20 bytes per step)
-    # the step in two passes of filter/fused.py where the models offer its terms (random walk,
-    # constant velocity, PDR; Gaussian fix, trilateration; other measurement models weigh with
-    # their own log_likelihood) and with the systematic resampler and the Gaussian kernel; its
-    # draws differ from the named stages' (the same distributions). False: the named stages always
-    fused: bool = True
+    # the step in two passes of filter/fused.py from this many particles on (None: never, 0:
+    # always), for motion models that offer its terms (random walk, constant velocity, PDR; any
+    # measurement model, a Gaussian fix inside the pass) with the systematic resampler and the
+    # Gaussian kernel; its draws differ from the named stages' (the same distributions). Its
+    # kernels add about 2 s to the first run after install (numba compiles them once); at
+    # 10,000 particles a step costs about a millisecond either way and a walk's time goes
+    # elsewhere (docs/benchmarks.md)
+    fused_from_particles: int | None = 20_000
 
     def __post_init__(self) -> None:
         if int(self.n_particles) < 1:
@@ -149,7 +152,8 @@ class ParticleFilter:
         # the fused step applies with these settings (and models that offer its terms)
         cfg = self.config
         self._one_floor = floors is None  # no floor changes: move, wall check and weighing in one pass
-        self._fusable = (cfg.fused and cfg.resampler == "systematic" and cfg.kernel == "gaussian"
+        self._fusable = (cfg.fused_from_particles is not None and self.n >= cfg.fused_from_particles
+                         and cfg.resampler == "systematic" and cfg.kernel == "gaussian"
                          and int(cfg.regularise_tries) <= fused.SLOTS)
 
     @property
@@ -212,6 +216,8 @@ class ParticleFilter:
         ll = self._checked_log_likelihood(model, Particles.at(candidates), measurement)
         if not np.isfinite(ll).any():
             return None
+        if self._fusable:
+            return self._fused_sample(candidates, ll)
         w = np.exp(ll - ll.max())
         picked = self._resample(w, self.n, self.rng)
         xy = candidates[picked]
@@ -221,6 +227,25 @@ class ParticleFilter:
             xy, _ = regularise(self.floorplan, xy, cov, self.rng, self.config.kernel,
                                self.config.bandwidth_scale, self.config.regularise_tries)
         return xy
+
+    def _fused_sample(self, candidates: np.ndarray, ll: np.ndarray) -> np.ndarray:
+        """N of the weighed candidates, drawn and spread as by the fused step's second pass."""
+        cfg = self.config
+        state = fused.weigh(candidates, np.zeros(len(candidates)), fused.given_values(ll))
+        totals = fused.totals(state, (0.0, 0.0))
+        cov = totals.covariance_m2 if self._one_floor else self.floors.covariance(
+            candidates, np.exp(state.log_weight - totals.log_normaliser))
+        u = float(self.rng.random())
+        key = self._draw_key()
+        tries = max(int(cfg.regularise_tries), 1) if cfg.regularise else 0
+        h, root = bandwidth_and_root(self.floorplan, cov, self.n, cfg.kernel, cfg.bandwidth_scale) if cfg.regularise \
+            else (0.0, np.eye(2))
+        # the candidates stand still: the jitter's second wall check (from the position before a
+        # step) is the first one again
+        out = fused.resample_regularise(state, totals, state.xy_m, u=u, key=key, tries=tries, h=h, root=root,
+                                        floorplan=self.floorplan, clearance=clearance_px(self.floorplan),
+                                        shift_xy_m=(0.0, 0.0), n_out=self.n)
+        return out.xy_m
 
     def _checked_log_likelihood(self, model: MeasurementModel, particles: Particles, measurement: Any) -> np.ndarray:
         ll = np.asarray(model.log_likelihood(particles, measurement), dtype=np.float64)
