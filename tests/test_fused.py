@@ -148,13 +148,13 @@ def _table(rng, k=12):
                             alpha_db_per_m=rng.uniform(0.2, 0.5, k), d_max_m=np.full(k, 30.0))
 
 
-@pytest.mark.parametrize("kind", ["fix", "given", "flat"])
+@pytest.mark.parametrize("kind", ["fix", "rssi", "given", "flat"])
 def test_weights_and_sums_are_the_models_and_numpys(kind):
     rng = np.random.default_rng(3)
     p = _cloud(N)
     if kind == "fix":
         model, measurement = GaussianFixLikelihood(2.0), PositionFix((7.0, 5.0))
-    elif kind == "given":  # trilateration: the path-loss model's own kernel, values passed in
+    elif kind in ("rssi", "given"):  # trilateration in the pass, or its own kernel's values passed in
         table = _table(rng)
         model = TrilaterationLikelihood(table)
         measurement = WifiScan(0.0, tuple(f"ap{i}@2.4" for i in range(0, 12, 2)), rng.uniform(-90, -40, 6))

@@ -52,6 +52,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from mapfilter.filter import fused  # noqa: E402
 from mapfilter.filter.measurement import rssi_log_likelihood  # noqa: E402
 from mapfilter.filter.models import MeasurementModel  # noqa: E402
 from mapfilter.filter.motion import RandomWalkMotion  # noqa: E402
@@ -118,6 +119,10 @@ class RssiModel(MeasurementModel):
     def expected(self, xy_m: np.ndarray) -> np.ndarray:
         d = np.maximum(np.linalg.norm(xy_m[:, None, :] - self.ap_xy_m[None], axis=-1), 1.0)
         return self.c_dbm - 10 * self.n * np.log10(d) - self.alpha * np.minimum(d, self.d_max)
+
+    def kernel_likelihood(self, observed_rssi_dbm: np.ndarray) -> fused.Likelihood:
+        return fused.rssi_path_loss(self.ap_xy_m, self.c_dbm, self.n, self.alpha, self.d_max, observed_rssi_dbm,
+                                    VARIANCE_DB2)
 
     def log_likelihood(self, particles: Particles, observed_rssi_dbm: np.ndarray) -> np.ndarray:
         return rssi_log_likelihood(particles.xy_m, self.ap_xy_m, self.c_dbm, self.n, self.alpha, self.d_max,

@@ -7,9 +7,9 @@ fixed blocks of ``BLOCK`` particles:
 
 1. :func:`advance` -- move (random walk on a circle, constant velocity or PDR), the wall check
    of every live particle's move (the same answer as ``maps.walls.crosses_wall``), the
-   measurement's log-likelihood (a Gaussian fix, or values a model computed itself, such as
-   the RSSI path-loss model's own kernel), and per block the sums that the normalisation, the
-   effective sample size, the estimate and the regularisation's covariance need;
+   measurement's log-likelihood (a Gaussian fix, the RSSI path-loss model, or values a model
+   computed itself), and per block the sums that the normalisation, the effective sample
+   size, the estimate and the regularisation's covariance need;
 2. :func:`resample_regularise` -- systematic resampling, the gather of the ancestors' state
    and the wall-safe regularisation jitter of each new particle, with the sums of the new
    estimate.
@@ -27,9 +27,10 @@ same seed gives the same track whatever the number of threads. Normals are Box-M
 Models describe themselves to these kernels through ``MotionModel.kernel_move`` and
 ``MeasurementModel.kernel_likelihood`` (``filter/models.py``), with the terms made here
 (:func:`circle_walk`, :func:`constant_velocity`, :func:`pdr_step`, :func:`no_move`,
-:func:`gaussian_fix`; a model without terms is weighed by its own ``log_likelihood``, passed
-in with :func:`given_values`). Every kernel added here adds to the first run's compile time
-(``threads.py``): the RSSI terms stay in ``measurement.rssi_log_likelihood``.
+:func:`gaussian_fix`, :func:`rssi_path_loss`; a model without terms is weighed by its own
+``log_likelihood``, passed in with :func:`given_values`). These kernels compile in a few
+seconds on first use, which is why the filter takes this path only for large clouds
+(``FilterConfig.fused_from_particles``).
 """
 
 from __future__ import annotations
@@ -43,11 +44,12 @@ from numba import njit, types
 from numba.extending import intrinsic
 
 from mapfilter.maps.walls import NO_BUFFER, _segment_crosses_world
+from mapfilter.sensors.pathloss import MIN_DISTANCE_M
 from mapfilter.threads import MIN_PER_THREAD, for_slices
 
 __all__ = ["BLOCK", "Likelihood", "Move", "advance", "circle_walk", "constant_velocity", "counter_normals",
            "counter_uniforms", "flat", "gaussian_fix", "given_values", "no_move", "pdr_step",
-           "resample_regularise", "weigh"]
+           "resample_regularise", "rssi_path_loss", "weigh"]
 
 BLOCK = 1024  # particles per block: the draws and per-AP loops over a block vectorise
 SLOTS = 8  # random words per particle and key
@@ -60,7 +62,7 @@ _MIN_BLOCKS_PER_THREAD = max(MIN_PER_THREAD // BLOCK, 1)
 # what the move kernel does (Move.kind)
 MOVE_NONE, MOVE_CIRCLE, MOVE_CV, MOVE_PDR = 0, 1, 2, 3
 # the measurement (Likelihood.kind); LL_GIVEN: values the model computed itself
-LL_NONE, LL_FIX, LL_GIVEN = 0, 1, 3
+LL_NONE, LL_FIX, LL_RSSI, LL_GIVEN = 0, 1, 2, 3
 
 # per-block sums of advance(): the block's largest log weight m and, with e = exp(lw - m),
 # sum e, sum e^2, sum e dx, e dy, e dx^2, e dx dy, e dy^2 (d = position - shift), particles
@@ -134,10 +136,13 @@ class Likelihood:
     """One measurement's log-likelihood as the kernel evaluates it (``MeasurementModel.kernel_likelihood``)."""
 
     kind: int  # LL_*
-    fix: np.ndarray  # LL_FIX: [x_m, y_m, 1 / (2 sigma^2)]
+    fix: np.ndarray  # LL_FIX: [x_m, y_m, 1 / (2 sigma^2)]; LL_RSSI: [1 / (2 var), 0, 0]
     values: np.ndarray  # LL_GIVEN: (N,) float64
+    rssi: np.ndarray = dataclasses.field(default_factory=lambda: _NO_RSSI)  # LL_RSSI: (7, K) float32 per AP:
+    # x, y, C, 5 n, alpha, d_max, observed
 
 
+_NO_RSSI = np.zeros((7, 0), dtype=np.float32)
 _NO_FIX = np.zeros(3)
 _NO_VALUES = np.zeros(0)
 
@@ -151,6 +156,24 @@ def gaussian_fix(xy_m, sigma_m: float) -> Likelihood:
     """-|x - fix|^2 / (2 sigma^2) (``measurement.GaussianFixLikelihood``)."""
     fx, fy = (float(v) for v in np.asarray(xy_m, dtype=np.float64).ravel()[:2])
     return Likelihood(LL_FIX, np.array([fx, fy, 0.5 / (sigma_m * sigma_m)]), _NO_VALUES)
+
+
+def rssi_path_loss(ap_xy_m: np.ndarray, c_dbm: np.ndarray, n: np.ndarray, alpha_db_per_m: np.ndarray,
+                   d_max_m: np.ndarray, observed_rssi_dbm: np.ndarray, variance_db2: float) -> Likelihood:
+    """-sum_k (z_k - R_k(d))^2 / (2 var) of the Lund path-loss model, in float32, as
+    ``measurement.rssi_log_likelihood`` (access points with a NaN reading left out)."""
+    if not (math.isfinite(variance_db2) and variance_db2 > 0):
+        raise ValueError(f"variance_db2 must be positive, got {variance_db2}")
+    observed = np.asarray(observed_rssi_dbm, dtype=np.float64).ravel()
+    heard = np.isfinite(observed)
+
+    def per_ap(a):
+        return np.broadcast_to(np.asarray(a, dtype=np.float64).ravel(), observed.shape)[heard]
+
+    ap = np.asarray(ap_xy_m, dtype=np.float64).reshape(-1, 2)[heard]
+    table = np.array([ap[:, 0], ap[:, 1], per_ap(c_dbm), 5.0 * per_ap(n).astype(np.float32), per_ap(alpha_db_per_m),
+                      per_ap(d_max_m), observed[heard]], dtype=np.float32)
+    return Likelihood(LL_RSSI, np.array([0.5 / variance_db2, 0.0, 0.0]), _NO_VALUES, table)
 
 
 def given_values(values: np.ndarray) -> Likelihood:
@@ -344,18 +367,19 @@ def _crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer):
     du = u1 - u0
     dv = v1 - v0
     length = math.sqrt(du * du + dv * dv)
-    if 0.0 <= u0 < w and 0.0 <= v0 < h and length < clearance[int(v0), int(u0)]:
-        return False
-    if 0.0 <= u1 < w and 0.0 <= v1 < h and length < clearance[int(v1), int(u1)]:
-        return False
     if not (0.0 <= u1 < w and 0.0 <= v1 < h) or mask[int(v1), int(u1)]:
         return True  # it ends in a wall pixel or off the map (NaN ends in the walk below)
+    c_end = clearance[int(v1), int(u1)]
+    c_start = clearance[int(v0), int(u0)] if 0.0 <= u0 < w and 0.0 <= v0 < h else 0.0
+    if length < c_start or length < c_end:
+        return False
     if length > 0.0:
         # clearance from both ends ("sphere tracing" from each): a piece shorter than the
         # clearance of the pixel it starts in touches no wall; when the pieces from the start
         # and from the end meet, no piece of the move does
-        t_lo = 0.0
-        t_hi = 1.0
+        step = 0.999 / length
+        t_lo = c_start * step
+        t_hi = 1.0 - c_end * step
         for _ in range(_MARCH_STEPS):
             pu = u0 + t_lo * du
             pv = v0 + t_lo * dv
@@ -365,24 +389,82 @@ def _crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer):
             c_hi = clearance[int(qv), int(qu)] if 0.0 <= qu < w and 0.0 <= qv < h else 0.0
             if c_lo < _MIN_MARCH_PX and c_hi < _MIN_MARCH_PX:
                 break  # against a wall at both fronts: the exact walk decides
-            t_lo += 0.999 * c_lo / length
-            t_hi -= 0.999 * c_hi / length
+            t_lo += c_lo * step
+            t_hi -= c_hi * step
             if t_lo >= t_hi:
                 return False
+        # a wall pixel under the middle of the piece in between: the move touches it (the fronts
+        # stop on both sides of a thin wall, most crossing moves end here)
+        t_mid = 0.5 * (max(t_lo, 0.0) + min(t_hi, 1.0))
+        mu = u0 + t_mid * du
+        mv = v0 + t_mid * dv
+        if 0.0 <= mu < w and 0.0 <= mv < h and mask[int(mv), int(mu)]:
+            return True
+        if t_lo > 0.0 or t_hi < 1.0:
+            # the exact walk of the piece in between (the pieces at the ends touch no wall)
+            return _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, ax + t_lo * (bx - ax),
+                                          ay + t_lo * (by - ay), ax + t_hi * (bx - ax), ay + t_hi * (by - ay),
+                                          no_buffer)
     return _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer)
 
 
 # ---- pass 1: move, wall check, weigh, block sums -------------------------------------------------
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy", _nrt=False)
+def _rssi_block(lo, m, xy, ap, inv_two_var, xf, yf, d2, log10_d2, acc, out):
+    """out[j] = -sum_k (z_k - R_k)^2 / (2 var) for particles lo + j, float32 inside, as
+    ``measurement._rssi_ll_kernel`` (log10(d^2) from the float's exponent and a series of its
+    mantissa); ``ap`` is the (7, K) table of ``rssi_path_loss``."""
+    ln2 = np.float32(math.log(2.0))
+    inv_ln10 = np.float32(1.0 / math.log(10.0))
+    one = np.float32(MIN_DISTANCE_M * MIN_DISTANCE_M)
+    for j in range(m):
+        xf[j] = np.float32(xy[lo + j, 0])
+        yf[j] = np.float32(xy[lo + j, 1])
+        acc[j] = np.float32(0.0)
+    for k in range(ap.shape[1]):
+        ax = ap[0, k]
+        ay = ap[1, k]
+        for j in range(m):
+            dx = xf[j] - ax
+            dy = yf[j] - ay
+            dd = max(dx * dx + dy * dy, one)  # distance clamped at the 1 m reference
+            d2[j] = dd
+            bits = _as_int(dd)
+            mantissa = _as_float(np.int32((bits & 0x007FFFFF) | 0x3F800000))  # same mantissa, exponent 0
+            exponent = np.float32((bits >> 23) - 127)
+            t = (mantissa - np.float32(1.0)) / (mantissa + np.float32(1.0))
+            t2 = t * t
+            ln_m = np.float32(2.0) * t * (np.float32(1.0) + t2 * (np.float32(1.0 / 3.0) + t2 * (
+                np.float32(0.2) + t2 * (np.float32(1.0 / 7.0) + t2 * np.float32(1.0 / 9.0)))))
+            log10_d2[j] = (exponent * ln2 + ln_m) * inv_ln10
+        ck = ap[2, k]
+        nk = ap[3, k]
+        ak = ap[4, k]
+        dk = ap[5, k]
+        zk = ap[6, k]
+        for j in range(m):
+            # R(d) = C - 10 n log10(d) - alpha min(d, d_max), with 10 n log10(d) = 5 n log10(d^2)
+            r = zk - (ck - nk * log10_d2[j] - ak * min(math.sqrt(d2[j]), dk))
+            acc[j] += r * r
+    for j in range(m):
+        out[j] = -np.float64(acc[j] * inv_two_var)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move_kind, mp, prev_xy, prev_vel,
                     prev_head, prev_step, prev_lw, mask, clearance, x0_m, y0_m, inv_res, no_buffer, ll_kind, fix,
-                    given, shift_x, shift_y, xy, vel, head, step, lw, killed, e_out, sums):
+                    rssi, given, shift_x, shift_y, xy, vel, head, step, lw, killed, e_out, sums):
     iota = np.empty(BLOCK, dtype=np.int64)
     for j in range(BLOCK):
         iota[j] = j
     zz = np.empty((6, BLOCK))
     ubuf = np.empty(BLOCK)
     ll = np.empty(BLOCK)
+    xf = np.empty(BLOCK, dtype=np.float32)
+    yf = np.empty(BLOCK, dtype=np.float32)
+    d2 = np.empty(BLOCK, dtype=np.float32)
+    log10_d2 = np.empty(BLOCK, dtype=np.float32)
+    acc = np.empty(BLOCK, dtype=np.float32)
     two_pi = 2.0 * math.pi
     mask_h, mask_w = clearance.shape
     for block in range(lo_block, hi_block):
@@ -473,7 +555,9 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
                 killed[i] = hit
                 lw[i] = -np.inf if hit else w0
         if do_weigh:
-            if ll_kind == LL_FIX:
+            if ll_kind == LL_RSSI:
+                _rssi_block(lo, m, xy, rssi, np.float32(fix[0]), xf, yf, d2, log10_d2, acc, ll)
+            elif ll_kind == LL_FIX:
                 for j in range(m):
                     dx = xy[lo + j, 0] - fix[0]
                     dy = xy[lo + j, 1] - fix[1]
@@ -592,7 +676,7 @@ def advance(prev_xy_m, prev_velocity_mps, prev_heading_rad, prev_step_length_m, 
         mask, clear, x0, y0, inv = _EMPTY_MASK, _EMPTY_CLEARANCE, 0.0, 0.0, 1.0
     for_slices(_advance_kernel, nb, n, move is not None, floorplan is not None, likelihood is not None,
                np.uint64(key), mv.kind, mv.params, prev_xy_m, prev_velocity_mps, prev_heading_rad,
-               prev_step_length_m, prev_log_weight, mask, clear, x0, y0, inv, NO_BUFFER, ll.kind, ll.fix,
+               prev_step_length_m, prev_log_weight, mask, clear, x0, y0, inv, NO_BUFFER, ll.kind, ll.fix, ll.rssi,
                ll.values if ll.kind == LL_GIVEN else _NO_VALUES, float(shift_xy_m[0]),
                float(shift_xy_m[1]), state.xy_m, state.velocity_mps, state.heading_rad, state.step_length_m,
                state.log_weight, state.killed, state.e, state.sums, min_per_thread=_MIN_BLOCKS_PER_THREAD)

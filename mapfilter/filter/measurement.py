@@ -189,6 +189,14 @@ class TrilaterationLikelihood(MeasurementModel):
         """(M, 2) positions of the scan's access points that the table knows (for the viewer)."""
         return self.ap_table.xy_m[match_scan(self.ap_table, scan)[0]]
 
+    def kernel_likelihood(self, measurement: WifiScan) -> fused.Likelihood:
+        rows, rssi = match_scan(self.ap_table, measurement)
+        if rows.size == 0:
+            return fused.flat()
+        t = self.ap_table
+        return fused.rssi_path_loss(t.xy_m[rows], t.c_dbm[rows], t.n[rows], t.alpha_db_per_m[rows], t.d_max_m[rows],
+                                    rssi, self.variance_db2)
+
     def log_likelihood(self, particles, measurement: WifiScan) -> np.ndarray:
         rows, rssi = match_scan(self.ap_table, measurement)
         if rows.size == 0:
