@@ -572,20 +572,19 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
             finite = 0
             best_ll = -np.inf
             top = -np.inf
-            for j in range(m):
+            for j in range(m):  # without branches: the dead are interleaved at random
                 i = lo + j
                 w0 = lw[i]
                 v = ll[j]
-                if not (v > -np.inf and v < np.inf):
-                    v = -np.inf  # NaN or +inf is a model defect: no weight instead of a poisoned sum
-                if w0 > -np.inf:
-                    alive += 1
-                    best_ll = max(best_ll, v)
+                # NaN or +inf is a model defect: no weight instead of a poisoned sum
+                v = v if -np.inf < v < np.inf else -np.inf
+                live = w0 > -np.inf
+                alive += live
+                best_ll = max(best_ll, v if live else -np.inf)
                 w1 = w0 + v
                 lw[i] = w1
-                if w1 > -np.inf:
-                    finite += 1
-                    top = max(top, w1)
+                finite += w1 > -np.inf
+                top = max(top, w1)
             s = 0.0
             s2 = 0.0
             sx = 0.0
