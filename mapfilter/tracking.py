@@ -198,7 +198,8 @@ class WifiMeasurements:
         """The radio-map likelihood (needs a radio map): built once per radio map and shared with
         the other walks tracked with it (per-AP tables for the APs the walks hear)."""
         if self._radio_map_model is None:
-            self._radio_map_model = radio_map_likelihood(self._radio_map, self._floorplan, self._config)
+            heard = {key for scan in self.scans for key in scan.ap_keys}
+            self._radio_map_model = radio_map_likelihood(self._radio_map, self._floorplan, self._config, heard)
         return self._radio_map_model
 
     def best_cell_xy_m(self) -> np.ndarray:
