@@ -3,28 +3,49 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+
+from mapfilter.errors import MapfilterError
+
+# errors of the disk rather than of the program: a full disk, a quota, a file size limit,
+# an I/O error, a read-only file system
+DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS})
 
 
 @contextlib.contextmanager
 def atomic_paths(*final_paths: str | os.PathLike) -> Iterator[list[Path]]:
     """Yield temporary paths beside ``final_paths``; move them into place only on success.
 
-    All files appear together at the end of the ``with`` block; if the block raises,
-    the temporaries are removed and no final path is touched.
+    All files appear together at the end of the ``with`` block; if the block raises (or is
+    interrupted: Ctrl-C, SIGTERM through the CLI), the temporaries are removed, and so are the
+    directories made for them, and no final path is touched. Missing parent directories are
+    made. A full disk (or another error of the disk: ``DISK_ERRNOS``) while the block writes
+    is a ``MapfilterError`` naming the final file, not an ``OSError`` without a file name.
     """
     finals = [Path(p) for p in final_paths]
     temps: list[Path] = []
+    made: list[Path] = []  # directories made here, deepest last
     try:
         for final in finals:
-            final.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{final.stem}.", suffix=final.suffix, dir=final.parent)
+            if final.is_dir():
+                raise MapfilterError("is a directory; give a file name", final)
+            try:
+                made += _make_parents(final.parent)
+                fd, tmp = tempfile.mkstemp(prefix=f".{final.stem}.", suffix=final.suffix, dir=final.parent)
+            except OSError as exc:  # a parent that is a file, a directory we may not write in
+                raise MapfilterError(f"cannot write here ({exc.strerror or exc})", final) from None
             os.close(fd)
             temps.append(Path(tmp))
-        yield temps
+        try:
+            yield temps
+        except OSError as exc:
+            if exc.errno not in DISK_ERRNOS:
+                raise
+            raise MapfilterError(f"could not write: {exc.strerror or exc}", _failed_file(exc, temps, finals)) from exc
         # mkstemp makes files private (0600); give them the usual mode (0666 minus the umask)
         umask = os.umask(0)
         os.umask(umask)
@@ -33,7 +54,35 @@ def atomic_paths(*final_paths: str | os.PathLike) -> Iterator[list[Path]]:
                 os.chmod(tmp, 0o666 & ~umask)
             os.replace(tmp, final)
         temps = []
+        made = []
     finally:
         for tmp in temps:
             with contextlib.suppress(FileNotFoundError):
                 tmp.unlink()
+        for directory in reversed(made):
+            with contextlib.suppress(OSError):  # not empty (something else wrote there): keep it
+                directory.rmdir()
+
+
+def _make_parents(directory: Path) -> list[Path]:
+    """Make ``directory`` and its missing parents; the ones made, outermost first."""
+    missing = []
+    while not directory.exists() and directory != directory.parent:
+        missing.append(directory)
+        directory = directory.parent
+    made = []
+    for path in reversed(missing):
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue  # made meanwhile by someone else: not ours to remove
+        made.append(path)
+    return made
+
+
+def _failed_file(exc: OSError, temps: list[Path], finals: list[Path]) -> Path | str:
+    """The final file whose temporary the error names, else the one file, else all of them."""
+    for tmp, final in zip(temps, finals):
+        if exc.filename is not None and Path(exc.filename) == tmp:
+            return final
+    return finals[0] if len(finals) == 1 else ", ".join(str(f) for f in finals)

@@ -1,15 +1,12 @@
 """Many walks through the filter: one task per walk on an ``Engine``, none skipped silently.
 
-Each walk is tracked exactly as ``mapfilter track MAP LOG --seed S`` tracks it alone (its own
-``default_rng(seed)``), so a batch track of a walk equals its single-walk track, wherever the
-task ran. A walk that fails becomes a ``WalkResult`` with ``status`` "failed" (an error in
-its input, e.g. no usable WiFi) or "crashed" (a bug: the exception's type and message) and
-the other walks go on.
-
-A building (``maps.building.Building`` with several floors) is tracked the same way, each walk
-as ``mapfilter track BUILDING.yaml LOG --seed S`` tracks it (``track_building_logs``), and its
-results also carry the floors the track visits and how often it was on the walker's floor.
-Logs whose header names a floor the building does not have are refused before any walk runs.
+Each walk is tracked exactly as ``mapfilter track MAP LOG`` tracks it alone (the config's seed,
+its own ``default_rng(seed)``), so a batch track of a walk equals its single-walk track,
+wherever the task ran. A walk that fails becomes a ``WalkResult`` with ``status`` "failed" (an
+error in its input, e.g. no usable WiFi) or "crashed" (a bug: the exception's type and message)
+and the other walks go on. In a building with several floors, results also carry the floors
+the track visits and how often it was on the walker's floor. Logs whose header names a floor
+the building does not have are refused before any walk runs.
 """
 
 from __future__ import annotations
@@ -22,22 +19,18 @@ import traceback
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-import numpy as np
-
+from mapfilter.config import TrackingConfig
 from mapfilter.engine import Engine, run_each
 from mapfilter.errors import MapfilterError
-from mapfilter.evaluation.floors import score_building_track
-from mapfilter.evaluation.metrics import FloorScore, errors_at_waypoints, summarise_errors
-from mapfilter.floortracking import track_building
+from mapfilter.evaluation.metrics import FloorScore, summarise_errors
+from mapfilter.evaluation.scoring import score_track
 from mapfilter.maps.building import Building
-from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.maps.walls import count_wall_crossings
 from mapfilter.sensors.floors import check_building_radio_map
-from mapfilter.sensors.ilc import read_ilc, read_ilc_header
+from mapfilter.sensors.logs import read_log, read_log_header
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording, trace_name
-from mapfilter.tracking import TrackingConfig, track_recording
+from mapfilter.tracking import track
 from mapfilter.trackio import Track
 
 STATUSES = ("ok", "failed", "crashed")
@@ -47,21 +40,21 @@ STATUSES = ("ok", "failed", "crashed")
 class BatchSetup:
     """How every walk of a batch is tracked."""
 
-    tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)
-    seed: int = 0  # every walk uses default_rng(seed), as `mapfilter track --seed` does for one walk
+    tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)  # seed included
     strict: bool = False  # refuse a walk with a bad row in a record type it needs (default: skip the row, warn)
-    floor: str | None = None  # a building: track every walk on this floor (default: find the floor)
+    floor: str | None = None  # track every walk on this floor (default: find the floor, or the header's)
 
 
 @dataclasses.dataclass
 class WalkResult:
-    """One walk of a batch: its track and numbers, or why it has none."""
+    """One walk of a batch: its tracks and numbers, or why it has none."""
 
     log_path: Path
     trace: str
     status: str  # ok | failed (the input's fault; reason says why) | crashed (a bug)
     reason: str = ""
-    track: Track | None = None  # the smoothed track when the setup smooths, else the causal one
+    track: Track | None = None  # the offline track when the setup smooths, else the causal one
+    causal: Track | None = None  # the causal track (also with smooth)
     n_filter_steps: int = 0
     n_scans_used: int = 0
     collapses: int = 0
@@ -70,70 +63,25 @@ class WalkResult:
     missed_waypoints: int = 0
     runtime_s: float = 0.0
     read_warning: str | None = None  # what the log reader skipped
-    # a building only (None on one floor):
-    floors: list[str] | None = None  # the floors the track visits, in the building's order
+    floors: list[str] | None = None  # the floors the track visits (a building with several floors)
     header_floor: str | None = None  # the log header's floor (FloorName), if it names one
-    floor_score: FloorScore | None = None  # on the walker's floor at the waypoints (with ground truth)
+    floor_score: FloorScore | None = None  # on the walker's floor at the waypoints (several floors)
 
     @property
     def ok(self) -> bool:
         return self.status == "ok"
 
 
-def track_walk(floorplan: FloorPlan, radio_map: RadioMap | None, ap_table: AccessPointTable | None,
+def track_walk(building: Building, radio_map: RadioMap | None, access_points: AccessPointTable | None,
                setup: BatchSetup, log_path: Path) -> WalkResult:
-    """Track one walk; never raises: a failure is returned as the result's status and reason."""
-
-    def track(recording: Recording, result: WalkResult) -> None:
-        outcome = track_recording(floorplan, recording, radio_map, ap_table, setup.tracking,
-                                  np.random.default_rng(setup.seed))
-        track = outcome.smoothed if setup.tracking.smooth else outcome.track
-        result.track = track
-        result.n_filter_steps, result.n_scans_used = outcome.n_filter_steps, outcome.n_scans_used
-        result.collapses = len(outcome.collapses)
-        result.wall_crossings = count_wall_crossings(floorplan, track.xy_m) if len(track) else 0
-        if recording.has_ground_truth:
-            err = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m,
-                                      causal=not setup.tracking.smooth)
-            result.error_stats = summarise_errors(err.errors_m)
-            result.missed_waypoints = err.missed
-
-    return _guarded(log_path, setup, track)
-
-
-def track_building_walk(building: Building, radio_map: RadioMap, setup: BatchSetup, log_path: Path) -> WalkResult:
-    """Track one walk in a building as ``mapfilter track BUILDING.yaml LOG`` does
-    (``floortracking.track_building``, the floor found or ``setup.floor``); never raises."""
-
-    def track(recording: Recording, result: WalkResult) -> None:
-        header_floor = building.floor_of_log(recording.floor_name, log_path)  # a floor not in the building
-        outcome = track_building(building, recording, radio_map, setup.tracking, np.random.default_rng(setup.seed),
-                                 floor=setup.floor)
-        smoothed = setup.tracking.smooth and outcome.smoothed is not None
-        track = outcome.smoothed if smoothed else outcome.track
-        result.track = track
-        result.n_filter_steps, result.n_scans_used = outcome.n_filter_steps, outcome.n_scans_used
-        result.collapses = len(outcome.collapses)
-        score = score_building_track(building, recording, track, header_floor, causal=not smoothed)
-        result.wall_crossings, result.floors = score.wall_crossings, score.floors
-        result.header_floor = None if header_floor is None else building.floor_names[header_floor]
-        if score.errors is not None:
-            result.error_stats = summarise_errors(score.errors.errors_m)
-            result.missed_waypoints = score.errors.missed
-            result.floor_score = score.floor_score
-
-    return _guarded(log_path, setup, track)
-
-
-def _guarded(log_path: Path, setup: BatchSetup, track: Callable[[Recording, WalkResult], None]) -> WalkResult:
-    """Read the log and ``track(recording, result)`` into a ``WalkResult``; an error becomes its
-    status and reason instead of an exception."""
+    """Track one walk as ``mapfilter track MAP LOG`` does; never raises: a failure is returned as
+    the result's status and reason."""
     started = time.perf_counter()
     warned: list[str] = []
     result = WalkResult(Path(log_path), trace_name(log_path), "ok")
     try:
-        recording = read_ilc(log_path, strict=setup.strict, warn=warned.append)
-        track(recording, result)
+        recording = read_log(log_path, strict=setup.strict, warn=warned.append, building=building)
+        _track_into(result, building, recording, radio_map, access_points, setup)
     except MapfilterError as exc:
         result = WalkResult(result.log_path, result.trace, "failed", str(exc))
     except Exception as exc:  # noqa: BLE001 - a bug in one walk must not lose the other walks' work
@@ -145,43 +93,60 @@ def _guarded(log_path: Path, setup: BatchSetup, track: Callable[[Recording, Walk
     return result
 
 
-def track_logs(floorplan: FloorPlan, log_paths: Sequence[str | os.PathLike], radio_map: RadioMap | None,
-               ap_table: AccessPointTable | None, setup: BatchSetup, engine: Engine = Engine(),
+def _track_into(result: WalkResult, building: Building, recording: Recording, radio_map: RadioMap | None,
+                access_points: AccessPointTable | None, setup: BatchSetup) -> None:
+    header_floor = building.floor_of_log(recording.floor_name, result.log_path, setup.floor)
+    outcome = track(building, recording, radio_map, access_points, setup.tracking, floor=setup.floor)
+    smoothed = outcome.offline is not None
+    result.track = outcome.offline if smoothed else outcome.causal
+    result.causal = outcome.causal
+    result.n_filter_steps, result.n_scans_used = outcome.n_filter_steps, outcome.n_scans_used
+    result.collapses = len(outcome.collapses)
+    score = score_track(building, recording, result.track, header_floor, causal=not smoothed)
+    result.wall_crossings = score.wall_crossings
+    if not building.is_single_floor:
+        result.floors = score.floors
+        result.header_floor = None if header_floor is None else building.floor_names[header_floor]
+        result.floor_score = score.floor_score
+    if score.errors is not None:
+        result.error_stats = summarise_errors(score.errors.errors_m)
+        result.missed_waypoints = score.errors.missed
+
+
+def track_logs(building: Building, log_paths: Sequence[str | os.PathLike], radio_map: RadioMap | None,
+               access_points: AccessPointTable | None, setup: BatchSetup, engine: Engine = Engine(),
                progress: Callable[[int, int, str], None] | None = None,
                on_result: Callable[[WalkResult], None] | None = None) -> list[WalkResult]:
     """Track every walk on ``engine``; results in the order of ``log_paths``.
 
-    ``on_result`` sees each result as it arrives (to write its track file at once, so that an
-    interrupted batch keeps the walks already done).
-    """
-    paths = _distinct_paths(log_paths)
-    if radio_map is None and ap_table is None:
-        raise MapfilterError("no WiFi source: give a radio map or an access-point table")
-    return _run_walks(track_walk, paths, (floorplan, radio_map, ap_table, setup), engine, progress, on_result)
-
-
-def track_building_logs(building: Building, log_paths: Sequence[str | os.PathLike], radio_map: RadioMap,
-                        setup: BatchSetup, engine: Engine = Engine(),
-                        progress: Callable[[int, int, str], None] | None = None,
-                        on_result: Callable[[WalkResult], None] | None = None) -> list[WalkResult]:
-    """``track_logs`` in a building (``track_building_walk`` per walk).
-
     Before any walk runs, every log's header is read: one whose floor (``FloorName``) the
     building does not have is refused with a ``MapfilterError`` naming it (a wrong building for
-    these logs, not a walk to skip). A header that cannot be read is left to its walk, which
-    then fails as any unreadable log does.
+    these logs, not a walk to skip); a header that cannot be read is left to its walk, which then
+    fails as any unreadable log does. ``on_result`` sees each result as it arrives (to write its
+    track file at once, so that an interrupted batch keeps the walks already done).
     """
     paths = _distinct_paths(log_paths)
-    check_building_radio_map(radio_map, building.floor_names)
+    if radio_map is None and access_points is None:
+        raise MapfilterError("no WiFi source: give a radio map or an access-point table")
+    if not building.is_single_floor and setup.floor is None:
+        if radio_map is None:
+            raise MapfilterError("tracking across floors needs a building's radio map (or give the floor)")
+        check_building_radio_map(radio_map, building.floor_names)
     if setup.floor is not None:
         building.floor_index(setup.floor)
     for path in paths:
         try:
-            floor_name = read_ilc_header(path).get("FloorName") or None
+            floor_name = read_log_header(path).get("FloorName") or None
         except MapfilterError:
             continue
-        building.floor_of_log(floor_name, path)
-    return _run_walks(track_building_walk, paths, (building, radio_map, setup), engine, progress, on_result)
+        building.floor_of_log(floor_name, path, setup.floor)
+    results: list[WalkResult | None] = [None] * len(paths)
+    for i, result in run_each(track_walk, paths, engine, common=(building, radio_map, access_points, setup),
+                              progress=progress, label=lambda path: path.name):
+        results[i] = result
+        if on_result is not None:
+            on_result(result)
+    return results
 
 
 def _distinct_paths(log_paths: Sequence[str | os.PathLike]) -> list[Path]:
@@ -191,17 +156,6 @@ def _distinct_paths(log_paths: Sequence[str | os.PathLike]) -> list[Path]:
     if repeated:
         raise MapfilterError(f"two logs share the trace name {repeated[0]}: their track files would collide")
     return paths
-
-
-def _run_walks(walk: Callable[..., WalkResult], paths: list[Path], common: tuple, engine: Engine,
-               progress: Callable[[int, int, str], None] | None,
-               on_result: Callable[[WalkResult], None] | None) -> list[WalkResult]:
-    results: list[WalkResult | None] = [None] * len(paths)
-    for i, result in run_each(walk, paths, engine, common=common, progress=progress, label=lambda path: path.name):
-        results[i] = result
-        if on_result is not None:
-            on_result(result)
-    return results
 
 
 SUMMARY_COLUMNS = ("trace", "status", "reason", "track_file", "filter_steps", "scans_used", "collapses",

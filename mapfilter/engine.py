@@ -14,6 +14,15 @@ cluster by hand (see the README)::
 
 Workers need mapfilter installed and the logs at the same paths (a shared file system);
 the map and the other inputs common to all walks are sent to every worker once.
+
+Security. The local cluster of ``--jobs`` listens on 127.0.0.1 only and speaks TLS with
+credentials made for this run and held only in memory (``Security.temporary()``): its
+scheduler, workers and nannies accept only a peer holding a certificate of this run's own
+authority, so no other user (or other run) of the machine can connect and run code as you.
+A cluster named with ``--scheduler`` must be one you trust: whoever can submit work to it runs
+code as its workers' user, and what it sends back is unpickled here, that is, it can run code
+in this process. A ``tls://`` scheduler is reached with the TLS settings of Dask's own
+configuration (``distributed.comm.tls.ca-file``, ``.client.cert``, ``.client.key``).
 """
 
 from __future__ import annotations
@@ -22,10 +31,13 @@ import dataclasses
 import logging
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
+from urllib.parse import urlsplit
 
 from mapfilter.errors import MapfilterError
 
 DASK_HINT = "pip install 'mapfilter[distributed]'"
+LOOPBACK = "127.0.0.1"
+SCHEDULER_SCHEMES = ("tcp", "tls")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,8 +50,8 @@ class Engine:
     def __post_init__(self) -> None:
         if self.jobs < 1:
             raise MapfilterError(f"--jobs must be at least 1, got {self.jobs}")
-        if self.scheduler is not None and "://" not in self.scheduler:
-            raise MapfilterError(f"--scheduler must look like tcp://HOST:PORT, got {self.scheduler!r}")
+        if self.scheduler is not None:
+            check_scheduler_address(self.scheduler)
 
     @property
     def uses_dask(self) -> bool:
@@ -49,6 +61,28 @@ class Engine:
         if self.scheduler is not None:
             return f"Dask cluster at {self.scheduler}"
         return f"{self.jobs} local Dask worker processes" if self.jobs > 1 else "serial"
+
+
+def check_scheduler_address(address: str) -> tuple[str, str, int]:
+    """(scheme, host, port) of a scheduler address ``tcp://HOST:PORT`` or ``tls://HOST:PORT``
+    (an IPv6 host in brackets); ``MapfilterError`` in one line for anything else."""
+    usage = f"--scheduler must look like tcp://HOST:PORT or tls://HOST:PORT, got {address!r}"
+    if "://" not in address:
+        raise MapfilterError(usage)
+    try:
+        parts = urlsplit(address)
+        port = parts.port
+    except ValueError as exc:  # a port that is not a number, or out of range
+        raise MapfilterError(f"{usage}: {exc}") from None
+    if parts.scheme not in SCHEDULER_SCHEMES:
+        raise MapfilterError(f"{usage}: the protocol {parts.scheme!r} is not one of {', '.join(SCHEDULER_SCHEMES)}")
+    if not parts.hostname:
+        raise MapfilterError(f"{usage}: no host")
+    if port is None or port == 0:
+        raise MapfilterError(f"{usage}: no port (1-65535)")
+    if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username or parts.password:
+        raise MapfilterError(f"{usage}: only a host and a port")
+    return parts.scheme, parts.hostname, port
 
 
 def run_each(function: Callable[..., Any], items: Sequence[Any], engine: Engine, common: tuple = (),
@@ -104,23 +138,54 @@ class _DaskClient:
             raise MapfilterError(f"--jobs above 1 and --scheduler run on Dask, which is not installed: "
                                  f"{DASK_HINT}") from None
         if self.engine.scheduler is not None:
+            address = self.engine.scheduler
+            security = _configured_security(address)
             try:
-                self.client = Client(self.engine.scheduler, timeout="10s")
+                self.client = Client(address, timeout="10s", security=security)
             except (OSError, TimeoutError) as exc:
-                raise MapfilterError(f"cannot reach the Dask scheduler at {self.engine.scheduler}: {exc}") from None
+                raise MapfilterError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
         else:
+            security = temporary_security()
             # one thread per worker: the filter's numba kernels already use the cores, and a
             # walk per process keeps the GIL out of the way. Workers log a failed task with its
             # traceback at ERROR level; the failure reaches the user as our own one line instead.
+            # TLS with this run's own credentials, on the loopback address only (module docstring).
             self.cluster = LocalCluster(n_workers=self.engine.jobs, threads_per_worker=1, processes=True,
+                                        host=LOOPBACK, protocol="tls", security=security,
                                         dashboard_address=None, silence_logs=logging.CRITICAL,
                                         # the scheduler's HTTP (health) server on any free loopback port:
                                         # its default, 8787, is often taken by another run (a warning)
-                                        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
-            self.client = Client(self.cluster)
+                                        scheduler_kwargs={"dashboard_address": f"{LOOPBACK}:0"})
+            self.client = Client(self.cluster, security=security)
         return self.client
 
     def __exit__(self, *exc_info) -> None:
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+
+
+def temporary_security():
+    """TLS credentials made for one run, held in memory: a certificate authority of its own and
+    certificates for the scheduler, the workers and the client (``Security.temporary``)."""
+    from distributed.security import Security
+
+    try:
+        return Security.temporary()
+    except ImportError:  # Security.temporary makes its certificates with the cryptography package
+        raise MapfilterError("--jobs secures its local cluster with TLS, which needs the cryptography package: "
+                             f"{DASK_HINT}") from None
+
+
+def _configured_security(address: str):
+    """The TLS settings of Dask's configuration for a ``tls://`` scheduler; None for ``tcp://``."""
+    if not address.startswith("tls://"):
+        return None
+    from distributed.security import Security
+
+    security = Security()  # from dask's configuration: distributed.comm.tls.*
+    if security.get_connection_args("client").get("ssl_context") is None:
+        raise MapfilterError(f"--scheduler {address}: a tls:// scheduler needs TLS credentials in Dask's "
+                             "configuration (distributed.comm.tls.ca-file, .client.cert, .client.key; see "
+                             "https://distributed.dask.org/en/stable/tls.html)")
+    return security

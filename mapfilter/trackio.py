@@ -1,7 +1,9 @@
-"""Track files: our CSV (``t_s,x_m,y_m[,floor][,std_m][,heading_rad]``) and TUM (``t x y z qx qy qz qw``).
+"""Track files: our CSV (``t_s,x_m,y_m[,floor][,latitude_deg,longitude_deg][,std_m][,heading_rad]``)
+and TUM (``t x y z qx qy qz qw``).
 
 TUM is what evo and most trajectory tools read: z = 0, the orientation a yaw rotation about z
-(identity when no heading is known).
+(identity when no heading is known). In a georeferenced building (maps/georef.py) the CSV also
+carries each row's WGS-84 latitude and longitude: the output the IPIN competitions ask for.
 """
 
 from __future__ import annotations
@@ -11,11 +13,15 @@ import dataclasses
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
+
+if TYPE_CHECKING:  # only for annotations
+    from mapfilter.maps.building import Building
 
 
 @dataclasses.dataclass
@@ -28,16 +34,32 @@ class Track:
     heading_rad: np.ndarray | None = None  # (T,)
     floor: list[str] | None = None
     name: str = "track"
+    latlon_deg: np.ndarray | None = None  # (T, 2) WGS-84 latitude, longitude (a georeferenced building)
 
     def __len__(self) -> int:
         return self.t_s.shape[0]
 
 
-def write_track_csv(track: Track, path: str | os.PathLike) -> None:
-    """Write ``t_s,x_m,y_m[,floor][,std_m][,heading_rad]`` atomically."""
+def with_latlon(track: Track, building: Building) -> Track:
+    """A new track with each row's latitude and longitude from a georeferenced ``building`` (rows
+    on their own floor's frame; a track without floors is on the building's first floor)."""
+    latlon = building.floor_xy_to_latlon(track.xy_m, track.floor)
+    return dataclasses.replace(track, latlon_deg=latlon)
+
+
+def write_track_csv(track: Track, path: str | os.PathLike, building: Building | None = None) -> None:
+    """Write ``t_s,x_m,y_m[,floor][,latitude_deg,longitude_deg][,std_m][,heading_rad]`` atomically.
+
+    Latitude and longitude are written when the track has them (``with_latlon``) or when
+    ``building`` is given and has a georeference; otherwise the file is as it always was.
+    """
+    if track.latlon_deg is None and building is not None and building.georeference is not None:
+        track = with_latlon(track, building)
     header = ["t_s", "x_m", "y_m"]
     if track.floor is not None:
         header.append("floor")
+    if track.latlon_deg is not None:
+        header += ["latitude_deg", "longitude_deg"]
     if track.std_m is not None:
         header.append("std_m")
     if track.heading_rad is not None:
@@ -50,6 +72,9 @@ def write_track_csv(track: Track, path: str | os.PathLike) -> None:
                 row = [f"{track.t_s[i]:.3f}", f"{track.xy_m[i, 0]:.3f}", f"{track.xy_m[i, 1]:.3f}"]
                 if track.floor is not None:
                     row.append(track.floor[i])
+                if track.latlon_deg is not None:
+                    # 1e-8 degrees is about a millimetre
+                    row += [f"{track.latlon_deg[i, 0]:.8f}", f"{track.latlon_deg[i, 1]:.8f}"]
                 if track.std_m is not None:
                     row.append(f"{track.std_m[i]:.3f}")
                 if track.heading_rad is not None:
@@ -65,6 +90,18 @@ def write_track_tum(track: Track, path: str | os.PathLike) -> None:
             for t, (x, y), yaw in zip(track.t_s, track.xy_m, heading):
                 qz, qw = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
                 handle.write(f"{t:.6f} {x:.4f} {y:.4f} 0.0 0.0 0.0 {qz:.6f} {qw:.6f}\n")
+
+
+def write_track(track: Track, path: str | os.PathLike, track_format: str = "csv",
+                building: Building | None = None) -> None:
+    """Write a track as ``csv`` (``write_track_csv``; with latitude and longitude in a
+    georeferenced ``building``) or ``tum`` (``write_track_tum``), atomically."""
+    if track_format == "tum":
+        write_track_tum(track, path)
+    elif track_format == "csv":
+        write_track_csv(track, path, building)
+    else:
+        raise MapfilterError(f"unknown track format {track_format!r}: csv or tum", path)
 
 
 def read_track(path: str | os.PathLike) -> Track:
@@ -108,6 +145,8 @@ def _read_csv(path: Path) -> Track:
         heading_rad=np.array(columns["heading_rad"]) if "heading_rad" in columns else None,
         floor=columns.get("floor"),
         name=path.stem,
+        latlon_deg=np.column_stack([columns["latitude_deg"], columns["longitude_deg"]])
+        if {"latitude_deg", "longitude_deg"} <= set(columns) else None,
     )
 
 

@@ -5,11 +5,54 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests that read the real walks in ../shared/data are marked ``real_data`` (and skip,
+    with the reason, when the data is absent): ``-m "not real_data"`` is the quick run."""
+    for item in items:
+        if {"ilc_site1", "ipin2023"} & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.real_data)
 ILC_SITE1 = REPO.parent / "shared" / "data" / "ilc20" / "site1"
 
 
 @pytest.fixture(scope="session")
 def ilc_site1() -> Path:
     if not ILC_SITE1.is_dir():
-        pytest.fail(f"real data missing: {ILC_SITE1} (../shared must sit beside the checkout)")
+        pytest.skip(f"ILC 2.0 data absent: {ILC_SITE1} (../shared must sit beside the checkout)")
     return ILC_SITE1
+
+
+IPIN2023 = REPO.parent / "shared" / "data" / "ipin2023"
+
+
+@pytest.fixture(scope="session")
+def ipin2023() -> Path:
+    if not (IPIN2023 / "logs").is_dir():
+        pytest.skip(f"IPIN 2023 data absent: {IPIN2023} (../shared must sit beside the checkout)")
+    return IPIN2023
+
+
+def tracking_config(**settings):
+    """A ``TrackingConfig`` from flat keywords, for tests: motion, n_particles, smooth, seed,
+    use_map, fingerprint_model, kwnn_min_rssi_dbm, fix_sigma_m, adapt_path_loss, adaptation,
+    blocking_compensation, restart_from_placement."""
+    import dataclasses
+
+    from mapfilter.config import TrackingConfig
+
+    config = TrackingConfig()
+    sections = {"motion": ("motion", "model"), "fingerprint_model": ("wifi", None), "kwnn_min_rssi_dbm": ("wifi", None),
+                "fix_sigma_m": ("wifi", None), "adapt_path_loss": ("trilateration", None),
+                "adaptation": ("trilateration", None), "blocking_compensation": ("trilateration", None),
+                "restart_from_placement": ("offline", None)}
+    for name, value in settings.items():
+        if name == "n_particles":
+            config = config.with_particles(value)
+        elif name in sections:
+            section, field = sections[name]
+            config = dataclasses.replace(config, **{section: dataclasses.replace(getattr(config, section),
+                                                                                 **{field or name: value})})
+        else:
+            config = dataclasses.replace(config, **{name: value})
+    return config

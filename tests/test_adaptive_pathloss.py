@@ -17,7 +17,9 @@ from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.pathloss import AccessPointTable, path_loss_rssi_dbm
 from mapfilter.sensors.wifi import WifiScan, ap_key, scans_of
 from mapfilter.simulate.walk import SimConfig, blocking_db, offset_access_points, simulate_walk
-from mapfilter.tracking import TrackingConfig, track_recording
+from conftest import tracking_config
+
+from mapfilter.tracking import track
 
 OFFICE = REPO / "maps" / "office.yaml"
 OFFICE_APS = REPO / "maps" / "office_aps.csv"
@@ -224,13 +226,13 @@ def test_tracking_with_adaptation_is_deterministic_and_returns_the_adapted_table
     write_ilc(walk, path)
     recording = read_ilc(path)
     wrong = offset_access_points(office_aps, 13.0, -0.2)
-    config = TrackingConfig(motion="rw", n_particles=500, adapt_path_loss=True,
+    config = tracking_config(motion="rw", n_particles=500, adapt_path_loss=True,
                             adaptation=AdaptationConfig(rssi_limit_dbm=-45.0))
-    runs = [track_recording(floorplan, recording, ap_table=wrong, config=config, rng=np.random.default_rng(3))
+    runs = [track(floorplan, recording, access_points=wrong, config=config, rng=np.random.default_rng(3))
             for _ in range(2)]
-    np.testing.assert_array_equal(runs[0].track.xy_m, runs[1].track.xy_m)
-    np.testing.assert_array_equal(runs[0].ap_table.c_dbm, runs[1].ap_table.c_dbm)
-    assert np.abs(runs[0].ap_table.c_dbm - office_aps.c_dbm).mean() < 13.0 - 3.0
+    np.testing.assert_array_equal(runs[0].causal.xy_m, runs[1].causal.xy_m)
+    np.testing.assert_array_equal(runs[0].access_points.c_dbm, runs[1].access_points.c_dbm)
+    assert np.abs(runs[0].access_points.c_dbm - office_aps.c_dbm).mean() < 13.0 - 3.0
     np.testing.assert_array_equal(wrong.c_dbm, office_aps.c_dbm + 13.0)  # the caller's table is not touched
 
 
@@ -241,15 +243,15 @@ def test_path_loss_state_reaches_the_step_reports(office_aps, blocked_walk, tmp_
     path = tmp_path / "walk.txt"
     write_ilc(walk, path)
     reports = []
-    track_recording(floorplan, read_ilc(path), ap_table=office_aps,
-                    config=TrackingConfig(motion="rw", n_particles=300), rng=np.random.default_rng(0),
+    track(floorplan, read_ilc(path), access_points=office_aps,
+                    config=tracking_config(motion="rw", n_particles=300), rng=np.random.default_rng(0),
                     on_step=reports.append)
     states = [r.path_loss for r in reports if r.path_loss is not None]
     assert states and max(s.blocking_db for s in states) > 6.0  # blocking compensation is on by default
     assert all(np.isfinite(s.nearest_c_dbm) for s in states)
     plain = []
-    track_recording(floorplan, read_ilc(path), ap_table=office_aps,
-                    config=TrackingConfig(motion="rw", n_particles=300, blocking_compensation=False),
+    track(floorplan, read_ilc(path), access_points=office_aps,
+                    config=tracking_config(motion="rw", n_particles=300, blocking_compensation=False),
                     rng=np.random.default_rng(0), on_step=plain.append)
     assert all(r.path_loss is None for r in plain)
 
@@ -265,8 +267,8 @@ def test_rerun_shows_h_and_the_nearest_c(office_aps, blocked_walk, tmp_path):
     write_ilc(walk, path)
     out = tmp_path / "run.rrd"
     with make_logger(floorplan, rrd_path=out) as logger:
-        track_recording(floorplan, read_ilc(path), ap_table=office_aps,
-                        config=TrackingConfig(motion="rw", n_particles=300, adapt_path_loss=True,
+        track(floorplan, read_ilc(path), access_points=office_aps,
+                        config=tracking_config(motion="rw", n_particles=300, adapt_path_loss=True,
                                               adaptation=AdaptationConfig(rssi_limit_dbm=-45.0)),
                         rng=np.random.default_rng(0), on_step=logger.log_step)
     entities = read_rrd(out)

@@ -8,17 +8,22 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "mapfilter"
 # stage -> the stages it must never import (also not lazily, inside a function)
 FORBIDDEN = {
-    "maps": {"sensors", "filter", "tracking", "floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "sensors": {"filter", "tracking", "floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "filter": {"tracking", "floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "tracking": {"floortracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "floortracking": {"evaluation", "batch", "simulate", "viz", "cli"},
+    # the bottom: what every stage may use, itself using no stage
+    "settings": {"maps", "sensors", "filter", "offline", "config", "tracking", "evaluation", "batch", "simulate",
+                 "viz", "cli"},
+    "maps": {"sensors", "filter", "offline", "config", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
+    "sensors": {"filter", "offline", "config", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
+    "filter": {"offline", "config", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
+    "offline": {"config", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
+    "config": {"tracking", "evaluation", "batch", "simulate", "viz", "cli"},
+    "tracking": {"evaluation", "batch", "simulate", "viz", "cli"},
     "evaluation": {"batch", "simulate", "viz", "cli"},
     "batch": {"simulate", "viz", "cli"},
     # how walks are dispatched knows nothing of what a walk is
-    "engine": {"maps", "sensors", "filter", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "simulate": {"filter", "tracking", "floortracking", "evaluation", "batch", "viz", "cli"},
-    "viz": {"tracking", "floortracking", "evaluation", "batch", "simulate", "cli"},
+    "engine": {"maps", "sensors", "filter", "offline", "config", "tracking", "evaluation", "batch", "simulate", "viz",
+               "cli"},
+    "simulate": {"filter", "offline", "config", "tracking", "evaluation", "batch", "viz", "cli"},
+    "viz": {"offline", "config", "tracking", "evaluation", "batch", "simulate", "cli"},
 }
 
 

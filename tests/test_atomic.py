@@ -24,3 +24,19 @@ def test_a_failure_leaves_nothing(tmp_path):
             ta.write_text("half")
             raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_directory_or_a_parent_that_is_a_file_is_one_error_naming_the_final_path(tmp_path):
+    from mapfilter.errors import MapfilterError
+
+    (tmp_path / "dir").mkdir()
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(MapfilterError, match="is a directory") as info:
+        with atomic_paths(tmp_path / "dir"):
+            pass
+    assert info.value.path == str(tmp_path / "dir")
+    with pytest.raises(MapfilterError, match="cannot write here") as info:
+        with atomic_paths(tmp_path / "new" / "a.csv", tmp_path / "file" / "b.csv"):
+            pass
+    assert info.value.path == str(tmp_path / "file" / "b.csv")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dir", "file"]  # "new", made for a.csv, is gone

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
+
 
 import numpy as np
 import pytest
@@ -52,8 +54,15 @@ def test_a_map_yaml_is_a_one_floor_building():
     plan = FloorPlan.load(MAPS / "office.yaml")
     assert building.floor_names == ["office"] and building.is_single_floor
     assert np.array_equal(building.floors[0].plan.wall_mask, plan.wall_mask)
-    # a one-floor building takes any log: its floor is the only floor
-    assert building.floor_of_log("F7", "walk.txt") == 0
+    # a map that names its floor refuses a log of another floor (a walk of floor F7 tracked on this
+    # plan goes wrong by the floors' distance), unless the user gives the floor; a map that names
+    # no floor takes every log
+    assert building.floor_of_log("office", "walk.txt") == 0 and building.floor_of_log(None, "walk.txt") == 0
+    with pytest.raises(MapfilterError, match=r"walk\.txt: floor 'F7' is not in the building .*--floor NAME"):
+        building.floor_of_log("F7", "walk.txt")
+    assert building.floor_of_log("F7", "walk.txt", given="office") == 0
+    unnamed = Building.from_plan(dataclasses.replace(plan, floor_name=None))
+    assert unnamed.floor_of_log("F7", "walk.txt") == 0
 
 
 def test_building_round_trips_with_connectors(tmp_path):

@@ -57,7 +57,8 @@ def test_batch_tracks_every_walk_reports_the_failed_one_and_matches_the_single_w
     assert "no usable WiFi" in rows["nowifi"]["reason"] and rows["nowifi"]["track_file"] == ""
     assert "Infinity" in rows["beacon"]["skipped_rows"]
     assert float(rows["good"]["mean_m"]) < 4.0 and int(rows["good"]["waypoints"]) > 100
-    assert sorted(p.name for p in out.iterdir()) == ["beacon.csv", "good.csv", "summary.csv"]
+    assert sorted(p.name for p in out.iterdir()) == ["beacon.csv", "config.yaml", "good.csv", "summary.csv",
+                                                     "summary.json"]
     # a walk tracked in a batch is the walk tracked alone (same seed); the skipped beacon changes nothing
     single = tmp_path / "single.csv"
     assert main(["track", str(OFFICE), str(good), "--out", str(single)] + common) == 0
@@ -129,7 +130,8 @@ def test_check_reports_each_oddity_and_refuses_only_what_cannot_be_read(tmp_path
     assert "1 bad TYPE_WIFI row (needed" in line["badwifi"]
     assert "gzip stream ends early" in line["cut"]
     assert "no usable record" in line["empty"] and line["empty"].endswith("[refused]")
-    assert out[-1] == "6 logs: 5 readable (5 with IMU for dead reckoning), 4 with rows skipped or split, 1 refused"
+    assert out[-1] == ("6 logs: 5 readable (5 with IMU for dead reckoning), 4 with rows skipped or split, "
+                       "0 with time gaps, 1 refused")
     # --strict refuses the needed-type row and the cut stream, never the unused beacon
     assert main(["check", "--strict", str(logs["beacon"]), str(logs["badwifi"]), str(cut)]) == 1
     out = capsys.readouterr().out

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from mapfilter.cli import main
@@ -70,7 +71,8 @@ def test_out_dir_writes_a_track_with_floors_per_walk_and_a_summary_row_per_walk(
     assert tracked.code == 0
     assert "2 walks (serial): 2 tracked, 0 failed, 0 crashed" in tracked.stdout
     assert "on the walker's floor at" in tracked.stdout
-    assert sorted(p.name for p in tracked.out.iterdir()) == ["summary.csv", "walk1.csv", "walk2.csv"]
+    assert sorted(p.name for p in tracked.out.iterdir()) == ["config.yaml", "summary.csv", "summary.json",
+                                                              "walk1.csv", "walk2.csv"]
     rows = _summary(tracked.out)
     assert list(rows) == ["walk1", "walk2"]
     for walk, (start, end) in zip(office3.walks, (("F1", "F0"), ("F2", "F1"))):
@@ -99,10 +101,14 @@ def test_out_dir_smoothed_tum_tracks_on_a_given_floor(office3, tmp_path, capsys)
     out = tmp_path / "tracks"
     assert main(["track", str(office3.building), *map(str, office3.walks), "--radiomap", str(office3.radiomap),
                  *PARTICLES, "--smooth", "--format", "tum", "--floor", "F1", "--out-dir", str(out)]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["summary.csv", "walk1.tum", "walk2.tum"]
+    # the offline track per walk, the causal one beside it (--smooth), and the config that ran
+    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "summary.csv", "summary.json", "walk1.causal.tum",
+                                                     "walk1.tum", "walk2.causal.tum", "walk2.tum"]
     rows = _summary(out)
     for trace in ("walk1", "walk2"):
         assert len(read_track(out / f"{trace}.tum")) > 30
+        # TUM rotations carry the heading (not the identity on every row)
+        assert np.ptp(read_track(out / f"{trace}.tum").heading_rad) > 1.0
         assert rows[trace]["floors"] == "F1"  # the floor given
         # judged against the walker's floor at each waypoint: both walks leave or reach F1 half-way
         assert 0.0 < float(rows[trace]["floor_accuracy"]) < 1.0
@@ -121,7 +127,7 @@ def test_a_walk_that_fails_is_reported_and_the_others_are_tracked(office3, tmp_p
     rows = _summary(out)
     assert rows["nowifi"]["status"] == "failed" and rows["nowifi"]["track_file"] == ""
     assert rows["walk2"]["status"] == "ok"
-    assert sorted(p.name for p in out.iterdir()) == ["summary.csv", "walk2.csv"]
+    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "summary.csv", "summary.json", "walk2.csv"]
 
 
 @pytest.mark.parametrize("problem", ["log_floor", "radiomap_without_floors", "floor_option"])
@@ -271,29 +277,30 @@ def test_smooth_restarts_the_filter_for_a_walk_on_one_floor_only(office3, tmp_pa
 
     import numpy as np
 
-    from mapfilter.floortracking import track_building
+    from mapfilter.tracking import track
     from mapfilter.maps.building import Building
     from mapfilter.maps.walls import count_wall_crossings
     from mapfilter.sensors.radiomap import RadioMap
-    from mapfilter.tracking import TrackingConfig
+    from conftest import tracking_config
 
     one_floor = tmp_path / "walk_f1.txt"
     assert main(["simulate", str(office3.building), "--out", str(one_floor), "--seed", "3", "--floor-changes", "0",
                  "--start-floor", "F1"]) == 0
     building, radio_map = Building.load(office3.building), RadioMap.load(office3.radiomap)
-    config = TrackingConfig(n_particles=500, smooth=True)
-    runs = {restart: track_building(building, read_ilc(one_floor), radio_map,
-                                    dataclasses.replace(config, restart_from_placement=restart), np.random.default_rng(0))
+    config = tracking_config(n_particles=500, smooth=True)
+    runs = {restart: track(building, read_ilc(one_floor), radio_map,
+                           config=tracking_config(n_particles=500, smooth=True, restart_from_placement=restart),
+                           rng=np.random.default_rng(0))
             for restart in (False, True)}
     assert runs[False].restarted is None
-    np.testing.assert_array_equal(runs[True].track.xy_m, runs[False].track.xy_m)
-    restarted, smoothed = runs[True].restarted, runs[True].smoothed
+    np.testing.assert_array_equal(runs[True].causal.xy_m, runs[False].causal.xy_m)
+    restarted, smoothed = runs[True].restarted, runs[True].offline
     assert set(restarted.floor) == set(smoothed.floor) == {"F1"}
     # the one-floor run has no barometer ticks, but spans the walk as the first run does
-    causal_t = runs[True].track.t_s
+    causal_t = runs[True].causal.t_s
     assert abs(restarted.t_s[0] - causal_t[0]) < 3.0 and abs(restarted.t_s[-1] - causal_t[-1]) < 1.0
-    assert not np.array_equal(smoothed.xy_m, runs[False].smoothed.xy_m)
+    assert not np.array_equal(smoothed.xy_m, runs[False].offline.xy_m)
     assert count_wall_crossings(building.floors[building.floor_index("F1")].plan, smoothed.xy_m) == 0
-    changes_floor = track_building(building, read_ilc(office3.walks[0]), radio_map,
-                                   dataclasses.replace(config, n_particles=2000), np.random.default_rng(0))
-    assert changes_floor.restarted is None and len(set(changes_floor.smoothed.floor)) == 2
+    changes_floor = track(building, read_ilc(office3.walks[0]), radio_map, config=config.with_particles(2000),
+                          rng=np.random.default_rng(0))
+    assert changes_floor.restarted is None and len(set(changes_floor.offline.floor)) == 2

@@ -92,16 +92,18 @@ def test_whole_walk_track_on_real_walks_beats_kwnn_and_crosses_no_wall(ilc_site1
     """F1, the first 12 walks of the sparse set, leave-one-out among them: the whole-walk track
     (pf-smooth) against the KWNN fixes of the same walks (all 36: 0.52x; here fewer walks
     survey each other, so a looser bound), and per-walk diagnostics for every walk."""
-    from mapfilter.evaluation.comparison import EvaluationSetup, evaluate_logs
+    from conftest import tracking_config
+
+    from mapfilter.evaluation.comparison import EvaluationSetup, evaluate
+    from mapfilter.maps.building import Building
     from mapfilter.maps.prepare import import_ilc
-    from mapfilter.tracking import TrackingConfig
 
     floor = ilc_site1 / "F1"
     names = (floor / "sparse_set.txt").read_text().split()[:12]
     paths = [floor / "path_data_files" / f"{name}.txt.gz" for name in names]
-    setup = EvaluationSetup(methods=("pf", "kwnn"), leave_one_out=True, smooth=True,
-                            tracking=TrackingConfig(n_particles=2000))
-    evaluation = evaluate_logs(import_ilc(floor, route="geojson"), paths, setup)
+    setup = EvaluationSetup(methods=("pf", "kwnn"), leave_one_out=True,
+                            tracking=tracking_config(n_particles=2000, smooth=True))
+    evaluation = evaluate(Building.from_plan(import_ilc(floor, route="geojson")), paths, setup)
     rows = {row["method"]: row for row in evaluation.summary_rows()}
     assert rows["pf-smooth"]["wall_crossings"] == 0 and rows["pf-smooth"]["missed"] == 0
     assert rows["pf-smooth"]["mean"] < 0.85 * rows["kwnn"]["mean"]
@@ -110,3 +112,65 @@ def test_whole_walk_track_on_real_walks_beats_kwnn_and_crosses_no_wall(ilc_site1
     assert len(walks) == 12 and all(w["coverage_m"] >= 0 and w["fix_error_m"] > 0 for w in walks)
     # dB per AP to the nearest reference point: phones and days differ by several dB, never by 40
     assert all(1.0 < w["signal_distance_db"] < 40.0 for w in walks)
+
+
+def _office_walks(tmp_path, n):
+    walks = []
+    for seed in range(n):
+        path = tmp_path / f"walk{seed}.txt.gz"
+        assert main(["simulate", str(MAPS / "office.yaml"), "--aps", str(MAPS / "office_aps.csv"), "--out", str(path),
+                     "--duration", "40", "--seed", str(seed)]) == 0
+        walks.append(path)
+    return walks
+
+
+def test_an_interrupted_evaluate_resumes_to_the_uninterrupted_summary(tmp_path):
+    """SIGINT after the first walk: the walks done are kept (their files, a partial summary, no
+    temporaries); --resume runs the rest and the summary equals an uninterrupted run's."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    walks = _office_walks(tmp_path, 4)
+    args = ["evaluate", str(MAPS / "office.yaml"), *map(str, walks), "--radiomap", str(MAPS / "office_radiomap.npz"),
+            "--methods", "pf,kwnn", "--particles", "800"]
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert main(args + ["--out", str(whole)]) == 0
+    process = subprocess.Popen([sys.executable, "-m", "mapfilter", *args, "--out", str(cut)], cwd=REPO,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list((cut / "walks").glob("*.json")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    process.send_signal(signal.SIGINT)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err
+    done = sorted(p.name for p in (cut / "walks").glob("*.json"))
+    assert 1 <= len(done) < 4 and "interrupted" in out
+    partial = json.loads((cut / "summary.json").read_text())
+    assert partial["complete"] is False and partial["walks_done"] == len(done)
+    assert not [p for p in cut.rglob(".*") if p.is_file()]  # no temporaries left behind
+    assert main(args + ["--out", str(cut), "--resume"]) == 0
+
+    def numbers(out):  # every column but the run time
+        rows = list(csv.DictReader((out / "summary.csv").open()))
+        return [{k: v for k, v in row.items() if k != "runtime_s"} for row in rows]
+
+    assert numbers(cut) == numbers(whole)
+    assert json.loads((cut / "summary.json").read_text())["complete"] is True
+    # a fresh run (no --resume) removes what the earlier run left
+    (cut / "walks" / "stale.json").write_text("{}")
+    assert main(args[:3] + ["--radiomap", str(MAPS / "office_radiomap.npz"), "--methods", "kwnn",
+                            "--out", str(cut)]) == 0
+    assert sorted(p.name for p in (cut / "walks").glob("*.json")) == [walks[0].name.replace(".txt.gz", ".json")]
+
+
+def test_evaluate_against_survey_logs_scores_only_the_walks_given(tmp_path):
+    walks = _office_walks(tmp_path, 3)
+    out = tmp_path / "out"
+    assert main(["evaluate", str(MAPS / "office.yaml"), str(walks[0]), "--survey", str(walks[1]), str(walks[2]),
+                 "--methods", "kwnn,pf", "--particles", "500", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert {row["trace"] for row in summary["traces"]} == {"walk0"}
+    assert main(["evaluate", str(MAPS / "office.yaml"), str(walks[0]), "--survey", str(walks[0]),
+                 "--out", str(tmp_path / "o2")]) == 1

@@ -6,13 +6,14 @@ import sys
 
 import pytest
 
-from mapfilter.cli import evaluate_cmd, radiomap_cmd, simulate_cmd, track_cmd
+from mapfilter.cli import evaluate_cmd, radiomap_cmd, simulate_cmd, tracking_options
 
 HEAVY = ("numpy", "numba", "scipy", "cv2", "shapely", "rerun", "matplotlib")
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["track", "--help"], ["evaluate", "--help"], ["map", "prepare", "--help"],
-                                  ["radiomap", "build", "--help"], ["simulate", "--help"], ["view", "--help"]])
+                                  ["radiomap", "build", "--help"], ["simulate", "--help"], ["view", "--help"],
+                                  ["config", "show", "--help"]])
 def test_help_imports_no_numerical_library(argv):
     code = ("import sys\nfrom mapfilter.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
             f"print('imported:', ','.join(m for m in {HEAVY!r} if m in sys.modules))")
@@ -22,18 +23,27 @@ def test_help_imports_no_numerical_library(argv):
 
 
 def test_cli_defaults_are_the_librarys():
-    from mapfilter.evaluation.comparison import ALL_METHODS
-    from mapfilter.filter.adaptive_pathloss import AdaptationConfig
+    from mapfilter.config import TrackingConfig
+    from mapfilter.evaluation.comparison import ALL_METHODS, BUILDING_METHODS
+    from mapfilter.filter.evidence import FINGERPRINT_MODELS
+    from mapfilter.filter.run import MOTION_MODELS
     from mapfilter.sensors.pathloss import ApFitConfig
     from mapfilter.simulate.walk import SimConfig
-    from mapfilter.tracking import FINGERPRINT_MODELS, MOTION_MODELS, TrackingConfig
 
-    assert track_cmd.MOTION_MODELS == MOTION_MODELS and track_cmd.FINGERPRINT_MODELS == FINGERPRINT_MODELS
-    assert track_cmd.DEFAULT_PARTICLES == TrackingConfig.n_particles
-    assert track_cmd.DEFAULT_FINGERPRINT_MODEL == TrackingConfig.fingerprint_model
-    assert track_cmd.DEFAULT_KWNN_MIN_RSSI_DBM == TrackingConfig.kwnn_min_rssi_dbm
-    assert evaluate_cmd.ALL_METHODS == ALL_METHODS
-    assert track_cmd.DEFAULT_ADAPT_RSSI_LIMIT_DBM == AdaptationConfig.rssi_limit_dbm
+    options, config = tracking_options, TrackingConfig()
+    assert options.MOTION_MODELS == MOTION_MODELS and options.FINGERPRINT_MODELS == FINGERPRINT_MODELS
+    assert options.DEFAULT_PARTICLES == config.filter.n_particles
+    assert options.DEFAULT_FINGERPRINT_MODEL == config.wifi.fingerprint_model
+    assert options.DEFAULT_KWNN_MIN_RSSI_DBM == config.wifi.kwnn_min_rssi_dbm
+    assert evaluate_cmd.ALL_METHODS == ALL_METHODS and evaluate_cmd.BUILDING_METHODS == BUILDING_METHODS
+    assert options.DEFAULT_ADAPT_RSSI_LIMIT_DBM == config.trilateration.adaptation.rssi_limit_dbm
     assert radiomap_cmd._MIN_OBSERVATIONS == ApFitConfig.min_observations
     sim = dataclasses.asdict(SimConfig())
     assert {key: sim[key] for key in simulate_cmd._SIM_DEFAULTS} == simulate_cmd._SIM_DEFAULTS
+
+
+def test_cli_simulate_limits_are_the_librarys():
+    from mapfilter.simulate import walk
+
+    assert {name: getattr(walk, name) for name in simulate_cmd._SIM_LIMITS} == simulate_cmd._SIM_LIMITS
+    assert simulate_cmd._MIN_SURVEY_SPACING_M == walk.SimConfig.grid_m

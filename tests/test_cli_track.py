@@ -128,84 +128,100 @@ def test_waypoints_in_walls_warn_but_track(tmp_path, capsys):
     assert out.exists()
 
 
+def _config(**changes):
+    import dataclasses
+
+    from mapfilter.config import TrackingConfig
+
+    particles = changes.pop("particles", None)
+    config = dataclasses.replace(TrackingConfig(), **changes)
+    return config.with_particles(particles) if particles else config
+
+
 def test_smoothing_does_not_change_the_causal_track():
     from mapfilter.sensors.radiomap import RadioMap
-    from mapfilter.tracking import TrackingConfig, track_recording
+    from mapfilter.tracking import track
 
     recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
-    tracks = [track_recording(floorplan, recording, radio_map, config=TrackingConfig(n_particles=500, smooth=smooth),
-                              rng=np.random.default_rng(1)).track for smooth in (False, True)]
+    tracks = [track(floorplan, recording, radio_map, config=_config(particles=500, smooth=smooth, seed=1)).causal
+              for smooth in (False, True)]
     np.testing.assert_array_equal(tracks[0].xy_m, tracks[1].xy_m)
 
 
 def test_whole_walk_track_beats_the_causal_one_and_crosses_no_wall():
     from mapfilter.evaluation.metrics import errors_at_waypoints
     from mapfilter.sensors.radiomap import RadioMap
-    from mapfilter.tracking import TrackingConfig, track_recording
+    from mapfilter.tracking import track
 
     recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
-    result = track_recording(floorplan, recording, radio_map, config=TrackingConfig(n_particles=1000, smooth=True),
-                             rng=np.random.default_rng(2))
-    causal = errors_at_waypoints(result.track.t_s, result.track.xy_m, recording.waypoint_t_s,
+    result = track(floorplan, recording, radio_map, config=_config(particles=1000, smooth=True, seed=2))
+    causal = errors_at_waypoints(result.causal.t_s, result.causal.xy_m, recording.waypoint_t_s,
                                  recording.waypoint_xy_m, causal=True).errors_m
-    smoothed = errors_at_waypoints(result.smoothed.t_s, result.smoothed.xy_m, recording.waypoint_t_s,
+    smoothed = errors_at_waypoints(result.offline.t_s, result.offline.xy_m, recording.waypoint_t_s,
                                    recording.waypoint_xy_m, causal=False)
     # the whole walk covers every waypoint, also those before the first scan
     assert smoothed.missed == 0 and smoothed.errors_m.size == recording.waypoint_t_s.size
     assert smoothed.errors_m.mean() < 0.8 * causal.mean()
-    assert count_wall_crossings(floorplan, result.smoothed.xy_m) == 0
-    assert np.all(np.diff(result.smoothed.t_s) >= 0)
+    assert count_wall_crossings(floorplan, result.offline.xy_m) == 0
+    assert np.all(np.diff(result.offline.t_s) >= 0)
+    # the offline track has the documented columns: its spread (the map matching's posterior)
+    # and the walker's heading, as the causal one
+    assert result.offline.std_m.shape == result.offline.t_s.shape and (result.offline.std_m >= 0).all()
+    assert np.isfinite(result.offline.heading_rad).all()
+    assert result.runtime_s == result.causal_runtime_s + result.offline_runtime_s
 
 
 def test_the_offline_track_restarts_the_filter_where_the_whole_walk_puts_the_start():
     """A first fix 35 m off starts the causal filter there; the second run (the offline track's
     evidence) starts where the whole walk places the start, and stays closer for the first minute."""
+    import dataclasses
+
+    from mapfilter.offline.whole_walk import OfflineConfig
     from mapfilter.sensors.radiomap import RadioMap
-    from mapfilter.sensors.wifi import scans_of
-    from mapfilter.tracking import RESTART_RADIUS_M, TrackingConfig, WifiMeasurements, track_recording
+    from mapfilter.tracking import prepare_walk, track_prepared
 
     recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
     results = {}
     for restart in (False, True):
-        config = TrackingConfig(n_particles=1000, smooth=True, restart_from_placement=restart)
-        wifi = WifiMeasurements(scans_of(recording), radio_map, None, floorplan, config)
+        config = _config(particles=1000, smooth=True, offline=OfflineConfig(restart_from_placement=restart))
+        walk = prepare_walk(floorplan, recording, radio_map, config=config)
+        wifi = walk.evidence
         first = int(np.argmax(wifi.usable))
         t0 = wifi.scans[first].t_s
         truth0 = np.array([np.interp(t0, recording.waypoint_t_s, recording.waypoint_xy_m[:, i]) for i in (0, 1)])
         free = floorplan.sample_free(2000, np.random.default_rng(0))
         wifi.fix_xy_m[first] = free[np.argmax(np.linalg.norm(free - truth0, axis=1))]  # the far side of the office
-        results[restart] = track_recording(floorplan, recording, radio_map, config=config, rng=np.random.default_rng(0),
-                                           wifi=wifi)
+        results[restart] = track_prepared(walk, config)
     assert results[False].restarted is None
     result = results[True]
-    np.testing.assert_array_equal(result.track.xy_m, results[False].track.xy_m)  # the causal track is the first run
-    assert np.linalg.norm(result.track.xy_m[0] - truth0) > 20.0
-    assert np.linalg.norm(result.restarted.xy_m[0] - truth0) < RESTART_RADIUS_M
-    early = result.track.t_s < t0 + 60.0
-    assert _errors(result.restarted, recording)[early].mean() < 0.5 * _errors(result.track, recording)[early].mean()
-    assert count_wall_crossings(floorplan, result.smoothed.xy_m) == 0
+    np.testing.assert_array_equal(result.causal.xy_m, results[False].causal.xy_m)  # the causal track is the first run
+    assert np.linalg.norm(result.causal.xy_m[0] - truth0) > 20.0
+    assert np.linalg.norm(result.restarted.xy_m[0] - truth0) < OfflineConfig().restart_radius_m
+    early = result.causal.t_s < t0 + 60.0
+    assert _errors(result.restarted, recording)[early].mean() < 0.5 * _errors(result.causal, recording)[early].mean()
+    assert count_wall_crossings(floorplan, result.offline.xy_m) == 0
+    assert dataclasses.replace(config).offline.restart_from_placement
 
 
-def test_a_one_floor_building_smooths_as_one_map_did():
-    """The whole-walk floor is for several floors: a single map through track_building gives the
-    same causal and offline tracks as track_recording (the whole-walk placement, one floor name)."""
-    from mapfilter.floortracking import track_building
+def test_a_map_and_its_one_floor_building_track_alike():
+    """A map is the one-floor building: a FloorPlan and the building loaded from its YAML give the
+    same causal and offline tracks (no floor column on one floor)."""
     from mapfilter.maps.building import Building
     from mapfilter.sensors.radiomap import RadioMap
-    from mapfilter.tracking import TrackingConfig, track_recording
+    from mapfilter.tracking import track
 
     recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
-    config = TrackingConfig(n_particles=500, smooth=True)
-    plain = track_recording(floorplan, recording, radio_map, config=config, rng=np.random.default_rng(3))
-    built = track_building(Building.load(OFFICE), recording, radio_map, config, np.random.default_rng(3))
-    np.testing.assert_array_equal(plain.track.xy_m, built.track.xy_m)
-    np.testing.assert_array_equal(plain.smoothed.xy_m, built.smoothed.xy_m)
-    assert len(set(built.smoothed.floor)) == 1 and len(built.smoothed.floor) == len(built.smoothed)
+    config = _config(particles=500, smooth=True, seed=3)
+    plain = track(floorplan, recording, radio_map, config=config)
+    built = track(Building.load(OFFICE), recording, radio_map, config=config)
+    np.testing.assert_array_equal(plain.causal.xy_m, built.causal.xy_m)
+    np.testing.assert_array_equal(plain.offline.xy_m, built.offline.xy_m)
+    assert built.offline.floor is None and built.causal.floor is None
 
 
 def test_kwnn_min_rssi_option_reaches_the_filter(tmp_path, capsys):
     from mapfilter.sensors.radiomap import RadioMap
-    from mapfilter.tracking import TrackingConfig, track_recording
+    from mapfilter.tracking import track
 
     paths = {}
     for value in ("none", "-85", "-60"):
@@ -214,13 +230,15 @@ def test_kwnn_min_rssi_option_reaches_the_filter(tmp_path, capsys):
                      "--kwnn-min-rssi", value, "--out", str(paths[value])]) == 0
     tracks = {value: read_track(path) for value, path in paths.items()}
     # the library with the same setting gives the CLI's track; a different floor a different one
-    plain = track_recording(FloorPlan.load(OFFICE), read_ilc(WALK), RadioMap.load(RADIOMAP), None,
-                            TrackingConfig(n_particles=2000, kwnn_min_rssi_dbm=None), np.random.default_rng(0))
-    np.testing.assert_allclose(tracks["none"].xy_m, plain.track.xy_m, atol=1e-3)  # CSV: mm
+    from mapfilter.filter.evidence import WifiConfig
+
+    plain = track(FloorPlan.load(OFFICE), read_ilc(WALK), RadioMap.load(RADIOMAP),
+                  config=_config(particles=2000, wifi=WifiConfig(kwnn_min_rssi_dbm=None)))
+    np.testing.assert_allclose(tracks["none"].xy_m, plain.causal.xy_m, atol=1e-3)  # CSV: mm
     assert not np.allclose(tracks["-60"].xy_m, tracks["none"].xy_m)
     with pytest.raises(SystemExit) as exit_info:
         main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--kwnn-min-rssi", "loud"])
-    assert exit_info.value.code == 2 and "dBm value or none" in capsys.readouterr().err
+    assert exit_info.value.code == 2 and "dBm value such as -90, or none" in capsys.readouterr().err
 
 
 def test_progress_runs_to_the_end_once_over_both_filter_runs(tmp_path, monkeypatch):
@@ -276,3 +294,35 @@ def test_progress_ends_at_100_when_smoothing_has_no_second_run(tmp_path, monkeyp
     assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "300", "--smooth",
                  "--motion", "cv", "--out", str(tmp_path / "t.csv")]) == 0
     assert max(values[:-1]) <= 50 and values[-1] == 100
+
+
+def test_a_row_stamped_years_ahead_costs_nothing_and_is_reported(tmp_path, capsys):
+    """A WiFi scan stamped three years after the walk: nothing is made for the gap (no idle or
+    prediction ticks), the filter starts afresh at that scan and the printout names the gap."""
+    from mapfilter.filter.run import _events
+    from mapfilter.sensors.pdr import detect_steps
+    from mapfilter.sensors.wifi import scans_of
+
+    with gzip.open(WALK, "rt") as handle:
+        lines = handle.readlines()
+    last_scan_t = max(line.split("\t")[0] for line in lines if "TYPE_WIFI" in line)
+    later = int(last_scan_t) + 3 * 365 * 86400 * 1000
+    future = []
+    for line in lines:  # the walk's last scan once more, three years on
+        fields = line.rstrip("\n").split("\t")
+        if "TYPE_WIFI" in line and fields[0] == last_scan_t:
+            future.append("\t".join([str(later), *fields[1:-1], str(later)]) + "\n")
+    log = tmp_path / "future.txt"
+    log.write_text("".join(lines) + "".join(future))
+    recording = read_ilc(log)
+    scans = scans_of(recording)
+    for steps, tick in ((detect_steps(recording), 0.5), (None, 1.0)):
+        events = _events(scans, 0, steps, tick, tick, 60.0)
+        assert len(events) < 2 * (len(scans) + (len(steps) if steps is not None else 130))
+    out = tmp_path / "t.csv"
+    for motion in ("pdr", "cv"):
+        assert main(["track", str(OFFICE), str(log), "--radiomap", str(RADIOMAP), "--particles", "500",
+                     "--motion", motion, "--out", str(out)]) == 0
+        printed = capsys.readouterr().out
+        assert "gap in the log from" in printed and "the filter started afresh" in printed
+        assert read_track(out).t_s[-1] == pytest.approx(later / 1000.0, abs=1e-3)

@@ -4,11 +4,14 @@ A scheduler and two workers are started as separate processes, as a user would s
 (the README's two commands), bound to the loopback address only.
 """
 
+import contextlib
 import csv
+import os
 import socket
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from conftest import REPO
@@ -97,3 +100,68 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys):
                  str(maps / "office_radiomap.npz"), "--methods", "kwnn", "--scheduler", address, "--out", str(tmp_path / "o")]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and f"cannot reach the Dask scheduler at {address}" in err
+
+
+def _uid_of_worker():
+    import os
+
+    return os.getuid()
+
+
+def test_the_jobs_cluster_refuses_a_foreign_client_and_listens_on_loopback_only():
+    """The cluster of --jobs speaks TLS with this run's own credentials: a client without them
+    (plain TCP, or TLS with another authority's certificates) cannot connect, to the scheduler
+    or to a worker, so it cannot run code as the user."""
+    distributed = pytest.importorskip("distributed")
+    pytest.importorskip("cryptography")
+    from distributed.security import Security
+
+    from mapfilter.engine import Engine, _DaskClient
+
+    with _DaskClient(Engine(jobs=2)) as client:
+        client.wait_for_workers(2, timeout=120)
+        assert client.submit(_uid_of_worker).result() >= 0  # the run's own client works
+        info = client.scheduler_info()
+        addresses = [info["address"], *info["workers"]]
+        assert len(addresses) == 3 and all(a.startswith(f"tls://{LOOPBACK}:") for a in addresses)
+        for address in addresses:
+            for attempt, security in ((address.replace("tls://", "tcp://"), None), (address, Security.temporary())):
+                with pytest.raises((OSError, TimeoutError)):
+                    foreign = distributed.Client(attempt, timeout="5s", security=security)
+                    foreign.close()  # not reached: connecting fails
+        # every socket the run listens on (scheduler, nannies, workers, their HTTP health servers)
+        # is bound to the loopback address
+        listening = _listening_addresses(os.getpid())
+        if listening is not None:
+            assert len(listening) >= 3 and all(host == "127.0.0.1" for host in listening), listening
+
+
+def _listening_addresses(root_pid: int) -> list[str] | None:
+    """IPv4 hosts of the TCP sockets in LISTEN state held by ``root_pid`` and its children
+    (from /proc; None where there is no /proc)."""
+    proc = Path("/proc")
+    if not (proc / "net" / "tcp").is_file():
+        return None
+    pids = {root_pid}
+    for task in (proc / str(root_pid) / "task").iterdir():  # worker processes are started from any thread
+        with contextlib.suppress(OSError):
+            pids |= {int(p) for p in (task / "children").read_text().split()}
+    inodes = set()
+    for pid in pids:
+        with contextlib.suppress(OSError):
+            for fd in (proc / str(pid) / "fd").iterdir():
+                with contextlib.suppress(OSError):
+                    target = os.readlink(fd)
+                    if target.startswith("socket:["):
+                        inodes.add(target[8:-1])
+    hosts = []
+    for table in ("tcp", "tcp6"):
+        for line in (proc / "net" / table).read_text().splitlines()[1:]:
+            fields = line.split()
+            if fields[3] == "0A" and fields[9] in inodes:  # 0A: LISTEN
+                host_hex = fields[1].split(":")[0]
+                if table == "tcp":
+                    hosts.append(socket.inet_ntoa(bytes.fromhex(host_hex)[::-1]))
+                else:
+                    hosts.append("ipv6:" + host_hex)
+    return hosts

@@ -1,5 +1,7 @@
 """The engine: walks as tasks, serially or on local Dask workers; errors reach the user as one line."""
 
+import json
+
 import pytest
 from conftest import REPO
 
@@ -33,7 +35,8 @@ def test_local_workers_give_every_result_and_a_failing_walk_is_one_line(tmp_path
     pytest.importorskip("distributed")
     results = dict(run_each(_scaled, list(range(6)), Engine(jobs=2), common=(3, 0)))
     assert results == {i: 3 * i for i in range(6)}
-    # a walk without waypoints, evaluated on two local workers: the worker's error is our one line
+    # a walk without waypoints, evaluated on two local workers: the worker's error is our one line,
+    # and the other walk's results are kept
     import gzip
 
     no_waypoints = tmp_path / "nowp.txt"
@@ -43,5 +46,35 @@ def test_local_workers_give_every_result_and_a_failing_walk_is_one_line(tmp_path
                  "--radiomap", str(MAPS / "office_radiomap.npz"), "--methods", "kwnn", "--jobs", "2",
                  "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err.strip()
-    assert err == f"mapfilter: error: {no_waypoints}: the log has no waypoints to evaluate against"
-    assert not (tmp_path / "out").exists()
+    assert err == f"mapfilter: failed: {no_waypoints}: the log has no waypoints to evaluate against"
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert [f["trace"] for f in summary["failed"]] == ["nowp"] and summary["complete"]
+    assert [row["method"] for row in summary["summary"]] == ["kwnn"] and summary["traces"][0]["trace"] == "office_walk"
+
+
+@pytest.mark.parametrize("address", ["tcp://", "tcp://host", "foo://x:1", "tcp://host:99999", "tcp://host:port",
+                                     "tcp://:8786", "tcp://host:0", "tcp://host:8786/path", "host:8786"])
+def test_a_malformed_scheduler_address_is_one_line_before_dask(address, tmp_path, capsys):
+    with pytest.raises(MapfilterError, match="--scheduler must look like tcp://HOST:PORT"):
+        Engine(scheduler=address)
+    assert main(["evaluate", str(MAPS / "office.yaml"), str(MAPS / "office_walk.txt.gz"), "--radiomap",
+                 str(MAPS / "office_radiomap.npz"), "--methods", "kwnn", "--scheduler", address,
+                 "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and err.startswith("mapfilter: error: --scheduler must look like")
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:8786", "tls://scheduler.example:8786", "tcp://[::1]:8786"])
+def test_well_formed_scheduler_addresses_pass(address):
+    assert Engine(scheduler=address).uses_dask
+
+
+def test_a_tls_scheduler_without_tls_settings_is_one_line(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("distributed")
+    for name in ("CA_FILE", "CLIENT__CERT", "CLIENT__KEY"):
+        monkeypatch.delenv(f"DASK_DISTRIBUTED__COMM__TLS__{name}", raising=False)
+    assert main(["evaluate", str(MAPS / "office.yaml"), str(MAPS / "office_walk.txt.gz"), "--radiomap",
+                 str(MAPS / "office_radiomap.npz"), "--methods", "kwnn", "--scheduler", "tls://127.0.0.1:1",
+                 "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "needs TLS credentials in Dask's configuration" in err

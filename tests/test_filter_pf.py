@@ -66,10 +66,9 @@ def test_invariants_after_every_step(seed, motion_kind, resampler, kernel, fix_e
     rng = np.random.default_rng(seed)
     motion = {"rw": RandomWalkMotion(), "cv": ConstantVelocityMotion(accel_sigma_mps2=2.0),
               "pdr": PDRMotion()}[motion_kind]
-    cfg = FilterConfig(n_particles=500, resampler=resampler, kernel=kernel, keep_ancestry=True,
-                       resample_ess_fraction=0.7,
+    cfg = FilterConfig(n_particles=500, resampler=resampler, kernel=kernel, resample_ess_fraction=0.7,
                        fused_from_particles=0 if fused else None)
-    pf = ParticleFilter(ROOMS, motion, cfg, rng)
+    pf = ParticleFilter(ROOMS, motion, cfg, rng, keep_ancestry=True)
     pf.initialise_uniform()
     model = GaussianFixLikelihood(sigma_m=2.0)
     for k in range(12):
@@ -84,8 +83,8 @@ def test_closed_room_pull_collapses_and_recovers():
     """Particles in the corridor, fixes inside the closed room: every particle is pressed against
     the room's wall, the measurement makes them all implausible -> collapse -> recovery inside."""
     rng = np.random.default_rng(10)
-    cfg = FilterConfig(n_particles=2000, keep_ancestry=True, min_log_likelihood=-8.0)
-    pf = ParticleFilter(ROOMS, RandomWalkMotion(), cfg, rng)
+    cfg = FilterConfig(n_particles=2000, min_log_likelihood=-8.0)
+    pf = ParticleFilter(ROOMS, RandomWalkMotion(), cfg, rng, keep_ancestry=True)
     pf.initialise_around((12.0, 5.0), 1.0)
     model = GaussianFixLikelihood(sigma_m=1.0)
     room_xy = (17.5, 1.5)  # inside the closed lower-right room
@@ -139,8 +138,8 @@ def test_all_killed_by_walls_recovers_around_estimate_with_growing_radius():
 def test_same_seed_same_result(fused):
     def run(seed):
         rng = np.random.default_rng(seed)
-        pf = ParticleFilter(ROOMS, PDRMotion(), FilterConfig(n_particles=800, keep_ancestry=True,
-                                                      fused_from_particles=0 if fused else None), rng)
+        pf = ParticleFilter(ROOMS, PDRMotion(), FilterConfig(n_particles=800, fused_from_particles=0 if fused else None),
+                            rng, keep_ancestry=True)
         pf.initialise_from_measurement(0.0, GaussianFixLikelihood(3.0), PositionFix((3.0, 5.0)))
         out = []
         for k in range(20):
@@ -162,7 +161,7 @@ def test_tracks_a_corridor_walk_and_smoothed_track_never_crosses_walls():
     truth = np.column_stack([np.linspace(1.0, 19.0, 37), np.full(37, 5.0)])
     back = np.column_stack([np.linspace(18.5, 11.4, 15), np.full(15, 5.0)])
     truth = np.vstack([truth, back, np.column_stack([np.full(8, 11.4), np.linspace(5.5, 9.0, 8)])])
-    pf = ParticleFilter(ROOMS, RandomWalkMotion(), FilterConfig(n_particles=3000, keep_ancestry=True), rng)
+    pf = ParticleFilter(ROOMS, RandomWalkMotion(), FilterConfig(n_particles=3000), rng, keep_ancestry=True)
     model = GaussianFixLikelihood(2.0)
     fixes = truth + rng.normal(0, 2.0, truth.shape)
     pf.initialise_from_measurement(0.0, model, PositionFix(tuple(fixes[0])))
@@ -248,7 +247,7 @@ def test_real_ilc_floor_and_waypoints(ilc_site1):
     rng = np.random.default_rng(20)
     fixes = truth + rng.normal(0.0, 4.0, truth.shape)
     model = GaussianFixLikelihood(4.0)
-    pf = ParticleFilter(fp, RandomWalkMotion(), FilterConfig(n_particles=5000, keep_ancestry=True), rng)
+    pf = ParticleFilter(fp, RandomWalkMotion(), FilterConfig(n_particles=5000), rng, keep_ancestry=True)
     pf.initialise_from_measurement(0.0, model, PositionFix(tuple(fixes[0])))
     est = []
     for k in range(1, len(t)):

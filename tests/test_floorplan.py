@@ -176,3 +176,95 @@ def test_bad_constructor_values():
         FloorPlan(np.zeros((3, 3), dtype=bool), 0.0)
     with pytest.raises(MapfilterError):
         FloorPlan(np.zeros(3, dtype=bool), 0.1)
+
+
+# ---- inputs larger than memory, values that are no floor plan -----------------------------------
+REPO = Path(__file__).resolve().parents[1]
+
+
+def write_flat_png(path: Path, width: int, height: int, value: int = 254) -> Path:
+    """A valid 8-bit grey PNG of one colour, streamed row by row: a 20000 x 20000 plan is a
+    0.4 MB file made in seconds without holding its 400 MB of pixels."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    packer = zlib.compressobj(9)
+    row = b"\x00" + bytes([value]) * width  # filter byte 0, then the pixels
+    data = b"".join(packer.compress(row) for _ in range(height)) + packer.flush()
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+                     + chunk(b"IDAT", data) + chunk(b"IEND", b""))
+    return path
+
+
+def test_a_huge_plan_is_refused_from_its_header_in_bounded_memory(tmp_path: Path):
+    """A 20000 x 20000 PNG (0.4 MB) took 20 GB: its size is read before anything is decoded."""
+    import resource
+    import subprocess
+    import sys
+
+    png = write_flat_png(tmp_path / "big.png", 20000, 20000)
+    assert png.stat().st_size < 1_000_000
+    (tmp_path / "big.yaml").write_text("image: big.png\nresolution: 0.05\norigin: [0, 0, 0]\n")
+    limit = 1536 << 20
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    for argv in (["simulate", str(tmp_path / "big.yaml"), "--aps", str(REPO / "maps" / "office_aps.csv"),
+                  "--out", str(tmp_path / "walk.txt")],
+                 ["map", "prepare", str(png), "--resolution", "0.05", "--out", str(tmp_path / "m.yaml")]):
+        done = subprocess.run([sys.executable, "-m", "mapfilter", *argv], preexec_fn=cap, capture_output=True,
+                              text=True, timeout=300)
+        assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-500:]
+        assert done.stderr.strip() == (f"mapfilter: error: {png}: the image is 20000 x 20000 pixels (400 M), more "
+                                       "than the 120 M a floor plan may have: scale it down (and its resolution up "
+                                       "by the same factor)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.png", "big.yaml"]
+
+
+def test_image_size_comes_from_the_header(tmp_path: Path):
+    import cv2
+
+    from mapfilter.maps.floorplan import image_size_px
+
+    for suffix in (".png", ".pgm", ".jpg", ".bmp", ".tif"):
+        path = tmp_path / f"plan{suffix}"
+        cv2.imwrite(str(path), np.full((37, 53), 200, np.uint8))
+        assert image_size_px(path) == (53, 37)
+    (tmp_path / "noise.png").write_bytes(np.random.default_rng(0).bytes(1000))
+    with pytest.raises(MapfilterError, match="not a readable image"):
+        image_size_px(tmp_path / "noise.png")
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("resolution", "1.0e-300", "'resolution' 1e-300 m/px is not a floor plan's"),
+    ("resolution", "1.0e+300", "'resolution' 1e+300 m/px is not a floor plan's"),
+    ("resolution", "-0.05", "'resolution' must be a positive number"),
+    ("resolution", ".nan", "'resolution' must be a positive number"),
+    ("origin", "[1.0e+300, 0, 0]", "'origin' [1e+300, 0] is not a floor plan's"),
+    ("origin", "[0, -2.0e+7, 0]", "is not a floor plan's: each coordinate must be within 1e+07 m"),
+])
+def test_absurd_map_values_are_refused_at_once(tmp_path: Path, key, value, message):
+    write_flat_png(tmp_path / "m.png", 20, 10)
+    meta = {"image": "m.png", "resolution": "0.05", "origin": "[0, 0, 0]", key: value}
+    (tmp_path / "m.yaml").write_text("".join(f"{k}: {v}\n" for k, v in meta.items()))
+    with pytest.raises(MapfilterError, match=message.replace("[", r"\[").replace("+", r"\+")) as info:
+        FloorPlan.load(tmp_path / "m.yaml")
+    assert info.value.path == str(tmp_path / "m.yaml")
+    with pytest.raises(MapfilterError, match="not a floor plan's"):
+        FloorPlan(np.zeros((3, 3), bool), 1e-300)
+
+
+def test_grey_lookup_gives_the_per_pixel_rule(tmp_path: Path):
+    """The mask comes from a 256-entry table of the thresholds: the same as the rule per pixel."""
+    import cv2
+
+    gray = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    cv2.imwrite(str(tmp_path / "g.png"), gray)
+    for extra, expected in (("", ~((255.0 - gray) / 255.0 < 0.196)), ("negate: 1\n", ~(gray / 255.0 < 0.196)),
+                            ("mode: raw\n", gray / 100.0 > 0.0)):
+        (tmp_path / "g.yaml").write_text("image: g.png\nresolution: 0.1\norigin: [0, 0, 0]\n" + extra)
+        np.testing.assert_array_equal(FloorPlan.load(tmp_path / "g.yaml").wall_mask, expected)

@@ -408,23 +408,27 @@ def test_barometer_between_scans_weighs_floors_only_and_never_collapses_or_becom
 def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_step_or_scan():
     from mapfilter.sensors.pdr import Steps
     from mapfilter.sensors.wifi import WifiScan
-    from mapfilter.tracking import _events
+    from mapfilter.filter.run import _events
 
     scans = [WifiScan(t, ("a@2.4",), np.array([-50.0], np.float32)) for t in (0.0, 3.0, 12.0)]
     t_steps = np.array([0.5, 1.0, 1.5, 2.0, 2.5, 9.0, 9.5])  # then standing 2.5 s -> 9 s (a lift)
     zeros = np.zeros(t_steps.size)
     steps = Steps(t_steps, zeros, zeros, None, zeros + 0.7, zeros + 1.0, 0.0)
-    events = _events(scans, 0, steps, 1.0)
+    events = _events(scans, 0, steps, 1.0, 1.0, 60.0)
     times = np.array([t for _, t, _ in events])
     assert np.all(np.diff(times) >= 0) and np.diff(times).max() <= 1.0 + 1e-9
     idle = [t for kind, t, _ in events if kind == "idle"]
     assert idle == [4.0, 5.0, 6.0, 7.0, 8.0, 10.5, 11.5]  # only in the gaps, never among steps
     # without steps (cv / rw): prediction ticks as before, no idle events
-    assert {kind for kind, _, _ in _events(scans, 0, None, 1.0)} == {"tick", "scan"}
+    assert {kind for kind, _, _ in _events(scans, 0, None, 1.0, None, 60.0)} == {"tick", "scan"}
+    # one floor (nothing weighs the particles between scans): no idle events at all
+    assert {kind for kind, _, _ in _events(scans, 0, steps, 1.0, None, 60.0)} == {"step", "scan"}
 
 
 def test_barometer_reference_follows_the_weather_not_a_pausing_climber():
-    from mapfilter.floortracking import BARO_DRIFT_M_PER_S, BarometerReference
+    from mapfilter.filter.barometer import BarometerConfig, BarometerReference
+
+    drift_m_per_s = BarometerConfig().drift_m_per_s
 
     ref = BarometerReference(np.array([0.0, 4.0, 8.0]))
     sure_0 = np.array([0.99, 0.01, 0.0])
@@ -432,7 +436,7 @@ def test_barometer_reference_follows_the_weather_not_a_pausing_climber():
     ref.update(0.0, 0.0, True, sure_0)
     # a climber pauses 1 m up the stairs (steady for a few seconds, the filter still on floor 0)
     ref.update(10.0, 1.0, True, sure_0)
-    assert ref.anchor[1] <= 10.0 * BARO_DRIFT_M_PER_S + 1e-12
+    assert ref.anchor[1] <= 10.0 * drift_m_per_s + 1e-12
     # 2.2 m up: floor 1 already weighs more, as it would have without the pause
     ll = ref.floor_log_likelihood(2.2)
     assert ll[1] > ll[0]
@@ -514,7 +518,7 @@ def test_a_pdr_step_that_starts_on_stairs_advances_a_tread_not_a_stride(tmp_path
 
 
 def test_barometric_height_is_causal_and_follows_a_climb_without_lag():
-    from mapfilter.floortracking import barometric_height
+    from mapfilter.filter.barometer import barometric_height
     from mapfilter.simulate.building import pressure_hpa
 
     t = 1.6e9 + np.arange(0.0, 60.0, 0.5)
@@ -550,7 +554,7 @@ def test_whole_walk_floor_outvotes_a_wrong_start_that_the_causal_filter_follows(
     t = np.arange(n) * 2.0
     rate = FloorChangeConfig().anywhere_rate_per_s
     rates = np.zeros((n - 1, 5, 5))
-    for f in range(5):  # one storey at a time, as floortracking.whole_walk_floors
+    for f in range(5):  # one storey at a time, as offline.floors.whole_walk_floors
         nearest = [g for g in (f - 1, f + 1) if 0 <= g < 5]
         rates[:, f, nearest] = rate / len(nearest)
     whole = whole_walk_floor_path(t, ll, rates)
@@ -603,7 +607,7 @@ def test_whole_walk_floor_of_a_one_floor_walk_is_that_floor():
 
 
 def test_centred_barometric_height_has_no_lag_and_less_noise_than_the_causal_one():
-    from mapfilter.floortracking import barometric_height
+    from mapfilter.filter.barometer import barometric_height
     from mapfilter.simulate.building import pressure_hpa
 
     t = 1.6e9 + np.arange(0.0, 60.0, 0.5)
@@ -624,14 +628,15 @@ def test_whole_walk_floors_weighs_the_scan_the_filter_started_from(tmp_path):
     evidence is that scan still gets its floor (the lineage's own floor, L0, is not it)."""
     from types import SimpleNamespace
 
-    from mapfilter.floortracking import whole_walk_floors
+    from mapfilter.filter.barometer import BarometerConfig
+    from mapfilter.offline.floors import whole_walk_floors
 
     building = _building(tmp_path, connectors=False)
     stack = FloorStack(building)
     changes = FloorChanges(stack, FloorChangeConfig())
     wifi = SimpleNamespace(scans=[SimpleNamespace(t_s=10.0)], usable=np.array([True]),
                            floor_log_likelihood=np.log([[1 / 7, 1 / 7, 5 / 7]]), pressure=None,
-                           elevation_m=np.array([0.0, 4.0, 8.0]))
+                           elevation_m=np.array([0.0, 4.0, 8.0]), barometer=BarometerConfig())
     t = 10.4 + 0.5 * np.arange(20)
     xy = stack.to_stack(np.tile([10.0, 5.0], (20, 1)), 0)  # the lineage on L0
     assert np.all(whole_walk_floors(changes, wifi, t, xy) == 2)

@@ -4,15 +4,14 @@ import gzip
 
 import numpy as np
 import pytest
-from conftest import ILC_SITE1 as ILC
 
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.ilc import LogReadWarning, read_ilc
 from mapfilter.sensors.wifi import scans_of
 
 
-def test_reads_a_real_trace_with_stale_rows_dropped():
-    path = sorted((ILC / "F1" / "path_data_files").glob("*.txt.gz"))[0]
+def test_reads_a_real_trace_with_stale_rows_dropped(ilc_site1):
+    path = sorted((ilc_site1 / "F1" / "path_data_files").glob("*.txt.gz"))[0]
     everything = read_ilc(path, max_wifi_age_s=np.inf)
     fresh = read_ilc(path)
     assert fresh.floor_name == "F1"
@@ -157,14 +156,15 @@ def _truncated_gzip(tmp_path, text, keep_fraction=0.6):
 
 
 def test_truncated_gzip_keeps_the_complete_lines_before_the_cut(tmp_path):
-    body = "".join(f"{1574559495401 + 20 * i}\tTYPE_ACCELEROMETER\t{i}.25\t1.5\t9.75\t3\n" for i in range(20000))
+    # x counts the rows (within an accelerometer's range), so that every kept row can be checked
+    body = "".join(f"{1574559495401 + 20 * i}\tTYPE_ACCELEROMETER\t{i % 150}.25\t1.5\t9.75\t3\n" for i in range(20000))
     path = _truncated_gzip(tmp_path, HEADER + GOOD + body)
     warnings = []
     rec = read_ilc(path, warn=warnings.append)
     kept = rec.acc_mps2.shape[0]
     assert 2 < kept < 20001
     # every row kept is exactly as written: no half line slipped through at the cut
-    np.testing.assert_array_equal(rec.acc_mps2[1:, 0], np.arange(kept - 1) + 0.25)
+    np.testing.assert_array_equal(rec.acc_mps2[1:, 0], np.arange(kept - 1) % 150 + 0.25)
     assert rec.read_report.truncated_after_line == kept + GOOD.count("\n") - 1 + HEADER.count("\n")
     assert len(warnings) == 1 and "gzip stream ends early" in warnings[0]
     with pytest.raises(MapfilterError, match="truncated") as caught:

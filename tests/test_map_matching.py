@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from mapfilter.filter.map_matching import MapMatch, MapMatchConfig, _anchors_by_step, _Grid, _unit_moves, map_match
+from mapfilter.offline.map_matching import MapMatch, MapMatchConfig, _anchors_by_step, _Grid, _unit_moves, map_match
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall
 
@@ -149,6 +149,7 @@ def numpy_map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anc
             checkpoints[k] = a
 
     out_xy = np.zeros((K, 2))
+    out_std = np.zeros(K)
     beta = free.copy()
     for start in range(((K - 1) // every) * every, -1, -every):
         segment = [checkpoints[start]]
@@ -161,6 +162,7 @@ def numpy_map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anc
                 p, total = segment[k - start], segment[k - start].sum()
             p = p / total
             out_xy[k] = float((p * X).sum()), float((p * Y).sum())
+            out_std[k] = np.sqrt(0.5 * ((p * (X - out_xy[k, 0]) ** 2).sum() + (p * (Y - out_xy[k, 1]) ** 2).sum()))
             if k == 0:
                 break
             if restarted_at[k]:
@@ -175,7 +177,7 @@ def numpy_map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anc
             beta = g * free
             peak = beta.max()
             beta = beta / peak if peak > 0 else free.copy()
-    return MapMatch(t, out_xy, int(restarted_at.sum()))
+    return MapMatch(t, out_xy, int(restarted_at.sum()), out_std)
 
 
 def test_forward_backward_equals_explicit_transition_matrices():
@@ -233,8 +235,8 @@ def test_in_open_space_the_walk_keeps_its_shape():
 
 
 def test_whole_walk_track_after_matching_crosses_no_wall():
-    from mapfilter.filter.placement import WalkPlacement
-    from mapfilter.tracking import whole_walk_track
+    from mapfilter.offline.placement import WalkPlacement
+    from mapfilter.offline.whole_walk import whole_walk_track
 
     wall = np.ones((200, 400), dtype=bool)
     wall[40:80, :] = False   # corridor y in [12, 16] m
@@ -287,6 +289,7 @@ def test_numba_kernels_equal_the_plain_numpy_steps(seed):
     expected = numpy_map_match(plan, t, xy, anchors_t, config)
     assert got.restarts == expected.restarts
     np.testing.assert_allclose(got.xy_m, expected.xy_m, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got.std_m, expected.std_m, rtol=0, atol=1e-6)
 
 
 def test_numba_kernels_equal_the_plain_numpy_steps_through_restarts():
@@ -306,3 +309,4 @@ def test_numba_kernels_equal_the_plain_numpy_steps_through_restarts():
     expected = numpy_map_match(plan, t, xy, anchors_t, config)
     assert got.restarts == expected.restarts >= 2
     np.testing.assert_allclose(got.xy_m, expected.xy_m, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got.std_m, expected.std_m, rtol=0, atol=1e-6)

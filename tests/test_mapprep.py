@@ -499,3 +499,16 @@ def test_cli_never_overwrites_the_plan_with_its_mask(tmp_path: Path, capsys):
     assert code == 1 and "overwrite the plan" in err and len(err.strip().splitlines()) == 1
     assert plan.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.png"]
+
+
+def test_a_map_resolution_that_would_not_fit_is_refused_before_resampling(tmp_path: Path):
+    plan = tmp_path / "plan.png"
+    image = np.full((200, 300), 255, np.uint8)
+    cv2.rectangle(image, (20, 20), (280, 180), 0, 3)
+    cv2.imwrite(str(plan), image)
+    with pytest.raises(MapfilterError, match=r"gives a 15000x10000 mask, more than 120 M pixels"):
+        mapprep.prepare_lines(plan, PlanScale(resolution_m=0.05), LineOptions(), map_resolution_m=0.001)
+    assert mapprep.prepare_lines(plan, PlanScale(resolution_m=0.05), LineOptions(), map_resolution_m=0.1).shape_px \
+        == (100, 150)
+    with pytest.raises(MapfilterError, match="'resolution' 1e-300 m/px is not a floor plan's"):
+        mapprep.prepare_lines(plan, PlanScale(resolution_m=1e-300), LineOptions())

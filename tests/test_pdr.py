@@ -222,22 +222,18 @@ def _fake_steps(t_s, heading_rad, length_m=0.7):
 
 
 def test_step_inputs_give_one_filter_move_per_step():
-    from mapfilter.tracking import step_inputs
+    from mapfilter.filter.run import step_inputs
 
     rng = np.random.default_rng(11)
     t = np.sort(rng.uniform(0, 30, 50))
     heading = np.cumsum(rng.normal(0, 0.2, 50))
     steps = _fake_steps(t, heading)
-    inputs = step_inputs(steps, use_abs_heading=True, with_step_length=True)
+    inputs = step_inputs(steps)
     assert len(inputs) == 50 and [s.n_steps for s in inputs] == [1] * 50
     assert sum(s.heading_change_rad for s in inputs) == pytest.approx(heading[-1])
-    assert [s.heading_abs_rad for s in inputs] == pytest.approx(heading + 1.0)
-    assert all(s.step_length_m == pytest.approx(0.7) for s in inputs)
-    per_step = step_inputs(steps)
-    assert all(s.step_length_m is None and s.heading_abs_rad is None for s in per_step)
-    assert [s.heading_change_rad for s in per_step] == pytest.approx(steps.heading_change_rad)
-    no_rotvec = dataclasses.replace(steps, abs_heading_rad=None)
-    assert all(s.heading_abs_rad is None for s in step_inputs(no_rotvec, use_abs_heading=True))
+    # the particles keep their own heading and adapted step length (thesis eq. 8.23)
+    assert all(s.heading_abs_rad is None and s.step_length_m is None for s in inputs)
+    assert [s.heading_change_rad for s in inputs] == pytest.approx(steps.heading_change_rad)
     assert step_inputs(steps.between(100.0, 101.0)) == []
 
 
@@ -322,7 +318,8 @@ def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1):
     """The filter's PDRMotion, noise off, fed one StepInput per detected step = dead_reckon."""
     motion = pytest.importorskip("mapfilter.filter.motion")
     from mapfilter.filter.particles import Particles
-    from mapfilter.tracking import step_inputs
+    from mapfilter.filter.motion import StepInput
+    from mapfilter.filter.run import step_inputs
 
     rec = read_ilc(ilc_site1 / "F1" / "path_data_files" / "5dd9e7c29191710006b57061.txt.gz")
     steps = pdr.detect_steps(rec)
@@ -332,7 +329,9 @@ def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1):
     # dead_reckon walks the first step along start_heading; the filter adds that step's change
     particles = Particles.at(start_xy[None, :], heading_rad=start_heading - steps.heading_change_rad[0])
     rng = np.random.default_rng(0)
-    for step_input in step_inputs(steps, with_step_length=True):
+    for step_input, length_m in zip(step_inputs(steps), steps.step_length_m):
+        # the Weinberg length of each step given, as dead reckoning walks it
+        step_input = StepInput(step_input.n_steps, step_input.heading_change_rad, None, float(length_m))
         particles = model.propagate(particles, step_input, 0.5, rng)
     _, xy = pdr.dead_reckon(steps, start_xy, start_heading)
     assert particles.xy_m[0] == pytest.approx(xy[-1], abs=1e-6)
@@ -370,3 +369,91 @@ def test_rotation_vector_heading_is_continuous_through_the_w_sign_flip():
     expected = np.pi / 2 - np.radians(150.0 + 15.0 * (grid.t_s - 1.6e9))
     inside = (grid.t_s >= t_rot[0]) & (grid.t_s <= t_rot[-1])
     assert np.all(np.abs(pdr.wrap_angle(heading - expected)[inside]) < np.radians(0.5))
+
+
+# ---- gaps in the IMU ---------------------------------------------------------------------------
+GAP_MS = 30 * 86_400_000  # 30 days
+OFFICE_WALK = Path(__file__).resolve().parents[1] / "maps" / "office_walk.txt.gz"
+
+
+def _walk_with_gap(path: Path, split_ms: int = 1_600_000_060_000, gap_ms: int = GAP_MS,
+                   keep: str = "both") -> Path:
+    """The bundled walk with every record after ``split_ms`` moved ``gap_ms`` later (``keep``:
+    "both" halves, or only the "first" or "second")."""
+    import gzip
+
+    out = []
+    with gzip.open(OFFICE_WALK, "rt") as handle:
+        for line in handle:
+            fields = line.rstrip("\n").split("\t")
+            if line.startswith("#"):
+                out.append(line)
+                continue
+            late = int(fields[0]) > split_ms
+            if (keep == "first" and late) or (keep == "second" and not late):
+                continue
+            if late:
+                fields[0] = str(int(fields[0]) + gap_ms)
+                if fields[1] == "TYPE_WIFI":
+                    fields[6] = str(int(fields[6]) + gap_ms)
+            out.append("\t".join(fields) + "\n")
+    path.write_text("".join(out))
+    return path
+
+
+def test_a_gap_splits_the_walk_into_stretches_each_detected_as_alone(tmp_path):
+    both = read_ilc(_walk_with_gap(tmp_path / "gap.txt"))
+    first = read_ilc(_walk_with_gap(tmp_path / "first.txt", keep="first"))
+    second = read_ilc(_walk_with_gap(tmp_path / "second.txt", keep="second"))
+    spans = pdr.imu_stretches(both)
+    assert len(spans) == 2 and spans[1][0] - spans[0][1] > 29 * 86_400
+    grids = pdr.resample_imu_stretches(both)
+    # memory follows the samples: about 50 Hz over 2 minutes of data, not over 30 days
+    assert sum(g.t_s.size for g in grids) < 2 * both.acc_t_s.size
+    with pytest.raises(MapfilterError, match="stops for more than 3 s"):
+        pdr.resample_imu(both)
+    steps, a, b = pdr.detect_steps(both), pdr.detect_steps(first), pdr.detect_steps(second)
+    assert len(a) > 20 and len(b) > 20
+    # the oracle: each stretch gives the steps it gives alone
+    np.testing.assert_array_equal(steps.t_s, np.concatenate([a.t_s, b.t_s]))
+    np.testing.assert_array_equal(steps.step_length_m, np.concatenate([a.step_length_m, b.step_length_m]))
+    np.testing.assert_array_equal(steps.abs_heading_rad, np.concatenate([a.abs_heading_rad, b.abs_heading_rad]))
+    # turns within each stretch as alone; the heading carries over the gap
+    np.testing.assert_array_equal(steps.heading_change_rad[: len(a)], a.heading_change_rad)
+    np.testing.assert_allclose(steps.heading_change_rad[len(a) + 1:], b.heading_change_rad[1:], atol=1e-12)
+    np.testing.assert_allclose(np.diff(steps.heading_rad[len(a):]), np.diff(b.heading_rad), atol=1e-12)
+
+
+def test_a_30_day_gap_tracks_in_bounded_memory(tmp_path):
+    """Resampling over the whole span took 23 GB for a 30-day gap: step detection must run in
+    1.5 GB of address space (numpy, scipy and numba loaded)."""
+    import resource
+    import subprocess
+    import sys
+
+    log = _walk_with_gap(tmp_path / "gap.txt")
+    limit = 1536 << 20
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    code = ("import sys\nfrom mapfilter.sensors.ilc import read_ilc\nfrom mapfilter.sensors.pdr import detect_steps\n"
+            "print(len(detect_steps(read_ilc(sys.argv[1]))))")
+    done = subprocess.run([sys.executable, "-c", code, str(log)], preexec_fn=cap, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-500:]
+    assert int(done.stdout) == len(pdr.detect_steps(read_ilc(log)))
+
+
+def test_stretches_shorter_than_two_seconds_are_left_out():
+    t = np.arange(0.0, 1.5, 0.02) + 1.6e9
+    late = np.arange(0.0, 10.0, 0.02) + 1.6e9 + 100.0
+    times = np.concatenate([t, late])
+    acc = np.tile([0.0, 0.0, G_MPS2], (times.size, 1))
+    rec = make_recording(times, acc, times, np.zeros((times.size, 3)))
+    grids = pdr.resample_imu_stretches(rec)
+    assert len(grids) == 1 and grids[0].t_s[0] == late[0]
+    short = make_recording(np.concatenate([t, t + 50]), acc[: 2 * t.size], np.concatenate([t, t + 50]),
+                           np.zeros((2 * t.size, 3)))
+    with pytest.raises(MapfilterError, match="without a gap of more than 3 s"):
+        pdr.detect_steps(short)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.placement import pdr_shape, place_walk, robust_offset, rotation_vector_heading_offset
+from mapfilter.offline.placement import pdr_shape, place_walk, robust_offset, rotation_vector_heading_offset
 from mapfilter.sensors.pdr import Steps
 
 
@@ -77,7 +77,7 @@ def test_no_fix_or_no_step_is_an_error():
 
 
 def test_the_map_moves_a_placement_into_the_corridor_within_its_radius():
-    from mapfilter.filter.placement import WalkPlacement, shift_onto_free_space
+    from mapfilter.offline.placement import WalkPlacement, shift_onto_free_space
     from mapfilter.maps.floorplan import FloorPlan
 
     wall = np.ones((200, 400), dtype=bool)  # 40 x 20 m at 0.1 m/px, one corridor y in [8, 10] m

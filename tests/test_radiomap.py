@@ -1,5 +1,7 @@
 """Radio map: building from real logs, file round trip, KWNN against brute force, likelihood, CLI."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import ILC_SITE1
@@ -11,10 +13,11 @@ from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLik
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.pathloss import AccessPointTable
-from mapfilter.sensors.radiomap import (RadioMap, build_radio_map, kwnn_fix, kwnn_fix_many, label_scans,
-                                       strong_kwnn_fixes)
+from mapfilter.sensors.radiomap import (RadioMap, build_radio_map, check_radio_map_on_map, kwnn_fix, kwnn_fix_many,
+                                       label_scans, strong_kwnn_fixes)
 from mapfilter.sensors.wifi import WifiScan, iter_scans
 
+REPO = Path(__file__).resolve().parents[1]
 F1_LOGS = sorted((ILC_SITE1 / "F1" / "path_data_files").glob("*.txt.gz"))
 
 
@@ -151,14 +154,14 @@ def test_radio_map_save_load_round_trip(tmp_path):
     np.testing.assert_array_equal(back.xy_m, radio_map.xy_m)
     np.testing.assert_array_equal(back.rssi_dbm, radio_map.rssi_dbm)  # NaN positions too
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
-    with pytest.raises(MapfilterError, match="not a radio map"):
+    with pytest.raises(MapfilterError, match="not a mapfilter radio map"):
         RadioMap.load(tmp_path / "bad.npz")
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(MapfilterError, match="no format key"):
         RadioMap.load(tmp_path / "other.npz")
 
 
-def test_radio_map_from_real_traces_is_labelled_inside_the_waypoints():
+def test_radio_map_from_real_traces_is_labelled_inside_the_waypoints(ilc_site1):
     recs = [read_ilc(p) for p in F1_LOGS[:2]]
     radio_map = build_radio_map(recs)
     assert radio_map.floor_name == "F1" and radio_map.source_traces == [r.name for r in recs]
@@ -176,7 +179,7 @@ def test_radio_map_from_real_traces_is_labelled_inside_the_waypoints():
     assert len(radio_map.without_traces([recs[0].name])) == (radio_map.trace == 1).sum()
 
 
-def test_leave_one_out_kwnn_on_real_traces_beats_chance():
+def test_leave_one_out_kwnn_on_real_traces_beats_chance(ilc_site1):
     recs = [read_ilc(p) for p in F1_LOGS]
     radio_map = build_radio_map(recs)
     errors = []
@@ -250,7 +253,7 @@ def _dense_cell_stats(radio_map, model, centre):
 
 # ---- CLI ------------------------------------------------------------------------------------------
 @pytest.fixture()
-def f1_map(tmp_path):
+def f1_map(tmp_path, ilc_site1):
     """An all-free map covering ILC site1 F1 (240 m x 177 m at 1 m/px)."""
     path = tmp_path / "f1.yaml"
     FloorPlan(np.zeros((177, 240), bool), 1.0, (0.0, 0.0), "F1").save(path)
@@ -292,14 +295,13 @@ def test_cli_errors_are_one_line_and_write_nothing(tmp_path, f1_map, capsys, ext
 
 
 def test_tracker_weighs_the_kwnn_fix_with_a_gaussian():
-    from mapfilter.tracking import TrackingConfig, WifiMeasurements
+    from mapfilter.filter.evidence import WifiConfig, WifiEvidence
 
     aps, radio_map = _synthetic_radio_map()
     scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
     unknown = WifiScan(1.0, ("aa:aa:aa:aa:aa:aa@5",), np.array([-40.0], np.float32))
     plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
-    wifi = WifiMeasurements([scan, unknown], radio_map, None, plan,
-                            TrackingConfig(fix_sigma_m=5.0, fingerprint_model="fix"))
+    wifi = WifiEvidence([scan, unknown], radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="fix"))
     fix = kwnn_fix(radio_map, scan.ap_keys, scan.rssi_dbm).xy_m
     measurement = wifi.measurement(0)
     np.testing.assert_allclose(measurement.xy_m, fix)
@@ -377,7 +379,7 @@ def test_cross_validation_equals_kwnn_on_the_map_without_each_walk():
 def test_radio_map_file_keeps_the_cross_validation_and_old_files_load(tmp_path, monkeypatch):
     import mapfilter.sensors.radiomap as radiomap_module
     from mapfilter.sensors.radiomap import cross_validated_fix_errors
-    from mapfilter.tracking import calibrated_fix_sigma_m
+    from mapfilter.filter.evidence import calibrated_fix_sigma_m
 
     rm = _traced_map()
     errors = cross_validated_fix_errors(rm, 4)
@@ -411,15 +413,95 @@ def test_radio_map_file_keeps_the_cross_validation_and_old_files_load(tmp_path, 
 
 def test_blend_fix_is_the_mean_of_the_kwnn_fix_and_the_best_cell():
     from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood
-    from mapfilter.tracking import TrackingConfig, WifiMeasurements
+    from mapfilter.filter.evidence import WifiConfig, WifiEvidence
 
     aps, radio_map = _synthetic_radio_map()
     scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
     plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
-    wifi = WifiMeasurements([scan], radio_map, None, plan, TrackingConfig(fix_sigma_m=5.0, fingerprint_model="blend"))
+    wifi = WifiEvidence([scan], radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="blend"))
     kwnn = strong_kwnn_fixes(radio_map, radio_map.scan_matrix([scan]))[0]  # the default: strong readings only
     best = RadioMapLikelihood(radio_map, plan).best_position(scan)
     np.testing.assert_allclose(wifi.measurement(0).xy_m, 0.5 * (kwnn + best))
     fixes = wifi.position_fixes()  # the whole-walk placement sees both estimators separately
     assert len(fixes) == 2 and np.allclose(fixes[0][0], kwnn) and np.allclose(fixes[1][0], best)
     assert np.linalg.norm(wifi.measurement(0).xy_m - [21.0, 9.0]) < 2.0
+
+
+# ---- files that are not radio maps, radio maps that are not of this map -------------------------
+def _forged_npz(path, arrays: dict, declared: dict | None = None):
+    """A zip of .npy members; ``declared``: name -> (shape, dtype) written in a header with no data."""
+    import io
+    import zipfile
+
+    from numpy.lib import format as npy
+
+    with zipfile.ZipFile(path, "w") as archive:
+        for name, value in arrays.items():
+            buffer = io.BytesIO()
+            npy.write_array(buffer, np.asarray(value), allow_pickle=True)
+            archive.writestr(f"{name}.npy", buffer.getvalue())
+        for name, (shape, dtype) in (declared or {}).items():
+            buffer = io.BytesIO()
+            npy.write_array_header_1_0(buffer, {"descr": npy.dtype_to_descr(np.dtype(dtype)), "fortran_order": False,
+                                                "shape": shape})
+            archive.writestr(f"{name}.npy", buffer.getvalue() + b"\0" * 64)
+    return path
+
+
+def test_a_header_declaring_a_huge_array_is_refused_before_numpy_allocates(tmp_path):
+    path = _forged_npz(tmp_path / "huge.npz", {"format": np.array("mapfilter-radiomap"), "version": np.array(2)},
+                       {"rssi_dbm": ((100_000, 100_000), np.float32)})
+    with pytest.raises(MapfilterError, match=r"declares shape \(100000, 100000\) \(37.3 GiB\): more than the 1 GiB"):
+        RadioMap.load(path)
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda p: p.write_bytes(np.random.default_rng(1).bytes(5000)), "not a mapfilter radio map (make one with: "
+     "mapfilter radiomap build"),
+    (lambda p: _forged_npz(p, {"format": np.array("mapfilter-radiomap"), "xy_m": np.array([object()])}),
+     "holds Python objects"),
+    (lambda p: _forged_npz(p, {"format": np.array("mapfilter-radiomap")}, {"xy_m": ((1000, 2), np.float64)}),
+     "declares 16000 bytes but holds 192"),
+    (lambda p: p.write_bytes(b"PK\x03\x04" + b"\0" * 100), "not a mapfilter radio map"),
+])
+def test_a_file_that_is_not_a_radio_map_is_one_line_without_numpys_advice(tmp_path, capsys, make, message):
+    path = tmp_path / "rm.npz"
+    make(path)
+    with pytest.raises(MapfilterError) as info:
+        RadioMap.load(path)
+    assert message in str(info.value) and "allow_pickle" not in str(info.value) and info.value.path == str(path)
+    maps = REPO / "maps"
+    assert main(["track", str(maps / "office.yaml"), str(maps / "office_walk.txt.gz"), "--radiomap", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"mapfilter: error: {path}: not a mapfilter radio map") and err.count("\n") == 1
+
+
+def test_values_no_radio_map_holds_are_refused(tmp_path):
+    rng = np.random.default_rng(2)
+    radio_map = _random_map(rng)
+    radio_map.rssi_dbm[3, 4] = 1e30
+    radio_map.save(tmp_path / "loud.npz")
+    with pytest.raises(MapfilterError, match="RSSI from .* to 1e\\+30 dBm, outside"):
+        RadioMap.load(tmp_path / "loud.npz")
+    far = _random_map(rng)
+    far.xy_m[5] = [3e7, 0.0]
+    far.save(tmp_path / "far.npz")
+    with pytest.raises(MapfilterError, match="reference point 5 at .* is more than 1e\\+07 m from the origin"):
+        RadioMap.load(tmp_path / "far.npz")
+
+
+def test_a_radio_map_off_the_floor_is_refused_where_it_meets_the_map(tmp_path, ilc_site1):
+    plan = FloorPlan(np.zeros((100, 100), bool), 0.5, (0.0, 0.0))  # 50 m x 50 m
+    radio_map = _random_map(np.random.default_rng(4))  # points in 0-50 m
+    check_radio_map_on_map(radio_map, plan, "rm.npz")
+    radio_map.xy_m[7] = [1e6, 25.0]  # a million metres east
+    radio_map.xy_m[9] = [-60.0, 25.0]  # 60 m west
+    with pytest.raises(MapfilterError, match=r"reference point 7 \(trace t0\) at \(1e\+06, 25\) m lies 1e\+03 km "
+                                             r"outside the map .*\(2 such points\)") as info:
+        check_radio_map_on_map(radio_map, plan, "rm.npz", "office.yaml")
+    assert info.value.path == "rm.npz"
+    # real data: ILC F1's radio map lies on ILC F1's map
+    from mapfilter.maps.prepare import import_ilc
+
+    real = build_radio_map([read_ilc(p) for p in F1_LOGS[:4]])
+    check_radio_map_on_map(real, import_ilc(ilc_site1 / "F1", route="geojson"))

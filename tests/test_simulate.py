@@ -488,9 +488,6 @@ def test_cli_writes_a_trace(map_files, capsys):
     (["{d}/missing.yaml", "--aps", "{d}/aps.csv"], "missing.yaml: file not found"),
     (["{d}/office.yaml", "--aps", "{d}/missing.csv"], "missing.csv: file not found"),
     (["{d}/office.yaml"], "no access points"),
-    (["{d}/office.yaml", "--aps", "{d}/aps.csv", "--duration", "-5"], "duration must be a positive"),
-    (["{d}/office.yaml", "--aps", "{d}/aps.csv", "--seed", "-1"], "--seed must be a non-negative"),
-    (["{d}/office.yaml", "--aps", "{d}/aps.csv", "--survey", "--scans-per-point", "0"], "scans per point"),
 ])
 def test_cli_bad_inputs_are_one_line(map_files, capsys, args, message):
     out = map_files / "never.txt"
@@ -498,4 +495,52 @@ def test_cli_bad_inputs_are_one_line(map_files, capsys, args, message):
     err = capsys.readouterr().err
     assert code == 1
     assert message in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--duration", "-5"], "argument --duration: must be above 0"),
+    (["--duration", "1e9"], "argument --duration: must be at most 14400"),
+    (["--duration", "inf"], "argument --duration: must be a finite number"),
+    (["--seed", "-1"], "argument --seed: must be at least 0, got -1"),
+    (["--seed", "x"], "argument --seed: must be a whole number"),
+    (["--survey", "--scans-per-point", "0"], "argument --scans-per-point: must be at least 1"),
+    (["--survey", "--scans-per-point", "100000"], "argument --scans-per-point: must be at most 100"),
+    (["--survey", "--survey-spacing", "0.001"], "argument --survey-spacing: must be at least 0.25"),
+    (["--shadowing-db", "1e300"], "argument --shadowing-db: must be at most 100"),
+    (["--start-time-ms", "-1"], "argument --start-time-ms: must be at least 0"),
+    (["--start-time-ms", "99999999999999999"], "argument --start-time-ms: must be at most"),
+    (["--segment-s", "1", "1e9"], "argument --segment-s: must be at most 14400"),
+    (["--floor-changes", "1000000"], "argument --floor-changes: must be at most 1000"),
+])
+def test_cli_values_beyond_any_real_use_are_refused_by_argparse(map_files, capsys, args, message):
+    out = map_files / "never.txt"
+    with pytest.raises(SystemExit) as exit_info:
+        main(["simulate", str(map_files / "office.yaml"), "--aps", str(map_files / "aps.csv"), *args, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and message in err.strip().splitlines()[-1] and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_library_limits_refuse_what_would_not_fit(map_files):
+    from mapfilter.simulate.walk import MAX_DURATION_S, MAX_SURVEY_POINTS
+
+    plan = FloorPlan.load(map_files / "office.yaml")
+    aps = AccessPointTable.read_csv(map_files / "aps.csv")
+    rng = np.random.default_rng(0)
+    for config, message in ((SimConfig(duration_s=MAX_DURATION_S * 10), "duration must be at most"),
+                            (SimConfig(survey=True, duration_s=None, survey_spacing_m=0.01), "at least the route grid"),
+                            (SimConfig(imu_rate_hz=1e9), "imu_rate_hz must be at most"),
+                            (SimConfig(blocking_episodes=((0.0, 1e12, 3.0),)), "blocking episode")):
+        with pytest.raises(MapfilterError, match=message):
+            simulate_walk(plan, aps, config, rng)
+    # a survey grid with more points than MAX_SURVEY_POINTS is refused before the walk is planned
+    big = FloorPlan(_border(170), 0.25)  # about 27 000 route-grid nodes, each a reference point at 0.25 m
+    with pytest.raises(MapfilterError, match=f"more than {MAX_SURVEY_POINTS}"):
+        simulate_walk(big, aps, SimConfig(survey=True, duration_s=None, survey_spacing_m=0.25), rng)
+
+
+def _border(n: int) -> np.ndarray:
+    wall = np.zeros((n, n), dtype=bool)
+    wall[0, :] = wall[-1, :] = wall[:, 0] = wall[:, -1] = True
+    return wall
     assert not out.exists()

@@ -121,15 +121,15 @@ def radio_map(office3, tmp_path_factory):
 def test_the_filter_follows_stairs_and_a_lift_with_the_barometer(office3, walk, radio_map, tmp_path):
     """A radio map from one survey per floor; the walk tracked without its floors: right most of
     the time, and each change found within a few seconds of the walker's half-way point."""
-    from mapfilter.floortracking import track_building
-    from mapfilter.tracking import TrackingConfig
+    from mapfilter.tracking import track
+    from conftest import tracking_config
 
     building, tables = office3
     sim, happened = walk
     write_ilc(sim, tmp_path / "walk.txt")
     rec = read_ilc(tmp_path / "walk.txt")
-    result = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000), np.random.default_rng(1))
-    scores = floor_scores(result.track, rec.waypoint_t_s, rec.waypoint_floor, happened)
+    result = track(building, rec, radio_map, config=tracking_config(n_particles=2000), rng=np.random.default_rng(1))
+    scores = floor_scores(result.causal, rec.waypoint_t_s, rec.waypoint_floor, happened)
     assert scores["time_right"] >= 0.9
     assert all(d["delay_s"] is not None and d["delay_s"] <= 8.0 for d in scores["delays"]), scores
 
@@ -138,19 +138,19 @@ def test_a_lift_ride_without_steps_is_followed_by_the_barometer_within_3_s(offic
     """Two storeys up by lift (6 s of ride, no steps): the filter steps on the barometer alone at
     least every ``idle_tick_s`` while the walker stands, finds the new floor within 3 s of the ride's
     half-way point, and no barometer-only step collapses the cloud."""
-    from mapfilter.floortracking import track_building
-    from mapfilter.tracking import TrackingConfig
+    from mapfilter.tracking import track
+    from conftest import tracking_config
 
     building, tables = office3
     sim, happened = simulate_building_walk(building, tables, "F0", [FloorChange("lift", "F2")], FAST,
                                            np.random.default_rng(11))
     write_ilc(sim, tmp_path / "lift.txt")
     rec = read_ilc(tmp_path / "lift.txt")
-    result = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000), np.random.default_rng(2))
+    result = track(building, rec, radio_map, config=tracking_config(n_particles=2000), rng=np.random.default_rng(2))
     t_enter, t_switch, t_leave = happened[0][:3]
-    ride = (result.track.t_s > t_enter + 1.0) & (result.track.t_s < t_leave)
-    assert np.diff(result.track.t_s[ride]).max() <= TrackingConfig().idle_tick_s + 1e-6
-    scores = floor_scores(result.track, rec.waypoint_t_s, rec.waypoint_floor, happened)
+    ride = (result.causal.t_s > t_enter + 1.0) & (result.causal.t_s < t_leave)
+    assert np.diff(result.causal.t_s[ride]).max() <= tracking_config().motion.idle_tick_s + 1e-6
+    scores = floor_scores(result.causal, rec.waypoint_t_s, rec.waypoint_floor, happened)
     assert scores["delays"][0]["delay_s"] is not None and scores["delays"][0]["delay_s"] <= 3.0, scores
     scan_t = np.unique(rec.wifi.t_s)
     assert all(np.isclose(scan_t, c.t_s).any() for c in result.collapses)  # a collapse only ever at a scan
@@ -174,27 +174,26 @@ def test_the_whole_walk_floor_changes_where_the_walker_does_and_only_in_connecto
     """--smooth in a building: the causal track is the same as without it; the offline track's floor,
     decided from the whole walk (WiFi vote + barometer), changes where the walker's does (within 1 s)
     and only inside a connector."""
-    from mapfilter.floortracking import track_building
-    from mapfilter.tracking import TrackingConfig
+    from mapfilter.tracking import track
+    from conftest import tracking_config
 
     building, _ = office3
     sim, happened = walk
     write_ilc(sim, tmp_path / "walk.txt")
     rec = read_ilc(tmp_path / "walk.txt")
-    plain = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000), np.random.default_rng(1))
-    result = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000, smooth=True),
-                            np.random.default_rng(1))
-    assert np.array_equal(plain.track.xy_m, result.track.xy_m) and plain.track.floor == result.track.floor
+    plain = track(building, rec, radio_map, config=tracking_config(n_particles=2000), rng=np.random.default_rng(1))
+    result = track(building, rec, radio_map, config=tracking_config(n_particles=2000, smooth=True), rng=np.random.default_rng(1))
+    assert np.array_equal(plain.causal.xy_m, result.causal.xy_m) and plain.causal.floor == result.causal.floor
     # one change per true change, each within 1 s of the true one (the walker's half-way point)
-    floors = np.array(result.smoothed.floor)
+    floors = np.array(result.offline.floor)
     at = np.flatnonzero(floors[1:] != floors[:-1]) + 1
     true_at = np.flatnonzero(np.array(rec.waypoint_floor[1:]) != np.array(rec.waypoint_floor[:-1])) + 1
     assert [(floors[k - 1], floors[k]) for k in at] == [("F0", "F1"), ("F1", "F2")]
-    assert np.all(np.abs(result.smoothed.t_s[at] - rec.waypoint_t_s[true_at]) < 1.0)
-    assert _changes_inside_connectors(building, result.smoothed)
+    assert np.all(np.abs(result.offline.t_s[at] - rec.waypoint_t_s[true_at]) < 1.0)
+    assert _changes_inside_connectors(building, result.offline)
     # each floor's stretch is placed and map-matched on its floor: closer than the causal track
-    causal = errors_at_waypoints(result.track.t_s, result.track.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m, True)
-    offline = errors_at_waypoints(result.smoothed.t_s, result.smoothed.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m,
+    causal = errors_at_waypoints(result.causal.t_s, result.causal.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m, True)
+    offline = errors_at_waypoints(result.offline.t_s, result.offline.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m,
                                   False)
     assert offline.errors_m.mean() < causal.errors_m.mean()
 
@@ -203,8 +202,12 @@ def test_a_wrong_start_of_the_floor_evidence_is_outvoted_in_the_whole_walk_floor
     """No barometer; the first five scans vote F2 unanimously, every later one the walker's floor:
     the whole-walk floor is F0 from the start until the walker's first change (the stairs), and
     right at least 95 % of the time."""
-    from mapfilter.floortracking import track_building
-    from mapfilter.tracking import TrackingConfig
+    import dataclasses
+
+    from conftest import tracking_config
+
+    from mapfilter.config import FloorsConfig
+    from mapfilter.tracking import track
 
     building, _ = office3
     sim, happened = walk
@@ -216,9 +219,10 @@ def test_a_wrong_start_of_the_floor_evidence_is_outvoted_in_the_whole_walk_floor
     vote = np.full((scan_t.size, 3), np.log(1 / 7))  # a unanimous k = 4 vote, one pseudo-vote per floor
     vote[np.arange(scan_t.size), true_scan_floor] = np.log(5 / 7)
     vote[:5] = np.log(np.array([1, 1, 5]) / 7)
-    result = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000, smooth=True),
-                            np.random.default_rng(1), use_barometer=False, floor_evidence=vote)
-    smoothed = result.smoothed
+    config = dataclasses.replace(tracking_config(n_particles=2000, smooth=True),
+                                 floors=FloorsConfig(use_barometer=False))
+    result = track(building, rec, radio_map, config=config, rng=np.random.default_rng(1), floor_evidence=vote)
+    smoothed = result.offline
     before = smoothed.t_s < happened[0][0]  # before the walker enters the stairs
     assert np.all(np.array(smoothed.floor)[before] == "F0")
     assert floor_scores(smoothed, rec.waypoint_t_s, rec.waypoint_floor, happened)["time_right"] >= 0.95
@@ -229,19 +233,18 @@ def test_a_walk_that_keeps_its_floor_gets_the_one_floor_offline_track(office3, r
     """--smooth in a building, floor not given: a walk the whole-walk floor keeps on one floor gets
     the placed, map-matched offline track of that floor (not the particle lineage): every row on
     that floor, no wall crossed on its plan, and less than half the causal track's error."""
-    from mapfilter.floortracking import track_building
-    from mapfilter.tracking import TrackingConfig
+    from mapfilter.tracking import track
+    from conftest import tracking_config
 
     building, tables = office3
     sim, _ = simulate_building_walk(building, tables, "F1", [], BuildingSimConfig(segment_s=(40.0, 50.0)),
                                     np.random.default_rng(7))
     write_ilc(sim, tmp_path / "flat.txt")
     rec = read_ilc(tmp_path / "flat.txt")
-    result = track_building(building, rec, radio_map, TrackingConfig(n_particles=2000, smooth=True),
-                            np.random.default_rng(1))
-    assert set(result.smoothed.floor) == {"F1"}
-    smoothed = result.smoothed
+    result = track(building, rec, radio_map, config=tracking_config(n_particles=2000, smooth=True), rng=np.random.default_rng(1))
+    assert set(result.offline.floor) == {"F1"}
+    smoothed = result.offline
     assert not crosses_wall(building.floor("F1").plan, smoothed.xy_m[:-1], smoothed.xy_m[1:]).any()
-    causal = errors_at_waypoints(result.track.t_s, result.track.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m, True)
+    causal = errors_at_waypoints(result.causal.t_s, result.causal.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m, True)
     offline = errors_at_waypoints(smoothed.t_s, smoothed.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m, False)
     assert offline.errors_m.mean() < 0.5 * causal.errors_m.mean()  # the lineage: 0.66-2x on three such walks

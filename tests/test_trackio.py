@@ -38,3 +38,30 @@ def test_malformed_track_names_file_and_line(tmp_path):
     path.write_text("t_s,x_m,y_m\n1,2,3\n2,nan,3\n")
     with pytest.raises(MapfilterError, match=r"bad.csv:3: column x_m"):
         read_track(path)
+
+
+def test_latitude_longitude_columns_only_in_a_georeferenced_building(tmp_path):
+    from mapfilter.maps.building import Building, Floor
+    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.maps.georef import LocalFrame
+
+    track = _track()
+    track.floor = ["0", "1", "1", "0", "0"]
+    plan = FloorPlan(np.zeros((10, 10), bool), 1.0)
+    plain = Building([Floor("0", plan), Floor("1", plan, 4.0)])
+    write_track_csv(track, tmp_path / "before.csv")
+    write_track_csv(track, tmp_path / "plain.csv", building=plain)
+    before = (tmp_path / "before.csv").read_bytes()
+    assert before.splitlines()[0] == b"t_s,x_m,y_m,floor,std_m,heading_rad"
+    assert (tmp_path / "plain.csv").read_bytes() == before  # no georeference: the file as it always was
+    # floor 1 is shifted 10 m east of floor 0 in the building frame
+    geo = Building([Floor("0", plan), Floor("1", plan, 4.0, offset_m=(10.0, 0.0))],
+                   georeference=LocalFrame(49.46, 11.11))
+    write_track_csv(track, tmp_path / "geo.csv", building=geo)
+    back = read_track(tmp_path / "geo.csv")
+    assert (tmp_path / "geo.csv").read_text().splitlines()[0] == \
+        "t_s,x_m,y_m,floor,latitude_deg,longitude_deg,std_m,heading_rad"
+    shifted = track.xy_m + np.where(np.array(track.floor)[:, None] == "1", [10.0, 0.0], 0.0)
+    np.testing.assert_allclose(LocalFrame(49.46, 11.11).to_xy_m(back.latlon_deg), shifted, atol=2e-3)
+    np.testing.assert_allclose(back.xy_m, track.xy_m, atol=1e-3)
+    assert back.floor == track.floor

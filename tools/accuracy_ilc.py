@@ -22,11 +22,14 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from mapfilter.evaluation.comparison import EvaluationSetup, evaluate_logs, nan_to_none  # noqa: E402
+from mapfilter.config import TrackingConfig  # noqa: E402
+from mapfilter.engine import Engine  # noqa: E402
+from mapfilter.evaluation.comparison import EvaluationSetup, evaluate, nan_to_none  # noqa: E402
+from mapfilter.filter.evidence import FINGERPRINT_MODELS  # noqa: E402
+from mapfilter.maps.building import Building  # noqa: E402
 from mapfilter.evaluation.metrics import format_table  # noqa: E402
 from mapfilter.evaluation.plots import plot_error_cdf  # noqa: E402
 from mapfilter.maps.prepare import import_ilc  # noqa: E402
-from mapfilter.tracking import FINGERPRINT_MODELS, TrackingConfig  # noqa: E402
 
 SITE1 = REPO.parent / "shared" / "data" / "ilc20" / "site1"
 SETS = {"sparse": ("F1", "sparse_set.txt"), "dense": ("F1", None), "f2": ("F2", "full_set.txt")}
@@ -46,7 +49,7 @@ def main() -> int:
     parser.add_argument("--sets", nargs="+", choices=list(SETS), default=list(SETS))
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--particles", type=int, default=10_000)
-    parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=TrackingConfig.fingerprint_model)
+    parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=TrackingConfig().wifi.fingerprint_model)
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--out", type=Path, default=REPO / "results" / "accuracy")
     args = parser.parse_args()
@@ -59,11 +62,11 @@ def main() -> int:
         map_path = args.out / f"{floor}.yaml"
         floorplan.save(map_path)
         for seed in args.seeds:
-            setup = EvaluationSetup(methods=METHODS, leave_one_out=True, smooth=True, seed=seed,
-                                    tracking=TrackingConfig(n_particles=args.particles,
-                                                            fingerprint_model=args.fingerprint_model))
+            tracking = TrackingConfig(seed=seed, smooth=True).override(
+                {"filter.n_particles": args.particles, "wifi.fingerprint_model": args.fingerprint_model})
+            setup = EvaluationSetup(methods=METHODS, leave_one_out=True, tracking=tracking)
             started = time.perf_counter()
-            evaluation = evaluate_logs(floorplan, paths, setup, jobs=args.jobs, map_path=map_path)
+            evaluation = evaluate(Building.from_plan(floorplan, map_path), paths, setup, Engine(jobs=args.jobs))
             summary = {row["method"]: row for row in evaluation.summary_rows()}
             kwnn = summary["kwnn"]
             for method, row in summary.items():

@@ -21,7 +21,7 @@ It also times what a user feels (``--skip-user`` leaves it out):
 - ``real_walk``: one real ILC site1/F1 walk of about a minute (not one of the sparse set's
   walks), 10,000 particles, with the sparse (36 walks, ``sparse_set.txt``) and the dense
   (all 76 walks) F1 radio maps, built here with ``mapfilter radiomap build`` (timed too): the
-  tracker's own time (``track_recording``) for the first walk with a radio map (which builds
+  tracker's own time (``mapfilter.track``) for the first walk with a radio map (which builds
   its likelihood) and for a walk after it (which reuses it), and the whole ``mapfilter track``
   command (one walk: builds it).
 
@@ -348,7 +348,8 @@ def bench_real_walk(tmp: Path) -> dict:
     """One real F1 walk of about a minute with the sparse and the dense radio maps (10,000 particles)."""
     from mapfilter.sensors.ilc import read_ilc
     from mapfilter.sensors.radiomap import RadioMap
-    from mapfilter.tracking import TrackingConfig, track_recording
+    from mapfilter.config import TrackingConfig
+    from mapfilter.tracking import track
 
     logs_dir = ILC_FLOOR / "path_data_files"
     sparse = [logs_dir / f"{name}.txt.gz" for name in (ILC_FLOOR / "sparse_set.txt").read_text().split()]
@@ -359,7 +360,7 @@ def bench_real_walk(tmp: Path) -> dict:
     floorplan = FloorPlan.load(map_yaml)
     recording = read_ilc(walk)
     doc: dict = {"walk": REAL_WALK, "wifi_span_s": float(recording.wifi.t_s[-1] - recording.wifi.t_s[0]),
-                 "n_particles": TrackingConfig.n_particles, "radio_maps": {}}
+                 "n_particles": TrackingConfig().filter.n_particles, "radio_maps": {}}
     for name, logs in (("sparse", sparse), ("dense", dense)):
         rm_path = tmp / f"F1_{name}.npz"
         build_s, build_cpu_s, _ = _mapfilter(["radiomap", "build", str(map_yaml), *map(str, logs),
@@ -367,10 +368,10 @@ def bench_real_walk(tmp: Path) -> dict:
         radio_map = RadioMap.load(rm_path)
         # the first walk builds the radio-map likelihood (once per radio map); the walks after it reuse it
         c0 = time.process_time()
-        first = track_recording(floorplan, recording, radio_map, None, TrackingConfig(), np.random.default_rng(0))
+        first = track(floorplan, recording, radio_map, config=TrackingConfig())
         first_cpu_s = time.process_time() - c0
         c0 = time.process_time()
-        result = track_recording(floorplan, recording, radio_map, None, TrackingConfig(), np.random.default_rng(0))
+        result = track(floorplan, recording, radio_map, config=TrackingConfig())
         track_cpu_s = time.process_time() - c0
         command_s, command_cpu_s, _ = _mapfilter(["track", str(map_yaml), str(walk), "--radiomap", str(rm_path),
                                                   "--out", str(tmp / f"track_{name}.csv")])

@@ -1,15 +1,15 @@
 """Map-matching benchmark: walk steps per second, numba kernels vs the plain-numpy steps.
 
-Times ``mapfilter.filter.map_matching.map_match`` (the offline whole-walk track's forward-
+Times ``mapfilter.offline.map_matching.map_match`` (the offline whole-walk track's forward-
 backward pass over a 0.25 m grid of the plan's free cells) on real ILC site1/F1 walks, against
 the same steps in plain numpy, one numpy array per operation: ``numpy_map_match`` of
 tests/test_map_matching.py (map_match as it was before its numba kernels, on the same grid),
-or with ``--git REV`` the module ``mapfilter/filter/map_matching.py`` as it was at git
+or with ``--git REV`` the module ``mapfilter/offline/map_matching.py`` as it was at git
 revision REV (its own grid code too). The two alternate, walk by walk, so that both see the
 same load on a shared machine; each result is the median of ``--reps`` runs.
 
 Input of a walk: its dead-reckoned shape (``sensors.pdr.detect_steps``) placed at its
-ground-truth waypoints (``filter.placement.place_walk`` with the waypoints as the fixes, then
+ground-truth waypoints (``offline.placement.place_walk`` with the waypoints as the fixes, then
 ``shift_onto_free_space``), observed at its WiFi scan times, as ``tracking.whole_walk_track``
 observes a placement made from the filter's fixes.
 
@@ -37,8 +37,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from mapfilter.filter.map_matching import MapMatchConfig, _Grid, map_match  # noqa: E402
-from mapfilter.filter.placement import place_walk, shift_onto_free_space  # noqa: E402
+from mapfilter.offline.map_matching import MapMatchConfig, _Grid, map_match  # noqa: E402
+from mapfilter.offline.placement import place_walk, shift_onto_free_space  # noqa: E402
 from mapfilter.maps.floorplan import FloorPlan  # noqa: E402
 from mapfilter.maps.prepare import import_ilc  # noqa: E402
 from mapfilter.sensors.ilc import read_ilc  # noqa: E402
@@ -64,12 +64,12 @@ def reference_map_match(git_rev: str | None, tmp: Path):
     if git_rev is None:
         tests = load_module(REPO / "tests" / "test_map_matching.py", "_bench_test_map_matching")
         return tests.numpy_map_match, "tests/test_map_matching.py numpy_map_match (same grid)"
-    source = subprocess.run(["git", "show", f"{git_rev}:mapfilter/filter/map_matching.py"], cwd=REPO,
+    source = subprocess.run(["git", "show", f"{git_rev}:mapfilter/offline/map_matching.py"], cwd=REPO,
                             check=True, capture_output=True, text=True).stdout
     path = tmp / "map_matching_reference.py"
     path.write_text(source)
     module = load_module(path, "_bench_map_matching_reference")
-    return module.map_match, f"git {git_rev}:mapfilter/filter/map_matching.py"
+    return module.map_match, f"git {git_rev}:mapfilter/offline/map_matching.py"
 
 
 def walk_input(floorplan: FloorPlan, walk_id: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

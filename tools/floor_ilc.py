@@ -7,10 +7,10 @@ its header names. Every walk is then judged with that radio map *without its own
 (leave-one-walk-out), and without its floor label:
 
 - every walk with IMU (F1: 76, F2: the 12 of ``full_set.txt``) is tracked by the particle
-  filter with the floor in its state (``floortracking.track_building``); the score is the
+  filter with the floor in its state (``tracking.track``); the score is the
   share of waypoints at which the causal track is on the header's floor (waypoints before the
   first estimate are left out, as for the errors). The same run also gives the offline track
-  (``--smooth``: its floor decided from the whole walk, ``floortracking.whole_walk_floors``;
+  (``--smooth``: its floor decided from the whole walk, ``offline.floors.whole_walk_floors``;
   on one floor throughout, that floor's placed and map-matched whole-walk track, else the
   filter's lineage), judged at the row nearest each waypoint in time, as
   ``mapfilter evaluate --smooth`` judges ``pf-smooth``. The same walk is also tracked with the
@@ -43,13 +43,14 @@ sys.path.insert(0, str(REPO))
 
 from mapfilter.atomic import atomic_paths  # noqa: E402
 from mapfilter.evaluation.metrics import errors_at_waypoints, floor_at_waypoints, summarise_errors  # noqa: E402
-from mapfilter.floortracking import track_building  # noqa: E402
 from mapfilter.maps import prepare  # noqa: E402
 from mapfilter.maps.building import import_ilc_site  # noqa: E402
 from mapfilter.sensors.floors import build_building_radio_map, floor_hmm, floor_vote_log_likelihood, walk_floor  # noqa: E402
 from mapfilter.sensors.ilc import read_ilc  # noqa: E402
 from mapfilter.sensors.wifi import scans_of  # noqa: E402
-from mapfilter.tracking import TrackingConfig, calibrated_fix_sigma_m  # noqa: E402
+from mapfilter.config import TrackingConfig  # noqa: E402
+from mapfilter.filter.evidence import calibrated_fix_sigma_m  # noqa: E402
+from mapfilter.tracking import track  # noqa: E402
 
 ILC = REPO.parent / "shared" / "data" / "ilc20" / "site1"
 
@@ -81,10 +82,10 @@ def main() -> int:
     sigma = {name: calibrated_fix_sigma_m(radio_map.floor_map(i)) for i, name in enumerate(names)}
     print(f"{len(recordings)} logs, {len(radio_map)} reference points; fix sigma per floor: "
           + ", ".join(f"{n} {s:.1f} m" for n, s in sigma.items()), flush=True)
-    config = TrackingConfig(n_particles=args.particles)
+    config = TrackingConfig().with_particles(args.particles)
     # the floor found also gives the offline track (--smooth), its floor decided from the whole
     # walk; recording the lineage leaves the causal track as it is
-    smooth_config = TrackingConfig(n_particles=args.particles, smooth=True)
+    smooth_config = TrackingConfig(smooth=True).with_particles(args.particles)
 
     imu_rows, wifi_rows = [], []
     with_imu = [(r, f) for r, f in zip(recordings, floors) if r.acc_t_s.shape[0] >= 100]
@@ -94,20 +95,20 @@ def main() -> int:
         with_imu = with_imu[:args.limit]
     for i, (rec, f) in enumerate(with_imu):
         loo = radio_map.without_traces([rec.name])
-        found = track_building(building, rec, loo, smooth_config, np.random.default_rng(args.seed),
-                               fix_sigma_per_floor_m=sigma)
-        given = track_building(building, rec, loo, config, np.random.default_rng(args.seed), floor=names[f],
-                               fix_sigma_per_floor_m=sigma)
-        score = floor_at_waypoints(found.track.t_s, found.track.floor, rec.waypoint_t_s, names[f])
-        err_found = errors_at_waypoints(found.track.t_s, found.track.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m)
-        err_given = errors_at_waypoints(given.track.t_s, given.track.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m)
+        found = track(building, rec, loo, config=smooth_config, rng=np.random.default_rng(args.seed),
+                      fix_sigma_by_floor_m=sigma)
+        given = track(building, rec, loo, config=config, rng=np.random.default_rng(args.seed), floor=names[f],
+                      fix_sigma_by_floor_m=sigma)
+        score = floor_at_waypoints(found.causal.t_s, found.causal.floor, rec.waypoint_t_s, names[f])
+        err_found = errors_at_waypoints(found.causal.t_s, found.causal.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m)
+        err_given = errors_at_waypoints(given.causal.t_s, given.causal.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m)
         # the offline track: the nearest row in time, as mapfilter evaluate judges pf-smooth
-        smoothed = found.smoothed
+        smoothed = found.offline
         score_smoothed = floor_at_waypoints(smoothed.t_s, smoothed.floor, rec.waypoint_t_s, names[f], causal=False)
         err_smoothed = errors_at_waypoints(smoothed.t_s, smoothed.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m,
                                            causal=False)
         imu_rows.append({"trace": rec.name, "floor": names[f], "right": score.n_right, "judged": score.n_judged,
-                         "missed": score.missed, "floors_visited": sorted(set(found.track.floor)),
+                         "missed": score.missed, "floors_visited": sorted(set(found.causal.floor)),
                          "errors_found_m": err_found.errors_m.tolist(), "errors_given_m": err_given.errors_m.tolist(),
                          "smoothed_right": score_smoothed.n_right, "smoothed_judged": score_smoothed.n_judged,
                          "smoothed_floors_visited": sorted(set(smoothed.floor)),

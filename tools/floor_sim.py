@@ -36,7 +36,6 @@ sys.path.insert(0, str(REPO))
 
 from mapfilter.atomic import atomic_paths  # noqa: E402
 from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors  # noqa: E402
-from mapfilter.floortracking import track_building  # noqa: E402
 from mapfilter.maps.building import Building  # noqa: E402
 from mapfilter.maps.floorplan import FloorPlan  # noqa: E402
 from mapfilter.sensors.floors import build_building_radio_map  # noqa: E402
@@ -49,7 +48,8 @@ from mapfilter.simulate.building import (  # noqa: E402
     simulate_building_walk,
 )
 from mapfilter.simulate.ilc_writer import write_ilc  # noqa: E402
-from mapfilter.tracking import TrackingConfig  # noqa: E402
+from mapfilter.config import FloorsConfig, TrackingConfig  # noqa: E402
+from mapfilter.tracking import track  # noqa: E402
 
 FLOORS = ("F0", "F1", "F2")
 STOREY_M = 4.0
@@ -141,7 +141,7 @@ def main() -> int:
         print(f"radio map: {len(radio_map)} points, {len(radio_map.ap_keys)} APs", flush=True)
         # smooth: also the offline track, its floor decided from the whole walk (the causal
         # track is the same with or without it: the lineage is only recorded)
-        smooth_config = TrackingConfig(n_particles=args.particles, smooth=True)
+        smooth_config = TrackingConfig(smooth=True).with_particles(args.particles)
         for w in range(args.walks):
             rng = np.random.default_rng([args.seed, w])
             start, changes = schedule(rng)
@@ -156,18 +156,19 @@ def main() -> int:
             oracle[np.arange(scan_t.size), true_scan_floor] = 0.0
             row = {"walk": w, "start": start, "changes": [(c.connector, c.to_floor) for c in changes],
                    "duration_s": float(rec.waypoint_t_s[-1] - rec.waypoint_t_s[0])}
-            for label, kwargs in (("found", {}), ("found_no_baro", {"use_barometer": False}),
-                                  ("given", {"floor_evidence": oracle})):
-                result = track_building(building, rec, radio_map, smooth_config,
-                                        np.random.default_rng([args.seed, w, 1]), **kwargs)
-                err = errors_at_waypoints(result.track.t_s, result.track.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m)
+            no_baro = dataclasses.replace(smooth_config, floors=FloorsConfig(use_barometer=False))
+            for label, config, kwargs in (("found", smooth_config, {}), ("found_no_baro", no_baro, {}),
+                                          ("given", smooth_config, {"floor_evidence": oracle})):
+                result = track(building, rec, radio_map, config=config,
+                               rng=np.random.default_rng([args.seed, w, 1]), **kwargs)
+                err = errors_at_waypoints(result.causal.t_s, result.causal.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m)
                 row[label] = {"errors_m": err.errors_m.tolist(),
-                              **floor_scores(result.track, rec.waypoint_t_s, rec.waypoint_floor, happened)}
+                              **floor_scores(result.causal, rec.waypoint_t_s, rec.waypoint_floor, happened)}
                 if label != "given":
-                    smoothed = floor_scores(result.smoothed, rec.waypoint_t_s, rec.waypoint_floor, happened)
+                    smoothed = floor_scores(result.offline, rec.waypoint_t_s, rec.waypoint_floor, happened)
                     row[label]["smoothed_time_right"] = smoothed["time_right"]
                     row[label]["smoothed_errors_m"] = errors_at_waypoints(
-                        result.smoothed.t_s, result.smoothed.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m, False).errors_m.tolist()
+                        result.offline.t_s, result.offline.xy_m, rec.waypoint_t_s, rec.waypoint_xy_m, False).errors_m.tolist()
             rows.append(row)
             f, g, n = row["found"], row["given"], row["found_no_baro"]
             print(f"walk {w} ({start} then {', '.join(f'{c}->{t}' for c, t in row['changes'])}, "

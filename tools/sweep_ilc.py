@@ -48,7 +48,9 @@ from mapfilter.evaluation.metrics import format_table, summarise_errors  # noqa:
 from mapfilter.maps.prepare import import_ilc  # noqa: E402
 from mapfilter.sensors.ilc import read_ilc  # noqa: E402
 from mapfilter.sensors.radiomap import build_radio_map  # noqa: E402
-from mapfilter.tracking import TrackingConfig, calibrated_fix_sigma_m  # noqa: E402
+from mapfilter.config import TrackingConfig  # noqa: E402
+from mapfilter.filter.evidence import calibrated_fix_sigma_m  # noqa: E402
+from mapfilter.maps.building import Building  # noqa: E402
 
 ILC = REPO.parent / "shared" / "data" / "ilc20" / "site1"
 LOOPBACK = "127.0.0.1"
@@ -85,13 +87,13 @@ def read_floor(floor_dir: Path) -> FloorLogs:
     return floor
 
 
-def sweep_walk(floorplans: dict, all_walks: dict, setups: dict, walks: dict, item: tuple[str, int]) -> dict:
+def sweep_walk(buildings: dict, all_walks: dict, setups: dict, walks: dict, item: tuple[str, int]) -> dict:
     """One task: every method of ``setup`` on one walk; a failure is returned, never raised."""
     floor, index = item
     started = time.perf_counter()
     outcome = {"floor": floor, "trace": walks[floor][index].name, "status": "ok", "reason": "", "methods": {}}
     try:
-        results = evaluate_trace(floorplans[floor], walks[floor], index, setups[floor], all_walks[floor])
+        results = evaluate_trace(buildings[floor], walks[floor], index, setups[floor], all_walks[floor])
     except MapfilterError as exc:
         outcome.update(status="failed", reason=str(exc))
     except Exception as exc:  # noqa: BLE001 - a bug in one walk is counted, the sweep goes on
@@ -156,7 +158,7 @@ def main() -> int:
     parser.add_argument("--data", type=Path, default=ILC, help="folder of floor folders (default: %(default)s)")
     parser.add_argument("--floors", default="", help="comma-separated floor names (default: every floor)")
     parser.add_argument("--methods", default="pf,kwnn,kf", help="methods per walk (default: %(default)s)")
-    parser.add_argument("--particles", type=int, default=TrackingConfig.n_particles)
+    parser.add_argument("--particles", type=int, default=TrackingConfig().filter.n_particles)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--fix-sigma", choices=("per-floor", "per-walk"), default="per-floor",
                         help="calibrate the fix Gaussian once per floor (fast) or per walk (as evaluate does)")
@@ -187,14 +189,14 @@ def main() -> int:
     walks = {name: f.imu_walks[: args.limit or None] for name, f in read.items() if f.imu_walks}
     floorplans = {name: import_ilc(args.data / name, route="geojson") for name in walks}
     all_walks = {name: AllWalks(build_radio_map(read[name].survey, floorplans[name]), None) for name in walks}
-    setup = EvaluationSetup(methods=tuple(args.methods.split(",")), leave_one_out=True, seed=args.seed,
-                            tracking=TrackingConfig(n_particles=args.particles))
+    buildings = {name: Building.from_plan(plan) for name, plan in floorplans.items()}
+    setup = EvaluationSetup(methods=tuple(args.methods.split(",")), leave_one_out=True,
+                            tracking=TrackingConfig(seed=args.seed).with_particles(args.particles))
     setups = {name: setup for name in walks}
     if args.fix_sigma == "per-floor":
-        setups = {name: dataclasses.replace(setup, tracking=dataclasses.replace(
-            setup.tracking, fix_sigma_m=calibrated_fix_sigma_m(all_walks[name].radio_map, setup.tracking.kwnn_k)))
-            for name in walks}
-        print("fix sigma per floor: " + ", ".join(f"{n} {s.tracking.fix_sigma_m:.1f} m" for n, s in setups.items()))
+        setups = {name: dataclasses.replace(setup, tracking=setup.tracking.override({"wifi.fix_sigma_m": (
+            calibrated_fix_sigma_m(all_walks[name].radio_map, setup.tracking.wifi.kwnn_k))})) for name in walks}
+        print("fix sigma per floor: " + ", ".join(f"{n} {s.tracking.wifi.fix_sigma_m:.1f} m" for n, s in setups.items()))
     items = [(name, i) for name, paths in walks.items() for i in range(len(paths))]
     print(f"tracking {len(items)} walks ({', '.join(f'{n}: {len(p)}' for n, p in walks.items())}), "
           f"{args.particles} particles, methods {args.methods}; radio maps: "
@@ -215,7 +217,7 @@ def main() -> int:
         try:
             started = time.perf_counter()
             outcomes = [None] * len(items)
-            for i, outcome in run_each(sweep_walk, items, engine, common=(floorplans, all_walks, setups, walks)):
+            for i, outcome in run_each(sweep_walk, items, engine, common=(buildings, all_walks, setups, walks)):
                 outcomes[i] = outcome
             wall_s = time.perf_counter() - started
         finally:

@@ -27,31 +27,27 @@ from mapfilter.evaluation.metrics import format_table, summarise_errors  # noqa:
 from mapfilter.maps.prepare import import_ilc  # noqa: E402
 from mapfilter.sensors.ilc import read_ilc  # noqa: E402
 from mapfilter.sensors.radiomap import build_radio_map  # noqa: E402
-from mapfilter.tracking import TrackingConfig  # noqa: E402
+from mapfilter.config import TrackingConfig  # noqa: E402
+from mapfilter.maps.building import Building  # noqa: E402
 
 ILC = REPO.parent / "shared" / "data" / "ilc20" / "site1"
 
 
 def config_from_json(text: str) -> TrackingConfig:
-    fields = json.loads(text)
-    base = TrackingConfig()
-    if "pdr_motion" in fields:
-        fields["pdr_motion"] = dataclasses.replace(base.pdr_motion, **fields["pdr_motion"])
-    if "filter" in fields:
-        fields["filter"] = dataclasses.replace(base.filter, **fields["filter"])
-    return dataclasses.replace(base, **fields)
+    """A JSON object of dotted settings, e.g. ``{"motion.pdr.heading_sigma_rad": 0.03}``."""
+    return TrackingConfig().override(json.loads(text))
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("settings", nargs="*", default=["{}"], help="JSON TrackingConfig overrides ({} = defaults)")
+    parser.add_argument("settings", nargs="*", default=["{}"], help="JSON object of dotted TrackingConfig settings ({} = defaults)")
     parser.add_argument("--floor", default="F1")
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--every", type=int, default=1, help="use every k-th walk (1 = all)")
     args = parser.parse_args()
 
     floor_dir = ILC / args.floor
-    floorplan = import_ilc(floor_dir, route="geojson")
+    building = Building.from_plan(import_ilc(floor_dir, route="geojson"))
     paths = sorted((floor_dir / "path_data_files").glob("*.txt.gz"))[:: args.every]
     all_walks = AllWalks(build_radio_map([read_ilc(p) for p in sorted((floor_dir / "path_data_files").glob("*.txt.gz"))]), None)
     rows = []
@@ -61,8 +57,9 @@ def main() -> int:
             started = time.perf_counter()
             errors: dict[str, list[float]] = {"pf": [], "kwnn": []}
             for i in range(len(paths)):
-                setup = EvaluationSetup(methods=("pf", "kwnn"), leave_one_out=True, tracking=config, seed=seed)
-                for result in evaluate_trace(floorplan, paths, i, setup, all_walks):
+                setup = EvaluationSetup(methods=("pf", "kwnn"), leave_one_out=True,
+                                        tracking=dataclasses.replace(config, seed=seed))
+                for result in evaluate_trace(building, paths, i, setup, all_walks):
                     errors[result.method] += list(result.errors_m)
             pf, kwnn = summarise_errors(errors["pf"]), summarise_errors(errors["kwnn"])
             rows.append({"setting": text, "seed": seed, "pf mean": pf["mean"], "pf p75": pf["p75"],

@@ -3,21 +3,31 @@
 Each command lives in its own module here (listed in ``COMMAND_MODULES``) with
 ``register(subparsers)``; the module sets ``func=run`` on its parser, and ``run(args) -> int``
 returns the exit code. A
-``MapfilterError`` (an error the user caused) becomes one line on stderr and exit code 1;
-anything else is a bug and crashes loudly.
+``MapfilterError`` (an error the user caused) becomes one line on stderr and exit code 1, and
+so does an ``OSError`` (a full disk, a file that cannot be written); anything else is a bug and
+crashes loudly. SIGTERM is handled like Ctrl-C (context managers run, temporaries are removed:
+exit code 143, Ctrl-C's is 130), and a closed pipe on stdout (``mapfilter ... | head -1``)
+ends the command quietly.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import difflib
 import importlib
+import os
+import re
+import signal
 import sys
+import threading
 
 from mapfilter import __version__
 from mapfilter.errors import MapfilterError
 
 # Command modules, in the order they appear in --help.
-COMMAND_MODULES = ("map_cmd", "radiomap_cmd", "check_cmd", "track_cmd", "evaluate_cmd", "simulate_cmd", "view_cmd")
+COMMAND_MODULES = ("map_cmd", "radiomap_cmd", "check_cmd", "track_cmd", "evaluate_cmd", "simulate_cmd", "view_cmd",
+                   "config_cmd")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -32,9 +42,37 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """Raised in the main thread on SIGTERM, so that a terminated run cleans up as Ctrl-C does."""
+
+
 def main(argv: list[str] | None = None) -> int:
+    with _sigterm_as_interrupt():
+        try:
+            return _main(argv)
+        except BrokenPipeError:
+            _quiet_stdout()
+            return 128 + signal.SIGPIPE  # as a command killed by SIGPIPE: quiet, but not success
+        except Terminated:
+            print("mapfilter: terminated", file=sys.stderr)
+            return 128 + signal.SIGTERM
+        except KeyboardInterrupt:
+            print("mapfilter: interrupted", file=sys.stderr)
+            return 130
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = _command_parser(parser, argv)
+    argv = _join_negative_values(command, argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        # the command's own usage, not the top level's, and the nearest option by name
+        options = [o for action in command._actions for o in action.option_strings]
+        hints = [difflib.get_close_matches(u.split("=")[0], options, n=1) for u in unknown if u.startswith("-")]
+        hint = "; ".join(f"did you mean {h[0]}?" for h in hints if h)
+        command.error(f"unrecognized arguments: {' '.join(unknown)}" + (f" ({hint})" if hint else ""))
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
@@ -43,9 +81,77 @@ def main(argv: list[str] | None = None) -> int:
     except MapfilterError as exc:
         print(f"mapfilter: error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("mapfilter: interrupted", file=sys.stderr)
-        return 130
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        # a full disk, a quota, a file that cannot be written: the environment, not a bug
+        print(f"mapfilter: error: {describe_os_error(exc)}", file=sys.stderr)
+        return 1
+
+
+def _command_parser(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.ArgumentParser:
+    """The (sub)parser of the command ``argv`` names: ``mapfilter radiomap build ...`` -> ``build``'s."""
+    current = parser
+    for token in argv:
+        if token.startswith("-"):
+            continue
+        choices = next((a.choices for a in current._actions if isinstance(a, argparse._SubParsersAction)), None)
+        if not choices or token not in choices:
+            break
+        current = choices[token]
+    return current
+
+
+_NEGATIVE = re.compile(r"^-\d")
+
+
+def _join_negative_values(command: argparse.ArgumentParser, argv: list[str]) -> list[str]:
+    """``--kwnn-min-rssi -90dBm`` as ``--kwnn-min-rssi=-90dBm``: argparse takes a value that starts
+    with '-' for an option unless it is a plain number; no option of ours starts with a digit."""
+    takes_one = {o for action in command._actions if action.nargs is None and action.option_strings
+                 and not isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction))
+                 for o in action.option_strings}
+    out: list[str] = []
+    for token in argv:
+        if out and out[-1] in takes_one and _NEGATIVE.match(token):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
+def describe_os_error(exc: OSError) -> str:
+    """One line for an OSError: the file it names (if any) and the system's reason."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    return f"{exc.filename}: {reason}" if exc.filename is not None else reason
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """While the command runs, SIGTERM raises ``Terminated`` in the main thread (as Ctrl-C raises
+    KeyboardInterrupt): ``with`` blocks and ``finally`` clauses run, temporaries are removed."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be set from the main thread
+        return
+
+    def terminate(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _quiet_stdout() -> None:
+    # the reader has gone: point stdout at /dev/null so that the interpreter's final flush
+    # does not print "Exception ignored ... BrokenPipeError"
+    with contextlib.suppress(OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
 
 
 if __name__ == "__main__":

@@ -9,13 +9,17 @@ from mapfilter.cli.common import add_strict_argument
 from mapfilter.errors import MapfilterError
 
 _EPILOG = """\
-One line per log: floor, duration, waypoints, WiFi scans and access points, IMU rows (and
-whether dead reckoning is possible), then what was skipped: bad rows per record type (with
-the first bad line), lines that held two records (split), a gzip stream cut short. A last
-line counts the logs. The exit code is 1 if any log cannot be read (each is named).
+One line per log: its format (ILC 2.0 or GetSensorData, told by content) and phone, floor,
+duration, waypoints, WiFi scans and access points, IMU rows (and whether dead reckoning is
+possible), barometer and beacon rows, then what was skipped: bad rows per record type (with
+the first bad line; values outside their physical range are bad rows), exact duplicate rows,
+lines that held two records (split), a gzip stream cut short; and long stretches with no
+record at all (time gaps). A last line counts the logs. The exit code is 1 if any log cannot
+be read (each is named).
 
-example:
+examples:
   mapfilter check ../shared/data/ilc20/site1/*/path_data_files/*.txt.gz
+  mapfilter check ../shared/data/ipin2023/logs/*.txt.gz
 """
 
 
@@ -24,19 +28,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "check", help="report what logs hold and what the reader skips (no tracking)",
         description="Read logs as track and evaluate would, and report what each holds and what was skipped.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="logs in the ILC trace format")
+    parser.add_argument("logs", type=Path, nargs="+", metavar="LOG",
+                        help="logs (ILC 2.0 traces or GetSensorData logs, plain or gzip)")
     add_strict_argument(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from mapfilter.sensors.ilc import read_ilc  # not at import: --help loads no numerical library
+    from mapfilter.sensors.logs import read_log  # not at import: --help loads no numerical library
 
-    counts = {"readable": 0, "pdr": 0, "skipped": 0, "refused": 0}
+    counts = {"readable": 0, "pdr": 0, "skipped": 0, "refused": 0, "gaps": 0}
     for path in args.logs:
         try:
             # the warning is part of this command's own line, not a separate one
-            recording = read_ilc(path, strict=args.strict, warn=lambda message: None)
+            recording = read_log(path, strict=args.strict, warn=lambda message: None)
         except MapfilterError as exc:
             counts["refused"] += 1
             print(f"{exc} [refused]")
@@ -44,11 +49,13 @@ def run(args: argparse.Namespace) -> int:
         counts["readable"] += 1
         counts["pdr"] += _has_imu(recording)
         report = recording.read_report
-        if not report.clean or report.joined_lines:
+        if not report.clean or report.joined_lines or report.duplicates:
             counts["skipped"] += 1
+        counts["gaps"] += bool(report.time_gaps_s)
         print(describe(recording))
     print(f"{len(args.logs)} logs: {counts['readable']} readable ({counts['pdr']} with IMU for dead reckoning), "
-          f"{counts['skipped']} with rows skipped or split, {counts['refused']} refused")
+          f"{counts['skipped']} with rows skipped or split, {counts['gaps']} with time gaps, "
+          f"{counts['refused']} refused")
     return 1 if counts["refused"] else 0
 
 
@@ -60,15 +67,26 @@ def describe(recording) -> str:
     """One line: what the log holds and what its reader skipped."""
     report = recording.read_report
     wifi = recording.wifi
-    times = [t for t in (recording.wifi.t_s, recording.acc_t_s, recording.waypoint_t_s) if t.size]
-    duration_s = max(float(t[-1]) for t in times) - min(float(t[0]) for t in times) if times else 0.0
-    parts = [f"floor {recording.floor_name or '?'}", f"{duration_s:.0f} s",
-             f"{recording.waypoint_t_s.size} waypoints", f"{len(wifi)} WiFi scans ({len(wifi.ap_keys)} APs)"]
+    if report is not None and report.time_span_s is not None:
+        duration_s = report.time_span_s[1] - report.time_span_s[0]
+    else:
+        times = [t for t in (recording.wifi.t_s, recording.acc_t_s, recording.waypoint_t_s) if t.size]
+        duration_s = max(float(t[-1]) for t in times) - min(float(t[0]) for t in times) if times else 0.0
+    floors = recording.floor_name or "?"
+    if recording.floor_name is None and recording.waypoint_floor:
+        floors = "s " + "/".join(sorted(set(recording.waypoint_floor), key=recording.waypoint_floor.index))
+    parts = [report.format if report is not None and report.format else "log",
+             f"phone {recording.phone_model or '?'}", f"floor{floors if floors.startswith('s ') else ' ' + floors}",
+             f"{duration_s:.0f} s", f"{recording.waypoint_t_s.size} waypoints"
+             + (" (lat/lon)" if recording.waypoint_latlon_deg is not None else ""),
+             f"{len(wifi)} WiFi scans ({len(wifi.ap_keys)} APs)"]
     if _has_imu(recording):
         parts.append(f"IMU {recording.acc_t_s.size} acc / {recording.gyro_t_s.size} gyro / "
                      f"{recording.rotvec_t_s.size} rotvec rows")
     else:
         parts.append("no IMU (WiFi only: no dead reckoning)")
+    if recording.pressure_t_s.size:
+        parts.append(f"{recording.pressure_t_s.size} barometer rows")
     if recording.beacons.t_s.size:
         parts.append(f"{recording.beacons.t_s.size} beacon rows")
     text = f"{recording.path}: " + ", ".join(parts)

@@ -1,11 +1,18 @@
-"""What several commands share: warnings on stderr, the engine options, progress bars."""
+"""What several commands share: warnings on stderr, the engine options, output-path checks,
+argument types with limits, progress bars."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import math
+import os
 import sys
+import tempfile
+from pathlib import Path
 
 from mapfilter.engine import Engine
+from mapfilter.errors import MapfilterError
 
 
 def warn(message: str) -> None:
@@ -21,14 +28,111 @@ def add_strict_argument(parser: argparse.ArgumentParser) -> None:
 
 def add_engine_arguments(parser: argparse.ArgumentParser) -> None:
     engine = parser.add_mutually_exclusive_group()
-    engine.add_argument("--jobs", type=int, default=1, metavar="N",
-                        help="walks in N local Dask worker processes (default: 1, serial, no Dask)")
+    engine.add_argument("--jobs", type=positive_int, default=1, metavar="N",
+                        help="walks in N local Dask worker processes on 127.0.0.1, reachable only by this run "
+                             "(TLS with temporary credentials; default: 1, serial, no Dask)")
     engine.add_argument("--scheduler", metavar="tcp://HOST:PORT",
-                        help="run the walks on an existing Dask cluster (workers need mapfilter and the logs)")
+                        help="run the walks on an existing Dask cluster that you trust: whoever can use it runs "
+                             "code as its workers, and its results are unpickled here (workers need mapfilter "
+                             "and the logs; tls://HOST:PORT uses Dask's TLS configuration)")
 
 
 def engine_from(args: argparse.Namespace) -> Engine:
     return Engine(jobs=args.jobs, scheduler=args.scheduler)
+
+
+# ---- output paths ------------------------------------------------------------------------------
+def check_output_path(path: str | os.PathLike | None, option: str = "--out", directory: bool = False) -> None:
+    """Refuse an output path that cannot be written, before any work is done.
+
+    ``path`` is a file to write (``directory=False``) or a directory to write files into
+    (``directory=True``). A missing parent (or a missing directory) is fine when it can be
+    made: writing makes it, as ``mapfilter.atomic.atomic_paths`` does. ``MapfilterError``
+    (one line naming the path and the option) when the path is a directory but a file is
+    wanted (or the other way round), when a parent is a file, or when the nearest existing
+    directory cannot be written to (permissions, a read-only file system). ``None`` passes
+    (the option was not given).
+    """
+    if path is None:
+        return
+    path = Path(path)
+    if str(path) in ("", "."):
+        raise MapfilterError(f"{option} needs a {'directory' if directory else 'file'} name")
+    if path.exists():
+        if directory and not path.is_dir():
+            raise MapfilterError(f"{option}: exists and is not a directory", path)
+        if not directory and path.is_dir():
+            raise MapfilterError(f"{option}: is a directory; give a file name", path)
+    existing = path if directory and path.is_dir() else path.parent
+    # the nearest directory that exists: the missing ones below it are made when writing
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise MapfilterError(f"{option}: cannot be made, {existing} is not a directory", path)
+    _check_writable_directory(existing, path, option)
+
+
+def _check_writable_directory(directory: Path, path: Path, option: str) -> None:
+    # os.access says yes to root and knows nothing of read-only mounts or ACLs: try it
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".mapfilter-probe.", dir=directory)
+    except OSError as exc:
+        raise MapfilterError(f"{option}: cannot write in {directory} ({exc.strerror or exc})", path) from None
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.unlink(probe)
+
+
+# ---- argument types with limits ----------------------------------------------------------------
+def non_negative_int(text: str) -> int:
+    """argparse type: a whole number >= 0 (e.g. ``--seed``); argparse turns the error into its usage line."""
+    return bounded_int(0)(text)
+
+
+def positive_int(text: str) -> int:
+    """argparse type: a whole number >= 1."""
+    return bounded_int(1)(text)
+
+
+def bounded_int(low: int | None = None, high: int | None = None):
+    """argparse type: a whole number in [low, high] (either end may be open)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
+        _check_range(value, text, low, high)
+        return value
+
+    parse.__name__ = "whole number"  # argparse names the type in some messages
+    return parse
+
+
+def bounded_float(low: float | None = None, high: float | None = None, low_open: bool = False):
+    """argparse type: a finite number in [low, high] (``low_open``: strictly above ``low``)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+        if low_open and low is not None and value <= low:
+            raise argparse.ArgumentTypeError(f"must be above {low:g}, got {text}")
+        _check_range(value, text, low, high)
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def _check_range(value: float, text: str, low: float | None, high: float | None) -> None:
+    if low is not None and value < low:
+        raise argparse.ArgumentTypeError(f"must be at least {low:g}, got {text}")
+    if high is not None and value > high:
+        raise argparse.ArgumentTypeError(f"must be at most {high:g}, got {text}")
 
 
 class ProgressBar:

@@ -6,56 +6,64 @@ import argparse
 import csv
 import dataclasses
 import json
+import shutil
+import sys
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.track_cmd import (DEFAULT_FINGERPRINT_MODEL, DEFAULT_PARTICLES, FINGERPRINT_MODELS,
-                                     add_kwnn_min_rssi_argument,
-                                     add_trilateration_arguments)
-from mapfilter.cli.common import ProgressBar, add_engine_arguments, add_strict_argument, engine_from, warn
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path, engine_from,
+                                  warn)
+from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
 
-# mapfilter.evaluation.comparison.ALL_METHODS, written out so that --help imports no numerical
-# library (tests/test_cli_startup.py holds the two equal)
+# mapfilter.evaluation.comparison's methods, written out so that --help imports no numerical
+# library (tests/test_cli_startup.py holds them equal)
 ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls")
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn")
 
 _EPILOG = f"""\
-methods: {', '.join(ALL_METHODS)} (default: all that the WiFi source allows)
+methods on one floor: {', '.join(ALL_METHODS)} (default: all that the WiFi source allows)
   pf        particle filter: map + WiFi + PDR       kwnn      KWNN fixes (Chang et al.)
   pf-nomap  the same, walls ignored                 pdr-kwnn  KWNN with PDR (Chang et al.)
   pf-nopdr  the same, constant velocity, no PDR     kf        Kalman filter on fixes + PDR
   pdr       dead reckoning from the first fix       ls        least-squares trilateration
+methods in a building with several floors: {', '.join(BUILDING_METHODS)}
+  pf        the floor in the filter's state         pf-floor  the same filter on the walker's floor
+  kwnn      each scan on the WiFi floor HMM's floor; floor_accuracy: the share of waypoints
+            at which a method was on the walker's floor (its header's, or each waypoint's own)
 
-Errors are taken at the ground-truth waypoint times from each method's latest estimate at
-or before that time (causal); waypoints before a method's first estimate are counted as
-missed. --smooth adds pf-smooth, the offline whole-walk track (not causal). walks.csv says
-why each walk went wrong: radio-map coverage (metres, and dB per AP from the nearest
-reference point), fix error and bias, heading offset, step scale.
+The radio map: --radiomap (one file for all walks), --survey LOGS (built from these walks,
+which are never scored), or --leave-one-out (each walk's radio map from the other evaluated
+walks, plus any --survey logs). Errors are taken at the ground-truth waypoint times from each
+method's latest estimate at or before that time (causal); waypoints before a method's first
+estimate are counted as missed, not scored. --smooth adds pf-smooth, the offline whole-walk
+track (not causal). runtime_s is each method's own time.
 
-writes into OUT: summary.csv, summary.json (with per-trace and per-walk rows), traces.csv, walks.csv, cdf.png,
-tracks/<trace>.png (tracks on the floor plan) and tracks/<trace>/<method>.csv.
+writes into OUT, each walk's files as the walk finishes: walks/<trace>.json (its numbers),
+tracks/<trace>/<method>.csv and tracks/<trace>.png (tracks on the plan, zoomed on the walk);
+at the end: summary.csv, summary.json (with the config, per-trace and per-walk rows, and the
+walks that failed), traces.csv, walks.csv (why each walk went wrong), cdf.png, config.yaml
+(`--config OUT/config.yaml` repeats the run). An earlier run's files in OUT are removed first;
+--resume keeps the walks an interrupted run of the same settings finished and runs the rest.
+A walk that cannot be tracked is named in the summary and the others go on (exit code 1).
 
-example (ILC floor, each walk's radio map from the other walks):
-  mapfilter evaluate F1.yaml ../shared/data/ilc20/site1/F1/path_data_files/*.txt.gz \\
-      --leave-one-out --out results/F1 --jobs 2
+examples (an ILC floor):
+  mapfilter evaluate F1.yaml walks/*.txt.gz --leave-one-out --out results/F1 --jobs 2
+  mapfilter evaluate F1.yaml test/*.txt.gz --survey survey/*.txt.gz --out results/F1-test --smooth
+  mapfilter evaluate site1.yaml walks/*/*.txt.gz --leave-one-out --out results/site1
 
-A building (MAP a building YAML with several floors, docs/building.md): every walk's true
-floor is its header's (FloorName); the methods are pf (the floor in the filter's state, not
-given), pf-floor (the same filter on the true floor) and kwnn (each scan on the floor of the
-causal WiFi floor HMM); the table adds floor_accuracy, the share of waypoints at which a
-method was on the right floor. Each floor's fix sigma is calibrated once from its whole radio map.
-  mapfilter evaluate site1.yaml ../shared/data/ilc20/site1/*/path_data_files/*.txt.gz \
-      --leave-one-out --out results/site1
-
---jobs N runs the walks on N local Dask worker processes; --scheduler tcp://HOST:PORT on an
-existing Dask cluster (pip install 'mapfilter[distributed]'; start one with
-`dask scheduler --host HOST --port PORT` and `dask worker tcp://HOST:PORT --nworkers N
---nthreads 1`; the workers need the logs at the same paths). Every walk seeds its own
-generator: serial, --jobs and a cluster give the same numbers.
+--jobs N runs the walks on N local Dask worker processes; --scheduler tcp://HOST:PORT on a
+Dask cluster you trust (pip install 'mapfilter[distributed]'; `dask scheduler` and
+`dask worker tcp://HOST:PORT --nworkers N --nthreads 1`; the workers need the logs at the
+same paths). Every walk seeds its own generator: serial, --jobs and a cluster give the same
+numbers.
 """
 
 SUMMARY_COLUMNS = ("method", "mean", "median", "p75", "p90", "max", "rmse", "n", "missed", "wall_crossings",
                    "collapses", "runtime_s")
+# what an earlier run leaves in OUT (removed before a new run writes there)
+RUN_FILES = ("summary.csv", "summary.json", "traces.csv", "walks.csv", "cdf.png", "config.yaml")
+RUN_DIRS = ("walks", "tracks")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -64,119 +72,168 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Run every method on the same walks and compare their errors against ground truth.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("map", type=Path, metavar="MAP", help="map YAML or building YAML")
-    parser.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="walks with waypoints (ILC format)")
-    parser.add_argument("--methods", default=",".join(ALL_METHODS), metavar="M1,M2",
-                        help="comma-separated methods (default: all)")
+    parser.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="walks with waypoints (scored)")
+    parser.add_argument("--methods", default=None, metavar="M1,M2",
+                        help="comma-separated methods (default: all that the map and WiFi source allow)")
     parser.add_argument("--radiomap", type=Path, metavar="RM", help="one radio map for all walks")
     parser.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table (ls; pf if no radio map)")
+    parser.add_argument("--survey", type=Path, nargs="+", default=[], metavar="LOG",
+                        help="walks with waypoints that make the radio map (and fitted APs); never scored")
     parser.add_argument("--leave-one-out", action="store_true",
-                        help="each walk's radio map (and fitted APs for ls) from the other walks only")
-    parser.add_argument("--particles", type=int, default=DEFAULT_PARTICLES, metavar="N",
-                        help=f"particles for the pf methods (default: {DEFAULT_PARTICLES})")
-    parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=DEFAULT_FINGERPRINT_MODEL,
-                        help=f"how pf weighs fingerprints (default: {DEFAULT_FINGERPRINT_MODEL})")
-    add_kwnn_min_rssi_argument(parser)
-    add_trilateration_arguments(parser)
-    parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
-    parser.add_argument("--smooth", action="store_true", help="also report the smoothed pf track (pf-smooth)")
+                        help="each walk's radio map (and fitted APs for ls) from the other walks too")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the walks an interrupted run with the same settings finished in OUT")
+    add_tracking_arguments(parser)
     add_engine_arguments(parser)
     add_strict_argument(parser)
-    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from mapfilter.evaluation.comparison import EvaluationSetup, evaluate_logs
-    from mapfilter.filter.adaptive_pathloss import AdaptationConfig
-    from mapfilter.evaluation.metrics import format_table
-    from mapfilter.tracking import TrackingConfig
-
-    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-    unknown = [m for m in methods if m not in ALL_METHODS + ("pf-floor",)]
-    if unknown:
-        raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(ALL_METHODS)}")
-    if args.particles < 1:
-        raise MapfilterError(f"--particles must be at least 1, got {args.particles}")
-    engine = engine_from(args)
-    if args.out.exists() and not args.out.is_dir():
-        raise MapfilterError("the output must be a directory", args.out)
+    from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate, methods_for, validate_setup
+    from mapfilter.evaluation.store import read_outcome, run_key, write_outcome
     from mapfilter.maps.building import Building
+    from mapfilter.sensors.recording import trace_name
 
+    config = tracking_config_from(args)
+    methods = None if args.methods is None else tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    engine = engine_from(args)
+    check_output_path(args.out, directory=True)
     building = Building.load(args.map)
-    floorplan = building.floors[0].plan
-    setup = EvaluationSetup(
-        methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps, leave_one_out=args.leave_one_out,
-        smooth=args.smooth, seed=args.seed, strict=args.strict,
-        tracking=TrackingConfig(n_particles=args.particles, fingerprint_model=args.fingerprint_model,
-                                kwnn_min_rssi_dbm=args.kwnn_min_rssi,
-                                adapt_path_loss=args.adapt,
-                                adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
-                                blocking_compensation=not args.no_blocking_compensation))
+    setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
+                            survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,
+                            tracking=config)
+    validate_setup(building, args.logs, setup)  # before anything is written
+    key = run_key({"map": str(args.map.resolve()), "logs": [str(p.resolve()) for p in args.logs],
+                   "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
+                   "aps": str(args.aps), "leave_one_out": args.leave_one_out, "methods": methods,
+                   "strict": args.strict, "config": config.to_dict()})
+    walks_dir = args.out / "walks"
+    resumed = []
+    if args.resume:
+        names = {trace_name(p) for p in args.logs}
+        for path in sorted(walks_dir.glob("*.json")) if walks_dir.is_dir() else []:
+            outcome = read_outcome(path, key)
+            if outcome is not None and outcome.trace in names:
+                resumed.append(outcome)
+        print(f"resuming: {len(resumed)} of {len(args.logs)} walks already done in {args.out}")
+    else:
+        _clear_earlier_run(args.out)
+    args.out.mkdir(parents=True, exist_ok=True)
+    plans = _plans_for_pictures(building, args.logs)
 
-    columns = SUMMARY_COLUMNS
+    def finished(outcome) -> None:
+        # each walk's numbers, tracks and picture as it finishes: an interrupted run keeps them
+        write_outcome(outcome, walks_dir / f"{outcome.trace}.json", key)
+        if outcome.status != "ok":
+            print(f"mapfilter: {outcome.status}: {outcome.reason}", file=sys.stderr)
+        _write_walk_tracks(args.out, outcome, plans, building)
+
+    from mapfilter.sensors.recording import trace_name as name_of
+
+    evaluation = None
     with ProgressBar("evaluate", len(args.logs)) as progress:
-        if building.is_single_floor:
-            evaluation = evaluate_logs(floorplan, args.logs, setup, progress=progress, engine=engine)
-        else:
-            from mapfilter.evaluation.floors import evaluate_building_logs
-
-            if args.methods == ",".join(ALL_METHODS):  # the default: every method a building has
-                setup = dataclasses.replace(setup, methods=("pf", "pf-floor", "kwnn"))
-            evaluation = evaluate_building_logs(building, args.logs, setup, engine=engine, progress=progress)
-            floorplan = building
-            columns = SUMMARY_COLUMNS + ("floor_accuracy",)
+        try:
+            evaluation = evaluate(building, args.logs, setup, engine, progress=progress, on_walk=finished,
+                                  resumed=resumed)
+        except KeyboardInterrupt:
+            # a consistent partial result: the summary of the walks finished so far
+            done = [o for o in (read_outcome(p, key) for p in sorted(walks_dir.glob("*.json"))) if o is not None]
+            index = {name_of(p): i for i, p in enumerate(args.logs)}
+            done = [dataclasses.replace(o, index=index[o.trace]) for o in done if o.trace in index]
+            partial = Evaluation.from_outcomes(done, len(args.logs), 0.0)
+            _write_summary(args, partial, config, methods_for(building), complete=False)
+            print(f"interrupted: {len(done)} of {len(args.logs)} walks done; wrote a partial summary to "
+                  f"{args.out} (mapfilter evaluate ... --resume runs the rest)")
+            raise
     for message in evaluation.read_warnings:
         warn(message)
+    _write_summary(args, evaluation, config, methods_for(building), complete=True)
+    return 1 if evaluation.failed else 0
+
+
+def _clear_earlier_run(out: Path) -> None:
+    """Remove what an earlier evaluation wrote in ``out`` (only our own files)."""
+    for name in RUN_FILES:
+        (out / name).unlink(missing_ok=True)
+    for name in RUN_DIRS:
+        if (out / name).is_dir():
+            shutil.rmtree(out / name)
+
+
+def _plans_for_pictures(building, logs) -> dict:
+    """The plan each walk's picture is drawn on (a building: the walk's own floor)."""
+    from mapfilter.sensors.logs import read_log_header
+    from mapfilter.sensors.recording import trace_name
+
+    plans = {}
+    for path in logs:
+        index = 0
+        if not building.is_single_floor:
+            try:
+                index = building.floor_of_log(read_log_header(path).get("FloorName") or None, path) or 0
+            except MapfilterError:
+                index = 0
+        plans[trace_name(path)] = building.floors[index].plan
+    return plans
+
+
+def _write_walk_tracks(out: Path, outcome, plans: dict, building) -> None:
+    from mapfilter.evaluation.plots import plot_tracks_on_map
+    from mapfilter.sensors.logs import read_log
+    from mapfilter.trackio import write_track_csv
+
+    if not outcome.results:
+        return
+    for result in outcome.results:
+        write_track_csv(dataclasses.replace(result.track, name=result.method),
+                        out / "tracks" / outcome.trace / f"{result.method}.csv", building=building)
+    recording = read_log(outcome.log_path, warn=lambda message: None, building=building)  # warnings reported once
+    shown = {r.method: r.track.xy_m for r in outcome.results if r.method in ("pf", "pf-smooth", "kwnn", "kf", "pdr")}
+    plot_tracks_on_map(plans[outcome.trace], shown, out / "tracks" / f"{outcome.trace}.png", recording.waypoint_xy_m,
+                       title=outcome.trace)
+
+
+def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
+    from mapfilter.evaluation.comparison import nan_to_none
+    from mapfilter.evaluation.metrics import format_table
+    from mapfilter.evaluation.plots import plot_error_cdf
+
+    columns = SUMMARY_COLUMNS + (("floor_accuracy",) if evaluation.has_floors else ())
     summary = evaluation.summary_rows()
     table = format_table(summary, columns)
     waypoints = summary[0]["n"] + summary[0]["missed"] if summary else 0
-    print(f"{evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s\n{table}")
-    _write_outputs(args, floorplan, evaluation, summary, columns)
-    print(f"wrote {args.out}/summary.csv, summary.json, traces.csv, walks.csv (why each walk went wrong), "
-          "cdf.png, tracks/")
-    return 0
-
-
-def _write_outputs(args, floorplan, evaluation, summary, columns=SUMMARY_COLUMNS) -> None:
-    from mapfilter.evaluation.comparison import nan_to_none
-    from mapfilter.evaluation.plots import plot_error_cdf, plot_tracks_on_map
-    from mapfilter.sensors.ilc import read_ilc
-    from mapfilter.trackio import write_track_csv
-
+    n_done = len({r.trace for r in evaluation.results}) + len(evaluation.failed)
+    print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s\n{table}")
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_paths(out / "summary.csv", out / "traces.csv", out / "walks.csv",
-                      out / "summary.json") as (s_csv, t_csv, w_csv, s_json):
+    trace_rows = evaluation.trace_rows()
+    walk_rows = evaluation.walk_rows()
+    failed = [{"trace": o.trace, "log": str(o.log_path), "status": o.status, "reason": o.reason}
+              for o in evaluation.failed]
+    with atomic_paths(out / "summary.csv", out / "traces.csv", out / "walks.csv", out / "summary.json",
+                      out / "config.yaml") as (s_csv, t_csv, w_csv, s_json, c_yaml):
         _write_csv(s_csv, summary, columns)
-        trace_rows = evaluation.trace_rows()
         _write_csv(t_csv, trace_rows, ("trace",) + columns)
-        walk_rows = evaluation.walk_rows()
         _write_csv(w_csv, walk_rows, list(dict.fromkeys(k for row in walk_rows for k in row)) or ["trace"])
         s_json.write_text(json.dumps({
-            "map": str(args.map), "logs": [str(p) for p in args.logs], "leave_one_out": args.leave_one_out,
-            "particles": args.particles, "seed": args.seed, "wall_time_s": evaluation.wall_time_s,
+            "map": str(args.map), "logs": [str(p) for p in args.logs], "survey": [str(p) for p in args.survey],
+            "radiomap": None if args.radiomap is None else str(args.radiomap), "leave_one_out": args.leave_one_out,
+            "methods": list(methods), "complete": complete, "walks": evaluation.n_traces, "walks_done": n_done,
+            "wall_time_s": evaluation.wall_time_s, "config": config.to_dict(), "failed": failed,
             "summary": [{k: nan_to_none(v) for k, v in row.items()} for row in summary],
             "traces": [{k: nan_to_none(v) for k, v in row.items()} for row in trace_rows],
-            "walks": [{k: nan_to_none(v) for k, v in row.items()} for row in walk_rows],
+            "per_walk": [{k: nan_to_none(v) for k, v in row.items()} for row in walk_rows],
         }, indent=1))
-    plot_error_cdf(evaluation.errors_by_method(), out / "cdf.png",
-                   title=f"{evaluation.n_traces} walks on {args.map.name}")
-    tracks_dir = out / "tracks"
-    by_trace: dict[str, list] = {}
-    for result in evaluation.results:
-        by_trace.setdefault(result.trace, []).append(result)
-    for log_path in args.logs:
-        recording = read_ilc(log_path, warn=lambda message: None)  # its warning was printed above
-        results = by_trace.get(recording.name, [])
-        for result in results:
-            write_track_csv(dataclasses.replace(result.track, name=result.method),
-                            tracks_dir / recording.name / f"{result.method}.csv")
-        shown = {r.method: r.track.xy_m for r in results if r.method in ("pf", "pf-smooth", "kwnn", "kf", "pdr")}
-        plan = floorplan
-        if not hasattr(floorplan, "wall_mask"):  # a building: the walk's own floor (rows elsewhere drawn on it too)
-            plan = floorplan.floors[floorplan.floor_of_log(recording.floor_name, log_path) or 0].plan
-        plot_tracks_on_map(plan, shown, tracks_dir / f"{recording.name}.png", recording.waypoint_xy_m,
-                           title=recording.name)
+        c_yaml.write_text(config.to_yaml())
+    if evaluation.results:
+        plot_error_cdf(evaluation.errors_by_method(), out / "cdf.png",
+                       title=f"{n_done} walks on {args.map.name}" + ("" if complete else " (partial)"))
+    if failed:
+        print(f"{len(failed)} walk{'s' if len(failed) != 1 else ''} without results (summary.json lists why): "
+              + ", ".join(item["trace"] for item in failed))
+    print(f"wrote {out}/summary.csv, summary.json, traces.csv, walks.csv (why each walk went wrong), cdf.png, "
+          f"config.yaml, walks/, tracks/")
 
 
 def _write_csv(path: Path, rows: list[dict], columns) -> None:

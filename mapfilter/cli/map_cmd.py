@@ -1,10 +1,12 @@
-"""``mapfilter map prepare|import-ilc``: floor plans -> wall-mask maps (YAML + mask + preview)."""
+"""``mapfilter map prepare|import-ilc|import-ipin``: floor plans -> wall-mask maps (YAML + mask + preview)."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
+from mapfilter.cli.common import check_output_path
 from mapfilter.errors import MapfilterError
 
 _PREPARE_EPILOG = """\
@@ -41,11 +43,14 @@ _IMPORT_EPILOG = """\
 FLOOR_DIR holds floor_image.png, floor_info.json ({"map_info": {"width": .., "height": ..}})
 and geojson_map.json (ILC 2.0 layout). Both routes use the ILC metre frame (origin at the
 floor's lower-left corner) and record floor_image.png for display under the mask.
-  image    transparent pixels walkable, shop outlines opened by 2 px, scale from floor_info.json
-  geojson  outline minus shops (shrunk by 0.6 m) rasterised at --resolution (default 0.25 m)
+  geojson  outline minus shops (shrunk by 0.6 m) rasterised at --resolution (default 0.25 m);
+           outside the building is wall (the default)
+  image    transparent pixels walkable, shop outlines opened by 2 px, scale from floor_info.json;
+           the outside of the building is transparent too, so walkable
+The floor is named by its logs' headers (FloorName in path_data_files), else by the folder.
 
 A SITE_DIR (a folder of floor folders, e.g. site1 with B1, F1, ..., F4) becomes one building:
-every floor is imported (route geojson unless --route says otherwise) and written beside
+every floor is imported and written beside
 --out as NAME_<floor>.yaml (+ mask and preview), and --out is the building YAML that lists
 them, placed in one frame by the GeoJSON longitudes/latitudes (the ground floor's frame;
 docs/building.md). ILC gives no elevations: storeys come from the names (B1 = -1, F1 = 0,
@@ -54,6 +59,26 @@ F2 = 1, ...) times --storey-height (default 5 m).
 example:
   mapfilter map import-ilc ../shared/data/ilc20/site1/F1 --out F1.yaml
   mapfilter map import-ilc ../shared/data/ilc20/site1 --out site1.yaml
+"""
+
+
+_IPIN_EPILOG = """\
+CAL is an IPIN competition calibration file: for each floor its plan image (looked for next
+to CAL), floor number, building, the image centre's latitude and longitude, the rotation of
+the image to north (degrees) and the scale (m/px). The building it writes (--out, with
+NAME_<floor>.yaml maps, masks, previews and NAME_<floor>_plan.png, the plan turned to north)
+is georeferenced: its frame is east/north metres at the first floor's image centre, so logs
+with latitude/longitude ground truth (GetSensorData POSI rows) and tracks in latitude and
+longitude work with it. Each plan is decoded reduced (a 54-megapixel plan takes about 100 MB),
+its dark strokes become walls (labels shorter than 1.5 m dropped), and the map is walled
+beyond the image's edges. A floor whose image is missing becomes an open floor over the
+same extent, with a warning. Floors are named by the venue's floor numbers (0, -1, -2) and
+stand --storey-height apart (the calibration gives no heights; docs/formats.md shows how the
+IPIN 2023 venue's was measured from a walk's barometer).
+
+example:
+  mapfilter map import-ipin ../shared/data/ipin2023/plans/calib_mapa_Nuremberg.cal \\
+      --out nuremberg.yaml --storey-height 2.8
 """
 
 
@@ -118,15 +143,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ilc.add_argument("floor_dir", type=Path, metavar="FLOOR_DIR|SITE_DIR",
                      help="e.g. ../shared/data/ilc20/site1/F1, or site1 for every floor as one building")
     ilc.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output map YAML")
-    ilc.add_argument("--route", choices=("image", "geojson"), default=None,
-                     help="from the floor image or the GeoJSON polygons (default: image for a floor, "
-                          "geojson for a site)")
+    ilc.add_argument("--route", choices=("image", "geojson"), default="geojson",
+                     help="from the GeoJSON polygons (the floor's outline minus its shops: outside the building is "
+                          "wall) or the floor image (transparent pixels walkable, the outside too) (default: geojson)")
     ilc.add_argument("--resolution", type=float, metavar="M",
                      help="metres per output pixel (default: the image's ~0.3 m, or 0.25 m for geojson)")
     ilc.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall")
     ilc.add_argument("--storey-height", type=float, default=5.0, metavar="M",
                      help="a site: metres between storeys for the elevations (default: 5)")
     ilc.set_defaults(func=run_import_ilc)
+
+    ipin = commands.add_parser(
+        "import-ipin", help="an IPIN calibration file and its plans -> a georeferenced building",
+        description="Make a georeferenced building of an IPIN venue's calibration file (.cal) and plan images.",
+        epilog=_IPIN_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ipin.add_argument("cal", type=Path, metavar="CAL", help="the calibration file, e.g. calib_mapa_Nuremberg.cal")
+    ipin.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output building YAML")
+    ipin.add_argument("--resolution", type=float, default=None, metavar="M",
+                      help="metres per map cell (default: 0.1)")
+    ipin.add_argument("--storey-height", type=float, default=None, metavar="M",
+                      help="metres between storeys for the elevations (default: 4)")
+    ipin.set_defaults(func=run_import_ipin)
 
 
 def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
@@ -137,6 +174,7 @@ def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
 def run_prepare(args: argparse.Namespace) -> int:
     from mapfilter.maps import prepare
 
+    check_output_path(args.out)
     kind = args.kind or ("geojson" if args.plan.suffix.lower() in (".json", ".geojson") else "lines")
     edits = prepare.read_edits(args.edits) if args.edits else None
     if args.access_points is not None and not args.access_points.is_file():
@@ -175,14 +213,33 @@ def run_import_ilc(args: argparse.Namespace) -> int:
     from mapfilter.maps import prepare
     from mapfilter.maps.building import is_ilc_site_dir
 
+    check_output_path(args.out)
     if is_ilc_site_dir(args.floor_dir):
         return _import_ilc_site(args)
     edits = prepare.read_edits(args.edits) if args.edits else None
-    plan = prepare.import_ilc(args.floor_dir, args.route or "image", args.resolution)
+    plan = prepare.import_ilc(args.floor_dir, args.route, args.resolution)
+    named = _ilc_floor_name(args.floor_dir)
+    if named is not None and named != plan.floor_name:
+        plan = dataclasses.replace(plan, floor_name=named)
     if edits is not None:
         plan = prepare.apply_edits(plan, edits)
     _write(plan, args.out)
     return 0
+
+
+def _ilc_floor_name(floor_dir: Path) -> str | None:
+    """The floor name the floor's own logs give (their header's FloorName), if they agree on one:
+    the map then accepts those logs and refuses another floor's."""
+    from mapfilter.sensors.logs import read_log_header
+
+    names = set()
+    for path in sorted((floor_dir / "path_data_files").glob("*.txt*"))[:5]:
+        try:
+            names.add(read_log_header(path).get("FloorName") or None)
+        except MapfilterError:
+            continue
+    names.discard(None)
+    return names.pop() if len(names) == 1 else None
 
 
 def _import_ilc_site(args: argparse.Namespace) -> int:
@@ -197,7 +254,7 @@ def _import_ilc_site(args: argparse.Namespace) -> int:
     if not (args.storey_height > 0):
         raise MapfilterError(f"--storey-height must be positive, got {args.storey_height}")
     # everything is imported and checked before the first file is written
-    building = import_ilc_site(args.floor_dir, args.route or "geojson", args.resolution, args.storey_height)
+    building = import_ilc_site(args.floor_dir, args.route, args.resolution, args.storey_height)
     for floor in building.floors:
         floor.map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml").resolve()
         prepare.preview_image(floor.plan)  # fails here, before anything is written, if it fails at all
@@ -206,6 +263,38 @@ def _import_ilc_site(args: argparse.Namespace) -> int:
     building.save(args.out)
     print(f"wrote {args.out}: {len(building.floors)} floors ({', '.join(building.floor_names)}), "
           f"storey height {args.storey_height:g} m")
+    return 0
+
+
+def run_import_ipin(args: argparse.Namespace) -> int:
+    import cv2
+
+    from mapfilter.atomic import atomic_paths
+    from mapfilter.cli.common import warn
+    from mapfilter.maps import ipin_venue
+
+    if args.out.suffix not in (".yaml", ".yml"):
+        raise MapfilterError("the output building must be a .yaml file", args.out)
+    resolution = ipin_venue.DEFAULT_RESOLUTION_M if args.resolution is None else args.resolution
+    storey = ipin_venue.DEFAULT_STOREY_HEIGHT_M if args.storey_height is None else args.storey_height
+    # everything is imported and checked before the first file is written
+    building, floors = ipin_venue.import_ipin_venue(args.cal, resolution, storey, warn=warn)
+    for floor, venue_floor in zip(building.floors, floors):
+        floor.map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml").resolve()
+        if venue_floor.display is not None:
+            shown = floor.map_path.with_name(f"{floor.map_path.stem}_plan.png")
+            if venue_floor.image_path is not None and shown.resolve() == venue_floor.image_path.resolve():
+                raise MapfilterError(f"writing the maps would overwrite the plan {shown.name}: choose another --out "
+                                     "name", args.out)
+            with atomic_paths(shown) as (tmp,):
+                if not cv2.imwrite(str(tmp), venue_floor.display):
+                    raise MapfilterError("could not write the plan image", shown)
+            floor.plan = venue_floor.with_display_file(shown)
+        _write(floor.plan, floor.map_path)
+    building.save(args.out)
+    geo = building.georeference
+    print(f"wrote {args.out}: {len(building.floors)} floors ({', '.join(building.floor_names)}), storey height "
+          f"{storey:g} m, georeferenced at {geo.origin_lat_deg:.8f}, {geo.origin_lon_deg:.8f}")
     return 0
 
 

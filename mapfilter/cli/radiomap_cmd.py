@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mapfilter.cli.common import add_strict_argument, warn
+from mapfilter.cli.common import ProgressBar, add_strict_argument, check_output_path, warn
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
@@ -16,13 +16,14 @@ _MIN_OBSERVATIONS = 8
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("radiomap", help="build a WiFi radio map or fit access points from survey logs",
                                    description="Radio maps (fingerprint databases) and access-point tables "
-                                               "from survey logs with waypoints (ILC trace format, .gz ok).")
+                                               "from survey logs with waypoints (ILC traces or GetSensorData logs, .gz ok; "
+                                               "latitude/longitude ground truth needs a georeferenced building).")
     sub = parser.add_subparsers(dest="radiomap_command", metavar="SUBCOMMAND", required=True)
 
     def common(p: argparse.ArgumentParser) -> None:
         p.add_argument("map", type=Path, metavar="MAP",
                        help="floor map YAML (ROS map_server), or a building YAML (build: each log's floor from "
-                            "its header, FloorName)")
+                            "its header, FloorName, or its ground truth; fit-aps: one floor of it)")
         p.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="survey logs with waypoints")
         p.add_argument("--exclude", action="append", default=[], metavar="TRACE",
                        help="leave out a log, by file name or trace id (repeatable)")
@@ -43,13 +44,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="output table bssid,x,y,band,C,n,alpha,d_max")
     fit.add_argument("--min-observations", type=int, default=_MIN_OBSERVATIONS, metavar="N",
                      help=f"fit only APs heard in N labelled scans (default {_MIN_OBSERVATIONS})")
+    fit.add_argument("--floor", metavar="NAME",
+                     help="with a building YAML: the floor to fit (default: the one floor every log is on)")
     fit.set_defaults(func=run_fit_aps)
 
 
 def _load(args: argparse.Namespace):
     from mapfilter.maps.building import Building
-    from mapfilter.sensors.ilc import read_ilc
+    from mapfilter.sensors.logs import read_log
 
+    check_output_path(args.out)
     building = Building.load(args.map)
     floorplan = building.floors[0].plan if building.is_single_floor else building
     excluded = set(args.exclude)
@@ -59,7 +63,18 @@ def _load(args: argparse.Namespace):
         raise MapfilterError(f"--exclude {sorted(unused)[0]!r} matches none of the logs")
     if not paths:
         raise MapfilterError("every log is excluded: nothing to build from")
-    return floorplan, [read_ilc(p, max_wifi_age_s=args.max_wifi_age, strict=args.strict, warn=warn) for p in paths]
+    # latitude/longitude ground truth (GetSensorData) is placed in the (georeferenced) building
+    recordings = []
+    with ProgressBar("reading logs", len(paths), unit="log") as progress:
+        for done, path in enumerate(paths, start=1):
+            recording = read_log(path, strict=args.strict, warn=warn, max_wifi_age_s=args.max_wifi_age,
+                                 building=building)
+            if building.is_single_floor:
+                # a walk of another floor surveys nothing here: refused, as track refuses it
+                building.floor_of_log(recording.floor_name, path)
+            recordings.append(recording)
+            progress(done, len(paths), path.name)
+    return floorplan, recordings
 
 
 def _trace_id(path: Path) -> str:
@@ -72,7 +87,7 @@ def _trace_id(path: Path) -> str:
 def run_build(args: argparse.Namespace) -> int:
     from mapfilter.maps.building import Building
     from mapfilter.sensors.floors import build_building_radio_map
-    from mapfilter.sensors.radiomap import build_radio_map
+    from mapfilter.sensors.radiomap import build_radio_map, check_radio_map_on_map
 
     floorplan, recordings = _load(args)
     if isinstance(floorplan, Building):
@@ -81,20 +96,48 @@ def run_build(args: argparse.Namespace) -> int:
         for rec in recordings:
             index = building.floor_of_log(rec.floor_name, rec.path)
             if index is None:
+                if rec.waypoint_floor and len(set(rec.waypoint_floor)) > 1:
+                    raise MapfilterError(f"the log walks several floors ({', '.join(dict.fromkeys(rec.waypoint_floor))}): "
+                                         "a building's radio map is built from one-floor logs (leave it out with "
+                                         "--exclude)", rec.path)
                 raise MapfilterError("the log's header names no floor (FloorName): a building's radio map needs "
                                      "the floor of every log", rec.path)
             floors.append(index)
         radio_map = build_building_radio_map(recordings, floors, building.floor_names, use_steps=args.steps)
+        check_radio_map_on_map(radio_map, building, map_path=args.map)  # waypoints of another map or frame
         radio_map.save(args.out)
         counts = ", ".join(f"{name} {floors.count(i)}" for i, name in enumerate(building.floor_names))
         print(f"radio map: {len(radio_map)} reference points, {len(radio_map.ap_keys)} access points "
               f"from {len(recordings)} logs ({counts}) -> {args.out}")
         return 0
     radio_map = build_radio_map(recordings, floorplan, use_steps=args.steps)
+    check_radio_map_on_map(radio_map, floorplan, map_path=args.map)
     radio_map.save(args.out)
     print(f"radio map: {len(radio_map)} reference points, {len(radio_map.ap_keys)} access points "
           f"from {len(recordings)} logs -> {args.out}")
     return 0
+
+
+def _one_floor(building, recordings, floor_name: str | None, where: Path):
+    """The plan of the floor whose access points fit-aps fits in a building: ``floor_name``, or
+    the one floor every log is on; every log must be on it."""
+    on = []
+    for rec in recordings:
+        names = set(rec.waypoint_floor) if rec.waypoint_floor else {rec.floor_name}
+        if None in names or len(names) != 1:
+            raise MapfilterError("fit-aps fits one floor's access points: the log is not on one named floor",
+                                 rec.path)
+        on.append(names.pop())
+    if floor_name is None:
+        if len(set(on)) != 1:
+            raise MapfilterError(f"the logs are on floors {', '.join(sorted(set(on)))}: fit-aps fits one floor's "
+                                 "access points (choose it with --floor, or give that floor's map YAML)", where)
+        floor_name = on[0]
+    wrong = next((rec for rec, name in zip(recordings, on) if name != floor_name), None)
+    if wrong is not None:
+        raise MapfilterError(f"the log is on floor {on[recordings.index(wrong)]}, not on floor {floor_name}",
+                             wrong.path)
+    return building.floor(floor_name).plan
 
 
 def run_fit_aps(args: argparse.Namespace) -> int:
@@ -105,7 +148,7 @@ def run_fit_aps(args: argparse.Namespace) -> int:
 
     floorplan, recordings = _load(args)
     if not hasattr(floorplan, "wall_mask"):
-        raise MapfilterError("fit-aps fits one floor's access points: give that floor's map YAML", args.map)
+        floorplan = _one_floor(floorplan, recordings, getattr(args, "floor", None), args.map)
     table = estimate_access_points(build_radio_map(recordings, floorplan),
                                    ApFitConfig(min_observations=args.min_observations))
     table.write_csv(args.out)

@@ -11,6 +11,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
+from mapfilter.cli.common import bounded_float, bounded_int, check_output_path, non_negative_int
 from mapfilter.errors import MapfilterError
 
 # The defaults of mapfilter.simulate.walk.SimConfig that the options show, written out so that
@@ -22,6 +23,13 @@ _SIM_DEFAULTS = {"duration_s": 120.0, "survey_spacing_m": 2.0, "survey_scans_per
 # holds them equal to the library's).
 _BUILDING_DEFAULTS = {"segment_s": (25.0, 40.0), "floor_loss_db": 15.0}
 DEFAULT_FLOOR_CHANGES = 3  # as tools/floor_sim.py walks
+# The limits of mapfilter.simulate.walk (MAX_*), written out for the same reason
+# (tests/test_cli_startup.py holds them equal): far beyond any real use, they keep a typo from
+# asking for more memory or time than the machine has.
+_SIM_LIMITS = {"MAX_DURATION_S": 14400.0, "MAX_SCANS_PER_POINT": 100, "MAX_DB": 100.0,
+               "MAX_START_TIME_MS": 4_102_444_800_000}
+_MIN_SURVEY_SPACING_M = 0.25  # SimConfig.grid_m: a survey cannot be finer than the route grid
+_MAX_FLOOR_CHANGES = 1000
 
 _BUILDING_HELP = """\
 A building (MAP a building YAML with several floors, docs/building.md): the walk starts on
@@ -36,6 +44,9 @@ floor, hearing every floor's access points. Access points: each floor map's own 
 with its own BSSIDs (the fourth octet set to the floor's number, 00 for the first floor).
 WiFi loses --floor-loss-db per floor between the phone and an access point.
 """
+
+
+_DB = bounded_float(0.0, _SIM_LIMITS["MAX_DB"])  # a loss or a spread in dB
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -53,20 +64,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="access-point table CSV (bssid,x,y,band,C,n,alpha,d_max); default: the map's own "
                              "(a building: each floor map's own; --aps: this table on every floor)")
     parser.add_argument("--out", type=Path, required=True, help="output trace (.txt or .txt.gz)")
-    parser.add_argument("--duration", type=float, default=None,
+    parser.add_argument("--duration", type=bounded_float(0.0, _SIM_LIMITS["MAX_DURATION_S"], low_open=True),
+                        default=None,
                         help=f"seconds of walking (default {defaults.duration_s:g}; survey: until every point is "
                              f"visited; a building: see --segment-s)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed (same seed, same file)")
     parser.add_argument("--survey", action="store_true",
                         help="radio-map survey: stand at reference points on a grid and scan there "
                              "(a building: of the floor --floor)")
-    parser.add_argument("--survey-spacing", type=float, default=defaults.survey_spacing_m, metavar="M",
+    parser.add_argument("--survey-spacing", type=bounded_float(_MIN_SURVEY_SPACING_M, 1e4),
+                        default=defaults.survey_spacing_m, metavar="M",
                         help="survey grid spacing in metres (default %(default)s)")
-    parser.add_argument("--scans-per-point", type=int, default=defaults.survey_scans_per_point, metavar="N",
+    parser.add_argument("--scans-per-point", type=bounded_int(1, _SIM_LIMITS["MAX_SCANS_PER_POINT"]),
+                        default=defaults.survey_scans_per_point, metavar="N",
                         help="survey scans at each reference point (default %(default)s)")
-    parser.add_argument("--shadowing-db", type=float, default=defaults.shadowing_sigma_db, metavar="DB",
+    parser.add_argument("--shadowing-db", type=_DB, default=defaults.shadowing_sigma_db, metavar="DB",
                         help="log-normal shadowing sigma in dB (default %(default)s)")
-    parser.add_argument("--wall-loss-db", type=float, nargs=2, metavar=("DB_2G4", "DB_5G"),
+    parser.add_argument("--wall-loss-db", type=_DB, nargs=2, metavar=("DB_2G4", "DB_5G"),
                         default=(defaults.wall_loss_2g4_db, defaults.wall_loss_5g_db),
                         help="attenuation per wall crossed at 2.4 and 5 GHz (default %(default)s)")
     parser.add_argument("--blocking", type=float, nargs=3, action="append", default=[],
@@ -77,26 +91,29 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="also write the access-point table the walk was simulated with, shifted by "
                              "--aps-c-offset / --aps-alpha-offset (a deliberately wrong table for --adapt; "
                              "one floor only)")
-    parser.add_argument("--aps-c-offset", type=float, default=0.0, metavar="DB",
+    parser.add_argument("--aps-c-offset", type=bounded_float(-_SIM_LIMITS["MAX_DB"], _SIM_LIMITS["MAX_DB"]),
+                        default=0.0, metavar="DB",
                         help="added to every AP's C in --write-aps (default 0)")
-    parser.add_argument("--aps-alpha-offset", type=float, default=0.0, metavar="DB_PER_M",
+    parser.add_argument("--aps-alpha-offset", type=bounded_float(-10.0, 10.0), default=0.0, metavar="DB_PER_M",
                         help="added to every AP's alpha in --write-aps, clipped at 0 (default 0)")
-    parser.add_argument("--start-time-ms", type=int, default=defaults.start_time_ms,
+    parser.add_argument("--start-time-ms", type=bounded_int(0, _SIM_LIMITS["MAX_START_TIME_MS"]),
+                        default=defaults.start_time_ms,
                         help="Unix time (ms) of the first record (default %(default)s)")
     building = parser.add_argument_group("a building with several floors (MAP a building YAML)")
     building.add_argument("--start-floor", default=None, metavar="NAME",
                           help="the floor the walk starts on (default: drawn from the seed)")
-    building.add_argument("--floor-changes", type=int, default=None, metavar="N",
+    building.add_argument("--floor-changes", type=bounded_int(0, _MAX_FLOOR_CHANGES), default=None, metavar="N",
                           help=f"floor changes by connectors and floors drawn from the seed "
                                f"(default {DEFAULT_FLOOR_CHANGES}; 0: the walk stays on its floor)")
     building.add_argument("--change", nargs=2, action="append", default=[], metavar=("CONNECTOR", "FLOOR"),
                           help="take connector CONNECTOR to floor FLOOR (repeatable, in order; instead of "
                                "--floor-changes)")
     building.add_argument("--floor", default=None, metavar="NAME", help="--survey: the floor to survey")
-    building.add_argument("--segment-s", type=float, nargs=2, default=defaults.segment_s, metavar=("MIN", "MAX"),
+    building.add_argument("--segment-s", type=bounded_float(0.0, _SIM_LIMITS["MAX_DURATION_S"]), nargs=2,
+                          default=defaults.segment_s, metavar=("MIN", "MAX"),
                           help="seconds of wandering on a floor before and after each change, drawn between MIN "
                                f"and MAX (default {defaults.segment_s[0]:g} {defaults.segment_s[1]:g})")
-    building.add_argument("--floor-loss-db", type=float, default=defaults.floor_loss_db, metavar="DB",
+    building.add_argument("--floor-loss-db", type=_DB, default=defaults.floor_loss_db, metavar="DB",
                           help="WiFi attenuation per floor between phone and access point (default %(default)s)")
     building.add_argument("--no-barometer", action="store_true", help="write no TYPE_PRESSURE rows")
     parser.set_defaults(func=run)
@@ -110,8 +127,8 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.simulate.ilc_writer import write_ilc
     from mapfilter.simulate.walk import SimConfig, offset_access_points, simulate_walk
 
-    if args.seed < 0:
-        raise MapfilterError(f"--seed must be a non-negative integer, got {args.seed}")
+    check_output_path(args.out)
+    check_output_path(args.write_aps, "--write-aps")
     building = Building.load(args.map)  # a map YAML is a one-floor building
     if not building.is_single_floor:
         return _run_building(args, building)
@@ -228,13 +245,14 @@ def _run_building(args: argparse.Namespace, building) -> int:
 
 def _floor_tables(args: argparse.Namespace, building) -> dict:
     """Each floor's access points in its own frame: its map's table, or --aps copied onto every floor."""
-    from mapfilter.sensors.pathloss import AccessPointTable, access_points_for_map
+    from mapfilter.sensors.pathloss import AccessPointTable, access_points_for_map, check_access_points_on_map
 
     if args.aps is None:
         return {floor.name: access_points_for_map(None, floor.plan, floor.map_path or args.map,
                                                   hint="pass --aps APS.csv (copied onto every floor)")
                 for floor in building.floors}
     base = AccessPointTable.read_csv(args.aps)
+    check_access_points_on_map(base, building, args.map)  # each floor's copy is in that floor's frame
     if len(building.floors) > 256:
         raise MapfilterError("--aps copies the table onto at most 256 floors (one BSSID octet each)", args.aps)
     for bssid in base.bssid:

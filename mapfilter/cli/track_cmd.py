@@ -5,40 +5,18 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import sys
 import time
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.common import ProgressBar, add_engine_arguments, add_strict_argument, engine_from, warn
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path, engine_from,
+                                  warn)
+from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
 
-# What mapfilter.tracking defines (MOTION_MODELS, FINGERPRINT_MODELS, TrackingConfig defaults),
-# written out so that --help imports no numerical library: tests/test_cli_startup.py holds
-# them equal to the library's.
-MOTION_MODELS = ("pdr", "cv", "rw")
-FINGERPRINT_MODELS = ("fix", "blend", "likelihood")
-DEFAULT_FINGERPRINT_MODEL = "blend"
-DEFAULT_KWNN_MIN_RSSI_DBM = -85.0  # TrackingConfig.kwnn_min_rssi_dbm
-
-
-def kwnn_min_rssi(text: str) -> float | None:
-    """``--kwnn-min-rssi``: a dBm value, or ``none`` for plain KWNN over every reading."""
-    if text.strip().lower() == "none":
-        return None
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a dBm value or none, got {text!r}") from None
-
-
-def add_kwnn_min_rssi_argument(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--kwnn-min-rssi", type=kwnn_min_rssi, default=DEFAULT_KWNN_MIN_RSSI_DBM, metavar="DBM",
-                        help="the filter's KWNN fixes use readings at or above this only (phones disagree most "
-                             "on weak APs); none: every reading, as the kwnn baseline "
-                             f"(default: {DEFAULT_KWNN_MIN_RSSI_DBM:g})")
-DEFAULT_PARTICLES = 10_000
-DEFAULT_ADAPT_RSSI_LIMIT_DBM = -36.0  # AdaptationConfig.rssi_limit_dbm (the thesis' limit)
+TRACK_FORMATS = ("csv", "tum")
 
 _EPILOG = """\
 WiFi: --radiomap RM (fingerprinting; build one with `mapfilter radiomap build`) or --aps
@@ -47,45 +25,33 @@ access-point table (mapfilter: access_points in its YAML) is used for trilaterat
 
 The starting position is unknown: the filter starts from the first usable WiFi scan, drawn
 over the map's free space. If the log has waypoints, the errors at the waypoint times are
-printed (the latest estimate at or before each waypoint).
+printed (the latest estimate at or before each waypoint; see "What the numbers mean" in the
+README).
 
-Many walks: give several logs and --out-dir DIR: one track per walk (DIR/<trace>.csv or
-.tum) and DIR/summary.csv (one row per walk: status ok | failed | crashed, the reason,
-errors). A walk that fails is reported and the others go on; the exit code is 1 if any
-walk failed. Each walk is tracked as `mapfilter track MAP LOG --seed S` tracks it alone.
---jobs N runs the walks on N local Dask worker processes, --scheduler tcp://HOST:PORT on an
-existing Dask cluster (see `mapfilter evaluate --help`).
+Track files: CSV t_s,x_m,y_m,std_m,heading_rad (a building adds floor), or TUM
+t x y z qx qy qz qw (evo reads it; the rotation is the heading about z); the format follows
+the file's extension (.csv, .tum). With --smooth, --out PATH gets the offline track and the
+causal track goes beside it as PATH with .causal before the extension.
 
-A building (MAP a building YAML, docs/building.md) with a building's radio map (built with
-`mapfilter radiomap build BUILDING.yaml LOGS...`): the floor is part of the filter's state
-and found from the WiFi (or given with --floor NAME); the track's x, y are in the frame of
-the floor it is on, and a `floor` column names that floor. The log's header floor
-(FloorName), when it names one, must be a floor of the building; it is used only to print
-how often the track was on it (on each waypoint's own floor where the log names it, as
-simulated walks that change floor do). With --out-dir, summary.csv adds header_floor, floors
-(the floors the track visits) and floor_accuracy; a log whose header floor the building
-does not have is refused before any walk is tracked.
+Many walks: give several logs and --out-dir DIR: one track per walk (DIR/<trace>.csv, with
+--smooth also DIR/<trace>.causal.csv), DIR/summary.csv (one row per walk: status ok | failed
+| crashed, the reason, errors), DIR/summary.json and DIR/config.yaml (the settings that ran:
+`--config DIR/config.yaml` repeats the run). A walk that fails is reported and the others go
+on; the exit code is 1 if any walk failed. --jobs N runs the walks on N local Dask worker
+processes, --scheduler tcp://HOST:PORT on a Dask cluster you trust (see `mapfilter evaluate
+--help`).
 
-example:
-  mapfilter track maps/office.yaml maps/office_walk.txt --radiomap maps/office_radiomap.npz
-  mapfilter track site1.yaml walk.txt.gz --radiomap site1_radiomap.npz --out track.csv
+A building (MAP a building YAML, docs/building.md) with a building's radio map: the floor is
+part of the filter's state and found from the WiFi (and barometer), or given with --floor
+NAME; x, y are in the frame of the floor each row is on, named in the floor column. A log
+whose header names a floor the map does not have is refused (--floor tracks it anyway).
+
+examples:
+  mapfilter track maps/office.yaml maps/office_walk.txt.gz --radiomap maps/office_radiomap.npz --smooth
+  mapfilter track F1.yaml walk.txt.gz --radiomap F1_radiomap.npz --out track.csv --seed 3
   mapfilter track F1.yaml walks/*.txt.gz --radiomap F1_radiomap.npz --out-dir tracks --jobs 2
-  mapfilter track site1.yaml walks/*.txt.gz --radiomap site1_radiomap.npz --out-dir tracks
+  mapfilter track F1.yaml walk.txt.gz --radiomap F1_radiomap.npz --config my_settings.yaml
 """
-
-
-def add_trilateration_arguments(parser: argparse.ArgumentParser) -> None:
-    """The Lund thesis chapter 7 options (track and evaluate)."""
-    parser.add_argument("--adapt", action="store_true",
-                        help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
-                             "is below when a scan's strongest RSSI is above the limit, alpha per band; "
-                             "Lund thesis 7.1-7.2)")
-    parser.add_argument("--adapt-rssi-limit", type=float, default=DEFAULT_ADAPT_RSSI_LIMIT_DBM, metavar="DBM",
-                        help="with --adapt: a scan whose strongest RSSI is above this adapts (default: %(default)s, "
-                             "the thesis' value; about the RSSI 1-1.5 m from an AP of your building)")
-    parser.add_argument("--no-blocking-compensation", action="store_true",
-                        help="trilateration: do not compensate signal blocking (by default a term H is taken off "
-                             "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -95,34 +61,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("map", type=Path, metavar="MAP", help="map YAML (ROS map_server) or building YAML")
     parser.add_argument("logs", type=Path, nargs="+", metavar="LOG",
-                        help="phone log(s) in the ILC trace format (.txt or .txt.gz); several need --out-dir")
+                        help="phone log(s) (.txt or .txt.gz); several need --out-dir")
     wifi = parser.add_mutually_exclusive_group()
     wifi.add_argument("--radiomap", type=Path, metavar="RM", help="radio map (.npz) for fingerprinting")
     wifi.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table for trilateration")
-    parser.add_argument("--motion", choices=MOTION_MODELS, default="pdr",
-                        help="motion model: pdr (steps + gyro), cv (constant velocity), rw (random walk) (default: pdr)")
-    parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=DEFAULT_FINGERPRINT_MODEL,
-                        help="fix: KWNN fix weighed by a Gaussian; blend: that fix averaged with the radio-map "
-                             "likelihood's best cell; likelihood: per-particle radio-map likelihood "
-                             f"(default: {DEFAULT_FINGERPRINT_MODEL})")
-    parser.add_argument("--particles", type=int, default=DEFAULT_PARTICLES, metavar="N",
-                        help=f"number of particles (default: {DEFAULT_PARTICLES})")
-    add_kwnn_min_rssi_argument(parser)
-    add_trilateration_arguments(parser)
+    parser.add_argument("--floor", metavar="NAME",
+                        help="track on this floor of the map (default: the log's floor, found in a building)")
+    parser.add_argument("--out", type=Path, metavar="FILE", help="write the track here (one log): .csv or .tum")
+    parser.add_argument("--out-dir", type=Path, metavar="DIR",
+                        help="track every LOG: one track file per walk, summary.csv, summary.json, config.yaml")
+    parser.add_argument("--format", choices=TRACK_FORMATS, default=None,
+                        help="track file format; by default the --out file's extension (csv unless .tum); "
+                             "with --out-dir: csv")
     parser.add_argument("--adapted-aps", type=Path, metavar="OUT.csv",
                         help="with --adapt: write the access-point table as adapted at the end of the walk")
-    parser.add_argument("--floor", metavar="NAME",
-                        help="a building: track on this floor only (default: find the floor)")
-    parser.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
-    parser.add_argument("--no-map", action="store_true", help="ignore the walls (to see what the map buys)")
-    parser.add_argument("--smooth", action="store_true",
-                        help="write the offline track from the whole walk: the dead-reckoned shape placed by every "
-                             "scan, kept to free space (never crosses a wall)")
-    parser.add_argument("--out", type=Path, metavar="FILE", help="write the track here (one log)")
-    parser.add_argument("--out-dir", type=Path, metavar="DIR",
-                        help="track every LOG: one track file per walk and summary.csv in DIR")
-    parser.add_argument("--format", choices=("csv", "tum"), default="csv",
-                        help="csv: t_s,x_m,y_m,std_m,heading_rad; tum: t x y z qx qy qz qw (evo) (default: csv)")
+    add_tracking_arguments(parser)
     view = parser.add_mutually_exclusive_group()
     view.add_argument("--rerun", type=Path, metavar="FILE.rrd", help="write a rerun recording of the run")
     view.add_argument("--spawn", action="store_true", help="stream the run to a new rerun viewer")
@@ -133,262 +86,198 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+def track_format(path: Path | None, given: str | None) -> str:
+    """The track format: ``given``, else the extension's (.tum: tum, else csv); a ``given``
+    format that contradicts the extension is refused."""
+    suffix = path.suffix.lower().lstrip(".") if path is not None else ""
+    if given is not None:
+        if suffix in TRACK_FORMATS and suffix != given:
+            raise MapfilterError(f"--format {given} but the file ends in .{suffix}: give a .{given} name or "
+                                 f"drop --format", path)
+        return given
+    return suffix if suffix in TRACK_FORMATS else "csv"
+
+
+def causal_path(path: Path) -> Path:
+    """Where the causal track goes beside an offline track file: ``track.csv`` -> ``track.causal.csv``."""
+    return path.with_name(f"{path.stem}.causal{path.suffix}") if path.suffix else path.with_name(path.name + ".causal")
+
+
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from mapfilter.maps.floorplan import FloorPlan
-    from mapfilter.sensors.ilc import read_ilc
-    from mapfilter.tracking import track_recording
-    from mapfilter.trackio import write_track_csv, write_track_tum
-
-    if args.particles < 1:
-        raise MapfilterError(f"--particles must be at least 1, got {args.particles}")
+    config = tracking_config_from(args)
+    # every output checked before the work
+    check_output_path(args.out)
+    if args.out is not None and config.smooth:
+        check_output_path(causal_path(args.out))
+    check_output_path(args.rerun, "--rerun")
+    check_output_path(args.adapted_aps, "--adapted-aps")
+    check_output_path(args.out_dir, "--out-dir", directory=True)
     if args.adapted_aps is not None and args.out_dir is not None:
         raise MapfilterError("--adapted-aps is for one walk, not for --out-dir")
     if args.out_dir is not None:
-        return _run_batch(args)
+        return _run_batch(args, config)
     if len(args.logs) > 1:
         raise MapfilterError(f"{len(args.logs)} logs: tracking several walks needs --out-dir DIR")
     if args.jobs != 1 or args.scheduler:
         raise MapfilterError("--jobs and --scheduler spread many walks: give them with --out-dir DIR")
-    args.log = args.logs[0]
-    from mapfilter.maps.building import Building
+    return _run_one(args, config, args.logs[0])
 
-    building = Building.load(args.map)
-    if not building.is_single_floor:
-        return _run_building(args, building)
-    if args.floor is not None:
-        raise MapfilterError("--floor picks a floor of a building: this map has one floor", args.map)
-    if args.radiomap is not None and (args.adapt or args.adapted_aps is not None):
-        raise MapfilterError("--adapt and --adapted-aps adapt a path-loss table: they need trilateration "
-                             "(--aps APS.csv or the map's table), not --radiomap")
-    if args.adapted_aps is not None and not args.adapt:
+
+def _wifi_source(args: argparse.Namespace, building, config):
+    """(radio map, access-point table) of the run: --radiomap, --aps, or the map's own table."""
+    from mapfilter.sensors.floors import load_building_radio_map
+    from mapfilter.sensors.pathloss import access_points_for_map
+    from mapfilter.sensors.radiomap import RadioMap, check_radio_map_on_map
+
+    if args.radiomap is not None:
+        if args.adapt or args.adapted_aps is not None:
+            raise MapfilterError("--adapt and --adapted-aps adapt a path-loss table: they need trilateration "
+                                 "(--aps APS.csv or the map's table), not --radiomap")
+        if not building.is_single_floor and args.floor is None:
+            radio_map = load_building_radio_map(args.radiomap, building.floor_names)
+        else:
+            radio_map = RadioMap.load(args.radiomap)
+        check_radio_map_on_map(radio_map, building, args.radiomap, args.map)
+        return radio_map, None
+    if not building.is_single_floor and args.floor is None:
+        raise MapfilterError("tracking in a building needs a building's radio map: --radiomap RM (mapfilter "
+                             "radiomap build BUILDING.yaml LOGS...), or --floor NAME with --aps")
+    floor = building.floors[0 if args.floor is None else building.floor_index(args.floor, args.map)]
+    if args.adapted_aps is not None and not config.trilateration.adapt_path_loss:
         raise MapfilterError("--adapted-aps writes the adapted table: give --adapt too")
-    floorplan = building.floors[0].plan
-    recording = read_ilc(args.log, strict=args.strict, warn=warn)
-    radio_map, ap_table = _wifi_source(args, floorplan)
-    if recording.has_ground_truth:
-        in_walls = ~floorplan.is_free(recording.waypoint_xy_m)
+    return None, access_points_for_map(args.aps, floor.plan, floor.map_path or args.map,
+                                       hint="give --radiomap RM or --aps APS.csv")
+
+
+def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
+    from mapfilter.maps.building import Building
+    from mapfilter.sensors.logs import read_log
+    from mapfilter.tracking import prepare_walk, track_prepared
+    from mapfilter.trackio import write_track
+
+    out_format = track_format(args.out, args.format)
+    building = Building.load(args.map)
+    if args.floor is not None:
+        building.floor_index(args.floor, args.map)
+    recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
+    header_floor = building.floor_of_log(recording.floor_name, log_path, args.floor)  # refuses another floor
+    radio_map, ap_table = _wifi_source(args, building, config)
+    floor = None if building.is_single_floor else args.floor
+    walk = prepare_walk(building, recording, radio_map, ap_table, config, floor=floor)
+    if recording.has_ground_truth and walk.floor_index is not None and recording.waypoint_floor is None:
+        plan = building.floors[walk.floor_index].plan
+        in_walls = ~plan.is_free(recording.waypoint_xy_m)
         if in_walls.any():
-            print(f"mapfilter: warning: {args.log}: {int(in_walls.sum())} of {in_walls.size} waypoints lie in walls "
-                  f"or outside the map {args.map}", file=sys.stderr)
-    config = _tracking_config(args)
+            warn(f"{log_path}: {int(in_walls.sum())} of {in_walls.size} waypoints lie in walls or outside the "
+                 f"map {args.map}")
 
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
 
-    logger = make_logger(floorplan, rrd_path=args.rerun, spawn=args.spawn, max_particles=args.max_drawn_particles,
-                         recording_name=recording.name)
+    shown_floor = walk.floor_index if walk.floor_index is not None else (header_floor or 0)
+    logger = make_logger(building.floors[shown_floor].plan, rrd_path=args.rerun, spawn=args.spawn,
+                         max_particles=args.max_drawn_particles, recording_name=recording.name, stack=walk.stack)
     progress = _Progress(recording, config)
     with logger, progress:
-        if recording.has_ground_truth:
-            logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
+        if recording.has_ground_truth and (walk.stack is None or header_floor is not None
+                                           or recording.waypoint_floor is not None):
+            logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m, recording.waypoint_floor)
 
         def on_step(report) -> None:
             logger.log_step(report)
             progress.update(report.t_s)
 
-        result = track_recording(floorplan, recording, radio_map, ap_table, config, np.random.default_rng(args.seed),
-                                 on_step=on_step, on_restart_step=progress.restart_step)
+        result = track_prepared(walk, config, on_step=on_step, on_offline_step=progress.offline_step)
         progress.finish()  # a walk without steps to place has no second run
         if result.restarted is not None:
             # the second causal run, from the placed start, whose estimates placed the offline track
-            logger.log_track("restarted", result.restarted.t_s, result.restarted.xy_m)
-        if result.smoothed is not None:
-            logger.log_track("smoothed", result.smoothed.t_s, result.smoothed.xy_m)
-        output = result.smoothed if args.smooth else result.track
+            logger.log_track("restarted", result.restarted.t_s, result.restarted.xy_m, result.restarted.floor)
+        if result.offline is not None:
+            logger.log_track("smoothed", result.offline.t_s, result.offline.xy_m, result.offline.floor)
+        written = []
         if args.out is not None:
-            (write_track_tum if args.format == "tum" else write_track_csv)(output, args.out)
+            if result.offline is not None:
+                write_track(result.offline, args.out, out_format, building)
+                write_track(result.causal, causal_path(args.out), out_format, building)
+                written += [(args.out, "offline track"), (causal_path(args.out), "causal track")]
+            else:
+                write_track(result.causal, args.out, out_format, building)
+                written.append((args.out, "causal track"))
         if args.adapted_aps is not None:
-            result.ap_table.write_csv(args.adapted_aps)
-
-    _print_summary(floorplan, recording, result, args)
-    return 0
-
-
-def _run_building(args: argparse.Namespace, building) -> int:
-    """One walk in a several-floor building: the floor in the filter's state (or --floor)."""
-    import numpy as np
-
-    from mapfilter.floortracking import track_building
-    from mapfilter.sensors.ilc import read_ilc
-    from mapfilter.trackio import write_track_csv, write_track_tum
-
-    from mapfilter.sensors.floors import load_building_radio_map
-
-    _check_building_options(args, building)
-    recording = read_ilc(args.log, strict=args.strict, warn=warn)
-    header_floor = building.floor_of_log(recording.floor_name, args.log)  # refuses a floor not in the building
-    radio_map = load_building_radio_map(args.radiomap, building.floor_names)
-    config = _tracking_config(args)
-
-    from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
-
-    from mapfilter.filter.floors import FloorStack
-
-    stack = FloorStack(building) if args.floor is None else None
-    plan = building.floors[building.floor_index(args.floor) if args.floor else (header_floor or 0)].plan
-    logger = make_logger(plan, rrd_path=args.rerun, spawn=args.spawn, max_particles=args.max_drawn_particles,
-                         recording_name=recording.name, stack=stack)
-    progress = _Progress(recording, config)
-    with logger, progress:
-        if recording.has_ground_truth and (header_floor is not None or args.floor is not None):
-            logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m)
-
-        def on_step(report) -> None:
-            logger.log_step(report)
-            progress.update(report.t_s)
-
-        result = track_building(building, recording, radio_map, config, np.random.default_rng(args.seed),
-                                on_step=on_step, floor=args.floor,
-                                on_restart_step=progress.restart_step)
-        progress.finish()  # a walk that changes floor has no second run
-        if result.restarted is not None:
-            logger.log_track("restarted", result.restarted.t_s, result.restarted.xy_m)
-        if result.smoothed is not None:
-            logger.log_track("smoothed", result.smoothed.t_s, result.smoothed.xy_m)
-        output = result.smoothed if args.smooth and result.smoothed is not None else result.track
-        if args.out is not None:
-            (write_track_tum if args.format == "tum" else write_track_csv)(output, args.out)
-    _print_building_summary(building, recording, result, header_floor, args)
-    return 0
-
-
-def _check_building_options(args: argparse.Namespace, building) -> None:
-    """The options of a building run (one walk or --out-dir)."""
-    if args.radiomap is None:
-        raise MapfilterError("tracking in a building needs a building's radio map: --radiomap RM (mapfilter "
-                             "radiomap build BUILDING.yaml LOGS...)")
-    if args.adapt or args.adapted_aps is not None:
-        raise MapfilterError("--adapt is for trilateration on one floor, not for a building")
-    if args.floor is not None:
-        building.floor_index(args.floor, args.map)
-
-
-def _print_building_summary(building, recording, result, header_floor, args) -> None:
-    from mapfilter.evaluation.floors import score_building_track
-    from mapfilter.evaluation.metrics import summarise_errors
-
-    lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans, "
-             f"{len(result.collapses)} collapses, {result.runtime_s:.1f} s"]
-    tracks = [("causal", result.track, True)]
-    if result.smoothed is not None:
-        tracks.append(("smoothed", result.smoothed, False))
-    for label, track, causal in tracks:
-        score = score_building_track(building, recording, track, header_floor, causal)
-        text = f"  {label:8s} floors {', '.join(score.floors)}"
-        if score.errors is not None:
-            right = score.floor_score
-            where = score.true_floor if isinstance(score.true_floor, str) else "the walker's floor"
-            s = summarise_errors(score.errors.errors_m)
-            text += (f"; on {where} at {right.n_right} of {right.n_judged} waypoints ({right.accuracy:.0%}); "
-                     f"error at {s['n']} waypoints: mean {s['mean']:.2f} m, median {s['median']:.2f} m, "
-                     f"p75 {s['p75']:.2f} m, max {s['max']:.2f} m")
-            if score.off_floor:
-                text += " (rows on another floor compared in their own floor's frame)"
-        lines.append(text)
-    if args.out is not None:
-        lines.append(f"  wrote {args.out}")
+            result.access_points.write_csv(args.adapted_aps)
+            written.append((args.adapted_aps, "adapted access-point table"))
     if args.rerun is not None:
-        lines.append(f"  wrote {args.rerun}")
-    print("\n".join(lines))
+        written.append((args.rerun, "rerun recording"))
+    print(_summary(building, recording, result, header_floor, written))
+    return 0
 
 
-def _print_summary(floorplan, recording, result, args) -> None:
-    from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
-    from mapfilter.maps.walls import count_wall_crossings
+def _summary(building, recording, result, header_floor, written) -> str:
+    """The printout of one walk: what ran, each track's numbers, collapses, the files written."""
+    from mapfilter.evaluation.metrics import summarise_errors
+    from mapfilter.evaluation.scoring import score_track
 
-    collapses = f"{len(result.collapses)} collapses" + (" (all recovered)" if result.collapses else "")
-    lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans, "
-             f"{collapses}, {result.runtime_s:.1f} s"]
-    tracks = [("causal", result.track, True)]
-    if result.smoothed is not None:
-        tracks.append(("smoothed", result.smoothed, False))
+    collapses = f"{len(result.collapses)} collapse{'s' if len(result.collapses) != 1 else ''}"
+    if result.collapses:
+        collapses += " (all recovered)"
+    lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used, "
+             f"{collapses}; causal {result.causal_runtime_s:.1f} s"
+             + (f", offline {result.offline_runtime_s:.1f} s" if result.offline is not None else "")]
+    tracks = [("causal", result.causal, True)]
+    if result.offline is not None:
+        tracks.append(("offline", result.offline, False))
     for label, track, causal in tracks:
-        crossings = count_wall_crossings(floorplan, track.xy_m)
-        text = f"  {label:8s} wall crossings {crossings}"
-        if recording.has_ground_truth:
-            err = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, causal)
-            s = summarise_errors(err.errors_m)
+        score = score_track(building, recording, track, header_floor, causal)
+        text = f"  {label:8s} wall crossings {score.wall_crossings}"
+        if not building.is_single_floor:
+            text += f"; floors {', '.join(score.floors)}"
+        if score.errors is not None:
+            s = summarise_errors(score.errors.errors_m)
             text += (f"; error at {s['n']} waypoints: mean {s['mean']:.2f} m, median {s['median']:.2f} m, "
                      f"p75 {s['p75']:.2f} m, max {s['max']:.2f} m")
-            if err.missed:
-                text += f" ({err.missed} waypoint{'s' if err.missed != 1 else ''} before the first estimate)"
+            if score.errors.missed:
+                n = score.errors.missed
+                text += f" ({n} waypoint{'s' if n != 1 else ''} before the first estimate, not scored)"
+            if score.floor_score is not None:
+                right = score.floor_score
+                where = score.true_floor if isinstance(score.true_floor, str) else "the walker's floor"
+                text += f"; on {where} at {right.n_right} of {right.n_judged} waypoints ({right.accuracy:.0%})"
+                if score.off_floor:
+                    text += " (rows on another floor compared in their own floor's frame)"
         lines.append(text)
+    t0 = float(recording.wifi.t_s[0]) if len(recording.wifi) else 0.0
     for event in result.collapses:
-        lines.append(f"  collapse at t={event.t_s - recording.wifi.t_s[0]:+.1f} s ({event.cause}, "
-                     f"{event.particles_lost} particles lost) -> recovered by {event.recovery}")
-    if args.out is not None:
-        lines.append(f"  wrote {args.out}")
-    if getattr(args, "adapted_aps", None) is not None:
-        lines.append(f"  wrote {args.adapted_aps} (adapted access-point table)")
-    if args.rerun is not None:
-        lines.append(f"  wrote {args.rerun}")
-    print("\n".join(lines))
+        lines.append(f"  collapse at t={event.t_s - t0:+.1f} s ({event.cause}, {event.particles_lost} particles "
+                     f"lost) -> recovered by {event.recovery}")
+    for start, end in result.gaps:
+        lines.append(f"  gap in the log from t={start - t0:+.1f} s to t={end - t0:+.1f} s: the filter started afresh")
+    for path, what in written:
+        lines.append(f"  wrote {path} ({what})")
+    return "\n".join(lines)
 
 
-def _wifi_source(args: argparse.Namespace, floorplan):
-    from mapfilter.sensors.pathloss import access_points_for_map
-    from mapfilter.sensors.radiomap import RadioMap
-
-    radio_map = RadioMap.load(args.radiomap) if args.radiomap else None
-    ap_table = None
-    if radio_map is None:
-        ap_table = access_points_for_map(args.aps, floorplan, args.map, hint="give --radiomap RM or --aps APS.csv")
-    return radio_map, ap_table
-
-
-def _tracking_config(args: argparse.Namespace):
-    from mapfilter.filter.adaptive_pathloss import AdaptationConfig
-    from mapfilter.tracking import TrackingConfig
-
-    return TrackingConfig(motion=args.motion, n_particles=args.particles, use_map=not args.no_map,
-                          fingerprint_model=args.fingerprint_model, smooth=args.smooth, adapt_path_loss=args.adapt,
-                          kwnn_min_rssi_dbm=args.kwnn_min_rssi,
-                          adaptation=AdaptationConfig(rssi_limit_dbm=args.adapt_rssi_limit),
-                          blocking_compensation=not args.no_blocking_compensation)
-
-
-def _run_batch(args: argparse.Namespace) -> int:
+def _run_batch(args: argparse.Namespace, config) -> int:
     import numpy as np
 
-    from mapfilter.batch import (BUILDING_SUMMARY_COLUMNS, SUMMARY_COLUMNS, BatchSetup, WalkResult, summary_row,
-                                 track_building_logs, track_logs)
-    from mapfilter.trackio import write_track_csv, write_track_tum
+    from mapfilter.batch import BUILDING_SUMMARY_COLUMNS, SUMMARY_COLUMNS, BatchSetup, WalkResult, summary_row, track_logs
+    from mapfilter.maps.building import Building
+    from mapfilter.trackio import write_track
 
     for option in ("out", "rerun"):
         if getattr(args, option) is not None:
             raise MapfilterError(f"--{option} is for one walk: with --out-dir every walk gets its own track file")
     if args.spawn:
         raise MapfilterError("--spawn is for one walk, not for --out-dir")
-    if args.out_dir.exists() and not args.out_dir.is_dir():
-        raise MapfilterError("the output must be a directory", args.out_dir)
     for path in args.logs:
         if not path.is_file():
             raise MapfilterError("file not found", path)
     engine = engine_from(args)
-    from mapfilter.maps.building import Building
-
     building = Building.load(args.map)
-    setup = BatchSetup(tracking=_tracking_config(args), seed=args.seed, strict=args.strict, floor=args.floor)
-    if building.is_single_floor:
-        if args.floor is not None:
-            raise MapfilterError("--floor picks a floor of a building: this map has one floor", args.map)
-        floorplan = building.floors[0].plan
-        radio_map, ap_table = _wifi_source(args, floorplan)
-        columns = SUMMARY_COLUMNS
-
-        def track_all(**kwargs):
-            return track_logs(floorplan, args.logs, radio_map, ap_table, setup, engine, **kwargs)
-    else:
-        from mapfilter.sensors.floors import load_building_radio_map
-
-        _check_building_options(args, building)
-        radio_map = load_building_radio_map(args.radiomap, building.floor_names)
-        columns = BUILDING_SUMMARY_COLUMNS
-
-        def track_all(**kwargs):
-            return track_building_logs(building, args.logs, radio_map, setup, engine, **kwargs)
-    suffix = ".tum" if args.format == "tum" else ".csv"
+    if args.floor is not None:
+        building.floor_index(args.floor, args.map)
+    radio_map, ap_table = _wifi_source(args, building, config)
+    setup = BatchSetup(tracking=config, strict=args.strict, floor=None if building.is_single_floor else args.floor)
+    columns = SUMMARY_COLUMNS if building.is_single_floor else BUILDING_SUMMARY_COLUMNS
+    out_format = args.format or "csv"
     track_files: dict[str, str] = {}
 
     def write(result: WalkResult) -> None:
@@ -396,22 +285,32 @@ def _run_batch(args: argparse.Namespace) -> int:
         if result.read_warning:
             warn(result.read_warning)
         if result.ok:
-            path = args.out_dir / f"{result.trace}{suffix}"
-            (write_track_tum if args.format == "tum" else write_track_csv)(result.track, path)
+            path = args.out_dir / f"{result.trace}.{out_format}"
+            write_track(result.track, path, out_format, building)
+            if config.smooth and result.causal is not None:
+                write_track(result.causal, causal_path(path), out_format, building)
             track_files[result.trace] = path.name
 
     started = time.perf_counter()
     with ProgressBar("track", len(args.logs)) as progress:
-        results = track_all(progress=progress, on_result=write)
+        results = track_logs(building, args.logs, radio_map, ap_table, setup, engine, progress=progress,
+                             on_result=write)
     wall_time_s = time.perf_counter() - started
     summary = args.out_dir / "summary.csv"
-    with atomic_paths(summary) as (tmp,), tmp.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, columns)
-        writer.writeheader()
-        for result in results:
-            row = summary_row(result, track_files.get(result.trace), columns)
-            writer.writerow({k: (f"{v:.4f}" if isinstance(v, float) else ("" if v is None else v))
-                             for k, v in row.items()})
+    rows = [summary_row(result, track_files.get(result.trace), columns) for result in results]
+    with atomic_paths(summary, args.out_dir / "summary.json", args.out_dir / "config.yaml") as (tmp, tmp_json, tmp_yaml):
+        with tmp.open("w", newline="") as handle:
+            writer = csv.DictWriter(handle, columns)
+            writer.writeheader()
+            for row in rows:
+                writer.writerow({k: (f"{v:.4f}" if isinstance(v, float) else ("" if v is None else v))
+                                 for k, v in row.items()})
+        tmp_json.write_text(json.dumps({"map": str(args.map), "logs": [str(p) for p in args.logs],
+                                        "radiomap": None if args.radiomap is None else str(args.radiomap),
+                                        "aps": None if args.aps is None else str(args.aps),
+                                        "engine": engine.describe(), "wall_time_s": wall_time_s,
+                                        "config": config.to_dict(), "walks": rows}, indent=1))
+        tmp_yaml.write_text(config.to_yaml())
     bad = [r for r in results if not r.ok]
     for result in bad:
         print(f"mapfilter: {result.status}: {result.reason}", file=sys.stderr)
@@ -427,7 +326,7 @@ def _run_batch(args: argparse.Namespace) -> int:
         right = sum(r.floor_score.n_right for r in tracked if r.floor_score)
         line += f"; on the walker's floor at {right} of {judged} waypoints ({right / judged:.0%})"
     print(line)
-    print(f"wrote {len(tracked)} tracks and {summary}")
+    print(f"wrote {len(tracked)} tracks, {summary}, summary.json and config.yaml to {args.out_dir}")
     return 1 if bad else 0
 
 
@@ -441,15 +340,15 @@ class _Progress:
         # filter runs over the walk, each an equal share of the bar: with --smooth the offline
         # track runs the filter a second time (restart_from_placement; ``finish`` ends the bar
         # where a walk has no second run)
-        self.runs = 2 if config.smooth and config.restart_from_placement else 1
+        self.runs = 2 if config.smooth and config.offline.restart_from_placement else 1
         self.bar = ProgressBar("tracking", 100, unit="%")
 
     def update(self, t_s: float, run: int = 0) -> None:
         done = min(max((t_s - self.t0) / self.span_s, 0.0), 1.0)
         self.bar.update_to(int(100 * (run + done) / self.runs))
 
-    def restart_step(self, report) -> None:
-        """A step of the second filter run (``on_restart_step``)."""
+    def offline_step(self, report) -> None:
+        """A step of the offline stage's second filter run (``on_offline_step``)."""
         self.update(report.t_s, run=1)
 
     def finish(self) -> None:

@@ -35,7 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="map YAML (ROS map_server, as `mapfilter map` writes) or building YAML")
     parser.add_argument("tracks", type=Path, nargs="*", metavar="TRACK", help="track files (CSV or TUM)")
     parser.add_argument("--log", type=Path, default=None, metavar="LOG",
-                        help="phone log (ILC trace, .gz ok) whose waypoints are the ground truth")
+                        help="phone log (ILC trace or GetSensorData log, .gz ok) whose waypoints are the ground truth")
     sink = parser.add_mutually_exclusive_group(required=True)
     sink.add_argument("--rerun", type=Path, default=None, metavar="OUT.rrd", help="write a rerun recording file")
     sink.add_argument("--spawn", action="store_true", help="open the rerun viewer and stream to it")
@@ -43,18 +43,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mapfilter.cli.common import warn
+    from mapfilter.cli.common import check_output_path, warn
     from mapfilter.maps.building import Building
-    from mapfilter.sensors.ilc import read_ilc
+    from mapfilter.sensors.logs import read_log
     from mapfilter.trackio import read_track
     from mapfilter.viz import view_map
 
     if args.rerun is not None and args.rerun.suffix != ".rrd":
         raise MapfilterError("the output of --rerun must end in .rrd", args.rerun)
+    check_output_path(args.rerun, "--rerun")
     # load everything before writing anything: a bad input leaves no half-made recording
     building = Building.load(args.map)
     tracks = [read_track(path) for path in args.tracks]
-    recording = read_ilc(args.log, warn=warn) if args.log is not None else None
+    # latitude/longitude ground truth (GetSensorData) is placed in the (georeferenced) building
+    recording = read_log(args.log, warn=warn, building=building) if args.log is not None else None
     if recording is not None and not recording.has_ground_truth:
         print(f"note: {args.log} has no waypoints: no ground truth to show")
     truth_floor = None

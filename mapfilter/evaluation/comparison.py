@@ -1,7 +1,7 @@
 """Every method on the same walks in one run: the engine behind ``mapfilter evaluate``.
 
 Methods (same inputs, same output: a track; errors at the ground-truth waypoint times,
-causal: each method's latest estimate at or before the waypoint):
+causal: each method's latest estimate at or before the waypoint). On one floor:
 
 =============  ==========================================================================
 ``pf``         particle filter: map + WiFi + PDR (the project's method)
@@ -14,9 +14,15 @@ causal: each method's latest estimate at or before the waypoint):
 ``ls``         least-squares trilateration per scan (needs an access-point table)
 =============  ==========================================================================
 
-With ``leave_one_out`` the radio map (and the fitted access-point table) of each walk is
-built from the *other* walks only, as the ILC evaluation needs. The smoothed PF track
-(``pf-smooth``, offline) is reported as a separate, non-causal row.
+In a building with several floors: ``pf`` (the floor in the filter's state, not given),
+``pf-floor`` (the same filter on the walker's floor, given: what finding the floor costs) and
+``kwnn`` (each scan on the causal WiFi floor HMM's floor, fixed from that floor's fingerprints),
+each also scored by its floor accuracy at the waypoints.
+
+With ``smooth`` in the tracking config, ``pf``'s offline track is reported as ``pf-smooth``
+(not causal). The radio map of the walks comes from a radio map file, from survey logs
+(``survey_paths``), or, with ``leave_one_out``, from the other evaluated walks (and any survey
+logs): each walk's fold drops its own points, as the ILC evaluation needs.
 """
 
 from __future__ import annotations
@@ -25,45 +31,58 @@ import dataclasses
 import math
 import os
 import time
+import traceback
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from mapfilter.config import TrackingConfig
 from mapfilter.engine import Engine, run_each
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.baselines import kalman_track, pdr_kwnn_track, pdr_track
 from mapfilter.evaluation.diagnostics import DIAGNOSTIC_COLUMNS, walk_diagnostics
-from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
-from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.maps.walls import count_wall_crossings
-from mapfilter.sensors.ilc import LogReadWarning, read_ilc
-from mapfilter.sensors.pathloss import AccessPointTable, estimate_access_points, least_squares_position, match_scan
-from mapfilter.sensors.pdr import detect_steps
-from mapfilter.sensors.radiomap import RadioMap, build_radio_map, kwnn_fix_many
+from mapfilter.evaluation.metrics import FloorScore, summarise_errors
+from mapfilter.evaluation.scoring import score_track
+from mapfilter.filter.evidence import calibrated_fix_sigma_m
+from mapfilter.filter.run import MotionConfig
+from mapfilter.maps.building import Building
+from mapfilter.sensors.floors import (build_building_radio_map, check_building_radio_map, floor_hmm,
+                                     floor_vote_log_likelihood)
+from mapfilter.sensors.logread import LogReadWarning
+from mapfilter.sensors.logs import read_log, read_log_header
+from mapfilter.sensors.pathloss import (AccessPointTable, check_access_points_on_map, estimate_access_points,
+                                       least_squares_position, match_scan)
+from mapfilter.sensors.pdr import Steps, detect_steps
+from mapfilter.sensors.radiomap import RadioMap, build_radio_map, check_radio_map_on_map, kwnn_fix_many
 from mapfilter.sensors.recording import Recording, trace_name
 from mapfilter.sensors.wifi import scans_of
-from mapfilter.tracking import TrackingConfig, WifiMeasurements, calibrated_fix_sigma_m, track_recording
+from mapfilter.tracking import prepare_walk, track_prepared
 from mapfilter.trackio import Track
 
 ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls")
-PF_METHODS = {"pf": {}, "pf-nomap": {"use_map": False}, "pf-nopdr": {"motion": "cv"}}
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn")
+STATUSES = ("ok", "failed", "crashed")
+
+
+def methods_for(building: Building) -> tuple[str, ...]:
+    """The methods ``evaluate`` compares on this building (its floor count decides)."""
+    return ALL_METHODS if building.is_single_floor else BUILDING_METHODS
 
 
 @dataclasses.dataclass(frozen=True)
 class EvaluationSetup:
     """What every walk is evaluated with."""
 
-    methods: tuple[str, ...] = ALL_METHODS
+    methods: tuple[str, ...] | None = None  # None: every method of ``methods_for`` the WiFi source allows
     radio_map_path: Path | None = None  # one radio map for all walks
     ap_table_path: Path | None = None  # one access-point table for all walks
-    leave_one_out: bool = False  # radio map (and fitted APs for ls) of each walk from the other walks
-    fit_aps: bool = False  # with leave_one_out: fit an AP table per walk even if no method asks for it
-    smooth: bool = False  # also report the smoothed PF track (pf-smooth)
-    seed: int = 0
+    survey_paths: tuple[Path, ...] = ()  # logs with waypoints that make the radio map (never scored)
+    leave_one_out: bool = False  # the evaluated walks join the radio map; each walk's fold drops its own points
+    fit_aps: bool = False  # with leave_one_out or a survey: fit an AP table even if no method asks for it
     strict: bool = False  # refuse a walk with a bad row in a record type it needs (default: skip the row, warn)
-    tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)
+    tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)  # seed and smooth included
 
 
 @dataclasses.dataclass
@@ -80,112 +99,368 @@ class MethodResult:
     runtime_s: float
     causal: bool = True
     diagnostics: dict[str, float] = dataclasses.field(default_factory=dict)  # the walk's (same for every method)
+    floor_score: FloorScore | None = None  # several floors: on the walker's floor at the waypoints
+
+
+@dataclasses.dataclass
+class WalkOutcome:
+    """Every method on one walk, or why the walk has no results."""
+
+    index: int
+    trace: str
+    log_path: Path
+    status: str  # ok | failed (the input's fault) | crashed (a bug)
+    reason: str = ""
+    results: list[MethodResult] = dataclasses.field(default_factory=list)
+    read_warnings: list[str] = dataclasses.field(default_factory=list)
+    runtime_s: float = 0.0
 
 
 @dataclasses.dataclass
 class AllWalks:
-    """Leave-one-out material built once from every walk: each walk's fold removes its share."""
+    """The radio map (and fitted access points) built once from every survey walk: each
+    evaluated walk's fold removes its own share (leave-one-out)."""
 
     radio_map: RadioMap
     ap_table: AccessPointTable | None  # APs fitted on every walk (None when no method needs them)
+    fix_sigma_by_floor_m: dict[str, float] | None = None  # several floors: calibrated once per floor
 
 
-def evaluate_trace(floorplan: FloorPlan, log_paths: Sequence[Path], index: int, setup: EvaluationSetup,
+@dataclasses.dataclass(frozen=True)
+class _Context:
+    """What every walk's task shares (sent to each worker once)."""
+
+    building: Building
+    setup: EvaluationSetup
+    methods: tuple[str, ...]
+    paths: tuple[Path, ...]
+    all_walks: AllWalks | None
+    true_floors: tuple[int | None, ...]  # per evaluated walk: its floor by the header (None: per waypoint or none)
+
+
+def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: EvaluationSetup,
+             engine: Engine = Engine(), progress: Callable[[int, int, str], None] | None = None,
+             on_walk: Callable[[WalkOutcome], None] | None = None,
+             resumed: Sequence[WalkOutcome] = ()) -> Evaluation:
+    """Evaluate every method on every walk, one walk per task on ``engine``. Each walk seeds its
+    own generators (``default_rng([seed, walk, method])``), so the numbers do not depend on the
+    engine. A walk that fails is reported (``WalkOutcome.status``) and the others go on;
+    ``on_walk`` sees each walk as it finishes (to write its results at once). ``resumed``: the
+    outcomes of walks already done (``evaluation.store``): those walks are not run again."""
+    paths, survey, methods = validate_setup(building, log_paths, setup)
+    started = time.perf_counter()
+    read_warnings: list[str] = []
+    with _collect_read_warnings(read_warnings):
+        recordings = [read_log(p, strict=setup.strict, building=building) for p in paths] if setup.leave_one_out else []
+        survey_recordings = [read_log(p, strict=setup.strict, building=building) for p in survey]
+    true_floors = tuple(_true_floor(building, p) for p in paths)
+    all_walks = _all_walks(building, setup, methods, survey_recordings + recordings,
+                           [_true_floor(building, p) for p in survey] + list(true_floors))
+    context = _Context(building, setup, methods, tuple(paths), all_walks, true_floors)
+    done = {o.index for o in resumed}
+    todo = [i for i in range(len(paths)) if i not in done]
+    outcomes: list[WalkOutcome] = list(resumed)
+    for _, outcome in run_each(_evaluate_walk, todo, engine, common=(context,), progress=progress,
+                               label=lambda index: paths[index].name):
+        outcomes.append(outcome)
+        read_warnings.extend(w for w in outcome.read_warnings if w not in read_warnings)
+        if on_walk is not None:
+            on_walk(outcome)
+    return Evaluation.from_outcomes(outcomes, len(paths), time.perf_counter() - started, read_warnings)
+
+
+def validate_setup(building: Building, log_paths: Sequence[str | os.PathLike],
+                   setup: EvaluationSetup) -> tuple[list[Path], list[Path], tuple[str, ...]]:
+    """Check an evaluation before it runs: (the walks, the survey logs, the methods), or a
+    ``MapfilterError`` for a missing log, a repeated trace name, an unknown method or a WiFi
+    source that does not fit."""
+    paths = checked_log_paths(log_paths)
+    survey = checked_log_paths(setup.survey_paths) if setup.survey_paths else []
+    overlap = {trace_name(p) for p in paths} & {trace_name(p) for p in survey}
+    if overlap:
+        raise MapfilterError(f"walk {sorted(overlap)[0]} is both a survey log and an evaluated walk: a walk is "
+                             f"never scored against its own points (use --leave-one-out to let the evaluated "
+                             f"walks survey each other)")
+    methods = _checked_methods(building, setup)
+    sources = sum([setup.radio_map_path is not None, setup.ap_table_path is not None and building.is_single_floor,
+                   bool(survey) or setup.leave_one_out])
+    if sources == 0:
+        raise MapfilterError("no WiFi source: give a radio map, an access-point table, survey logs or --leave-one-out")
+    if setup.radio_map_path is not None and (survey or setup.leave_one_out):
+        raise MapfilterError("give a radio map, or survey logs / --leave-one-out, not both (those build their own)")
+    if not building.is_single_floor and setup.ap_table_path is not None:
+        raise MapfilterError("a building is evaluated with a building's radio map, not an access-point table")
+    if setup.leave_one_out and len(paths) + len(survey) < 2:
+        raise MapfilterError("leave-one-out needs at least two logs")
+    return paths, survey, methods
+
+
+def evaluate_trace(building: Building, log_paths: Sequence[str | os.PathLike], index: int, setup: EvaluationSetup,
                    all_walks: AllWalks | None = None) -> list[MethodResult]:
-    """Run every method of ``setup`` on walk ``log_paths[index]``.
+    """Every method of ``setup`` on walk ``log_paths[index]``, for scripts that drive the walks
+    themselves; ``all_walks``: the survey material (leave-one-out drops this walk's points).
+    A walk that cannot be evaluated raises its ``MapfilterError``."""
+    paths = checked_log_paths(log_paths)
+    methods = _checked_methods(building, setup)
+    context = _Context(building, setup, methods, tuple(paths), all_walks,
+                       tuple(_true_floor(building, p) if i == index else None for i, p in enumerate(paths)))
+    outcome = _evaluate_walk(context, index)
+    if outcome.status != "ok":
+        raise MapfilterError(outcome.reason)
+    return outcome.results
 
-    With leave-one-out, ``all_walks`` (built from every walk) loses this walk's reference
-    points. Random draws come from ``default_rng([seed, index, method])``, so the result does
-    not depend on how walks are spread over processes.
-    """
-    recording = read_ilc(log_paths[index], strict=setup.strict)
-    if not recording.has_ground_truth:
-        raise MapfilterError("the log has no waypoints to evaluate against", log_paths[index])
-    radio_map, ap_table = _wifi_sources(recording, setup, all_walks)
-    scans = scans_of(recording)
+
+def _checked_methods(building: Building, setup: EvaluationSetup) -> tuple[str, ...]:
+    known = methods_for(building)
+    if setup.methods is None:
+        return known
+    unknown = [m for m in setup.methods if m not in ALL_METHODS + BUILDING_METHODS]
+    if unknown:
+        raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(known)}")
+    other = [m for m in setup.methods if m not in known]
+    if other:
+        what = "one floor" if building.is_single_floor else "a building with several floors"
+        raise MapfilterError(f"method(s) {', '.join(other)} are not evaluated on {what}: choose from "
+                             f"{', '.join(known)}")
+    return tuple(setup.methods)
+
+
+def _true_floor(building: Building, path: Path) -> int | None:
+    """The walk's floor by its header (a building refuses a floor it does not have)."""
     try:
-        steps = detect_steps(recording, setup.tracking.pdr)
+        header = read_log_header(path).get("FloorName") or None
     except MapfilterError:
-        steps = None  # no usable IMU: the PDR methods are left out, kf and pdr-kwnn go without steps
+        return None  # left to the walk, which fails as any unreadable log does
+    return building.floor_of_log(header, path)
+
+
+def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, ...], recordings: list[Recording],
+               floors: list[int | None]) -> AllWalks | None:
+    """The survey material built once: the radio map of every survey walk (and fitted APs)."""
+    if not recordings:
+        return None
+    if building.is_single_floor:
+        radio_map = build_radio_map(recordings, building.floors[0].plan)
+        fit = setup.ap_table_path is None and (setup.fit_aps or "ls" in methods)
+        return AllWalks(radio_map, estimate_access_points(radio_map) if fit else None)
+    for rec, floor in zip(recordings, floors):
+        if floor is None:
+            raise MapfilterError("the log's header names no floor (FloorName): its points cannot join a building's "
+                                 "radio map", rec.path)
+    radio_map = build_building_radio_map(recordings, floors, building.floor_names)
+    sigma = None
+    if setup.tracking.wifi.fix_sigma_m is None:
+        # once per floor from the whole radio map: cross-validating every floor again for every
+        # walk costs tens of seconds a walk; the walk under test lends only its share to one number
+        sigma = {name: calibrated_fix_sigma_m(radio_map.floor_map(i), setup.tracking.wifi.kwnn_k)
+                 for i, name in enumerate(building.floor_names)}
+    return AllWalks(radio_map, None, sigma)
+
+
+def _evaluate_walk(context: _Context, index: int) -> WalkOutcome:
+    """One task: every method on walk ``index``; never raises (a failure is the outcome's status),
+    with the reader's warnings brought back (a worker's would otherwise end in the worker's log)."""
+    path = context.paths[index]
+    outcome = WalkOutcome(index, trace_name(path), path, "ok")
+    started = time.perf_counter()
+    try:
+        with _collect_read_warnings(outcome.read_warnings):
+            recording = read_log(path, strict=context.setup.strict, building=context.building)
+        if not recording.has_ground_truth:
+            raise MapfilterError("the log has no waypoints to evaluate against", path)
+        if context.building.is_single_floor:
+            outcome.results = _one_floor_methods(context, index, recording)
+        else:
+            outcome.results = _building_methods(context, index, recording)
+    except MapfilterError as exc:
+        outcome.status, outcome.reason, outcome.results = "failed", str(exc), []
+    except Exception as exc:  # noqa: BLE001 - a bug in one walk must not lose the other walks' work
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        outcome.status, outcome.results = "crashed", []
+        outcome.reason = f"{type(exc).__name__}: {exc} (at {Path(where.filename).name}:{where.lineno})"
+    outcome.runtime_s = time.perf_counter() - started
+    return outcome
+
+
+class _Scorer:
+    """Scores each method's track on one walk into ``MethodResult`` rows."""
+
+    def __init__(self, context: _Context, index: int, recording: Recording) -> None:
+        self.building, self.recording = context.building, recording
+        self.header_floor = context.true_floors[index]
+        self.results: list[MethodResult] = []
+
+    def add(self, method: str, track: Track, collapses: int, runtime_s: float, causal: bool = True) -> None:
+        score = score_track(self.building, self.recording, track, self.header_floor, causal)
+        errors = score.errors
+        self.results.append(MethodResult(
+            method, self.recording.name, track, errors.errors_m if errors else np.zeros(0),
+            errors.missed if errors else int(self.recording.waypoint_t_s.size), score.wall_crossings, collapses,
+            runtime_s, causal, floor_score=score.floor_score))
+
+    def timed(self, method: str, make: Callable[[], Track]) -> None:
+        started = time.perf_counter()
+        track = make()
+        self.add(method, track, 0, time.perf_counter() - started)
+
+
+def _detected_steps(recording: Recording, tracking: TrackingConfig) -> Steps | None:
+    try:
+        return detect_steps(recording, tracking.steps)
+    except MapfilterError:
+        return None  # no usable IMU: the PDR methods are left out, kf and pdr-kwnn go without steps
+
+
+def _one_floor_methods(context: _Context, index: int, recording: Recording) -> list[MethodResult]:
+    setup, building, methods = context.setup, context.building, context.methods
+    radio_map, ap_table = _wifi_sources(recording, setup, context.all_walks, building)
+    scans = scans_of(recording)
+    steps = _detected_steps(recording, setup.tracking)
     scan_t = np.array([s.t_s for s in scans])
     tracking = setup.tracking
-    if radio_map is not None and tracking.fix_sigma_m is None and tracking.fingerprint_model in ("fix", "blend"):
+    wifi = tracking.wifi
+    if radio_map is not None and wifi.fix_sigma_m is None and wifi.fingerprint_model in ("fix", "blend"):
         # calibrate once for the three pf variants, not once each
-        tracking = dataclasses.replace(tracking, fix_sigma_m=calibrated_fix_sigma_m(radio_map, tracking.kwnn_k))
-    results: list[MethodResult] = []
-    # the pf variants share one set of fingerprint measurements (fixes, radio-map likelihood: no
-    # state); trilateration models may adapt during a run, so each run makes its own
-    wifi = None
-    if any(m in PF_METHODS for m in setup.methods) and radio_map is not None:
-        wifi = WifiMeasurements(scans, radio_map, None, floorplan, tracking, str(log_paths[index]))
+        tracking = dataclasses.replace(tracking, wifi=dataclasses.replace(
+            wifi, fix_sigma_m=calibrated_fix_sigma_m(radio_map, wifi.kwnn_k)))
+    scorer = _Scorer(context, index, recording)
+    # the pf variants share one set of fingerprint evidence (fixes, radio-map likelihood: no
+    # state); trilateration models may adapt during a run, so each run prepares its own
+    motion = tracking.motion if steps is not None else dataclasses.replace(tracking.motion, model="cv")
+    prepared = None
+    if any(m in PF_VARIANTS for m in methods) and radio_map is not None:
+        prepared = prepare_walk(building, recording, radio_map, None, dataclasses.replace(tracking, motion=motion),
+                                steps=steps)
     fixes = None
-    if wifi is not None and wifi.kwnn_xy_m is not None and tracking.kwnn_min_rssi_dbm is None:
-        fixes = wifi.kwnn_xy_m  # the same KWNN fixes the filter weighs: made once
+    kwnn_xy = getattr(prepared.evidence, "kwnn_xy_m", None) if prepared is not None else None
+    if kwnn_xy is not None and wifi.kwnn_min_rssi_dbm is None:
+        fixes = kwnn_xy  # the same KWNN fixes the filter weighs: made once
     elif radio_map is not None:  # the baselines keep plain KWNN (Chang et al.) over every reading
-        fixes = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=setup.tracking.kwnn_k).xy_m
+        fixes = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=wifi.kwnn_k).xy_m
     elif ap_table is not None:
         fixes = _ls_fixes(ap_table, scans)
 
-    def add(method: str, make: Callable[[], tuple[Track, int]], causal: bool = True) -> None:
-        started = time.perf_counter()
-        track, collapses = make()
-        runtime = time.perf_counter() - started
-        err = errors_at_waypoints(track.t_s, track.xy_m, recording.waypoint_t_s, recording.waypoint_xy_m, causal)
-        results.append(MethodResult(method, recording.name, track, err.errors_m, err.missed,
-                                    count_wall_crossings(floorplan, track.xy_m) if len(track) else 0,
-                                    collapses, runtime, causal))
-
-    for method in setup.methods:
-        if method in PF_METHODS:
+    for method in methods:
+        if method in PF_VARIANTS:
             if radio_map is None and ap_table is None:
                 continue
-            if steps is None and PF_METHODS[method].get("motion", "pdr") == "pdr":
+            config = PF_VARIANTS[method](dataclasses.replace(tracking, smooth=tracking.smooth and method == "pf"))
+            if steps is None and config.motion.model == "pdr":
                 continue
-            config = dataclasses.replace(tracking, smooth=setup.smooth and method == "pf", **PF_METHODS[method])
-            rng = np.random.default_rng([setup.seed, index, ALL_METHODS.index(method)])
-            outcome = track_recording(floorplan, recording, radio_map, ap_table if radio_map is None else None,
-                                      config, rng, steps=steps, wifi=wifi)
-            add(method, lambda: (outcome.track, len(outcome.collapses)))
-            results[-1].runtime_s = outcome.runtime_s
-            if outcome.smoothed is not None:
-                add("pf-smooth", lambda: (outcome.smoothed, len(outcome.collapses)), causal=False)
-                results[-1].runtime_s = outcome.runtime_s
+            rng = np.random.default_rng([tracking.seed, index, ALL_METHODS.index(method)])
+            walk = prepared if prepared is not None else prepare_walk(building, recording, None, ap_table, config,
+                                                                     steps=steps)
+            outcome = track_prepared(walk, config, rng=rng)
+            scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
+            if outcome.offline is not None:
+                scorer.add("pf-smooth", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
+                           causal=False)
         elif method == "kwnn" and radio_map is not None:
-            add(method, lambda: (_fix_track(scan_t, fixes, "kwnn"), 0))
+            scorer.timed(method, lambda: _fix_track(scan_t, fixes, "kwnn"))
         elif method == "pdr-kwnn" and radio_map is not None:
-            add(method, lambda: (pdr_kwnn_track(radio_map, scans, steps), 0))
+            scorer.timed(method, lambda: pdr_kwnn_track(radio_map, scans, steps))
         elif method == "kf" and fixes is not None:
             ok = np.all(np.isfinite(fixes), axis=1)
-            add(method, lambda: (kalman_track(scan_t[ok], fixes[ok], steps), 0))
+            scorer.timed(method, lambda: kalman_track(scan_t[ok], fixes[ok], steps))
         elif method == "pdr" and fixes is not None and steps is not None:
             ok = np.flatnonzero(np.all(np.isfinite(fixes), axis=1))
             if ok.size:
-                add(method, lambda: (pdr_track(steps, scan_t[ok[0]], fixes[ok[0]]), 0))
+                scorer.timed(method, lambda: pdr_track(steps, scan_t[ok[0]], fixes[ok[0]]))
         elif method == "ls" and ap_table is not None:
-            add(method, lambda: (_fix_track(scan_t, _ls_fixes(ap_table, scans), "ls"), 0))
+            scorer.timed(method, lambda: _fix_track(scan_t, _ls_fixes(ap_table, scans), "ls"))
     diagnostics = walk_diagnostics(recording, scan_t, fixes, radio_map, steps)
-    for result in results:
+    for result in scorer.results:
         result.diagnostics = diagnostics
-    return results
+    return scorer.results
 
 
-def _wifi_sources(recording: Recording, setup: EvaluationSetup,
-                  all_walks: AllWalks | None) -> tuple[RadioMap | None, AccessPointTable | None]:
+# each pf variant: the tracking config it runs with
+PF_VARIANTS: dict[str, Callable[[TrackingConfig], TrackingConfig]] = {
+    "pf": lambda c: c,
+    "pf-nomap": lambda c: dataclasses.replace(c, use_map=False),
+    "pf-nopdr": lambda c: dataclasses.replace(c, motion=dataclasses.replace(c.motion, model="cv")),
+}
+
+
+def _building_methods(context: _Context, index: int, recording: Recording) -> list[MethodResult]:
+    setup, building = context.setup, context.building
+    radio_map = _building_radio_map(recording, setup, context.all_walks, building)
+    sigma = context.all_walks.fix_sigma_by_floor_m if context.all_walks is not None else None
+    if sigma is None and setup.tracking.wifi.fix_sigma_m is None and context.all_walks is None:
+        sigma = _radio_map_sigmas(radio_map, building, setup.tracking)
+    header_floor = context.true_floors[index]
+    truth = building.floor_names[header_floor] if header_floor is not None else None
+    scorer = _Scorer(context, index, recording)
+    tracking = setup.tracking
+    steps = _detected_steps(recording, tracking)
+    has_steps = tracking.motion.model != "pdr" or (steps is not None and len(steps) > 0)
+    for method in context.methods:
+        rng = np.random.default_rng([tracking.seed, index, BUILDING_METHODS.index(method)])
+        if method in ("pf", "pf-floor"):
+            if not has_steps or (method == "pf-floor" and truth is None):
+                continue
+            config = dataclasses.replace(tracking, smooth=tracking.smooth and method == "pf")
+            walk = prepare_walk(building, recording, radio_map, None, config, steps=steps,
+                                floor=truth if method == "pf-floor" else None, fix_sigma_by_floor_m=sigma)
+            outcome = track_prepared(walk, config, rng=rng)
+            scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
+            if outcome.offline is not None:
+                scorer.add("pf-smooth", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
+                           causal=False)
+        elif method == "kwnn":
+            scorer.timed(method, lambda: kwnn_floor_track(radio_map, scans_of(recording), tracking.wifi.kwnn_k,
+                                                          building.floor_names))
+    return scorer.results
+
+
+def _radio_map_sigmas(radio_map: RadioMap, building: Building, tracking: TrackingConfig) -> dict[str, float]:
+    return {name: calibrated_fix_sigma_m(radio_map.floor_map(i), tracking.wifi.kwnn_k)
+            for i, name in enumerate(building.floor_names)}
+
+
+def _building_radio_map(recording: Recording, setup: EvaluationSetup, all_walks: AllWalks | None,
+                        building: Building) -> RadioMap:
+    if all_walks is not None:
+        return all_walks.radio_map.without_traces([recording.name]) if setup.leave_one_out else all_walks.radio_map
+    from mapfilter.sensors.floors import load_building_radio_map
+
+    radio_map = load_building_radio_map(setup.radio_map_path, building.floor_names)
+    check_radio_map_on_map(radio_map, building, setup.radio_map_path, building.path)
+    return radio_map
+
+
+def kwnn_floor_track(radio_map: RadioMap, scans, k: int, floor_names: list[str]) -> Track:
+    """KWNN across floors: each scan on the causal floor HMM's floor, fixed from that floor's
+    fingerprints; scans without a fix there are left out."""
+    scan_t = np.array([s.t_s for s in scans])
+    path = floor_hmm(floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans), k=k), scan_t)
+    floor = path.causal_floor()
+    xy = np.full((len(scans), 2), np.nan)
+    for f in np.unique(floor):
+        on = np.flatnonzero(floor == f)
+        sub = radio_map.floor_map(int(f))
+        if len(sub):
+            xy[on] = kwnn_fix_many(sub, sub.scan_matrix([scans[i] for i in on]), k=k).xy_m
+    ok = np.all(np.isfinite(xy), axis=1)
+    return Track(scan_t[ok], xy[ok], floor=[floor_names[f] for f in floor[ok]], name="kwnn")
+
+
+def _wifi_sources(recording: Recording, setup: EvaluationSetup, all_walks: AllWalks | None,
+                  building: Building) -> tuple[RadioMap | None, AccessPointTable | None]:
     radio_map = RadioMap.load(setup.radio_map_path) if setup.radio_map_path else None
     ap_table = AccessPointTable.read_csv(setup.ap_table_path) if setup.ap_table_path else None
-    if setup.leave_one_out:
-        if all_walks is None:
-            raise ValueError("leave-one-out needs the radio map of all walks")
+    if radio_map is not None:
+        check_radio_map_on_map(radio_map, building, setup.radio_map_path, building.path)
+    if ap_table is not None:
+        check_access_points_on_map(ap_table, building.floors[0].plan, building.path)
+    if all_walks is not None:
         radio_map = _drop_unheard_aps(all_walks.radio_map.without_traces([recording.name]))
         if len(radio_map) == 0:
-            raise MapfilterError("leave-one-out needs other walks with waypoints and WiFi", recording.path)
+            raise MapfilterError("no survey points left for this walk: it needs other walks with waypoints and WiFi",
+                                 recording.path)
         if ap_table is None and all_walks.ap_table is not None:
             ap_table = _leave_one_out_aps(all_walks, radio_map, recording.name)
     return radio_map, ap_table
-
-
-def _needs_fitted_aps(setup: EvaluationSetup) -> bool:
-    return setup.leave_one_out and setup.ap_table_path is None and (setup.fit_aps or "ls" in setup.methods)
 
 
 def _leave_one_out_aps(all_walks: AllWalks, fold_map: RadioMap, trace: str) -> AccessPointTable:
@@ -266,6 +541,24 @@ class Evaluation:
     n_traces: int
     wall_time_s: float
     read_warnings: list[str] = dataclasses.field(default_factory=list)  # rows the log reader skipped, per log
+    failed: list[WalkOutcome] = dataclasses.field(default_factory=list)  # walks without results, and why
+
+    @classmethod
+    def from_outcomes(cls, outcomes: Sequence[WalkOutcome], n_traces: int, wall_time_s: float,
+                      read_warnings: Sequence[str] = ()) -> Evaluation:
+        """The evaluation of these walks' outcomes, in the order of the walks."""
+        ordered = sorted(outcomes, key=lambda o: o.index)
+        return cls([r for o in ordered for r in o.results], n_traces, wall_time_s, list(read_warnings),
+                   [o for o in ordered if o.status != "ok"])
+
+    @property
+    def n_walks_done(self) -> int:
+        return len({r.trace for r in self.results}) + len(self.failed)
+
+    @property
+    def has_floors(self) -> bool:
+        """Several floors: the rows carry floor accuracy."""
+        return any(r.floor_score is not None for r in self.results)
 
     def methods(self) -> list[str]:
         seen: list[str] = []
@@ -283,11 +576,15 @@ class Evaluation:
         for method in self.methods():
             mine = [r for r in self.results if r.method == method]
             stats = summarise_errors(np.concatenate([r.errors_m for r in mine]))
-            rows.append({"method": method, **stats, "missed": sum(r.missed for r in mine),
-                         "wall_crossings": sum(r.wall_crossings for r in mine),
-                         "collapses": sum(r.collapses for r in mine),
-                         "runtime_s": sum(r.runtime_s for r in mine), "traces": len(mine),
-                         "causal": mine[0].causal})
+            row = {"method": method, **stats, "missed": sum(r.missed for r in mine),
+                   "wall_crossings": sum(r.wall_crossings for r in mine),
+                   "collapses": sum(r.collapses for r in mine),
+                   "runtime_s": sum(r.runtime_s for r in mine), "traces": len(mine), "causal": mine[0].causal}
+            if self.has_floors:
+                scores = [r.floor_score for r in mine if r.floor_score]
+                judged = sum(s.n_judged for s in scores)
+                row["floor_accuracy"] = sum(s.n_right for s in scores) / judged if judged else math.nan
+            rows.append(row)
         return rows
 
     def walk_rows(self) -> list[dict]:
@@ -302,56 +599,14 @@ class Evaluation:
 
     def trace_rows(self) -> list[dict]:
         """One row per walk and method."""
-        return [{"trace": r.trace, "method": r.method, **summarise_errors(r.errors_m), "missed": r.missed,
-                 "wall_crossings": r.wall_crossings, "collapses": r.collapses, "runtime_s": r.runtime_s}
-                for r in self.results]
-
-
-def evaluate_logs(floorplan: FloorPlan, log_paths: Sequence[str | os.PathLike], setup: EvaluationSetup,
-                  jobs: int = 1, progress: Callable[[int, int, str], None] | None = None,
-                  map_path: str | os.PathLike | None = None, engine: Engine | None = None) -> Evaluation:
-    """Evaluate every method on every walk, one walk per task on ``engine`` (default:
-    ``Engine(jobs)``: serial for 1, else ``jobs`` local Dask worker processes). Each walk seeds
-    its own generator, so the numbers do not depend on the engine. ``map_path`` is not needed
-    any more (the map itself is sent to the workers) and is ignored."""
-    engine = engine if engine is not None else Engine(jobs=jobs)
-    paths = checked_log_paths(log_paths)
-    unknown = [m for m in setup.methods if m not in ALL_METHODS]
-    if unknown:
-        raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(ALL_METHODS)}")
-    if setup.radio_map_path is None and setup.ap_table_path is None and not setup.leave_one_out:
-        raise MapfilterError("no WiFi source: give a radio map, an access-point table or leave-one-out")
-    if setup.radio_map_path is not None and setup.leave_one_out:
-        raise MapfilterError("give a radio map or leave-one-out, not both (leave-one-out builds its own)")
-    started = time.perf_counter()
-    all_walks = None
-    read_warnings: list[str] = []
-    if setup.leave_one_out:
-        if len(paths) < 2:
-            raise MapfilterError("leave-one-out needs at least two logs")
-        with _collect_read_warnings(read_warnings):
-            recordings = [read_ilc(p, strict=setup.strict) for p in paths]
-        radio_map = build_radio_map(recordings, floorplan)
-        all_walks = AllWalks(radio_map, estimate_access_points(radio_map) if _needs_fitted_aps(setup) else None)
-    results: list[list[MethodResult] | None] = [None] * len(paths)
-    # the path list goes with the shared inputs (sent once), each task carries only its index
-    for i, (per_trace, warned) in run_each(_evaluate_walk, range(len(paths)), engine,
-                                           common=(floorplan, setup, all_walks, paths),
-                                           progress=progress, label=lambda index: paths[index].name):
-        results[i] = per_trace
-        read_warnings.extend(w for w in warned if w not in read_warnings)
-    flat = [r for per_trace in results for r in (per_trace or [])]
-    return Evaluation(flat, len(paths), time.perf_counter() - started, read_warnings)
-
-
-def _evaluate_walk(floorplan: FloorPlan, setup: EvaluationSetup, all_walks: AllWalks | None, paths: list[Path],
-                   index: int) -> tuple[list[MethodResult], list[str]]:
-    """One task: ``evaluate_trace`` on walk ``index``, with the reader's warnings brought back
-    (a worker's warnings would otherwise end, if anywhere, in the worker's log)."""
-    warned: list[str] = []
-    with _collect_read_warnings(warned):
-        results = evaluate_trace(floorplan, paths, index, setup, all_walks)
-    return results, warned
+        rows = []
+        for r in self.results:
+            row = {"trace": r.trace, "method": r.method, **summarise_errors(r.errors_m), "missed": r.missed,
+                   "wall_crossings": r.wall_crossings, "collapses": r.collapses, "runtime_s": r.runtime_s}
+            if self.has_floors:
+                row["floor_accuracy"] = r.floor_score.accuracy if r.floor_score else math.nan
+            rows.append(row)
+        return rows
 
 
 class _collect_read_warnings(warnings.catch_warnings):

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from mapfilter.filter.placement import pdr_shape, rotation_vector_heading_offset
+from mapfilter.offline.placement import pdr_shape, rotation_vector_heading_offset
 from mapfilter.sensors.pdr import Steps
 from mapfilter.sensors.radiomap import STRONG_MIN_RSSI_DBM, STRONG_MISSING_DBM, RadioMap, kwnn_fix_many
 from mapfilter.sensors.recording import Recording

@@ -36,17 +36,33 @@ def plot_error_cdf(errors_by_method: dict[str, np.ndarray], path: str | os.PathL
     save_figure(fig, path)
 
 
+def walk_window_m(floorplan, points_xy_m: list[np.ndarray], margin_m: float = 10.0) -> tuple[float, float, float, float]:
+    """(x0, x1, y0, y1): the box around the points (the walk and its tracks) plus ``margin_m``,
+    within the plan's extent; the whole plan when there are no points."""
+    px0, px1, py0, py1 = floorplan.extent_m
+    xy = [np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in points_xy_m if len(p)]
+    xy = np.vstack(xy) if xy else np.zeros((0, 2))
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    if xy.shape[0] == 0:
+        return px0, px1, py0, py1
+    lo, hi = xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
+    return max(px0, lo[0]), min(px1, hi[0]), max(py0, lo[1]), min(py1, hi[1])
+
+
 def plot_tracks_on_map(floorplan, tracks: dict[str, np.ndarray], path: str | os.PathLike,
                        ground_truth_xy_m: np.ndarray | None = None, title: str = "") -> None:
-    """Write a PNG of tracks (name -> (T, 2) metres) and the ground truth over the floor plan."""
+    """Write a PNG of tracks (name -> (T, 2) metres) and the ground truth over the floor plan,
+    zoomed on the walk (``walk_window_m``)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     x0, x1, y0, y1 = floorplan.extent_m
-    aspect = (y1 - y0) / max(x1 - x0, 1e-9)
-    fig, ax = plt.subplots(figsize=(8, max(3.0, 8 * aspect)), dpi=120)
+    wx0, wx1, wy0, wy1 = walk_window_m(floorplan, [*tracks.values()] + ([ground_truth_xy_m]
+                                                                         if ground_truth_xy_m is not None else []))
+    aspect = (wy1 - wy0) / max(wx1 - wx0, 1e-9)
+    fig, ax = plt.subplots(figsize=(8, min(max(3.0, 8 * aspect), 12.0)), dpi=120)
     ax.imshow(np.where(floorplan.wall_mask, 0.35, 1.0), cmap="gray", vmin=0, vmax=1,
               extent=(x0, x1, y0, y1), origin="upper", interpolation="nearest")
     if ground_truth_xy_m is not None and len(ground_truth_xy_m):
@@ -56,6 +72,8 @@ def plot_tracks_on_map(floorplan, tracks: dict[str, np.ndarray], path: str | os.
         xy = np.asarray(xy)
         if len(xy):
             ax.plot(xy[:, 0], xy[:, 1], lw=1.0, label=name)
+    ax.set_xlim(wx0, wx1)
+    ax.set_ylim(wy0, wy1)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal")

@@ -46,17 +46,17 @@ class AdaptationConfig:
     # clamped at the 1 m reference of C, and APs fitted in 2-D (``radiomap fit-aps``) absorb
     # their height into C: 1 m keeps C_obs in that frame. Use the real height difference
     # (thesis: ceiling APs, about 2 m) only with a table whose C means 1 m in 3-D.
-    vertical_distance_m: float = 1.0
+    vertical_distance_m: float = 1.0  # phone-AP distance when the phone is below an AP
     c_gain: float = 0.5  # weight of a new C observation: C <- C + gain (C_obs - C)
     alpha_gain: float = 0.2  # weight of a new per-band alpha observation (median over the other APs)
     alpha_min_distance_m: float = 3.0  # other APs nearer than this say little about alpha (1/d)
     alpha_min_aps: int = 3  # an alpha observation needs at least this many other APs of the band
-    alpha_bounds_db_per_m: tuple[float, float] = (0.0, 2.0)
+    alpha_bounds_db_per_m: tuple[float, float] = (0.0, 2.0)  # alpha stays within these
     # APs the walk never came close to take the median C correction of the adapted APs of
     # their band. Ours, not the thesis' (its walk passed below its few APs): a wrong table is
     # usually wrong the same way for every AP (the thesis' wrong start was one C, -25 dBm, for
     # all), and a walk past a few of 14 APs would otherwise leave most of them wrong.
-    share_c_correction: bool = True
+    share_c_correction: bool = True  # APs never passed take their band's median C correction
 
     def validate(self) -> None:
         if not (math.isfinite(self.rssi_limit_dbm)):
@@ -85,20 +85,20 @@ class BlockingConfig:
     # simulated office (tools/papers/lund_thesis.py walks): 0.75 took the false detections'
     # cost in the walled office from +15 % to +6 % (PF WiFi only), but missed one onset of
     # five, whose rows were half cached (once-blocked walks +45 % instead of +5 %): off.
-    min_fraction_dropped: float = 0.0
+    min_fraction_dropped: float = 0.0  # share of APs that must drop together at an onset (0: off)
     # a scan that dropped but not together is ambiguous (an onset half in cached rows, or
     # walls): it leaves the reference alone, unless this many come in a row (the walker moved)
-    max_ambiguous_scans: int = 3
+    max_ambiguous_scans: int = 3  # ambiguous drops in a row after which the reference follows
     reference_gain: float = 0.5  # unblocked scans pull the reference level: ref <- ref + gain (m - ref)
     # a "blocking" that lasts longer than this is taken as the walker having moved somewhere
     # weaker: the reference is reset to the current level and H to 0
-    max_blocked_s: float = 60.0
+    max_blocked_s: float = 60.0  # a longer blocking: the walker moved somewhere weaker (reset)
     # how big H is once blocking is detected. "residual" (ours): the median over the heard APs
     # of R_k(x) - z_k at the particles' weighted mean x before the scan, >= 0: the drop of the
     # top-k mean also holds the walker's own moves (measured on the simulated office: H 18-22 dB
     # for a 12 dB block, and a "block" that stayed after the walker turned away). "drop": the
     # fall of the top-k mean itself.
-    h_source: str = "residual"
+    h_source: str = "residual"  # residual: median model residual at the estimate | drop: the top-k mean's fall
 
     def validate(self) -> None:
         if self.top_k < 1:

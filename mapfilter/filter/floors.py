@@ -152,24 +152,24 @@ class FloorChangeConfig:
 
     # inside a connector, the rate at which a particle takes it: a walker standing 10 s in a
     # lift or on stairs has changed floor with probability 1 - exp(-1) = 63 %
-    connector_rate_per_s: float = 0.1
+    connector_rate_per_s: float = 0.1  # rate at which a particle in a connector takes it
     # a building without connectors: a particle changes floor anywhere at this rate (to the same
     # building-frame point of another floor; where that is no floor, it dies); the WiFi floor
     # vote then keeps or kills it. 1 / 300 s puts about 0.3 % of the cloud on other floors
     # per second: enough to follow a real change within a few scans, too few to matter otherwise
-    anywhere_rate_per_s: float = 1.0 / 300.0
+    anywhere_rate_per_s: float = 1.0 / 300.0  # without connectors: rate of a floor change anywhere
     # with a barometer, inside a connector the height decides the floor: a particle in a
     # connector linking the floor the height is nearest (``FloorFix.height_floor``) is moved
     # there at once. A climber's or rider's floor flips where their height passes half a storey;
     # the memoryless rate above has only a few per cent of the cloud on the new floor then (the
     # barometer kills those that jumped early), and the new floor won only after 1-3 s
-    height_decides_in_connector: bool = True
+    height_decides_in_connector: bool = True  # in a connector, the barometer's floor wins at once
     # on stairs a step advances one tread, not a stride: building codes ask 0.22-0.30 m of
     # going (tread depth) and most stairs have 0.25-0.30 m; a particle starting a step on a
     # stairs polygon moves this far instead (drawn per step), so the cloud stays on the stairs
     # while the climber does and can take them when the height says so. PDR's 0.4-1.0 m stride
     # walked it off a 6 m flight before the climber was half-way up
-    stairs_tread_m: tuple[float, float] = (0.22, 0.32)
+    stairs_tread_m: tuple[float, float] = (0.22, 0.32)  # a step on stairs advances this far (drawn)
 
 
 class FloorChanges(FloorModel):

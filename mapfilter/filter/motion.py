@@ -59,8 +59,8 @@ class RandomWalkMotion(MotionModel):
     e ~ N(0, sigma^2 I). Thesis values: r = 1.5 dt, sigma = 0.5 dt.
     """
 
-    radius_mps: float = 1.5
-    sigma_mps: float = 0.5
+    radius_mps: float = 1.5  # the circle's radius per second (thesis: 1.5 m/s)
+    sigma_mps: float = 0.5  # Gaussian blur per second (thesis: 0.5 m/s)
 
     def propagate(self, particles: Particles, inputs: object, dt_s: float, rng: np.random.Generator) -> Particles:
         n = len(particles)
@@ -85,8 +85,8 @@ class ConstantVelocityMotion(MotionModel):
     Speeds above ``max_speed_mps`` (a walking person) are scaled back to it.
     """
 
-    accel_sigma_mps2: float = 0.5
-    max_speed_mps: float = 2.0
+    accel_sigma_mps2: float = 0.5  # random acceleration (per axis)
+    max_speed_mps: float = 2.0  # speeds above this (a walking person) are scaled back
 
     def propagate(self, particles: Particles, inputs: object, dt_s: float, rng: np.random.Generator) -> Particles:
         n = len(particles)
@@ -139,8 +139,8 @@ class PDRMotion(MotionModel):
     false_turn_fraction: float = 0.15  # thesis: 15 % of particles ignore a detected turn
     turn_threshold_rad: float = 0.35  # a change at least this large counts as a turn (~20 deg)
     step_length_walk_sigma_m: float = 0.02  # per step, random walk of the state (eq. 8.23)
-    step_length_min_m: float = 0.4
-    step_length_max_m: float = 1.0
+    step_length_min_m: float = 0.4  # the state's step length stays within [min, max]
+    step_length_max_m: float = 1.0  # (see step_length_min_m)
     fixed_step_length_m: float | None = None  # set: ignore the state
     step_length_input_sigma_m: float = 0.05  # noise on a given step length
     position_sigma_m: float = 0.05  # per step, lateral/longitudinal slack

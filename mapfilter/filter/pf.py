@@ -70,7 +70,7 @@ def _logsumexp(log_w: np.ndarray) -> float:
     return m + math.log(float(np.sum(np.exp(log_w - m))))
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class FilterConfig:
     """Settings of :class:`ParticleFilter` (defaults follow Evennou & Marx where they say)."""
 
@@ -89,14 +89,12 @@ class FilterConfig:
     recovery_reset_steps: int = 10  # healthy steps after which the radius starts small again
     recovery_measurement_max_age_s: float = 10.0  # an older measurement is not used to recover
     recovery_heading_keep_fraction: float = 0.5  # PDR: share of recovered particles keeping an old heading
-    keep_ancestry: bool = False  # record lineage for smoothed_track() (N * 20 bytes per step)
     # the step in two passes of filter/fused.py from this many particles on (None: never, 0:
     # always), for motion models that offer its terms (random walk, constant velocity, PDR; any
-    # measurement model, a Gaussian fix inside the pass) with the systematic resampler and the
-    # Gaussian kernel; its draws differ from the named stages' (the same distributions). Its
-    # kernels add about 2 s to the first run after install (numba compiles them once); at
-    # 10,000 particles a step costs about a millisecond either way and a walk's time goes
-    # elsewhere (docs/benchmarks.md)
+    # measurement model, a Gaussian fix and trilateration inside the pass) with the systematic
+    # resampler and the Gaussian kernel; its draws differ from the named stages' (the same
+    # distributions). Its kernels add about 2 s to the first run after install (numba compiles
+    # them once), and below 20,000 particles a walk's time goes elsewhere (docs/benchmarks.md)
     fused_from_particles: int | None = 20_000
 
     def __post_init__(self) -> None:
@@ -125,10 +123,12 @@ class ParticleFilter:
         change floor after the wall check, the estimate is taken on the floor with most weight
         and the jitter's spread in the building frame. None: one floor (``OneFloor``, not a
         single extra random draw).
+    keep_ancestry : record every step's parents for ``smoothed_track`` (N * 20 bytes per step).
     """
 
     def __init__(self, floorplan: FloorPlan, motion: MotionModel, config: FilterConfig | None = None,
-                 rng: np.random.Generator | None = None, floors: FloorModel | None = None) -> None:
+                 rng: np.random.Generator | None = None, floors: FloorModel | None = None,
+                 keep_ancestry: bool = False) -> None:
         if rng is None:
             raise ValueError("pass an explicit numpy.random.Generator (same seed, same result)")
         if floors is not None and floors.plan is not floorplan:
@@ -143,7 +143,7 @@ class ParticleFilter:
         self.estimate_xy_m: np.ndarray | None = None
         self.estimate_std_m: float = math.inf
         self.collapses: list[CollapseEvent] = []
-        self.ancestry: Ancestry | None = Ancestry() if self.config.keep_ancestry else None
+        self.ancestry: Ancestry | None = Ancestry() if keep_ancestry else None
         self._step_index = 0
         self._lineage_broken = True
         self._last_measurement: tuple[float, Any, Any] | None = None  # (t_s, model, measurement)
@@ -578,5 +578,5 @@ class ParticleFilter:
     def smoothed_track(self) -> tuple[np.ndarray, np.ndarray]:
         """(t_s (T,), xy_m (T, 2)): the lineage of the final best particle (needs keep_ancestry)."""
         if self.ancestry is None:
-            raise RuntimeError("smoothed_track needs FilterConfig(keep_ancestry=True)")
+            raise RuntimeError("smoothed_track needs ParticleFilter(..., keep_ancestry=True)")
         return self.ancestry.smoothed_track()

@@ -22,6 +22,9 @@ and the connectors between them (stairs, escalators, lifts)::
           F1: [[10, 5], [14, 5], [14, 9], [10, 9]]
           F2: [[10, 5], [14, 5], [14, 9], [10, 9]]
     connectors_geojson: connectors.geojson   # optional, more connectors (see below)
+    georeference:                   # optional: the building frame is the east/north tangent
+      origin_lat_deg: 49.46115181   # plane (x east, y north, metres) at this WGS-84 point
+      origin_lon_deg: 11.11114911
 
 Connectors in GeoJSON: a FeatureCollection of polygons in floor metres whose properties
 name the connector, its kind and the floor the polygon is on
@@ -33,7 +36,9 @@ Positions on a floor (tracks, waypoints, connectors) stay in that floor's frame,
 ground truth (each floor in its own frame) compares directly.
 
 :meth:`Building.load` reads either a building YAML or a single map YAML (a one-floor
-building), so every command that takes a map also takes a building.
+building), so every command that takes a map also takes a building. A building with a
+georeference knows where it is on the Earth (maps/georef.py): positions convert between floor
+metres and latitude/longitude (:meth:`Building.floor_xy_to_latlon`, :meth:`Building.latlon_to_floor_xy`).
 """
 
 from __future__ import annotations
@@ -52,6 +57,7 @@ from shapely.geometry import shape as geojson_shape
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
 from mapfilter.maps.floorplan import FloorPlan, is_number, read_yaml_mapping
+from mapfilter.maps.georef import LocalFrame
 
 CONNECTOR_KINDS = ("stairs", "escalator", "lift")
 
@@ -114,6 +120,7 @@ class Building:
     name: str | None = None
     path: Path | None = None
     storey_height_m: float | None = None
+    georeference: LocalFrame | None = None  # the building frame's place on the Earth, if known
 
     def __post_init__(self) -> None:
         if not self.floors:
@@ -144,18 +151,67 @@ class Building:
     def floor(self, name: str) -> Floor:
         return self.floors[self.floor_index(name)]
 
-    def floor_of_log(self, header_floor: str | None, log_path: str | os.PathLike | None) -> int | None:
-        """The floor index a log's header names (``FloorName``), None if the header names none.
+    def floor_of_log(self, header_floor: str | None, log_path: str | os.PathLike | None,
+                     given: str | None = None) -> int | None:
+        """The floor index a log belongs to: ``given`` (the user's ``--floor``) if any, else the
+        floor its header names (``FloorName``); None if neither names one.
 
-        A one-floor building takes every log (its floor is the building's only floor, whatever
-        the header says, as single-floor maps always did); a several-floor building refuses a
-        log whose floor it does not have.
+        A log whose header names a floor the building does not have is refused with one line
+        (a walk of another floor tracked here goes wrong by the floors' distance), except on a
+        one-floor map that declares no floor name (it takes every log).
         """
-        if self.is_single_floor:
-            return 0
+        if given is not None:
+            return self.floor_index(given, log_path)
         if not header_floor:
-            return None
-        return self.floor_index(header_floor, log_path)
+            return 0 if self.is_single_floor else None
+        for i, floor in enumerate(self.floors):
+            if floor.name == header_floor:
+                return i
+        if self.is_single_floor and self.floors[0].plan.floor_name is None:
+            return 0
+        raise MapfilterError(f"floor {header_floor!r} is not in the building {self.path or ''} (floors: "
+                             f"{', '.join(self.floor_names)}): give the map of the log's floor (track --floor NAME "
+                             f"tracks it on one of these anyway)".replace("building  (", "building ("), log_path)
+
+    # ---- georeference ----------------------------------------------------------------------
+    def _frame(self, where: str | os.PathLike | None) -> LocalFrame:
+        if self.georeference is None:
+            raise MapfilterError(f"the building {self.path or ''} has no georeference (latitude/longitude): "
+                                 "make it with 'mapfilter map import-ipin' or add a 'georeference' "
+                                 "to its YAML".replace("  ", " "), where if where is not None else self.path)
+        return self.georeference
+
+    def latlon_to_floor_xy(self, latlon_deg: np.ndarray, floor_names: list[str] | str,
+                           where: str | os.PathLike | None = None) -> np.ndarray:
+        """(N, 2) latitude/longitude degrees -> (N, 2) metres in each point's floor frame.
+
+        ``floor_names`` names each point's floor (or one floor for all); a one-floor building
+        takes every point on its floor. ``MapfilterError`` (naming ``where``) without a
+        georeference or for a floor the building does not have.
+        """
+        frame = self._frame(where)
+        building_xy = frame.to_xy_m(np.asarray(latlon_deg, dtype=np.float64).reshape(-1, 2))
+        return self._per_floor(building_xy, floor_names, where, to_building=False)
+
+    def floor_xy_to_latlon(self, xy_m: np.ndarray, floor_names: list[str] | str | None,
+                           where: str | os.PathLike | None = None) -> np.ndarray:
+        """(N, 2) metres in each point's floor frame -> (N, 2) latitude/longitude degrees."""
+        frame = self._frame(where)
+        xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+        if floor_names is None:
+            floor_names = self.floors[0].name
+        return frame.to_latlon_deg(self._per_floor(xy, floor_names, where, to_building=True))
+
+    def _per_floor(self, xy: np.ndarray, floor_names: list[str] | str, where, to_building: bool) -> np.ndarray:
+        names = [floor_names] * xy.shape[0] if isinstance(floor_names, str) else list(floor_names)
+        if len(names) != xy.shape[0]:
+            raise ValueError(f"{xy.shape[0]} points but {len(names)} floor names")
+        out = np.empty_like(xy)
+        for name in sorted(set(names)):
+            floor = self.floors[0] if self.is_single_floor else self.floors[self.floor_index(name, where)]
+            rows = np.array([n == name for n in names])
+            out[rows] = floor.to_building(xy[rows]) if to_building else floor.from_building(xy[rows])
+        return out
 
     # ---- validation -----------------------------------------------------------------------
     def validate(self) -> None:
@@ -193,14 +249,20 @@ class Building:
 
     # ---- files ----------------------------------------------------------------------------
     @classmethod
+    def from_plan(cls, plan: FloorPlan, path: str | os.PathLike | None = None) -> Building:
+        """A single map as a one-floor building (as ``load`` makes one from a map YAML)."""
+        path = None if path is None else Path(path)
+        name = plan.floor_name or (path.stem if path is not None else "floor")
+        return cls([Floor(name, plan, map_path=path)], path=path)
+
+    @classmethod
     def load(cls, path: str | os.PathLike) -> Building:
         """Read a building YAML, or a map YAML as a one-floor building (see the module docstring)."""
         path = Path(path)
         meta = read_yaml_mapping(path, "a map or building YAML")
         if "floors" not in meta:
             if "image" in meta:  # a ROS map_server map: one floor
-                plan = FloorPlan.load(path)
-                return cls([Floor(plan.floor_name or path.stem, plan, map_path=path)], path=path)
+                return cls.from_plan(FloorPlan.load(path), path)
             raise MapfilterError("neither a building YAML (no 'floors' list) nor a map YAML (no 'image')", path)
         floors_meta = meta["floors"]
         if not isinstance(floors_meta, list) or not floors_meta:
@@ -213,7 +275,7 @@ class Building:
             connectors += read_connectors_geojson(_resolve(path, meta["connectors_geojson"]))
         storey = meta.get("storey_height_m")
         building = cls(floors, connectors, None if meta.get("building") is None else str(meta["building"]), path,
-                       float(storey) if is_number(storey) else None)
+                       float(storey) if is_number(storey) else None, _read_georeference(path, meta))
         building.validate()
         return building
 
@@ -235,6 +297,9 @@ class Building:
             meta["building"] = self.name
         if self.storey_height_m is not None:
             meta["storey_height_m"] = float(self.storey_height_m)
+        if self.georeference is not None:
+            meta["georeference"] = {"origin_lat_deg": float(self.georeference.origin_lat_deg),
+                                    "origin_lon_deg": float(self.georeference.origin_lon_deg)}
         meta["floors"] = floors
         if self.connectors:
             meta["connectors"] = [
@@ -310,6 +375,18 @@ def _read_floor(path: Path, index: int, meta: Any) -> Floor:
     plan = FloorPlan.load(map_path)
     return Floor(name, plan, float(elevation), (float(offset[0]), float(offset[1])), math.radians(float(rotation)),
                  map_path)
+
+
+def _read_georeference(path: Path, meta: dict) -> LocalFrame | None:
+    geo = meta.get("georeference")
+    if geo is None:
+        return None
+    if not (isinstance(geo, dict) and is_number(geo.get("origin_lat_deg")) and is_number(geo.get("origin_lon_deg"))):
+        raise MapfilterError("'georeference' must give origin_lat_deg and origin_lon_deg (WGS-84 degrees)", path)
+    try:
+        return LocalFrame(float(geo["origin_lat_deg"]), float(geo["origin_lon_deg"]))
+    except MapfilterError as exc:
+        raise MapfilterError(exc.reason, path) from None
 
 
 def _read_connector(path: Path, index: int, meta: Any) -> Connector:

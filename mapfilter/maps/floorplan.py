@@ -35,6 +35,16 @@ DEFAULT_FREE_THRESH = 0.196
 _FREE_VALUE = 254
 _WALL_VALUE = 0
 
+# What a floor plan can be. A pixel from 1 mm to 10 m (real plans: 1-50 cm); an origin within
+# 10 000 km (any projected frame on Earth, e.g. UTM); an image of at most 120 M pixels (the IPIN
+# 2023 plans are 54 M): tracking on a mask of that size takes about 2 GB (its wall-distance
+# transform is 8 bytes a pixel). A 20000 x 20000 PNG can be a 434 kB file: its size is read
+# from the header, before anything is decoded.
+MIN_RESOLUTION_M = 1e-3
+MAX_RESOLUTION_M = 10.0
+MAX_ORIGIN_M = 1e7
+MAX_IMAGE_PIXELS = 120_000_000
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class SourceImage:
@@ -73,6 +83,9 @@ class FloorPlan:
         self.wall_mask = np.ascontiguousarray(mask, dtype=bool)
         if not (math.isfinite(self.resolution_m) and self.resolution_m > 0):
             raise MapfilterError(f"resolution must be a positive number of metres per pixel, got {self.resolution_m}")
+        problem = plan_geometry_problem(self.resolution_m, self.origin_m)
+        if problem:
+            raise MapfilterError(problem)
         self.resolution_m = float(self.resolution_m)
         self.origin_m = (float(self.origin_m[0]), float(self.origin_m[1]))
 
@@ -176,6 +189,9 @@ class FloorPlan:
         origin = meta["origin"]
         if not (isinstance(origin, list) and len(origin) in (2, 3) and all(is_number(v) for v in origin)):
             raise MapfilterError(f"'origin' must be [x, y, yaw] numbers, got {origin!r}", yaml_path)
+        problem = plan_geometry_problem(resolution, origin[:2])
+        if problem:
+            raise MapfilterError(problem, yaml_path)
         if len(origin) == 3 and abs(float(origin[2])) > 1e-9:
             raise MapfilterError(f"a rotated map (origin yaw {origin[2]}) is not supported", yaml_path)
         occupied_thresh = meta.get("occupied_thresh", DEFAULT_OCCUPIED_THRESH)
@@ -198,13 +214,16 @@ class FloorPlan:
 
         image_path = _resolve(yaml_path, meta["image"])
         gray = read_gray_image(image_path)
+        # the rule for each of the 256 grey values, looked up per pixel: the same numbers as
+        # computing it per pixel, without (H, W) float64 temporaries
+        values = np.arange(256, dtype=np.uint8)
         if mode == "raw":
             # raw: the pixel value is the occupancy in percent (0 = free)
-            occupancy = gray.astype(np.float64) / 100.0
+            occupancy = values.astype(np.float64) / 100.0
         else:
-            occupancy = gray.astype(np.float64) / 255.0 if negate else (255.0 - gray) / 255.0
+            occupancy = values.astype(np.float64) / 255.0 if negate else (255.0 - values) / 255.0
         # Unknown cells (between the thresholds) are not walkable: they count as wall.
-        wall = ~(occupancy < free_thresh) if mode != "raw" else occupancy > 0.0
+        wall = (~(occupancy < free_thresh) if mode != "raw" else occupancy > 0.0)[gray]
 
         ours = meta.get("mapfilter") or {}
         if not isinstance(ours, dict):
@@ -219,6 +238,10 @@ class FloorPlan:
                 resolution_m=_positive_float(ours.get("source_resolution", resolution), "source_resolution", yaml_path),
                 origin_m=(float(src_origin[0]), float(src_origin[1])),
             )
+            problem = plan_geometry_problem(source.resolution_m, source.origin_m, "source_resolution", "source_origin")
+            if problem:
+                raise MapfilterError(problem, yaml_path)
+            _check_source_image_size(source.path, yaml_path)
         aps = _resolve(yaml_path, ours["access_points"]) if ours.get("access_points") else None
         floor = ours.get("floor")
         return cls(wall, resolution, (float(origin[0]), float(origin[1])),
@@ -260,18 +283,89 @@ class FloorPlan:
             tmp_yaml.write_text(yaml.safe_dump(meta, sort_keys=False))
 
 
-def read_gray_image(path: str | os.PathLike) -> np.ndarray:
-    """Read an image as 8-bit grey (colour channels averaged, as map_server does)."""
+def plan_geometry_problem(resolution_m: float, origin_m, resolution_key: str = "resolution",
+                          origin_key: str = "origin") -> str | None:
+    """Why a plan's resolution (m/px) and origin (m) cannot be a floor plan, or None if they can
+    (the ranges ``MIN_RESOLUTION_M``..``MAX_RESOLUTION_M`` and ``MAX_ORIGIN_M``)."""
+    if not (math.isfinite(resolution_m) and MIN_RESOLUTION_M <= resolution_m <= MAX_RESOLUTION_M):
+        return (f"'{resolution_key}' {resolution_m!r} m/px is not a floor plan's: it must be between "
+                f"{MIN_RESOLUTION_M:g} and {MAX_RESOLUTION_M:g} metres per pixel")
+    for value in origin_m:
+        if not (math.isfinite(float(value)) and abs(float(value)) <= MAX_ORIGIN_M):
+            return (f"'{origin_key}' {list(origin_m)!r} is not a floor plan's: each coordinate must be within "
+                    f"{MAX_ORIGIN_M:g} m of 0")
+    return None
+
+
+def image_size_px(path: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) of an image file read from its header, without decoding it.
+
+    ``MapfilterError`` if the file is missing or not an image format we read.
+    """
     path = Path(path)
     if not path.is_file():
         raise MapfilterError("file not found", path)
+    with path.open("rb") as handle:
+        head = handle.read(26)
+    # PNG: the signature, then the IHDR chunk (length, type, width, height: big-endian)
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    import warnings
+
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as image:  # reads the header only
+                return image.size
+    except Image.DecompressionBombError:  # Pillow's own limit, above ours
+        return (2 * Image.MAX_IMAGE_PIXELS, 1)
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
+        raise MapfilterError("not a readable image (PNG, PGM, JPEG, BMP, TIFF, ...)", path) from None
+
+
+def _check_source_image_size(path: Path, yaml_path: Path) -> None:
+    # the picture drawn under the mask must fit in memory too; a missing or unreadable one is
+    # simply not drawn (viz), as before
+    try:
+        width, height = image_size_px(path)
+    except MapfilterError:
+        return
+    if width * height > MAX_IMAGE_PIXELS:
+        raise MapfilterError(f"the source image {path} is {width} x {height} pixels, more than the "
+                             f"{MAX_IMAGE_PIXELS / 1e6:.0f} M a floor plan may have", yaml_path)
+
+
+def check_image_size(path: str | os.PathLike, max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int]:
+    """``image_size_px``, refused with one line if the image has more than ``max_pixels``."""
+    width, height = image_size_px(path)
+    if width * height > max_pixels:
+        raise MapfilterError(f"the image is {width} x {height} pixels ({width * height / 1e6:.0f} M), more than the "
+                             f"{max_pixels / 1e6:.0f} M a floor plan may have: scale it down (and its resolution "
+                             f"up by the same factor)", path)
+    if width == 0 or height == 0:
+        raise MapfilterError("the image is empty (0 pixels)", path)
+    return width, height
+
+
+def read_gray_image(path: str | os.PathLike) -> np.ndarray:
+    """Read an image as 8-bit grey (colour channels averaged, as map_server does).
+
+    The size is checked from the file's header first (``check_image_size``)."""
+    path = Path(path)
+    check_image_size(path)
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise MapfilterError("not a readable image", path)
     if image.dtype != np.uint8:
         image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
     if image.ndim == 3:
-        image = image[..., :3].mean(axis=2).round().astype(np.uint8)
+        # in bands of rows: the float64 mean of a whole large plan would take 8 bytes a pixel
+        gray = np.empty(image.shape[:2], dtype=np.uint8)
+        for top in range(0, image.shape[0], 1024):
+            gray[top:top + 1024] = image[top:top + 1024, :, :3].mean(axis=2).round().astype(np.uint8)
+        image = gray
     return image
 
 
@@ -288,7 +382,8 @@ def read_yaml_mapping(path: Path, what: str = "a map YAML") -> dict:
         problem = getattr(exc, "problem", None) or "malformed YAML"
         raise MapfilterError(f"malformed YAML: {problem}", path, line) from None
     except UnicodeDecodeError:
-        raise MapfilterError("not a text YAML file", path) from None
+        raise MapfilterError("not a map YAML (a text file) but binary data: an image? make a map from a floor plan "
+                             "image with `mapfilter map prepare PLAN.png --out MAP.yaml`", path) from None
     if not isinstance(meta, dict):
         raise MapfilterError(f"{what} must be a mapping of keys", path)
     return meta

@@ -34,7 +34,7 @@ from shapely.geometry import shape as geojson_shape
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
-from mapfilter.maps.floorplan import FloorPlan, SourceImage
+from mapfilter.maps.floorplan import MAX_IMAGE_PIXELS, FloorPlan, SourceImage, check_image_size, plan_geometry_problem
 
 EARTH_RADIUS_M = 6378137.0  # Web Mercator sphere (ILC README)
 # Two scale sources that disagree by more than this (relative) are contradictory; ILC floors
@@ -114,10 +114,11 @@ def _check_pixel_counts(options: Any, names: tuple[str, ...]) -> None:
 
 # ---- reading plans --------------------------------------------------------------------------
 def read_plan_image(path: str | os.PathLike) -> np.ndarray:
-    """Read a plan as 8-bit BGRA (grey and BGR images get an opaque alpha channel)."""
+    """Read a plan as 8-bit BGRA (grey and BGR images get an opaque alpha channel).
+
+    The size is checked from the file's header first (``floorplan.check_image_size``)."""
     path = Path(path)
-    if not path.is_file():
-        raise MapfilterError("file not found", path)
+    check_image_size(path)
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None or image.size == 0:
         raise MapfilterError("not a readable image", path)
@@ -194,7 +195,7 @@ def prepare_lines(
     if options.thicken_px > 0:
         ink = _dilate(ink, options.thicken_px)
     if options.outside_is_wall:
-        ink = _fill_outside(ink, plan_path)
+        ink = _fill_outside(ink, plan_path, keep_free_option="--keep-outside")
     return _finish(ink, resolution_m, map_resolution_m, plan_path, floor_name)
 
 
@@ -235,8 +236,9 @@ def _remove_small_areas(mask: np.ndarray, below_px: int) -> np.ndarray:
     return keep[labels]
 
 
-def _fill_outside(wall: np.ndarray, path: Path | None = None) -> np.ndarray:
-    """Mark free space 4-connected to the image border as wall (outside the building)."""
+def _fill_outside(wall: np.ndarray, path: Path | None = None, keep_free_option: str = "--keep-outside") -> np.ndarray:
+    """Mark free space 4-connected to the image border as wall (outside the building).
+    ``keep_free_option``: how the user's kind of plan keeps the outside free (for the message)."""
     count, labels = cv2.connectedComponents((~wall).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     outside = np.isin(labels, border[border > 0])
@@ -244,7 +246,7 @@ def _fill_outside(wall: np.ndarray, path: Path | None = None) -> np.ndarray:
     if filled.all() and not wall.all():
         raise MapfilterError(
             "all free space is connected to the image border, so it all counts as outside: the outer wall has "
-            "an opening (close it with --edits, or keep the outside free with --keep-outside)", path)
+            f"an opening (close it with --edits, or keep the outside free: {keep_free_option})", path)
     return filled
 
 
@@ -260,6 +262,15 @@ def _finish(
     resolution_m = plan_resolution_m
     if map_resolution_m is not None:
         resolution_m = _positive(map_resolution_m, "map resolution", plan_path)
+    problem = plan_geometry_problem(resolution_m, (0.0, 0.0), "map resolution" if map_resolution_m else "resolution")
+    if problem:
+        raise MapfilterError(problem, plan_path)
+    if map_resolution_m is not None:
+        ratio = plan_resolution_m / resolution_m
+        rows_out, cols_out = round(wall_plan.shape[0] * ratio), round(wall_plan.shape[1] * ratio)
+        if rows_out * cols_out > MAX_IMAGE_PIXELS:
+            raise MapfilterError(f"map resolution {resolution_m:g} m gives a {cols_out}x{rows_out} mask, more than "
+                                 f"{MAX_IMAGE_PIXELS / 1e6:.0f} M pixels: choose a coarser one", plan_path)
         wall = resample_wall_mask(wall_plan, plan_resolution_m, resolution_m)
     _check_mask(wall, plan_path)
     source = SourceImage(path=plan_path.resolve(), resolution_m=plan_resolution_m, origin_m=(0.0, 0.0))
@@ -290,8 +301,10 @@ def resample_wall_mask(wall: np.ndarray, from_resolution_m: float, to_resolution
     row_lo = np.floor(rows_in - (rows_out - np.arange(rows_out)) * ratio + 1e-9).astype(np.int64)
     row_hi = np.ceil(rows_in - (rows_out - np.arange(rows_out) - 1) * ratio - 1e-9).astype(np.int64)
     # summed-area table: any wall in a block <=> block sum > 0 (outside the plan is not wall)
-    table = np.zeros((rows_in + 1, cols_in + 1), dtype=np.int64)
-    table[1:, 1:] = np.cumsum(np.cumsum(wall, axis=0), axis=1)
+    # int32 holds any count of a mask within floorplan.MAX_IMAGE_PIXELS, at half int64's memory
+    count = np.int32 if wall.size < 2**31 else np.int64
+    table = np.zeros((rows_in + 1, cols_in + 1), dtype=count)
+    table[1:, 1:] = np.cumsum(np.cumsum(wall, axis=0, dtype=count), axis=1, dtype=count)
     r0 = np.clip(row_lo, 0, rows_in)[:, None]
     r1 = np.clip(row_hi, 0, rows_in)[:, None]
     c0 = np.clip(col_lo, 0, cols_in)[None, :]
@@ -374,7 +387,7 @@ def prepare_regions(
     if options.open_outlines_px > 0:
         wall = _erode(wall, options.open_outlines_px)
     if options.outside_is_wall:
-        wall = _fill_outside(wall, plan_path)
+        wall = _fill_outside(wall, plan_path, keep_free_option="no --outside-wall")
     return _finish(wall, resolution_m, map_resolution_m, plan_path, floor_name)
 
 

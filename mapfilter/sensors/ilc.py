@@ -11,11 +11,14 @@ by the simulator: ``TYPE_PRESSURE`` rows (``time TYPE_PRESSURE hPa accuracy``, a
 a fifth ``TYPE_WAYPOINT`` column naming the waypoint's floor (a walk over several floors). Real logs hold oddities, and
 the reader keeps the walk where it can:
 
-- a bad row (too few fields, a value that is not a number, ``Infinity`` or ``NaN``) in a
-  record type the run does not need (``needed``; beacons by default) is skipped and counted;
+- a bad row (too few fields, a value that is not a number, ``Infinity`` or ``NaN``, or one
+  outside its physical range: ``logread.RANGES``) in a record type the run does not need
+  (``needed``; beacons and the magnetometer by default) is skipped and counted;
 - a bad row in a needed type is skipped too, unless ``strict``: then it is refused with an
   error naming the file and line;
-- two records on one line (a missing newline) are split back into two records;
+- two records on one line (a missing newline) are split back into two records; a line longer
+  than ``logread.MAX_LINE_BYTES`` is read past without being held, and counted as unreadable;
+- exact duplicate records are kept once; long stretches with no record are reported;
 - a gzip stream that ends early (a cut download) keeps the complete lines before the cut
   (refused with ``strict``); a corrupted stream is refused, since its data cannot be trusted;
 - a log with no usable record left is refused.
@@ -25,53 +28,41 @@ What was skipped is in ``Recording.read_report`` (``ReadReport.warning()`` is on
 
 from __future__ import annotations
 
-import gzip
-import math
 import os
 import re
-import warnings
-import zlib
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
 
 from mapfilter.errors import MapfilterError
+from mapfilter.sensors.logread import (BadRow, LogReadWarning, check_range, check_usable, count_bad_row, drop_duplicate_records,
+                                       drop_duplicate_rows, emit_warning, find_time_gaps, iter_bounded_lines,
+                                       group_scans, open_binary, parse_number, quick_numbers, read_lines)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording, WifiScans
-from mapfilter.sensors.wifi import ap_key, band_of_frequency
+
+__all__ = ["DEFAULT_MAX_WIFI_AGE_S", "NEEDED_TYPES", "LogReadWarning", "read_ilc", "read_ilc_header"]
 
 DEFAULT_MAX_WIFI_AGE_S = 5.0
+FORMAT_NAME = "ILC 2.0"
 
-# record type -> name of the sensor list
+# record type -> (name of the sensor list, physical quantity of its three values)
 _VECTOR_TYPES = {
-    "TYPE_ACCELEROMETER": "acc",
-    "TYPE_GYROSCOPE": "gyro",
-    "TYPE_MAGNETIC_FIELD": "magnet",
-    "TYPE_ROTATION_VECTOR": "rotvec",
+    "TYPE_ACCELEROMETER": ("acc", "acc_mps2"),
+    "TYPE_GYROSCOPE": ("gyro", "gyro_radps"),
+    "TYPE_MAGNETIC_FIELD": ("magnet", "magnet_ut"),
+    "TYPE_ROTATION_VECTOR": ("rotvec", "quaternion"),
 }
-# What tracking, evaluation and radio maps read: ground truth, WiFi, and the IMU streams that
-# dead reckoning uses (accelerometer, gyroscope, rotation vector). The magnetometer and the
-# beacons are read but used by no stage.
+# What tracking, evaluation and radio maps read: ground truth, WiFi, the IMU streams that dead
+# reckoning uses (accelerometer, gyroscope, rotation vector) and the barometer the floor
+# tracking uses. The magnetometer and the beacons are read but used by no stage.
 NEEDED_TYPES = frozenset({"TYPE_WAYPOINT", "TYPE_ACCELEROMETER", "TYPE_GYROSCOPE", "TYPE_ROTATION_VECTOR",
-                          "TYPE_WIFI"})
+                          "TYPE_WIFI", "TYPE_PRESSURE"})
 
 # A record starts with a Unix time in ms: 13 digits from 2001 to 2286. A missing newline glues
 # the previous record's last field to the next record's time, e.g. "3" + "1574559495401".
 _TIME_DIGITS = 13
 _RECORD_TYPE = re.compile(r"TYPE_[A-Z0-9_]+")
-
-
-class LogReadWarning(UserWarning):
-    """Rows of a log were skipped (the message is one line naming the file, types and lines)."""
-
-
-class _BadRow(Exception):
-    """A row that cannot be read; ``reason`` says why."""
-
-    def __init__(self, kind: str, reason: str):
-        super().__init__(reason)
-        self.kind = kind
-        self.reason = reason
 
 
 def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_AGE_S, *,
@@ -83,89 +74,72 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
     are stale cached results and are dropped (``inf`` keeps all); a BSSID heard twice in
     one scan on the same band keeps its strongest row.
 
-    Bad rows of a type outside ``needed`` are always skipped; bad rows of a needed type and
-    a truncated gzip stream are skipped unless ``strict``, which refuses them with a
-    ``MapfilterError`` naming the file and line. When anything was skipped, the report's
-    one-line warning goes to ``warn`` if given, else to ``warnings.warn`` as a ``LogReadWarning``.
+    Bad rows (malformed, not finite, or outside the physical range of their quantity:
+    ``logread.RANGES``) of a type outside ``needed`` are always skipped; bad rows of a needed
+    type, over-long lines and a truncated gzip stream are skipped unless ``strict``, which
+    refuses them with a ``MapfilterError`` naming the file and line. Exact duplicate records
+    are kept once; long stretches with no record are reported (``ReadReport.time_gaps_s``).
+    When anything was skipped or a gap found, the report's one-line warning goes to ``warn``
+    if given, else to ``warnings.warn`` as a ``LogReadWarning``.
     """
     path = Path(path)
     if not path.is_file():
         raise MapfilterError("file not found", path)
-    report = ReadReport(path=path, needed=frozenset(needed))
-    opener = gzip.open if path.suffix == ".gz" else open
-    vectors: dict[str, list[list[float]]] = {name: [] for name in _VECTOR_TYPES.values()}
+    report = ReadReport(path=path, needed=frozenset(needed), format=FORMAT_NAME)
+    vectors: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name, _ in _VECTOR_TYPES.values()}
     waypoints: list[tuple[float, float, float]] = []
     waypoint_floors: list[str] = []  # a fifth TYPE_WAYPOINT column (several floors), if any
     pressure: list[tuple[float, float]] = []  # t_s, hPa
     wifi_rows: list[tuple[float, str, float, float, float]] = []  # t_s, bssid, rssi, freq, age_s
     beacon_rows: list[tuple[float, str, float, float]] = []  # t_s, id, rssi, distance
     header: dict[str, str] = {}
-    line_no = 0
-    try:
-        with opener(path, "rt", encoding="utf-8", errors="replace") as handle:
-            for line_no, raw in enumerate(handle, start=1):
-                line = raw.rstrip("\r\n")
-                if not line.strip():
-                    continue
-                if line.startswith("#"):
-                    _read_header_line(line, header)
-                    continue
-                records = _split_records(line.split("\t"))
-                if len(records) > 1:
-                    report.joined_lines += 1
-                for fields in records:
-                    try:
-                        kind = _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows, waypoint_floors,
-                                             pressure)
-                    except _BadRow as bad:
-                        if strict and (bad.kind in report.needed or bad.kind == "?"):
-                            raise MapfilterError(bad.reason, path, line_no) from None
-                        report.bad_rows[bad.kind] = report.bad_rows.get(bad.kind, 0) + 1
-                        report.first_bad.setdefault(bad.kind, f"line {line_no}: {bad.reason}")
-                        continue
-                    if kind is None:
-                        report.unknown_rows += 1
-                    else:
-                        report.rows[kind] = report.rows.get(kind, 0) + 1
-    except EOFError:
-        # gzip without its end-of-stream marker: every line handed out before the cut was complete
-        # (the text layer only yields a line once its newline has been decompressed)
-        if strict:
-            raise MapfilterError(f"gzip stream ends early after line {line_no} (truncated file)", path) from None
-        report.truncated_after_line = line_no
-    except (OSError, gzip.BadGzipFile, zlib.error) as exc:
-        raise MapfilterError(f"cannot read log: {exc}", path) from None
-    report.n_lines = line_no
-    if line_no == 0:
-        raise MapfilterError("empty log", path)
-    if not report.rows:
-        detail = f" ({report.n_bad_rows} bad rows, first at {next(iter(report.first_bad.values()))})" \
-            if report.bad_rows else ""
-        raise MapfilterError(f"no usable record in the log{detail}", path)
-    message = report.warning()
-    if message is not None:
-        if warn is not None:
-            warn(message)
-        else:
-            warnings.warn(message, LogReadWarning, stacklevel=2)
 
-    def vector_arrays(name: str) -> tuple[np.ndarray, np.ndarray]:
-        rows = np.array(vectors[name], dtype=np.float64).reshape(-1, 4)
-        order = np.argsort(rows[:, 0], kind="stable")
-        return rows[order, 0], rows[order, 1:]
+    def handle_line(line_no: int, line: str) -> None:
+        if not line.strip():
+            return
+        if line.startswith("#"):
+            _read_header_line(line, header)
+            return
+        records = _split_records(line.split("\t"))
+        if len(records) > 1:
+            report.joined_lines += 1
+        for fields in records:
+            try:
+                kind = _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows, waypoint_floors, pressure)
+            except BadRow as bad:
+                count_bad_row(report, bad, line_no, strict, path)
+                continue
+            if kind is None:
+                report.unknown_rows += 1
+            else:
+                report.rows[kind] = report.rows.get(kind, 0) + 1
 
-    acc_t, acc = vector_arrays("acc")
-    gyro_t, gyro = vector_arrays("gyro")
-    mag_t, mag = vector_arrays("magnet")
-    rot_t, rot = vector_arrays("rotvec")
-    wp = np.array(waypoints, dtype=np.float64).reshape(-1, 3)
-    wp_order = np.argsort(wp[:, 0], kind="stable")
-    wp = wp[wp_order]
+    read_lines(path, report, strict, handle_line)
+    check_usable(report, path)
+
+    def vector_arrays(name: str, kind: str) -> tuple[np.ndarray, np.ndarray]:
+        rows = drop_duplicate_rows(np.array(vectors[name], dtype=np.float64).reshape(-1, 4), report, kind)
+        return rows[:, 0], rows[:, 1:]
+
+    acc_t, acc = vector_arrays("acc", "TYPE_ACCELEROMETER")
+    gyro_t, gyro = vector_arrays("gyro", "TYPE_GYROSCOPE")
+    mag_t, mag = vector_arrays("magnet", "TYPE_MAGNETIC_FIELD")
+    rot_t, rot = vector_arrays("rotvec", "TYPE_ROTATION_VECTOR")
     wp_floor = None
     if waypoint_floors and len(waypoint_floors) == len(waypoints):
-        wp_floor = [waypoint_floors[i] for i in wp_order]
-    baro = np.array(pressure, dtype=np.float64).reshape(-1, 2)
-    baro = baro[np.argsort(baro[:, 0], kind="stable")]
+        records = drop_duplicate_records([(*w, f) for w, f in zip(waypoints, waypoint_floors)], report,
+                                         "TYPE_WAYPOINT")
+        order = sorted(range(len(records)), key=lambda i: records[i][0])  # stable: by time
+        wp = np.array([records[i][:3] for i in order], dtype=np.float64).reshape(-1, 3)
+        wp_floor = [records[i][3] for i in order]
+    else:
+        wp = drop_duplicate_rows(np.array(waypoints, dtype=np.float64).reshape(-1, 3), report, "TYPE_WAYPOINT")
+    baro = drop_duplicate_rows(np.array(pressure, dtype=np.float64).reshape(-1, 2), report, "TYPE_PRESSURE")
+    wifi_rows = drop_duplicate_records(wifi_rows, report, "TYPE_WIFI")
+    beacon_rows = drop_duplicate_records(beacon_rows, report, "TYPE_BEACON")
+    find_time_gaps([acc_t, gyro_t, mag_t, rot_t, wp[:, 0], baro[:, 0], [r[0] for r in wifi_rows],
+                    [r[0] for r in beacon_rows]], report)
+    emit_warning(report, warn)
     start_ms = header.get("startTime")
     return Recording(
         path=path,
@@ -177,16 +151,23 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
         gyro_t_s=gyro_t, gyro_radps=gyro,
         magnet_t_s=mag_t, magnet_ut=mag,
         rotvec_t_s=rot_t, rotvec_xyz=rot,
-        wifi=_group_scans(wifi_rows, max_wifi_age_s),
-        beacons=Beacons(
-            t_s=np.array([r[0] for r in beacon_rows], dtype=np.float64),
-            beacon_id=[r[1] for r in beacon_rows],
-            rssi_dbm=np.array([r[2] for r in beacon_rows], dtype=np.float32),
-            distance_m=np.array([r[3] for r in beacon_rows], dtype=np.float32),
-        ),
+        wifi=group_scans(wifi_rows, max_wifi_age_s),
+        beacons=beacons_of(beacon_rows),
         read_report=report,
         pressure_t_s=baro[:, 0], pressure_hpa=baro[:, 1],
         waypoint_floor=wp_floor,
+        phone_model=header.get("Model") or None,
+    )
+
+
+def beacons_of(rows: list[tuple[float, str, float, float]]) -> Beacons:
+    """``Beacons`` of (t_s, id, rssi_dbm, distance_m) rows, sorted by time."""
+    rows = sorted(rows, key=lambda r: r[0])
+    return Beacons(
+        t_s=np.array([r[0] for r in rows], dtype=np.float64),
+        beacon_id=[r[1] for r in rows],
+        rssi_dbm=np.array([r[2] for r in rows], dtype=np.float32),
+        distance_m=np.array([r[3] for r in rows], dtype=np.float32),
     )
 
 
@@ -196,18 +177,15 @@ def read_ilc_header(path: str | os.PathLike) -> dict[str, str]:
     path = Path(path)
     if not path.is_file():
         raise MapfilterError("file not found", path)
-    opener = gzip.open if path.suffix == ".gz" else open
     header: dict[str, str] = {}
     try:
-        with opener(path, "rt", encoding="utf-8", errors="replace") as handle:
-            for raw in handle:
-                line = raw.rstrip("\r\n")
-                if not line.strip():
-                    continue
-                if not line.startswith("#"):
+        with open_binary(path) as handle:
+            for _, line in iter_bounded_lines(handle):
+                if line is None or (line.strip() and not line.startswith("#")):
                     break
-                _read_header_line(line, header)
-    except (OSError, EOFError, gzip.BadGzipFile, zlib.error) as exc:
+                if line.strip():
+                    _read_header_line(line, header)
+    except (OSError, EOFError, zlib.error) as exc:
         raise MapfilterError(f"cannot read log: {exc}", path) from None
     return header
 
@@ -240,85 +218,56 @@ def _split_records(fields: list[str]) -> list[list[str]]:
     return records
 
 
-def _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows, waypoint_floors=None,
-                  pressure=None) -> str | None:
-    """Append one record to its list; return its type (None: unknown type). Raises ``_BadRow``."""
+def _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows, waypoint_floors, pressure) -> str | None:
+    """Append one record to its list; return its type (None: unknown type). Raises ``BadRow``."""
     if len(fields) < 2:
-        raise _BadRow("?", "malformed line: expected a time and a record type")
+        raise BadRow("?", "malformed line: expected a time and a record type")
     kind = fields[1]
     if kind == "TYPE_WAYPOINT":
-        t_ms, x, y = _numbers(fields, (0, 2, 3))
-        waypoints.append((t_ms / 1000.0, x, y))
-        if waypoint_floors is not None and len(fields) > 4 and fields[4].strip():
+        t_s = _time_s(fields)
+        x, y = (check_range(kind, name, parse_number(kind, fields, column), "position_m")
+                for name, column in (("x", 2), ("y", 3)))
+        waypoints.append((t_s, x, y))
+        if len(fields) > 4 and fields[4].strip():
             waypoint_floors.append(fields[4].strip())  # the floor (a walk over several floors)
     elif kind in _VECTOR_TYPES:
-        t_ms, vx, vy, vz = _numbers(fields, (0, 2, 3, 4))
-        vectors[_VECTOR_TYPES[kind]].append([t_ms / 1000.0, vx, vy, vz])
+        name, quantity = _VECTOR_TYPES[kind]
+        t_ms = quick_numbers(fields, range(0, 1), "unix_ms")
+        values = quick_numbers(fields, range(2, 5), quantity)
+        if t_ms is not None and values is not None:
+            vectors[name].append((t_ms[0] / 1000.0, *values))  # the fast path: a good row
+            return kind
+        t_s = _time_s(fields)
+        values = [check_range(kind, axis, parse_number(kind, fields, column), quantity)
+                  for axis, column in (("x", 2), ("y", 3), ("z", 4))]
+        vectors[name].append((t_s, *values))
     elif kind == "TYPE_WIFI":
         if len(fields) < 7:
-            raise _BadRow(kind, f"malformed TYPE_WIFI line: {len(fields)} fields, expected 7")
-        t_ms, rssi, freq, seen_ms = _numbers(fields, (0, 4, 5, 6))
+            raise BadRow(kind, f"malformed TYPE_WIFI line: {len(fields)} fields, expected 7")
+        t_ms = check_range(kind, "time", parse_number(kind, fields, 0), "unix_ms")
+        rssi = check_range(kind, "RSSI", parse_number(kind, fields, 4), "rssi_dbm")
+        freq = check_range(kind, "frequency", parse_number(kind, fields, 5), "freq_mhz")
+        seen_ms = check_range(kind, "last-seen time", parse_number(kind, fields, 6), "unix_ms")
         bssid = fields[3].strip()
         if not bssid:
-            raise _BadRow(kind, "malformed TYPE_WIFI line: empty BSSID")
+            raise BadRow(kind, "malformed TYPE_WIFI line: empty BSSID")
         wifi_rows.append((t_ms / 1000.0, bssid, rssi, freq, (t_ms - seen_ms) / 1000.0))
-    elif kind == "TYPE_PRESSURE" and pressure is not None:
-        t_ms, hpa = _numbers(fields, (0, 2))
-        pressure.append((t_ms / 1000.0, hpa))
+    elif kind == "TYPE_PRESSURE":
+        t_s = _time_s(fields)
+        pressure.append((t_s, check_range(kind, "pressure", parse_number(kind, fields, 2), "pressure_hpa")))
     elif kind == "TYPE_BEACON":
         if len(fields) < 8:
-            raise _BadRow(kind, f"malformed TYPE_BEACON line: {len(fields)} fields, expected 10")
-        t_ms, rssi, distance = _numbers(fields, (0, 6, 7))
-        beacon_rows.append((t_ms / 1000.0, f"{fields[2]}:{fields[3]}:{fields[4]}", rssi, distance))
+            raise BadRow(kind, f"malformed TYPE_BEACON line: {len(fields)} fields, expected 10")
+        t_s = _time_s(fields)
+        rssi = check_range(kind, "RSSI", parse_number(kind, fields, 6), "rssi_dbm")
+        distance = check_range(kind, "distance", parse_number(kind, fields, 7), "distance_m")
+        beacon_rows.append((t_s, f"{fields[2]}:{fields[3]}:{fields[4]}", rssi, distance))
     else:
         return None  # other record types are skipped
     return kind
 
 
-def _numbers(fields: list[str], columns: tuple[int, ...]) -> list[float]:
+def _time_s(fields: list[str]) -> float:
+    """The record's time (column 1, Unix ms) in seconds, checked for a plausible date."""
     kind = fields[1]
-    values = []
-    for column in columns:
-        if column >= len(fields):
-            raise _BadRow(kind, f"malformed {kind} line: {len(fields)} fields, expected at least {max(columns) + 1}")
-        try:
-            value = float(fields[column])
-        except ValueError:
-            raise _BadRow(kind, f"malformed {kind} line: column {column + 1} is not a number: "
-                                f"{fields[column]!r}") from None
-        if not math.isfinite(value):
-            # Android writes "Infinity" for a beacon distance it cannot estimate
-            raise _BadRow(kind, f"malformed {kind} line: column {column + 1} is not finite: {fields[column]!r}")
-        values.append(value)
-    return values
-
-
-def _group_scans(rows: list[tuple[float, str, float, float, float]], max_age_s: float) -> WifiScans:
-    """Group rows by scan time, drop stale rows, key APs by BSSID and band."""
-    keys: dict[str, int] = {}
-    per_scan: dict[float, dict[int, tuple[float, float, float]]] = {}
-    for t_s, bssid, rssi, freq, age_s in rows:
-        if age_s > max_age_s:
-            continue
-        index = keys.setdefault(ap_key(bssid, band_of_frequency(freq)), len(keys))
-        scan = per_scan.setdefault(t_s, {})
-        if index not in scan or rssi > scan[index][0]:
-            scan[index] = (rssi, freq, age_s)
-    scan_times = sorted(per_scan)
-    row_scan, row_ap, rssi_dbm, freq_mhz, age = [], [], [], [], []
-    for s, t_s in enumerate(scan_times):
-        for index, (rssi, freq, age_s) in per_scan[t_s].items():
-            row_scan.append(s)
-            row_ap.append(index)
-            rssi_dbm.append(rssi)
-            freq_mhz.append(freq)
-            age.append(age_s)
-    return WifiScans(
-        t_s=np.array(scan_times, dtype=np.float64),
-        ap_keys=list(keys),
-        row_scan=np.array(row_scan, dtype=np.int64),
-        row_ap=np.array(row_ap, dtype=np.int64),
-        rssi_dbm=np.array(rssi_dbm, dtype=np.float32),
-        freq_mhz=np.array(freq_mhz, dtype=np.float32),
-        age_s=np.array(age, dtype=np.float32),
-    )
+    return check_range(kind, "time", parse_number(kind, fields, 0), "unix_ms") / 1000.0

@@ -22,7 +22,7 @@ import numpy as np
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.radiomap import RadioMap, build_radio_map
+from mapfilter.sensors.radiomap import RSSI_RANGE_DBM, RadioMap, build_radio_map, map_extents_m, metres_outside
 from mapfilter.sensors.wifi import WifiScan, ap_key
 
 if TYPE_CHECKING:  # only for annotations
@@ -34,6 +34,15 @@ DEFAULT_PATH_LOSS_EXPONENT = 2.0
 DEFAULT_ALPHA_DB_PER_M = 0.4
 DEFAULT_D_MAX_M = 30.0
 MIN_DISTANCE_M = 1.0  # C is the RSSI at the 1 m reference distance; closer is not modelled
+
+# What an access-point table's columns can be (a row outside is refused, naming its line): the
+# thesis has C about -38 dBm, n about 2, alpha 0.3-0.5 dB/m, d_max 30 m; fitted exponents lie in
+# 1.5-5 (ApFitConfig.n_bounds). Positions: within 10 000 km of the origin (any projected frame),
+# and, where the table meets a map, within MAX_AP_OFF_MAP_M of it (WiFi reaches about 100 m
+# indoors; an access point further off cannot be heard on the floor).
+COLUMN_RANGES = {"x": (-1e7, 1e7), "y": (-1e7, 1e7), "C": (-120.0, 20.0), "n": (0.5, 10.0),
+                 "alpha": (0.0, 10.0), "d_max": (0.0, 10_000.0)}
+MAX_AP_OFF_MAP_M = 500.0
 
 
 def path_loss_rssi_dbm(distance_m, c_dbm, n, alpha_db_per_m, d_max_m):
@@ -58,6 +67,8 @@ class AccessPointTable:
     n: np.ndarray
     alpha_db_per_m: np.ndarray
     d_max_m: np.ndarray
+    source_path: Path | None = None  # the CSV it was read from (for messages), or None
+    source_lines: list[int] | None = None  # the CSV line of each row, or None
 
     COLUMNS = ("bssid", "x", "y", "band", "C", "n", "alpha", "d_max")
 
@@ -85,13 +96,16 @@ class AccessPointTable:
         if not path.is_file():
             raise MapfilterError("file not found", path)
         rows: dict[str, list] = {c: [] for c in cls.COLUMNS}
+        lines: list[int] = []
         with path.open(newline="") as handle:
             reader = csv.DictReader(handle)
             if reader.fieldnames is None or not {"bssid", "x", "y"} <= set(reader.fieldnames):
                 raise MapfilterError("an access-point table needs the columns bssid,x,y", path, 1)
             defaults = {"band": "2.4", "C": DEFAULT_C_DBM, "n": DEFAULT_PATH_LOSS_EXPONENT,
                         "alpha": DEFAULT_ALPHA_DB_PER_M, "d_max": DEFAULT_D_MAX_M}
-            for line_no, row in enumerate(reader, start=2):
+            for row in reader:
+                line_no = reader.line_num  # the row's (last) line in the file: blank lines are skipped
+                lines.append(line_no)
                 bssid = (row.get("bssid") or "").strip()
                 if not bssid:
                     raise MapfilterError("empty bssid", path, line_no)
@@ -111,6 +125,10 @@ class AccessPointTable:
                             raise MapfilterError(f"column {column} is not a number: {text!r}", path, line_no) from None
                     if not math.isfinite(value):
                         raise MapfilterError(f"column {column} is not finite: {text!r}", path, line_no)
+                    low, high = COLUMN_RANGES[column]
+                    if not low <= value <= high:
+                        raise MapfilterError(f"column {column} is {value:g}, outside the {low:g} to {high:g} an "
+                                             "access point's can be", path, line_no)
                     rows[column].append(value)
         if not rows["bssid"]:
             raise MapfilterError("the access-point table has no rows", path)
@@ -119,6 +137,7 @@ class AccessPointTable:
             xy_m=np.column_stack([rows["x"], rows["y"]]).astype(np.float64),
             c_dbm=np.array(rows["C"]), n=np.array(rows["n"]),
             alpha_db_per_m=np.array(rows["alpha"]), d_max_m=np.array(rows["d_max"]),
+            source_path=path, source_lines=lines,
         )
 
     def write_csv(self, path: str | os.PathLike) -> None:
@@ -140,7 +159,27 @@ def access_points_for_map(aps_path: str | os.PathLike | None, floorplan, map_pat
     if path is None:
         raise MapfilterError(f"no access points: {hint}, or name a table in the map (mapfilter: access_points)",
                              map_path)
-    return AccessPointTable.read_csv(path)
+    table = AccessPointTable.read_csv(path)
+    check_access_points_on_map(table, floorplan, map_path)
+    return table
+
+
+def check_access_points_on_map(table: AccessPointTable, plan, map_path: str | os.PathLike | None = None) -> None:
+    """Refuse an access-point table that cannot belong to ``plan`` (a ``FloorPlan``, or a
+    ``Building``: each floor in its own frame): an access point more than
+    ``MAX_AP_OFF_MAP_M`` outside the map. ``MapfilterError`` naming the table's file and line
+    (when it was read from one) and the map."""
+    off_m = np.min([metres_outside(table.xy_m, extent) for extent in map_extents_m(plan)], axis=0)
+    far = np.nonzero(off_m > MAX_AP_OFF_MAP_M)[0]
+    if far.size == 0:
+        return
+    i = int(far[0])
+    x, y = table.xy_m[i]
+    line = table.source_lines[i] if table.source_lines is not None else None
+    on = f" {map_path}" if map_path is not None else ""
+    raise MapfilterError(f"access point {table.bssid[i]} at ({x:.6g}, {y:.6g}) m lies {off_m[i] / 1000:.3g} km outside "
+                         f"the map{on} (at most {MAX_AP_OFF_MAP_M:g} m): is the table in the map's frame?"
+                         + (f" ({far.size} such rows)" if far.size > 1 else ""), table.source_path, line)
 
 
 # ---- trilateration ---------------------------------------------------------------------------
@@ -173,10 +212,14 @@ def least_squares_position(ap_table: AccessPointTable, scan: WifiScan, min_aps: 
         raise MapfilterError(f"the scan at t={scan.t_s:.3f} s shares {rows.size} access points with the table, "
                              f"trilateration needs {min_aps}")
     t = ap_table
+    finite = np.isfinite(rssi)  # the reader's job, but an infinite RSSI must not make the start NaN
+    rows, rssi = rows[finite], rssi[finite]
+    if rows.size < min_aps:
+        raise MapfilterError(f"the scan at t={scan.t_s:.3f} s shares {rows.size} access points with finite RSSI "
+                             f"with the table, trilateration needs {min_aps}")
     ap_xy = t.xy_m[rows]
     strongest = np.argsort(-rssi)[:3]
-    weight = 10.0 ** (rssi[strongest] / 20.0)  # linear amplitude: nearer APs dominate the start
-    start = (ap_xy[strongest] * weight[:, None]).sum(axis=0) / weight.sum()
+    start = rssi_weighted_centroid(ap_xy[strongest], rssi[strongest])
     lo = ap_xy.min(axis=0) - 10.0
     hi = ap_xy.max(axis=0) + 10.0
     c, n, alpha, d_max = t.c_dbm[rows], t.n[rows], t.alpha_db_per_m[rows], t.d_max_m[rows]
@@ -188,6 +231,23 @@ def least_squares_position(ap_table: AccessPointTable, scan: WifiScan, min_aps: 
     fit = least_squares(residual, np.clip(start, lo + 1e-6, hi - 1e-6), bounds=(lo, hi), loss="soft_l1",
                         f_scale=f_scale_db)
     return fit.x
+
+
+def rssi_weighted_centroid(xy_m: np.ndarray, rssi_dbm: np.ndarray) -> np.ndarray:
+    """Centroid of points weighted by linear amplitude 10^(RSSI/20): nearer (stronger) dominate.
+
+    RSSI so far from 0 dBm that the amplitudes overflow or all underflow (a reading of 1e300
+    dBm, or -7000) would make the centroid NaN, and a NaN start is what made scipy's bounded
+    fits fail with "Initial guess is outside of provided bounds"; those get the same weights
+    relative to the strongest reading instead. ``rssi_dbm`` must be finite.
+    """
+    with np.errstate(over="ignore", under="ignore"):
+        weight = 10.0 ** (rssi_dbm / 20.0)
+        total = weight.sum()
+        if not (np.isfinite(total) and total > 0):
+            weight = 10.0 ** ((rssi_dbm - rssi_dbm.max()) / 20.0)
+            total = weight.sum()
+    return (xy_m * weight[:, None]).sum(axis=0) / total
 
 
 # ---- access-point estimation -----------------------------------------------------------------
@@ -225,7 +285,9 @@ def estimate_access_points(labelled: RadioMap | Sequence[Recording],
     xy_ref = radio_map.xy_m
     bssids, bands, rows = [], [], []
     tried = 0  # APs heard often enough to fit
-    heard = ~np.isnan(radio_map.rssi_dbm)
+    # readings outside what a phone reports (1e300 dBm in a hostile log: infinite in float32) are
+    # not WiFi: they would make the start, and so the bounded fit, fail
+    heard = (radio_map.rssi_dbm >= RSSI_RANGE_DBM[0]) & (radio_map.rssi_dbm <= RSSI_RANGE_DBM[1])
     for k, key in enumerate(radio_map.ap_keys):
         seen = np.nonzero(heard[:, k])[0]
         if seen.size < config.min_observations:
@@ -234,8 +296,7 @@ def estimate_access_points(labelled: RadioMap | Sequence[Recording],
         obs_xy = xy_ref[seen]
         obs_rssi = radio_map.rssi_dbm[seen, k].astype(np.float64)
         strongest = np.argsort(-obs_rssi)[: config.strongest]
-        weight = 10.0 ** (obs_rssi[strongest] / 20.0)
-        start_xy = (obs_xy[strongest] * weight[:, None]).sum(axis=0) / weight.sum()
+        start_xy = rssi_weighted_centroid(obs_xy[strongest], obs_rssi[strongest])
         lo_xy = obs_xy.min(axis=0) - config.margin_m
         hi_xy = obs_xy.max(axis=0) + config.margin_m
         # C at the start: the strongest observation put back to 1 m with the default exponent

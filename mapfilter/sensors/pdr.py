@@ -13,6 +13,12 @@ All filtering here is offline and zero-phase (``sosfiltfilt``): the whole record
 known before the filter runs, so step times carry no filter delay. An online version would
 use ``sosfilt`` and accept a delay of a few samples.
 
+A recording whose IMU stops for longer than ``PDRConfig.max_gap_s`` (the phone slept, the log
+was paused, or its timestamps jump) is handled in stretches: each continuous stretch is
+resampled, filtered and searched for steps on its own, and nothing is interpolated across the
+gap, so memory follows the samples, not the span of the timestamps (a 30-day gap once asked
+for 23 GB). The gyro heading carries over a gap unchanged (the turn during it is unknown).
+
 The map frame of the ILC data has x east and y north; headings are counter-clockwise from +x.
 """
 
@@ -40,24 +46,27 @@ class PDRConfig:
     # a step = upward crossing of this level by the filtered d|a|/dt; walking on the ILC phone
     # gives peaks of 50-120 m/s^3; of 2, 5, 10, 12, 15, 17, 20, 25, 30 on the 48 ILC site1
     # traces, 12-20 fit the waypoint distances best, 2-5 count sway as steps
-    step_threshold_mps3: float = 15.0
+    step_threshold_mps3: float = 15.0  # a step: an upward crossing of this level by the filtered d|a|/dt
     # no two steps closer than this: brisk walking is ~0.45-0.5 s per step; with 0.3 some
     # steps of ILC site1 cross the threshold twice, 0.5 drops the fastest steps
-    min_step_interval_s: float = 0.4
+    min_step_interval_s: float = 0.4  # no two steps closer than this
     gravity_lowpass_hz: float = 0.3  # gravity direction = accelerometer low-passed below the step rhythm
     step_length_m: float = 0.7  # fixed step length; also the prior mean of the adaptive per-particle state
     step_length_std_m: float = 0.1  # prior spread of the per-particle step length (for PDRMotion)
     # Weinberg K for |a| (m/s^2) low-passed at lowpass_hz: sum of waypoint polyline lengths over
     # sum of (a_max - a_min)^(1/4) on all 48 ILC site1 traces (leave-one-out K varies by < 1 %)
-    weinberg_k: float = 0.39
+    weinberg_k: float = 0.39  # Weinberg step length = K (a_max - a_min)^(1/4)
     max_step_window_s: float = 1.0  # Weinberg min/max window before a step when the previous one is older
     # added to pi/2 - azimuth: the angle from magnetic north to the map's +y axis; measured
     # -2.4 deg on ILC site1 (median leg deviation 8.8 deg), so 0 there
-    abs_heading_offset_rad: float = 0.0
+    abs_heading_offset_rad: float = 0.0  # magnetic north to the map's +y axis, added to the rotation vector's heading
+    # (module docstring); the 191 ILC site1 logs never stop for more than 0.11 s, the
+    # simulator's stalls last 0.1-0.3 s
+    max_gap_s: float = 3.0  # the IMU stopping longer than this splits the walk into stretches not interpolated across
 
     def __post_init__(self) -> None:
         positive = ("sample_rate_hz", "lowpass_hz", "gravity_lowpass_hz", "step_length_m", "weinberg_k",
-                    "max_step_window_s")
+                    "max_step_window_s", "max_gap_s")
         for name in positive:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -109,6 +118,9 @@ class Steps:
 # resampling
 
 
+MIN_STRETCH_S = 2.0  # shorter stretches of IMU (or a shorter recording) give no steps
+
+
 def resample_imu(recording: Recording, config: PDRConfig = PDRConfig()) -> ImuGrid:
     """Resample accelerometer, gyroscope (and rotation vector) onto one uniform grid.
 
@@ -119,26 +131,95 @@ def resample_imu(recording: Recording, config: PDRConfig = PDRConfig()) -> ImuGr
     Raises
     ------
     MapfilterError
-        If the recording has fewer than 2 s of accelerometer or gyroscope data.
+        If the recording has fewer than 2 s of accelerometer or gyroscope data, or if its IMU
+        stops for longer than ``config.max_gap_s`` between usable stretches (one grid over the
+        gap would hold the gap's samples: ``resample_imu_stretches`` gives a grid per stretch).
+    """
+    grids = resample_imu_stretches(recording, config)
+    if len(grids) > 1:
+        raise MapfilterError(f"the IMU stops for more than {config.max_gap_s:g} s between {len(grids)} stretches: "
+                             "resample them one by one (resample_imu_stretches)", recording.path)
+    return grids[0]
+
+
+def resample_imu_stretches(recording: Recording, config: PDRConfig = PDRConfig()) -> list[ImuGrid]:
+    """``resample_imu`` on each continuous stretch of the IMU (``imu_stretches``), in time order.
+
+    Stretches shorter than 2 s are left out. A recording without gaps gives one grid, the
+    same as ``resample_imu``'s.
+
+    Raises
+    ------
+    MapfilterError
+        If the recording has fewer than 2 s of accelerometer or gyroscope data, or no stretch
+        of 2 s where both tick.
     """
     where = recording.path
     for name, t_s in (("accelerometer", recording.acc_t_s), ("gyroscope", recording.gyro_t_s)):
-        if t_s.shape[0] < 2 or t_s[-1] - t_s[0] < 2.0:
+        if t_s.shape[0] < 2 or t_s[-1] - t_s[0] < MIN_STRETCH_S:
             raise MapfilterError(f"no usable {name} data for PDR (need at least 2 s; "
                                  "a WiFi-only log tracks with --motion cv)", where)
-    t0_s = max(recording.acc_t_s[0], recording.gyro_t_s[0])
-    t1_s = min(recording.acc_t_s[-1], recording.gyro_t_s[-1])
-    if t1_s - t0_s < 2.0:
-        raise MapfilterError("accelerometer and gyroscope overlap by less than 2 s", where)
+    spans = [(t0_s, t1_s) for t0_s, t1_s in imu_stretches(recording, config) if t1_s - t0_s >= MIN_STRETCH_S]
+    if not spans:
+        raise MapfilterError("accelerometer and gyroscope overlap by less than 2 s"
+                             + (f" without a gap of more than {config.max_gap_s:g} s" if _has_gap(recording, config)
+                                else ""), where)
+    quaternion = None
+    if recording.rotvec_t_s.shape[0] >= 2:
+        quaternion = _rotvec_to_quaternion(recording.rotvec_xyz)
+    return [_resample_span(recording, quaternion, t0_s, t1_s, config) for t0_s, t1_s in spans]
+
+
+def imu_stretches(recording: Recording, config: PDRConfig = PDRConfig()) -> list[tuple[float, float]]:
+    """(start, end) times of the stretches where accelerometer and gyroscope both tick with no
+    gap longer than ``config.max_gap_s``; without gaps, the one span both cover."""
+    acc = _runs(recording.acc_t_s, config.max_gap_s)
+    gyro = _runs(recording.gyro_t_s, config.max_gap_s)
+    spans, i, j = [], 0, 0
+    while i < len(acc) and j < len(gyro):  # intersection of two sorted lists of intervals
+        t0_s, t1_s = max(acc[i][0], gyro[j][0]), min(acc[i][1], gyro[j][1])
+        if t1_s > t0_s:
+            spans.append((t0_s, t1_s))
+        if acc[i][1] < gyro[j][1]:
+            i += 1
+        else:
+            j += 1
+    return spans
+
+
+def _runs(t_s: np.ndarray, max_gap_s: float) -> list[tuple[float, float]]:
+    """(first, last) sample times of the runs of ``t_s`` with no step longer than ``max_gap_s``."""
+    if t_s.shape[0] == 0:
+        return []
+    breaks = np.nonzero(np.diff(t_s) > max_gap_s)[0]
+    starts = np.concatenate([[0], breaks + 1])
+    ends = np.concatenate([breaks, [t_s.shape[0] - 1]])
+    return [(t_s[a], t_s[b]) for a, b in zip(starts, ends)]
+
+
+def _has_gap(recording: Recording, config: PDRConfig) -> bool:
+    return any(t.shape[0] > 1 and np.diff(t).max() > config.max_gap_s for t in (recording.acc_t_s, recording.gyro_t_s))
+
+
+def _resample_span(recording: Recording, quaternion: np.ndarray | None, t0_s: float, t1_s: float,
+                   config: PDRConfig) -> ImuGrid:
     dt_s = 1.0 / config.sample_rate_hz
     t_s = t0_s + dt_s * np.arange(int(np.floor((t1_s - t0_s) / dt_s)) + 1)
-    acc = _interp_columns(t_s, recording.acc_t_s, recording.acc_mps2)
-    gyro = _interp_columns(t_s, recording.gyro_t_s, recording.gyro_radps)
+    acc = _interp_columns(t_s, *_around(t_s, recording.acc_t_s, recording.acc_mps2))
+    gyro = _interp_columns(t_s, *_around(t_s, recording.gyro_t_s, recording.gyro_radps))
     rot = None
-    if recording.rotvec_t_s.shape[0] >= 2:
-        rot = _interp_columns(t_s, recording.rotvec_t_s, _rotvec_to_quaternion(recording.rotvec_xyz))
+    if quaternion is not None:
+        rot = _interp_columns(t_s, *_around(t_s, recording.rotvec_t_s, quaternion))
         rot /= np.linalg.norm(rot, axis=1, keepdims=True)
     return ImuGrid(t_s=t_s, acc_mps2=acc, gyro_radps=gyro, rotvec_xyzw=rot, dt_s=dt_s)
+
+
+def _around(t_new_s: np.ndarray, t_s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # the samples of a stretch and a few on each side: interpolation inside it reads only those,
+    # and a walk of many stretches must not interpolate over all of its samples for each
+    lo = max(int(np.searchsorted(t_s, t_new_s[0], side="left")) - 3, 0)
+    hi = int(np.searchsorted(t_s, t_new_s[-1], side="right")) + 3
+    return t_s[lo:hi], values[lo:hi]
 
 
 def _interp_columns(t_new_s: np.ndarray, t_s: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -282,25 +363,46 @@ def detect_steps(recording: Recording, config: PDRConfig = PDRConfig()) -> Steps
     MapfilterError
         If the recording has no usable accelerometer or gyroscope data.
     """
-    grid = resample_imu(recording, config)
-    return detect_steps_on_grid(grid, config)
+    return detect_steps_on_grids(resample_imu_stretches(recording, config), config)
 
 
 def detect_steps_on_grid(grid: ImuGrid, config: PDRConfig = PDRConfig()) -> Steps:
     """``detect_steps`` on an already resampled IMU grid."""
-    d_mag, mag = step_signal(grid, config)
-    step_t = detect_step_times(grid.t_s, d_mag, config.step_threshold_mps3, config.min_step_interval_s)
-    heading = gyro_heading(grid, config)
-    heading_at = np.interp(step_t, grid.t_s, heading)
-    change = np.diff(np.concatenate([[heading[0]], heading_at]))
-    abs_heading = rotation_vector_heading(grid, config)
+    return detect_steps_on_grids([grid], config)
+
+
+def detect_steps_on_grids(grids: list[ImuGrid], config: PDRConfig = PDRConfig()) -> Steps:
+    """``detect_steps`` on the resampled stretches of a walk (``resample_imu_stretches``).
+
+    Each stretch is filtered and searched for steps on its own; the gyro heading of a stretch
+    starts where the previous one ended (no turn across a gap).
+    """
+    times, headings, abs_headings, units = [], [], [], []
+    start_heading = end_heading = 0.0
+    for k, grid in enumerate(grids):
+        d_mag, mag = step_signal(grid, config)
+        step_t = detect_step_times(grid.t_s, d_mag, config.step_threshold_mps3, config.min_step_interval_s)
+        heading = gyro_heading(grid, config)
+        if k == 0:
+            start_heading = heading[0]
+        else:
+            heading = heading + end_heading  # continue from the previous stretch
+        end_heading = heading[-1]
+        times.append(step_t)
+        headings.append(np.interp(step_t, grid.t_s, heading))
+        abs_heading = rotation_vector_heading(grid, config)
+        if abs_heading is not None:
+            # interpolate the unwrapped angle, then wrap back to (-pi, pi]
+            abs_headings.append(wrap_angle(np.interp(step_t, grid.t_s, np.unwrap(abs_heading))))
+        units.append(weinberg_units(grid.t_s, mag, step_t, config.max_step_window_s))
+    step_t, heading_at, units_all = (parts[0] if len(parts) == 1 else np.concatenate(parts)
+                                     for parts in (times, headings, units))
+    change = np.diff(np.concatenate([[start_heading], heading_at]))
     abs_at = None
-    if abs_heading is not None:
-        # interpolate the unwrapped angle, then wrap back to (-pi, pi]
-        abs_at = wrap_angle(np.interp(step_t, grid.t_s, np.unwrap(abs_heading)))
-    units = weinberg_units(grid.t_s, mag, step_t, config.max_step_window_s)
+    if abs_headings:
+        abs_at = abs_headings[0] if len(abs_headings) == 1 else np.concatenate(abs_headings)
     return Steps(t_s=step_t, heading_change_rad=change, heading_rad=heading_at, abs_heading_rad=abs_at,
-                 step_length_m=config.weinberg_k * units, weinberg_unit=units, t0_s=float(grid.t_s[0]))
+                 step_length_m=config.weinberg_k * units_all, weinberg_unit=units_all, t0_s=float(grids[0].t_s[0]))
 
 
 def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:

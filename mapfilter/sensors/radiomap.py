@@ -68,6 +68,14 @@ FLOORS_FORMAT_VERSION = 3  # a building's radio map (floor labels)
 READABLE_VERSIONS = (1, 2, 3)
 # the cross-validation stored in every file: what the tracker's calibration asks for by default
 _STORED_CV_PARAMS = (4, 200, 1.0)
+# The most a radio map file may declare, read from the array headers in the zip before numpy
+# allocates anything: 1 GiB (a map of 100 000 reference points x 2 500 access points; the ILC
+# site 1 radio map of every floor is under 10 MB).
+MAX_RADIOMAP_BYTES = 1 << 30
+MAX_POSITION_M = 1e7  # any projected frame on Earth (floorplan.MAX_ORIGIN_M)
+# RSSI a phone can report, dBm: readings outside are not WiFi (ILC logs: -100 to -20 dBm)
+RSSI_RANGE_DBM = (-150.0, 30.0)
+_NOT_A_RADIO_MAP = "not a mapfilter radio map (make one with: mapfilter radiomap build MAP LOG... --out RADIOMAP.npz)"
 
 
 @dataclasses.dataclass(eq=False)
@@ -203,13 +211,14 @@ class RadioMap:
         path = Path(path)
         if not path.is_file():
             raise MapfilterError("file not found", path)
+        _check_npz_headers(path)  # before numpy allocates what a header declares
         try:
             with np.load(path, allow_pickle=False) as data:
                 arrays = {key: data[key] for key in data.files}
         except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error) as exc:
-            raise MapfilterError(f"not a radio map file (.npz): {exc}", path) from None
+            raise MapfilterError(f"{_NOT_A_RADIO_MAP}: {exc}", path) from None
         if str(arrays.get("format", "")) != FORMAT_NAME:
-            raise MapfilterError(f"not a radio map file: no format key {FORMAT_NAME!r}", path)
+            raise MapfilterError(f"{_NOT_A_RADIO_MAP}: no format key {FORMAT_NAME!r}", path)
         version = int(arrays.get("version", -1))
         if version not in READABLE_VERSIONS:
             raise MapfilterError(f"radio map format version {version} is not supported (this reads "
@@ -225,6 +234,16 @@ class RadioMap:
                                  f"ap_keys {keys.shape}", path)
         if not np.all(np.isfinite(xy)):
             raise MapfilterError("radio map has non-finite reference positions", path)
+        if xy.size and np.abs(xy).max() > MAX_POSITION_M:
+            i = int(np.argmax(np.abs(xy).max(axis=1)))
+            raise MapfilterError(f"reference point {i} at {tuple(float(v) for v in xy[i])} m is more than "
+                                 f"{MAX_POSITION_M:g} m from the origin: not a position on a floor", path)
+        if not np.all(np.isfinite(arrays["t_s"])):
+            raise MapfilterError("radio map has non-finite scan times", path)
+        heard = rssi[~np.isnan(rssi)]
+        if heard.size and not (RSSI_RANGE_DBM[0] <= heard.min() and heard.max() <= RSSI_RANGE_DBM[1]):
+            raise MapfilterError(f"radio map has RSSI from {heard.min():g} to {heard.max():g} dBm, outside the "
+                                 f"{RSSI_RANGE_DBM[0]:g} to {RSSI_RANGE_DBM[1]:g} dBm a phone reports", path)
         traces = [str(t) for t in arrays["source_traces"]]
         if p and (arrays["trace"].min() < 0 or arrays["trace"].max() >= len(traces)):
             raise MapfilterError("radio map trace indices out of range", path)
@@ -252,6 +271,100 @@ class RadioMap:
                 radio_map._floor_cv_errors = {i: cv_errors[of_floor == i].astype(np.float64)
                                               for i in range(len(floor_names))}
         return radio_map
+
+
+# ---- where a radio map meets a map -------------------------------------------------------------
+# Reference points are scans labelled by waypoints on the floor (ILC site 1: none outside its
+# floor maps); further off the map than this, the radio map belongs to another map or frame.
+MAX_REFERENCE_OFF_MAP_M = 50.0
+
+
+def map_extents_m(plan) -> list[tuple[float, float, float, float]]:
+    """(x_min, x_max, y_min, y_max) of a ``FloorPlan``, or of each floor of a ``Building`` (each
+    in its own frame)."""
+    if hasattr(plan, "floors"):
+        return [floor.plan.extent_m for floor in plan.floors]
+    return [plan.extent_m]
+
+
+def metres_outside(xy_m: np.ndarray, extent_m: tuple[float, float, float, float]) -> np.ndarray:
+    """Distance in metres from each point to the rectangle ``extent_m`` (0 inside)."""
+    x_min, x_max, y_min, y_max = extent_m
+    xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    dx = np.maximum(0.0, np.maximum(x_min - xy[:, 0], xy[:, 0] - x_max))
+    dy = np.maximum(0.0, np.maximum(y_min - xy[:, 1], xy[:, 1] - y_max))
+    return np.hypot(dx, dy)
+
+
+def check_radio_map_on_map(radio_map: RadioMap, plan, radio_map_path: str | os.PathLike | None = None,
+                           map_path: str | os.PathLike | None = None) -> None:
+    """Refuse a radio map that cannot belong to ``plan`` (a ``FloorPlan`` or a ``Building``):
+    a reference point more than ``MAX_REFERENCE_OFF_MAP_M`` outside the map (in a building, its
+    own floor's map when the floor names match). ``MapfilterError`` naming the radio map's file,
+    the point (its index and source trace) and the map."""
+    if len(radio_map) == 0:
+        return
+    extents = map_extents_m(plan)
+    off_m = np.min([metres_outside(radio_map.xy_m, e) for e in extents], axis=0)
+    if radio_map.floor is not None and hasattr(plan, "floors"):
+        by_name = {floor.name: floor.plan.extent_m for floor in plan.floors}
+        for index, name in enumerate(radio_map.floor_names or []):
+            on_floor = radio_map.floor == index
+            if name in by_name and on_floor.any():
+                off_m[on_floor] = metres_outside(radio_map.xy_m[on_floor], by_name[name])
+    far = np.nonzero(off_m > MAX_REFERENCE_OFF_MAP_M)[0]
+    if far.size == 0:
+        return
+    i = int(far[0])
+    x, y = radio_map.xy_m[i]
+    trace = radio_map.source_traces[radio_map.trace[i]] if radio_map.source_traces else "?"
+    on = f" {map_path}" if map_path is not None else ""
+    raise MapfilterError(f"reference point {i} (trace {trace}) at ({x:.6g}, {y:.6g}) m lies {off_m[i] / 1000:.3g} km "
+                         f"outside the map{on} (at most {MAX_REFERENCE_OFF_MAP_M:g} m): was it built on this map?"
+                         + (f" ({far.size} such points)" if far.size > 1 else ""), radio_map_path)
+
+
+def _check_npz_headers(path: Path, max_bytes: int = MAX_RADIOMAP_BYTES) -> None:
+    """Refuse a file that is not a zip of plain ``.npy`` arrays, or that declares more than
+    ``max_bytes`` of arrays (or object arrays, which only pickle could load), reading only the
+    zip directory and each array's header."""
+    from numpy.lib import format as npy
+
+    if not zipfile.is_zipfile(path):
+        raise MapfilterError(_NOT_A_RADIO_MAP, path)
+    total = 0
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = archive.namelist()
+            if "format.npy" not in names:
+                raise MapfilterError(f"{_NOT_A_RADIO_MAP}: no format key {FORMAT_NAME!r}", path)
+            for info in archive.infolist():
+                if not info.filename.endswith(".npy"):
+                    raise MapfilterError(f"{_NOT_A_RADIO_MAP}: {info.filename!r} is not an array", path)
+                with archive.open(info) as member:
+                    version = npy.read_magic(member)
+                    if version == (1, 0):
+                        shape, _, dtype = npy.read_array_header_1_0(member)
+                    elif version == (2, 0):
+                        shape, _, dtype = npy.read_array_header_2_0(member)
+                    else:
+                        raise MapfilterError(f"{_NOT_A_RADIO_MAP}: array {info.filename!r} has .npy format "
+                                             f"version {version}", path)
+                if dtype.hasobject:
+                    raise MapfilterError(f"{_NOT_A_RADIO_MAP}: array {info.filename!r} holds Python objects", path)
+                size = int(np.prod(shape, dtype=object)) * dtype.itemsize  # Python ints: no overflow
+                total += size
+                if total > max_bytes:
+                    raise MapfilterError(f"array {info.filename[:-4]!r} declares shape {tuple(shape)} "
+                                         f"({size / 2**30:.3g} GiB): more than the {max_bytes / 2**30:g} GiB a "
+                                         "radio map may hold", path)
+                if size > info.file_size:  # the data cannot be shorter than the header says: a cut or forged file
+                    raise MapfilterError(f"{_NOT_A_RADIO_MAP}: array {info.filename!r} declares {size} bytes but "
+                                         f"holds {info.file_size}", path)
+    except MapfilterError:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError) as exc:
+        raise MapfilterError(f"{_NOT_A_RADIO_MAP}: {exc}", path) from None
 
 
 # ---- building ---------------------------------------------------------------------------------

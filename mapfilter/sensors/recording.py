@@ -66,6 +66,12 @@ class ReadReport:
     truncated_after_line: int | None = None  # the gzip stream ended early after this line
     unknown_rows: int = 0  # rows of record types this reader does not know (skipped, not an error)
     needed: frozenset[str] = frozenset()  # the record types the run needs (the reader fills it in)
+    format: str = ""  # the log format the reader took the file for ("ILC 2.0", "GetSensorData")
+    duplicates: dict[str, int] = dataclasses.field(default_factory=dict)  # exact repeats dropped, per type
+    # stretches longer than the reader's limit (sensors/logread.GAP_REPORT_S) with no record at
+    # all, as (start, end) times in the recording's time base; reported, never filled in
+    time_gaps_s: list[tuple[float, float]] = dataclasses.field(default_factory=list)
+    time_span_s: tuple[float, float] | None = None  # first and last record time
 
     @property
     def n_bad_rows(self) -> int:
@@ -79,14 +85,49 @@ class ReadReport:
         """One line naming what was skipped (None when nothing was)."""
         parts = []
         for kind in sorted(self.bad_rows):
+            n = self.bad_rows[kind]
+            if kind == "?":  # a line with no record type, or one too long to read
+                parts.append(f"{n} unreadable line{'s' if n != 1 else ''} (first at {self.first_bad[kind]})")
+                continue
             use = "needed" if kind in self.needed else "not used"
-            parts.append(f"{self.bad_rows[kind]} bad {kind} row{'s' if self.bad_rows[kind] != 1 else ''} ({use}; "
-                         f"first at {self.first_bad[kind]})")
+            parts.append(f"{n} bad {kind} row{'s' if n != 1 else ''} ({use}; first at {self.first_bad[kind]})")
         if self.truncated_after_line is not None:
             parts.append(f"gzip stream ends early: kept the {self.truncated_after_line} lines before the cut")
-        if not parts:
+        if self.duplicates:
+            n = sum(self.duplicates.values())
+            kinds = ", ".join(f"{count} {kind}" for kind, count in sorted(self.duplicates.items()))
+            parts.append(f"{n} exact duplicate row{'s' if n != 1 else ''} ({kinds})")
+        gaps = self.gap_summary()
+        if not parts and gaps is None:
             return None
-        return f"{self.path}: skipped " + "; ".join(parts)
+        text = f"{self.path}: "
+        if parts:
+            text += "skipped " + "; ".join(parts)
+        if gaps is not None:
+            text += ("; " if parts else "") + gaps
+        return text
+
+    def gap_summary(self) -> str | None:
+        """The time gaps in a few words (None when there are none)."""
+        if not self.time_gaps_s:
+            return None
+        n = len(self.time_gaps_s)
+        start, end = max(self.time_gaps_s, key=lambda gap: gap[1] - gap[0])
+        first = self.time_span_s[0] if self.time_span_s is not None else start
+        longest = "" if n == 1 else "longest "
+        return (f"{n} time gap{'s' if n != 1 else ''} with no record ({longest}{format_duration(end - start)}, "
+                f"from {start - first:.1f} s into the log)")
+
+
+def format_duration(seconds: float) -> str:
+    """A duration in the unit that reads best: s, min, h or days."""
+    if seconds < 120:
+        return f"{seconds:.1f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.1f} min"
+    if seconds < 172800:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.1f} days"
 
 
 @dataclasses.dataclass
@@ -109,16 +150,27 @@ class Recording:
     wifi: WifiScans
     beacons: Beacons
     read_report: ReadReport | None = None  # what the log reader skipped (None: not read from a log)
-    # a barometer (TYPE_PRESSURE rows: the simulator writes them; ILC logs have none)
+    # a barometer (GetSensorData PRES rows; ILC TYPE_PRESSURE rows, which only the simulator writes)
     pressure_t_s: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     pressure_hpa: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
-    # the floor of each waypoint when a log names one (a walk over several floors: a fifth
+    # the floor of each waypoint when a log names one (GetSensorData POSI rows; a fifth
     # TYPE_WAYPOINT column, written by the simulator); None: the header's floor throughout
     waypoint_floor: list[str] | None = None
+    # ground truth in WGS-84 (latitude, longitude) degrees when the log gives it so (GetSensorData
+    # POSI rows); until the walk is placed in a georeferenced building (sensors/logs.localise),
+    # ``waypoint_xy_m`` is NaN
+    waypoint_latlon_deg: np.ndarray | None = None
+    phone_model: str | None = None  # the phone the log names in its header, if any
 
     @property
     def has_ground_truth(self) -> bool:
         return self.waypoint_t_s.shape[0] > 0
+
+    @property
+    def needs_georeference(self) -> bool:
+        """True while the ground truth is only in latitude/longitude (not yet in a building's metres)."""
+        return (self.waypoint_latlon_deg is not None and self.waypoint_t_s.shape[0] > 0
+                and bool(np.isnan(self.waypoint_xy_m).all()))
 
     @property
     def name(self) -> str:

@@ -33,6 +33,8 @@ from mapfilter.maps.walls import crosses_wall
 from mapfilter.sensors.pathloss import AccessPointTable, path_loss_rssi_dbm
 from mapfilter.simulate.segments import count_walls_crossed
 from mapfilter.simulate.walk import (
+    MAX_DB,
+    MAX_DURATION_S,
     SimConfig,
     SimulatedWalk,
     _build_route_graph,
@@ -75,6 +77,21 @@ class BuildingSimConfig:
     pressure_rate_hz: float = 2.0
     pressure_noise_hpa: float = 0.03  # phone barometers: about 0.25 m of height noise per sample
     pressure_drift_hpa_per_h: float = 0.5  # weather
+
+    def validate(self, n_changes: int = 0) -> None:
+        """Raise ``MapfilterError`` for values that make no sense, or a walk of ``n_changes``
+        floor changes that would wander longer than ``walk.MAX_DURATION_S``."""
+        lo, hi = self.segment_s
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 <= lo <= hi):
+            raise MapfilterError(f"segment_s needs 0 <= MIN <= MAX, got {lo:g} {hi:g}")
+        if not (math.isfinite(self.floor_loss_db) and 0.0 <= self.floor_loss_db <= MAX_DB):
+            raise MapfilterError(f"floor loss must be between 0 and {MAX_DB:g} dB, got {self.floor_loss_db:g}")
+        if n_changes < 0:
+            raise MapfilterError(f"the number of floor changes must be >= 0, got {n_changes}")
+        if (n_changes + 1) * hi > MAX_DURATION_S:
+            raise MapfilterError(f"{n_changes} floor changes with up to {hi:g} s of wandering before and after each "
+                                 f"make a walk of up to {(n_changes + 1) * hi:g} s, more than {MAX_DURATION_S:g} s "
+                                 f"({MAX_DURATION_S / 3600:g} h): fewer changes or a shorter --segment-s")
 
 
 def building_rssi_dbm(building: Building, ap_table: AccessPointTable, ap_floor: np.ndarray, ap_index: np.ndarray,
@@ -147,6 +164,7 @@ def simulate_building_walk(building: Building, ap_tables: dict[str, AccessPointT
     """
     walk_cfg = config.walk
     walk_cfg.validate()
+    config.validate(len(changes))
     graphs = [_build_route_graph(f.plan, walk_cfg) for f in building.floors]
     members = [np.nonzero(g.component == g.main)[0] for g in graphs]
     floor = building.floor_index(start_floor)

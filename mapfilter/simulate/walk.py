@@ -51,6 +51,16 @@ CHANNELS_5G_MHZ = tuple(5000 + 5 * ch for ch in (36, 40, 44, 48, 52, 56, 60, 64,
 # Earth's field in the floor frame (east, north, up), microtesla: a mid-latitude value.
 EARTH_FIELD_ENU_UT = (0.0, 28.0, -38.0)
 
+# Limits no real use meets, so that a typo cannot ask for more memory or time than the machine
+# has: a walk (or a survey) of 4 h is about 1.2 GB while it is made (about 70 kB per simulated
+# second) and 50 MB gzipped; ILC walks last 1-3 minutes.
+MAX_DURATION_S = 4 * 3600.0
+MAX_SURVEY_POINTS = 20_000  # reference points of one survey (a 2 m grid over 80 000 m^2)
+MAX_SCANS_PER_POINT = 100
+MAX_IMU_RATE_HZ = 1000.0
+MAX_DB = 100.0  # shadowing sigma, loss per wall, blocking: 100 dB drowns any signal
+MAX_START_TIME_MS = 4_102_444_800_000  # 2100-01-01: Unix milliseconds of a phone log
+
 
 @dataclasses.dataclass(frozen=True)
 class SimConfig:
@@ -113,6 +123,24 @@ class SimConfig:
         """Raise ``MapfilterError`` for values a user could pass that make no sense."""
         if self.duration_s is not None and not (math.isfinite(self.duration_s) and self.duration_s > 0):
             raise MapfilterError(f"duration must be a positive number of seconds, got {self.duration_s}")
+        if self.duration_s is not None and self.duration_s > MAX_DURATION_S:
+            raise MapfilterError(f"duration must be at most {MAX_DURATION_S:g} s ({MAX_DURATION_S / 3600:g} h), "
+                                 f"got {self.duration_s:g}")
+        if not 0 <= self.start_time_ms <= MAX_START_TIME_MS:
+            raise MapfilterError(f"start time must be Unix milliseconds between 0 and {MAX_START_TIME_MS} "
+                                 f"(the year 2100), got {self.start_time_ms}")
+        if not self.imu_rate_hz <= MAX_IMU_RATE_HZ:
+            raise MapfilterError(f"imu_rate_hz must be at most {MAX_IMU_RATE_HZ:g}, got {self.imu_rate_hz}")
+        if not self.survey_spacing_m >= self.grid_m:
+            raise MapfilterError(f"survey spacing must be at least the route grid's {self.grid_m:g} m (the finest "
+                                 f"grid a survey can walk), got {self.survey_spacing_m:g}")
+        if self.survey_scans_per_point > MAX_SCANS_PER_POINT:
+            raise MapfilterError(f"scans per point must be at most {MAX_SCANS_PER_POINT}, "
+                                 f"got {self.survey_scans_per_point}")
+        for name in ("shadowing_sigma_db", "wall_loss_2g4_db", "wall_loss_5g_db"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0 <= value <= MAX_DB):
+                raise MapfilterError(f"{name} must be between 0 and {MAX_DB:g} dB, got {value}")
         if not self.survey and self.duration_s is None:
             raise MapfilterError("a walk needs a duration")
         for name in ("grid_m", "min_clearance_m", "step_length_m", "imu_rate_hz", "survey_spacing_m"):
@@ -127,8 +155,9 @@ class SimConfig:
             if len(episode) != 3 or not all(math.isfinite(v) for v in episode):
                 raise MapfilterError(f"a blocking episode is (start_s, end_s, H_db), got {episode}")
             start, end, h_db = episode
-            if not (0 <= start < end) or h_db < 0:
-                raise MapfilterError(f"a blocking episode needs 0 <= start < end and H >= 0 dB, got {episode}")
+            if not (0 <= start < end <= MAX_DURATION_S) or not 0 <= h_db <= MAX_DB:
+                raise MapfilterError(f"a blocking episode needs 0 <= start < end <= {MAX_DURATION_S:g} s and "
+                                     f"0 <= H <= {MAX_DB:g} dB, got {episode}")
         if self.shadowing_sigma_db < 0:
             raise MapfilterError(f"shadowing sigma must be >= 0 dB, got {self.shadowing_sigma_db}")
         if self.survey_scans_per_point < 1:
@@ -408,6 +437,9 @@ def _plan(floorplan: FloorPlan, config: SimConfig, rng: np.random.Generator) -> 
         todo = set(members[on_lattice].tolist())
         if not todo:
             raise MapfilterError("no survey reference point fits the map: lower the survey spacing")
+        if len(todo) > MAX_SURVEY_POINTS:
+            raise MapfilterError(f"a survey at {config.survey_spacing_m:g} m spacing has {len(todo)} reference points "
+                                 f"here, more than {MAX_SURVEY_POINTS}: raise the survey spacing")
         reference = []
     else:
         todo = set()
@@ -439,6 +471,9 @@ def _plan(floorplan: FloorPlan, config: SimConfig, rng: np.random.Generator) -> 
                 tl.waypoint_t.append(t)
                 tl.waypoint_xy.append(feet[k])
         current = goal
+        if config.survey and t > MAX_DURATION_S:  # a walk stops at its duration
+            raise MapfilterError(f"the survey would last more than {MAX_DURATION_S / 3600:g} h: raise the survey "
+                                 "spacing or lower the scans per point")
         if config.survey:
             reference.append(graph.xy_m[goal])
             # stand still and scan; a waypoint at each scan labels it for the radio map

@@ -259,8 +259,14 @@ class RerunLogger:
         """Flush and finish the recording; the ``.rrd`` file (if any) appears now."""
         if self._closed:
             return
+        try:
+            self.rec.flush()
+        except RuntimeError as exc:
+            # rerun writes the file from a thread of its own; a full disk stops that thread,
+            # and flush reports it as "File-writer thread shut down prematurely"
+            self.abort()  # remove the temporary
+            raise MapfilterError(f"could not write the recording ({exc}): is the disk full?", self.rrd_path) from None
         self._closed = True
-        self.rec.flush()
         self.rec.disconnect()
         self._stack.close()
 

@@ -16,7 +16,7 @@ Ours, on the same simulated walks:
 - database only: nearest neighbour (k = 1, theirs) and KWNN (k = 4);
 - KF: constant-velocity Kalman filter on the NN fixes (``baselines.kalman_track``), and the
   EKF that also uses PDR steps;
-- PF: ``tracking.track_recording`` with the NN fix (sigma 5 m), constant-velocity motion
+- PF: ``tracking.track`` with the NN fix (sigma 5 m), constant-velocity motion
   (theirs) and PDR motion, each with and without the map; 10,000 particles;
 - particle-count study: the constant-velocity PF with N = 100 ... 20,000 on
   ``--study-walks`` walks x ``--study-seeds`` filter seeds; per N the spread of the runs'
@@ -44,11 +44,11 @@ import common  # noqa: E402
 
 from mapfilter.evaluation.baselines import kalman_track  # noqa: E402
 from mapfilter.evaluation.metrics import errors_at_waypoints  # noqa: E402
-from mapfilter.filter.pf import FilterConfig  # noqa: E402
 from mapfilter.sensors.pdr import detect_steps  # noqa: E402
 from mapfilter.sensors.radiomap import kwnn_fix_many  # noqa: E402
 from mapfilter.sensors.wifi import scans_of  # noqa: E402
-from mapfilter.tracking import TrackingConfig, track_recording  # noqa: E402
+from mapfilter.config import TrackingConfig  # noqa: E402
+from mapfilter.tracking import track  # noqa: E402
 from mapfilter.trackio import Track  # noqa: E402
 
 PAPER = {"db": 3.50, "kf": 2.29, "pf": 1.99}
@@ -123,20 +123,20 @@ def _collapse_threshold(sigmas: float = 3.0) -> float:
 
 def _pf(w: Walk, motion: str, use_map: bool, n_particles: int, seed: int, detect: bool = False) -> dict:
     threshold = _collapse_threshold() if detect else None
-    filter_config = FilterConfig(min_log_likelihood=threshold)
-    config = TrackingConfig(motion=motion, n_particles=n_particles, use_map=use_map, kwnn_k=1, fix_sigma_m=5.0,
-                            filter=filter_config)
-    result = track_recording(_STATE["floorplan"], w.recording, radio_map=_STATE["radio_map"], config=config,
-                             rng=np.random.default_rng(seed), steps=w.steps)
-    errors = common.track_errors(result.track, w.walk)
-    recovered = [_recovered(c.t_s, result.track, w.walk) for c in result.collapses]
+    config = TrackingConfig().override({"motion.model": motion, "filter.n_particles": n_particles, "use_map": use_map,
+                                        "wifi.kwnn_k": 1, "wifi.fix_sigma_m": 5.0,
+                                        "filter.min_log_likelihood": threshold})
+    result = track(_STATE["floorplan"], w.recording, radio_map=_STATE["radio_map"], config=config,
+                   rng=np.random.default_rng(seed), steps=w.steps)
+    errors = common.track_errors(result.causal, w.walk)
+    recovered = [_recovered(c.t_s, result.causal, w.walk) for c in result.collapses]
     # where the errors come from: the walker in the corridor or in a room, and where the estimate is
-    scored = errors_at_waypoints(result.track.t_s, result.track.xy_m, w.walk.waypoint_t_s, w.walk.waypoint_xy_m)
+    scored = errors_at_waypoints(result.causal.t_s, result.causal.xy_m, w.walk.waypoint_t_s, w.walk.waypoint_xy_m)
     corridor = common.office_in_corridor(w.walk.waypoint_xy_m[scored.waypoint_index])
     where = (scored.errors_m[corridor].sum(), int(corridor.sum()), scored.errors_m[~corridor].sum(),
-             int((~corridor).sum()), float(common.office_in_corridor(result.track.xy_m).mean()))
+             int((~corridor).sum()), float(common.office_in_corridor(result.causal.xy_m).mean()))
     return {"mean": float(errors.mean()), "errors": errors, "collapses": len(result.collapses),
-            "recovered": int(sum(recovered)), "runtime_s": result.runtime_s, "lost": _lost(result.track, w.walk),
+            "recovered": int(sum(recovered)), "runtime_s": result.runtime_s, "lost": _lost(result.causal, w.walk),
             "where": where}
 
 

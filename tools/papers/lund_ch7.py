@@ -24,13 +24,13 @@ import common
 
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.metrics import errors_at_waypoints
-from mapfilter.filter.adaptive_pathloss import AdaptationConfig
 from mapfilter.sensors.pathloss import AccessPointTable, estimate_access_points, least_squares_position
 from mapfilter.sensors.pdr import detect_steps
 from mapfilter.sensors.radiomap import RadioMap, build_radio_map
 from mapfilter.sensors.wifi import scans_of
 from mapfilter.simulate.walk import SimConfig, offset_access_points
-from mapfilter.tracking import TrackingConfig, track_recording
+from mapfilter.config import TrackingConfig
+from mapfilter.tracking import track
 
 C_OFFSET_DB = 13.0
 ALPHA_OFFSET_DB_PER_M = -0.2
@@ -89,31 +89,31 @@ def work(item: tuple) -> dict:
 
 def _run(key: tuple, table: AccessPointTable, config: TrackingConfig, seed: int):
     walk, recording = _STATE["walks"][key]
-    result = track_recording(_STATE["floorplan"], recording, ap_table=table, config=config,
+    result = track(_STATE["floorplan"], recording, access_points=table, config=config,
                              rng=np.random.default_rng(seed))
-    return common.track_errors(result.track, walk), result
+    return common.track_errors(result.causal, walk), result
 
 
 def _adapt(index: int) -> dict:
     aps, wrong, n = _STATE["aps"], _STATE["wrong"], _STATE["n_particles"]
     out: dict = {}
     for motion in MOTIONS:
-        base = TrackingConfig(motion=motion, n_particles=n)
+        base = TrackingConfig().override({"motion.model": motion, "filter.n_particles": n})
         runs = {
             "true": (aps, base),
-            "true_adapt": (aps, dataclasses.replace(base, adapt_path_loss=True,
-                                                    adaptation=AdaptationConfig(rssi_limit_dbm=OFFICE_LIMIT_DBM))),
+            "true_adapt": (aps, base.override({"trilateration.adapt_path_loss": True,
+                                          "trilateration.adaptation.rssi_limit_dbm": OFFICE_LIMIT_DBM})),
             "wrong": (wrong, base),
-            "wrong_adapt": (wrong, dataclasses.replace(base, adapt_path_loss=True,
-                                                       adaptation=AdaptationConfig(rssi_limit_dbm=OFFICE_LIMIT_DBM))),
-            "wrong_adapt_thesis": (wrong, dataclasses.replace(
-                base, adapt_path_loss=True, adaptation=AdaptationConfig(rssi_limit_dbm=THESIS_LIMIT_DBM))),
+            "wrong_adapt": (wrong, base.override({"trilateration.adapt_path_loss": True,
+                                             "trilateration.adaptation.rssi_limit_dbm": OFFICE_LIMIT_DBM})),
+            "wrong_adapt_thesis": (wrong, base.override(
+                {"trilateration.adapt_path_loss": True, "trilateration.adaptation.rssi_limit_dbm": THESIS_LIMIT_DBM})),
         }
         for name, (table, config) in runs.items():
             errors, result = _run(("clear", index), table, config, 50_000 + index)
             out[f"{motion}/{name}"] = errors
             if name.startswith("wrong_adapt"):
-                out[f"{motion}/{name}/table"] = _table_errors(result.ap_table, aps)
+                out[f"{motion}/{name}/table"] = _table_errors(result.access_points, aps)
     return out
 
 
@@ -135,7 +135,7 @@ def _block(index: int) -> dict:
     for motion in MOTIONS:
         for scenario in ("clear", *BLOCKING):
             for comp in (True, False):
-                config = TrackingConfig(motion=motion, n_particles=n, blocking_compensation=comp)
+                config = TrackingConfig().override({"motion.model": motion, "filter.n_particles": n, "trilateration.blocking_compensation": comp})
                 errors, result = _run((scenario, index), aps, config, 60_000 + index)
                 out[f"{motion}/{scenario}/{'comp' if comp else 'nocomp'}"] = errors
     return out
@@ -195,18 +195,18 @@ def _ilc(index: int) -> dict:
     except MapfilterError:
         return out
     n = _STATE["ilc_particles"]
-    base = TrackingConfig(motion="pdr", n_particles=n)
-    configs = {"pf": base, "pf_adapt": dataclasses.replace(base, adapt_path_loss=True),
-               "pf_nocomp": dataclasses.replace(base, blocking_compensation=False)}
+    base = TrackingConfig().override({"motion.model": "pdr", "filter.n_particles": n})
+    configs = {"pf": base, "pf_adapt": base.override({"trilateration.adapt_path_loss": True}),
+               "pf_nocomp": base.override({"trilateration.blocking_compensation": False})}
     for name, config in configs.items():
         try:
-            result = track_recording(floorplan, recording, ap_table=table, config=config,
+            result = track(floorplan, recording, access_points=table, config=config,
                                      rng=np.random.default_rng(70_000 + index), steps=steps)
         except MapfilterError:
             continue
-        out[name] = errors(result.track.t_s, result.track.xy_m)
+        out[name] = errors(result.causal.t_s, result.causal.xy_m)
         if name == "pf_adapt":
-            model_c = result.ap_table.c_dbm
+            model_c = result.access_points.c_dbm
             out["adapt_c_change_db"] = float(np.abs(model_c - table.c_dbm).max()) if len(table) else 0.0
     return out
 

@@ -11,7 +11,7 @@ Ours, on the same simulated walks, with the 14 dual-band access points of
 the simulator adding a loss per wall and 5 dB shadowing):
 
 - LS: ``wifi.least_squares_position`` on every scan (robust fit of the RSSI residuals);
-- PF WiFi only: ``tracking.track_recording`` with the trilateration likelihood (RSSI noise
+- PF WiFi only: ``tracking.track`` with the trilateration likelihood (RSSI noise
   N(0, 25 dB^2)) and the random walk on a circle (r = 1.5 dt, sigma = 0.5 dt), with the map;
 - PDR only: ``baselines.pdr_track`` from the first LS fix (rotation-vector heading offset);
 - PF WiFi + PDR: PDR motion with the adaptive step-length state, with and without the map;
@@ -40,11 +40,11 @@ import lund_ch7  # noqa: E402
 
 from mapfilter.errors import MapfilterError  # noqa: E402
 from mapfilter.evaluation.baselines import pdr_track  # noqa: E402
-from mapfilter.filter.pf import FilterConfig  # noqa: E402
 from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position  # noqa: E402
 from mapfilter.sensors.pdr import detect_steps  # noqa: E402
 from mapfilter.sensors.wifi import scans_of  # noqa: E402
-from mapfilter.tracking import TrackingConfig, track_recording  # noqa: E402
+from mapfilter.config import TrackingConfig  # noqa: E402
+from mapfilter.tracking import track  # noqa: E402
 from mapfilter.trackio import Track  # noqa: E402
 
 PAPER = {"ls": 4.8, "pf_wifi": 3.5, "pdr": 4.2, "pf_pdr": 1.8}
@@ -70,7 +70,7 @@ def _setup(seed: int, duration_s: float, n_walks: int, n_particles: int, ch7: tu
 
 def _pf(index: int, config: TrackingConfig, seed: int, table: str = "fitted", on_step=None):
     walk, recording, steps = _STATE["walks"][index]
-    return track_recording(_STATE["floorplan"], recording, ap_table=_STATE["tables"][table], config=config,
+    return track(_STATE["floorplan"], recording, access_points=_STATE["tables"][table], config=config,
                            rng=np.random.default_rng(seed), on_step=on_step, steps=steps)
 
 
@@ -94,18 +94,18 @@ def _main(index: int) -> dict:
     for table in ("fitted", "true"):
         ls = _ls_track(scans, _STATE["tables"][table])
         out[f"{table}/ls"] = common.track_errors(ls, walk)
-        runs = {"pf_wifi": TrackingConfig(motion="rw", n_particles=n),
-                "pf_pdr": TrackingConfig(motion="pdr", n_particles=n)}
+        runs = {"pf_wifi": TrackingConfig().override({"motion.model": "rw", "filter.n_particles": n}),
+                "pf_pdr": TrackingConfig().override({"motion.model": "pdr", "filter.n_particles": n})}
         if table == "fitted":
             out["fitted/pdr"] = common.track_errors(pdr_track(steps, ls.t_s[0], ls.xy_m[0]), walk)
-            runs["pf_wifi_nomap"] = TrackingConfig(motion="rw", n_particles=n, use_map=False)
-            runs["pf_pdr_nomap"] = TrackingConfig(motion="pdr", n_particles=n, use_map=False)
+            runs["pf_wifi_nomap"] = TrackingConfig().override({"motion.model": "rw", "filter.n_particles": n, "use_map": False})
+            runs["pf_pdr_nomap"] = TrackingConfig().override({"motion.model": "pdr", "filter.n_particles": n, "use_map": False})
             # blocking compensation is on by default (chapter 7): what it costs where nothing blocks
-            runs["pf_wifi_nocomp"] = TrackingConfig(motion="rw", n_particles=n, blocking_compensation=False)
-            runs["pf_pdr_nocomp"] = TrackingConfig(motion="pdr", n_particles=n, blocking_compensation=False)
+            runs["pf_wifi_nocomp"] = TrackingConfig().override({"motion.model": "rw", "filter.n_particles": n, "trilateration.blocking_compensation": False})
+            runs["pf_pdr_nocomp"] = TrackingConfig().override({"motion.model": "pdr", "filter.n_particles": n, "trilateration.blocking_compensation": False})
         for key, config in runs.items():
             result = _pf(index, config, seed, table)
-            out[f"{table}/{key}"] = common.track_errors(result.track, walk)
+            out[f"{table}/{key}"] = common.track_errors(result.causal, walk)
             out[f"{table}/{key}_collapses"] = len(result.collapses)
     return out
 
@@ -119,13 +119,13 @@ def _step_length(index: int) -> dict:
         t_s.append(report.t_s)
         length_m.append(report.step_length_m)
 
-    config = TrackingConfig(motion="pdr", n_particles=_STATE["n_particles"],
-                            filter=FilterConfig(initial_step_length_m=WRONG_START_M))
+    config = TrackingConfig().override({"motion.model": "pdr", "filter.n_particles": _STATE["n_particles"],
+                                        "filter.initial_step_length_m": WRONG_START_M})
     result = _pf(index, config, 40_000 + index, on_step=record)
-    t0 = result.track.t_s[0]
+    t0 = result.causal.t_s[0]
     return {"t_s": np.array(t_s) - t0, "step_length_m": np.array(length_m),
             "true_m": float(walk.step_length_m.mean()),
-            "errors": common.track_errors(result.track, walk), "collapses": len(result.collapses),
+            "errors": common.track_errors(result.causal, walk), "collapses": len(result.collapses),
             "causes": [c.cause for c in result.collapses]}
 
 

@@ -11,8 +11,9 @@ points) are down-weighted instead of dragging the walk.
 
 The heading offset (gyro heading -> map heading) comes from the rotation vector when the log
 has one (its circular mean over the walk); without one it is searched over the full circle
-against the fixes. ``tracking.whole_walk_track`` then refines the placed shape with the
-particle filter so the result never crosses a wall.
+against the fixes. ``offline.whole_walk`` then shifts the placed shape onto free space
+(``shift_onto_free_space``) and map-matches it (``offline.map_matching``) so that the result
+never crosses a wall.
 """
 
 from __future__ import annotations
@@ -26,18 +27,32 @@ from mapfilter.errors import MapfilterError
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.pdr import Steps
 
-__all__ = ["WalkPlacement", "pdr_shape", "place_walk", "robust_offset", "shift_onto_free_space"]
+__all__ = ["PlacementConfig", "WalkPlacement", "pdr_shape", "place_walk", "robust_offset", "shift_onto_free_space"]
 
-# Huber threshold of the fix offsets: residuals beyond it count linearly. 2-20 m gave the same
-# error within 0.3 m on ILC F1 (36 and 76 walks) and F2 (12); 10 m sits in the middle.
-HUBER_M = 10.0
-# how far the map may move a placement: this share of the median fix residual (the walk's
-# typical fix error). Tried 1.0 and 0.5 on ILC F1 sparse and dense and F2 (seed 0): 0.5 lowered
-# pf-smooth's mean and p75 on all three (7.88 -> 7.35, 4.56 -> 4.29, 20.2 -> 19.1 m mean);
-# 1.0 lowered the means but raised p75 on two sets
-MAP_SHIFT_SHARE = 0.5
-MAP_SHIFT_STEP_M = 0.5
-MAP_SHIFT_MAX_M = 10.0
+
+@dataclasses.dataclass(frozen=True)
+class PlacementConfig:
+    """How a walk's shape is placed by its evidence and then moved onto free space."""
+
+    # 2-20 m gave the same error within 0.3 m on ILC F1 (36 and 76 walks) and F2 (12); 10 m
+    # sits in the middle
+    huber_m: float = 10.0  # Huber threshold of the fix offsets: residuals beyond it count linearly
+    # tried 1.0 and 0.5 on ILC F1 sparse and dense and F2 (seed 0): 0.5 lowered pf-smooth's mean
+    # and p75 on all three (7.88 -> 7.35, 4.56 -> 4.29, 20.2 -> 19.1 m mean); 1.0 lowered the
+    # means but raised p75 on two sets
+    map_shift_share: float = 0.5  # the walls may move the placement by this share of its median fix residual
+    map_shift_step_m: float = 0.5  # grid of the shifts tried
+    map_shift_max_m: float = 10.0  # ... and never farther than this
+
+    def __post_init__(self) -> None:
+        for name in ("huber_m", "map_shift_step_m"):
+            if not (getattr(self, name) > 0 and math.isfinite(getattr(self, name))):
+                raise MapfilterError(f"placement setting {name} must be a positive number, got {getattr(self, name)}")
+        if not (self.map_shift_share >= 0 and self.map_shift_max_m >= 0):
+            raise MapfilterError("placement settings map_shift_share and map_shift_max_m must be >= 0")
+
+
+HUBER_M = PlacementConfig.huber_m
 
 
 @dataclasses.dataclass(frozen=True)
@@ -145,13 +160,14 @@ def place_walk(steps: Steps, fix_t_s: np.ndarray, fix_xy_m: np.ndarray, heading_
     return WalkPlacement(t_s, xy, theta, offset, float(np.median(residual)), int(fix_t.size))
 
 
-def shift_onto_free_space(floorplan: FloorPlan, placement: WalkPlacement, share: float = MAP_SHIFT_SHARE,
-                          step_m: float = MAP_SHIFT_STEP_M, max_m: float = MAP_SHIFT_MAX_M) -> WalkPlacement:
-    """Move the placed shape, by at most ``share`` x its median fix residual (and ``max_m``), to
-    where the largest share of its points lies in free space; of equally good shifts the
-    shortest. The fixes fix the placement to within their bias; the walls say which of the
-    nearby placements a walker could have walked."""
-    radius = min(share * placement.fix_residual_median_m, max_m)
+def shift_onto_free_space(floorplan: FloorPlan, placement: WalkPlacement,
+                          config: PlacementConfig = PlacementConfig()) -> WalkPlacement:
+    """Move the placed shape, by at most ``map_shift_share`` x its median fix residual (and
+    ``map_shift_max_m``), to where the largest share of its points lies in free space; of equally
+    good shifts the shortest. The fixes fix the placement to within their bias; the walls say
+    which of the nearby placements a walker could have walked."""
+    radius = min(config.map_shift_share * placement.fix_residual_median_m, config.map_shift_max_m)
+    step_m = config.map_shift_step_m
     if not (radius >= step_m):
         return placement
     grid = np.arange(-radius, radius + 1e-9, step_m)

@@ -1,6 +1,6 @@
 """Map matching of a placed walk: an exact forward-backward pass over the free space.
 
-The whole-walk placement (``filter.placement``) puts the walk's dead-reckoned shape where all
+The whole-walk placement (``offline.placement``) puts the walk's dead-reckoned shape where all
 of its WiFi evidence says, as one rigid piece. A rigid shape still drifts (heading and step
 length errors add up: placed at the true position it errs 1.7-1.9 m on ILC site 1) and knows
 nothing of walls. This stage lets the walk bend where the walls say it must, as the 3rd place
@@ -65,11 +65,14 @@ class MapMatchConfig:
 
 @dataclasses.dataclass(frozen=True)
 class MapMatch:
-    """The map-matched walk: posterior mean positions at the shape's times."""
+    """The map-matched walk: posterior mean positions at the shape's times, and their spread."""
 
     t_s: np.ndarray  # (K,)
     xy_m: np.ndarray  # (K, 2) posterior mean (may sit in a wall between two likely corridors)
     restarts: int  # times every path was blocked (the plan closes where the walk went) and the pass restarted
+    # (K,) the posterior's spread: sqrt of the mean of its two position variances, as the
+    # causal filter's std_m (a cell's own width not counted)
+    std_m: np.ndarray | None = None
 
 
 class _Grid:
@@ -291,12 +294,12 @@ def _move_back(g, free, path, spans, out, row_max):
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _moments(alpha, alpha_factor, beta, beta_factor, x_m, spans, row_moments):
-    """Per row: the sum of p = (alpha * alpha_factor) * (beta * beta_factor) and of p * x
+    """Per row: the sums of p = (alpha * alpha_factor) * (beta * beta_factor), p * x and p * x^2
     (alpha * alpha_factor alone when ``beta_factor`` is 0) over the columns ``spans[r, 0]:spans[r, 1]``."""
     for r in range(alpha.shape[0]):
         lo, hi = spans[r, 0], spans[r, 1]
         a, b, x_m_row = alpha[r, lo:hi], beta[r, lo:hi], x_m[lo:hi]
-        s0 = s1 = x0 = x1 = 0.0
+        s0 = s1 = x0 = x1 = q0 = q1 = 0.0
         n2 = a.shape[0] // 2 * 2
         use_beta = beta_factor != 0.0
         for c in range(0, n2, 2):
@@ -309,14 +312,18 @@ def _moments(alpha, alpha_factor, beta, beta_factor, x_m, spans, row_moments):
             s1 += p1
             x0 += p0 * x_m_row[c]
             x1 += p1 * x_m_row[c + 1]
+            q0 += p0 * x_m_row[c] * x_m_row[c]
+            q1 += p1 * x_m_row[c + 1] * x_m_row[c + 1]
         for c in range(n2, a.shape[0]):
             p0 = a[c] * alpha_factor
             if use_beta:
                 p0 = p0 * (b[c] * beta_factor)
             s0 += p0
             x0 += p0 * x_m_row[c]
+            q0 += p0 * x_m_row[c] * x_m_row[c]
         row_moments[r, 0] = s0 + s1
         row_moments[r, 1] = x0 + x1
+        row_moments[r, 2] = q0 + q1
 
 
 def _cell_paths(units: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
@@ -419,7 +426,7 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     support, free_spans = _row_spans(near), _row_spans(free > 0)
     full = np.tile(np.array([0, nx], dtype=np.int64), (ny, 1))
     row_sums = np.empty(ny)
-    row_moments = np.empty((ny, 2))
+    row_moments = np.empty((ny, 3))
     # a sweep leaves its output as it is outside the spans: its buffers start at zero, and are
     # cleared from the first all-ones fallback on (``ones_written``)
     g = np.zeros_like(free)  # a backward step before its moves back
@@ -471,13 +478,17 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
         beta[:] = free
         return 1.0
 
-    def posterior_mean(alpha: Message, beta: np.ndarray, beta_factor: float) -> np.ndarray:
+    def posterior_moments(alpha: Message, beta: np.ndarray, beta_factor: float) -> tuple[np.ndarray, float]:
+        """(posterior mean (2,), its spread in m)."""
         _moments(alpha[0], alpha[1], beta, beta_factor, grid.x_m, free_spans, row_moments)  # beta is masked
         total = row_moments[:, 0].sum()
         if not total > 0:  # alpha and beta share no cell: alpha alone (all ones after the fallback)
             _moments(alpha[0], alpha[1], beta, 0.0, grid.x_m, full, row_moments)
             total = row_moments[:, 0].sum()
-        return np.array([row_moments[:, 1].sum(), (row_moments[:, 0] * grid.y_m).sum()]) / total
+        mean = np.array([row_moments[:, 1].sum(), (row_moments[:, 0] * grid.y_m).sum()]) / total
+        var_x = row_moments[:, 2].sum() / total - mean[0] ** 2
+        var_y = (row_moments[:, 0] * grid.y_m * grid.y_m).sum() / total - mean[1] ** 2
+        return mean, math.sqrt(max(0.5 * (var_x + var_y), 0.0))
 
     every = config.checkpoint_every
     last_start = ((K - 1) // every) * every
@@ -497,6 +508,7 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     del buffers
 
     out_xy = np.zeros((K, 2))
+    out_std = np.zeros(K)
     beta, beta_factor = free.copy(), 1.0
     for start in range(last_start, -1, -every):
         if start < last_start:  # recompute the segment's messages from its checkpoint
@@ -504,11 +516,11 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
             for k in range(start + 1, start + every):
                 segment.append(forward(segment[-1], k, segment_buffer[k - start])[0])
         for k in range(start + len(segment) - 1, start - 1, -1):
-            out_xy[k] = posterior_mean(segment[k - start], beta, beta_factor)
+            out_xy[k], out_std[k] = posterior_moments(segment[k - start], beta, beta_factor)
             if k == 0:
                 break
             if restarted_at[k]:  # the forward pass forgot everything before k: so does the backward one
                 beta[:], beta_factor = free, 1.0
                 continue
             beta_factor = backward(beta, beta_factor, k)
-    return MapMatch(t, out_xy, int(restarted_at.sum()))
+    return MapMatch(t, out_xy, int(restarted_at.sum()), out_std)

@@ -1,0 +1,95 @@
+"""The Python API: what a script or notebook needs to track walks, build radio maps and evaluate.
+
+``import mapfilter as mf`` gives these names (loaded on first use, so that importing the package
+stays cheap)::
+
+    building = mf.load_map("maps/office.yaml")                # a map or building YAML
+    walk = mf.read_log("maps/office_walk.txt.gz")             # any log format the reader knows
+    radio_map = mf.load_radio_map("maps/office_radiomap.npz")
+    config = mf.TrackingConfig(smooth=True, seed=3)           # or TrackingConfig.from_yaml(text or path)
+    result = mf.track(building, walk, radio_map=radio_map, config=config)
+    result.causal.xy_m, result.offline.xy_m                  # numpy arrays (+ t_s, std_m, heading_rad, floor)
+
+Every function here is a thin wrapper over the stage that does the work (named in its docstring).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from mapfilter.config import TrackingConfig
+from mapfilter.engine import Engine
+from mapfilter.errors import MapfilterError
+from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate as _evaluate
+from mapfilter.maps.building import Building
+from mapfilter.sensors.floors import build_building_radio_map
+from mapfilter.sensors.logs import read_log as _read_log
+from mapfilter.sensors.pathloss import AccessPointTable
+from mapfilter.sensors.radiomap import RadioMap
+from mapfilter.sensors.radiomap import build_radio_map as _build_one_floor
+from mapfilter.sensors.recording import Recording
+from mapfilter.tracking import TrackResult, track
+from mapfilter.trackio import Track, read_track, write_track
+
+__all__ = ["Building", "Evaluation", "RadioMap", "Recording", "Track", "TrackResult", "TrackingConfig",
+           "build_radio_map", "evaluate", "load_access_points", "load_map", "load_radio_map", "read_log",
+           "read_track", "track", "write_track"]
+
+
+def load_map(path: str | os.PathLike) -> Building:
+    """A map YAML (ROS map_server) as a one-floor building, or a building YAML (``maps.building``)."""
+    return Building.load(path)
+
+
+def read_log(path: str | os.PathLike, strict: bool = False, warn: Callable[[str], None] | None = None,
+             building: Building | None = None) -> Recording:
+    """One phone log as a ``Recording``, its format (ILC trace or GetSensorData) told by its content
+    (``sensors.logs``). Bad rows are skipped with one warning line (to ``warn``, else a
+    ``LogReadWarning``); ``strict`` refuses a log with a bad row the tracker needs. Ground truth
+    in latitude/longitude (IPIN logs) is put in metres by a georeferenced ``building``
+    (``track`` and ``evaluate`` do that themselves)."""
+    return _read_log(path, strict=strict, warn=warn, building=building)
+
+
+def load_radio_map(path: str | os.PathLike) -> RadioMap:
+    """A radio map (``.npz``, one floor or a building's), as ``mapfilter radiomap build`` writes it."""
+    return RadioMap.load(path)
+
+
+def load_access_points(path: str | os.PathLike) -> AccessPointTable:
+    """An access-point table (CSV: positions and path-loss parameters) for trilateration."""
+    return AccessPointTable.read_csv(path)
+
+
+def build_radio_map(building: Building, recordings: Sequence[Recording]) -> RadioMap:
+    """A radio map from survey walks with waypoints (``sensors.radiomap``): on one floor, every
+    scan labelled by its walk's waypoints; in a building, each walk's points on the floor its log
+    names (``sensors.floors``)."""
+    if building.is_single_floor:
+        return _build_one_floor(list(recordings), building.floors[0].plan)
+    floors = [building.floor_of_log(rec.floor_name, rec.path) for rec in recordings]
+    for rec, floor in zip(recordings, floors):
+        if floor is None:
+            raise MapfilterError("the log names no floor: it cannot survey a building", rec.path)
+    return build_building_radio_map(list(recordings), floors, building.floor_names)
+
+
+def evaluate(building: Building, logs: Sequence[str | os.PathLike], *, radio_map: str | os.PathLike | None = None,
+             access_points: str | os.PathLike | None = None, survey: Sequence[str | os.PathLike] = (),
+             leave_one_out: bool = False, methods: Sequence[str] | None = None,
+             config: TrackingConfig | None = None, jobs: int = 1, scheduler: str | None = None,
+             progress: Callable[[int, int, str], None] | None = None) -> Evaluation:
+    """Every method on the same walks (``evaluation.comparison``), as ``mapfilter evaluate`` runs them:
+    ``evaluation.summary_rows()`` is its table, ``errors_by_method()`` its CDF.
+
+    The radio map: a file (``radio_map``), ``survey`` logs, or ``leave_one_out`` (each walk's from
+    the other walks). ``jobs``/``scheduler``: walks on local Dask worker processes or a cluster.
+    """
+    setup = EvaluationSetup(methods=None if methods is None else tuple(methods),
+                            radio_map_path=None if radio_map is None else Path(radio_map),
+                            ap_table_path=None if access_points is None else Path(access_points),
+                            survey_paths=tuple(Path(p) for p in survey), leave_one_out=leave_one_out,
+                            tracking=config if config is not None else TrackingConfig())
+    return _evaluate(building, logs, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)

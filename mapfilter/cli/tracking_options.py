@@ -1,0 +1,117 @@
+"""The tracking settings on the command line: ``--config FILE`` and the flags people change.
+
+Every setting lives in the ``TrackingConfig`` (``mapfilter config show`` prints them all); a
+flag given on the command line overrides the file's value, a flag not given leaves it alone.
+The defaults are written out here so that ``--help`` imports no numerical library;
+``tests/test_cli_startup.py`` holds them equal to the library's.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+MOTION_MODELS = ("pdr", "cv", "rw")  # filter.run.MOTION_MODELS
+FINGERPRINT_MODELS = ("fix", "blend", "likelihood")  # filter.evidence.FINGERPRINT_MODELS
+DEFAULT_PARTICLES = 10_000  # FilterConfig.n_particles
+DEFAULT_FINGERPRINT_MODEL = "blend"  # WifiConfig.fingerprint_model
+DEFAULT_KWNN_MIN_RSSI_DBM = -85.0  # WifiConfig.kwnn_min_rssi_dbm
+DEFAULT_ADAPT_RSSI_LIMIT_DBM = -36.0  # AdaptationConfig.rssi_limit_dbm (the thesis' limit)
+
+
+def kwnn_min_rssi(text: str) -> float | None:
+    """``--kwnn-min-rssi``: a dBm value (``-90`` or ``-90dBm``), or ``none`` for plain KWNN."""
+    value = text.strip().lower()
+    if value == "none":
+        return None
+    try:
+        return float(value.removesuffix("dbm").strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a dBm value such as -90, or none; got {text!r}") from None
+
+
+def positive_int(text: str) -> int:
+    """A whole number of at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def seed_value(text: str) -> int:
+    """A seed: a whole number >= 0 (numpy's generators take no negative seeds)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {value}")
+    return value
+
+
+def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--config`` and the tracking flags of ``track`` and ``evaluate`` (each overrides the file)."""
+    group = parser.add_argument_group("tracking settings (each overrides --config; every other setting lives "
+                                      "in the config file: `mapfilter config show`)")
+    group.add_argument("--config", type=Path, metavar="FILE",
+                       help="tracking settings from this YAML file (write one with `mapfilter config show > FILE`)")
+    group.add_argument("--motion", choices=MOTION_MODELS, default=None,
+                       help="motion model: pdr (steps + gyro), cv (constant velocity), rw (random walk) "
+                            "(default: pdr)")
+    group.add_argument("--particles", type=positive_int, default=None, metavar="N",
+                       help=f"number of particles (default: {DEFAULT_PARTICLES})")
+    group.add_argument("--seed", type=seed_value, default=None, metavar="S", help="random seed (default: 0)")
+    group.add_argument("--smooth", action="store_true", default=None,
+                       help="also make the offline track from the whole walk: the dead-reckoned shape placed by "
+                            "every scan, kept to free space (never crosses a wall)")
+    group.add_argument("--no-map", action="store_true", default=None,
+                       help="ignore the walls (to see what the map buys)")
+    group.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=None,
+                       help="fix: KWNN fix weighed by a Gaussian; blend: that fix averaged with the radio-map "
+                            "likelihood's best cell; likelihood: per-particle radio-map likelihood "
+                            f"(default: {DEFAULT_FINGERPRINT_MODEL})")
+    group.add_argument("--kwnn-min-rssi", type=kwnn_min_rssi, default=argparse.SUPPRESS, metavar="DBM",
+                       help="the filter's KWNN fixes use readings at or above this only (phones disagree most "
+                            f"on weak APs); none: every reading (default: {DEFAULT_KWNN_MIN_RSSI_DBM:g}); "
+                            "negative values as --kwnn-min-rssi=-90")
+    group.add_argument("--adapt", action="store_true", default=None,
+                       help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
+                            "is below when a scan's strongest RSSI is above the limit, alpha per band; "
+                            "Lund thesis 7.1-7.2)")
+    group.add_argument("--adapt-rssi-limit", type=float, default=None, metavar="DBM",
+                       help=f"with --adapt: a scan whose strongest RSSI is above this adapts (default: "
+                            f"{DEFAULT_ADAPT_RSSI_LIMIT_DBM:g}, the thesis' value)")
+    group.add_argument("--no-blocking-compensation", action="store_true", default=None,
+                       help="trilateration: do not compensate signal blocking (by default a term H is taken off "
+                            "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
+
+
+def tracking_config_from(args: argparse.Namespace):
+    """The ``TrackingConfig`` of a command: the ``--config`` file's (or the defaults), with every
+    flag that was given applied on top."""
+    import dataclasses
+
+    from mapfilter.config import TrackingConfig
+    from mapfilter.settings import replace_setting
+
+    config = TrackingConfig.from_yaml(args.config) if args.config is not None else TrackingConfig()
+    flags = {
+        "motion.model": args.motion,
+        "filter.n_particles": args.particles,
+        "seed": args.seed,
+        "smooth": True if args.smooth else None,
+        "use_map": False if args.no_map else None,
+        "wifi.fingerprint_model": args.fingerprint_model,
+        "trilateration.adapt_path_loss": True if args.adapt else None,
+        "trilateration.adaptation.rssi_limit_dbm": args.adapt_rssi_limit,
+        "trilateration.blocking_compensation": False if args.no_blocking_compensation else None,
+    }
+    for dotted, value in flags.items():
+        if value is not None:
+            config = replace_setting(config, dotted, value)
+    if hasattr(args, "kwnn_min_rssi"):  # given (None is a value here: plain KWNN)
+        config = dataclasses.replace(config, wifi=dataclasses.replace(config.wifi, kwnn_min_rssi_dbm=args.kwnn_min_rssi))
+    return config

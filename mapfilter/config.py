@@ -1,0 +1,92 @@
+"""Every setting of a tracking run in one ``TrackingConfig``, which a user can save and reload.
+
+``mapfilter config show`` prints the defaults as YAML, a one-line comment per setting; commands
+take ``--config FILE`` (flags override the file) and write the config that ran beside their
+results, so a run can be repeated from its outputs::
+
+    config = TrackingConfig.from_yaml("my.yaml")           # or YAML text
+    print(config.to_yaml())
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Mapping
+from typing import Any
+
+from mapfilter.errors import MapfilterError
+from mapfilter.filter.barometer import BarometerConfig
+from mapfilter.filter.evidence import TrilaterationConfig, WifiConfig
+from mapfilter.filter.floors import FloorChangeConfig
+from mapfilter.filter.pf import FilterConfig
+from mapfilter.filter.run import MotionConfig
+from mapfilter.offline.whole_walk import OfflineConfig
+from mapfilter.sensors.pdr import PDRConfig
+from mapfilter.settings import replace_setting, settings_from_yaml, settings_to_dict, settings_to_yaml
+
+__all__ = ["FloorsConfig", "TrackingConfig"]
+
+
+@dataclasses.dataclass(frozen=True)
+class FloorsConfig:
+    """A building with several floors: how the floor is found."""
+
+    changes: FloorChangeConfig = dataclasses.field(default_factory=FloorChangeConfig)  # how particles change floor
+    use_barometer: bool = True  # weigh floors by the log's barometer when it has one
+    barometer: BarometerConfig = dataclasses.field(default_factory=BarometerConfig)  # how the barometer weighs floors
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackingConfig:
+    """Every setting of tracking one walk (``mapfilter.track``). ``mapfilter config show`` lists them."""
+
+    seed: int = 0  # the only source of randomness: same seed, same track
+    smooth: bool = False  # also make the offline track (the whole walk for every point; not causal)
+    use_map: bool = True  # false: walls ignored (what the map buys: the pf-nomap comparison)
+    motion: MotionConfig = dataclasses.field(default_factory=MotionConfig)  # how particles move
+    steps: PDRConfig = dataclasses.field(default_factory=PDRConfig)  # step detection, heading and step length from the IMU
+    wifi: WifiConfig = dataclasses.field(default_factory=WifiConfig)  # fingerprinting (a radio map)
+    trilateration: TrilaterationConfig = dataclasses.field(default_factory=TrilaterationConfig)  # an access-point table
+    filter: FilterConfig = dataclasses.field(default_factory=FilterConfig)  # the particle filter
+    floors: FloorsConfig = dataclasses.field(default_factory=FloorsConfig)  # a building's floors
+    offline: OfflineConfig = dataclasses.field(default_factory=OfflineConfig)  # the offline track (smooth)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise MapfilterError(f"the seed must be a whole number >= 0, got {self.seed!r}")
+
+    @property
+    def n_particles(self) -> int:
+        return self.filter.n_particles
+
+    def with_particles(self, n_particles: int) -> TrackingConfig:
+        """The same config with ``n_particles`` particles."""
+        return dataclasses.replace(self, filter=dataclasses.replace(self.filter, n_particles=n_particles))
+
+    def override(self, settings: Mapping[str, Any]) -> TrackingConfig:
+        """The same config with the settings named by dotted keys replaced, e.g.
+        ``config.override({"motion.model": "cv", "filter.n_particles": 2000})``."""
+        config = self
+        for dotted, value in settings.items():
+            try:
+                config = replace_setting(config, dotted, value)
+            except (AttributeError, TypeError):
+                raise MapfilterError(f"unknown setting {dotted!r}") from None
+        return config
+
+    def to_yaml(self) -> str:
+        """Every setting as YAML, with a one-line comment each; ``from_yaml`` reads it back."""
+        return settings_to_yaml(self, header="mapfilter tracking config: every setting, with its default unless "
+                                             "changed.\nLoad it with --config FILE (flags override it) or "
+                                             "TrackingConfig.from_yaml(path).")
+
+    def to_dict(self) -> dict:
+        """Every setting as plain data (nested dicts), e.g. for a JSON summary."""
+        return settings_to_dict(self)
+
+    @classmethod
+    def from_yaml(cls, text_or_path: str | os.PathLike, base: TrackingConfig | None = None) -> TrackingConfig:
+        """A config from YAML text or a file: the settings given, the rest from ``base`` (default:
+        the defaults). Unknown settings and wrong values are one line naming the file and line."""
+        return settings_from_yaml(cls, text_or_path, base)

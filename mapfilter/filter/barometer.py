@@ -1,0 +1,117 @@
+"""The barometer as floor evidence: a height from pressure, read against a reference floor.
+
+A phone barometer measures height *changes* only (the weather moves its zero), so the filter
+reads it against a reference: a floor it was sure of and the barometer's height then
+(``BarometerReference``). ``barometric_height`` turns pressure into height.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+
+
+@dataclasses.dataclass(frozen=True)
+class BarometerConfig:
+    """How the barometer weighs floors (a phone barometer: about 0.25 m noise per sample)."""
+
+    # a barometer's height is good to about 0.25 m per sample and drifts with the weather by
+    # well under a metre in ten minutes; 1 m keeps a storey (4-5 m) four sigmas or more away
+    sigma_m: float = 1.0  # spread of the height a floor is expected at
+    anchor_share: float = 0.95  # the reference moves to a floor only when this share of the weight is on it
+    steady_m: float = 0.5  # ... and the height changed less than this ...
+    steady_window_s: float = 3.0  # ... over this long
+    # 0.01 m/s is 36 m/h, about 4 hPa/h, above any weather front (1-3 hPa/h). A climber pausing
+    # on the stairs looks steady for a few seconds; without this limit the reference crept up
+    # with each pause (1.25 m half-way up a simulated flight) and the new floor was found late
+    drift_m_per_s: float = 0.01  # the reference follows the weather at most this fast
+    smoothing_window_s: float = 2.0  # pressure readings of the last this-many seconds make one height
+
+    def __post_init__(self) -> None:
+        for name in ("sigma_m", "steady_m", "steady_window_s", "smoothing_window_s"):
+            if not (getattr(self, name) > 0 and np.isfinite(getattr(self, name))):
+                raise MapfilterError(f"barometer setting {name} must be a positive number, got {getattr(self, name)}")
+        if not 0.5 <= self.anchor_share <= 1.0:
+            raise MapfilterError(f"barometer setting anchor_share must be in [0.5, 1], got {self.anchor_share}")
+        if not (self.drift_m_per_s >= 0 and np.isfinite(self.drift_m_per_s)):
+            raise MapfilterError(f"barometer setting drift_m_per_s must be >= 0, got {self.drift_m_per_s}")
+
+
+class BarometerReference:
+    """The barometer's zero for floor evidence: a floor the filter was sure of and the height then.
+
+    ``update`` sets the reference when the filter is sure of its floor (``anchor_share``)
+    while the height is steady, and afterwards moves it no faster than the weather moves a
+    barometer (``drift_m_per_s``), never to a floor the barometer disagrees with;
+    ``floor_log_likelihood`` gives a floor of elevation e the value
+    -(e - (e_ref + h - h_ref))^2 / (2 sigma_m^2).
+    """
+
+    def __init__(self, elevation_m: np.ndarray, config: BarometerConfig = BarometerConfig()) -> None:
+        self.elevation_m = np.asarray(elevation_m, dtype=np.float64)
+        self.config = config
+        self.anchor: tuple[int, float, float] | None = None  # (floor, barometer height, time)
+
+    def update(self, t_s: float, height_m: float, steady: bool, floor_shares: np.ndarray) -> None:
+        """After a filter step at ``t_s``: the barometer's height, whether it was steady, and the
+        filter's share of weight per floor."""
+        cfg = self.config
+        floor = int(np.argmax(floor_shares))
+        if not (steady and float(np.max(floor_shares)) >= cfg.anchor_share):
+            return
+        if self.anchor is None:
+            self.anchor = (floor, height_m, t_s)
+            return
+        ref_floor, h_ref, t_ref = self.anchor
+        h_floor = h_ref + self.elevation_m[floor] - self.elevation_m[ref_floor]  # the floor's height by the reference
+        # never move the reference to a floor the barometer disagrees with: a filter that
+        # missed a floor change would otherwise silence the barometer for good
+        if abs(height_m - h_floor) > 2.0 * cfg.sigma_m:
+            return
+        drift = cfg.drift_m_per_s * max(t_s - t_ref, 0.0)
+        self.anchor = (floor, h_floor + float(np.clip(height_m - h_floor, -drift, drift)), t_s)
+
+    def floor_log_likelihood(self, height_m: float) -> np.ndarray | None:
+        """(F,) log-likelihood of each floor at barometer height ``height_m``; None before a reference."""
+        if self.anchor is None:
+            return None
+        floor, h_ref, _ = self.anchor
+        expected = self.elevation_m[floor] + height_m - h_ref
+        return -0.5 * ((self.elevation_m - expected) / self.config.sigma_m) ** 2
+
+
+def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float = 2.0,
+                      centred: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(times, heights in metres relative to the first sample) from barometer readings: the
+    international barometric formula h = 44330.8 (1 - (p / p_first)^(1 / 5.25588)) of the
+    pressure smoothed causally, from the readings of the last ``window_s`` only (a phone
+    barometer's noise is about 0.25 m per sample): the end of a straight line fitted to them,
+    which, unlike their mean, does not lag a climb or a ride by half the window.
+
+    ``centred`` (offline, the whole walk at hand): the same line read at its middle, i.e. the
+    window's mean at the window's mean time, with half the noise of its end."""
+    t = np.asarray(t_s, dtype=np.float64)
+    p_hpa = np.asarray(pressure_hpa, dtype=np.float64)
+    p = p_hpa - p_hpa[0]  # small numbers keep the windowed sums exact over long logs
+    tr = t - t[0]
+    lo = np.searchsorted(t, t - window_s, side="left")
+    hi = np.arange(1, t.size + 1)  # reading i's window ends at reading i
+
+    def window_sum(x: np.ndarray) -> np.ndarray:
+        cum = np.concatenate([[0.0], np.cumsum(x)])
+        return cum[hi] - cum[lo]
+
+    # least squares p = mean_p + slope (t - mean_t) over each window, at the window's last reading
+    n = (hi - lo).astype(np.float64)
+    mean_t, mean_p = window_sum(tr) / n, window_sum(p) / n
+    var_t = window_sum(tr * tr) / n - mean_t ** 2
+    cov = window_sum(tr * p) / n - mean_t * mean_p
+    slope = np.where(var_t > 1e-9, cov / np.maximum(var_t, 1e-9), 0.0)
+    if centred:
+        t, smooth = t[0] + mean_t, p_hpa[0] + mean_p
+    else:
+        smooth = p_hpa[0] + mean_p + slope * (tr - mean_t)
+    return t, 44330.8 * (1.0 - (smooth / smooth[0]) ** (1.0 / 5.25588))

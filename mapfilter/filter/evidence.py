@@ -1,0 +1,343 @@
+"""A walk's WiFi (and barometer) as the filter weighs it: a measurement model and one measurement
+per scan, made once per walk.
+
+``WifiEvidence`` is one floor: fingerprinting against a radio map (``fix``: one KWNN fix per
+scan, Chang et al., weighed with a Gaussian, Evennou & Marx; ``blend``: the mean of that fix
+and the radio-map likelihood's best cell; ``likelihood``: the radio map's own probability of
+the scan at each particle) or trilateration from an access-point table (the Lund thesis
+path-loss likelihood, adaptive with ``TrilaterationConfig``). ``BuildingEvidence`` is several
+floors: per floor the ``WifiEvidence`` of that floor's fingerprints, per scan the WiFi floor
+vote, and the barometer between scans. The run loop (``filter.run``) asks both the same
+questions (``WalkEvidence``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Protocol
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+from mapfilter.filter.adaptive_pathloss import AdaptationConfig, AdaptiveTrilaterationLikelihood, BlockingConfig
+from mapfilter.filter.barometer import BarometerConfig, BarometerReference, barometric_height
+from mapfilter.filter.events import StepReport
+from mapfilter.filter.floors import FloorFix, FloorFixLikelihood, FloorStack
+from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix, TrilaterationLikelihood
+from mapfilter.filter.models import MeasurementModel
+from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLikelihoodConfig, radio_map_likelihood
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.floors import check_building_radio_map, floor_vote_log_likelihood
+from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position, match_scan
+from mapfilter.sensors.radiomap import (STRONG_MIN_RSSI_DBM, RadioMap, cross_validated_fix_errors, kwnn_fix_many,
+                                       strong_kwnn_fixes)
+from mapfilter.sensors.wifi import WifiScan
+
+FINGERPRINT_MODELS = ("fix", "blend", "likelihood")
+
+
+@dataclasses.dataclass(frozen=True)
+class WifiConfig:
+    """How fingerprints (a radio map) weigh the particles."""
+
+    # blend: on ILC site 1 it lowered pf's mean error on all three sets against fix (F1 sparse
+    # 11.7 -> 10.7 m, F1 dense 6.1 -> 5.4 m, F2 21.3 -> 20.8 m): two estimators that err
+    # differently where the survey is thin
+    fingerprint_model: str = "blend"  # fix: KWNN fix + Gaussian | blend: fix averaged with the radio-map likelihood's best cell | likelihood: per-particle radio map
+    # Evennou & Marx fix 5 m for a dense office survey; the bundled office calibrates to 2.4 m,
+    # ILC site1 F1 (leave-one-trace-out) to about 18 m, where 5-30 m tried by tools/tune_ilc.py
+    # put the best at 15-20 m: the calibration lands where tuning would
+    fix_sigma_m: float | None = None  # Gaussian of the fix; null: calibrated per radio map (RMS of its cross-validated KWNN errors / sqrt 2)
+    kwnn_k: int = 4  # neighbours of a KWNN fix (Chang et al.)
+    # ``sensors.radiomap.strong_kwnn_fixes``: phones disagree most on weak APs
+    kwnn_min_rssi_dbm: float | None = STRONG_MIN_RSSI_DBM  # the filter's KWNN fixes use readings at or above this; null: every reading
+    radio_map_likelihood: RadioMapLikelihoodConfig = dataclasses.field(default_factory=RadioMapLikelihoodConfig)  # the per-particle radio-map model (likelihood, blend)
+
+    def __post_init__(self) -> None:
+        if self.fingerprint_model not in FINGERPRINT_MODELS:
+            raise MapfilterError(f"unknown fingerprint model {self.fingerprint_model!r}: "
+                                 f"choose one of {', '.join(FINGERPRINT_MODELS)}")
+        if self.kwnn_k < 1:
+            raise MapfilterError(f"kwnn_k must be at least 1, got {self.kwnn_k}")
+        if self.fix_sigma_m is not None and not self.fix_sigma_m > 0:
+            raise MapfilterError(f"fix_sigma_m must be positive (or null: calibrated), got {self.fix_sigma_m}")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrilaterationConfig:
+    """How an access-point table weighs the particles (Lund thesis chapters 6-7)."""
+
+    rssi_variance_db2: float = 25.0  # RSSI noise variance of the path-loss likelihood (thesis: 25 dB^2)
+    adapt_path_loss: bool = False  # adapt C per AP and alpha per band during the walk (thesis 7.1-7.2)
+    blocking_compensation: bool = True  # take H dB off every AP while all drop together (thesis 7.3)
+    adaptation: AdaptationConfig = dataclasses.field(default_factory=AdaptationConfig)  # the adaptation, with adapt_path_loss
+    blocking: BlockingConfig = dataclasses.field(default_factory=BlockingConfig)  # the blocking detection, with blocking_compensation
+
+    def __post_init__(self) -> None:
+        if not self.rssi_variance_db2 > 0:
+            raise MapfilterError(f"rssi_variance_db2 must be positive, got {self.rssi_variance_db2}")
+        self.adaptation.validate()
+        self.blocking.validate()
+
+
+class WalkEvidence(Protocol):
+    """What the run loop asks of a walk's evidence."""
+
+    scans: list[WifiScan]
+    usable: np.ndarray  # (S,) bool: scans that give a measurement
+    model: MeasurementModel
+
+    def measurement(self, index: int) -> Any:
+        """The measurement the filter weighs for scan ``index`` (None when the scan is unusable)."""
+        ...
+
+    def between_scans(self, t_s: float) -> Any:
+        """What the filter weighs at a step between scans (None: nothing)."""
+        ...
+
+    def has_evidence_between_scans(self) -> bool:
+        """Whether ``between_scans`` can ever give something (a barometer in a building)."""
+        ...
+
+    def observe(self, report: StepReport) -> None:
+        """After each filter step (the barometer's reference follows the filter's floor)."""
+        ...
+
+
+class WifiEvidence:
+    """One floor's WiFi: the measurement model and each scan's measurement (``WalkEvidence``).
+
+    Exactly one of ``radio_map`` (fingerprinting) and ``ap_table`` (trilateration).
+    """
+
+    def __init__(self, scans: list[WifiScan], radio_map: RadioMap | None, ap_table: AccessPointTable | None,
+                 floorplan: FloorPlan, wifi: WifiConfig = WifiConfig(),
+                 trilateration: TrilaterationConfig = TrilaterationConfig(), log_name: str = "the log"):
+        if (radio_map is None) == (ap_table is None):
+            raise MapfilterError("give either a radio map (fingerprinting) or an access-point table (trilateration)")
+        self.scans = scans
+        self._radio_map, self._floorplan, self._likelihood_config = radio_map, floorplan, wifi.radio_map_likelihood
+        self.fix_xy_m: np.ndarray | None = None  # fingerprint fixes, one per scan (NaN: none)
+        self.kwnn_xy_m: np.ndarray | None = None  # KWNN fixes, one per scan (NaN: none)
+        self._radio_map_model: RadioMapLikelihood | None = None
+        self._best_cell_xy_m: np.ndarray | None = None
+        self.usable = np.ones(len(scans), dtype=bool)
+        self.model: MeasurementModel
+        if radio_map is not None:
+            shared = np.array([sum(k in radio_map.key_index for k in s.ap_keys) for s in scans])
+            if not shared.any():
+                raise MapfilterError(f"the radio map shares no access point with {log_name}")
+            if wifi.fingerprint_model in ("fix", "blend"):
+                matrix = radio_map.scan_matrix(scans)
+                if wifi.kwnn_min_rssi_dbm is None:
+                    self.kwnn_xy_m = kwnn_fix_many(radio_map, matrix, k=wifi.kwnn_k).xy_m
+                else:
+                    self.kwnn_xy_m = strong_kwnn_fixes(radio_map, matrix, wifi.kwnn_k, wifi.kwnn_min_rssi_dbm)
+                self.fix_xy_m = self.kwnn_xy_m
+                if wifi.fingerprint_model == "blend":
+                    best = self.best_cell_xy_m()
+                    self.fix_xy_m = np.where(np.isfinite(best), 0.5 * (self.kwnn_xy_m + best), self.kwnn_xy_m)
+                self.usable = np.all(np.isfinite(self.fix_xy_m), axis=1)
+                sigma_m = wifi.fix_sigma_m if wifi.fix_sigma_m is not None else calibrated_fix_sigma_m(
+                    radio_map, wifi.kwnn_k)
+                self.model = GaussianFixLikelihood(sigma_m=sigma_m)
+            else:
+                self.model = self.radio_map_model()
+                self.usable = shared >= 1
+        else:
+            assert ap_table is not None
+            rows = [match_scan(ap_table, s)[0] for s in scans]
+            self.usable = np.array([r.size > 0 for r in rows])
+            if not self.usable.any():
+                raise MapfilterError(f"the access-point table shares no access point with {log_name}")
+            self.model = trilateration_model(ap_table, trilateration)
+        if not self.usable.any():
+            raise MapfilterError(f"no WiFi scan of {log_name} gives a fingerprint fix with this radio map")
+
+    @property
+    def fix_sigma_m(self) -> float | None:
+        """The Gaussian of the fingerprint fixes (None for the other models)."""
+        return self.model.sigma_m if isinstance(self.model, GaussianFixLikelihood) else None
+
+    def measurement(self, index: int) -> Any:
+        if not self.usable[index]:
+            return None
+        if self.fix_xy_m is not None:
+            return PositionFix(self.fix_xy_m[index])
+        return self.scans[index]
+
+    def between_scans(self, t_s: float) -> None:
+        return None  # one floor: nothing weighs the particles between scans
+
+    def has_evidence_between_scans(self) -> bool:
+        return False
+
+    def observe(self, report: StepReport) -> None:
+        return None
+
+    def radio_map_model(self) -> RadioMapLikelihood:
+        """The radio-map likelihood (needs a radio map): built once per radio map and shared with
+        the other walks tracked with it; the per-AP tables of the APs this walk hears built now."""
+        if self._radio_map_model is None:
+            heard = {key for scan in self.scans for key in scan.ap_keys}
+            self._radio_map_model = radio_map_likelihood(self._radio_map, self._floorplan, self._likelihood_config,
+                                                         heard)
+        return self._radio_map_model
+
+    def best_cell_xy_m(self) -> np.ndarray:
+        """(S, 2) the radio-map likelihood's best cell per scan (NaN: scan without a fix, or for
+        the likelihood model without a known AP: it says nothing about where it was)."""
+        if self._best_cell_xy_m is None:
+            model = self.radio_map_model()
+            out = np.full((len(self.scans), 2), np.nan)
+            for i, scan in enumerate(self.scans):
+                known = self.usable[i] if self.kwnn_xy_m is None else np.isfinite(self.kwnn_xy_m[i]).all()
+                if known:
+                    out[i] = model.best_position(scan)
+            self._best_cell_xy_m = out
+        return self._best_cell_xy_m
+
+    def position_fixes(self) -> list[np.ndarray]:
+        """Position estimates per scan from each WiFi estimator at hand, each (S, 2), NaN where
+        none: with a radio map the KWNN fixes (fix, blend) and the radio-map likelihood's best
+        cell, with an access-point table the least-squares trilateration (3 APs or more)."""
+        if self._radio_map is not None:
+            return [f for f in (self.kwnn_xy_m, self.best_cell_xy_m()) if f is not None]
+        table = self.access_points
+        out = np.full((len(self.scans), 2), np.nan)
+        for i, scan in enumerate(self.scans):
+            if self.usable[i] and match_scan(table, scan)[0].size >= 3:
+                out[i] = least_squares_position(table, scan)
+        return [out]
+
+    @property
+    def access_points(self) -> AccessPointTable | None:
+        """Trilateration: the access-point table as the model has it now (adapted during the walk
+        with ``adapt_path_loss``); None for fingerprinting."""
+        if isinstance(self.model, (TrilaterationLikelihood, AdaptiveTrilaterationLikelihood)):
+            return self.model.ap_table
+        return None
+
+
+def trilateration_model(ap_table: AccessPointTable, config: TrilaterationConfig = TrilaterationConfig()
+                        ) -> MeasurementModel:
+    """The path-loss likelihood, adaptive (Lund thesis ch. 7) when the config asks for adaptation or blocking."""
+    if not (config.adapt_path_loss or config.blocking_compensation):
+        return TrilaterationLikelihood(ap_table, variance_db2=config.rssi_variance_db2)
+    return AdaptiveTrilaterationLikelihood(
+        ap_table, variance_db2=config.rssi_variance_db2,
+        adaptation=config.adaptation if config.adapt_path_loss else None,
+        blocking=config.blocking if config.blocking_compensation else None)
+
+
+def calibrated_fix_sigma_m(radio_map: RadioMap, k: int = 4, default_m: float = 5.0) -> float:
+    """Fix sigma from the radio map's cross-validated KWNN errors: RMS / sqrt(2) (a 2-D Gaussian's
+    E|d|^2 = 2 sigma^2), in [1, 50] m.
+
+    ``default_m`` (Evennou & Marx's 5 m) when the map is too small to cross-validate.
+    """
+    errors = cross_validated_fix_errors(radio_map, k=k)
+    if errors.size < 10:
+        return default_m
+    return float(np.clip(np.sqrt(np.mean(errors**2) / 2.0), 1.0, 50.0))
+
+
+class BuildingEvidence:
+    """A walk's scans as the multi-floor filter weighs them (``WalkEvidence``; a ``FloorFix`` per scan).
+
+    Per floor, the fix of ``WifiEvidence`` made from that floor's fingerprints only (so
+    ``blend``, ``fix`` and the fix-sigma calibration work as on one floor), moved into the stack
+    frame; per scan, the floor vote of ``sensors.floors.floor_vote_log_likelihood`` over the
+    whole building's fingerprints.
+
+    With a barometer (``pressure``: times and hPa), each scan, and each filter step between
+    scans (``between_scans``), also weighs floors by height against a ``BarometerReference``
+    that ``observe`` keeps.
+    """
+
+    def __init__(self, scans: list[WifiScan], radio_map: RadioMap, stack: FloorStack, wifi: WifiConfig = WifiConfig(),
+                 fix_sigma_by_floor_m: dict[str, float] | None = None, log_name: str = "the log",
+                 pressure: tuple[np.ndarray, np.ndarray] | None = None,
+                 barometer: BarometerConfig = BarometerConfig(), floor_evidence: np.ndarray | None = None):
+        names = stack.building.floor_names
+        check_building_radio_map(radio_map, names)
+        self.scans = scans
+        n_scans, n_floors = len(scans), len(names)
+        self.fix_xy_m = np.full((n_scans, n_floors, 2), np.nan)
+        # each floor's own evidence (None: its fingerprints share nothing with the walk)
+        self.floor_wifi: list[WifiEvidence | None] = [None] * n_floors
+        sigma = np.full(n_floors, 5.0)
+        for f, floor in enumerate(stack.building.floors):
+            sub = radio_map.floor_map(f)
+            if len(sub) == 0:
+                continue
+            floor_config = wifi
+            if fix_sigma_by_floor_m and floor.name in fix_sigma_by_floor_m:
+                floor_config = dataclasses.replace(wifi, fix_sigma_m=fix_sigma_by_floor_m[floor.name])
+            try:
+                evidence = WifiEvidence(scans, sub, None, floor.plan, floor_config, log_name=log_name)
+            except MapfilterError:
+                continue  # this floor's fingerprints share nothing with the walk: no fix there
+            if evidence.fix_xy_m is None:
+                raise MapfilterError("tracking across floors weighs fingerprint fixes: use the fingerprint "
+                                     "model fix or blend")
+            self.fix_xy_m[:, f] = stack.to_stack(evidence.fix_xy_m, f)
+            self.floor_wifi[f] = evidence
+            sigma[f] = evidence.fix_sigma_m
+        if floor_evidence is not None:
+            self.floor_log_likelihood = np.asarray(floor_evidence, dtype=np.float64)
+        else:
+            self.floor_log_likelihood = floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans),
+                                                                  k=wifi.kwnn_k)
+        self.elevation_m = np.array([f.elevation_m for f in stack.building.floors])
+        self.barometer = barometer
+        self.pressure = pressure if pressure is not None and len(pressure[0]) >= 2 else None
+        self.baro = None if self.pressure is None else barometric_height(*self.pressure, barometer.smoothing_window_s)
+        self.reference = BarometerReference(self.elevation_m, barometer)
+        self.usable = np.isfinite(self.fix_xy_m).all(axis=2).any(axis=1)
+        if not self.usable.any():
+            raise MapfilterError(f"no WiFi scan of {log_name} gives a fingerprint fix with this radio map")
+        self.model = FloorFixLikelihood(stack, sigma)
+
+    def height_m(self, t_s: float) -> float:
+        """The barometer's height at ``t_s`` (relative to its first sample), NaN without one."""
+        if self.baro is None:
+            return float("nan")
+        # the last reading at or before t_s: nothing from the future
+        i = int(np.searchsorted(self.baro[0], t_s, side="right")) - 1
+        return float(self.baro[1][max(i, 0)])
+
+    def observe(self, report: StepReport) -> None:
+        """After each filter step: move the barometer's reference (``BarometerReference.update``);
+        steady = less than ``steady_m`` of height change over ``steady_window_s``."""
+        if self.baro is None or report.floor_shares is None:
+            return
+        h = self.height_m(report.t_s)
+        steady = abs(h - self.height_m(report.t_s - self.barometer.steady_window_s)) < self.barometer.steady_m
+        self.reference.update(report.t_s, h, steady, report.floor_shares)
+
+    def has_evidence_between_scans(self) -> bool:
+        return self.baro is not None
+
+    def between_scans(self, t_s: float) -> FloorFix | None:
+        """The barometer alone at ``t_s`` (a step between scans): floors weighed by height as in
+        ``measurement``, no position fix; None without a barometer or before a reference."""
+        if self.baro is None:
+            return None
+        floor_ll = self.reference.floor_log_likelihood(self.height_m(t_s))
+        if floor_ll is None:
+            return None
+        return FloorFix(np.full((len(self.elevation_m), 2), np.nan), floor_ll, int(np.argmax(floor_ll)))
+
+    def measurement(self, index: int) -> FloorFix | None:
+        """The scan ``index`` as a ``FloorFix`` (None when no floor gives it a fix)."""
+        if not self.usable[index]:
+            return None
+        floor_ll = self.floor_log_likelihood[index]
+        height_floor = None
+        if self.baro is not None:
+            height_ll = self.reference.floor_log_likelihood(self.height_m(self.scans[index].t_s))
+            if height_ll is not None:
+                floor_ll = floor_ll + height_ll
+                height_floor = int(np.argmax(height_ll))
+        return FloorFix(self.fix_xy_m[index], floor_ll, height_floor)
