@@ -22,7 +22,7 @@ generators", OOPSLA 2014), with one ``key`` per step drawn from the filter's
 ``numpy.random.Generator``; a particle's draws depend on the key and its index only, so the
 same seed gives the same track whatever the number of threads. Normals are Box-Muller on two
 32-bit uniforms of one word, with ln, cos and sin evaluated by series that vectorise (as in
-``filter/gaussian.py``); the tails stop at sqrt(-2 ln 2^-33) = 6.8 sigma.
+``filter/gaussian.py``); the tails stop at sqrt(-2 ln 2^-32) = 6.7 sigma.
 
 Models describe themselves to these kernels through ``MotionModel.kernel_move`` and
 ``MeasurementModel.kernel_likelihood`` (``filter/models.py``), with the terms made here
@@ -57,7 +57,9 @@ _MIN_BLOCKS_PER_THREAD = max(MIN_PER_THREAD // BLOCK, 1)
 # The kernels that call the wall walk, exp or the bit tricks are compiled without fast maths:
 # numba compiles a function called from a kernel with the kernel's flags, and keeps that
 # version for every caller; reassociation would fold (x + 1.5 2^52) - 1.5 2^52 back to x and
-# change the walk's arithmetic. Only the leaf loops (draws, cos/sin) use it.
+# change the walk's arithmetic. Only the leaf loops (draws, cos/sin, the RSSI terms) use it,
+# and where infinities are data (the weights) comparisons are written out instead of min/max,
+# whose implementations numba shares between callers in the same way.
 
 # what the move kernel does (Move.kind)
 MOVE_NONE, MOVE_CIRCLE, MOVE_CV, MOVE_PDR = 0, 1, 2, 3
@@ -332,7 +334,7 @@ def _exp_block(x, m, out):
     k = round(x / ln 2), r = x - k ln 2 in [-ln2/2, ln2/2], exp(r) by its Taylor series to r^12
     (relative error < 1e-14), 2^k built in the exponent bits; below 2^-1022 the result is 0."""
     for j in range(m):
-        xj = max(x[j], -745.0)
+        xj = x[j] if x[j] > -745.0 else -745.0
         rounded = xj * _LOG2E + _ROUND
         k = rounded - _ROUND
         # k from the low bits of 1.5 * 2^52 + k (mantissa 2^51 + k): its low 32 bits, sign-extended
@@ -580,11 +582,13 @@ def _advance_kernel(lo_block, hi_block, n, do_move, do_kill, do_weigh, key, move
                 v = v if -np.inf < v < np.inf else -np.inf
                 live = w0 > -np.inf
                 alive += live
-                best_ll = max(best_ll, v if live else -np.inf)
+                if live and v > best_ll:
+                    best_ll = v
                 w1 = w0 + v
                 lw[i] = w1
                 finite += w1 > -np.inf
-                top = max(top, w1)
+                if w1 > top:
+                    top = w1
             s = 0.0
             s2 = 0.0
             sx = 0.0
@@ -736,8 +740,8 @@ def totals(state: Advanced, shift_xy_m) -> Totals:
 # ---- pass 2: systematic resampling, gather, regularisation -----------------------------------------
 @njit(cache=True, nogil=True, error_model="numpy")
 def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, key, tries, walks, h, root, mask,
-                     clearance, x0_m, y0_m, inv_res, no_buffer, origin_xy, src_xy, src_vel, src_head, src_step, shift_x, shift_y,
-                     parent, xy, vel, head, step, sums):
+                     clearance, x0_m, y0_m, inv_res, no_buffer, origin_xy, src_xy, src_vel, src_head, src_step,
+                     shift_x, shift_y, parent, xy, vel, head, step, sums):
     z0 = np.empty(BLOCK)
     z1 = np.empty(BLOCK)
     ubuf = np.empty(BLOCK)
@@ -892,9 +896,9 @@ def resample_regularise(state: Advanced, t: Totals, prev_xy_m: np.ndarray, *, u:
     out = Resampled(np.empty(n, dtype=np.int64), np.empty((n, 2)), np.empty((n, 2)), np.empty(n), np.empty(n),
                     np.empty((nb, N_RESAMPLE_SUMS)))
     for_slices(_resample_kernel, nb, n, state.e, t.block_scale, cum_start, last_positive(state, t), float(u),
-               np.uint64(key), int(tries), bool(walks), float(h), np.ascontiguousarray(root, dtype=np.float64), floorplan.wall_mask,
-               clearance, float(floorplan.origin_m[0]), float(floorplan.origin_m[1]), 1.0 / floorplan.resolution_m,
-               NO_BUFFER, prev_xy_m, state.xy_m, state.velocity_mps, state.heading_rad, state.step_length_m,
+               np.uint64(key), int(tries), bool(walks), float(h), np.ascontiguousarray(root, dtype=np.float64),
+               floorplan.wall_mask, clearance, float(floorplan.origin_m[0]), float(floorplan.origin_m[1]),
+               1.0 / floorplan.resolution_m, NO_BUFFER, prev_xy_m, state.xy_m, state.velocity_mps, state.heading_rad, state.step_length_m,
                float(shift_xy_m[0]), float(shift_xy_m[1]), out.parent, out.xy_m, out.velocity_mps, out.heading_rad,
                out.step_length_m, out.sums, min_per_thread=_MIN_BLOCKS_PER_THREAD)
     return out

@@ -351,7 +351,8 @@ class ParticleFilter:
         killed = np.flatnonzero(state.killed)
         cause = None if totals.n_alive_after_kill > 0 else "all_killed_by_walls"
         if cause is None and measured:
-            if self.config.min_log_likelihood is not None and totals.best_log_likelihood < self.config.min_log_likelihood:
+            gate = self.config.min_log_likelihood
+            if gate is not None and totals.best_log_likelihood < gate:
                 cause = "measurement_inconsistent"
             else:
                 peak = model.log_likelihood_peak
