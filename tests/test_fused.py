@@ -215,6 +215,16 @@ def test_resampling_and_jitter_are_the_stages_fed_the_same_draws(regularised):
                                  tries=1, origin_xy_m=prev.xy_m[parent])
     assert 0.3 < moved.mean()
     np.testing.assert_allclose(got.xy_m, expected, atol=1e-12, rtol=0)
+    # PDR's sums of headings and step lengths change nothing else
+    walking = fused.resample_regularise(state, t, prev.xy_m, u=u, key=KEY, tries=3, h=h, root=root, floorplan=ROOMS,
+                                        clearance=clearance_px(ROOMS), shift_xy_m=(0.0, 0.0), walks=True)
+    standing = fused.resample_regularise(state, t, prev.xy_m, u=u, key=KEY, tries=3, h=h, root=root, floorplan=ROOMS,
+                                         clearance=clearance_px(ROOMS), shift_xy_m=(0.0, 0.0))
+    assert np.array_equal(walking.xy_m, standing.xy_m)
+    sums = walking.sums.sum(axis=0)
+    assert math.atan2(sums[fused.R_SIN], sums[fused.R_COS]) == pytest.approx(
+        math.atan2(np.sin(walking.heading_rad).sum(), np.cos(walking.heading_rad).sum()), abs=1e-6)
+    assert sums[fused.R_STEP] == pytest.approx(walking.step_length_m.sum())
 
 
 def test_resampling_never_picks_a_dead_particle():

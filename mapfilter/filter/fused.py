@@ -842,10 +842,10 @@ def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, 
             sxy += dx * dy
             syy += dy * dy
             if walks:
-                h = head[i]
-                if not -math.pi <= h <= math.pi:
-                    h = ((h + math.pi) % (2.0 * math.pi)) - math.pi
-                c, s = _cos_sin(h)
+                heading = head[i]
+                if not -math.pi <= heading <= math.pi:
+                    heading = ((heading + math.pi) % (2.0 * math.pi)) - math.pi
+                c, s = _cos_sin(heading)
                 sc += c
                 ss += s
                 sl += step[i]

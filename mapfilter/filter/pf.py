@@ -89,13 +89,12 @@ class FilterConfig:
     recovery_reset_steps: int = 10  # healthy steps after which the radius starts small again
     recovery_measurement_max_age_s: float = 10.0  # an older measurement is not used to recover
     recovery_heading_keep_fraction: float = 0.5  # PDR: share of recovered particles keeping an old heading
-    # the step in two passes of filter/fused.py from this many particles on (None: never, 0:
-    # always), for motion models that offer its terms (random walk, constant velocity, PDR; any
-    # measurement model, a Gaussian fix and trilateration inside the pass) with the systematic
-    # resampler and the Gaussian kernel; its draws differ from the named stages' (the same
-    # distributions). Its kernels add about 2 s to the first run after install (numba compiles
-    # them once), and below 20,000 particles a walk's time goes elsewhere (docs/benchmarks.md)
-    fused_from_particles: int | None = 20_000
+    # for motion models that give its terms (random walk, constant velocity, PDR; any measurement
+    # model, a Gaussian fix and trilateration inside the pass) with the systematic resampler and
+    # the Gaussian kernel; its draws differ from the named stages' (the same distributions). Its
+    # kernels add about 2 s to the first run after install (numba compiles them once), and below
+    # 20,000 particles a walk's time goes elsewhere (docs/benchmarks.md)
+    fused_from_particles: int | None = 20_000  # the fused step (filter/fused.py) from this many on; None: never
 
     def __post_init__(self) -> None:
         if int(self.n_particles) < 1:
