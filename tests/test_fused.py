@@ -329,3 +329,53 @@ def test_one_regularised_step_spreads_the_cloud_alike(motion, step_input):
     fast = np.mean([spread(True, seed) for seed in range(12)], axis=0)
     # the mean of 12 seeds errs by about 0.0005 m (PDR) to 0.001 m (random walk); the jitter adds 0.01-0.015 m
     np.testing.assert_allclose(fast, named, atol=0.004)
+
+
+# ---- a building's floors: the pass runs in three calls around the floor changes ------------------
+def _stack_filter(tmp_path, motion, n=3000, seed=0, connectors=False, rates=(0.0, 0.05)):
+    from mapfilter.filter.floors import FloorChangeConfig, FloorChanges, FloorStack
+    from tests.test_floors import _building
+
+    stack = FloorStack(_building(tmp_path, connectors=connectors))
+    changes = FloorChanges(stack, FloorChangeConfig(*rates))
+    pf = ParticleFilter(stack.plan, motion, FilterConfig(n_particles=n, init_samples=5000, fused_from_particles=0),
+                        np.random.default_rng(seed), floors=changes)
+    assert pf._fusable  # noqa: SLF001
+    return stack, changes, pf
+
+
+def test_on_a_buildings_floors_no_particle_lives_in_a_wall_and_the_evidence_finds_the_floor(tmp_path):
+    from mapfilter.filter.floors import FloorFix, FloorFixLikelihood
+
+    stack, changes, pf = _stack_filter(tmp_path, RandomWalkMotion())
+    model = FloorFixLikelihood(stack, np.full(3, 3.0))
+    fix = FloorFix(stack.to_stack(np.array([[10.0, 5.0]] * 3), np.arange(3)), np.log([0.2, 0.6, 0.2]))
+    pf.initialise_from_measurement(0.0, model, fix)
+    changed = 0
+    for k in range(1, 40):
+        report = pf.step(float(k), 1.0, None, model, fix if k % 3 == 0 else None)
+        changed += report.floor_changes
+        local, floor = stack.to_floor(pf.particles.xy_m)
+        alive = np.isfinite(pf.particles.log_weight)
+        for f, fl in enumerate(stack.building.floors):
+            assert fl.plan.is_free(local[alive & (floor == f)]).all()
+        assert math.isclose(float(np.exp(pf.particles.log_weight).sum()), 1.0, rel_tol=1e-9)
+        assert math.isclose(float(report.floor_shares.sum()), 1.0, rel_tol=1e-9)
+    assert changed > 100  # particles did change floor (0.05 / s, 3000 particles, 39 s)
+    assert report.floor_index == 1 and report.floor_shares[1] > 0.8
+
+
+def test_on_a_buildings_stairs_a_pdr_step_advances_a_tread(tmp_path):
+    from mapfilter.filter.particles import Particles
+
+    stack, changes, pf = _stack_filter(tmp_path, PDRMotion(heading_sigma_rad=0.0, position_sigma_m=0.0), n=400,
+                                       connectors=True, rates=(0.0, 0.0))
+    lo, hi = changes.config.stairs_tread_m
+    rng = np.random.default_rng(6)
+    on = np.column_stack([rng.uniform(2.3, 3.0, 200), rng.uniform(2.3, 4.7, 200)])  # west end of the stairs
+    off = np.column_stack([rng.uniform(8.0, 12.0, 200), rng.uniform(2.3, 4.7, 200)])
+    start = stack.to_stack(np.concatenate([on, off]), 0)
+    pf.particles = Particles.at(start, heading_rad=0.0, step_length_m=0.7)
+    pf.step(1.0, 0.6, StepInput(1, 0.0))
+    moved_m = np.linalg.norm(pf.particles.xy_m - start, axis=1)
+    assert (moved_m[:200] <= hi + 0.05).all() and (moved_m[200:] >= 0.6).all()
