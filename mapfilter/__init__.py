@@ -13,9 +13,9 @@ The names are loaded on first use: ``import mapfilter`` alone imports no numeric
 
 __version__ = "0.2.0"
 
-_API = ("Building", "Evaluation", "RadioMap", "Recording", "Track", "TrackResult", "TrackingConfig",
-        "build_radio_map", "evaluate", "load_access_points", "load_map", "load_radio_map", "read_log",
-        "read_track", "track", "write_track")
+_API = ("Building", "Evaluation", "GrowConfig", "GrowReport", "RadioMap", "Recording", "Track", "TrackResult",
+        "TrackingConfig", "build_radio_map", "evaluate", "grow_radio_map", "load_access_points", "load_map",
+        "load_radio_map", "read_log", "read_track", "track", "write_track")
 
 __all__ = ["__version__", *_API]
 

@@ -15,6 +15,7 @@ Every function here is a thin wrapper over the stage that does the work (named i
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -28,13 +29,15 @@ from mapfilter.sensors.logs import read_log as _read_log
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.radiomap import build_radio_map as _build_one_floor
+from mapfilter.selftrain import GrowConfig, GrowReport
+from mapfilter.selftrain import grow_radio_map as _grow
 from mapfilter.sensors.recording import Recording
 from mapfilter.tracking import TrackResult, track
 from mapfilter.trackio import Track, read_track, write_track
 
-__all__ = ["Building", "Evaluation", "RadioMap", "Recording", "Track", "TrackResult", "TrackingConfig",
-           "build_radio_map", "evaluate", "load_access_points", "load_map", "load_radio_map", "read_log",
-           "read_track", "track", "write_track"]
+__all__ = ["Building", "Evaluation", "GrowConfig", "GrowReport", "RadioMap", "Recording", "Track", "TrackResult",
+           "TrackingConfig", "build_radio_map", "evaluate", "grow_radio_map", "load_access_points", "load_map",
+           "load_radio_map", "read_log", "read_track", "track", "write_track"]
 
 
 def load_map(path: str | os.PathLike) -> Building:
@@ -73,20 +76,37 @@ def build_radio_map(building: Building, recordings: Sequence[Recording]) -> Radi
     return build_building_radio_map(list(recordings), floors, building.floor_names)
 
 
+def grow_radio_map(building: Building, radio_map: RadioMap, recordings: Sequence[Recording],
+                   config: TrackingConfig | None = None, grow: GrowConfig | None = None, jobs: int = 1,
+                   progress: Callable[[int, int, str], None] | None = None) -> tuple[RadioMap, GrowReport]:
+    """The radio map grown from walks without labels (``selftrain``, docs/self-training.md): each
+    walk tracked offline over the map (``config``), its scans added where its offline track puts
+    them, with their position uncertainty, until the map stops changing. Their waypoints, if any,
+    are never read. Returns the grown map (surveyed + grown points) and what was added."""
+    grow = grow if grow is not None else GrowConfig()
+    if config is not None:
+        grow = dataclasses.replace(grow, tracking=config, seed=config.seed)
+    space = building.floors[0].plan if building.is_single_floor else building
+    return _grow(space, radio_map, recordings, grow, progress=progress, engine=Engine(jobs=jobs))
+
+
 def evaluate(building: Building, logs: Sequence[str | os.PathLike], *, radio_map: str | os.PathLike | None = None,
              access_points: str | os.PathLike | None = None, survey: Sequence[str | os.PathLike] = (),
-             leave_one_out: bool = False, methods: Sequence[str] | None = None,
+             leave_one_out: bool = False, unlabelled: Sequence[str | os.PathLike] = (), transductive: bool = False,
+             methods: Sequence[str] | None = None,
              config: TrackingConfig | None = None, jobs: int = 1, scheduler: str | None = None,
              progress: Callable[[int, int, str], None] | None = None) -> Evaluation:
     """Every method on the same walks (``evaluation.comparison``), as ``mapfilter evaluate`` runs them:
     ``evaluation.summary_rows()`` is its table, ``errors_by_method()`` its CDF.
 
     The radio map: a file (``radio_map``), ``survey`` logs, or ``leave_one_out`` (each walk's from
-    the other walks). ``jobs``/``scheduler``: walks on local Dask worker processes or a cluster.
+    the other walks); ``unlabelled`` walks grow it (self-training), ``transductive`` the evaluated
+    walks too. ``jobs``/``scheduler``: walks on local Dask worker processes or a cluster.
     """
     setup = EvaluationSetup(methods=None if methods is None else tuple(methods),
                             radio_map_path=None if radio_map is None else Path(radio_map),
                             ap_table_path=None if access_points is None else Path(access_points),
                             survey_paths=tuple(Path(p) for p in survey), leave_one_out=leave_one_out,
-                            tracking=config if config is not None else TrackingConfig())
+                            tracking=config if config is not None else TrackingConfig(),
+                            unlabelled_paths=tuple(Path(p) for p in unlabelled), transductive=transductive)
     return _evaluate(building, logs, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
-import tempfile
+import secrets
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -35,11 +35,9 @@ def atomic_paths(*final_paths: str | os.PathLike) -> Iterator[list[Path]]:
                 raise MapfilterError("is a directory; give a file name", final)
             try:
                 made += _make_parents(final.parent)
-                fd, tmp = tempfile.mkstemp(prefix=f".{final.stem}.", suffix=final.suffix, dir=final.parent)
+                _create_temporary(final, temps)
             except OSError as exc:  # a parent that is a file, a directory we may not write in
                 raise MapfilterError(f"cannot write here ({exc.strerror or exc})", final) from None
-            os.close(fd)
-            temps.append(Path(tmp))
         try:
             yield temps
         except OSError as exc:
@@ -62,6 +60,24 @@ def atomic_paths(*final_paths: str | os.PathLike) -> Iterator[list[Path]]:
         for directory in reversed(made):
             with contextlib.suppress(OSError):  # not empty (something else wrote there): keep it
                 directory.rmdir()
+
+
+def _create_temporary(final: Path, temps: list[Path]) -> None:
+    """A new private file ``.STEM.RANDOM.SUFFIX`` beside ``final``, listed in ``temps`` *before* it
+    is made, so that an interrupt at any moment (Ctrl-C, SIGTERM) leaves none unlisted for the
+    clean-up (``tempfile.mkstemp`` makes the file before it returns its name)."""
+    for _ in range(100):
+        tmp = final.parent / f".{final.stem}.{secrets.token_hex(4)}{final.suffix}"
+        temps.append(tmp)
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+            return
+        except FileExistsError:
+            temps.pop()  # someone else's: never remove it
+        except OSError:
+            temps.pop()  # not made (a parent that is a file, no permission)
+            raise
+    raise FileExistsError(errno.EEXIST, "no free temporary name", str(final.parent))
 
 
 def _make_parents(directory: Path) -> list[Path]:

@@ -35,12 +35,15 @@ _pool_threads = 0
 def _forget_pool_after_fork() -> None:
     # a forked child (e.g. a ProcessPoolExecutor worker) inherits the pool object but none of
     # its threads: work submitted to it would wait forever, so the child starts its own
-    global _pool, _pool_threads
-    _pool, _pool_threads = None, 0
+    global _pool, _pool_threads, _cpus
+    _pool, _pool_threads, _cpus = None, 0, None
 
 
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_pool_after_fork)
+
+
+_cpus: int | None = None  # the CPUs this process may use, asked once (a system call)
 
 
 def n_threads() -> int:
@@ -48,10 +51,13 @@ def n_threads() -> int:
     value = os.environ.get("MAPFILTER_THREADS")
     if value:
         return max(1, int(value))
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
+    global _cpus
+    if _cpus is None:
+        try:
+            _cpus = max(1, len(os.sched_getaffinity(0)))
+        except AttributeError:  # not on Linux
+            _cpus = max(1, os.cpu_count() or 1)
+    return _cpus
 
 
 def for_slices(kernel: Callable[..., None], n: int, *args, min_per_thread: int = MIN_PER_THREAD) -> None:

@@ -5,6 +5,14 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests that read the real walks in ../shared/data are marked ``real_data`` (and skip,
+    with the reason, when the data is absent): ``-m "not real_data"`` is the quick run."""
+    for item in items:
+        if {"ilc_site1", "ipin2023"} & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.real_data)
 ILC_SITE1 = REPO.parent / "shared" / "data" / "ilc20" / "site1"
 
 

@@ -9,21 +9,24 @@ PACKAGE = Path(__file__).resolve().parents[1] / "mapfilter"
 # stage -> the stages it must never import (also not lazily, inside a function)
 FORBIDDEN = {
     # the bottom: what every stage may use, itself using no stage
-    "settings": {"maps", "sensors", "filter", "offline", "config", "tracking", "evaluation", "batch", "simulate",
-                 "viz", "cli"},
-    "maps": {"sensors", "filter", "offline", "config", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "sensors": {"filter", "offline", "config", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "filter": {"offline", "config", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "offline": {"config", "tracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "config": {"tracking", "evaluation", "batch", "simulate", "viz", "cli"},
-    "tracking": {"evaluation", "batch", "simulate", "viz", "cli"},
+    "settings": {"maps", "sensors", "filter", "offline", "config", "tracking", "selftrain", "evaluation", "batch",
+                 "simulate", "viz", "cli"},
+    "maps": {"sensors", "filter", "offline", "config", "tracking", "selftrain", "evaluation", "batch", "simulate", "viz",
+             "cli"},
+    "sensors": {"filter", "offline", "config", "tracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "filter": {"offline", "config", "tracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "offline": {"config", "tracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "config": {"tracking", "selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    "tracking": {"selftrain", "evaluation", "batch", "simulate", "viz", "cli"},
+    # growing a radio map tracks walks (tracking); evaluation may grow maps
+    "selftrain": {"evaluation", "batch", "simulate", "viz", "cli"},
     "evaluation": {"batch", "simulate", "viz", "cli"},
     "batch": {"simulate", "viz", "cli"},
     # how walks are dispatched knows nothing of what a walk is
-    "engine": {"maps", "sensors", "filter", "offline", "config", "tracking", "evaluation", "batch", "simulate", "viz",
-               "cli"},
-    "simulate": {"filter", "offline", "config", "tracking", "evaluation", "batch", "viz", "cli"},
-    "viz": {"offline", "config", "tracking", "evaluation", "batch", "simulate", "cli"},
+    "engine": {"maps", "sensors", "filter", "offline", "config", "tracking", "selftrain", "evaluation", "batch",
+               "simulate", "viz", "cli"},
+    "simulate": {"filter", "offline", "config", "tracking", "selftrain", "evaluation", "batch", "viz", "cli"},
+    "viz": {"offline", "config", "tracking", "selftrain", "evaluation", "batch", "simulate", "cli"},
 }
 
 

@@ -174,3 +174,24 @@ def test_evaluate_against_survey_logs_scores_only_the_walks_given(tmp_path):
     assert {row["trace"] for row in summary["traces"]} == {"walk0"}
     assert main(["evaluate", str(MAPS / "office.yaml"), str(walks[0]), "--survey", str(walks[0]),
                  "--out", str(tmp_path / "o2")]) == 1
+
+
+def test_unlabelled_and_transductive_walks_grow_the_radio_map_and_are_named(tmp_path, capsys):
+    """--unlabelled walks grow the survey's radio map and are never scored; --transductive lets the
+    scored walks grow it too; both are named in the printout and summary.json."""
+    walks = _office_walks(tmp_path, 4)
+    common = ["evaluate", str(MAPS / "office.yaml"), str(walks[0]), "--survey", str(walks[1]),
+              "--methods", "kwnn,pf", "--particles", "500"]
+    assert main(common + ["--unlabelled", str(walks[2]), str(walks[3]), "--out", str(tmp_path / "u")]) == 0
+    summary = json.loads((tmp_path / "u" / "summary.json").read_text())
+    assert {row["trace"] for row in summary["traces"]} == {"walk0"}
+    assert "grown points from 2 walks" in summary["grown"] and "radio map + " in capsys.readouterr().out
+    assert main(common + ["--transductive", "--out", str(tmp_path / "t")]) == 0
+    summary = json.loads((tmp_path / "t" / "summary.json").read_text())
+    assert "(transductive)" in summary["grown"] and summary["transductive"] is True
+    # a scored walk's own labels never grow its map: transductive needs a survey that is not the scored walks
+    assert main(["evaluate", str(MAPS / "office.yaml"), *map(str, walks[:2]), "--leave-one-out", "--transductive",
+                 "--out", str(tmp_path / "x")]) == 1
+    assert "--transductive" in capsys.readouterr().err and not (tmp_path / "x").exists()
+    assert main(common + ["--unlabelled", str(walks[0]), "--out", str(tmp_path / "y")]) == 1
+    assert "both unlabelled and labelled or scored" in capsys.readouterr().err

@@ -294,3 +294,35 @@ def test_progress_ends_at_100_when_smoothing_has_no_second_run(tmp_path, monkeyp
     assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "300", "--smooth",
                  "--motion", "cv", "--out", str(tmp_path / "t.csv")]) == 0
     assert max(values[:-1]) <= 50 and values[-1] == 100
+
+
+def test_a_row_stamped_years_ahead_costs_nothing_and_is_reported(tmp_path, capsys):
+    """A WiFi scan stamped three years after the walk: nothing is made for the gap (no idle or
+    prediction ticks), the filter starts afresh at that scan and the printout names the gap."""
+    from mapfilter.filter.run import _events
+    from mapfilter.sensors.pdr import detect_steps
+    from mapfilter.sensors.wifi import scans_of
+
+    with gzip.open(WALK, "rt") as handle:
+        lines = handle.readlines()
+    last_scan_t = max(line.split("\t")[0] for line in lines if "TYPE_WIFI" in line)
+    later = int(last_scan_t) + 3 * 365 * 86400 * 1000
+    future = []
+    for line in lines:  # the walk's last scan once more, three years on
+        fields = line.rstrip("\n").split("\t")
+        if "TYPE_WIFI" in line and fields[0] == last_scan_t:
+            future.append("\t".join([str(later), *fields[1:-1], str(later)]) + "\n")
+    log = tmp_path / "future.txt"
+    log.write_text("".join(lines) + "".join(future))
+    recording = read_ilc(log)
+    scans = scans_of(recording)
+    for steps, tick in ((detect_steps(recording), 0.5), (None, 1.0)):
+        events = _events(scans, 0, steps, tick, tick, 60.0)
+        assert len(events) < 2 * (len(scans) + (len(steps) if steps is not None else 130))
+    out = tmp_path / "t.csv"
+    for motion in ("pdr", "cv"):
+        assert main(["track", str(OFFICE), str(log), "--radiomap", str(RADIOMAP), "--particles", "500",
+                     "--motion", motion, "--out", str(out)]) == 0
+        printed = capsys.readouterr().out
+        assert "gap in the log from" in printed and "the filter started afresh" in printed
+        assert read_track(out).t_s[-1] == pytest.approx(later / 1000.0, abs=1e-3)

@@ -58,15 +58,16 @@ def _check_invariants(pf, report, prev_xy):
     assert report.n_particles == len(p) == pf.config.n_particles
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2 ** 31 - 1), motion_kind=st.sampled_from(["rw", "cv", "pdr"]),
        resampler=st.sampled_from(["systematic", "stratified", "residual", "multinomial"]),
-       kernel=st.sampled_from(["gaussian", "epanechnikov"]), fix_every=st.integers(1, 3))
-def test_invariants_after_every_step(seed, motion_kind, resampler, kernel, fix_every):
+       kernel=st.sampled_from(["gaussian", "epanechnikov"]), fix_every=st.integers(1, 3), fused=st.booleans())
+def test_invariants_after_every_step(seed, motion_kind, resampler, kernel, fix_every, fused):
     rng = np.random.default_rng(seed)
     motion = {"rw": RandomWalkMotion(), "cv": ConstantVelocityMotion(accel_sigma_mps2=2.0),
               "pdr": PDRMotion()}[motion_kind]
-    cfg = FilterConfig(n_particles=500, resampler=resampler, kernel=kernel, resample_ess_fraction=0.7)
+    cfg = FilterConfig(n_particles=500, resampler=resampler, kernel=kernel, resample_ess_fraction=0.7,
+                       fused_from_particles=0 if fused else None)
     pf = ParticleFilter(ROOMS, motion, cfg, rng, keep_ancestry=True)
     pf.initialise_uniform()
     model = GaussianFixLikelihood(sigma_m=2.0)
@@ -133,10 +134,12 @@ def test_all_killed_by_walls_recovers_around_estimate_with_growing_radius():
     assert radii[0] < radii[1] < radii[2]
 
 
-def test_same_seed_same_result():
+@pytest.mark.parametrize("fused", [True, False])
+def test_same_seed_same_result(fused):
     def run(seed):
         rng = np.random.default_rng(seed)
-        pf = ParticleFilter(ROOMS, PDRMotion(), FilterConfig(n_particles=800), rng, keep_ancestry=True)
+        pf = ParticleFilter(ROOMS, PDRMotion(), FilterConfig(n_particles=800, fused_from_particles=0 if fused else None),
+                            rng, keep_ancestry=True)
         pf.initialise_from_measurement(0.0, GaussianFixLikelihood(3.0), PositionFix((3.0, 5.0)))
         out = []
         for k in range(20):

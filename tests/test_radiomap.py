@@ -405,10 +405,10 @@ def test_radio_map_file_keeps_the_cross_validation_and_old_files_load(tmp_path, 
     new.rssi_dbm = new.rssi_dbm + np.float32(1.0)
     with pytest.raises(pytest.fail.Exception):
         calibrated_fix_sigma_m(new, 4)
-    v1["version"] = np.array(4, dtype=np.int64)  # 3 is a building's radio map (floor labels)
-    np.savez_compressed(tmp_path / "v4.npz", **v1)
-    with pytest.raises(MapfilterError, match="version 4 is not supported"):
-        RadioMap.load(tmp_path / "v4.npz")
+    v1["version"] = np.array(5, dtype=np.int64)  # 3: a building's radio map, 4: a grown one
+    np.savez_compressed(tmp_path / "v5.npz", **v1)
+    with pytest.raises(MapfilterError, match="version 5 is not supported"):
+        RadioMap.load(tmp_path / "v5.npz")
 
 
 def test_blend_fix_is_the_mean_of_the_kwnn_fix_and_the_best_cell():
@@ -505,3 +505,146 @@ def test_a_radio_map_off_the_floor_is_refused_where_it_meets_the_map(tmp_path, i
 
     real = build_radio_map([read_ilc(p) for p in F1_LOGS[:4]])
     check_radio_map_on_map(real, import_ilc(ilc_site1 / "F1", route="geojson"))
+
+
+# ---- grown maps (per-point source and position sigma, format version 4) -------------------------
+def _grown_map(seed=5, p=30, k=10):
+    from mapfilter.sensors.radiomap import GROWN, SURVEYED
+
+    rm = _traced_map(seed, p, k, traces=3)
+    rm.source = np.where(rm.trace == 2, GROWN, SURVEYED).astype(np.int8)
+    rm.xy_sigma_m = np.where(rm.trace == 2, np.linspace(1.0, 9.0, p), 0.0)
+    return rm
+
+
+def test_grown_radio_map_round_trip_keeps_source_and_sigma(tmp_path):
+    rm = _grown_map()
+    rm.save(tmp_path / "grown.npz")
+    with np.load(tmp_path / "grown.npz") as data:
+        assert int(data["version"]) == 4
+    back = RadioMap.load(tmp_path / "grown.npz")
+    np.testing.assert_array_equal(back.source, rm.source)
+    np.testing.assert_array_equal(back.xy_sigma_m, rm.xy_sigma_m)
+    np.testing.assert_array_equal(back.xy_m, rm.xy_m)
+    np.testing.assert_array_equal(back.rssi_dbm, rm.rssi_dbm)
+    assert back.is_grown and back.source_traces == rm.source_traces
+    # selecting points and access points keeps each point's source and sigma
+    sub = back.select(back.trace != 0).select_aps(np.arange(len(back.ap_keys)) % 2 == 0)
+    np.testing.assert_array_equal(sub.xy_sigma_m, rm.xy_sigma_m[rm.trace != 0])
+    assert len(sub.ap_keys) == (len(rm.ap_keys) + 1) // 2
+
+
+def test_surveyed_maps_stay_version_2_and_old_files_load_as_surveyed(tmp_path):
+    rm = _traced_map()
+    rm.save(tmp_path / "v2.npz")
+    with np.load(tmp_path / "v2.npz") as data:
+        assert int(data["version"]) == 2 and "source" not in data.files
+    back = RadioMap.load(tmp_path / "v2.npz")
+    assert not back.is_grown
+    assert np.all(back.source == 0) and np.all(back.xy_sigma_m == 0)
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"source": None}, "needs the arrays source and xy_sigma_m"),
+    ({"source": np.zeros(3, np.int8)}, "one entry per point"),
+    ({"source": np.full(30, 7, np.int8)}, "source codes"),
+    ({"xy_sigma_m": np.full(30, -1.0)}, "finite and >= 0"),
+    ({"xy_sigma_m": np.full(30, np.nan)}, "finite and >= 0"),
+])
+def test_bad_grown_radio_map_files_are_refused(tmp_path, change, message):
+    _grown_map().save(tmp_path / "grown.npz")
+    with np.load(tmp_path / "grown.npz") as data:
+        arrays = {key: data[key] for key in data.files}
+    for key, value in change.items():
+        if value is None:
+            del arrays[key]
+        else:
+            arrays[key] = value
+    np.savez_compressed(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(MapfilterError, match=message):
+        RadioMap.load(tmp_path / "bad.npz")
+
+
+def test_a_point_with_a_huge_sigma_moves_a_kwnn_fix_less_than_a_surveyed_one():
+    """Two reference points equally near the scan in signal space: surveyed, the fix is their
+    midpoint; with one of them grown at sigma 100 m, the fix sits nearly on the other one."""
+    from mapfilter.sensors.radiomap import GROWN
+
+    keys = [f"02:00:00:00:03:{j:02x}@5" for j in range(4)]
+    rssi = np.array([[-50, -60, -70, -80], [-54, -60, -70, -80]], np.float32)
+    scan = np.array([[-52, -60, -70, -80]], np.float64)
+    rm = RadioMap(np.array([[0.0, 0.0], [10.0, 0.0]]), keys, rssi, np.zeros(2), np.array([0, 1]), ["a", "b"])
+    both = kwnn_fix_many(rm, scan, k=2).xy_m[0]
+    assert both[0] == pytest.approx(5.0)
+    rm.source = np.array([0, GROWN], np.int8)
+    rm.xy_sigma_m = np.array([0.0, 100.0])
+    weighed = kwnn_fix_many(rm, scan, k=2).xy_m[0]
+    assert weighed[0] < 0.2  # weight 100 / (100 + 10,000) of the surveyed point's: 10 m x 0.0098
+    # a grown point with sigma 0 counts as a surveyed one
+    rm.xy_sigma_m = np.array([0.0, 0.0])
+    assert kwnn_fix_many(rm, scan, k=2).xy_m[0, 0] == pytest.approx(5.0)
+
+
+def test_radio_map_likelihood_weighs_an_uncertain_point_less():
+    """A lone reference point: as a surveyed point its AP's mean at its cell is its own reading;
+    grown with a large sigma, the prior (-95 dBm) keeps more of the say there."""
+    keys = ["02:00:00:00:04:00@5", "02:00:00:00:04:01@5"]
+    xy = np.array([[5.0, 5.0], [5.2, 5.0], [15.0, 5.0], [15.2, 5.0]])
+    rssi = np.array([[-40, -80], [-40, -80], [-80, -40], [-80, -40]], np.float32)
+    rm = RadioMap(xy, keys, rssi, np.zeros(4), np.zeros(4, int), ["t"])
+    scan = WifiScan(0.0, tuple(keys), np.array([-40.0, -80.0], np.float32))
+    model = RadioMapLikelihood(rm)
+    ll = model.grid_log_likelihood(scan)
+    at = model.cell_index(np.array([[5.0, 5.0], [15.0, 5.0]]))
+    sure = ll[at[0]] - ll[at[1]]
+    rm.source = np.array([0, 0, 1, 1], np.int8)  # the two points at x = 15 m: grown, sigma 20 m
+    rm.xy_sigma_m = np.array([0.0, 0.0, 20.0, 20.0])
+    grown = RadioMapLikelihood(rm)
+    ll_g = grown.grid_log_likelihood(scan)
+    assert sure > 0 and ll_g[at[0]] - ll_g[at[1]] < sure  # the uncertain points claim their cells less
+
+
+def test_cross_validation_of_a_grown_map_scores_the_surveyed_points_only():
+    from mapfilter.sensors.radiomap import cross_validated_fix_errors
+
+    rm = _grown_map()
+    errors = cross_validated_fix_errors(rm, 4)
+    assert errors.size == np.count_nonzero(rm.trace != 2)
+    # the grown trace still serves as references: without it the surveyed errors differ
+    assert not np.array_equal(errors, cross_validated_fix_errors(rm.select(rm.trace != 2), 4))
+
+
+def test_merged_radio_maps_unite_access_points_and_keep_sources():
+    from mapfilter.sensors.radiomap import merge_radio_maps
+
+    a = _traced_map(1, 10, 6, traces=2)
+    b = _grown_map(2, 30, 8)
+    b.ap_keys = [f"02:00:00:00:09:{j:02x}@5" for j in range(4)] + b.ap_keys[:4]
+    m = merge_radio_maps([a, b])
+    assert len(m) == 40 and len(m.ap_keys) == 6 + 4 + 0  # b's last four keys are a's first four
+    assert m.source_traces == a.source_traces + b.source_traces
+    np.testing.assert_array_equal(m.trace[10:], b.trace + 2)
+    np.testing.assert_array_equal(m.xy_sigma_m[10:], b.xy_sigma_m)
+    col = m.ap_keys.index(b.ap_keys[5])
+    np.testing.assert_array_equal(m.rssi_dbm[10:, col], b.rssi_dbm[:, 5])
+    np.testing.assert_array_equal(m.rssi_dbm[:10, col], a.rssi_dbm[:, 1])
+    assert np.all(np.isnan(m.rssi_dbm[:10, m.ap_keys.index(b.ap_keys[0])]))
+
+
+@pytest.mark.parametrize("floor_dbm,missing", [(None, -100.0), (-85.0, -90.0), (None, -95.0)])
+def test_distances_by_sparse_products_equal_the_pairwise_merge_to_the_last_bit(floor_dbm, missing):
+    """Oracle: on whole dBm the p = 2 fast path (sparse products) gives the merge kernel's
+    distances and shared counts exactly; readings below the floor and missing APs included."""
+    from mapfilter.sensors.radiomap import (_below_floor_unheard, _distances_to_references, _reference_rows,
+                                           _signal_distances, _sparse_rows)
+
+    rng = np.random.default_rng(3)
+    rm = _random_map(rng, p=80, k=40, heard=0.3)
+    rm.rssi_dbm = np.round(rm.rssi_dbm)
+    scans = np.round(rm.rssi_dbm[::2] + rng.normal(0, 4, (40, 40))).astype(np.float64)
+    fast = _distances_to_references(rm, scans, 2.0, missing, floor_dbm)
+    refs, rows = _reference_rows(rm, floor_dbm), _sparse_rows(_below_floor_unheard(scans, floor_dbm))
+    dist, shared = np.empty_like(fast[0]), np.empty_like(fast[1])
+    _signal_distances(rows.ptr, rows.col, rows.val, refs.ptr, refs.col, refs.val, 2.0, missing, False, dist, shared)
+    np.testing.assert_array_equal(fast[0], dist)
+    np.testing.assert_array_equal(fast[1], shared)

@@ -4,11 +4,13 @@ For N = 1k, 10k, 100k, 1M particles on an ILC floor map (site1/F1 from ../shared
 the bundled map maps/office.yaml, it times
 
 - ``wall_check``: ``mapfilter.maps.walls.crosses_wall`` alone on random-walk moves;
-- ``full_step``: ``ParticleFilter.step`` with random-walk motion + wall check + a 20-access-point
-  RSSI Gaussian likelihood + resampling (forced every step) + wall-safe regularisation + estimate;
+- ``fused_step``: ``ParticleFilter.step`` with random-walk motion + wall check + a 20-access-point
+  RSSI Gaussian likelihood + resampling (forced every step) + wall-safe regularisation + estimate,
+  on its fused path (``filter/fused.py``, ``FilterConfig(fused_from_particles=0)``);
+- ``named_step``: the same step by the named stages (``FilterConfig(fused_from_particles=None)``);
 - ``reference_step``: the same step in plain numpy (points sampled every half pixel along each
   segment for the wall check, float32 numpy RSSI likelihood, cumsum + searchsorted resampling),
-  in the same process, and the speed-up ``full_step / reference_step``.
+  and the speed-ups over it; one step of each in turn, in the same process.
 
 It also times what a user feels (``--skip-user`` leaves it out):
 
@@ -19,7 +21,9 @@ It also times what a user feels (``--skip-user`` leaves it out):
 - ``real_walk``: one real ILC site1/F1 walk of about a minute (not one of the sparse set's
   walks), 10,000 particles, with the sparse (36 walks, ``sparse_set.txt``) and the dense
   (all 76 walks) F1 radio maps, built here with ``mapfilter radiomap build`` (timed too): the
-  tracker's own time (``mapfilter.track``) and the whole ``mapfilter track`` command.
+  tracker's own time (``mapfilter.track``) for the first walk with a radio map (which builds
+  its likelihood) and for a walk after it (which reuses it), and the whole ``mapfilter track``
+  command (one walk: builds it).
 
 Every step time comes with the CPU time the process used for it (``cpu_ms``): on a shared
 machine, the wall time moves with the other jobs; the CPU time much less.
@@ -48,7 +52,9 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from mapfilter.filter import fused  # noqa: E402
 from mapfilter.filter.measurement import rssi_log_likelihood  # noqa: E402
+from mapfilter.filter.models import MeasurementModel  # noqa: E402
 from mapfilter.filter.motion import RandomWalkMotion  # noqa: E402
 from mapfilter.filter.particles import Particles  # noqa: E402
 from mapfilter.filter.pf import FilterConfig, ParticleFilter  # noqa: E402
@@ -97,7 +103,7 @@ def load_office_map() -> tuple[FloorPlan, str]:
 
 
 # ---- the measurement used by both implementations -------------------------------------------
-class RssiModel:
+class RssiModel(MeasurementModel):
     """20 access points with the thesis path-loss model; the numba kernel."""
 
     kind = "wifi"
@@ -113,6 +119,10 @@ class RssiModel:
     def expected(self, xy_m: np.ndarray) -> np.ndarray:
         d = np.maximum(np.linalg.norm(xy_m[:, None, :] - self.ap_xy_m[None], axis=-1), 1.0)
         return self.c_dbm - 10 * self.n * np.log10(d) - self.alpha * np.minimum(d, self.d_max)
+
+    def kernel_likelihood(self, observed_rssi_dbm: np.ndarray) -> fused.Likelihood:
+        return fused.rssi_path_loss(self.ap_xy_m, self.c_dbm, self.n, self.alpha, self.d_max, observed_rssi_dbm,
+                                    VARIANCE_DB2)
 
     def log_likelihood(self, particles: Particles, observed_rssi_dbm: np.ndarray) -> np.ndarray:
         return rssi_log_likelihood(particles.xy_m, self.ap_xy_m, self.c_dbm, self.n, self.alpha, self.d_max,
@@ -217,7 +227,17 @@ def per_step_seconds(fn, reps: int) -> float:
     return float(np.median(times))
 
 
+def _pf(fp: FloorPlan, n: int, fused_path: bool, true_xy: np.ndarray, seed: int) -> ParticleFilter:
+    # the filter starts around the truth so that the cloud is realistic (not map-wide)
+    config = FilterConfig(n_particles=n, resample_ess_fraction=1.0, fused_from_particles=0 if fused_path else None)
+    pf = ParticleFilter(fp, RandomWalkMotion(), config, np.random.default_rng(seed))
+    pf.initialise_around(true_xy, 5.0)
+    return pf
+
+
 def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: int, seed: int) -> dict:
+    """Per N: the wall check alone; then the fused step, the named stages' step and the numpy
+    reference, one step of each in turn (so that all three see the same load), from the same cloud."""
     rng = np.random.default_rng(seed)
     ap_xy = fp.sample_free(N_APS, rng)
     model = RssiModel(ap_xy)
@@ -227,55 +247,50 @@ def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: 
     for n in sizes:
         row: dict = {"n_particles": n}
         a = fp.sample_free(n, rng)
-        motion = RandomWalkMotion()
-        moved = motion.propagate(Particles.at(a), None, DT_S, rng).xy_m
+        moved = RandomWalkMotion().propagate(Particles.at(a), None, DT_S, rng).xy_m
         t = per_step_seconds(lambda: crosses_wall(fp, a, moved), reps)
         row["wall_check_per_s"] = n / t
         row["wall_check_crossing_share"] = float(crosses_wall(fp, a, moved).mean())
 
-        # the filter starts around the truth so that the cloud is realistic (not map-wide)
-        pf = ParticleFilter(fp, motion, FilterConfig(n_particles=n, resample_ess_fraction=1.0),
-                            np.random.default_rng(seed))
-        pf.initialise_around(true_xy[0], 5.0)
-        stats = {"resampled": 0, "steps": 0, "killed": 0}
+        runs: dict = {}
+        for label, fused_path in (("fused", True), ("named", False)):
+            pf = _pf(fp, n, fused_path, true_xy[0], seed)
+            stats = {"resampled": 0, "steps": 0, "killed": 0}
 
-        def full_step():
-            report = pf.step(0.0, DT_S, None, model, observed)
-            stats["resampled"] += report.resampled
-            stats["steps"] += 1
-            stats["killed"] += report.n_killed
+            def step(pf=pf, stats=stats):
+                report = pf.step(0.0, DT_S, None, model, observed)
+                stats["resampled"] += report.resampled
+                stats["steps"] += 1
+                stats["killed"] += report.n_killed
 
-        full_step()  # warm-up at this size
+            step()  # warm-up at this size
+            runs[label] = (step, stats)
         if n <= ref_max_n:
-            # full and reference steps alternate, so that both see the same load on a shared machine
-            ref = NumpyReferenceFilter(fp, pf.particles.xy_m, np.random.default_rng(seed))
-            ref_step = lambda: ref.step(model, observed)  # noqa: E731
-            ref_step()
-            n_pairs = reps if n < 1_000_000 else max(3, reps // 3)
-            t_full_all, t_ref_all, c_full_all, c_ref_all = [], [], [], []
-            for _ in range(n_pairs):
-                wall, cpu = timed_cpu(full_step)
-                t_full_all.append(wall)
-                c_full_all.append(cpu)
-                wall, cpu = timed_cpu(ref_step)
-                t_ref_all.append(wall)
-                c_ref_all.append(cpu)
-            t_full, t_ref = float(np.median(t_full_all)), float(np.median(t_ref_all))
-            row["full_step_per_s"] = n / t_full
-            row["full_step_ms"] = 1e3 * t_full
-            row["full_step_cpu_ms"] = 1e3 * float(np.median(c_full_all))
-            row["reference_step_per_s"] = n / t_ref
-            row["reference_step_ms"] = 1e3 * t_ref
-            row["reference_step_cpu_ms"] = 1e3 * float(np.median(c_ref_all))
-            row["speedup_full_vs_reference"] = t_ref / t_full
-        else:
-            walls, cpus = zip(*(timed_cpu(full_step) for _ in range(reps)))
-            t_full = float(np.median(walls))
-            row["full_step_per_s"] = n / t_full
-            row["full_step_ms"] = 1e3 * t_full
-            row["full_step_cpu_ms"] = 1e3 * float(np.median(cpus))
-        row["resampled_share"] = stats["resampled"] / stats["steps"]
-        row["killed_per_step_share"] = stats["killed"] / stats["steps"] / n
+            ref = NumpyReferenceFilter(fp, _pf(fp, n, False, true_xy[0], seed).particles.xy_m,
+                                       np.random.default_rng(seed))
+            runs["reference"] = (lambda: ref.step(model, observed), None)
+            runs["reference"][0]()
+        n_rounds = reps if n < 1_000_000 else max(3, reps // 3)
+        times: dict = {label: ([], []) for label in runs}
+        for _ in range(n_rounds):
+            for label, (fn, _) in runs.items():
+                wall, cpu = timed_cpu(fn)
+                times[label][0].append(wall)
+                times[label][1].append(cpu)
+        for label, (walls, cpus) in times.items():
+            t_wall, t_cpu = float(np.median(walls)), float(np.median(cpus))
+            row[f"{label}_step_per_s"] = n / t_wall
+            row[f"{label}_step_ms"] = 1e3 * t_wall
+            row[f"{label}_step_cpu_ms"] = 1e3 * t_cpu
+        for label in ("fused", "named"):
+            if "reference" in times:
+                row[f"speedup_{label}_vs_reference"] = row["reference_step_ms"] / row[f"{label}_step_ms"]
+                row[f"speedup_{label}_vs_reference_cpu"] = row["reference_step_cpu_ms"] / row[f"{label}_step_cpu_ms"]
+            stats = runs[label][1]
+            row[f"{label}_resampled_share"] = stats["resampled"] / stats["steps"]
+            row[f"{label}_killed_per_step_share"] = stats["killed"] / stats["steps"] / n
+        row["speedup_fused_vs_named"] = row["named_step_ms"] / row["fused_step_ms"]
+        row["speedup_fused_vs_named_cpu"] = row["named_step_cpu_ms"] / row["fused_step_cpu_ms"]
         rows.append(row)
         print(f"{name} N={n}: " + ", ".join(f"{k}={v:.4g}" for k, v in row.items() if k != "n_particles"),
               file=sys.stderr, flush=True)
@@ -312,10 +327,11 @@ def bench_first_run(tmp: Path) -> dict:
     out_csv = tmp / "office_track.csv"
     cold_s, cold_cpu_s, stdout = _mapfilter(README_TRACK + ["--out", str(out_csv)], env)
     warm_s, warm_cpu_s, _ = _mapfilter(README_TRACK + ["--out", str(out_csv)], env)
-    tracker_s = re.search(r"collapses?[^,]*, ([0-9.]+) s", stdout)
+    # "...; causal 9.8 s, offline 6.8 s": the causal filter run and the offline track
+    tracker_s = re.search(r"causal ([0-9.]+) s, offline ([0-9.]+) s", stdout)
     return {"command": "mapfilter " + " ".join(README_TRACK) + " --out office_track.csv",
             "cold_s": cold_s, "warm_s": warm_s, "cold_cpu_s": cold_cpu_s, "warm_cpu_s": warm_cpu_s,
-            "tracker_s_as_printed_cold": float(tracker_s.group(1)) if tracker_s else None,
+            "tracker_s_as_printed_cold": (float(tracker_s.group(1)) + float(tracker_s.group(2))) if tracker_s else None,
             "numba_cache_dir": "a new empty folder (NUMBA_CACHE_DIR)"}
 
 
@@ -351,6 +367,10 @@ def bench_real_walk(tmp: Path) -> dict:
         build_s, build_cpu_s, _ = _mapfilter(["radiomap", "build", str(map_yaml), *map(str, logs),
                                               "--out", str(rm_path)])
         radio_map = RadioMap.load(rm_path)
+        # the first walk builds the radio-map likelihood (once per radio map); the walks after it reuse it
+        c0 = time.process_time()
+        first = track(floorplan, recording, radio_map, config=TrackingConfig())
+        first_cpu_s = time.process_time() - c0
         c0 = time.process_time()
         result = track(floorplan, recording, radio_map, config=TrackingConfig())
         track_cpu_s = time.process_time() - c0
@@ -358,7 +378,10 @@ def bench_real_walk(tmp: Path) -> dict:
                                                   "--out", str(tmp / f"track_{name}.csv")])
         doc["radio_maps"][name] = {"walks": len(logs), "reference_points": len(radio_map),
                                    "access_points": len(radio_map.ap_keys), "radiomap_build_s": build_s,
-                                   "radiomap_build_cpu_s": build_cpu_s, "track_recording_s": result.runtime_s,
+                                   "radiomap_build_cpu_s": build_cpu_s,
+                                   "track_recording_first_walk_s": first.runtime_s,
+                                   "track_recording_first_walk_cpu_s": first_cpu_s,
+                                   "track_recording_s": result.runtime_s,
                                    "track_recording_cpu_s": track_cpu_s, "filter_steps": result.n_filter_steps,
                                    "track_command_s": command_s, "track_command_cpu_s": command_cpu_s}
         print(f"real walk, {name} map: " + ", ".join(f"{k}={v:.4g}" for k, v in doc["radio_maps"][name].items()),

@@ -54,6 +54,7 @@ class Case:
     sigterm_when: str | None = None  # send SIGTERM once a file with this prefix appears in the work dir
     python: str | None = None  # run this Python code instead of the CLI
     slow: bool = False
+    must_say: str = ""  # the first stderr line must hold this (a row skipped: the warning that says so)
 
 
 @dataclasses.dataclass
@@ -70,6 +71,8 @@ class Outcome:
         problems = []
         if self.code not in self.case.expect:
             problems.append(f"exit {self.code}")
+        if self.case.must_say and self.case.must_say not in self.message:
+            problems.append(f"no '{self.case.must_say}'")
         if "Traceback" in self.message or self.message.startswith("(traceback)"):
             problems.append("traceback")
         if self.peak_mb > BAR_MB:
@@ -273,8 +276,11 @@ CASES = [
          lambda w: ["simulate", str(MAP), "--duration", "1e9", "--out", f"{w}/s.txt"], (2,)),
     Case("simulate --scans-per-point 1e6", "this branch",
          lambda w: ["simulate", str(MAP), "--survey", "--scans-per-point", "1000000", "--out", f"{w}/s.txt"], (2,)),
+    # a bad row is skipped and named in one warning, the walk tracked (exit 0); --strict refuses it
     Case("one 3 GB line in a gzip", "log readers", _track("{w}/long_line.txt.gz", "--radiomap", str(RADIOMAP)),
-         slow=True),
+         (0,), slow=True, must_say="skipped 1 unreadable line"),
+    Case("one 3 GB line in a gzip, --strict", "log readers",
+         _track("{w}/long_line.txt.gz", "--radiomap", str(RADIOMAP), "--strict"), slow=True),
     # values that make no sense
     Case("AP table n = 0", "this branch", _track(WALK, "--aps", "{w}/aps_n0.csv")),
     Case("AP table d_max < 0", "this branch", _track(WALK, "--aps", "{w}/aps_dmax.csv")),
@@ -286,12 +292,17 @@ CASES = [
          lambda w: ["radiomap", "build", str(MAP), f"{w}/far_survey.txt", "--out", f"{w}/outdir/rm.npz"]),
     Case("AP fit, an RSSI of 1e300 dBm", "this branch",
          lambda w: ["radiomap", "fit-aps", str(MAP), f"{w}/rssi_1e300.txt", "--out", f"{w}/outdir/aps.csv"], (0,)),
-    Case("track, an RSSI of 1e300 dBm", "log readers", _track("{w}/rssi_1e300.txt", "--radiomap", str(RADIOMAP))),
-    Case("track, an acceleration of 1e308", "log readers", _track("{w}/acc_1e308.txt", "--radiomap", str(RADIOMAP))),
-    Case("track, a negative timestamp", "log readers", _track("{w}/negative_t.txt", "--radiomap", str(RADIOMAP))),
+    Case("track, an RSSI of 1e300 dBm", "log readers", _track("{w}/rssi_1e300.txt", "--radiomap", str(RADIOMAP)),
+         (0,), must_say="RSSI out of range"),
+    Case("track, an RSSI of 1e300 dBm, --strict", "log readers",
+         _track("{w}/rssi_1e300.txt", "--radiomap", str(RADIOMAP), "--strict")),
+    Case("track, an acceleration of 1e308", "log readers", _track("{w}/acc_1e308.txt", "--radiomap", str(RADIOMAP)),
+         (0,), must_say="out of range"),
+    Case("track, a negative timestamp", "log readers", _track("{w}/negative_t.txt", "--radiomap", str(RADIOMAP)),
+         (0,), must_say="time out of range"),
     Case("evaluate, every record twice", "log readers",
          lambda w: ["evaluate", str(MAP), f"{w}/duplicated.txt", "--radiomap", str(RADIOMAP), "--methods", "kwnn",
-                    "--out", f"{w}/outdir/dup"]),
+                    "--out", f"{w}/outdir/dup"], (0,), must_say="exact duplicate rows"),
     # time gaps
     Case("a 30-day gap in the log", "this branch (pdr) + lead (tracking)",
          _track("{w}/gap30d.txt", "--radiomap", str(RADIOMAP)), (0, 1)),

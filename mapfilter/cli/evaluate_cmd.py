@@ -38,7 +38,11 @@ methods in a building with several floors: {', '.join(BUILDING_METHODS)}
 
 The radio map: --radiomap (one file for all walks), --survey LOGS (built from these walks,
 which are never scored), or --leave-one-out (each walk's radio map from the other evaluated
-walks, plus any --survey logs). Errors are taken at the ground-truth waypoint times from each
+walks, plus any --survey logs). Self-training (docs/self-training.md): --unlabelled LOGS grow
+that radio map from walks without labels (tracked offline, their scans added where the offline
+track puts them; with --leave-one-out grown once per fold of the labelled walks, so that no
+walk is scored with points its own labels placed); --transductive lets the evaluated walks grow
+it too, each scored with the other walks' grown points. Errors are taken at the ground-truth waypoint times from each
 method's latest estimate at or before that time (causal); waypoints before a method's first
 estimate are counted as missed, not scored. --smooth adds pf-smooth, the offline whole-walk
 track (not causal). runtime_s is each method's own time.
@@ -85,6 +89,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="walks with waypoints that make the radio map (and fitted APs); never scored")
     parser.add_argument("--leave-one-out", action="store_true",
                         help="each walk's radio map (and fitted APs for ls) from the other walks too")
+    parser.add_argument("--unlabelled", type=Path, nargs="+", default=[], metavar="LOG",
+                        help="walks that grow the radio map (self-training; their waypoints never read); never scored")
+    parser.add_argument("--transductive", action="store_true",
+                        help="the evaluated walks grow the radio map too, without their labels; each walk is scored "
+                             "with the others' grown points (needs --survey or --radiomap)")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--resume", action="store_true",
                         help="keep the walks an interrupted run with the same settings finished in OUT")
@@ -107,11 +116,13 @@ def run(args: argparse.Namespace) -> int:
     building = Building.load(args.map)
     setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,
-                            tracking=config)
+                            tracking=config, unlabelled_paths=tuple(args.unlabelled),
+                            transductive=args.transductive)
     validate_setup(building, args.logs, setup)  # before anything is written
     key = run_key({"map": str(args.map.resolve()), "logs": [str(p.resolve()) for p in args.logs],
                    "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
                    "aps": str(args.aps), "leave_one_out": args.leave_one_out, "methods": methods,
+                   "unlabelled": [str(p.resolve()) for p in args.unlabelled], "transductive": args.transductive,
                    "strict": args.strict, "config": config.to_dict()})
     walks_dir = args.out / "walks"
     resumed = []
@@ -137,10 +148,10 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.sensors.recording import trace_name as name_of
 
     evaluation = None
-    with ProgressBar("evaluate", len(args.logs)) as progress:
+    with ProgressBar("evaluate", len(args.logs)) as progress, ProgressBar("growing the radio map", 1) as growing:
         try:
             evaluation = evaluate(building, args.logs, setup, engine, progress=progress, on_walk=finished,
-                                  resumed=resumed)
+                                  resumed=resumed, grow_progress=growing if setup.grows else None)
         except KeyboardInterrupt:
             # a consistent partial result: the summary of the walks finished so far
             done = [o for o in (read_outcome(p, key) for p in sorted(walks_dir.glob("*.json"))) if o is not None]
@@ -210,7 +221,9 @@ def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
     table = format_table(summary, columns)
     waypoints = summary[0]["n"] + summary[0]["missed"] if summary else 0
     n_done = len({r.trace for r in evaluation.results}) + len(evaluation.failed)
-    print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s\n{table}")
+    grown = f"; radio map + {evaluation.grown}" if evaluation.grown else ""
+    print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s{grown}\n"
+          f"{table}")
     if len(evaluation.phones()) > 1:
         print(f"\nper phone model:\n{format_table(by_phone, ('phone',) + columns)}")
     out: Path = args.out
@@ -226,6 +239,8 @@ def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
         s_json.write_text(json.dumps({
             "map": str(args.map), "logs": [str(p) for p in args.logs], "survey": [str(p) for p in args.survey],
             "radiomap": None if args.radiomap is None else str(args.radiomap), "leave_one_out": args.leave_one_out,
+            "unlabelled": [str(p) for p in args.unlabelled], "transductive": args.transductive,
+            "grown": evaluation.grown,
             "methods": list(methods), "complete": complete, "walks": evaluation.n_traces, "walks_done": n_done,
             "wall_time_s": evaluation.wall_time_s, "config": config.to_dict(), "failed": failed,
             "summary": [{k: nan_to_none(v) for k, v in row.items()} for row in summary],

@@ -1,16 +1,19 @@
-"""``mapfilter radiomap build|fit-aps``: radio map and access-point table from survey logs."""
+"""``mapfilter radiomap build|fit-aps|grow``: radio maps and access-point tables from logs."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from mapfilter.cli.common import ProgressBar, add_strict_argument, check_output_path, warn
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path,
+                                  engine_from, warn)
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
 # no numerical library (tests/test_cli_startup.py holds the two equal)
 _MIN_OBSERVATIONS = 8
+# mapfilter.selftrain.GrowConfig.max_iterations, likewise
+_MAX_ITERATIONS = 3
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -20,11 +23,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                                "latitude/longitude ground truth needs a georeferenced building).")
     sub = parser.add_subparsers(dest="radiomap_command", metavar="SUBCOMMAND", required=True)
 
-    def common(p: argparse.ArgumentParser) -> None:
+    def common(p: argparse.ArgumentParser, logs_help: str = "survey logs with waypoints") -> None:
         p.add_argument("map", type=Path, metavar="MAP",
                        help="floor map YAML (ROS map_server), or a building YAML (build: each log's floor from "
                             "its header, FloorName, or its ground truth; fit-aps: one floor of it)")
-        p.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="survey logs with waypoints")
+        p.add_argument("logs", type=Path, nargs="+", metavar="LOG", help=logs_help)
         p.add_argument("--exclude", action="append", default=[], metavar="TRACE",
                        help="leave out a log, by file name or trace id (repeatable)")
         p.add_argument("--max-wifi-age", type=float, default=5.0, metavar="S",
@@ -47,6 +50,29 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     fit.add_argument("--floor", metavar="NAME",
                      help="with a building YAML: the floor to fit (default: the one floor every log is on)")
     fit.set_defaults(func=run_fit_aps)
+
+    grow = sub.add_parser(
+        "grow", help="grow a radio map from tracked walks (self-training)",
+        description="Track every walk without waypoints offline over the radio map, add its scans as grown "
+                    "reference points at the offline track's positions (each with a position uncertainty), and "
+                    "repeat until the map stops changing. Logs with waypoints are added as surveyed points. "
+                    "The result loads everywhere a radio map does (docs/self-training.md).")
+    common(grow, "walks: without waypoints they grow the map, with waypoints they are added as surveyed "
+                 "points (unless --ignore-waypoints)")
+    grow.add_argument("--radiomap", type=Path, required=True, metavar="BASE", help="the radio map to grow (.npz)")
+    grow.add_argument("--out", type=Path, required=True, metavar="RADIOMAP", help="the grown radio map (.npz)")
+    grow.add_argument("--iterations", type=int, default=_MAX_ITERATIONS, metavar="N",
+                      help=f"at most N rounds of tracking every walk (default {_MAX_ITERATIONS}; fewer when the "
+                           "grown points stop moving)")
+    grow.add_argument("--particles", type=int, default=10_000, metavar="N", help="particles (default 10000)")
+    grow.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    grow.add_argument("--ignore-waypoints", action="store_true",
+                      help="grow from every log, its waypoints never read (e.g. to measure growing on survey logs)")
+    grow.add_argument("--wifi-only", action="store_true",
+                      help="also grow walks without IMU data (placed by a constant-velocity filter: on ILC F2 "
+                           "this made the map worse)")
+    add_engine_arguments(grow)
+    grow.set_defaults(func=run_grow)
 
 
 def _load(args: argparse.Namespace):
@@ -151,4 +177,63 @@ def run_fit_aps(args: argparse.Namespace) -> int:
                                    ApFitConfig(min_observations=args.min_observations))
     table.write_csv(args.out)
     print(f"access points: {len(table)} fitted from {len(recordings)} logs -> {args.out}")
+    return 0
+
+
+def run_grow(args: argparse.Namespace) -> int:
+    if args.iterations < 1:
+        raise MapfilterError(f"--iterations must be at least 1, got {args.iterations}")
+    if args.particles < 1:
+        raise MapfilterError(f"--particles must be at least 1, got {args.particles}")
+    engine = engine_from(args)
+    import numpy as np
+
+    from mapfilter.maps.building import Building
+    from mapfilter.selftrain import GrowConfig, grow_radio_map, labelled_and_unlabelled
+    from mapfilter.config import TrackingConfig
+    from mapfilter.sensors.radiomap import RadioMap, build_radio_map, check_radio_map_on_map, merge_radio_maps
+
+    space, recordings = _load(args)
+    if isinstance(space, Building):
+        from mapfilter.sensors.floors import build_building_radio_map, load_building_radio_map
+
+        base = load_building_radio_map(args.radiomap, space.floor_names)
+    else:
+        base = RadioMap.load(args.radiomap)
+        if base.has_floors:
+            raise MapfilterError("a building's radio map: give the building's YAML as MAP", args.radiomap)
+    check_radio_map_on_map(base, space, args.radiomap, args.map)
+    labelled, unlabelled = ([], recordings) if args.ignore_waypoints else labelled_and_unlabelled(recordings)
+    if labelled:
+        if isinstance(space, Building):
+            floors = []
+            for rec in labelled:
+                index = space.floor_of_log(rec.floor_name, rec.path)
+                if index is None:
+                    raise MapfilterError("the log has waypoints but its header names no floor (FloorName): its "
+                                         "points need a floor", rec.path)
+                floors.append(index)
+            surveyed = build_building_radio_map(labelled, floors, space.floor_names)
+        else:
+            surveyed = build_radio_map(labelled, space)
+        base = merge_radio_maps([base, surveyed])
+    config = GrowConfig(tracking=TrackingConfig().with_particles(args.particles), max_iterations=args.iterations,
+                        wifi_only=args.wifi_only, seed=args.seed)
+    with ProgressBar("grow", len(unlabelled) * args.iterations) as progress:
+        grown, report = grow_radio_map(space, base, unlabelled, config, progress=progress, engine=engine)
+    grown.save(args.out)
+    for walk in report.walks:
+        if walk.skipped:
+            warn(f"{walk.name}: grew nothing: {walk.skipped}")
+    sigma = grown.xy_sigma_m[len(base):]
+    last = report.iterations[-1] if report.iterations else {}
+    moved = last.get("moved_median_m", float("nan"))
+    print(f"grown: {report.points} points from {report.grown_walks} of {len(unlabelled)} walks without waypoints"
+          + (f", position sigma median {np.median(sigma):.1f} m, p90 {np.percentile(sigma, 90):.1f} m" if sigma.size
+             else "")
+          + (f"; {len(report.iterations)} iterations, last moved {moved:.2f} m (median)" if report.iterations else ""))
+    if labelled:
+        print(f"surveyed: {len(surveyed)} points from {len(labelled)} walks with waypoints")
+    print(f"radio map: {len(grown)} reference points ({len(base) - (len(surveyed) if labelled else 0)} from "
+          f"{args.radiomap.name}), {len(grown.ap_keys)} access points -> {args.out}")
     return 0

@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from mapfilter.cli.common import non_negative_int, positive_int
+
 MOTION_MODELS = ("pdr", "cv", "rw")  # filter.run.MOTION_MODELS
 FINGERPRINT_MODELS = ("fix", "blend", "likelihood")  # filter.evidence.FINGERPRINT_MODELS
 DEFAULT_PARTICLES = 10_000  # FilterConfig.n_particles
@@ -30,28 +32,6 @@ def kwnn_min_rssi(text: str) -> float | None:
         raise argparse.ArgumentTypeError(f"expected a dBm value such as -90, or none; got {text!r}") from None
 
 
-def positive_int(text: str) -> int:
-    """A whole number of at least 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
-
-
-def seed_value(text: str) -> int:
-    """A seed: a whole number >= 0 (numpy's generators take no negative seeds)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {value}")
-    return value
-
-
 def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:
     """``--config`` and the tracking flags of ``track`` and ``evaluate`` (each overrides the file)."""
     group = parser.add_argument_group("tracking settings (each overrides --config; every other setting lives "
@@ -63,7 +43,7 @@ def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:
                             "(default: pdr)")
     group.add_argument("--particles", type=positive_int, default=None, metavar="N",
                        help=f"number of particles (default: {DEFAULT_PARTICLES})")
-    group.add_argument("--seed", type=seed_value, default=None, metavar="S", help="random seed (default: 0)")
+    group.add_argument("--seed", type=non_negative_int, default=None, metavar="S", help="random seed (default: 0)")
     group.add_argument("--smooth", action="store_true", default=None,
                        help="also make the offline track from the whole walk: the dead-reckoned shape placed by "
                             "every scan, kept to free space (never crosses a wall)")

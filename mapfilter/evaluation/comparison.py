@@ -26,6 +26,13 @@ With ``smooth`` in the tracking config, ``pf``'s offline track is reported as ``
 (not causal). The radio map of the walks comes from a radio map file, from survey logs
 (``survey_paths``), or, with ``leave_one_out``, from the other evaluated walks (and any survey
 logs): each walk's fold drops its own points, as the ILC evaluation needs.
+
+Self-training (``selftrain``, docs/self-training.md): walks without labels grow that radio map.
+``unlabelled_paths`` grow it and are never scored (with ``leave_one_out``, grown once per fold of
+the labelled walks, so no scored walk's labels place the points it is scored with:
+``selftrain.grown_by_fold``); ``transductive``: the evaluated walks grow it too, their waypoints
+never read, and each walk is scored with the other walks' grown points (a user who tracks a
+batch, grows the map and tracks it again).
 """
 
 from __future__ import annotations
@@ -49,6 +56,7 @@ from mapfilter.evaluation.diagnostics import DIAGNOSTIC_COLUMNS, walk_diagnostic
 from mapfilter.evaluation.metrics import FloorScore, ipin_errors_m, ipin_score, summarise_errors
 from mapfilter.evaluation.scoring import score_track
 from mapfilter.filter.evidence import calibrated_fix_sigma_m
+from mapfilter.selftrain import GrowConfig, grow_radio_map, grown_by_fold
 from mapfilter.filter.run import MotionConfig
 from mapfilter.maps.building import Building
 from mapfilter.sensors.floors import (build_building_radio_map, check_building_radio_map, floor_hmm,
@@ -58,7 +66,8 @@ from mapfilter.sensors.logs import read_log, read_log_header
 from mapfilter.sensors.pathloss import (AccessPointTable, check_access_points_on_map, estimate_access_points,
                                        least_squares_position, match_scan)
 from mapfilter.sensors.pdr import Steps, detect_steps
-from mapfilter.sensors.radiomap import RadioMap, build_radio_map, check_radio_map_on_map, kwnn_fix_many
+from mapfilter.sensors.radiomap import (GROWN, RadioMap, build_radio_map, check_radio_map_on_map, kwnn_fix_many,
+                                       merge_radio_maps)
 from mapfilter.sensors.recording import Recording, trace_name
 from mapfilter.sensors.wifi import scans_of
 from mapfilter.tracking import prepare_walk, track_prepared
@@ -86,6 +95,12 @@ class EvaluationSetup:
     fit_aps: bool = False  # with leave_one_out or a survey: fit an AP table even if no method asks for it
     strict: bool = False  # refuse a walk with a bad row in a record type it needs (default: skip the row, warn)
     tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)  # seed and smooth included
+    unlabelled_paths: tuple[Path, ...] = ()  # walks that grow the radio map (waypoints never read), never scored
+    transductive: bool = False  # the evaluated walks grow the radio map too, without their own labels
+
+    @property
+    def grows(self) -> bool:
+        return bool(self.unlabelled_paths) or self.transductive
 
 
 @dataclasses.dataclass
@@ -139,6 +154,27 @@ class AllWalks:
 
 
 @dataclasses.dataclass(frozen=True)
+class Growth:
+    """The points the walks without labels grew (``selftrain``), and which of them a walk is
+    scored with."""
+
+    grown: tuple[RadioMap, ...]  # one per fold of the labelled walks (one in all without leave-one-out)
+    fold_of: dict[str, int]  # trace -> its fold's index into ``grown`` (absent: 0)
+    transductive: bool  # the evaluated walks grew points too: a walk's own are left out
+
+    def for_walk(self, trace: str) -> RadioMap:
+        points = self.grown[self.fold_of.get(trace, 0)]
+        return points.without_traces([trace]) if self.transductive else points
+
+    def describe(self) -> str:
+        points = [len(g) for g in self.grown]
+        span = f"{min(points)}" if min(points) == max(points) else f"{min(points)}-{max(points)}"
+        how = span if len(points) == 1 else f"{span} per fold of the labelled walks ({len(points)} folds)"
+        walks = {t for g in self.grown for t in np.array(g.source_traces)[np.unique(g.trace)]} if points[0] else set()
+        return f"{how} grown points from {len(walks)} walks" + (" (transductive)" if self.transductive else "")
+
+
+@dataclasses.dataclass(frozen=True)
 class _Context:
     """What every walk's task shares (sent to each worker once)."""
 
@@ -148,17 +184,20 @@ class _Context:
     paths: tuple[Path, ...]
     all_walks: AllWalks | None
     true_floors: tuple[int | None, ...]  # per evaluated walk: its floor by the header (None: per waypoint or none)
+    growth: Growth | None = None
 
 
 def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: EvaluationSetup,
              engine: Engine = Engine(), progress: Callable[[int, int, str], None] | None = None,
              on_walk: Callable[[WalkOutcome], None] | None = None,
-             resumed: Sequence[WalkOutcome] = ()) -> Evaluation:
+             resumed: Sequence[WalkOutcome] = (),
+             grow_progress: Callable[[int, int, str], None] | None = None) -> Evaluation:
     """Evaluate every method on every walk, one walk per task on ``engine``. Each walk seeds its
     own generators (``default_rng([seed, walk, method])``), so the numbers do not depend on the
     engine. A walk that fails is reported (``WalkOutcome.status``) and the others go on;
     ``on_walk`` sees each walk as it finishes (to write its results at once). ``resumed``: the
-    outcomes of walks already done (``evaluation.store``): those walks are not run again."""
+    outcomes of walks already done (``evaluation.store``): those walks are not run again.
+    ``grow_progress`` follows the growing of the radio map (self-training), which comes first."""
     paths, survey, methods = validate_setup(building, log_paths, setup)
     started = time.perf_counter()
     read_warnings: list[str] = []
@@ -168,7 +207,12 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: 
     true_floors = tuple(_true_floor(building, p) for p in paths)
     all_walks = _all_walks(building, setup, methods, survey_recordings + recordings,
                            [_true_floor(building, p) for p in survey] + list(true_floors))
-    context = _Context(building, setup, methods, tuple(paths), all_walks, true_floors)
+    growth = None
+    if setup.grows:
+        with _collect_read_warnings(read_warnings):
+            growth = _growth(building, setup, paths, survey_recordings + recordings, all_walks, engine,
+                             grow_progress)
+    context = _Context(building, setup, methods, tuple(paths), all_walks, true_floors, growth)
     done = {o.index for o in resumed}
     todo = [i for i in range(len(paths)) if i not in done]
     outcomes: list[WalkOutcome] = list(resumed)
@@ -178,7 +222,9 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: 
         read_warnings.extend(w for w in outcome.read_warnings if w not in read_warnings)
         if on_walk is not None:
             on_walk(outcome)
-    return Evaluation.from_outcomes(outcomes, len(paths), time.perf_counter() - started, read_warnings)
+    evaluation = Evaluation.from_outcomes(outcomes, len(paths), time.perf_counter() - started, read_warnings)
+    evaluation.grown = growth.describe() if growth is not None else ""
+    return evaluation
 
 
 def validate_setup(building: Building, log_paths: Sequence[str | os.PathLike],
@@ -204,6 +250,15 @@ def validate_setup(building: Building, log_paths: Sequence[str | os.PathLike],
         raise MapfilterError("a building is evaluated with a building's radio map, not an access-point table")
     if setup.leave_one_out and len(paths) + len(survey) < 2:
         raise MapfilterError("leave-one-out needs at least two logs")
+    if setup.transductive and setup.leave_one_out:
+        raise MapfilterError("--transductive grows the map from walks that are scored without their labels, but "
+                             "--leave-one-out surveys with those labels: give the survey with --survey or --radiomap")
+    unlabelled = checked_log_paths(setup.unlabelled_paths) if setup.unlabelled_paths else []
+    named = {trace_name(p) for p in paths + survey}
+    both = sorted(named & {trace_name(p) for p in unlabelled})
+    if both:
+        raise MapfilterError(f"walk {both[0]} is both unlabelled and labelled or scored: give it once "
+                             f"(--transductive lets the scored walks grow the map without their labels)")
     return paths, survey, methods
 
 
@@ -329,6 +384,8 @@ def _detected_steps(recording: Recording, tracking: TrackingConfig) -> Steps | N
 def _one_floor_methods(context: _Context, index: int, recording: Recording) -> list[MethodResult]:
     setup, building, methods = context.setup, context.building, context.methods
     radio_map, ap_table = _wifi_sources(recording, setup, context.all_walks, building)
+    if context.growth is not None and radio_map is not None:
+        radio_map = merge_radio_maps([radio_map, context.growth.for_walk(recording.name)])
     scans = scans_of(recording)
     steps = _detected_steps(recording, setup.tracking)
     scan_t = np.array([s.t_s for s in scans])
@@ -400,6 +457,8 @@ PF_VARIANTS: dict[str, Callable[[TrackingConfig], TrackingConfig]] = {
 def _building_methods(context: _Context, index: int, recording: Recording) -> list[MethodResult]:
     setup, building = context.setup, context.building
     radio_map = _building_radio_map(recording, setup, context.all_walks, building)
+    if context.growth is not None:
+        radio_map = merge_radio_maps([radio_map, context.growth.for_walk(recording.name)])
     sigma = context.all_walks.fix_sigma_by_floor_m if context.all_walks is not None else None
     if sigma is None and setup.tracking.wifi.fix_sigma_m is None and context.all_walks is None:
         sigma = _radio_map_sigmas(radio_map, building, setup.tracking)
@@ -445,7 +504,7 @@ def _radio_map_sigmas(radio_map: RadioMap, building: Building, tracking: Trackin
             for i, name in enumerate(building.floor_names)}
 
 
-def _building_radio_map(recording: Recording, setup: EvaluationSetup, all_walks: AllWalks | None,
+def _building_radio_map(recording: Recording | None, setup: EvaluationSetup, all_walks: AllWalks | None,
                         building: Building) -> RadioMap:
     if all_walks is not None:
         return all_walks.radio_map.without_traces([recording.name]) if setup.leave_one_out else all_walks.radio_map
@@ -454,6 +513,29 @@ def _building_radio_map(recording: Recording, setup: EvaluationSetup, all_walks:
     radio_map = load_building_radio_map(setup.radio_map_path, building.floor_names)
     check_radio_map_on_map(radio_map, building, setup.radio_map_path, building.path)
     return radio_map
+
+
+def _growth(building: Building, setup: EvaluationSetup, paths: list[Path], labelled: list[Recording],
+            all_walks: AllWalks | None, engine: Engine, progress: Callable[[int, int, str], None] | None) -> Growth:
+    """The radio map's grown points (``Growth``): from the unlabelled walks (and, transductive,
+    the evaluated ones), over the labelled material the walks are scored with."""
+    read = [read_log(p, strict=setup.strict, building=building) for p in setup.unlabelled_paths]
+    if setup.transductive:
+        read += [read_log(p, strict=setup.strict, building=building) for p in paths]
+    space = building.floors[0].plan if building.is_single_floor else building
+    config = GrowConfig(tracking=setup.tracking, seed=setup.tracking.seed)
+    if setup.leave_one_out:
+        # once per fold of the labelled walks: a scored walk's labels never place its grown points
+        grown, _, fold = grown_by_fold(space, labelled, read, config, engine=engine, progress=progress)
+        return Growth(tuple(grown), {rec.name: int(f) for rec, f in zip(labelled, fold)}, False)
+    if all_walks is not None:  # the survey logs
+        base = all_walks.radio_map
+    elif building.is_single_floor:
+        base = RadioMap.load(setup.radio_map_path)
+    else:
+        base = _building_radio_map(None, setup, None, building)
+    result, _ = grow_radio_map(space, base, read, config, progress=progress, engine=engine)
+    return Growth((result.select(result.source == GROWN),), {}, setup.transductive)
 
 
 def kwnn_floor_fixes(radio_map: RadioMap, scans, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -562,10 +644,7 @@ def _concat_aps(tables: list[AccessPointTable]) -> AccessPointTable:
 def _drop_unheard_aps(radio_map: RadioMap) -> RadioMap:
     """Without the walk under test, some APs are heard nowhere: drop them, as a radio map built
     from the other walks alone would never have had them."""
-    heard = ~np.all(np.isnan(radio_map.rssi_dbm), axis=0)
-    keys = [k for k, h in zip(radio_map.ap_keys, heard) if h]
-    return RadioMap(radio_map.xy_m, keys, radio_map.rssi_dbm[:, heard], radio_map.t_s, radio_map.trace,
-                    radio_map.source_traces, radio_map.floor_name)
+    return radio_map.select_aps(~np.all(np.isnan(radio_map.rssi_dbm), axis=0))
 
 
 def _fix_track(scan_t: np.ndarray, fixes: np.ndarray, name: str) -> Track:
@@ -605,6 +684,7 @@ class Evaluation:
     wall_time_s: float
     read_warnings: list[str] = dataclasses.field(default_factory=list)  # rows the log reader skipped, per log
     failed: list[WalkOutcome] = dataclasses.field(default_factory=list)  # walks without results, and why
+    grown: str = ""  # self-training: what grew the radio map ("" without)
 
     @classmethod
     def from_outcomes(cls, outcomes: Sequence[WalkOutcome], n_traces: int, wall_time_s: float,

@@ -25,7 +25,7 @@ from mapfilter.filter.events import StepReport
 from mapfilter.filter.floors import FloorFix, FloorFixLikelihood, FloorStack
 from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix, TrilaterationLikelihood
 from mapfilter.filter.models import MeasurementModel
-from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLikelihoodConfig
+from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLikelihoodConfig, radio_map_likelihood
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.floors import check_building_radio_map, floor_vote_log_likelihood
 from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position, match_scan
@@ -176,12 +176,12 @@ class WifiEvidence:
         return None
 
     def radio_map_model(self) -> RadioMapLikelihood:
-        """The radio-map likelihood of this walk's scans, built once on first use (needs a radio
-        map): per-AP tables only for the APs the walk hears."""
+        """The radio-map likelihood (needs a radio map): built once per radio map and shared with
+        the other walks tracked with it; the per-AP tables of the APs this walk hears built now."""
         if self._radio_map_model is None:
             heard = {key for scan in self.scans for key in scan.ap_keys}
-            self._radio_map_model = RadioMapLikelihood(self._radio_map, self._floorplan, self._likelihood_config,
-                                                       heard_keys=heard)
+            self._radio_map_model = radio_map_likelihood(self._radio_map, self._floorplan, self._likelihood_config,
+                                                         heard)
         return self._radio_map_model
 
     def best_cell_xy_m(self) -> np.ndarray:

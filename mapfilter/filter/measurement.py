@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from mapfilter.errors import MapfilterError
+from mapfilter.filter import fused
 from mapfilter.filter.models import MeasurementModel
 from mapfilter.filter.particles import Particles
 from mapfilter.sensors.pathloss import MIN_DISTANCE_M, AccessPointTable, match_scan
@@ -48,10 +49,17 @@ class GaussianFixLikelihood(MeasurementModel):
     def fix_xy_m(self, measurement: PositionFix) -> np.ndarray:
         return np.asarray(measurement.xy_m, dtype=np.float64)
 
-    def log_likelihood(self, particles: Particles, measurement: PositionFix) -> np.ndarray:
+    def _sigma_m(self, measurement: PositionFix) -> float:
         sigma = self.sigma_m if measurement.sigma_m is None else measurement.sigma_m
         if not (math.isfinite(sigma) and sigma > 0):
             raise ValueError(f"fix sigma must be a positive number of metres, got {sigma}")
+        return sigma
+
+    def kernel_likelihood(self, measurement: PositionFix) -> fused.Likelihood:
+        return fused.gaussian_fix(measurement.xy_m, self._sigma_m(measurement))
+
+    def log_likelihood(self, particles: Particles, measurement: PositionFix) -> np.ndarray:
+        sigma = self._sigma_m(measurement)
         fx, fy = (float(v) for v in np.asarray(measurement.xy_m, dtype=np.float64).ravel()[:2])
         d2 = (particles.xy_m[:, 0] - fx) ** 2 + (particles.xy_m[:, 1] - fy) ** 2
         return -0.5 * d2 / (sigma * sigma)
@@ -180,6 +188,14 @@ class TrilaterationLikelihood(MeasurementModel):
     def heard_ap_xy_m(self, scan: WifiScan) -> np.ndarray:
         """(M, 2) positions of the scan's access points that the table knows (for the viewer)."""
         return self.ap_table.xy_m[match_scan(self.ap_table, scan)[0]]
+
+    def kernel_likelihood(self, measurement: WifiScan) -> fused.Likelihood:
+        rows, rssi = match_scan(self.ap_table, measurement)
+        if rows.size == 0:
+            return fused.flat()
+        t = self.ap_table
+        return fused.rssi_path_loss(t.xy_m[rows], t.c_dbm[rows], t.n[rows], t.alpha_db_per_m[rows], t.d_max_m[rows],
+                                    rssi, self.variance_db2)
 
     def log_likelihood(self, particles, measurement: WifiScan) -> np.ndarray:
         rows, rssi = match_scan(self.ap_table, measurement)

@@ -35,6 +35,11 @@ class MotionModel(Protocol):
         """
         ...
 
+    def kernel_move(self, inputs: Any, dt_s: float) -> Any:
+        """This step's move as the fused step's terms (a ``filter.fused.Move``, the same
+        distribution as ``propagate``), or None: the filter calls ``propagate``."""
+        return None
+
 
 class MeasurementModel(Protocol):
     """Weighs particles by a measurement."""
@@ -54,6 +59,11 @@ class MeasurementModel(Protocol):
         comparable across particles of one call.
         """
         ...
+
+    def kernel_likelihood(self, measurement: Any) -> Any:
+        """The log-likelihood as terms the fused step evaluates itself (a ``filter.fused.Likelihood``,
+        the same values as ``log_likelihood``), or None: the filter calls ``log_likelihood``."""
+        return None
 
     def locates(self, measurement: Any) -> bool:
         """Whether the measurement says where the walker is (not only which floor): a collapse

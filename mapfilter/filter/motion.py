@@ -14,6 +14,7 @@ from typing import ClassVar
 import numpy as np
 from numba import njit
 
+from mapfilter.filter import fused
 from mapfilter.filter.gaussian import standard_normal
 from mapfilter.filter.models import MotionModel
 from mapfilter.filter.particles import Particles
@@ -71,6 +72,10 @@ class RandomWalkMotion(MotionModel):
                    self.radius_mps * dt, self.sigma_mps * dt, xy)
         return _moved(particles, xy_m=xy)
 
+    def kernel_move(self, inputs: object, dt_s: float) -> fused.Move:
+        dt = max(float(dt_s), 0.0)
+        return fused.circle_walk(self.radius_mps * dt, self.sigma_mps * dt)
+
 
 @dataclasses.dataclass(frozen=True)
 class ConstantVelocityMotion(MotionModel):
@@ -94,6 +99,9 @@ class ConstantVelocityMotion(MotionModel):
         if np.any(too_fast):
             velocity[too_fast] *= (self.max_speed_mps / speed[too_fast])[:, None]
         return _moved(particles, xy_m=xy, velocity_mps=velocity)
+
+    def kernel_move(self, inputs: object, dt_s: float) -> fused.Move:
+        return fused.constant_velocity(max(float(dt_s), 0.0), self.accel_sigma_mps2, self.max_speed_mps)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,3 +180,19 @@ class PDRMotion(MotionModel):
         if n_steps > 0 and self.position_sigma_m > 0:
             xy += (self.position_sigma_m * math.sqrt(n_steps)) * rng.standard_normal((n, 2))
         return _moved(particles, xy_m=xy, heading_rad=heading, step_length_m=step_length)
+
+    def kernel_move(self, inputs: StepInput | None, dt_s: float) -> fused.Move:
+        if inputs is None:
+            return fused.no_move()
+        n_steps = int(inputs.n_steps)
+        if n_steps < 0:
+            raise ValueError(f"n_steps must be >= 0, got {n_steps}")
+        change = float(inputs.heading_change_rad)
+        turn = inputs.heading_abs_rad is None and abs(change) >= self.turn_threshold_rad
+        given = self.fixed_step_length_m if self.fixed_step_length_m is not None else inputs.step_length_m
+        return fused.pdr_step(
+            n_steps, change, None if inputs.heading_abs_rad is None else float(inputs.heading_abs_rad),
+            self.heading_sigma_rad, self.false_turn_fraction if turn else 0.0,
+            self.step_length_walk_sigma_m * math.sqrt(n_steps), self.step_length_min_m, self.step_length_max_m,
+            None if given is None else float(given), self.step_length_input_sigma_m,
+            self.position_sigma_m * math.sqrt(n_steps) if n_steps > 0 and self.position_sigma_m > 0 else 0.0)

@@ -23,16 +23,17 @@ import numpy as np
 from numba import njit
 
 from mapfilter.errors import MapfilterError
+from mapfilter.filter import fused
 from mapfilter.filter.ancestry import Ancestry
 from mapfilter.filter.estimate import circular_mean
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.floors import OneFloor
 from mapfilter.filter.models import FloorModel, MeasurementModel, MotionModel
 from mapfilter.filter.particles import Particles
-from mapfilter.filter.regularise import KERNELS, regularise
+from mapfilter.filter.regularise import KERNELS, bandwidth_and_root, regularise
 from mapfilter.filter.resample import get_resampler
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.maps.walls import crosses_wall
+from mapfilter.maps.walls import clearance_px, crosses_wall
 from mapfilter.threads import for_slices
 
 __all__ = ["FilterConfig", "ParticleFilter"]
@@ -88,6 +89,12 @@ class FilterConfig:
     recovery_reset_steps: int = 10  # healthy steps after which the radius starts small again
     recovery_measurement_max_age_s: float = 10.0  # an older measurement is not used to recover
     recovery_heading_keep_fraction: float = 0.5  # PDR: share of recovered particles keeping an old heading
+    # for motion models that give its terms (random walk, constant velocity, PDR; any measurement
+    # model, a Gaussian fix and trilateration inside the pass) with the systematic resampler and
+    # the Gaussian kernel; its draws differ from the named stages' (the same distributions). Its
+    # kernels add about 2 s to the first run after install (numba compiles them once), and below
+    # 20,000 particles a walk's time goes elsewhere (docs/benchmarks.md)
+    fused_from_particles: int | None = 20_000  # the fused step (filter/fused.py) from this many on; None: never
 
     def __post_init__(self) -> None:
         if int(self.n_particles) < 1:
@@ -141,6 +148,12 @@ class ParticleFilter:
         self._last_measurement: tuple[float, Any, Any] | None = None  # (t_s, model, measurement)
         self._recovery_level = 0
         self._healthy_steps = 0
+        # the fused step applies with these settings (and models that offer its terms)
+        cfg = self.config
+        self._one_floor = floors is None  # no floor changes: move, wall check and weighing in one pass
+        self._fusable = (cfg.fused_from_particles is not None and self.n >= cfg.fused_from_particles
+                         and cfg.resampler == "systematic" and cfg.kernel == "gaussian"
+                         and int(cfg.regularise_tries) <= fused.SLOTS)
 
     @property
     def n(self) -> int:
@@ -202,6 +215,8 @@ class ParticleFilter:
         ll = self._checked_log_likelihood(model, Particles.at(candidates), measurement)
         if not np.isfinite(ll).any():
             return None
+        if self._fusable:
+            return self._fused_sample(candidates, ll)
         w = np.exp(ll - ll.max())
         picked = self._resample(w, self.n, self.rng)
         xy = candidates[picked]
@@ -211,6 +226,25 @@ class ParticleFilter:
             xy, _ = regularise(self.floorplan, xy, cov, self.rng, self.config.kernel,
                                self.config.bandwidth_scale, self.config.regularise_tries)
         return xy
+
+    def _fused_sample(self, candidates: np.ndarray, ll: np.ndarray) -> np.ndarray:
+        """N of the weighed candidates, drawn and spread as by the fused step's second pass."""
+        cfg = self.config
+        state = fused.weigh(candidates, np.zeros(len(candidates)), fused.given_values(ll))
+        totals = fused.totals(state, (0.0, 0.0))
+        cov = totals.covariance_m2 if self._one_floor else self.floors.covariance(
+            candidates, np.exp(state.log_weight - totals.log_normaliser))
+        u = float(self.rng.random())
+        key = self._draw_key()
+        tries = max(int(cfg.regularise_tries), 1) if cfg.regularise else 0
+        h, root = bandwidth_and_root(self.floorplan, cov, self.n, cfg.kernel, cfg.bandwidth_scale) if cfg.regularise \
+            else (0.0, np.eye(2))
+        # the candidates stand still: the jitter's second wall check (from the position before a
+        # step) is the first one again
+        out = fused.resample_regularise(state, totals, state.xy_m, u=u, key=key, tries=tries, h=h, root=root,
+                                        floorplan=self.floorplan, clearance=clearance_px(self.floorplan),
+                                        shift_xy_m=(0.0, 0.0), n_out=self.n)
+        return out.xy_m
 
     def _checked_log_likelihood(self, model: MeasurementModel, particles: Particles, measurement: Any) -> np.ndarray:
         ll = np.asarray(model.log_likelihood(particles, measurement), dtype=np.float64)
@@ -230,6 +264,9 @@ class ParticleFilter:
         """
         if self.particles is None:
             raise RuntimeError("initialise the filter before stepping it")
+        move = self.motion.kernel_move(motion_input, dt_s) if self._fusable else None
+        if move is not None:
+            return self._fused_step(t_s, dt_s, motion_input, model, measurement, move)
         step_index = self._step_index
         self._step_index += 1
         prev = self.particles
@@ -260,6 +297,149 @@ class ParticleFilter:
         self._record_lineage(t_s, parent, new, weights, w if resampled else None, broken=cause is not None)
         return self._report(t_s, step_index, prev, moved, new, weights, killed, ess, n_alive, resampled, collapse,
                             model, measurement)
+
+    def _fused_step(self, t_s: float, dt_s: float, motion_input: Any, model: MeasurementModel | None,
+                    measurement: Any, move: fused.Move) -> StepReport:
+        """The step of ``step`` in the two passes of ``filter/fused.py`` (same stages, same
+        collapse rules, same report; the draws come from a per-step key of ``self.rng``)."""
+        step_index = self._step_index
+        self._step_index += 1
+        prev = self.particles
+        plan = self.floorplan
+        clearance = clearance_px(plan)
+        shift = self.estimate_xy_m if self.estimate_xy_m is not None and np.isfinite(self.estimate_xy_m).all() \
+            else np.zeros(2)
+        state_args = (np.ascontiguousarray(prev.xy_m, dtype=np.float64),
+                      np.ascontiguousarray(prev.velocity_mps, dtype=np.float64),
+                      np.ascontiguousarray(prev.heading_rad, dtype=np.float64),
+                      np.ascontiguousarray(prev.step_length_m, dtype=np.float64),
+                      np.ascontiguousarray(prev.log_weight, dtype=np.float64))
+        key = self._draw_key()
+        measured = model is not None and measurement is not None
+        terms = model.kernel_likelihood(measurement) if measured else None
+        if measured and model.locates(measurement):
+            self._last_measurement = (float(t_s), model, measurement)
+
+        def moved_particles(state: fused.Advanced, log_weight: np.ndarray) -> Particles:
+            return Particles(xy_m=state.xy_m, log_weight=log_weight, velocity_mps=state.velocity_mps,
+                             heading_rad=state.heading_rad, step_length_m=state.step_length_m)
+
+        if self._one_floor and (terms is not None or not measured):
+            # stages 1-3 in one pass
+            state = fused.advance(*state_args, move=move, key=key, floorplan=plan, clearance=clearance,
+                                  likelihood=terms if terms is not None else fused.flat(), shift_xy_m=shift)
+            moved = moved_particles(state, prev.log_weight)
+        else:
+            if self._one_floor:
+                state = fused.advance(*state_args, move=move, key=key, floorplan=plan, clearance=clearance)
+                moved = moved_particles(state, prev.log_weight)
+            else:
+                state = fused.advance(*state_args, move=move, key=key)
+                if self.motion.walks_in_steps and motion_input is not None:
+                    state.xy_m = np.ascontiguousarray(self.floors.step_on_stairs(prev.xy_m, state.xy_m, self.rng))
+                fused.advance(*state_args, move=None, key=key, floorplan=plan, clearance=clearance, state=state)
+                moved = moved_particles(state, prev.log_weight.copy())
+                # floor changes after the wall check: the jump between floors is not a wall crossing
+                state.log_weight = np.ascontiguousarray(
+                    self.floors.change_floors(moved, state.log_weight, dt_s, self.rng, measurement), dtype=np.float64)
+            if terms is None and measured:
+                terms = fused.given_values(self._checked_log_likelihood(model, moved, measurement))
+            fused.advance(*state_args, move=None, key=key, likelihood=terms if terms is not None else fused.flat(),
+                          shift_xy_m=shift, state=state)
+        totals = fused.totals(state, shift)
+        killed = np.flatnonzero(state.killed)
+        cause = None if totals.n_alive_after_kill > 0 else "all_killed_by_walls"
+        if cause is None and measured:
+            gate = self.config.min_log_likelihood
+            if gate is not None and totals.best_log_likelihood < gate:
+                cause = "measurement_inconsistent"
+            else:
+                peak = model.log_likelihood_peak
+                if totals.n_finite == 0 or (peak is not None and totals.max_log_weight - peak < _LOG_UNDERFLOW):
+                    cause = "weights_underflow"
+        means = None
+        if cause is not None:
+            before_xy = self.estimate_xy_m
+            new, parent, ess, recovery = self._recover_from_collapse(t_s, prev)
+            resampled, w, n_alive = False, None, 0
+            weights = new.weight
+            self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(new.xy_m, weights)
+        else:
+            new, parent, ess, resampled, w, weights, means = self._fused_normalise_and_resample(
+                prev, state, totals, shift, clearance)
+            n_alive = totals.n_finite
+        self.particles = new
+        collapse = None
+        if cause is not None:
+            collapse = CollapseEvent(
+                t_s=float(t_s), step_index=step_index,
+                xy_m=(float(before_xy[0]), float(before_xy[1])) if before_xy is not None else (math.nan, math.nan),
+                cause=cause, particles_lost=int(np.count_nonzero(np.isfinite(prev.log_weight))), recovery=recovery,
+                recovered_xy_m=(float(self.estimate_xy_m[0]), float(self.estimate_xy_m[1])))
+            self.collapses.append(collapse)
+        if self.ancestry is not None and resampled and w is None:
+            w = np.exp(state.log_weight - totals.log_normaliser)
+        self._record_lineage(t_s, parent, new, weights, w if resampled else None, broken=cause is not None)
+        return self._report(t_s, step_index, prev, moved, new, weights, killed, ess, n_alive, resampled, collapse,
+                            model, measurement, means)
+
+    def _draw_key(self) -> int:
+        # one draw of the filter's generator keys every counter-based draw of a fused pass
+        return int(self.rng.integers(0, 2 ** 63, dtype=np.int64))
+
+    def _fused_normalise_and_resample(self, prev: Particles, state: fused.Advanced, totals: fused.Totals,
+                                      shift: np.ndarray, clearance: np.ndarray):
+        """Stage 4b and the estimate from the passes' sums: (particles, parents, ESS, resampled,
+        the normalised weights before resampling or None, the weights after, (heading, step length) means or None)."""
+        cfg = self.config
+        n = self.n
+        self._healthy_steps += 1
+        if self._healthy_steps >= cfg.recovery_reset_steps:
+            self._recovery_level = 0
+        ess = float(totals.ess)
+        walks = self.motion.walks_in_steps
+        if ess >= cfg.resample_ess_fraction * n:
+            log_w = state.log_weight - totals.log_normaliser
+            weights = np.exp(log_w)
+            new = Particles(xy_m=state.xy_m, log_weight=log_w, velocity_mps=state.velocity_mps,
+                            heading_rad=state.heading_rad, step_length_m=state.step_length_m)
+            mean, cov = totals.mean_xy_m, totals.covariance_m2
+            self._fused_estimate(new, weights, mean, cov)
+            means = (circular_mean(new.heading_rad, weights), float(weights @ new.step_length_m)) if walks else None
+            return new, np.arange(n), ess, False, weights, weights, means
+        if self._one_floor:
+            cov = totals.covariance_m2
+            w = None
+        else:
+            w = np.exp(state.log_weight - totals.log_normaliser)
+            cov = self.floors.covariance(state.xy_m, w)
+        u = float(self.rng.random())
+        key = self._draw_key()
+        tries = max(int(cfg.regularise_tries), 1) if cfg.regularise else 0
+        h, root = bandwidth_and_root(self.floorplan, cov, n, cfg.kernel, cfg.bandwidth_scale) if cfg.regularise \
+            else (0.0, np.eye(2))
+        out = fused.resample_regularise(state, totals, prev.xy_m, u=u, key=key, tries=tries, h=h, root=root,
+                                        floorplan=self.floorplan, clearance=clearance, shift_xy_m=shift,
+                                        walks=walks)
+        new = Particles(xy_m=out.xy_m, log_weight=np.full(n, -math.log(n)), velocity_mps=out.velocity_mps,
+                        heading_rad=out.heading_rad, step_length_m=out.step_length_m)
+        weights = np.full(n, math.exp(-math.log(n)))  # = new.weight, without a pass of exp
+        s = out.sums.sum(axis=0)
+        ex, ey = s[fused.R_X] / n, s[fused.R_Y] / n
+        cov = np.array([[s[fused.R_XX] / n - ex * ex, s[fused.R_XY] / n - ex * ey],
+                        [s[fused.R_XY] / n - ex * ey, s[fused.R_YY] / n - ey * ey]])
+        self._fused_estimate(new, weights, shift + np.array([ex, ey]), cov)
+        means = (math.atan2(s[fused.R_SIN], s[fused.R_COS]), float(s[fused.R_STEP] / n)) if walks else None
+        return new, out.parent, ess, True, w, weights, means
+
+    def _fused_estimate(self, new: Particles, weights: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> None:
+        """The estimate from the weighted moments when they are a free point of one floor (as
+        ``estimate.weighted_estimate``), else from the floor model."""
+        if self._one_floor and np.isfinite(mean).all() and self.floorplan.is_free(mean[None, :])[0]:
+            self.estimate_xy_m = mean
+            self.estimate_std_m = float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
+        else:
+            self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(new.xy_m, weights)
 
     def _move(self, prev: Particles, motion_input: Any, dt_s: float) -> Particles:
         """Stage 1: the motion model moves every particle; on stairs a step advances one tread."""
@@ -351,9 +531,13 @@ class ParticleFilter:
 
     def _report(self, t_s: float, step_index: int, prev: Particles, moved: Particles, new: Particles,
                 weights: np.ndarray, killed: np.ndarray, ess: float, n_alive: int, resampled: bool,
-                collapse: CollapseEvent | None, model: MeasurementModel | None, measurement: Any) -> StepReport:
-        """What happened this step, for the viewer and the tracks."""
+                collapse: CollapseEvent | None, model: MeasurementModel | None, measurement: Any,
+                means: tuple[float, float] | None = None) -> StepReport:
+        """What happened this step, for the viewer and the tracks (``means``: the weighted
+        heading and step length if known, else computed here)."""
         steps = self.motion.walks_in_steps
+        if steps and means is None:
+            means = (circular_mean(new.heading_rad, weights), float(weights @ new.step_length_m))
         measured = model is not None and measurement is not None
         fix_xy = model.fix_xy_m(measurement) if measured else None
         return StepReport(
@@ -362,8 +546,8 @@ class ParticleFilter:
             n_killed=int(killed.size), resampled=resampled, particles_xy_m=new.xy_m,
             particles_weight=weights, killed_from_xy_m=prev.xy_m[killed], killed_to_xy_m=moved.xy_m[killed],
             collapse=collapse,
-            heading_rad=circular_mean(new.heading_rad, weights) if steps else None,
-            step_length_m=float(weights @ new.step_length_m) if steps else None,
+            heading_rad=means[0] if steps else None,
+            step_length_m=means[1] if steps else None,
             measurement_kind=model.kind if measured else None,
             fix_xy_m=None if fix_xy is None else np.asarray(fix_xy, dtype=np.float64).ravel()[:2].copy(),
             heard_ap_xy_m=model.heard_ap_xy_m(measurement) if measured else None,

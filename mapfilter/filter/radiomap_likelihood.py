@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import weakref
 from collections.abc import Collection
 
 import numpy as np
@@ -40,7 +41,9 @@ class RadioMapLikelihood(MeasurementModel):
 
     On a grid over the floor, each AP's RSSI mean mu_k, spread sigma_k and probability of
     being heard h_k are Gaussian-kernel averages of the reference points, shrunk toward a
-    weak prior (pseudo-count ``prior_weight``) where data are thin. A scan's log-likelihood
+    weak prior (pseudo-count ``prior_weight``) where data are thin. A grown point with position
+    uncertainty s (``RadioMap.xy_sigma_m``) enters with its kernel convolved by it (variance
+    bandwidth^2 + s^2, height bandwidth^2 / (bandwidth^2 + s^2)). A scan's log-likelihood
     at a cell is
 
         sum_{k heard} [log h_k + log N(r_k; mu_k, sigma_k^2)] + sum_{k not heard} log(1 - h_k)
@@ -100,27 +103,81 @@ class RadioMapLikelihood(MeasurementModel):
 
         pairs = cKDTree(self.cell_xy_m).sparse_distance_matrix(cKDTree(radio_map.xy_m), reach,
                                                                  output_type="coo_matrix")
-        weight = sparse.csr_matrix((np.exp(-0.5 * pairs.data ** 2 / cfg.bandwidth_m ** 2).astype(np.float32),
-                                    (pairs.row, pairs.col)), shape=(n_cells, len(radio_map)))
+        kernel = np.exp(-0.5 * pairs.data ** 2 / cfg.bandwidth_m ** 2)
+        if radio_map.is_grown:
+            # a point whose position is uncertain (sigma) spreads its reading over the kernel
+            # convolved with that uncertainty: variance b^2 + sigma^2, height b^2 / (b^2 + sigma^2)
+            # (the 2-D Gaussian's peak), so it counts less and less sharply than a surveyed point
+            variance = cfg.bandwidth_m ** 2 + radio_map.xy_sigma_m[pairs.col] ** 2
+            kernel = cfg.bandwidth_m ** 2 / variance * np.exp(-0.5 * pairs.data ** 2 / variance)
+        weight = sparse.csr_matrix((kernel.astype(np.float32), (pairs.row, pairs.col)),
+                                   shape=(n_cells, len(radio_map)))
         w_all = np.zeros(n_cells + 1)
         w_all[:n_cells] = np.asarray(weight.sum(axis=1)).ravel()
         observed = heard[:, use_aps]
         ref, ap_col = np.nonzero(observed)
         values = radio_map.rssi_dbm[:, use_aps][ref, ap_col].astype(np.float32)
-        # P(heard) of every AP (for the not-heard term) and the RSSI sums of the tabled APs, as
-        # sparse products; an entry's pattern is the same in all three (sparse products drop
-        # exact zeros only, and r < 0), so after sorting the entries line up
+        # P(heard) of every AP (for the not-heard term) as a sparse product (the RSSI sums of an
+        # AP come when its table is built)
         heard_sum = (weight @ sparse.csr_matrix((np.ones_like(values), (ref, ap_col)),
                                                 shape=(len(radio_map), n_aps))).tocsr()
         heard_sum.sort_indices()
         heard_sum = heard_sum.tocoo()
         all_cell, all_ap = heard_sum.row.astype(np.int64), heard_sum.col.astype(np.int64)
         all_wh = heard_sum.data.astype(np.float64)
+        # the per-AP tables are built when a scan first hears the AP (_build_tables): what they need
+        self._weight, self._n_refs, self._n_aps = weight, len(radio_map), n_aps
+        self._observed = (ref, ap_col, values)
+        self._entries = (all_cell, all_ap, all_wh)
+        self._w_all = w_all
+        self._built = ~tabled  # an AP outside heard_keys never gets a table
+        self._tables: list[tuple[np.ndarray, ...]] = []  # per batch: (ap, cell, mu, 1/var, offset)
+        self._ap_ptr = np.zeros(n_aps + 1, dtype=np.int64)
+        self._cell = np.zeros(0, dtype=np.int32)
+        self._mu = self._inv_var = self._offset = np.zeros(0, dtype=np.float32)
+        clip = cfg.heard_clip
+        pw = cfg.prior_weight
+        # the prior per cell: an AP never heard near the cell
+        p0 = np.clip(cfg.prior_weight * cfg.prior_heard / (w_all + cfg.prior_weight), clip, 1 - clip)
+        self._prior_mu_dbm = cfg.prior_rssi_dbm
+        self._prior_inv_var = 1.0 / prior_var
+        self._prior_offset = np.log(p0) - 0.5 * np.log(2 * np.pi * prior_var) - np.log1p(-p0)  # (cells + 1,)
+        # every AP unheard: the prior everywhere, corrected where an AP has data (all APs)
+        self.base = n_aps * np.log1p(-p0)
+        data = all_wh > cfg.min_weight
+        base_cell = all_cell[data]
+        p_heard_all = np.clip((all_wh[data] + pw * cfg.prior_heard) / (w_all[base_cell] + pw), clip, 1 - clip)
+        np.add.at(self.base, base_cell, np.log1p(-p_heard_all) - np.log1p(-p0[base_cell]))
+
+    def build_tables(self, keys: Collection[str]) -> None:
+        """Build the per-AP tables of these APs now (else each is built when a scan first hears it)."""
+        cols = [self.key_index[key] for key in keys if key in self.key_index]
+        self._build_tables(np.array(cols, dtype=np.int64))
+
+    def _build_tables(self, cols: np.ndarray) -> None:
+        """The per-AP tables of the APs ``cols`` not built yet: each AP's RSSI mean, spread and
+        P(heard) on the cells where it has data. An AP's table depends on its own readings only,
+        so building some now and others later gives the same numbers as building all at once."""
+        from scipy import sparse
+
+        new = np.unique(cols[~self._built[cols]])
+        if new.size == 0:
+            return
+        self._built[new] = True
+        cfg = self.config
+        n_aps = self._n_aps
+        ref, ap_col, values = self._observed
+        all_cell, all_ap, all_wh = self._entries
+        w_all = self._w_all
+        tabled = np.zeros(n_aps, dtype=bool)
+        tabled[new] = True
+        # the RSSI sums of these APs, as a sparse product whose entries line up with the P(heard)
+        # sums' (an entry's pattern is the same: sparse products drop exact zeros only, and r < 0)
         mine = tabled[ap_col]
-        rssi_sums = (weight @ sparse.csr_matrix(
+        rssi_sums = (self._weight @ sparse.csr_matrix(
             (np.concatenate([values[mine], values[mine] ** 2]),
              (np.tile(ref[mine], 2), np.concatenate([ap_col[mine], ap_col[mine] + n_aps]))),
-            shape=(len(radio_map), 2 * n_aps))).tocsr()
+            shape=(self._n_refs, 2 * n_aps))).tocsr()
         rssi_sums.sort_indices()
         rssi_sums = rssi_sums.tocoo()
         block = rssi_sums.col // n_aps
@@ -137,26 +194,15 @@ class RadioMapLikelihood(MeasurementModel):
         var = np.maximum(var, 0.0) + cfg.sigma_floor_db ** 2
         p_heard = (wh + pw * cfg.prior_heard) / (w_all[cell] + pw)
         ap, cell = ap.astype(np.int64), cell.astype(np.int64)
-        clip = cfg.heard_clip
-        # the prior per cell: an AP never heard near the cell
-        p0 = np.clip(cfg.prior_weight * cfg.prior_heard / (w_all + cfg.prior_weight), clip, 1 - clip)
-        p_heard = np.clip(p_heard, clip, 1 - clip)
-        self._prior_mu_dbm = cfg.prior_rssi_dbm
-        self._prior_inv_var = 1.0 / prior_var
-        self._prior_offset = np.log(p0) - 0.5 * np.log(2 * np.pi * prior_var) - np.log1p(-p0)  # (cells + 1,)
-        # every AP unheard: the prior everywhere, corrected where an AP has data (all APs)
-        self.base = n_aps * np.log1p(-p0)
-        data = all_wh > cfg.min_weight
-        base_cell = all_cell[data]
-        p_heard_all = np.clip((all_wh[data] + pw * cfg.prior_heard) / (w_all[base_cell] + pw), clip, 1 - clip)
-        np.add.at(self.base, base_cell, np.log1p(-p_heard_all) - np.log1p(-p0[base_cell]))
-        # sparse per-AP tables (CSR by AP): log h + log N normaliser - log(1 - h), mean, 1/var
+        p_heard = np.clip(p_heard, cfg.heard_clip, 1 - cfg.heard_clip)
+        self._tables.append((ap, cell.astype(np.int32), mu.astype(np.float32), (1.0 / var).astype(np.float32),
+                             (np.log(p_heard) - 0.5 * np.log(2 * np.pi * var) - np.log1p(-p_heard)).astype(np.float32)))
+        # sparse per-AP tables (CSR by AP): log h + log N normaliser - log(1 - h), mean, 1/var;
+        # each AP's entries come from one batch, in cell order
+        ap, cell, mu, inv_var, offset = (np.concatenate(parts) for parts in zip(*self._tables))
         order = np.argsort(ap, kind="stable")
         self._ap_ptr = np.searchsorted(ap[order], np.arange(n_aps + 1))
-        self._cell = cell[order].astype(np.int32)
-        self._mu = mu[order].astype(np.float32)
-        self._inv_var = (1.0 / var[order]).astype(np.float32)
-        self._offset = (np.log(p_heard) - 0.5 * np.log(2 * np.pi * var) - np.log1p(-p_heard))[order].astype(np.float32)
+        self._cell, self._mu, self._inv_var, self._offset = cell[order], mu[order], inv_var[order], offset[order]
 
     @property
     def n_cells(self) -> int:
@@ -175,6 +221,7 @@ class RadioMapLikelihood(MeasurementModel):
         if not cols:
             return out  # nothing known heard: no information
         r = np.array(rssi)
+        self._build_tables(np.array(cols, dtype=np.int64))
         # every heard AP at its prior, then the cells where it has data replace that term
         out += self.base + len(cols) * self._prior_offset
         out -= 0.5 * self._prior_inv_var * float(((r - self._prior_mu_dbm) ** 2).sum())
@@ -201,6 +248,34 @@ class RadioMapLikelihood(MeasurementModel):
         if ll.size == 0:
             return np.full(2, np.nan)
         return self.cell_xy_m[int(np.argmax(ll))]
+
+
+# id(radio map) -> (weak reference to it, its arrays when the entry was made, {(id(floor plan),
+# config): (floor plan, likelihood)})
+_MEMO: dict[int, tuple] = {}
+
+
+def radio_map_likelihood(radio_map: RadioMap, floorplan: FloorPlan | None = None,
+                         config: RadioMapLikelihoodConfig = RadioMapLikelihoodConfig(),
+                         heard_keys: Collection[str] | None = None) -> RadioMapLikelihood:
+    """The radio map's likelihood on ``floorplan``, built once per radio map and reused by every
+    walk tracked with it in this process (its per-AP tables grow as walks hear more APs; the
+    numbers are the same as a likelihood built for one walk). Forgotten with the radio map, or
+    when its arrays are replaced. ``heard_keys``: the APs a walk hears, whose tables are built
+    now in one go (one sparse product instead of one per scan that hears a new AP)."""
+    arrays = (radio_map.xy_m, radio_map.rssi_dbm)
+    entry = _MEMO.get(id(radio_map))
+    if entry is None or entry[0]() is not radio_map or any(a is not b for a, b in zip(entry[1], arrays)):
+        entry = (weakref.ref(radio_map, lambda _, key=id(radio_map): _MEMO.pop(key, None)), arrays, {})
+        _MEMO[id(radio_map)] = entry
+    models = entry[2]
+    hit = models.get((id(floorplan), config))
+    if hit is None or hit[0] is not floorplan:
+        hit = (floorplan, RadioMapLikelihood(radio_map, floorplan, config))
+        models[(id(floorplan), config)] = hit
+    if heard_keys is not None:
+        hit[1].build_tables(heard_keys)
+    return hit[1]
 
 
 @njit(cache=True)

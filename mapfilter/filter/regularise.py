@@ -24,7 +24,7 @@ from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import NO_BUFFER, _segment_crosses_world, clearance_px
 from mapfilter.threads import for_slices
 
-__all__ = ["KERNELS", "optimal_bandwidth", "regularise", "sample_kernel", "weighted_covariance"]
+__all__ = ["KERNELS", "bandwidth_and_root", "optimal_bandwidth", "regularise", "sample_kernel", "weighted_covariance"]
 
 KERNELS = ("gaussian", "epanechnikov")
 
@@ -80,6 +80,20 @@ def _jitter_kernel(lo, hi, mask, clearance, x0_m, y0_m, resolution_m, parent_xy,
         accepted[j] = ok
 
 
+def bandwidth_and_root(floorplan: FloorPlan, covariance_m2: np.ndarray, n: int, kernel: str = "gaussian",
+                       bandwidth_scale: float = 1.0, min_std_m: float | None = None) -> tuple[float, np.ndarray]:
+    """(h, D): the jitter is h D eps with D D^T the covariance plus ``min_std_m``^2 (default one
+    pixel) on the diagonal, h the optimal bandwidth for ``n`` particles times ``bandwidth_scale``."""
+    h = optimal_bandwidth(n, kernel) * bandwidth_scale
+    floor_std = floorplan.resolution_m if min_std_m is None else min_std_m
+    cov = np.asarray(covariance_m2, dtype=np.float64) + (floor_std ** 2) * np.eye(2)
+    try:
+        root = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        root = np.diag(np.sqrt(np.maximum(np.diag(cov), floor_std ** 2)))
+    return h, root
+
+
 def regularise(floorplan: FloorPlan, xy_m: np.ndarray, covariance_m2: np.ndarray, rng: np.random.Generator,
                kernel: str = "gaussian", bandwidth_scale: float = 1.0, tries: int = 3,
                origin_xy_m: np.ndarray | None = None, min_std_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -106,13 +120,7 @@ def regularise(floorplan: FloorPlan, xy_m: np.ndarray, covariance_m2: np.ndarray
     """
     xy = np.ascontiguousarray(xy_m, dtype=np.float64).reshape(-1, 2)
     n = xy.shape[0]
-    h = optimal_bandwidth(n, kernel) * bandwidth_scale
-    floor_std = floorplan.resolution_m if min_std_m is None else min_std_m
-    cov = np.asarray(covariance_m2, dtype=np.float64) + (floor_std ** 2) * np.eye(2)
-    try:
-        root = np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        root = np.diag(np.sqrt(np.maximum(np.diag(cov), floor_std ** 2)))
+    h, root = bandwidth_and_root(floorplan, covariance_m2, n, kernel, bandwidth_scale, min_std_m)
     new_xy = xy.copy()
     moved = np.zeros(n, dtype=bool)
     origin = (np.zeros((0, 2)) if origin_xy_m is None

@@ -106,87 +106,105 @@ def run_filter(plan: FloorPlan, motion: MotionConfig, filter_config: FilterConfi
     pf = ParticleFilter(plan, motion.motion_model, filter_config, rng, floors=floors, keep_ancestry=keep_ancestry)
     scans = evidence.scans
     first = int(np.argmax(evidence.usable))
-    t0 = float(scans[first].t_s)
     _start(pf, evidence, first, steps, motion, rng, start_xy_m, start_radius_m)
     step_input = step_inputs(steps) if pdr else []
-
-    start_heading = circular_mean(pf.particles.heading_rad, pf.particles.weight) if pdr else math.nan
-    out_t, out_xy, out_std, out_heading = [t0], [pf.estimate_xy_m.copy()], [pf.estimate_std_m], [start_heading]
-    out_shares = [_floor_belief(pf)]  # None throughout on one floor (no floor in the state)
-    last_t = t0
-    n_scans = 1
-    gaps: list[tuple[float, float]] = []
+    rows = _Rows()
+    rows.add_start(float(scans[first].t_s), pf, pdr)
+    n_scans, gaps = 1, []
     idle_tick_s = motion.idle_tick_s if evidence.has_evidence_between_scans() else None
     events = _events(scans, first, steps if pdr else None, motion.tick_s, idle_tick_s, motion.max_gap_s)
-    skip_until = -1
-    previous_t = t0  # the time of the previous event, used or not
-    for n_event, (kind, t_s, index) in enumerate(events):
-        if n_event < skip_until:
-            continue
-        gap = t_s - previous_t > motion.max_gap_s
-        previous_t = t_s
-        if gap:
+    n_event, previous_t = 0, rows.t_s[0]  # the time of the previous event, used or not
+    while n_event < len(events):
+        kind, t_s, index = events[n_event]
+        n_event += 1
+        if t_s - previous_t > motion.max_gap_s:
             # start afresh at the next usable scan: the gap's length says nothing about where
-            restart = next((k for k in range(n_event, len(events))
+            gaps.append((rows.t_s[-1], t_s))
+            restart = next((k for k in range(n_event - 1, len(events))
                             if events[k][0] == "scan" and evidence.usable[events[k][2]]), None)
-            gaps.append((last_t, t_s))
             if restart is None:
                 break
-            kind, t_s, index = events[restart]
-            skip_until = restart + 1
-            previous_t = t_s
+            _, previous_t, index = events[restart]
+            n_event = restart + 1
             _start(pf, evidence, index, steps, motion, rng, None, start_radius_m)
+            rows.add_start(previous_t, pf, pdr)
             n_scans += 1
-            last_t = t_s
-            out_t.append(t_s)
-            out_xy.append(pf.estimate_xy_m.copy())
-            out_std.append(pf.estimate_std_m)
-            out_heading.append(circular_mean(pf.particles.heading_rad, pf.particles.weight) if pdr else math.nan)
-            out_shares.append(_floor_belief(pf))
             continue
-        dt = max(t_s - last_t, 0.0)
-        if kind == "idle":
-            # PDR standing still (a lift ride): only the barometer has news
-            between = evidence.between_scans(t_s)
-            if between is None:
-                continue
-            report = pf.step(t_s, dt, None, evidence.model, between)
-        elif kind == "scan":
-            measurement = evidence.measurement(index)
-            if measurement is None:
-                continue
-            n_scans += 1
-            # cv / rw move over dt_s by themselves; PDR moves only on steps
-            report = pf.step(t_s, dt, None, evidence.model, measurement)
-        elif kind == "step":
-            # in a building with a barometer, the height weighs floors at every step, not only at scans
-            between = evidence.between_scans(t_s)
-            report = pf.step(t_s, dt, step_input[index], evidence.model if between is not None else None, between)
-        else:  # prediction tick for cv / rw
-            report = pf.step(t_s, dt, None)
-        last_t = t_s
-        out_t.append(t_s)
-        out_xy.append(report.estimate_xy_m)
-        out_std.append(report.estimate_std_m)
-        out_heading.append(report.heading_rad if report.heading_rad is not None else math.nan)
-        out_shares.append(None if report.floor_shares is None else (report.floor_shares, report.floor_index))
+        previous_t = t_s
+        report = _filter_step(pf, evidence, kind, t_s, index, t_s - rows.t_s[-1], step_input)
+        if report is None:
+            continue
+        n_scans += kind == "scan"
+        rows.add(report)
         evidence.observe(report)
         if on_step is not None:
             on_step(report)
-
-    heading = np.array(out_heading)
-    shares = floor_p = None
-    if all(s is not None for s in out_shares):
-        shares = np.array([s[0] for s in out_shares], dtype=np.float64)
-        # a probability (the shares of normalised weights may sum to 1 + 1e-16)
-        floor_p = np.clip(shares[np.arange(len(out_shares)), [s[1] for s in out_shares]], 0.0, 1.0)
-    track = Track(np.array(out_t), np.array(out_xy), np.array(out_std),
-                  heading if np.isfinite(heading).any() else None, name="pf", floor_p=floor_p)
     lineage = None
     if pf.ancestry is not None:
         lineage_t, lineage_xy = pf.smoothed_track()
         lineage = Track(lineage_t, lineage_xy, name="lineage")
-    return FilterRun(track, tuple(pf.collapses), n_scans, lineage, tuple(gaps), shares)
+    return FilterRun(rows.track(), tuple(pf.collapses), n_scans, lineage, tuple(gaps), rows.floor_shares())
+
+
+def _filter_step(pf: ParticleFilter, evidence: WalkEvidence, kind: str, t_s: float, index: int, dt_s: float,
+                 step_input: list[StepInput]) -> StepReport | None:
+    """One event's filter step (None: the event has nothing to weigh or move)."""
+    dt = max(dt_s, 0.0)
+    if kind == "idle":
+        # PDR standing still (a lift ride): only the barometer has news
+        between = evidence.between_scans(t_s)
+        return None if between is None else pf.step(t_s, dt, None, evidence.model, between)
+    if kind == "scan":
+        measurement = evidence.measurement(index)
+        # cv / rw move over dt_s by themselves; PDR moves only on steps
+        return None if measurement is None else pf.step(t_s, dt, None, evidence.model, measurement)
+    if kind == "step":
+        # in a building with a barometer, the height weighs floors at every step, not only at scans
+        between = evidence.between_scans(t_s)
+        return pf.step(t_s, dt, step_input[index], evidence.model if between is not None else None, between)
+    return pf.step(t_s, dt, None)  # prediction tick for cv / rw
+
+
+class _Rows:
+    """The causal track, a row per filter step."""
+
+    def __init__(self) -> None:
+        self.t_s: list[float] = []
+        self.xy_m: list[np.ndarray] = []
+        self.std_m: list[float] = []
+        self.heading_rad: list[float] = []
+        # a building: (weight share per floor, the estimate's floor) per row; None on one floor
+        self.floors: list[tuple[np.ndarray, int] | None] = []
+
+    def add_start(self, t_s: float, pf: ParticleFilter, pdr: bool) -> None:
+        """The freshly started cloud's estimate."""
+        self.t_s.append(t_s)
+        self.xy_m.append(pf.estimate_xy_m.copy())
+        self.std_m.append(pf.estimate_std_m)
+        self.heading_rad.append(circular_mean(pf.particles.heading_rad, pf.particles.weight) if pdr else math.nan)
+        self.floors.append(_floor_belief(pf))
+
+    def add(self, report: StepReport) -> None:
+        self.t_s.append(report.t_s)
+        self.xy_m.append(report.estimate_xy_m)
+        self.std_m.append(report.estimate_std_m)
+        self.heading_rad.append(report.heading_rad if report.heading_rad is not None else math.nan)
+        self.floors.append(None if report.floor_shares is None else (report.floor_shares, report.floor_index))
+
+    def floor_shares(self) -> np.ndarray | None:
+        """(T, F) the weight share of each floor per row, or None (one floor)."""
+        if not self.floors or any(f is None for f in self.floors):
+            return None
+        return np.array([f[0] for f in self.floors], dtype=np.float64)
+
+    def track(self) -> Track:
+        heading = np.array(self.heading_rad)
+        shares, floor_p = self.floor_shares(), None
+        if shares is not None:
+            # a probability (the shares of normalised weights may sum to 1 + 1e-16)
+            floor_p = np.clip(shares[np.arange(len(self.floors)), [f[1] for f in self.floors]], 0.0, 1.0)
+        return Track(np.array(self.t_s), np.array(self.xy_m), np.array(self.std_m),
+                     heading if np.isfinite(heading).any() else None, name="pf", floor_p=floor_p)
 
 
 def _floor_belief(pf: ParticleFilter) -> tuple[np.ndarray, int] | None:

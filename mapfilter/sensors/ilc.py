@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.logread import (BadRow, LogReadWarning, check_range, check_usable, count_bad_row, drop_duplicate_records,
+from mapfilter.sensors.logread import (BadRow, LogReadWarning, check_range, check_usable, count_record, drop_duplicate_records,
                                        drop_duplicate_rows, emit_warning, find_time_gaps, iter_bounded_lines,
                                        group_scans, open_binary, parse_number, quick_numbers, read_lines)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording, WifiScans
@@ -104,15 +104,8 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
         if len(records) > 1:
             report.joined_lines += 1
         for fields in records:
-            try:
-                kind = _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows, waypoint_floors, pressure)
-            except BadRow as bad:
-                count_bad_row(report, bad, line_no, strict, path)
-                continue
-            if kind is None:
-                report.unknown_rows += 1
-            else:
-                report.rows[kind] = report.rows.get(kind, 0) + 1
+            count_record(report, lambda: _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows,
+                                                       waypoint_floors, pressure), line_no, strict, path)
 
     read_lines(path, report, strict, handle_line)
     check_usable(report, path)

@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.logread import (BadRow, check_range, check_usable, count_bad_row, drop_duplicate_records,
+from mapfilter.sensors.logread import (BadRow, check_range, check_usable, count_record, drop_duplicate_records,
                                        drop_duplicate_rows, emit_warning, find_time_gaps, group_scans,
                                        iter_bounded_lines, open_binary, parse_number, quick_numbers, read_lines)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
@@ -112,15 +112,8 @@ def read_ipin(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_
         if line.startswith("%"):
             header.append(line)
             return
-        try:
-            kind = _parse_record(line.split(";"), sensors, wifi_rows, beacon_rows, posi_rows)
-        except BadRow as bad:
-            count_bad_row(report, bad, line_no, strict, path)
-            return
-        if kind is None:
-            report.unknown_rows += 1
-        else:
-            report.rows[kind] = report.rows.get(kind, 0) + 1
+        count_record(report, lambda: _parse_record(line.split(";"), sensors, wifi_rows, beacon_rows, posi_rows),
+                     line_no, strict, path)
 
     read_lines(path, report, strict, handle_line)
     check_usable(report, path)

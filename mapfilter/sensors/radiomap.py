@@ -40,6 +40,21 @@ version 3: every point also carries its floor, and positions are in that floor's
 ========================  =========================  ================================================
 
 Single-floor maps are still written as version 2, so older readers keep reading them.
+
+A radio map that grew from tracked walks (``mapfilter.selftrain``, ``mapfilter radiomap grow``)
+is version 4: every point also carries where its position came from and how well it is known.
+It may have floors (the three keys above) or not.
+
+========================  =========================  ================================================
+``source``                int8 (P,)                  ``0`` surveyed (a waypoint-labelled scan),
+                                                     ``1`` grown (placed by a walk's offline track)
+``xy_sigma_m``            float64 (P,)               position uncertainty: the standard deviation
+                                                     per axis of the point's position, metres;
+                                                     ``0`` for surveyed points
+========================  =========================  ================================================
+
+A map of surveyed points only is written as version 2 or 3 (as before), and older files load
+with every point surveyed.
 """
 
 from __future__ import annotations
@@ -65,9 +80,21 @@ from mapfilter.sensors.wifi import WifiScan
 FORMAT_NAME = "mapfilter-radiomap"
 FORMAT_VERSION = 2
 FLOORS_FORMAT_VERSION = 3  # a building's radio map (floor labels)
-READABLE_VERSIONS = (1, 2, 3)
+GROWN_FORMAT_VERSION = 4  # per-point source and position sigma (a map grown from tracked walks)
+READABLE_VERSIONS = (1, 2, 3, 4)
+# per-point source codes (``RadioMap.source``)
+SURVEYED = 0  # labelled from a survey walk's waypoints
+GROWN = 1  # placed by the offline track of a walk without waypoints (``mapfilter.selftrain``)
+SOURCE_NAMES = ("surveyed", "grown")
 # the cross-validation stored in every file: what the tracker's calibration asks for by default
 _STORED_CV_PARAMS = (4, 200, 1.0)
+# A point of position sigma s counts POSITION_SIGMA_REF_M^2 / (POSITION_SIGMA_REF_M^2 + s^2) of a
+# surveyed one (``RadioMap.position_weights``): the scale of how far a KWNN neighbour lies from
+# where the scan was taken (on a thinly surveyed floor: metres to tens of metres). ILC F1 with
+# 40 grown walks (docs/self-training.md), seed 0, pf / pf-smooth mean: every point as surveyed
+# 7.88 / 6.42 m; 3 m 8.04 / 6.64 (grown points counted 0.1-0.5); 10 m 8.00 / 6.52, p75 7.06 ->
+# 6.77 for pf-smooth: weighing grown points hard costs more coverage than their errors cost
+POSITION_SIGMA_REF_M = 10.0
 # The most a radio map file may declare, read from the array headers in the zip before numpy
 # allocates anything: 1 GiB (a map of 100 000 reference points x 2 500 access points; the ILC
 # site 1 radio map of every floor is under 10 MB).
@@ -94,6 +121,11 @@ class RadioMap:
     floor : (P,) int64 index into ``floor_names`` of each point (a building's radio map; each
         point's position is in its floor's frame), or None for one floor.
     floor_names : the building's floors, or None.
+    source : (P,) int8 where each point's position came from: ``SURVEYED`` (0) or ``GROWN`` (1);
+        None: every point surveyed.
+    xy_sigma_m : (P,) float64 position uncertainty of each point (standard deviation per axis,
+        m; 0 for surveyed points); None: all 0. KWNN, the radio-map likelihood and the fix-sigma
+        calibration weigh a point by it (``position_weights``).
     """
 
     xy_m: np.ndarray
@@ -105,17 +137,37 @@ class RadioMap:
     floor_name: str | None = None
     floor: np.ndarray | None = None
     floor_names: list[str] | None = None
+    source: np.ndarray | None = None
+    xy_sigma_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.xy_m = np.asarray(self.xy_m, dtype=np.float64).reshape(-1, 2)
-        self.rssi_dbm = np.asarray(self.rssi_dbm, dtype=np.float32).reshape(self.xy_m.shape[0], len(self.ap_keys))
+        n = self.xy_m.shape[0]
+        self.rssi_dbm = np.asarray(self.rssi_dbm, dtype=np.float32).reshape(n, len(self.ap_keys))
         self.t_s = np.asarray(self.t_s, dtype=np.float64)
         self.trace = np.asarray(self.trace, dtype=np.int64)
         self.ap_keys = list(self.ap_keys)
         self.source_traces = list(self.source_traces)
         if self.floor is not None:
-            self.floor = np.asarray(self.floor, dtype=np.int64).reshape(self.xy_m.shape[0])
+            self.floor = np.asarray(self.floor, dtype=np.int64).reshape(n)
             self.floor_names = list(self.floor_names or [])
+        self.source = (np.full(n, SURVEYED, dtype=np.int8) if self.source is None
+                       else np.asarray(self.source, dtype=np.int8).reshape(n))
+        self.xy_sigma_m = (np.zeros(n) if self.xy_sigma_m is None
+                           else np.asarray(self.xy_sigma_m, dtype=np.float64).reshape(n))
+
+    @property
+    def is_grown(self) -> bool:
+        """True when some point is not surveyed or has a position uncertainty (a version 4 file)."""
+        return bool(np.any(self.source != SURVEYED) or np.any(self.xy_sigma_m > 0))
+
+    def position_weights(self) -> np.ndarray:
+        """(P,) how much each point counts beside a surveyed one, in (0, 1]: the share of a
+        neighbour's position variance that is the match's, s^2 / (s^2 + sigma^2), with
+        s = ``POSITION_SIGMA_REF_M`` (the typical distance from a surveyed neighbour to where
+        the scan was taken) and sigma the point's ``xy_sigma_m``: inverse-variance weighing of
+        neighbour positions whose uncertainty adds to the match's. 1 for surveyed points."""
+        return POSITION_SIGMA_REF_M ** 2 / (POSITION_SIGMA_REF_M ** 2 + self.xy_sigma_m ** 2)
 
     @property
     def has_floors(self) -> bool:
@@ -167,7 +219,14 @@ class RadioMap:
         keep = np.asarray(keep)
         return RadioMap(self.xy_m[keep], self.ap_keys, self.rssi_dbm[keep], self.t_s[keep], self.trace[keep],
                         self.source_traces, self.floor_name, None if self.floor is None else self.floor[keep],
-                        self.floor_names)
+                        self.floor_names, self.source[keep], self.xy_sigma_m[keep])
+
+    def select_aps(self, keep: np.ndarray) -> RadioMap:
+        """A new radio map with the access points (columns) where ``keep`` is True, every point kept."""
+        keep = np.asarray(keep, dtype=bool)
+        return RadioMap(self.xy_m, [k for k, use in zip(self.ap_keys, keep) if use], self.rssi_dbm[:, keep],
+                        self.t_s, self.trace, self.source_traces, self.floor_name, self.floor, self.floor_names,
+                        self.source, self.xy_sigma_m)
 
     def without_traces(self, names: Sequence[str]) -> RadioMap:
         """A new radio map without the points of the named source traces (leave-one-trace-out)."""
@@ -184,6 +243,9 @@ class RadioMap:
         k, max_groups, min_separation_m = _STORED_CV_PARAMS
         floors: dict[str, np.ndarray] = {}
         version = FORMAT_VERSION
+        grown: dict[str, np.ndarray] = {}
+        if self.is_grown:
+            grown = {"source": self.source, "xy_sigma_m": self.xy_sigma_m}
         if self.floor is not None:
             # positions of different floors are in different frames: cross-validate per floor
             per_floor = [cross_validated_fix_errors(self.floor_map(i), k, max_groups, min_separation_m)
@@ -195,6 +257,8 @@ class RadioMap:
             version = FLOORS_FORMAT_VERSION
         else:
             cv_errors = cross_validated_fix_errors(self, k, max_groups, min_separation_m)
+        if grown:
+            version = GROWN_FORMAT_VERSION
         with atomic_paths(path) as (tmp,):
             with tmp.open("wb") as handle:
                 np.savez_compressed(
@@ -202,7 +266,7 @@ class RadioMap:
                     xy_m=self.xy_m, t_s=self.t_s, trace=self.trace, ap_keys=np.array(self.ap_keys, dtype=str),
                     rssi_dbm=self.rssi_dbm, source_traces=np.array(self.source_traces, dtype=str),
                     floor_name=np.array(self.floor_name or ""), cv_fix_errors_m=cv_errors,
-                    cv_fix_errors_params=np.array(_STORED_CV_PARAMS, dtype=np.float64), **floors,
+                    cv_fix_errors_params=np.array(_STORED_CV_PARAMS, dtype=np.float64), **floors, **grown,
                 )
 
     @classmethod
@@ -249,14 +313,27 @@ class RadioMap:
             raise MapfilterError("radio map trace indices out of range", path)
         floor = str(arrays.get("floor_name", ""))
         point_floor = floor_names = None
-        if version >= 3:
+        if version == 3 or (version >= GROWN_FORMAT_VERSION and ("floor" in arrays or "floor_names" in arrays)):
             if "floor" not in arrays or "floor_names" not in arrays:
-                raise MapfilterError("a version 3 radio map needs the arrays floor and floor_names", path)
+                raise MapfilterError(f"a version {version} radio map with floors needs the arrays floor and "
+                                     "floor_names", path)
             point_floor, floor_names = arrays["floor"], [str(n) for n in arrays["floor_names"]]
             if point_floor.shape != (p,) or (p and (point_floor.min() < 0 or point_floor.max() >= len(floor_names))):
                 raise MapfilterError("radio map floor labels out of range", path)
+        source = xy_sigma = None
+        if version >= GROWN_FORMAT_VERSION:
+            if "source" not in arrays or "xy_sigma_m" not in arrays:
+                raise MapfilterError(f"a version {version} radio map needs the arrays source and xy_sigma_m", path)
+            source, xy_sigma = arrays["source"], arrays["xy_sigma_m"]
+            if source.shape != (p,) or xy_sigma.shape != (p,):
+                raise MapfilterError(f"radio map source {source.shape} / xy_sigma_m {xy_sigma.shape} do not have "
+                                     f"one entry per point ({p})", path)
+            if not np.all(np.isin(source, (SURVEYED, GROWN))):
+                raise MapfilterError(f"radio map source codes must be {SURVEYED} (surveyed) or {GROWN} (grown)", path)
+            if not (np.all(np.isfinite(xy_sigma)) and np.all(xy_sigma >= 0)):
+                raise MapfilterError("radio map xy_sigma_m must be finite and >= 0", path)
         radio_map = cls(xy, [str(k) for k in keys], rssi, arrays["t_s"], arrays["trace"], traces, floor or None,
-                        point_floor, floor_names)
+                        point_floor, floor_names, source, xy_sigma)
         cv_errors, cv_params = arrays.get("cv_fix_errors_m"), arrays.get("cv_fix_errors_params")
         if version >= 2 and cv_errors is not None and cv_params is not None:
             if cv_errors.ndim != 1 or cv_params.shape != (3,) or not np.all(np.isfinite(cv_errors)):
@@ -462,6 +539,43 @@ def build_radio_map(recordings: Sequence[Recording], floorplan: FloorPlan | None
     )
 
 
+def merge_radio_maps(radio_maps: Sequence[RadioMap]) -> RadioMap:
+    """One radio map with the points of all ``radio_maps`` (their access points united, in order
+    of first appearance; an AP a map never heard is NaN in its rows). Source traces are
+    concatenated (a trace name in two maps stays two traces of one name, so ``without_traces``
+    drops both); per-point source and sigma are kept. Building maps merge only with building
+    maps of the same floors."""
+    if not radio_maps:
+        raise ValueError("no radio maps to merge")
+    with_floors = [m.floor is not None for m in radio_maps]
+    if any(with_floors) and not all(with_floors):
+        raise MapfilterError("cannot merge a building's radio map with a one-floor radio map")
+    floor_names = radio_maps[0].floor_names
+    if any(with_floors) and any(list(m.floor_names) != list(floor_names) for m in radio_maps):
+        raise MapfilterError("cannot merge building radio maps of different floors")
+    keys: dict[str, int] = {}
+    for radio_map in radio_maps:
+        for key in radio_map.ap_keys:
+            keys.setdefault(key, len(keys))
+    total = sum(len(m) for m in radio_maps)
+    rssi = np.full((total, len(keys)), np.nan, dtype=np.float32)
+    offset = 0
+    traces: list[str] = []
+    trace_index = []
+    for radio_map in radio_maps:
+        cols = np.array([keys[k] for k in radio_map.ap_keys], dtype=np.int64)
+        rssi[offset:offset + len(radio_map), cols] = radio_map.rssi_dbm
+        offset += len(radio_map)
+        trace_index.append(radio_map.trace + len(traces))
+        traces.extend(radio_map.source_traces)
+    floor_name = next((m.floor_name for m in radio_maps if m.floor_name), None)
+    return RadioMap(np.concatenate([m.xy_m for m in radio_maps]), list(keys), rssi,
+                    np.concatenate([m.t_s for m in radio_maps]), np.concatenate(trace_index), traces, floor_name,
+                    np.concatenate([m.floor for m in radio_maps]) if all(with_floors) else None,
+                    floor_names if all(with_floors) else None,
+                    np.concatenate([m.source for m in radio_maps]), np.concatenate([m.xy_sigma_m for m in radio_maps]))
+
+
 def _steps_or_none(recording: Recording) -> Steps | None:
     if recording.acc_t_s.shape[0] < 100:  # no IMU to speak of (2 s at 50 Hz)
         return None
@@ -575,6 +689,8 @@ def _distances_to_references(radio_map: RadioMap, scans: np.ndarray, p: float, m
     ``per_ap``: the p-th power mean over the APs heard by either side instead of the sum."""
     refs = _reference_rows(radio_map, min_rssi_dbm)
     rows = _sparse_rows(_below_floor_unheard(scans, min_rssi_dbm))
+    if p == 2.0 and not per_ap and _integral(rows.val, missing_dbm) and _integral(refs.val, missing_dbm):
+        return _squared_distances_by_products(rows, refs, len(radio_map.ap_keys), float(missing_dbm))
     dist = np.empty((scans.shape[0], len(radio_map)))
     shared = np.empty((scans.shape[0], len(radio_map)), dtype=np.int64)
     _signal_distances(rows.ptr, rows.col, rows.val, refs.ptr, refs.col, refs.val, float(p), float(missing_dbm),
@@ -582,9 +698,48 @@ def _distances_to_references(radio_map: RadioMap, scans: np.ndarray, p: float, m
     return dist, shared
 
 
+def _integral(values: np.ndarray, missing_dbm: float) -> bool:
+    """Whole dBm (what phones and the ILC logs report) small enough that every sum below is exact."""
+    return (float(missing_dbm).is_integer() and bool(np.all(np.abs(values) < 1e4))
+            and bool(np.all(values == np.round(values))))
+
+
+def _squared_distances_by_products(rows: _SparseRows, refs: _SparseRows, n_aps: int,
+                                   missing_dbm: float) -> tuple[np.ndarray, np.ndarray]:
+    """``_signal_distances`` for p = 2 as sparse matrix products: with every reading shifted by
+    -missing_dbm an AP heard on one side only is the other side's 0, and one heard by neither
+    adds 0, so D^2 = |a|^2 + |b|^2 - 2 a.b over all APs. On whole dBm every term and partial sum
+    is an integer far below 2^53: the same D^2 to the last bit as the pairwise merge, and the
+    same root; 10-20x faster on a mall's radio map (a point hears 200 of 2,000 APs)."""
+    from scipy import sparse
+
+    def matrix(r: _SparseRows, values: np.ndarray) -> sparse.csr_matrix:
+        return sparse.csr_matrix((values, r.col, r.ptr), shape=(r.ptr.size - 1, n_aps))
+
+    a_val, b_val = rows.val - missing_dbm, refs.val - missing_dbm
+    a, b = matrix(rows, a_val), matrix(refs, b_val)
+    cross = (a @ b.T).toarray()
+    shared = (matrix(rows, np.ones_like(a_val)) @ matrix(refs, np.ones_like(b_val)).T).toarray().astype(np.int64)
+    na = np.asarray(a.multiply(a).sum(axis=1)).ravel()
+    nb = np.asarray(b.multiply(b).sum(axis=1)).ravel()
+    squared = na[:, None] + nb[None, :] - 2.0 * cross
+    _root_in_place(squared, 2.0)
+    return squared, shared
+
+
+@njit(cache=True)
+def _root_in_place(acc, p):
+    """acc ** (1 / p) element-wise as ``_signal_distances`` takes it (libm's pow: np.sqrt rounds
+    some values the other way)."""
+    flat = acc.reshape(-1)
+    for i in range(flat.shape[0]):
+        flat[i] = max(flat[i], 0.0) ** (1.0 / p)
+
+
 def _kwnn_from_distances(ref_xy_m: np.ndarray, dist: np.ndarray, shared: np.ndarray, n_shared_aps: np.ndarray,
-                         k: int, q: float, min_shared_aps: int) -> KwnnFix:
-    """KWNN fixes from the (S, P) distances and shared-AP counts (``dist`` is overwritten)."""
+                         k: int, q: float, min_shared_aps: int, ref_weight: np.ndarray | None = None) -> KwnnFix:
+    """KWNN fixes from the (S, P) distances and shared-AP counts (``dist`` is overwritten);
+    ``ref_weight`` (P,) multiplies each reference point's weight (``RadioMap.position_weights``)."""
     n_scans, n_refs = dist.shape
     dist[shared < max(min_shared_aps, 1)] = np.inf
     kk = min(k, n_refs)
@@ -593,6 +748,8 @@ def _kwnn_from_distances(ref_xy_m: np.ndarray, dist: np.ndarray, shared: np.ndar
     valid = np.isfinite(d_nn)
     # an exact match (D = 0) takes all the weight instead of dividing by zero
     weight = np.where(valid, 1.0 / np.maximum(d_nn, 1e-9) ** q, 0.0)
+    if ref_weight is not None:
+        weight *= ref_weight[order]
     total = weight.sum(axis=1)
     xy = np.full((n_scans, 2), np.nan)
     ok = total > 0
@@ -608,9 +765,11 @@ def kwnn_fix_many(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4, p:
     Signal distance (Chang et al.): D = (sum_k |r_k - f_k|^p)^(1/p) over the APs heard by the
     scan or the reference point, an AP missing on one side taking ``missing_dbm``. Only
     reference points sharing at least ``min_shared_aps`` heard APs with the scan are
-    candidates; the fix is sum_i w_i x_i / sum_i w_i over the k nearest, w_i = 1 / D_i^q.
-    Scans without any candidate get a NaN fix. ``min_rssi_dbm``: readings below it count as
-    not heard, in the scans and in the radio map (``strong_kwnn_fixes``). ``per_ap``: D is the
+    candidates; the fix is sum_i w_i x_i / sum_i w_i over the k nearest, w_i = 1 / D_i^q, times
+    the point's position weight in a grown map (``RadioMap.position_weights``: a grown point
+    whose position is uncertain counts less). Scans without any candidate get a NaN fix.
+    ``min_rssi_dbm``: readings below it count as not heard, in the scans and in the radio map
+    (``strong_kwnn_fixes``). ``per_ap``: D is the
     p-th power *mean* over the n APs heard by either side, (sum_k |r_k - f_k|^p / n)^(1/p), a
     distance in dB per AP that does not grow with how many APs a reference point heard (the
     walk diagnostic ``signal_distance_db``).
@@ -627,7 +786,14 @@ def kwnn_fix_many(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4, p:
         raise MapfilterError(f"scan matrix has shape {scans.shape}, expected (S, {len(radio_map.ap_keys)})")
     dist, shared = _distances_to_references(radio_map, scans, p, missing_dbm, min_rssi_dbm, per_ap)
     n_shared_aps = np.count_nonzero(~np.isnan(_below_floor_unheard(scans, min_rssi_dbm)), axis=1)
-    return _kwnn_from_distances(radio_map.xy_m, dist, shared, n_shared_aps, k, q, min_shared_aps)
+    return _kwnn_from_distances(radio_map.xy_m, dist, shared, n_shared_aps, k, q, min_shared_aps,
+                                _ref_weights(radio_map))
+
+
+def _ref_weights(radio_map: RadioMap) -> np.ndarray | None:
+    """The points' position weights, or None when every point is surveyed (weights all 1: the
+    fixes stay those of plain KWNN to the last bit)."""
+    return radio_map.position_weights() if radio_map.is_grown else None
 
 
 # Strong-reading KWNN: readings below this count as not heard, and an AP heard on one side only
@@ -681,6 +847,12 @@ def cross_validated_fix_errors(radio_map: RadioMap, k: int = 4, max_groups: int 
     What it measures is how far off a fix from this radio map typically is: the spread that
     a filter should give fixes from it.
 
+    In a grown map (``RadioMap.is_grown``) grown points are references only, weighed by their
+    position uncertainty as in ``kwnn_fix_many``: the errors are those of the surveyed points
+    (whose labels are the truth), each trace left out with every point of its name (a walk
+    that is also grown leaves with its grown points); only a map with fewer than two surveyed
+    traces tests its grown points too.
+
     It depends on the radio map only, and costs (points)^2 signal distances: the result is
     kept with the map (and written to its file by ``RadioMap.save``), so it is computed once
     per map, not once per tracked walk. A map whose arrays are replaced is computed afresh.
@@ -694,7 +866,7 @@ def cross_validated_fix_errors(radio_map: RadioMap, k: int = 4, max_groups: int 
 
 def _cv_memo(radio_map: RadioMap) -> dict:
     """The map's memo of cross-validated errors, emptied when its arrays were replaced."""
-    arrays = (radio_map.xy_m, radio_map.rssi_dbm, radio_map.trace)
+    arrays = (radio_map.xy_m, radio_map.rssi_dbm, radio_map.trace, radio_map.source, radio_map.xy_sigma_m)
     cached = getattr(radio_map, "_cv_errors", None)
     if cached is None or any(a is not b for a, b in zip(cached[0], arrays)):
         cached = (arrays, {})
@@ -705,26 +877,35 @@ def _cv_memo(radio_map: RadioMap) -> dict:
 def _cross_validated_fix_errors(radio_map: RadioMap, k: int, max_groups: int, min_separation_m: float) -> np.ndarray:
     if len(radio_map) < 2:
         return np.zeros(0)
+    grown = radio_map.is_grown
     if len(radio_map.source_traces) > 1:
         group = radio_map.trace
+        if grown:  # by name: a walk surveyed and also grown is one group
+            _, of_name = np.unique(np.array(radio_map.source_traces, dtype=str), return_inverse=True)
+            group = of_name.ravel()[radio_map.trace]
     else:
         cell = np.floor(radio_map.xy_m / min_separation_m).astype(np.int64)
         _, group = np.unique(cell, axis=0, return_inverse=True)
         group = group.ravel()
-    groups = np.unique(group)
-    if groups.size < 2:
+    tested = np.ones(len(radio_map), dtype=bool)
+    if grown and np.unique(group[radio_map.source == SURVEYED]).size >= 2:
+        tested = radio_map.source == SURVEYED
+    groups = np.unique(group[tested])
+    if np.unique(group).size < 2 or groups.size < 1:
         return np.zeros(0)
     picked = groups[np.linspace(0, groups.size - 1, min(max_groups, groups.size)).round().astype(int)]
+    ref_weight = _ref_weights(radio_map)
     errors = []
     for g in np.unique(picked):
         inside = group == g
-        scans = radio_map.rssi_dbm[inside].astype(np.float64)
+        test = inside & tested
+        scans = radio_map.rssi_dbm[test].astype(np.float64)
         # distances to every reference point, the group's own taken out of the candidates:
         # the same fixes as kwnn_fix_many on radio_map.select(~inside), without copying the map
         dist, shared = _distances_to_references(radio_map, scans, 2.0, -100.0)
         dist[:, inside] = np.inf
         fixes = _kwnn_from_distances(radio_map.xy_m, dist, shared, np.count_nonzero(~np.isnan(scans), axis=1),
-                                     k, 2.0, 3).xy_m
+                                     k, 2.0, 3, ref_weight).xy_m
         ok = np.all(np.isfinite(fixes), axis=1)
-        errors.append(np.linalg.norm(fixes[ok] - radio_map.xy_m[inside][ok], axis=1))
+        errors.append(np.linalg.norm(fixes[ok] - radio_map.xy_m[test][ok], axis=1))
     return np.concatenate(errors)
