@@ -554,13 +554,6 @@ def kwnn_floor_fixes(radio_map: RadioMap, scans, k: int) -> tuple[np.ndarray, np
     return scan_t, xy, floor
 
 
-def kwnn_floor_track(radio_map: RadioMap, scans, k: int, floor_names: list[str]) -> Track:
-    """KWNN across floors (``kwnn_floor_fixes``) as a track; scans without a fix are left out."""
-    scan_t, xy, floor = kwnn_floor_fixes(radio_map, scans, k)
-    ok = np.all(np.isfinite(xy), axis=1)
-    return Track(scan_t[ok], xy[ok], floor=[floor_names[f] for f in floor[ok]], name="kwnn")
-
-
 def _floor_track(building: Building, scan_t: np.ndarray, xy: np.ndarray, floor: np.ndarray, name: str) -> Track:
     ok = np.all(np.isfinite(xy), axis=1)
     return Track(scan_t[ok], xy[ok], floor=[building.floor_names[f] for f in floor[ok]], name=name)
