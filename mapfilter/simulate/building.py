@@ -73,9 +73,6 @@ class BuildingSimConfig:
     lift_s_per_storey: float = 3.0
     lift_exit_s: float = 1.5  # doors open, then the walker steps out
     floor_loss_db: float = 15.0  # per floor between access point and phone (a concrete slab)
-    # slabs without loss, each named by the floor index below it: an atrium or a mezzanine open
-    # to the floor above, whose two floors the WiFi can hardly tell apart
-    open_slabs: tuple[int, ...] = ()
     p0_hpa: float = SEA_LEVEL_HPA  # pressure at elevation 0 at the start
     pressure_rate_hz: float = 2.0
     pressure_noise_hpa: float = 0.03  # phone barometers: about 0.25 m of height noise per sample
@@ -117,19 +114,7 @@ def building_rssi_dbm(building: Building, ap_table: AccessPointTable, ap_floor: 
                                               fl.from_building(xy[same]))
     wall_db = np.where(np.array(ap_table.band)[k] == "5", config.walk.wall_loss_5g_db, config.walk.wall_loss_2g4_db)
     rssi = path_loss_rssi_dbm(d_m, ap_table.c_dbm[k], ap_table.n[k], ap_table.alpha_db_per_m[k], ap_table.d_max_m[k])
-    return rssi - wall_db * walls - config.floor_loss_db * slabs_between(floor, ap_floor[k], config.open_slabs), walls
-
-
-def slabs_between(floor_a: np.ndarray, floor_b: np.ndarray, open_slabs: tuple[int, ...] = ()) -> np.ndarray:
-    """The number of closed slabs between floors (indices) ``floor_a`` and ``floor_b``: the floors
-    between, less the open ones (``BuildingSimConfig.open_slabs``: slab i lies between floor i
-    and floor i + 1)."""
-    a, b = np.asarray(floor_a, dtype=np.int64), np.asarray(floor_b, dtype=np.int64)
-    count = np.abs(a - b)
-    lo = np.minimum(a, b)
-    for slab in open_slabs:
-        count = count - ((lo <= slab) & (slab < lo + np.abs(a - b)))
-    return count
+    return rssi - wall_db * walls - config.floor_loss_db * np.abs(floor - ap_floor[k]), walls
 
 
 def building_access_points(building: Building, tables: dict[str, AccessPointTable]) -> tuple[AccessPointTable, np.ndarray]:
