@@ -46,7 +46,7 @@ BAR_MB, BAR_S = 2048, 120.0  # issue 27: no case above 2 GB or 2 minutes
 @dataclasses.dataclass
 class Case:
     name: str
-    owner: str  # who hardens it: "this branch", "log readers", "lead (track/evaluate)"
+    where: str  # the module (under mapfilter/) that handles it
     argv: Callable[[Path], list[str]] | None  # mapfilter arguments, given the work directory
     expect: tuple[int, ...] = (1,)  # exit codes that count as handled
     stdin_closed_stdout: bool = False  # run with a stdout whose reader has gone (| head -1)
@@ -261,95 +261,95 @@ with _DaskClient(Engine(jobs=2)) as client:
 
 CASES = [
     # inputs larger than memory
-    Case("plan 20000x20000 PNG (0.4 MB)", "this branch", _track(WALK, "--radiomap", str(RADIOMAP), map_path="{w}/big.yaml")),
-    Case("map prepare of that PNG", "this branch",
+    Case("plan 20000x20000 PNG (0.4 MB)", "maps/floorplan.py", _track(WALK, "--radiomap", str(RADIOMAP), map_path="{w}/big.yaml")),
+    Case("map prepare of that PNG", "maps/floorplan.py",
          lambda w: ["map", "prepare", f"{w}/big.png", "--resolution", "0.05", "--out", f"{w}/outdir/m.yaml"]),
-    Case("map resolution: 1e-300", "this branch", _track(WALK, map_path="{w}/tiny.yaml")),
-    Case("map resolution: -0.05", "this branch", _track(WALK, map_path="{w}/negative.yaml")),
-    Case("map resolution: NaN", "this branch", _track(WALK, map_path="{w}/nan.yaml")),
-    Case("map origin 1e300 m", "this branch", _track(WALK, map_path="{w}/far_origin.yaml")),
-    Case(".npz declaring 100000x100000", "this branch", _track(WALK, "--radiomap", "{w}/huge_header.npz")),
-    Case("random bytes named .npz", "this branch", _track(WALK, "--radiomap", "{w}/random.npz")),
-    Case("simulate --survey-spacing 0.001", "this branch",
+    Case("map resolution: 1e-300", "maps/floorplan.py", _track(WALK, map_path="{w}/tiny.yaml")),
+    Case("map resolution: -0.05", "maps/floorplan.py", _track(WALK, map_path="{w}/negative.yaml")),
+    Case("map resolution: NaN", "maps/floorplan.py", _track(WALK, map_path="{w}/nan.yaml")),
+    Case("map origin 1e300 m", "maps/floorplan.py", _track(WALK, map_path="{w}/far_origin.yaml")),
+    Case(".npz declaring 100000x100000", "sensors/radiomap.py", _track(WALK, "--radiomap", "{w}/huge_header.npz")),
+    Case("random bytes named .npz", "sensors/radiomap.py", _track(WALK, "--radiomap", "{w}/random.npz")),
+    Case("simulate --survey-spacing 0.001", "cli/simulate_cmd.py",
          lambda w: ["simulate", str(MAP), "--survey", "--survey-spacing", "0.001", "--out", f"{w}/s.txt"], (2,)),
-    Case("simulate --duration 1e9", "this branch",
+    Case("simulate --duration 1e9", "cli/simulate_cmd.py",
          lambda w: ["simulate", str(MAP), "--duration", "1e9", "--out", f"{w}/s.txt"], (2,)),
-    Case("simulate --scans-per-point 1e6", "this branch",
+    Case("simulate --scans-per-point 1e6", "cli/simulate_cmd.py",
          lambda w: ["simulate", str(MAP), "--survey", "--scans-per-point", "1000000", "--out", f"{w}/s.txt"], (2,)),
     # a bad row is skipped and named in one warning, the walk tracked (exit 0); --strict refuses it
-    Case("one 3 GB line in a gzip", "log readers", _track("{w}/long_line.txt.gz", "--radiomap", str(RADIOMAP)),
+    Case("one 3 GB line in a gzip", "sensors/logread.py", _track("{w}/long_line.txt.gz", "--radiomap", str(RADIOMAP)),
          (0,), slow=True, must_say="skipped 1 unreadable line"),
-    Case("one 3 GB line in a gzip, --strict", "log readers",
+    Case("one 3 GB line in a gzip, --strict", "sensors/logread.py",
          _track("{w}/long_line.txt.gz", "--radiomap", str(RADIOMAP), "--strict"), slow=True),
     # values that make no sense
-    Case("AP table n = 0", "this branch", _track(WALK, "--aps", "{w}/aps_n0.csv")),
-    Case("AP table d_max < 0", "this branch", _track(WALK, "--aps", "{w}/aps_dmax.csv")),
-    Case("AP table C = 1e9 dBm", "this branch", _track(WALK, "--aps", "{w}/aps_c.csv")),
-    Case("AP 1000 km away", "this branch", _track(WALK, "--aps", "{w}/aps_far.csv")),
-    Case("radio map 1e6 m off the floor (track)", "lead (track: check_radio_map_on_map)",
+    Case("AP table n = 0", "sensors/pathloss.py", _track(WALK, "--aps", "{w}/aps_n0.csv")),
+    Case("AP table d_max < 0", "sensors/pathloss.py", _track(WALK, "--aps", "{w}/aps_dmax.csv")),
+    Case("AP table C = 1e9 dBm", "sensors/pathloss.py", _track(WALK, "--aps", "{w}/aps_c.csv")),
+    Case("AP 1000 km away", "sensors/pathloss.py", _track(WALK, "--aps", "{w}/aps_far.csv")),
+    Case("radio map 1e6 m off the floor (track)", "sensors/radiomap.py",
          _track(WALK, "--radiomap", "{w}/far_radiomap.npz")),
-    Case("survey 1e6 m off the floor (radiomap build)", "this branch",
+    Case("survey 1e6 m off the floor (radiomap build)", "sensors/radiomap.py",
          lambda w: ["radiomap", "build", str(MAP), f"{w}/far_survey.txt", "--out", f"{w}/outdir/rm.npz"]),
-    Case("AP fit, an RSSI of 1e300 dBm", "this branch",
+    Case("AP fit, an RSSI of 1e300 dBm", "sensors/logread.py",
          lambda w: ["radiomap", "fit-aps", str(MAP), f"{w}/rssi_1e300.txt", "--out", f"{w}/outdir/aps.csv"], (0,)),
-    Case("track, an RSSI of 1e300 dBm", "log readers", _track("{w}/rssi_1e300.txt", "--radiomap", str(RADIOMAP)),
+    Case("track, an RSSI of 1e300 dBm", "sensors/logread.py", _track("{w}/rssi_1e300.txt", "--radiomap", str(RADIOMAP)),
          (0,), must_say="RSSI out of range"),
-    Case("track, an RSSI of 1e300 dBm, --strict", "log readers",
+    Case("track, an RSSI of 1e300 dBm, --strict", "sensors/logread.py",
          _track("{w}/rssi_1e300.txt", "--radiomap", str(RADIOMAP), "--strict")),
-    Case("track, an acceleration of 1e308", "log readers", _track("{w}/acc_1e308.txt", "--radiomap", str(RADIOMAP)),
+    Case("track, an acceleration of 1e308", "sensors/logread.py", _track("{w}/acc_1e308.txt", "--radiomap", str(RADIOMAP)),
          (0,), must_say="out of range"),
-    Case("track, a negative timestamp", "log readers", _track("{w}/negative_t.txt", "--radiomap", str(RADIOMAP)),
+    Case("track, a negative timestamp", "sensors/logread.py", _track("{w}/negative_t.txt", "--radiomap", str(RADIOMAP)),
          (0,), must_say="time out of range"),
-    Case("evaluate, every record twice", "log readers",
+    Case("evaluate, every record twice", "sensors/logread.py",
          lambda w: ["evaluate", str(MAP), f"{w}/duplicated.txt", "--radiomap", str(RADIOMAP), "--methods", "kwnn",
                     "--out", f"{w}/outdir/dup"], (0,), must_say="exact duplicate rows"),
     # time gaps
-    Case("a 30-day gap in the log", "this branch (pdr) + lead (tracking)",
+    Case("a 30-day gap in the log", "sensors/pdr.py, filter/run.py",
          _track("{w}/gap30d.txt", "--radiomap", str(RADIOMAP)), (0, 1)),
-    Case("a WiFi row stamped 3 years ahead", "log readers + lead (tracking)",
+    Case("a WiFi row stamped 3 years ahead", "sensors/logread.py, filter/run.py",
          _track("{w}/wifi_3y.txt", "--radiomap", str(RADIOMAP)), (0, 1)),
-    Case("evaluate, one walk without WiFi", "lead (evaluate)",
+    Case("evaluate, one walk without WiFi", "evaluation/comparison.py",
          lambda w: ["evaluate", str(MAP), str(WALK), f"{w}/no_wifi.txt", "--radiomap", str(RADIOMAP), "--methods",
                     "kwnn", "--out", f"{w}/outdir/nowifi"]),
     # the cluster
-    Case("--scheduler tcp://", "this branch", _track(WALK, "--radiomap", str(RADIOMAP), "--scheduler", "tcp://",
+    Case("--scheduler tcp://", "engine.py", _track(WALK, "--radiomap", str(RADIOMAP), "--scheduler", "tcp://",
                                                     "--out-dir", "{w}/outdir/s1")),
-    Case("--scheduler foo://x:1", "this branch", _track(WALK, "--radiomap", str(RADIOMAP), "--scheduler",
+    Case("--scheduler foo://x:1", "engine.py", _track(WALK, "--radiomap", str(RADIOMAP), "--scheduler",
                                                        "foo://x:1", "--out-dir", "{w}/outdir/s2")),
-    Case("--scheduler tcp://host:99999", "this branch", _track(WALK, "--radiomap", str(RADIOMAP), "--scheduler",
+    Case("--scheduler tcp://host:99999", "engine.py", _track(WALK, "--radiomap", str(RADIOMAP), "--scheduler",
                                                               "tcp://host:99999", "--out-dir", "{w}/outdir/s3")),
-    Case("foreign client vs the --jobs cluster", "this branch", None, (0,), python=_FOREIGN_CLIENT),
+    Case("foreign client vs the --jobs cluster", "engine.py", None, (0,), python=_FOREIGN_CLIENT),
     # outputs
-    Case("simulate --out in an unwritable dir", "this branch",
+    Case("simulate --out in an unwritable dir", "cli/common.py",
          lambda w: ["simulate", str(MAP), "--out", "/sys/walk.txt"]),
-    Case("simulate --out a directory", "this branch", lambda w: ["simulate", str(MAP), "--out", f"{w}/outdir"]),
-    Case("radiomap build --out under a file", "this branch",
+    Case("simulate --out a directory", "cli/common.py", lambda w: ["simulate", str(MAP), "--out", f"{w}/outdir"]),
+    Case("radiomap build --out under a file", "cli/common.py",
          lambda w: ["radiomap", "build", str(MAP), str(WALK), "--out", f"{w}/a-file/rm.npz"]),
-    Case("track --out in an unwritable dir", "lead (track: check_output_path)",
+    Case("track --out in an unwritable dir", "cli/common.py",
          _track(WALK, "--radiomap", str(RADIOMAP), "--out", "/sys/track.csv")),
-    Case("track --out a directory", "lead (track: check_output_path)",
+    Case("track --out a directory", "cli/common.py",
          _track(WALK, "--radiomap", str(RADIOMAP), "--out", "{w}/outdir")),
-    Case("evaluate --out under a file", "lead (evaluate: check_output_path)",
+    Case("evaluate --out under a file", "cli/common.py",
          lambda w: ["evaluate", str(MAP), str(WALK), "--radiomap", str(RADIOMAP), "--methods", "kwnn",
                     "--out", f"{w}/a-file/eval"]),
-    Case("full disk: simulate", "this branch", lambda w: ["simulate", str(MAP), "--out", f"{w}/outdir/full.txt"],
+    Case("full disk: simulate", "atomic.py", lambda w: ["simulate", str(MAP), "--out", f"{w}/outdir/full.txt"],
          fsize_bytes=100_000),
-    Case("full disk: radiomap build", "this branch",
+    Case("full disk: radiomap build", "atomic.py",
          lambda w: ["radiomap", "build", str(MAP), str(WALK), "--out", f"{w}/outdir/full.npz"], fsize_bytes=2_000),
-    Case("full disk: track --rerun", "this branch (viz/recorder.py)",
+    Case("full disk: track --rerun", "viz/recorder.py",
          _track(WALK, "--radiomap", str(RADIOMAP), "--rerun", "{w}/outdir/full.rrd"), fsize_bytes=100_000),
-    Case("full disk: track --out", "this branch (atomic.py)",
+    Case("full disk: track --out", "atomic.py",
          _track(WALK, "--radiomap", str(RADIOMAP), "--out", "{w}/outdir/full.csv"), fsize_bytes=1_000),
-    Case("full disk: evaluate", "this branch (top-level catch) + lead",
+    Case("full disk: evaluate", "atomic.py, cli/__init__.py",
          lambda w: ["evaluate", str(MAP), str(WALK), "--radiomap", str(RADIOMAP), "--methods", "kwnn",
                     "--out", f"{w}/outdir/full_eval"], fsize_bytes=20_000),
-    Case("check LOG... | head -1", "this branch", lambda w: ["check", str(WALK), str(WALK), str(WALK)], (141,),
+    Case("check LOG... | head -1", "cli/__init__.py", lambda w: ["check", str(WALK), str(WALK), str(WALK)], (141,),
          stdin_closed_stdout=True),
-    Case("simulate --seed -1", "this branch", lambda w: ["simulate", str(MAP), "--seed", "-1", "--out", f"{w}/x.txt"],
+    Case("simulate --seed -1", "cli/common.py", lambda w: ["simulate", str(MAP), "--seed", "-1", "--out", f"{w}/x.txt"],
          (2,)),
-    Case("track --seed -1", "lead (track: non_negative_int)", _track(WALK, "--radiomap", str(RADIOMAP), "--seed", "-1"),
+    Case("track --seed -1", "cli/common.py", _track(WALK, "--radiomap", str(RADIOMAP), "--seed", "-1"),
          (2,)),
-    Case("SIGTERM during track --rerun", "this branch",
+    Case("SIGTERM during track --rerun", "cli/__init__.py",
          _track(WALK, "--radiomap", str(RADIOMAP), "--smooth", "--rerun", "{w}/outdir/run.rrd"), (143,),
          sigterm_when=".run."),
 ]
@@ -429,13 +429,13 @@ def _first_line(stderr: str) -> str:
 
 
 def table(outcomes: list[Outcome]) -> str:
-    rows = ["| case | owner | exit | first line of stderr | peak MB | wall s | verdict |",
+    rows = ["| case | handled in | exit | first line of stderr | peak MB | wall s | verdict |",
             "| --- | --- | --- | --- | --- | --- | --- |"]
     for o in outcomes:
         message = o.message.replace("|", "\\|")
         if len(message) > 160:
             message = message[:157] + "..."
-        rows.append(f"| {o.case.name.replace('|', chr(92) + '|')} | {o.case.owner} | {o.code} | {message} | {o.peak_mb:.0f} | {o.wall_s:.1f} | "
+        rows.append(f"| {o.case.name.replace('|', chr(92) + '|')} | {o.case.where} | {o.code} | {message} | {o.peak_mb:.0f} | {o.wall_s:.1f} | "
                     f"{o.verdict} |")
     return "\n".join(rows)
 

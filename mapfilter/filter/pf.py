@@ -277,6 +277,7 @@ class ParticleFilter:
         cause = None if np.isfinite(log_w).any() else "all_killed_by_walls"
         log_w, cause = self._weigh(t_s, moved, log_w, cause, model, measurement)
         n_alive = int(np.count_nonzero(np.isfinite(log_w))) if cause is None else 0
+        before_xy, recovery = None, None  # the estimate before a collapse, and how it recovered
         if cause is not None:
             before_xy = self.estimate_xy_m
             new, parent, ess, recovery = self._recover_from_collapse(t_s, prev)
@@ -286,14 +287,7 @@ class ParticleFilter:
         self.particles = new
         weights = new.weight
         self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(new.xy_m, weights)
-        collapse = None
-        if cause is not None:
-            collapse = CollapseEvent(
-                t_s=float(t_s), step_index=step_index,
-                xy_m=(float(before_xy[0]), float(before_xy[1])) if before_xy is not None else (math.nan, math.nan),
-                cause=cause, particles_lost=int(np.count_nonzero(np.isfinite(prev.log_weight))), recovery=recovery,
-                recovered_xy_m=(float(self.estimate_xy_m[0]), float(self.estimate_xy_m[1])))
-            self.collapses.append(collapse)
+        collapse = self._record_collapse(t_s, step_index, before_xy, cause, prev, recovery)
         self._record_lineage(t_s, parent, new, weights, w if resampled else None, broken=cause is not None)
         return self._report(t_s, step_index, prev, moved, new, weights, killed, ess, n_alive, resampled, collapse,
                             model, measurement)
@@ -358,6 +352,7 @@ class ParticleFilter:
                 if totals.n_finite == 0 or (peak is not None and totals.max_log_weight - peak < _LOG_UNDERFLOW):
                     cause = "weights_underflow"
         means = None
+        before_xy, recovery = None, None  # the estimate before a collapse, and how it recovered
         if cause is not None:
             before_xy = self.estimate_xy_m
             new, parent, ess, recovery = self._recover_from_collapse(t_s, prev)
@@ -369,14 +364,7 @@ class ParticleFilter:
                 prev, state, totals, shift, clearance)
             n_alive = totals.n_finite
         self.particles = new
-        collapse = None
-        if cause is not None:
-            collapse = CollapseEvent(
-                t_s=float(t_s), step_index=step_index,
-                xy_m=(float(before_xy[0]), float(before_xy[1])) if before_xy is not None else (math.nan, math.nan),
-                cause=cause, particles_lost=int(np.count_nonzero(np.isfinite(prev.log_weight))), recovery=recovery,
-                recovered_xy_m=(float(self.estimate_xy_m[0]), float(self.estimate_xy_m[1])))
-            self.collapses.append(collapse)
+        collapse = self._record_collapse(t_s, step_index, before_xy, cause, prev, recovery)
         if self.ancestry is not None and resampled and w is None:
             w = np.exp(state.log_weight - totals.log_normaliser)
         self._record_lineage(t_s, parent, new, weights, w if resampled else None, broken=cause is not None)
@@ -515,6 +503,20 @@ class ParticleFilter:
                                      cfg.regularise_tries, origin_xy_m=_rows(prev.xy_m, parent))
         new.log_weight = np.full(self.n, -math.log(self.n))
         return new, parent, ess, True, w
+
+    def _record_collapse(self, t_s: float, step_index: int, before_xy: np.ndarray | None, cause: str | None,
+                         prev: Particles, recovery: str | None) -> CollapseEvent | None:
+        """The step's collapse (appended to ``collapses``), or None when it had none; called once
+        the recovered cloud's estimate is set."""
+        if cause is None:
+            return None
+        collapse = CollapseEvent(
+            t_s=float(t_s), step_index=step_index,
+            xy_m=(float(before_xy[0]), float(before_xy[1])) if before_xy is not None else (math.nan, math.nan),
+            cause=cause, particles_lost=int(np.count_nonzero(np.isfinite(prev.log_weight))), recovery=recovery,
+            recovered_xy_m=(float(self.estimate_xy_m[0]), float(self.estimate_xy_m[1])))
+        self.collapses.append(collapse)
+        return collapse
 
     def _record_lineage(self, t_s: float, parent: np.ndarray, new: Particles, weights: np.ndarray,
                         weights_before_resampling: np.ndarray | None, broken: bool) -> None:
