@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -52,6 +53,8 @@ def main() -> int:
     parser.add_argument("--fingerprint-model", choices=FINGERPRINT_MODELS, default=TrackingConfig().wifi.fingerprint_model)
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--out", type=Path, default=REPO / "results" / "accuracy")
+    parser.add_argument("--set", dest="settings", nargs="+", default=[], metavar="SECTION.FIELD=VALUE",
+                        help="config overrides (YAML values), e.g. steps.step_threshold_rms_fraction=0")
     args = parser.parse_args()
 
     args.out.mkdir(parents=True, exist_ok=True)
@@ -63,7 +66,8 @@ def main() -> int:
         floorplan.save(map_path)
         for seed in args.seeds:
             tracking = TrackingConfig(seed=seed, smooth=True).override(
-                {"filter.n_particles": args.particles, "wifi.fingerprint_model": args.fingerprint_model})
+                {"filter.n_particles": args.particles, "wifi.fingerprint_model": args.fingerprint_model,
+                 **{k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in args.settings)}})
             setup = EvaluationSetup(methods=METHODS, leave_one_out=True, tracking=tracking)
             started = time.perf_counter()
             evaluation = evaluate(Building.from_plan(floorplan, map_path), paths, setup, Engine(jobs=args.jobs))
