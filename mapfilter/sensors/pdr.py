@@ -3,7 +3,9 @@
 Follows the Lund thesis (Karlsson & Karlsson, ch. 8): the magnitude of the specific force
 |a| is differentiated (which removes the constant gravity offset), low-passed with a
 4th-order Butterworth filter at 3 Hz, and a step is counted at each upward crossing of a
-threshold, at most one per minimum step interval. The heading change is the gyroscope rate
+threshold, at most one per minimum step interval. The threshold is the thesis's fixed level
+where the signal is strong and follows the signal's running RMS where it is weak (a phone held
+more softly, ``step_threshold``), so that other phones' steps are counted too. The heading change is the gyroscope rate
 projected on the gravity direction (gravity from the low-passed accelerometer), integrated.
 Step length is fixed or from the Weinberg formula L = K (a_max - a_min)^(1/4); the
 per-particle adaptive step length (thesis eq. 8.23) belongs to the filter's ``PDRMotion``,
@@ -308,7 +310,7 @@ def detect_step_times(t_s: np.ndarray, step_signal_mps3: np.ndarray, threshold: 
     over = step_signal_mps3 - level
     idx = np.nonzero((over[:-1] < 0) & (over[1:] >= 0))[0]
     s0, s1 = over[idx], over[idx + 1]
-    crossing_s = t_s[idx] + (0.0 - s0) / (s1 - s0) * (t_s[idx + 1] - t_s[idx])
+    crossing_s = t_s[idx] - s0 / (s1 - s0) * (t_s[idx + 1] - t_s[idx])
     accepted: list[float] = []
     for t in crossing_s:  # greedy: a crossing within the refractory time of the last step is ignored
         if not accepted or t - accepted[-1] >= min_interval_s:
