@@ -13,6 +13,8 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if {"ilc_site1", "ipin2023"} & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.real_data)
+
+
 ILC_SITE1 = REPO.parent / "shared" / "data" / "ilc20" / "site1"
 
 
@@ -31,6 +33,41 @@ def ipin2023() -> Path:
     if not (IPIN2023 / "logs").is_dir():
         pytest.skip(f"IPIN 2023 data absent: {IPIN2023} (../shared must sit beside the checkout)")
     return IPIN2023
+
+
+@pytest.fixture(scope="session")
+def office3(tmp_path_factory):
+    """(building, AP tables per floor): the bundled office stacked three times with stairs and a
+    lift (``tools/floor_sim.make_office_building``); tests read it, never write into it."""
+    import sys
+
+    sys.path.insert(0, str(REPO / "tools"))
+    from floor_sim import make_office_building
+
+    return make_office_building(tmp_path_factory.mktemp("office3"))
+
+
+@pytest.fixture(scope="session")
+def office3_radio_map(office3, tmp_path_factory):
+    """The three-floor office's radio map: one coarse simulated survey per floor (a reference
+    point every 4 m, one scan each: coarse keeps the tests fast), labelled with its floor."""
+    import numpy as np
+
+    from mapfilter.sensors.floors import build_building_radio_map
+    from mapfilter.sensors.ilc import read_ilc
+    from mapfilter.simulate.building import BuildingSimConfig, simulate_building_survey
+    from mapfilter.simulate.ilc_writer import write_ilc
+    from mapfilter.simulate.walk import SimConfig
+
+    building, tables = office3
+    survey_config = BuildingSimConfig(walk=SimConfig(survey_spacing_m=4.0, survey_scans_per_point=1))
+    folder = tmp_path_factory.mktemp("office3_surveys")
+    surveys = []
+    for i, name in enumerate(building.floor_names):
+        write_ilc(simulate_building_survey(building, tables, name, survey_config, np.random.default_rng([9, i])),
+                  folder / f"survey_{name}.txt")
+        surveys.append(read_ilc(folder / f"survey_{name}.txt"))
+    return build_building_radio_map(surveys, list(range(len(surveys))), building.floor_names)
 
 
 def tracking_config(**settings):

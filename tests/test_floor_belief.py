@@ -6,9 +6,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
-import sys
-from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,33 +14,11 @@ from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.metrics import FloorScore, floor_at_waypoints, ipin_errors_m, ipin_score
 from mapfilter.sensors.floors import build_building_radio_map, whole_walk_floor_path
 from mapfilter.sensors.ilc import read_ilc
-from mapfilter.simulate.building import BuildingSimConfig, FloorChange, simulate_building_survey, simulate_building_walk
+from mapfilter.simulate.building import BuildingSimConfig, FloorChange, simulate_building_walk
 from mapfilter.simulate.ilc_writer import write_ilc
-from mapfilter.simulate.walk import SimConfig
 from mapfilter.trackio import Track, read_track, write_track_csv
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-from floor_sim import make_office_building  # noqa: E402
-
 FAST = BuildingSimConfig(segment_s=(12.0, 15.0))
-SURVEY = BuildingSimConfig(walk=SimConfig(survey_spacing_m=4.0, survey_scans_per_point=1))
-
-
-@pytest.fixture(scope="module")
-def office3(tmp_path_factory):
-    return make_office_building(tmp_path_factory.mktemp("office3"))
-
-
-@pytest.fixture(scope="module")
-def radio_map(office3, tmp_path_factory):
-    building, tables = office3
-    tmp_path = tmp_path_factory.mktemp("surveys")
-    surveys = []
-    for i, name in enumerate(building.floor_names):
-        write_ilc(simulate_building_survey(building, tables, name, SURVEY, np.random.default_rng([9, i])),
-                  tmp_path / f"survey_{name}.txt")
-        surveys.append(read_ilc(tmp_path / f"survey_{name}.txt"))
-    return build_building_radio_map(surveys, [0, 1, 2], building.floor_names)
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +32,7 @@ def stairs_walk(office3, tmp_path_factory):
 
 
 # ---- floor_p -----------------------------------------------------------------------------------
-def test_floor_p_is_a_probability_higher_on_the_right_floor_and_round_trips(office3, radio_map, stairs_walk,
+def test_floor_p_is_a_probability_higher_on_the_right_floor_and_round_trips(office3, office3_radio_map, stairs_walk,
                                                                              tmp_path):
     """Without the barometer the filter is unsure around the change: floor_p is in [0, 1] on every
     row of both tracks, on average higher at rows on the right floor than on a wrong one, and
@@ -70,7 +45,7 @@ def test_floor_p_is_a_probability_higher_on_the_right_floor_and_round_trips(offi
     rec, _ = stairs_walk
     config = dataclasses.replace(tracking_config(n_particles=1000, smooth=True),
                                  floors=FloorsConfig(use_barometer=False))
-    result = track(building, rec, radio_map, config=config, rng=np.random.default_rng(3))
+    result = track(building, rec, office3_radio_map, config=config, rng=np.random.default_rng(3))
     truth_t, truth = rec.waypoint_t_s, np.array(rec.waypoint_floor)
     for tr in (result.causal, result.offline):
         assert tr.floor_p is not None and tr.floor_p.shape == (len(tr),)

@@ -12,30 +12,20 @@ import shapely
 
 from mapfilter.evaluation.metrics import errors_at_waypoints
 from mapfilter.maps.walls import crosses_wall
-from mapfilter.sensors.floors import build_building_radio_map
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.simulate.building import (
     BuildingSimConfig,
     FloorChange,
     pressure_hpa,
-    simulate_building_survey,
     simulate_building_walk,
 )
 from mapfilter.simulate.ilc_writer import format_ilc, write_ilc
-from mapfilter.simulate.walk import SimConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-from floor_sim import floor_scores, make_office_building  # noqa: E402
+from floor_sim import floor_scores  # noqa: E402
 
 CHANGES = [FloorChange("stairs", "F1"), FloorChange("lift", "F2")]
 FAST = BuildingSimConfig(segment_s=(12.0, 15.0))
-# a reference point every 4 m, one scan each: a coarse survey keeps the test fast
-SURVEY = BuildingSimConfig(walk=SimConfig(survey_spacing_m=4.0, survey_scans_per_point=1))
-
-
-@pytest.fixture(scope="module")
-def office3(tmp_path_factory):
-    return make_office_building(tmp_path_factory.mktemp("office3"))
 
 
 @pytest.fixture(scope="module")
@@ -105,20 +95,7 @@ def test_wifi_through_floors_is_path_loss_in_3d_minus_a_loss_per_floor(office3):
     assert np.isclose(rssi[0], same) and np.isclose(rssi[1], up - 2 * config.floor_loss_db)
 
 
-@pytest.fixture(scope="module")
-def radio_map(office3, tmp_path_factory):
-    """One coarse survey per floor, labelled with its floor."""
-    building, tables = office3
-    tmp_path = tmp_path_factory.mktemp("surveys")
-    surveys = []
-    for i, name in enumerate(("F0", "F1", "F2")):
-        survey = simulate_building_survey(building, tables, name, SURVEY, np.random.default_rng([9, i]))
-        write_ilc(survey, tmp_path / f"survey_{name}.txt")
-        surveys.append(read_ilc(tmp_path / f"survey_{name}.txt"))
-    return build_building_radio_map(surveys, [0, 1, 2], building.floor_names)
-
-
-def test_the_filter_follows_stairs_and_a_lift_with_the_barometer(office3, walk, radio_map, tmp_path):
+def test_the_filter_follows_stairs_and_a_lift_with_the_barometer(office3, walk, office3_radio_map, tmp_path):
     """A radio map from one survey per floor; the walk tracked without its floors: right most of
     the time, and each change found within a few seconds of the walker's half-way point."""
     from mapfilter.tracking import track
@@ -128,13 +105,13 @@ def test_the_filter_follows_stairs_and_a_lift_with_the_barometer(office3, walk, 
     sim, happened = walk
     write_ilc(sim, tmp_path / "walk.txt")
     rec = read_ilc(tmp_path / "walk.txt")
-    result = track(building, rec, radio_map, config=tracking_config(n_particles=2000), rng=np.random.default_rng(1))
+    result = track(building, rec, office3_radio_map, config=tracking_config(n_particles=2000), rng=np.random.default_rng(1))
     scores = floor_scores(result.causal, rec.waypoint_t_s, rec.waypoint_floor, happened)
     assert scores["time_right"] >= 0.9
     assert all(d["delay_s"] is not None and d["delay_s"] <= 8.0 for d in scores["delays"]), scores
 
 
-def test_a_lift_ride_without_steps_is_followed_by_the_barometer_within_3_s(office3, radio_map, tmp_path):
+def test_a_lift_ride_without_steps_is_followed_by_the_barometer_within_3_s(office3, office3_radio_map, tmp_path):
     """Two storeys up by lift (6 s of ride, no steps): the filter steps on the barometer alone at
     least every ``idle_tick_s`` while the walker stands, finds the new floor within 3 s of the ride's
     half-way point, and no barometer-only step collapses the cloud."""
@@ -146,7 +123,7 @@ def test_a_lift_ride_without_steps_is_followed_by_the_barometer_within_3_s(offic
                                            np.random.default_rng(11))
     write_ilc(sim, tmp_path / "lift.txt")
     rec = read_ilc(tmp_path / "lift.txt")
-    result = track(building, rec, radio_map, config=tracking_config(n_particles=2000), rng=np.random.default_rng(2))
+    result = track(building, rec, office3_radio_map, config=tracking_config(n_particles=2000), rng=np.random.default_rng(2))
     t_enter, t_switch, t_leave = happened[0][:3]
     ride = (result.causal.t_s > t_enter + 1.0) & (result.causal.t_s < t_leave)
     assert np.diff(result.causal.t_s[ride]).max() <= tracking_config().motion.idle_tick_s + 1e-6
@@ -170,7 +147,7 @@ def _changes_inside_connectors(building, track, tolerance_m: float = 0.3) -> boo
     return True
 
 
-def test_the_whole_walk_floor_changes_where_the_walker_does_and_only_in_connectors(office3, walk, radio_map, tmp_path):
+def test_the_whole_walk_floor_changes_where_the_walker_does_and_only_in_connectors(office3, walk, office3_radio_map, tmp_path):
     """--smooth in a building: the causal track is the same as without it; the offline track's floor,
     decided from the whole walk (WiFi vote + barometer), changes where the walker's does (within 1 s)
     and only inside a connector."""
@@ -181,8 +158,8 @@ def test_the_whole_walk_floor_changes_where_the_walker_does_and_only_in_connecto
     sim, happened = walk
     write_ilc(sim, tmp_path / "walk.txt")
     rec = read_ilc(tmp_path / "walk.txt")
-    plain = track(building, rec, radio_map, config=tracking_config(n_particles=2000), rng=np.random.default_rng(1))
-    result = track(building, rec, radio_map, config=tracking_config(n_particles=2000, smooth=True), rng=np.random.default_rng(1))
+    plain = track(building, rec, office3_radio_map, config=tracking_config(n_particles=2000), rng=np.random.default_rng(1))
+    result = track(building, rec, office3_radio_map, config=tracking_config(n_particles=2000, smooth=True), rng=np.random.default_rng(1))
     assert np.array_equal(plain.causal.xy_m, result.causal.xy_m) and plain.causal.floor == result.causal.floor
     # one change per true change, each within 1 s of the true one (the walker's half-way point)
     floors = np.array(result.offline.floor)
@@ -198,7 +175,7 @@ def test_the_whole_walk_floor_changes_where_the_walker_does_and_only_in_connecto
     assert offline.errors_m.mean() < causal.errors_m.mean()
 
 
-def test_a_wrong_start_of_the_floor_evidence_is_outvoted_in_the_whole_walk_floor(office3, walk, tmp_path, radio_map):
+def test_a_wrong_start_of_the_floor_evidence_is_outvoted_in_the_whole_walk_floor(office3, walk, tmp_path, office3_radio_map):
     """No barometer; the first five scans vote F2 unanimously, every later one the walker's floor:
     the whole-walk floor is F0 from the start until the walker's first change (the stairs), and
     right at least 95 % of the time."""
@@ -221,7 +198,7 @@ def test_a_wrong_start_of_the_floor_evidence_is_outvoted_in_the_whole_walk_floor
     vote[:5] = np.log(np.array([1, 1, 5]) / 7)
     config = dataclasses.replace(tracking_config(n_particles=2000, smooth=True),
                                  floors=FloorsConfig(use_barometer=False))
-    result = track(building, rec, radio_map, config=config, rng=np.random.default_rng(1), floor_evidence=vote)
+    result = track(building, rec, office3_radio_map, config=config, rng=np.random.default_rng(1), floor_evidence=vote)
     smoothed = result.offline
     before = smoothed.t_s < happened[0][0]  # before the walker enters the stairs
     assert np.all(np.array(smoothed.floor)[before] == "F0")
@@ -229,7 +206,7 @@ def test_a_wrong_start_of_the_floor_evidence_is_outvoted_in_the_whole_walk_floor
     assert _changes_inside_connectors(building, smoothed)
 
 
-def test_a_walk_that_keeps_its_floor_gets_the_one_floor_offline_track(office3, radio_map, tmp_path):
+def test_a_walk_that_keeps_its_floor_gets_the_one_floor_offline_track(office3, office3_radio_map, tmp_path):
     """--smooth in a building, floor not given: a walk the whole-walk floor keeps on one floor gets
     the placed, map-matched offline track of that floor (not the particle lineage): every row on
     that floor, no wall crossed on its plan, and less than half the causal track's error."""
@@ -241,7 +218,7 @@ def test_a_walk_that_keeps_its_floor_gets_the_one_floor_offline_track(office3, r
                                     np.random.default_rng(7))
     write_ilc(sim, tmp_path / "flat.txt")
     rec = read_ilc(tmp_path / "flat.txt")
-    result = track(building, rec, radio_map, config=tracking_config(n_particles=2000, smooth=True), rng=np.random.default_rng(1))
+    result = track(building, rec, office3_radio_map, config=tracking_config(n_particles=2000, smooth=True), rng=np.random.default_rng(1))
     assert set(result.offline.floor) == {"F1"}
     smoothed = result.offline
     assert not crosses_wall(building.floor("F1").plan, smoothed.xy_m[:-1], smoothed.xy_m[1:]).any()
