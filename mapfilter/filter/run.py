@@ -143,7 +143,8 @@ def run_filter(plan: FloorPlan, motion: MotionConfig, filter_config: FilterConfi
     if pf.ancestry is not None:
         lineage_t, lineage_xy = pf.smoothed_track()
         lineage = Track(lineage_t, lineage_xy, name="lineage")
-    return FilterRun(rows.track(), tuple(pf.collapses), n_scans, lineage, tuple(gaps), rows.floor_shares())
+    shares = rows.floor_shares()
+    return FilterRun(rows.track(shares), tuple(pf.collapses), n_scans, lineage, tuple(gaps), shares)
 
 
 def _filter_step(pf: ParticleFilter, evidence: WalkEvidence, kind: str, t_s: float, index: int, dt_s: float,
@@ -197,9 +198,10 @@ class _Rows:
             return None
         return np.array([f[0] for f in self.floors], dtype=np.float64)
 
-    def track(self) -> Track:
+    def track(self, shares: np.ndarray | None) -> Track:
+        """The rows as a track; ``shares``: ``floor_shares()``, for the ``floor_p`` column."""
         heading = np.array(self.heading_rad)
-        shares, floor_p = self.floor_shares(), None
+        floor_p = None
         if shares is not None:
             # a probability (the shares of normalised weights may sum to 1 + 1e-16)
             floor_p = np.clip(shares[np.arange(len(self.floors)), [f[1] for f in self.floors]], 0.0, 1.0)
