@@ -16,10 +16,10 @@ from collections.abc import Mapping
 from typing import Any
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.barometer import BarometerConfig
+from mapfilter.filter.models.barometer import BarometerConfig
 from mapfilter.filter.evidence import TrilaterationConfig, WifiConfig
-from mapfilter.filter.floors import FloorChangeConfig
-from mapfilter.filter.pf import FilterConfig
+from mapfilter.filter.models.building import FloorChangeConfig
+from mapfilter.filter.particle_filter import FilterConfig
 from mapfilter.filter.run import MotionConfig
 from mapfilter.offline.whole_walk import OfflineConfig
 from mapfilter.sensors.pdr import PDRConfig

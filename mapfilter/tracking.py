@@ -23,7 +23,7 @@ from mapfilter.config import TrackingConfig
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.evidence import BuildingEvidence, WifiEvidence
-from mapfilter.filter.floors import FloorChanges, FloorStack
+from mapfilter.filter.models.building import FloorChanges, FloorStack
 from mapfilter.filter.run import FilterRun, run_filter
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan

@@ -9,7 +9,7 @@ from conftest import REPO
 
 from mapfilter.cli import main
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.adaptive_pathloss import AdaptationConfig, AdaptiveTrilaterationLikelihood, BlockingConfig
+from mapfilter.filter.models.adaptive_path_loss import AdaptationConfig, AdaptiveTrilaterationLikelihood, BlockingConfig
 from mapfilter.filter.measurement import TrilaterationLikelihood
 from mapfilter.filter.particles import Particles
 from mapfilter.maps.floorplan import FloorPlan

@@ -7,7 +7,7 @@ import pytest
 
 from mapfilter.filter.estimate import circular_mean, weighted_estimate
 from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix, rssi_log_likelihood
-from mapfilter.filter.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
+from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.particles import Particles
 from mapfilter.filter.regularise import optimal_bandwidth, regularise, sample_kernel
 from mapfilter.maps.floorplan import FloorPlan
@@ -146,7 +146,7 @@ def test_estimate_never_in_a_wall():
 
 
 def test_circle_walk_directions_match_cos_sin():
-    from mapfilter.filter.motion import _circle_walk
+    from mapfilter.filter.models.motion import _circle_walk
 
     phi = np.linspace(0.0, 2.0 * math.pi, 20001)[:-1]
     out = np.empty((phi.size, 2))

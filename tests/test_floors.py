@@ -12,9 +12,9 @@ import yaml
 
 from mapfilter.cli import main
 from mapfilter.evaluation.metrics import floor_at_waypoints
-from mapfilter.filter.floors import FloorChangeConfig, FloorChanges, FloorFix, FloorFixLikelihood, FloorStack
-from mapfilter.filter.motion import RandomWalkMotion
-from mapfilter.filter.pf import FilterConfig, ParticleFilter
+from mapfilter.filter.models.building import FloorChangeConfig, FloorChanges, FloorFix, FloorFixLikelihood, FloorStack
+from mapfilter.filter.models.motion import RandomWalkMotion
+from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall
@@ -429,7 +429,7 @@ def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_ste
 
 
 def test_barometer_reference_follows_the_weather_not_a_pausing_climber():
-    from mapfilter.filter.barometer import BarometerConfig, BarometerReference
+    from mapfilter.filter.models.barometer import BarometerConfig, BarometerReference
 
     drift_m_per_s = BarometerConfig().drift_m_per_s
 
@@ -492,7 +492,7 @@ def test_in_a_connector_the_barometers_floor_decides_and_elsewhere_nothing_moves
 
 
 def test_a_pdr_step_that_starts_on_stairs_advances_a_tread_not_a_stride(tmp_path):
-    from mapfilter.filter.motion import PDRMotion, StepInput
+    from mapfilter.filter.models.motion import PDRMotion, StepInput
     from mapfilter.filter.particles import Particles
 
     building = _building(tmp_path)
@@ -521,7 +521,7 @@ def test_a_pdr_step_that_starts_on_stairs_advances_a_tread_not_a_stride(tmp_path
 
 
 def test_barometric_height_is_causal_and_follows_a_climb_without_lag():
-    from mapfilter.filter.barometer import barometric_height
+    from mapfilter.filter.models.barometer import barometric_height
     from mapfilter.simulate.building import pressure_hpa
 
     t = 1.6e9 + np.arange(0.0, 60.0, 0.5)
@@ -610,7 +610,7 @@ def test_whole_walk_floor_of_a_one_floor_walk_is_that_floor():
 
 
 def test_centred_barometric_height_has_no_lag_and_less_noise_than_the_causal_one():
-    from mapfilter.filter.barometer import barometric_height
+    from mapfilter.filter.models.barometer import barometric_height
     from mapfilter.simulate.building import pressure_hpa
 
     t = 1.6e9 + np.arange(0.0, 60.0, 0.5)
@@ -631,7 +631,7 @@ def test_whole_walk_floors_weighs_the_scan_the_filter_started_from(tmp_path):
     evidence is that scan still gets its floor (the lineage's own floor, L0, is not it)."""
     from types import SimpleNamespace
 
-    from mapfilter.filter.barometer import BarometerConfig
+    from mapfilter.filter.models.barometer import BarometerConfig
     from mapfilter.offline.floors import whole_walk_floors
 
     building = _building(tmp_path, connectors=False)

@@ -267,7 +267,7 @@ def test_step_inputs_give_one_filter_move_per_step():
 
 
 def test_step_length_prior_lies_within_the_filter_bounds():
-    motion = pytest.importorskip("mapfilter.filter.motion")
+    motion = pytest.importorskip("mapfilter.filter.models.motion")
     # the per-particle step-length prior the filter starts from is within PDRMotion's bounds
     config, model = pdr.PDRConfig(), motion.PDRMotion()
     assert model.step_length_min_m < config.step_length_m - 2 * config.step_length_std_m
@@ -365,9 +365,9 @@ def test_dead_reckon_from_a_start_time_and_along_the_absolute_heading():
 
 def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1):
     """The filter's PDRMotion, noise off, fed one StepInput per detected step = dead_reckon."""
-    motion = pytest.importorskip("mapfilter.filter.motion")
+    motion = pytest.importorskip("mapfilter.filter.models.motion")
     from mapfilter.filter.particles import Particles
-    from mapfilter.filter.motion import StepInput
+    from mapfilter.filter.models.motion import StepInput
     from mapfilter.filter.run import step_inputs
 
     rec = read_ilc(ilc_site1 / "F1" / "path_data_files" / "5dd9e7c29191710006b57061.txt.gz")

@@ -9,7 +9,7 @@ from conftest import ILC_SITE1
 from mapfilter.cli import main
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.particles import Particles
-from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLikelihoodConfig
+from mapfilter.filter.models.radio_map import RadioMapLikelihood, RadioMapLikelihoodConfig
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.pathloss import AccessPointTable
@@ -412,7 +412,7 @@ def test_radio_map_file_keeps_the_cross_validation_and_old_files_load(tmp_path, 
 
 
 def test_blend_fix_is_the_mean_of_the_kwnn_fix_and_the_best_cell():
-    from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood
+    from mapfilter.filter.models.radio_map import RadioMapLikelihood
     from mapfilter.filter.evidence import WifiConfig, WifiEvidence
 
     aps, radio_map = _synthetic_radio_map()

@@ -3,7 +3,7 @@ give the numbers of a likelihood built for one walk's APs up front."""
 
 import numpy as np
 
-from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, radio_map_likelihood
+from mapfilter.filter.models.radio_map import RadioMapLikelihood, radio_map_likelihood
 from mapfilter.maps.prepare import import_ilc
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.radiomap import build_radio_map

@@ -54,10 +54,10 @@ sys.path.insert(0, str(REPO))
 
 from mapfilter.filter import fused  # noqa: E402
 from mapfilter.filter.measurement import rssi_log_likelihood  # noqa: E402
-from mapfilter.filter.models import MeasurementModel  # noqa: E402
-from mapfilter.filter.motion import RandomWalkMotion  # noqa: E402
+from mapfilter.filter.models.interface import MeasurementModel  # noqa: E402
+from mapfilter.filter.models.motion import RandomWalkMotion  # noqa: E402
 from mapfilter.filter.particles import Particles  # noqa: E402
-from mapfilter.filter.pf import FilterConfig, ParticleFilter  # noqa: E402
+from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter  # noqa: E402
 from mapfilter.filter.regularise import optimal_bandwidth, weighted_covariance  # noqa: E402
 from mapfilter.maps.floorplan import FloorPlan  # noqa: E402
 from mapfilter.maps.walls import crosses_wall  # noqa: E402

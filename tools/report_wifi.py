@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood
+from mapfilter.filter.models.radio_map import RadioMapLikelihood
 from mapfilter.maps.prepare import import_ilc
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.pathloss import estimate_access_points, least_squares_position

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix
-from mapfilter.filter.motion import RandomWalkMotion
-from mapfilter.filter.pf import FilterConfig, ParticleFilter
+from mapfilter.filter.models.position_fix import GaussianFixLikelihood, PositionFix
+from mapfilter.filter.models.motion import RandomWalkMotion
+from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.viz import interpolate_ground_truth, make_logger

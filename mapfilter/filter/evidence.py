@@ -19,13 +19,14 @@ from typing import Any, Protocol
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.adaptive_pathloss import AdaptationConfig, AdaptiveTrilaterationLikelihood, BlockingConfig
-from mapfilter.filter.barometer import BarometerConfig, BarometerReference, barometric_height
+from mapfilter.filter.models.adaptive_path_loss import AdaptationConfig, AdaptiveTrilaterationLikelihood, BlockingConfig
+from mapfilter.filter.models.barometer import BarometerConfig, BarometerReference, barometric_height
 from mapfilter.filter.events import StepReport
-from mapfilter.filter.floors import FloorFix, FloorFixLikelihood, FloorStack
-from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix, TrilaterationLikelihood
-from mapfilter.filter.models import MeasurementModel
-from mapfilter.filter.radiomap_likelihood import RadioMapLikelihood, RadioMapLikelihoodConfig, radio_map_likelihood
+from mapfilter.filter.models.building import FloorFix, FloorFixLikelihood, FloorStack
+from mapfilter.filter.models.path_loss import TrilaterationLikelihood
+from mapfilter.filter.models.position_fix import GaussianFixLikelihood, PositionFix
+from mapfilter.filter.models.interface import MeasurementModel
+from mapfilter.filter.models.radio_map import RadioMapLikelihood, RadioMapLikelihoodConfig, radio_map_likelihood
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.floors import check_building_radio_map, floor_vote_log_likelihood
 from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position, match_scan

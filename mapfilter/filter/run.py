@@ -24,9 +24,9 @@ from mapfilter.errors import MapfilterError
 from mapfilter.filter.estimate import circular_mean
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.evidence import WalkEvidence
-from mapfilter.filter.models import FloorModel, MotionModel
-from mapfilter.filter.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
-from mapfilter.filter.pf import FilterConfig, ParticleFilter
+from mapfilter.filter.models.interface import FloorModel, MotionModel
+from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
+from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.pdr import Steps
 from mapfilter.trackio import Track
@@ -141,7 +141,7 @@ def run_filter(plan: FloorPlan, motion: MotionConfig, filter_config: FilterConfi
             on_step(report)
     lineage = None
     if pf.ancestry is not None:
-        lineage_t, lineage_xy = pf.smoothed_track()
+        lineage_t, lineage_xy = pf.lineage_track()
         lineage = Track(lineage_t, lineage_xy, name="lineage")
     shares = rows.floor_shares()
     return FilterRun(rows.track(shares), tuple(pf.collapses), n_scans, lineage, tuple(gaps), shares)

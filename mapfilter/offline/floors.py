@@ -15,11 +15,11 @@ from collections.abc import Callable
 
 import numpy as np
 
-from mapfilter.filter.barometer import barometric_height
+from mapfilter.filter.models.barometer import barometric_height
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.evidence import BuildingEvidence
-from mapfilter.filter.floors import FloorChanges, FloorStack
-from mapfilter.filter.pf import FilterConfig
+from mapfilter.filter.models.building import FloorChanges, FloorStack
+from mapfilter.filter.particle_filter import FilterConfig
 from mapfilter.filter.run import MotionConfig
 from mapfilter.maps.paths import detour_wall_crossings
 from mapfilter.offline.placement import place_walk

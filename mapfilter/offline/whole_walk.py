@@ -26,7 +26,7 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.evidence import WifiEvidence
-from mapfilter.filter.pf import FilterConfig
+from mapfilter.filter.particle_filter import FilterConfig
 from mapfilter.filter.run import MotionConfig, run_filter
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.paths import detour_wall_crossings, wall_free_track

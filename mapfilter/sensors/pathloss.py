@@ -4,7 +4,7 @@ The Lund thesis (Karlsson & Karlsson) model R(d) = C - 10 n log10(d) - alpha min
 per access point and band; an ``AccessPointTable`` holds its parameters (CSV on disk),
 ``least_squares_position`` is the trilateration baseline and ``estimate_access_points`` fits
 the table from waypoint-labelled scans. The per-particle likelihood of this model lives with
-the other measurement models in ``mapfilter.filter.measurement``.
+the other measurement models in ``mapfilter.filter.models``.
 """
 
 from __future__ import annotations

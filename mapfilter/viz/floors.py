@@ -25,7 +25,7 @@ from mapfilter.viz.style import BACKGROUND, entity_name
 
 if TYPE_CHECKING:  # pragma: no cover
     from mapfilter.filter.events import StepReport
-    from mapfilter.filter.floors import FloorStack
+    from mapfilter.filter.models.building import FloorStack
     from mapfilter.maps.building import Building
 
 # one colour per floor in the share plot (matplotlib's tab10)

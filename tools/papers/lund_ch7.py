@@ -1,5 +1,5 @@
 """Lund thesis chapter 7 on the simulated office and the real ILC walks: path-loss adaptation
-and blocking compensation (``mapfilter.filter.adaptive_pathloss``). Used by ``lund_thesis.py``,
+and blocking compensation (``mapfilter.filter.models.adaptive_path_loss``). Used by ``lund_thesis.py``,
 which runs these work items in its worker processes and appends the section to its page.
 
 - Adaptation: walks simulated over the bundled office with the true table but *without*

@@ -12,7 +12,8 @@ import numpy as np
 from numba import njit
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.models import MeasurementModel
+from mapfilter.filter.kernels.passes import LIKELIHOOD_SIGNATURE, X, Y
+from mapfilter.filter.models.interface import LikelihoodKernel, MeasurementModel
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.wifi import WifiScan
@@ -239,8 +240,12 @@ class RadioMapLikelihood(MeasurementModel):
         flat = np.where(inside, row * self.shape[1] + col, 0)
         return np.where(inside, self.cell_of[flat], self.n_cells)
 
-    def log_likelihood(self, particles, measurement: WifiScan) -> np.ndarray:
-        return self.grid_log_likelihood(measurement)[self.cell_index(particles.xy_m)]
+    def kernel(self, measurement: WifiScan) -> LikelihoodKernel:
+        """Each particle reads the value of its grid cell (the prior cell off the grid)."""
+        values = self.grid_log_likelihood(measurement)
+        rows, cols = self.shape
+        head = [self.origin_m[0], self.origin_m[1], 1.0 / self.config.cell_m, rows, cols, values[-1]]
+        return LikelihoodKernel(_grid_lookup, np.concatenate([head, values[self.cell_of]]))
 
     def best_position(self, scan: WifiScan) -> np.ndarray:
         """Centre of the active cell with the highest likelihood: the radio-map likelihood used alone."""
@@ -276,6 +281,23 @@ def radio_map_likelihood(radio_map: RadioMap, floorplan: FloorPlan | None = None
     if heard_keys is not None:
         hit[1].build_tables(heard_keys)
     return hit[1]
+
+
+@njit(LIKELIHOOD_SIGNATURE, cache=True, nogil=True, error_model="numpy")
+def _grid_lookup(params, state, lo, m, out):
+    # params: x0, y0, 1 / cell, rows, columns, the value off the grid, then the value of every cell row by row
+    x0 = params[0]
+    y0 = params[1]
+    inv_cell = params[2]
+    rows = int(params[3])
+    cols = int(params[4])
+    for j in range(m):
+        u = (state[X, lo + j] - x0) * inv_cell
+        v = (state[Y, lo + j] - y0) * inv_cell
+        if 0.0 <= u < cols and 0.0 <= v < rows:
+            out[j] = params[6 + int(v) * cols + int(u)]
+        else:
+            out[j] = params[5]
 
 
 @njit(cache=True)

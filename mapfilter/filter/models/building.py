@@ -1,5 +1,5 @@
-"""The floor in the filter's state: a building's floors as one state space, floor changes, and
-a WiFi measurement that weighs floors.
+"""A building's floors in the filter's state (the ``FloorModel``s): the floors as one state space,
+floor changes, and a WiFi measurement that weighs floors.
 
 The particle filter works on one ``FloorPlan``. A building becomes one by :class:`FloorStack`:
 every floor's wall mask is laid side by side in a "stack" plan, each in its own tile,
@@ -25,13 +25,11 @@ import math
 from typing import ClassVar
 
 import numpy as np
-import shapely
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.estimate import weighted_estimate
-from mapfilter.filter.models import FloorModel, MeasurementModel
+from mapfilter.filter.estimate import weighted_estimate, weighted_moments
+from mapfilter.filter.models.interface import FloorModel, MeasurementModel
 from mapfilter.filter.particles import Particles
-from mapfilter.filter.regularise import weighted_covariance
 from mapfilter.maps.building import Building, connector_pixels
 from mapfilter.maps.floorplan import FloorPlan
 
@@ -126,6 +124,8 @@ class OneFloor(FloorModel):
     """A single map (``filter.models.FloorModel``): no floor in the state, nothing happens
     between floors, and not a single random draw."""
 
+    changes_floors = False
+
     def __init__(self, plan: FloorPlan) -> None:
         self.plan = plan
 
@@ -140,7 +140,7 @@ class OneFloor(FloorModel):
         return weighted_estimate(self.plan, xy_m, weights)
 
     def covariance(self, xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        return weighted_covariance(xy_m, weights)
+        return weighted_moments(xy_m, weights)[1]
 
     def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray) -> dict:
         return {}
@@ -186,6 +186,8 @@ class FloorChanges(FloorModel):
     point is no free space.
     """
 
+    changes_floors = True
+
     def __init__(self, stack: FloorStack, config: FloorChangeConfig = FloorChangeConfig()) -> None:
         self.stack = stack
         self.config = config
@@ -193,7 +195,7 @@ class FloorChanges(FloorModel):
         self.connector_id = np.full(plan.shape_px, -1, dtype=np.int32)  # stack pixel -> connector
         # per connector: {floor index: stack positions of its free pixel centres on that floor}
         self.connector_cells: list[dict[int, np.ndarray]] = []
-        self.connector_polygons: list[dict[int, shapely.Geometry]] = []
+        self.connector_polygons: list[dict] = []  # shapely polygons
         for c, connector in enumerate(stack.building.connectors):
             cells, polygons = {}, {}
             for name, polygon in connector.polygons.items():
@@ -227,7 +229,7 @@ class FloorChanges(FloorModel):
     def covariance(self, xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
         # the cloud's spread where the floors lie over each other (the building frame), not
         # across the stack's tiles, which would make the jitter as wide as the building
-        return weighted_covariance(self.stack.to_building(xy_m), weights)
+        return weighted_moments(self.stack.to_building(xy_m), weights)[1]
 
     def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray) -> dict:
         return {"floor_shares": self.stack.floor_shares(xy_m, weights),
@@ -328,6 +330,8 @@ class FloorChanges(FloorModel):
             cells = self.connector_cells[conn[i]]
             dest_floor = stack.building.floors[dest[i]]
             point = dest_floor.from_building(building_xy[i])
+            import shapely  # only a building with connectors needs it
+
             inside_polygon = shapely.contains_xy(self.connector_polygons[conn[i]][dest[i]], point[0], point[1])
             if inside_polygon and dest_floor.plan.is_free(point[None, :])[0]:
                 xy[m] = stack.to_stack(point, dest[i])

@@ -29,8 +29,9 @@ import math
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.measurement import rssi_log_likelihood
-from mapfilter.filter.models import MeasurementModel
+from mapfilter.filter.kernels.passes import run_likelihood
+from mapfilter.filter.models.interface import MeasurementModel
+from mapfilter.filter.models.path_loss import path_loss_kernel
 from mapfilter.sensors.pathloss import MIN_DISTANCE_M, AccessPointTable, match_scan, path_loss_rssi_dbm
 from mapfilter.sensors.wifi import WifiScan
 
@@ -193,8 +194,9 @@ class AdaptiveTrilaterationLikelihood(MeasurementModel):
             return np.zeros(len(particles))
         t = self.ap_table
         # blocking: R(d) - H for every AP (thesis 7.3)
-        return rssi_log_likelihood(particles.xy_m, t.xy_m[rows], t.c_dbm[rows] - self.blocking_db, t.n[rows],
-                                   t.alpha_db_per_m[rows], t.d_max_m[rows], rssi, self.variance_db2)
+        kernel = path_loss_kernel(t.xy_m[rows], t.c_dbm[rows] - self.blocking_db, t.n[rows], t.alpha_db_per_m[rows],
+                                  t.d_max_m[rows], rssi, self.variance_db2)
+        return run_likelihood(kernel.function, kernel.params, particles.state)
 
     @property
     def state(self) -> PathLossState | None:

@@ -1,0 +1,4 @@
+"""The filter's models, each one file behind the interfaces of ``interface.py``: motion (random
+walk, constant velocity, PDR), measurements (a position fix, trilateration and its adaptive
+form, the radio map's own likelihood, BLE beacons), and a building's floors and barometer.
+A new model is a new file here; nothing in the filter's core changes."""

@@ -1,0 +1,200 @@
+"""Motion models (the ``MotionModel`` interface): random walk, constant velocity, PDR.
+
+Each gives the filter a compiled move kernel and its parameters per step; the kernel reads the
+state before the step and writes the state after it (heading 0 = +x, counter-clockwise,
+radians), with standard normals drawn by the filter (``normals[k, j]`` for particle lo + j).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import statistics
+from typing import ClassVar
+
+import numpy as np
+from numba import njit
+
+from mapfilter.errors import MapfilterError
+from mapfilter.filter.kernels.draws import cos_sin
+from mapfilter.filter.kernels.passes import HEADING, MOVE_SIGNATURE, STEP, VX, VY, X, Y, stay
+from mapfilter.filter.models.interface import MotionModel, MoveKernel
+
+__all__ = ["ConstantVelocityMotion", "PDRMotion", "RandomWalkMotion", "StepInput"]
+
+
+def _check_non_negative(owner: str, **values: float) -> None:
+    for name, value in values.items():
+        if not (math.isfinite(value) and value >= 0):
+            raise MapfilterError(f"{owner} setting {name} must be a number >= 0, got {value}")
+
+
+@njit(MOVE_SIGNATURE, cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _circle_walk(params, src, dst, normals, lo, m):
+    # eq. 6.6: x_k = x_{k-1} + r (cos phi, sin phi) + sigma e; (cos phi, sin phi) is the direction of
+    # the second normal pair, uniform on the circle
+    radius_m = params[0]
+    sigma_m = params[1]
+    for j in range(m):
+        i = lo + j
+        r = math.sqrt(normals[2, j] * normals[2, j] + normals[3, j] * normals[3, j])
+        dst[X, i] = src[X, i] + radius_m * normals[2, j] / r + sigma_m * normals[0, j]
+        dst[Y, i] = src[Y, i] + radius_m * normals[3, j] / r + sigma_m * normals[1, j]
+        dst[VX, i] = src[VX, i]
+        dst[VY, i] = src[VY, i]
+        dst[HEADING, i] = src[HEADING, i]
+        dst[STEP, i] = src[STEP, i]
+
+
+@dataclasses.dataclass(frozen=True)
+class RandomWalkMotion(MotionModel):
+    """Random walk on a circle (Lund thesis eq. 6.6): each particle jumps to a uniformly random
+    point of the circle of radius ``radius_mps * dt`` around it, blurred by isotropic Gaussian
+    noise of standard deviation ``sigma_mps * dt``. Thesis values: r = 1.5 dt, sigma = 0.5 dt."""
+
+    radius_mps: float = 1.5  # the circle's radius per second (thesis: 1.5 m/s)
+    sigma_mps: float = 0.5  # Gaussian blur per second (thesis: 0.5 m/s)
+
+    def __post_init__(self) -> None:
+        _check_non_negative("random walk", radius_mps=self.radius_mps, sigma_mps=self.sigma_mps)
+
+    def kernel(self, inputs: object, dt_s: float) -> MoveKernel:
+        dt = max(float(dt_s), 0.0)
+        return MoveKernel(_circle_walk, np.array([self.radius_mps * dt, self.sigma_mps * dt]), 2)
+
+
+@njit(MOVE_SIGNATURE, cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _constant_velocity(params, src, dst, normals, lo, m):
+    dt = params[0]
+    sigma = params[1]
+    max_speed = params[2]
+    for j in range(m):
+        i = lo + j
+        ax = sigma * normals[0, j]
+        ay = sigma * normals[1, j]
+        vx = src[VX, i]
+        vy = src[VY, i]
+        dst[X, i] = src[X, i] + vx * dt + 0.5 * dt * dt * ax
+        dst[Y, i] = src[Y, i] + vy * dt + 0.5 * dt * dt * ay
+        vx += ax * dt
+        vy += ay * dt
+        speed = math.sqrt(vx * vx + vy * vy)
+        scale = max_speed / speed if speed > max_speed else 1.0
+        dst[VX, i] = vx * scale
+        dst[VY, i] = vy * scale
+        dst[HEADING, i] = src[HEADING, i]
+        dst[STEP, i] = src[STEP, i]
+
+
+@dataclasses.dataclass(frozen=True)
+class ConstantVelocityMotion(MotionModel):
+    """Constant velocity with random acceleration (Evennou & Marx's prediction equation):
+    x_k = x_{k-1} + v_{k-1} dt + a dt^2 / 2,  v_k = v_{k-1} + a dt,  a ~ N(0, accel_sigma^2 I);
+    speeds above ``max_speed_mps`` (a walking person) are scaled back to it."""
+
+    accel_sigma_mps2: float = 0.5  # random acceleration (per axis)
+    max_speed_mps: float = 2.0  # speeds above this (a walking person) are scaled back
+
+    def __post_init__(self) -> None:
+        _check_non_negative("constant velocity", accel_sigma_mps2=self.accel_sigma_mps2,
+                            max_speed_mps=self.max_speed_mps)
+
+    def kernel(self, inputs: object, dt_s: float) -> MoveKernel:
+        params = np.array([max(float(dt_s), 0.0), self.accel_sigma_mps2, self.max_speed_mps])
+        return MoveKernel(_constant_velocity, params, 1)
+
+
+@dataclasses.dataclass(frozen=True)
+class StepInput:
+    """What pedestrian dead reckoning tells the motion model for one filter step.
+
+    n_steps : steps detected since the last filter step (0 = standing).
+    heading_change_rad : heading change over the interval (gyro about gravity), CCW positive.
+    """
+
+    n_steps: int
+    heading_change_rad: float
+
+
+# PDR kernel parameters, in this order
+(_P_STEPS, _P_CHANGE, _P_HEADING_SIGMA, _P_FALSE_TURN, _P_LENGTH_SIGMA, _P_LENGTH_MIN, _P_LENGTH_MAX,
+ _P_POSITION_SIGMA) = range(8)
+
+
+@njit(MOVE_SIGNATURE, cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _pdr_step(params, src, dst, normals, lo, m):
+    # normals 0: heading noise, 1: step-length walk, 2 and 3: position, 5: false turns (a particle
+    # ignores the change when its normal falls below the false-turn share's quantile)
+    two_pi = 2.0 * math.pi
+    n_steps = params[_P_STEPS]
+    for j in range(m):
+        i = lo + j
+        change = params[_P_CHANGE]
+        if normals[5, j] < params[_P_FALSE_TURN]:
+            change = 0.0
+        h = src[HEADING, i] + change + params[_P_HEADING_SIGMA] * normals[0, j]
+        if not -math.pi <= h < math.pi:
+            h = ((h + math.pi) % two_pi) - math.pi
+        length = src[STEP, i]
+        if n_steps > 0.0:
+            length = min(max(length + params[_P_LENGTH_SIGMA] * normals[1, j], params[_P_LENGTH_MIN]),
+                         params[_P_LENGTH_MAX])
+        c, s = cos_sin(h)
+        distance = n_steps * length
+        dst[X, i] = src[X, i] + distance * c + params[_P_POSITION_SIGMA] * normals[2, j]
+        dst[Y, i] = src[Y, i] + distance * s + params[_P_POSITION_SIGMA] * normals[3, j]
+        dst[VX, i] = src[VX, i]
+        dst[VY, i] = src[VY, i]
+        dst[HEADING, i] = h
+        dst[STEP, i] = length
+
+
+@dataclasses.dataclass(frozen=True)
+class PDRMotion(MotionModel):
+    """Pedestrian dead reckoning with the state [x, y, heading, step length] (Lund thesis eq. 8.23).
+
+    Per particle: heading += change + N(0, heading_sigma^2), where a share ``false_turn_fraction``
+    of the particles ignores a change of at least ``turn_threshold_rad`` ("false turns"); step
+    length L += N(0, step_length_walk_sigma^2 n) clipped to [min, max] (a random walk the filter
+    adapts through resampling); then xy += n L (cos h, sin h) + N(0, position_sigma^2 n I).
+    """
+
+    walks_in_steps: ClassVar[bool] = True
+
+    heading_sigma_rad: float = 0.05  # per filter step
+    false_turn_fraction: float = 0.15  # thesis: 15 % of particles ignore a detected turn
+    turn_threshold_rad: float = 0.35  # a change at least this large counts as a turn (~20 deg)
+    step_length_walk_sigma_m: float = 0.02  # per step, random walk of the state (eq. 8.23)
+    step_length_min_m: float = 0.4  # the state's step length stays within [min, max]
+    step_length_max_m: float = 1.0  # (see step_length_min_m)
+    position_sigma_m: float = 0.05  # per step, lateral/longitudinal slack
+
+    def __post_init__(self) -> None:
+        _check_non_negative("PDR", heading_sigma_rad=self.heading_sigma_rad, turn_threshold_rad=self.turn_threshold_rad,
+                            step_length_walk_sigma_m=self.step_length_walk_sigma_m,
+                            position_sigma_m=self.position_sigma_m)
+        if not 0.0 <= self.false_turn_fraction <= 1.0:
+            raise MapfilterError(f"PDR setting false_turn_fraction must be in [0, 1], got {self.false_turn_fraction}")
+        if not 0.0 < self.step_length_min_m <= self.step_length_max_m < math.inf:
+            raise MapfilterError("PDR settings need 0 < step_length_min_m <= step_length_max_m, got "
+                                 f"{self.step_length_min_m} and {self.step_length_max_m}")
+
+    def kernel(self, inputs: StepInput | None, dt_s: float) -> MoveKernel:
+        if inputs is None:
+            return MoveKernel(stay, np.zeros(1), 0)
+        n_steps = int(inputs.n_steps)
+        if n_steps < 0:
+            raise ValueError(f"n_steps must be >= 0, got {n_steps}")
+        change = float(inputs.heading_change_rad)
+        share = self.false_turn_fraction if abs(change) >= self.turn_threshold_rad else 0.0
+        params = np.zeros(8)
+        params[_P_STEPS] = n_steps
+        params[_P_CHANGE] = change
+        params[_P_HEADING_SIGMA] = self.heading_sigma_rad
+        params[_P_FALSE_TURN] = (-math.inf if share <= 0.0 else math.inf if share >= 1.0
+                                 else statistics.NormalDist().inv_cdf(share))
+        params[_P_LENGTH_SIGMA] = self.step_length_walk_sigma_m * math.sqrt(n_steps)
+        params[_P_LENGTH_MIN] = self.step_length_min_m
+        params[_P_LENGTH_MAX] = self.step_length_max_m
+        params[_P_POSITION_SIGMA] = self.position_sigma_m * math.sqrt(n_steps)
+        return MoveKernel(_pdr_step, params, 3)
