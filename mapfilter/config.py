@@ -20,7 +20,7 @@ from mapfilter.filter.models.barometer import BarometerConfig
 from mapfilter.filter.evidence import TrilaterationConfig, WifiConfig
 from mapfilter.filter.models.building import FloorChangeConfig
 from mapfilter.filter.particle_filter import FilterConfig
-from mapfilter.filter.run import MotionConfig
+from mapfilter.filter.tracker import MotionConfig
 from mapfilter.offline.whole_walk import OfflineConfig
 from mapfilter.sensors.pdr import PDRConfig
 from mapfilter.settings import replace_setting, settings_from_yaml, settings_to_dict, settings_to_yaml

@@ -1,14 +1,16 @@
-"""Tracking one walk: a map or building + a phone log -> the causal track and the offline track.
+"""Tracking one walk: a map or building + a phone's records -> the causal track (and the offline one).
 
 This is the pipeline behind ``mapfilter track``, ``mapfilter evaluate``'s ``pf`` methods and
 ``mapfilter.track``: it reads nothing and writes nothing. A single map is a one-floor building;
 the floor enters the filter's state only when the building has more than one floor and none is
-given. The stages, in order:
+given. :class:`Tracker` takes the records as they arrive (a live phone, a log read line by
+line) and gives each causal estimate as soon as it exists; :func:`track` is the replay of a whole
+recording through it. The stages:
 
-1. the walk's evidence: its WiFi scans as the filter weighs them (``filter.evidence``), and its
-   PDR steps (``sensors.pdr``);
-2. the causal filter over the walk (``filter.run.run_filter``);
-3. with ``smooth``, the offline track from the whole walk (``offline``).
+1. the walk's evidence as it comes: its WiFi scans as the filter weighs them
+   (``filter.evidence``), its steps (``sensors.pdr.OnlinePDR``, causal);
+2. the causal filter (``filter.tracker.StreamFilter``: one event, one filter step);
+3. with ``smooth``, after the last record, the offline track from the whole walk (``offline``).
 """
 
 from __future__ import annotations
@@ -24,26 +26,30 @@ from mapfilter.errors import MapfilterError
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.evidence import BuildingEvidence, WifiEvidence
 from mapfilter.filter.models.building import FloorChanges, FloorStack
-from mapfilter.filter.run import FilterRun, run_filter
+from mapfilter.filter.tracker import StreamFilter
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.offline.floors import building_offline_track, to_floors
 from mapfilter.offline.whole_walk import OfflineTrack, offline_track
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.pdr import Steps, detect_steps
+try:
+    from mapfilter.sensors.pdr import OnlinePDR
+except ImportError:  # TEMPORARY until the online detector lands
+    OnlinePDR = None
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import scans_of
 from mapfilter.trackio import Track
 
-__all__ = ["PreparedWalk", "TrackResult", "prepare_walk", "track", "track_prepared"]
+__all__ = ["PreparedWalk", "TrackResult", "Tracker", "prepare_walk", "track", "track_prepared"]
 
 
 @dataclasses.dataclass(frozen=True)
 class TrackResult:
     """One walk tracked: tracks in each floor's own frame (``floor`` names the floor of each row)."""
 
-    causal: Track  # the estimate after every filter step (t_s, xy_m, std_m; heading_rad with PDR)
+    causal: Track  # the estimate after every filter step, stamped with the time a live system has it
     offline: Track | None  # the whole-walk track (with config.smooth), else None
     restarted: Track | None  # the second filter run whose estimates placed the offline track
     collapses: tuple[CollapseEvent, ...]
@@ -54,6 +60,7 @@ class TrackResult:
     config: TrackingConfig
     gaps: tuple[tuple[float, float], ...] = ()  # (from, to) s: gaps in the log where the filter started afresh
     access_points: AccessPointTable | None = None  # trilateration: the table at the end (adapted with adapt_path_loss)
+    late_records: int = 0  # records dropped because they came after later ones had been processed
 
     @property
     def runtime_s(self) -> float:
@@ -62,8 +69,8 @@ class TrackResult:
 
 @dataclasses.dataclass(frozen=True)
 class PreparedWalk:
-    """A walk's evidence made once, to be tracked with one or more configs that share its WiFi
-    settings (``prepare_walk``, ``track_prepared``)."""
+    """A walk's evidence and steps made once, to be tracked with one or more configs that share its
+    WiFi and step settings (``prepare_walk``, ``track_prepared``)."""
 
     building: Building
     floor_index: int | None  # the floor tracked on; None: the floor is in the filter's state
@@ -73,26 +80,17 @@ class PreparedWalk:
     recording: Recording
 
 
-def prepare_walk(building: Building | FloorPlan, recording: Recording, radio_map: RadioMap | None = None,
-                 access_points: AccessPointTable | None = None, config: TrackingConfig | None = None, *,
-                 floor: str | None = None, steps: Steps | None = None,
-                 fix_sigma_by_floor_m: dict[str, float] | None = None,
-                 floor_evidence: np.ndarray | None = None) -> PreparedWalk:
-    """The walk's evidence (``filter.evidence``) and PDR steps, checked against the building.
+def _as_building(building: Building | FloorPlan) -> Building:
+    return building if isinstance(building, Building) else Building.from_plan(building)
 
-    The arguments are ``track``'s. Only ``config.wifi``, ``config.trilateration``,
-    ``config.steps``, ``config.motion.model`` and ``config.floors`` matter here.
-    """
-    config = config if config is not None else TrackingConfig()
-    building = building if isinstance(building, Building) else Building.from_plan(building)
+
+def _empty_evidence(building: Building, radio_map: RadioMap | None, access_points: AccessPointTable | None,
+                    config: TrackingConfig, floor: str | None, fix_sigma_by_floor_m: dict[str, float] | None,
+                    floor_evidence: np.ndarray | None, log_name: str
+                    ) -> tuple[WifiEvidence | BuildingEvidence, int | None, FloorStack | None]:
+    """(the walk's evidence, not yet holding a scan; the floor index or None; the stack plan or None)."""
     if (radio_map is None) == (access_points is None):
         raise MapfilterError("give either a radio map (fingerprinting) or an access-point table (trilateration)")
-    log_name = str(recording.path) if recording.path is not None else "the log"
-    pdr = config.motion.model == "pdr"
-    if pdr and steps is None:
-        steps = detect_steps(recording, config.steps)
-    steps = steps if pdr else None
-    scans = scans_of(recording)
     if building.is_single_floor or floor is not None:
         index = 0 if building.is_single_floor else building.floor_index(floor)
         plan_floor = building.floors[index]
@@ -104,18 +102,158 @@ def prepare_walk(building: Building | FloorPlan, recording: Recording, radio_map
         wifi = config.wifi
         if fix_sigma_by_floor_m and plan_floor.name in fix_sigma_by_floor_m:
             wifi = dataclasses.replace(wifi, fix_sigma_m=fix_sigma_by_floor_m[plan_floor.name])
-        evidence = WifiEvidence(scans, radio_map, access_points, plan_floor.plan, wifi, config.trilateration, log_name)
-        return PreparedWalk(building, index, evidence, steps, None, recording)
+        evidence = WifiEvidence(radio_map, access_points, plan_floor.plan, wifi, config.trilateration, log_name)
+        return evidence, index, None
     if access_points is not None:
         raise MapfilterError("tracking across floors needs a building's radio map, not an access-point table "
                              "(or give the floor)")
     stack = FloorStack(building)
-    pressure = None
-    if config.floors.use_barometer and recording.pressure_t_s.size >= 2:
-        pressure = (recording.pressure_t_s, recording.pressure_hpa)
-    evidence = BuildingEvidence(scans, radio_map, stack, config.wifi, fix_sigma_by_floor_m, log_name,
-                                pressure=pressure, barometer=config.floors.barometer, floor_evidence=floor_evidence)
-    return PreparedWalk(building, None, evidence, steps, stack, recording)
+    evidence = BuildingEvidence(radio_map, stack, config.wifi, fix_sigma_by_floor_m, log_name,
+                                config.floors.use_barometer, config.floors.barometer, floor_evidence)
+    return evidence, None, stack
+
+
+class Tracker:
+    """Track a walk as its records arrive: ``feed`` chunks of records (``Recording``s holding the
+    next records of each sensor, e.g. from ``sensors.logs.LogStream``), get the causal rows each
+    completes, ``close`` at the end. Each row is stamped with the time a live system has it and
+    depends only on records stamped at or before it: feeding a walk in chunks of any size gives
+    the rows of feeding it whole.
+
+    Parameters are ``track``'s; ``evidence`` and ``steps`` (a ``prepare_walk``'s) skip making
+    them again.
+    """
+
+    def __init__(self, building: Building | FloorPlan, radio_map: RadioMap | None = None,
+                 access_points: AccessPointTable | None = None, config: TrackingConfig | None = None, *,
+                 floor: str | None = None, rng: np.random.Generator | None = None,
+                 on_step: Callable[[StepReport], None] | None = None,
+                 fix_sigma_by_floor_m: dict[str, float] | None = None, floor_evidence: np.ndarray | None = None,
+                 log_name: str = "the log", evidence: WifiEvidence | BuildingEvidence | None = None,
+                 steps: Steps | None = None, stack: FloorStack | None = None) -> None:
+        self.config = config = config if config is not None else TrackingConfig()
+        self.building = _as_building(building)
+        if evidence is None:
+            evidence, self.floor_index, stack = _empty_evidence(self.building, radio_map, access_points, config, floor,
+                                                                fix_sigma_by_floor_m, floor_evidence, log_name)
+        else:
+            self.floor_index = None if stack is not None else (0 if self.building.is_single_floor
+                                                               else self.building.floor_index(floor))
+        self.evidence = evidence
+        self.stack = stack
+        self.rng = rng if rng is not None else np.random.default_rng(config.seed)
+        pdr = config.motion.model == "pdr"
+        floors = None
+        if stack is None:
+            floor_plan = self.building.floors[self.floor_index].plan
+            plan = floor_plan if config.use_map else FloorPlan(np.zeros_like(floor_plan.wall_mask),
+                                                               floor_plan.resolution_m, floor_plan.origin_m,
+                                                               floor_plan.floor_name)
+        else:
+            if not config.use_map:
+                raise MapfilterError("tracking across floors needs the walls (the floors are kept apart by them): "
+                                     "drop --no-map or give the floor")
+            floors = FloorChanges(stack, config.floors.changes)
+            plan = stack.plan
+        self.plan = plan
+        # without steps to place (no PDR), the offline track is the lineage of the final best particle
+        keep_ancestry = config.smooth and (stack is not None or not pdr)
+        self.stream = StreamFilter(plan, evidence, config.motion, config.filter, self.rng,
+                                   pdr=OnlinePDR(config.steps) if pdr and steps is None else None,
+                                   steps=steps if pdr else None, floors=floors, on_step=on_step,
+                                   keep_ancestry=keep_ancestry,
+                                   abs_heading_offset_rad=config.steps.abs_heading_offset_rad)
+        self._floors = floors
+        self.runtime_s = 0.0
+
+    def feed(self, records: Recording) -> Track:
+        """The next records of the walk; returns the causal rows they completed (floor frames)."""
+        started = time.perf_counter()
+        rows = self.stream.feed(records)
+        self.runtime_s += time.perf_counter() - started
+        return self._rows_track(len(rows))
+
+    def close(self) -> Track:
+        """The end of the walk; returns the last causal rows."""
+        started = time.perf_counter()
+        rows = self.stream.close()
+        self.runtime_s += time.perf_counter() - started
+        return self._rows_track(len(rows))
+
+    def _rows_track(self, n_new: int) -> Track:
+        track = self.causal
+        return track.rows(slice(len(track) - n_new, len(track)))
+
+    @property
+    def causal(self) -> Track:
+        """The causal track so far, each row in its floor's frame."""
+        return self._on_floors(self.stream.track())
+
+    def _on_floors(self, track: Track) -> Track:
+        if self.stack is not None:
+            return to_floors(self.stack, track) if track.floor is None else track
+        if not self.building.is_single_floor and track.floor is None:
+            return dataclasses.replace(track, floor=[self.building.floors[self.floor_index].name] * len(track))
+        return track
+
+    def result(self, on_offline_step: Callable[[StepReport], None] | None = None) -> TrackResult:
+        """The walk tracked (after ``close``): the causal track and, with ``config.smooth``, the offline one."""
+        if not self.stream.closed:
+            raise RuntimeError("close the tracker before asking for the result")
+        if not self.stream.rows:
+            raise MapfilterError(f"no WiFi scan of {self.evidence.log_name} gives a fingerprint fix with this "
+                                 "radio map")
+        config, stream = self.config, self.stream
+        started = time.perf_counter()
+        offline = None
+        if config.smooth:
+            steps = stream.steps if config.motion.model == "pdr" else None
+            causal_track = stream.track()
+            if self.stack is None:
+                has_steps = steps is not None and len(steps) > 0
+                offline = offline_track(self.plan, self.evidence, steps if has_steps else None, causal_track,
+                                        stream.lineage, config.motion, config.filter, self.rng, config.offline,
+                                        on_offline_step)
+            else:
+                offline = building_offline_track(self._floors, self.evidence, steps, causal_track, stream.lineage,
+                                                 config.motion, config.filter, self.rng, config.offline,
+                                                 on_offline_step)
+        offline_s = time.perf_counter() - started
+        access_points = self.evidence.access_points if isinstance(self.evidence, WifiEvidence) else None
+        return TrackResult(
+            causal=self.causal,
+            offline=None if offline is None else self._on_floors(offline.track),
+            restarted=None if offline is None or offline.restarted is None else self._on_floors(offline.restarted),
+            collapses=stream.collapses, n_filter_steps=len(stream.rows) - 1, n_scans_used=stream.n_scans_used,
+            causal_runtime_s=self.runtime_s, offline_runtime_s=offline_s, config=config, gaps=tuple(stream.gaps),
+            access_points=access_points, late_records=stream.late_records)
+
+
+def prepare_walk(building: Building | FloorPlan, recording: Recording, radio_map: RadioMap | None = None,
+                 access_points: AccessPointTable | None = None, config: TrackingConfig | None = None, *,
+                 floor: str | None = None, steps: Steps | None = None,
+                 fix_sigma_by_floor_m: dict[str, float] | None = None,
+                 floor_evidence: np.ndarray | None = None) -> PreparedWalk:
+    """The walk's evidence (every scan's measurement) and PDR steps, checked against the building.
+
+    The arguments are ``track``'s. Only ``config.wifi``, ``config.trilateration``,
+    ``config.steps``, ``config.motion.model`` and ``config.floors`` matter here.
+    """
+    config = config if config is not None else TrackingConfig()
+    building = _as_building(building)
+    log_name = str(recording.path) if recording.path is not None else "the log"
+    scans = scans_of(recording)
+    evidence, index, stack = _empty_evidence(building, radio_map, access_points, config, floor, fix_sigma_by_floor_m,
+                                             floor_evidence, log_name)
+    evidence.prepare(scans)
+    evidence.add_scans(scans)
+    if stack is not None and config.floors.use_barometer and recording.pressure_t_s.size >= 2:
+        evidence.add_pressure(recording.pressure_t_s, recording.pressure_hpa)
+    evidence.require_usable()
+    pdr = config.motion.model == "pdr"
+    if pdr and steps is None:
+        steps = detect_steps(recording, config.steps)
+    return PreparedWalk(building, index, evidence, steps if pdr else None, stack, recording)
 
 
 def track(building: Building | FloorPlan, recording: Recording, radio_map: RadioMap | None = None,
@@ -125,7 +263,7 @@ def track(building: Building | FloorPlan, recording: Recording, radio_map: Radio
           on_offline_step: Callable[[StepReport], None] | None = None,
           fix_sigma_by_floor_m: dict[str, float] | None = None,
           floor_evidence: np.ndarray | None = None, rng: np.random.Generator | None = None) -> TrackResult:
-    """Track one walk.
+    """Track one walk: the replay of its records through a ``Tracker``.
 
     Parameters
     ----------
@@ -135,7 +273,8 @@ def track(building: Building | FloorPlan, recording: Recording, radio_map: Radio
         several floors needs a building's radio map).
     config : every setting (``TrackingConfig``; default: the defaults). Its seed seeds the run.
     floor : track on this floor of the building only (default: find the floor, or the only one).
-    steps : the walk's PDR steps if already detected with ``config.steps`` (else detected here).
+    steps : the walk's PDR steps if already detected with ``config.steps`` (else detected as the
+        records come).
     on_step : called with every ``StepReport`` of the causal run (the viewer, progress).
     on_offline_step : called with every ``StepReport`` of the offline stage's second filter run.
     fix_sigma_by_floor_m : the fix Gaussian of each floor by name, instead of calibrating it
@@ -147,75 +286,30 @@ def track(building: Building | FloorPlan, recording: Recording, radio_map: Radio
 
     Tracks carry a floor name per row when the building has several floors.
     """
-    started = time.perf_counter()
-    walk = prepare_walk(building, recording, radio_map, access_points, config, floor=floor, steps=steps,
-                        fix_sigma_by_floor_m=fix_sigma_by_floor_m, floor_evidence=floor_evidence)
-    return track_prepared(walk, config, rng=rng, on_step=on_step, on_offline_step=on_offline_step, started=started)
+    config = config if config is not None else TrackingConfig()
+    log_name = str(recording.path) if recording.path is not None else "the log"
+    if OnlinePDR is None and steps is None and config.motion.model == "pdr":  # TEMPORARY
+        steps = detect_steps(recording, config.steps)
+    tracker = Tracker(building, radio_map, access_points, config, floor=floor, rng=rng, on_step=on_step,
+                      fix_sigma_by_floor_m=fix_sigma_by_floor_m, floor_evidence=floor_evidence, log_name=log_name,
+                      steps=steps)
+    tracker.evidence.prepare(scans_of(recording))  # one line naming the log when no scan can be used
+    tracker.feed(recording)
+    tracker.close()
+    return tracker.result(on_offline_step)
 
 
 def track_prepared(walk: PreparedWalk, config: TrackingConfig | None = None, *, rng: np.random.Generator | None = None,
                    on_step: Callable[[StepReport], None] | None = None,
-                   on_offline_step: Callable[[StepReport], None] | None = None,
-                   started: float | None = None) -> TrackResult:
+                   on_offline_step: Callable[[StepReport], None] | None = None) -> TrackResult:
     """Track a walk whose evidence ``prepare_walk`` made (with the same WiFi settings as ``config``)."""
     config = config if config is not None else TrackingConfig()
-    started = started if started is not None else time.perf_counter()
-    rng = rng if rng is not None else np.random.default_rng(config.seed)
-    steps = walk.steps if config.motion.model == "pdr" else None
-    if config.motion.model == "pdr" and steps is None:
+    if config.motion.model == "pdr" and walk.steps is None:
         raise MapfilterError("PDR motion needs the walk's steps: prepare the walk with the PDR motion model")
-    if walk.stack is None:
-        return _track_on_floor(walk, config, rng, steps, on_step, on_offline_step, started)
-    if not config.use_map:
-        raise MapfilterError("tracking across floors needs the walls (the floors are kept apart by them): "
-                             "drop --no-map or give the floor")
-    return _track_in_building(walk, config, rng, steps, on_step, on_offline_step, started)
-
-
-def _track_on_floor(walk: PreparedWalk, config: TrackingConfig, rng: np.random.Generator, steps: Steps | None,
-                    on_step, on_offline_step, started: float) -> TrackResult:
-    """One floor: the filter on that floor's plan, no floor in the state."""
-    floor = walk.building.floors[walk.floor_index]
-    plan = floor.plan if config.use_map else FloorPlan(np.zeros_like(floor.plan.wall_mask), floor.plan.resolution_m,
-                                                        floor.plan.origin_m, floor.plan.floor_name)
-    evidence = walk.evidence
-    # without steps to place, the offline track is the lineage of the final best particle
-    whole_walk = steps is not None and len(steps) > 0
-    run = run_filter(plan, config.motion, config.filter, rng, evidence, steps, on_step=on_step,
-                     keep_ancestry=config.smooth and not whole_walk)
-    causal_done = time.perf_counter()
-    offline = None
-    if config.smooth:
-        offline = offline_track(plan, evidence, steps, run.track, run.lineage, config.motion, config.filter, rng,
-                                config.offline, on_offline_step)
-    names = [floor.name] if not walk.building.is_single_floor else None
-    return _result(run, offline, config, started, causal_done, evidence.access_points,
-                   lambda t: dataclasses.replace(t, floor=names * len(t)) if names and t.floor is None else t)
-
-
-def _track_in_building(walk: PreparedWalk, config: TrackingConfig, rng: np.random.Generator, steps: Steps | None,
-                       on_step, on_offline_step, started: float) -> TrackResult:
-    """Several floors: the floor in the filter's state (``filter.floors``)."""
-    stack, evidence = walk.stack, walk.evidence
-    changes = FloorChanges(stack, config.floors.changes)
-    run = run_filter(stack.plan, config.motion, config.filter, rng, evidence, steps, floors=changes, on_step=on_step,
-                     keep_ancestry=config.smooth)
-    causal_done = time.perf_counter()
-    offline = None
-    if config.smooth:
-        offline = building_offline_track(changes, evidence, steps, run.track, run.lineage, config.motion,
-                                         config.filter, rng, config.offline, on_offline_step)
-    return _result(run, offline, config, started, causal_done, None,
-                   lambda t: to_floors(stack, t) if t.floor is None else t)
-
-
-def _result(run: FilterRun, offline: OfflineTrack | None, config: TrackingConfig, started: float,
-            causal_done: float, access_points: AccessPointTable | None,
-            on_floors: Callable[[Track], Track]) -> TrackResult:
-    return TrackResult(
-        causal=on_floors(run.track),
-        offline=None if offline is None else on_floors(offline.track),
-        restarted=None if offline is None or offline.restarted is None else on_floors(offline.restarted),
-        collapses=run.collapses, n_filter_steps=run.n_filter_steps, n_scans_used=run.n_scans_used,
-        causal_runtime_s=causal_done - started, offline_runtime_s=time.perf_counter() - causal_done,
-        config=config, gaps=run.gaps, access_points=access_points)
+    floor = None if walk.floor_index is None or walk.building.is_single_floor \
+        else walk.building.floor_names[walk.floor_index]
+    tracker = Tracker(walk.building, config=config, floor=floor, rng=rng, on_step=on_step, evidence=walk.evidence,
+                      steps=walk.steps, stack=walk.stack)
+    tracker.feed(walk.recording)
+    tracker.close()
+    return tracker.result(on_offline_step)

@@ -42,6 +42,16 @@ class Track:
     def __len__(self) -> int:
         return self.t_s.shape[0]
 
+    def rows(self, index: slice | np.ndarray) -> Track:
+        """The track's rows ``index`` (a new track)."""
+        def pick(values):
+            if values is None:
+                return None
+            return [values[i] for i in np.arange(len(self))[index]] if isinstance(values, list) else values[index]
+        return dataclasses.replace(self, t_s=self.t_s[index], xy_m=self.xy_m[index], std_m=pick(self.std_m),
+                                   heading_rad=pick(self.heading_rad), floor=pick(self.floor),
+                                   latlon_deg=pick(self.latlon_deg), floor_p=pick(self.floor_p))
+
 
 def with_latlon(track: Track, building: Building) -> Track:
     """A new track with each row's latitude and longitude from a georeferenced ``building`` (rows

@@ -10,7 +10,7 @@ from conftest import REPO
 from mapfilter.cli import main
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.models.adaptive_path_loss import AdaptationConfig, AdaptiveTrilaterationLikelihood, BlockingConfig
-from mapfilter.filter.measurement import TrilaterationLikelihood
+from mapfilter.filter.models.path_loss import TrilaterationLikelihood
 from mapfilter.filter.particles import Particles
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.ilc import read_ilc

@@ -1,4 +1,5 @@
-"""Motion models, measurement models, the RSSI kernel, regularisation bandwidth and estimate."""
+"""Motion and measurement models through the filter's kernels: their distributions and values
+against the thesis' formulas; the regularisation bandwidth; the estimate."""
 
 import math
 
@@ -6,130 +7,108 @@ import numpy as np
 import pytest
 
 from mapfilter.filter.estimate import circular_mean, weighted_estimate
-from mapfilter.filter.measurement import GaussianFixLikelihood, PositionFix, rssi_log_likelihood
+from mapfilter.filter.kernels.draws import cos_sin
 from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
+from mapfilter.filter.models.path_loss import TrilaterationLikelihood
+from mapfilter.filter.models.position_fix import GaussianFixLikelihood, PositionFix
+from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter, evaluate_log_likelihood, optimal_bandwidth
 from mapfilter.filter.particles import Particles
-from mapfilter.filter.regularise import optimal_bandwidth, regularise, sample_kernel
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.maps.walls import crosses_wall
-from mapfilter.sensors.pathloss import path_loss_rssi_dbm
+from mapfilter.sensors.pathloss import AccessPointTable, path_loss_rssi_dbm
+from mapfilter.sensors.wifi import WifiScan
+
+OPEN = FloorPlan(np.pad(np.zeros((998, 998), dtype=bool), 1, constant_values=True), 0.1)  # 100 m square
+CENTRE = (50.0, 50.0)
 
 
-def _particles(n, xy=(0.0, 0.0), heading=0.0):
-    return Particles.at(np.tile(np.asarray(xy, float), (n, 1)), heading_rad=heading, step_length_m=0.7)
+def _moved(motion, n, inputs, dt_s, heading=0.0, velocity=(0.0, 0.0), seed=0):
+    """One step of ``motion`` from n particles at the centre (no weighing, no resampling)."""
+    pf = ParticleFilter(OPEN, motion, FilterConfig(n_particles=n, resample_ess_fraction=0.0), np.random.default_rng(seed))
+    pf.particles = Particles.at(np.tile(CENTRE, (n, 1)), heading_rad=heading, step_length_m=0.7)
+    pf.particles.state[2], pf.particles.state[3] = velocity
+    pf.estimate_xy_m = np.array(CENTRE)
+    pf.step(1.0, dt_s, inputs)
+    return pf.particles
 
 
 def test_random_walk_on_a_circle_matches_thesis_moments():
-    rng = np.random.default_rng(0)
-    p = _particles(200_000)
-    before = p.copy()
-    moved = RandomWalkMotion().propagate(p, None, 2.0, rng)
-    np.testing.assert_array_equal(p.xy_m, before.xy_m)  # never mutates its input
-    d = np.linalg.norm(moved.xy_m, axis=1)
+    moved = _moved(RandomWalkMotion(), 200_000, None, 2.0)
+    d = moved.xy_m - CENTRE
     # r = 1.5 dt = 3 m, sigma = 0.5 dt = 1 m: E|x|^2 = r^2 + 2 sigma^2 = 11
-    assert np.mean(d ** 2) == pytest.approx(11.0, rel=0.02)
-    assert np.abs(moved.xy_m.mean(axis=0)).max() < 0.02
+    assert np.mean((d ** 2).sum(axis=1)) == pytest.approx(11.0, rel=0.02)
+    assert np.abs(d.mean(axis=0)).max() < 0.02
+    angle = np.arctan2(d[:, 1], d[:, 0])
+    assert np.histogram(angle, bins=8)[0].min() > 0.95 * len(angle) / 8  # every direction alike
 
 
 def test_constant_velocity_moves_along_velocity():
-    rng = np.random.default_rng(1)
-    p = _particles(50_000)
-    p.velocity_mps[:] = [1.0, 0.0]
-    moved = ConstantVelocityMotion(accel_sigma_mps2=0.2).propagate(p, None, 1.0, rng)
-    assert moved.xy_m.mean(axis=0) == pytest.approx([1.0, 0.0], abs=0.01)
-    assert moved.xy_m[:, 1].std() == pytest.approx(0.1, rel=0.05)  # a dt^2 / 2
+    moved = _moved(ConstantVelocityMotion(accel_sigma_mps2=0.2), 50_000, None, 1.0, velocity=(1.0, 0.0))
+    d = moved.xy_m - CENTRE
+    assert d.mean(axis=0) == pytest.approx([1.0, 0.0], abs=0.01)
+    assert d[:, 1].std() == pytest.approx(0.1, rel=0.05)  # a dt^2 / 2
     assert moved.velocity_mps[:, 1].std() == pytest.approx(0.2, rel=0.05)
-    fast = p.copy()
-    fast.velocity_mps[:] = [10.0, 0.0]
-    out = ConstantVelocityMotion(max_speed_mps=2.0).propagate(fast, None, 1.0, rng)
-    assert np.hypot(*out.velocity_mps.T).max() <= 2.0 + 1e-9
+    fast = _moved(ConstantVelocityMotion(max_speed_mps=2.0), 5_000, None, 1.0, velocity=(10.0, 0.0))
+    assert np.hypot(*fast.velocity_mps.T).max() <= 2.0 + 1e-9
 
 
 def test_pdr_steps_along_heading_with_false_turns():
-    rng = np.random.default_rng(2)
-    n = 100_000
-    p = _particles(n, heading=0.0)
     motion = PDRMotion(heading_sigma_rad=0.0, step_length_walk_sigma_m=0.0, position_sigma_m=0.0)
-    moved = motion.propagate(p, StepInput(n_steps=2, heading_change_rad=math.pi / 2), 1.0, rng)
+    moved = _moved(motion, 100_000, StepInput(n_steps=2, heading_change_rad=math.pi / 2), 1.0)
     turned = np.isclose(moved.heading_rad, math.pi / 2)
     ignored = np.isclose(moved.heading_rad, 0.0)
     assert np.all(turned | ignored)
     assert ignored.mean() == pytest.approx(0.15, abs=0.01)  # thesis: 15 % false turns
-    np.testing.assert_allclose(moved.xy_m[turned], np.tile([0.0, 1.4], (turned.sum(), 1)), atol=1e-9)
-    np.testing.assert_allclose(moved.xy_m[ignored], np.tile([1.4, 0.0], (ignored.sum(), 1)), atol=1e-9)
-    # small changes are applied to every particle
-    small = motion.propagate(p, StepInput(1, 0.1), 1.0, rng)
-    np.testing.assert_allclose(small.heading_rad, 0.1)
-
-
-def test_pdr_step_length_state_given_and_absolute_heading():
-    rng = np.random.default_rng(3)
-    p = _particles(10_000)
-    motion = PDRMotion(step_length_walk_sigma_m=0.05)
-    walked = motion.propagate(p, StepInput(1, 0.0), 1.0, rng)
-    assert walked.step_length_m.std() > 0.03  # the state random-walks (eq. 8.23)
-    assert walked.step_length_m.min() >= motion.step_length_min_m
-    given = PDRMotion(heading_sigma_rad=0.0, position_sigma_m=0.0, step_length_input_sigma_m=0.0).propagate(
-        p, StepInput(1, 0.0, heading_abs_rad=-math.pi / 2, step_length_m=0.5), 1.0, rng)
-    np.testing.assert_allclose(given.xy_m, np.tile([0.0, -0.5], (10_000, 1)), atol=1e-9)
-    standing = motion.propagate(p, StepInput(0, 0.0), 1.0, rng)
-    np.testing.assert_array_equal(standing.xy_m, p.xy_m)
+    np.testing.assert_allclose(moved.xy_m[turned] - CENTRE, np.tile([0.0, 1.4], (turned.sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(moved.xy_m[ignored] - CENTRE, np.tile([1.4, 0.0], (ignored.sum(), 1)), atol=1e-6)
+    small = _moved(PDRMotion(heading_sigma_rad=0.0), 1000, StepInput(1, 0.1), 1.0)
+    np.testing.assert_allclose(small.heading_rad, 0.1)  # below the turn threshold: every particle turns
+    standing = _moved(PDRMotion(), 1000, StepInput(0, 0.0), 1.0)
+    np.testing.assert_allclose(standing.xy_m, np.tile(CENTRE, (1000, 1)))
+    np.testing.assert_allclose(standing.step_length_m, 0.7)
+    walked = _moved(PDRMotion(step_length_walk_sigma_m=0.05), 20_000, StepInput(1, 0.0), 1.0)
+    assert walked.step_length_m.std() == pytest.approx(0.05, rel=0.05)
+    assert walked.step_length_m.min() >= 0.4 and walked.step_length_m.max() <= 1.0
     with pytest.raises(ValueError):
-        motion.propagate(p, StepInput(-1, 0.0), 1.0, rng)
+        PDRMotion().kernel(StepInput(-1, 0.0), 1.0)
 
 
 def test_gaussian_fix_likelihood():
     p = Particles.at(np.array([[0.0, 0.0], [3.0, 4.0]]))
-    ll = GaussianFixLikelihood(5.0).log_likelihood(p, PositionFix((0.0, 0.0)))
+    ll = evaluate_log_likelihood(GaussianFixLikelihood(5.0), PositionFix((0.0, 0.0)), p)
     np.testing.assert_allclose(ll, [0.0, -0.5])
-    ll2 = GaussianFixLikelihood(5.0).log_likelihood(p, PositionFix((0.0, 0.0), sigma_m=1.0))
+    ll2 = evaluate_log_likelihood(GaussianFixLikelihood(5.0), PositionFix((0.0, 0.0), sigma_m=1.0), p)
     np.testing.assert_allclose(ll2, [0.0, -12.5])
     with pytest.raises(ValueError):
-        GaussianFixLikelihood(0.0).log_likelihood(p, PositionFix((0.0, 0.0)))
+        evaluate_log_likelihood(GaussianFixLikelihood(0.0), PositionFix((0.0, 0.0)), p)
 
 
-def test_rssi_kernel_matches_the_path_loss_model():
+def test_path_loss_kernel_matches_the_model():
     rng = np.random.default_rng(4)
     xy = rng.uniform(-5, 60, (5000, 2))
-    ap = rng.uniform(0, 50, (20, 2))
+    k = 20
+    ap = rng.uniform(0, 50, (k, 2))
     ap[0] = xy[0]  # distance 0: clamped at 1 m
-    c, n = rng.uniform(-45, -30, 20), rng.uniform(1.5, 3.0, 20)
-    alpha, d_max = rng.uniform(0.2, 0.6, 20), rng.uniform(10, 40, 20)
-    observed = rng.uniform(-90, -40, 20)
-    observed[3] = np.nan  # not heard: left out
-    got = rssi_log_likelihood(xy, ap, c, n, alpha, d_max, observed, 25.0)
+    c, n = rng.uniform(-45, -30, k), rng.uniform(1.5, 3.0, k)
+    alpha, d_max = rng.uniform(0.2, 0.6, k), rng.uniform(10, 40, k)
+    bssids = [f"aa:bb:cc:00:00:{i:02x}" for i in range(k)]
+    table = AccessPointTable(bssid=bssids, band=["2.4"] * k, xy_m=ap, c_dbm=c, n=n, alpha_db_per_m=alpha, d_max_m=d_max)
+    keys = table.keys
+    heard = np.ones(k, dtype=bool)
+    heard[3] = False  # not heard: left out
+    observed = rng.uniform(-90, -40, k)
+    scan = WifiScan(t_s=0.0, ap_keys=tuple(keys[i] for i in np.flatnonzero(heard)), rssi_dbm=observed[heard])
+    got = evaluate_log_likelihood(TrilaterationLikelihood(table, 25.0), scan, Particles.at(xy))
     d = np.linalg.norm(xy[:, None] - ap[None], axis=-1)
     r = observed - path_loss_rssi_dbm(d, c, n, alpha, d_max)
-    expected = -np.nansum(r ** 2, axis=1) / 50.0
+    expected = -(r[:, heard] ** 2).sum(axis=1) / 50.0
     np.testing.assert_allclose(got, expected, rtol=2e-5, atol=1e-3)
     assert got.dtype == np.float64 and got.shape == (5000,)
 
 
-def test_bandwidth_constants():
+def test_bandwidth_constant():
     # Gaussian: A = (4/(d+2))^(1/(d+4)) = 1 for d = 2
-    assert optimal_bandwidth(1, "gaussian") == pytest.approx(1.0)
-    assert optimal_bandwidth(10_000, "gaussian") == pytest.approx(10_000 ** (-1 / 6))
-    # Epanechnikov, d = 2: A = (8 * 6 * (2 sqrt(pi))^2 / pi)^(1/6) = 192^(1/6)
-    assert optimal_bandwidth(1, "epanechnikov") == pytest.approx(192 ** (1 / 6))
-    eps = sample_kernel("epanechnikov", 100_000, np.random.default_rng(5))
-    r2 = (eps ** 2).sum(axis=1)
-    assert r2.max() <= 1.0 and r2.mean() == pytest.approx(1 / 3, rel=0.02)  # Beta(1, 2) mean
-    with pytest.raises(ValueError):
-        optimal_bandwidth(10, "box")
-
-
-def test_regularise_never_crosses_walls():
-    rng = np.random.default_rng(6)
-    mask = np.zeros((40, 40), dtype=bool)
-    mask[:, 20] = True
-    fp = FloorPlan(mask, 0.1)
-    xy = np.column_stack([rng.uniform(1.85, 1.99, 5000), rng.uniform(0.5, 3.5, 5000)])  # hugging the wall
-    origin = xy + np.array([-0.2, 0.0])
-    new, moved = regularise(fp, xy, np.diag([0.5, 0.5]), rng, tries=3, origin_xy_m=origin)
-    assert not crosses_wall(fp, xy, new).any()
-    assert not crosses_wall(fp, origin, new).any()
-    assert 0.1 < moved.mean() < 1.0  # some jitter rejected, most accepted
-    assert np.array_equal(new[~moved], xy[~moved])
+    assert optimal_bandwidth(1) == pytest.approx(1.0)
+    assert optimal_bandwidth(10_000) == pytest.approx(10_000 ** (-1 / 6))
 
 
 def test_estimate_never_in_a_wall():
@@ -145,29 +124,7 @@ def test_estimate_never_in_a_wall():
     assert circular_mean(np.array([math.pi - 0.1, -math.pi + 0.1]), np.ones(2)) == pytest.approx(math.pi)
 
 
-def test_circle_walk_directions_match_cos_sin():
-    from mapfilter.filter.models.motion import _circle_walk
-
-    phi = np.linspace(0.0, 2.0 * math.pi, 20001)[:-1]
-    out = np.empty((phi.size, 2))
-    _circle_walk(0, phi.size, np.zeros((phi.size, 2)), phi, np.zeros((phi.size, 2)), 1.0, 0.0, out)
-    np.testing.assert_allclose(out, np.column_stack([np.cos(phi), np.sin(phi)]), atol=1e-7)
-
-
-def test_fast_standard_normal_is_box_muller_on_the_generators_uniforms():
-    from scipy import stats
-
-    from mapfilter.filter.gaussian import standard_normal
-
-    z = standard_normal(np.random.default_rng(8), (7,))  # odd size
-    u = np.random.default_rng(8).random(8)
-    r = np.sqrt(-2.0 * np.log(1.0 - u[0::2]))
-    exact = np.empty(8)
-    exact[0::2] = r * np.cos(2 * np.pi * u[1::2])
-    exact[1::2] = r * np.sin(2 * np.pi * u[1::2])
-    np.testing.assert_allclose(z, exact[:7], atol=1e-7)
-    big = standard_normal(np.random.default_rng(9), (200_000, 2))
-    assert big.shape == (200_000, 2)
-    assert abs(big.mean()) < 0.01 and abs(big.std() - 1.0) < 0.01
-    assert stats.kstest(big.ravel(), "norm").pvalue > 1e-3
-    assert np.isfinite(big).all()
+def test_the_kernels_cos_and_sin():
+    angle = np.linspace(-math.pi, math.pi, 20001)
+    got = np.array([cos_sin(a) for a in angle])
+    np.testing.assert_allclose(got, np.column_stack([np.cos(angle), np.sin(angle)]), atol=1e-6)

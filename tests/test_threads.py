@@ -2,8 +2,6 @@
 
 import numpy as np
 
-from mapfilter.filter.gaussian import standard_normal
-from mapfilter.filter.measurement import rssi_log_likelihood
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall
 from mapfilter.threads import for_slices
@@ -25,9 +23,7 @@ def _run_all(n):
     fp = _office_like_map()
     a = fp.sample_free(n, rng)
     b = a + rng.normal(0, 1.5, a.shape)
-    ll = rssi_log_likelihood(a, rng.uniform(0, 20, (7, 2)), np.full(7, -38.0), np.full(7, 2.0), np.full(7, 0.4),
-                             np.full(7, 30.0), rng.uniform(-90, -40, 7))
-    return crosses_wall(fp, a, b), standard_normal(rng, (n, 2)), ll
+    return (crosses_wall(fp, a, b),)
 
 
 def test_results_do_not_depend_on_the_thread_count(monkeypatch):

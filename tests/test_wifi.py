@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.measurement import TrilaterationLikelihood, rssi_log_likelihood
+from mapfilter.filter.models.path_loss import TrilaterationLikelihood, path_loss_kernel
+from mapfilter.filter.particle_filter import evaluate_log_likelihood
+from mapfilter.filter.kernels.passes import run_likelihood
 from mapfilter.filter.particles import Particles
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.pathloss import (
@@ -42,11 +44,12 @@ def test_path_loss_against_hand_computed_values():
     assert path_loss_rssi_dbm(0.1, -38.0, 2.0, 0.4, 30.0) == pytest.approx(-38.4)
 
 
-def test_rssi_log_likelihood_matches_the_formula():
+def test_path_loss_kernel_matches_the_formula():
     table = _table([[0, 0], [10, 0]])
     xy = np.array([[3.0, 4.0], [20.0, 5.0]])
     obs = np.array([-55.0, -60.0])
-    ll = rssi_log_likelihood(xy, table.xy_m, table.c_dbm, table.n, table.alpha_db_per_m, table.d_max_m, obs, 25.0)
+    kernel = path_loss_kernel(table.xy_m, table.c_dbm, table.n, table.alpha_db_per_m, table.d_max_m, obs, 25.0)
+    ll = run_likelihood(kernel.function, kernel.params, Particles.at(xy).state)
     expected = -0.5 * ((obs[None] - table.expected_rssi_dbm(xy)) ** 2).sum(axis=1) / 25.0
     np.testing.assert_allclose(ll, expected, rtol=1e-4)
 
@@ -57,12 +60,12 @@ def test_trilateration_likelihood_peaks_at_the_true_position():
     xs, ys = np.meshgrid(np.arange(0, 30.01, 0.5), np.arange(0, 20.01, 0.5))
     grid = np.column_stack([xs.ravel(), ys.ravel()])
     model = TrilaterationLikelihood(table)
-    ll = model.log_likelihood(Particles.at(grid), _scan(table, truth))
+    ll = evaluate_log_likelihood(model, _scan(table, truth), Particles.at(grid))
     assert ll.shape == (grid.shape[0],)
     assert np.linalg.norm(grid[np.argmax(ll)] - truth) < 0.5
     # keys of both bands are distinct APs: the same BSSID on 5 GHz is not matched
     other_band = WifiScan(0.0, tuple(k.replace("@2.4", "@5") for k in table.keys), np.full(5, -50, np.float32))
-    assert np.all(model.log_likelihood(Particles.at(grid), other_band) == 0)
+    assert np.all(evaluate_log_likelihood(model, other_band, Particles.at(grid)) == 0)
 
 
 def test_least_squares_position_on_noisy_synthetic_scans():
@@ -128,7 +131,7 @@ def test_trilateration_uses_a_kernel_equal_to_the_plain_formula():
     table = _table(rng.uniform(0, 60, (7, 2)), c=-41.0, n=2.4)
     xy = rng.uniform(-5, 65, (500, 2))
     scan = _scan(table, [20.0, 30.0], rng, 3.0)
-    ll = TrilaterationLikelihood(table, variance_db2=16.0).log_likelihood(Particles.at(xy), scan)
+    ll = evaluate_log_likelihood(TrilaterationLikelihood(table, variance_db2=16.0), scan, Particles.at(xy))
     plain = -0.5 * ((scan.rssi_dbm[None].astype(float) - table.expected_rssi_dbm(xy)) ** 2).sum(axis=1) / 16.0
     np.testing.assert_allclose(ll - ll.max(), plain - plain.max(), rtol=1e-3, atol=1e-2)
     with pytest.raises(MapfilterError, match="variance"):

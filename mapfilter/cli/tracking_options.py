@@ -13,7 +13,7 @@ from pathlib import Path
 
 from mapfilter.cli.common import non_negative_int, positive_int
 
-MOTION_MODELS = ("pdr", "cv", "rw")  # filter.run.MOTION_MODELS
+MOTION_MODELS = ("pdr", "cv", "rw")  # filter.tracker.MOTION_MODELS
 FINGERPRINT_MODELS = ("fix", "blend", "likelihood")  # filter.evidence.FINGERPRINT_MODELS
 DEFAULT_PARTICLES = 10_000  # FilterConfig.n_particles
 DEFAULT_FINGERPRINT_MODEL = "blend"  # WifiConfig.fingerprint_model

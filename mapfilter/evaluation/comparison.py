@@ -57,7 +57,7 @@ from mapfilter.evaluation.metrics import FloorScore, ipin_errors_m, ipin_score, 
 from mapfilter.evaluation.scoring import score_track
 from mapfilter.filter.evidence import calibrated_fix_sigma_m
 from mapfilter.selftrain import GrowConfig, grow_radio_map, grown_by_fold
-from mapfilter.filter.run import MotionConfig
+from mapfilter.filter.tracker import MotionConfig
 from mapfilter.maps.building import Building
 from mapfilter.sensors.floors import (build_building_radio_map, check_building_radio_map, floor_hmm,
                                      floor_vote_log_likelihood)

@@ -82,11 +82,16 @@ class TrilaterationConfig:
 
 
 class WalkEvidence(Protocol):
-    """What the run loop asks of a walk's evidence."""
+    """What the tracker asks of a walk's evidence. Scans are added as they arrive (``add_scans``:
+    the measurement of each depends on that scan and the radio map or table only)."""
 
     scans: list[WifiScan]
     usable: np.ndarray  # (S,) bool: scans that give a measurement
     model: MeasurementModel
+
+    def add_scans(self, scans: list[WifiScan]) -> None:
+        """Append scans (in time order) and make their measurements."""
+        ...
 
     def measurement(self, index: int) -> Any:
         """The measurement the filter weighs for scan ``index`` (None when the scan is unusable)."""
@@ -108,52 +113,114 @@ class WalkEvidence(Protocol):
 class WifiEvidence:
     """One floor's WiFi: the measurement model and each scan's measurement (``WalkEvidence``).
 
-    Exactly one of ``radio_map`` (fingerprinting) and ``ap_table`` (trilateration).
+    Exactly one of ``radio_map`` (fingerprinting) and ``ap_table`` (trilateration). Scans come
+    with ``add_scans`` (``of_scans``: all at once); each scan's fix depends on that scan and the
+    radio map only, so adding them one by one or all at once gives the same numbers.
     """
 
-    def __init__(self, scans: list[WifiScan], radio_map: RadioMap | None, ap_table: AccessPointTable | None,
-                 floorplan: FloorPlan, wifi: WifiConfig = WifiConfig(),
-                 trilateration: TrilaterationConfig = TrilaterationConfig(), log_name: str = "the log"):
+    def __init__(self, radio_map: RadioMap | None, ap_table: AccessPointTable | None, floorplan: FloorPlan,
+                 wifi: WifiConfig = WifiConfig(), trilateration: TrilaterationConfig = TrilaterationConfig(),
+                 log_name: str = "the log"):
         if (radio_map is None) == (ap_table is None):
             raise MapfilterError("give either a radio map (fingerprinting) or an access-point table (trilateration)")
-        self.scans = scans
-        self._radio_map, self._floorplan, self._likelihood_config = radio_map, floorplan, wifi.radio_map_likelihood
-        self.fix_xy_m: np.ndarray | None = None  # fingerprint fixes, one per scan (NaN: none)
-        self.kwnn_xy_m: np.ndarray | None = None  # KWNN fixes, one per scan (NaN: none)
+        self.scans: list[WifiScan] = []
+        self._radio_map, self._ap_table, self._floorplan = radio_map, ap_table, floorplan
+        self._wifi = wifi
+        self.log_name = log_name
+        self._fix: list[np.ndarray] = []  # per scan: the fingerprint fix (NaN: none)
+        self._kwnn: list[np.ndarray] = []  # per scan: the KWNN fix (NaN: none)
+        self._best: list[np.ndarray] = []  # per scan: the radio-map likelihood's best cell (blend; NaN: none)
+        self._usable: list[bool] = []
         self._radio_map_model: RadioMapLikelihood | None = None
-        self._best_cell_xy_m: np.ndarray | None = None
-        self.usable = np.ones(len(scans), dtype=bool)
         self.model: MeasurementModel
         if radio_map is not None:
-            shared = np.array([sum(k in radio_map.key_index for k in s.ap_keys) for s in scans])
-            if not shared.any():
-                raise MapfilterError(f"the radio map shares no access point with {log_name}")
             if wifi.fingerprint_model in ("fix", "blend"):
-                matrix = radio_map.scan_matrix(scans)
-                if wifi.kwnn_min_rssi_dbm is None:
-                    self.kwnn_xy_m = kwnn_fix_many(radio_map, matrix, k=wifi.kwnn_k).xy_m
-                else:
-                    self.kwnn_xy_m = strong_kwnn_fixes(radio_map, matrix, wifi.kwnn_k, wifi.kwnn_min_rssi_dbm)
-                self.fix_xy_m = self.kwnn_xy_m
-                if wifi.fingerprint_model == "blend":
-                    best = self.best_cell_xy_m()
-                    self.fix_xy_m = np.where(np.isfinite(best), 0.5 * (self.kwnn_xy_m + best), self.kwnn_xy_m)
-                self.usable = np.all(np.isfinite(self.fix_xy_m), axis=1)
                 sigma_m = wifi.fix_sigma_m if wifi.fix_sigma_m is not None else calibrated_fix_sigma_m(
                     radio_map, wifi.kwnn_k)
                 self.model = GaussianFixLikelihood(sigma_m=sigma_m)
             else:
                 self.model = self.radio_map_model()
-                self.usable = shared >= 1
         else:
-            assert ap_table is not None
-            rows = [match_scan(ap_table, s)[0] for s in scans]
-            self.usable = np.array([r.size > 0 for r in rows])
-            if not self.usable.any():
-                raise MapfilterError(f"the access-point table shares no access point with {log_name}")
             self.model = trilateration_model(ap_table, trilateration)
-        if not self.usable.any():
-            raise MapfilterError(f"no WiFi scan of {log_name} gives a fingerprint fix with this radio map")
+
+    @classmethod
+    def of_scans(cls, scans: list[WifiScan], radio_map: RadioMap | None, ap_table: AccessPointTable | None,
+                 floorplan: FloorPlan, wifi: WifiConfig = WifiConfig(),
+                 trilateration: TrilaterationConfig = TrilaterationConfig(), log_name: str = "the log") -> WifiEvidence:
+        """The evidence of a whole walk's scans; ``MapfilterError`` when none gives a measurement."""
+        evidence = cls(radio_map, ap_table, floorplan, wifi, trilateration, log_name)
+        evidence.prepare(scans)
+        evidence.add_scans(scans)
+        evidence.require_usable()
+        return evidence
+
+    def prepare(self, scans: list[WifiScan]) -> None:
+        """Check that the scans to come share access points with the radio map or table (one line
+        naming the log if none does) and build the radio-map tables of the APs they hear in one go
+        (the same numbers as building them scan by scan, faster)."""
+        if self._radio_map is not None:
+            index = self._radio_map.key_index
+            if not any(k in index for s in scans for k in s.ap_keys):
+                raise MapfilterError(f"the radio map shares no access point with {self.log_name}")
+            if self._wifi.fingerprint_model in ("blend", "likelihood"):
+                self.radio_map_model().build_tables({key for scan in scans for key in scan.ap_keys})
+        elif not any(match_scan(self._ap_table, s)[0].size for s in scans):
+            raise MapfilterError(f"the access-point table shares no access point with {self.log_name}")
+
+    def require_usable(self) -> None:
+        if not any(self._usable):
+            raise MapfilterError(f"no WiFi scan of {self.log_name} gives a fingerprint fix with this radio map")
+
+    def add_scans(self, scans: list[WifiScan]) -> None:
+        if not scans:
+            return
+        self.scans.extend(scans)
+        nan2 = np.full((len(scans), 2), np.nan)
+        radio_map, wifi = self._radio_map, self._wifi
+        if radio_map is None:
+            self._usable.extend(match_scan(self._ap_table, s)[0].size > 0 for s in scans)
+            self._fix.extend(nan2)
+            self._kwnn.extend(nan2)
+            self._best.extend(nan2)
+            return
+        shared = [sum(k in radio_map.key_index for k in s.ap_keys) for s in scans]
+        if wifi.fingerprint_model == "likelihood":
+            self._usable.extend(n >= 1 for n in shared)
+            self._fix.extend(nan2)
+            self._kwnn.extend(nan2)
+            self._best.extend(nan2)
+            return
+        matrix = radio_map.scan_matrix(scans)
+        if wifi.kwnn_min_rssi_dbm is None:
+            kwnn = kwnn_fix_many(radio_map, matrix, k=wifi.kwnn_k).xy_m
+        else:
+            kwnn = strong_kwnn_fixes(radio_map, matrix, wifi.kwnn_k, wifi.kwnn_min_rssi_dbm)
+        best = np.full((len(scans), 2), np.nan)
+        if wifi.fingerprint_model == "blend":
+            model = self.radio_map_model()
+            for i, scan in enumerate(scans):
+                if np.isfinite(kwnn[i]).all():
+                    best[i] = model.best_position(scan)
+        fix = np.where(np.isfinite(best), 0.5 * (kwnn + best), kwnn)
+        self._kwnn.extend(kwnn)
+        self._best.extend(best)
+        self._fix.extend(fix)
+        self._usable.extend(np.all(np.isfinite(fix), axis=1))
+
+    @property
+    def usable(self) -> np.ndarray:
+        return np.array(self._usable, dtype=bool)
+
+    @property
+    def fix_xy_m(self) -> np.ndarray | None:
+        """(S, 2) fingerprint fixes, one per scan (NaN: none); None for the other models."""
+        return np.array(self._fix).reshape(-1, 2) if self._radio_map is not None and self._wifi.fingerprint_model != \
+            "likelihood" else None
+
+    @property
+    def kwnn_xy_m(self) -> np.ndarray | None:
+        """(S, 2) KWNN fixes, one per scan (NaN: none); None for the other models."""
+        return np.array(self._kwnn).reshape(-1, 2) if self.fix_xy_m is not None else None
 
     @property
     def fix_sigma_m(self) -> float | None:
@@ -161,10 +228,10 @@ class WifiEvidence:
         return self.model.sigma_m if isinstance(self.model, GaussianFixLikelihood) else None
 
     def measurement(self, index: int) -> Any:
-        if not self.usable[index]:
+        if not self._usable[index]:
             return None
-        if self.fix_xy_m is not None:
-            return PositionFix(self.fix_xy_m[index])
+        if self._radio_map is not None and self._wifi.fingerprint_model != "likelihood":
+            return PositionFix(self._fix[index])
         return self.scans[index]
 
     def between_scans(self, t_s: float) -> None:
@@ -178,25 +245,24 @@ class WifiEvidence:
 
     def radio_map_model(self) -> RadioMapLikelihood:
         """The radio-map likelihood (needs a radio map): built once per radio map and shared with
-        the other walks tracked with it; the per-AP tables of the APs this walk hears built now."""
+        the other walks tracked with it; an AP's tables are built when a scan first hears it."""
         if self._radio_map_model is None:
-            heard = {key for scan in self.scans for key in scan.ap_keys}
-            self._radio_map_model = radio_map_likelihood(self._radio_map, self._floorplan, self._likelihood_config,
-                                                         heard)
+            self._radio_map_model = radio_map_likelihood(self._radio_map, self._floorplan,
+                                                         self._wifi.radio_map_likelihood)
         return self._radio_map_model
 
     def best_cell_xy_m(self) -> np.ndarray:
         """(S, 2) the radio-map likelihood's best cell per scan (NaN: scan without a fix, or for
-        the likelihood model without a known AP: it says nothing about where it was)."""
-        if self._best_cell_xy_m is None:
-            model = self.radio_map_model()
-            out = np.full((len(self.scans), 2), np.nan)
-            for i, scan in enumerate(self.scans):
-                known = self.usable[i] if self.kwnn_xy_m is None else np.isfinite(self.kwnn_xy_m[i]).all()
-                if known:
-                    out[i] = model.best_position(scan)
-            self._best_cell_xy_m = out
-        return self._best_cell_xy_m
+        the likelihood model without a known AP)."""
+        if self._wifi.fingerprint_model == "blend":
+            return np.array(self._best).reshape(-1, 2)
+        model = self.radio_map_model()
+        out = np.full((len(self.scans), 2), np.nan)
+        kwnn = self.kwnn_xy_m
+        for i, scan in enumerate(self.scans):
+            if (self._usable[i] if kwnn is None else np.isfinite(kwnn[i]).all()):
+                out[i] = model.best_position(scan)
+        return out
 
     def position_fixes(self) -> list[np.ndarray]:
         """Position estimates per scan from each WiFi estimator at hand, each (S, 2), NaN where
@@ -207,7 +273,7 @@ class WifiEvidence:
         table = self.access_points
         out = np.full((len(self.scans), 2), np.nan)
         for i, scan in enumerate(self.scans):
-            if self.usable[i] and match_scan(table, scan)[0].size >= 3:
+            if self._usable[i] and match_scan(table, scan)[0].size >= 3:
                 out[i] = least_squares_position(table, scan)
         return [out]
 
@@ -249,22 +315,26 @@ class BuildingEvidence:
     Per floor, the fix of ``WifiEvidence`` made from that floor's fingerprints only (so
     ``blend``, ``fix`` and the fix-sigma calibration work as on one floor), moved into the stack
     frame; per scan, the floor vote of ``sensors.floors.floor_vote_log_likelihood`` over the
-    whole building's fingerprints.
+    whole building's fingerprints. Scans come with ``add_scans``, the barometer's readings with
+    ``add_pressure``.
 
-    With a barometer (``pressure``: times and hPa), each scan, and each filter step between
-    scans (``between_scans``), also weighs floors by height against a ``BarometerReference``
-    that ``observe`` keeps.
+    With a barometer, each scan, and each filter step between scans (``between_scans``), also
+    weighs floors by height against a ``BarometerReference`` that ``observe`` keeps.
     """
 
-    def __init__(self, scans: list[WifiScan], radio_map: RadioMap, stack: FloorStack, wifi: WifiConfig = WifiConfig(),
+    def __init__(self, radio_map: RadioMap, stack: FloorStack, wifi: WifiConfig = WifiConfig(),
                  fix_sigma_by_floor_m: dict[str, float] | None = None, log_name: str = "the log",
-                 pressure: tuple[np.ndarray, np.ndarray] | None = None,
-                 barometer: BarometerConfig = BarometerConfig(), floor_evidence: np.ndarray | None = None):
+                 use_barometer: bool = True, barometer: BarometerConfig = BarometerConfig(),
+                 floor_evidence: np.ndarray | None = None):
         names = stack.building.floor_names
         check_building_radio_map(radio_map, names)
-        self.scans = scans
-        n_scans, n_floors = len(scans), len(names)
-        self.fix_xy_m = np.full((n_scans, n_floors, 2), np.nan)
+        self.scans: list[WifiScan] = []
+        self.log_name = log_name
+        self._radio_map, self._stack, self._wifi = radio_map, stack, wifi
+        n_floors = len(names)
+        self._fix: list[np.ndarray] = []  # per scan: (F, 2) stack positions
+        self._floor_ll: list[np.ndarray] = []
+        self._given_floor_ll = None if floor_evidence is None else np.asarray(floor_evidence, dtype=np.float64)
         # each floor's own evidence (None: its fingerprints share nothing with the walk)
         self.floor_wifi: list[WifiEvidence | None] = [None] * n_floors
         sigma = np.full(n_floors, 5.0)
@@ -275,55 +345,123 @@ class BuildingEvidence:
             floor_config = wifi
             if fix_sigma_by_floor_m and floor.name in fix_sigma_by_floor_m:
                 floor_config = dataclasses.replace(wifi, fix_sigma_m=fix_sigma_by_floor_m[floor.name])
-            try:
-                evidence = WifiEvidence(scans, sub, None, floor.plan, floor_config, log_name=log_name)
-            except MapfilterError:
-                continue  # this floor's fingerprints share nothing with the walk: no fix there
-            if evidence.fix_xy_m is None:
+            evidence = WifiEvidence(sub, None, floor.plan, floor_config, log_name=log_name)
+            if evidence.fix_sigma_m is None:
                 raise MapfilterError("tracking across floors weighs fingerprint fixes: use the fingerprint "
                                      "model fix or blend")
-            self.fix_xy_m[:, f] = stack.to_stack(evidence.fix_xy_m, f)
             self.floor_wifi[f] = evidence
             sigma[f] = evidence.fix_sigma_m
-        if floor_evidence is not None:
-            self.floor_log_likelihood = np.asarray(floor_evidence, dtype=np.float64)
-        else:
-            self.floor_log_likelihood = floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans),
-                                                                  k=wifi.kwnn_k)
         self.elevation_m = np.array([f.elevation_m for f in stack.building.floors])
         self.barometer = barometer
-        self.pressure = pressure if pressure is not None and len(pressure[0]) >= 2 else None
-        self.baro = None if self.pressure is None else barometric_height(*self.pressure, barometer.smoothing_window_s)
+        self.use_barometer = use_barometer
+        self._pressure_t: list[float] = []
+        self._pressure_hpa: list[float] = []
+        self._heights: tuple[np.ndarray, np.ndarray] | None = None  # barometric_height of the readings so far
         self.reference = BarometerReference(self.elevation_m, barometer)
-        self.usable = np.isfinite(self.fix_xy_m).all(axis=2).any(axis=1)
-        if not self.usable.any():
-            raise MapfilterError(f"no WiFi scan of {log_name} gives a fingerprint fix with this radio map")
         self.model = FloorFixLikelihood(stack, sigma)
+
+    @classmethod
+    def of_recording(cls, scans: list[WifiScan], radio_map: RadioMap, stack: FloorStack, wifi: WifiConfig = WifiConfig(),
+                     fix_sigma_by_floor_m: dict[str, float] | None = None, log_name: str = "the log",
+                     pressure: tuple[np.ndarray, np.ndarray] | None = None,
+                     barometer: BarometerConfig = BarometerConfig(),
+                     floor_evidence: np.ndarray | None = None) -> BuildingEvidence:
+        """The evidence of a whole walk (its scans and barometer readings)."""
+        evidence = cls(radio_map, stack, wifi, fix_sigma_by_floor_m, log_name, pressure is not None, barometer,
+                       floor_evidence)
+        evidence.add_scans(scans)
+        if pressure is not None:
+            evidence.add_pressure(*pressure)
+        evidence.require_usable()
+        return evidence
+
+    def prepare(self, scans: list[WifiScan]) -> None:
+        """Build the per-floor radio-map tables of the APs the scans hear in one go (as ``WifiEvidence``)."""
+        for evidence in self.floor_wifi:
+            if evidence is not None and any(k in evidence._radio_map.key_index for s in scans for k in s.ap_keys):
+                evidence.prepare(scans)
+
+    def require_usable(self) -> None:
+        if not self.usable.any():
+            raise MapfilterError(f"no WiFi scan of {self.log_name} gives a fingerprint fix with this radio map")
+
+    def add_scans(self, scans: list[WifiScan]) -> None:
+        if not scans:
+            return
+        first = len(self.scans)
+        self.scans.extend(scans)
+        n_floors = len(self.floor_wifi)
+        fix = np.full((len(scans), n_floors, 2), np.nan)
+        for f, evidence in enumerate(self.floor_wifi):
+            if evidence is not None:
+                evidence.add_scans(scans)
+                fix[:, f] = self._stack.to_stack(evidence.fix_xy_m[first:], f)
+        self._fix.extend(fix)
+        if self._given_floor_ll is not None:
+            self._floor_ll.extend(self._given_floor_ll[first:first + len(scans)])
+        else:
+            radio_map = self._radio_map
+            self._floor_ll.extend(floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans), k=self._wifi.kwnn_k))
+
+    def add_pressure(self, t_s: np.ndarray, pressure_hpa: np.ndarray) -> None:
+        """Barometer readings (in time order, after those already added)."""
+        if not self.use_barometer or len(t_s) == 0:
+            return
+        self._pressure_t.extend(np.asarray(t_s, dtype=np.float64).tolist())
+        self._pressure_hpa.extend(np.asarray(pressure_hpa, dtype=np.float64).tolist())
+        if len(self._pressure_t) >= 2:
+            # each reading's height depends on the readings up to it only (windowed sums of a cumsum)
+            self._heights = barometric_height(np.array(self._pressure_t), np.array(self._pressure_hpa),
+                                              self.barometer.smoothing_window_s)
+
+    @property
+    def fix_xy_m(self) -> np.ndarray:
+        """(S, F, 2) each scan's fix from each floor's fingerprints, stack frame (NaN: none)."""
+        return np.array(self._fix).reshape(-1, len(self.floor_wifi), 2)
+
+    @property
+    def floor_log_likelihood(self) -> np.ndarray:
+        return np.array(self._floor_ll).reshape(-1, len(self.floor_wifi))
+
+    @property
+    def usable(self) -> np.ndarray:
+        return np.isfinite(self.fix_xy_m).all(axis=2).any(axis=1)
+
+    @property
+    def pressure(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The barometer readings so far (times, hPa), or None without a barometer."""
+        if self._heights is None:
+            return None
+        return np.array(self._pressure_t), np.array(self._pressure_hpa)
+
+    @property
+    def baro(self) -> tuple[np.ndarray, np.ndarray] | None:
+        return self._heights
 
     def height_m(self, t_s: float) -> float:
         """The barometer's height at ``t_s`` (relative to its first sample), NaN without one."""
-        if self.baro is None:
+        if self._heights is None:
             return float("nan")
         # the last reading at or before t_s: nothing from the future
-        i = int(np.searchsorted(self.baro[0], t_s, side="right")) - 1
-        return float(self.baro[1][max(i, 0)])
+        i = int(np.searchsorted(self._heights[0], t_s, side="right")) - 1
+        return float(self._heights[1][max(i, 0)])
 
     def observe(self, report: StepReport) -> None:
         """After each filter step: move the barometer's reference (``BarometerReference.update``);
         steady = less than ``steady_m`` of height change over ``steady_window_s``."""
-        if self.baro is None or report.floor_shares is None:
+        if self._heights is None or report.floor_shares is None:
             return
         h = self.height_m(report.t_s)
         steady = abs(h - self.height_m(report.t_s - self.barometer.steady_window_s)) < self.barometer.steady_m
         self.reference.update(report.t_s, h, steady, report.floor_shares)
 
     def has_evidence_between_scans(self) -> bool:
-        return self.baro is not None
+        return self.use_barometer
 
     def between_scans(self, t_s: float) -> FloorFix | None:
         """The barometer alone at ``t_s`` (a step between scans): floors weighed by height as in
         ``measurement``, no position fix; None without a barometer or before a reference."""
-        if self.baro is None:
+        if self._heights is None:
             return None
         floor_ll = self.reference.floor_log_likelihood(self.height_m(t_s))
         if floor_ll is None:
@@ -332,13 +470,14 @@ class BuildingEvidence:
 
     def measurement(self, index: int) -> FloorFix | None:
         """The scan ``index`` as a ``FloorFix`` (None when no floor gives it a fix)."""
-        if not self.usable[index]:
+        fix = self._fix[index]
+        if not np.isfinite(fix).all(axis=1).any():
             return None
-        floor_ll = self.floor_log_likelihood[index]
+        floor_ll = self._floor_ll[index]
         height_floor = None
-        if self.baro is not None:
+        if self._heights is not None:
             height_ll = self.reference.floor_log_likelihood(self.height_m(self.scans[index].t_s))
             if height_ll is not None:
                 floor_ll = floor_ll + height_ll
                 height_floor = int(np.argmax(height_ll))
-        return FloorFix(self.fix_xy_m[index], floor_ll, height_floor)
+        return FloorFix(fix, floor_ll, height_floor)

@@ -20,7 +20,7 @@ from mapfilter.filter.events import StepReport
 from mapfilter.filter.evidence import BuildingEvidence
 from mapfilter.filter.models.building import FloorChanges, FloorStack
 from mapfilter.filter.particle_filter import FilterConfig
-from mapfilter.filter.run import MotionConfig
+from mapfilter.filter.tracker import MotionConfig
 from mapfilter.maps.paths import detour_wall_crossings
 from mapfilter.offline.placement import place_walk
 from mapfilter.offline.whole_walk import OfflineConfig, OfflineTrack, restarted_run, placed_track, whole_walk_track

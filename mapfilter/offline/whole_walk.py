@@ -27,7 +27,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.evidence import WifiEvidence
 from mapfilter.filter.particle_filter import FilterConfig
-from mapfilter.filter.run import MotionConfig, run_filter
+from mapfilter.filter.tracker import MotionConfig, run_over_scans
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.paths import detour_wall_crossings, wall_free_track
 from mapfilter.offline.map_matching import MapMatchConfig, map_match
@@ -152,9 +152,9 @@ def restarted_run(plan: FloorPlan, evidence: WifiEvidence, steps: Steps, placed:
     """
     t0 = float(evidence.scans[int(np.argmax(evidence.usable))].t_s)
     start_xy = placed.xy_m[int(np.clip(np.searchsorted(placed.t_s, t0), 0, placed.t_s.size - 1))]
-    run = run_filter(plan, motion, filter_config, rng, evidence, steps, on_step=on_step, start_xy_m=start_xy,
-                     start_radius_m=config.restart_radius_m)
-    return dataclasses.replace(run.track, name="restarted")
+    run = run_over_scans(plan, evidence, motion, filter_config, rng, steps, on_step=on_step, start_xy_m=start_xy,
+                         start_radius_m=config.restart_radius_m)
+    return dataclasses.replace(run.track(), name="restarted")
 
 
 def offline_track(plan: FloorPlan, evidence: WifiEvidence, steps: Steps | None, causal: Track,

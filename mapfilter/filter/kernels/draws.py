@@ -100,7 +100,7 @@ def normal_pairs(key, slot, lo, idx, m, z0, z1, scratch):
 @njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def cos_sin(angle):
     """(cos, sin) of an angle in [-pi, pi] from series of b = angle / 2 in [-pi/2, pi/2] and the
-    double-angle formulas (|error| < 1e-7; no branch, so the loops calling it vectorise)."""
+    double-angle formulas (|error| < 3e-7; no branch, so the loops calling it vectorise)."""
     b = 0.5 * angle
     b2 = b * b
     sin_b = b * (1.0 - b2 / 6.0 * (1.0 - b2 / 20.0 * (1.0 - b2 / 42.0 * (1.0 - b2 / 72.0 * (1.0 - b2 / 110.0)))))
