@@ -6,7 +6,8 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from mapfilter.cli.common import check_output_path
+from mapfilter.cli.common import check_output_path, input_paths
+from mapfilter.outputs import check_output_files
 from mapfilter.errors import MapfilterError
 
 _PREPARE_EPILOG = """\
@@ -174,7 +175,7 @@ def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
 def run_prepare(args: argparse.Namespace) -> int:
     from mapfilter.maps import prepare
 
-    check_output_path(args.out)
+    _check_map_outputs(args.out, input_paths(args.plan, args.edits, args.access_points))
     kind = args.kind or ("geojson" if args.plan.suffix.lower() in (".json", ".geojson") else "lines")
     edits = prepare.read_edits(args.edits) if args.edits else None
     if args.access_points is not None and not args.access_points.is_file():
@@ -213,9 +214,11 @@ def run_import_ilc(args: argparse.Namespace) -> int:
     from mapfilter.maps import prepare
     from mapfilter.maps.building import is_ilc_site_dir
 
-    check_output_path(args.out)
+    inputs = input_paths(args.floor_dir, args.edits)
+    check_output_path(args.out, inputs=inputs)
     if is_ilc_site_dir(args.floor_dir):
-        return _import_ilc_site(args)
+        return _import_ilc_site(args, inputs)
+    _check_map_outputs(args.out, inputs)
     edits = prepare.read_edits(args.edits) if args.edits else None
     plan = prepare.import_ilc(args.floor_dir, args.route, args.resolution)
     named = _ilc_floor_name(args.floor_dir)
@@ -242,7 +245,17 @@ def _ilc_floor_name(floor_dir: Path) -> str | None:
     return names.pop() if len(names) == 1 else None
 
 
-def _import_ilc_site(args: argparse.Namespace) -> int:
+def _check_map_outputs(out: Path, inputs: list[Path]) -> None:
+    """The three files a map is written as (NAME.yaml, NAME.png, NAME_preview.png), checked
+    against the run's inputs before any work."""
+    from mapfilter.maps.prepare import preview_path_for
+
+    if out.suffix not in (".yaml", ".yml"):
+        raise MapfilterError("the output map must be a .yaml file", out)
+    check_output_files([out, out.with_name(out.stem + ".png"), preview_path_for(out)], "--out", inputs)
+
+
+def _import_ilc_site(args: argparse.Namespace, inputs: list[Path]) -> int:
     from mapfilter.maps import prepare
     from mapfilter.maps.building import import_ilc_site
 
@@ -257,6 +270,7 @@ def _import_ilc_site(args: argparse.Namespace) -> int:
     building = import_ilc_site(args.floor_dir, args.route, args.resolution, args.storey_height)
     for floor in building.floors:
         floor.map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml").resolve()
+        _check_map_outputs(floor.map_path, inputs)
         prepare.preview_image(floor.plan)  # fails here, before anything is written, if it fails at all
     for floor in building.floors:
         _write(floor.plan, floor.map_path)
@@ -275,10 +289,16 @@ def run_import_ipin(args: argparse.Namespace) -> int:
 
     if args.out.suffix not in (".yaml", ".yml"):
         raise MapfilterError("the output building must be a .yaml file", args.out)
+    inputs = input_paths(args.cal, args.cal.parent)  # the plans lie beside the calibration file
+    check_output_path(args.out, inputs=inputs)
     resolution = ipin_venue.DEFAULT_RESOLUTION_M if args.resolution is None else args.resolution
     storey = ipin_venue.DEFAULT_STOREY_HEIGHT_M if args.storey_height is None else args.storey_height
     # everything is imported and checked before the first file is written
     building, floors = ipin_venue.import_ipin_venue(args.cal, resolution, storey, warn=warn)
+    for floor in building.floors:
+        map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml")
+        _check_map_outputs(map_path, inputs)
+        check_output_path(map_path.with_name(f"{map_path.stem}_plan.png"), inputs=inputs)
     for floor, venue_floor in zip(building.floors, floors):
         floor.map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml").resolve()
         if venue_floor.display is not None:

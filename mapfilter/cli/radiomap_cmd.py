@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path,
-                                  engine_from, warn)
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, bounded_float,
+                                  check_output_path, engine_from, input_paths, is_stdout, warn)
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
@@ -30,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         p.add_argument("logs", type=Path, nargs="+", metavar="LOG", help=logs_help)
         p.add_argument("--exclude", action="append", default=[], metavar="TRACE",
                        help="leave out a log, by file name or trace id (repeatable)")
-        p.add_argument("--max-wifi-age", type=float, default=5.0, metavar="S",
+        p.add_argument("--max-wifi-age", type=bounded_float(0.0, 3600.0), default=5.0, metavar="S",
                        help="drop WiFi rows last seen more than S seconds before their scan (default 5)")
         add_strict_argument(p)
 
@@ -79,7 +80,9 @@ def _load(args: argparse.Namespace):
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
 
-    check_output_path(args.out)
+    # fit-aps writes a CSV, which may go to standard output (--out -); a radio map is binary
+    check_output_path(args.out, inputs=input_paths(args.map, args.logs, getattr(args, "radiomap", None)),
+                      allow_stdout=args.radiomap_command == "fit-aps")
     building = Building.load(args.map)
     floorplan = building.floors[0].plan if building.is_single_floor else building
     excluded = set(args.exclude)
@@ -176,7 +179,9 @@ def run_fit_aps(args: argparse.Namespace) -> int:
     table = estimate_access_points(build_radio_map(recordings, floorplan),
                                    ApFitConfig(min_observations=args.min_observations))
     table.write_csv(args.out)
-    print(f"access points: {len(table)} fitted from {len(recordings)} logs -> {args.out}")
+    print(f"access points: {len(table)} fitted from {len(recordings)} logs -> "
+          + ("standard output" if is_stdout(args.out) else str(args.out)),
+          file=sys.stderr if is_stdout(args.out) else sys.stdout)
     return 0
 
 

@@ -11,7 +11,8 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from mapfilter.cli.common import bounded_float, bounded_int, check_output_path, non_negative_int
+from mapfilter.cli.common import (bounded_float, bounded_int, check_distinct_outputs, check_output_path, input_paths,
+                                  non_negative_int)
 from mapfilter.errors import MapfilterError
 
 # The defaults of mapfilter.simulate.walk.SimConfig that the options show, written out so that
@@ -127,8 +128,10 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.simulate.ilc_writer import write_ilc
     from mapfilter.simulate.walk import SimConfig, offset_access_points, simulate_walk
 
-    check_output_path(args.out)
-    check_output_path(args.write_aps, "--write-aps")
+    inputs = input_paths(args.map, args.aps)
+    check_output_path(args.out, inputs=inputs, allow_stdout=True)  # the summary goes to stderr
+    check_output_path(args.write_aps, "--write-aps", inputs=inputs)
+    check_distinct_outputs([("--out", args.out), ("--write-aps", args.write_aps)])
     building = Building.load(args.map)  # a map YAML is a one-floor building
     if not building.is_single_floor:
         return _run_building(args, building)
