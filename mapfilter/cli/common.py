@@ -38,6 +38,12 @@ def add_engine_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def engine_from(args: argparse.Namespace) -> Engine:
+    """The engine of ``--jobs`` / ``--scheduler``: at most one local worker per core, and only as
+    many as fit in memory (``mapfilter.engine.check_local_jobs``)."""
+    from mapfilter.engine import check_local_jobs
+
+    if args.scheduler is None:
+        check_local_jobs(args.jobs)
     return Engine(jobs=args.jobs, scheduler=args.scheduler)
 
 

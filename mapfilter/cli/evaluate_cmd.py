@@ -14,6 +14,7 @@ from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_
                                   input_paths, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
+from mapfilter.memory import building_extents_m, check_tracking_fits
 
 # mapfilter.evaluation.comparison's methods, written out so that --help imports no numerical
 # library (tests/test_cli_startup.py holds them equal)
@@ -103,7 +104,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate, methods_for, validate_setup
-    from mapfilter.evaluation.store import read_outcome, run_key, write_outcome
+    from mapfilter.evaluation.store import file_digest, read_outcome, run_key, write_outcome
     from mapfilter.maps.building import Building
     from mapfilter.sensors.recording import trace_name
 
@@ -113,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
     inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.survey, args.unlabelled, args.config)
     out = check_output_path(args.out, directory=True, inputs=inputs)  # holds only our files, no input
     building = Building.load(args.map)
+    check_tracking_fits(config, building_extents_m(building))
     setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,
                             tracking=config, unlabelled_paths=tuple(args.unlabelled),
@@ -122,7 +124,9 @@ def run(args: argparse.Namespace) -> int:
                    "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
                    "aps": str(args.aps), "leave_one_out": args.leave_one_out, "methods": methods,
                    "unlabelled": [str(p.resolve()) for p in args.unlabelled], "transductive": args.transductive,
-                   "strict": args.strict, "config": config.to_dict()})
+                   "strict": args.strict, "config": config.to_dict(),
+                   # by content: a log, map or model replaced at the same path is another run
+                   "content": [file_digest(p) for p in inputs if p.is_file()]})
     walks_dir = args.out / "walks"
     resumed = []
     if args.resume:

@@ -6,9 +6,16 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from mapfilter.cli.common import check_output_path, input_paths
+from mapfilter.cli.common import bounded_float, bounded_int, check_output_path, input_paths
 from mapfilter.outputs import check_output_files
 from mapfilter.errors import MapfilterError
+
+# option values, finite and within what a floor plan can use
+_PIXELS = bounded_int(0, 1000)  # a morphology radius or kernel: wall gaps and outlines are a few pixels
+_AREA = bounded_int(0, 10**9)  # a blob's size in pixels
+_METRES_PER_PIXEL = bounded_float(0.001, 10.0)  # as a map YAML's resolution (maps.floorplan)
+_METRES = bounded_float(0.0, 1e5, low_open=True)
+_STOREY = bounded_float(0.0, 100.0, low_open=True)
 
 _PREPARE_EPILOG = """\
 kinds:
@@ -98,38 +105,38 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     prepare_parser.add_argument("--kind", choices=("lines", "regions", "geojson"), default=None,
                                 help="kind of plan (default: geojson for .json/.geojson, else lines)")
     scale = prepare_parser.add_argument_group("scale")
-    scale.add_argument("--resolution", type=float, metavar="M", help="metres per plan pixel (geojson: per output pixel)")
-    scale.add_argument("--size", type=float, nargs=2, metavar=("W", "H"), help="real width and height of the plan in metres")
-    scale.add_argument("--scale-points", type=float, nargs=4, metavar=("U1", "V1", "U2", "V2"),
+    scale.add_argument("--resolution", type=_METRES_PER_PIXEL, metavar="M", help="metres per plan pixel (geojson: per output pixel)")
+    scale.add_argument("--size", type=_METRES, nargs=2, metavar=("W", "H"), help="real width and height of the plan in metres")
+    scale.add_argument("--scale-points", type=bounded_float(-1e6, 1e6), nargs=4, metavar=("U1", "V1", "U2", "V2"),
                        help="two image points (column, row) ...")
-    scale.add_argument("--scale-distance", type=float, metavar="M", help="... and their real distance in metres")
-    scale.add_argument("--map-resolution", type=float, metavar="M",
+    scale.add_argument("--scale-distance", type=_METRES, metavar="M", help="... and their real distance in metres")
+    scale.add_argument("--map-resolution", type=_METRES_PER_PIXEL, metavar="M",
                        help="metres per pixel of the output mask (default: the plan's own; coarser keeps walls closed)")
     lines = prepare_parser.add_argument_group("line drawings (--kind lines)")
     lines.add_argument("--threshold", choices=("otsu", "adaptive"), default="otsu",
                        help="ink threshold: global Otsu, or adaptive for uneven scans (default: otsu)")
-    lines.add_argument("--close-gaps", type=int, default=3, metavar="PX",
+    lines.add_argument("--close-gaps", type=_PIXELS, default=3, metavar="PX",
                        help="close wall gaps narrower than PX plan pixels (0 = off; default: 3)")
-    lines.add_argument("--remove-text", type=int, default=20, metavar="PX",
+    lines.add_argument("--remove-text", type=_AREA, default=20, metavar="PX",
                        help="drop ink blobs whose bounding box is shorter than PX (text, specks; default: 20)")
-    lines.add_argument("--thicken", type=int, default=0, metavar="PX", help="dilate walls by PX pixels (default: 0)")
+    lines.add_argument("--thicken", type=_PIXELS, default=0, metavar="PX", help="dilate walls by PX pixels (default: 0)")
     lines.add_argument("--keep-outside", action="store_true",
                        help="keep free space connected to the image border (default: it is outside, so wall)")
     regions = prepare_parser.add_argument_group("filled-region plans (--kind regions)")
     regions.add_argument("--walkable", action="append", metavar="COLOUR",
                          help="a walkable colour: transparent, #rrggbb or r,g,b; repeat for more (default: transparent)")
-    regions.add_argument("--tolerance", type=int, default=24, metavar="N",
+    regions.add_argument("--tolerance", type=bounded_int(0, 255), default=24, metavar="N",
                          help="max per-channel difference to a walkable colour (default: 24)")
-    regions.add_argument("--open-outlines", type=int, default=0, metavar="PX",
+    regions.add_argument("--open-outlines", type=_PIXELS, default=0, metavar="PX",
                          help="erode walls by PX pixels along free space (outlines walkable; default: 0)")
-    regions.add_argument("--remove-below", type=int, default=0, metavar="PX",
+    regions.add_argument("--remove-below", type=_AREA, default=0, metavar="PX",
                          help="wall blobs of fewer than PX pixels become free (text in corridors; default: 0)")
     regions.add_argument("--outside-wall", action="store_true",
                          help="free space connected to the image border becomes wall")
     vector = prepare_parser.add_argument_group("GeoJSON floors (--kind geojson)")
     vector.add_argument("--units", choices=("lonlat", "m"), default="lonlat",
                         help="coordinates: lon/lat (Web Mercator, ILC convention) or metres (default: lonlat)")
-    vector.add_argument("--inset", type=float, default=0.0, metavar="M",
+    vector.add_argument("--inset", type=bounded_float(0.0, 100.0), default=0.0, metavar="M",
                         help="shrink obstacle polygons by M metres (default: 0)")
     prepare_parser.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall (see below)")
     prepare_parser.add_argument("--floor", metavar="NAME", help="floor name stored in the YAML")
@@ -147,10 +154,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ilc.add_argument("--route", choices=("image", "geojson"), default="geojson",
                      help="from the GeoJSON polygons (the floor's outline minus its shops: outside the building is "
                           "wall) or the floor image (transparent pixels walkable, the outside too) (default: geojson)")
-    ilc.add_argument("--resolution", type=float, metavar="M",
+    ilc.add_argument("--resolution", type=_METRES_PER_PIXEL, metavar="M",
                      help="metres per output pixel (default: the image's ~0.3 m, or 0.25 m for geojson)")
     ilc.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall")
-    ilc.add_argument("--storey-height", type=float, default=5.0, metavar="M",
+    ilc.add_argument("--storey-height", type=_STOREY, default=5.0, metavar="M",
                      help="a site: metres between storeys for the elevations (default: 5)")
     ilc.set_defaults(func=run_import_ilc)
 
@@ -160,9 +167,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog=_IPIN_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     ipin.add_argument("cal", type=Path, metavar="CAL", help="the calibration file, e.g. calib_mapa_Nuremberg.cal")
     ipin.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output building YAML")
-    ipin.add_argument("--resolution", type=float, default=None, metavar="M",
+    ipin.add_argument("--resolution", type=_METRES_PER_PIXEL, default=None, metavar="M",
                       help="metres per map cell (default: 0.1)")
-    ipin.add_argument("--storey-height", type=float, default=None, metavar="M",
+    ipin.add_argument("--storey-height", type=_STOREY, default=None, metavar="M",
                       help="metres between storeys for the elevations (default: 4)")
     ipin.set_defaults(func=run_import_ipin)
 

@@ -6,8 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, bounded_float,
-                                  check_output_path, engine_from, input_paths, is_stdout, warn)
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, bounded_float, bounded_int,
+                                  check_output_path, non_negative_int, engine_from, input_paths, is_stdout, warn)
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
@@ -46,7 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     common(fit)
     fit.add_argument("--out", type=Path, required=True, metavar="APS_CSV",
                      help="output table bssid,x,y,band,C,n,alpha,d_max")
-    fit.add_argument("--min-observations", type=int, default=_MIN_OBSERVATIONS, metavar="N",
+    fit.add_argument("--min-observations", type=bounded_int(None, 1_000_000), default=_MIN_OBSERVATIONS, metavar="N",
                      help=f"fit only APs heard in N labelled scans (default {_MIN_OBSERVATIONS})")
     fit.add_argument("--floor", metavar="NAME",
                      help="with a building YAML: the floor to fit (default: the one floor every log is on)")
@@ -62,11 +62,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                  "points (unless --ignore-waypoints)")
     grow.add_argument("--radiomap", type=Path, required=True, metavar="BASE", help="the radio map to grow (.npz)")
     grow.add_argument("--out", type=Path, required=True, metavar="RADIOMAP", help="the grown radio map (.npz)")
-    grow.add_argument("--iterations", type=int, default=_MAX_ITERATIONS, metavar="N",
+    grow.add_argument("--iterations", type=bounded_int(None, 100), default=_MAX_ITERATIONS, metavar="N",
                       help=f"at most N rounds of tracking every walk (default {_MAX_ITERATIONS}; fewer when the "
                            "grown points stop moving)")
-    grow.add_argument("--particles", type=int, default=10_000, metavar="N", help="particles (default 10000)")
-    grow.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    grow.add_argument("--particles", type=bounded_int(), default=10_000, metavar="N", help="particles (default 10000)")
+    grow.add_argument("--seed", type=non_negative_int, default=0, help="random seed (default 0)")
     grow.add_argument("--ignore-waypoints", action="store_true",
                       help="grow from every log, its waypoints never read (e.g. to measure growing on survey logs)")
     grow.add_argument("--wifi-only", action="store_true",
@@ -191,6 +191,11 @@ def run_grow(args: argparse.Namespace) -> int:
     if args.particles < 1:
         raise MapfilterError(f"--particles must be at least 1, got {args.particles}")
     engine = engine_from(args)
+    from mapfilter import memory
+
+    # the particles are refused before the logs are read (about 200 bytes each)
+    memory.check_fits(memory.particle_filter_bytes(args.particles), f"--particles {args.particles}",
+                      "use fewer particles (the default is 10000)")
     import numpy as np
 
     from mapfilter.maps.building import Building
@@ -199,6 +204,9 @@ def run_grow(args: argparse.Namespace) -> int:
     from mapfilter.sensors.radiomap import RadioMap, build_radio_map, check_radio_map_on_map, merge_radio_maps
 
     space, recordings = _load(args)
+    memory.check_tracking_fits(TrackingConfig().with_particles(args.particles),
+                               memory.building_extents_m(space) if isinstance(space, Building)
+                               else [tuple(space.extent_m)])
     if isinstance(space, Building):
         from mapfilter.sensors.floors import build_building_radio_map, load_building_radio_map
 

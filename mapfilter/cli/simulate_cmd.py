@@ -84,7 +84,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--wall-loss-db", type=_DB, nargs=2, metavar=("DB_2G4", "DB_5G"),
                         default=(defaults.wall_loss_2g4_db, defaults.wall_loss_5g_db),
                         help="attenuation per wall crossed at 2.4 and 5 GHz (default %(default)s)")
-    parser.add_argument("--blocking", type=float, nargs=3, action="append", default=[],
+    parser.add_argument("--blocking", type=bounded_float(-1e6, 1e6), nargs=3, action="append", default=[],
                         metavar=("START_S", "END_S", "H_DB"),
                         help="signal blocking (a hand over the phone): every AP reads H_DB weaker from START_S to "
                              "END_S after the walk's start (repeatable)")

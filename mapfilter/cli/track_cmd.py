@@ -11,10 +11,11 @@ import time
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_distinct_outputs,
-                                  check_output_path, engine_from, input_paths, is_stdout, warn)
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, bounded_int,
+                                  check_distinct_outputs, check_output_path, engine_from, input_paths, is_stdout, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
+from mapfilter.memory import building_extents_m, check_tracking_fits
 
 TRACK_FORMATS = ("csv", "tum")
 
@@ -79,7 +80,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     view = parser.add_mutually_exclusive_group()
     view.add_argument("--rerun", type=Path, metavar="FILE.rrd", help="write a rerun recording of the run")
     view.add_argument("--spawn", action="store_true", help="stream the run to a new rerun viewer")
-    parser.add_argument("--max-drawn-particles", type=int, default=5000, metavar="N",
+    parser.add_argument("--max-drawn-particles", type=bounded_int(0, 1_000_000), default=5000, metavar="N",
                         help="cap on particles drawn per step in rerun (default: 5000)")
     add_engine_arguments(parser)
     add_strict_argument(parser)
@@ -172,6 +173,7 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
 
     out_format = track_format(args.out, args.format)
     building = Building.load(args.map)
+    check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
     recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
@@ -313,6 +315,7 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
             raise MapfilterError("file not found", path)
     engine = engine_from(args)
     building = Building.load(args.map)
+    check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
     radio_map, ap_table = _wifi_source(args, building, config)

@@ -200,7 +200,18 @@ def prepare_lines(
     return _finish(ink, resolution_m, map_resolution_m, plan_path, floor_name)
 
 
+def _check_morphology_fits(mask: np.ndarray, radius_px: int, what: str) -> None:
+    """A kernel of ``radius_px`` and the image padded by it, refused before cv2 allocates them."""
+    from mapfilter.memory import check_fits
+
+    side = 2 * int(radius_px) + 1
+    rows, cols = mask.shape[:2]
+    check_fits(float(side) ** 2 + 3.0 * (rows + 2 * side) * (cols + 2 * side), f"{what} {radius_px} px",
+               "wall gaps are a few pixels wide")
+
+
 def _close(mask: np.ndarray, size_px: int) -> np.ndarray:
+    _check_morphology_fits(mask, size_px, "--close-gaps")
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
     # pad so that closing does not glue walls to the image border
     pad = size_px
@@ -210,11 +221,13 @@ def _close(mask: np.ndarray, size_px: int) -> np.ndarray:
 
 
 def _dilate(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    _check_morphology_fits(mask, radius_px, "dilating walls by")
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
     return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
 
 
 def _erode(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    _check_morphology_fits(mask, radius_px, "eroding walls by")
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
     # border value 1: the image edge does not eat into walls that touch it
     return cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=1).astype(bool)
