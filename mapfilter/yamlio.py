@@ -88,7 +88,7 @@ def compose_yaml(text: str, where: str | os.PathLike | None) -> yaml.Node | None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         problem = getattr(exc, "problem", None) or "malformed YAML"
-        raise MapfilterError(f"malformed YAML: {problem}", where, None if mark is None else mark.line + 1) from None
+        raise MapfilterError(f"not valid YAML: {problem}", where, None if mark is None else mark.line + 1) from None
     except RecursionError:
         raise MapfilterError(f"malformed YAML: nested more than {_MAX_DEPTH} levels", where) from None
     finally:

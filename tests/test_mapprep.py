@@ -452,7 +452,6 @@ def _bad_inputs(tmp: Path) -> list[tuple[list, str, str]]:
     rooms = tmp / "rooms.png"
     return [
         (["map", "prepare", tmp / "missing.png", "--resolution", "0.1"], "missing.png", "not found"),
-        (["map", "prepare", rooms, "--resolution", "0.1", "--close-gaps", "-1"], "", "close_gaps_px"),
         (["map", "prepare", rooms, "--kind", "regions", "--resolution", "0.1", "--walkable", "pink"], "", "colour"),
         (["map", "prepare", tmp / "text.png", "--resolution", "0.1"], "text.png", "not a readable image"),
         (["map", "prepare", tmp / "blank.png", "--resolution", "0.1"], "blank.png", "no walls"),
@@ -496,7 +495,7 @@ def test_cli_never_overwrites_the_plan_with_its_mask(tmp_path: Path, capsys):
     _two_rooms_png(plan)
     before = plan.read_bytes()
     code, out, err = _run(["map", "prepare", plan, "--resolution", "0.1", "--out", tmp_path / "plan.yaml"], capsys)
-    assert code == 1 and "overwrite the plan" in err and len(err.strip().splitlines()) == 1
+    assert code == 1 and "is an input of this run" in err and len(err.strip().splitlines()) == 1
     assert plan.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.png"]
 

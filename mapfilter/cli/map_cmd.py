@@ -257,6 +257,7 @@ def _check_map_outputs(out: Path, inputs: list[Path]) -> None:
     against the run's inputs before any work."""
     from mapfilter.maps.prepare import preview_path_for
 
+    check_output_path(out, inputs=inputs)  # the path itself first: a directory, a parent that is a file
     if out.suffix not in (".yaml", ".yml"):
         raise MapfilterError("the output map must be a .yaml file", out)
     check_output_files([out, out.with_name(out.stem + ".png"), preview_path_for(out)], "--out", inputs)

@@ -398,7 +398,10 @@ def _positive_float(value: Any, key: str, path: Path) -> float:
 
 def _resolve(yaml_path: Path, name: Any) -> Path:
     candidate = Path(str(name))
-    return candidate if candidate.is_absolute() else (yaml_path.parent / candidate).resolve()
+    try:
+        return candidate if candidate.is_absolute() else (yaml_path.parent / candidate).resolve()
+    except (RuntimeError, OSError) as exc:  # a symbolic link loop (RuntimeError before Python 3.13)
+        raise MapfilterError(f"{str(name)[:200]!r} cannot be found: {exc}", yaml_path) from None
 
 
 def _relative(path: Path, base: Path) -> str:
