@@ -110,10 +110,10 @@ def check_output_file(path: str | os.PathLike | None, option: str = "--out", inp
     path = Path(path)
     if str(path) in ("", "."):
         raise MapfilterError(f"{option} needs a file name")
+    _check_name_length(path, option)
     check_not_special(path, option)
     if path.is_dir():
         raise MapfilterError(f"{option}: is a directory; give a file name", path)
-    _check_name_length(path, option)
     for source in inputs:
         if _same_file(path, source):
             raise MapfilterError(f"{option}: is an input of this run ({source}): writing would destroy it; "
