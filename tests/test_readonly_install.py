@@ -7,6 +7,7 @@ import shutil
 import stat
 import subprocess
 import sys
+import sysconfig
 from pathlib import Path
 
 import pytest
@@ -52,16 +53,22 @@ def test_the_readme_first_command_runs_from_an_install_the_user_cannot_write(tmp
                     ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc"))
     home_dir = tmp_path / "home"
     home_dir.mkdir()
+    # the README's relative paths, from a folder that is not the checkout (which would come first on sys.path)
+    work = tmp_path / "work"
+    shutil.copytree(REPO / "maps", work / "maps")
     _read_only(install)
     if home == "read-only":  # a container user whose HOME is not theirs: the temporary folder is left
         _read_only(home_dir)
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "XDG_"))}
-    env.update(PYTHONPATH=str(install), HOME=str(home_dir), TMPDIR=str(tmp_path))
+    # -S: without site's start-up files the development checkout's editable install (a .pth
+    # finder that would win over PYTHONPATH) is not loaded; the dependencies come from PYTHONPATH
+    env.update(PYTHONPATH=os.pathsep.join([str(install), sysconfig.get_paths()["purelib"]]), HOME=str(home_dir),
+               TMPDIR=str(tmp_path))
     try:
-        probe = subprocess.run([sys.executable, "-c", "import mapfilter; print(mapfilter.__file__)"], env=env,
-                               cwd=REPO, capture_output=True, text=True, preexec_fn=_as_a_user_without_write_access)
+        probe = subprocess.run([sys.executable, "-S", "-c", "import mapfilter; print(mapfilter.__file__)"], env=env,
+                               cwd=work, capture_output=True, text=True, preexec_fn=_as_a_user_without_write_access)
         assert probe.stdout.strip() == str(install / "mapfilter" / "__init__.py"), probe.stderr
-        run = subprocess.run([sys.executable, "-m", "mapfilter", *README_FIRST], env=env, cwd=REPO,
+        run = subprocess.run([sys.executable, "-S", "-m", "mapfilter", *README_FIRST], env=env, cwd=work,
                              capture_output=True, text=True, timeout=600,
                              preexec_fn=_as_a_user_without_write_access)
     finally:

@@ -469,6 +469,7 @@ import ctypes, os, shutil, subprocess, sys, pathlib
 repo = pathlib.Path({repo!r})
 install = pathlib.Path("ro_install")
 shutil.copytree(repo / "mapfilter", install / "mapfilter", ignore=shutil.ignore_patterns("__pycache__"))
+shutil.copytree(repo / "maps", "ro_work/maps")  # the README's paths, away from the checkout
 for root, dirs, files in os.walk(install):
     for name in dirs + files:
         os.chmod(os.path.join(root, name), 0o555 if name in dirs else 0o444)
@@ -481,9 +482,13 @@ def drop():
         for cap in (1, 2, 3):
             libc.prctl(24, cap, 0, 0, 0)
 env = {{k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "XDG_"))}}
-env.update(PYTHONPATH=str(install.resolve()), HOME=str(home.resolve()))
-run = subprocess.run([sys.executable, "-m", "mapfilter", "track", "maps/office.yaml", "maps/office_walk.txt.gz",
-                      "--radiomap", "maps/office_radiomap.npz", "--smooth"], cwd=repo, env=env, preexec_fn=drop,
+import sysconfig
+# -S: the checkout's editable install (a .pth finder that wins over PYTHONPATH) is not loaded
+env.update(PYTHONPATH=os.pathsep.join([str(install.resolve()), sysconfig.get_paths()["purelib"]]),
+           HOME=str(home.resolve()))
+run = subprocess.run([sys.executable, "-S", "-m", "mapfilter", "track", "maps/office.yaml", "maps/office_walk.txt.gz",
+                      "--radiomap", "maps/office_radiomap.npz", "--smooth"], cwd=pathlib.Path("ro_work"), env=env,
+                     preexec_fn=drop,
                      capture_output=True, text=True)
 for root, dirs, files in os.walk(install):
     for name in dirs:
@@ -492,6 +497,7 @@ os.chmod(install, 0o755)
 os.chmod(home, 0o755)
 shutil.rmtree(install)
 shutil.rmtree(home)
+shutil.rmtree("ro_work")
 sys.stderr.write(run.stderr)
 print(run.stdout.splitlines()[0] if run.returncode == 0 else "", file=sys.stderr)
 sys.exit(run.returncode)
