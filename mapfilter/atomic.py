@@ -7,13 +7,43 @@ import errno
 import os
 import secrets
 import shutil
+import stat
 import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 from mapfilter.errors import MapfilterError
-from mapfilter.outputs import check_not_special, is_stdout
+
+STDOUT = "-"  # an output path that means standard output
+
+
+def is_stdout(path: str | os.PathLike | None) -> bool:
+    return path is not None and str(path) == STDOUT
+
+
+def check_not_special(path: Path, option: str = "--out") -> None:
+    """Refuse a path that exists and is not a plain file or directory: a symbolic link, a device,
+    a FIFO, a socket. ``os.replace`` would put a new file in its place (a copy of /dev/null, or
+    /dev/null itself when run as root, replaced by a regular file; a link replaced, not written
+    through)."""
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:  # missing, or under a file: writing it reports that
+        return
+    if stat.S_ISLNK(mode):
+        target = os.readlink(path)
+        raise MapfilterError(f"{option}: is a symbolic link (to {target}); give the file's own path, or "
+                             f"{STDOUT} for standard output", path)
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        raise MapfilterError(f"{option}: is a device, not a file; give a file name, or {STDOUT} for standard "
+                             "output", path)
+    if stat.S_ISFIFO(mode):
+        raise MapfilterError(f"{option}: is a FIFO (named pipe); give {STDOUT} and redirect standard output "
+                             "into it", path)
+    if stat.S_ISSOCK(mode):
+        raise MapfilterError(f"{option}: is a socket, not a file", path)
+
 
 # errors of the disk rather than of the program: a full disk, a quota, a file size limit,
 # an I/O error, a read-only file system

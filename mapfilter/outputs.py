@@ -25,18 +25,15 @@ import stat
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
+from mapfilter.atomic import STDOUT, atomic_paths, check_not_special, is_stdout
 from mapfilter.errors import MapfilterError
 
-STDOUT = "-"  # an output path that means standard output
 MANIFEST = ".mapfilter-manifest.json"
 # the temporaries of mapfilter.atomic: ".STEM.8HEX.SUFFIX" (left behind only by a killed run)
 _TEMPORARY = re.compile(r"^\..*\.[0-9a-f]{8}(\.[^.]*)?$")
 _MAX_LISTED = 100_000  # files looked at in an existing output directory before giving up
 _MAX_REFERENCE_DEPTH = 3  # building YAML -> floor map YAML -> image
 
-
-def is_stdout(path: str | os.PathLike | None) -> bool:
-    return path is not None and str(path) == STDOUT
 
 
 # ---- what a run reads --------------------------------------------------------------------------
@@ -132,28 +129,6 @@ def check_output_files(paths: Sequence[Path], option: str, inputs: Sequence[Path
             if _same_file(path, other):
                 raise MapfilterError(f"{option}: two outputs of this run would be the same file ({other})", path)
 
-
-def check_not_special(path: Path, option: str = "--out") -> None:
-    """Refuse a path that exists and is not a plain file or directory: a symbolic link, a device,
-    a FIFO, a socket. ``os.replace`` would put a new file in its place (a copy of /dev/null, or
-    /dev/null itself when run as root, replaced by a regular file; a link replaced, not written
-    through)."""
-    try:
-        mode = os.lstat(path).st_mode
-    except OSError:  # missing, or under a file: writing it reports that
-        return
-    if stat.S_ISLNK(mode):
-        target = os.readlink(path)
-        raise MapfilterError(f"{option}: is a symbolic link (to {target}); give the file's own path, or "
-                             f"{STDOUT} for standard output", path)
-    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
-        raise MapfilterError(f"{option}: is a device, not a file; give a file name, or {STDOUT} for standard "
-                             "output", path)
-    if stat.S_ISFIFO(mode):
-        raise MapfilterError(f"{option}: is a FIFO (named pipe); give {STDOUT} and redirect standard output "
-                             "into it", path)
-    if stat.S_ISSOCK(mode):
-        raise MapfilterError(f"{option}: is a socket, not a file", path)
 
 
 def _check_name_length(path: Path, option: str) -> None:
@@ -306,8 +281,6 @@ class OutputDirectory:
             self._write_manifest()
 
     def _write_manifest(self) -> None:
-        from mapfilter.atomic import atomic_paths  # noqa: PLC0415 - atomic imports this module
-
         with atomic_paths(self.manifest_path) as (tmp,):
             tmp.write_text(json.dumps({"written_by": "mapfilter", "files": sorted(self.files)}, indent=0) + "\n")
 

@@ -280,7 +280,7 @@ def test_edits_yaml_and_geojson(tmp_path: Path):
 @pytest.mark.parametrize("content, message", [
     ("free: [[[0, 0], [1, 0]]]\n", "at least three"),
     ("doors: []\n", "keys 'free' and/or 'wall'"),
-    ("free: [[[0, 0], [1, 0], [1, 1]]\n", "malformed"),
+    ("free: [[[0, 0], [1, 0], [1, 1]]\n", "not valid YAML"),
     ('{"type": "FeatureCollection", "features": [{"properties": {}, "geometry": null}]}', "'free' or 'wall'"),
 ])
 def test_bad_edits(tmp_path: Path, content: str, message: str):
@@ -460,7 +460,7 @@ def _bad_inputs(tmp: Path) -> list[tuple[list, str, str]]:
          "no free space"),
         (["map", "prepare", rooms], "rooms.png", "no scale"),
         (["map", "prepare", rooms, "--resolution", "0.1", "--size", "30", "10"], "rooms.png", "contradictory"),
-        (["map", "prepare", rooms, "--resolution", "0.1", "--edits", tmp / "edits.yaml"], "edits.yaml", "malformed"),
+        (["map", "prepare", rooms, "--resolution", "0.1", "--edits", tmp / "edits.yaml"], "edits.yaml", "not valid YAML"),
         (["map", "prepare", tmp / "floor.json"], "floor.json", "--resolution"),
         (["map", "import-ilc", tmp / "nofloor"], "nofloor", "not an ILC floor"),
         (["map", "prepare", rooms, "--resolution", "0.1", "--access-points", tmp / "aps.csv"], "aps.csv", "not found"),
