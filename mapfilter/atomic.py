@@ -6,14 +6,49 @@ import contextlib
 import errno
 import os
 import secrets
+import shutil
+import stat
+import sys
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 from mapfilter.errors import MapfilterError
 
+STDOUT = "-"  # an output path that means standard output
+
+
+def is_stdout(path: str | os.PathLike | None) -> bool:
+    return path is not None and str(path) == STDOUT
+
+
+def check_not_special(path: Path, option: str = "--out") -> None:
+    """Refuse a path that exists and is not a plain file or directory: a symbolic link, a device,
+    a FIFO, a socket. ``os.replace`` would put a new file in its place (a copy of /dev/null, or
+    /dev/null itself when run as root, replaced by a regular file; a link replaced, not written
+    through)."""
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:  # missing, or under a file: writing it reports that
+        return
+    if stat.S_ISLNK(mode):
+        target = os.readlink(path)
+        raise MapfilterError(f"{option}: is a symbolic link (to {target}); give the file's own path, or "
+                             f"{STDOUT} for standard output", path)
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        raise MapfilterError(f"{option}: is a device, not a file; give a file name, or {STDOUT} for standard "
+                             "output", path)
+    if stat.S_ISFIFO(mode):
+        raise MapfilterError(f"{option}: is a FIFO (named pipe); give {STDOUT} and redirect standard output "
+                             "into it", path)
+    if stat.S_ISSOCK(mode):
+        raise MapfilterError(f"{option}: is a socket, not a file", path)
+
+
 # errors of the disk rather than of the program: a full disk, a quota, a file size limit,
 # an I/O error, a read-only file system
 DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS})
+_NAME_MAX = 255  # bytes in a file name (Linux, macOS, Windows)
 
 
 @contextlib.contextmanager
@@ -23,16 +58,25 @@ def atomic_paths(*final_paths: str | os.PathLike) -> Iterator[list[Path]]:
     All files appear together at the end of the ``with`` block; if the block raises (or is
     interrupted: Ctrl-C, SIGTERM through the CLI), the temporaries are removed, and so are the
     directories made for them, and no final path is touched. Missing parent directories are
-    made. A full disk (or another error of the disk: ``DISK_ERRNOS``) while the block writes
+    made. ``-`` is standard output: its file is written to a private temporary and copied to
+    stdout at the end. A path that is a symbolic link, a device, a FIFO or a socket is refused
+    (``mapfilter.outputs``: never replaced). A full disk (or another error of the disk: ``DISK_ERRNOS``) while the block writes
     is a ``MapfilterError`` naming the final file, not an ``OSError`` without a file name.
     """
     finals = [Path(p) for p in final_paths]
     temps: list[Path] = []
     made: list[Path] = []  # directories made here, deepest last
+    stdout_dir = None  # the private directory of a temporary bound for standard output
     try:
         for final in finals:
+            if is_stdout(final):
+                stdout_dir = Path(tempfile.mkdtemp(prefix="mapfilter-stdout."))
+                temps.append(stdout_dir / "out")
+                temps[-1].touch(mode=0o600)
+                continue
             if final.is_dir():
                 raise MapfilterError("is a directory; give a file name", final)
+            check_not_special(final, "output")  # a link, a device, a FIFO: never replaced
             try:
                 made += _make_parents(final.parent)
                 _create_temporary(final, temps)
@@ -48,6 +92,9 @@ def atomic_paths(*final_paths: str | os.PathLike) -> Iterator[list[Path]]:
         umask = os.umask(0)
         os.umask(umask)
         for tmp, final in zip(temps, finals):
+            if is_stdout(final):
+                _copy_to_stdout(tmp)
+                continue
             if tmp.exists():
                 os.chmod(tmp, 0o666 & ~umask)
             os.replace(tmp, final)
@@ -57,6 +104,8 @@ def atomic_paths(*final_paths: str | os.PathLike) -> Iterator[list[Path]]:
         for tmp in temps:
             with contextlib.suppress(FileNotFoundError):
                 tmp.unlink()
+        if stdout_dir is not None:
+            shutil.rmtree(stdout_dir, ignore_errors=True)
         for directory in reversed(made):
             with contextlib.suppress(OSError):  # not empty (something else wrote there): keep it
                 directory.rmdir()
@@ -66,8 +115,13 @@ def _create_temporary(final: Path, temps: list[Path]) -> None:
     """A new private file ``.STEM.RANDOM.SUFFIX`` beside ``final``, listed in ``temps`` *before* it
     is made, so that an interrupt at any moment (Ctrl-C, SIGTERM) leaves none unlisted for the
     clean-up (``tempfile.mkstemp`` makes the file before it returns its name)."""
+    # ".STEM.RANDOM.SUFFIX" is 10 bytes longer than the final name: a stem that would make it
+    # longer than a file name may be (255 bytes) is cut (a 250-character --out is valid)
+    stem = final.stem
+    while len(os.fsencode(f".{stem}.12345678{final.suffix}")) > _NAME_MAX and stem:
+        stem = stem[:-1]
     for _ in range(100):
-        tmp = final.parent / f".{final.stem}.{secrets.token_hex(4)}{final.suffix}"
+        tmp = final.parent / f".{stem}.{secrets.token_hex(4)}{final.suffix}"
         temps.append(tmp)
         try:
             os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
@@ -78,6 +132,14 @@ def _create_temporary(final: Path, temps: list[Path]) -> None:
             temps.pop()  # not made (a parent that is a file, no permission)
             raise
     raise FileExistsError(errno.EEXIST, "no free temporary name", str(final.parent))
+
+
+def _copy_to_stdout(tmp: Path) -> None:
+    """The finished output on standard output (``--out -``), after what was printed before."""
+    sys.stdout.flush()
+    with tmp.open("rb") as handle:
+        shutil.copyfileobj(handle, sys.stdout.buffer)
+    sys.stdout.buffer.flush()
 
 
 def _make_parents(directory: Path) -> list[Path]:

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 from urllib.parse import urlsplit
@@ -83,6 +84,87 @@ def check_scheduler_address(address: str) -> tuple[str, str, int]:
     if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username or parts.password:
         raise MapfilterError(f"{usage}: only a host and a port")
     return parts.scheme, parts.hostname, port
+
+
+def machine_cores() -> int:
+    """The cores this process may run on (its CPU affinity, else the machine's count)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):
+        return max(os.cpu_count() or 1, 1)
+
+
+def check_local_jobs(jobs: int) -> None:
+    """``--jobs N``: at most one local worker process per core (more only wait for a core, and
+    each holds its own copy of the map and the radio map), and N workers' memory must fit."""
+    from mapfilter import memory
+
+    cores = machine_cores()
+    if jobs > cores:
+        raise MapfilterError(f"--jobs {jobs}: this machine has {cores} core{'s' if cores != 1 else ''}; give at "
+                             f"most --jobs {cores} (more processes than cores only wait for them)")
+    if jobs > 1:
+        memory.check_fits(memory.jobs_bytes(jobs), f"--jobs {jobs} (local worker processes)", "give fewer")
+
+
+# What a scheduler must do within seconds: accept, and send the first message of Dask's
+# handshake (a few hundred bytes). Anything else (silence, an HTTP server, random bytes whose
+# first 8 read as a length of exabytes) is refused before Dask's client trusts it.
+SCHEDULER_TIMEOUT_S = 5.0
+MAX_HANDSHAKE_BYTES = 1 << 16
+
+
+def probe_scheduler(address: str, security=None, timeout_s: float = SCHEDULER_TIMEOUT_S) -> None:
+    """Connect to the scheduler at ``address`` and read the first message it sends (Dask's
+    handshake: an 8-byte length, then that many bytes), with a timeout and a bound on the
+    length; ``MapfilterError`` in one line for anything that is not a Dask scheduler."""
+    import socket
+    import struct
+    import time
+
+    scheme, host, port = check_scheduler_address(address)
+    deadline = time.monotonic() + timeout_s
+    try:
+        sock = socket.create_connection((host, port), timeout=timeout_s)
+    except OSError as exc:
+        raise MapfilterError(f"cannot reach the Dask scheduler at {address}: {exc.strerror or exc}") from None
+    try:
+        if scheme == "tls":
+            context = security.get_connection_args("client")["ssl_context"] if security is not None else None
+            if context is None:
+                raise MapfilterError(f"--scheduler {address}: no TLS settings to reach it with")
+            sock = context.wrap_socket(sock, server_hostname=None if context.check_hostname is False else host)
+
+        def read(n: int) -> bytes:
+            data = b""
+            while len(data) < n:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError
+                sock.settimeout(left)
+                chunk = sock.recv(n - len(data))
+                if not chunk:
+                    raise ConnectionError("closed the connection")
+                data += chunk
+            return data
+
+        head = read(8)
+        if head.startswith((b"HTTP", b"<", b"SSH-", b"220 ")):
+            raise MapfilterError(f"--scheduler {address} is not a Dask scheduler (it answered {head[:8]!r}...: an "
+                                 "HTTP, SSH or mail server?)")
+        (length,) = struct.unpack("<Q", head)
+        if not 8 <= length <= MAX_HANDSHAKE_BYTES:
+            raise MapfilterError(f"--scheduler {address} is not a Dask scheduler (its first message would be "
+                                 f"{length} bytes; Dask's handshake is a few hundred)")
+        read(length)
+    except TimeoutError:
+        raise MapfilterError(f"--scheduler {address} accepted the connection but sent nothing a Dask scheduler "
+                             f"sends within {timeout_s:g} s: is it one?") from None
+    except (ConnectionError, OSError) as exc:
+        raise MapfilterError(f"--scheduler {address}: the connection failed during Dask's handshake "
+                             f"({getattr(exc, 'strerror', None) or exc}): is it a Dask scheduler?") from None
+    finally:
+        sock.close()
 
 
 def run_each(function: Callable[..., Any], items: Sequence[Any], engine: Engine, common: tuple = (),
@@ -140,8 +222,12 @@ class _DaskClient:
         if self.engine.scheduler is not None:
             address = self.engine.scheduler
             security = _configured_security(address)
+            probe_scheduler(address, security)  # silence or a stranger: one line in seconds
+            import dask
+
             try:
-                self.client = Client(address, timeout="10s", security=security)
+                with dask.config.set({"distributed.comm.timeouts.connect": "10s"}):
+                    self.client = Client(address, timeout="10s", security=security)
             except (OSError, TimeoutError) as exc:
                 raise MapfilterError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
         else:

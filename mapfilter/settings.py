@@ -26,6 +26,9 @@ from typing import Any
 import yaml
 
 from mapfilter.errors import MapfilterError
+from mapfilter.yamlio import compose_yaml, construct, read_yaml_text
+
+_MAX_INT = 2**63 - 1  # a whole number setting ends up in an int64 (numpy, numba)
 
 __all__ = ["field_docs", "settings_from_yaml", "settings_to_dict", "settings_to_yaml", "replace_setting"]
 
@@ -98,12 +101,7 @@ def settings_from_yaml(cls: type, text_or_path: str | os.PathLike, base: Any = N
     ``cls()``), the rest keep their values. Unknown keys and values of the wrong type are a
     ``MapfilterError`` naming the file, the line and the setting."""
     where, text = _source(text_or_path)
-    try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f" line {mark.line + 1}" if mark is not None else ""
-        raise MapfilterError(f"{where}{line}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    node = compose_yaml(text, where)  # size, alias and duplicate-key limits of every YAML mapfilter reads
     base = base if base is not None else cls()
     if node is None:
         return base
@@ -113,13 +111,7 @@ def settings_from_yaml(cls: type, text_or_path: str | os.PathLike, base: Any = N
 def _source(text_or_path: str | os.PathLike) -> tuple[str, str]:
     if isinstance(text_or_path, os.PathLike) or ("\n" not in str(text_or_path) and
                                                   str(text_or_path).endswith((".yaml", ".yml"))):
-        path = Path(text_or_path)
-        try:
-            return str(path), path.read_text()
-        except FileNotFoundError:
-            raise MapfilterError("file not found", path) from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise MapfilterError(f"cannot read the config ({exc.__class__.__name__})", path) from None
+        return str(text_or_path), read_yaml_text(text_or_path, "a config file")
     return "the config", str(text_or_path)
 
 
@@ -142,7 +134,7 @@ def _apply(config: Any, node: yaml.Node, where: str, prefix: str) -> Any:
         if dataclasses.is_dataclass(current):
             changes[key] = _apply(current, value_node, where, f"{name}.")
         else:
-            value = yaml.safe_load(yaml.serialize(value_node))
+            value = construct(value_node)
             changes[key] = _coerce(value, hints[key], f"{where} line {line}: {name}")
     try:
         return dataclasses.replace(config, **changes)
@@ -184,6 +176,8 @@ def _coerce(value: Any, hint: Any, what: str) -> Any:
     if hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise MapfilterError(f"{what}: expected a whole number, got {value!r}")
+        if abs(value) > _MAX_INT:
+            raise MapfilterError(f"{what}: {str(value)[:20]}... is beyond any count or seed (at most {_MAX_INT})")
         return value
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):

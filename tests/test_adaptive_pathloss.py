@@ -300,7 +300,6 @@ def test_cli_simulate_wrong_table_then_track_with_adapt(tmp_path, capsys):
 @pytest.mark.parametrize("args, message", [
     (["--adapted-aps", "{tmp}/a.csv"], "give --adapt too"),
     (["--radiomap", str(REPO / "maps" / "office_radiomap.npz"), "--adapt"], "need trilateration"),
-    (["--aps", str(OFFICE_APS), "--adapt", "--adapt-rssi-limit", "nan"], "RSSI limit"),
 ])
 def test_cli_track_bad_adaptation_flags_are_one_line(args, message, tmp_path, capsys):
     walk = REPO / "maps" / "office_walk.txt.gz"
@@ -308,6 +307,15 @@ def test_cli_track_bad_adaptation_flags_are_one_line(args, message, tmp_path, ca
     assert main(argv) != 0
     err = capsys.readouterr().err.strip()
     assert message in err and "Traceback" not in err and len(err.splitlines()) == 1
+
+
+def test_cli_track_a_nan_rssi_limit_is_refused_by_the_option(tmp_path, capsys):
+    walk = REPO / "maps" / "office_walk.txt.gz"
+    with pytest.raises(SystemExit) as stop:
+        main(["track", str(OFFICE), str(walk), "--aps", str(OFFICE_APS), "--adapt", "--adapt-rssi-limit", "nan"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "--adapt-rssi-limit" in err and "finite" in err and "Traceback" not in err
 
 
 def test_cli_simulate_offsets_need_write_aps(tmp_path, capsys):

@@ -14,6 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from mapfilter.outputs import MANIFEST
 from mapfilter.cli import main
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.trackio import read_track
@@ -71,7 +72,7 @@ def test_out_dir_writes_a_track_with_floors_per_walk_and_a_summary_row_per_walk(
     assert tracked.code == 0
     assert "2 walks (serial): 2 tracked, 0 failed, 0 crashed" in tracked.stdout
     assert "on the walker's floor at" in tracked.stdout
-    assert sorted(p.name for p in tracked.out.iterdir()) == ["config.yaml", "summary.csv", "summary.json",
+    assert sorted(p.name for p in tracked.out.iterdir() if p.name != MANIFEST) == ["config.yaml", "summary.csv", "summary.json",
                                                               "walk1.csv", "walk2.csv"]
     rows = _summary(tracked.out)
     assert list(rows) == ["walk1", "walk2"]
@@ -102,7 +103,7 @@ def test_out_dir_smoothed_tum_tracks_on_a_given_floor(office3, tmp_path, capsys)
     assert main(["track", str(office3.building), *map(str, office3.walks), "--radiomap", str(office3.radiomap),
                  *PARTICLES, "--smooth", "--format", "tum", "--floor", "F1", "--out-dir", str(out)]) == 0
     # the offline track per walk, the causal one beside it (--smooth), and the config that ran
-    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "summary.csv", "summary.json", "walk1.causal.tum",
+    assert sorted(p.name for p in out.iterdir() if p.name != MANIFEST) == ["config.yaml", "summary.csv", "summary.json", "walk1.causal.tum",
                                                      "walk1.tum", "walk2.causal.tum", "walk2.tum"]
     rows = _summary(out)
     for trace in ("walk1", "walk2"):
@@ -127,7 +128,7 @@ def test_a_walk_that_fails_is_reported_and_the_others_are_tracked(office3, tmp_p
     rows = _summary(out)
     assert rows["nowifi"]["status"] == "failed" and rows["nowifi"]["track_file"] == ""
     assert rows["walk2"]["status"] == "ok"
-    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "summary.csv", "summary.json", "walk2.csv"]
+    assert sorted(p.name for p in out.iterdir() if p.name != MANIFEST) == ["config.yaml", "summary.csv", "summary.json", "walk2.csv"]
 
 
 @pytest.mark.parametrize("problem", ["log_floor", "radiomap_without_floors", "floor_option"])

@@ -149,7 +149,7 @@ def test_an_interrupted_evaluate_resumes_to_the_uninterrupted_summary(tmp_path):
     assert 1 <= len(done) < 4 and "interrupted" in out
     partial = json.loads((cut / "summary.json").read_text())
     assert partial["complete"] is False and partial["walks_done"] == len(done)
-    assert not [p for p in cut.rglob(".*") if p.is_file()]  # no temporaries left behind
+    assert not [p for p in cut.rglob(".*") if p.is_file() and p.name != ".mapfilter-manifest.json"]  # no temporaries
     assert main(args + ["--out", str(cut), "--resume"]) == 0
 
     def numbers(out):  # every column but the run time
@@ -158,10 +158,14 @@ def test_an_interrupted_evaluate_resumes_to_the_uninterrupted_summary(tmp_path):
 
     assert numbers(cut) == numbers(whole)
     assert json.loads((cut / "summary.json").read_text())["complete"] is True
-    # a fresh run (no --resume) removes what the earlier run left
-    (cut / "walks" / "stale.json").write_text("{}")
-    assert main(args[:3] + ["--radiomap", str(MAPS / "office_radiomap.npz"), "--methods", "kwnn",
-                            "--out", str(cut)]) == 0
+    # a file that mapfilter did not write makes a new run refuse the folder, before touching anything
+    (cut / "walks" / "mine.json").write_text("{}")
+    fresh = args[:3] + ["--radiomap", str(MAPS / "office_radiomap.npz"), "--methods", "kwnn", "--out", str(cut)]
+    assert main(fresh) == 1
+    assert (cut / "walks" / "mine.json").read_text() == "{}" and len(list((cut / "walks").glob("*.json"))) == 5
+    # without it, a fresh run (no --resume) removes what the earlier run left
+    (cut / "walks" / "mine.json").unlink()
+    assert main(fresh) == 0
     assert sorted(p.name for p in (cut / "walks").glob("*.json")) == [walks[0].name.replace(".txt.gz", ".json")]
 
 

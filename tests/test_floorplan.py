@@ -135,7 +135,7 @@ def test_standard_map_server_pgm_loads(tmp_path: Path, negate: int):
 
 
 @pytest.mark.parametrize("content, message", [
-    ("image: m.png\nresolution: [0.1\n", "malformed YAML"),
+    ("image: m.png\nresolution: [0.1\n", "not valid YAML"),
     ("- just\n- a list\n", "mapping"),
     ("image: m.png\norigin: [0, 0, 0]\n", "resolution"),
     ("image: m.png\nresolution: -1\norigin: [0, 0, 0]\n", "positive"),

@@ -280,7 +280,7 @@ def test_edits_yaml_and_geojson(tmp_path: Path):
 @pytest.mark.parametrize("content, message", [
     ("free: [[[0, 0], [1, 0]]]\n", "at least three"),
     ("doors: []\n", "keys 'free' and/or 'wall'"),
-    ("free: [[[0, 0], [1, 0], [1, 1]]\n", "malformed"),
+    ("free: [[[0, 0], [1, 0], [1, 1]]\n", "not valid YAML"),
     ('{"type": "FeatureCollection", "features": [{"properties": {}, "geometry": null}]}', "'free' or 'wall'"),
 ])
 def test_bad_edits(tmp_path: Path, content: str, message: str):
@@ -452,7 +452,6 @@ def _bad_inputs(tmp: Path) -> list[tuple[list, str, str]]:
     rooms = tmp / "rooms.png"
     return [
         (["map", "prepare", tmp / "missing.png", "--resolution", "0.1"], "missing.png", "not found"),
-        (["map", "prepare", rooms, "--resolution", "0.1", "--close-gaps", "-1"], "", "close_gaps_px"),
         (["map", "prepare", rooms, "--kind", "regions", "--resolution", "0.1", "--walkable", "pink"], "", "colour"),
         (["map", "prepare", tmp / "text.png", "--resolution", "0.1"], "text.png", "not a readable image"),
         (["map", "prepare", tmp / "blank.png", "--resolution", "0.1"], "blank.png", "no walls"),
@@ -461,7 +460,7 @@ def _bad_inputs(tmp: Path) -> list[tuple[list, str, str]]:
          "no free space"),
         (["map", "prepare", rooms], "rooms.png", "no scale"),
         (["map", "prepare", rooms, "--resolution", "0.1", "--size", "30", "10"], "rooms.png", "contradictory"),
-        (["map", "prepare", rooms, "--resolution", "0.1", "--edits", tmp / "edits.yaml"], "edits.yaml", "malformed"),
+        (["map", "prepare", rooms, "--resolution", "0.1", "--edits", tmp / "edits.yaml"], "edits.yaml", "not valid YAML"),
         (["map", "prepare", tmp / "floor.json"], "floor.json", "--resolution"),
         (["map", "import-ilc", tmp / "nofloor"], "nofloor", "not an ILC floor"),
         (["map", "prepare", rooms, "--resolution", "0.1", "--access-points", tmp / "aps.csv"], "aps.csv", "not found"),
@@ -496,7 +495,7 @@ def test_cli_never_overwrites_the_plan_with_its_mask(tmp_path: Path, capsys):
     _two_rooms_png(plan)
     before = plan.read_bytes()
     code, out, err = _run(["map", "prepare", plan, "--resolution", "0.1", "--out", tmp_path / "plan.yaml"], capsys)
-    assert code == 1 and "overwrite the plan" in err and len(err.strip().splitlines()) == 1
+    assert code == 1 and "is an input of this run" in err and len(err.strip().splitlines()) == 1
     assert plan.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.png"]
 

@@ -1,4 +1,4 @@
-"""Throw issue 27's broken and hostile inputs at the CLI and print what each does.
+"""Throw broken and hostile inputs (issues 27 and 36) at the CLI and print what each does.
 
 Every case runs ``python -m mapfilter ...`` as a subprocess with its address space capped
 (``RLIMIT_AS``, default 4 GB: a case that asks for more gets a MemoryError instead of taking
@@ -7,7 +7,9 @@ table gives each case's exit code, the first line of its stderr that says someth
 ``mapfilter: error`` line, or the last line of a traceback), its peak memory (the child's
 ``ru_maxrss`` from ``wait4``, which covers the processes it waited for) and its wall time, and
 a verdict: ``ok`` when there is no traceback, the exit code is the one expected, the peak is
-under 2 GB and the time under 2 minutes (issue 27's bar).
+under 2 GB and the time under 2 minutes (issue 27's bar), a case that used to hang ends within
+10 s, and every file a case names as its user's (``keep``: its inputs, a file of theirs in the
+output folder) is byte-identical afterwards (issue 36).
 
 The hostile files are made in a temporary directory (removed at the end unless ``--keep``),
 never in the repository. Usage::
@@ -18,12 +20,14 @@ never in the repository. Usage::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import gzip
 import os
 import resource
 import shutil
 import signal
+import stat
 import struct
 import subprocess
 import sys
@@ -54,7 +58,10 @@ class Case:
     sigterm_when: str | None = None  # send SIGTERM once a file with this prefix appears in the work dir
     python: str | None = None  # run this Python code instead of the CLI
     slow: bool = False
+    cwd: str | None = None  # run in this folder of the work directory
     must_say: str = ""  # the first stderr line must hold this (a row skipped: the warning that says so)
+    keep: tuple[str, ...] = ()  # files of the work directory that must be byte-identical afterwards
+    max_s: float = BAR_S  # a case that used to hang must end within this
 
 
 @dataclasses.dataclass
@@ -65,22 +72,26 @@ class Outcome:
     peak_mb: float
     wall_s: float
     leftovers: list[str]
+    changed: list[str] = dataclasses.field(default_factory=list)  # kept files that were changed or removed
+    stderr: str = ""  # all of it (must_say may be on any line)
 
     @property
     def verdict(self) -> str:
         problems = []
         if self.code not in self.case.expect:
             problems.append(f"exit {self.code}")
-        if self.case.must_say and self.case.must_say not in self.message:
+        if self.case.must_say and self.case.must_say not in self.stderr:
             problems.append(f"no '{self.case.must_say}'")
         if "Traceback" in self.message or self.message.startswith("(traceback)"):
             problems.append("traceback")
         if self.peak_mb > BAR_MB:
             problems.append("memory")
-        if self.wall_s > BAR_S:
+        if self.wall_s > min(BAR_S, self.case.max_s):
             problems.append("time")
         if self.leftovers:
             problems.append("left " + ", ".join(self.leftovers))
+        if self.changed:
+            problems.append("DESTROYED " + ", ".join(self.changed))
         return "ok" if not problems else "FAILS: " + "; ".join(problems)
 
 
@@ -233,7 +244,273 @@ def make_files(work: Path, skip_slow: bool) -> None:
         write_long_line_gzip(work / "long_line.txt.gz", 3 << 30)
     (work / "a-file").write_text("x")
     (work / "outdir").mkdir()
+    make_files_36(work)
 
+
+# ---- issue 36's files -------------------------------------------------------------------------
+BOMB = ("a: &a [x, x, x, x, x, x, x, x, x]\nb: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a]\n"
+        "c: &c [*b, *b, *b, *b, *b, *b, *b, *b, *b]\nd: &d [*c, *c, *c, *c, *c, *c, *c, *c, *c]\n"
+        "e: &e [*d, *d, *d, *d, *d, *d, *d, *d, *d]\nf: &f [*e, *e, *e, *e, *e, *e, *e, *e, *e]\n"
+        "g: &g [*f, *f, *f, *f, *f, *f, *f, *f, *f]\nh: &h [*g, *g, *g, *g, *g, *g, *g, *g, *g]\n"
+        "i: &i [*h, *h, *h, *h, *h, *h, *h, *h, *h]\n")  # 9^9 = 387 M strings from 400 bytes
+
+
+def write_radio_map_arrays(path: Path, edit: Callable[[dict], None]) -> Path:
+    """The bundled radio map with its arrays edited (``edit(arrays)``), saved as a plain npz."""
+    import numpy as np
+
+    with np.load(RADIOMAP, allow_pickle=False) as data:
+        arrays = {key: data[key] for key in data.files}
+    edit(arrays)
+    np.savez_compressed(path, **arrays)
+    return path
+
+
+def write_huge_radio_map(path: Path, n_points: int, n_aps: int) -> Path:
+    """A radio map of ``n_points`` x ``n_aps`` float32 RSSI (all unheard: NaN), which compresses
+    to a few MB: each array streamed into the zip, never whole in memory."""
+    import io
+    import zipfile
+
+    import numpy as np
+    from numpy.lib import format as npy
+
+    def put(archive, name, array):
+        buffer = io.BytesIO()
+        npy.write_array(buffer, array)
+        archive.writestr(f"{name}.npy", buffer.getvalue())
+
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        put(archive, "format", np.array("mapfilter-radiomap"))
+        put(archive, "version", np.array(2))
+        put(archive, "xy_m", np.zeros((n_points, 2)))
+        put(archive, "t_s", np.zeros(n_points))
+        put(archive, "trace", np.zeros(n_points, dtype=np.int64))
+        put(archive, "ap_keys", np.array([f"02:00:00:00:{i // 256:02x}:{i % 256:02x}|2.4" for i in range(n_aps)]))
+        put(archive, "source_traces", np.array(["survey"]))
+        with archive.open("rssi_dbm.npy", "w", force_zip64=True) as member:
+            npy.write_array_header_1_0(member, {"descr": "<f4", "fortran_order": False, "shape": (n_points, n_aps)})
+            row = np.full(n_aps, np.nan, dtype=np.float32).tobytes()
+            block = row * 1000
+            for _ in range(n_points // 1000):
+                member.write(block)
+    return path
+
+
+def make_files_36(work: Path) -> None:
+    """Issue 36's inputs: copies of the bundled map, walk and radio map the cases must not harm."""
+    import numpy as np
+
+    user = work / "user"
+    user.mkdir()
+    for source in (MAP, MAPS / "office.png", RADIOMAP, APS):
+        shutil.copy(source, user / source.name)
+    shutil.copy(WALK, user / "office_walk.txt.gz")
+    with gzip.open(WALK, "rt") as handle:
+        (user / "walk.txt").write_text(handle.read())
+    (work / "here" / "walks").mkdir(parents=True)  # evaluate --out . in a folder holding its logs
+    shutil.copy(WALK, work / "here" / "walks" / "office_walk.txt.gz")
+    (work / "res" / "tracks").mkdir(parents=True)
+    (work / "res" / "tracks" / "my_track.csv").write_text("t_s,x_m,y_m\n0,1,2\n")
+    with contextlib.suppress(OSError):  # a private copy of /dev/null (needs root)
+        os.mknod(work / "devnull", 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+    os.mkfifo(work / "fifo")
+    os.symlink("/proc/self/fd/1", work / "stdout-link")
+    meta = f"resolution: 0.1\norigin: [0.0, 0.0, 0.0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    (work / "bomb_image.yaml").write_text(BOMB + "image: *i\n" + meta)
+    (work / "bomb_origin.yaml").write_text(BOMB + f"image: {MAPS / 'office.png'}\nresolution: 0.1\norigin: *i\n")
+    (work / "bomb_building.yaml").write_text(BOMB + f"floors:\n  - name: *i\n    map: {MAP}\n    elevation_m: 0\n")
+    (work / "bomb_config.yaml").write_text(BOMB + "seed: *i\n")
+    with (work / "big_map.yaml").open("w") as handle:  # 50 MB
+        handle.write(f"image: {MAPS / 'office.png'}\nresolution: 0.1\norigin: [0, 0, 0]\nnotes:\n")
+        handle.writelines(f"  - note number {i} about this map, of no use to anyone\n" for i in range(1_000_000))
+    (work / "init_samples.yaml").write_text("filter:\n  init_samples: 10000000000\n")
+    (work / "likelihood_cell.yaml").write_text("wifi:\n  radio_map_likelihood:\n    cell_m: 0.000001\n")
+    (work / "matching_cell.yaml").write_text("offline:\n  map_matching:\n    cell_m: 0.000001\n")
+    (work / "heading_sigma.yaml").write_text("motion:\n  pdr:\n    heading_sigma_rad: -0.02\n")
+    write_huge_radio_map(work / "huge_rssi.npz", 200_000, 1_000)  # 0.8 GB of float32 RSSI
+    write_radio_map_arrays(work / "rm_keys0d.npz", lambda a: a.update(ap_keys=np.array("02:00:00:00:00:01|2.4")))
+    write_radio_map_arrays(work / "rm_version22.npz", lambda a: a.update(version=np.array([2, 2])))
+    write_radio_map_arrays(work / "rm_xy_text.npz", lambda a: a.update(xy_m=a["xy_m"].astype(str)))
+    write_radio_map_arrays(work / "rm_cv_nan.npz",
+                           lambda a: a.update(cv_fix_errors_params=np.array([3.0, np.nan, 1.0])))
+    os.symlink("loop_b.png", work / "loop_a.png")
+    os.symlink("loop_a.png", work / "loop_b.png")
+    (work / "loop.yaml").write_text("image: loop_a.png\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    (work / "res400.yaml").write_text(f"image: {MAPS / 'office.png'}\nresolution: 1{'0' * 400}\n"
+                                      "origin: [0, 0, 0]\n")
+    lines = APS.read_text().splitlines()
+    (work / "aps_latin1.csv").write_bytes(("\n".join(lines[:2]) + "\n").encode()
+                                          + lines[2].replace(lines[2][:2], "c\xe9", 1).encode("latin-1") + b"\n"
+                                          + ("\n".join(lines[3:]) + "\n").encode())
+    (work / "aps_bom.csv").write_bytes(b"\xef\xbb\xbf" + APS.read_bytes())
+    header, first = lines[0].split(","), lines[1].split(",")
+    moved = list(first)
+    moved[header.index("x")] = str(float(first[header.index("x")]) + 20.0)
+    (work / "aps_twice.csv").write_text("\n".join(lines + [",".join(moved)]) + "\n")
+    (work / "dup_key.yaml").write_text(f"image: {MAPS / 'office.png'}\nresolution: 0.1\nresolution: 0.05\n"
+                                       "origin: [0, 0, 0]\n")
+    office_yaml = MAP.read_text().replace("image: office.png", f"image: {MAPS / 'office.png'}")
+    (work / "utf16.yaml").write_bytes(office_yaml.encode("utf-16"))
+    (work / "latin1_comment.yaml").write_bytes("# plan du b\xe2timent\n".encode("latin-1") + office_yaml.encode())
+    floor_dir = work / "ilc_huge" / "F1"
+    floor_dir.mkdir(parents=True)
+    (floor_dir / "floor_info.json").write_text('{"map_info": {"width": 1e12, "height": 1e12}}')
+    (floor_dir / "geojson_map.json").write_text('{"type": "FeatureCollection", "features": []}')
+    (work / "unordered.yaml").write_text(f"floors:\n  - {{name: up, map: {MAP}, elevation_m: 4}}\n"
+                                         f"  - {{name: down, map: {MAP}, elevation_m: 0}}\n")
+    (work / "same_elevation.yaml").write_text(f"floors:\n  - {{name: a, map: {MAP}, elevation_m: 0}}\n"
+                                              f"  - {{name: b, map: {MAP}, elevation_m: 0}}\n")
+    shutil.copy(WALK, work / "summary.txt.gz")
+    _write_walk(work / "clock_back.txt", lambda lines: _shift_after(lines, 1_600_000_060_000, -20_000))
+
+
+# a scheduler that is not one: silent, an HTTP server, random bytes (run in the case's process)
+_FAKE_SCHEDULER = """
+import os, socket, sys, threading, time
+kind = {kind!r}
+server = socket.socket()
+server.bind(("127.0.0.1", 0))
+server.listen(8)
+def serve():
+    while True:
+        conn, _ = server.accept()
+        if kind == "http":
+            conn.sendall(b"HTTP/1.1 400 Bad Request\\r\\nContent-Length: 0\\r\\n\\r\\n")
+        elif kind == "random":
+            conn.sendall(os.urandom(4096))
+        threading.Thread(target=lambda c=conn: (time.sleep(300), c.close()), daemon=True).start()
+threading.Thread(target=serve, daemon=True).start()
+from mapfilter.cli import main
+sys.exit(main(["track", {map!r}, {walk!r}, "--radiomap", {rm!r}, "--out-dir", "outdir/sched_{kind}",
+               "--scheduler", f"tcp://127.0.0.1:{{server.getsockname()[1]}}"]))
+"""
+
+# evaluate --resume on a store edited after the run (its errors set to 0, or methods a number)
+_EDITED_STORE = """
+import json, pathlib, sys
+from mapfilter.cli import main
+args = ["evaluate", "user/office.yaml", "user/office_walk.txt.gz", "--radiomap", "user/office_radiomap.npz",
+        "--methods", "kwnn", "--out", "outdir/store_{edit}"]
+assert main(args) == 0
+stored = pathlib.Path("outdir/store_{edit}/walks/office_walk.json")
+data = json.loads(stored.read_text())
+if "{edit}" == "zeros":
+    for method in data["methods"]:
+        method["errors_m"] = [0.0] * len(method["errors_m"])
+else:
+    data["methods"] = 3
+stored.write_text(json.dumps(data))
+sys.exit(main(args + ["--resume"]))
+"""
+
+# evaluate --resume after a log or the radio map was replaced at the same path: nothing resumed
+_REPLACED_INPUT = """
+import contextlib, io, pathlib, shutil, sys
+from mapfilter.cli import main
+shutil.copy("user/office_walk.txt.gz", "replaced_walk.txt.gz")
+shutil.copy("user/office_radiomap.npz", "replaced_rm.npz")
+args = ["evaluate", "user/office.yaml", "replaced_walk.txt.gz", "--radiomap", "replaced_rm.npz", "--methods", "kwnn",
+        "--out", "outdir/replaced_{what}"]
+assert main(args) == 0
+if "{what}" == "log":
+    shutil.copy("gap30d.txt", "replaced_walk.txt.gz")  # another walk, same name
+else:
+    import numpy as np
+    with np.load("replaced_rm.npz") as data:
+        arrays = {{k: data[k] for k in data.files}}
+    arrays["rssi_dbm"] = arrays["rssi_dbm"] - 3.0  # another survey, same name
+    np.savez_compressed("replaced_rm.npz", **arrays)
+out = io.StringIO()
+with contextlib.redirect_stdout(out):
+    code = main(args + ["--resume"])
+said = [line for line in out.getvalue().splitlines() if line.startswith("resuming")]
+print(said[0] if said else "no resume line", file=sys.stderr)
+sys.exit(code if said == ["resuming: 0 of 1 walks already done in outdir/replaced_{what}"] else 3)
+"""
+
+# track --out-dir with a log named summary.txt.gz: its track and the summary are two files
+_SUMMARY_LOG = """
+import pathlib, sys
+from mapfilter.cli import main
+code = main(["track", "user/office.yaml", "summary.txt.gz", "user/office_walk.txt.gz", "--radiomap",
+             "user/office_radiomap.npz", "--out-dir", "outdir/summary_log"])
+out = pathlib.Path("outdir/summary_log")
+track = (out / "summary.track.csv").read_text().splitlines()[0] if (out / "summary.track.csv").exists() else ""
+summary = (out / "summary.csv").read_text().splitlines()[0]
+ok = track.startswith("t_s,") and summary.startswith("trace,")
+print(f"track file summary.track.csv: {track[:20]!r}; summary.csv: {summary[:20]!r}", file=sys.stderr)
+sys.exit(code if ok else 3)
+"""
+
+# the Python API called with the wrong types (issue 37): a one-line TypeError, not a traceback deep inside
+_API_TYPES = """
+import sys
+import mapfilter as mf
+building = mf.load_map({map!r})
+walk = mf.read_log({walk!r})
+radio_map = mf.load_radio_map({rm!r})
+calls = {{"map path": lambda: mf.track({map!r}, walk, radio_map=radio_map),
+          "dict config": lambda: mf.track(building, walk, radio_map=radio_map, config={{"seed": 1}}),
+          "path radio map": lambda: mf.track(building, walk, radio_map={rm!r}),
+          "None walk": lambda: mf.track(building, None, radio_map=radio_map)}}
+from mapfilter.errors import MapfilterError
+try:
+    calls[{which!r}]()
+except (TypeError, MapfilterError) as exc:
+    print(f"{{type(exc).__name__}}: {{exc}}", file=sys.stderr)
+    sys.exit(1)
+sys.exit(0)
+"""
+
+# the README's first command from a copy of the package that its user cannot write (numba's cache)
+_READ_ONLY_INSTALL = """
+import ctypes, os, shutil, subprocess, sys, pathlib
+repo = pathlib.Path({repo!r})
+install = pathlib.Path("ro_install")
+shutil.copytree(repo / "mapfilter", install / "mapfilter", ignore=shutil.ignore_patterns("__pycache__"))
+shutil.copytree(repo / "maps", "ro_work/maps")  # the README's paths, away from the checkout
+for root, dirs, files in os.walk(install):
+    for name in dirs + files:
+        os.chmod(os.path.join(root, name), 0o555 if name in dirs else 0o444)
+home = pathlib.Path("ro_home")
+home.mkdir()
+os.chmod(home, 0o555)  # a HOME the user cannot write either: the temporary folder is left
+def drop():
+    if os.geteuid() == 0:  # root without the capabilities that ignore file modes
+        libc = ctypes.CDLL(None, use_errno=True)
+        for cap in (1, 2, 3):
+            libc.prctl(24, cap, 0, 0, 0)
+env = {{k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "XDG_"))}}
+import sysconfig
+# -S: the checkout's editable install (a .pth finder that wins over PYTHONPATH) is not loaded
+env.update(PYTHONPATH=os.pathsep.join([str(install.resolve()), sysconfig.get_paths()["purelib"]]),
+           HOME=str(home.resolve()))
+run = subprocess.run([sys.executable, "-S", "-m", "mapfilter", "track", "maps/office.yaml", "maps/office_walk.txt.gz",
+                      "--radiomap", "maps/office_radiomap.npz", "--smooth"], cwd=pathlib.Path("ro_work"), env=env,
+                     preexec_fn=drop,
+                     capture_output=True, text=True)
+for root, dirs, files in os.walk(install):
+    for name in dirs:
+        os.chmod(os.path.join(root, name), 0o755)
+os.chmod(install, 0o755)
+os.chmod(home, 0o755)
+shutil.rmtree(install)
+shutil.rmtree(home)
+shutil.rmtree("ro_work")
+sys.stderr.write(run.stderr)
+print(run.stdout.splitlines()[0] if run.returncode == 0 else "", file=sys.stderr)
+sys.exit(run.returncode)
+"""
+
+
+def _fmt(code: str, **values: str) -> str:
+    return code.format(**values)
+
+
+_OFFICE = {"map": str(MAP), "walk": str(WALK), "rm": str(RADIOMAP)}
+USER = ("user/office.yaml", "user/office.png", "user/office_radiomap.npz", "user/office_walk.txt.gz",
+        "user/walk.txt", "user/office_aps.csv")
 
 # ---- the cases ----------------------------------------------------------------------------------
 def _track(log: str | Path, *extra: str, map_path: str | Path = MAP) -> Callable[[Path], list[str]]:
@@ -352,12 +629,129 @@ CASES = [
     Case("SIGTERM during track --rerun", "cli/__init__.py",
          _track(WALK, "--radiomap", str(RADIOMAP), "--smooth", "--rerun", "{w}/outdir/run.rrd"), (143,),
          sigterm_when=".run."),
+] + [  # issue 36: data loss (every input byte-identical afterwards)
+    Case("evaluate --out . in a folder holding its logs", "outputs.py",
+         lambda w: ["evaluate", str(MAP), "walks/office_walk.txt.gz", "--radiomap", str(RADIOMAP), "--methods", "kwnn",
+                    "--out", "."], keep=("here/walks/office_walk.txt.gz",), cwd="here"),
+    Case("evaluate --out res holding the user's res/tracks/my_track.csv", "outputs.py",
+         lambda w: ["evaluate", str(MAP), str(WALK), "--radiomap", str(RADIOMAP), "--methods", "kwnn", "--out", "res"],
+         keep=("res/tracks/my_track.csv",)),
+    Case("track MAP walk.txt --out walk.txt", "outputs.py",
+         _track("user/walk.txt", "--radiomap", "user/office_radiomap.npz", "--out", "user/walk.txt",
+                map_path="user/office.yaml"), keep=USER),
+    Case("track MAP LOG --out office.yaml (the map)", "outputs.py",
+         _track("user/office_walk.txt.gz", "--radiomap", "user/office_radiomap.npz", "--out", "user/office.yaml",
+                map_path="user/office.yaml"), keep=USER),
+    Case("radiomap fit-aps MAP walk.txt --out walk.txt", "outputs.py",
+         lambda w: ["radiomap", "fit-aps", "user/office.yaml", "user/walk.txt", "--out", "user/walk.txt"], keep=USER),
+    Case("simulate office.yaml --out office.yaml", "outputs.py",
+         lambda w: ["simulate", "user/office.yaml", "--out", "user/office.yaml"], keep=USER),
+    Case("track --out a device node (a copy of /dev/null)", "outputs.py, atomic.py",
+         _track(WALK, "--radiomap", str(RADIOMAP), "--out", "devnull")),
+    Case("track --out a FIFO", "outputs.py, atomic.py", _track(WALK, "--radiomap", str(RADIOMAP), "--out", "fifo")),
+    Case("track --out a symlink to /proc/self/fd/1", "outputs.py, atomic.py",
+         _track(WALK, "--radiomap", str(RADIOMAP), "--out", "stdout-link")),
+    # hangs and memory (each over within 10 s)
+    Case("map YAML: alias bomb in image", "yamlio.py", _track(WALK, map_path="{w}/bomb_image.yaml"), max_s=10),
+    Case("map YAML: alias bomb in origin", "yamlio.py", _track(WALK, map_path="{w}/bomb_origin.yaml"), max_s=10),
+    Case("building YAML: alias bomb as a floor name", "yamlio.py", _track(WALK, map_path="{w}/bomb_building.yaml"),
+         max_s=10),
+    Case("config: alias bomb as the seed", "yamlio.py, settings.py",
+         _track(WALK, "--radiomap", str(RADIOMAP), "--config", "{w}/bomb_config.yaml"), max_s=10),
+    Case("a 50 MB map YAML", "yamlio.py", _track(WALK, map_path="{w}/big_map.yaml"), max_s=10),
+    Case("--jobs 10000", "engine.py", _track(WALK, "{w}/gap30d.txt", "--radiomap", str(RADIOMAP), "--out-dir", "{w}/outdir/j1",
+                                             "--jobs", "10000"), max_s=10),
+    Case("--jobs 32", "engine.py", _track(WALK, "{w}/gap30d.txt", "--radiomap", str(RADIOMAP), "--out-dir", "{w}/outdir/j2",
+                                          "--jobs", "32"), max_s=10),
+    Case("--scheduler that accepts and never answers", "engine.py", None,
+         python=_fmt(_FAKE_SCHEDULER, kind="silent", **_OFFICE), max_s=10),
+    Case("radio map: 0.8 GB of RSSI compressed to a few MB", "sensors/radiomap.py, memory.py",
+         _track(WALK, "--radiomap", "{w}/huge_rssi.npz"), max_s=10),
+    # tracebacks
+    Case("README's first command, install and HOME not writable", "__init__.py (numba cache)", None, (0,),
+         python=_fmt(_READ_ONLY_INSTALL, repo=str(REPO)), must_say="filter steps"),
+    Case("--scheduler an HTTP server", "engine.py", None, python=_fmt(_FAKE_SCHEDULER, kind="http", **_OFFICE),
+         max_s=10),
+    Case("--scheduler sending random bytes", "engine.py", None,
+         python=_fmt(_FAKE_SCHEDULER, kind="random", **_OFFICE), max_s=10),
+    Case("track --particles 1000000000000", "memory.py", _track(WALK, "--radiomap", str(RADIOMAP), "--particles",
+                                                                "1000000000000"), max_s=10),
+    Case("track --particles 100000000", "memory.py", _track(WALK, "--radiomap", str(RADIOMAP), "--particles",
+                                                            "100000000"), max_s=10),
+    Case("config filter.init_samples 1e10", "memory.py",
+         _track(WALK, "--radiomap", str(RADIOMAP), "--config", "{w}/init_samples.yaml"), max_s=10),
+    Case("config likelihood cell_m 1e-6", "memory.py",
+         _track(WALK, "--radiomap", str(RADIOMAP), "--config", "{w}/likelihood_cell.yaml"), max_s=10),
+    Case("config map-matching cell_m 1e-6 (--smooth)", "memory.py",
+         _track(WALK, "--radiomap", str(RADIOMAP), "--smooth", "--config", "{w}/matching_cell.yaml"), max_s=10),
+    Case("radiomap grow --particles 1e12", "memory.py",
+         lambda w: ["radiomap", "grow", str(MAP), str(WALK), "--radiomap", str(RADIOMAP), "--particles",
+                    "1000000000000", "--out", f"{w}/outdir/grown.npz"], max_s=10),
+    Case("map prepare --close-gaps 100000", "cli/map_cmd.py, maps/prepare.py",
+         lambda w: ["map", "prepare", str(MAPS / "office_plan.png"), "--resolution", "0.05", "--close-gaps", "100000",
+                    "--out", f"{w}/outdir/closed.yaml"], (2,), max_s=10),
+    Case("radio map: ap_keys a 0-d array", "sensors/radiomap.py", _track(WALK, "--radiomap", "{w}/rm_keys0d.npz")),
+    Case("radio map: version [2, 2]", "sensors/radiomap.py", _track(WALK, "--radiomap", "{w}/rm_version22.npz")),
+    Case("radio map: xy_m as strings", "sensors/radiomap.py", _track(WALK, "--radiomap", "{w}/rm_xy_text.npz")),
+    Case("radio map: cv_fix_errors_params NaN", "sensors/radiomap.py", _track(WALK, "--radiomap", "{w}/rm_cv_nan.npz")),
+    Case("map image a symlink loop", "maps/floorplan.py", _track(WALK, map_path="{w}/loop.yaml")),
+    Case("map resolution a 400-digit integer", "maps/floorplan.py", _track(WALK, map_path="{w}/res400.yaml")),
+    Case("AP table: a Latin-1 byte in a BSSID", "sensors/pathloss.py, yamlio.py",
+         _track(WALK, "--aps", "{w}/aps_latin1.csv"), must_say="not UTF-8"),
+    Case("evaluate --resume, the store's methods a number", "evaluation/store.py", None,
+         python=_fmt(_EDITED_STORE, edit="methods"), must_say="fails its checks"),
+    *[Case(f"API: mf.track with {which}", "api.py (issue 37)", None, python=_fmt(_API_TYPES, which=which, **_OFFICE))
+      for which in ("map path", "dict config", "path radio map", "None walk")],
+    # silently wrong
+    Case("evaluate --resume, the store's errors edited to 0", "evaluation/store.py", None,
+         python=_fmt(_EDITED_STORE, edit="zeros"), must_say="fails its checks"),
+    Case("evaluate --resume, a log replaced at the same path", "evaluation/store.py", None, (0,),
+         python=_fmt(_REPLACED_INPUT, what="log"), must_say="resuming: 0 of 1"),
+    Case("evaluate --resume, the radio map replaced at the same path", "evaluation/store.py", None, (0,),
+         python=_fmt(_REPLACED_INPUT, what="radiomap"), must_say="resuming: 0 of 1"),
+    Case("track --out-dir, a log named summary.txt.gz", "cli/track_cmd.py", None, (0,), python=_SUMMARY_LOG,
+         must_say="summary.track.csv: 't_s"),
+    Case("an IMU clock that jumps back 20 s", "sensors/pdr.py (lead)", _track("{w}/clock_back.txt", "--radiomap",
+                                                                              str(RADIOMAP)), (0,), must_say="back"),
+    Case("--kwnn-min-rssi nan", "cli/tracking_options.py", _track(WALK, "--radiomap", str(RADIOMAP),
+                                                                  "--kwnn-min-rssi", "nan"), (2,)),
+    Case("config: a negative heading sigma", "config.py (lead)",
+         _track(WALK, "--radiomap", str(RADIOMAP), "--config", "{w}/heading_sigma.yaml")),
+    Case("radiomap build --max-wifi-age nan", "cli/radiomap_cmd.py",
+         lambda w: ["radiomap", "build", str(MAP), str(WALK), "--max-wifi-age", "nan", "--out",
+                    f"{w}/outdir/age.npz"], (2,)),
+    Case("AP table: one BSSID and band twice, 20 m apart", "sensors/pathloss.py",
+         _track(WALK, "--aps", "{w}/aps_twice.csv"), must_say="listed twice"),
+    Case("map YAML: resolution given twice", "yamlio.py", _track(WALK, map_path="{w}/dup_key.yaml"),
+         must_say="given twice"),
+    Case("map import-ilc: floor_info.json of 1e12 m", "maps/prepare.py",
+         lambda w: ["map", "import-ilc", f"{w}/ilc_huge/F1", "--out", f"{w}/outdir/huge_ilc.yaml"]),
+    Case("evaluate --leave-one-out, one walk without WiFi among good ones", "evaluation/comparison.py",
+         lambda w: ["evaluate", str(MAP), "gap30d.txt", "wifi_3y.txt", "no_wifi.txt", "--leave-one-out",
+                    "--methods", "kwnn", "--out", f"{w}/outdir/loo_nowifi"], must_say="no_wifi.txt"),
+    # unclear or wrongly refused
+    Case("AP table saved with a UTF-8 BOM (Excel)", "sensors/pathloss.py", _track(WALK, "--aps", "{w}/aps_bom.csv"),
+         (0,)),
+    Case("map YAML in UTF-16", "yamlio.py", _track(WALK, "--radiomap", str(RADIOMAP), map_path="{w}/utf16.yaml"),
+         (0,)),
+    Case("map YAML: a Latin-1 byte in a comment", "yamlio.py", _track(WALK, map_path="{w}/latin1_comment.yaml"),
+         must_say="not UTF-8"),
+    Case("building: floors out of elevation order", "maps/building.py",
+         lambda w: ["simulate", f"{w}/unordered.yaml", "--aps", str(APS), "--floor-changes", "0", "--out",
+                    f"{w}/outdir/unordered.txt"], (0,)),
+    Case("building: two floors at one elevation", "maps/building.py",
+         lambda w: ["simulate", f"{w}/same_elevation.yaml", "--aps", str(APS), "--floor-changes", "0", "--out",
+                    f"{w}/outdir/same.txt"],
+         must_say="own elevation"),
+    Case("track --out a name of 250 characters", "atomic.py",
+         _track(WALK, "--radiomap", str(RADIOMAP), "--out", "{w}/outdir/" + "t" * 246 + ".csv"), (0,)),
 ]
 
 
 # ---- running ------------------------------------------------------------------------------------
 def run_case(case: Case, work: Path, memory_bytes: int, timeout_s: float) -> Outcome:
     before = set(_tree(work))
+    kept = {name: _digest(work / name) for name in case.keep}
     if case.python is not None:
         argv = [sys.executable, "-c", case.python]
     else:
@@ -375,7 +769,8 @@ def run_case(case: Case, work: Path, memory_bytes: int, timeout_s: float) -> Out
         os.close(read_end)  # the reader has gone, as after `| head -1`
     with err_path.open("w") as err:
         start = time.monotonic()
-        process = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stderr=err, cwd=work, preexec_fn=limits,
+        process = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stderr=err, cwd=work / (case.cwd or ""),
+                                   preexec_fn=limits,
                                    stdout=(write_end if write_end is not None else
                                            err if case.python is not None else subprocess.DEVNULL),
                                    start_new_session=True)
@@ -401,17 +796,28 @@ def run_case(case: Case, work: Path, memory_bytes: int, timeout_s: float) -> Out
     text = err_path.read_text(errors="replace")
     err_path.unlink()
     leftovers = sorted(set(_tree(work)) - before)
-    leftovers = [p for p in leftovers if Path(p).name.startswith(".")]  # temporaries (finished outputs may stay)
+    leftovers = [p for p in leftovers if Path(p).name.startswith(".")  # temporaries (finished outputs may stay)
+                 and Path(p).name != ".mapfilter-manifest.json"]
     message = _first_line(text)
     if killed:
         message = f"(killed after {timeout_s:g} s) " + message
     if case.sigterm_when and not signalled:
         message = "(finished before the signal) " + message
-    return Outcome(case, process.returncode, message, usage.ru_maxrss / 1024.0, wall, leftovers)
+    changed = [name for name, digest in kept.items() if _digest(work / name) != digest]
+    return Outcome(case, process.returncode, message, usage.ru_maxrss / 1024.0, wall, leftovers, changed, text)
+
+
+def _digest(path: Path) -> str | None:
+    import hashlib
+
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return None
 
 
 def _tree(root: Path) -> list[str]:
-    return [str(p.relative_to(root)) for p in root.rglob("*") if p.is_file()]
+    return [str(p.relative_to(root)) for p in root.rglob("*") if p.is_file() and not p.is_symlink()]
 
 
 def _first_line(stderr: str) -> str:

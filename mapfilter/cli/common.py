@@ -4,15 +4,15 @@ argument types with limits, progress bars."""
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import os
 import sys
-import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 from mapfilter.engine import Engine
 from mapfilter.errors import MapfilterError
+from mapfilter.outputs import OutputDirectory, check_output_file, input_paths, is_stdout  # noqa: F401 - for the commands
 
 
 def warn(message: str) -> None:
@@ -38,49 +38,42 @@ def add_engine_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def engine_from(args: argparse.Namespace) -> Engine:
+    """The engine of ``--jobs`` / ``--scheduler``: at most one local worker per core, and only as
+    many as fit in memory (``mapfilter.engine.check_local_jobs``)."""
+    from mapfilter.engine import check_local_jobs
+
+    if args.scheduler is None:
+        check_local_jobs(args.jobs)
     return Engine(jobs=args.jobs, scheduler=args.scheduler)
 
 
 # ---- output paths ------------------------------------------------------------------------------
-def check_output_path(path: str | os.PathLike | None, option: str = "--out", directory: bool = False) -> None:
-    """Refuse an output path that cannot be written, before any work is done.
+def check_output_path(path: str | os.PathLike | None, option: str = "--out", directory: bool = False,
+                      inputs: Sequence[Path] = (), allow_stdout: bool = False) -> OutputDirectory | None:
+    """Refuse an output path before any work is done (``mapfilter.outputs``: one line naming the
+    path and the option).
 
-    ``path`` is a file to write (``directory=False``) or a directory to write files into
-    (``directory=True``). A missing parent (or a missing directory) is fine when it can be
-    made: writing makes it, as ``mapfilter.atomic.atomic_paths`` does. ``MapfilterError``
-    (one line naming the path and the option) when the path is a directory but a file is
-    wanted (or the other way round), when a parent is a file, or when the nearest existing
-    directory cannot be written to (permissions, a read-only file system). ``None`` passes
-    (the option was not given).
+    ``path`` is a file to write (``directory=False``: never one of ``inputs``, a directory, a
+    device, a FIFO or a link; ``-`` is standard output when ``allow_stdout``) or a directory to
+    fill (``directory=True``: returns its ``OutputDirectory``, which holds no input and no file
+    that mapfilter did not write). A missing parent (or a missing directory) is fine when it can
+    be made. ``None`` passes (the option was not given).
     """
     if path is None:
-        return
-    path = Path(path)
-    if str(path) in ("", "."):
-        raise MapfilterError(f"{option} needs a {'directory' if directory else 'file'} name")
-    if path.exists():
-        if directory and not path.is_dir():
-            raise MapfilterError(f"{option}: exists and is not a directory", path)
-        if not directory and path.is_dir():
-            raise MapfilterError(f"{option}: is a directory; give a file name", path)
-    existing = path if directory and path.is_dir() else path.parent
-    # the nearest directory that exists: the missing ones below it are made when writing
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise MapfilterError(f"{option}: cannot be made, {existing} is not a directory", path)
-    _check_writable_directory(existing, path, option)
+        return None
+    if directory:
+        return OutputDirectory(path, option, inputs)
+    check_output_file(path, option, inputs, allow_stdout=allow_stdout)
+    return None
 
 
-def _check_writable_directory(directory: Path, path: Path, option: str) -> None:
-    # os.access says yes to root and knows nothing of read-only mounts or ACLs: try it
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".mapfilter-probe.", dir=directory)
-    except OSError as exc:
-        raise MapfilterError(f"{option}: cannot write in {directory} ({exc.strerror or exc})", path) from None
-    os.close(fd)
-    with contextlib.suppress(OSError):
-        os.unlink(probe)
+def check_distinct_outputs(outputs: Sequence[tuple[str, Path | None]]) -> None:
+    """Refuse two options of one run that name the same output file."""
+    given = [(option, Path(path)) for option, path in outputs if path is not None and not is_stdout(path)]
+    for i, (option, path) in enumerate(given):
+        for other_option, other in given[:i]:
+            if os.path.abspath(path) == os.path.abspath(other):
+                raise MapfilterError(f"{option} and {other_option} name the same file: give each its own", path)
 
 
 # ---- argument types with limits ----------------------------------------------------------------

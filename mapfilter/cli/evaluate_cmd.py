@@ -6,15 +6,15 @@ import argparse
 import csv
 import dataclasses
 import json
-import shutil
 import sys
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path, engine_from,
-                                  warn)
+                                  input_paths, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
+from mapfilter.memory import building_extents_m, check_tracking_fits
 
 # mapfilter.evaluation.comparison's methods, written out so that --help imports no numerical
 # library (tests/test_cli_startup.py holds them equal)
@@ -51,7 +51,9 @@ writes into OUT, each walk's files as the walk finishes: walks/<trace>.json (its
 tracks/<trace>/<method>.csv and tracks/<trace>.png (tracks on the plan, zoomed on the walk);
 at the end: summary.csv, summary.json (with the config, per-trace and per-walk rows, and the
 walks that failed), traces.csv, walks.csv (why each walk went wrong), cdf.png, config.yaml
-(`--config OUT/config.yaml` repeats the run). An earlier run's files in OUT are removed first;
+(`--config OUT/config.yaml` repeats the run). OUT must be new, empty, or an earlier run's:
+mapfilter lists every file it writes there (OUT/.mapfilter-manifest.json) and removes only
+those first, never a file of yours;
 --resume keeps the walks an interrupted run of the same settings finished and runs the rest.
 A walk that cannot be tracked is named in the summary and the others go on (exit code 1).
 
@@ -69,9 +71,6 @@ numbers.
 
 SUMMARY_COLUMNS = ("method", "mean", "median", "p75", "p90", "max", "rmse", "n", "missed", "wall_crossings",
                    "collapses", "runtime_s")
-# what an earlier run leaves in OUT (removed before a new run writes there)
-RUN_FILES = ("summary.csv", "summary.json", "traces.csv", "walks.csv", "cdf.png", "config.yaml")
-RUN_DIRS = ("walks", "tracks")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -105,15 +104,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate, methods_for, validate_setup
-    from mapfilter.evaluation.store import read_outcome, run_key, write_outcome
+    from mapfilter.evaluation.store import file_digest, read_outcome, run_key, write_outcome
     from mapfilter.maps.building import Building
     from mapfilter.sensors.recording import trace_name
 
     config = tracking_config_from(args)
     methods = None if args.methods is None else tuple(m.strip() for m in args.methods.split(",") if m.strip())
     engine = engine_from(args)
-    check_output_path(args.out, directory=True)
+    inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.survey, args.unlabelled, args.config)
+    out = check_output_path(args.out, directory=True, inputs=inputs)  # holds only our files, no input
     building = Building.load(args.map)
+    check_tracking_fits(config, building_extents_m(building))
     setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,
                             tracking=config, unlabelled_paths=tuple(args.unlabelled),
@@ -123,7 +124,9 @@ def run(args: argparse.Namespace) -> int:
                    "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
                    "aps": str(args.aps), "leave_one_out": args.leave_one_out, "methods": methods,
                    "unlabelled": [str(p.resolve()) for p in args.unlabelled], "transductive": args.transductive,
-                   "strict": args.strict, "config": config.to_dict()})
+                   "strict": args.strict, "config": config.to_dict(),
+                   # by content: a log, map or model replaced at the same path is another run
+                   "content": [file_digest(p) for p in inputs if p.is_file()]})
     walks_dir = args.out / "walks"
     resumed = []
     if args.resume:
@@ -134,16 +137,16 @@ def run(args: argparse.Namespace) -> int:
                 resumed.append(outcome)
         print(f"resuming: {len(resumed)} of {len(args.logs)} walks already done in {args.out}")
     else:
-        _clear_earlier_run(args.out)
+        out.clear()  # what an earlier run wrote there (its manifest), nothing else
     args.out.mkdir(parents=True, exist_ok=True)
     plans = _plans_for_pictures(building, args.logs)
 
     def finished(outcome) -> None:
         # each walk's numbers, tracks and picture as it finishes: an interrupted run keeps them
-        write_outcome(outcome, walks_dir / f"{outcome.trace}.json", key)
+        write_outcome(outcome, out.claim(f"walks/{outcome.trace}.json"), key)
         if outcome.status != "ok":
             print(f"mapfilter: {outcome.status}: {outcome.reason}", file=sys.stderr)
-        _write_walk_tracks(args.out, outcome, plans, building)
+        _write_walk_tracks(out, outcome, plans, building)
 
     from mapfilter.sensors.recording import trace_name as name_of
 
@@ -158,23 +161,14 @@ def run(args: argparse.Namespace) -> int:
             index = {name_of(p): i for i, p in enumerate(args.logs)}
             done = [dataclasses.replace(o, index=index[o.trace]) for o in done if o.trace in index]
             partial = Evaluation.from_outcomes(done, len(args.logs), 0.0)
-            _write_summary(args, partial, config, methods_for(building), complete=False)
+            _write_summary(args, out, partial, config, methods_for(building), complete=False)
             print(f"interrupted: {len(done)} of {len(args.logs)} walks done; wrote a partial summary to "
                   f"{args.out} (mapfilter evaluate ... --resume runs the rest)")
             raise
     for message in evaluation.read_warnings:
         warn(message)
-    _write_summary(args, evaluation, config, methods_for(building), complete=True)
+    _write_summary(args, out, evaluation, config, methods_for(building), complete=True)
     return 1 if evaluation.failed else 0
-
-
-def _clear_earlier_run(out: Path) -> None:
-    """Remove what an earlier evaluation wrote in ``out`` (only our own files)."""
-    for name in RUN_FILES:
-        (out / name).unlink(missing_ok=True)
-    for name in RUN_DIRS:
-        if (out / name).is_dir():
-            shutil.rmtree(out / name)
 
 
 def _plans_for_pictures(building, logs) -> dict:
@@ -194,7 +188,7 @@ def _plans_for_pictures(building, logs) -> dict:
     return plans
 
 
-def _write_walk_tracks(out: Path, outcome, plans: dict, building) -> None:
+def _write_walk_tracks(out, outcome, plans: dict, building) -> None:
     from mapfilter.evaluation.plots import plot_tracks_on_map
     from mapfilter.sensors.logs import read_log
     from mapfilter.trackio import write_track_csv
@@ -203,14 +197,14 @@ def _write_walk_tracks(out: Path, outcome, plans: dict, building) -> None:
         return
     for result in outcome.results:
         write_track_csv(dataclasses.replace(result.track, name=result.method),
-                        out / "tracks" / outcome.trace / f"{result.method}.csv", building=building)
+                        out.claim(f"tracks/{outcome.trace}/{result.method}.csv"), building=building)
     recording = read_log(outcome.log_path, warn=lambda message: None, building=building)  # warnings reported once
     shown = {r.method: r.track.xy_m for r in outcome.results if r.method in ("pf", "pf-smooth", "kwnn", "kf", "pdr")}
-    plot_tracks_on_map(plans[outcome.trace], shown, out / "tracks" / f"{outcome.trace}.png", recording.waypoint_xy_m,
+    plot_tracks_on_map(plans[outcome.trace], shown, out.claim(f"tracks/{outcome.trace}.png"), recording.waypoint_xy_m,
                        title=outcome.trace)
 
 
-def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
+def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -> None:
     from mapfilter.evaluation.comparison import nan_to_none
     from mapfilter.evaluation.metrics import format_table
     from mapfilter.evaluation.plots import plot_error_cdf
@@ -231,8 +225,8 @@ def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
     walk_rows = evaluation.walk_rows()
     failed = [{"trace": o.trace, "log": str(o.log_path), "status": o.status, "reason": o.reason}
               for o in evaluation.failed]
-    with atomic_paths(out / "summary.csv", out / "traces.csv", out / "walks.csv", out / "summary.json",
-                      out / "config.yaml") as (s_csv, t_csv, w_csv, s_json, c_yaml):
+    with atomic_paths(*(out_dir.claim(name) for name in ("summary.csv", "traces.csv", "walks.csv", "summary.json",
+                                                         "config.yaml"))) as (s_csv, t_csv, w_csv, s_json, c_yaml):
         _write_csv(s_csv, summary, columns)
         _write_csv(t_csv, trace_rows, ("trace",) + columns + (("phone",) if by_phone else ()))
         _write_csv(w_csv, walk_rows, list(dict.fromkeys(k for row in walk_rows for k in row)) or ["trace"])
@@ -250,7 +244,7 @@ def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
         }, indent=1))
         c_yaml.write_text(config.to_yaml())
     if evaluation.results:
-        plot_error_cdf(evaluation.errors_by_method(), out / "cdf.png",
+        plot_error_cdf(evaluation.errors_by_method(), out_dir.claim("cdf.png"),
                        title=f"{n_done} walks on {args.map.name}" + ("" if complete else " (partial)"))
     if failed:
         print(f"{len(failed)} walk{'s' if len(failed) != 1 else ''} without results (summary.json lists why): "

@@ -6,8 +6,16 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from mapfilter.cli.common import check_output_path
+from mapfilter.cli.common import bounded_float, bounded_int, check_output_path, input_paths
+from mapfilter.outputs import check_output_files
 from mapfilter.errors import MapfilterError
+
+# option values, finite and within what a floor plan can use
+_PIXELS = bounded_int(0, 1000)  # a morphology radius or kernel: wall gaps and outlines are a few pixels
+_AREA = bounded_int(0, 10**9)  # a blob's size in pixels
+_METRES_PER_PIXEL = bounded_float(0.001, 10.0)  # as a map YAML's resolution (maps.floorplan)
+_METRES = bounded_float(0.0, 1e5, low_open=True)
+_STOREY = bounded_float(0.0, 100.0, low_open=True)
 
 _PREPARE_EPILOG = """\
 kinds:
@@ -97,38 +105,38 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     prepare_parser.add_argument("--kind", choices=("lines", "regions", "geojson"), default=None,
                                 help="kind of plan (default: geojson for .json/.geojson, else lines)")
     scale = prepare_parser.add_argument_group("scale")
-    scale.add_argument("--resolution", type=float, metavar="M", help="metres per plan pixel (geojson: per output pixel)")
-    scale.add_argument("--size", type=float, nargs=2, metavar=("W", "H"), help="real width and height of the plan in metres")
-    scale.add_argument("--scale-points", type=float, nargs=4, metavar=("U1", "V1", "U2", "V2"),
+    scale.add_argument("--resolution", type=_METRES_PER_PIXEL, metavar="M", help="metres per plan pixel (geojson: per output pixel)")
+    scale.add_argument("--size", type=_METRES, nargs=2, metavar=("W", "H"), help="real width and height of the plan in metres")
+    scale.add_argument("--scale-points", type=bounded_float(-1e6, 1e6), nargs=4, metavar=("U1", "V1", "U2", "V2"),
                        help="two image points (column, row) ...")
-    scale.add_argument("--scale-distance", type=float, metavar="M", help="... and their real distance in metres")
-    scale.add_argument("--map-resolution", type=float, metavar="M",
+    scale.add_argument("--scale-distance", type=_METRES, metavar="M", help="... and their real distance in metres")
+    scale.add_argument("--map-resolution", type=_METRES_PER_PIXEL, metavar="M",
                        help="metres per pixel of the output mask (default: the plan's own; coarser keeps walls closed)")
     lines = prepare_parser.add_argument_group("line drawings (--kind lines)")
     lines.add_argument("--threshold", choices=("otsu", "adaptive"), default="otsu",
                        help="ink threshold: global Otsu, or adaptive for uneven scans (default: otsu)")
-    lines.add_argument("--close-gaps", type=int, default=3, metavar="PX",
+    lines.add_argument("--close-gaps", type=_PIXELS, default=3, metavar="PX",
                        help="close wall gaps narrower than PX plan pixels (0 = off; default: 3)")
-    lines.add_argument("--remove-text", type=int, default=20, metavar="PX",
+    lines.add_argument("--remove-text", type=_AREA, default=20, metavar="PX",
                        help="drop ink blobs whose bounding box is shorter than PX (text, specks; default: 20)")
-    lines.add_argument("--thicken", type=int, default=0, metavar="PX", help="dilate walls by PX pixels (default: 0)")
+    lines.add_argument("--thicken", type=_PIXELS, default=0, metavar="PX", help="dilate walls by PX pixels (default: 0)")
     lines.add_argument("--keep-outside", action="store_true",
                        help="keep free space connected to the image border (default: it is outside, so wall)")
     regions = prepare_parser.add_argument_group("filled-region plans (--kind regions)")
     regions.add_argument("--walkable", action="append", metavar="COLOUR",
                          help="a walkable colour: transparent, #rrggbb or r,g,b; repeat for more (default: transparent)")
-    regions.add_argument("--tolerance", type=int, default=24, metavar="N",
+    regions.add_argument("--tolerance", type=bounded_int(0, 255), default=24, metavar="N",
                          help="max per-channel difference to a walkable colour (default: 24)")
-    regions.add_argument("--open-outlines", type=int, default=0, metavar="PX",
+    regions.add_argument("--open-outlines", type=_PIXELS, default=0, metavar="PX",
                          help="erode walls by PX pixels along free space (outlines walkable; default: 0)")
-    regions.add_argument("--remove-below", type=int, default=0, metavar="PX",
+    regions.add_argument("--remove-below", type=_AREA, default=0, metavar="PX",
                          help="wall blobs of fewer than PX pixels become free (text in corridors; default: 0)")
     regions.add_argument("--outside-wall", action="store_true",
                          help="free space connected to the image border becomes wall")
     vector = prepare_parser.add_argument_group("GeoJSON floors (--kind geojson)")
     vector.add_argument("--units", choices=("lonlat", "m"), default="lonlat",
                         help="coordinates: lon/lat (Web Mercator, ILC convention) or metres (default: lonlat)")
-    vector.add_argument("--inset", type=float, default=0.0, metavar="M",
+    vector.add_argument("--inset", type=bounded_float(0.0, 100.0), default=0.0, metavar="M",
                         help="shrink obstacle polygons by M metres (default: 0)")
     prepare_parser.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall (see below)")
     prepare_parser.add_argument("--floor", metavar="NAME", help="floor name stored in the YAML")
@@ -146,10 +154,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ilc.add_argument("--route", choices=("image", "geojson"), default="geojson",
                      help="from the GeoJSON polygons (the floor's outline minus its shops: outside the building is "
                           "wall) or the floor image (transparent pixels walkable, the outside too) (default: geojson)")
-    ilc.add_argument("--resolution", type=float, metavar="M",
+    ilc.add_argument("--resolution", type=_METRES_PER_PIXEL, metavar="M",
                      help="metres per output pixel (default: the image's ~0.3 m, or 0.25 m for geojson)")
     ilc.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall")
-    ilc.add_argument("--storey-height", type=float, default=5.0, metavar="M",
+    ilc.add_argument("--storey-height", type=_STOREY, default=5.0, metavar="M",
                      help="a site: metres between storeys for the elevations (default: 5)")
     ilc.set_defaults(func=run_import_ilc)
 
@@ -159,9 +167,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog=_IPIN_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     ipin.add_argument("cal", type=Path, metavar="CAL", help="the calibration file, e.g. calib_mapa_Nuremberg.cal")
     ipin.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output building YAML")
-    ipin.add_argument("--resolution", type=float, default=None, metavar="M",
+    ipin.add_argument("--resolution", type=_METRES_PER_PIXEL, default=None, metavar="M",
                       help="metres per map cell (default: 0.1)")
-    ipin.add_argument("--storey-height", type=float, default=None, metavar="M",
+    ipin.add_argument("--storey-height", type=_STOREY, default=None, metavar="M",
                       help="metres between storeys for the elevations (default: 4)")
     ipin.set_defaults(func=run_import_ipin)
 
@@ -174,7 +182,7 @@ def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
 def run_prepare(args: argparse.Namespace) -> int:
     from mapfilter.maps import prepare
 
-    check_output_path(args.out)
+    _check_map_outputs(args.out, input_paths(args.plan, args.edits, args.access_points))
     kind = args.kind or ("geojson" if args.plan.suffix.lower() in (".json", ".geojson") else "lines")
     edits = prepare.read_edits(args.edits) if args.edits else None
     if args.access_points is not None and not args.access_points.is_file():
@@ -213,9 +221,11 @@ def run_import_ilc(args: argparse.Namespace) -> int:
     from mapfilter.maps import prepare
     from mapfilter.maps.building import is_ilc_site_dir
 
-    check_output_path(args.out)
+    inputs = input_paths(args.floor_dir, args.edits)
+    check_output_path(args.out, inputs=inputs)
     if is_ilc_site_dir(args.floor_dir):
-        return _import_ilc_site(args)
+        return _import_ilc_site(args, inputs)
+    _check_map_outputs(args.out, inputs)
     edits = prepare.read_edits(args.edits) if args.edits else None
     plan = prepare.import_ilc(args.floor_dir, args.route, args.resolution)
     named = _ilc_floor_name(args.floor_dir)
@@ -242,7 +252,18 @@ def _ilc_floor_name(floor_dir: Path) -> str | None:
     return names.pop() if len(names) == 1 else None
 
 
-def _import_ilc_site(args: argparse.Namespace) -> int:
+def _check_map_outputs(out: Path, inputs: list[Path]) -> None:
+    """The three files a map is written as (NAME.yaml, NAME.png, NAME_preview.png), checked
+    against the run's inputs before any work."""
+    from mapfilter.maps.prepare import preview_path_for
+
+    check_output_path(out, inputs=inputs)  # the path itself first: a directory, a parent that is a file
+    if out.suffix not in (".yaml", ".yml"):
+        raise MapfilterError("the output map must be a .yaml file", out)
+    check_output_files([out, out.with_name(out.stem + ".png"), preview_path_for(out)], "--out", inputs)
+
+
+def _import_ilc_site(args: argparse.Namespace, inputs: list[Path]) -> int:
     from mapfilter.maps import prepare
     from mapfilter.maps.building import import_ilc_site
 
@@ -257,6 +278,7 @@ def _import_ilc_site(args: argparse.Namespace) -> int:
     building = import_ilc_site(args.floor_dir, args.route, args.resolution, args.storey_height)
     for floor in building.floors:
         floor.map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml").resolve()
+        _check_map_outputs(floor.map_path, inputs)
         prepare.preview_image(floor.plan)  # fails here, before anything is written, if it fails at all
     for floor in building.floors:
         _write(floor.plan, floor.map_path)
@@ -275,10 +297,16 @@ def run_import_ipin(args: argparse.Namespace) -> int:
 
     if args.out.suffix not in (".yaml", ".yml"):
         raise MapfilterError("the output building must be a .yaml file", args.out)
+    inputs = input_paths(args.cal, args.cal.parent)  # the plans lie beside the calibration file
+    check_output_path(args.out, inputs=inputs)
     resolution = ipin_venue.DEFAULT_RESOLUTION_M if args.resolution is None else args.resolution
     storey = ipin_venue.DEFAULT_STOREY_HEIGHT_M if args.storey_height is None else args.storey_height
     # everything is imported and checked before the first file is written
     building, floors = ipin_venue.import_ipin_venue(args.cal, resolution, storey, warn=warn)
+    for floor in building.floors:
+        map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml")
+        _check_map_outputs(map_path, inputs)
+        check_output_path(map_path.with_name(f"{map_path.stem}_plan.png"), inputs=inputs)
     for floor, venue_floor in zip(building.floors, floors):
         floor.map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml").resolve()
         if venue_floor.display is not None:

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path,
-                                  engine_from, warn)
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, bounded_float, bounded_int,
+                                  check_output_path, non_negative_int, engine_from, input_paths, is_stdout, warn)
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
@@ -30,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         p.add_argument("logs", type=Path, nargs="+", metavar="LOG", help=logs_help)
         p.add_argument("--exclude", action="append", default=[], metavar="TRACE",
                        help="leave out a log, by file name or trace id (repeatable)")
-        p.add_argument("--max-wifi-age", type=float, default=5.0, metavar="S",
+        p.add_argument("--max-wifi-age", type=bounded_float(0.0, 3600.0), default=5.0, metavar="S",
                        help="drop WiFi rows last seen more than S seconds before their scan (default 5)")
         add_strict_argument(p)
 
@@ -45,7 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     common(fit)
     fit.add_argument("--out", type=Path, required=True, metavar="APS_CSV",
                      help="output table bssid,x,y,band,C,n,alpha,d_max")
-    fit.add_argument("--min-observations", type=int, default=_MIN_OBSERVATIONS, metavar="N",
+    fit.add_argument("--min-observations", type=bounded_int(None, 1_000_000), default=_MIN_OBSERVATIONS, metavar="N",
                      help=f"fit only APs heard in N labelled scans (default {_MIN_OBSERVATIONS})")
     fit.add_argument("--floor", metavar="NAME",
                      help="with a building YAML: the floor to fit (default: the one floor every log is on)")
@@ -61,11 +62,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                  "points (unless --ignore-waypoints)")
     grow.add_argument("--radiomap", type=Path, required=True, metavar="BASE", help="the radio map to grow (.npz)")
     grow.add_argument("--out", type=Path, required=True, metavar="RADIOMAP", help="the grown radio map (.npz)")
-    grow.add_argument("--iterations", type=int, default=_MAX_ITERATIONS, metavar="N",
+    grow.add_argument("--iterations", type=bounded_int(None, 100), default=_MAX_ITERATIONS, metavar="N",
                       help=f"at most N rounds of tracking every walk (default {_MAX_ITERATIONS}; fewer when the "
                            "grown points stop moving)")
-    grow.add_argument("--particles", type=int, default=10_000, metavar="N", help="particles (default 10000)")
-    grow.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    grow.add_argument("--particles", type=bounded_int(), default=10_000, metavar="N", help="particles (default 10000)")
+    grow.add_argument("--seed", type=non_negative_int, default=0, help="random seed (default 0)")
     grow.add_argument("--ignore-waypoints", action="store_true",
                       help="grow from every log, its waypoints never read (e.g. to measure growing on survey logs)")
     grow.add_argument("--wifi-only", action="store_true",
@@ -79,7 +80,9 @@ def _load(args: argparse.Namespace):
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
 
-    check_output_path(args.out)
+    # fit-aps writes a CSV, which may go to standard output (--out -); a radio map is binary
+    check_output_path(args.out, inputs=input_paths(args.map, args.logs, getattr(args, "radiomap", None)),
+                      allow_stdout=args.radiomap_command == "fit-aps")
     building = Building.load(args.map)
     floorplan = building.floors[0].plan if building.is_single_floor else building
     excluded = set(args.exclude)
@@ -176,7 +179,9 @@ def run_fit_aps(args: argparse.Namespace) -> int:
     table = estimate_access_points(build_radio_map(recordings, floorplan),
                                    ApFitConfig(min_observations=args.min_observations))
     table.write_csv(args.out)
-    print(f"access points: {len(table)} fitted from {len(recordings)} logs -> {args.out}")
+    print(f"access points: {len(table)} fitted from {len(recordings)} logs -> "
+          + ("standard output" if is_stdout(args.out) else str(args.out)),
+          file=sys.stderr if is_stdout(args.out) else sys.stdout)
     return 0
 
 
@@ -186,6 +191,11 @@ def run_grow(args: argparse.Namespace) -> int:
     if args.particles < 1:
         raise MapfilterError(f"--particles must be at least 1, got {args.particles}")
     engine = engine_from(args)
+    from mapfilter import memory
+
+    # the particles are refused before the logs are read (about 200 bytes each)
+    memory.check_fits(memory.particle_filter_bytes(args.particles), f"--particles {args.particles}",
+                      "use fewer particles (the default is 10000)")
     import numpy as np
 
     from mapfilter.maps.building import Building
@@ -194,6 +204,9 @@ def run_grow(args: argparse.Namespace) -> int:
     from mapfilter.sensors.radiomap import RadioMap, build_radio_map, check_radio_map_on_map, merge_radio_maps
 
     space, recordings = _load(args)
+    memory.check_tracking_fits(TrackingConfig().with_particles(args.particles),
+                               memory.building_extents_m(space) if isinstance(space, Building)
+                               else [tuple(space.extent_m)])
     if isinstance(space, Building):
         from mapfilter.sensors.floors import build_building_radio_map, load_building_radio_map
 

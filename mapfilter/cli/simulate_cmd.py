@@ -11,7 +11,8 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from mapfilter.cli.common import bounded_float, bounded_int, check_output_path, non_negative_int
+from mapfilter.cli.common import (bounded_float, bounded_int, check_distinct_outputs, check_output_path, input_paths,
+                                  non_negative_int)
 from mapfilter.errors import MapfilterError
 
 # The defaults of mapfilter.simulate.walk.SimConfig that the options show, written out so that
@@ -83,7 +84,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--wall-loss-db", type=_DB, nargs=2, metavar=("DB_2G4", "DB_5G"),
                         default=(defaults.wall_loss_2g4_db, defaults.wall_loss_5g_db),
                         help="attenuation per wall crossed at 2.4 and 5 GHz (default %(default)s)")
-    parser.add_argument("--blocking", type=float, nargs=3, action="append", default=[],
+    parser.add_argument("--blocking", type=bounded_float(-1e6, 1e6), nargs=3, action="append", default=[],
                         metavar=("START_S", "END_S", "H_DB"),
                         help="signal blocking (a hand over the phone): every AP reads H_DB weaker from START_S to "
                              "END_S after the walk's start (repeatable)")
@@ -127,8 +128,10 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.simulate.ilc_writer import write_ilc
     from mapfilter.simulate.walk import SimConfig, offset_access_points, simulate_walk
 
-    check_output_path(args.out)
-    check_output_path(args.write_aps, "--write-aps")
+    inputs = input_paths(args.map, args.aps)
+    check_output_path(args.out, inputs=inputs, allow_stdout=True)  # the summary goes to stderr
+    check_output_path(args.write_aps, "--write-aps", inputs=inputs)
+    check_distinct_outputs([("--out", args.out), ("--write-aps", args.write_aps)])
     building = Building.load(args.map)  # a map YAML is a one-floor building
     if not building.is_single_floor:
         return _run_building(args, building)

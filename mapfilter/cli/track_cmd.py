@@ -11,10 +11,11 @@ import time
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path, engine_from,
-                                  warn)
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, bounded_int,
+                                  check_distinct_outputs, check_output_path, engine_from, input_paths, is_stdout, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
+from mapfilter.memory import building_extents_m, check_tracking_fits
 
 TRACK_FORMATS = ("csv", "tum")
 
@@ -79,7 +80,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     view = parser.add_mutually_exclusive_group()
     view.add_argument("--rerun", type=Path, metavar="FILE.rrd", help="write a rerun recording of the run")
     view.add_argument("--spawn", action="store_true", help="stream the run to a new rerun viewer")
-    parser.add_argument("--max-drawn-particles", type=int, default=5000, metavar="N",
+    parser.add_argument("--max-drawn-particles", type=bounded_int(0, 1_000_000), default=5000, metavar="N",
                         help="cap on particles drawn per step in rerun (default: 5000)")
     add_engine_arguments(parser)
     add_strict_argument(parser)
@@ -105,17 +106,32 @@ def causal_path(path: Path) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     config = tracking_config_from(args)
-    # every output checked before the work
-    check_output_path(args.out)
+    # every output checked before the work: none is an input, a link, a device or another's file
+    inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.config)
+    if is_stdout(args.out) and config.smooth:
+        raise MapfilterError("--out - with --smooth: the offline and the causal track need two files; give a "
+                             "file name")
+    check_output_path(args.out, inputs=inputs, allow_stdout=True)
     if args.out is not None and config.smooth:
-        check_output_path(causal_path(args.out))
-    check_output_path(args.rerun, "--rerun")
-    check_output_path(args.adapted_aps, "--adapted-aps")
-    check_output_path(args.out_dir, "--out-dir", directory=True)
+        check_output_path(causal_path(args.out), inputs=inputs)
+    check_output_path(args.rerun, "--rerun", inputs=inputs)
+    check_output_path(args.adapted_aps, "--adapted-aps", inputs=inputs, allow_stdout=True)
+    check_distinct_outputs([("--out", args.out), ("--out (causal track)", causal_path(args.out) if args.out
+                                                   is not None and config.smooth else None),
+                            ("--rerun", args.rerun), ("--adapted-aps", args.adapted_aps)])
+    if sum(is_stdout(p) for p in (args.out, args.adapted_aps)) > 1:
+        raise MapfilterError("--out - and --adapted-aps -: only one output can go to standard output")
     if args.adapted_aps is not None and args.out_dir is not None:
         raise MapfilterError("--adapted-aps is for one walk, not for --out-dir")
     if args.out_dir is not None:
-        return _run_batch(args, config)
+        if is_stdout(args.out_dir):
+            raise MapfilterError("--out-dir needs a directory name, not -")
+        for option in ("out", "rerun"):
+            if getattr(args, option) is not None:
+                raise MapfilterError(f"--{option} is for one walk: with --out-dir every walk gets its own track "
+                                     "file")
+        out_dir = check_output_path(args.out_dir, "--out-dir", directory=True, inputs=inputs)
+        return _run_batch(args, config, out_dir)
     if len(args.logs) > 1:
         raise MapfilterError(f"{len(args.logs)} logs: tracking several walks needs --out-dir DIR")
     if args.jobs != 1 or args.scheduler:
@@ -157,6 +173,7 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
 
     out_format = track_format(args.out, args.format)
     building = Building.load(args.map)
+    check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
     recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
@@ -207,7 +224,9 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
             written.append((args.adapted_aps, "adapted access-point table"))
     if args.rerun is not None:
         written.append((args.rerun, "rerun recording"))
-    print(_summary(building, recording, result, header_floor, written))
+    # the track itself on standard output: the summary goes to stderr, out of its way
+    to_stdout = any(is_stdout(path) for path, _ in written)
+    print(_summary(building, recording, result, header_floor, written), file=sys.stderr if to_stdout else sys.stdout)
     return 0
 
 
@@ -251,20 +270,44 @@ def _summary(building, recording, result, header_floor, written) -> str:
     for start, end in result.gaps:
         lines.append(f"  gap in the log from t={start - t0:+.1f} s to t={end - t0:+.1f} s: the filter started afresh")
     for path, what in written:
-        lines.append(f"  wrote {path} ({what})")
+        lines.append(f"  wrote {'standard output' if is_stdout(path) else path} ({what})")
     return "\n".join(lines)
 
 
-def _run_batch(args: argparse.Namespace, config) -> int:
+# the files of a batch itself: a walk whose trace has one of these names gets "<trace>.track.<format>"
+BATCH_FILES = ("summary.csv", "summary.json", "config.yaml")
+
+
+def batch_track_names(traces: list[str], out_format: str, smooth: bool) -> dict[str, str]:
+    """{trace: its track file's name in --out-dir}: ``<trace>.<format>``, or
+    ``<trace>.track.<format>`` where that is one of the batch's own files (a log named
+    summary.txt.gz) or another walk's causal track; refused if two walks would still share one."""
+    names: dict[str, str] = {}
+    taken = set(BATCH_FILES)
+    plain = {f"{t}.{out_format}" for t in traces}
+    for trace in traces:
+        name = f"{trace}.{out_format}"
+        causal = {causal_path(Path(n)).name for n in plain if n != name} if smooth else set()
+        if name in taken or name in causal:
+            name = f"{trace}.track.{out_format}"
+        files = {name, causal_path(Path(name)).name} if smooth else {name}
+        if files & taken:
+            raise MapfilterError(f"the track files of walk {trace} ({', '.join(sorted(files))}) would overwrite "
+                                 "another output of this run: rename the log")
+        taken |= files
+        names[trace] = name
+    return names
+
+
+def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
     import numpy as np
 
     from mapfilter.batch import BUILDING_SUMMARY_COLUMNS, SUMMARY_COLUMNS, BatchSetup, WalkResult, summary_row, track_logs
     from mapfilter.maps.building import Building
     from mapfilter.trackio import write_track
 
-    for option in ("out", "rerun"):
-        if getattr(args, option) is not None:
-            raise MapfilterError(f"--{option} is for one walk: with --out-dir every walk gets its own track file")
+    from mapfilter.sensors.recording import trace_name
+
     if args.spawn:
         raise MapfilterError("--spawn is for one walk, not for --out-dir")
     for path in args.logs:
@@ -272,12 +315,14 @@ def _run_batch(args: argparse.Namespace, config) -> int:
             raise MapfilterError("file not found", path)
     engine = engine_from(args)
     building = Building.load(args.map)
+    check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
     radio_map, ap_table = _wifi_source(args, building, config)
     setup = BatchSetup(tracking=config, strict=args.strict, floor=None if building.is_single_floor else args.floor)
     columns = SUMMARY_COLUMNS if building.is_single_floor else BUILDING_SUMMARY_COLUMNS
     out_format = args.format or "csv"
+    track_names = batch_track_names([trace_name(p) for p in args.logs], out_format, config.smooth)
     track_files: dict[str, str] = {}
 
     def write(result: WalkResult) -> None:
@@ -285,10 +330,10 @@ def _run_batch(args: argparse.Namespace, config) -> int:
         if result.read_warning:
             warn(result.read_warning)
         if result.ok:
-            path = args.out_dir / f"{result.trace}.{out_format}"
+            path = out_dir.claim(track_names[result.trace])
             write_track(result.track, path, out_format, building)
             if config.smooth and result.causal is not None:
-                write_track(result.causal, causal_path(path), out_format, building)
+                write_track(result.causal, out_dir.claim(causal_path(path).name), out_format, building)
             track_files[result.trace] = path.name
 
     started = time.perf_counter()
@@ -296,9 +341,9 @@ def _run_batch(args: argparse.Namespace, config) -> int:
         results = track_logs(building, args.logs, radio_map, ap_table, setup, engine, progress=progress,
                              on_result=write)
     wall_time_s = time.perf_counter() - started
-    summary = args.out_dir / "summary.csv"
+    summary, summary_json, config_yaml = (out_dir.claim(name) for name in BATCH_FILES)
     rows = [summary_row(result, track_files.get(result.trace), columns) for result in results]
-    with atomic_paths(summary, args.out_dir / "summary.json", args.out_dir / "config.yaml") as (tmp, tmp_json, tmp_yaml):
+    with atomic_paths(summary, summary_json, config_yaml) as (tmp, tmp_json, tmp_yaml):
         with tmp.open("w", newline="") as handle:
             writer = csv.DictWriter(handle, columns)
             writer.writeheader()

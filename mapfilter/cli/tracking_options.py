@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mapfilter.cli.common import non_negative_int, positive_int
+from mapfilter.cli.common import bounded_float, non_negative_int, positive_int
 
 MOTION_MODELS = ("pdr", "cv", "rw")  # filter.tracker.MOTION_MODELS
 FINGERPRINT_MODELS = ("fix", "blend", "likelihood")  # filter.evidence.FINGERPRINT_MODELS
@@ -27,9 +27,12 @@ def kwnn_min_rssi(text: str) -> float | None:
     if value == "none":
         return None
     try:
-        return float(value.removesuffix("dbm").strip())
+        number = float(value.removesuffix("dbm").strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a dBm value such as -90, or none; got {text!r}") from None
+    if not -150.0 <= number <= 30.0:  # also NaN and inf
+        raise argparse.ArgumentTypeError(f"expected a dBm value between -150 and 30 (e.g. -90), or none; got {text!r}")
+    return number
 
 
 def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,7 +64,7 @@ def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:
                        help="trilateration: adapt the path-loss parameters during the run (C of the AP the phone "
                             "is below when a scan's strongest RSSI is above the limit, alpha per band; "
                             "Lund thesis 7.1-7.2)")
-    group.add_argument("--adapt-rssi-limit", type=float, default=None, metavar="DBM",
+    group.add_argument("--adapt-rssi-limit", type=bounded_float(-150.0, 30.0), default=None, metavar="DBM",
                        help=f"with --adapt: a scan whose strongest RSSI is above this adapts (default: "
                             f"{DEFAULT_ADAPT_RSSI_LIMIT_DBM:g}, the thesis' value)")
     group.add_argument("--no-blocking-compensation", action="store_true", default=None,

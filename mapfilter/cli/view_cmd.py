@@ -43,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mapfilter.cli.common import check_output_path, warn
+    from mapfilter.cli.common import check_output_path, input_paths, warn
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
     from mapfilter.trackio import read_track
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.rerun is not None and args.rerun.suffix != ".rrd":
         raise MapfilterError("the output of --rerun must end in .rrd", args.rerun)
-    check_output_path(args.rerun, "--rerun")
+    check_output_path(args.rerun, "--rerun", inputs=input_paths(args.map, args.tracks, args.log))
     # load everything before writing anything: a bad input leaves no half-made recording
     building = Building.load(args.map)
     tracks = [read_track(path) for path in args.tracks]

@@ -201,12 +201,18 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: 
     paths, survey, methods = validate_setup(building, log_paths, setup)
     started = time.perf_counter()
     read_warnings: list[str] = []
-    with _collect_read_warnings(read_warnings):
-        recordings = [read_log(p, strict=setup.strict, building=building) for p in paths] if setup.leave_one_out else []
-        survey_recordings = [read_log(p, strict=setup.strict, building=building) for p in survey]
     true_floors = tuple(_true_floor(building, p) for p in paths)
+    with _collect_read_warnings(read_warnings):
+        # leave-one-out: the evaluated walks survey each other; one that cannot (unreadable, no
+        # WiFi scan, no waypoint) lends nothing and fails in its own task, named, as the README
+        # promises, while the others go on
+        lent = [(rec, floor) for rec, floor in ((_surveying_walk(p, setup, building), f)
+                                                for p, f in zip(paths, true_floors)) if rec is not None] \
+            if setup.leave_one_out else []
+        survey_recordings = [read_log(p, strict=setup.strict, building=building) for p in survey]
+    recordings = [rec for rec, _ in lent]
     all_walks = _all_walks(building, setup, methods, survey_recordings + recordings,
-                           [_true_floor(building, p) for p in survey] + list(true_floors))
+                           [_true_floor(building, p) for p in survey] + [floor for _, floor in lent])
     growth = None
     if setup.grows:
         with _collect_read_warnings(read_warnings):
@@ -301,6 +307,16 @@ def _true_floor(building: Building, path: Path) -> int | None:
     except MapfilterError:
         return None  # left to the walk, which fails as any unreadable log does
     return building.floor_of_log(header, path)
+
+
+def _surveying_walk(path: Path, setup: EvaluationSetup, building: Building) -> Recording | None:
+    """An evaluated walk as survey material for the others (leave-one-out), or None when it has
+    nothing to lend (it cannot be read, or has no WiFi scan or no waypoint)."""
+    try:
+        recording = read_log(path, strict=setup.strict, building=building)
+    except MapfilterError:
+        return None
+    return recording if len(recording.wifi) and recording.has_ground_truth else None
 
 
 def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, ...], recordings: list[Recording],

@@ -267,7 +267,7 @@ class Building:
         floors_meta = meta["floors"]
         if not isinstance(floors_meta, list) or not floors_meta:
             raise MapfilterError("'floors' must be a non-empty list", path)
-        floors = [_read_floor(path, i, f) for i, f in enumerate(floors_meta)]
+        floors = _in_elevation_order([_read_floor(path, i, f) for i, f in enumerate(floors_meta)], path)
         connectors = [_read_connector(path, i, c) for i, c in enumerate(meta.get("connectors") or [])]
         if not isinstance(meta.get("connectors") or [], list):
             raise MapfilterError("'connectors' must be a list", path)
@@ -409,9 +409,23 @@ def _read_connector(path: Path, index: int, meta: Any) -> Connector:
     return Connector(name, str(meta["kind"]), polygons)
 
 
+def _in_elevation_order(floors: list[Floor], path: Path) -> list[Floor]:
+    """The floors from the lowest up (a building YAML may list them in any order); two floors at
+    one elevation are refused: the barometer and the floor changes tell floors by elevation."""
+    ordered = sorted(floors, key=lambda f: f.elevation_m)
+    for lower, upper in zip(ordered, ordered[1:]):
+        if upper.elevation_m == lower.elevation_m:
+            raise MapfilterError(f"floors {lower.name!r} and {upper.name!r} are both at elevation_m "
+                                 f"{lower.elevation_m:g}: each floor needs its own elevation", path)
+    return ordered
+
+
 def _resolve(yaml_path: Path, name: Any) -> Path:
     candidate = Path(str(name))
-    return candidate if candidate.is_absolute() else (yaml_path.parent / candidate).resolve()
+    try:
+        return candidate if candidate.is_absolute() else (yaml_path.parent / candidate).resolve()
+    except (RuntimeError, OSError) as exc:  # a symbolic link loop (RuntimeError before Python 3.13)
+        raise MapfilterError(f"{str(name)[:200]!r} cannot be found: {exc}", yaml_path) from None
 
 
 def _relative(path: Path, base: Path) -> str:

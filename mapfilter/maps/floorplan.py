@@ -28,6 +28,7 @@ from scipy import ndimage
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
+from mapfilter.yamlio import load_yaml
 
 # map_server's defaults; pixel values we write: 0 = occupied, 254 = free.
 DEFAULT_OCCUPIED_THRESH = 0.65
@@ -370,28 +371,23 @@ def read_gray_image(path: str | os.PathLike) -> np.ndarray:
 
 
 def read_yaml_mapping(path: Path, what: str = "a map YAML") -> dict:
-    """The mapping of keys in a YAML file (also JSON); ``MapfilterError`` naming the file (and
-    the line of a syntax error) when it is missing, malformed or not a mapping."""
-    if not path.is_file():
-        raise MapfilterError("file not found", path)
-    try:
-        meta = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = None if mark is None else mark.line + 1
-        problem = getattr(exc, "problem", None) or "malformed YAML"
-        raise MapfilterError(f"malformed YAML: {problem}", path, line) from None
-    except UnicodeDecodeError:
-        raise MapfilterError("not a map YAML (a text file) but binary data: an image? make a map from a floor plan "
-                             "image with `mapfilter map prepare PLAN.png --out MAP.yaml`", path) from None
+    """The mapping of keys in a YAML file (also JSON), read by ``mapfilter.yamlio`` (size and
+    alias limits, duplicate keys refused); ``MapfilterError`` naming the file (and the line)
+    when it is missing, malformed or not a mapping."""
+    meta = load_yaml(Path(path), what)
     if not isinstance(meta, dict):
         raise MapfilterError(f"{what} must be a mapping of keys", path)
     return meta
 
 
 def is_number(value: Any) -> bool:
-    """A finite int or float (not a bool)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    """A finite int or float (not a bool; an int too large for a float, e.g. 400 digits, is not)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 def _positive_float(value: Any, key: str, path: Path) -> float:
@@ -402,7 +398,10 @@ def _positive_float(value: Any, key: str, path: Path) -> float:
 
 def _resolve(yaml_path: Path, name: Any) -> Path:
     candidate = Path(str(name))
-    return candidate if candidate.is_absolute() else (yaml_path.parent / candidate).resolve()
+    try:
+        return candidate if candidate.is_absolute() else (yaml_path.parent / candidate).resolve()
+    except (RuntimeError, OSError) as exc:  # a symbolic link loop (RuntimeError before Python 3.13)
+        raise MapfilterError(f"{str(name)[:200]!r} cannot be found: {exc}", yaml_path) from None
 
 
 def _relative(path: Path, base: Path) -> str:

@@ -34,6 +34,7 @@ from shapely.geometry import shape as geojson_shape
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
+from mapfilter.yamlio import load_yaml
 from mapfilter.maps.floorplan import MAX_IMAGE_PIXELS, FloorPlan, SourceImage, check_image_size, plan_geometry_problem
 
 EARTH_RADIUS_M = 6378137.0  # Web Mercator sphere (ILC README)
@@ -199,7 +200,18 @@ def prepare_lines(
     return _finish(ink, resolution_m, map_resolution_m, plan_path, floor_name)
 
 
+def _check_morphology_fits(mask: np.ndarray, radius_px: int, what: str) -> None:
+    """A kernel of ``radius_px`` and the image padded by it, refused before cv2 allocates them."""
+    from mapfilter.memory import check_fits
+
+    side = 2 * int(radius_px) + 1
+    rows, cols = mask.shape[:2]
+    check_fits(float(side) ** 2 + 3.0 * (rows + 2 * side) * (cols + 2 * side), f"{what} {radius_px} px",
+               "wall gaps are a few pixels wide")
+
+
 def _close(mask: np.ndarray, size_px: int) -> np.ndarray:
+    _check_morphology_fits(mask, size_px, "--close-gaps")
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
     # pad so that closing does not glue walls to the image border
     pad = size_px
@@ -209,11 +221,13 @@ def _close(mask: np.ndarray, size_px: int) -> np.ndarray:
 
 
 def _dilate(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    _check_morphology_fits(mask, radius_px, "dilating walls by")
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
     return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
 
 
 def _erode(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    _check_morphology_fits(mask, radius_px, "eroding walls by")
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
     # border value 1: the image edge does not eat into walls that touch it
     return cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=1).astype(bool)
@@ -521,14 +535,7 @@ def read_edits(path: str | os.PathLike) -> MapEdits:
     path = Path(path)
     if not path.is_file():
         raise MapfilterError("file not found", path)
-    try:
-        data = yaml.safe_load(path.read_text())  # YAML is a superset of JSON: reads both
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise MapfilterError(f"malformed edits file: {getattr(exc, 'problem', None) or exc}", path,
-                             None if mark is None else mark.line + 1) from None
-    except UnicodeDecodeError:
-        raise MapfilterError("not a text file", path) from None
+    data = load_yaml(path, "an edits file", max_bytes=64 << 20)  # YAML is a superset of JSON: reads both
     edits = MapEdits([], [])
     if isinstance(data, dict) and data.get("type") == "FeatureCollection":
         for index, feature in enumerate(data.get("features") or []):
@@ -654,6 +661,7 @@ ILC_REGION_OPTIONS = RegionOptions(walkable=(TRANSPARENT,), alpha_max=127, remov
 # pixels) so that waypoints on a shop front stay free.
 ILC_OBSTACLE_INSET_M = 0.6
 ILC_GEOJSON_RESOLUTION_M = 0.25
+MAX_FLOOR_SIZE_M = 10_000.0  # width and height of an ILC floor_info.json: far beyond any building
 
 
 def read_ilc_floor_info(floor_dir: str | os.PathLike) -> tuple[float, float]:
@@ -662,10 +670,14 @@ def read_ilc_floor_info(floor_dir: str | os.PathLike) -> tuple[float, float]:
     if not path.is_file():
         raise MapfilterError("file not found", path)
     try:
-        info = json.loads(path.read_text())["map_info"]
-        return _positive(info["width"], "width", path), _positive(info["height"], "height", path)
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError):
+        info = load_yaml(path, "floor_info.json")["map_info"]  # YAML reads JSON, within its limits
+        size_m = _positive(info["width"], "width", path), _positive(info["height"], "height", path)
+    except (KeyError, TypeError):
         raise MapfilterError("expected {\"map_info\": {\"width\": .., \"height\": ..}}", path) from None
+    if max(size_m) > MAX_FLOOR_SIZE_M:
+        raise MapfilterError(f"a floor of {size_m[0]:g} x {size_m[1]:g} m: no floor is wider than "
+                             f"{MAX_FLOOR_SIZE_M:g} m (a unit other than metres?)", path)
+    return size_m
 
 
 def import_ilc(floor_dir: str | os.PathLike, route: str = "image", resolution_m: float | None = None) -> FloorPlan:

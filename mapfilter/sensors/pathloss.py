@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import functools
+import io
 import math
 import os
 from collections.abc import Sequence
@@ -97,7 +98,12 @@ class AccessPointTable:
             raise MapfilterError("file not found", path)
         rows: dict[str, list] = {c: [] for c in cls.COLUMNS}
         lines: list[int] = []
-        with path.open(newline="") as handle:
+        first_line: dict[tuple[str, str], int] = {}  # (bssid, band) -> its line
+        from mapfilter.yamlio import decode_text
+
+        # UTF-8 with or without the byte-order mark Excel writes; another encoding is one line
+        text = decode_text(path.read_bytes(), path, "an access-point table")
+        with io.StringIO(text, newline="") as handle:
             reader = csv.DictReader(handle)
             if reader.fieldnames is None or not {"bssid", "x", "y"} <= set(reader.fieldnames):
                 raise MapfilterError("an access-point table needs the columns bssid,x,y", path, 1)
@@ -114,6 +120,10 @@ class AccessPointTable:
                 if band not in ("2.4", "5"):
                     raise MapfilterError(f"band must be 2.4 or 5, got {band!r}", path, line_no)
                 rows["band"].append(band)
+                if (bssid.lower(), band) in first_line:
+                    raise MapfilterError(f"access point {bssid} ({band} GHz) is listed twice (lines "
+                                         f"{first_line[bssid.lower(), band]} and {line_no}): keep one", path, line_no)
+                first_line[bssid.lower(), band] = line_no
                 for column in ("x", "y", "C", "n", "alpha", "d_max"):
                     text = row.get(column)
                     if text in (None, "") and column in defaults:

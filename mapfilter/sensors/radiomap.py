@@ -304,9 +304,9 @@ class RadioMap:
                                  f"{MAX_POSITION_M:g} m from the origin: not a position on a floor", path)
         if not np.all(np.isfinite(arrays["t_s"])):
             raise MapfilterError("radio map has non-finite scan times", path)
-        heard = rssi[~np.isnan(rssi)]
-        if heard.size and not (RSSI_RANGE_DBM[0] <= heard.min() and heard.max() <= RSSI_RANGE_DBM[1]):
-            raise MapfilterError(f"radio map has RSSI from {heard.min():g} to {heard.max():g} dBm, outside the "
+        low, high = (np.nanmin(rssi), np.nanmax(rssi)) if rssi.size and not np.isnan(rssi).all() else (0.0, 0.0)
+        if np.isinf(low) or np.isinf(high) or not (RSSI_RANGE_DBM[0] <= low and high <= RSSI_RANGE_DBM[1]):
+            raise MapfilterError(f"radio map has RSSI from {low:g} to {high:g} dBm, outside the "
                                  f"{RSSI_RANGE_DBM[0]:g} to {RSSI_RANGE_DBM[1]:g} dBm a phone reports", path)
         traces = [str(t) for t in arrays["source_traces"]]
         if p and (arrays["trace"].min() < 0 or arrays["trace"].max() >= len(traces)):
@@ -336,7 +336,8 @@ class RadioMap:
                         point_floor, floor_names, source, xy_sigma)
         cv_errors, cv_params = arrays.get("cv_fix_errors_m"), arrays.get("cv_fix_errors_params")
         if version >= 2 and cv_errors is not None and cv_params is not None:
-            if cv_errors.ndim != 1 or cv_params.shape != (3,) or not np.all(np.isfinite(cv_errors)):
+            if (cv_errors.ndim != 1 or cv_params.shape != (3,) or not np.all(np.isfinite(cv_errors))
+                    or not np.all(np.isfinite(cv_params))):
                 raise MapfilterError("radio map has malformed cv_fix_errors_m / cv_fix_errors_params", path)
             params = (int(cv_params[0]), int(cv_params[1]), float(cv_params[2]))
             if point_floor is None:
@@ -410,6 +411,7 @@ def _check_npz_headers(path: Path, max_bytes: int = MAX_RADIOMAP_BYTES) -> None:
     if not zipfile.is_zipfile(path):
         raise MapfilterError(_NOT_A_RADIO_MAP, path)
     total = 0
+    headers: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
     try:
         with zipfile.ZipFile(path) as archive:
             names = archive.namelist()
@@ -430,6 +432,7 @@ def _check_npz_headers(path: Path, max_bytes: int = MAX_RADIOMAP_BYTES) -> None:
                 if dtype.hasobject:
                     raise MapfilterError(f"{_NOT_A_RADIO_MAP}: array {info.filename!r} holds Python objects", path)
                 size = int(np.prod(shape, dtype=object)) * dtype.itemsize  # Python ints: no overflow
+                headers[info.filename[:-4]] = (tuple(shape), dtype)
                 total += size
                 if total > max_bytes:
                     raise MapfilterError(f"array {info.filename[:-4]!r} declares shape {tuple(shape)} "
@@ -442,6 +445,35 @@ def _check_npz_headers(path: Path, max_bytes: int = MAX_RADIOMAP_BYTES) -> None:
         raise
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError) as exc:
         raise MapfilterError(f"{_NOT_A_RADIO_MAP}: {exc}", path) from None
+    _check_array_kinds(headers, path)
+    from mapfilter.memory import check_fits
+
+    # loading holds each array once, and the checks a NaN mask and a copy of the largest
+    check_fits(3 * total, f"the radio map's arrays ({total / 2**20:.0f} MiB when decompressed)")
+
+
+# what each array of a radio map must be: (number of dimensions, dtype kinds); checked from the
+# headers, before anything is decompressed
+_ARRAY_KINDS = {"format": (0, "U"), "version": (0, "iu"), "xy_m": (2, "fiu"), "t_s": (1, "fiu"),
+                "trace": (1, "iu"), "ap_keys": (1, "US"), "rssi_dbm": (2, "f"), "source_traces": (1, "US"),
+                "floor_name": (0, "US"), "floor": (1, "iu"), "floor_names": (1, "US"), "source": (1, "iu"),
+                "xy_sigma_m": (1, "fiu"), "cv_fix_errors_m": (1, "fiu"), "cv_fix_errors_params": (1, "fiu"),
+                "cv_fix_errors_floor": (1, "iu")}
+
+
+def _check_array_kinds(headers: dict[str, tuple[tuple[int, ...], np.dtype]], path: Path) -> None:
+    for name, (shape, dtype) in headers.items():
+        if name not in _ARRAY_KINDS:
+            continue  # a later version's array: its version number decides
+        ndim, kinds = _ARRAY_KINDS[name]
+        if len(shape) != ndim or dtype.kind not in kinds:
+            what = {"f": "floats", "i": "integers", "u": "integers", "U": "text", "S": "text"}
+            raise MapfilterError(f"{_NOT_A_RADIO_MAP}: array {name!r} is {len(shape)}-d {dtype} (shape {shape}); "
+                                 f"it must be {ndim}-d {' or '.join(dict.fromkeys(what[k] for k in kinds))}", path)
+    xy, rssi, keys = headers.get("xy_m"), headers.get("rssi_dbm"), headers.get("ap_keys")
+    if xy and rssi and keys and (xy[0][1:] != (2,) or rssi[0] != (xy[0][0], keys[0][0])):
+        raise MapfilterError(f"radio map arrays disagree in shape: xy_m {xy[0]}, rssi_dbm {rssi[0]}, "
+                             f"ap_keys {keys[0]}", path)
 
 
 # ---- building ---------------------------------------------------------------------------------
