@@ -23,6 +23,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from mapfilter.filter.kernels.passes import run_likelihood
 from mapfilter.filter.particles import Particles
 from mapfilter.maps.floorplan import FloorPlan
 
@@ -77,9 +78,13 @@ class MeasurementModel(Protocol):
         return None
 
     def log_likelihood(self, particles: Particles, measurement: Any) -> np.ndarray:
-        """log p(measurement | particle) for each particle, (N,), finite or -inf (only for a model
-        whose ``kernel`` gives None). Constant offsets do not matter (the filter normalises)."""
-        raise NotImplementedError(f"{type(self).__name__} gives neither a kernel nor log_likelihood")
+        """log p(measurement | particle) for each particle, (N,), finite or -inf. Constant offsets
+        do not matter (the filter normalises). A model with a kernel inherits this (its kernel over
+        the particles); a model without one writes it instead."""
+        kernel = self.kernel(measurement)
+        if kernel is None:
+            raise NotImplementedError(f"{type(self).__name__} gives neither a kernel nor log_likelihood")
+        return run_likelihood(kernel.function, kernel.params, particles.state)
 
     def locates(self, measurement: Any) -> bool:
         """Whether the measurement says where the walker is (not only which floor): a collapse
