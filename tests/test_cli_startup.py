@@ -26,7 +26,7 @@ def test_cli_defaults_are_the_librarys():
     from mapfilter.config import TrackingConfig
     from mapfilter.evaluation.comparison import ALL_METHODS, BUILDING_METHODS
     from mapfilter.filter.evidence import FINGERPRINT_MODELS
-    from mapfilter.filter.run import MOTION_MODELS
+    from mapfilter.filter.tracker import MOTION_MODELS
     from mapfilter.sensors.pathloss import ApFitConfig
     from mapfilter.simulate.walk import SimConfig
 

@@ -37,7 +37,7 @@ def test_yaml_round_trip_of_a_changed_config():
 @pytest.mark.parametrize("text, needle", [
     ("seed: 1\nfilter:\n  n_partcles: 10\n", "line 3: unknown setting 'filter.n_partcles'"),
     ("smooth: yes please\n", "line 1: smooth: expected true or false"),
-    ("filter:\n  n_particles: 0\n", "n_particles must be at least 1"),
+    ("filter:\n  n_particles: 0\n", "n_particles must be a whole number >= 1"),
     ("motion:\n  model: fly\n", "unknown motion model 'fly'"),
     ("seed: -1\n", "seed must be a whole number >= 0"),
     ("wifi: 3\n", "line 1: wifi must be a mapping"),

@@ -409,23 +409,58 @@ def test_barometer_between_scans_weighs_floors_only_and_never_collapses_or_becom
 
 
 def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_step_or_scan():
+    from mapfilter.filter.models.position_fix import GaussianFixLikelihood, PositionFix
+    from mapfilter.filter.particle_filter import FilterConfig
+    from mapfilter.filter.tracker import MotionConfig, StreamFilter
+    from mapfilter.maps.floorplan import FloorPlan
     from mapfilter.sensors.pdr import Steps
-    from mapfilter.sensors.wifi import WifiScan
-    from mapfilter.filter.run import _events
+    from mapfilter.sensors.wifi import WifiScan, scans_recording
+
+    class Evidence:
+        """Scans that fix the walker at (5, 5), and evidence between them when ``between``."""
+
+        def __init__(self, scans, between):
+            self.scans, self._between = scans, between
+            self.usable = np.ones(len(scans), dtype=bool)
+            self.model = GaussianFixLikelihood(1000.0)
+
+        def add_scans(self, scans):
+            self.scans.extend(scans)
+
+        def measurement(self, index):
+            return PositionFix((5.0, 5.0))
+
+        def between_scans(self, t_s):
+            return PositionFix((5.0, 5.0)) if self._between else None
+
+        def has_evidence_between_scans(self):
+            return self._between
+
+        def observe(self, report):
+            pass
 
     scans = [WifiScan(t, ("a@2.4",), np.array([-50.0], np.float32)) for t in (0.0, 3.0, 12.0)]
     t_steps = np.array([0.5, 1.0, 1.5, 2.0, 2.5, 9.0, 9.5])  # then standing 2.5 s -> 9 s (a lift)
     zeros = np.zeros(t_steps.size)
     steps = Steps(t_steps, zeros, zeros, None, zeros + 0.7, zeros + 1.0, 0.0)
-    events = _events(scans, 0, steps, 1.0, 1.0, 60.0)
-    times = np.array([t for _, t, _ in events])
+    plan = FloorPlan(np.pad(np.zeros((98, 98), dtype=bool), 1, constant_values=True), 0.1)
+
+    def row_times(model, between):
+        stream = StreamFilter(plan, Evidence([], between), MotionConfig(model=model, tick_s=1.0, idle_tick_s=1.0),
+                              FilterConfig(n_particles=100), np.random.default_rng(0),
+                              steps=steps if model == "pdr" else None)
+        stream.feed(scans_recording(scans))
+        stream.close()
+        return np.array([row.t_s for row in stream.rows])
+
+    times = row_times("pdr", True)
     assert np.all(np.diff(times) >= 0) and np.diff(times).max() <= 1.0 + 1e-9
-    idle = [t for kind, t, _ in events if kind == "idle"]
+    idle = sorted(set(times) - set(t_steps) - {0.0, 3.0, 12.0})
     assert idle == [4.0, 5.0, 6.0, 7.0, 8.0, 10.5, 11.5]  # only in the gaps, never among steps
-    # without steps (cv / rw): prediction ticks as before, no idle events
-    assert {kind for kind, _, _ in _events(scans, 0, None, 1.0, None, 60.0)} == {"tick", "scan"}
-    # one floor (nothing weighs the particles between scans): no idle events at all
-    assert {kind for kind, _, _ in _events(scans, 0, steps, 1.0, None, 60.0)} == {"step", "scan"}
+    # without steps (cv / rw): prediction ticks every second from the start, no idle ticks
+    assert row_times("cv", True).tolist() == [float(t) for t in range(13)]
+    # one floor (nothing weighs the particles between scans): no idle ticks at all
+    assert sorted(row_times("pdr", False)) == sorted([0.0, 3.0, 12.0, *t_steps])
 
 
 def test_barometer_reference_follows_the_weather_not_a_pausing_climber():

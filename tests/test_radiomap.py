@@ -301,7 +301,7 @@ def test_tracker_weighs_the_kwnn_fix_with_a_gaussian():
     scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
     unknown = WifiScan(1.0, ("aa:aa:aa:aa:aa:aa@5",), np.array([-40.0], np.float32))
     plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
-    wifi = WifiEvidence([scan, unknown], radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="fix"))
+    wifi = WifiEvidence.of_scans([scan, unknown], radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="fix"))
     fix = kwnn_fix(radio_map, scan.ap_keys, scan.rssi_dbm).xy_m
     measurement = wifi.measurement(0)
     np.testing.assert_allclose(measurement.xy_m, fix)
@@ -418,7 +418,7 @@ def test_blend_fix_is_the_mean_of_the_kwnn_fix_and_the_best_cell():
     aps, radio_map = _synthetic_radio_map()
     scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
     plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
-    wifi = WifiEvidence([scan], radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="blend"))
+    wifi = WifiEvidence.of_scans([scan], radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="blend"))
     kwnn = strong_kwnn_fixes(radio_map, radio_map.scan_matrix([scan]))[0]  # the default: strong readings only
     best = RadioMapLikelihood(radio_map, plan).best_position(scan)
     np.testing.assert_allclose(wifi.measurement(0).xy_m, 0.5 * (kwnn + best))

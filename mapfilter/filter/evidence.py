@@ -354,6 +354,7 @@ class BuildingEvidence:
         self.elevation_m = np.array([f.elevation_m for f in stack.building.floors])
         self.barometer = barometer
         self.use_barometer = use_barometer
+        self._n_pressure_seen = 0
         self._pressure_t: list[float] = []
         self._pressure_hpa: list[float] = []
         self._heights: tuple[np.ndarray, np.ndarray] | None = None  # barometric_height of the readings so far
@@ -405,6 +406,7 @@ class BuildingEvidence:
 
     def add_pressure(self, t_s: np.ndarray, pressure_hpa: np.ndarray) -> None:
         """Barometer readings (in time order, after those already added)."""
+        self._n_pressure_seen += len(t_s)
         if not self.use_barometer or len(t_s) == 0:
             return
         self._pressure_t.extend(np.asarray(t_s, dtype=np.float64).tolist())
@@ -413,6 +415,11 @@ class BuildingEvidence:
             # each reading's height depends on the readings up to it only (windowed sums of a cumsum)
             self._heights = barometric_height(np.array(self._pressure_t), np.array(self._pressure_hpa),
                                               self.barometer.smoothing_window_s)
+
+    @property
+    def n_pressure(self) -> int:
+        """Barometer readings added so far (those a log without a barometer or ``use_barometer`` off ignores count too)."""
+        return self._n_pressure_seen
 
     @property
     def fix_xy_m(self) -> np.ndarray:

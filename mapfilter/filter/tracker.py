@@ -231,6 +231,7 @@ class StreamFilter:
         self._on_step = on_step
         self._merge = _Merge()
         self._n_scans = 0  # scans released so far (the evidence may hold them already: a prepared walk)
+        self._n_pressure = 0  # barometer readings released so far (likewise)
         self._events: list = []  # heap of (t_s, kind, sequence, payload)
         self._sequence = 0
         self._idle_ticks = motion.model == "pdr" and evidence.has_evidence_between_scans()
@@ -283,7 +284,12 @@ class StreamFilter:
         n_before = len(self.rows)
         self._take_steps(released, final)
         if "pressure" in released and hasattr(self.evidence, "add_pressure"):
-            self.evidence.add_pressure(*released["pressure"])
+            t_s, hpa = released["pressure"]
+            first = self._n_pressure
+            self._n_pressure += len(t_s)
+            known = self.evidence.n_pressure  # a prepared walk's evidence holds them already
+            if known < self._n_pressure:
+                self.evidence.add_pressure(t_s[max(known - first, 0):], hpa[max(known - first, 0):])
         if "wifi" in released:
             scans = list(released["wifi"][1])
             first = self._n_scans
@@ -293,8 +299,12 @@ class StreamFilter:
                 self.evidence.add_scans(scans[max(known - first, 0):])
             for k, scan in enumerate(scans):
                 self._push_event(float(scan.t_s), _SCAN, first + k)
-        end = horizon if not final else (max(merge.last_t.values()) if merge.last_t else -math.inf)
-        self._run_events(end, inclusive=final)
+        if final:  # every event, and ticks up to the last record or event
+            last = max(merge.last_t.values()) if merge.last_t else -math.inf
+            self._run_events(math.inf, inclusive=True)
+            self._ticks_until(max(last, self._last_event_t), inclusive=True)
+        else:
+            self._run_events(horizon, inclusive=False)
         return self.rows[n_before:]
 
     def _take_steps(self, released: dict, final: bool) -> None:
@@ -335,7 +345,8 @@ class StreamFilter:
             t_s, kind, _, index = heapq.heappop(events)
             self._ticks_until(t_s, inclusive=False)
             self._event(t_s, kind, index)
-        self._ticks_until(end_t, inclusive)
+        if math.isfinite(end_t):
+            self._ticks_until(end_t, inclusive)
 
     def _ticks_until(self, end_t: float, inclusive: bool) -> None:
         """Prediction ticks (cv, rw) or idle ticks (PDR with a barometer) before ``end_t``."""
