@@ -550,7 +550,7 @@ def test_a_pdr_step_that_starts_on_stairs_advances_a_tread_not_a_stride(tmp_path
     pf.particles = Particles.at(start)
     pf.particles.heading_rad[:] = 0.0
     pf.particles.step_length_m[:] = 0.7
-    pf.step(1.0, 0.6, StepInput(1, 0.0, None, None))
+    pf.step(1.0, 0.6, StepInput(1, 0.0))
     moved_m = np.linalg.norm(pf.particles.xy_m - start, axis=1)
     assert (moved_m[:200] <= hi + 0.05).all() and (moved_m[200:] >= 0.6).all()
 
