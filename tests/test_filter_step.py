@@ -193,7 +193,7 @@ def _run(seed, n, motion, steps, monkeypatch, threads):
     return pf
 
 
-@pytest.mark.parametrize("n", [9_000, 3 * 16_384 + 123])  # two threads from 8,192 particles
+@pytest.mark.parametrize("n", [9_000, 3 * 16_384 + 123])  # one thread, two threads (from 32,768 particles)
 def test_same_seed_same_particles_whatever_the_threads(monkeypatch, n):
     one = _run(4, n, PDRMotion(), 4, monkeypatch, 1)
     two = _run(4, n, PDRMotion(), 4, monkeypatch, 2)

@@ -1,16 +1,18 @@
-"""Particle-filter throughput benchmark: particle-steps per second, numba vs a plain-numpy reference.
+"""Particle-filter throughput benchmark: particle-steps per second, the filter's step against references.
 
 For N = 1k, 10k, 100k, 1M particles on an ILC floor map (site1/F1 from ../shared) and on
 the bundled map maps/office.yaml, it times
 
 - ``wall_check``: ``mapfilter.maps.walls.crosses_wall`` alone on random-walk moves;
-- ``fused_step``: ``ParticleFilter.step`` with random-walk motion + wall check + a 20-access-point
-  RSSI Gaussian likelihood + resampling (forced every step) + wall-safe regularisation + estimate,
-  on its fused path (``filter/fused.py``, ``FilterConfig(fused_from_particles=0)``);
-- ``named_step``: the same step by the named stages (``FilterConfig(fused_from_particles=None)``);
+- ``step``: ``ParticleFilter.step`` with random-walk motion + wall check + a 20-access-point
+  RSSI Gaussian likelihood + resampling (forced every step) + wall-safe regularisation + estimate;
 - ``reference_step``: the same step in plain numpy (points sampled every half pixel along each
-  segment for the wall check, float32 numpy RSSI likelihood, cumsum + searchsorted resampling),
-  and the speed-ups over it; one step of each in turn, in the same process.
+  segment for the wall check, float32 numpy RSSI likelihood, cumsum + searchsorted resampling);
+- with ``--baseline REV``: the same step by the filter of an earlier revision of this repository
+  (a temporary git worktree, run in a child process that times its own steps; its default path
+  at that N, or the path ``--baseline-config`` names), one step of each in turn;
+
+and the speed-ups over the references, one step of each in turn, in the same run.
 
 It also times what a user feels (``--skip-user`` leaves it out):
 
@@ -23,18 +25,20 @@ It also times what a user feels (``--skip-user`` leaves it out):
   (all 76 walks) F1 radio maps, built here with ``mapfilter radiomap build`` (timed too): the
   tracker's own time (``mapfilter.track``) for the first walk with a radio map (which builds
   its likelihood) and for a walk after it (which reuses it), and the whole ``mapfilter track``
-  command (one walk: builds it).
+  command (one walk: builds it), with the ratio of the command's time to the tracking time it
+  prints.
 
 Every step time comes with the CPU time the process used for it (``cpu_ms``): on a shared
 machine, the wall time moves with the other jobs; the CPU time much less.
 
 Prints one JSON document. ``--quick`` runs fewer repetitions and skips 1M for the reference.
-Usage: ``.venv/bin/python tools/bench_filter.py [--quick] [--maps ilc,office] [--skip-user]``
+Usage: ``.venv/bin/python tools/bench_filter.py [--quick] [--maps ilc,office] [--skip-user] [--baseline REV]``
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -52,13 +56,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from mapfilter.filter import fused  # noqa: E402
-from mapfilter.filter.measurement import rssi_log_likelihood  # noqa: E402
+from mapfilter.filter.estimate import weighted_moments  # noqa: E402
 from mapfilter.filter.models.interface import MeasurementModel  # noqa: E402
 from mapfilter.filter.models.motion import RandomWalkMotion  # noqa: E402
+from mapfilter.filter.models.path_loss import path_loss_kernel  # noqa: E402
+from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter, optimal_bandwidth  # noqa: E402
 from mapfilter.filter.particles import Particles  # noqa: E402
-from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter  # noqa: E402
-from mapfilter.filter.regularise import optimal_bandwidth, weighted_covariance  # noqa: E402
 from mapfilter.maps.floorplan import FloorPlan  # noqa: E402
 from mapfilter.maps.walls import crosses_wall  # noqa: E402
 
@@ -120,13 +123,9 @@ class RssiModel(MeasurementModel):
         d = np.maximum(np.linalg.norm(xy_m[:, None, :] - self.ap_xy_m[None], axis=-1), 1.0)
         return self.c_dbm - 10 * self.n * np.log10(d) - self.alpha * np.minimum(d, self.d_max)
 
-    def kernel_likelihood(self, observed_rssi_dbm: np.ndarray) -> fused.Likelihood:
-        return fused.rssi_path_loss(self.ap_xy_m, self.c_dbm, self.n, self.alpha, self.d_max, observed_rssi_dbm,
-                                    VARIANCE_DB2)
-
-    def log_likelihood(self, particles: Particles, observed_rssi_dbm: np.ndarray) -> np.ndarray:
-        return rssi_log_likelihood(particles.xy_m, self.ap_xy_m, self.c_dbm, self.n, self.alpha, self.d_max,
-                                   observed_rssi_dbm, VARIANCE_DB2)
+    def kernel(self, observed_rssi_dbm: np.ndarray):
+        return path_loss_kernel(self.ap_xy_m, self.c_dbm, self.n, self.alpha, self.d_max, observed_rssi_dbm,
+                                VARIANCE_DB2)
 
 
 # ---- plain-numpy reference ---------------------------------------------------------------------
@@ -183,7 +182,7 @@ class NumpyReferenceFilter:
         cumsum = np.cumsum(w)
         cumsum[-1] = 1.0
         parent = np.minimum(np.searchsorted(cumsum, (np.arange(n) + rng.random()) / n, side="right"), n - 1)
-        cov = weighted_covariance(new, w) + self.fp.resolution_m ** 2 * np.eye(2)
+        cov = weighted_moments(new, w)[1] + self.fp.resolution_m ** 2 * np.eye(2)
         root = np.linalg.cholesky(cov)
         h = optimal_bandwidth(n)
         base = new[parent]
@@ -227,17 +226,69 @@ def per_step_seconds(fn, reps: int) -> float:
     return float(np.median(times))
 
 
-def _pf(fp: FloorPlan, n: int, fused_path: bool, true_xy: np.ndarray, seed: int) -> ParticleFilter:
+def _pf(fp: FloorPlan, n: int, true_xy: np.ndarray, seed: int) -> ParticleFilter:
     # the filter starts around the truth so that the cloud is realistic (not map-wide)
-    config = FilterConfig(n_particles=n, resample_ess_fraction=1.0, fused_from_particles=0 if fused_path else None)
-    pf = ParticleFilter(fp, RandomWalkMotion(), config, np.random.default_rng(seed))
+    pf = ParticleFilter(fp, RandomWalkMotion(), FilterConfig(n_particles=n, resample_ess_fraction=1.0),
+                        np.random.default_rng(seed))
     pf.initialise_around(true_xy, 5.0)
     return pf
 
 
-def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: int, seed: int) -> dict:
-    """Per N: the wall check alone; then the fused step, the named stages' step and the numpy
-    reference, one step of each in turn (so that all three see the same load), from the same cloud."""
+# The baseline: the same setup and step in an earlier revision's filter, in a child process that
+# times its own steps (a step per line asked on stdin, "wall_s cpu_s resampled killed" answered).
+# ``BASELINE_CONFIG`` is a dict of FilterConfig settings the revision knows (e.g. its fused path).
+_BASELINE_CHILD = r"""
+import json, sys, time
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+sys.path.insert(0, sys.argv[1] + "/tools")
+import bench_filter as b
+from mapfilter.filter.pf import FilterConfig, ParticleFilter
+from mapfilter.filter.motion import RandomWalkMotion
+key, n, seed, extra = sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), json.loads(sys.argv[5])
+fp, _ = {"ilc": b.load_ilc_map, "office": b.load_office_map}[key]()
+rng = np.random.default_rng(seed)
+model = b.RssiModel(fp.sample_free(b.N_APS, rng))
+true_xy = fp.sample_free(1, rng)
+observed = model.expected(true_xy)[0] + rng.normal(0, 5.0, b.N_APS)
+pf = ParticleFilter(fp, RandomWalkMotion(), FilterConfig(n_particles=n, resample_ess_fraction=1.0, **extra),
+                    np.random.default_rng(seed))
+pf.initialise_around(true_xy[0], 5.0)
+pf.step(0.0, b.DT_S, None, model, observed)
+print("ready", flush=True)
+for line in sys.stdin:
+    t0, c0 = time.perf_counter(), time.process_time()
+    report = pf.step(0.0, b.DT_S, None, model, observed)
+    print(time.perf_counter() - t0, time.process_time() - c0, int(report.resampled), report.n_killed, flush=True)
+"""
+
+
+class Baseline:
+    """An earlier revision's filter step, timed in a child process (see ``_BASELINE_CHILD``)."""
+
+    def __init__(self, checkout: Path, key: str, n: int, seed: int, config: dict) -> None:
+        self.process = subprocess.Popen([sys.executable, "-c", _BASELINE_CHILD, str(checkout), key, str(n), str(seed),
+                                         json.dumps(config)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                        text=True, cwd=checkout)
+        if self.process.stdout.readline().strip() != "ready":
+            raise RuntimeError("the baseline child did not start")
+        self.last: tuple[float, float, int, int] | None = None
+
+    def step(self) -> None:
+        self.process.stdin.write("step\n")
+        self.process.stdin.flush()
+        wall, cpu, resampled, killed = self.process.stdout.readline().split()
+        self.last = (float(wall), float(cpu), int(resampled), int(killed))
+
+    def close(self) -> None:
+        self.process.stdin.close()
+        self.process.wait(timeout=60)
+
+
+def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: int, seed: int,
+              baseline: Path | None = None, baseline_config: dict | None = None) -> dict:
+    """Per N: the wall check alone; then the step, the numpy reference (and the baseline revision's
+    step), one step of each in turn (so that all see the same load), from the same cloud."""
     rng = np.random.default_rng(seed)
     ap_xy = fp.sample_free(N_APS, rng)
     model = RssiModel(ap_xy)
@@ -247,50 +298,51 @@ def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: 
     for n in sizes:
         row: dict = {"n_particles": n}
         a = fp.sample_free(n, rng)
-        moved = RandomWalkMotion().propagate(Particles.at(a), None, DT_S, rng).xy_m
+        moved = a + rng.normal(0.0, 1.5 * DT_S / math.sqrt(2.0), a.shape)
         t = per_step_seconds(lambda: crosses_wall(fp, a, moved), reps)
         row["wall_check_per_s"] = n / t
         row["wall_check_crossing_share"] = float(crosses_wall(fp, a, moved).mean())
 
-        runs: dict = {}
-        for label, fused_path in (("fused", True), ("named", False)):
-            pf = _pf(fp, n, fused_path, true_xy[0], seed)
-            stats = {"resampled": 0, "steps": 0, "killed": 0}
+        pf = _pf(fp, n, true_xy[0], seed)
+        stats = {"resampled": 0, "steps": 0, "killed": 0}
 
-            def step(pf=pf, stats=stats):
-                report = pf.step(0.0, DT_S, None, model, observed)
-                stats["resampled"] += report.resampled
-                stats["steps"] += 1
-                stats["killed"] += report.n_killed
+        def step(pf=pf, stats=stats):
+            report = pf.step(0.0, DT_S, None, model, observed)
+            stats["resampled"] += report.resampled
+            stats["steps"] += 1
+            stats["killed"] += report.n_killed
 
-            step()  # warm-up at this size
-            runs[label] = (step, stats)
+        step()  # warm-up at this size
+        runs: dict = {"step": step}
         if n <= ref_max_n:
-            ref = NumpyReferenceFilter(fp, _pf(fp, n, False, true_xy[0], seed).particles.xy_m,
-                                       np.random.default_rng(seed))
-            runs["reference"] = (lambda: ref.step(model, observed), None)
-            runs["reference"][0]()
+            ref = NumpyReferenceFilter(fp, _pf(fp, n, true_xy[0], seed).particles.xy_m, np.random.default_rng(seed))
+            runs["reference"] = lambda: ref.step(model, observed)
+            runs["reference"]()
+        child = Baseline(baseline, name, n, seed, baseline_config or {}) if baseline is not None else None
         n_rounds = reps if n < 1_000_000 else max(3, reps // 3)
-        times: dict = {label: ([], []) for label in runs}
+        times: dict = {label: ([], []) for label in [*runs, *(["baseline"] if child else [])]}
         for _ in range(n_rounds):
-            for label, (fn, _) in runs.items():
+            for label, fn in runs.items():
                 wall, cpu = timed_cpu(fn)
                 times[label][0].append(wall)
                 times[label][1].append(cpu)
+            if child is not None:
+                child.step()
+                times["baseline"][0].append(child.last[0])
+                times["baseline"][1].append(child.last[1])
+        if child is not None:
+            child.close()
         for label, (walls, cpus) in times.items():
             t_wall, t_cpu = float(np.median(walls)), float(np.median(cpus))
             row[f"{label}_step_per_s"] = n / t_wall
             row[f"{label}_step_ms"] = 1e3 * t_wall
             row[f"{label}_step_cpu_ms"] = 1e3 * t_cpu
-        for label in ("fused", "named"):
-            if "reference" in times:
-                row[f"speedup_{label}_vs_reference"] = row["reference_step_ms"] / row[f"{label}_step_ms"]
-                row[f"speedup_{label}_vs_reference_cpu"] = row["reference_step_cpu_ms"] / row[f"{label}_step_cpu_ms"]
-            stats = runs[label][1]
-            row[f"{label}_resampled_share"] = stats["resampled"] / stats["steps"]
-            row[f"{label}_killed_per_step_share"] = stats["killed"] / stats["steps"] / n
-        row["speedup_fused_vs_named"] = row["named_step_ms"] / row["fused_step_ms"]
-        row["speedup_fused_vs_named_cpu"] = row["named_step_cpu_ms"] / row["fused_step_cpu_ms"]
+        for other in ("reference", "baseline"):
+            if other in times:
+                row[f"speedup_vs_{other}"] = row[f"{other}_step_ms"] / row["step_step_ms"]
+                row[f"speedup_vs_{other}_cpu"] = row[f"{other}_step_cpu_ms"] / row["step_step_cpu_ms"]
+        row["resampled_share"] = stats["resampled"] / stats["steps"]
+        row["killed_per_step_share"] = stats["killed"] / stats["steps"] / n
         rows.append(row)
         print(f"{name} N={n}: " + ", ".join(f"{k}={v:.4g}" for k, v in row.items() if k != "n_particles"),
               file=sys.stderr, flush=True)
@@ -374,8 +426,9 @@ def bench_real_walk(tmp: Path) -> dict:
         c0 = time.process_time()
         result = track(floorplan, recording, radio_map, config=TrackingConfig())
         track_cpu_s = time.process_time() - c0
-        command_s, command_cpu_s, _ = _mapfilter(["track", str(map_yaml), str(walk), "--radiomap", str(rm_path),
-                                                  "--out", str(tmp / f"track_{name}.csv")])
+        command_s, command_cpu_s, stdout = _mapfilter(["track", str(map_yaml), str(walk), "--radiomap", str(rm_path),
+                                                       "--out", str(tmp / f"track_{name}.csv")])
+        printed = re.search(r"causal ([0-9.]+) s", stdout)
         doc["radio_maps"][name] = {"walks": len(logs), "reference_points": len(radio_map),
                                    "access_points": len(radio_map.ap_keys), "radiomap_build_s": build_s,
                                    "radiomap_build_cpu_s": build_cpu_s,
@@ -383,7 +436,10 @@ def bench_real_walk(tmp: Path) -> dict:
                                    "track_recording_first_walk_cpu_s": first_cpu_s,
                                    "track_recording_s": result.runtime_s,
                                    "track_recording_cpu_s": track_cpu_s, "filter_steps": result.n_filter_steps,
-                                   "track_command_s": command_s, "track_command_cpu_s": command_cpu_s}
+                                   "track_command_s": command_s, "track_command_cpu_s": command_cpu_s,
+                                   "tracking_s_as_printed": float(printed.group(1)) if printed else None,
+                                   "command_over_printed_tracking": command_s / float(printed.group(1))
+                                   if printed else None}
         print(f"real walk, {name} map: " + ", ".join(f"{k}={v:.4g}" for k, v in doc["radio_maps"][name].items()),
               file=sys.stderr, flush=True)
     return doc
@@ -396,6 +452,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", default="1000,10000,100000,1000000", help="particle counts")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--skip-user", action="store_true", help="leave out the first run, --help and the real walk")
+    parser.add_argument("--baseline", metavar="REV", help="also time the step of this git revision (e.g. the commit "
+                                                          "before the filter was rebuilt)")
+    parser.add_argument("--baseline-config", default="{}", help="FilterConfig settings of the baseline, as JSON")
     args = parser.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
     reps = 5 if args.quick else 15
@@ -423,9 +482,19 @@ def main(argv: list[str] | None = None) -> int:
 
     loaders = {"ilc": load_ilc_map, "office": load_office_map}
     maps = []
-    for key in args.maps.split(","):
-        fp, source = loaders[key]()
-        maps.append({"source": source, **bench_map(fp, key, sizes, reps, ref_max_n, args.seed)})
+    with contextlib.ExitStack() as stack:
+        checkout = None
+        if args.baseline:
+            checkout = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="bench_baseline_"))) / "repo"
+            subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", str(checkout), args.baseline],
+                           check=True, capture_output=True)
+            stack.callback(subprocess.run, ["git", "-C", str(REPO), "worktree", "remove", "--force", str(checkout)],
+                           capture_output=True)
+            (checkout.parent / "shared").symlink_to(REPO.parent / "shared")  # its ../shared
+        for key in args.maps.split(","):
+            fp, source = loaders[key]()
+            maps.append({"source": source, **bench_map(fp, key, sizes, reps, ref_max_n, args.seed, checkout,
+                                                       json.loads(args.baseline_config))})
     import numba
 
     from mapfilter.threads import n_threads
@@ -437,6 +506,7 @@ def main(argv: list[str] | None = None) -> int:
         "numba_warmup_s": warmup_s,
         "load_average_1min_before_after": [load_before, os.getloadavg()[0]],
         "quick": args.quick,
+        "baseline": {"revision": args.baseline, "config": json.loads(args.baseline_config)} if args.baseline else None,
         **user,
         "maps": maps,
     }

@@ -28,7 +28,8 @@ class StepReport:
     """One filter step, for the viewer and for diagnostics.
 
     ``particles_xy_m``/``particles_weight`` are the state after the step (after resampling
-    and regularisation if they happened). ``killed_from_xy_m``/``killed_to_xy_m`` are the
+    and regularisation if they happened), valid until the filter's next step (it reuses its
+    arrays): copy them to keep them. ``killed_from_xy_m``/``killed_to_xy_m`` are the
     moves the wall check rejected this step.
     """
 

@@ -152,10 +152,22 @@ class ParticleFilter:
         self._last_measurement: tuple[float, Any, Any] | None = None  # (t_s, model, measurement)
         self._recovery_level = 0
         self._healthy_steps = 0
+        n = self.n
+        self._spare: list[Particles] = []
+        self._scratch = (np.empty(n, dtype=np.bool_), np.empty(n), np.empty((passes.n_blocks(n), passes.N_ADVANCE_SUMS)))
 
     @property
     def n(self) -> int:
         return int(self.config.n_particles)
+
+    def _buffer(self) -> Particles:
+        """Particles to write a step into: arrays of an earlier step when one is free. Reusing them
+        spares the page faults of fresh memory, which the kernel serves one thread at a time."""
+        while self._spare:
+            buffer = self._spare.pop()
+            if len(buffer) == self.n:
+                return buffer
+        return Particles.empty(self.n)
 
     # ---- initialisation --------------------------------------------------------------------
     def _new_particles(self, xy_m: np.ndarray, heading_rad: float | None) -> Particles:
@@ -250,10 +262,8 @@ class ParticleFilter:
         likelihood = _kernel_of(model, measurement)
         shift = self.estimate_xy_m if self.estimate_xy_m is not None and np.isfinite(self.estimate_xy_m).all() \
             else prev.state[X:Y + 1, 0].copy()
-        moved = Particles.empty(n)
-        killed = np.empty(n, dtype=np.bool_)
-        e = np.empty(n)
-        sums = np.empty((passes.n_blocks(n), passes.N_ADVANCE_SUMS))
+        moved = self._buffer()
+        killed, e, sums = self._scratch
         key = self._draw_key()
 
         def run(flags: int, kernel: LikelihoodKernel | None = None, src_log_weight: np.ndarray = prev.log_weight):
@@ -294,6 +304,9 @@ class ParticleFilter:
             if self.ancestry is not None and resampled:
                 w_before = np.exp(moved.log_weight - totals.log_normaliser)
         self.particles = new
+        self._spare.append(prev)  # its arrays are written again from the step after next
+        if new is not moved:
+            self._spare.append(moved)
         collapse = self._record_collapse(t_s, step_index, before_xy, cause, prev, recovery)
         self._record_lineage(t_s, parent, new, weights, w_before, broken=cause is not None)
         return self._report(t_s, step_index, prev, moved, new, weights, np.flatnonzero(killed), ess, n_alive,
@@ -336,7 +349,8 @@ class ParticleFilter:
             return moved, np.arange(n), float(totals.ess), False, weights, means
         cov = totals.covariance_m2 if not self.floors.changes_floors else self.floors.covariance(
             moved.xy_m, np.exp(moved.log_weight - totals.log_normaliser))
-        new = Particles(np.empty_like(moved.state), np.full(n, -math.log(n)))
+        new = self._buffer()
+        new.log_weight[:] = -math.log(n)
         parent, s = self._resample(totals, e, prev.state, moved.state, shift, cov, new.state, walks)
         weights = np.full(n, 1.0 / n)
         ex, ey = s[passes.R_X] / n, s[passes.R_Y] / n

@@ -30,7 +30,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from llvmlite import ir
 from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from mapfilter.filter.kernels.draws import BLOCK, cos_sin, exp_block, normal_pairs
 from mapfilter.maps.walls import NO_BUFFER, move_crosses
@@ -49,6 +52,43 @@ LIKELIHOOD_SIGNATURE = types.void(_params, _state, types.int64, types.int64, typ
 MOVE_FUNCTION = types.FunctionType(MOVE_SIGNATURE)
 LIKELIHOOD_FUNCTION = types.FunctionType(LIKELIHOOD_SIGNATURE)
 
+
+
+def _function_from_addresses(function_type):
+    """An intrinsic that makes a first-class function of ``function_type`` from its two addresses
+    (the C wrapper's and the compiled function's): the kernels take models' functions as integers,
+    because numba's own unboxing of a function argument costs tens of microseconds per call."""
+
+    @intrinsic
+    def make(typingctx, c_address, jit_address):
+        def codegen(context, builder, signature, args):
+            value = cgutils.create_struct_proxy(function_type)(context, builder)
+            void_pointer = context.get_value_type(types.voidptr)
+            value.c_addr = builder.inttoptr(args[0], void_pointer)
+            value.py_addr = ir.Constant(void_pointer, None)
+            value.jit_addr = builder.inttoptr(args[1], void_pointer)  # called directly (numba's convention)
+            return value._getvalue()
+        return function_type(types.uint64, types.uint64), codegen
+
+    return make
+
+
+_move_at = _function_from_addresses(MOVE_FUNCTION)
+_likelihood_at = _function_from_addresses(LIKELIHOOD_FUNCTION)
+_ADDRESSES: dict = {}
+
+
+def function_addresses(function, signature) -> tuple[int, int]:
+    """(C wrapper address, compiled function address) of a model's kernel compiled with ``signature``."""
+    addresses = _ADDRESSES.get(function)  # a kernel has one signature (hashing numba's types is slow)
+    if addresses is None:
+        from numba.experimental.function_type import _get_jit_address, _get_wrapper_address
+
+        addresses = _ADDRESSES[function] = (_get_wrapper_address(function, signature),
+                                            _get_jit_address(function, signature))
+    return addresses
+
+
 # what advance_pass does (flags)
 MOVE, KILL, WEIGH = 1, 2, 4
 # per-block sums of advance_pass
@@ -65,17 +105,23 @@ _i64 = types.int64
 _i64_1 = types.int64[::1]
 
 
-@njit(types.void(_i64, _i64, _i64, _i64, types.uint64, _i64, MOVE_FUNCTION, _params, _state, types.float64[::1],
-                 _bool2, _f32_2, _f64, _f64, _f64, _i64_1, LIKELIHOOD_FUNCTION, _params, _f64, _f64, _state,
+_u64 = types.uint64
+
+
+@njit(types.void(_i64, _i64, _i64, _i64, _u64, _i64, _u64, _u64, _params, _state, types.float64[::1],
+                 _bool2, _f32_2, _f64, _f64, _f64, _i64_1, _u64, _u64, _params, _f64, _f64, _state,
                  types.float64[::1], types.boolean[::1], types.float64[::1], types.float64[:, ::1]),
       cache=True, nogil=True, error_model="numpy")
-def _advance_kernel(lo_block, hi_block, n, flags, key, n_pairs, move, move_params, src, src_lw, mask, clearance,
-                    x0_m, y0_m, inv_res, no_buffer, log_likelihood, ll_params, shift_x, shift_y, dst, lw, killed,
-                    e_out, sums):
+def _advance_kernel(lo_block, hi_block, n, flags, key, n_pairs, move_c, move_jit, move_params, src, src_lw, mask,
+                    clearance, x0_m, y0_m, inv_res, no_buffer, ll_c, ll_jit, ll_params, shift_x, shift_y, dst, lw,
+                    killed, e_out, sums):
+    move = _move_at(move_c, move_jit)
+    log_likelihood = _likelihood_at(ll_c, ll_jit)
     iota = np.arange(BLOCK)
     normals = np.empty((6, BLOCK))
     scratch = np.empty(BLOCK)
     ll = np.empty(BLOCK)
+    e_block = np.empty(BLOCK)
     mask_h, mask_w = clearance.shape
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
@@ -140,10 +186,10 @@ def _advance_kernel(lo_block, hi_block, n, flags, key, n_pairs, move, move_param
             if finite > 0:
                 for j in range(m):
                     ll[j] = lw[lo + j] - top
-                exp_block(ll, m, ll)  # 0 for the dead
+                exp_block(ll, m, e_block)  # 0 for the dead (not in place: aliasing kept it from vectorising)
                 for j in range(m):
                     i = lo + j
-                    e = ll[j]
+                    e = e_block[j]
                     e_out[i] = e
                     dx = dst[X, i] - shift_x
                     dy = dst[Y, i] - shift_y
@@ -311,7 +357,7 @@ def stay(params, src, dst, normals, lo, m):
 
 
 # ---- the Python side: arrays in, sums added up ---------------------------------------------------
-MIN_BLOCKS_PER_THREAD = 4  # below 2 x 4096 particles a step runs on one thread (the hand-over costs more)
+MIN_BLOCKS_PER_THREAD = 16  # below 2 x 16,384 particles a step runs on one thread (the hand-over costs more)
 
 
 def n_blocks(n: int) -> int:
@@ -340,10 +386,12 @@ def advance_pass(flags: int, key: int, n_pairs: int, move, move_params: np.ndarr
     """Pass 1 over every particle: the stages ``flags`` asks for (MOVE | KILL | WEIGH), writing
     ``dst`` (moved state), ``log_weight``, ``killed``, ``e`` and the block ``sums``."""
     n = src.shape[1]
-    for_slices(_advance_kernel, n_blocks(n), n, int(flags), np.uint64(key), int(n_pairs), move, move_params, src,
-               src_log_weight, walls.mask, walls.clearance, walls.x0_m, walls.y0_m, walls.inv_resolution, NO_BUFFER,
-               log_likelihood, ll_params, float(shift_xy_m[0]), float(shift_xy_m[1]), dst, log_weight, killed, e,
-               sums, min_per_thread=MIN_BLOCKS_PER_THREAD)
+    move_c, move_jit = function_addresses(move, MOVE_SIGNATURE)
+    ll_c, ll_jit = function_addresses(log_likelihood, LIKELIHOOD_SIGNATURE)
+    for_slices(_advance_kernel, n_blocks(n), n, int(flags), np.uint64(key), int(n_pairs), move_c, move_jit, move_params,
+               src, src_log_weight, walls.mask, walls.clearance, walls.x0_m, walls.y0_m, walls.inv_resolution,
+               NO_BUFFER, ll_c, ll_jit, ll_params, float(shift_xy_m[0]), float(shift_xy_m[1]), dst, log_weight,
+               killed, e, sums, min_per_thread=MIN_BLOCKS_PER_THREAD)
 
 
 class Totals:
