@@ -749,7 +749,7 @@ def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1):
     assert particles.xy_m[0] == pytest.approx(xy[-1], abs=1e-6)
 
 
-def test_report_tool_on_two_real_traces(ilc_site1, tmp_path, capsys):
+def test_report_tool_on_real_ilc_and_ipin_walks(ilc_site1, ipin2023, tmp_path, capsys):
     import importlib.util
     import json
 
@@ -757,13 +757,21 @@ def test_report_tool_on_two_real_traces(ilc_site1, tmp_path, capsys):
     report = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(report)
     traces = sorted((ilc_site1 / "F1" / "path_data_files").glob("*.txt.gz"))[:2]
+    traces.append(ipin2023 / "logs" / "IPIN2023_T3_TrainingTrial01_repetition01.txt.gz")
+    no_imu = ilc_site1 / "F3" / "path_data_files" / "5dda057d9191710006b5713d.txt.gz"  # WiFi only
     out = tmp_path / "pdr.json"
-    assert report.main([str(t) for t in traces] + ["--json", str(out)]) == 0
+    assert report.main([str(t) for t in [*traces, no_imu]] + ["--json", str(out)]) == 0
     numbers = json.loads(out.read_text())
-    assert numbers["summary"]["n_traces"] == 2 and len(numbers["traces"]) == 2
-    for row in numbers["traces"]:
+    assert numbers["summary"]["n_traces"] == 3 and len(numbers["traces"]) == 3
+    assert [row["trace"].split("/")[0] for row in numbers["traces"]] == ["F1", "F1", "IPIN2023"]
+    for row in numbers["traces"][:2]:
         assert 0.7 < row["ratio_weinberg"] < 1.4
-    assert "| step length |" in capsys.readouterr().out
+    ipin = numbers["traces"][2]
+    assert 0.8 < ipin["steps_per_s"] < 2.0 and 90 < ipin["polyline_m"] < 130  # the 102 m route
+    assert all(0.0 < delay < 0.1 for delay in ipin["delay_s"])
+    printed = capsys.readouterr()
+    assert "| step length |" in printed.out and "skipped 1 log (first:" in printed.err
+    assert report.main([str(no_imu)]) == 1
     assert report.main([str(tmp_path / "missing.txt")]) == 1
 
 

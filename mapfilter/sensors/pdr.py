@@ -72,14 +72,14 @@ class PDRConfig:
     lowpass_hz: float = 3.0  # Butterworth cut-off of the step signal (thesis: 3 Hz)
     lowpass_order: int = 4  # Butterworth order (thesis: 4)
     # a step = upward crossing of this level by the filtered d|a|/dt; walking on the ILC phone
-    # gives peaks of 50-120 m/s^3; 12-20 fit the ILC site1 waypoint distances best, 2-5 count
-    # sway as steps (docs/accuracy.md)
+    # gives peaks of 50-120 m/s^3; of 2, 5, 10, 12, 15, 17, 20, 25, 30 on the 48 ILC site1
+    # traces, 12-20 fit the waypoint distances best, 2-5 count sway as steps (offline detector)
     step_threshold_mps3: float = 15.0  # a step: an upward crossing of this level by the filtered d|a|/dt
     # a phone held more softly (the IPIN 2023 phones: d|a|/dt peaks of 20-55 m/s^3, a third of
     # ILC's) crosses 15 at a fraction of its steps: where the signal is weaker the level is this
     # share of its running RMS, not below min_step_threshold_mps3 (a phone at rest); 0 keeps the
     # fixed level. ILC site1 counts the same steps at 0.8-1; on IPIN 2023, 0.9 counts as many as
-    # the offline zero-phase detector did at 1 (docs/accuracy.md)
+    # the offline zero-phase detector did at 1 (docs/pdr.md)
     step_threshold_rms_fraction: float = 0.9  # where the signal is weak the step level is this share of d|a|/dt's running RMS
     step_threshold_window_s: float = 4.0  # the running RMS of d|a|/dt is taken over this trailing window
     min_step_threshold_mps3: float = 5.0  # the step level never goes below this (a phone at rest: hand tremor)
@@ -451,6 +451,8 @@ def _feed_kernel(t_s, stream, values, start, params, sos_step, zi_step, sos_grav
                 g = fs[_F_G0] + k * dt
                 if g > t_new:
                     break
+                if k - ist[_I_K_DONE] >= cap:  # cannot happen: a sensor further ahead ends the stretch
+                    raise RuntimeError("OnlinePDR: grid values overran their buffer")
                 slot = k % cap
                 if x_s == s and not first and t_new > t_prev:
                     f = (g - t_prev) / (t_new - t_prev)
@@ -592,6 +594,7 @@ class OnlinePDR:
                                      config.abs_heading_offset_rad)
         self._sos_step = butter_lowpass_sos(config.lowpass_order, config.lowpass_hz, config.sample_rate_hz)
         self._sos_grav = butter_lowpass_sos(2, config.gravity_lowpass_hz, config.sample_rate_hz)
+        self._zi_step, self._zi_grav = sos_steady_state(self._sos_step), sos_steady_state(self._sos_grav)
         self.settle_samples = settle_samples(self._sos_step)  # no step counts in a stretch's first samples
         self._fs = np.zeros(_N_FLOAT)
         self._fs[[_F_STEP_T, _F_T0, _F_KEEP_T]] = (np.nan, np.nan, -np.inf)
@@ -658,8 +661,8 @@ class OnlinePDR:
         start = 0
         while True:
             start, n_steps, n_trace, why = _feed_kernel(
-                t_s, stream, values, start, self._params, self._sos_step, _steady(self._sos_step),
-                self._sos_grav, _steady(self._sos_grav), self.settle_samples, self._fs, self._ist, self._z_step,
+                t_s, stream, values, start, self._params, self._sos_step, self._zi_step, self._sos_grav,
+                self._zi_grav, self.settle_samples, self._fs, self._ist, self._z_step,
                 self._z_grav, self._q_val, self._q_src, self._level_ring, self._mag_ring, self._rot_t, self._rot_q,
                 self._out_steps, self._trace_buffer, self._keep_trace)
             if n_steps:
@@ -693,16 +696,6 @@ class OnlinePDR:
                      heading_rad=np.ascontiguousarray(rows[:, 2]), abs_heading_rad=np.ascontiguousarray(rows[:, 3]),
                      step_length_m=self.config.weinberg_k * unit, weinberg_unit=unit, t0_s=self.t0_s,
                      available_s=np.ascontiguousarray(rows[:, 5]))
-
-
-_STEADY: dict[bytes, np.ndarray] = {}
-
-
-def _steady(sos: np.ndarray) -> np.ndarray:
-    key = sos.tobytes()
-    if key not in _STEADY:
-        _STEADY[key] = sos_steady_state(sos)
-    return _STEADY[key]
 
 
 # --------------------------------------------------------------------------------------------
