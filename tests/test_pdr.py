@@ -546,6 +546,31 @@ def test_a_stretch_never_starts_with_a_phantom_step():
     assert online.n_stretches == 10 and len(steps) == 0
 
 
+def test_a_long_walk_with_a_lagging_gyroscope_loses_nothing():
+    # 400 s of walking (more steps than one call's output buffer holds), a rotation vector at
+    # 100 Hz, and a gyroscope that pauses 2.5 s every minute: meanwhile the grid waits and the
+    # rotation-vector samples pile up (more than its first buffer holds)
+    rng = np.random.default_rng(43)
+    step_t = 1.0 + 0.55 * np.arange(725)
+    t = 1.6e9 + np.arange(0, 400, 0.02)
+    t_gyro = t[~(((t - 1.6e9) % 60.0 > 30.0) & ((t - 1.6e9) % 60.0 < 32.5))]
+    t_rot = 1.6e9 + np.arange(0.003, 400, 0.01)
+    q = np.array([_quaternion_xyzw([0, 0, 1], -a) for a in np.radians(3.0 * (t_rot - 1.6e9))])
+    q[q[:, 3] < 0] *= -1.0
+    rec = make_recording(t, walking_acc(t - 1.6e9, step_t, 2.0, tilted_up(), rng, noise_mps2=0.05), t_gyro,
+                         rng.normal(0.0, 0.02, (t_gyro.size, 3)), t_rot, q[:, :3])
+    whole = pdr.detect_steps(rec)
+    assert len(whole) > 700
+    assert_same_steps(feed_in_chunks(pdr.imu_records(rec), np.random.default_rng(5))[0], whole)
+    waited = whole.available_s - whole.t_s > 1.0  # steps found once the gyroscope came back
+    assert waited.sum() >= 6
+    q_cont = q * np.where(np.cumsum(np.r_[False, np.sum(q[1:] * q[:-1], axis=1) < 0]) % 2, -1.0, 1.0)[:, None]
+    for t_step, available, heading in zip(whole.t_s, whole.available_s, whole.abs_heading_rad):
+        received = t_rot < available
+        expected = _nlerp_heading(t_rot[received], q_cont[received], min(t_step, t_rot[received][-1]))
+        assert abs(pdr.wrap_angle(heading - expected)) < 1e-9
+
+
 def test_bad_records_are_refused():
     online = pdr.OnlinePDR()
     ok_t, ok_stream, ok_values = np.array([1.0, 1.0]), np.array([pdr.ACC, pdr.GYRO]), np.zeros((2, 3))
@@ -698,7 +723,8 @@ def test_bad_config_raises():
     with pytest.raises(MapfilterError, match="sample_rate_hz"):
         pdr.detect_steps(rec, pdr.PDRConfig(sample_rate_hz=5.0))
     for bad in ({"weinberg_k": 0.0}, {"imu_gap_s": float("nan")}, {"min_step_interval_s": -1.0},
-                {"imu_gap_s": 600.0}, {"lowpass_order": 0}):
+                {"imu_gap_s": 600.0}, {"lowpass_order": 0}, {"step_threshold_window_s": 1e6},
+                {"sample_rate_hz": 1e5}):
         with pytest.raises(MapfilterError, match="PDR setting"):
             pdr.PDRConfig(**bad)
 

@@ -112,8 +112,11 @@ class PDRConfig:
             raise MapfilterError(f"PDR setting min_step_interval_s must be >= 0, got {self.min_step_interval_s}")
         if not 1 <= self.lowpass_order <= 12:
             raise MapfilterError(f"PDR setting lowpass_order must be between 1 and 12, got {self.lowpass_order}")
-        if self.imu_gap_s > MAX_IMU_GAP_S:
-            raise MapfilterError(f"PDR setting imu_gap_s must be at most {MAX_IMU_GAP_S:g} s, got {self.imu_gap_s}")
+        # the detector keeps these spans of grid samples, and sums the RMS window at every sample
+        for name, most in (("imu_gap_s", MAX_IMU_GAP_S), ("step_threshold_window_s", 60.0),
+                           ("max_step_window_s", 10.0), ("sample_rate_hz", 1000.0)):
+            if getattr(self, name) > most:
+                raise MapfilterError(f"PDR setting {name} must be at most {most:g}, got {getattr(self, name)}")
         if self.sample_rate_hz <= 2 * max(self.lowpass_hz, self.gravity_lowpass_hz):
             raise MapfilterError(f"PDR setting sample_rate_hz {self.sample_rate_hz} must exceed twice "
                                  f"lowpass_hz {self.lowpass_hz} and gravity_lowpass_hz {self.gravity_lowpass_hz}")
