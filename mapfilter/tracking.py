@@ -32,11 +32,7 @@ from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.offline.floors import building_offline_track, to_floors
 from mapfilter.offline.whole_walk import OfflineTrack, offline_track
 from mapfilter.sensors.pathloss import AccessPointTable
-from mapfilter.sensors.pdr import Steps, detect_steps
-try:
-    from mapfilter.sensors.pdr import OnlinePDR
-except ImportError:  # TEMPORARY until the online detector lands
-    OnlinePDR = None
+from mapfilter.sensors.pdr import OnlinePDR, Steps, detect_steps
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import scans_of
@@ -288,8 +284,6 @@ def track(building: Building | FloorPlan, recording: Recording, radio_map: Radio
     """
     config = config if config is not None else TrackingConfig()
     log_name = str(recording.path) if recording.path is not None else "the log"
-    if OnlinePDR is None and steps is None and config.motion.model == "pdr":  # TEMPORARY
-        steps = detect_steps(recording, config.steps)
     tracker = Tracker(building, radio_map, access_points, config, floor=floor, rng=rng, on_step=on_step,
                       fix_sigma_by_floor_m=fix_sigma_by_floor_m, floor_evidence=floor_evidence, log_name=log_name,
                       steps=steps)

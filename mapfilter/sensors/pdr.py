@@ -1,25 +1,47 @@
-"""Pedestrian dead reckoning: step detection, heading and step length from the phone's IMU.
+"""Pedestrian dead reckoning: step detection, heading and step length from the phone's IMU, online.
 
-Follows the Lund thesis (Karlsson & Karlsson, ch. 8): the magnitude of the specific force
-|a| is differentiated (which removes the constant gravity offset), low-passed with a
-4th-order Butterworth filter at 3 Hz, and a step is counted at each upward crossing of a
-threshold, at most one per minimum step interval. The threshold is the thesis's fixed level
-where the signal is strong and follows the signal's running RMS where it is weak (a phone held
-more softly, ``step_threshold``), so that other phones' steps are counted too. The heading change is the gyroscope rate
-projected on the gravity direction (gravity from the low-passed accelerometer), integrated.
-Step length is fixed or from the Weinberg formula L = K (a_max - a_min)^(1/4); the
-per-particle adaptive step length (thesis eq. 8.23) belongs to the filter's ``PDRMotion``,
-which gets its prior from ``PDRConfig.step_length_m`` / ``step_length_std_m``.
+Follows the Lund thesis (Karlsson & Karlsson, ch. 8): the magnitude of the specific force |a|
+is low-passed with a 4th-order Butterworth filter at 3 Hz and differentiated (which removes
+the constant gravity offset), and a step is counted at each upward crossing of a level, at most
+one per minimum step interval. The level is the thesis's fixed one where the signal is strong
+and follows the signal's running RMS where it is weak (a phone held more softly), so that other
+phones' steps are counted too. The heading change is the gyroscope rate projected on the
+gravity direction (gravity from the low-passed accelerometer), integrated. Step length is the
+Weinberg formula L = K (a_max - a_min)^(1/4).
 
-All filtering here is offline and zero-phase (``sosfiltfilt``): the whole recording is
-known before the filter runs, so step times carry no filter delay. An online version would
-use ``sosfilt`` and accept a delay of a few samples.
+Everything is causal and streaming (``OnlinePDR``): records are fed in time order in chunks of
+any size, and a step is reported as soon as the sample that shows it has arrived, computed
+only from what came before. ``Steps.available_s`` says when that was. ``detect_steps`` is a
+replay of a recording's records through ``OnlinePDR``; its steps are those a live system would
+have had. The chain, per grid sample:
 
-A recording whose IMU stops for longer than ``PDRConfig.max_gap_s`` (the phone slept, the log
-was paused, or its timestamps jump) is handled in stretches: each continuous stretch is
-resampled, filtered and searched for steps on its own, and nothing is interpolated across the
-gap, so memory follows the samples, not the span of the timestamps (a 30-day gap once asked
-for 23 GB). The gyro heading carries over a gap unchanged (the turn during it is unknown).
+1. resampling: accelerometer and gyroscope are interpolated linearly onto a uniform grid of
+   ``sample_rate_hz``; the grid sample at g is made once both sensors have a sample at or after
+   g (so a grid sample waits for the slower sensor);
+2. the step filter (Butterworth, designed here: ``butter_lowpass_sos``) runs on |a|, the step
+   signal is its backward difference, the step level ``step_threshold_rms_fraction`` times the
+   RMS of the step signal over the trailing ``step_threshold_window_s``, clipped to
+   [``min_step_threshold_mps3``, ``step_threshold_mps3``];
+3. an upward crossing is placed by linear interpolation between the two grid samples around
+   it, and kept if the previous kept step is at least ``min_step_interval_s`` older;
+4. gravity is the accelerometer low-passed by a 2nd-order Butterworth at
+   ``gravity_lowpass_hz``, the yaw rate the gyroscope rate about it, integrated (trapezoid);
+5. the step's rotation-vector heading is interpolated between the rotation-vector samples
+   around the step if one at or after it has arrived, else taken from the latest (NaN before
+   the first); its Weinberg length uses the low-passed |a| from the previous step (at most
+   ``max_step_window_s`` back) to this one.
+
+Stretches. Where the accelerometer or the gyroscope stops for longer than ``imu_gap_s`` (the
+phone slept, the log was paused, its clock jumped), the stretch ends: nothing is interpolated
+across the gap, the filters start again, and the gyro heading carries over unchanged (the turn
+during the gap is unknown). Memory follows the samples, not the span of the timestamps. A
+sample stamped earlier than the previous one of its own sensor (a clock that jumps back) is
+dropped and counted (``OnlinePDR.n_late_samples``): the jump behaves as a gap.
+
+Start-up. At a stretch's first grid sample each filter starts in its steady state for that
+sample (no step from 0 to g in |a|), and no crossing counts during the step filter's settling
+time (``OnlinePDR.settle_samples``: until its slowest pole has decayed to 1 %, 0.66 s at 3 Hz
+and 50 Hz), so a stretch never starts with a phantom step.
 
 The map frame of the ILC data has x east and y north; headings are counter-clockwise from +x.
 """
@@ -27,13 +49,16 @@ The map frame of the ILC data has x east and y north; headings are counter-clock
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
-from scipy import signal
-from scipy.ndimage import uniform_filter1d
+from numba import njit
 
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.recording import Recording
+
+ACC, GYRO, ROTVEC = 0, 1, 2  # stream codes of OnlinePDR.feed; ties in time are fed in this order
+MAX_IMU_GAP_S = 60.0  # imu_gap_s above this would interpolate over minutes of missing motion
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,37 +73,34 @@ class PDRConfig:
     lowpass_order: int = 4  # Butterworth order (thesis: 4)
     # a step = upward crossing of this level by the filtered d|a|/dt; walking on the ILC phone
     # gives peaks of 50-120 m/s^3; of 2, 5, 10, 12, 15, 17, 20, 25, 30 on the 48 ILC site1
-    # traces, 12-20 fit the waypoint distances best, 2-5 count sway as steps
+    # traces, 12-20 fit the waypoint distances best, 2-5 count sway as steps (offline detector)
     step_threshold_mps3: float = 15.0  # a step: an upward crossing of this level by the filtered d|a|/dt
     # a phone held more softly (the IPIN 2023 phones: d|a|/dt peaks of 20-55 m/s^3, a third of
     # ILC's) crosses 15 at a fraction of its steps: where the signal is weaker the level is this
     # share of its running RMS, not below min_step_threshold_mps3 (a phone at rest); 0 keeps the
-    # fixed level. At 1, ILC site 1's F1 walks give 0.3 % more steps and the IPIN ones 2.1 times
-    # as many (0.78-1.4 steps/s instead of 0.1-1.1); at 0.5, 3 % more on ILC
-    step_threshold_rms_fraction: float = 1.0  # where the signal is weak the step level is this share of d|a|/dt's running RMS
-    step_threshold_window_s: float = 4.0  # the running RMS of d|a|/dt is taken over this window (centred)
+    # fixed level. ILC site1 counts the same steps at 0.8-1; on IPIN 2023, 0.9 counts as many as
+    # the offline zero-phase detector did at 1 (docs/pdr.md)
+    step_threshold_rms_fraction: float = 0.9  # where the signal is weak the step level is this share of d|a|/dt's running RMS
+    step_threshold_window_s: float = 4.0  # the running RMS of d|a|/dt is taken over this trailing window
     min_step_threshold_mps3: float = 5.0  # the step level never goes below this (a phone at rest: hand tremor)
-    # no two steps closer than this: brisk walking is ~0.45-0.5 s per step; with 0.3 some
-    # steps of ILC site1 cross the threshold twice, 0.5 drops the fastest steps
+    # brisk walking is ~0.45-0.5 s per step; with 0.3 some ILC site1 steps cross twice, 0.5
+    # drops the fastest steps
     min_step_interval_s: float = 0.4  # no two steps closer than this
     gravity_lowpass_hz: float = 0.3  # gravity direction = accelerometer low-passed below the step rhythm
-    step_length_m: float = 0.7  # fixed step length; also the prior mean of the adaptive per-particle state
-    step_length_std_m: float = 0.1  # prior spread of the per-particle step length (for PDRMotion)
     # Weinberg K for |a| (m/s^2) low-passed at lowpass_hz: sum of waypoint polyline lengths over
-    # sum of (a_max - a_min)^(1/4) on all 48 ILC site1 traces (leave-one-out K varies by < 1 %)
-    weinberg_k: float = 0.39  # Weinberg step length = K (a_max - a_min)^(1/4)
+    # sum of (a_max - a_min)^(1/4) on the 88 ILC site1 F1 and F2 traces with an IMU
+    # (tools/report_pdr.py: 0.402, leave-one-out 0.401-0.403)
+    weinberg_k: float = 0.40  # Weinberg step length = K (a_max - a_min)^(1/4)
     max_step_window_s: float = 1.0  # Weinberg min/max window before a step when the previous one is older
     # added to pi/2 - azimuth: the angle from magnetic north to the map's +y axis; measured
     # -2.4 deg on ILC site1 (median leg deviation 8.8 deg), so 0 there
     abs_heading_offset_rad: float = 0.0  # magnetic north to the map's +y axis, added to the rotation vector's heading
-    # (module docstring); the 191 ILC site1 logs never stop for more than 0.11 s, the
-    # simulator's stalls last 0.1-0.3 s
-    max_gap_s: float = 3.0  # the IMU stopping longer than this splits the walk into stretches not interpolated across
+    # the ILC site1 logs never stop for more than 0.11 s, the simulator's stalls last 0.1-0.3 s
+    imu_gap_s: float = 3.0  # accelerometer or gyroscope silent longer than this: the stretch ends, the filters restart
 
     def __post_init__(self) -> None:
-        positive = ("sample_rate_hz", "lowpass_hz", "gravity_lowpass_hz", "step_length_m", "weinberg_k",
-                    "max_step_window_s", "max_gap_s", "step_threshold_mps3", "step_threshold_window_s",
-                    "min_step_threshold_mps3")
+        positive = ("sample_rate_hz", "lowpass_hz", "gravity_lowpass_hz", "weinberg_k", "max_step_window_s",
+                    "imu_gap_s", "step_threshold_mps3", "step_threshold_window_s", "min_step_threshold_mps3")
         for name in positive:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -86,23 +108,18 @@ class PDRConfig:
         if not 0.0 <= self.step_threshold_rms_fraction <= 10.0:
             raise MapfilterError(f"PDR setting step_threshold_rms_fraction must be between 0 and 10, "
                                  f"got {self.step_threshold_rms_fraction}")
-        if self.min_step_interval_s < 0 or self.step_length_std_m < 0 or self.lowpass_order < 1:
-            raise MapfilterError("PDR settings min_step_interval_s and step_length_std_m must be >= 0, "
-                                 "lowpass_order >= 1")
+        if not (np.isfinite(self.min_step_interval_s) and self.min_step_interval_s >= 0):
+            raise MapfilterError(f"PDR setting min_step_interval_s must be >= 0, got {self.min_step_interval_s}")
+        if not 1 <= self.lowpass_order <= 12:
+            raise MapfilterError(f"PDR setting lowpass_order must be between 1 and 12, got {self.lowpass_order}")
+        # the detector keeps these spans of grid samples, and sums the RMS window at every sample
+        for name, most in (("imu_gap_s", MAX_IMU_GAP_S), ("step_threshold_window_s", 60.0),
+                           ("max_step_window_s", 10.0), ("sample_rate_hz", 1000.0)):
+            if getattr(self, name) > most:
+                raise MapfilterError(f"PDR setting {name} must be at most {most:g}, got {getattr(self, name)}")
         if self.sample_rate_hz <= 2 * max(self.lowpass_hz, self.gravity_lowpass_hz):
             raise MapfilterError(f"PDR setting sample_rate_hz {self.sample_rate_hz} must exceed twice "
-                                 f"lowpass_hz {self.lowpass_hz}")
-
-
-@dataclasses.dataclass
-class ImuGrid:
-    """IMU resampled onto a uniform time grid (linear interpolation per axis)."""
-
-    t_s: np.ndarray  # (M,) uniform, Unix seconds
-    acc_mps2: np.ndarray  # (M, 3) phone frame, with gravity
-    gyro_radps: np.ndarray  # (M, 3) phone frame
-    rotvec_xyzw: np.ndarray | None  # (M, 4) unit quaternion device -> world (ENU), or None
-    dt_s: float  # grid step (t_s differences carry ~2e-7 s of float64 round-off at Unix times)
+                                 f"lowpass_hz {self.lowpass_hz} and gravity_lowpass_hz {self.gravity_lowpass_hz}")
 
 
 @dataclasses.dataclass
@@ -112,10 +129,17 @@ class Steps:
     t_s: np.ndarray  # (S,) step times, Unix seconds
     heading_change_rad: np.ndarray  # (S,) gyro heading change since the previous step (first: since the start)
     heading_rad: np.ndarray  # (S,) integrated gyro heading at the step, arbitrary zero, unwrapped
-    abs_heading_rad: np.ndarray | None  # (S,) map-frame heading from the rotation vector, or None
+    abs_heading_rad: np.ndarray | None  # (S,) map-frame heading from the rotation vector (NaN: none yet), or None
     step_length_m: np.ndarray  # (S,) Weinberg step length
     weinberg_unit: np.ndarray  # (S,) (a_max - a_min)^(1/4), so that step_length_m = K * weinberg_unit
     t0_s: float  # start of the IMU grid (the zero of heading_rad's integration)
+    # (S,) when a live system had the step: the time of the latest IMU sample it depended on
+    # (>= t_s); None (steps made by hand) means each at its own time
+    available_s: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.available_s is None:
+            self.available_s = np.array(self.t_s, dtype=np.float64, copy=True)
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -126,70 +150,595 @@ class Steps:
         return Steps(t_s=self.t_s[sel], heading_change_rad=self.heading_change_rad[sel],
                      heading_rad=self.heading_rad[sel],
                      abs_heading_rad=None if self.abs_heading_rad is None else self.abs_heading_rad[sel],
-                     step_length_m=self.step_length_m[sel], weinberg_unit=self.weinberg_unit[sel], t0_s=self.t0_s)
+                     step_length_m=self.step_length_m[sel], weinberg_unit=self.weinberg_unit[sel], t0_s=self.t0_s,
+                     available_s=self.available_s[sel])
+
+    @staticmethod
+    def concatenate(parts: list["Steps"], t0_s: float) -> "Steps":
+        """The steps of consecutive parts (e.g. ``OnlinePDR.feed``'s answers) as one."""
+        def cat(name: str) -> np.ndarray:
+            arrays = [getattr(p, name) for p in parts]
+            return np.concatenate(arrays) if arrays else np.zeros(0)
+        has_abs = [p.abs_heading_rad is not None for p in parts]
+        if any(has_abs) and not all(has_abs):
+            raise ValueError("Steps.concatenate: some parts have a rotation-vector heading and some do not")
+        return Steps(t_s=cat("t_s"), heading_change_rad=cat("heading_change_rad"), heading_rad=cat("heading_rad"),
+                     abs_heading_rad=cat("abs_heading_rad") if parts and all(has_abs) else None,
+                     step_length_m=cat("step_length_m"), weinberg_unit=cat("weinberg_unit"), t0_s=float(t0_s),
+                     available_s=cat("available_s"))
+
+
+@dataclasses.dataclass
+class ImuTrace:
+    """The signals of ``OnlinePDR`` at each grid sample (``OnlinePDR(keep_trace=True)``), for
+    checks and plots: what the step detector saw, when it saw it."""
+
+    t_s: np.ndarray  # (M,) grid times, Unix seconds (uniform within a stretch)
+    available_s: np.ndarray  # (M,) time of the later of the two IMU samples that made the grid sample
+    magnitude_mps2: np.ndarray  # (M,) low-passed |a|
+    step_signal_mps3: np.ndarray  # (M,) its backward difference (0 at a stretch's first sample)
+    step_level_mps3: np.ndarray  # (M,) the step level
+    heading_rad: np.ndarray  # (M,) integrated gyro heading, unwrapped
+    abs_heading_rad: np.ndarray  # (M,) rotation-vector heading from the samples received by then (NaN: none)
 
 
 # --------------------------------------------------------------------------------------------
-# resampling
+# Butterworth low-pass, designed here (scipy.signal costs 0.5-2 s of start-up)
 
 
-MIN_STRETCH_S = 2.0  # shorter stretches of IMU (or a shorter recording) give no steps
+def butter_lowpass_sos(order: int, cutoff_hz: float, fs_hz: float) -> np.ndarray:
+    """(ceil(order / 2), 6) second-order sections [b0 b1 b2 a0 a1 a2] of a digital Butterworth
+    low-pass: the analog prototype's poles, the cut-off pre-warped, the bilinear transform.
 
-
-def resample_imu(recording: Recording, config: PDRConfig = PDRConfig()) -> ImuGrid:
-    """Resample accelerometer, gyroscope (and rotation vector) onto one uniform grid.
-
-    The phone's sensors tick irregularly (19-20 ms here, with occasional gaps) and not in
-    lockstep; the Butterworth filter and the integration assume a uniform step. The grid spans
-    the time all of accelerometer and gyroscope cover.
-
-    Raises
-    ------
-    MapfilterError
-        If the recording has fewer than 2 s of accelerometer or gyroscope data, or if its IMU
-        stops for longer than ``config.max_gap_s`` between usable stretches (one grid over the
-        gap would hold the gap's samples: ``resample_imu_stretches`` gives a grid per stretch).
+    The sections are those of ``scipy.signal.butter(order, cutoff_hz, fs=fs_hz, output="sos")``
+    (its "nearest" pairing: sections ordered by pole radius, the gain in the first; for an odd
+    order the real pole shares its section with a pole at the origin) for cut-offs below a
+    quarter of the sample rate; above, the same filter may be split into sections differently.
     """
-    grids = resample_imu_stretches(recording, config)
-    if len(grids) > 1:
-        raise MapfilterError(f"the IMU stops for more than {config.max_gap_s:g} s between {len(grids)} stretches: "
-                             "resample them one by one (resample_imu_stretches)", recording.path)
-    return grids[0]
+    if order < 1 or not 0 < cutoff_hz < fs_hz / 2:
+        raise ValueError(f"Butterworth order {order} at {cutoff_hz} Hz needs order >= 1 and 0 < cut-off < fs/2")
+    # analog prototype poles on the unit circle's left half (scipy.signal.buttap)
+    prototype = -np.exp(1j * np.pi * np.arange(-order + 1, order, 2) / (2 * order))
+    warped = 2.0 * fs_hz * math.tan(math.pi * cutoff_hz / fs_hz)  # pre-warping: the cut-off lands exactly
+    analog = warped * prototype
+    poles = (2.0 * fs_hz + analog) / (2.0 * fs_hz - analog)  # bilinear transform; the zeros all go to z = -1
+    gain = float(np.real(np.prod(1.0 - poles))) / 2.0 ** order  # unit gain at DC: H(1) = 1
+    pairs = sorted((p for p in poles if p.imag > 0), key=abs)  # one of each conjugate pair
+    sections = []
+    if order % 2:
+        real = float(np.real(poles[np.argmin(np.abs(poles.imag))]))
+        sections.append((abs(real), [1.0, 2.0, 1.0] if pairs else [1.0, 1.0, 0.0], [1.0, -real, 0.0]))
+    for i, p in enumerate(pairs):
+        # with an odd order, the pole pair nearest the unit circle takes the zero at the origin
+        b = [1.0, 1.0, 0.0] if order % 2 and i == len(pairs) - 1 else [1.0, 2.0, 1.0]
+        sections.append((abs(p), b, [1.0, -2.0 * p.real, abs(p) ** 2]))
+    sections.sort(key=lambda s: s[0])
+    sos = np.array([b + a for _, b, a in sections], dtype=np.float64)
+    sos[0, :3] *= gain
+    return sos
 
 
-def resample_imu_stretches(recording: Recording, config: PDRConfig = PDRConfig()) -> list[ImuGrid]:
-    """``resample_imu`` on each continuous stretch of the IMU (``imu_stretches``), in time order.
+def sos_steady_state(sos: np.ndarray) -> np.ndarray:
+    """(n_sections, 2) transposed-direct-form-II states of ``sos`` after a unit input held forever
+    (``scipy.signal.sosfilt_zi``): times the first input, a filter that starts there."""
+    zi = np.zeros((sos.shape[0], 2))
+    scale = 1.0
+    for s, (b0, b1, b2, _, a1, a2) in enumerate(sos):
+        out = scale * (b0 + b1 + b2) / (1.0 + a1 + a2)  # the section's steady output
+        zi[s, 1] = b2 * scale - a2 * out
+        zi[s, 0] = b1 * scale - a1 * out + zi[s, 1]
+        scale = out
+    return zi
 
-    Stretches shorter than 2 s are left out. A recording without gaps gives one grid, the
-    same as ``resample_imu``'s.
 
-    Raises
-    ------
-    MapfilterError
-        If the recording has fewer than 2 s of accelerometer or gyroscope data, or no stretch
-        of 2 s where both tick.
+def settle_samples(sos: np.ndarray, fraction: float = 0.01) -> int:
+    """Samples until the slowest pole of ``sos`` has decayed to ``fraction`` (at least 1)."""
+    radius = 0.0
+    for a1, a2 in sos[:, 4:6]:
+        radius = max(radius, float(np.max(np.abs(np.roots([1.0, a1, a2])))) if a2 != 0 else abs(a1))
+    return max(1, int(math.ceil(math.log(fraction) / math.log(radius)))) if 0 < radius < 1 else 1
+
+
+@njit(cache=True, nogil=True)
+def _sos_step(sos, z, x):
+    """One sample through the cascade (transposed direct form II, as scipy's sosfilt), state in z."""
+    y = x
+    for s in range(sos.shape[0]):
+        x = y
+        y = sos[s, 0] * x + z[s, 0]
+        z[s, 0] = sos[s, 1] * x - sos[s, 4] * y + z[s, 1]
+        z[s, 1] = sos[s, 2] * x - sos[s, 5] * y
+    return y
+
+
+# --------------------------------------------------------------------------------------------
+# the streaming kernel: one record at a time, every bit of state in the arrays passed in, so the
+# answer is the same whatever the chunking
+
+# float state
+_F_LAST_T = 0  # 0, 1, 2: last kept sample time of acc, gyro, rotvec (across stretches)
+_F_LAST_V = 3  # 3-5 acc, 6-8 gyro: last kept sample values
+_F_STRETCH_T = 9  # time of the stretch's first record
+_F_G0 = 10  # grid origin of the stretch
+_F_HEADING = 11  # gyro heading at the last grid sample (carried over gaps)
+_F_YAW = 12  # yaw rate at the last grid sample
+_F_SMOOTH = 13  # low-passed |a| at the last grid sample
+_F_OVER = 14  # step signal minus level at the last grid sample
+_F_STEP_T = 15  # time of the stretch's last step (NaN: none yet)
+_F_STEP_HEADING = 16  # gyro heading at the last step (0 before the first: the heading's zero)
+_F_T0 = 17  # first grid time of the walk (NaN: none yet)
+_F_KEEP_T = 18  # no later question about the rotation vector asks about an earlier time
+_N_FLOAT = 19
+# int state
+_I_HAS = 0  # 0, 1: acc, gyro have a sample in this stretch
+_I_EVER = 2  # 2, 3, 4: acc, gyro, rotvec have ever had a kept sample
+_I_STARTED = 5  # the stretch has begun (an acc or gyro record since the last reset)
+_I_GRID = 6  # the stretch's grid origin is set
+_I_NEXT_K = 7  # 7, 8: next grid index whose acc, gyro value is still to be made
+_I_K_DONE = 9  # grid samples of the stretch processed
+_I_N_LATE = 10  # samples dropped: earlier than the previous sample of their sensor
+_I_ROT_HEAD = 11  # rotation-vector buffer: first kept entry
+_I_ROT_N = 12  # rotation-vector buffer: entries kept
+_I_N_STRETCHES = 13  # stretches whose grid has begun
+_N_INT = 14
+# float parameters
+_P_DT = 0
+_P_GAP = 1
+_P_FRACTION = 2
+_P_MIN_LEVEL = 3
+_P_MAX_LEVEL = 4
+_P_MIN_INTERVAL = 5
+_P_MAX_WINDOW = 6
+_P_OFFSET = 7
+_N_PARAM = 8
+# what the kernel stopped for
+_DONE, _FLUSH, _GROW_ROTVEC = 0, 1, 2
+_STEP_COLUMNS = 6  # t, heading change, heading, abs heading, Weinberg unit, available
+_TRACE_COLUMNS = 7  # t, available, magnitude, step signal, level, heading, abs heading
+
+
+@njit(cache=True, nogil=True)
+def _wrap(angle):
+    return angle - 2.0 * math.pi * math.floor((angle + math.pi) / (2.0 * math.pi))
+
+
+@njit(cache=True, nogil=True)
+def _rotvec_heading(rot_t, rot_q, ist, t, offset):
+    """Map heading of the phone's +y axis at time t from the kept rotation-vector samples:
+    interpolated between the samples around t, else the nearest one; NaN without any.
+
+    Android's rotation vector rotates device coordinates into East-North-Up; the device y axis
+    in ENU is the rotation matrix's second column, whose azimuth (clockwise from north) is
+    atan2(e, n): the map heading is pi/2 - azimuth = atan2(n, e).
     """
+    head, n = ist[_I_ROT_HEAD], ist[_I_ROT_N]
+    if n == 0:
+        return np.nan
+    j = head
+    while j < head + n and rot_t[j] < t:
+        j += 1
+    if j == head + n:
+        j -= 1
+        x, y, z, w = rot_q[j, 0], rot_q[j, 1], rot_q[j, 2], rot_q[j, 3]
+    elif j == head or rot_t[j] == t:
+        x, y, z, w = rot_q[j, 0], rot_q[j, 1], rot_q[j, 2], rot_q[j, 3]
+    else:
+        f = (t - rot_t[j - 1]) / (rot_t[j] - rot_t[j - 1])
+        x = rot_q[j - 1, 0] + f * (rot_q[j, 0] - rot_q[j - 1, 0])
+        y = rot_q[j - 1, 1] + f * (rot_q[j, 1] - rot_q[j - 1, 1])
+        z = rot_q[j - 1, 2] + f * (rot_q[j, 2] - rot_q[j - 1, 2])
+        w = rot_q[j - 1, 3] + f * (rot_q[j, 3] - rot_q[j - 1, 3])
+        norm = math.sqrt(x * x + y * y + z * z + w * w)
+        x, y, z, w = x / norm, y / norm, z / norm, w / norm
+    east = 2.0 * (x * y - z * w)
+    north = 1.0 - 2.0 * (x * x + z * z)
+    return _wrap(math.atan2(north, east) + offset)
+
+
+@njit(cache=True, nogil=True)
+def _prune_rotvec(rot_t, ist, keep_t):
+    # keep the last sample at or before keep_t: every later question is about keep_t or after
+    while ist[_I_ROT_N] >= 2 and rot_t[ist[_I_ROT_HEAD] + 1] <= keep_t:
+        ist[_I_ROT_HEAD] += 1
+        ist[_I_ROT_N] -= 1
+
+
+@njit(cache=True, nogil=True)
+def _reset_stretch(fs, ist, t):
+    ist[_I_HAS] = 0
+    ist[_I_HAS + 1] = 0
+    ist[_I_STARTED] = 1
+    ist[_I_GRID] = 0
+    ist[_I_NEXT_K] = 0
+    ist[_I_NEXT_K + 1] = 0
+    ist[_I_K_DONE] = 0
+    fs[_F_STRETCH_T] = t
+    fs[_F_STEP_T] = np.nan
+
+
+@njit(cache=True, nogil=True)
+def _feed_kernel(t_s, stream, values, start, params, sos_step, zi_step, sos_grav, zi_grav, settle,
+                 fs, ist, z_step, z_grav, q_val, q_src, level_ring, mag_ring, rot_t, rot_q,
+                 out_steps, trace, keep_trace):
+    """Process records start.. in order; returns (next record, steps written, trace rows written,
+    why it stopped). It stops before a record when the outputs might overflow (_FLUSH) or the
+    rotation-vector buffer is full (_GROW_ROTVEC); the caller makes room and calls again."""
+    dt = params[_P_DT]
+    gap = params[_P_GAP]
+    cap = q_src.shape[1]
+    window = level_ring.shape[0]
+    cap_mag = mag_ring.shape[0]
+    n_steps = 0
+    n_trace = 0
+    for i in range(start, t_s.shape[0]):
+        if n_steps + cap + 2 > out_steps.shape[0] or (keep_trace and n_trace + cap + 2 > trace.shape[0]):
+            return i, n_steps, n_trace, _FLUSH
+        s = stream[i]
+        t = t_s[i]
+        if s == 2:  # rotation vector: kept for the headings of later steps
+            if ist[_I_EVER + 2] and t < fs[_F_LAST_T + 2]:
+                ist[_I_N_LATE] += 1
+                continue
+            x, y, z = values[i, 0], values[i, 1], values[i, 2]
+            w = math.sqrt(max(1.0 - (x * x + y * y + z * z), 0.0))  # Android: unit quaternion, w >= 0
+            replace = ist[_I_EVER + 2] == 1 and t == fs[_F_LAST_T + 2] and ist[_I_ROT_N] > 0
+            if not replace:
+                _prune_rotvec(rot_t, ist, fs[_F_KEEP_T])
+                head, n = ist[_I_ROT_HEAD], ist[_I_ROT_N]
+                if head + n == rot_t.shape[0]:
+                    if head == 0:
+                        return i, n_steps, n_trace, _GROW_ROTVEC
+                    for j in range(n):
+                        rot_t[j] = rot_t[head + j]
+                        rot_q[j] = rot_q[head + j]
+                    ist[_I_ROT_HEAD] = 0
+                    head = 0
+                slot = head + n
+                ist[_I_ROT_N] = n + 1
+            else:
+                slot = ist[_I_ROT_HEAD] + ist[_I_ROT_N] - 1
+            # q and -q are one rotation; Android's w >= 0 flips x, y, z when w passes 0: keep the
+            # signs continuous so that interpolating between neighbours never passes through zero
+            if slot > ist[_I_ROT_HEAD]:
+                p = rot_q[slot - 1]
+                if p[0] * x + p[1] * y + p[2] * z + p[3] * w < 0.0:
+                    x, y, z, w = -x, -y, -z, -w
+            rot_t[slot] = t
+            rot_q[slot, 0] = x
+            rot_q[slot, 1] = y
+            rot_q[slot, 2] = z
+            rot_q[slot, 3] = w
+            fs[_F_LAST_T + 2] = t
+            ist[_I_EVER + 2] = 1
+            continue
+        # accelerometer or gyroscope
+        if ist[_I_EVER + s] and t < fs[_F_LAST_T + s]:
+            ist[_I_N_LATE] += 1
+            continue
+        o = 1 - s
+        if ist[_I_STARTED]:
+            own = fs[_F_LAST_T + s] if ist[_I_HAS + s] else fs[_F_STRETCH_T]
+            other = fs[_F_LAST_T + o] if ist[_I_HAS + o] else fs[_F_STRETCH_T]
+            if t - own > gap or t - other > gap:
+                _reset_stretch(fs, ist, t)
+        else:
+            _reset_stretch(fs, ist, t)
+        if not ist[_I_GRID] and t > fs[_F_KEEP_T]:
+            fs[_F_KEEP_T] = t  # the grid, when it starts, starts at or after now
+        first = ist[_I_HAS + s] == 0
+        t_prev = fs[_F_LAST_T + s]
+        vp0, vp1, vp2 = fs[_F_LAST_V + 3 * s], fs[_F_LAST_V + 3 * s + 1], fs[_F_LAST_V + 3 * s + 2]
+        fs[_F_LAST_T + s] = t
+        fs[_F_LAST_V + 3 * s] = values[i, 0]
+        fs[_F_LAST_V + 3 * s + 1] = values[i, 1]
+        fs[_F_LAST_V + 3 * s + 2] = values[i, 2]
+        ist[_I_EVER + s] = 1
+        ist[_I_HAS + s] = 1
+        if not first and t == t_prev:
+            continue  # a repeated time stamp: its values stand for the grid samples still to come
+        streams_to_fill = 0  # bit s: make stream s's grid values
+        if ist[_I_GRID]:
+            streams_to_fill = 1 << s
+        elif ist[_I_HAS + o]:
+            # both sensors have started: the grid starts at the later of their latest samples
+            fs[_F_G0] = max(fs[_F_LAST_T], fs[_F_LAST_T + 1])
+            ist[_I_GRID] = 1
+            ist[_I_N_STRETCHES] += 1
+            streams_to_fill = 3
+        for x_s in range(2):
+            if not streams_to_fill & (1 << x_s):
+                continue
+            t_new = fs[_F_LAST_T + x_s]
+            k = ist[_I_NEXT_K + x_s]
+            while True:
+                g = fs[_F_G0] + k * dt
+                if g > t_new:
+                    break
+                if k - ist[_I_K_DONE] >= cap:  # cannot happen: a sensor further ahead ends the stretch
+                    raise RuntimeError("OnlinePDR: grid values overran their buffer")
+                slot = k % cap
+                if x_s == s and not first and t_new > t_prev:
+                    f = (g - t_prev) / (t_new - t_prev)
+                    q_val[x_s, slot, 0] = vp0 + f * (values[i, 0] - vp0)
+                    q_val[x_s, slot, 1] = vp1 + f * (values[i, 1] - vp1)
+                    q_val[x_s, slot, 2] = vp2 + f * (values[i, 2] - vp2)
+                else:  # the grid's origin: this stream's latest sample is at it
+                    q_val[x_s, slot, 0] = fs[_F_LAST_V + 3 * x_s]
+                    q_val[x_s, slot, 1] = fs[_F_LAST_V + 3 * x_s + 1]
+                    q_val[x_s, slot, 2] = fs[_F_LAST_V + 3 * x_s + 2]
+                q_src[x_s, slot] = t_new
+                k += 1
+            ist[_I_NEXT_K + x_s] = k
+        # every grid sample both sensors have reached
+        while ist[_I_K_DONE] < min(ist[_I_NEXT_K], ist[_I_NEXT_K + 1]):
+            k = ist[_I_K_DONE]
+            slot = k % cap
+            g = fs[_F_G0] + k * dt
+            available = max(q_src[0, slot], q_src[1, slot])
+            ax, ay, az = q_val[0, slot, 0], q_val[0, slot, 1], q_val[0, slot, 2]
+            magnitude = math.sqrt(ax * ax + ay * ay + az * az)
+            if k == 0:  # the filters start in their steady state for this first sample
+                for sec in range(z_step.shape[0]):
+                    z_step[sec, 0] = zi_step[sec, 0] * magnitude
+                    z_step[sec, 1] = zi_step[sec, 1] * magnitude
+                for c in range(3):
+                    for sec in range(z_grav.shape[1]):
+                        z_grav[c, sec, 0] = zi_grav[sec, 0] * q_val[0, slot, c]
+                        z_grav[c, sec, 1] = zi_grav[sec, 1] * q_val[0, slot, c]
+                if math.isnan(fs[_F_T0]):
+                    fs[_F_T0] = g
+            smooth = _sos_step(sos_step, z_step, magnitude)
+            gx = _sos_step(sos_grav, z_grav[0], ax)
+            gy = _sos_step(sos_grav, z_grav[1], ay)
+            gz = _sos_step(sos_grav, z_grav[2], az)
+            norm = math.sqrt(gx * gx + gy * gy + gz * gz)
+            if norm == 0.0:
+                norm = 1.0
+            # yaw rate = gyro . up (an accelerometer at rest reads +g along up); Android gyro
+            # rates are counter-clockwise positive, as the map heading
+            yaw = (q_val[1, slot, 0] * gx + q_val[1, slot, 1] * gy + q_val[1, slot, 2] * gz) / norm
+            mag_ring[k % cap_mag] = smooth
+            heading = fs[_F_HEADING]
+            d = 0.0
+            if k > 0:
+                heading += 0.5 * (fs[_F_YAW] + yaw) * dt  # trapezoid
+                d = (smooth - fs[_F_SMOOTH]) / dt  # backward difference: the step signal d|a|/dt
+                level_ring[(k - 1) % window] = d * d
+            level = params[_P_MAX_LEVEL]
+            if params[_P_FRACTION] > 0.0:  # the RMS of the step signal over the trailing window
+                n = min(k, window)
+                total = 0.0
+                for j in range(n):
+                    total += level_ring[j]
+                level = params[_P_FRACTION] * math.sqrt(total / n) if n > 0 else 0.0
+                level = min(max(level, params[_P_MIN_LEVEL]), params[_P_MAX_LEVEL])
+            if k > 0:
+                over = d - level
+                over_prev = fs[_F_OVER]
+                if k - 1 >= settle and over_prev < 0.0 <= over:  # an upward crossing, the filter settled
+                    g_prev = g - dt
+                    t_step = g_prev - over_prev / (over - over_prev) * dt
+                    step_t = fs[_F_STEP_T]
+                    if math.isnan(step_t) or t_step - step_t >= params[_P_MIN_INTERVAL]:
+                        at = fs[_F_HEADING] + (t_step - g_prev) / dt * (heading - fs[_F_HEADING])
+                        # Weinberg: min and max of low-passed |a| from the previous step (at most
+                        # max_step_window_s back) to this one
+                        begin = t_step - params[_P_MAX_WINDOW]
+                        if not math.isnan(step_t) and step_t > begin:
+                            begin = step_t
+                        lo, hi = np.inf, -np.inf
+                        for j in range(k, max(-1, k - cap_mag), -1):
+                            g_j = fs[_F_G0] + j * dt
+                            if g_j < begin:
+                                break
+                            if g_j <= t_step:
+                                value = mag_ring[j % cap_mag]
+                                lo = min(lo, value)
+                                hi = max(hi, value)
+                        out_steps[n_steps, 0] = t_step
+                        out_steps[n_steps, 1] = at - fs[_F_STEP_HEADING]
+                        out_steps[n_steps, 2] = at
+                        out_steps[n_steps, 3] = _rotvec_heading(rot_t, rot_q, ist, t_step, params[_P_OFFSET])
+                        out_steps[n_steps, 4] = (hi - lo) ** 0.25 if hi >= lo else 0.0
+                        out_steps[n_steps, 5] = available
+                        n_steps += 1
+                        fs[_F_STEP_T] = t_step
+                        fs[_F_STEP_HEADING] = at
+                fs[_F_OVER] = over
+            if keep_trace:
+                trace[n_trace, 0] = g
+                trace[n_trace, 1] = available
+                trace[n_trace, 2] = smooth
+                trace[n_trace, 3] = d
+                trace[n_trace, 4] = level
+                trace[n_trace, 5] = heading
+                trace[n_trace, 6] = _rotvec_heading(rot_t, rot_q, ist, g, params[_P_OFFSET])
+                n_trace += 1
+            fs[_F_HEADING] = heading
+            fs[_F_YAW] = yaw
+            fs[_F_SMOOTH] = smooth
+            if g > fs[_F_KEEP_T]:
+                fs[_F_KEEP_T] = g
+            ist[_I_K_DONE] = k + 1
+        _prune_rotvec(rot_t, ist, fs[_F_KEEP_T])
+    return t_s.shape[0], n_steps, n_trace, _DONE
+
+
+# --------------------------------------------------------------------------------------------
+# the streaming detector
+
+
+class OnlinePDR:
+    """Steps from IMU records fed in time order, in chunks of any size.
+
+    ``feed(t_s, stream, values)`` takes records in global nondecreasing time order across the
+    three sensors (ties in the order ACC, GYRO, ROTVEC) and returns the steps they completed.
+    The answers depend only on the sequence of records, never on how it was cut into chunks:
+    every step is computed from the records before it, one record at a time (a numba kernel
+    with all of its state carried between calls). ``close()`` ends the stream; nothing is ever
+    pending (no look-ahead), so it returns no steps.
+
+    Parameters
+    ----------
+    config
+        Step detection, heading and step length settings.
+    keep_trace
+        Also keep the signals at every grid sample (``trace()``; memory grows with the walk).
+    """
+
+    def __init__(self, config: PDRConfig = PDRConfig(), keep_trace: bool = False) -> None:
+        self.config = config
+        dt_s = 1.0 / config.sample_rate_hz
+        self._params = np.zeros(_N_PARAM)
+        self._params[[_P_DT, _P_GAP, _P_FRACTION, _P_MIN_LEVEL, _P_MAX_LEVEL, _P_MIN_INTERVAL, _P_MAX_WINDOW,
+                      _P_OFFSET]] = (dt_s, config.imu_gap_s, config.step_threshold_rms_fraction,
+                                     config.min_step_threshold_mps3, config.step_threshold_mps3,
+                                     config.min_step_interval_s, config.max_step_window_s,
+                                     config.abs_heading_offset_rad)
+        self._sos_step = butter_lowpass_sos(config.lowpass_order, config.lowpass_hz, config.sample_rate_hz)
+        self._sos_grav = butter_lowpass_sos(2, config.gravity_lowpass_hz, config.sample_rate_hz)
+        self._zi_step, self._zi_grav = sos_steady_state(self._sos_step), sos_steady_state(self._sos_grav)
+        self.settle_samples = settle_samples(self._sos_step)  # no step counts in a stretch's first samples
+        self._fs = np.zeros(_N_FLOAT)
+        self._fs[[_F_STEP_T, _F_T0, _F_KEEP_T]] = (np.nan, np.nan, -np.inf)
+        self._ist = np.zeros(_N_INT, dtype=np.int64)
+        self._z_step = np.zeros((self._sos_step.shape[0], 2))
+        self._z_grav = np.zeros((3, self._sos_grav.shape[0], 2))
+        # grid values of one sensor waiting for the other: never more than imu_gap_s of them (a
+        # sensor further ahead ends the stretch)
+        cap = int(math.ceil(config.imu_gap_s / dt_s)) + 4
+        self._q_val = np.zeros((2, cap, 3))
+        self._q_src = np.zeros((2, cap))
+        self._level_ring = np.zeros(max(1, int(round(config.step_threshold_window_s / dt_s))))
+        self._mag_ring = np.zeros(int(math.ceil(config.max_step_window_s / dt_s)) + 3)
+        self._rot_t = np.zeros(64)
+        self._rot_q = np.zeros((64, 4))
+        self._out_steps = np.zeros((4 * cap + 64, _STEP_COLUMNS))
+        self._keep_trace = bool(keep_trace)
+        self._trace_buffer = np.zeros((4 * cap + 64 if keep_trace else 1, _TRACE_COLUMNS))
+        self._trace_parts: list[np.ndarray] = []
+        self._closed = False
+
+    @property
+    def n_late_samples(self) -> int:
+        """Samples dropped for a time earlier than the previous sample of their sensor."""
+        return int(self._ist[_I_N_LATE])
+
+    @property
+    def n_stretches(self) -> int:
+        """Stretches whose grid has begun (both sensors ticking; a new one after each gap of more
+        than ``imu_gap_s``)."""
+        return int(self._ist[_I_N_STRETCHES])
+
+    @property
+    def t0_s(self) -> float:
+        """The walk's first grid time (the zero of the gyro heading); NaN before it."""
+        return float(self._fs[_F_T0])
+
+    def feed(self, t_s: np.ndarray, stream: np.ndarray, values: np.ndarray) -> Steps:
+        """Take the next records; return the steps they completed (possibly none).
+
+        Parameters
+        ----------
+        t_s
+            (n,) record times, Unix seconds.
+        stream
+            (n,) the sensor of each record: ``ACC``, ``GYRO`` or ``ROTVEC``.
+        values
+            (n, 3) m/s^2 with gravity, rad/s, or the rotation vector's x, y, z (phone frame).
+        """
+        if self._closed:
+            raise ValueError("OnlinePDR.feed after close()")
+        t_s = np.ascontiguousarray(t_s, dtype=np.float64).reshape(-1)
+        stream = np.ascontiguousarray(stream, dtype=np.int64).reshape(-1)
+        values = np.ascontiguousarray(values, dtype=np.float64)
+        if values.ndim != 2 or values.shape[1] != 3 or not t_s.shape[0] == stream.shape[0] == values.shape[0]:
+            raise ValueError(f"OnlinePDR.feed: t_s {t_s.shape}, stream {stream.shape} and values {values.shape} "
+                             "must be (n,), (n,) and (n, 3)")
+        bad = ~(np.isfinite(t_s) & np.isfinite(values).all(axis=1) & (stream >= ACC) & (stream <= ROTVEC))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ValueError(f"OnlinePDR.feed: record {i} (t {t_s[i]}, stream {stream[i]}, values {values[i]}) "
+                             "needs a finite time and values and a stream of ACC, GYRO or ROTVEC")
+        rows = []
+        start = 0
+        while True:
+            start, n_steps, n_trace, why = _feed_kernel(
+                t_s, stream, values, start, self._params, self._sos_step, self._zi_step, self._sos_grav,
+                self._zi_grav, self.settle_samples, self._fs, self._ist, self._z_step,
+                self._z_grav, self._q_val, self._q_src, self._level_ring, self._mag_ring, self._rot_t, self._rot_q,
+                self._out_steps, self._trace_buffer, self._keep_trace)
+            if n_steps:
+                rows.append(self._out_steps[:n_steps].copy())
+            if n_trace:
+                self._trace_parts.append(self._trace_buffer[:n_trace].copy())
+            if why == _DONE:
+                break
+            if why == _GROW_ROTVEC:  # twice the room; the kept samples stay where they are
+                size = 2 * self._rot_t.shape[0]
+                self._rot_t = np.resize(self._rot_t, size)
+                self._rot_q = np.resize(self._rot_q, (size, 4))
+        return self._steps(np.concatenate(rows) if rows else np.zeros((0, _STEP_COLUMNS)))
+
+    def close(self) -> Steps:
+        """End of the stream: the steps still pending (none: nothing waits for later samples)."""
+        self._closed = True
+        return self._steps(np.zeros((0, _STEP_COLUMNS)))
+
+    def trace(self) -> ImuTrace:
+        """The signals at every grid sample so far (``keep_trace=True``)."""
+        if not self._keep_trace:
+            raise ValueError("OnlinePDR.trace needs keep_trace=True")
+        rows = np.concatenate(self._trace_parts) if self._trace_parts else np.zeros((0, _TRACE_COLUMNS))
+        self._trace_parts = [rows]
+        return ImuTrace(*(np.ascontiguousarray(rows[:, j]) for j in range(_TRACE_COLUMNS)))
+
+    def _steps(self, rows: np.ndarray) -> Steps:
+        unit = np.ascontiguousarray(rows[:, 4])
+        return Steps(t_s=np.ascontiguousarray(rows[:, 0]), heading_change_rad=np.ascontiguousarray(rows[:, 1]),
+                     heading_rad=np.ascontiguousarray(rows[:, 2]), abs_heading_rad=np.ascontiguousarray(rows[:, 3]),
+                     step_length_m=self.config.weinberg_k * unit, weinberg_unit=unit, t0_s=self.t0_s,
+                     available_s=np.ascontiguousarray(rows[:, 5]))
+
+
+# --------------------------------------------------------------------------------------------
+# a recording as a stream
+
+
+MIN_STRETCH_S = 2.0  # a recording needs this much accelerometer and gyroscope data, in one stretch
+
+
+def imu_records(recording: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The recording's accelerometer, gyroscope and rotation-vector samples as one stream of
+    records (t_s, stream, values) in the order ``OnlinePDR.feed`` takes: by time, ties in the
+    order ACC, GYRO, ROTVEC, then as in the recording."""
+    parts = [(recording.acc_t_s, recording.acc_mps2), (recording.gyro_t_s, recording.gyro_radps),
+             (recording.rotvec_t_s, recording.rotvec_xyz)]
+    t_s = np.concatenate([np.asarray(t, dtype=np.float64) for t, _ in parts])
+    stream = np.concatenate([np.full(t.shape[0], code, dtype=np.int64) for code, (t, _) in enumerate(parts)])
+    values = np.concatenate([np.asarray(v, dtype=np.float64).reshape(-1, 3) for _, v in parts])
+    order = np.argsort(t_s, kind="stable")  # stable: ties keep the stream order, then the index
+    return t_s[order], stream[order], values[order]
+
+
+def _check_imu(recording: Recording, config: PDRConfig) -> None:
     where = recording.path
     for name, t_s in (("accelerometer", recording.acc_t_s), ("gyroscope", recording.gyro_t_s)):
         if t_s.shape[0] < 2 or t_s[-1] - t_s[0] < MIN_STRETCH_S:
             raise MapfilterError(f"no usable {name} data for PDR (need at least 2 s; "
                                  "a WiFi-only log tracks with --motion cv)", where)
-    spans = [(t0_s, t1_s) for t0_s, t1_s in imu_stretches(recording, config) if t1_s - t0_s >= MIN_STRETCH_S]
-    if not spans:
+    if not any(t1_s - t0_s >= MIN_STRETCH_S for t0_s, t1_s in imu_stretches(recording, config)):
+        gap = any(t.shape[0] > 1 and np.diff(t).max() > config.imu_gap_s
+                  for t in (recording.acc_t_s, recording.gyro_t_s))
         raise MapfilterError("accelerometer and gyroscope overlap by less than 2 s"
-                             + (f" without a gap of more than {config.max_gap_s:g} s" if _has_gap(recording, config)
-                                else ""), where)
-    quaternion = None
-    if recording.rotvec_t_s.shape[0] >= 2:
-        quaternion = _rotvec_to_quaternion(recording.rotvec_xyz)
-    return [_resample_span(recording, quaternion, t0_s, t1_s, config) for t0_s, t1_s in spans]
+                             + (f" without a gap of more than {config.imu_gap_s:g} s" if gap else ""), where)
 
 
 def imu_stretches(recording: Recording, config: PDRConfig = PDRConfig()) -> list[tuple[float, float]]:
     """(start, end) times of the stretches where accelerometer and gyroscope both tick with no
-    gap longer than ``config.max_gap_s``; without gaps, the one span both cover."""
-    acc = _runs(recording.acc_t_s, config.max_gap_s)
-    gyro = _runs(recording.gyro_t_s, config.max_gap_s)
+    gap longer than ``config.imu_gap_s``; without gaps, the one span both cover."""
+    acc = _runs(recording.acc_t_s, config.imu_gap_s)
+    gyro = _runs(recording.gyro_t_s, config.imu_gap_s)
     spans, i, j = [], 0, 0
     while i < len(acc) and j < len(gyro):  # intersection of two sorted lists of intervals
         t0_s, t1_s = max(acc[i][0], gyro[j][0]), min(acc[i][1], gyro[j][1])
@@ -202,181 +751,19 @@ def imu_stretches(recording: Recording, config: PDRConfig = PDRConfig()) -> list
     return spans
 
 
-def _runs(t_s: np.ndarray, max_gap_s: float) -> list[tuple[float, float]]:
-    """(first, last) sample times of the runs of ``t_s`` with no step longer than ``max_gap_s``."""
+def _runs(t_s: np.ndarray, gap_s: float) -> list[tuple[float, float]]:
+    """(first, last) sample times of the runs of ``t_s`` with no step longer than ``gap_s``."""
     if t_s.shape[0] == 0:
         return []
-    breaks = np.nonzero(np.diff(t_s) > max_gap_s)[0]
+    breaks = np.nonzero(np.diff(t_s) > gap_s)[0]
     starts = np.concatenate([[0], breaks + 1])
     ends = np.concatenate([breaks, [t_s.shape[0] - 1]])
     return [(t_s[a], t_s[b]) for a, b in zip(starts, ends)]
 
 
-def _has_gap(recording: Recording, config: PDRConfig) -> bool:
-    return any(t.shape[0] > 1 and np.diff(t).max() > config.max_gap_s for t in (recording.acc_t_s, recording.gyro_t_s))
-
-
-def _resample_span(recording: Recording, quaternion: np.ndarray | None, t0_s: float, t1_s: float,
-                   config: PDRConfig) -> ImuGrid:
-    dt_s = 1.0 / config.sample_rate_hz
-    t_s = t0_s + dt_s * np.arange(int(np.floor((t1_s - t0_s) / dt_s)) + 1)
-    acc = _interp_columns(t_s, *_around(t_s, recording.acc_t_s, recording.acc_mps2))
-    gyro = _interp_columns(t_s, *_around(t_s, recording.gyro_t_s, recording.gyro_radps))
-    rot = None
-    if quaternion is not None:
-        rot = _interp_columns(t_s, *_around(t_s, recording.rotvec_t_s, quaternion))
-        rot /= np.linalg.norm(rot, axis=1, keepdims=True)
-    return ImuGrid(t_s=t_s, acc_mps2=acc, gyro_radps=gyro, rotvec_xyzw=rot, dt_s=dt_s)
-
-
-def _around(t_new_s: np.ndarray, t_s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    # the samples of a stretch and a few on each side: interpolation inside it reads only those,
-    # and a walk of many stretches must not interpolate over all of its samples for each
-    lo = max(int(np.searchsorted(t_s, t_new_s[0], side="left")) - 3, 0)
-    hi = int(np.searchsorted(t_s, t_new_s[-1], side="right")) + 3
-    return t_s[lo:hi], values[lo:hi]
-
-
-def _interp_columns(t_new_s: np.ndarray, t_s: np.ndarray, values: np.ndarray) -> np.ndarray:
-    # duplicate timestamps would make np.interp pick arbitrarily: keep the last of each
-    keep = np.append(np.diff(t_s) > 0, True)
-    t_s, values = t_s[keep], values[keep]
-    return np.stack([np.interp(t_new_s, t_s, values[:, j]) for j in range(values.shape[1])], axis=1)
-
-
-def _rotvec_to_quaternion(xyz: np.ndarray) -> np.ndarray:
-    """Android rotation vector (x, y, z of a unit quaternion, w >= 0 implied) -> (x, y, z, w).
-
-    q and -q are the same rotation; Android's w >= 0 convention flips the sign of x, y, z
-    whenever w passes 0 (e.g. a flat phone turning through 180 deg). The signs are made
-    continuous so that interpolating between neighbours never passes through zero.
-    """
-    w = np.sqrt(np.clip(1.0 - np.sum(xyz * xyz, axis=1), 0.0, None))
-    q = np.column_stack([xyz, w])
-    if q.shape[0] > 1:
-        flips = np.sum(q[1:] * q[:-1], axis=1) < 0
-        sign = np.concatenate([[1.0], np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)])
-        q *= sign[:, None]
-    return q
-
-
-# --------------------------------------------------------------------------------------------
-# signals
-
-
-def _lowpass(x: np.ndarray, cutoff_hz: float, fs_hz: float, order: int) -> np.ndarray:
-    # zero-phase (forward-backward) so that detected step times are not delayed
-    sos = signal.butter(order, cutoff_hz, btype="low", fs=fs_hz, output="sos")
-    return signal.sosfiltfilt(sos, x, axis=0)
-
-
-def step_signal(grid: ImuGrid, config: PDRConfig = PDRConfig()) -> tuple[np.ndarray, np.ndarray]:
-    """The thesis's step-detection signal: low-passed d|a|/dt (m/s^3), and low-passed |a| (m/s^2)."""
-    fs_hz = 1.0 / grid.dt_s
-    magnitude = np.linalg.norm(grid.acc_mps2, axis=1)
-    smooth = _lowpass(magnitude, config.lowpass_hz, fs_hz, config.lowpass_order)
-    # differentiate after the low-pass: both are linear and time-invariant, so away from the
-    # ends this equals the thesis's "differentiate, then filter", but the filter's edge padding
-    # then never sees the raw derivative's amplified noise (which made false steps at the start)
-    return np.gradient(smooth, grid.dt_s), smooth
-
-
-def step_threshold(step_signal_mps3: np.ndarray, dt_s: float, config: PDRConfig = PDRConfig()) -> np.ndarray:
-    """(N,) the step level at each sample: ``step_threshold_mps3``, lowered where the signal is
-    weak to ``step_threshold_rms_fraction`` of its running RMS (centred window of
-    ``step_threshold_window_s``), never below ``min_step_threshold_mps3``.
-
-    A fixed level in m/s^3 counts the steps of the phones it was set on; another phone, or the
-    same one held more softly, moves less at each step and crosses it at a fraction of them.
-    Relative to the signal's own strength, the level follows the phone; where the walker walks
-    as with the ILC phones it is the fixed level of the Lund thesis's detector.
-    """
-    level = np.full(step_signal_mps3.shape, float(config.step_threshold_mps3))
-    if config.step_threshold_rms_fraction <= 0.0 or step_signal_mps3.size == 0:
-        return level
-    window = max(1, int(round(config.step_threshold_window_s / dt_s)))
-    rms = np.sqrt(uniform_filter1d(step_signal_mps3 * step_signal_mps3, window, mode="nearest"))
-    return np.clip(config.step_threshold_rms_fraction * rms, config.min_step_threshold_mps3, level)
-
-
-def detect_step_times(t_s: np.ndarray, step_signal_mps3: np.ndarray, threshold: float | np.ndarray,
-                      min_interval_s: float) -> np.ndarray:
-    """Times of upward crossings of ``threshold`` (one level, or one per sample) at least
-    ``min_interval_s`` apart.
-
-    The crossing time is interpolated linearly between the two samples around it.
-    """
-    level = np.broadcast_to(np.asarray(threshold, dtype=np.float64), step_signal_mps3.shape)
-    over = step_signal_mps3 - level
-    idx = np.nonzero((over[:-1] < 0) & (over[1:] >= 0))[0]
-    s0, s1 = over[idx], over[idx + 1]
-    crossing_s = t_s[idx] - s0 / (s1 - s0) * (t_s[idx + 1] - t_s[idx])
-    accepted: list[float] = []
-    for t in crossing_s:  # greedy: a crossing within the refractory time of the last step is ignored
-        if not accepted or t - accepted[-1] >= min_interval_s:
-            accepted.append(float(t))
-    return np.array(accepted, dtype=np.float64)
-
-
-def gyro_heading(grid: ImuGrid, config: PDRConfig = PDRConfig()) -> np.ndarray:
-    """Integrated heading (rad, counter-clockwise seen from above, arbitrary zero) on the grid.
-
-    The yaw rate is the gyroscope rate about the vertical: gyro . g_hat, with g_hat the unit
-    accelerometer vector low-passed at ``gravity_lowpass_hz`` (it points up: an accelerometer at
-    rest reads +g along up). Android gyro rates are counter-clockwise positive, so a left turn
-    increases the heading, as in the map frame (x east, y north). Trapezoidal integration.
-    """
-    fs_hz = 1.0 / grid.dt_s
-    gravity = _lowpass(grid.acc_mps2, config.gravity_lowpass_hz, fs_hz, 2)
-    norm = np.linalg.norm(gravity, axis=1, keepdims=True)
-    up = gravity / np.where(norm > 0, norm, 1.0)
-    yaw_rate_radps = np.sum(grid.gyro_radps * up, axis=1)
-    heading = np.zeros_like(yaw_rate_radps)
-    heading[1:] = np.cumsum(0.5 * (yaw_rate_radps[1:] + yaw_rate_radps[:-1]) * grid.dt_s)
-    return heading
-
-
-def rotation_vector_heading(grid: ImuGrid, config: PDRConfig = PDRConfig()) -> np.ndarray | None:
-    """Map-frame heading of the phone's forward (+y) axis from the rotation vector, or None.
-
-    Android's rotation vector rotates device coordinates into East-North-Up. The device y axis
-    in ENU is the second column of R; its azimuth (clockwise from north) is atan2(e, n), so the
-    map heading is pi/2 - azimuth = atan2(n, e), plus ``abs_heading_offset_rad`` for the angle
-    between magnetic north and the floor plan's y axis.
-    """
-    if grid.rotvec_xyzw is None:
-        return None
-    x, y, z, w = grid.rotvec_xyzw.T
-    # second column of the rotation matrix of quaternion (x, y, z, w)
-    east = 2.0 * (x * y - z * w)
-    north = 1.0 - 2.0 * (x * x + z * z)
-    return np.arctan2(north, east) + config.abs_heading_offset_rad
-
-
-def weinberg_units(t_s: np.ndarray, magnitude_mps2: np.ndarray, step_t_s: np.ndarray,
-                   max_window_s: float) -> np.ndarray:
-    """(a_max - a_min)^(1/4) of low-passed |a| over each step's window (Weinberg 2002).
-
-    The window of step k runs from step k-1 (at most ``max_window_s`` back) to step k + half of
-    that span, so that it holds one full bounce whatever phase the detector triggers at.
-    """
-    units = np.zeros(step_t_s.shape[0])
-    for k, t in enumerate(step_t_s):
-        t_prev = step_t_s[k - 1] if k > 0 else -np.inf
-        start = max(t_prev, t - max_window_s)
-        end = t + 0.5 * (t - start)
-        i0, i1 = np.searchsorted(t_s, [start, end])
-        seg = magnitude_mps2[i0:max(i1, i0 + 1)]
-        units[k] = (seg.max() - seg.min()) ** 0.25
-    return units
-
-
-# --------------------------------------------------------------------------------------------
-# public API
-
-
 def detect_steps(recording: Recording, config: PDRConfig = PDRConfig()) -> Steps:
-    """Detect steps in a recording and attach heading and Weinberg length to each.
+    """The steps of a recording as a live system would have had them: its IMU records replayed
+    through ``OnlinePDR`` in time order.
 
     Parameters
     ----------
@@ -388,55 +775,32 @@ def detect_steps(recording: Recording, config: PDRConfig = PDRConfig()) -> Steps
     Returns
     -------
     Steps
-        ``t_s``, ``heading_change_rad`` (since the previous step), ``heading_rad`` (gyro,
-        arbitrary zero), ``abs_heading_rad`` (rotation vector, map frame, or None),
+        ``t_s``, ``available_s``, ``heading_change_rad`` (since the previous step),
+        ``heading_rad`` (gyro, arbitrary zero), ``abs_heading_rad`` (rotation vector, map frame;
+        None when the recording has none, NaN for steps before its first sample),
         ``step_length_m`` (Weinberg, K = ``config.weinberg_k``).
 
     Raises
     ------
     MapfilterError
-        If the recording has no usable accelerometer or gyroscope data.
+        If the recording has less than 2 s of accelerometer or gyroscope data, or no stretch of
+        2 s where both tick.
     """
-    return detect_steps_on_grids(resample_imu_stretches(recording, config), config)
+    _check_imu(recording, config)
+    online = OnlinePDR(config)
+    steps = online.feed(*imu_records(recording))
+    if recording.rotvec_t_s.shape[0] == 0:
+        steps.abs_heading_rad = None
+    return steps
 
 
-def detect_steps_on_grid(grid: ImuGrid, config: PDRConfig = PDRConfig()) -> Steps:
-    """``detect_steps`` on an already resampled IMU grid."""
-    return detect_steps_on_grids([grid], config)
-
-
-def detect_steps_on_grids(grids: list[ImuGrid], config: PDRConfig = PDRConfig()) -> Steps:
-    """``detect_steps`` on the resampled stretches of a walk (``resample_imu_stretches``).
-
-    Each stretch is filtered and searched for steps on its own; the gyro heading of a stretch
-    starts where the previous one ended (no turn across a gap).
-    """
-    times, headings, abs_headings, units = [], [], [], []
-    start_heading = end_heading = 0.0
-    for k, grid in enumerate(grids):
-        d_mag, mag = step_signal(grid, config)
-        step_t = detect_step_times(grid.t_s, d_mag, step_threshold(d_mag, grid.dt_s, config), config.min_step_interval_s)
-        heading = gyro_heading(grid, config)
-        if k == 0:
-            start_heading = heading[0]
-        else:
-            heading = heading + end_heading  # continue from the previous stretch
-        end_heading = heading[-1]
-        times.append(step_t)
-        headings.append(np.interp(step_t, grid.t_s, heading))
-        abs_heading = rotation_vector_heading(grid, config)
-        if abs_heading is not None:
-            # interpolate the unwrapped angle, then wrap back to (-pi, pi]
-            abs_headings.append(wrap_angle(np.interp(step_t, grid.t_s, np.unwrap(abs_heading))))
-        units.append(weinberg_units(grid.t_s, mag, step_t, config.max_step_window_s))
-    step_t, heading_at, units_all = (parts[0] if len(parts) == 1 else np.concatenate(parts)
-                                     for parts in (times, headings, units))
-    change = np.diff(np.concatenate([[start_heading], heading_at]))
-    abs_at = None
-    if abs_headings:
-        abs_at = abs_headings[0] if len(abs_headings) == 1 else np.concatenate(abs_headings)
-    return Steps(t_s=step_t, heading_change_rad=change, heading_rad=heading_at, abs_heading_rad=abs_at,
-                 step_length_m=config.weinberg_k * units_all, weinberg_unit=units_all, t0_s=float(grids[0].t_s[0]))
+def imu_trace(recording: Recording, config: PDRConfig = PDRConfig()) -> ImuTrace:
+    """The signals ``detect_steps`` saw at each grid sample of the recording (gyro heading,
+    rotation-vector heading, step signal and level), for checks and plots."""
+    _check_imu(recording, config)
+    online = OnlinePDR(config, keep_trace=True)
+    online.feed(*imu_records(recording))
+    return online.trace()
 
 
 def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
