@@ -33,6 +33,7 @@ import dataclasses
 import heapq
 import math
 from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -40,7 +41,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.filter.estimate import circular_mean
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.evidence import WalkEvidence
-from mapfilter.filter.models.interface import FloorModel, MotionModel
+from mapfilter.filter.models.interface import FloorModel, MeasurementModel, MotionModel
 from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
 from mapfilter.maps.floorplan import FloorPlan
@@ -94,6 +95,27 @@ class MotionConfig:
     def motion_model(self) -> MotionModel:
         """The motion model ``model`` names."""
         return {"pdr": self.pdr, "cv": self.constant_velocity, "rw": self.random_walk}[self.model]
+
+
+class MeasurementSource(Protocol):
+    """A stream of measurements besides the WiFi scans (e.g. BLE beacons, ``filter.models.ble``):
+    records in, measurements out. The tracker merges its records with the others' in time order."""
+
+    stream: str  # the sensor it reads, by the name the tracker merges it under
+    model: MeasurementModel
+
+    def records_of(self, records: Recording) -> tuple:
+        """(t_s, values...) of its sensor in a chunk of records (in time order)."""
+        ...
+
+    def add_records(self, records: tuple, final: bool) -> list[float]:
+        """Its released records (all before anything later released), ``final`` at the end of the
+        walk; returns the times of the measurements they completed, in order (indices follow on)."""
+        ...
+
+    def measurement(self, index: int) -> Any:
+        """Measurement ``index`` (None when it says nothing)."""
+        ...
 
 
 # ---- records in: one time order over the sensors ---------------------------------------------------
@@ -208,14 +230,16 @@ class StreamFilter:
     keep_ancestry : keep the particles' lineage (``lineage``).
     abs_heading_offset_rad : magnetic north to the map's +y axis (``PDRConfig``), for the start
         heading from the rotation vector.
+    sources : measurement streams besides the WiFi scans (``MeasurementSource``: BLE beacons).
     """
 
     def __init__(self, plan: FloorPlan, evidence: WalkEvidence, motion: MotionConfig, filter_config: FilterConfig,
                  rng: np.random.Generator, *, pdr=None, steps: Steps | None = None, floors: FloorModel | None = None,
                  start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0,
                  on_step: Callable[[StepReport], None] | None = None, keep_ancestry: bool = False,
-                 abs_heading_offset_rad: float = 0.0) -> None:
+                 abs_heading_offset_rad: float = 0.0, sources: tuple[MeasurementSource, ...] = ()) -> None:
         self.evidence = evidence
+        self.sources = tuple(sources)
         self.motion = motion
         self.rng = rng
         self.pf = ParticleFilter(plan, motion.motion_model, filter_config, rng, floors=floors,
@@ -232,6 +256,7 @@ class StreamFilter:
         self._merge = _Merge()
         self._n_scans = 0  # scans released so far (the evidence may hold them already: a prepared walk)
         self._n_pressure = 0  # barometer readings released so far (likewise)
+        self._n_measurements = [0] * len(self.sources)
         self._events: list = []  # heap of (t_s, kind, sequence, payload)
         self._sequence = 0
         self._idle_ticks = motion.model == "pdr" and evidence.has_evidence_between_scans()
@@ -262,6 +287,8 @@ class StreamFilter:
         scans = list(iter_scans(records))
         if scans:
             merge.push("wifi", np.array([s.t_s for s in scans]), scans)
+        for source in self.sources:
+            merge.push(source.stream, *source.records_of(records))
         return self._advance(final=False)
 
     def close(self) -> list[Estimate]:
@@ -299,6 +326,12 @@ class StreamFilter:
                 self.evidence.add_scans(scans[max(known - first, 0):])
             for k, scan in enumerate(scans):
                 self._push_event(float(scan.t_s), _SCAN, first + k)
+        for number, source in enumerate(self.sources):
+            first = self._n_measurements[number]
+            times = source.add_records(released.get(source.stream, (np.zeros(0),)), final)
+            self._n_measurements[number] += len(times)
+            for k, t_s in enumerate(times):
+                self._push_event(float(t_s), _SCAN, first + k, number)
         if final:  # every event, and ticks up to the last record or event
             last = max(merge.last_t.values()) if merge.last_t else -math.inf
             self._run_events(math.inf, inclusive=True)
@@ -333,8 +366,10 @@ class StreamFilter:
         for k in range(len(new)):
             self._push_event(float(known[k]), _STEP, first + k)
 
-    def _push_event(self, t_s: float, kind: int, index: int) -> None:
-        heapq.heappush(self._events, (t_s, kind, self._sequence, index))
+    def _push_event(self, t_s: float, kind: int, index: int, source: int = -1) -> None:
+        """An event at ``t_s``: a step, or measurement ``index`` of the WiFi evidence (source -1) or of
+        ``sources[source]``."""
+        heapq.heappush(self._events, (t_s, kind, self._sequence, source, index))
         self._sequence += 1
 
     # ---- events -----------------------------------------------------------------------------
@@ -342,9 +377,9 @@ class StreamFilter:
         """Every event before ``end_t`` (at or before, with ``inclusive``), with the ticks between."""
         events = self._events
         while events and (events[0][0] < end_t or (inclusive and events[0][0] <= end_t)):
-            t_s, kind, _, index = heapq.heappop(events)
+            t_s, kind, _, source, index = heapq.heappop(events)
             self._ticks_until(t_s, inclusive=False)
-            self._event(t_s, kind, index)
+            self._event(t_s, kind, index, source)
         if math.isfinite(end_t):
             self._ticks_until(end_t, inclusive)
 
@@ -378,22 +413,29 @@ class StreamFilter:
             self._step(t_s, None, None, None)
             self._next_tick_t = t_s + self.motion.tick_s
 
-    def _event(self, t_s: float, kind: int, index: int) -> None:
+    def _source(self, source: int):
+        """(model, measurement getter) of the WiFi evidence (-1) or of a source."""
+        if source < 0:
+            return self.evidence.model, self.evidence.measurement
+        return self.sources[source].model, self.sources[source].measurement
+
+    def _event(self, t_s: float, kind: int, index: int, source: int = -1) -> None:
         if self.started and not self._waiting_for_scan and t_s - self._last_event_t > self.motion.max_gap_s:
             # start afresh at the next usable scan: the gap's length says nothing about where
             self.gaps.append((self._last_row_t, t_s))
             self._waiting_for_scan = True
         self._last_event_t = t_s
         if kind == _SCAN:
-            measurement = self.evidence.measurement(index)
+            model, measurement_of = self._source(source)
+            measurement = measurement_of(index)
             if measurement is None:
                 return
             if not self.started or self._waiting_for_scan:
-                self._start(t_s, index)
+                self._start(t_s, model, measurement)
             else:
                 # cv / rw move over the time since the last step by themselves; PDR only on steps
-                self._step(t_s, None, self.evidence.model, measurement)
-                self.n_scans_used += 1
+                self._step(t_s, None, model, measurement)
+            self.n_scans_used += source < 0
         elif kind == _STEP and self.started and not self._waiting_for_scan:
             # in a building with a barometer, the height weighs floors at every step, not only at scans
             between = self.evidence.between_scans(t_s)
@@ -411,11 +453,11 @@ class StreamFilter:
         if self._on_step is not None:
             self._on_step(report)
 
-    def _start(self, t_s: float, index: int) -> None:
-        """Particles at scan ``index``: from its likelihood over the map, or around the start point."""
+    def _start(self, t_s: float, model: MeasurementModel, measurement: Any) -> None:
+        """Particles at a measurement: from its likelihood over the map, or around the start point."""
         pf = self.pf
         if self._start_xy_m is None or self.started:
-            pf.initialise_from_measurement(t_s, self.evidence.model, self.evidence.measurement(index))
+            pf.initialise_from_measurement(t_s, model, measurement)
         else:
             pf.initialise_around(self._start_xy_m, self._start_radius_m)
         if self._uses_steps:
@@ -423,7 +465,6 @@ class StreamFilter:
         self.started, self._waiting_for_scan = True, False
         if self._t0 is None:
             self._t0 = t_s
-        self.n_scans_used += 1
         particles = pf.particles
         report = pf.floors.report(particles.xy_m, particles.weight, pf.estimate_xy_m)
         heading = circular_mean(particles.heading_rad, particles.weight) if self._uses_steps else math.nan
