@@ -30,6 +30,8 @@ from mapfilter.filter.tracker import StreamFilter
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.offline.floors import building_offline_track, to_floors
+from mapfilter.maps.paths import detour_wall_crossings
+from mapfilter.offline.smoother import ParticleHistory, smooth
 from mapfilter.offline.whole_walk import OfflineTrack, offline_track
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.pdr import OnlinePDR, Steps, detect_steps
@@ -154,11 +156,13 @@ class Tracker:
         self.plan = plan
         # without steps to place (no PDR), the offline track is the lineage of the final best particle
         keep_ancestry = config.smooth and (stack is not None or not pdr)
+        self._smoother = config.smooth and config.offline.method == "smoother"
+        self.history = ParticleHistory() if self._smoother else None
         self.stream = StreamFilter(plan, evidence, config.motion, config.filter, self.rng,
                                    pdr=OnlinePDR(config.steps) if pdr and steps is None else None,
                                    steps=steps if pdr else None, floors=floors, on_step=on_step,
-                                   keep_ancestry=keep_ancestry,
-                                   abs_heading_offset_rad=config.steps.abs_heading_offset_rad)
+                                   keep_ancestry=keep_ancestry and not self._smoother,
+                                   abs_heading_offset_rad=config.steps.abs_heading_offset_rad, history=self.history)
         self._floors = floors
         self.runtime_s = 0.0
 
@@ -192,6 +196,18 @@ class Tracker:
             return dataclasses.replace(track, floor=[self.building.floors[self.floor_index].name] * len(track))
         return track
 
+    def _smoothed_track(self) -> Track:
+        """The smoother's track in the plan's frame: the smoothed means made wall-free."""
+        smoothed = smooth(self.history, self.plan, self.config.motion.motion_model, self._floors)
+        floor_p = None
+        if smoothed.floor_shares is not None:
+            floor_of = self.stack.floor_of(smoothed.xy_m)
+            floor_p = np.clip(smoothed.floor_shares[np.arange(len(floor_of)), floor_of], 0.0, 1.0)
+        t_s, xy_m = detour_wall_crossings(self.plan, smoothed.t_s, smoothed.xy_m)
+        row = np.clip(np.searchsorted(smoothed.t_s, t_s), 0, len(smoothed.t_s) - 1)
+        return Track(t_s, xy_m, smoothed.std_m[row], smoothed.heading_rad[row], name="pf-smooth",
+                     floor_p=None if floor_p is None else floor_p[row])
+
     def result(self, on_offline_step: Callable[[StepReport], None] | None = None) -> TrackResult:
         """The walk tracked (after ``close``): the causal track and, with ``config.smooth``, the offline one."""
         if not self.stream.closed:
@@ -202,7 +218,9 @@ class Tracker:
         config, stream = self.config, self.stream
         started = time.perf_counter()
         offline = None
-        if config.smooth:
+        if self._smoother:
+            offline = OfflineTrack(self._smoothed_track())
+        elif config.smooth:
             steps = stream.steps if config.motion.model == "pdr" else None
             causal_track = stream.track()
             if self.stack is None:

@@ -152,6 +152,7 @@ class ParticleFilter:
         self._last_measurement: tuple[float, Any, Any] | None = None  # (t_s, model, measurement)
         self._recovery_level = 0
         self._healthy_steps = 0
+        self.last_jitter_m2 = 0.0
         n = self.n
         self._spare: list[Particles] = []
         self._scratch = (np.empty(n, dtype=np.bool_), np.empty(n), np.empty((passes.n_blocks(n), passes.N_ADVANCE_SUMS)))
@@ -255,6 +256,7 @@ class ParticleFilter:
         prev = self.particles
         n = self.n
         measured = model is not None and measurement is not None
+        self.last_jitter_m2 = 0.0  # the variance per axis of this step's jitter (the smoother's transition)
         if measured and model.locates(measurement):
             # a collapse re-draws from the latest measurement that says where, not only which floor
             self._last_measurement = (float(t_s), model, measurement)
@@ -369,6 +371,7 @@ class ParticleFilter:
         key = self._draw_key()
         tries = int(cfg.regularise_tries) if cfg.regularise else 0
         h, root = bandwidth_and_root(self.floorplan.resolution_m, cov, n_out, cfg.bandwidth_scale)
+        self.last_jitter_m2 = 0.5 * h * h * float(np.trace(root @ root.T)) if tries else 0.0
         parent = np.empty(n_out, dtype=np.int64)
         sums = np.empty((passes.n_blocks(n_out), passes.N_RESAMPLE_SUMS))
         passes.resample_pass(totals, e, n_out, u, key, tries, walks, h, root, self.walls, origin, src, shift, parent,

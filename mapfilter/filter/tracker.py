@@ -231,14 +231,17 @@ class StreamFilter:
     abs_heading_offset_rad : magnetic north to the map's +y axis (``PDRConfig``), for the start
         heading from the rotation vector.
     sources : measurement streams besides the WiFi scans (``MeasurementSource``: BLE beacons).
+    history : keeps a subsample of every step's cloud for the smoother (``offline.smoother``).
     """
 
     def __init__(self, plan: FloorPlan, evidence: WalkEvidence, motion: MotionConfig, filter_config: FilterConfig,
                  rng: np.random.Generator, *, pdr=None, steps: Steps | None = None, floors: FloorModel | None = None,
                  start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0,
                  on_step: Callable[[StepReport], None] | None = None, keep_ancestry: bool = False,
-                 abs_heading_offset_rad: float = 0.0, sources: tuple[MeasurementSource, ...] = ()) -> None:
+                 abs_heading_offset_rad: float = 0.0, sources: tuple[MeasurementSource, ...] = (),
+                 history=None) -> None:
         self.evidence = evidence
+        self.history = history  # an ``offline.smoother.ParticleHistory`` that keeps every step, or None
         self.sources = tuple(sources)
         self.motion = motion
         self.rng = rng
@@ -445,7 +448,11 @@ class StreamFilter:
             self._schedule_ticks()
 
     def _step(self, t_s: float, step_input: StepInput | None, model, measurement) -> None:
-        report = self.pf.step(t_s, max(t_s - self._last_row_t, 0.0), step_input, model, measurement)
+        dt_s = max(t_s - self._last_row_t, 0.0)
+        report = self.pf.step(t_s, dt_s, step_input, model, measurement)
+        if self.history is not None:
+            self.history.record(t_s, self.pf.particles.state, report.particles_weight, step_input, dt_s,
+                                self.pf.last_jitter_m2, report.collapse is not None)
         self._add_row(report.t_s, report.estimate_xy_m, report.estimate_std_m,
                       report.heading_rad if report.heading_rad is not None else math.nan,
                       report.floor_shares, report.floor_index)
@@ -468,6 +475,8 @@ class StreamFilter:
         particles = pf.particles
         report = pf.floors.report(particles.xy_m, particles.weight, pf.estimate_xy_m)
         heading = circular_mean(particles.heading_rad, particles.weight) if self._uses_steps else math.nan
+        if self.history is not None:
+            self.history.record(t_s, particles.state, particles.weight, None, 0.0, 0.0, True)
         self._add_row(t_s, pf.estimate_xy_m.copy(), pf.estimate_std_m, heading, report.get("floor_shares"),
                       report.get("floor_index"))
 

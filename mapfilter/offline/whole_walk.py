@@ -43,6 +43,7 @@ class OfflineConfig:
     # ILC site 1, pf-smooth mean / p75 m over seeds 0-4: F1 sparse 7.24 / 7.12 -> 6.94 / 7.17,
     # F1 dense 4.14 / 4.99 -> 4.11 / 4.89, F2 16.80 / 24.57 -> 16.82 / 24.29 (docs/accuracy.md);
     # a third run gained nothing. Costs a second filter run per walk
+    method: str = "smoother"  # smoother: the filter's own model smoothed | placement: the placed dead-reckoned shape
     restart_from_placement: bool = True  # place the walk again from a second filter run started at the placed start
     # the whole-walk track's error at a walk's start is a few metres (3, 5 and 10 m measured alike on ILC)
     restart_radius_m: float = 5.0  # the second run's particles start within this of the placed start

@@ -145,6 +145,9 @@ class OneFloor(FloorModel):
     def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray) -> dict:
         return {}
 
+    def change_probability(self, xy_m: np.ndarray, dt_s: float) -> np.ndarray:
+        return np.zeros((len(xy_m), 1))
+
 
 @dataclasses.dataclass
 class FloorChangeConfig:
@@ -235,6 +238,29 @@ class FloorChanges(FloorModel):
         return {"floor_shares": self.stack.floor_shares(xy_m, weights),
                 "floor_index": int(self.stack.floor_of(estimate_xy_m[None, :])[0]),
                 "floor_changes": self.changed_last_step}
+
+    def change_probability(self, xy_m: np.ndarray, dt_s: float) -> np.ndarray:
+        """(M, F) the probability of moving to each floor over ``dt_s`` (the smoother's transition):
+        in a connector, to each floor it links; without connectors, anywhere to every other floor.
+        With the barometer deciding in connectors, a connector's particle may take it at once
+        (the filter moves every one of them when the height says so): there, one half."""
+        stack = self.stack
+        out = np.zeros((len(xy_m), stack.n_floors))
+        if stack.n_floors < 2 or dt_s <= 0.0:
+            return out
+        if not self.has_connectors:
+            out[:] = -math.expm1(-self.config.anywhere_rate_per_s * dt_s) / (stack.n_floors - 1)
+            return out
+        p = -math.expm1(-self.config.connector_rate_per_s * dt_s)
+        if self.config.height_decides_in_connector:
+            p = max(p, 0.5)
+        rows, cols, inside = stack.plan.pixel_index(np.asarray(xy_m, dtype=np.float64))
+        conn = np.full(len(xy_m), -1)
+        conn[inside] = self.connector_id[rows[inside], cols[inside]]
+        for i in np.flatnonzero(conn >= 0):
+            linked = list(self.connector_cells[conn[i]])
+            out[i, linked] = p / max(len(linked) - 1, 1)
+        return out
 
     def step_on_stairs(self, from_xy_m: np.ndarray, to_xy_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One PDR step's end points, with every step that starts on stairs shortened to a tread

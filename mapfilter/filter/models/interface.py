@@ -61,6 +61,12 @@ class MotionModel(Protocol):
         walk and constant velocity, a ``StepInput`` for PDR)."""
         ...
 
+    def predict(self, state: np.ndarray, inputs: Any, dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """The move's density, for the smoother (``offline.smoother``): (means (K, M, 2) of the
+        position after the move of each of the M particles of ``state``, a mixture of K with
+        weights (K,), and the isotropic spread in metres around each mean)."""
+        ...
+
 
 class MeasurementModel(Protocol):
     """Weighs particles by a measurement."""
@@ -132,4 +138,9 @@ class FloorModel(Protocol):
 
     def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray) -> dict:
         """The floor fields of a ``StepReport`` (none on one floor)."""
+        ...
+
+    def change_probability(self, xy_m: np.ndarray, dt_s: float) -> np.ndarray:
+        """(M, F) the probability that a particle at each position moves to each floor over
+        ``dt_s`` (for the smoother; its own floor's entry is not used)."""
         ...

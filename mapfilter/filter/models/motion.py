@@ -62,6 +62,12 @@ class RandomWalkMotion(MotionModel):
         dt = max(float(dt_s), 0.0)
         return MoveKernel(_circle_walk, np.array([self.radius_mps * dt, self.sigma_mps * dt]), 2)
 
+    def predict(self, state: np.ndarray, inputs: object, dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
+        # the ring as an isotropic Gaussian of the same second moment: r^2 / 2 + sigma^2 per axis
+        dt = max(float(dt_s), 0.0)
+        spread = math.sqrt(0.5 * (self.radius_mps * dt) ** 2 + (self.sigma_mps * dt) ** 2)
+        return state[X:Y + 1].T[None].copy(), np.ones(1), spread
+
 
 @njit(MOVE_SIGNATURE, cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _constant_velocity(params, src, dst, normals, lo, m):
@@ -102,6 +108,11 @@ class ConstantVelocityMotion(MotionModel):
     def kernel(self, inputs: object, dt_s: float) -> MoveKernel:
         params = np.array([max(float(dt_s), 0.0), self.accel_sigma_mps2, self.max_speed_mps])
         return MoveKernel(_constant_velocity, params, 1)
+
+    def predict(self, state: np.ndarray, inputs: object, dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
+        dt = max(float(dt_s), 0.0)
+        means = state[X:Y + 1].T + dt * state[VX:VY + 1].T
+        return means[None], np.ones(1), 0.5 * self.accel_sigma_mps2 * dt * dt
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,3 +209,22 @@ class PDRMotion(MotionModel):
         params[_P_LENGTH_MAX] = self.step_length_max_m
         params[_P_POSITION_SIGMA] = self.position_sigma_m * math.sqrt(n_steps)
         return MoveKernel(_pdr_step, params, 3)
+
+    def predict(self, state: np.ndarray, inputs: StepInput | None, dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
+        xy = state[X:Y + 1].T
+        if inputs is None or int(inputs.n_steps) == 0:
+            return xy[None].copy(), np.ones(1), 0.0
+        n = int(inputs.n_steps)
+        change = float(inputs.heading_change_rad)
+        distance = n * state[STEP]
+        turned = xy + distance[:, None] * np.column_stack([np.cos(state[HEADING] + change),
+                                                             np.sin(state[HEADING] + change)])
+        # across the track the heading noise, along it the step length's walk, both the slack
+        length = float(np.mean(state[STEP]))
+        spread = math.sqrt(n * self.position_sigma_m ** 2 + (n * length * self.heading_sigma_rad) ** 2
+                           + n ** 3 * self.step_length_walk_sigma_m ** 2)
+        share = self.false_turn_fraction if abs(change) >= self.turn_threshold_rad else 0.0
+        if share <= 0.0:
+            return turned[None], np.ones(1), spread
+        straight = xy + distance[:, None] * np.column_stack([np.cos(state[HEADING]), np.sin(state[HEADING])])
+        return np.stack([turned, straight]), np.array([1.0 - share, share]), spread
