@@ -44,8 +44,9 @@ SUBSAMPLE = 256
 # The transition's spread never below this: between two kept subsamples a particle's own
 # successor is rarely kept, so its density must reach the neighbours of that successor
 MIN_SPREAD_M = 0.3
-# densities below this share of a successor's largest are not wall checked (they count as 0)
-_NEGLIGIBLE = 1e-8
+# densities below this share of a successor's largest count as 0 (and are not wall checked): a
+# predecessor 4.3 spreads off its prediction
+_NEGLIGIBLE = 1e-4
 
 
 @dataclasses.dataclass
@@ -105,11 +106,13 @@ def _backward_step(from_xy, means, mix, inv_two_var, from_floor, to_xy, to_floor
 
     means (K, M, 2): the predicted positions of the particles at the earlier step (mixture of K,
     weights mix); between floors the prediction is compared in the building frame and weighed by
-    change_p[i, floor of j]. Returns whether any successor found a predecessor."""
+    change_p[i, floor of j]. A density below ``_NEGLIGIBLE`` of a successor's largest counts as 0
+    (it is not wall checked). Returns whether any successor found a predecessor."""
     m_from = from_xy.shape[0]
     m_to = to_xy.shape[0]
     n_mix = mix.shape[0]
     f = np.zeros(m_from)
+    cutoff = -math.log(_NEGLIGIBLE)  # in units of d^2 / (2 var)
     for i in range(m_from):
         out[i] = 0.0
     found = False
@@ -128,8 +131,10 @@ def _backward_step(from_xy, means, mix, inv_two_var, from_floor, to_xy, to_floor
                     # the predicted move in the building frame: predicted - from, applied to from's building position
                     dx = to_building[j, 0] - (from_building[i, 0] + means[k, i, 0] - from_xy[i, 0])
                     dy = to_building[j, 1] - (from_building[i, 1] + means[k, i, 1] - from_xy[i, 1])
-                value += mix[k] * math.exp(-(dx * dx + dy * dy) * inv_two_var)
-            if not same:
+                exponent = (dx * dx + dy * dy) * inv_two_var
+                if exponent < cutoff:  # far beyond the spread: exp would say 0
+                    value += mix[k] * math.exp(-exponent)
+            if value > 0.0 and not same:
                 value *= change_p[i, to_floor[j]]
             f[i] = value
             if value > top:
@@ -137,9 +142,10 @@ def _backward_step(from_xy, means, mix, inv_two_var, from_floor, to_xy, to_floor
         if top <= 0.0:
             continue
         total = 0.0
+        floor_value = top * _NEGLIGIBLE
         for i in range(m_from):
             value = f[i]
-            if value < top * 1e-8:
+            if value <= floor_value:
                 f[i] = 0.0
                 continue
             if from_floor[i] == to_floor[j]:
