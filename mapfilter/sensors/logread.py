@@ -523,6 +523,8 @@ class RecordStream:
         self._held: list[str | None] = []  # the lines before the format is known, from line 1
         self._seen_text = False
         self._closed = False
+        self._new_lines = False  # lines handled since the last chunk
+        self._last_chunk: Recording | None = None
 
     @property
     def report(self) -> ReadReport:
@@ -591,6 +593,7 @@ class RecordStream:
         report.n_lines = self._lines.n_lines
         if not lines:
             return
+        self._new_lines = True
         handle_line = self._parser.handle_line
         for line_no, text in enumerate(lines, first):
             try:
@@ -621,10 +624,14 @@ class RecordStream:
         return first, []
 
     def _take(self, final: bool) -> Recording:
-        if self._parser is None:
+        if self._parser is not None and (final or self._new_lines):
+            chunk = self._last_chunk = self._parser.take(final)
+        else:  # no line, no record: only the header fields known so far
             chunk = Recording.empty(self._report.path)
-        else:
-            chunk = self._parser.take(final)
+            if self._last_chunk is not None:
+                last = self._last_chunk
+                chunk.floor_name, chunk.start_t_s, chunk.phone_model = last.floor_name, last.start_t_s, last.phone_model
+        self._new_lines = False
         chunk.read_report = self._report.copy()
         return chunk
 
