@@ -8,8 +8,13 @@ Tab-separated records, first column Unix time in ms::
 
 Header lines start with '#'. Unknown record types are skipped. Two additions of ours, written
 by the simulator: ``TYPE_PRESSURE`` rows (``time TYPE_PRESSURE hPa accuracy``, a barometer) and
-a fifth ``TYPE_WAYPOINT`` column naming the waypoint's floor (a walk over several floors). Real logs hold oddities, and
-the reader keeps the walk where it can:
+a fifth ``TYPE_WAYPOINT`` column naming the waypoint's floor (a walk over several floors).
+Beacons are told apart by their MAC (``TYPE_BEACON`` column 9, upper case; the site-1 beacons
+share one ``uuid:major:minor``), by ``uuid:major:minor`` in a row without one.
+
+The reader is a stream (:class:`IlcParser`, fed by ``sensors/logs.LogStream``): each record
+depends on the lines before it only. Real logs hold oddities, and the reader keeps the walk
+where it can:
 
 - a bad row (too few fields, a value that is not a number, ``Infinity`` or ``NaN``, or one
   outside its physical range: ``logread.RANGES``) in a record type the run does not need
@@ -18,7 +23,9 @@ the reader keeps the walk where it can:
   error naming the file and line;
 - two records on one line (a missing newline) are split back into two records; a line longer
   than ``logread.MAX_LINE_BYTES`` is read past without being held, and counted as unreadable;
-- exact duplicate records are kept once; long stretches with no record are reported;
+- each record type keeps file order: a record earlier than the previous kept one of its type
+  went back in time and is dropped (counted), an exact repeat of a record of the same time is
+  kept once; long stretches with no record are reported;
 - a gzip stream that ends early (a cut download) keeps the complete lines before the cut
   (refused with ``strict``); a corrupted stream is refused, since its data cannot be trusted;
 - a log with no usable record left is refused.

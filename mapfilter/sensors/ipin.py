@@ -17,8 +17,8 @@ What is read, into the same ``Recording`` the ILC reader makes:
 - ``PRES`` the barometer (mbar = hPa);
 - ``WIFI`` one row per access point heard; the rows of one scan share their AppTimestamp, so a
   scan is the rows of one AppTimestamp, keyed ``bssid@2.4`` / ``bssid@5`` as everywhere;
-- ``BLE4`` Bluetooth LE beacons (iBeacon ``uuid:major:minor``, Eddystone its MAC), kept for
-  whoever uses them (no distance estimate: ``distance_m`` is NaN);
+- ``BLE4`` Bluetooth LE beacons (iBeacon and Eddystone), each named by its MAC in upper case
+  (``BE:AC:20:23:00:01``), kept for whoever uses them (no distance estimate: ``distance_m`` is NaN);
 - ``POSI`` the ground truth: time, latitude, longitude and floor id of each marked point
   (``waypoint_latlon_deg``, ``waypoint_floor``; ``waypoint_xy_m`` stays NaN until the walk is
   placed in a georeferenced building: ``sensors/logs.localise``);
@@ -29,18 +29,26 @@ the sample: one clock for all sensors); sensor records also have the sensor's ow
 (s since the phone booted, exact sample intervals, but an epoch of its own). The recording's
 times are Unix seconds: the header's creation date plus the AppTimestamp (0 plus it when the
 header has no date), so WiFi, ground truth and IMU share one clock as in an ILC log. IMU and
-barometer samples are placed on it by their sensor timestamp plus that stream's median
-(AppTimestamp - SensorTimestamp): the app reads samples in bursts (AppTimestamp intervals
-scatter by 5-9 ms around 20 ms on the IPIN 2023 logs, the sensor's by under 1 ms), and the
-median latency is a few ms. A sample whose sensor time strays more than
-:data:`MAX_CLOCK_DISAGREEMENT_S` from its AppTimestamp (a clock reset) keeps its AppTimestamp.
-A WiFi row's age is its scan's AppTimestamp minus its sensor timestamp (the last-seen time on
-the boot clock, moved by the accelerometer's offset); rows older than ``max_wifi_age_s`` are
-stale cached results and are dropped as in the ILC reader.
+barometer samples are placed on it by their sensor timestamp plus that stream's offset, the
+median (AppTimestamp - SensorTimestamp) over its records in the log's first
+:data:`CLOCK_WINDOW_S` (from the log's first record; a stream that starts later: its own first
+0.5 s). The app reads samples in bursts (AppTimestamp intervals scatter by 5-9 ms around 20 ms
+on the IPIN 2023 logs, the sensor's by under 1 ms), and the median latency is a few ms; over
+0.5 s it is within 7 ms of the whole log's median. A sample whose sensor time strays more than
+:data:`MAX_CLOCK_DISAGREEMENT_S` from its AppTimestamp (a clock reset) keeps its AppTimestamp
+(counted: ``ReadReport.clock_strays``). A WiFi row's age is its scan's AppTimestamp minus its
+sensor timestamp (the last-seen time on the boot clock, moved by the accelerometer's offset);
+when a scan's median age is implausible its ages are unknown (0); rows older than
+``max_wifi_age_s`` are stale cached results and are dropped as in the ILC reader.
+
+The reader is a stream (:class:`GsdParser`, fed by ``sensors/logs.LogStream``): it holds
+every record until the log's AppTimestamp passes its first record's by 0.5 s (the offsets and
+the time base are then known), a WiFi scan until a record of a later AppTimestamp comes.
 
 Bad rows are handled as by the ILC reader (``sensors/logread.py``): skipped and counted in
 ``Recording.read_report``, refused with ``strict`` when their type is needed; values outside
-their physical range are bad rows; exact duplicates are kept once; time gaps are reported.
+their physical range are bad rows; each record type keeps file order (a record earlier than the
+previous kept one of its type is dropped), exact repeats are kept once; time gaps are reported.
 """
 
 from __future__ import annotations
