@@ -36,11 +36,11 @@ assert_same_recording = assert_same
 
 
 def _records(recording: Recording, imu: bool = True) -> Recording:
-    """The records only (no read report; without the IMU and barometer unless ``imu``)."""
+    """The records only (no path or read report; without the IMU and barometer unless ``imu``)."""
     cut = {} if imu else {name: None for name in ("acc_t_s", "acc_mps2", "gyro_t_s", "gyro_radps", "magnet_t_s",
                                                      "magnet_ut", "rotvec_t_s", "rotvec_xyz", "pressure_t_s",
                                                      "pressure_hpa")}
-    return dataclasses.replace(recording, read_report=None, **cut)
+    return dataclasses.replace(recording, path=None, read_report=None, **cut)
 
 
 def random_pieces(data, rng: np.random.Generator, fine_prefix: int = 600):
@@ -483,3 +483,50 @@ def test_a_scan_cut_by_the_end_of_the_log_is_read_with_the_rows_so_far(tmp_path)
     whole = read_log_text(text, "whole")
     assert len(part.wifi) == len(whole.wifi)
     assert part.wifi.row_ap.size == whole.wifi.row_ap.size - 1
+
+
+_AHEAD_MS = int(3 * 365.25 * 86400 * 1000)
+
+
+def _shifted(line: str, ms: int) -> str:
+    """An ILC line stamped ``ms`` later (a WiFi row's last-seen time too)."""
+    fields = line.rstrip("\n").split("\t")
+    fields[0] = str(int(fields[0]) + ms)
+    if fields[1] == "TYPE_WIFI":
+        fields[6] = str(int(fields[6]) + ms)
+    return "\t".join(fields) + "\n"
+
+
+@pytest.mark.parametrize("kind, rows", [("TYPE_ACCELEROMETER", 1), ("TYPE_WIFI", 2), ("TYPE_WAYPOINT", 1)])
+def test_one_record_stamped_years_ahead_is_dropped_not_the_rest_of_its_stream(tmp_path, kind, rows):
+    lines = _ilc_walk(60).splitlines(keepends=True)
+    middle = next(i for i, line in enumerate(lines) if i > len(lines) // 2 and kind in line)
+    ahead = [_shifted(line, _AHEAD_MS) for line in lines[middle:] if kind in line][:rows]
+    if kind == "TYPE_WIFI":  # a scan of two rows, each with its own BSSID
+        ahead = [row.replace("ee:00", f"ee:{10 + i:02x}") for i, row in enumerate(ahead)]
+    clean, hostile = tmp_path / "clean.txt", tmp_path / "hostile.txt"
+    clean.write_text("".join(lines))
+    hostile.write_text("".join(lines[:middle] + ahead + lines[middle:]))
+    warnings = []
+    rec = read_log(hostile, warn=warnings.append)
+    # held until the next record of its stream, which went back: the lone record is dropped
+    assert rec.read_report.went_back == {kind: rows} and rec.read_report.time_gaps_s == []
+    assert_same(_records(rec), _records(read_log(clean)))
+    assert len(warnings) == 1 and f"{rows} row{'s' if rows > 1 else ''} that went back in time" in warnings[0]
+    data = hostile.read_bytes()
+    assert_same(stream_pieces(random_pieces(data, np.random.default_rng(5)), hostile), rec)
+
+
+def test_a_pause_of_thirty_days_drops_nothing_and_is_a_gap(tmp_path):
+    lines = _ilc_walk(60).splitlines(keepends=True)
+    middle = len(lines) // 2
+    month_ms = 30 * 86400 * 1000
+    later = [_shifted(line, month_ms) for line in lines[middle:]]
+    path = tmp_path / "pause.txt"
+    path.write_text("".join(lines[:middle] + later))
+    rec = read_log(path, warn=lambda m: None)
+    assert rec.read_report.went_back == {} and rec.read_report.duplicates == {}
+    assert rec.acc_t_s.size == 60 * 50 and len(rec.wifi) == 30 and rec.waypoint_t_s.size == 6
+    gaps = rec.read_report.time_gaps_s
+    assert len(gaps) == 1 and 30 * 86400 <= gaps[0][1] - gaps[0][0] < 30 * 86400 + 1
+    assert_same(stream_pieces(random_pieces(path.read_bytes(), np.random.default_rng(6)), path), rec)

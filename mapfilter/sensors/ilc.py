@@ -44,8 +44,8 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.logread import (BadRow, GapTracker, LogReadWarning, RecordOrder, RecordStream, RowOrder,
-                                       ScanAssembler, check_range, count_bad_row, group_scans, iter_bounded_lines,
+from mapfilter.sensors.logread import (BadRow, GapTracker, LogReadWarning, RecordStream, ScanAssembler, TimeOrder,
+                                       check_range, count_bad_row, group_scans, iter_bounded_lines,
                                        open_binary, parse_number, quick_numbers, read_whole)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
@@ -112,13 +112,11 @@ class IlcParser:
         self._max_wifi_age_s = max_wifi_age_s
         # rows not yet taken, per sensor list: (t_s, x, y, z) / (t_s, hPa)
         self._vectors: dict[str, list[tuple[float, ...]]] = {name: [] for name, _ in _VECTOR_TYPES.values()}
-        self._vector_order = {name: RowOrder(report, kind) for kind, (name, _) in _VECTOR_TYPES.items()}
+        self._vector_order = {name: TimeOrder(report, kind) for kind, (name, _) in _VECTOR_TYPES.items()}
         self._pressure: list[tuple[float, float]] = []
-        self._pressure_order = RowOrder(report, "TYPE_PRESSURE")
-        self._waypoints: list[tuple[float, float, float, str | None]] = []  # kept: t_s, x, y, floor
-        self._waypoint_order = RecordOrder(report, "TYPE_WAYPOINT")
-        self._beacons: list[tuple[float, str, float, float]] = []  # kept: t_s, id, rssi, distance
-        self._beacon_order = RecordOrder(report, "TYPE_BEACON")
+        self._pressure_order = TimeOrder(report, "TYPE_PRESSURE")
+        self._waypoints = TimeOrder(report, "TYPE_WAYPOINT")  # records (t_s, x, y, floor or None)
+        self._beacons = TimeOrder(report, "TYPE_BEACON")  # records (t_s, id, rssi, distance)
         self._scans = ScanAssembler(report, "TYPE_WIFI")  # rows (t_s, bssid, rssi, freq, age_s)
         self._gaps = GapTracker(report)
         self._header: dict[str, str] = {}
@@ -142,20 +140,18 @@ class IlcParser:
                 count_bad_row(report, bad, line_no, self._strict, report.path)
 
     def take(self, final: bool) -> Recording:
-        if final:
-            self._scans.finish()
         vectors = {}
         for name, order in self._vector_order.items():
-            rows = order.accept(np.array(self._vectors[name], dtype=np.float64).reshape(-1, 4))
+            rows = order.accept(np.array(self._vectors[name], dtype=np.float64).reshape(-1, 4), final)
             self._vectors[name] = []
             vectors[name] = rows[:, 0].copy(), rows[:, 1:].copy()
-        baro = self._pressure_order.accept(np.array(self._pressure, dtype=np.float64).reshape(-1, 2))
+        baro = self._pressure_order.accept(np.array(self._pressure, dtype=np.float64).reshape(-1, 2), final)
         self._pressure = []
-        waypoints, self._waypoints = self._waypoints, []
+        waypoints = self._waypoints.take(final)
         wp = np.array([w[:3] for w in waypoints], dtype=np.float64).reshape(-1, 3)
         floors = [w[3] for w in waypoints]
-        beacons, self._beacons = self._beacons, []
-        scans = self._scans.take()
+        beacons = self._beacons.take(final)
+        scans = self._scans.take(final)
         beacon_t = np.array([b[0] for b in beacons], dtype=np.float64)
         self._gaps.add([t for t, _ in vectors.values()] + [wp[:, 0], baro[:, 0], [scan[0][0] for scan in scans],
                                                            beacon_t])
@@ -202,7 +198,7 @@ class IlcParser:
                           for axis, column in (("x", 2), ("y", 3), ("z", 4))]
             self._vectors[name].append((t_s, *values))
             if t_s > self._scans.open_t:
-                self._scans.finish()
+                self._scans.clock(t_s)
             return kind
         if kind == "TYPE_WIFI":
             if len(fields) < 7:
@@ -222,8 +218,7 @@ class IlcParser:
             x, y = (check_range(kind, name, parse_number(kind, fields, column), "position_m")
                     for name, column in (("x", 2), ("y", 3)))
             floor = fields[4].strip() if len(fields) > 4 and fields[4].strip() else None  # a walk over floors
-            if self._waypoint_order.accept(t_s, (t_s, x, y, floor)):
-                self._waypoints.append((t_s, x, y, floor))
+            self._waypoints.add(t_s, (t_s, x, y, floor))
         elif kind == "TYPE_PRESSURE":
             t_s = _time_s(fields)
             self._pressure.append((t_s, check_range(kind, "pressure", parse_number(kind, fields, 2), "pressure_hpa")))
@@ -236,12 +231,10 @@ class IlcParser:
             mac = fields[8].strip() if len(fields) > 8 else ""
             # the MAC tells the beacons apart (the site-1 beacons share one uuid:major:minor)
             beacon_id = mac.upper() if _MAC.fullmatch(mac) else f"{fields[2]}:{fields[3]}:{fields[4]}"
-            if self._beacon_order.accept(t_s, (t_s, beacon_id, rssi, distance)):
-                self._beacons.append((t_s, beacon_id, rssi, distance))
+            self._beacons.add(t_s, (t_s, beacon_id, rssi, distance))
         else:
             return None  # other record types are skipped
-        if t_s > self._scans.open_t:
-            self._scans.finish()
+        self._scans.clock(t_s)
         return kind
 
 

@@ -63,9 +63,9 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.logread import (BadRow, GapTracker, RecordOrder, RecordStream, RowOrder, ScanAssembler,
-                                       check_range, group_scans, iter_bounded_lines, open_binary, parse_number,
-                                       quick_numbers, read_whole)
+from mapfilter.sensors.logread import (BadRow, GapTracker, RecordStream, ScanAssembler, TimeOrder, check_range,
+                                       group_scans, iter_bounded_lines, open_binary, parse_number, quick_numbers,
+                                       read_whole)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 FORMAT_NAME = "GetSensorData"
@@ -135,7 +135,7 @@ class GsdParser:
         self._max_wifi_age_s = max_wifi_age_s
         # rows not yet placed on the app clock, per sensor list: (app_s, sensor_s, values...)
         self._raw: dict[str, list[tuple[float, ...]]] = {name: [] for name, _, _ in _SENSOR_TYPES.values()}
-        self._order = {name: RowOrder(report, kind) for kind, (name, _, _) in _SENSOR_TYPES.items()}
+        self._order = {name: TimeOrder(report, kind) for kind, (name, _, _) in _SENSOR_TYPES.items()}
         self._offset_s: dict[str, float] = {}  # each sensor stream's (app - sensor) once known
         self._window_end_s: dict[str, float] = {}  # streams that began late -> end of their own window
         self._waiting: set[str] = set()  # streams without a record when the log's window ended
@@ -144,13 +144,10 @@ class GsdParser:
         self._released = False  # the log's window has ended: records go out
         self._wifi = ScanAssembler(report, "WIFI")  # rows (app_s, bssid, rssi, freq, sensor_s)
         self._wifi_offset_s: float | None = None  # the accelerometer's: WiFi last-seen times are on its clock
-        self._posi: list[tuple[float, float, float, str]] = []  # kept, not yet taken: app_s, lat, lon, floor
-        self._posi_order = RecordOrder(report, "POSI")
-        self._beacons: list[tuple[float, str, float]] = []  # kept, not yet taken: app_s, MAC, rssi
-        self._beacon_order = RecordOrder(report, "BLE4")
+        self._posi = TimeOrder(report, "POSI")  # records (app_s, lat, lon, floor)
+        self._beacons = TimeOrder(report, "BLE4")  # records (app_s, MAC, rssi)
         self._floors: list[str] = []  # the distinct floors of the ground truth so far
-        self._header: list[str] = []
-        self._info: dict[str, str | float] = {}
+        self._info: dict[str, str | float] = {}  # the header's fields so far
         self._base_s = 0.0  # Unix seconds of AppTimestamp 0 (the header's creation date, if any)
         self._start_t_s: float | None = None
         self._gaps = GapTracker(report)
@@ -159,8 +156,7 @@ class GsdParser:
         if not line.strip():
             return
         if line.startswith("%"):
-            self._header.append(line)
-            self._info = parse_header(self._header)
+            _read_header_line(line, self._info)
             return
         kind = self._parse_record(line.split(";"))
         report = self._report
@@ -172,7 +168,6 @@ class GsdParser:
     def take(self, final: bool) -> Recording:
         if final:
             self._end_windows()
-            self._wifi.finish()
         if not self._released:  # everything is held
             chunk = Recording.empty(self._report.path)
             chunk.phone_model = self._phone_model()
@@ -181,17 +176,21 @@ class GsdParser:
         streams = {}
         for kind, (name, _, n_values) in _SENSOR_TYPES.items():
             offset_s = self._offset_s.get(name)
-            rows = self._raw[name] if offset_s is not None else []
-            if offset_s is not None:
-                self._raw[name] = []
+            rows = []
+            if offset_s is not None:  # else the stream is still in its own window: it keeps its rows
+                rows, self._raw[name] = self._raw[name], []
             raw = np.array(rows, dtype=np.float64).reshape(-1, 2 + n_values)
+            t_s = self._place(kind, raw, offset_s) if rows else raw[:, 0]
             # (t_s on the app clock, app_s, sensor_s, values...): ordered by t_s, repeats by every column
-            placed = self._order[name].accept(np.column_stack([self._place(kind, raw, offset_s), raw]))
+            placed = self._order[name].accept(np.column_stack([t_s, raw]), final)
             streams[name] = base_s + placed[:, 0], placed[:, 3:].copy()
-        scans = self._wifi.take()
+        scans = self._wifi.take(final)
         wifi_rows = [row for scan in scans for row in self._with_ages(scan)]
-        posi, self._posi = self._posi, []
-        beacons, self._beacons = self._beacons, []
+        posi = self._posi.take(final)
+        beacons = self._beacons.take(final)
+        for floor in (r[3] for r in posi):
+            if floor not in self._floors:
+                self._floors.append(floor)
         waypoint_t = np.array([base_s + r[0] for r in posi], dtype=np.float64)
         beacon_t = np.array([base_s + r[0] for r in beacons], dtype=np.float64)
         self._gaps.add([t for t, _ in streams.values()] + [waypoint_t, [base_s + scan[0][0] for scan in scans],
@@ -221,12 +220,10 @@ class GsdParser:
         model = self._info.get("Model")
         return model if isinstance(model, str) else None
 
-    def _place(self, kind: str, raw: np.ndarray, offset_s: float | None) -> np.ndarray:
+    def _place(self, kind: str, raw: np.ndarray, offset_s: float) -> np.ndarray:
         """Times on the app clock: sensor time + the stream's offset, or the AppTimestamp where
         that disagrees with it by more than ``MAX_CLOCK_DISAGREEMENT_S`` (counted)."""
         app_s, sensor_s = raw[:, 0], raw[:, 1]
-        if offset_s is None:
-            return app_s.copy()
         t_s = sensor_s + offset_s
         stray = np.abs(t_s - app_s) > MAX_CLOCK_DISAGREEMENT_S
         if stray.any():
@@ -310,7 +307,7 @@ class GsdParser:
             if app_s > self._next_end_s:
                 self._at(app_s)
             if app_s > self._wifi.open_t:
-                self._wifi.finish()
+                self._wifi.clock(app_s)
             if name in self._waiting:
                 self._begin_late_stream(name, app_s)
             self._raw[name].append((app_s, sensor_s, *values))
@@ -341,8 +338,7 @@ class GsdParser:
             mac = fields[3].strip().upper()  # iBeacon and Eddystone alike
             if not mac:
                 raise BadRow(kind, "malformed BLE4 line: empty MAC")
-            if self._beacon_order.accept(app_s, (app_s, mac, rssi)):
-                self._beacons.append((app_s, mac, rssi))
+            self._beacons.add(app_s, (app_s, mac, rssi))
         elif kind == "POSI":
             if len(fields) < 6:
                 raise BadRow(kind, f"malformed POSI line: {len(fields)} fields, expected 7")
@@ -352,18 +348,14 @@ class GsdParser:
             floor = _floor_id(fields[5])
             if not floor:
                 raise BadRow(kind, "malformed POSI line: empty floor id")
-            if self._posi_order.accept(app_s, (app_s, lat, lon, floor)):
-                self._posi.append((app_s, lat, lon, floor))
-                if floor not in self._floors:
-                    self._floors.append(floor)
+            self._posi.add(app_s, (app_s, lat, lon, floor))
         elif _RECORD.match(kind + ";"):
             return None  # GNSS, LIGH, SOUN, PROX, ...: not read
         else:
             raise BadRow("?", f"malformed line: expected a record type such as ACCE; or WIFI;, got {kind[:20]!r}")
         if app_s > self._next_end_s:
             self._at(app_s)
-        if app_s > self._wifi.open_t:
-            self._wifi.finish()
+        self._wifi.clock(app_s)
         return kind
 
 
@@ -410,18 +402,23 @@ def parse_header(lines: list[str]) -> dict[str, str | float]:
     ``start_t_s`` (Unix seconds of the 'Date of creation', when it parses)."""
     info: dict[str, str | float] = {}
     for line in lines:
-        text = line.lstrip("%").strip()
-        key, sep, value = text.partition(":")
-        key, value = key.strip(), value.strip()
-        if not sep or not value or "'" in text or not re.fullmatch(r"[A-Za-z][A-Za-z ]*", key):
-            continue  # the record-format lines ("Accelerometer data: 'ACCE;...'") are not fields
-        if key == "Date of creation":
-            start = _creation_time_s(value)
-            if start is not None:
-                info.setdefault("start_t_s", start)
-            continue
-        info.setdefault(key, value)
+        _read_header_line(line, info)
     return info
+
+
+def _read_header_line(line: str, info: dict[str, str | float]) -> None:
+    """The field of one ``%`` line into ``info`` (the first value of a key wins)."""
+    text = line.lstrip("%").strip()
+    key, sep, value = text.partition(":")
+    key, value = key.strip(), value.strip()
+    if not sep or not value or "'" in text or not re.fullmatch(r"[A-Za-z][A-Za-z ]*", key):
+        return  # the record-format lines ("Accelerometer data: 'ACCE;...'") are not fields
+    if key == "Date of creation":
+        start = _creation_time_s(value)
+        if start is not None:
+            info.setdefault("start_t_s", start)
+        return
+    info.setdefault(key, value)
 
 
 def _creation_time_s(text: str) -> float | None:

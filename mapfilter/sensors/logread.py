@@ -12,8 +12,8 @@ way whatever its format, and a log read whole is the replay of the same log stre
   outside it makes the row bad, like a value that is not a number;
 - each stream keeps its records in file order: a record earlier than the previous kept one of
   its stream went back in time and is dropped, an exact repeat of a record of the same time is
-  kept once (:class:`RowOrder`, :class:`RecordOrder`); WiFi rows become scans once a scan is
-  complete (:class:`ScanAssembler`);
+  kept once (:class:`TimeOrder`); WiFi rows become scans once a scan is complete
+  (:class:`ScanAssembler`);
 - long stretches with no record at all are reported (:class:`GapTracker`), never filled in.
 
 Memory is proportional to the log's size, whatever its timestamps.
@@ -231,6 +231,11 @@ def group_scans(rows: list[tuple[float, str, float, float, float]], max_age_s: f
 
 # ---- streaming: a log's bytes as they come -> the records completed so far ----------------------
 
+# A record this far after the previous one of its stream is held until the next one confirms
+# the jump (a pause, or a clock set forward) or goes back (a lone row stamped ahead: dropped).
+# The longest pause in one stream of the real logs: 28.5 s (ILC beacons), 78 s (IPIN beacons,
+# which are then held, not dropped).
+JUMP_CHECK_S = GAP_REPORT_S
 # How far into a log its format is looked for (a header is some 40 lines): lines are held until then.
 SNIFF_LINES = 200
 # The pieces a whole file is read in (the result does not depend on it).
@@ -318,27 +323,78 @@ def _count(counts: dict[str, int], kind: str, n: int) -> None:
     counts[kind] = counts.get(kind, 0) + n
 
 
-class RowOrder:
-    """One stream of float records kept in file order, as tables (column 0 the time).
+class TimeOrder:
+    """One stream's records kept in file order and in time order.
 
-    A record earlier than the previous kept one is dropped (``report.went_back``); a record
-    equal in every column to a kept record of the same time is dropped (``report.duplicates``):
-    a repeat can only be recognised among records of one time. Each record's fate depends on
-    the records before it only, so tables fed in any pieces give the same rows.
+    A record earlier than the previous kept one of its stream went back in time and is dropped
+    (``report.went_back``); a record equal in every value to a kept record of the same time is
+    a repeat and is dropped (``report.duplicates``): a repeat can only be recognised among
+    records of one time. A record more than :data:`JUMP_CHECK_S` after the previous kept one is
+    held until the next record of its stream: kept if that one is not earlier (a pause, or a
+    clock set forward), else dropped as went back (one row stamped years ahead does not make
+    the rest of its stream go back); at the end of the log it is kept. Each record's fate
+    depends on the records before it and that next one only, so records fed in any pieces give
+    the same records.
+
+    Records come one at a time (:meth:`add`, then :meth:`take`) or as tables whose column 0
+    is the time and whose every column is compared for repeats (:meth:`accept`).
     """
 
     def __init__(self, report: ReadReport, kind: str):
         self._report = report
         self._kind = kind
         self._last_t = -math.inf
-        self._tail = np.zeros((0, 0))  # the kept rows of time _last_t
+        self._tail: set[tuple] = set()  # the kept records of time _last_t
+        self._held: tuple[float, tuple] | None = None  # (time, record) far after the last kept one
+        self._kept: list[tuple] = []  # kept records not yet taken
 
-    def accept(self, rows: np.ndarray) -> np.ndarray:
-        """The rows of ``rows`` (the stream's next records) that are kept."""
-        if rows.shape[0] == 0:
+    def add(self, t: float, record: tuple) -> None:
+        """One record of time ``t``; ``record`` holds all its values."""
+        if self._held is not None:
+            held_t, held = self._held
+            self._held = None
+            if t >= held_t:
+                self._keep(held_t, held)
+            else:
+                _count(self._report.went_back, self._kind, 1)
+        if t < self._last_t:
+            _count(self._report.went_back, self._kind, 1)
+        elif t == self._last_t:
+            if record in self._tail:
+                _count(self._report.duplicates, self._kind, 1)
+            else:
+                self._keep(t, record)
+        elif t - self._last_t > JUMP_CHECK_S and self._last_t > -math.inf:
+            self._held = (t, record)
+        else:
+            self._keep(t, record)
+
+    def take(self, final: bool) -> list[tuple]:
+        """The records kept since the last call (``final``: the log has ended, a held one is kept)."""
+        if final and self._held is not None:
+            self._keep(*self._held)
+            self._held = None
+        kept, self._kept = self._kept, []
+        return kept
+
+    def _keep(self, t: float, record: tuple) -> None:
+        if t == self._last_t:
+            self._tail.add(record)
+        else:
+            self._last_t = t
+            self._tail = {record}
+        self._kept.append(record)
+
+    def accept(self, rows: np.ndarray, final: bool) -> np.ndarray:
+        """The rows of ``rows`` (the stream's next records, a float table) that are kept."""
+        if rows.shape[0] == 0 and (self._held is None or not final):
             return rows
         t = rows[:, 0]
         before = np.maximum.accumulate(np.concatenate(([self._last_t], t[:-1])))
+        if self._held is not None or np.any((t - before > JUMP_CHECK_S) & (before > -math.inf)):
+            for row in rows.tolist():  # a jump: record by record (the values stay the same floats)
+                self.add(row[0], tuple(row))
+            return np.array(self.take(final), dtype=np.float64).reshape(-1, rows.shape[1])
         back = t < before
         if back.any():
             _count(self._report.went_back, self._kind, int(np.count_nonzero(back)))
@@ -353,9 +409,9 @@ class RowOrder:
             if rows.shape[0] == 0:
                 return rows
             t = rows[:, 0]
-        last = t[-1]
-        tail = rows[t == last]
-        self._tail = np.concatenate([self._tail, tail]) if last == self._last_t else tail
+        last = float(t[-1])
+        tail = set(map(tuple, rows[t == last].tolist()))
+        self._tail = self._tail | tail if last == self._last_t else tail
         self._last_t = last
         return rows
 
@@ -366,7 +422,7 @@ class RowOrder:
         shared[:-1] |= same
         shared[0] |= at_last
         index = np.flatnonzero(shared)
-        tail = self._tail if at_last else rows[:0]
+        tail = np.array(sorted(self._tail) if at_last else [], dtype=np.float64).reshape(-1, rows.shape[1])
         group = np.concatenate([tail, rows[index]])
         # sorted by every column (stable), repeats are neighbours and the first kept is the earliest
         by_value = np.lexsort(group.T[::-1])
@@ -380,47 +436,27 @@ class RowOrder:
         return rows[keep]
 
 
-class RecordOrder:
-    """:class:`RowOrder` for one record at a time (records of any values, compared whole)."""
-
-    def __init__(self, report: ReadReport, kind: str):
-        self._report = report
-        self._kind = kind
-        self._last_t = -math.inf
-        self._tail: set = set()  # the kept records of time _last_t
-
-    def accept(self, t: float, record: tuple) -> bool:
-        """True if the record (of time ``t``; ``record`` holds all its values) is kept."""
-        if t < self._last_t:
-            _count(self._report.went_back, self._kind, 1)
-            return False
-        if t == self._last_t:
-            if record in self._tail:
-                _count(self._report.duplicates, self._kind, 1)
-                return False
-            self._tail.add(record)
-        else:
-            self._last_t = t
-            self._tail = {record}
-        return True
-
-
 class ScanAssembler:
     """WiFi rows -> scans: the rows of one time are one scan, complete once a record of a later
     time (of any type: :meth:`clock`) has come, or the stream ends (:meth:`finish`).
 
     A row earlier than the scan being filled, or of the time of a scan already complete, went
-    back in time and is dropped; an exact repeat within a scan is a duplicate.
+    back in time and is dropped; an exact repeat within a scan is a duplicate. As in
+    :class:`TimeOrder`, a scan more than :data:`JUMP_CHECK_S` after the previous one is held
+    until the next scan begins, and dropped (its rows went back) if that one is earlier.
     """
 
     def __init__(self, report: ReadReport, kind: str):
         self._report = report
         self._kind = kind
         self.open_t = math.inf  # the time of the scan being filled (inf: none)
-        self._last_t = -math.inf  # the time of the latest scan
+        self._open_far = False  # it is far after the scan before it
         self._rows: list[tuple] = []
         self._seen: set = set()
-        self.complete: list[list[tuple]] = []  # scans complete and not yet taken, each its rows
+        self._last_t = -math.inf  # the time of the latest scan (not dropped)
+        self._before_t = -math.inf  # the time of the scan before the one being filled
+        self._held: tuple[float, list[tuple], float] | None = None  # a complete far scan, the time before it
+        self._complete: list[list[tuple]] = []  # scans complete and not yet taken, each its rows
 
     def add(self, t: float, row: tuple) -> None:
         """One WiFi row of scan time ``t``; ``row`` holds all its values."""
@@ -431,11 +467,21 @@ class ScanAssembler:
             self._seen.add(row)
             self._rows.append(row)
             return
-        if t > self.open_t:
+        if t > self.open_t or (self._open_far and t < self.open_t):
             self.finish()
+        if self._held is not None:
+            held_t, rows, before_t = self._held
+            self._held = None
+            if t >= held_t:
+                self._complete.append(rows)
+            else:
+                _count(self._report.went_back, self._kind, len(rows))
+                self._last_t = before_t
         if t <= self._last_t:
             _count(self._report.went_back, self._kind, 1)
             return
+        self._open_far = t - self._last_t > JUMP_CHECK_S and self._last_t > -math.inf
+        self._before_t = self._last_t
         self.open_t = self._last_t = t
         self._rows = [row]
         self._seen = {row}
@@ -448,13 +494,22 @@ class ScanAssembler:
     def finish(self) -> None:
         """The scan being filled is complete."""
         if self._rows:
-            self.complete.append(self._rows)
+            if self._open_far:
+                self._held = (self.open_t, self._rows, self._before_t)
+            else:
+                self._complete.append(self._rows)
         self._rows, self._seen = [], set()
         self.open_t = math.inf
+        self._open_far = False
 
-    def take(self) -> list[list[tuple]]:
-        """The complete scans since the last call."""
-        scans, self.complete = self.complete, []
+    def take(self, final: bool) -> list[list[tuple]]:
+        """The complete scans since the last call (``final``: the log has ended, all are)."""
+        if final:
+            self.finish()
+            if self._held is not None:
+                self._complete.append(self._held[1])
+                self._held = None
+        scans, self._complete = self._complete, []
         return scans
 
 
