@@ -74,6 +74,9 @@ class LogStream(RecordStream):
 
     - a WiFi scan until a record of a later time (of any type) arrives, or :meth:`close`:
       only then is it known to be complete;
+    - a record more than ``logread.JUMP_CHECK_S`` (60 s) after the previous kept one of its
+      type, until the next one of its type: dropped if that one goes back (a lone row stamped
+      far ahead), kept otherwise and at :meth:`close`;
     - in a GetSensorData log, every record until the log's AppTimestamp passes its first
       record's by ``ipin.CLOCK_WINDOW_S`` (0.5 s): each sensor stream's clock offset is the
       median over that stretch (``sensors/ipin.py``).
