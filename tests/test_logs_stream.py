@@ -32,7 +32,6 @@ def assert_same(a, b, where: str = "recording") -> None:
         assert a == b, where
 
 
-assert_same_recording = assert_same
 
 
 def _records(recording: Recording, imu: bool = True) -> Recording:
@@ -89,9 +88,9 @@ def test_a_real_ilc_log_streamed_in_random_pieces_is_the_log_read_whole(ilc_site
     data = _raw_bytes(path)
     assert len(data) > len(data.decode("utf-8"))  # multibyte characters (the site's name) to cut into
     rng = np.random.default_rng([7, index])
-    assert_same_recording(stream_pieces(random_pieces(data, rng), path), whole)
+    assert_same(stream_pieces(random_pieces(data, rng), path), whole)
     text = data.decode("utf-8")
-    assert_same_recording(stream_pieces(random_pieces(text, rng), path, feed="text"), whole)
+    assert_same(stream_pieces(random_pieces(text, rng), path, feed="text"), whole)
 
 
 @pytest.mark.parametrize("index", range(2))
@@ -101,8 +100,8 @@ def test_a_real_ipin_log_streamed_in_random_pieces_is_the_log_read_whole(ipin202
     assert whole.phone_model == ("SM-A520F", "SM-G930F")[index]
     data = _raw_bytes(path)
     rng = np.random.default_rng([8, index])
-    assert_same_recording(stream_pieces(random_pieces(data, rng), path), whole)
-    assert_same_recording(stream_pieces(random_pieces(data.decode("utf-8"), rng), path, feed="text"), whole)
+    assert_same(stream_pieces(random_pieces(data, rng), path), whole)
+    assert_same(stream_pieces(random_pieces(data.decode("utf-8"), rng), path, feed="text"), whole)
 
 
 def test_half_second_batches_of_lines_as_a_competition_server_sends_them(ipin2023):
@@ -123,7 +122,7 @@ def test_half_second_batches_of_lines_as_a_competition_server_sends_them(ipin202
         batch.append(line)
     chunks.append(stream.feed_lines(batch))
     chunks.append(stream.close())
-    assert_same_recording(concatenate(chunks), whole)
+    assert_same(concatenate(chunks), whole)
     # the first records come out once the log is 0.5 s old (the clock offsets are known)
     assert chunks[0].acc_t_s.size == 0 and released_at_s is not None and released_at_s < 2.0
     # each chunk: only what it completed, in time order after the chunk before
@@ -248,7 +247,7 @@ def test_an_imu_clock_that_jumps_back_20_s_drops_what_went_back_with_a_warning(t
     assert len(warnings) == 1 and f"{3 * dropped} rows that went back in time" in warnings[0]
     assert f"{dropped} TYPE_ACCELEROMETER" in warnings[0]
     # streamed: the same
-    assert_same_recording(stream_pieces(random_pieces(path.read_bytes(), np.random.default_rng(3)), path),
+    assert_same(stream_pieces(random_pieces(path.read_bytes(), np.random.default_rng(3)), path),
                           read_log(path, warn=lambda m: None))
 
 
@@ -359,8 +358,8 @@ def test_a_hostile_getsensordata_log_streamed_in_any_pieces_is_the_log_read_whol
     assert whole.beacons.beacon_id == ["BE:AC:20:23:00:06"] and whole.waypoint_floor == ["0", "-2"]
     data = path.read_bytes()
     for seed in range(5):
-        assert_same_recording(stream_pieces(random_pieces(data, np.random.default_rng(seed)), path), whole)
-    assert_same_recording(stream_pieces(data.splitlines(keepends=True), path), whole)
+        assert_same(stream_pieces(random_pieces(data, np.random.default_rng(seed)), path), whole)
+    assert_same(stream_pieces(data.splitlines(keepends=True), path), whole)
 
 
 def test_a_stream_holds_text_until_it_knows_the_format_and_scans_until_they_are_complete():
@@ -472,7 +471,7 @@ def test_until_cuts_every_stream_and_keeps_whole_scans(tmp_path):
     assert part.wifi.ap_keys == rec.wifi.ap_keys and part.waypoint_t_s.size == 2
     np.testing.assert_array_equal(part.wifi.matrix(), rec.wifi.matrix()[:6])
     assert len(rec.until(T0 / 1000.0 - 1).wifi) == 0 and rec.until(T0 / 1000.0 - 1).acc_t_s.size == 0
-    assert_same_recording(rec.until(np.inf), rec)
+    assert_same(rec.until(np.inf), rec)
 
 
 def test_a_scan_cut_by_the_end_of_the_log_is_read_with_the_rows_so_far(tmp_path):

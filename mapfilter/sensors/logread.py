@@ -151,22 +151,6 @@ def iter_bounded_lines(handle, max_bytes: int = MAX_LINE_BYTES) -> Iterator[tupl
         yield line_no, raw.decode("utf-8", errors="replace").rstrip("\r\n")
 
 
-def count_record(report: ReadReport, parse: Callable[[], str | None], line_no: int, strict: bool,
-                 path: Path) -> None:
-    """Parse one record with ``parse`` (which returns its record type, None for a type the reader
-    does not know) and count it in ``report``: a bad row (``BadRow``) skipped and counted
-    (refused with ``strict``, ``count_bad_row``), an unknown type counted, a good row counted by type."""
-    try:
-        kind = parse()
-    except BadRow as bad:
-        count_bad_row(report, bad, line_no, strict, path)
-        return
-    if kind is None:
-        report.unknown_rows += 1
-    else:
-        report.rows[kind] = report.rows.get(kind, 0) + 1
-
-
 def count_bad_row(report: ReadReport, bad: BadRow, line_no: int, strict: bool, path: Path) -> None:
     """Count a bad row in ``report``, or refuse it with ``strict`` if its type is needed or unknown."""
     if strict and (bad.kind in report.needed or bad.kind == "?"):

@@ -88,12 +88,9 @@ class LogStream(RecordStream):
     ``Recording`` that :func:`read_log` gives, array by array.
 
     A log cut at the line where time passes T reads as the whole log's records up to the
-    earliest time written after the cut (``Recording.until``): T itself for a GetSensorData
-    log's WiFi, beacons and ground truth; its IMU and barometer sit on the sensor clock, a
-    few ms before their AppTimestamp. An ILC logger writes IMU rows up to 1.8 s, beacons 1.5 s
-    and waypoints 12.5 s after rows of later time (the 191 site-1 logs), so those are short of
-    T by that much. A log cut at any line may end inside a WiFi scan: its rows so far are read
-    as a complete scan.
+    earliest time written after the cut (``Recording.until``; how far that is from T, format by
+    format: docs/formats.md). A log cut at any line may end inside a WiFi scan: its rows so far
+    are read as a complete scan.
     """
 
     def __init__(self, name: str | os.PathLike = "-", max_wifi_age_s: float = ilc.DEFAULT_MAX_WIFI_AGE_S,
@@ -103,10 +100,7 @@ class LogStream(RecordStream):
         super().__init__(name, max_wifi_age_s, strict, needed, _PARSERS.get(format))
 
     def _choose_parser(self, line: str) -> type[LogParser] | None:
-        if self._parser_class is not None:
-            return self._parser_class
-        fmt = format_of_line(line)
-        return None if fmt is None else _PARSERS[fmt]
+        return self._parser_class or _PARSERS.get(format_of_line(line))
 
     def _no_format(self) -> None:
         raise _unknown_format(self.report.path)
