@@ -169,15 +169,16 @@ def check_usable(report: ReadReport, path: Path) -> None:
         raise MapfilterError(f"no usable record in the log{detail}", path)
 
 
-def emit_warning(report: ReadReport, warn: Callable[[str], None] | None) -> None:
-    """The report's one-line warning (if any) to ``warn``, else as a ``LogReadWarning``."""
+def emit_warning(report: ReadReport, warn: Callable[[str], None] | None, stacklevel: int = 3) -> None:
+    """The report's one-line warning (if any) to ``warn``, else as a ``LogReadWarning``
+    (attributed to the caller ``stacklevel`` - 1 frames up)."""
     message = report.warning()
     if message is None:
         return
     if warn is not None:
         warn(message)
     else:
-        warnings.warn(message, LogReadWarning, stacklevel=3)
+        warnings.warn(message, LogReadWarning, stacklevel=stacklevel)
 
 
 def group_scans(rows: list[tuple[float, str, float, float, float]], max_age_s: float) -> WifiScans:
@@ -696,5 +697,5 @@ def read_whole(path: str | os.PathLike, stream: RecordStream, warn: Callable[[st
         raise MapfilterError(f"cannot read log: {exc}", path) from None
     chunks.append(stream.close(truncated=truncated))
     recording = concatenate(chunks)
-    emit_warning(recording.read_report, warn)
+    emit_warning(recording.read_report, warn, stacklevel=4)  # the caller of read_log / read_ilc / read_ipin
     return recording
