@@ -92,7 +92,10 @@ def test_a_duplicated_waypoint_counts_once(tmp_path):
     rec = read_ilc(_write(tmp_path / "log.txt", ILC_HEADER + ILC_GOOD + lines[0] + lines[4] + lines[1]),
                    warn=lambda m: None)
     assert rec.waypoint_t_s.size == 2 and rec.acc_t_s.size == 1
-    assert rec.read_report.duplicates == {"TYPE_WAYPOINT": 2, "TYPE_ACCELEROMETER": 1}
+    # the last waypoint and the accelerometer row again, at their stream's last time: duplicates;
+    # the first waypoint again, earlier than the last kept one: it went back in time
+    assert rec.read_report.duplicates == {"TYPE_WAYPOINT": 1, "TYPE_ACCELEROMETER": 1}
+    assert rec.read_report.went_back == {"TYPE_WAYPOINT": 1}
     # a log written twice over is the log once
     twice = read_ilc(_write(tmp_path / "twice.txt", ILC_HEADER + ILC_GOOD * 2), warn=lambda m: None)
     np.testing.assert_array_equal(twice.waypoint_xy_m, read_ilc(_write(tmp_path / "once.txt",

@@ -168,7 +168,7 @@ def test_a_hand_written_log_reads_every_record(tmp_path):
     assert len(rec.wifi) == 2
     keys, rssi = rec.wifi.scan(0)
     assert dict(zip(keys, rssi.tolist())) == {"20:23:00:00:00:90@2.4": -75.0, "20:23:00:00:00:91@5": -80.0}
-    assert rec.beacons.beacon_id == ["11111111-1111-BEAC-2023-111111111111:1:6", "BE:AC:20:23:00:07"]
+    assert rec.beacons.beacon_id == ["BE:AC:20:23:00:06", "BE:AC:20:23:00:07"]  # the MAC, iBeacon or Eddystone
     assert np.isnan(rec.beacons.distance_m).all()
     assert rec.read_report.unknown_rows == 1  # GNSS
 
@@ -213,10 +213,14 @@ def test_a_line_of_no_known_type_is_a_bad_row(tmp_path):
 def test_duplicated_records_count_once(tmp_path):
     lines = GOOD.splitlines(keepends=True)
     warnings = []
-    rec = read_ipin(_write(tmp_path, HEADER + GOOD + "".join(lines[-2:]) + lines[0]), warn=warnings.append)
+    # the last POSI again (a duplicate: same time), then the first POSI and the first ACCE again:
+    # earlier than their stream's last record, they went back in time
+    rec = read_ipin(_write(tmp_path, HEADER + GOOD + lines[-1] + lines[-2] + lines[0]), warn=warnings.append)
     assert rec.waypoint_t_s.size == 2 and rec.acc_t_s.size == 2
-    assert rec.read_report.duplicates == {"POSI": 2, "ACCE": 1}
-    assert len(warnings) == 1 and "3 exact duplicate rows" in warnings[0]
+    assert rec.read_report.duplicates == {"POSI": 1}
+    assert rec.read_report.went_back == {"ACCE": 1, "POSI": 1}
+    assert len(warnings) == 1 and "1 exact duplicate row (1 POSI)" in warnings[0]
+    assert "2 rows that went back in time (1 ACCE, 1 POSI)" in warnings[0]
 
 
 def test_localise_places_the_ground_truth_in_a_georeferenced_building(tmp_path):

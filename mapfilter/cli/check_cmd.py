@@ -13,7 +13,7 @@ One line per log: its format (ILC 2.0 or GetSensorData, told by content) and pho
 duration, waypoints, WiFi scans and access points, IMU rows (and whether dead reckoning is
 possible), barometer and beacon rows, then what was skipped: bad rows per record type (with
 the first bad line; values outside their physical range are bad rows), exact duplicate rows,
-lines that held two records (split), a gzip stream cut short; and long stretches with no
+rows that went back in time (dropped), lines that held two records (split), a gzip stream cut short; and long stretches with no
 record at all (time gaps). A last line counts the logs. The exit code is 1 if any log cannot
 be read (each is named).
 
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         counts["readable"] += 1
         counts["pdr"] += _has_imu(recording)
         report = recording.read_report
-        if not report.clean or report.joined_lines or report.duplicates:
+        if not report.clean or report.joined_lines or report.duplicates or report.went_back:
             counts["skipped"] += 1
         counts["gaps"] += bool(report.time_gaps_s)
         print(describe(recording))

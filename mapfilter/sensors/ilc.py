@@ -8,8 +8,13 @@ Tab-separated records, first column Unix time in ms::
 
 Header lines start with '#'. Unknown record types are skipped. Two additions of ours, written
 by the simulator: ``TYPE_PRESSURE`` rows (``time TYPE_PRESSURE hPa accuracy``, a barometer) and
-a fifth ``TYPE_WAYPOINT`` column naming the waypoint's floor (a walk over several floors). Real logs hold oddities, and
-the reader keeps the walk where it can:
+a fifth ``TYPE_WAYPOINT`` column naming the waypoint's floor (a walk over several floors).
+Beacons are told apart by their MAC (``TYPE_BEACON`` column 9, upper case; the site-1 beacons
+share one ``uuid:major:minor``), by ``uuid:major:minor`` in a row without one.
+
+The reader is a stream (:class:`IlcParser`, fed by ``sensors/logs.LogStream``): each record
+depends on the lines before it only. Real logs hold oddities, and the reader keeps the walk
+where it can:
 
 - a bad row (too few fields, a value that is not a number, ``Infinity`` or ``NaN``, or one
   outside its physical range: ``logread.RANGES``) in a record type the run does not need
@@ -18,7 +23,9 @@ the reader keeps the walk where it can:
   error naming the file and line;
 - two records on one line (a missing newline) are split back into two records; a line longer
   than ``logread.MAX_LINE_BYTES`` is read past without being held, and counted as unreadable;
-- exact duplicate records are kept once; long stretches with no record are reported;
+- each record type keeps file order: a record earlier than the previous kept one of its type
+  went back in time and is dropped (counted), an exact repeat of a record of the same time is
+  kept once; long stretches with no record are reported;
 - a gzip stream that ends early (a cut download) keeps the complete lines before the cut
   (refused with ``strict``); a corrupted stream is refused, since its data cannot be trusted;
 - a log with no usable record left is refused.
@@ -30,18 +37,19 @@ from __future__ import annotations
 
 import os
 import re
+import zlib
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.logread import (BadRow, LogReadWarning, check_range, check_usable, count_record, drop_duplicate_records,
-                                       drop_duplicate_rows, emit_warning, find_time_gaps, iter_bounded_lines,
-                                       group_scans, open_binary, parse_number, quick_numbers, read_lines)
-from mapfilter.sensors.recording import Beacons, ReadReport, Recording, WifiScans
+from mapfilter.sensors.logread import (BadRow, GapTracker, LogReadWarning, RecordStream, ScanAssembler, TimeOrder,
+                                       check_range, count_bad_row, group_scans, iter_bounded_lines,
+                                       open_binary, parse_number, quick_numbers, read_whole)
+from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
-__all__ = ["DEFAULT_MAX_WIFI_AGE_S", "NEEDED_TYPES", "LogReadWarning", "read_ilc", "read_ilc_header"]
+__all__ = ["DEFAULT_MAX_WIFI_AGE_S", "NEEDED_TYPES", "IlcParser", "LogReadWarning", "read_ilc", "read_ilc_header"]
 
 DEFAULT_MAX_WIFI_AGE_S = 5.0
 FORMAT_NAME = "ILC 2.0"
@@ -63,6 +71,7 @@ NEEDED_TYPES = frozenset({"TYPE_WAYPOINT", "TYPE_ACCELEROMETER", "TYPE_GYROSCOPE
 # the previous record's last field to the next record's time, e.g. "3" + "1574559495401".
 _TIME_DIGITS = 13
 _RECORD_TYPE = re.compile(r"TYPE_[A-Z0-9_]+")
+_MAC = re.compile(r"[0-9A-Fa-f]{2}(?::[0-9A-Fa-f]{2}){5}")
 
 
 def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_AGE_S, *,
@@ -70,98 +79,163 @@ def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_A
              warn: Callable[[str], None] | None = None) -> Recording:
     """Read one ILC trace into a ``Recording`` (what was skipped: ``recording.read_report``).
 
-    WiFi rows whose last-seen time is more than ``max_wifi_age_s`` before the scan time
-    are stale cached results and are dropped (``inf`` keeps all); a BSSID heard twice in
-    one scan on the same band keeps its strongest row.
+    The trace is streamed (``logread.RecordStream`` with :class:`IlcParser`, what
+    ``sensors/logs.LogStream`` does for an ILC log) and the pieces joined: the result is the
+    replay of the log as a stream. WiFi rows whose last-seen time is more than
+    ``max_wifi_age_s`` before the scan time are stale cached results and are dropped (``inf``
+    keeps all); a BSSID heard twice in one scan on the same band keeps its strongest row.
 
     Bad rows (malformed, not finite, or outside the physical range of their quantity:
     ``logread.RANGES``) of a type outside ``needed`` are always skipped; bad rows of a needed
     type, over-long lines and a truncated gzip stream are skipped unless ``strict``, which
-    refuses them with a ``MapfilterError`` naming the file and line. Exact duplicate records
-    are kept once; long stretches with no record are reported (``ReadReport.time_gaps_s``).
-    When anything was skipped or a gap found, the report's one-line warning goes to ``warn``
-    if given, else to ``warnings.warn`` as a ``LogReadWarning``.
+    refuses them with a ``MapfilterError`` naming the file and line. Within each record type,
+    records keep file order: one earlier than the previous kept one went back in time and is
+    dropped, an exact repeat of one of the same time is kept once. Long stretches with no record
+    are reported (``ReadReport.time_gaps_s``). When anything was skipped or a gap found, the
+    report's one-line warning goes to ``warn`` if given, else to ``warnings.warn`` as a
+    ``LogReadWarning``.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise MapfilterError("file not found", path)
-    report = ReadReport(path=path, needed=frozenset(needed), format=FORMAT_NAME)
-    vectors: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name, _ in _VECTOR_TYPES.values()}
-    waypoints: list[tuple[float, float, float]] = []
-    waypoint_floors: list[str] = []  # a fifth TYPE_WAYPOINT column (several floors), if any
-    pressure: list[tuple[float, float]] = []  # t_s, hPa
-    wifi_rows: list[tuple[float, str, float, float, float]] = []  # t_s, bssid, rssi, freq, age_s
-    beacon_rows: list[tuple[float, str, float, float]] = []  # t_s, id, rssi, distance
-    header: dict[str, str] = {}
+    stream = RecordStream(path, max_wifi_age_s, strict, needed, IlcParser)
+    return read_whole(path, stream, warn)
 
-    def handle_line(line_no: int, line: str) -> None:
+
+class IlcParser:
+    """ILC 2.0 lines -> the records of a ``Recording``, in the order they come (the parser a
+    ``logread.RecordStream`` feeds). A WiFi scan is complete once a record of a later time comes."""
+
+    FORMAT_NAME = FORMAT_NAME
+    NEEDED_TYPES = NEEDED_TYPES
+
+    def __init__(self, report: ReadReport, max_wifi_age_s: float, strict: bool):
+        self._report = report
+        self._strict = strict
+        self._max_wifi_age_s = max_wifi_age_s
+        # rows not yet taken, per sensor list: (t_s, x, y, z) / (t_s, hPa)
+        self._vectors: dict[str, list[tuple[float, ...]]] = {name: [] for name, _ in _VECTOR_TYPES.values()}
+        self._vector_order = {name: TimeOrder(report, kind) for kind, (name, _) in _VECTOR_TYPES.items()}
+        self._pressure: list[tuple[float, float]] = []
+        self._pressure_order = TimeOrder(report, "TYPE_PRESSURE")
+        self._waypoints = TimeOrder(report, "TYPE_WAYPOINT")  # records (t_s, x, y, floor or None)
+        self._beacons = TimeOrder(report, "TYPE_BEACON")  # records (t_s, id, rssi, distance)
+        self._scans = ScanAssembler(report, "TYPE_WIFI")  # rows (t_s, bssid, rssi, freq, age_s)
+        self._gaps = GapTracker(report)
+        self._header: dict[str, str] = {}
+
+    def handle_line(self, line_no: int, line: str) -> None:
         if not line.strip():
             return
         if line.startswith("#"):
-            _read_header_line(line, header)
+            _read_header_line(line, self._header)
             return
         records = _split_records(line.split("\t"))
-        if len(records) > 1:
-            report.joined_lines += 1
+        report = self._report
+        if len(records) == 1:
+            self._count(self._parse_record(records[0]))  # a bad row: BadRow to the stream
+            return
+        report.joined_lines += 1
         for fields in records:
-            count_record(report, lambda: _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows,
-                                                       waypoint_floors, pressure), line_no, strict, path)
+            try:
+                self._count(self._parse_record(fields))
+            except BadRow as bad:
+                count_bad_row(report, bad, line_no, self._strict, report.path)
 
-    read_lines(path, report, strict, handle_line)
-    check_usable(report, path)
+    def take(self, final: bool) -> Recording:
+        vectors = {}
+        for name, order in self._vector_order.items():
+            rows = order.accept(np.array(self._vectors[name], dtype=np.float64).reshape(-1, 4), final)
+            self._vectors[name] = []
+            vectors[name] = rows[:, 0].copy(), rows[:, 1:].copy()
+        baro = self._pressure_order.accept(np.array(self._pressure, dtype=np.float64).reshape(-1, 2), final)
+        self._pressure = []
+        waypoints = self._waypoints.take(final)
+        wp = np.array([w[:3] for w in waypoints], dtype=np.float64).reshape(-1, 3)
+        floors = [w[3] for w in waypoints]
+        beacons = self._beacons.take(final)
+        scans = self._scans.take(final)
+        beacon_t = np.array([b[0] for b in beacons], dtype=np.float64)
+        self._gaps.add([t for t, _ in vectors.values()] + [wp[:, 0], baro[:, 0], [scan[0][0] for scan in scans],
+                                                           beacon_t])
+        start_ms = self._header.get("startTime")
+        return Recording(
+            path=self._report.path,
+            floor_name=self._header.get("FloorName") or None,
+            start_t_s=float(start_ms) / 1000.0 if start_ms and start_ms.isdigit() else None,
+            waypoint_t_s=wp[:, 0].copy(), waypoint_xy_m=wp[:, 1:3].copy(),
+            acc_t_s=vectors["acc"][0], acc_mps2=vectors["acc"][1],
+            gyro_t_s=vectors["gyro"][0], gyro_radps=vectors["gyro"][1],
+            magnet_t_s=vectors["magnet"][0], magnet_ut=vectors["magnet"][1],
+            rotvec_t_s=vectors["rotvec"][0], rotvec_xyz=vectors["rotvec"][1],
+            wifi=group_scans([row for scan in scans for row in scan], self._max_wifi_age_s),
+            beacons=Beacons(t_s=beacon_t, beacon_id=[b[1] for b in beacons],
+                            rssi_dbm=np.array([b[2] for b in beacons], dtype=np.float32),
+                            distance_m=np.array([b[3] for b in beacons], dtype=np.float32)),
+            pressure_t_s=baro[:, 0].copy(), pressure_hpa=baro[:, 1].copy(),
+            waypoint_floor=floors if floors and None not in floors else None,
+            phone_model=self._header.get("Model") or None,
+        )
 
-    def vector_arrays(name: str, kind: str) -> tuple[np.ndarray, np.ndarray]:
-        rows = drop_duplicate_rows(np.array(vectors[name], dtype=np.float64).reshape(-1, 4), report, kind)
-        return rows[:, 0], rows[:, 1:]
+    def _count(self, kind: str | None) -> None:
+        report = self._report
+        if kind is None:
+            report.unknown_rows += 1
+        else:
+            report.rows[kind] = report.rows.get(kind, 0) + 1
 
-    acc_t, acc = vector_arrays("acc", "TYPE_ACCELEROMETER")
-    gyro_t, gyro = vector_arrays("gyro", "TYPE_GYROSCOPE")
-    mag_t, mag = vector_arrays("magnet", "TYPE_MAGNETIC_FIELD")
-    rot_t, rot = vector_arrays("rotvec", "TYPE_ROTATION_VECTOR")
-    wp_floor = None
-    if waypoint_floors and len(waypoint_floors) == len(waypoints):
-        records = drop_duplicate_records([(*w, f) for w, f in zip(waypoints, waypoint_floors)], report,
-                                         "TYPE_WAYPOINT")
-        order = sorted(range(len(records)), key=lambda i: records[i][0])  # stable: by time
-        wp = np.array([records[i][:3] for i in order], dtype=np.float64).reshape(-1, 3)
-        wp_floor = [records[i][3] for i in order]
-    else:
-        wp = drop_duplicate_rows(np.array(waypoints, dtype=np.float64).reshape(-1, 3), report, "TYPE_WAYPOINT")
-    baro = drop_duplicate_rows(np.array(pressure, dtype=np.float64).reshape(-1, 2), report, "TYPE_PRESSURE")
-    wifi_rows = drop_duplicate_records(wifi_rows, report, "TYPE_WIFI")
-    beacon_rows = drop_duplicate_records(beacon_rows, report, "TYPE_BEACON")
-    find_time_gaps([acc_t, gyro_t, mag_t, rot_t, wp[:, 0], baro[:, 0], [r[0] for r in wifi_rows],
-                    [r[0] for r in beacon_rows]], report)
-    emit_warning(report, warn)
-    start_ms = header.get("startTime")
-    return Recording(
-        path=path,
-        floor_name=header.get("FloorName") or None,
-        start_t_s=float(start_ms) / 1000.0 if start_ms and start_ms.isdigit() else None,
-        waypoint_t_s=wp[:, 0],
-        waypoint_xy_m=wp[:, 1:3],
-        acc_t_s=acc_t, acc_mps2=acc,
-        gyro_t_s=gyro_t, gyro_radps=gyro,
-        magnet_t_s=mag_t, magnet_ut=mag,
-        rotvec_t_s=rot_t, rotvec_xyz=rot,
-        wifi=group_scans(wifi_rows, max_wifi_age_s),
-        beacons=beacons_of(beacon_rows),
-        read_report=report,
-        pressure_t_s=baro[:, 0], pressure_hpa=baro[:, 1],
-        waypoint_floor=wp_floor,
-        phone_model=header.get("Model") or None,
-    )
-
-
-def beacons_of(rows: list[tuple[float, str, float, float]]) -> Beacons:
-    """``Beacons`` of (t_s, id, rssi_dbm, distance_m) rows, sorted by time."""
-    rows = sorted(rows, key=lambda r: r[0])
-    return Beacons(
-        t_s=np.array([r[0] for r in rows], dtype=np.float64),
-        beacon_id=[r[1] for r in rows],
-        rssi_dbm=np.array([r[2] for r in rows], dtype=np.float32),
-        distance_m=np.array([r[3] for r in rows], dtype=np.float32),
-    )
+    def _parse_record(self, fields: list[str]) -> str | None:
+        """Take one record; return its type (None: unknown type). Raises ``BadRow``."""
+        if len(fields) < 2:
+            raise BadRow("?", "malformed line: expected a time and a record type")
+        kind = fields[1]
+        if kind in _VECTOR_TYPES:
+            name, quantity = _VECTOR_TYPES[kind]
+            t_ms = quick_numbers(fields, range(0, 1), "unix_ms")
+            values = quick_numbers(fields, range(2, 5), quantity)
+            if t_ms is not None and values is not None:  # the fast path: a good row
+                t_s = t_ms[0] / 1000.0
+            else:
+                t_s = _time_s(fields)
+                values = [check_range(kind, axis, parse_number(kind, fields, column), quantity)
+                          for axis, column in (("x", 2), ("y", 3), ("z", 4))]
+            self._vectors[name].append((t_s, *values))
+            if t_s > self._scans.open_t:
+                self._scans.clock(t_s)
+            return kind
+        if kind == "TYPE_WIFI":
+            if len(fields) < 7:
+                raise BadRow(kind, f"malformed TYPE_WIFI line: {len(fields)} fields, expected 7")
+            t_ms = check_range(kind, "time", parse_number(kind, fields, 0), "unix_ms")
+            rssi = check_range(kind, "RSSI", parse_number(kind, fields, 4), "rssi_dbm")
+            freq = check_range(kind, "frequency", parse_number(kind, fields, 5), "freq_mhz")
+            seen_ms = check_range(kind, "last-seen time", parse_number(kind, fields, 6), "unix_ms")
+            bssid = fields[3].strip()
+            if not bssid:
+                raise BadRow(kind, "malformed TYPE_WIFI line: empty BSSID")
+            t_s = t_ms / 1000.0
+            self._scans.add(t_s, (t_s, bssid, rssi, freq, (t_ms - seen_ms) / 1000.0))
+            return kind
+        if kind == "TYPE_WAYPOINT":
+            t_s = _time_s(fields)
+            x, y = (check_range(kind, name, parse_number(kind, fields, column), "position_m")
+                    for name, column in (("x", 2), ("y", 3)))
+            floor = fields[4].strip() if len(fields) > 4 and fields[4].strip() else None  # a walk over floors
+            self._waypoints.add(t_s, (t_s, x, y, floor))
+        elif kind == "TYPE_PRESSURE":
+            t_s = _time_s(fields)
+            self._pressure.append((t_s, check_range(kind, "pressure", parse_number(kind, fields, 2), "pressure_hpa")))
+        elif kind == "TYPE_BEACON":
+            if len(fields) < 8:
+                raise BadRow(kind, f"malformed TYPE_BEACON line: {len(fields)} fields, expected 10")
+            t_s = _time_s(fields)
+            rssi = check_range(kind, "RSSI", parse_number(kind, fields, 6), "rssi_dbm")
+            distance = check_range(kind, "distance", parse_number(kind, fields, 7), "distance_m")
+            mac = fields[8].strip() if len(fields) > 8 else ""
+            # the MAC tells the beacons apart (the site-1 beacons share one uuid:major:minor)
+            beacon_id = mac.upper() if _MAC.fullmatch(mac) else f"{fields[2]}:{fields[3]}:{fields[4]}"
+            self._beacons.add(t_s, (t_s, beacon_id, rssi, distance))
+        else:
+            return None  # other record types are skipped
+        self._scans.clock(t_s)
+        return kind
 
 
 def read_ilc_header(path: str | os.PathLike) -> dict[str, str]:
@@ -209,55 +283,6 @@ def _split_records(fields: list[str]) -> list[list[str]]:
         head, begin = glued[-_TIME_DIGITS:], j - 1
     records.append([head, *fields[begin + 1:]])
     return records
-
-
-def _parse_record(fields, vectors, waypoints, wifi_rows, beacon_rows, waypoint_floors, pressure) -> str | None:
-    """Append one record to its list; return its type (None: unknown type). Raises ``BadRow``."""
-    if len(fields) < 2:
-        raise BadRow("?", "malformed line: expected a time and a record type")
-    kind = fields[1]
-    if kind == "TYPE_WAYPOINT":
-        t_s = _time_s(fields)
-        x, y = (check_range(kind, name, parse_number(kind, fields, column), "position_m")
-                for name, column in (("x", 2), ("y", 3)))
-        waypoints.append((t_s, x, y))
-        if len(fields) > 4 and fields[4].strip():
-            waypoint_floors.append(fields[4].strip())  # the floor (a walk over several floors)
-    elif kind in _VECTOR_TYPES:
-        name, quantity = _VECTOR_TYPES[kind]
-        t_ms = quick_numbers(fields, range(0, 1), "unix_ms")
-        values = quick_numbers(fields, range(2, 5), quantity)
-        if t_ms is not None and values is not None:
-            vectors[name].append((t_ms[0] / 1000.0, *values))  # the fast path: a good row
-            return kind
-        t_s = _time_s(fields)
-        values = [check_range(kind, axis, parse_number(kind, fields, column), quantity)
-                  for axis, column in (("x", 2), ("y", 3), ("z", 4))]
-        vectors[name].append((t_s, *values))
-    elif kind == "TYPE_WIFI":
-        if len(fields) < 7:
-            raise BadRow(kind, f"malformed TYPE_WIFI line: {len(fields)} fields, expected 7")
-        t_ms = check_range(kind, "time", parse_number(kind, fields, 0), "unix_ms")
-        rssi = check_range(kind, "RSSI", parse_number(kind, fields, 4), "rssi_dbm")
-        freq = check_range(kind, "frequency", parse_number(kind, fields, 5), "freq_mhz")
-        seen_ms = check_range(kind, "last-seen time", parse_number(kind, fields, 6), "unix_ms")
-        bssid = fields[3].strip()
-        if not bssid:
-            raise BadRow(kind, "malformed TYPE_WIFI line: empty BSSID")
-        wifi_rows.append((t_ms / 1000.0, bssid, rssi, freq, (t_ms - seen_ms) / 1000.0))
-    elif kind == "TYPE_PRESSURE":
-        t_s = _time_s(fields)
-        pressure.append((t_s, check_range(kind, "pressure", parse_number(kind, fields, 2), "pressure_hpa")))
-    elif kind == "TYPE_BEACON":
-        if len(fields) < 8:
-            raise BadRow(kind, f"malformed TYPE_BEACON line: {len(fields)} fields, expected 10")
-        t_s = _time_s(fields)
-        rssi = check_range(kind, "RSSI", parse_number(kind, fields, 6), "rssi_dbm")
-        distance = check_range(kind, "distance", parse_number(kind, fields, 7), "distance_m")
-        beacon_rows.append((t_s, f"{fields[2]}:{fields[3]}:{fields[4]}", rssi, distance))
-    else:
-        return None  # other record types are skipped
-    return kind
 
 
 def _time_s(fields: list[str]) -> float:

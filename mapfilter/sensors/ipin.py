@@ -17,8 +17,8 @@ What is read, into the same ``Recording`` the ILC reader makes:
 - ``PRES`` the barometer (mbar = hPa);
 - ``WIFI`` one row per access point heard; the rows of one scan share their AppTimestamp, so a
   scan is the rows of one AppTimestamp, keyed ``bssid@2.4`` / ``bssid@5`` as everywhere;
-- ``BLE4`` Bluetooth LE beacons (iBeacon ``uuid:major:minor``, Eddystone its MAC), kept for
-  whoever uses them (no distance estimate: ``distance_m`` is NaN);
+- ``BLE4`` Bluetooth LE beacons (iBeacon and Eddystone), each named by its MAC in upper case
+  (``BE:AC:20:23:00:01``), kept for whoever uses them (no distance estimate: ``distance_m`` is NaN);
 - ``POSI`` the ground truth: time, latitude, longitude and floor id of each marked point
   (``waypoint_latlon_deg``, ``waypoint_floor``; ``waypoint_xy_m`` stays NaN until the walk is
   placed in a georeferenced building: ``sensors/logs.localise``);
@@ -29,23 +29,32 @@ the sample: one clock for all sensors); sensor records also have the sensor's ow
 (s since the phone booted, exact sample intervals, but an epoch of its own). The recording's
 times are Unix seconds: the header's creation date plus the AppTimestamp (0 plus it when the
 header has no date), so WiFi, ground truth and IMU share one clock as in an ILC log. IMU and
-barometer samples are placed on it by their sensor timestamp plus that stream's median
-(AppTimestamp - SensorTimestamp): the app reads samples in bursts (AppTimestamp intervals
-scatter by 5-9 ms around 20 ms on the IPIN 2023 logs, the sensor's by under 1 ms), and the
-median latency is a few ms. A sample whose sensor time strays more than
-:data:`MAX_CLOCK_DISAGREEMENT_S` from its AppTimestamp (a clock reset) keeps its AppTimestamp.
-A WiFi row's age is its scan's AppTimestamp minus its sensor timestamp (the last-seen time on
-the boot clock, moved by the accelerometer's offset); rows older than ``max_wifi_age_s`` are
-stale cached results and are dropped as in the ILC reader.
+barometer samples are placed on it by their sensor timestamp plus that stream's offset, the
+median (AppTimestamp - SensorTimestamp) over its records in the log's first
+:data:`CLOCK_WINDOW_S` (from the log's first record; a stream that starts later: its own first
+0.5 s). The app reads samples in bursts (AppTimestamp intervals scatter by 5-9 ms around 20 ms
+on the IPIN 2023 logs, the sensor's by under 1 ms), and the median latency is a few ms; over
+0.5 s it is within 7 ms of the whole log's median. A sample whose sensor time strays more than
+:data:`MAX_CLOCK_DISAGREEMENT_S` from its AppTimestamp (a clock reset) keeps its AppTimestamp
+(counted: ``ReadReport.clock_strays``). A WiFi row's age is its scan's AppTimestamp minus its
+sensor timestamp (the last-seen time on the boot clock, moved by the accelerometer's offset);
+when a scan's median age is implausible its ages are unknown (0); rows older than
+``max_wifi_age_s`` are stale cached results and are dropped as in the ILC reader.
+
+The reader is a stream (:class:`GsdParser`, fed by ``sensors/logs.LogStream``): it holds
+every record until the log's AppTimestamp passes its first record's by 0.5 s (the offsets and
+the time base are then known), a WiFi scan until a record of a later AppTimestamp comes.
 
 Bad rows are handled as by the ILC reader (``sensors/logread.py``): skipped and counted in
 ``Recording.read_report``, refused with ``strict`` when their type is needed; values outside
-their physical range are bad rows; exact duplicates are kept once; time gaps are reported.
+their physical range are bad rows; each record type keeps file order (a record earlier than the
+previous kept one of its type is dropped), exact repeats are kept once; time gaps are reported.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import math
 import os
 import re
 from collections.abc import Callable, Iterable
@@ -54,9 +63,9 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.logread import (BadRow, check_range, check_usable, count_record, drop_duplicate_records,
-                                       drop_duplicate_rows, emit_warning, find_time_gaps, group_scans,
-                                       iter_bounded_lines, open_binary, parse_number, quick_numbers, read_lines)
+from mapfilter.sensors.logread import (BadRow, GapTracker, RecordStream, ScanAssembler, TimeOrder, check_range,
+                                       group_scans, iter_bounded_lines, open_binary, parse_number, quick_numbers,
+                                       read_whole)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 FORMAT_NAME = "GetSensorData"
@@ -65,8 +74,11 @@ DEFAULT_MAX_WIFI_AGE_S = 5.0  # as for ILC logs
 NEEDED_TYPES = frozenset({"POSI", "ACCE", "GYRO", "AHRS", "WIFI", "PRES"})
 # a sensor timestamp further than this from its AppTimestamp (after the stream's offset) is not trusted
 MAX_CLOCK_DISAGREEMENT_S = 1.0
-# WiFi ages whose median over the log falls outside this range mean the WiFi sensor timestamps
-# are on another clock than the IMU's: the ages are unknown (0) and no row is dropped as stale
+# each sensor stream's clock offset is the median over its records in the log's first 0.5 s: on the
+# 29 IPIN 2023 logs within 7 ms of the whole log's median (1.4 ms median)
+CLOCK_WINDOW_S = 0.5
+# WiFi ages whose median over a scan falls outside this range mean the WiFi sensor timestamps
+# are on another clock than the IMU's: the scan's ages are unknown (0) and no row is dropped as stale
 _PLAUSIBLE_MEDIAN_WIFI_AGE_S = (-1.0, 10.0)
 
 # record type -> (name of the sensor list, physical quantity of its values, number of values)
@@ -91,75 +103,266 @@ def read_ipin(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_
               warn: Callable[[str], None] | None = None) -> Recording:
     """Read one GetSensorData log into a ``Recording`` (see the module docstring).
 
-    Bad rows of a type outside ``needed`` are always skipped; bad rows of a needed type,
-    over-long lines and a truncated gzip stream are skipped unless ``strict``, which refuses
-    them with a ``MapfilterError`` naming the file and line. When anything was skipped or a
-    time gap found, the one-line warning goes to ``warn`` if given, else to ``warnings.warn``.
+    The log is streamed (``logread.RecordStream`` with :class:`GsdParser`, what
+    ``sensors/logs.LogStream`` does for a GetSensorData log) and the pieces joined: the result
+    is the replay of the log as a stream. Bad rows of a type outside ``needed`` are always
+    skipped; bad rows of a needed type, over-long lines and a truncated gzip stream are skipped
+    unless ``strict``, which refuses them with a ``MapfilterError`` naming the file and line.
+    When anything was skipped or a time gap found, the one-line warning goes to ``warn`` if
+    given, else to ``warnings.warn``.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise MapfilterError("file not found", path)
-    report = ReadReport(path=path, needed=frozenset(needed), format=FORMAT_NAME)
-    sensors: dict[str, list[tuple[float, ...]]] = {name: [] for name, _, _ in _SENSOR_TYPES.values()}
-    wifi_rows: list[tuple[float, str, float, float, float]] = []  # app_s, bssid, rssi, freq, sensor_s
-    beacon_rows: list[tuple[float, str, float, float]] = []
-    posi_rows: list[tuple[float, float, float, str]] = []  # app_s, lat, lon, floor
-    header: list[str] = []
+    stream = RecordStream(path, max_wifi_age_s, strict, needed, GsdParser)
+    return read_whole(path, stream, warn)
 
-    def handle_line(line_no: int, line: str) -> None:
+
+class GsdParser:
+    """GetSensorData lines -> the records of a ``Recording``, in the order they come (the parser
+    a ``logread.RecordStream`` feeds).
+
+    Every record is held until the log's AppTimestamp passes its first record's by
+    :data:`CLOCK_WINDOW_S`: each sensor stream's clock offset is the median (AppTimestamp -
+    SensorTimestamp) of its records so far, and the creation date of the header read so far is
+    the time base. A stream whose first record comes later holds its records for
+    :data:`CLOCK_WINDOW_S` from it, for the same median. A WiFi scan is complete once a record
+    of a later AppTimestamp comes.
+    """
+
+    FORMAT_NAME = FORMAT_NAME
+    NEEDED_TYPES = NEEDED_TYPES
+
+    def __init__(self, report: ReadReport, max_wifi_age_s: float, strict: bool):
+        self._report = report
+        self._max_wifi_age_s = max_wifi_age_s
+        # rows not yet placed on the app clock, per sensor list: (app_s, sensor_s, values...)
+        self._raw: dict[str, list[tuple[float, ...]]] = {name: [] for name, _, _ in _SENSOR_TYPES.values()}
+        self._order = {name: TimeOrder(report, kind) for kind, (name, _, _) in _SENSOR_TYPES.items()}
+        self._offset_s: dict[str, float] = {}  # each sensor stream's (app - sensor) once known
+        self._window_end_s: dict[str, float] = {}  # streams that began late -> end of their own window
+        self._waiting: set[str] = set()  # streams without a record when the log's window ended
+        self._log_window_end_s: float | None = None  # None: no record yet
+        self._next_end_s = -math.inf  # the earliest end of a window still open (-inf: no record yet)
+        self._released = False  # the log's window has ended: records go out
+        self._wifi = ScanAssembler(report, "WIFI")  # rows (app_s, bssid, rssi, freq, sensor_s)
+        self._wifi_offset_s: float | None = None  # the accelerometer's: WiFi last-seen times are on its clock
+        self._posi = TimeOrder(report, "POSI")  # records (app_s, lat, lon, floor)
+        self._beacons = TimeOrder(report, "BLE4")  # records (app_s, MAC, rssi)
+        self._floors: list[str] = []  # the distinct floors of the ground truth so far
+        self._info: dict[str, str | float] = {}  # the header's fields so far
+        self._base_s = 0.0  # Unix seconds of AppTimestamp 0 (the header's creation date, if any)
+        self._start_t_s: float | None = None
+        self._gaps = GapTracker(report)
+
+    def handle_line(self, line_no: int, line: str) -> None:
         if not line.strip():
             return
         if line.startswith("%"):
-            header.append(line)
+            _read_header_line(line, self._info)
             return
-        count_record(report, lambda: _parse_record(line.split(";"), sensors, wifi_rows, beacon_rows, posi_rows),
-                     line_no, strict, path)
+        kind = self._parse_record(line.split(";"))
+        report = self._report
+        if kind is None:
+            report.unknown_rows += 1
+        else:
+            report.rows[kind] = report.rows.get(kind, 0) + 1
 
-    read_lines(path, report, strict, handle_line)
-    check_usable(report, path)
-    info = parse_header(header)
-    base_s = info.get("start_t_s", 0.0)
+    def take(self, final: bool) -> Recording:
+        if final:
+            self._end_windows()
+        if not self._released:  # everything is held
+            chunk = Recording.empty(self._report.path)
+            chunk.phone_model = self._phone_model()
+            return chunk
+        base_s = self._base_s
+        streams = {}
+        for kind, (name, _, n_values) in _SENSOR_TYPES.items():
+            offset_s = self._offset_s.get(name)
+            rows = []
+            if offset_s is not None:  # else the stream is still in its own window: it keeps its rows
+                rows, self._raw[name] = self._raw[name], []
+            raw = np.array(rows, dtype=np.float64).reshape(-1, 2 + n_values)
+            t_s = self._place(kind, raw, offset_s) if rows else raw[:, 0]
+            # (t_s on the app clock, app_s, sensor_s, values...): ordered by t_s, repeats by every column
+            placed = self._order[name].accept(np.column_stack([t_s, raw]), final)
+            streams[name] = base_s + placed[:, 0], placed[:, 3:].copy()
+        scans = self._wifi.take(final)
+        wifi_rows = [row for scan in scans for row in self._with_ages(scan)]
+        posi = self._posi.take(final)
+        beacons = self._beacons.take(final)
+        for floor in (r[3] for r in posi):
+            if floor not in self._floors:
+                self._floors.append(floor)
+        waypoint_t = np.array([base_s + r[0] for r in posi], dtype=np.float64)
+        beacon_t = np.array([base_s + r[0] for r in beacons], dtype=np.float64)
+        self._gaps.add([t for t, _ in streams.values()] + [waypoint_t, [base_s + scan[0][0] for scan in scans],
+                                                           beacon_t])
+        floors = [r[3] for r in posi]
+        return Recording(
+            path=self._report.path,
+            floor_name=self._floors[0] if len(self._floors) == 1 else None,
+            start_t_s=self._start_t_s,
+            waypoint_t_s=waypoint_t,
+            waypoint_xy_m=np.full((len(posi), 2), np.nan),
+            acc_t_s=streams["acc"][0], acc_mps2=streams["acc"][1],
+            gyro_t_s=streams["gyro"][0], gyro_radps=streams["gyro"][1],
+            magnet_t_s=streams["magnet"][0], magnet_ut=streams["magnet"][1],
+            rotvec_t_s=streams["rotvec"][0], rotvec_xyz=streams["rotvec"][1],
+            wifi=group_scans(wifi_rows, self._max_wifi_age_s),
+            beacons=Beacons(t_s=beacon_t, beacon_id=[r[1] for r in beacons],
+                            rssi_dbm=np.array([r[2] for r in beacons], dtype=np.float32),
+                            distance_m=np.full(len(beacons), np.nan, dtype=np.float32)),
+            pressure_t_s=streams["pressure"][0], pressure_hpa=streams["pressure"][1][:, 0].copy(),
+            waypoint_floor=floors or None,
+            waypoint_latlon_deg=np.array([[r[1], r[2]] for r in posi], dtype=np.float64) if posi else None,
+            phone_model=self._phone_model(),
+        )
 
-    streams = {}
-    offsets = {}
-    for kind, (name, _, n_values) in _SENSOR_TYPES.items():
-        # (app_s, sensor_s, values...) -> duplicates dropped -> (t_s, values) on the common clock
-        rows = drop_duplicate_rows(np.array(sensors[name], dtype=np.float64).reshape(-1, 2 + n_values), report, kind)
-        t_s, offsets[kind] = _common_clock(rows[:, 0], rows[:, 1])
-        order = np.argsort(t_s, kind="stable")
-        streams[name] = (base_s + t_s[order], rows[order, 2:])
-    wifi_rows = drop_duplicate_records(wifi_rows, report, "WIFI")
-    beacon_rows = drop_duplicate_records(beacon_rows, report, "BLE4")
-    posi_rows = drop_duplicate_records(posi_rows, report, "POSI")
-    posi_rows.sort(key=lambda r: r[0])
-    wifi = group_scans(_wifi_with_ages(wifi_rows, offsets.get("ACCE"), base_s), max_wifi_age_s)
-    waypoint_t = np.array([base_s + r[0] for r in posi_rows], dtype=np.float64)
-    latlon = np.array([[r[1], r[2]] for r in posi_rows], dtype=np.float64).reshape(-1, 2)
-    floors = [r[3] for r in posi_rows]
-    find_time_gaps([t for t, _ in streams.values()] + [waypoint_t, base_s + np.array([r[0] for r in wifi_rows]),
-                                                       base_s + np.array([r[0] for r in beacon_rows])], report)
-    emit_warning(report, warn)
-    return Recording(
-        path=path,
-        floor_name=floors[0] if floors and len(set(floors)) == 1 else None,
-        start_t_s=info.get("start_t_s"),
-        waypoint_t_s=waypoint_t,
-        waypoint_xy_m=np.full((len(posi_rows), 2), np.nan),
-        acc_t_s=streams["acc"][0], acc_mps2=streams["acc"][1],
-        gyro_t_s=streams["gyro"][0], gyro_radps=streams["gyro"][1],
-        magnet_t_s=streams["magnet"][0], magnet_ut=streams["magnet"][1],
-        rotvec_t_s=streams["rotvec"][0], rotvec_xyz=streams["rotvec"][1],
-        wifi=wifi,
-        beacons=Beacons(t_s=np.array([base_s + r[0] for r in beacon_rows], dtype=np.float64),
-                        beacon_id=[r[1] for r in beacon_rows],
-                        rssi_dbm=np.array([r[2] for r in beacon_rows], dtype=np.float32),
-                        distance_m=np.full(len(beacon_rows), np.nan, dtype=np.float32)),
-        read_report=report,
-        pressure_t_s=streams["pressure"][0], pressure_hpa=streams["pressure"][1][:, 0],
-        waypoint_floor=floors or None,
-        waypoint_latlon_deg=latlon if posi_rows else None,
-        phone_model=info.get("Model"),
-    )
+    def _phone_model(self) -> str | None:
+        model = self._info.get("Model")
+        return model if isinstance(model, str) else None
+
+    def _place(self, kind: str, raw: np.ndarray, offset_s: float) -> np.ndarray:
+        """Times on the app clock: sensor time + the stream's offset, or the AppTimestamp where
+        that disagrees with it by more than ``MAX_CLOCK_DISAGREEMENT_S`` (counted)."""
+        app_s, sensor_s = raw[:, 0], raw[:, 1]
+        t_s = sensor_s + offset_s
+        stray = np.abs(t_s - app_s) > MAX_CLOCK_DISAGREEMENT_S
+        if stray.any():
+            t_s[stray] = app_s[stray]
+            strays = self._report.clock_strays
+            strays[kind] = strays.get(kind, 0) + int(np.count_nonzero(stray))
+        return t_s
+
+    def _with_ages(self, scan: list[tuple[float, str, float, float, float]]) -> list[tuple[float, str, float, float, float]]:
+        """(t_s, bssid, rssi, freq, age_s) rows of one scan: age = the scan's AppTimestamp - the
+        row's last-seen time moved to the app clock; unknown (0) when the scan's median age is
+        implausible (the WiFi timestamps on another clock) or no accelerometer gave the offset."""
+        ages = np.zeros(len(scan))
+        if self._wifi_offset_s is not None:
+            ages = np.array([app - (sensor + self._wifi_offset_s) for app, _, _, _, sensor in scan])
+            low, high = _PLAUSIBLE_MEDIAN_WIFI_AGE_S
+            if not low <= float(np.median(ages)) <= high:
+                ages[:] = 0.0
+        base_s = self._base_s
+        return [(base_s + app, bssid, rssi, freq, float(age)) for (app, bssid, rssi, freq, _), age in zip(scan, ages)]
+
+    def _at(self, app_s: float) -> None:
+        """A record of AppTimestamp ``app_s`` came: the windows it ends, the log's first record."""
+        if self._log_window_end_s is None:
+            self._log_window_end_s = self._next_end_s = app_s + CLOCK_WINDOW_S
+            return
+        if not self._released and app_s > self._log_window_end_s:
+            self._release()
+        for name, end_s in list(self._window_end_s.items()):
+            if app_s > end_s:
+                self._offset_s[name] = _median_offset(self._raw[name])
+                del self._window_end_s[name]
+        self._next_end_s = min(self._window_end_s.values(), default=math.inf)
+
+    def _release(self) -> None:
+        """The log's window has ended: the clock offsets of the streams in it, the time base."""
+        self._released = True
+        for name, rows in self._raw.items():
+            if rows:
+                self._offset_s[name] = _median_offset(rows)
+            else:
+                self._waiting.add(name)
+        self._wifi_offset_s = self._offset_s.get("acc")
+        self._start_t_s = self._info.get("start_t_s")
+        self._base_s = self._start_t_s if self._start_t_s is not None else 0.0
+
+    def _end_windows(self) -> None:
+        """The log ended: every window ends with what it holds."""
+        if not self._released:
+            self._release()
+        for name in self._window_end_s:
+            self._offset_s[name] = _median_offset(self._raw[name])
+        self._window_end_s.clear()
+        self._next_end_s = math.inf
+
+    def _begin_late_stream(self, name: str, app_s: float) -> None:
+        """The first record of a stream that had none in the log's window: its own window."""
+        self._waiting.discard(name)
+        self._window_end_s[name] = app_s + CLOCK_WINDOW_S
+        self._next_end_s = min(self._next_end_s, app_s + CLOCK_WINDOW_S)
+
+    def _parse_record(self, fields: list[str]) -> str | None:
+        """Take one record; return its type (None: a type not read). Raises ``BadRow``."""
+        kind = fields[0].strip()
+        if kind in _SENSOR_TYPES:
+            name, quantity, n_values = _SENSOR_TYPES[kind]
+            first = 6 if kind == "AHRS" else 3
+            app = quick_numbers(fields, range(1, 2), "log_s")
+            sensor = quick_numbers(fields, range(2, 3), "sensor_s")
+            values = quick_numbers(fields, range(first, first + n_values), quantity)
+            if app is not None and sensor is not None and values is not None and (
+                    kind != "AHRS" or values[0] ** 2 + values[1] ** 2 + values[2] ** 2 <= 1.0 + 1e-3):
+                app_s, sensor_s = app[0], sensor[0]  # the fast path: a good row
+            else:
+                app_s = _app_time(kind, fields)
+                sensor_s = check_range(kind, "SensorTimestamp", parse_number(kind, fields, 2), "sensor_s")
+                values = [check_range(kind, _AXES[j] if n_values > 1 else quantity.split("_")[0],
+                                      parse_number(kind, fields, first + j), quantity) for j in range(n_values)]
+                if kind == "AHRS" and values[0] ** 2 + values[1] ** 2 + values[2] ** 2 > 1.0 + 1e-3:
+                    raise BadRow(kind, "AHRS quaternion out of range: x^2 + y^2 + z^2 > 1 (not a unit quaternion)")
+            if app_s > self._next_end_s:
+                self._at(app_s)
+            if app_s > self._wifi.open_t:
+                self._wifi.clock(app_s)
+            if name in self._waiting:
+                self._begin_late_stream(name, app_s)
+            self._raw[name].append((app_s, sensor_s, *values))
+            return kind
+        if kind == "WIFI":
+            while len(fields) > 7 and not fields[-1].strip():
+                fields = fields[:-1]  # a trailing ';'
+            if len(fields) < 7:
+                raise BadRow(kind, f"malformed WIFI line: {len(fields)} fields, expected 7")
+            # an SSID may hold ';': BSSID, frequency and RSS are the last three fields
+            tail = [fields[0], fields[1], fields[2], fields[-3], fields[-2], fields[-1]]
+            app_s = _app_time(kind, tail)
+            sensor_s = check_range(kind, "SensorTimestamp", parse_number(kind, tail, 2), "sensor_s")
+            freq = check_range(kind, "frequency", parse_number(kind, tail, 4), "freq_mhz")
+            rssi = check_range(kind, "RSSI", parse_number(kind, tail, 5), "rssi_dbm")
+            bssid = tail[3].strip()
+            if not bssid:
+                raise BadRow(kind, "malformed WIFI line: empty BSSID")
+            if app_s > self._next_end_s:
+                self._at(app_s)
+            self._wifi.add(app_s, (app_s, bssid, rssi, freq, sensor_s))
+            return kind
+        if kind == "BLE4":
+            if len(fields) < 5:
+                raise BadRow(kind, f"malformed BLE4 line: {len(fields)} fields, expected at least 5")
+            app_s = _app_time(kind, fields)
+            rssi = check_range(kind, "RSSI", parse_number(kind, fields, 4), "rssi_dbm")
+            mac = fields[3].strip().upper()  # iBeacon and Eddystone alike
+            if not mac:
+                raise BadRow(kind, "malformed BLE4 line: empty MAC")
+            self._beacons.add(app_s, (app_s, mac, rssi))
+        elif kind == "POSI":
+            if len(fields) < 6:
+                raise BadRow(kind, f"malformed POSI line: {len(fields)} fields, expected 7")
+            app_s = _app_time(kind, fields)
+            lat = check_range(kind, "latitude", parse_number(kind, fields, 3), "latitude_deg")
+            lon = check_range(kind, "longitude", parse_number(kind, fields, 4), "longitude_deg")
+            floor = _floor_id(fields[5])
+            if not floor:
+                raise BadRow(kind, "malformed POSI line: empty floor id")
+            self._posi.add(app_s, (app_s, lat, lon, floor))
+        elif _RECORD.match(kind + ";"):
+            return None  # GNSS, LIGH, SOUN, PROX, ...: not read
+        else:
+            raise BadRow("?", f"malformed line: expected a record type such as ACCE; or WIFI;, got {kind[:20]!r}")
+        if app_s > self._next_end_s:
+            self._at(app_s)
+        self._wifi.clock(app_s)
+        return kind
+
+
+def _median_offset(rows: list[tuple[float, ...]]) -> float:
+    """The median (AppTimestamp - SensorTimestamp) of (app_s, sensor_s, ...) rows."""
+    raw = np.array([row[:2] for row in rows], dtype=np.float64)
+    return float(np.median(raw[:, 0] - raw[:, 1]))
 
 
 def read_ipin_header(path: str | os.PathLike) -> dict[str, str]:
@@ -199,18 +402,23 @@ def parse_header(lines: list[str]) -> dict[str, str | float]:
     ``start_t_s`` (Unix seconds of the 'Date of creation', when it parses)."""
     info: dict[str, str | float] = {}
     for line in lines:
-        text = line.lstrip("%").strip()
-        key, sep, value = text.partition(":")
-        key, value = key.strip(), value.strip()
-        if not sep or not value or "'" in text or not re.fullmatch(r"[A-Za-z][A-Za-z ]*", key):
-            continue  # the record-format lines ("Accelerometer data: 'ACCE;...'") are not fields
-        if key == "Date of creation":
-            start = _creation_time_s(value)
-            if start is not None:
-                info.setdefault("start_t_s", start)
-            continue
-        info.setdefault(key, value)
+        _read_header_line(line, info)
     return info
+
+
+def _read_header_line(line: str, info: dict[str, str | float]) -> None:
+    """The field of one ``%`` line into ``info`` (the first value of a key wins)."""
+    text = line.lstrip("%").strip()
+    key, sep, value = text.partition(":")
+    key, value = key.strip(), value.strip()
+    if not sep or not value or "'" in text or not re.fullmatch(r"[A-Za-z][A-Za-z ]*", key):
+        return  # the record-format lines ("Accelerometer data: 'ACCE;...'") are not fields
+    if key == "Date of creation":
+        start = _creation_time_s(value)
+        if start is not None:
+            info.setdefault("start_t_s", start)
+        return
+    info.setdefault(key, value)
 
 
 def _creation_time_s(text: str) -> float | None:
@@ -228,33 +436,6 @@ def _creation_time_s(text: str) -> float | None:
         return None
 
 
-def _common_clock(app_s: np.ndarray, sensor_s: np.ndarray) -> tuple[np.ndarray, float | None]:
-    """Times of one sensor stream on the AppTimestamp clock: sensor time + the stream's median
-    (app - sensor), except where that disagrees with the AppTimestamp by more than
-    ``MAX_CLOCK_DISAGREEMENT_S``. Returns the times and the offset (None: no rows)."""
-    if app_s.size == 0:
-        return app_s.copy(), None
-    offset = float(np.median(app_s - sensor_s))
-    t_s = sensor_s + offset
-    stray = np.abs(t_s - app_s) > MAX_CLOCK_DISAGREEMENT_S
-    t_s[stray] = app_s[stray]
-    return t_s, offset
-
-
-def _wifi_with_ages(rows: list[tuple[float, str, float, float, float]], boot_offset_s: float | None,
-                    base_s: float) -> list[tuple[float, str, float, float, float]]:
-    """(t_s, bssid, rssi, freq, age_s) rows: age = scan AppTimestamp - last-seen time on the app clock."""
-    if not rows:
-        return []
-    ages = np.zeros(len(rows))
-    if boot_offset_s is not None:
-        ages = np.array([app - (sensor + boot_offset_s) for app, _, _, _, sensor in rows])
-        low, high = _PLAUSIBLE_MEDIAN_WIFI_AGE_S
-        if not low <= float(np.median(ages)) <= high:
-            ages[:] = 0.0  # another clock: the ages are unknown
-    return [(base_s + app, bssid, rssi, freq, float(age)) for (app, bssid, rssi, freq, _), age in zip(rows, ages)]
-
-
 def _floor_id(text: str) -> str:
     """A floor id as the venue writes it, integers normalised ("00" -> "0", "-02" -> "-2")."""
     text = text.strip()
@@ -262,68 +443,6 @@ def _floor_id(text: str) -> str:
         return str(int(text))
     except ValueError:
         return text
-
-
-def _parse_record(fields: list[str], sensors, wifi_rows, beacon_rows, posi_rows) -> str | None:
-    """Append one record to its list; return its type (None: a type not read). Raises ``BadRow``."""
-    kind = fields[0].strip()
-    if kind in _SENSOR_TYPES:
-        name, quantity, n_values = _SENSOR_TYPES[kind]
-        first = 6 if kind == "AHRS" else 3
-        app = quick_numbers(fields, range(1, 2), "log_s")
-        sensor = quick_numbers(fields, range(2, 3), "sensor_s")
-        values = quick_numbers(fields, range(first, first + n_values), quantity)
-        if app is not None and sensor is not None and values is not None and (
-                kind != "AHRS" or values[0] ** 2 + values[1] ** 2 + values[2] ** 2 <= 1.0 + 1e-3):
-            sensors[name].append((app[0], sensor[0], *values))  # the fast path: a good row
-            return kind
-        app_s = _app_time(kind, fields)
-        sensor_s = check_range(kind, "SensorTimestamp", parse_number(kind, fields, 2), "sensor_s")
-        values = [check_range(kind, _AXES[j] if n_values > 1 else quantity.split("_")[0],
-                              parse_number(kind, fields, first + j), quantity) for j in range(n_values)]
-        if kind == "AHRS" and values[0] ** 2 + values[1] ** 2 + values[2] ** 2 > 1.0 + 1e-3:
-            raise BadRow(kind, "AHRS quaternion out of range: x^2 + y^2 + z^2 > 1 (not a unit quaternion)")
-        sensors[name].append((app_s, sensor_s, *values))
-    elif kind == "WIFI":
-        while len(fields) > 7 and not fields[-1].strip():
-            fields = fields[:-1]  # a trailing ';'
-        if len(fields) < 7:
-            raise BadRow(kind, f"malformed WIFI line: {len(fields)} fields, expected 7")
-        # an SSID may hold ';': BSSID, frequency and RSS are the last three fields
-        tail = [fields[0], fields[1], fields[2], fields[-3], fields[-2], fields[-1]]
-        app_s = _app_time(kind, tail)
-        sensor_s = check_range(kind, "SensorTimestamp", parse_number(kind, tail, 2), "sensor_s")
-        freq = check_range(kind, "frequency", parse_number(kind, tail, 4), "freq_mhz")
-        rssi = check_range(kind, "RSSI", parse_number(kind, tail, 5), "rssi_dbm")
-        bssid = tail[3].strip()
-        if not bssid:
-            raise BadRow(kind, "malformed WIFI line: empty BSSID")
-        wifi_rows.append((app_s, bssid, rssi, freq, sensor_s))
-    elif kind == "BLE4":
-        if len(fields) < 5:
-            raise BadRow(kind, f"malformed BLE4 line: {len(fields)} fields, expected at least 5")
-        app_s = _app_time(kind, fields)
-        rssi = check_range(kind, "RSSI", parse_number(kind, fields, 4), "rssi_dbm")
-        if fields[2].strip() == "iBeacon" and len(fields) >= 9:
-            beacon_id = f"{fields[8].strip()}:{fields[6].strip()}:{fields[7].strip()}"
-        else:
-            beacon_id = fields[3].strip()  # Eddystone (and anything else): its MAC
-        beacon_rows.append((app_s, beacon_id, rssi, np.nan))
-    elif kind == "POSI":
-        if len(fields) < 6:
-            raise BadRow(kind, f"malformed POSI line: {len(fields)} fields, expected 7")
-        app_s = _app_time(kind, fields)
-        lat = check_range(kind, "latitude", parse_number(kind, fields, 3), "latitude_deg")
-        lon = check_range(kind, "longitude", parse_number(kind, fields, 4), "longitude_deg")
-        floor = _floor_id(fields[5])
-        if not floor:
-            raise BadRow(kind, "malformed POSI line: empty floor id")
-        posi_rows.append((app_s, lat, lon, floor))
-    elif _RECORD.match(kind + ";"):
-        return None  # GNSS, LIGH, SOUN, PROX, ...: not read
-    else:
-        raise BadRow("?", f"malformed line: expected a record type such as ACCE; or WIFI;, got {kind[:20]!r}")
-    return kind
 
 
 def _app_time(kind: str, fields: list[str]) -> float:

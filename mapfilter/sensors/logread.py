@@ -1,15 +1,20 @@
-"""What every log reader shares: bounded line reading, physical ranges, duplicates, time gaps.
+"""What every log reader shares: streaming, bounded lines, physical ranges, record order, gaps.
 
-The ILC reader (``ilc.py``) and the GetSensorData reader (``ipin.py``) read their records
-through :func:`read_lines` and check them with the helpers here, so that a broken or hostile
-log is handled the same way whatever its format:
+The ILC reader (``ilc.py``) and the GetSensorData reader (``ipin.py``) are parsers of lines
+that a :class:`RecordStream` feeds (``sensors/logs.LogStream`` is the public one), and they
+check their records with the helpers here, so that a broken or hostile log is handled the same
+way whatever its format, and a log read whole is the replay of the same log streamed:
 
-- a log is read in bounded pieces: a line longer than :data:`MAX_LINE_BYTES` is never held
-  in memory, it is skipped (a bad row) while the reader reads on to its end;
+- a log is read in pieces cut anywhere (:class:`LineSplitter`): a line longer than
+  :data:`MAX_LINE_BYTES` is never held in memory, it is skipped (a bad row) while the reader
+  reads on to its end;
 - every value is checked against the physical range of its quantity (:data:`RANGES`); a value
   outside it makes the row bad, like a value that is not a number;
-- exact duplicate records (same time, same values) are kept once (:func:`drop_duplicate_rows`);
-- long stretches with no record at all are reported (:func:`find_time_gaps`), never filled in.
+- each stream keeps its records in file order: a record earlier than the previous kept one of
+  its stream went back in time and is dropped, an exact repeat of a record of the same time is
+  kept once (:class:`TimeOrder`); WiFi rows become scans once a scan is complete
+  (:class:`ScanAssembler`);
+- long stretches with no record at all are reported (:class:`GapTracker`), never filled in.
 
 Memory is proportional to the log's size, whatever its timestamps.
 """
@@ -18,15 +23,17 @@ from __future__ import annotations
 
 import gzip
 import math
+import os
 import warnings
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.recording import ReadReport, WifiScans
+from mapfilter.sensors.recording import ReadReport, Recording, WifiScans, concatenate
 from mapfilter.sensors.wifi import ap_key, band_of_frequency
 
 # The longest line a reader holds in memory. Real ILC and GetSensorData lines are under 500 bytes
@@ -144,52 +151,6 @@ def iter_bounded_lines(handle, max_bytes: int = MAX_LINE_BYTES) -> Iterator[tupl
         yield line_no, raw.decode("utf-8", errors="replace").rstrip("\r\n")
 
 
-def read_lines(path: Path, report: ReadReport, strict: bool,
-               handle_line: Callable[[int, str], None]) -> None:
-    """Feed every line of the log at ``path`` to ``handle_line(line_no, text)``.
-
-    ``handle_line`` raises ``BadRow`` for a row it cannot use; the row is counted in ``report``
-    (or refused with ``strict`` when its type is needed or unknown). An over-long line is a bad
-    row of type "?". A gzip stream that ends early keeps the lines before the cut (refused with
-    ``strict``); a corrupted stream is refused. Fills ``report.n_lines``.
-    """
-    line_no = 0
-    try:
-        with open_binary(path) as handle:
-            for line_no, text in iter_bounded_lines(handle):
-                try:
-                    if text is None:
-                        raise BadRow("?", f"line longer than {MAX_LINE_BYTES} bytes")
-                    handle_line(line_no, text)
-                except BadRow as bad:
-                    count_bad_row(report, bad, line_no, strict, path)
-    except EOFError:
-        # gzip without its end-of-stream marker: every line handed out before the cut was complete
-        # (readline only returns a line once its newline has been decompressed)
-        if strict:
-            raise MapfilterError(f"gzip stream ends early after line {line_no} (truncated file)", path) from None
-        report.truncated_after_line = line_no
-    except (OSError, gzip.BadGzipFile, zlib.error) as exc:
-        raise MapfilterError(f"cannot read log: {exc}", path) from None
-    report.n_lines = line_no
-
-
-def count_record(report: ReadReport, parse: Callable[[], str | None], line_no: int, strict: bool,
-                 path: Path) -> None:
-    """Parse one record with ``parse`` (which returns its record type, None for a type the reader
-    does not know) and count it in ``report``: a bad row (``BadRow``) skipped and counted
-    (refused with ``strict``, ``count_bad_row``), an unknown type counted, a good row counted by type."""
-    try:
-        kind = parse()
-    except BadRow as bad:
-        count_bad_row(report, bad, line_no, strict, path)
-        return
-    if kind is None:
-        report.unknown_rows += 1
-    else:
-        report.rows[kind] = report.rows.get(kind, 0) + 1
-
-
 def count_bad_row(report: ReadReport, bad: BadRow, line_no: int, strict: bool, path: Path) -> None:
     """Count a bad row in ``report``, or refuse it with ``strict`` if its type is needed or unknown."""
     if strict and (bad.kind in report.needed or bad.kind == "?"):
@@ -208,64 +169,16 @@ def check_usable(report: ReadReport, path: Path) -> None:
         raise MapfilterError(f"no usable record in the log{detail}", path)
 
 
-def emit_warning(report: ReadReport, warn: Callable[[str], None] | None) -> None:
-    """The report's one-line warning (if any) to ``warn``, else as a ``LogReadWarning``."""
+def emit_warning(report: ReadReport, warn: Callable[[str], None] | None, stacklevel: int = 3) -> None:
+    """The report's one-line warning (if any) to ``warn``, else as a ``LogReadWarning``
+    (attributed to the caller ``stacklevel`` - 1 frames up)."""
     message = report.warning()
     if message is None:
         return
     if warn is not None:
         warn(message)
     else:
-        warnings.warn(message, LogReadWarning, stacklevel=3)
-
-
-def drop_duplicate_rows(rows: np.ndarray, report: ReadReport, kind: str) -> np.ndarray:
-    """Rows of a float table sorted by time (column 0, stable) with exact duplicates kept once.
-
-    Two records with the same time and the same values are one record written twice (a log
-    concatenated with itself, a logger that repeats itself): counting both would count a
-    waypoint twice. The number dropped goes to ``report.duplicates[kind]``.
-    """
-    if rows.shape[0] == 0:
-        return rows
-    # sorted by every column, duplicates are neighbours; the rows kept keep their file order
-    # among equal times (a stable sort by time), as the readers always ordered them
-    by_value = np.lexsort(rows.T[::-1])
-    repeat = np.all(rows[by_value[1:]] == rows[by_value[:-1]], axis=1)
-    keep = np.ones(rows.shape[0], dtype=bool)
-    keep[by_value[1:][repeat]] = False
-    dropped = int(np.count_nonzero(repeat))
-    if dropped:
-        report.duplicates[kind] = report.duplicates.get(kind, 0) + dropped
-    rows = rows[keep]
-    return rows[np.argsort(rows[:, 0], kind="stable")]
-
-
-def drop_duplicate_records(records: list[tuple], report: ReadReport, kind: str) -> list[tuple]:
-    """``records`` (tuples of any values) in their order with exact repeats kept once."""
-    seen: set[tuple] = set()
-    kept = []
-    for record in records:
-        if record not in seen:
-            seen.add(record)
-            kept.append(record)
-    dropped = len(records) - len(kept)
-    if dropped:
-        report.duplicates[kind] = report.duplicates.get(kind, 0) + dropped
-    return kept
-
-
-def find_time_gaps(times_s: list[np.ndarray], report: ReadReport, gap_s: float = GAP_REPORT_S) -> None:
-    """Record in ``report.time_gaps_s`` every stretch longer than ``gap_s`` with no record of any
-    kind, as (start, end) times, over the union of ``times_s``. Nothing is filled in: a row stamped
-    years ahead costs one array entry here, and the stages that walk through time are told."""
-    nonempty = [np.asarray(t, dtype=np.float64).ravel() for t in times_s if np.size(t)]
-    if not nonempty:
-        return
-    every = np.sort(np.concatenate(nonempty))
-    jumps = np.nonzero(np.diff(every) > gap_s)[0]
-    report.time_gaps_s = [(float(every[i]), float(every[i + 1])) for i in jumps]
-    report.time_span_s = (float(every[0]), float(every[-1]))
+        warnings.warn(message, LogReadWarning, stacklevel=stacklevel)
 
 
 def group_scans(rows: list[tuple[float, str, float, float, float]], max_age_s: float) -> WifiScans:
@@ -299,3 +212,490 @@ def group_scans(rows: list[tuple[float, str, float, float, float]], max_age_s: f
         freq_mhz=np.array(freq_mhz, dtype=np.float32),
         age_s=np.array(age, dtype=np.float32),
     )
+
+
+# ---- streaming: a log's bytes as they come -> the records completed so far ----------------------
+
+# A record this far after the previous one of its stream is held until the next one confirms
+# the jump (a pause, or a clock set forward) or goes back (a lone row stamped ahead: dropped).
+# The longest pause in one stream of the real logs: 28.5 s (ILC beacons), 78 s (IPIN beacons,
+# which are then held, not dropped).
+JUMP_CHECK_S = GAP_REPORT_S
+# How far into a log its format is looked for (a header is some 40 lines): lines are held until then.
+SNIFF_LINES = 200
+# The pieces a whole file is read in (the result does not depend on it).
+READ_CHUNK_BYTES = 1 << 20
+
+
+class LineSplitter:
+    """Bytes as they come -> numbered lines of text, as :func:`iter_bounded_lines` reads a file.
+
+    A partial line is kept until its newline arrives; a line longer than ``max_bytes`` is
+    never held whole: it comes out as ``None`` as soon as it is known to be too long, and its
+    rest is read past. Lines are decoded as UTF-8 with ``errors="replace"``, without their
+    line end (``\\n``, and any ``\\r`` before it).
+    """
+
+    def __init__(self, max_bytes: int = MAX_LINE_BYTES):
+        self._max = max_bytes
+        self._partial: list[bytes] = []  # the pieces of the line not yet ended
+        self._partial_len = 0
+        self._skipping = False  # inside an over-long line, already reported
+        self.n_lines = 0  # lines handed out so far
+
+    def feed(self, data: bytes) -> tuple[int, list[str | None]]:
+        """(number of the first line, the lines that ``data`` completed)."""
+        first = self.n_lines + 1
+        lines: list[str | None] = []
+        if self._skipping:
+            newline = data.find(b"\n")
+            if newline < 0:
+                return first, lines
+            self._skipping = False
+            data = data[newline + 1:]
+        end = data.rfind(b"\n")
+        if end >= 0:
+            begin = 0
+            if self._partial:  # the held start of a line and its end in data
+                begin = data.find(b"\n") + 1
+                self._partial.append(data[:begin - 1])
+                lines.append(self._decode_line(b"".join(self._partial)))
+                self._partial, self._partial_len = [], 0
+            if begin <= end:
+                lines.extend(self._decode_block(data[begin:end]))
+            data = data[end + 1:]
+        if data:
+            self._partial.append(data)
+            self._partial_len += len(data)
+            if self._partial_len > self._max:
+                lines.append(None)
+                self._skipping = True
+                self._partial, self._partial_len = [], 0
+        self.n_lines += len(lines)
+        return first, lines
+
+    def close(self, drop_partial: bool = False) -> tuple[int, list[str | None]]:
+        """The last line if it had no newline (dropped with ``drop_partial``: a cut stream)."""
+        first = self.n_lines + 1
+        lines: list[str | None] = []
+        if self._partial and not drop_partial:
+            lines.append(self._decode_line(b"".join(self._partial)))
+        self._partial, self._partial_len = [], 0
+        self.n_lines += len(lines)
+        return first, lines
+
+    def _decode_line(self, raw: bytes) -> str | None:
+        if len(raw) > self._max:
+            return None
+        return raw.decode("utf-8", errors="replace").rstrip("\r")
+
+    def _decode_block(self, block: bytes) -> list[str | None]:
+        """The lines of ``block`` (lines separated by newlines, the last one without)."""
+        if len(block) > self._max:
+            ends = np.flatnonzero(np.frombuffer(block, dtype=np.uint8) == 10)
+            lengths = np.diff(np.concatenate(([-1], ends, [len(block)]))) - 1
+            if lengths.max() > self._max:
+                return [self._decode_line(raw) for raw in block.split(b"\n")]
+        # one decode for the block: a newline byte never belongs to a multibyte character, so this
+        # is the decode of each line, invalid bytes replaced alike
+        text = block.decode("utf-8", errors="replace")
+        if "\r" in text:
+            return [line.rstrip("\r") for line in text.split("\n")]
+        return text.split("\n")
+
+
+def _count(counts: dict[str, int], kind: str, n: int) -> None:
+    counts[kind] = counts.get(kind, 0) + n
+
+
+class TimeOrder:
+    """One stream's records kept in file order and in time order.
+
+    A record earlier than the previous kept one of its stream went back in time and is dropped
+    (``report.went_back``); a record equal in every value to a kept record of the same time is
+    a repeat and is dropped (``report.duplicates``): a repeat can only be recognised among
+    records of one time. A record more than :data:`JUMP_CHECK_S` after the previous kept one is
+    held until the next record of its stream: kept if that one is not earlier (a pause, or a
+    clock set forward), else dropped as went back (one row stamped years ahead does not make
+    the rest of its stream go back); at the end of the log it is kept. Each record's fate
+    depends on the records before it and that next one only, so records fed in any pieces give
+    the same records.
+
+    Records come one at a time (:meth:`add`, then :meth:`take`) or as tables whose column 0
+    is the time and whose every column is compared for repeats (:meth:`accept`).
+    """
+
+    def __init__(self, report: ReadReport, kind: str):
+        self._report = report
+        self._kind = kind
+        self._last_t = -math.inf
+        self._tail: set[tuple] = set()  # the kept records of time _last_t
+        self._held: tuple[float, tuple] | None = None  # (time, record) far after the last kept one
+        self._kept: list[tuple] = []  # kept records not yet taken
+
+    def add(self, t: float, record: tuple) -> None:
+        """One record of time ``t``; ``record`` holds all its values."""
+        if self._held is not None:
+            held_t, held = self._held
+            self._held = None
+            if t >= held_t:
+                self._keep(held_t, held)
+            else:
+                _count(self._report.went_back, self._kind, 1)
+        if t < self._last_t:
+            _count(self._report.went_back, self._kind, 1)
+        elif t == self._last_t:
+            if record in self._tail:
+                _count(self._report.duplicates, self._kind, 1)
+            else:
+                self._keep(t, record)
+        elif t - self._last_t > JUMP_CHECK_S and self._last_t > -math.inf:
+            self._held = (t, record)
+        else:
+            self._keep(t, record)
+
+    def take(self, final: bool) -> list[tuple]:
+        """The records kept since the last call (``final``: the log has ended, a held one is kept)."""
+        if final and self._held is not None:
+            self._keep(*self._held)
+            self._held = None
+        kept, self._kept = self._kept, []
+        return kept
+
+    def _keep(self, t: float, record: tuple) -> None:
+        if t == self._last_t:
+            self._tail.add(record)
+        else:
+            self._last_t = t
+            self._tail = {record}
+        self._kept.append(record)
+
+    def accept(self, rows: np.ndarray, final: bool) -> np.ndarray:
+        """The rows of ``rows`` (the stream's next records, a float table) that are kept."""
+        if rows.shape[0] == 0 and (self._held is None or not final):
+            return rows
+        t = rows[:, 0]
+        before = np.maximum.accumulate(np.concatenate(([self._last_t], t[:-1])))
+        if self._held is not None or np.any((t - before > JUMP_CHECK_S) & (before > -math.inf)):
+            for row in rows.tolist():  # a jump: record by record (the values stay the same floats)
+                self.add(row[0], tuple(row))
+            return np.array(self.take(final), dtype=np.float64).reshape(-1, rows.shape[1])
+        back = t < before
+        if back.any():
+            _count(self._report.went_back, self._kind, int(np.count_nonzero(back)))
+            rows = rows[~back]
+            if rows.shape[0] == 0:
+                return rows
+            t = rows[:, 0]
+        same = t[1:] == t[:-1]
+        at_last = bool(t[0] == self._last_t)
+        if at_last or same.any():
+            rows = self._drop_repeats(rows, same, at_last)
+            if rows.shape[0] == 0:
+                return rows
+            t = rows[:, 0]
+        last = float(t[-1])
+        tail = set(map(tuple, rows[t == last].tolist()))
+        self._tail = self._tail | tail if last == self._last_t else tail
+        self._last_t = last
+        return rows
+
+    def _drop_repeats(self, rows: np.ndarray, same: np.ndarray, at_last: bool) -> np.ndarray:
+        """``rows`` without the exact repeats among records of one time (and of the kept tail)."""
+        shared = np.zeros(rows.shape[0], dtype=bool)  # rows sharing their time with another
+        shared[1:] |= same
+        shared[:-1] |= same
+        shared[0] |= at_last
+        index = np.flatnonzero(shared)
+        tail = np.array(sorted(self._tail) if at_last else [], dtype=np.float64).reshape(-1, rows.shape[1])
+        group = np.concatenate([tail, rows[index]])
+        # sorted by every column (stable), repeats are neighbours and the first kept is the earliest
+        by_value = np.lexsort(group.T[::-1])
+        repeat = np.all(group[by_value[1:]] == group[by_value[:-1]], axis=1)
+        drop = by_value[1:][repeat] - tail.shape[0]
+        if drop.size == 0:
+            return rows
+        _count(self._report.duplicates, self._kind, int(drop.size))
+        keep = np.ones(rows.shape[0], dtype=bool)
+        keep[index[drop]] = False
+        return rows[keep]
+
+
+class ScanAssembler:
+    """WiFi rows -> scans: the rows of one time are one scan, complete once a record of a later
+    time (of any type: :meth:`clock`) has come, or the stream ends (:meth:`finish`).
+
+    A row earlier than the scan being filled, or of the time of a scan already complete, went
+    back in time and is dropped; an exact repeat within a scan is a duplicate. As in
+    :class:`TimeOrder`, a scan more than :data:`JUMP_CHECK_S` after the previous one is held
+    until the next scan begins, and dropped (its rows went back) if that one is earlier.
+    """
+
+    def __init__(self, report: ReadReport, kind: str):
+        self._report = report
+        self._kind = kind
+        self.open_t = math.inf  # the time of the scan being filled (inf: none)
+        self._open_far = False  # it is far after the scan before it
+        self._rows: list[tuple] = []
+        self._seen: set = set()
+        self._last_t = -math.inf  # the time of the latest scan (not dropped)
+        self._before_t = -math.inf  # the time of the scan before the one being filled
+        self._held: tuple[float, list[tuple], float] | None = None  # a complete far scan, the time before it
+        self._complete: list[list[tuple]] = []  # scans complete and not yet taken, each its rows
+
+    def add(self, t: float, row: tuple) -> None:
+        """One WiFi row of scan time ``t``; ``row`` holds all its values."""
+        if t == self.open_t:
+            if row in self._seen:
+                _count(self._report.duplicates, self._kind, 1)
+                return
+            self._seen.add(row)
+            self._rows.append(row)
+            return
+        if t > self.open_t or (self._open_far and t < self.open_t):
+            self.finish()
+        if self._held is not None:
+            held_t, rows, before_t = self._held
+            self._held = None
+            if t >= held_t:
+                self._complete.append(rows)
+            else:
+                _count(self._report.went_back, self._kind, len(rows))
+                self._last_t = before_t
+        if t <= self._last_t:
+            _count(self._report.went_back, self._kind, 1)
+            return
+        self._open_far = t - self._last_t > JUMP_CHECK_S and self._last_t > -math.inf
+        self._before_t = self._last_t
+        self.open_t = self._last_t = t
+        self._rows = [row]
+        self._seen = {row}
+
+    def clock(self, t: float) -> None:
+        """A record of time ``t`` came: a scan of an earlier time is complete."""
+        if t > self.open_t:
+            self.finish()
+
+    def finish(self) -> None:
+        """The scan being filled is complete."""
+        if self._rows:
+            if self._open_far:
+                self._held = (self.open_t, self._rows, self._before_t)
+            else:
+                self._complete.append(self._rows)
+        self._rows, self._seen = [], set()
+        self.open_t = math.inf
+        self._open_far = False
+
+    def take(self, final: bool) -> list[list[tuple]]:
+        """The complete scans since the last call (``final``: the log has ended, all are)."""
+        if final:
+            self.finish()
+            if self._held is not None:
+                self._complete.append(self._held[1])
+                self._held = None
+        scans, self._complete = self._complete, []
+        return scans
+
+
+class GapTracker:
+    """The time gaps over every record so far (``report.time_gaps_s``, ``report.time_span_s``),
+    kept as the runs of times with no gap: records of any time may come in any order."""
+
+    def __init__(self, report: ReadReport, gap_s: float = GAP_REPORT_S):
+        self._report = report
+        self._gap_s = gap_s
+        self._runs: list[tuple[float, float]] = []  # (first, last) time of each run, sorted
+
+    def add(self, times_s: list[np.ndarray]) -> None:
+        nonempty = [np.asarray(t, dtype=np.float64).ravel() for t in times_s if np.size(t)]
+        if not nonempty:
+            return
+        every = np.sort(np.concatenate(nonempty))
+        cuts = np.flatnonzero(np.diff(every) > self._gap_s)
+        starts = every[np.concatenate(([0], cuts + 1))]
+        ends = every[np.concatenate((cuts, [every.size - 1]))]
+        runs = sorted(self._runs + list(zip(starts.tolist(), ends.tolist())))
+        merged = [runs[0]]
+        for start, end in runs[1:]:
+            first, last = merged[-1]
+            if start - last > self._gap_s:
+                merged.append((start, end))
+            elif end > last:
+                merged[-1] = (first, end)
+        self._runs = merged
+        self._report.time_gaps_s = [(merged[i][1], merged[i + 1][0]) for i in range(len(merged) - 1)]
+        self._report.time_span_s = (merged[0][0], max(end for _, end in merged))
+
+
+class LogParser(Protocol):
+    """What a log format gives a :class:`RecordStream`: its lines in, records out."""
+
+    FORMAT_NAME: str
+    NEEDED_TYPES: frozenset[str]
+
+    def __init__(self, report: ReadReport, max_wifi_age_s: float, strict: bool) -> None: ...
+
+    def handle_line(self, line_no: int, line: str) -> None:
+        """Read one line (without its line end); ``BadRow`` for a line it cannot use."""
+
+    def take(self, final: bool) -> Recording:
+        """The records completed since the last call (``final``: the log has ended)."""
+
+
+class RecordStream:
+    """A log's text as it comes -> the records completed so far, by one format's parser.
+
+    The machinery of ``sensors/logs.LogStream`` (which tells the format by content; see there
+    for what a stream gives). ``parser``: the format's parser class, or None when a subclass
+    chooses it (:meth:`_choose_parser`) from the first non-empty lines, held until then.
+    """
+
+    def __init__(self, name: str | os.PathLike, max_wifi_age_s: float, strict: bool,
+                 needed: Iterable[str] | None, parser: type[LogParser] | None):
+        self._report = ReadReport(path=Path(name))
+        self._needed = None if needed is None else frozenset(needed)
+        self._max_wifi_age_s = max_wifi_age_s
+        self._strict = strict
+        self._parser_class = parser
+        self._parser: LogParser | None = None
+        self._lines = LineSplitter()
+        self._held: list[str | None] = []  # the lines before the format is known, from line 1
+        self._seen_text = False
+        self._closed = False
+        self._new_lines = False  # lines handled since the last chunk
+        self._last_chunk: Recording | None = None
+
+    @property
+    def report(self) -> ReadReport:
+        """What the stream held and skipped so far (the live report, not a copy)."""
+        return self._report
+
+    @property
+    def format(self) -> str | None:
+        """The log's format ("ILC 2.0", "GetSensorData"); None while not yet known."""
+        return self._report.format or None
+
+    def feed_bytes(self, data: bytes) -> Recording:
+        """The next bytes of the log, cut anywhere (inside a line or a UTF-8 character): the
+        records completed since the previous call (possibly none)."""
+        self._check_open()
+        self._handle(*self._lines.feed(bytes(data)))
+        return self._take(final=False)
+
+    def feed_text(self, text: str) -> Recording:
+        """The next text of the log, cut anywhere: a partial line is kept until its newline."""
+        return self.feed_bytes(text.encode("utf-8", errors="surrogatepass"))
+
+    def feed_lines(self, lines: Iterable[str]) -> Recording:
+        """The next lines of the log, each with or without its line end (after text that ended
+        inside a line, the first completes that line)."""
+        return self.feed_text("".join(line.rstrip("\r\n") + "\n" for line in lines))
+
+    def close(self, truncated: bool = False) -> Recording:
+        """The end of the log: the rest of the records (with a last line that had no newline).
+
+        ``truncated``: the log was cut short (a gzip stream without its end): a partial last
+        line is dropped and the cut is reported, or refused with ``strict``. ``MapfilterError``
+        when the log was empty, of no known format, or held no usable record.
+        """
+        self._check_open()
+        self._closed = True
+        path = self._report.path
+        if truncated and self._strict:
+            raise MapfilterError(f"gzip stream ends early after line {self._lines.n_lines} (truncated file)", path)
+        if truncated:
+            self._report.truncated_after_line = self._lines.n_lines
+        self._handle(*self._lines.close(drop_partial=truncated))
+        if self._parser is None:
+            if not self._seen_text:
+                raise MapfilterError("empty log", path)
+            self._no_format()
+        chunk = self._take(final=True)
+        check_usable(self._report, path)
+        return chunk
+
+    def _choose_parser(self, line: str) -> type[LogParser] | None:
+        """The parser for a log whose first non-empty line so far is ``line`` (None: look on)."""
+        return self._parser_class
+
+    def _no_format(self) -> None:
+        raise MapfilterError("unknown log format", self._report.path)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ValueError(f"{self._report.path}: the log stream is closed")
+
+    def _handle(self, first: int, lines: list[str | None]) -> None:
+        if self._parser is None:
+            first, lines = self._sniff(first, lines)
+        report = self._report
+        report.n_lines = self._lines.n_lines
+        if not lines:
+            return
+        self._new_lines = True
+        handle_line = self._parser.handle_line
+        for line_no, text in enumerate(lines, first):
+            try:
+                if text is None:
+                    raise BadRow("?", f"line longer than {MAX_LINE_BYTES} bytes")
+                handle_line(line_no, text)
+            except BadRow as bad:
+                count_bad_row(report, bad, line_no, self._strict, report.path)
+
+    def _sniff(self, first: int, lines: list[str | None]) -> tuple[int, list[str | None]]:
+        """Hold lines until the format is known; then all lines held so far (from line 1)."""
+        self._held.extend(lines)
+        for line_no in range(first, first + len(lines)):
+            text = self._held[line_no - 1]
+            if text is None or not text.strip():
+                continue
+            self._seen_text = True
+            parser = self._choose_parser(text)
+            if parser is not None:
+                report = self._report
+                report.format = parser.FORMAT_NAME
+                report.needed = parser.NEEDED_TYPES if self._needed is None else self._needed
+                self._parser = parser(report, self._max_wifi_age_s, self._strict)
+                held, self._held = self._held, []
+                return 1, held
+            if line_no >= SNIFF_LINES:
+                self._no_format()
+        return first, []
+
+    def _take(self, final: bool) -> Recording:
+        if self._parser is not None and (final or self._new_lines):
+            chunk = self._last_chunk = self._parser.take(final)
+        else:  # no line, no record: only the header fields known so far
+            chunk = Recording.empty(self._report.path)
+            if self._last_chunk is not None:
+                last = self._last_chunk
+                chunk.floor_name, chunk.start_t_s, chunk.phone_model = last.floor_name, last.start_t_s, last.phone_model
+        self._new_lines = False
+        chunk.read_report = self._report.copy()
+        return chunk
+
+
+def read_whole(path: str | os.PathLike, stream: RecordStream, warn: Callable[[str], None] | None) -> Recording:
+    """A whole log file (plain or gzip) fed to ``stream`` in pieces and closed: the chunks as one
+    ``Recording``. A gzip stream that ends early keeps the complete lines before the cut
+    (refused with ``strict``); a corrupted one is refused. The report's warning, if any, goes
+    to ``warn`` (else ``warnings.warn``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MapfilterError("file not found", path)
+    chunks = []
+    truncated = False
+    try:
+        with open_binary(path) as handle:
+            while data := handle.read1(READ_CHUNK_BYTES):
+                chunks.append(stream.feed_bytes(data))
+    except EOFError:
+        # gzip without its end-of-stream marker: what was decompressed before the cut was fed
+        truncated = True
+    except (OSError, gzip.BadGzipFile, zlib.error) as exc:
+        raise MapfilterError(f"cannot read log: {exc}", path) from None
+    chunks.append(stream.close(truncated=truncated))
+    recording = concatenate(chunks)
+    emit_warning(recording.read_report, warn, stacklevel=4)  # the caller of read_log / read_ilc / read_ipin
+    return recording

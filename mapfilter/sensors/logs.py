@@ -3,7 +3,9 @@
 Two formats are known: the ILC 2.0 trace (``sensors/ilc.py``: tab-separated ``TYPE_...``
 records, ``#`` header) and the GetSensorData log of the IPIN competitions (``sensors/ipin.py``:
 ``;``-separated ``ACCE``/``WIFI``/``POSI``... records, ``%`` header), each plain or gzip.
-:func:`read_log` and :func:`read_log_header` are what commands and scripts call.
+:func:`read_log` and :func:`read_log_header` are what commands and scripts call;
+:class:`LogStream` reads a log as it arrives (a live phone, standard input, a competition
+server), and :func:`read_log` is that stream fed the whole file.
 
 Ground truth in latitude/longitude (GetSensorData ``POSI`` rows) is in metres only once the
 walk is placed in a georeferenced building: :func:`localise` returns a new ``Recording`` with
@@ -16,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -24,7 +26,7 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors import ilc, ipin
-from mapfilter.sensors.logread import iter_bounded_lines, open_binary
+from mapfilter.sensors.logread import SNIFF_LINES, LogParser, RecordStream, iter_bounded_lines, open_binary, read_whole
 from mapfilter.sensors.recording import Recording
 
 if TYPE_CHECKING:  # only for annotations
@@ -34,8 +36,74 @@ ILC = ilc.FORMAT_NAME
 GETSENSORDATA = ipin.FORMAT_NAME
 KNOWN_FORMATS = (f"{ILC} (tab-separated TYPE_... records, '#' header)",
                  f"{GETSENSORDATA} (IPIN; ';'-separated ACCE/WIFI/POSI... records, '%' header)")
-# how far into a log its format is looked for: a header is some 40 lines
-_SNIFF_LINES = 200
+_PARSERS: dict[str, type[LogParser]] = {ILC: ilc.IlcParser, GETSENSORDATA: ipin.GsdParser}
+
+
+def format_of_line(line: str) -> str | None:
+    """The format a non-empty line of a log's start shows (None: it shows none)."""
+    if ipin.looks_like_getsensordata(line):
+        return GETSENSORDATA
+    if line.startswith("#") or "\tTYPE_" in line:
+        return ILC
+    return None
+
+
+def _unknown_format(path: str | os.PathLike) -> MapfilterError:
+    return MapfilterError(f"unknown log format: the known formats are {'; '.join(KNOWN_FORMATS)}", path)
+
+
+class LogStream(RecordStream):
+    """A phone log read as it arrives: feed it text or bytes in any pieces, get the records
+    that each piece completed.
+
+    ``LogStream(name, max_wifi_age_s, strict, needed, format)``: ``name`` names the log in
+    errors and in the report (``"-"``: standard input); ``max_wifi_age_s``, ``strict`` and
+    ``needed`` are the readers' (``needed`` None: the format's own); ``format`` ("ILC 2.0" or
+    "GetSensorData") fixes the format, else it is told by the first non-empty lines as
+    :func:`log_format` does, and text is held until it is known.
+
+    :meth:`feed_text`, :meth:`feed_bytes` (UTF-8, invalid bytes replaced; a line longer than
+    ``logread.MAX_LINE_BYTES`` is counted as unreadable and never held whole) and
+    :meth:`feed_lines` each return a ``Recording`` of the records completed since the previous
+    call: zero-length arrays when none (never None). A partial line is kept until its newline
+    arrives. :meth:`close` returns the rest (with a last line that had no newline) and refuses
+    a log that was empty, of no known format or without a usable record. :attr:`report` is the
+    ``ReadReport`` so far; each chunk carries a copy of it as it stood.
+
+    What a stream holds back, so that each record depends on the records before it only:
+
+    - a WiFi scan until a record of a later time (of any type) arrives, or :meth:`close`:
+      only then is it known to be complete;
+    - a record more than ``logread.JUMP_CHECK_S`` (60 s) after the previous kept one of its
+      type, until the next one of its type: dropped if that one goes back (a lone row stamped
+      far ahead), kept otherwise and at :meth:`close`;
+    - in a GetSensorData log, every record until the log's AppTimestamp passes its first
+      record's by ``ipin.CLOCK_WINDOW_S`` (0.5 s): each sensor stream's clock offset is the
+      median over that stretch (``sensors/ipin.py``).
+
+    Within each record type, records keep file order; a record earlier than the previous kept
+    one of its type went back in time and is dropped (``ReadReport.went_back``), an exact
+    repeat of a record of the same time is dropped (``ReadReport.duplicates``). The chunks of
+    a log, fed in any pieces, concatenated (``sensors/recording.concatenate``) are the
+    ``Recording`` that :func:`read_log` gives, array by array.
+
+    A log cut at the line where time passes T reads as the whole log's records up to the
+    earliest time written after the cut (``Recording.until``; how far that is from T, format by
+    format: docs/formats.md). A log cut at any line may end inside a WiFi scan: its rows so far
+    are read as a complete scan.
+    """
+
+    def __init__(self, name: str | os.PathLike = "-", max_wifi_age_s: float = ilc.DEFAULT_MAX_WIFI_AGE_S,
+                 strict: bool = False, needed: Iterable[str] | None = None, format: str | None = None):
+        if format is not None and format not in _PARSERS:
+            raise ValueError(f"unknown log format {format!r}: expected one of {', '.join(_PARSERS)}")
+        super().__init__(name, max_wifi_age_s, strict, needed, _PARSERS.get(format))
+
+    def _choose_parser(self, line: str) -> type[LogParser] | None:
+        return self._parser_class or _PARSERS.get(format_of_line(line))
+
+    def _no_format(self) -> None:
+        raise _unknown_format(self.report.path)
 
 
 def log_format(path: str | os.PathLike) -> str:
@@ -54,11 +122,10 @@ def log_format(path: str | os.PathLike) -> str:
                 if line is None or not line.strip():
                     continue
                 seen_any = True
-                if ipin.looks_like_getsensordata(line):
-                    return GETSENSORDATA
-                if line.startswith("#") or "\tTYPE_" in line:
-                    return ILC
-                if line_no >= _SNIFF_LINES:
+                fmt = format_of_line(line)
+                if fmt is not None:
+                    return fmt
+                if line_no >= SNIFF_LINES:
                     break
     except EOFError:
         pass  # a cut gzip: decide on what came before the cut
@@ -66,20 +133,19 @@ def log_format(path: str | os.PathLike) -> str:
         raise MapfilterError(f"cannot read log: {exc}", path) from None
     if not seen_any:
         raise MapfilterError("empty log", path)
-    raise MapfilterError(f"unknown log format: the known formats are {'; '.join(KNOWN_FORMATS)}", path)
+    raise _unknown_format(path)
 
 
 def read_log(path: str | os.PathLike, strict: bool = False, warn: Callable[[str], None] | None = None, *,
              max_wifi_age_s: float = ilc.DEFAULT_MAX_WIFI_AGE_S, building: Building | None = None) -> Recording:
-    """Read a log of any known format (see :func:`log_format`) into a ``Recording``.
+    """Read a log of any known format (see :func:`log_format`) into a ``Recording``: a
+    :class:`LogStream` fed the file and closed, its chunks concatenated.
 
     ``strict`` and ``warn`` are the readers' (bad rows refused, where the one-line warning
     goes). With ``building``, latitude/longitude ground truth is placed in it (:func:`localise`);
     a log whose ground truth is already in metres is returned as read.
     """
-    fmt = log_format(path)
-    reader = ilc.read_ilc if fmt == ILC else ipin.read_ipin
-    recording = reader(path, max_wifi_age_s, strict=strict, warn=warn)
+    recording = read_whole(path, LogStream(path, max_wifi_age_s, strict), warn)
     if building is not None and recording.needs_georeference:
         recording = localise(recording, building)
     return recording

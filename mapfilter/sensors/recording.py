@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -44,13 +45,70 @@ class WifiScans:
             out[self.row_scan[keep], cols[keep]] = self.rssi_dbm[keep]
         return out
 
+    @classmethod
+    def empty(cls) -> WifiScans:
+        """No scan at all."""
+        return cls(t_s=np.zeros(0), ap_keys=[], row_scan=np.zeros(0, dtype=np.int64),
+                   row_ap=np.zeros(0, dtype=np.int64), rssi_dbm=np.zeros(0, dtype=np.float32),
+                   freq_mhz=np.zeros(0, dtype=np.float32), age_s=np.zeros(0, dtype=np.float32))
+
+    @classmethod
+    def concatenate(cls, parts: Sequence[WifiScans]) -> WifiScans:
+        """The scans of ``parts`` one after the other, AP keys merged in order of first appearance."""
+        keys: dict[str, int] = {}
+        row_scan, row_ap = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+        n_scans = 0
+        for part in parts:
+            remap = np.array([keys.setdefault(k, len(keys)) for k in part.ap_keys], dtype=np.int64)
+            row_ap.append(remap[part.row_ap])
+            row_scan.append(part.row_scan + n_scans)
+            n_scans += len(part)
+        return cls(t_s=np.concatenate([np.zeros(0)] + [p.t_s for p in parts]), ap_keys=list(keys),
+                   row_scan=np.concatenate(row_scan), row_ap=np.concatenate(row_ap),
+                   rssi_dbm=_concat_1d([p.rssi_dbm for p in parts], np.float32),
+                   freq_mhz=_concat_1d([p.freq_mhz for p in parts], np.float32),
+                   age_s=_concat_1d([p.age_s for p in parts], np.float32))
+
+    def until(self, t_s: float) -> WifiScans:
+        """The scans taken at or before ``t_s``; the AP keys those scans heard, in their order."""
+        keep = self.t_s <= t_s
+        new_index = np.cumsum(keep) - 1
+        rows = keep[self.row_scan]
+        used, row_ap = np.unique(self.row_ap[rows], return_inverse=True)
+        return WifiScans(t_s=self.t_s[keep], ap_keys=[self.ap_keys[a] for a in used],
+                         row_scan=new_index[self.row_scan[rows]].astype(np.int64),
+                         row_ap=row_ap.astype(np.int64).reshape(-1), rssi_dbm=self.rssi_dbm[rows],
+                         freq_mhz=self.freq_mhz[rows], age_s=self.age_s[rows])
+
 
 @dataclasses.dataclass
 class Beacons:
+    """Bluetooth LE beacon sightings, one per row, in time order."""
+
     t_s: np.ndarray  # (B,)
-    beacon_id: list[str]  # "uuid:major:minor"
-    rssi_dbm: np.ndarray  # (B,)
-    distance_m: np.ndarray  # (B,) the phone's own distance estimate
+    # the beacon's MAC address in upper case ("BE:AC:20:23:00:01"); an ILC row without a MAC:
+    # "uuid:major:minor"
+    beacon_id: list[str]
+    rssi_dbm: np.ndarray  # (B,) float32
+    distance_m: np.ndarray  # (B,) float32, the phone's own distance estimate (NaN: none)
+
+    @classmethod
+    def empty(cls) -> Beacons:
+        return cls(t_s=np.zeros(0), beacon_id=[], rssi_dbm=np.zeros(0, dtype=np.float32),
+                   distance_m=np.zeros(0, dtype=np.float32))
+
+    @classmethod
+    def concatenate(cls, parts: Sequence[Beacons]) -> Beacons:
+        return cls(t_s=_concat_1d([p.t_s for p in parts], np.float64),
+                   beacon_id=[b for p in parts for b in p.beacon_id],
+                   rssi_dbm=_concat_1d([p.rssi_dbm for p in parts], np.float32),
+                   distance_m=_concat_1d([p.distance_m for p in parts], np.float32))
+
+    def until(self, t_s: float) -> Beacons:
+        """The sightings at or before ``t_s``."""
+        keep = self.t_s <= t_s
+        return Beacons(t_s=self.t_s[keep], beacon_id=[b for b, k in zip(self.beacon_id, keep) if k],
+                       rssi_dbm=self.rssi_dbm[keep], distance_m=self.distance_m[keep])
 
 
 @dataclasses.dataclass
@@ -68,6 +126,12 @@ class ReadReport:
     needed: frozenset[str] = frozenset()  # the record types the run needs (the reader fills it in)
     format: str = ""  # the log format the reader took the file for ("ILC 2.0", "GetSensorData")
     duplicates: dict[str, int] = dataclasses.field(default_factory=dict)  # exact repeats dropped, per type
+    # records dropped, per type, because their time is earlier than the previous kept record of
+    # their stream (a clock that jumped back; a WiFi row after its scan was complete)
+    went_back: dict[str, int] = dataclasses.field(default_factory=dict)
+    # GetSensorData samples whose sensor clock strayed from their AppTimestamp (kept at the
+    # AppTimestamp), per type
+    clock_strays: dict[str, int] = dataclasses.field(default_factory=dict)
     # stretches longer than the reader's limit (sensors/logread.GAP_REPORT_S) with no record at
     # all, as (start, end) times in the recording's time base; reported, never filled in
     time_gaps_s: list[tuple[float, float]] = dataclasses.field(default_factory=list)
@@ -95,17 +159,28 @@ class ReadReport:
             parts.append(f"gzip stream ends early: kept the {self.truncated_after_line} lines before the cut")
         if self.duplicates:
             n = sum(self.duplicates.values())
-            kinds = ", ".join(f"{count} {kind}" for kind, count in sorted(self.duplicates.items()))
-            parts.append(f"{n} exact duplicate row{'s' if n != 1 else ''} ({kinds})")
+            parts.append(f"{n} exact duplicate row{'s' if n != 1 else ''} ({_per_kind(self.duplicates)})")
+        if self.went_back:
+            n = sum(self.went_back.values())
+            parts.append(f"{n} row{'s' if n != 1 else ''} that went back in time ({_per_kind(self.went_back)})")
+        notes = []
+        if self.clock_strays:
+            n = sum(self.clock_strays.values())
+            notes.append(f"{n} sample{'s' if n != 1 else ''} off their sensor clock, placed at their AppTimestamp "
+                         f"({_per_kind(self.clock_strays)})")
         gaps = self.gap_summary()
-        if not parts and gaps is None:
-            return None
-        text = f"{self.path}: "
-        if parts:
-            text += "skipped " + "; ".join(parts)
         if gaps is not None:
-            text += ("; " if parts else "") + gaps
-        return text
+            notes.append(gaps)
+        if not parts and not notes:
+            return None
+        return f"{self.path}: " + "; ".join((["skipped " + "; ".join(parts)] if parts else []) + notes)
+
+    def copy(self) -> ReadReport:
+        """A copy that the reader's later rows do not change."""
+        return dataclasses.replace(self, rows=dict(self.rows), bad_rows=dict(self.bad_rows),
+                                   first_bad=dict(self.first_bad), duplicates=dict(self.duplicates),
+                                   went_back=dict(self.went_back), clock_strays=dict(self.clock_strays),
+                                   time_gaps_s=list(self.time_gaps_s))
 
     def gap_summary(self) -> str | None:
         """The time gaps in a few words (None when there are none)."""
@@ -117,6 +192,10 @@ class ReadReport:
         longest = "" if n == 1 else "longest "
         return (f"{n} time gap{'s' if n != 1 else ''} with no record ({longest}{format_duration(end - start)}, "
                 f"from {start - first:.1f} s into the log)")
+
+
+def _per_kind(counts: dict[str, int]) -> str:
+    return ", ".join(f"{count} {kind}" for kind, count in sorted(counts.items()))
 
 
 def format_duration(seconds: float) -> str:
@@ -175,6 +254,77 @@ class Recording:
     @property
     def name(self) -> str:
         return "recording" if self.path is None else trace_name(self.path)
+
+    @classmethod
+    def empty(cls, path: Path | None = None) -> Recording:
+        """A recording without a single record (what a log stream returns while nothing is complete)."""
+        return cls(path=path, floor_name=None, start_t_s=None, waypoint_t_s=np.zeros(0),
+                   waypoint_xy_m=np.zeros((0, 2)), acc_t_s=np.zeros(0), acc_mps2=np.zeros((0, 3)),
+                   gyro_t_s=np.zeros(0), gyro_radps=np.zeros((0, 3)), magnet_t_s=np.zeros(0),
+                   magnet_ut=np.zeros((0, 3)), rotvec_t_s=np.zeros(0), rotvec_xyz=np.zeros((0, 3)),
+                   wifi=WifiScans.empty(), beacons=Beacons.empty())
+
+    def until(self, t_s: float) -> Recording:
+        """The records of every stream with time <= ``t_s`` (scans by their scan time); the rest
+        (path, header fields, read report) as they are. Not the same as reading the log cut at
+        ``t_s``: see ``sensors/logs.LogStream``."""
+        def cut(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            keep = t <= t_s
+            return t[keep], values[keep]
+
+        wp = self.waypoint_t_s <= t_s
+        n_wp = int(np.count_nonzero(wp))
+        floors = None if self.waypoint_floor is None or n_wp == 0 else [f for f, k in zip(self.waypoint_floor, wp) if k]
+        latlon = None if self.waypoint_latlon_deg is None or n_wp == 0 else self.waypoint_latlon_deg[wp]
+        acc_t, acc = cut(self.acc_t_s, self.acc_mps2)
+        gyro_t, gyro = cut(self.gyro_t_s, self.gyro_radps)
+        mag_t, mag = cut(self.magnet_t_s, self.magnet_ut)
+        rot_t, rot = cut(self.rotvec_t_s, self.rotvec_xyz)
+        baro_t, baro = cut(self.pressure_t_s, self.pressure_hpa)
+        return dataclasses.replace(
+            self, waypoint_t_s=self.waypoint_t_s[wp], waypoint_xy_m=self.waypoint_xy_m[wp],
+            acc_t_s=acc_t, acc_mps2=acc, gyro_t_s=gyro_t, gyro_radps=gyro, magnet_t_s=mag_t, magnet_ut=mag,
+            rotvec_t_s=rot_t, rotvec_xyz=rot, wifi=self.wifi.until(t_s), beacons=self.beacons.until(t_s),
+            pressure_t_s=baro_t, pressure_hpa=baro, waypoint_floor=floors, waypoint_latlon_deg=latlon)
+
+
+def concatenate(chunks: Sequence[Recording]) -> Recording:
+    """One recording of consecutive chunks of one walk (what a log stream returns, call by call):
+    every stream's records one after the other. The path, header fields (floor name, start time,
+    phone) and read report are the last chunk's, which knew the most. Waypoint floors and
+    latitudes/longitudes are kept when every chunk with waypoints has them."""
+    if not chunks:
+        raise ValueError("concatenate needs at least one chunk")
+    last = chunks[-1]
+    with_wp = [c for c in chunks if c.waypoint_t_s.size]
+    floors = None
+    if with_wp and all(c.waypoint_floor is not None for c in with_wp):
+        floors = [f for c in with_wp for f in c.waypoint_floor]
+    latlon = None
+    if with_wp and all(c.waypoint_latlon_deg is not None for c in with_wp):
+        latlon = np.concatenate([c.waypoint_latlon_deg for c in with_wp])
+
+    def rows(name: str, width: int | None) -> np.ndarray:
+        empty = np.zeros(0) if width is None else np.zeros((0, width))
+        return np.concatenate([empty] + [getattr(c, name) for c in chunks])
+
+    return Recording(
+        path=last.path, floor_name=last.floor_name, start_t_s=last.start_t_s,
+        waypoint_t_s=rows("waypoint_t_s", None), waypoint_xy_m=rows("waypoint_xy_m", 2),
+        acc_t_s=rows("acc_t_s", None), acc_mps2=rows("acc_mps2", 3),
+        gyro_t_s=rows("gyro_t_s", None), gyro_radps=rows("gyro_radps", 3),
+        magnet_t_s=rows("magnet_t_s", None), magnet_ut=rows("magnet_ut", 3),
+        rotvec_t_s=rows("rotvec_t_s", None), rotvec_xyz=rows("rotvec_xyz", 3),
+        wifi=WifiScans.concatenate([c.wifi for c in chunks]),
+        beacons=Beacons.concatenate([c.beacons for c in chunks]),
+        read_report=last.read_report,
+        pressure_t_s=rows("pressure_t_s", None), pressure_hpa=rows("pressure_hpa", None),
+        waypoint_floor=floors, waypoint_latlon_deg=latlon, phone_model=last.phone_model,
+    )
+
+
+def _concat_1d(parts: list[np.ndarray], dtype) -> np.ndarray:
+    return np.concatenate([np.zeros(0, dtype=dtype)] + parts).astype(dtype, copy=False)
 
 
 def trace_name(path: str | Path) -> str:
