@@ -32,7 +32,8 @@ from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.offline.floors import building_offline_track, to_floors
 from mapfilter.maps.paths import detour_wall_crossings
 from mapfilter.offline.smoother import ParticleHistory, smooth
-from mapfilter.offline.whole_walk import OfflineTrack, offline_track
+from mapfilter.offline.whole_walk import OfflineTrack, offline_track, placed_track
+from mapfilter.filter.tracker import run_over_scans
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.pdr import OnlinePDR, Steps, detect_steps
 from mapfilter.sensors.radiomap import RadioMap
@@ -198,7 +199,20 @@ class Tracker:
 
     def _smoothed_track(self) -> Track:
         """The smoother's track in the plan's frame: the smoothed means made wall-free."""
-        smoothed = smooth(self.history, self.plan, self.config.motion.motion_model, self._floors)
+        config, stream = self.config, self.stream
+        history = self.history
+        steps = stream.steps
+        if (self.stack is None and config.motion.model == "pdr" and steps is not None and len(steps)
+                and config.offline.restart_share > 0):
+            # a second forward pass, part of it started where the whole walk's placed shape starts
+            placed = placed_track(self.plan, self.evidence, steps, stream.track(), config.offline)
+            t0 = float(self.evidence.scans[int(np.argmax(self.evidence.usable))].t_s)
+            start_xy = placed.xy_m[int(np.clip(np.searchsorted(placed.t_s, t0), 0, len(placed) - 1))]
+            history = ParticleHistory()
+            run_over_scans(self.plan, self.evidence, config.motion, config.filter, self.rng, steps,
+                           start_xy_m=start_xy, start_radius_m=config.offline.restart_radius_m,
+                           start_share=config.offline.restart_share, history=history)
+        smoothed = smooth(history, self.plan, config.motion.motion_model, self._floors)
         floor_p = None
         if smoothed.floor_shares is not None:
             floor_of = self.stack.floor_of(smoothed.xy_m)

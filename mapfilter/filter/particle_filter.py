@@ -203,6 +203,19 @@ class ParticleFilter:
         self._last_measurement = (float(t_s), model, measurement)
         self._set(self._new_particles(xy, heading_rad))
 
+    def initialise_from_measurement_and_around(self, t_s: float, model: MeasurementModel, measurement: Any,
+                                               xy_m, radius_m: float, share_around: float) -> None:
+        """A mixture of two starts: a share of the particles within ``radius_m`` of ``xy_m``, the
+        rest drawn from the measurement's likelihood (``initialise_from_measurement``): the data
+        that follow decide between the two."""
+        n_around = int(round(share_around * self.n))
+        near = self._sample_free_near(np.asarray(xy_m, dtype=np.float64), radius_m)[:n_around]
+        measured = self._sample_from_likelihood(model, measurement, self.n - n_around)
+        if measured is None:
+            raise MapfilterError("the measurement has zero likelihood everywhere on the free space of the map")
+        self._last_measurement = (float(t_s), model, measurement)
+        self._set(self._new_particles(np.concatenate([near, measured]), None))
+
     def _sample_free_near(self, centre_xy_m: np.ndarray, radius_m: float) -> np.ndarray:
         fp = self.floorplan
         rows, cols = fp.free_pixels
@@ -217,9 +230,11 @@ class ParticleFilter:
         uv = np.stack([cols[pick] + self.rng.random(self.n), rows[pick] + self.rng.random(self.n)], axis=-1)
         return fp.pixel_to_world(uv)
 
-    def _sample_from_likelihood(self, model: MeasurementModel, measurement: Any) -> np.ndarray | None:
-        """N positions drawn from free-space candidates weighed by the measurement (None: it rules
-        out every candidate); the candidates stand still, so the jitter's checks start there."""
+    def _sample_from_likelihood(self, model: MeasurementModel, measurement: Any, n: int | None = None
+                                ) -> np.ndarray | None:
+        """``n`` (default N) positions drawn from free-space candidates weighed by the measurement
+        (None: it rules out every candidate); the candidates stand still, so the jitter's checks
+        start there."""
         candidates = Particles.at(self.floorplan.sample_free(int(self.config.init_samples), self.rng))
         m = len(candidates)
         kernel = model.kernel(measurement)
@@ -239,7 +254,7 @@ class ParticleFilter:
             return None
         cov = totals.covariance_m2 if not self.floors.changes_floors else self.floors.covariance(
             candidates.xy_m, np.exp(log_weight - totals.log_normaliser))
-        out = Particles.empty(self.n)
+        out = Particles.empty(self.n if n is None else n)
         self._resample(totals, e, state, state, shift, cov, out.state, walks=False)
         return out.xy_m.copy()
 

@@ -225,7 +225,8 @@ class StreamFilter:
     steps : the walk's steps already detected (``Steps`` with ``available_s``); used instead of
         ``pdr`` (an evaluation detects them once per walk).
     floors : the floor in the state (a building), else one floor.
-    start_xy_m, start_radius_m : start around this point instead of from the first scan's likelihood.
+    start_xy_m, start_radius_m : start around this point instead of from the first scan's likelihood;
+        ``start_share`` of the particles only (the rest from the likelihood).
     on_step : called with every ``StepReport`` (the viewer, progress).
     keep_ancestry : keep the particles' lineage (``lineage``).
     abs_heading_offset_rad : magnetic north to the map's +y axis (``PDRConfig``), for the start
@@ -236,7 +237,7 @@ class StreamFilter:
 
     def __init__(self, plan: FloorPlan, evidence: WalkEvidence, motion: MotionConfig, filter_config: FilterConfig,
                  rng: np.random.Generator, *, pdr=None, steps: Steps | None = None, floors: FloorModel | None = None,
-                 start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0,
+                 start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0, start_share: float = 1.0,
                  on_step: Callable[[StepReport], None] | None = None, keep_ancestry: bool = False,
                  abs_heading_offset_rad: float = 0.0, sources: tuple[MeasurementSource, ...] = (),
                  history=None) -> None:
@@ -254,7 +255,7 @@ class StreamFilter:
         self._given_steps = steps
         self._abs_heading_offset_rad = abs_heading_offset_rad
         self.steps: Steps | None = None  # the steps detected so far
-        self._start_xy_m, self._start_radius_m = start_xy_m, start_radius_m
+        self._start_xy_m, self._start_radius_m, self._start_share = start_xy_m, start_radius_m, start_share
         self._on_step = on_step
         self._merge = _Merge()
         self._n_scans = 0  # scans released so far (the evidence may hold them already: a prepared walk)
@@ -465,6 +466,9 @@ class StreamFilter:
         pf = self.pf
         if self._start_xy_m is None or self.started:
             pf.initialise_from_measurement(t_s, model, measurement)
+        elif self._start_share < 1.0:
+            pf.initialise_from_measurement_and_around(t_s, model, measurement, self._start_xy_m,
+                                                      self._start_radius_m, self._start_share)
         else:
             pf.initialise_around(self._start_xy_m, self._start_radius_m)
         if self._uses_steps:
@@ -574,13 +578,14 @@ def _imu_in_order(released: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def run_over_scans(plan: FloorPlan, evidence: WalkEvidence, motion: MotionConfig, filter_config: FilterConfig,
                    rng: np.random.Generator, steps: Steps | None, *, floors: FloorModel | None = None,
-                   start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0,
-                   on_step: Callable[[StepReport], None] | None = None, keep_ancestry: bool = False) -> StreamFilter:
+                   start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0, start_share: float = 1.0,
+                   on_step: Callable[[StepReport], None] | None = None, keep_ancestry: bool = False,
+                   history=None) -> StreamFilter:
     """The causal filter over the scans the evidence already holds and the given steps (a second
     run over a walk, e.g. from a better start)."""
     stream = StreamFilter(plan, evidence, motion, filter_config, rng, steps=steps if motion.model == "pdr" else None,
-                          floors=floors, start_xy_m=start_xy_m, start_radius_m=start_radius_m, on_step=on_step,
-                          keep_ancestry=keep_ancestry)
+                          floors=floors, start_xy_m=start_xy_m, start_radius_m=start_radius_m,
+                          start_share=start_share, on_step=on_step, keep_ancestry=keep_ancestry, history=history)
     stream.feed(scans_recording(evidence.scans))
     stream.close()
     return stream
