@@ -60,14 +60,8 @@ def with_latlon(track: Track, building: Building) -> Track:
     return dataclasses.replace(track, latlon_deg=latlon)
 
 
-def write_track_csv(track: Track, path: str | os.PathLike, building: Building | None = None) -> None:
-    """Write ``t_s,x_m,y_m[,floor][,floor_p][,latitude_deg,longitude_deg][,std_m][,heading_rad]`` atomically.
-
-    Latitude and longitude are written when the track has them (``with_latlon``) or when
-    ``building`` is given and has a georeference; otherwise the file is as it always was.
-    """
-    if track.latlon_deg is None and building is not None and building.georeference is not None:
-        track = with_latlon(track, building)
+def csv_header(track: Track) -> list[str]:
+    """The CSV columns of a track: ``t_s,x_m,y_m[,floor][,floor_p][,latitude_deg,longitude_deg][,std_m][,heading_rad]``."""
     header = ["t_s", "x_m", "y_m"]
     if track.floor is not None:
         header.append("floor")
@@ -79,24 +73,42 @@ def write_track_csv(track: Track, path: str | os.PathLike, building: Building | 
         header.append("std_m")
     if track.heading_rad is not None:
         header.append("heading_rad")
+    return header
+
+
+def csv_rows(track: Track) -> list[list[str]]:
+    """The CSV rows of a track, in ``csv_header``'s columns."""
+    rows = []
+    for i in range(len(track)):
+        row = [f"{track.t_s[i]:.3f}", f"{track.xy_m[i, 0]:.3f}", f"{track.xy_m[i, 1]:.3f}"]
+        if track.floor is not None:
+            row.append(track.floor[i])
+        if track.floor_p is not None:
+            row.append(f"{track.floor_p[i]:.4f}")
+        if track.latlon_deg is not None:
+            # 1e-8 degrees is about a millimetre
+            row += [f"{track.latlon_deg[i, 0]:.8f}", f"{track.latlon_deg[i, 1]:.8f}"]
+        if track.std_m is not None:
+            row.append(f"{track.std_m[i]:.3f}")
+        if track.heading_rad is not None:
+            row.append(f"{track.heading_rad[i]:.4f}")
+        rows.append(row)
+    return rows
+
+
+def write_track_csv(track: Track, path: str | os.PathLike, building: Building | None = None) -> None:
+    """Write ``t_s,x_m,y_m[,floor][,floor_p][,latitude_deg,longitude_deg][,std_m][,heading_rad]`` atomically.
+
+    Latitude and longitude are written when the track has them (``with_latlon``) or when
+    ``building`` is given and has a georeference; otherwise the file is as it always was.
+    """
+    if track.latlon_deg is None and building is not None and building.georeference is not None:
+        track = with_latlon(track, building)
     with atomic_paths(path) as (tmp,):
         with tmp.open("w", newline="") as handle:
             writer = csv.writer(handle)
-            writer.writerow(header)
-            for i in range(len(track)):
-                row = [f"{track.t_s[i]:.3f}", f"{track.xy_m[i, 0]:.3f}", f"{track.xy_m[i, 1]:.3f}"]
-                if track.floor is not None:
-                    row.append(track.floor[i])
-                if track.floor_p is not None:
-                    row.append(f"{track.floor_p[i]:.4f}")
-                if track.latlon_deg is not None:
-                    # 1e-8 degrees is about a millimetre
-                    row += [f"{track.latlon_deg[i, 0]:.8f}", f"{track.latlon_deg[i, 1]:.8f}"]
-                if track.std_m is not None:
-                    row.append(f"{track.std_m[i]:.3f}")
-                if track.heading_rad is not None:
-                    row.append(f"{track.heading_rad[i]:.4f}")
-                writer.writerow(row)
+            writer.writerow(csv_header(track))
+            writer.writerows(csv_rows(track))
 
 
 def write_track_tum(track: Track, path: str | os.PathLike) -> None:

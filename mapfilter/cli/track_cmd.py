@@ -47,8 +47,13 @@ part of the filter's state and found from the WiFi (and barometer), or given wit
 NAME; x, y are in the frame of the floor each row is on, named in the floor column. A log
 whose header names a floor the map does not have is refused (--floor tracks it anyway).
 
+A live run: LOG - reads the log from standard input as it is written (a phone streaming its
+sensors, `tail -f`, a socket) and prints each causal estimate as a CSV row on standard output
+as soon as it exists (the columns of a track file); --out also writes the track at the end.
+
 examples:
   mapfilter track maps/office.yaml maps/office_walk.txt.gz --radiomap maps/office_radiomap.npz --smooth
+  zcat maps/office_walk.txt.gz | mapfilter track maps/office.yaml - --radiomap maps/office_radiomap.npz
   mapfilter track F1.yaml walk.txt.gz --radiomap F1_radiomap.npz --out track.csv --seed 3
   mapfilter track F1.yaml walks/*.txt.gz --radiomap F1_radiomap.npz --out-dir tracks --jobs 2
   mapfilter track F1.yaml walk.txt.gz --radiomap F1_radiomap.npz --config my_settings.yaml
@@ -62,7 +67,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("map", type=Path, metavar="MAP", help="map YAML (ROS map_server) or building YAML")
     parser.add_argument("logs", type=Path, nargs="+", metavar="LOG",
-                        help="phone log(s) (.txt or .txt.gz); several need --out-dir")
+                        help="phone log(s) (.txt or .txt.gz); several need --out-dir; - reads one from standard "
+                             "input as it is written and prints each estimate as soon as it exists")
     wifi = parser.add_mutually_exclusive_group()
     wifi.add_argument("--radiomap", type=Path, metavar="RM", help="radio map (.npz) for fingerprinting")
     wifi.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table for trilateration")
@@ -134,6 +140,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_batch(args, config, out_dir)
     if len(args.logs) > 1:
         raise MapfilterError(f"{len(args.logs)} logs: tracking several walks needs --out-dir DIR")
+    if is_stdout(args.logs[0]):
+        return _run_live(args, config)
     if args.jobs != 1 or args.scheduler:
         raise MapfilterError("--jobs and --scheduler spread many walks: give them with --out-dir DIR")
     return _run_one(args, config, args.logs[0])
@@ -227,6 +235,63 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     # the track itself on standard output: the summary goes to stderr, out of its way
     to_stdout = any(is_stdout(path) for path, _ in written)
     print(_summary(building, recording, result, header_floor, written), file=sys.stderr if to_stdout else sys.stdout)
+    return 0
+
+
+def _run_live(args: argparse.Namespace, config) -> int:
+    """``mapfilter track MAP -``: the log on standard input as it is written (a phone streaming its
+    sensors, ``tail -f``, a socket); each causal estimate printed to standard output as a CSV row
+    as soon as it exists, ``--out`` written at the end."""
+    from mapfilter.maps.building import Building
+    from mapfilter.sensors.logs import LogStream
+    from mapfilter.tracking import Tracker
+    from mapfilter.trackio import csv_header, csv_rows, with_latlon, write_track
+
+    if config.smooth:
+        raise MapfilterError("--smooth needs the whole walk: a live run (LOG -) gives the causal track")
+    if is_stdout(args.out):
+        raise MapfilterError("a live run (LOG -) prints its rows on standard output: --out takes a file name")
+    for option in ("rerun", "spawn", "adapted_aps"):
+        if getattr(args, option):
+            raise MapfilterError(f"--{option.replace('_', '-')} is not for a live run (LOG -)")
+    out_format = track_format(args.out, args.format)
+    building = Building.load(args.map)
+    check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
+    radio_map, ap_table = _wifi_source(args, building, config)
+    floor = None if building.is_single_floor else args.floor
+    tracker = Tracker(building, radio_map, ap_table, config, floor=floor, log_name="standard input")
+    stream = LogStream("-", strict=args.strict)
+    header_done = False
+
+    def emit(rows) -> None:
+        nonlocal header_done
+        if not len(rows):
+            return
+        if building.georeference is not None:
+            rows = with_latlon(rows, building)
+        if not header_done:
+            print(",".join(csv_header(rows)))
+            header_done = True
+        for row in csv_rows(rows):
+            print(",".join(row))
+        sys.stdout.flush()
+
+    source = sys.stdin.buffer
+    while True:
+        data = source.read1(65536)  # what has arrived, as soon as anything has
+        if not data:
+            break
+        emit(tracker.feed(stream.feed_bytes(data)))
+    emit(tracker.feed(stream.close()))
+    emit(tracker.close())
+    if stream.report.warning():
+        warn(stream.report.warning())
+    result = tracker.result()
+    if args.out is not None:
+        write_track(result.causal, args.out, out_format, building)
+    print(f"standard input: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used, "
+          f"{len(result.collapses)} collapses; causal {result.causal_runtime_s:.1f} s"
+          + (f"; wrote {args.out} (causal track)" if args.out is not None else ""), file=sys.stderr)
     return 0
 
 
