@@ -31,7 +31,7 @@ from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.offline.floors import building_offline_track, to_floors
 from mapfilter.maps.paths import detour_wall_crossings
-from mapfilter.offline.smoother import ParticleHistory, smooth
+from mapfilter.offline.smoother import FixedLagSmoother, ParticleHistory, smooth
 from mapfilter.offline.whole_walk import OfflineTrack, offline_track, placed_track
 from mapfilter.filter.tracker import run_over_scans
 from mapfilter.sensors.pathloss import AccessPointTable
@@ -112,6 +112,17 @@ def _empty_evidence(building: Building, radio_map: RadioMap | None, access_point
     return evidence, None, stack
 
 
+class _Recorders:
+    """Hands every filter step to several recorders (the whole walk's history, the fixed lag)."""
+
+    def __init__(self, recorders: tuple) -> None:
+        self.recorders = recorders
+
+    def record(self, *args) -> None:
+        for recorder in self.recorders:
+            recorder.record(*args)
+
+
 class Tracker:
     """Track a walk as its records arrive: ``feed`` chunks of records (``Recording``s holding the
     next records of each sensor, e.g. from ``sensors.logs.LogStream``), get the causal rows each
@@ -155,15 +166,20 @@ class Tracker:
             floors = FloorChanges(stack, config.floors.changes)
             plan = stack.plan
         self.plan = plan
-        # without steps to place (no PDR), the offline track is the lineage of the final best particle
-        keep_ancestry = config.smooth and (stack is not None or not pdr)
         self._smoother = config.smooth and config.offline.method == "smoother"
         self.history = ParticleHistory() if self._smoother else None
+        self.fixed_lag = None
+        if config.offline.lag_s > 0:
+            self.fixed_lag = FixedLagSmoother(plan, config.motion.motion_model, floors, config.offline.lag_s)
+        recorders = tuple(r for r in (self.history, self.fixed_lag) if r is not None)
+        # without steps to place (no PDR), the offline track is the lineage of the final best particle
+        keep_ancestry = config.smooth and (stack is not None or not pdr)
         self.stream = StreamFilter(plan, evidence, config.motion, config.filter, self.rng,
                                    pdr=OnlinePDR(config.steps) if pdr and steps is None else None,
                                    steps=steps if pdr else None, floors=floors, on_step=on_step,
                                    keep_ancestry=keep_ancestry and not self._smoother,
-                                   abs_heading_offset_rad=config.steps.abs_heading_offset_rad, history=self.history)
+                                   abs_heading_offset_rad=config.steps.abs_heading_offset_rad,
+                                   history=_Recorders(recorders) if recorders else None)
         self._floors = floors
         self.runtime_s = 0.0
 
@@ -178,6 +194,8 @@ class Tracker:
         """The end of the walk; returns the last causal rows."""
         started = time.perf_counter()
         rows = self.stream.close()
+        if self.fixed_lag is not None:
+            self.fixed_lag.close()
         self.runtime_s += time.perf_counter() - started
         return self._rows_track(len(rows))
 
@@ -189,6 +207,22 @@ class Tracker:
     def causal(self) -> Track:
         """The causal track so far, each row in its floor's frame."""
         return self._on_floors(self.stream.track())
+
+    @property
+    def lagged(self) -> Track | None:
+        """With ``offline.lag_s``: the fixed-lag smoothed rows so far (each floor's frame), a row per
+        filter step, stamped with its step's time; a live system has each ``lag_s`` later. None
+        without a lag."""
+        if self.fixed_lag is None:
+            return None
+        rows = self.fixed_lag.rows
+        track = Track(np.array([r[0] for r in rows]), np.array([r[2] for r in rows]).reshape(-1, 2),
+                      np.array([r[3] for r in rows]), np.array([r[4] for r in rows]), name="pf-lag")
+        if self.stack is not None and len(rows):
+            shares = np.array([r[5] for r in rows])
+            floor = self.stack.floor_of(track.xy_m)
+            track = dataclasses.replace(track, floor_p=np.clip(shares[np.arange(len(floor)), floor], 0.0, 1.0))
+        return self._on_floors(track)
 
     def _on_floors(self, track: Track) -> Track:
         if self.stack is not None:

@@ -250,36 +250,38 @@ def smooth(history: ParticleHistory, plan: FloorPlan, motion: MotionModel, floor
 
 class FixedLagSmoother:
     """The smoothed estimate of the step ``lag_s`` seconds behind the latest, as a live tracker can
-    give it: after every step, the backward pass over the steps of the last ``lag_s`` seconds."""
+    give it: after every step, the backward pass over the steps of the last ``lag_s`` seconds. Each
+    row is stamped with its step's time and is available ``lag_s`` later (``available_s``)."""
 
     def __init__(self, plan: FloorPlan, motion: MotionModel, floors: FloorModel | None, lag_s: float,
                  keep: int = SUBSAMPLE) -> None:
-        if not (math.isfinite(lag_s) and lag_s >= 0):
-            raise ValueError(f"the lag must be a number of seconds >= 0, got {lag_s}")
+        if not (math.isfinite(lag_s) and lag_s > 0):
+            raise ValueError(f"the lag must be a positive number of seconds, got {lag_s}")
         self.history = ParticleHistory(keep)
         self.motion = motion
         self.lag_s = float(lag_s)
         self._space = _Space(plan, floors)
-        self._done = 0  # steps whose lagged estimate was given
+        self.rows: list[tuple[float, float, np.ndarray, float, float, np.ndarray]] = []  # (t_s, available_s, ...)
 
-    def record(self, *args, **kwargs) -> list[tuple[float, np.ndarray, float, float, np.ndarray]]:
-        """``ParticleHistory.record`` a step; returns the (t_s, position, spread, heading, floor shares)
-        rows that became ``lag_s`` old with it."""
+    def record(self, *args, **kwargs) -> None:
+        """``ParticleHistory.record`` a step; the rows that became ``lag_s`` old with it join ``rows``."""
         self.history.record(*args, **kwargs)
-        return self._rows(final=False)
+        self._advance(final=False)
 
-    def close(self) -> list[tuple[float, np.ndarray, float, float, np.ndarray]]:
+    def close(self) -> None:
         """The rows not yet given, smoothed by everything recorded (the end of the walk)."""
-        return self._rows(final=True)
+        self._advance(final=True)
 
-    def _rows(self, final: bool) -> list:
+    def _advance(self, final: bool) -> None:
         steps = self.history.steps
         last = len(steps) - 1
-        out = []
-        while self._done <= last and (final or steps[last].t_s - steps[self._done].t_s >= self.lag_s):
-            # smoothed by every step up to the latest (at most a lag's worth past it: they are the ones known)
-            weights = _backward_weights(self.history, self.motion, self._space, last, self._done)
-            step = steps[self._done]
-            out.append((step.t_s, *_estimate(self._space, step.state, weights[0])))
-            self._done += 1
-        return out
+        latest = steps[last].t_s if steps else -math.inf
+        done = 0
+        while done <= last and (final or latest - steps[done].t_s >= self.lag_s):
+            # smoothed by every step up to the latest known: at least a lag's worth after it
+            weights = _backward_weights(self.history, self.motion, self._space, last, done)
+            step = steps[done]
+            available = latest if not final else max(latest, step.t_s)
+            self.rows.append((step.t_s, available, *_estimate(self._space, step.state, weights[0])))
+            done += 1
+        del steps[:done]  # a live run keeps only the window

@@ -47,6 +47,7 @@ class OfflineConfig:
     restart_from_placement: bool = True  # place the walk again from a second filter run started at the placed start
     # the whole-walk track's error at a walk's start is a few metres (3, 5 and 10 m measured alike on ILC)
     restart_radius_m: float = 5.0  # the second run's particles start within this of the placed start
+    lag_s: float = 0.0  # a live tracker's fixed-lag smoothed estimate this many seconds behind (0: none)
     restart_share: float = 0.5  # smoother: the share of the second run's particles started at the placed start (0: no second run)
     placement: PlacementConfig = dataclasses.field(default_factory=PlacementConfig)  # placing the shape by the evidence
     map_matching: MapMatchConfig = dataclasses.field(default_factory=MapMatchConfig)  # bending it to the walls
