@@ -72,7 +72,7 @@ def office3_radio_map(office3, tmp_path_factory):
 
 def tracking_config(**settings):
     """A ``TrackingConfig`` from flat keywords, for tests: motion, n_particles, smooth, seed,
-    use_map, fingerprint_model, kwnn_min_rssi_dbm, fix_sigma_m, adapt_path_loss, adaptation,
+    use_map, fingerprint_model, kwnn_min_rssi_dbm, fix_sigma_m, adapt_path_loss, adapt_rssi_limit_dbm,
     blocking_compensation, restart_from_placement."""
     import dataclasses
 
@@ -81,7 +81,7 @@ def tracking_config(**settings):
     config = TrackingConfig()
     sections = {"motion": ("motion", "model"), "fingerprint_model": ("wifi", None), "kwnn_min_rssi_dbm": ("wifi", None),
                 "fix_sigma_m": ("wifi", None), "adapt_path_loss": ("trilateration", None),
-                "adaptation": ("trilateration", None), "blocking_compensation": ("trilateration", None),
+                "adapt_rssi_limit_dbm": ("trilateration", None), "blocking_compensation": ("trilateration", None),
                 "restart_from_placement": ("offline", None)}
     for name, value in settings.items():
         if name == "n_particles":

@@ -240,14 +240,16 @@ def test_radio_map_likelihood_peaks_near_the_truth_and_is_consistent():
 
 
 def _dense_cell_stats(radio_map, model, centre):
+    from mapfilter.filter.models import radio_map as rm
+
     cfg = model.config
     d2 = ((radio_map.xy_m - centre) ** 2).sum(axis=1)
-    w = np.where(d2 <= (cfg.bandwidth_m * cfg.support_sigmas) ** 2, np.exp(-0.5 * d2 / cfg.bandwidth_m ** 2), 0)
+    w = np.where(d2 <= (cfg.bandwidth_m * rm.SUPPORT_SIGMAS) ** 2, np.exp(-0.5 * d2 / cfg.bandwidth_m ** 2), 0)
     r = radio_map.rssi_dbm.astype(float)
-    pw = cfg.prior_weight
-    mu = ((w[:, None] * r).sum(0) + pw * cfg.prior_rssi_dbm) / (w.sum() + pw)
-    var = ((w[:, None] * (r - mu) ** 2).sum(0) + pw * cfg.prior_sigma_db ** 2) / (w.sum() + pw) + cfg.sigma_floor_db ** 2
-    h = np.clip((w.sum() + pw * cfg.prior_heard) / (w.sum() + pw), cfg.heard_clip, 1 - cfg.heard_clip)
+    pw = rm.PRIOR_WEIGHT
+    mu = ((w[:, None] * r).sum(0) + pw * rm.PRIOR_RSSI_DBM) / (w.sum() + pw)
+    var = ((w[:, None] * (r - mu) ** 2).sum(0) + pw * rm.PRIOR_SIGMA_DB ** 2) / (w.sum() + pw) + rm.SIGMA_FLOOR_DB ** 2
+    h = np.clip((w.sum() + pw * rm.PRIOR_HEARD) / (w.sum() + pw), rm.HEARD_CLIP, 1 - rm.HEARD_CLIP)
     return h, mu, var
 
 

@@ -19,8 +19,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.models.adaptive_path_loss import AdaptationConfig, AdaptiveTrilaterationLikelihood, BlockingConfig
-from mapfilter.filter.models.barometer import BarometerConfig, BarometerReference, barometric_height
+from mapfilter.filter.models.adaptive_path_loss import (THESIS_BLOCKING_DROP_DB, THESIS_RSSI_LIMIT_DBM,
+                                                        AdaptiveTrilaterationLikelihood, check_adaptive_settings)
+from mapfilter.filter.models.barometer import (STEADY_M, STEADY_WINDOW_S, BarometerConfig, BarometerReference,
+                                               barometric_height)
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.models.building import FloorFix, FloorFixLikelihood, FloorStack
 from mapfilter.filter.models.path_loss import TrilaterationLikelihood
@@ -70,15 +72,14 @@ class TrilaterationConfig:
 
     rssi_variance_db2: float = 25.0  # RSSI noise variance of the path-loss likelihood (thesis: 25 dB^2)
     adapt_path_loss: bool = False  # adapt C per AP and alpha per band during the walk (thesis 7.1-7.2)
+    adapt_rssi_limit_dbm: float = THESIS_RSSI_LIMIT_DBM  # with adapt_path_loss: a scan's strongest RSSI above this adapts (the phone is below that AP; thesis -36 dBm)
     blocking_compensation: bool = True  # take H dB off every AP while all drop together (thesis 7.3)
-    adaptation: AdaptationConfig = dataclasses.field(default_factory=AdaptationConfig)  # the adaptation, with adapt_path_loss
-    blocking: BlockingConfig = dataclasses.field(default_factory=BlockingConfig)  # the blocking detection, with blocking_compensation
+    blocking_drop_db: float = THESIS_BLOCKING_DROP_DB  # with blocking_compensation: blocked when the six strongest RSSI's mean falls this far (thesis 6 dB)
 
     def __post_init__(self) -> None:
         if not self.rssi_variance_db2 > 0:
             raise MapfilterError(f"rssi_variance_db2 must be positive, got {self.rssi_variance_db2}")
-        self.adaptation.validate()
-        self.blocking.validate()
+        check_adaptive_settings(self.adapt_rssi_limit_dbm, self.blocking_drop_db)
 
 
 class WalkEvidence(Protocol):
@@ -293,8 +294,8 @@ def trilateration_model(ap_table: AccessPointTable, config: TrilaterationConfig 
         return TrilaterationLikelihood(ap_table, variance_db2=config.rssi_variance_db2)
     return AdaptiveTrilaterationLikelihood(
         ap_table, variance_db2=config.rssi_variance_db2,
-        adaptation=config.adaptation if config.adapt_path_loss else None,
-        blocking=config.blocking if config.blocking_compensation else None)
+        adapt_rssi_limit_dbm=config.adapt_rssi_limit_dbm if config.adapt_path_loss else None,
+        blocking_drop_db=config.blocking_drop_db if config.blocking_compensation else None)
 
 
 def calibrated_fix_sigma_m(radio_map: RadioMap, k: int = 4, default_m: float = 5.0) -> float:
@@ -413,8 +414,7 @@ class BuildingEvidence:
         self._pressure_hpa.extend(np.asarray(pressure_hpa, dtype=np.float64).tolist())
         if len(self._pressure_t) >= 2:
             # each reading's height depends on the readings up to it only (windowed sums of a cumsum)
-            self._heights = barometric_height(np.array(self._pressure_t), np.array(self._pressure_hpa),
-                                              self.barometer.smoothing_window_s)
+            self._heights = barometric_height(np.array(self._pressure_t), np.array(self._pressure_hpa))
 
     @property
     def n_pressure(self) -> int:
@@ -455,11 +455,11 @@ class BuildingEvidence:
 
     def observe(self, report: StepReport) -> None:
         """After each filter step: move the barometer's reference (``BarometerReference.update``);
-        steady = less than ``steady_m`` of height change over ``steady_window_s``."""
+        steady = less than ``STEADY_M`` of height change over ``STEADY_WINDOW_S``."""
         if self._heights is None or report.floor_shares is None:
             return
         h = self.height_m(report.t_s)
-        steady = abs(h - self.height_m(report.t_s - self.barometer.steady_window_s)) < self.barometer.steady_m
+        steady = abs(h - self.height_m(report.t_s - STEADY_WINDOW_S)) < STEADY_M
         self.reference.update(report.t_s, h, steady, report.floor_shares)
 
     def has_evidence_between_scans(self) -> bool:

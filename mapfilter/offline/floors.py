@@ -197,7 +197,7 @@ def whole_walk_floors(changes: FloorChanges, evidence: BuildingEvidence, t_s: np
             rates[:, f, nearest] = config.anywhere_rate_per_s / len(nearest)
     height = elevation = None
     if evidence.pressure is not None:
-        baro_t, baro_h = barometric_height(*evidence.pressure, evidence.barometer.smoothing_window_s, centred=True)
+        baro_t, baro_h = barometric_height(*evidence.pressure, centred=True)
         height = np.interp(times, baro_t, baro_h)
         elevation = evidence.elevation_m
     return whole_walk_floor_path(times, floor_evidence, rates, height, elevation, evidence.barometer.sigma_m)
