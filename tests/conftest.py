@@ -53,7 +53,7 @@ def office3_radio_map(office3, tmp_path_factory):
     point every 4 m, one scan each: coarse keeps the tests fast), labelled with its floor."""
     import numpy as np
 
-    from mapfilter.sensors.floors import build_building_radio_map
+    from mapfilter.sensors.floor_vote import build_building_radio_map
     from mapfilter.sensors.ilc import read_ilc
     from mapfilter.simulate.building import BuildingSimConfig, simulate_building_survey
     from mapfilter.simulate.ilc_writer import write_ilc

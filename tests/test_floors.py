@@ -20,7 +20,7 @@ from mapfilter.filter.tracker import IDLE_TICK_S
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall
-from mapfilter.sensors.floors import floor_hmm, floor_vote_log_likelihood
+from mapfilter.sensors.floor_vote import floor_hmm, floor_vote_log_likelihood
 from mapfilter.sensors.radiomap import RadioMap
 
 STAIRS = [[2.0, 2.0], [5.0, 2.0], [5.0, 5.0], [2.0, 5.0]]
@@ -585,7 +585,7 @@ def test_whole_walk_floor_outvotes_a_wrong_start_that_the_causal_filter_follows(
     """Five floors; the first five scans (2 s apart) vote two storeys down unanimously (as ILC F2 walk
     ...17717 votes B1), the rest the walk's own floor: the whole-walk floor is right everywhere (one
     storey at a time, that start would take two changes); the causal (forward) floor is not."""
-    from mapfilter.sensors.floors import whole_walk_floor_path
+    from mapfilter.sensors.floor_vote import whole_walk_floor_path
 
     n, truth, wrong = 150, 2, 0
     ll = np.full((n, 5), math.log(1.0 / 9.0))  # k = 4, one pseudo-vote per floor
@@ -595,7 +595,7 @@ def test_whole_walk_floor_outvotes_a_wrong_start_that_the_causal_filter_follows(
     t = np.arange(n) * 2.0
     rate = FloorChangeConfig().anywhere_rate_per_s
     rates = np.zeros((n - 1, 5, 5))
-    for f in range(5):  # one storey at a time, as offline.floors.whole_walk_floors
+    for f in range(5):  # one storey at a time, as offline.building_track.whole_walk_floors
         nearest = [g for g in (f - 1, f + 1) if 0 <= g < 5]
         rates[:, f, nearest] = rate / len(nearest)
     whole = whole_walk_floor_path(t, ll, rates)
@@ -610,7 +610,7 @@ def test_whole_walk_floor_outvotes_a_wrong_start_that_the_causal_filter_follows(
 def test_whole_walk_floor_changes_only_where_a_change_is_possible():
     """Evidence says floor 0 then floor 2 with the switch at row 40; a change is possible only at
     rows 50-55 (a connector): the path changes there, once, and nowhere else."""
-    from mapfilter.sensors.floors import whole_walk_floor_path
+    from mapfilter.sensors.floor_vote import whole_walk_floor_path
 
     n = 100
     ll = np.full((n, 3), math.log(1 / 7))
@@ -628,7 +628,7 @@ def test_whole_walk_floor_follows_the_barometer_with_an_unknown_zero():
     """Uninformative WiFi, a barometer whose zero is 37 m off: a climb from floor 0 to floor 2 (4 m
     storeys) at 0.5 m/s flips the floor where the height passes each half-way (+-1 row), and the
     offset found puts the heights on the elevations."""
-    from mapfilter.sensors.floors import whole_walk_floor_path
+    from mapfilter.sensors.floor_vote import whole_walk_floor_path
 
     t = np.arange(0.0, 120.0, 0.5)
     elevation = np.clip((t - 40.0) * 0.5, 0.0, 8.0)
@@ -641,7 +641,7 @@ def test_whole_walk_floor_follows_the_barometer_with_an_unknown_zero():
 
 
 def test_whole_walk_floor_of_a_one_floor_walk_is_that_floor():
-    from mapfilter.sensors.floors import whole_walk_floor_path
+    from mapfilter.sensors.floor_vote import whole_walk_floor_path
 
     path = whole_walk_floor_path(np.arange(10.0), np.zeros((10, 1)), np.zeros((9, 1, 1))).path
     assert np.array_equal(path, np.zeros(10, dtype=np.int64))
@@ -670,7 +670,7 @@ def test_whole_walk_floors_weighs_the_scan_the_filter_started_from(tmp_path):
     from types import SimpleNamespace
 
     from mapfilter.filter.models.barometer import BarometerConfig
-    from mapfilter.offline.floors import whole_walk_floors
+    from mapfilter.offline.building_track import whole_walk_floors
 
     building = _building(tmp_path, connectors=False)
     stack = FloorStack(building)

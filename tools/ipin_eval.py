@@ -36,7 +36,7 @@ from mapfilter.config import TrackingConfig  # noqa: E402
 from mapfilter.evaluation.metrics import floor_at_waypoints  # noqa: E402
 from mapfilter.filter.models.barometer import barometric_height  # noqa: E402
 from mapfilter.maps.building import Building  # noqa: E402
-from mapfilter.sensors.floors import build_building_radio_map  # noqa: E402
+from mapfilter.sensors.floor_vote import build_building_radio_map  # noqa: E402
 from mapfilter.sensors.logs import read_log  # noqa: E402
 from mapfilter.tracking import track  # noqa: E402
 

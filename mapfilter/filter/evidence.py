@@ -30,7 +30,7 @@ from mapfilter.filter.models.position_fix import GaussianFixLikelihood, Position
 from mapfilter.filter.models.interface import MeasurementModel
 from mapfilter.filter.models.radio_map import RadioMapLikelihood, RadioMapLikelihoodConfig, radio_map_likelihood
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.sensors.floors import check_building_radio_map, floor_vote_log_likelihood
+from mapfilter.sensors.floor_vote import check_building_radio_map, floor_vote_log_likelihood
 from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position, match_scan
 from mapfilter.sensors.radiomap import (STRONG_MIN_RSSI_DBM, RadioMap, cross_validated_fix_errors, kwnn_fix_many,
                                        strong_kwnn_fixes)
@@ -315,7 +315,7 @@ class BuildingEvidence:
 
     Per floor, the fix of ``WifiEvidence`` made from that floor's fingerprints only (so
     ``blend``, ``fix`` and the fix-sigma calibration work as on one floor), moved into the stack
-    frame; per scan, the floor vote of ``sensors.floors.floor_vote_log_likelihood`` over the
+    frame; per scan, the floor vote of ``sensors.floor_vote.floor_vote_log_likelihood`` over the
     whole building's fingerprints. Scans come with ``add_scans``, the barometer's readings with
     ``add_pressure``.
 

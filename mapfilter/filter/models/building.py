@@ -366,7 +366,7 @@ class FloorFixLikelihood(MeasurementModel):
         log L_i = vote_f + pos_i - log( sum_{j on f} w_j exp(pos_j) / sum_{j on f} w_j )
         pos_i   = -|x_i - fix_f|^2 / (2 sigma_f^2)
 
-    where ``vote_f`` is the scan's floor log-likelihood (``sensors.floors.
+    where ``vote_f`` is the scan's floor log-likelihood (``sensors.floor_vote.
     floor_vote_log_likelihood``) and ``fix_f`` the fix made from floor f's fingerprints only
     (a floor without a fix gives every particle there the value of a fix 3 sigma away). The
     normaliser makes the position term a reweighting *within* each floor: the weight of a
