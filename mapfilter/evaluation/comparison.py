@@ -702,10 +702,6 @@ class Evaluation:
                    [o for o in ordered if o.status != "ok"])
 
     @property
-    def n_walks_done(self) -> int:
-        return len({r.trace for r in self.results}) + len(self.failed)
-
-    @property
     def has_floors(self) -> bool:
         """Several floors: the rows carry floor accuracy."""
         return any(r.floor_score is not None for r in self.results)

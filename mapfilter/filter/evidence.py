@@ -115,8 +115,8 @@ class WifiEvidence:
     """One floor's WiFi: the measurement model and each scan's measurement (``WalkEvidence``).
 
     Exactly one of ``radio_map`` (fingerprinting) and ``ap_table`` (trilateration). Scans come
-    with ``add_scans`` (``of_scans``: all at once); each scan's fix depends on that scan and the
-    radio map only, so adding them one by one or all at once gives the same numbers.
+    with ``add_scans``; each scan's fix depends on that scan and the radio map only, so adding
+    them one by one or all at once gives the same numbers.
     """
 
     def __init__(self, radio_map: RadioMap | None, ap_table: AccessPointTable | None, floorplan: FloorPlan,
@@ -143,17 +143,6 @@ class WifiEvidence:
                 self.model = self.radio_map_model()
         else:
             self.model = trilateration_model(ap_table, trilateration)
-
-    @classmethod
-    def of_scans(cls, scans: list[WifiScan], radio_map: RadioMap | None, ap_table: AccessPointTable | None,
-                 floorplan: FloorPlan, wifi: WifiConfig = WifiConfig(),
-                 trilateration: TrilaterationConfig = TrilaterationConfig(), log_name: str = "the log") -> WifiEvidence:
-        """The evidence of a whole walk's scans; ``MapfilterError`` when none gives a measurement."""
-        evidence = cls(radio_map, ap_table, floorplan, wifi, trilateration, log_name)
-        evidence.prepare(scans)
-        evidence.add_scans(scans)
-        evidence.require_usable()
-        return evidence
 
     def prepare(self, scans: list[WifiScan]) -> None:
         """Check that the scans to come share access points with the radio map or table (one line
@@ -362,21 +351,6 @@ class BuildingEvidence:
         self.reference = BarometerReference(self.elevation_m, barometer)
         self.model = FloorFixLikelihood(stack, sigma)
 
-    @classmethod
-    def of_recording(cls, scans: list[WifiScan], radio_map: RadioMap, stack: FloorStack, wifi: WifiConfig = WifiConfig(),
-                     fix_sigma_by_floor_m: dict[str, float] | None = None, log_name: str = "the log",
-                     pressure: tuple[np.ndarray, np.ndarray] | None = None,
-                     barometer: BarometerConfig = BarometerConfig(),
-                     floor_evidence: np.ndarray | None = None) -> BuildingEvidence:
-        """The evidence of a whole walk (its scans and barometer readings)."""
-        evidence = cls(radio_map, stack, wifi, fix_sigma_by_floor_m, log_name, pressure is not None, barometer,
-                       floor_evidence)
-        evidence.add_scans(scans)
-        if pressure is not None:
-            evidence.add_pressure(*pressure)
-        evidence.require_usable()
-        return evidence
-
     def prepare(self, scans: list[WifiScan]) -> None:
         """Build the per-floor radio-map tables of the APs the scans hear in one go (as ``WifiEvidence``)."""
         for evidence in self.floor_wifi:
@@ -440,10 +414,6 @@ class BuildingEvidence:
         if self._heights is None:
             return None
         return np.array(self._pressure_t), np.array(self._pressure_hpa)
-
-    @property
-    def baro(self) -> tuple[np.ndarray, np.ndarray] | None:
-        return self._heights
 
     def height_m(self, t_s: float) -> float:
         """The barometer's height at ``t_s`` (relative to its first sample), NaN without one."""

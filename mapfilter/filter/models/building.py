@@ -115,9 +115,6 @@ class FloorStack:
         total = w.sum()
         return weighted_estimate(self.plan, stack_xy_m, w / total if total > 0 else weights)
 
-    def free_in_building(self, building_xy_m: np.ndarray, floor: int) -> np.ndarray:
-        """(N,) True where building-frame points fall on free space of ``floor``."""
-        return self.building.floors[floor].plan.is_free(self.building.floors[floor].from_building(building_xy_m))
 
 
 class OneFloor(FloorModel):
