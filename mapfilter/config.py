@@ -92,10 +92,6 @@ class TrackingConfig:
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise MapfilterError(f"the seed must be a whole number >= 0, got {self.seed!r}")
 
-    @property
-    def n_particles(self) -> int:
-        return self.filter.n_particles
-
     def with_particles(self, n_particles: int) -> TrackingConfig:
         """The same config with ``n_particles`` particles."""
         return dataclasses.replace(self, filter=dataclasses.replace(self.filter, n_particles=n_particles))
