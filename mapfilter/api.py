@@ -24,7 +24,7 @@ from mapfilter.config import TrackingConfig
 from mapfilter.engine import Engine
 from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate as _evaluate
 from mapfilter.maps.building import Building
-from mapfilter.sensors.floors import build_building_radio_map
+from mapfilter.sensors.floor_vote import build_building_radio_map
 from mapfilter.sensors.logs import read_log as _read_log
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap
@@ -68,7 +68,7 @@ def load_access_points(path: str | os.PathLike) -> AccessPointTable:
 def build_radio_map(building: Building, recordings: Sequence[Recording]) -> RadioMap:
     """A radio map from survey walks with waypoints (``sensors.radiomap``): on one floor, every
     scan labelled by its walk's waypoints; in a building, each walk's points on the floor its log
-    names (``sensors.floors``)."""
+    names (``sensors.floor_vote``)."""
     if building.is_single_floor:
         return _build_one_floor(list(recordings), building.floors[0].plan)
     # a walk over several floors (waypoints naming their floors) labels each scan by its waypoints

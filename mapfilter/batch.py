@@ -25,7 +25,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.metrics import FloorScore, summarise_errors
 from mapfilter.evaluation.scoring import score_track
 from mapfilter.maps.building import Building
-from mapfilter.sensors.floors import check_building_radio_map
+from mapfilter.sensors.floor_vote import check_building_radio_map
 from mapfilter.sensors.logs import read_log, read_log_header
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap

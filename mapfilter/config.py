@@ -23,9 +23,45 @@ from mapfilter.filter.particle_filter import FilterConfig
 from mapfilter.filter.tracker import MotionConfig
 from mapfilter.offline.whole_walk import OfflineConfig
 from mapfilter.sensors.pdr import PDRConfig
-from mapfilter.settings import replace_setting, settings_from_yaml, settings_to_dict, settings_to_yaml
+from mapfilter.settings import (replace_setting, retired_setting_message, settings_from_yaml, settings_to_dict,
+                                settings_to_yaml)
 
-__all__ = ["FloorsConfig", "TrackingConfig"]
+__all__ = ["RETIRED_SETTINGS", "FloorsConfig", "TrackingConfig"]
+
+# Settings that were folded into their model's constants: the model's shape, not a user's choice
+# (the reason beside each constant, the measurements in docs/accuracy.md)
+_FOLDED = {
+    "mapfilter.filter.models.motion": ("motion.pdr.turn_threshold_rad", "motion.pdr.step_length_walk_sigma_m",
+                                       "motion.pdr.position_sigma_m"),
+    "mapfilter.filter.tracker": ("motion.idle_tick_s", "motion.initial_heading_sigma_rad"),
+    "mapfilter.sensors.pdr": tuple(f"steps.{name}" for name in (
+        "sample_rate_hz", "lowpass_hz", "lowpass_order", "step_threshold_rms_fraction", "step_threshold_window_s",
+        "min_step_threshold_mps3", "gravity_lowpass_hz", "max_step_window_s", "imu_gap_s", "max_gap_s")),
+    "mapfilter.filter.models.radio_map": tuple(f"wifi.radio_map_likelihood.{name}" for name in (
+        "support_sigmas", "sigma_floor_db", "prior_sigma_db", "prior_weight", "prior_heard", "prior_rssi_dbm",
+        "heard_clip", "min_observations", "min_weight")),
+    "mapfilter.filter.models.adaptive_path_loss": tuple(
+        [f"trilateration.adaptation.{name}" for name in (
+            "vertical_distance_m", "c_gain", "alpha_gain", "alpha_min_distance_m", "alpha_min_aps",
+            "alpha_bounds_db_per_m", "share_c_correction")]
+        + [f"trilateration.blocking.{name}" for name in (
+            "top_k", "recover_db", "reference_gain", "max_blocked_s", "h_source")]),
+    "mapfilter.filter.particle_filter": ("filter.regularise_tries",),
+    "mapfilter.filter.models.building": ("floors.changes.height_decides_in_connector", "floors.changes.stairs_tread_m"),
+    "mapfilter.filter.models.barometer": tuple(f"floors.barometer.{name}" for name in (
+        "anchor_share", "steady_m", "steady_window_s", "drift_m_per_s", "smoothing_window_s")),
+}
+# {dotted name in an old config file: what became of it}; such a file is refused naming the line
+RETIRED_SETTINGS: dict[str, str] = {
+    **{name: f"a constant of {module}" for module, names in _FOLDED.items() for name in names},
+    "trilateration.adaptation.rssi_limit_dbm": "now trilateration.adapt_rssi_limit_dbm",
+    "trilateration.blocking.drop_db": "now trilateration.blocking_drop_db",
+    # off by default and measured worse (docs/accuracy.md): the code is gone
+    "trilateration.blocking.min_fraction_dropped": "removed: the per-AP drop check missed real onsets",
+    "trilateration.blocking.max_ambiguous_scans": "removed with the per-AP drop check",
+    "steps.step_length_m": "removed: never read (the step length is Weinberg's)",
+    "steps.step_length_std_m": "removed: never read (the filter's step length walks by itself)",
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,10 +92,6 @@ class TrackingConfig:
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise MapfilterError(f"the seed must be a whole number >= 0, got {self.seed!r}")
 
-    @property
-    def n_particles(self) -> int:
-        return self.filter.n_particles
-
     def with_particles(self, n_particles: int) -> TrackingConfig:
         """The same config with ``n_particles`` particles."""
         return dataclasses.replace(self, filter=dataclasses.replace(self.filter, n_particles=n_particles))
@@ -72,7 +104,8 @@ class TrackingConfig:
             try:
                 config = replace_setting(config, dotted, value)
             except (AttributeError, TypeError):
-                raise MapfilterError(f"unknown setting {dotted!r}") from None
+                raise MapfilterError(retired_setting_message(dotted, RETIRED_SETTINGS)
+                                     or f"unknown setting {dotted!r}") from None
         return config
 
     def to_yaml(self) -> str:
@@ -88,5 +121,6 @@ class TrackingConfig:
     @classmethod
     def from_yaml(cls, text_or_path: str | os.PathLike, base: TrackingConfig | None = None) -> TrackingConfig:
         """A config from YAML text or a file: the settings given, the rest from ``base`` (default:
-        the defaults). Unknown settings and wrong values are one line naming the file and line."""
-        return settings_from_yaml(cls, text_or_path, base)
+        the defaults). Unknown settings and wrong values are one line naming the file and line; a
+        setting of an older mapfilter (``RETIRED_SETTINGS``) says it is no longer a setting."""
+        return settings_from_yaml(cls, text_or_path, base, RETIRED_SETTINGS)

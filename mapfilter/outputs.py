@@ -21,7 +21,6 @@ import contextlib
 import json
 import os
 import re
-import stat
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 

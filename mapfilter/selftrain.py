@@ -21,7 +21,7 @@ too badly to help (docs/self-training.md).
 
 In a building, the offline track's whole-walk floor decides each grown point's floor.
 
-Every call to the tracker is in ``offline_track``.
+Every call to the tracker is in ``track_for_growing``.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from mapfilter.tracking import track
 from mapfilter.trackio import Track
 
 __all__ = ["GrowConfig", "GrowReport", "OfflineWalk", "grow_radio_map", "grown_by_fold", "labelled_and_unlabelled",
-           "offline_track"]
+           "track_for_growing"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,8 +114,8 @@ class GrowReport:
         return sum(1 for w in self.walks if w.points)
 
 
-def offline_track(space: FloorPlan | Building, recording: Recording, radio_map: RadioMap, config: TrackingConfig,
-                  rng: np.random.Generator, fix_sigma: float | dict[str, float] | None) -> tuple[Track, Track]:
+def track_for_growing(space: FloorPlan | Building, recording: Recording, radio_map: RadioMap, config: TrackingConfig,
+                      rng: np.random.Generator, fix_sigma: float | dict[str, float] | None) -> tuple[Track, Track]:
     """The one call to the tracker: (the walk's offline track, the causal track that placed it).
 
     ``fix_sigma``: the fix Gaussian (m; per floor name in a building), None to calibrate it."""
@@ -139,7 +139,7 @@ def track_offline(space: FloorPlan | Building, radio_map: RadioMap, config: Grow
     tracking = config.tracking
     if not _has_imu(recording):  # no steps: a constant-velocity filter's lineage is the offline track
         tracking = dataclasses.replace(tracking, motion=dataclasses.replace(tracking.motion, model="cv"))
-    smoothed, causal = offline_track(space, recording, radio_map, tracking, rng, fix_sigma)
+    smoothed, causal = track_for_growing(space, recording, radio_map, tracking, rng, fix_sigma)
     t = np.array([s.t_s for s in scans_of(recording)])
     xy = np.column_stack([np.interp(t, smoothed.t_s, smoothed.xy_m[:, 0]),
                           np.interp(t, smoothed.t_s, smoothed.xy_m[:, 1])])
@@ -336,7 +336,7 @@ def grown_by_fold(space: FloorPlan | Building, labelled: Sequence[Recording], un
     base has (folds - 1) / folds of the labelled walks, so this errs on the pessimistic side.
 
     ``base_of(recordings) -> RadioMap`` builds a base map (default: ``build_radio_map`` on a
-    floor, ``sensors.floors.build_building_radio_map`` with each log's header floor in a building).
+    floor, ``sensors.floor_vote.build_building_radio_map`` with each log's header floor in a building).
     For a transductive evaluation (the walks being scored grow the map too, without their own
     labels) grow once with the scored walks among ``recordings`` of ``grow_radio_map`` and score
     each walk with ``grown.without_traces([walk])``: its own grown points left out.
@@ -362,7 +362,7 @@ def grown_by_fold(space: FloorPlan | Building, labelled: Sequence[Recording], un
 
 
 def _building_base(building: Building, recordings: Sequence[Recording]) -> RadioMap:
-    from mapfilter.sensors.floors import build_building_radio_map
+    from mapfilter.sensors.floor_vote import build_building_radio_map
 
     floors = []
     for rec in recordings:

@@ -29,11 +29,11 @@ from mapfilter.filter.models.building import FloorChanges, FloorStack
 from mapfilter.filter.tracker import StreamFilter
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.offline.floors import building_offline_track, to_floors
-from mapfilter.maps.paths import detour_wall_crossings
-from mapfilter.offline.smoother import FixedLagSmoother, ParticleHistory, smooth
-from mapfilter.offline.whole_walk import OfflineTrack, offline_track, placed_track
 from mapfilter.filter.tracker import run_over_scans
+from mapfilter.maps.paths import detour_wall_crossings
+from mapfilter.offline.building_track import building_offline_track, to_floors
+from mapfilter.offline.smoother import FixedLagSmoother, ParticleHistory, smooth
+from mapfilter.offline.whole_walk import OfflineTrack, one_floor_offline_track, placed_track
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.pdr import OnlinePDR, Steps, detect_steps
 from mapfilter.sensors.radiomap import RadioMap
@@ -273,9 +273,9 @@ class Tracker:
             causal_track = stream.track()
             if self.stack is None:
                 has_steps = steps is not None and len(steps) > 0
-                offline = offline_track(self.plan, self.evidence, steps if has_steps else None, causal_track,
-                                        stream.lineage, config.motion, config.filter, self.rng, config.offline,
-                                        on_offline_step)
+                offline = one_floor_offline_track(self.plan, self.evidence, steps if has_steps else None,
+                                                  causal_track, stream.lineage, config.motion, config.filter, self.rng,
+                                                  config.offline, on_offline_step)
             else:
                 offline = building_offline_track(self._floors, self.evidence, steps, causal_track, stream.lineage,
                                                  config.motion, config.filter, self.rng, config.offline,

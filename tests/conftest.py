@@ -53,7 +53,7 @@ def office3_radio_map(office3, tmp_path_factory):
     point every 4 m, one scan each: coarse keeps the tests fast), labelled with its floor."""
     import numpy as np
 
-    from mapfilter.sensors.floors import build_building_radio_map
+    from mapfilter.sensors.floor_vote import build_building_radio_map
     from mapfilter.sensors.ilc import read_ilc
     from mapfilter.simulate.building import BuildingSimConfig, simulate_building_survey
     from mapfilter.simulate.ilc_writer import write_ilc
@@ -72,7 +72,7 @@ def office3_radio_map(office3, tmp_path_factory):
 
 def tracking_config(**settings):
     """A ``TrackingConfig`` from flat keywords, for tests: motion, n_particles, smooth, seed,
-    use_map, fingerprint_model, kwnn_min_rssi_dbm, fix_sigma_m, adapt_path_loss, adaptation,
+    use_map, fingerprint_model, kwnn_min_rssi_dbm, fix_sigma_m, adapt_path_loss, adapt_rssi_limit_dbm,
     blocking_compensation, restart_from_placement."""
     import dataclasses
 
@@ -81,7 +81,7 @@ def tracking_config(**settings):
     config = TrackingConfig()
     sections = {"motion": ("motion", "model"), "fingerprint_model": ("wifi", None), "kwnn_min_rssi_dbm": ("wifi", None),
                 "fix_sigma_m": ("wifi", None), "adapt_path_loss": ("trilateration", None),
-                "adaptation": ("trilateration", None), "blocking_compensation": ("trilateration", None),
+                "adapt_rssi_limit_dbm": ("trilateration", None), "blocking_compensation": ("trilateration", None),
                 "restart_from_placement": ("offline", None)}
     for name, value in settings.items():
         if name == "n_particles":

@@ -15,6 +15,7 @@ import statistics
 import numpy as np
 
 from mapfilter.filter.kernels.draws import counter_normals
+from mapfilter.filter.models import motion
 from mapfilter.filter.particles import HEADING, STEP, VX, VY, X, Y
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import touched_pixels_reference
@@ -53,17 +54,17 @@ def move_pdr(state: np.ndarray, z: np.ndarray, model, n_steps: int, change_rad: 
     """Lund thesis eq. 8.23 with false turns: a particle ignores a turn when its sixth normal falls
     below the false-turn share's quantile."""
     out = state.copy()
-    share = model.false_turn_fraction if abs(change_rad) >= model.turn_threshold_rad else 0.0
+    share = model.false_turn_fraction if abs(change_rad) >= motion.TURN_THRESHOLD_RAD else 0.0
     quantile = -math.inf if share <= 0 else statistics.NormalDist().inv_cdf(share) if share < 1 else math.inf
     change = np.where(z[5] < quantile, 0.0, change_rad)
     heading = state[HEADING] + change + model.heading_sigma_rad * z[0]
     heading = np.mod(heading + math.pi, 2 * math.pi) - math.pi
     length = state[STEP]
     if n_steps > 0:
-        length = np.clip(length + model.step_length_walk_sigma_m * math.sqrt(n_steps) * z[1],
+        length = np.clip(length + motion.STEP_LENGTH_WALK_SIGMA_M * math.sqrt(n_steps) * z[1],
                          model.step_length_min_m, model.step_length_max_m)
-    out[X] += n_steps * length * np.cos(heading) + model.position_sigma_m * math.sqrt(n_steps) * z[2]
-    out[Y] += n_steps * length * np.sin(heading) + model.position_sigma_m * math.sqrt(n_steps) * z[3]
+    out[X] += n_steps * length * np.cos(heading) + motion.POSITION_SIGMA_M * math.sqrt(n_steps) * z[2]
+    out[Y] += n_steps * length * np.sin(heading) + motion.POSITION_SIGMA_M * math.sqrt(n_steps) * z[3]
     out[HEADING] = heading
     out[STEP] = length
     return out

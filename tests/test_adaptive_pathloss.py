@@ -9,7 +9,8 @@ from conftest import REPO
 
 from mapfilter.cli import main
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.models.adaptive_path_loss import AdaptationConfig, AdaptiveTrilaterationLikelihood, BlockingConfig
+from mapfilter.filter.models import adaptive_path_loss
+from mapfilter.filter.models.adaptive_path_loss import AdaptiveTrilaterationLikelihood
 from mapfilter.filter.models.path_loss import TrilaterationLikelihood
 from mapfilter.filter.particles import Particles
 from mapfilter.maps.floorplan import FloorPlan
@@ -45,13 +46,19 @@ def _one_particle(xy_m=(10.0, 10.0)) -> Particles:
 
 
 # ---- adaptation ------------------------------------------------------------------------------
+@pytest.fixture
+def full_gains(monkeypatch):
+    """The adaptation's gains at 1: one observation replaces the parameter (the equations' oracle)."""
+    monkeypatch.setattr(adaptive_path_loss, "C_GAIN", 1.0)
+    monkeypatch.setattr(adaptive_path_loss, "ALPHA_GAIN", 1.0)
+
+
 @pytest.mark.parametrize("c_offset_db, alpha_offset_db_per_m", [(13.0, 0.0), (-6.0, 0.0)])
-def test_noise_free_scan_below_an_ap_recovers_c_exactly(office_aps, c_offset_db, alpha_offset_db_per_m):
+def test_noise_free_scan_below_an_ap_recovers_c_exactly(office_aps, c_offset_db, alpha_offset_db_per_m, full_gains):
     """Oracle: the model solved for C (at 1 m) gives the truth back from one noise-free scan when
     alpha is right; alpha, solved from the other APs with those C, stays right."""
     wrong = offset_access_points(office_aps, c_offset_db, alpha_offset_db_per_m)
-    model = AdaptiveTrilaterationLikelihood(
-        wrong, adaptation=AdaptationConfig(rssi_limit_dbm=-45.0, c_gain=1.0, alpha_gain=1.0), blocking=None)
+    model = AdaptiveTrilaterationLikelihood(wrong, adapt_rssi_limit_dbm=-45.0, blocking_drop_db=None)
     below = office_aps.xy_m[0]  # the phone directly below AP 0 (horizontal distance 0: clamped to 1 m)
     model.log_likelihood(_one_particle(), _model_scan(office_aps, below, 0.0))
     adapted = model.ap_table
@@ -61,11 +68,10 @@ def test_noise_free_scan_below_an_ap_recovers_c_exactly(office_aps, c_offset_db,
     np.testing.assert_array_equal(wrong.c_dbm, office_aps.c_dbm + c_offset_db)  # the given table is not touched
 
 
-def test_noise_free_scans_with_both_wrong_converge(office_aps):
+def test_noise_free_scans_with_both_wrong_converge(office_aps, full_gains):
     """C is solved with the current alpha and alpha with the current C: repeated scans converge."""
     wrong = offset_access_points(office_aps, 13.0, -0.2)
-    model = AdaptiveTrilaterationLikelihood(
-        wrong, adaptation=AdaptationConfig(rssi_limit_dbm=-45.0, c_gain=1.0, alpha_gain=1.0), blocking=None)
+    model = AdaptiveTrilaterationLikelihood(wrong, adapt_rssi_limit_dbm=-45.0, blocking_drop_db=None)
     errors = []
     for t in range(6):
         model.log_likelihood(_one_particle(), _model_scan(office_aps, office_aps.xy_m[4 * (t % 2)], float(t)))
@@ -77,7 +83,7 @@ def test_noise_free_scans_with_both_wrong_converge(office_aps):
 def test_adaptation_moves_c_towards_the_truth_on_noisy_synthetic_scans(office_aps):
     rng = np.random.default_rng(4)
     wrong = offset_access_points(office_aps, c_offset_db=13.0, alpha_offset_db_per_m=-0.2)
-    model = AdaptiveTrilaterationLikelihood(wrong, adaptation=AdaptationConfig(rssi_limit_dbm=-45.0), blocking=None)
+    model = AdaptiveTrilaterationLikelihood(wrong, adapt_rssi_limit_dbm=-45.0, blocking_drop_db=None)
     particles = _one_particle()
     for i in range(40):  # walking past APs 0, 3, 6 at 0-1 m, 5 dB noise
         ap = (0, 3, 6)[i % 3] * 2
@@ -96,13 +102,12 @@ def test_adaptation_moves_c_towards_the_truth_on_noisy_synthetic_scans(office_ap
 
 def test_no_adaptation_below_the_limit_or_while_blocked(office_aps):
     wrong = offset_access_points(office_aps, c_offset_db=13.0)
-    model = AdaptiveTrilaterationLikelihood(wrong, adaptation=AdaptationConfig(rssi_limit_dbm=-30.0), blocking=None)
+    model = AdaptiveTrilaterationLikelihood(wrong, adapt_rssi_limit_dbm=-30.0, blocking_drop_db=None)
     model.log_likelihood(_one_particle(), _model_scan(office_aps, office_aps.xy_m[0], 0.0))  # strongest -38.3
     assert model.n_adaptations == 0 and not model.state.adapted
     np.testing.assert_array_equal(model.ap_table.c_dbm, wrong.c_dbm)
 
-    blocked = AdaptiveTrilaterationLikelihood(wrong, adaptation=AdaptationConfig(rssi_limit_dbm=-60.0),
-                                              blocking=BlockingConfig())
+    blocked = AdaptiveTrilaterationLikelihood(wrong, adapt_rssi_limit_dbm=-60.0)
     xy = office_aps.xy_m[0] + 0.5
     blocked.log_likelihood(_one_particle(xy), _model_scan(office_aps, xy, 0.0))  # first scan: the reference
     c_after_first = blocked.ap_table.c_dbm.copy()
@@ -112,7 +117,7 @@ def test_no_adaptation_below_the_limit_or_while_blocked(office_aps):
 
 
 def test_state_updates_once_per_scan_however_often_the_filter_asks(office_aps):
-    model = AdaptiveTrilaterationLikelihood(office_aps, adaptation=AdaptationConfig(rssi_limit_dbm=-45.0))
+    model = AdaptiveTrilaterationLikelihood(office_aps, adapt_rssi_limit_dbm=-45.0)
     particles = Particles.at(np.random.default_rng(0).uniform(0, 30, (50, 2)))
     scan = _model_scan(office_aps, office_aps.xy_m[2], 0.0)
     first = model.log_likelihood(particles, scan)
@@ -123,22 +128,22 @@ def test_state_updates_once_per_scan_however_often_the_filter_asks(office_aps):
 
 def test_without_adaptation_or_blocking_it_is_the_plain_likelihood(office_aps):
     plain = TrilaterationLikelihood(office_aps)
-    wrapped = AdaptiveTrilaterationLikelihood(office_aps, adaptation=None, blocking=None)
+    wrapped = AdaptiveTrilaterationLikelihood(office_aps, adapt_rssi_limit_dbm=None, blocking_drop_db=None)
     particles = Particles.at(np.random.default_rng(1).uniform(0, 30, (200, 2)))
     for t, xy in enumerate(([3.0, 3.0], [20.0, 15.0], [30.0, 5.0])):
         scan = _model_scan(office_aps, xy, float(t), offset_db=np.random.default_rng(t).normal(0, 5, len(office_aps)))
         np.testing.assert_array_equal(wrapped.log_likelihood(particles, scan), plain.log_likelihood(particles, scan))
 
 
-def test_bad_configs_are_mapfilter_errors(office_aps):
-    with pytest.raises(MapfilterError, match="c_gain"):
-        AdaptiveTrilaterationLikelihood(office_aps, adaptation=AdaptationConfig(c_gain=0.0))
-    with pytest.raises(MapfilterError, match="vertical distance"):
-        AdaptiveTrilaterationLikelihood(office_aps, adaptation=AdaptationConfig(vertical_distance_m=-1.0))
-    with pytest.raises(MapfilterError, match="recover_db"):
-        AdaptiveTrilaterationLikelihood(office_aps, blocking=BlockingConfig(recover_db=8.0, drop_db=6.0))
-    with pytest.raises(MapfilterError, match="h_source"):
-        AdaptiveTrilaterationLikelihood(office_aps, blocking=BlockingConfig(h_source="guess"))
+def test_bad_settings_are_mapfilter_errors(office_aps):
+    from mapfilter.filter.evidence import TrilaterationConfig
+
+    with pytest.raises(MapfilterError, match="RSSI limit"):
+        AdaptiveTrilaterationLikelihood(office_aps, adapt_rssi_limit_dbm=float("nan"))
+    with pytest.raises(MapfilterError, match="blocking drop must be at least the 3 dB"):
+        AdaptiveTrilaterationLikelihood(office_aps, blocking_drop_db=2.0)
+    with pytest.raises(MapfilterError, match="blocking drop"):
+        TrilaterationConfig(blocking_drop_db=float("inf"))
     with pytest.raises(MapfilterError, match="variance"):
         AdaptiveTrilaterationLikelihood(office_aps, variance_db2=0.0)
 
@@ -159,7 +164,7 @@ def test_blocking_is_detected_in_a_simulated_episode_and_h_is_near_its_size(offi
     _, walk, _ = blocked_walk
     path = tmp_path / "walk.txt"
     write_ilc(walk, path)
-    model = AdaptiveTrilaterationLikelihood(office_aps, adaptation=None)
+    model = AdaptiveTrilaterationLikelihood(office_aps, adapt_rssi_limit_dbm=None)
     inside, outside = [], []
     for scan in scans_of(read_ilc(path)):
         # the particles at the true position: H is then the blocking alone (plus noise)
@@ -174,6 +179,23 @@ def test_blocking_is_detected_in_a_simulated_episode_and_h_is_near_its_size(offi
     assert 8.0 <= np.median([s.blocking_db for s in inside if s.blocked]) <= 16.0
     assert np.mean([s.blocked for s in outside]) <= 0.15
     assert np.mean([s.blocking_db for s in outside]) < 2.0
+
+
+def test_the_blocking_drop_setting_is_the_threshold(office_aps, blocked_walk, tmp_path):
+    """The simulated 12 dB episode is blocking at the thesis' 6 dB and not at 20 dB."""
+    from mapfilter.simulate.ilc_writer import write_ilc
+
+    _, walk, _ = blocked_walk
+    path = tmp_path / "walk.txt"
+    write_ilc(walk, path)
+    scans = scans_of(read_ilc(path))
+    blocked = {}
+    for drop_db in (6.0, 20.0):
+        model = AdaptiveTrilaterationLikelihood(office_aps, adapt_rssi_limit_dbm=None, blocking_drop_db=drop_db)
+        for scan in scans:
+            model.log_likelihood(_one_particle(walk.position_at(np.array([scan.t_s]))[0]), scan)
+        blocked[drop_db] = sum(state.blocked for state in model.history)
+    assert blocked[6.0] > 5 and blocked[20.0] == 0
 
 
 def test_simulated_blocking_weakens_every_fresh_reading_by_h(office_aps, blocked_walk):
@@ -226,8 +248,7 @@ def test_tracking_with_adaptation_is_deterministic_and_returns_the_adapted_table
     write_ilc(walk, path)
     recording = read_ilc(path)
     wrong = offset_access_points(office_aps, 13.0, -0.2)
-    config = tracking_config(motion="rw", n_particles=500, adapt_path_loss=True,
-                            adaptation=AdaptationConfig(rssi_limit_dbm=-45.0))
+    config = tracking_config(motion="rw", n_particles=500, adapt_path_loss=True, adapt_rssi_limit_dbm=-45.0)
     runs = [track(floorplan, recording, access_points=wrong, config=config, rng=np.random.default_rng(3))
             for _ in range(2)]
     np.testing.assert_array_equal(runs[0].causal.xy_m, runs[1].causal.xy_m)
@@ -269,7 +290,7 @@ def test_rerun_shows_h_and_the_nearest_c(office_aps, blocked_walk, tmp_path):
     with make_logger(floorplan, rrd_path=out) as logger:
         track(floorplan, read_ilc(path), access_points=office_aps,
                         config=tracking_config(motion="rw", n_particles=300, adapt_path_loss=True,
-                                              adaptation=AdaptationConfig(rssi_limit_dbm=-45.0)),
+                                              adapt_rssi_limit_dbm=-45.0),
                         rng=np.random.default_rng(0), on_step=logger.log_step)
     entities = read_rrd(out)
     h = [v[0] for v in rows(entities["/plots/path_loss/blocking_H_db"], "Scalars:scalars")]
@@ -328,30 +349,6 @@ def test_ap_key_of_the_wrong_table_matches(office_aps):
     assert offset_access_points(office_aps, 1.0).keys == office_aps.keys == [
         ap_key(b, band) for b, band in zip(office_aps.bssid, office_aps.band)]
     assert path_loss_rssi_dbm(1.0, -38.0, 2.0, 0.3, 30.0) == pytest.approx(-38.3)
-
-
-def test_optional_together_test_tells_walls_from_a_hand(office_aps):
-    """The strongest half of the APs 12 dB weaker, the others 1 dB stronger (walking behind walls):
-    the thesis' top-6 rule calls it blocking; with min_fraction_dropped = 0.75 it is not, until
-    max_ambiguous_scans such scans in a row restart the reference there."""
-    xy = np.array([12.0, 9.0])
-    first = _model_scan(office_aps, xy, 0.0)
-    order = np.argsort(-first.rssi_dbm)
-    shift = np.full(len(office_aps), 1.0)
-    shift[order[: len(order) // 2]] = -12.0
-    walls = dataclasses.replace(first, rssi_dbm=first.rssi_dbm + shift)
-    thesis = AdaptiveTrilaterationLikelihood(office_aps, adaptation=None, blocking=BlockingConfig())
-    together = AdaptiveTrilaterationLikelihood(office_aps, adaptation=None,
-                                               blocking=BlockingConfig(min_fraction_dropped=0.75, max_ambiguous_scans=2))
-    particles = _one_particle(xy)
-    for model in (thesis, together):
-        model.log_likelihood(particles, first)
-        model.log_likelihood(particles, dataclasses.replace(walls, t_s=2.0))
-    assert thesis.state.blocked  # the top-6 mean fell by more than 6 dB
-    assert not together.state.blocked  # but half of the APs rose
-    together.log_likelihood(particles, dataclasses.replace(walls, t_s=4.0))  # 2nd ambiguous scan: new reference
-    together.log_likelihood(particles, dataclasses.replace(walls, rssi_dbm=walls.rssi_dbm - 10.0, t_s=6.0))
-    assert together.state.blocked  # now every AP fell together below the new reference
 
 
 def test_cli_evaluate_takes_the_adaptation_flags(tmp_path):

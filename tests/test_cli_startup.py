@@ -36,7 +36,7 @@ def test_cli_defaults_are_the_librarys():
     assert options.DEFAULT_FINGERPRINT_MODEL == config.wifi.fingerprint_model
     assert options.DEFAULT_KWNN_MIN_RSSI_DBM == config.wifi.kwnn_min_rssi_dbm
     assert evaluate_cmd.ALL_METHODS == ALL_METHODS and evaluate_cmd.BUILDING_METHODS == BUILDING_METHODS
-    assert options.DEFAULT_ADAPT_RSSI_LIMIT_DBM == config.trilateration.adaptation.rssi_limit_dbm
+    assert options.DEFAULT_ADAPT_RSSI_LIMIT_DBM == config.trilateration.adapt_rssi_limit_dbm
     assert radiomap_cmd._MIN_OBSERVATIONS == ApFitConfig.min_observations
     sim = dataclasses.asdict(SimConfig())
     assert {key: sim[key] for key in simulate_cmd._SIM_DEFAULTS} == simulate_cmd._SIM_DEFAULTS

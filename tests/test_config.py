@@ -5,7 +5,7 @@ import dataclasses
 import pytest
 
 from mapfilter.cli import main
-from mapfilter.config import TrackingConfig
+from mapfilter.config import RETIRED_SETTINGS, TrackingConfig
 from mapfilter.errors import MapfilterError
 from mapfilter.settings import field_docs
 
@@ -25,10 +25,10 @@ def test_every_setting_has_a_one_line_comment():
 
 def test_yaml_round_trip_of_a_changed_config():
     config = TrackingConfig.from_yaml("seed: 7\nsmooth: true\nmotion:\n  model: rw\n  tick_s: 0.5\n"
-                                      "floors:\n  changes:\n    stairs_tread_m: [0.2, 0.3]\nwifi:\n"
+                                      "floors:\n  changes:\n    anywhere_rate_per_s: 0.01\nwifi:\n"
                                       "  kwnn_min_rssi_dbm: null\n")
     assert (config.seed, config.smooth, config.motion.model, config.motion.tick_s) == (7, True, "rw", 0.5)
-    assert config.floors.changes.stairs_tread_m == (0.2, 0.3) and config.wifi.kwnn_min_rssi_dbm is None
+    assert config.floors.changes.anywhere_rate_per_s == 0.01 and config.wifi.kwnn_min_rssi_dbm is None
     assert TrackingConfig.from_yaml(config.to_yaml()) == config
     assert config.to_dict()["motion"]["model"] == "rw"
     assert TrackingConfig.from_yaml("") == TrackingConfig()
@@ -63,3 +63,62 @@ def test_config_show_prints_every_setting_and_a_file_back(tmp_path, capsys):
     assert "seed: 4  #" in capsys.readouterr().out
     assert main(["config", "show", "--config", str(tmp_path / "missing.yaml")]) == 1
     assert "missing.yaml: file not found" in capsys.readouterr().err
+
+
+def _nested_yaml(dotted: str, value: str = "1") -> tuple[str, int]:
+    """YAML setting the dotted name, and the line of its last key."""
+    parts = dotted.split(".")
+    lines = [f"{'  ' * depth}{part}:" for depth, part in enumerate(parts[:-1])]
+    lines.append(f"{'  ' * (len(parts) - 1)}{parts[-1]}: {value}")
+    return "seed: 1\n" + "\n".join(lines) + "\n", len(lines) + 1
+
+
+@pytest.mark.parametrize("dotted", sorted(RETIRED_SETTINGS))
+def test_an_old_config_naming_a_retired_setting_is_refused_in_one_line(tmp_path, dotted):
+    import importlib
+
+    text, line = _nested_yaml(dotted)
+    path = tmp_path / "old.yaml"
+    path.write_text(text)
+    with pytest.raises(MapfilterError) as error:
+        TrackingConfig.from_yaml(path)
+    message = str(error.value)
+    assert f"{path} line {line}: {dotted!r} is no longer a setting ({RETIRED_SETTINGS[dotted]})" == message
+    if RETIRED_SETTINGS[dotted].startswith("a constant of "):
+        importlib.import_module(RETIRED_SETTINGS[dotted].removeprefix("a constant of "))  # the module exists
+    with pytest.raises(MapfilterError, match="is no longer a setting"):
+        TrackingConfig().override({dotted: 1})
+
+
+def test_a_config_written_before_the_fold_is_refused_at_its_first_folded_line(tmp_path, capsys):
+    old = tmp_path / "saved.yaml"
+    old.write_text("seed: 3\nmotion:\n  model: pdr\n  pdr:\n    heading_sigma_rad: 0.02\n"
+                   "    turn_threshold_rad: 0.35\n  tick_s: 1.0\nsteps:\n  imu_gap_s: 3.0\n")
+    assert main(["config", "show", "--config", str(old)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == (f"mapfilter: error: {old} line 6: 'motion.pdr.turn_threshold_rad' is no longer a setting "
+                   "(a constant of mapfilter.filter.models.motion)")
+
+
+def test_a_retired_section_and_the_renamed_settings(tmp_path):
+    with pytest.raises(MapfilterError, match=r"line 2: 'trilateration.blocking' is no longer a section \(.*now "
+                                             r"trilateration.blocking_drop_db"):
+        TrackingConfig.from_yaml("trilateration:\n  blocking: {}\n")
+    with pytest.raises(MapfilterError, match="line 3: 'trilateration.blocking.drop_db' is no longer a setting "
+                                             r"\(now trilateration.blocking_drop_db\)"):
+        TrackingConfig.from_yaml("trilateration:\n  blocking:\n    drop_db: 8\n")
+    config = TrackingConfig.from_yaml("trilateration:\n  adapt_rssi_limit_dbm: -40\n  blocking_drop_db: 8\n")
+    assert (config.trilateration.adapt_rssi_limit_dbm, config.trilateration.blocking_drop_db) == (-40.0, 8.0)
+    # a key that never was a setting is still "unknown", with the known ones listed
+    with pytest.raises(MapfilterError, match="unknown setting 'steps.stride'"):
+        TrackingConfig.from_yaml("steps:\n  stride: 1\n")
+
+
+def test_no_retired_name_is_a_setting_again():
+    from mapfilter.settings import settings_to_dict
+
+    def leaves(tree, prefix=""):
+        for key, value in tree.items():
+            yield from leaves(value, f"{prefix}{key}.") if isinstance(value, dict) else [prefix + key]
+
+    assert not set(leaves(settings_to_dict(TrackingConfig()))) & set(RETIRED_SETTINGS)

@@ -52,22 +52,29 @@ def test_constant_velocity_moves_along_velocity():
 
 
 def test_pdr_steps_along_heading_with_false_turns():
-    motion = PDRMotion(heading_sigma_rad=0.0, step_length_walk_sigma_m=0.0, position_sigma_m=0.0)
-    moved = _moved(motion, 100_000, StepInput(n_steps=2, heading_change_rad=math.pi / 2), 1.0)
+    from mapfilter.filter.models.motion import POSITION_SIGMA_M, STEP_LENGTH_WALK_SIGMA_M
+
+    moved = _moved(PDRMotion(heading_sigma_rad=0.0), 100_000, StepInput(n_steps=2, heading_change_rad=math.pi / 2),
+                   1.0)
     turned = np.isclose(moved.heading_rad, math.pi / 2)
     ignored = np.isclose(moved.heading_rad, 0.0)
     assert np.all(turned | ignored)
     assert ignored.mean() == pytest.approx(0.15, abs=0.01)  # thesis: 15 % false turns
-    np.testing.assert_allclose(moved.xy_m[turned] - CENTRE, np.tile([0.0, 1.4], (turned.sum(), 1)), atol=1e-6)
-    np.testing.assert_allclose(moved.xy_m[ignored] - CENTRE, np.tile([1.4, 0.0], (ignored.sum(), 1)), atol=1e-6)
+    # two steps of the state's length (0.7 m) along the heading, with the per-step slack across it
+    for sel, along in ((turned, 1), (ignored, 0)):
+        d = moved.xy_m[sel] - CENTRE
+        assert d[:, along].mean() == pytest.approx(1.4, abs=0.01)
+        assert d[:, 1 - along].mean() == pytest.approx(0.0, abs=0.01)
+        assert d[:, 1 - along].std() == pytest.approx(POSITION_SIGMA_M * math.sqrt(2), rel=0.05)
     small = _moved(PDRMotion(heading_sigma_rad=0.0), 1000, StepInput(1, 0.1), 1.0)
     np.testing.assert_allclose(small.heading_rad, 0.1)  # below the turn threshold: every particle turns
     standing = _moved(PDRMotion(), 1000, StepInput(0, 0.0), 1.0)
     np.testing.assert_allclose(standing.xy_m, np.tile(CENTRE, (1000, 1)))
     np.testing.assert_allclose(standing.step_length_m, 0.7)
-    walked = _moved(PDRMotion(step_length_walk_sigma_m=0.05), 20_000, StepInput(1, 0.0), 1.0)
-    assert walked.step_length_m.std() == pytest.approx(0.05, rel=0.05)
-    assert walked.step_length_m.min() >= 0.4 and walked.step_length_m.max() <= 1.0
+    walked = _moved(PDRMotion(), 20_000, StepInput(1, 0.0), 1.0)
+    assert walked.step_length_m.std() == pytest.approx(STEP_LENGTH_WALK_SIGMA_M, rel=0.05)
+    narrow = _moved(PDRMotion(step_length_min_m=0.69, step_length_max_m=0.71), 20_000, StepInput(1, 0.0), 1.0)
+    assert narrow.step_length_m.min() >= 0.69 and narrow.step_length_m.max() <= 0.71  # clipped to the bounds
     with pytest.raises(ValueError):
         PDRMotion().kernel(StepInput(-1, 0.0), 1.0)
 

@@ -224,12 +224,20 @@ def test_bad_model_output_never_poisons_the_filter():
         pf.step(1.0, 1.0, None, WrongShape(), object())
 
 
-@pytest.mark.parametrize("bad", [dict(n_particles=0), dict(n_particles=2.5), dict(regularise_tries=0),
-                                 dict(regularise_tries=9), dict(resample_ess_fraction=2.0),
+@pytest.mark.parametrize("bad", [dict(n_particles=0), dict(n_particles=2.5), dict(resample_ess_fraction=2.0),
                                  dict(bandwidth_scale=float("nan")), dict(init_samples=0)])
 def test_bad_config_is_a_user_error(bad):
     with pytest.raises((MapfilterError, ValueError)):
         FilterConfig(**bad)
+
+
+def test_the_jitter_redraws_fit_the_steps_counter_slots():
+    """A jitter that crosses a wall is drawn again from the particle's counter-based slots: the
+    tries must fit in them."""
+    from mapfilter.filter.kernels.draws import SLOTS
+    from mapfilter.filter.particle_filter import REGULARISE_TRIES
+
+    assert 1 <= REGULARISE_TRIES <= SLOTS
 
 
 def test_real_ilc_floor_and_waypoints(ilc_site1):

@@ -12,7 +12,7 @@ import pytest
 
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.metrics import FloorScore, floor_at_waypoints, ipin_errors_m, ipin_score
-from mapfilter.sensors.floors import build_building_radio_map, whole_walk_floor_path
+from mapfilter.sensors.floor_vote import build_building_radio_map, whole_walk_floor_path
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.simulate.building import BuildingSimConfig, FloorChange, simulate_building_walk
 from mapfilter.simulate.ilc_writer import write_ilc
@@ -85,7 +85,7 @@ def test_the_whole_walk_posterior_is_the_brute_force_marginal():
     every floor sequence of a small walk weighed by evidence and transitions, one by one."""
     import itertools
 
-    from mapfilter.sensors.floors import _log_transition_rates
+    from mapfilter.sensors.floor_vote import _log_transition_rates
 
     rng = np.random.default_rng(0)
     n, f = 6, 3

@@ -12,13 +12,15 @@ import yaml
 
 from mapfilter.cli import main
 from mapfilter.evaluation.metrics import floor_at_waypoints
-from mapfilter.filter.models.building import FloorChangeConfig, FloorChanges, FloorFix, FloorFixLikelihood, FloorStack
+from mapfilter.filter.models.building import (STAIRS_TREAD_M, FloorChangeConfig, FloorChanges, FloorFix,
+                                              FloorFixLikelihood, FloorStack)
 from mapfilter.filter.models.motion import RandomWalkMotion
 from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
+from mapfilter.filter.tracker import IDLE_TICK_S
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall
-from mapfilter.sensors.floors import floor_hmm, floor_vote_log_likelihood
+from mapfilter.sensors.floor_vote import floor_hmm, floor_vote_log_likelihood
 from mapfilter.sensors.radiomap import RadioMap
 
 STAIRS = [[2.0, 2.0], [5.0, 2.0], [5.0, 5.0], [2.0, 5.0]]
@@ -446,7 +448,7 @@ def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_ste
     plan = FloorPlan(np.pad(np.zeros((98, 98), dtype=bool), 1, constant_values=True), 0.1)
 
     def row_times(model, between):
-        stream = StreamFilter(plan, Evidence([], between), MotionConfig(model=model, tick_s=1.0, idle_tick_s=1.0),
+        stream = StreamFilter(plan, Evidence([], between), MotionConfig(model=model, tick_s=1.0),
                               FilterConfig(n_particles=100), np.random.default_rng(0),
                               steps=steps if model == "pdr" else None)
         stream.feed(scans_recording(scans))
@@ -454,9 +456,11 @@ def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_ste
         return np.array([row.t_s for row in stream.rows])
 
     times = row_times("pdr", True)
-    assert np.all(np.diff(times) >= 0) and np.diff(times).max() <= 1.0 + 1e-9
+    assert np.all(np.diff(times) >= 0) and np.diff(times).max() <= IDLE_TICK_S + 1e-9
     idle = sorted(set(times) - set(t_steps) - {0.0, 3.0, 12.0})
-    assert idle == [4.0, 5.0, 6.0, 7.0, 8.0, 10.5, 11.5]  # only in the gaps, never among steps
+    # only in the gaps (after the scan at 3 s and the step at 9.5 s), never among steps
+    gaps = [(3.0, 9.0), (9.5, 12.0)]
+    assert idle == [t for t0, t1 in gaps for t in t0 + IDLE_TICK_S * np.arange(1, round((t1 - t0) / IDLE_TICK_S))]
     # without steps (cv / rw): prediction ticks every second from the start, no idle ticks
     assert row_times("cv", True).tolist() == [float(t) for t in range(13)]
     # one floor (nothing weighs the particles between scans): no idle ticks at all
@@ -464,9 +468,8 @@ def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_ste
 
 
 def test_barometer_reference_follows_the_weather_not_a_pausing_climber():
-    from mapfilter.filter.models.barometer import BarometerConfig, BarometerReference
-
-    drift_m_per_s = BarometerConfig().drift_m_per_s
+    from mapfilter.filter.models.barometer import DRIFT_M_PER_S as drift_m_per_s
+    from mapfilter.filter.models.barometer import BarometerReference
 
     ref = BarometerReference(np.array([0.0, 4.0, 8.0]))
     sure_0 = np.array([0.99, 0.01, 0.0])
@@ -497,7 +500,7 @@ def test_barometer_reference_follows_the_weather_not_a_pausing_climber():
 def test_in_a_connector_the_barometers_floor_decides_and_elsewhere_nothing_moves(tmp_path):
     """A step whose height is nearest floor 1: every live particle inside the stairs (which link
     floor 1) lands there, inside the stairs; nobody outside them changes floor; without a
-    barometer (no ``height_floor``) or with the rule off, only the rate moves particles."""
+    barometer (no ``height_floor``) only the rate moves particles."""
     import shapely
 
     from mapfilter.filter.particles import Particles
@@ -523,7 +526,6 @@ def test_in_a_connector_the_barometers_floor_decides_and_elsewhere_nothing_moves
     stairs_1 = shapely.Polygon(building.connectors[0].polygons["L1"]).buffer(0.3)
     assert shapely.contains_xy(stairs_1, after_local[in_stairs, 0], after_local[in_stairs, 1]).all()
     assert (run(FloorChangeConfig(0.0, 0.0), None)[1] == 0).all()
-    assert (run(FloorChangeConfig(0.0, 0.0, height_decides_in_connector=False), 1)[1] == 0).all()
 
 
 def test_a_pdr_step_that_starts_on_stairs_advances_a_tread_not_a_stride(tmp_path):
@@ -533,7 +535,7 @@ def test_a_pdr_step_that_starts_on_stairs_advances_a_tread_not_a_stride(tmp_path
     building = _building(tmp_path)
     stack = FloorStack(building)
     changes = FloorChanges(stack, FloorChangeConfig(0.0, 0.0))
-    lo, hi = changes.config.stairs_tread_m
+    lo, hi = STAIRS_TREAD_M
     rng = np.random.default_rng(6)
     on = np.column_stack([rng.uniform(2.3, 3.0, 200), rng.uniform(2.3, 4.7, 200)])  # west end of the stairs
     off = np.column_stack([rng.uniform(8.0, 12.0, 200), rng.uniform(2.3, 4.7, 200)])
@@ -545,14 +547,15 @@ def test_a_pdr_step_that_starts_on_stairs_advances_a_tread_not_a_stride(tmp_path
     assert np.allclose(out[:200, 1], start[:200, 1])  # along the step's own direction
     np.testing.assert_array_equal(out[200:], end[200:])
     # in the filter: PDR particles on the stairs keep to treads, the rest stride on
-    pf = ParticleFilter(stack.plan, PDRMotion(heading_sigma_rad=0.0, position_sigma_m=0.0),
+    pf = ParticleFilter(stack.plan, PDRMotion(heading_sigma_rad=0.0),
                         FilterConfig(n_particles=400, regularise=False), rng, floors=changes)
     pf.particles = Particles.at(start)
     pf.particles.heading_rad[:] = 0.0
     pf.particles.step_length_m[:] = 0.7
     pf.step(1.0, 0.6, StepInput(1, 0.0))
     moved_m = np.linalg.norm(pf.particles.xy_m - start, axis=1)
-    assert (moved_m[:200] <= hi + 0.05).all() and (moved_m[200:] >= 0.6).all()
+    # a tread on the stairs; off them the 0.7 m stride with its slack (5 sigma below it is still no tread)
+    assert (moved_m[:200] <= hi + 1e-9).all() and (moved_m[200:] >= hi + 0.1).all()
 
 
 def test_barometric_height_is_causal_and_follows_a_climb_without_lag():
@@ -582,7 +585,7 @@ def test_whole_walk_floor_outvotes_a_wrong_start_that_the_causal_filter_follows(
     """Five floors; the first five scans (2 s apart) vote two storeys down unanimously (as ILC F2 walk
     ...17717 votes B1), the rest the walk's own floor: the whole-walk floor is right everywhere (one
     storey at a time, that start would take two changes); the causal (forward) floor is not."""
-    from mapfilter.sensors.floors import whole_walk_floor_path
+    from mapfilter.sensors.floor_vote import whole_walk_floor_path
 
     n, truth, wrong = 150, 2, 0
     ll = np.full((n, 5), math.log(1.0 / 9.0))  # k = 4, one pseudo-vote per floor
@@ -592,7 +595,7 @@ def test_whole_walk_floor_outvotes_a_wrong_start_that_the_causal_filter_follows(
     t = np.arange(n) * 2.0
     rate = FloorChangeConfig().anywhere_rate_per_s
     rates = np.zeros((n - 1, 5, 5))
-    for f in range(5):  # one storey at a time, as offline.floors.whole_walk_floors
+    for f in range(5):  # one storey at a time, as offline.building_track.whole_walk_floors
         nearest = [g for g in (f - 1, f + 1) if 0 <= g < 5]
         rates[:, f, nearest] = rate / len(nearest)
     whole = whole_walk_floor_path(t, ll, rates)
@@ -607,7 +610,7 @@ def test_whole_walk_floor_outvotes_a_wrong_start_that_the_causal_filter_follows(
 def test_whole_walk_floor_changes_only_where_a_change_is_possible():
     """Evidence says floor 0 then floor 2 with the switch at row 40; a change is possible only at
     rows 50-55 (a connector): the path changes there, once, and nowhere else."""
-    from mapfilter.sensors.floors import whole_walk_floor_path
+    from mapfilter.sensors.floor_vote import whole_walk_floor_path
 
     n = 100
     ll = np.full((n, 3), math.log(1 / 7))
@@ -625,7 +628,7 @@ def test_whole_walk_floor_follows_the_barometer_with_an_unknown_zero():
     """Uninformative WiFi, a barometer whose zero is 37 m off: a climb from floor 0 to floor 2 (4 m
     storeys) at 0.5 m/s flips the floor where the height passes each half-way (+-1 row), and the
     offset found puts the heights on the elevations."""
-    from mapfilter.sensors.floors import whole_walk_floor_path
+    from mapfilter.sensors.floor_vote import whole_walk_floor_path
 
     t = np.arange(0.0, 120.0, 0.5)
     elevation = np.clip((t - 40.0) * 0.5, 0.0, 8.0)
@@ -638,7 +641,7 @@ def test_whole_walk_floor_follows_the_barometer_with_an_unknown_zero():
 
 
 def test_whole_walk_floor_of_a_one_floor_walk_is_that_floor():
-    from mapfilter.sensors.floors import whole_walk_floor_path
+    from mapfilter.sensors.floor_vote import whole_walk_floor_path
 
     path = whole_walk_floor_path(np.arange(10.0), np.zeros((10, 1)), np.zeros((9, 1, 1))).path
     assert np.array_equal(path, np.zeros(10, dtype=np.int64))
@@ -667,7 +670,7 @@ def test_whole_walk_floors_weighs_the_scan_the_filter_started_from(tmp_path):
     from types import SimpleNamespace
 
     from mapfilter.filter.models.barometer import BarometerConfig
-    from mapfilter.offline.floors import whole_walk_floors
+    from mapfilter.offline.building_track import whole_walk_floors
 
     building = _building(tmp_path, connectors=False)
     stack = FloorStack(building)

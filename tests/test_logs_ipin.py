@@ -103,7 +103,7 @@ def test_ahrs_quaternion_gives_the_heading_pdr_expects(ipin2023):
         known = np.isfinite(trace.abs_heading_rad)  # none before the rotation vector's first sample
         gyro = trace.heading_rad[known]
         absolute = np.unwrap(trace.abs_heading_rad[known])
-        k = int(round(2.0 * pdr.PDRConfig().sample_rate_hz))
+        k = int(round(2.0 * pdr.SAMPLE_RATE_HZ))
         d_gyro, d_abs = gyro[k:] - gyro[:-k], absolute[k:] - absolute[:-k]
         turns = np.abs(d_gyro) > 0.5
         slopes.append(np.median(d_abs[turns] / d_gyro[turns]))

@@ -178,8 +178,7 @@ def test_filters_and_level_are_the_causal_butterworth_and_trailing_rms():
     k = np.arange(1, d.size)
     n = np.minimum(k, window)
     rms = np.sqrt((squares[k] - squares[k - n]) / n)
-    level = np.clip(config.step_threshold_rms_fraction * rms, config.min_step_threshold_mps3,
-                    config.step_threshold_mps3)
+    level = np.clip(pdr.STEP_THRESHOLD_RMS_FRACTION * rms, pdr.MIN_STEP_THRESHOLD_MPS3, config.step_threshold_mps3)
     np.testing.assert_allclose(trace.step_level_mps3[1:], level, rtol=1e-9)
 
 
@@ -239,7 +238,7 @@ def test_standing_still_gives_no_steps(seed):
 
 
 @pytest.mark.parametrize("seed", [1, 2])
-def test_a_phone_held_softly_counts_every_step(seed):
+def test_a_phone_held_softly_counts_every_step(seed, monkeypatch):
     # the same walk at a third of the bounce (the IPIN 2023 phones' d|a|/dt is a third of ILC's):
     # the fixed level of 15 m/s^3 misses most steps, the level relative to the signal none
     rng = np.random.default_rng(seed)
@@ -248,15 +247,16 @@ def test_a_phone_held_softly_counts_every_step(seed):
     t = irregular_times(rng, step_t[-1] + 3.0)
     acc = walking_acc(t - 1.6e9, step_t, amplitude_mps2=1.0, up=tilted_up(), rng=rng)
     rec = make_recording(t, acc, t, rng.normal(0.0, 0.01, size=(t.size, 3)))
-    fixed = pdr.detect_steps(rec, pdr.PDRConfig(step_threshold_rms_fraction=0.0))
     relative = pdr.detect_steps(rec)
+    monkeypatch.setattr(pdr, "STEP_THRESHOLD_RMS_FRACTION", 0.0)  # the fixed level alone
+    fixed = pdr.detect_steps(rec)
     assert len(fixed) < periods_s.size // 2
     assert len(relative) == periods_s.size
     bounce_index = np.searchsorted(step_t + 1.6e9, relative.t_s) - 1
     assert np.array_equal(bounce_index, np.arange(periods_s.size))
 
 
-def test_the_step_level_stays_between_its_bounds():
+def test_the_step_level_stays_between_its_bounds(monkeypatch):
     rng = np.random.default_rng(3)
     # stand 8 s, walk hard 16 s, stand 8 s
     step_t = 8.0 + 0.5 * np.arange(33)
@@ -266,12 +266,13 @@ def test_the_step_level_stays_between_its_bounds():
     config = pdr.PDRConfig()
     trace = trace_of(rec, config)
     level, rel = trace.step_level_mps3, trace.t_s - 1.6e9
-    assert level.min() >= config.min_step_threshold_mps3 and level.max() <= config.step_threshold_mps3
-    assert np.all(level[rel < 7.9] == config.min_step_threshold_mps3)  # at rest: the floor
+    assert level.min() >= pdr.MIN_STEP_THRESHOLD_MPS3 and level.max() <= config.step_threshold_mps3
+    assert np.all(level[rel < 7.9] == pdr.MIN_STEP_THRESHOLD_MPS3)  # at rest: the floor
     assert np.all(level[(rel > 10) & (rel < 24)] == config.step_threshold_mps3)  # a strong walk: the fixed level
     # trailing: the walk raises the level only once it has begun
     assert np.all(level[rel < 8.0] < config.step_threshold_mps3)
-    fixed = trace_of(rec, pdr.PDRConfig(step_threshold_rms_fraction=0.0))
+    monkeypatch.setattr(pdr, "STEP_THRESHOLD_RMS_FRACTION", 0.0)  # the fixed level alone
+    fixed = trace_of(rec, config)
     assert np.all(fixed.step_level_mps3 == 15.0)
 
 
@@ -594,7 +595,7 @@ def test_bad_records_are_refused():
 
 def test_a_long_lag_between_the_sensors_ends_the_stretch_not_the_memory():
     # the gyroscope stops for 5 s while the accelerometer runs on: the waiting grid values never
-    # exceed imu_gap_s, the stretch ends, and the walk goes on after it
+    # exceed IMU_GAP_S, the stretch ends, and the walk goes on after it
     rng = np.random.default_rng(42)
     t, stream, values = _stream(rng, duration_s=30.0)
     hole = (stream == pdr.GYRO) & (t > 1.6e9 + 10.0) & (t < 1.6e9 + 15.0)
@@ -704,11 +705,9 @@ def test_recording_without_imu_raises():
 def test_bad_config_raises():
     t = 1.6e9 + np.arange(0, 10, 0.02)
     rec = make_recording(t, np.tile([0, 0, G_MPS2], (t.size, 1)), t, np.zeros((t.size, 3)))
-    with pytest.raises(MapfilterError, match="sample_rate_hz"):
-        pdr.detect_steps(rec, pdr.PDRConfig(sample_rate_hz=5.0))
-    for bad in ({"weinberg_k": 0.0}, {"imu_gap_s": float("nan")}, {"min_step_interval_s": -1.0},
-                {"imu_gap_s": 600.0}, {"lowpass_order": 0}, {"step_threshold_window_s": 1e6},
-                {"sample_rate_hz": 1e5}):
+    assert len(pdr.detect_steps(rec)) == 0  # a phone at rest: the defaults are fine
+    for bad in ({"weinberg_k": 0.0}, {"step_threshold_mps3": float("nan")}, {"min_step_interval_s": -1.0},
+                {"abs_heading_offset_rad": float("inf")}, {"step_threshold_mps3": -1.0}):
         with pytest.raises(MapfilterError, match="PDR setting"):
             pdr.PDRConfig(**bad)
 
@@ -716,9 +715,10 @@ def test_bad_config_raises():
 def test_the_old_names_of_pdr_settings_are_refused_in_a_config_file():
     from mapfilter.config import TrackingConfig
 
-    assert TrackingConfig.from_yaml("steps:\n  imu_gap_s: 2.5\n").steps.imu_gap_s == 2.5
-    for old in ("max_gap_s: 3.0", "step_length_m: 0.7", "step_length_std_m: 0.1"):
-        with pytest.raises(MapfilterError, match=old.split(":")[0]):
+    assert TrackingConfig.from_yaml("steps:\n  weinberg_k: 0.45\n").steps.weinberg_k == 0.45
+    for old in ("max_gap_s: 3.0", "imu_gap_s: 2.5", "sample_rate_hz: 100", "step_length_m: 0.7",
+                "step_length_std_m: 0.1"):
+        with pytest.raises(MapfilterError, match=f"line 2: 'steps.{old.split(':')[0]}' is no longer a setting"):
             TrackingConfig.from_yaml(f"steps:\n  {old}\n")
 
 
@@ -736,17 +736,20 @@ def test_dead_reckon_from_a_start_time_and_along_the_absolute_heading():
         pdr.dead_reckon(no_rotvec, [0.0, 0.0], None, use_abs_heading=True)
 
 
-def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1):
-    """The filter's PDRMotion, noise off, fed one StepInput per detected step (as the tracker
-    does) walks the dead-reckoned track of a fixed step length."""
+def test_per_step_inputs_through_pdr_motion_reproduce_dead_reckoning(ilc_site1, monkeypatch):
+    """The filter's PDRMotion, noise off (its noise constants at 0: the test is about the model's
+    kinematics), fed one StepInput per detected step (as the tracker does) walks the dead-reckoned
+    track of a fixed step length."""
+    from mapfilter.filter.models import motion
     from mapfilter.filter.models.motion import PDRMotion, StepInput
     from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
     from mapfilter.maps.floorplan import FloorPlan
 
     rec = read_ilc(ilc_site1 / "F1" / "path_data_files" / "5dd9e7c29191710006b57061.txt.gz")
     steps = pdr.detect_steps(rec)
-    model = PDRMotion(heading_sigma_rad=0.0, false_turn_fraction=0.0, position_sigma_m=0.0,
-                      step_length_walk_sigma_m=0.0)
+    monkeypatch.setattr(motion, "POSITION_SIGMA_M", 0.0)
+    monkeypatch.setattr(motion, "STEP_LENGTH_WALK_SIGMA_M", 0.0)
+    model = PDRMotion(heading_sigma_rad=0.0, false_turn_fraction=0.0)
     start_xy, start_heading = np.array([500.0, 500.0]), 0.4
     plan = FloorPlan(np.pad(np.zeros((998, 998), dtype=bool), 1, constant_values=True), 1.0)  # 1 km, no walls
     pf = ParticleFilter(plan, model, FilterConfig(n_particles=1, resample_ess_fraction=0.0, initial_step_length_m=0.7),

@@ -13,7 +13,7 @@ from mapfilter.filter.models.radio_map import RadioMapLikelihood, RadioMapLikeli
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.pathloss import AccessPointTable
-from mapfilter.sensors.radiomap import (RadioMap, build_radio_map, check_radio_map_on_map, kwnn_fix, kwnn_fix_many,
+from mapfilter.sensors.radiomap import (RadioMap, build_radio_map, check_radio_map_on_map, kwnn_fix_many,
                                        label_scans, strong_kwnn_fixes)
 from mapfilter.sensors.wifi import WifiScan, iter_scans
 
@@ -89,11 +89,12 @@ def test_kwnn_matches_brute_force_with_missing_aps(k, p, q):
     for s in range(scans.shape[0]):
         expected = _kwnn_brute(radio_map, scans[s], k, p, q, -100.0, 2)
         np.testing.assert_allclose(fixes.xy_m[s], expected, rtol=1e-9, atol=1e-9)
-        # the one-scan form with keys, including an AP the map has never seen (ignored)
+        # the scan as keys, including an AP the map has never seen (ignored)
         heard = ~np.isnan(scans[s])
-        keys = [key for key, h in zip(radio_map.ap_keys, heard) if h] + ["ff:ff:ff:ff:ff:ff@5"]
-        one = kwnn_fix(radio_map, keys, np.append(scans[s][heard], -30.0), k=k, p=p, q=q, min_shared_aps=2)
-        np.testing.assert_allclose(one.xy_m, expected, rtol=1e-9, atol=1e-9)
+        keys = tuple(key for key, h in zip(radio_map.ap_keys, heard) if h) + ("ff:ff:ff:ff:ff:ff@5",)
+        scan = WifiScan(0.0, keys, np.append(scans[s][heard], -30.0).astype(np.float32))
+        one = kwnn_fix_many(radio_map, radio_map.scan_matrix([scan]), k=k, p=p, q=q, min_shared_aps=2)
+        np.testing.assert_allclose(one.xy_m[0], expected, rtol=1e-9, atol=1e-9)
 
 
 @pytest.mark.parametrize("floor_dbm", [-85.0, -70.0])
@@ -137,10 +138,10 @@ def test_kwnn_exact_fingerprint_returns_its_position():
     np.testing.assert_allclose(fix.xy_m[0], radio_map.xy_m[5], atol=1e-6)
 
 
-def test_kwnn_scan_sharing_no_ap_is_an_error():
+def test_kwnn_scan_sharing_no_ap_has_no_fix():
     radio_map = _random_map(np.random.default_rng(4))
-    with pytest.raises(MapfilterError, match="shares 0 access points"):
-        kwnn_fix(radio_map, ["aa:bb:cc:dd:ee:ff@2.4"], np.array([-50.0]))
+    unknown = WifiScan(0.0, ("aa:bb:cc:dd:ee:ff@2.4",), np.array([-50.0], np.float32))
+    assert np.all(np.isnan(kwnn_fix_many(radio_map, radio_map.scan_matrix([unknown])).xy_m))
     none = np.full((1, len(radio_map.ap_keys)), np.nan, np.float32)
     assert np.all(np.isnan(kwnn_fix_many(radio_map, none).xy_m))
 
@@ -240,14 +241,16 @@ def test_radio_map_likelihood_peaks_near_the_truth_and_is_consistent():
 
 
 def _dense_cell_stats(radio_map, model, centre):
+    from mapfilter.filter.models import radio_map as rm
+
     cfg = model.config
     d2 = ((radio_map.xy_m - centre) ** 2).sum(axis=1)
-    w = np.where(d2 <= (cfg.bandwidth_m * cfg.support_sigmas) ** 2, np.exp(-0.5 * d2 / cfg.bandwidth_m ** 2), 0)
+    w = np.where(d2 <= (cfg.bandwidth_m * rm.SUPPORT_SIGMAS) ** 2, np.exp(-0.5 * d2 / cfg.bandwidth_m ** 2), 0)
     r = radio_map.rssi_dbm.astype(float)
-    pw = cfg.prior_weight
-    mu = ((w[:, None] * r).sum(0) + pw * cfg.prior_rssi_dbm) / (w.sum() + pw)
-    var = ((w[:, None] * (r - mu) ** 2).sum(0) + pw * cfg.prior_sigma_db ** 2) / (w.sum() + pw) + cfg.sigma_floor_db ** 2
-    h = np.clip((w.sum() + pw * cfg.prior_heard) / (w.sum() + pw), cfg.heard_clip, 1 - cfg.heard_clip)
+    pw = rm.PRIOR_WEIGHT
+    mu = ((w[:, None] * r).sum(0) + pw * rm.PRIOR_RSSI_DBM) / (w.sum() + pw)
+    var = ((w[:, None] * (r - mu) ** 2).sum(0) + pw * rm.PRIOR_SIGMA_DB ** 2) / (w.sum() + pw) + rm.SIGMA_FLOOR_DB ** 2
+    h = np.clip((w.sum() + pw * rm.PRIOR_HEARD) / (w.sum() + pw), rm.HEARD_CLIP, 1 - rm.HEARD_CLIP)
     return h, mu, var
 
 
@@ -301,8 +304,10 @@ def test_tracker_weighs_the_kwnn_fix_with_a_gaussian():
     scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
     unknown = WifiScan(1.0, ("aa:aa:aa:aa:aa:aa@5",), np.array([-40.0], np.float32))
     plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
-    wifi = WifiEvidence.of_scans([scan, unknown], radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="fix"))
-    fix = kwnn_fix(radio_map, scan.ap_keys, scan.rssi_dbm).xy_m
+    wifi = WifiEvidence(radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="fix"))
+    wifi.add_scans([scan, unknown])
+    assert wifi.measurement(1) is None  # no AP the radio map knows: no fix
+    fix = kwnn_fix_many(radio_map, radio_map.scan_matrix([scan])).xy_m[0]
     measurement = wifi.measurement(0)
     np.testing.assert_allclose(measurement.xy_m, fix)
     xy = fix[None] + np.array([[0.0, 0.0], [5.0, 0.0], [0.0, -10.0]])
@@ -418,7 +423,8 @@ def test_blend_fix_is_the_mean_of_the_kwnn_fix_and_the_best_cell():
     aps, radio_map = _synthetic_radio_map()
     scan = WifiScan(0.0, tuple(aps.keys), aps.expected_rssi_dbm(np.array([[21.0, 9.0]]))[0].astype(np.float32))
     plan = FloorPlan(np.zeros((200, 400), dtype=bool), 0.1, (0.0, 0.0))
-    wifi = WifiEvidence.of_scans([scan], radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="blend"))
+    wifi = WifiEvidence(radio_map, None, plan, WifiConfig(fix_sigma_m=5.0, fingerprint_model="blend"))
+    wifi.add_scans([scan])
     kwnn = strong_kwnn_fixes(radio_map, radio_map.scan_matrix([scan]))[0]  # the default: strong readings only
     best = RadioMapLikelihood(radio_map, plan).best_position(scan)
     np.testing.assert_allclose(wifi.measurement(0).xy_m, 0.5 * (kwnn + best))

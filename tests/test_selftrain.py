@@ -212,7 +212,7 @@ def test_cli_grow_in_a_building_puts_each_point_on_the_offline_tracks_floor(tmp_
     sys.path.insert(0, str(MAPS.parent / "tools"))
     from floor_sim import FLOORS, make_office_building_with_ap_files
 
-    from mapfilter.sensors.floors import load_building_radio_map
+    from mapfilter.sensors.floor_vote import load_building_radio_map
 
     building = make_office_building_with_ap_files(tmp_path)
     surveys = [tmp_path / f"survey_{name}.txt" for name in FLOORS]

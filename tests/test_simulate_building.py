@@ -113,8 +113,9 @@ def test_the_filter_follows_stairs_and_a_lift_with_the_barometer(office3, walk, 
 
 def test_a_lift_ride_without_steps_is_followed_by_the_barometer_within_3_s(office3, office3_radio_map, tmp_path):
     """Two storeys up by lift (6 s of ride, no steps): the filter steps on the barometer alone at
-    least every ``idle_tick_s`` while the walker stands, finds the new floor within 3 s of the ride's
+    least every ``IDLE_TICK_S`` while the walker stands, finds the new floor within 3 s of the ride's
     half-way point, and no barometer-only step collapses the cloud."""
+    from mapfilter.filter.tracker import IDLE_TICK_S
     from mapfilter.tracking import track
     from conftest import tracking_config
 
@@ -126,7 +127,7 @@ def test_a_lift_ride_without_steps_is_followed_by_the_barometer_within_3_s(offic
     result = track(building, rec, office3_radio_map, config=tracking_config(n_particles=2000), rng=np.random.default_rng(2))
     t_enter, t_switch, t_leave = happened[0][:3]
     ride = (result.causal.t_s > t_enter + 1.0) & (result.causal.t_s < t_leave)
-    assert np.diff(result.causal.t_s[ride]).max() <= tracking_config().motion.idle_tick_s + 1e-6
+    assert np.diff(result.causal.t_s[ride]).max() <= IDLE_TICK_S + 1e-6
     scores = floor_scores(result.causal, rec.waypoint_t_s, rec.waypoint_floor, happened)
     assert scores["delays"][0]["delay_s"] is not None and scores["delays"][0]["delay_s"] <= 3.0, scores
     scan_t = np.unique(rec.wifi.t_s)

@@ -54,7 +54,7 @@ def main() -> int:
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--out", type=Path, default=REPO / "results" / "accuracy")
     parser.add_argument("--set", dest="settings", nargs="+", default=[], metavar="SECTION.FIELD=VALUE",
-                        help="config overrides (YAML values), e.g. steps.step_threshold_rms_fraction=0")
+                        help="config overrides (YAML values), e.g. steps.step_threshold_mps3=12")
     args = parser.parse_args()
 
     args.out.mkdir(parents=True, exist_ok=True)

@@ -10,13 +10,13 @@ its header names. Every walk is then judged with that radio map *without its own
   filter with the floor in its state (``tracking.track``); the score is the
   share of waypoints at which the causal track is on the header's floor (waypoints before the
   first estimate are left out, as for the errors). The same run also gives the offline track
-  (``--smooth``: its floor decided from the whole walk, ``offline.floors.whole_walk_floors``;
+  (``--smooth``: its floor decided from the whole walk, ``offline.building_track.whole_walk_floors``;
   on one floor throughout, that floor's placed and map-matched whole-walk track, else the
   filter's lineage), judged at the row nearest each waypoint in time, as
   ``mapfilter evaluate --smooth`` judges ``pf-smooth``. The same walk is also tracked with the
   floor given, to compare the horizontal error (causal, at the waypoints);
 - every WiFi-only walk (B1 25, F2's other 28, F3 25, F4 25) gets the floor the WiFi floor
-  HMM puts it on (``sensors.floors``: the KWNN floor vote per scan, Viterbi path over the walk,
+  HMM puts it on (``sensors.floor_vote``: the KWNN floor vote per scan, Viterbi path over the walk,
   the floor of most of its scans); the score is the share of walks on the right floor, and,
   for information, the share of scans whose causal (forward) floor is right.
 
@@ -46,7 +46,7 @@ from mapfilter.errors import MapfilterError  # noqa: E402
 from mapfilter.evaluation.metrics import errors_at_waypoints, floor_at_waypoints, summarise_errors  # noqa: E402
 from mapfilter.maps import prepare  # noqa: E402
 from mapfilter.maps.building import import_ilc_site  # noqa: E402
-from mapfilter.sensors.floors import build_building_radio_map, floor_hmm, floor_vote_log_likelihood, walk_floor  # noqa: E402
+from mapfilter.sensors.floor_vote import build_building_radio_map, floor_hmm, floor_vote_log_likelihood, walk_floor  # noqa: E402
 from mapfilter.sensors.ilc import read_ilc  # noqa: E402
 from mapfilter.sensors.wifi import scans_of  # noqa: E402
 from mapfilter.config import TrackingConfig  # noqa: E402

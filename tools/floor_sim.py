@@ -38,7 +38,7 @@ from mapfilter.atomic import atomic_paths  # noqa: E402
 from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors  # noqa: E402
 from mapfilter.maps.building import Building  # noqa: E402
 from mapfilter.maps.floorplan import FloorPlan  # noqa: E402
-from mapfilter.sensors.floors import build_building_radio_map  # noqa: E402
+from mapfilter.sensors.floor_vote import build_building_radio_map  # noqa: E402
 from mapfilter.sensors.ilc import read_ilc  # noqa: E402
 from mapfilter.sensors.pathloss import AccessPointTable  # noqa: E402
 from mapfilter.simulate.building import (  # noqa: E402

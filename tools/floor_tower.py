@@ -32,7 +32,7 @@ from mapfilter.config import FloorsConfig, TrackingConfig  # noqa: E402
 from mapfilter.evaluation.metrics import floor_at_waypoints  # noqa: E402
 from mapfilter.maps.building import Building  # noqa: E402
 from mapfilter.maps.floorplan import FloorPlan  # noqa: E402
-from mapfilter.sensors.floors import build_building_radio_map, floor_vote_log_likelihood  # noqa: E402
+from mapfilter.sensors.floor_vote import build_building_radio_map, floor_vote_log_likelihood  # noqa: E402
 from mapfilter.sensors.ilc import read_ilc  # noqa: E402
 from mapfilter.sensors.pathloss import AccessPointTable  # noqa: E402
 from mapfilter.sensors.wifi import scans_of  # noqa: E402

@@ -36,7 +36,7 @@ from mapfilter.config import TrackingConfig  # noqa: E402
 from mapfilter.evaluation.metrics import floor_at_waypoints  # noqa: E402
 from mapfilter.filter.models.barometer import barometric_height  # noqa: E402
 from mapfilter.maps.building import Building  # noqa: E402
-from mapfilter.sensors.floors import build_building_radio_map  # noqa: E402
+from mapfilter.sensors.floor_vote import build_building_radio_map  # noqa: E402
 from mapfilter.sensors.logs import read_log  # noqa: E402
 from mapfilter.tracking import track  # noqa: E402
 
@@ -47,8 +47,7 @@ TRIAL = "IPIN2023_T3_TrainingTrial52_repetition01"
 def floor_changes(building: Building, walk, result) -> list[dict]:
     """One row per change of the POSI floor: when the barometer, pf and the offline track saw it."""
     elevation = {f.name: f.elevation_m for f in building.floors}
-    baro_t, baro_h = barometric_height(walk.pressure_t_s, walk.pressure_hpa,
-                                       TrackingConfig().floors.barometer.smoothing_window_s, centred=True)
+    baro_t, baro_h = barometric_height(walk.pressure_t_s, walk.pressure_hpa, centred=True)
     wp_t, wp_floor = walk.waypoint_t_s, walk.waypoint_floor
     # the barometer's zero: the walk's first POSI point is on its floor
     baro_h = baro_h - np.interp(wp_t[0], baro_t, baro_h) + elevation[wp_floor[0]]

@@ -274,8 +274,6 @@ def main(argv: list[str] | None = None) -> int:
                         help="step threshold on the filtered d|a|/dt, m/s^3 (sensitivity checks)")
     parser.add_argument("--min-interval", type=float, default=PDRConfig.min_step_interval_s,
                         help="minimum step interval, s (sensitivity checks)")
-    parser.add_argument("--rms-fraction", type=float, default=PDRConfig.step_threshold_rms_fraction,
-                        help="step level as a share of the step signal's running RMS (sensitivity checks)")
     args = parser.parse_args(argv)
     where = IPIN_LOGS if args.ipin else DATA
     found = IPIN_LOGS.glob("*.txt.gz") if args.ipin else DATA.glob("F*/path_data_files/*.txt.gz")
@@ -284,8 +282,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"no traces found under {where}", file=sys.stderr)
         return 1
     try:
-        config = PDRConfig(step_threshold_mps3=args.threshold, min_step_interval_s=args.min_interval,
-                           step_threshold_rms_fraction=args.rms_fraction)
+        config = PDRConfig(step_threshold_mps3=args.threshold, min_step_interval_s=args.min_interval)
         rows, skipped = [], []
         for path in traces:
             numbers = trace_numbers(path, config)

@@ -1,11 +1,11 @@
 """Compare particle-filter settings on the real ILC walks (leave-one-trace-out), several seeds.
 
-How the tracking defaults were chosen. Each setting is a JSON object of ``TrackingConfig``
-fields (``pdr_motion`` and ``filter`` as nested objects); the KWNN fixes of the same walks are
-the reference. Example:
+How the tracking defaults were chosen. Each setting is a JSON object of dotted ``TrackingConfig``
+settings (``mapfilter config show`` lists them; a constant that used to be a setting is refused,
+docs/accuracy.md); the KWNN fixes of the same walks are the reference. Example:
 
     .venv/bin/python tools/tune_ilc.py --floor F1 --seeds 1 2 3 \\
-        '{"fix_sigma_m": 5}' '{"fix_sigma_m": 15}' '{"pdr_motion": {"heading_sigma_rad": 0.05}}'
+        '{"wifi.fix_sigma_m": 5}' '{"wifi.fix_sigma_m": 15}' '{"motion.pdr.heading_sigma_rad": 0.05}'
 """
 
 from __future__ import annotations

@@ -117,7 +117,7 @@ def run_build(args: argparse.Namespace) -> int:
     import numpy as np
 
     from mapfilter.maps.building import Building
-    from mapfilter.sensors.floors import build_building_radio_map
+    from mapfilter.sensors.floor_vote import build_building_radio_map
     from mapfilter.sensors.radiomap import build_radio_map, check_radio_map_on_map
 
     floorplan, recordings = _load(args)
@@ -208,7 +208,7 @@ def run_grow(args: argparse.Namespace) -> int:
                                memory.building_extents_m(space) if isinstance(space, Building)
                                else [tuple(space.extent_m)])
     if isinstance(space, Building):
-        from mapfilter.sensors.floors import build_building_radio_map, load_building_radio_map
+        from mapfilter.sensors.floor_vote import build_building_radio_map, load_building_radio_map
 
         base = load_building_radio_map(args.radiomap, space.floor_names)
     else:

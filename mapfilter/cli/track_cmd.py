@@ -149,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _wifi_source(args: argparse.Namespace, building, config):
     """(radio map, access-point table) of the run: --radiomap, --aps, or the map's own table."""
-    from mapfilter.sensors.floors import load_building_radio_map
+    from mapfilter.sensors.floor_vote import load_building_radio_map
     from mapfilter.sensors.pathloss import access_points_for_map
     from mapfilter.sensors.radiomap import RadioMap, check_radio_map_on_map
 

@@ -18,7 +18,7 @@ FINGERPRINT_MODELS = ("fix", "blend", "likelihood")  # filter.evidence.FINGERPRI
 DEFAULT_PARTICLES = 10_000  # FilterConfig.n_particles
 DEFAULT_FINGERPRINT_MODEL = "blend"  # WifiConfig.fingerprint_model
 DEFAULT_KWNN_MIN_RSSI_DBM = -85.0  # WifiConfig.kwnn_min_rssi_dbm
-DEFAULT_ADAPT_RSSI_LIMIT_DBM = -36.0  # AdaptationConfig.rssi_limit_dbm (the thesis' limit)
+DEFAULT_ADAPT_RSSI_LIMIT_DBM = -36.0  # TrilaterationConfig.adapt_rssi_limit_dbm (the thesis' limit)
 
 
 def kwnn_min_rssi(text: str) -> float | None:
@@ -89,7 +89,7 @@ def tracking_config_from(args: argparse.Namespace):
         "use_map": False if args.no_map else None,
         "wifi.fingerprint_model": args.fingerprint_model,
         "trilateration.adapt_path_loss": True if args.adapt else None,
-        "trilateration.adaptation.rssi_limit_dbm": args.adapt_rssi_limit,
+        "trilateration.adapt_rssi_limit_dbm": args.adapt_rssi_limit,
         "trilateration.blocking_compensation": False if args.no_blocking_compensation else None,
     }
     for dotted, value in flags.items():

@@ -57,10 +57,8 @@ from mapfilter.evaluation.metrics import FloorScore, ipin_errors_m, ipin_score, 
 from mapfilter.evaluation.scoring import score_track
 from mapfilter.filter.evidence import calibrated_fix_sigma_m
 from mapfilter.selftrain import GrowConfig, grow_radio_map, grown_by_fold
-from mapfilter.filter.tracker import MotionConfig
 from mapfilter.maps.building import Building
-from mapfilter.sensors.floors import (build_building_radio_map, check_building_radio_map, floor_hmm,
-                                     floor_vote_log_likelihood)
+from mapfilter.sensors.floor_vote import build_building_radio_map, floor_hmm, floor_vote_log_likelihood
 from mapfilter.sensors.logread import LogReadWarning
 from mapfilter.sensors.logs import read_log, read_log_header
 from mapfilter.sensors.pathloss import (AccessPointTable, check_access_points_on_map, estimate_access_points,
@@ -332,7 +330,7 @@ def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, .
         if floor is None and not rec.waypoint_floor:
             raise MapfilterError("the log's header names no floor (FloorName): its points cannot join a building's "
                                  "radio map", rec.path)
-    # a walk over several floors: each scan on the floor of its waypoints (sensors.floors)
+    # a walk over several floors: each scan on the floor of its waypoints (sensors.floor_vote)
     radio_map = build_building_radio_map(recordings, floors, building.floor_names)
     sigma = None
     if setup.tracking.wifi.fix_sigma_m is None:
@@ -524,7 +522,7 @@ def _building_radio_map(recording: Recording | None, setup: EvaluationSetup, all
                         building: Building) -> RadioMap:
     if all_walks is not None:
         return all_walks.radio_map.without_traces([recording.name]) if setup.leave_one_out else all_walks.radio_map
-    from mapfilter.sensors.floors import load_building_radio_map
+    from mapfilter.sensors.floor_vote import load_building_radio_map
 
     radio_map = load_building_radio_map(setup.radio_map_path, building.floor_names)
     check_radio_map_on_map(radio_map, building, setup.radio_map_path, building.path)
@@ -557,7 +555,7 @@ def _growth(building: Building, setup: EvaluationSetup, paths: list[Path], label
 def kwnn_floor_fixes(radio_map: RadioMap, scans, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """KWNN across floors: (scan times (S,), fixes (S, 2) in each scan's floor frame, NaN where
     that floor's fingerprints give none, floor indices (S,)): each scan on the causal floor HMM's
-    floor (the KWNN floor vote, ``sensors.floors``), fixed from that floor's fingerprints."""
+    floor (the KWNN floor vote, ``sensors.floor_vote``), fixed from that floor's fingerprints."""
     scan_t = np.array([s.t_s for s in scans])
     path = floor_hmm(floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans), k=k), scan_t)
     floor = path.causal_floor()
@@ -702,10 +700,6 @@ class Evaluation:
         ordered = sorted(outcomes, key=lambda o: o.index)
         return cls([r for o in ordered for r in o.results], n_traces, wall_time_s, list(read_warnings),
                    [o for o in ordered if o.status != "ok"])
-
-    @property
-    def n_walks_done(self) -> int:
-        return len({r.trace for r in self.results}) + len(self.failed)
 
     @property
     def has_floors(self) -> bool:

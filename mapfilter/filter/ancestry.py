@@ -44,15 +44,6 @@ class Ancestry:
         """(N,) parent indices of record ``k`` into record ``k - 1`` (-1 = broken lineage)."""
         return self._parent[k]
 
-    def positions(self, k: int) -> np.ndarray:
-        """(N, 2) particle positions of record ``k``."""
-        return self._xy_m[k]
-
-    def break_lineage(self) -> None:
-        """Mark the last record's particles as having no parent (called after a recovery)."""
-        if self._parent:
-            self._parent[-1][:] = -1
-
     def smoothed_track(self) -> tuple[np.ndarray, np.ndarray]:
         """(t_s (T,), xy_m (T, 2)): the lineage of the final best particle, stitched at breaks."""
         n_steps = len(self._t_s)
@@ -67,21 +58,3 @@ class Ancestry:
             parent = int(self._parent[k][i])
             i = parent if parent >= 0 else self._best[k - 1]
         return np.asarray(self._t_s, dtype=np.float64), xy
-
-    def segments(self) -> list[tuple[int, int]]:
-        """(first, last) record indices of the unbroken pieces of the smoothed track."""
-        n_steps = len(self._t_s)
-        if n_steps == 0:
-            return []
-        breaks = []
-        i = self._best[-1]
-        for k in range(n_steps - 1, 0, -1):
-            parent = int(self._parent[k][i])
-            if parent < 0:
-                breaks.append(k)
-                i = self._best[k - 1]
-            else:
-                i = parent
-        starts = [0] + sorted(breaks)
-        ends = [s - 1 for s in sorted(breaks)] + [n_steps - 1]
-        return list(zip(starts, ends))

@@ -19,8 +19,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.models.adaptive_path_loss import AdaptationConfig, AdaptiveTrilaterationLikelihood, BlockingConfig
-from mapfilter.filter.models.barometer import BarometerConfig, BarometerReference, barometric_height
+from mapfilter.filter.models.adaptive_path_loss import (THESIS_BLOCKING_DROP_DB, THESIS_RSSI_LIMIT_DBM,
+                                                        AdaptiveTrilaterationLikelihood, check_adaptive_settings)
+from mapfilter.filter.models.barometer import (STEADY_M, STEADY_WINDOW_S, BarometerConfig, BarometerReference,
+                                               barometric_height)
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.models.building import FloorFix, FloorFixLikelihood, FloorStack
 from mapfilter.filter.models.path_loss import TrilaterationLikelihood
@@ -28,7 +30,7 @@ from mapfilter.filter.models.position_fix import GaussianFixLikelihood, Position
 from mapfilter.filter.models.interface import MeasurementModel
 from mapfilter.filter.models.radio_map import RadioMapLikelihood, RadioMapLikelihoodConfig, radio_map_likelihood
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.sensors.floors import check_building_radio_map, floor_vote_log_likelihood
+from mapfilter.sensors.floor_vote import check_building_radio_map, floor_vote_log_likelihood
 from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position, match_scan
 from mapfilter.sensors.radiomap import (STRONG_MIN_RSSI_DBM, RadioMap, cross_validated_fix_errors, kwnn_fix_many,
                                        strong_kwnn_fixes)
@@ -70,15 +72,14 @@ class TrilaterationConfig:
 
     rssi_variance_db2: float = 25.0  # RSSI noise variance of the path-loss likelihood (thesis: 25 dB^2)
     adapt_path_loss: bool = False  # adapt C per AP and alpha per band during the walk (thesis 7.1-7.2)
+    adapt_rssi_limit_dbm: float = THESIS_RSSI_LIMIT_DBM  # with adapt_path_loss: a scan's strongest RSSI above this adapts (the phone is below that AP; thesis -36 dBm)
     blocking_compensation: bool = True  # take H dB off every AP while all drop together (thesis 7.3)
-    adaptation: AdaptationConfig = dataclasses.field(default_factory=AdaptationConfig)  # the adaptation, with adapt_path_loss
-    blocking: BlockingConfig = dataclasses.field(default_factory=BlockingConfig)  # the blocking detection, with blocking_compensation
+    blocking_drop_db: float = THESIS_BLOCKING_DROP_DB  # with blocking_compensation: blocked when the six strongest RSSI's mean falls this far (thesis 6 dB)
 
     def __post_init__(self) -> None:
         if not self.rssi_variance_db2 > 0:
             raise MapfilterError(f"rssi_variance_db2 must be positive, got {self.rssi_variance_db2}")
-        self.adaptation.validate()
-        self.blocking.validate()
+        check_adaptive_settings(self.adapt_rssi_limit_dbm, self.blocking_drop_db)
 
 
 class WalkEvidence(Protocol):
@@ -114,8 +115,8 @@ class WifiEvidence:
     """One floor's WiFi: the measurement model and each scan's measurement (``WalkEvidence``).
 
     Exactly one of ``radio_map`` (fingerprinting) and ``ap_table`` (trilateration). Scans come
-    with ``add_scans`` (``of_scans``: all at once); each scan's fix depends on that scan and the
-    radio map only, so adding them one by one or all at once gives the same numbers.
+    with ``add_scans``; each scan's fix depends on that scan and the radio map only, so adding
+    them one by one or all at once gives the same numbers.
     """
 
     def __init__(self, radio_map: RadioMap | None, ap_table: AccessPointTable | None, floorplan: FloorPlan,
@@ -142,17 +143,6 @@ class WifiEvidence:
                 self.model = self.radio_map_model()
         else:
             self.model = trilateration_model(ap_table, trilateration)
-
-    @classmethod
-    def of_scans(cls, scans: list[WifiScan], radio_map: RadioMap | None, ap_table: AccessPointTable | None,
-                 floorplan: FloorPlan, wifi: WifiConfig = WifiConfig(),
-                 trilateration: TrilaterationConfig = TrilaterationConfig(), log_name: str = "the log") -> WifiEvidence:
-        """The evidence of a whole walk's scans; ``MapfilterError`` when none gives a measurement."""
-        evidence = cls(radio_map, ap_table, floorplan, wifi, trilateration, log_name)
-        evidence.prepare(scans)
-        evidence.add_scans(scans)
-        evidence.require_usable()
-        return evidence
 
     def prepare(self, scans: list[WifiScan]) -> None:
         """Check that the scans to come share access points with the radio map or table (one line
@@ -293,8 +283,8 @@ def trilateration_model(ap_table: AccessPointTable, config: TrilaterationConfig 
         return TrilaterationLikelihood(ap_table, variance_db2=config.rssi_variance_db2)
     return AdaptiveTrilaterationLikelihood(
         ap_table, variance_db2=config.rssi_variance_db2,
-        adaptation=config.adaptation if config.adapt_path_loss else None,
-        blocking=config.blocking if config.blocking_compensation else None)
+        adapt_rssi_limit_dbm=config.adapt_rssi_limit_dbm if config.adapt_path_loss else None,
+        blocking_drop_db=config.blocking_drop_db if config.blocking_compensation else None)
 
 
 def calibrated_fix_sigma_m(radio_map: RadioMap, k: int = 4, default_m: float = 5.0) -> float:
@@ -314,7 +304,7 @@ class BuildingEvidence:
 
     Per floor, the fix of ``WifiEvidence`` made from that floor's fingerprints only (so
     ``blend``, ``fix`` and the fix-sigma calibration work as on one floor), moved into the stack
-    frame; per scan, the floor vote of ``sensors.floors.floor_vote_log_likelihood`` over the
+    frame; per scan, the floor vote of ``sensors.floor_vote.floor_vote_log_likelihood`` over the
     whole building's fingerprints. Scans come with ``add_scans``, the barometer's readings with
     ``add_pressure``.
 
@@ -361,21 +351,6 @@ class BuildingEvidence:
         self.reference = BarometerReference(self.elevation_m, barometer)
         self.model = FloorFixLikelihood(stack, sigma)
 
-    @classmethod
-    def of_recording(cls, scans: list[WifiScan], radio_map: RadioMap, stack: FloorStack, wifi: WifiConfig = WifiConfig(),
-                     fix_sigma_by_floor_m: dict[str, float] | None = None, log_name: str = "the log",
-                     pressure: tuple[np.ndarray, np.ndarray] | None = None,
-                     barometer: BarometerConfig = BarometerConfig(),
-                     floor_evidence: np.ndarray | None = None) -> BuildingEvidence:
-        """The evidence of a whole walk (its scans and barometer readings)."""
-        evidence = cls(radio_map, stack, wifi, fix_sigma_by_floor_m, log_name, pressure is not None, barometer,
-                       floor_evidence)
-        evidence.add_scans(scans)
-        if pressure is not None:
-            evidence.add_pressure(*pressure)
-        evidence.require_usable()
-        return evidence
-
     def prepare(self, scans: list[WifiScan]) -> None:
         """Build the per-floor radio-map tables of the APs the scans hear in one go (as ``WifiEvidence``)."""
         for evidence in self.floor_wifi:
@@ -413,8 +388,7 @@ class BuildingEvidence:
         self._pressure_hpa.extend(np.asarray(pressure_hpa, dtype=np.float64).tolist())
         if len(self._pressure_t) >= 2:
             # each reading's height depends on the readings up to it only (windowed sums of a cumsum)
-            self._heights = barometric_height(np.array(self._pressure_t), np.array(self._pressure_hpa),
-                                              self.barometer.smoothing_window_s)
+            self._heights = barometric_height(np.array(self._pressure_t), np.array(self._pressure_hpa))
 
     @property
     def n_pressure(self) -> int:
@@ -441,10 +415,6 @@ class BuildingEvidence:
             return None
         return np.array(self._pressure_t), np.array(self._pressure_hpa)
 
-    @property
-    def baro(self) -> tuple[np.ndarray, np.ndarray] | None:
-        return self._heights
-
     def height_m(self, t_s: float) -> float:
         """The barometer's height at ``t_s`` (relative to its first sample), NaN without one."""
         if self._heights is None:
@@ -455,11 +425,11 @@ class BuildingEvidence:
 
     def observe(self, report: StepReport) -> None:
         """After each filter step: move the barometer's reference (``BarometerReference.update``);
-        steady = less than ``steady_m`` of height change over ``steady_window_s``."""
+        steady = less than ``STEADY_M`` of height change over ``STEADY_WINDOW_S``."""
         if self._heights is None or report.floor_shares is None:
             return
         h = self.height_m(report.t_s)
-        steady = abs(h - self.height_m(report.t_s - self.barometer.steady_window_s)) < self.barometer.steady_m
+        steady = abs(h - self.height_m(report.t_s - STEADY_WINDOW_S)) < STEADY_M
         self.reference.update(report.t_s, h, steady, report.floor_shares)
 
     def has_evidence_between_scans(self) -> bool:

@@ -25,7 +25,6 @@ from mapfilter.filter.ancestry import Ancestry
 from mapfilter.filter.estimate import circular_mean
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.kernels import passes
-from mapfilter.filter.kernels.draws import SLOTS
 from mapfilter.filter.models.building import OneFloor
 from mapfilter.filter.models.interface import FloorModel, LikelihoodKernel, MeasurementModel, MotionModel, MoveKernel
 from mapfilter.filter.particles import HEADING, STEP, X, Y, Particles
@@ -45,6 +44,9 @@ _RECOVERY_RESET_STEPS = 10
 _RECOVERY_MEASUREMENT_MAX_AGE_S = 10.0
 _RECOVERY_HEADING_KEEP_FRACTION = 0.5
 _NO_PARAMS = np.zeros(1)
+# a jitter that crosses a wall is drawn again this often, then the particle stays at its parent:
+# the draws come from the step's counter-based slots (at most ``kernels.draws.SLOTS``)
+REGULARISE_TRIES = 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,7 +57,6 @@ class FilterConfig:
     resample_ess_fraction: float = 0.5  # resample when ESS = 1/sum(w^2) < fraction * N
     regularise: bool = True  # jitter after resampling (Regularised Particle Filter)
     bandwidth_scale: float = 1.0  # times the optimal bandwidth; < 1 for multimodal clouds
-    regularise_tries: int = 3  # redraws of a jitter that crosses a wall, then stay at the parent
     init_samples: int = 50_000  # free-space candidates weighed when initialising from a measurement
     initial_step_length_m: float = 0.7  # PDR state at initialisation
     # Evennou & Marx's collapse rule: no particle agrees with the measurement (for a Gaussian fix
@@ -69,8 +70,6 @@ class FilterConfig:
             raise MapfilterError(f"resample_ess_fraction must be in [0, 1], got {self.resample_ess_fraction}")
         if not (math.isfinite(self.bandwidth_scale) and self.bandwidth_scale > 0):
             raise MapfilterError(f"bandwidth_scale must be a positive number, got {self.bandwidth_scale}")
-        if not 1 <= int(self.regularise_tries) <= SLOTS:
-            raise MapfilterError(f"regularise_tries must be between 1 and {SLOTS}, got {self.regularise_tries}")
         if not (isinstance(self.init_samples, int) and self.init_samples >= 1):
             raise MapfilterError(f"init_samples must be a whole number >= 1, got {self.init_samples!r}")
         if not (math.isfinite(self.initial_step_length_m) and self.initial_step_length_m > 0):
@@ -384,7 +383,7 @@ class ParticleFilter:
         n_out = dst.shape[1]
         u = float(self.rng.random())
         key = self._draw_key()
-        tries = int(cfg.regularise_tries) if cfg.regularise else 0
+        tries = REGULARISE_TRIES if cfg.regularise else 0
         h, root = bandwidth_and_root(self.floorplan.resolution_m, cov, n_out, cfg.bandwidth_scale)
         self.last_jitter_m2 = 0.5 * h * h * float(np.trace(root @ root.T)) if tries else 0.0
         parent = np.empty(n_out, dtype=np.int64)

@@ -75,10 +75,6 @@ class Particles:
     def step_length_m(self, value) -> None:
         self.state[STEP] = value
 
-    def take(self, index: np.ndarray) -> Particles:
-        """New particles that copy the columns ``index``."""
-        return Particles(self.state[:, index], self.log_weight[index])
-
     def copy(self) -> Particles:
         return Particles(self.state.copy(), self.log_weight.copy())
 

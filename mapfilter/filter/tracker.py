@@ -12,7 +12,7 @@ dropped, counted in ``late_records``). Released records become events, in time o
 - every detected step (PDR: ``sensors.pdr.OnlinePDR``, causal) moves the particles; for the
   ``cv``/``rw`` motion models a prediction tick does every ``tick_s``;
 - every WiFi scan weighs them (its measurement from ``filter.evidence``);
-- with a barometer in a building, an idle tick every ``idle_tick_s`` without a step or scan
+- with a barometer in a building, an idle tick every ``IDLE_TICK_S`` without a step or scan
   lets the height weigh floors (a lift ride has no steps).
 
 Each event is one filter step, and each step one row of the causal track, stamped with the time
@@ -58,6 +58,14 @@ MOTION_MODELS = ("pdr", "cv", "rw")
 PAUSED_AFTER_S = 3.0
 # at equal times, a step before a scan, ticks before both (a prediction to the scan's time)
 _STEP, _SCAN, _TICK = 0, 1, 2
+# PDR with a barometer in a building: the longest gap between filter steps. A lift ride has no
+# steps, and scans are 2-4 s apart: about a walker's step interval, so the height weighs floors
+# as often standing as walking
+IDLE_TICK_S = 0.5
+# PDR: spread of the start headings around the rotation vector's (which deviates from the ILC
+# waypoint legs by 8.8 deg median); 0.2 rad measured better and steadier across seeds than
+# 30 deg on ILC F1 (docs/accuracy.md)
+INITIAL_HEADING_SIGMA_RAD = 0.2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,31 +73,20 @@ class MotionConfig:
     """How the particles move between measurements."""
 
     model: str = "pdr"  # pdr: steps and gyro (PDR) | cv: constant velocity | rw: random walk on a circle
-    # heading noise per step 0.02 rad: the gyro is good over a step; 0.05 (the PDRMotion default,
-    # for coarser filter steps) let clouds fan out and measured worse on ILC F1
-    pdr: PDRMotion = dataclasses.field(default_factory=lambda: PDRMotion(heading_sigma_rad=0.02))  # the PDR motion model (thesis eq. 8.23)
+    pdr: PDRMotion = dataclasses.field(default_factory=PDRMotion)  # the PDR motion model (thesis eq. 8.23)
     constant_velocity: ConstantVelocityMotion = dataclasses.field(default_factory=ConstantVelocityMotion)  # the cv model (Evennou & Marx)
     random_walk: RandomWalkMotion = dataclasses.field(default_factory=RandomWalkMotion)  # the rw model (Lund thesis eq. 6.6)
     tick_s: float = 1.0  # cv / rw: prediction interval between scans
-    # a lift ride has no steps, and scans are 2-4 s apart: about a walker's step interval, so
-    # the height weighs floors as often standing as walking
-    idle_tick_s: float = 0.5  # PDR with a barometer in a building: the longest gap between filter steps
     start_heading_from_rotation_vector: bool = True  # PDR: start headings from the rotation vector when the log has one
-    # the rotation vector's heading deviates from the ILC waypoint legs by 8.8 deg median
-    # (tools/report_pdr.py); 0.2 rad measured better and steadier across seeds than 30 deg on
-    # ILC F1 (tools/tune_ilc.py: mean ratio to KWNN 0.775 vs 0.785-0.850)
-    initial_heading_sigma_rad: float = 0.2  # PDR: spread of the start headings around the rotation vector's
     max_gap_s: float = 60.0  # nothing happened for longer than this: the filter starts afresh at the next scan
 
     def __post_init__(self) -> None:
         if self.model not in MOTION_MODELS:
             raise MapfilterError(f"unknown motion model {self.model!r}: choose one of {', '.join(MOTION_MODELS)}")
-        for name in ("tick_s", "idle_tick_s", "max_gap_s"):
+        for name in ("tick_s", "max_gap_s"):
             value = getattr(self, name)
             if not (value > 0 and math.isfinite(value)):
                 raise MapfilterError(f"motion setting {name} must be a positive number of seconds, got {value}")
-        if not (self.initial_heading_sigma_rad >= 0 and math.isfinite(self.initial_heading_sigma_rad)):
-            raise MapfilterError(f"initial_heading_sigma_rad must be >= 0, got {self.initial_heading_sigma_rad}")
 
     @property
     def motion_model(self) -> MotionModel:
@@ -397,12 +394,12 @@ class StreamFilter:
 
     def _schedule_ticks(self) -> None:
         """The next tick after an event: cv / rw tick every ``tick_s`` from the first start; PDR
-        with a barometer ticks ``idle_tick_s`` after the latest step or scan."""
+        with a barometer ticks ``IDLE_TICK_S`` after the latest step or scan."""
         if not self._uses_steps:
             k = math.floor((self._last_event_t - self._t0) / self.motion.tick_s) + 1
             self._next_tick_t = self._t0 + k * self.motion.tick_s
         elif self._idle_ticks:
-            self._next_tick_t = self._last_event_t + self.motion.idle_tick_s
+            self._next_tick_t = self._last_event_t + IDLE_TICK_S
         else:
             self._next_tick_t = math.inf
 
@@ -412,7 +409,7 @@ class StreamFilter:
             between = self.evidence.between_scans(t_s)
             if between is not None:
                 self._step(t_s, None, self.evidence.model, between)
-            self._next_tick_t = t_s + self.motion.idle_tick_s
+            self._next_tick_t = t_s + IDLE_TICK_S
         else:
             self._step(t_s, None, None, None)
             self._next_tick_t = t_s + self.motion.tick_s
@@ -499,7 +496,7 @@ class StreamFilter:
             else:
                 heading = self._rotation_vector_heading(t_s)
         if heading is not None and math.isfinite(heading):
-            self.pf.particles.heading_rad = heading + self.motion.initial_heading_sigma_rad * self.rng.standard_normal(n)
+            self.pf.particles.heading_rad = heading + INITIAL_HEADING_SIGMA_RAD * self.rng.standard_normal(n)
         else:
             self.pf.particles.heading_rad = self.rng.uniform(-math.pi, math.pi, n)
 

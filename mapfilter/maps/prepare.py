@@ -29,7 +29,6 @@ from typing import Any
 import cv2
 import numpy as np
 import shapely
-import yaml
 from shapely.geometry import shape as geojson_shape
 
 from mapfilter.atomic import atomic_paths

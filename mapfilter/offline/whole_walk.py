@@ -10,7 +10,7 @@ offline stage uses the whole walk for every point (it is not causal):
 3. ``whole_walk_track``: the placed shape moved onto free space, map-matched on the plan and
    made wall-free;
 4. ``restarted_run``: the causal filter run again from where step 3 puts the walk's start,
-   whose estimates place the walk once more (``offline_track``).
+   whose estimates place the walk once more (``one_floor_offline_track``).
 
 Every function takes a walk's evidence and returns a new track; nothing is changed in place.
 """
@@ -160,10 +160,10 @@ def restarted_run(plan: FloorPlan, evidence: WifiEvidence, steps: Steps, placed:
     return dataclasses.replace(run.track(), name="restarted")
 
 
-def offline_track(plan: FloorPlan, evidence: WifiEvidence, steps: Steps | None, causal: Track,
-                  lineage: Track | None, motion: MotionConfig, filter_config: FilterConfig,
-                  rng: np.random.Generator, config: OfflineConfig = OfflineConfig(),
-                  on_step: Callable[[StepReport], None] | None = None) -> OfflineTrack:
+def one_floor_offline_track(plan: FloorPlan, evidence: WifiEvidence, steps: Steps | None, causal: Track,
+                            lineage: Track | None, motion: MotionConfig, filter_config: FilterConfig,
+                            rng: np.random.Generator, config: OfflineConfig = OfflineConfig(),
+                            on_step: Callable[[StepReport], None] | None = None) -> OfflineTrack:
     """The offline track of a walk on one floor.
 
     With PDR steps: the placed, map-matched shape (``placed_track``), placed once more from a

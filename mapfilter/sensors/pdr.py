@@ -16,22 +16,22 @@ replay of a recording's records through ``OnlinePDR``; its steps are those a liv
 have had. The chain, per grid sample:
 
 1. resampling: accelerometer and gyroscope are interpolated linearly onto a uniform grid of
-   ``sample_rate_hz``; the grid sample at g is made once both sensors have a sample at or after
+   ``SAMPLE_RATE_HZ``; the grid sample at g is made once both sensors have a sample at or after
    g (so a grid sample waits for the slower sensor);
 2. the step filter (Butterworth, designed here: ``butter_lowpass_sos``) runs on |a|, the step
-   signal is its backward difference, the step level ``step_threshold_rms_fraction`` times the
-   RMS of the step signal over the trailing ``step_threshold_window_s``, clipped to
-   [``min_step_threshold_mps3``, ``step_threshold_mps3``];
+   signal is its backward difference, the step level ``STEP_THRESHOLD_RMS_FRACTION`` times the
+   RMS of the step signal over the trailing ``STEP_THRESHOLD_WINDOW_S``, clipped to
+   [``MIN_STEP_THRESHOLD_MPS3``, ``step_threshold_mps3``];
 3. an upward crossing is placed by linear interpolation between the two grid samples around
    it, and kept if the previous kept step is at least ``min_step_interval_s`` older;
 4. gravity is the accelerometer low-passed by a 2nd-order Butterworth at
-   ``gravity_lowpass_hz``, the yaw rate the gyroscope rate about it, integrated (trapezoid);
+   ``GRAVITY_LOWPASS_HZ``, the yaw rate the gyroscope rate about it, integrated (trapezoid);
 5. the step's rotation-vector heading is interpolated between the rotation-vector samples
    around the step if one at or after it has arrived, else taken from the latest (NaN before
    the first); its Weinberg length uses the low-passed |a| from the previous step (at most
-   ``max_step_window_s`` back) to this one.
+   ``MAX_STEP_WINDOW_S`` back) to this one.
 
-Stretches. Where the accelerometer or the gyroscope stops for longer than ``imu_gap_s`` (the
+Stretches. Where the accelerometer or the gyroscope stops for longer than ``IMU_GAP_S`` (the
 phone slept, the log was paused, its clock jumped), the stretch ends: nothing is interpolated
 across the gap, the filters start again, and the gyro heading carries over unchanged (the turn
 during the gap is unknown). Memory follows the samples, not the span of the timestamps. A
@@ -58,68 +58,50 @@ from mapfilter.errors import MapfilterError
 from mapfilter.sensors.recording import Recording
 
 ACC, GYRO, ROTVEC = 0, 1, 2  # stream codes of OnlinePDR.feed; ties in time are fed in this order
-MAX_IMU_GAP_S = 60.0  # imu_gap_s above this would interpolate over minutes of missing motion
+
+# The detector's design (the Lund thesis' filter, and what made other phones' steps count; the
+# measurements behind each: docs/pdr.md, docs/accuracy.md)
+SAMPLE_RATE_HZ = 50.0  # uniform grid the irregular IMU samples are resampled onto
+LOWPASS_HZ = 3.0  # Butterworth cut-off of the step signal (thesis: 3 Hz)
+LOWPASS_ORDER = 4  # Butterworth order (thesis: 4)
+# a phone held softly (IPIN 2023: d|a|/dt peaks a third of ILC's) crosses a fixed level at a
+# fraction of its steps: where the signal is weak the level follows this share of its RMS
+STEP_THRESHOLD_RMS_FRACTION = 0.9  # share of d|a|/dt's running RMS that is the step level where the signal is weak
+STEP_THRESHOLD_WINDOW_S = 4.0  # the running RMS of d|a|/dt is taken over this trailing window
+MIN_STEP_THRESHOLD_MPS3 = 5.0  # the step level never goes below this (a phone at rest: hand tremor)
+GRAVITY_LOWPASS_HZ = 0.3  # gravity direction = accelerometer low-passed below the step rhythm
+MAX_STEP_WINDOW_S = 1.0  # Weinberg min/max window before a step when the previous one is older
+# the ILC site1 logs never stop for more than 0.11 s, the simulator's stalls last 0.1-0.3 s
+IMU_GAP_S = 3.0  # accelerometer or gyroscope silent longer than this: the stretch ends, the filters restart
 
 
 @dataclasses.dataclass(frozen=True)
 class PDRConfig:
-    """Parameters of step detection, heading and step length, with the defaults we use.
+    """The step detector's and step length's settings a user may change (tuned on the ILC site1
+    traces, ``tools/report_pdr.py``)."""
 
-    Defaults were tuned on the 48 ILC site1 traces (``tools/report_pdr.py``).
-    """
-
-    sample_rate_hz: float = 50.0  # uniform grid the irregular IMU samples are resampled onto
-    lowpass_hz: float = 3.0  # Butterworth cut-off of the step signal (thesis: 3 Hz)
-    lowpass_order: int = 4  # Butterworth order (thesis: 4)
     # a step = upward crossing of this level by the filtered d|a|/dt; walking on the ILC phone
-    # gives peaks of 50-120 m/s^3; of 2, 5, 10, 12, 15, 17, 20, 25, 30 on the 48 ILC site1
-    # traces, 12-20 fit the waypoint distances best, 2-5 count sway as steps (offline detector)
+    # gives peaks of 50-120 m/s^3; 12-20 fit the ILC site1 waypoint distances best, 2-5 count sway
     step_threshold_mps3: float = 15.0  # a step: an upward crossing of this level by the filtered d|a|/dt
-    # a phone held more softly (the IPIN 2023 phones: d|a|/dt peaks of 20-55 m/s^3, a third of
-    # ILC's) crosses 15 at a fraction of its steps: where the signal is weaker the level is this
-    # share of its running RMS, not below min_step_threshold_mps3 (a phone at rest); 0 keeps the
-    # fixed level. ILC site1 counts the same steps at 0.8-1; on IPIN 2023, 0.9 counts as many as
-    # the offline zero-phase detector did at 1 (docs/pdr.md)
-    step_threshold_rms_fraction: float = 0.9  # where the signal is weak the step level is this share of d|a|/dt's running RMS
-    step_threshold_window_s: float = 4.0  # the running RMS of d|a|/dt is taken over this trailing window
-    min_step_threshold_mps3: float = 5.0  # the step level never goes below this (a phone at rest: hand tremor)
     # brisk walking is ~0.45-0.5 s per step; with 0.3 some ILC site1 steps cross twice, 0.5
     # drops the fastest steps
     min_step_interval_s: float = 0.4  # no two steps closer than this
-    gravity_lowpass_hz: float = 0.3  # gravity direction = accelerometer low-passed below the step rhythm
-    # Weinberg K for |a| (m/s^2) low-passed at lowpass_hz: sum of waypoint polyline lengths over
-    # sum of (a_max - a_min)^(1/4) on the 88 ILC site1 F1 and F2 traces with an IMU
-    # (tools/report_pdr.py: 0.402, leave-one-out 0.401-0.403)
+    # Weinberg K for |a| (m/s^2) low-passed at LOWPASS_HZ, fitted to the ILC site1 waypoint
+    # distances (tools/report_pdr.py: 0.402, leave-one-out 0.401-0.403)
     weinberg_k: float = 0.40  # Weinberg step length = K (a_max - a_min)^(1/4)
-    max_step_window_s: float = 1.0  # Weinberg min/max window before a step when the previous one is older
     # added to pi/2 - azimuth: the angle from magnetic north to the map's +y axis; measured
     # -2.4 deg on ILC site1 (median leg deviation 8.8 deg), so 0 there
     abs_heading_offset_rad: float = 0.0  # magnetic north to the map's +y axis, added to the rotation vector's heading
-    # the ILC site1 logs never stop for more than 0.11 s, the simulator's stalls last 0.1-0.3 s
-    imu_gap_s: float = 3.0  # accelerometer or gyroscope silent longer than this: the stretch ends, the filters restart
 
     def __post_init__(self) -> None:
-        positive = ("sample_rate_hz", "lowpass_hz", "gravity_lowpass_hz", "weinberg_k", "max_step_window_s",
-                    "imu_gap_s", "step_threshold_mps3", "step_threshold_window_s", "min_step_threshold_mps3")
-        for name in positive:
+        for name in ("weinberg_k", "step_threshold_mps3"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise MapfilterError(f"PDR setting {name} must be a positive number, got {value}")
-        if not 0.0 <= self.step_threshold_rms_fraction <= 10.0:
-            raise MapfilterError(f"PDR setting step_threshold_rms_fraction must be between 0 and 10, "
-                                 f"got {self.step_threshold_rms_fraction}")
         if not (np.isfinite(self.min_step_interval_s) and self.min_step_interval_s >= 0):
             raise MapfilterError(f"PDR setting min_step_interval_s must be >= 0, got {self.min_step_interval_s}")
-        if not 1 <= self.lowpass_order <= 12:
-            raise MapfilterError(f"PDR setting lowpass_order must be between 1 and 12, got {self.lowpass_order}")
-        # the detector keeps these spans of grid samples, and sums the RMS window at every sample
-        for name, most in (("imu_gap_s", MAX_IMU_GAP_S), ("step_threshold_window_s", 60.0),
-                           ("max_step_window_s", 10.0), ("sample_rate_hz", 1000.0)):
-            if getattr(self, name) > most:
-                raise MapfilterError(f"PDR setting {name} must be at most {most:g}, got {getattr(self, name)}")
-        if self.sample_rate_hz <= 2 * max(self.lowpass_hz, self.gravity_lowpass_hz):
-            raise MapfilterError(f"PDR setting sample_rate_hz {self.sample_rate_hz} must exceed twice "
-                                 f"lowpass_hz {self.lowpass_hz} and gravity_lowpass_hz {self.gravity_lowpass_hz}")
+        if not np.isfinite(self.abs_heading_offset_rad):
+            raise MapfilterError(f"PDR setting abs_heading_offset_rad must be a number, got {self.abs_heading_offset_rad}")
 
 
 @dataclasses.dataclass
@@ -522,7 +504,7 @@ def _feed_kernel(t_s, stream, values, start, params, sos_step, zi_step, sos_grav
                     if math.isnan(step_t) or t_step - step_t >= params[_P_MIN_INTERVAL]:
                         at = fs[_F_HEADING] + (t_step - g_prev) / dt * (heading - fs[_F_HEADING])
                         # Weinberg: min and max of low-passed |a| from the previous step (at most
-                        # max_step_window_s back) to this one
+                        # MAX_STEP_WINDOW_S back) to this one
                         begin = t_step - params[_P_MAX_WINDOW]
                         if not math.isnan(step_t) and step_t > begin:
                             begin = step_t
@@ -588,15 +570,14 @@ class OnlinePDR:
 
     def __init__(self, config: PDRConfig = PDRConfig(), keep_trace: bool = False) -> None:
         self.config = config
-        dt_s = 1.0 / config.sample_rate_hz
+        dt_s = 1.0 / SAMPLE_RATE_HZ
         self._params = np.zeros(_N_PARAM)
         self._params[[_P_DT, _P_GAP, _P_FRACTION, _P_MIN_LEVEL, _P_MAX_LEVEL, _P_MIN_INTERVAL, _P_MAX_WINDOW,
-                      _P_OFFSET]] = (dt_s, config.imu_gap_s, config.step_threshold_rms_fraction,
-                                     config.min_step_threshold_mps3, config.step_threshold_mps3,
-                                     config.min_step_interval_s, config.max_step_window_s,
-                                     config.abs_heading_offset_rad)
-        self._sos_step = butter_lowpass_sos(config.lowpass_order, config.lowpass_hz, config.sample_rate_hz)
-        self._sos_grav = butter_lowpass_sos(2, config.gravity_lowpass_hz, config.sample_rate_hz)
+                      _P_OFFSET]] = (dt_s, IMU_GAP_S, STEP_THRESHOLD_RMS_FRACTION,
+                                     MIN_STEP_THRESHOLD_MPS3, config.step_threshold_mps3, config.min_step_interval_s,
+                                     MAX_STEP_WINDOW_S, config.abs_heading_offset_rad)
+        self._sos_step = butter_lowpass_sos(LOWPASS_ORDER, LOWPASS_HZ, SAMPLE_RATE_HZ)
+        self._sos_grav = butter_lowpass_sos(2, GRAVITY_LOWPASS_HZ, SAMPLE_RATE_HZ)
         self._zi_step, self._zi_grav = sos_steady_state(self._sos_step), sos_steady_state(self._sos_grav)
         self.settle_samples = settle_samples(self._sos_step)  # no step counts in a stretch's first samples
         self._fs = np.zeros(_N_FLOAT)
@@ -604,13 +585,13 @@ class OnlinePDR:
         self._ist = np.zeros(_N_INT, dtype=np.int64)
         self._z_step = np.zeros((self._sos_step.shape[0], 2))
         self._z_grav = np.zeros((3, self._sos_grav.shape[0], 2))
-        # grid values of one sensor waiting for the other: never more than imu_gap_s of them (a
+        # grid values of one sensor waiting for the other: never more than IMU_GAP_S of them (a
         # sensor further ahead ends the stretch)
-        cap = int(math.ceil(config.imu_gap_s / dt_s)) + 4
+        cap = int(math.ceil(IMU_GAP_S / dt_s)) + 4
         self._q_val = np.zeros((2, cap, 3))
         self._q_src = np.zeros((2, cap))
-        self._level_ring = np.zeros(max(1, int(round(config.step_threshold_window_s / dt_s))))
-        self._mag_ring = np.zeros(int(math.ceil(config.max_step_window_s / dt_s)) + 3)
+        self._level_ring = np.zeros(max(1, int(round(STEP_THRESHOLD_WINDOW_S / dt_s))))
+        self._mag_ring = np.zeros(int(math.ceil(MAX_STEP_WINDOW_S / dt_s)) + 3)
         self._rot_t = np.zeros(64)
         self._rot_q = np.zeros((64, 4))
         self._out_steps = np.zeros((4 * cap + 64, _STEP_COLUMNS))
@@ -627,7 +608,7 @@ class OnlinePDR:
     @property
     def n_stretches(self) -> int:
         """Stretches whose grid has begun (both sensors ticking; a new one after each gap of more
-        than ``imu_gap_s``)."""
+        than ``IMU_GAP_S``)."""
         return int(self._ist[_I_N_STRETCHES])
 
     @property
@@ -721,24 +702,24 @@ def imu_records(recording: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return t_s[order], stream[order], values[order]
 
 
-def _check_imu(recording: Recording, config: PDRConfig) -> None:
+def _check_imu(recording: Recording) -> None:
     where = recording.path
     for name, t_s in (("accelerometer", recording.acc_t_s), ("gyroscope", recording.gyro_t_s)):
         if t_s.shape[0] < 2 or t_s[-1] - t_s[0] < MIN_STRETCH_S:
             raise MapfilterError(f"no usable {name} data for PDR (need at least 2 s; "
                                  "a WiFi-only log tracks with --motion cv)", where)
-    if not any(t1_s - t0_s >= MIN_STRETCH_S for t0_s, t1_s in imu_stretches(recording, config)):
-        gap = any(t.shape[0] > 1 and np.diff(t).max() > config.imu_gap_s
+    if not any(t1_s - t0_s >= MIN_STRETCH_S for t0_s, t1_s in imu_stretches(recording)):
+        gap = any(t.shape[0] > 1 and np.diff(t).max() > IMU_GAP_S
                   for t in (recording.acc_t_s, recording.gyro_t_s))
         raise MapfilterError("accelerometer and gyroscope overlap by less than 2 s"
-                             + (f" without a gap of more than {config.imu_gap_s:g} s" if gap else ""), where)
+                             + (f" without a gap of more than {IMU_GAP_S:g} s" if gap else ""), where)
 
 
-def imu_stretches(recording: Recording, config: PDRConfig = PDRConfig()) -> list[tuple[float, float]]:
+def imu_stretches(recording: Recording) -> list[tuple[float, float]]:
     """(start, end) times of the stretches where accelerometer and gyroscope both tick with no
-    gap longer than ``config.imu_gap_s``; without gaps, the one span both cover."""
-    acc = _runs(recording.acc_t_s, config.imu_gap_s)
-    gyro = _runs(recording.gyro_t_s, config.imu_gap_s)
+    gap longer than ``IMU_GAP_S``; without gaps, the one span both cover."""
+    acc = _runs(recording.acc_t_s, IMU_GAP_S)
+    gyro = _runs(recording.gyro_t_s, IMU_GAP_S)
     spans, i, j = [], 0, 0
     while i < len(acc) and j < len(gyro):  # intersection of two sorted lists of intervals
         t0_s, t1_s = max(acc[i][0], gyro[j][0]), min(acc[i][1], gyro[j][1])
@@ -786,7 +767,7 @@ def detect_steps(recording: Recording, config: PDRConfig = PDRConfig()) -> Steps
         If the recording has less than 2 s of accelerometer or gyroscope data, or no stretch of
         2 s where both tick.
     """
-    _check_imu(recording, config)
+    _check_imu(recording)
     online = OnlinePDR(config)
     steps = online.feed(*imu_records(recording))
     if recording.rotvec_t_s.shape[0] == 0:
@@ -797,7 +778,7 @@ def detect_steps(recording: Recording, config: PDRConfig = PDRConfig()) -> Steps
 def imu_trace(recording: Recording, config: PDRConfig = PDRConfig()) -> ImuTrace:
     """The signals ``detect_steps`` saw at each grid sample of the recording (gyro heading,
     rotation-vector heading, step signal and level), for checks and plots."""
-    _check_imu(recording, config)
+    _check_imu(recording)
     online = OnlinePDR(config, keep_trace=True)
     online.feed(*imu_records(recording))
     return online.trace()

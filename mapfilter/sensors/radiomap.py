@@ -85,7 +85,6 @@ READABLE_VERSIONS = (1, 2, 3, 4)
 # per-point source codes (``RadioMap.source``)
 SURVEYED = 0  # labelled from a survey walk's waypoints
 GROWN = 1  # placed by the offline track of a walk without waypoints (``mapfilter.selftrain``)
-SOURCE_NAMES = ("surveyed", "grown")
 # the cross-validation stored in every file: what the tracker's calibration asks for by default
 _STORED_CV_PARAMS = (4, 200, 1.0)
 # A point of position sigma s counts POSITION_SIGMA_REF_M^2 / (POSITION_SIGMA_REF_M^2 + s^2) of a
@@ -849,24 +848,6 @@ def strong_kwnn_fixes(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4
     if none.any():
         fixes[none] = kwnn_fix_many(radio_map, np.asarray(scan_rssi_dbm)[none], k=k).xy_m
     return fixes
-
-
-def kwnn_fix(radio_map: RadioMap, scan_keys: Sequence[str], scan_rssi_dbm: np.ndarray, k: int = 4, p: float = 2.0,
-             q: float = 2.0, missing_dbm: float = -100.0, min_shared_aps: int = 3) -> KwnnFix:
-    """KWNN fix of one scan (keys and RSSI in dBm); see ``kwnn_fix_many`` for the method.
-
-    APs never in the radio map are ignored. ``MapfilterError`` if the scan shares fewer than
-    ``min_shared_aps`` APs with the radio map (in particular none at all).
-    """
-    row = radio_map.scan_vector(WifiScan(0.0, tuple(scan_keys), np.asarray(scan_rssi_dbm, dtype=np.float32)))
-    n_shared = int(np.count_nonzero(~np.isnan(row)))
-    if n_shared < max(min_shared_aps, 1):
-        raise MapfilterError(f"the scan shares {n_shared} access points with the radio map, "
-                             f"a fingerprint fix needs {max(min_shared_aps, 1)}")
-    fix = kwnn_fix_many(radio_map, row[None, :], k, p, q, missing_dbm, min_shared_aps)
-    if not np.all(np.isfinite(fix.xy_m[0])):
-        raise MapfilterError(f"no reference point shares {min_shared_aps} access points with the scan")
-    return KwnnFix(fix.xy_m[0], fix.neighbours[0], fix.distance_db[0], fix.n_shared_aps[0])
 
 
 def cross_validated_fix_errors(radio_map: RadioMap, k: int = 4, max_groups: int = 200,

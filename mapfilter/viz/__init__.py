@@ -41,7 +41,7 @@ Entities (all under ``map/world`` are in world metres)
 A building seen whole (``view_map`` with a building: finished tracks, no filter) draws no
 ``map``: each floor has its own root and 2D view, ``floors/<floor>/world/...`` with the same
 children as ``map/world`` (``floorplan``, ``walls``, ``ground_truth``, ``tracks/<name>``), each
-row of a track and each waypoint under the floor it is on (``viz.floors.FloorPlansLayer``).
+row of a track and each waypoint under the floor it is on (``viz.building.FloorPlansLayer``).
 """
 
 from mapfilter.viz.recorder import NullLogger, RerunLogger, make_logger, view_map

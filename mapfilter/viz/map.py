@@ -17,7 +17,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 class MapLayer:
     """Draws ``<root>/world/floorplan/image`` (the source picture, if any) and ``<root>/world/walls/mask``
-    (``root``: ``map``, or ``floors/<floor>`` for one floor of a building seen whole, ``viz.floors``)."""
+    (``root``: ``map``, or ``floors/<floor>`` for one floor of a building seen whole, ``viz.building``)."""
 
     def __init__(self, canvas: Canvas, floorplan: FloorPlan, root: str = "map") -> None:
         self.canvas = canvas

@@ -83,10 +83,10 @@ class RerunLogger:
         looking at finished tracks only, which leaves the map and the error plot.
     stack : a building's ``filter.floors.FloorStack`` when the filter runs across floors: the
         current floor's plan is drawn (again at each floor change), steps are drawn in that
-        floor's frame, and a plot shows the weight on each floor (``viz.floors``).
+        floor's frame, and a plot shows the weight on each floor (``viz.building``).
     building : a building with several floors whose finished tracks are shown (``view_map``):
         every floor's plan at once, each in its own view under ``floors/<floor>``
-        (``viz.floors.FloorPlansLayer``); tracks and ground truth are then logged with the floor
+        (``viz.building.FloorPlansLayer``); tracks and ground truth are then logged with the floor
         of each row (instead of ``floorplan``, unused; no filter steps).
 
     Exactly one of ``rrd_path`` and ``spawn`` must be given. Call :meth:`log_map` first
@@ -133,12 +133,12 @@ class RerunLogger:
         self.tracks = TrackLayer(canvas, self.truth)
         self.floors = None
         if stack is not None:
-            from mapfilter.viz.floors import FloorLayer
+            from mapfilter.viz.building import FloorLayer
 
             self.floors = FloorLayer(canvas, stack)
         self.plans = None
         if building is not None:
-            from mapfilter.viz.floors import FloorPlansLayer
+            from mapfilter.viz.building import FloorPlansLayer
 
             self.plans = FloorPlansLayer(canvas, building)
         blueprint = self.blueprint()
@@ -211,7 +211,7 @@ class RerunLogger:
     # ---- what callers draw -----------------------------------------------------------------
     def log_map(self) -> None:
         """Log the floor-plan picture (if any) and the wall mask overlay, both static (a
-        building's floors are drawn as they become current, see ``viz.floors``; a building
+        building's floors are drawn as they become current, see ``viz.building``; a building
         seen whole draws every floor)."""
         if self.plans is not None:
             self.plans.draw()

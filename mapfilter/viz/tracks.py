@@ -30,7 +30,7 @@ class GroundTruthLayer:
     """Draws ``map/world/ground_truth/{waypoints,path}`` (static) and ``.../now`` per step.
 
     ``draw(..., on=...)`` draws each waypoint under the root of its floor instead
-    (``<root>/world/ground_truth/...``, a building seen whole: ``viz.floors.FloorPlansLayer``).
+    (``<root>/world/ground_truth/...``, a building seen whole: ``viz.building.FloorPlansLayer``).
     """
 
     def __init__(self, canvas: Canvas) -> None:

@@ -102,12 +102,12 @@ def _adapt(index: int) -> dict:
         runs = {
             "true": (aps, base),
             "true_adapt": (aps, base.override({"trilateration.adapt_path_loss": True,
-                                          "trilateration.adaptation.rssi_limit_dbm": OFFICE_LIMIT_DBM})),
+                                          "trilateration.adapt_rssi_limit_dbm": OFFICE_LIMIT_DBM})),
             "wrong": (wrong, base),
             "wrong_adapt": (wrong, base.override({"trilateration.adapt_path_loss": True,
-                                             "trilateration.adaptation.rssi_limit_dbm": OFFICE_LIMIT_DBM})),
+                                             "trilateration.adapt_rssi_limit_dbm": OFFICE_LIMIT_DBM})),
             "wrong_adapt_thesis": (wrong, base.override(
-                {"trilateration.adapt_path_loss": True, "trilateration.adaptation.rssi_limit_dbm": THESIS_LIMIT_DBM})),
+                {"trilateration.adapt_path_loss": True, "trilateration.adapt_rssi_limit_dbm": THESIS_LIMIT_DBM})),
         }
         for name, (table, config) in runs.items():
             errors, result = _run(("clear", index), table, config, 50_000 + index)

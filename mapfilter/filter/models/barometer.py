@@ -14,6 +14,21 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 
 
+# When the reference moves (``BarometerReference.update``): only to a floor the filter is sure of
+# (ANCHOR_SHARE of the weight) while the height is steady (less than STEADY_M of change over
+# STEADY_WINDOW_S), and no faster than the weather moves a barometer
+ANCHOR_SHARE = 0.95  # the reference moves to a floor only when this share of the weight is on it
+STEADY_M = 0.5  # ... and the height changed less than this ...
+STEADY_WINDOW_S = 3.0  # ... over this long
+# 0.01 m/s is 36 m/h, about 4 hPa/h, above any weather front (1-3 hPa/h); a climber pausing on
+# the stairs looks steady for a few seconds, and without this limit the reference crept up
+# with each pause and the new floor was found late
+DRIFT_M_PER_S = 0.01
+# pressure readings of the last this-many seconds make one height (a phone barometer's noise is
+# about 0.25 m per sample)
+SMOOTHING_WINDOW_S = 2.0
+
+
 @dataclasses.dataclass(frozen=True)
 class BarometerConfig:
     """How the barometer weighs floors (a phone barometer: about 0.25 m noise per sample)."""
@@ -21,31 +36,18 @@ class BarometerConfig:
     # a barometer's height is good to about 0.25 m per sample and drifts with the weather by
     # well under a metre in ten minutes; 1 m keeps a storey (4-5 m) four sigmas or more away
     sigma_m: float = 1.0  # spread of the height a floor is expected at
-    anchor_share: float = 0.95  # the reference moves to a floor only when this share of the weight is on it
-    steady_m: float = 0.5  # ... and the height changed less than this ...
-    steady_window_s: float = 3.0  # ... over this long
-    # 0.01 m/s is 36 m/h, about 4 hPa/h, above any weather front (1-3 hPa/h). A climber pausing
-    # on the stairs looks steady for a few seconds; without this limit the reference crept up
-    # with each pause (1.25 m half-way up a simulated flight) and the new floor was found late
-    drift_m_per_s: float = 0.01  # the reference follows the weather at most this fast
-    smoothing_window_s: float = 2.0  # pressure readings of the last this-many seconds make one height
 
     def __post_init__(self) -> None:
-        for name in ("sigma_m", "steady_m", "steady_window_s", "smoothing_window_s"):
-            if not (getattr(self, name) > 0 and np.isfinite(getattr(self, name))):
-                raise MapfilterError(f"barometer setting {name} must be a positive number, got {getattr(self, name)}")
-        if not 0.5 <= self.anchor_share <= 1.0:
-            raise MapfilterError(f"barometer setting anchor_share must be in [0.5, 1], got {self.anchor_share}")
-        if not (self.drift_m_per_s >= 0 and np.isfinite(self.drift_m_per_s)):
-            raise MapfilterError(f"barometer setting drift_m_per_s must be >= 0, got {self.drift_m_per_s}")
+        if not (self.sigma_m > 0 and np.isfinite(self.sigma_m)):
+            raise MapfilterError(f"barometer setting sigma_m must be a positive number, got {self.sigma_m}")
 
 
 class BarometerReference:
     """The barometer's zero for floor evidence: a floor the filter was sure of and the height then.
 
-    ``update`` sets the reference when the filter is sure of its floor (``anchor_share``)
+    ``update`` sets the reference when the filter is sure of its floor (``ANCHOR_SHARE``)
     while the height is steady, and afterwards moves it no faster than the weather moves a
-    barometer (``drift_m_per_s``), never to a floor the barometer disagrees with;
+    barometer (``DRIFT_M_PER_S``), never to a floor the barometer disagrees with;
     ``floor_log_likelihood`` gives a floor of elevation e the value
     -(e - (e_ref + h - h_ref))^2 / (2 sigma_m^2).
     """
@@ -60,7 +62,7 @@ class BarometerReference:
         filter's share of weight per floor."""
         cfg = self.config
         floor = int(np.argmax(floor_shares))
-        if not (steady and float(np.max(floor_shares)) >= cfg.anchor_share):
+        if not (steady and float(np.max(floor_shares)) >= ANCHOR_SHARE):
             return
         if self.anchor is None:
             self.anchor = (floor, height_m, t_s)
@@ -71,7 +73,7 @@ class BarometerReference:
         # missed a floor change would otherwise silence the barometer for good
         if abs(height_m - h_floor) > 2.0 * cfg.sigma_m:
             return
-        drift = cfg.drift_m_per_s * max(t_s - t_ref, 0.0)
+        drift = DRIFT_M_PER_S * max(t_s - t_ref, 0.0)
         self.anchor = (floor, h_floor + float(np.clip(height_m - h_floor, -drift, drift)), t_s)
 
     def floor_log_likelihood(self, height_m: float) -> np.ndarray | None:
@@ -83,7 +85,7 @@ class BarometerReference:
         return -0.5 * ((self.elevation_m - expected) / self.config.sigma_m) ** 2
 
 
-def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float = 2.0,
+def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float = SMOOTHING_WINDOW_S,
                       centred: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(times, heights in metres relative to the first sample) from barometer readings: the
     international barometric formula h = 44330.8 (1 - (p / p_first)^(1 / 5.25588)) of the

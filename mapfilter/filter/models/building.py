@@ -115,9 +115,6 @@ class FloorStack:
         total = w.sum()
         return weighted_estimate(self.plan, stack_xy_m, w / total if total > 0 else weights)
 
-    def free_in_building(self, building_xy_m: np.ndarray, floor: int) -> np.ndarray:
-        """(N,) True where building-frame points fall on free space of ``floor``."""
-        return self.building.floors[floor].plan.is_free(self.building.floors[floor].from_building(building_xy_m))
 
 
 class OneFloor(FloorModel):
@@ -161,18 +158,20 @@ class FloorChangeConfig:
     # vote then keeps or kills it. 1 / 300 s puts about 0.3 % of the cloud on other floors
     # per second: enough to follow a real change within a few scans, too few to matter otherwise
     anywhere_rate_per_s: float = 1.0 / 300.0  # without connectors: rate of a floor change anywhere
-    # with a barometer, inside a connector the height decides the floor: a particle in a
-    # connector linking the floor the height is nearest (``FloorFix.height_floor``) is moved
-    # there at once. A climber's or rider's floor flips where their height passes half a storey;
-    # the memoryless rate above has only a few per cent of the cloud on the new floor then (the
-    # barometer kills those that jumped early), and the new floor won only after 1-3 s
-    height_decides_in_connector: bool = True  # in a connector, the barometer's floor wins at once
-    # on stairs a step advances one tread, not a stride: building codes ask 0.22-0.30 m of
-    # going (tread depth) and most stairs have 0.25-0.30 m; a particle starting a step on a
-    # stairs polygon moves this far instead (drawn per step), so the cloud stays on the stairs
-    # while the climber does and can take them when the height says so. PDR's 0.4-1.0 m stride
-    # walked it off a 6 m flight before the climber was half-way up
-    stairs_tread_m: tuple[float, float] = (0.22, 0.32)  # a step on stairs advances this far (drawn)
+
+    def __post_init__(self) -> None:
+        for name in ("connector_rate_per_s", "anywhere_rate_per_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise MapfilterError(f"floor change setting {name} must be a rate >= 0 per second, got {value}")
+
+
+# on stairs a step advances one tread, not a stride: building codes ask 0.22-0.30 m of going
+# (tread depth) and most stairs have 0.25-0.30 m; a particle starting a step on a stairs polygon
+# moves this far instead (drawn per step), so the cloud stays on the stairs while the climber
+# does and can take them when the height says so (PDR's 0.4-1.0 m stride walked it off a 6 m
+# flight before the climber was half-way up)
+STAIRS_TREAD_M = (0.22, 0.32)
 
 
 class FloorChanges(FloorModel):
@@ -183,7 +182,9 @@ class FloorChanges(FloorModel):
     ``connector_rate_per_s`` to another floor the connector links (chosen alike), landing at
     the same building-frame point when that is inside the connector there, else on a random
     free pixel of the connector's polygon on that floor; with a barometer, every particle in a
-    connector to the floor the height is nearest goes there (``height_decides_in_connector``).
+    connector to the floor the height is nearest goes there at once: a climber's or rider's floor
+    flips where their height passes half a storey, and the memoryless rate has only a few per
+    cent of the cloud on the new floor then.
     Without connectors (ILC plans mark none): anywhere at ``anywhere_rate_per_s``, to the same
     building-frame point of another floor (chosen alike), dying (where it stood) where that
     point is no free space.
@@ -264,7 +265,7 @@ class FloorChanges(FloorModel):
 
     def step_on_stairs(self, from_xy_m: np.ndarray, to_xy_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One PDR step's end points, with every step that starts on stairs shortened to a tread
-        (``stairs_tread_m``) along its own direction; the rest as given (a new array)."""
+        (``STAIRS_TREAD_M``) along its own direction; the rest as given (a new array)."""
         out = np.array(to_xy_m, dtype=np.float64, copy=True)
         if not self.on_stairs.any():
             return out
@@ -276,7 +277,7 @@ class FloorChanges(FloorModel):
             return out
         move = out[idx] - from_xy_m[idx]
         length = np.linalg.norm(move, axis=1)
-        tread = rng.uniform(*self.config.stairs_tread_m, idx.size)
+        tread = rng.uniform(*STAIRS_TREAD_M, idx.size)
         scale = np.where(length > tread, tread / np.maximum(length, 1e-12), 1.0)
         out[idx] = from_xy_m[idx] + scale[:, None] * move
         return out
@@ -285,8 +286,7 @@ class FloorChanges(FloorModel):
                       rng: np.random.Generator, measurement: object = None) -> np.ndarray:
         """Change the floor of some live particles in place (``particles.xy_m``); returns the
         log weights with particles that landed on no floor killed. ``measurement``: the step's
-        measurement; a ``FloorFix`` with a ``height_floor`` moves the connectors' particles there
-        (``height_decides_in_connector``)."""
+        measurement; a ``FloorFix`` with a ``height_floor`` moves the connectors' particles there."""
         self.changed_last_step = 0
         particles.log_weight = log_weight  # the weights after the wall check, for the measurement
         stack = self.stack
@@ -307,7 +307,7 @@ class FloorChanges(FloorModel):
                 choices = [f for f in self.connector_cells[conn[m]] if f != floor[i]]
                 dest[i] = choices[int(rng.integers(0, len(choices)))]
             height_floor = measurement.height_floor if isinstance(measurement, FloorFix) else None
-            if self.config.height_decides_in_connector and height_floor is not None:
+            if height_floor is not None:
                 # the height's floor wins over the random choice, for every particle in a connector to it
                 leads = np.array([height_floor in cells for cells in self.connector_cells])
                 follow = np.flatnonzero(in_connector & leads[np.maximum(conn, 0)]
@@ -389,7 +389,7 @@ class FloorFixLikelihood(MeasurementModel):
         log L_i = vote_f + pos_i - log( sum_{j on f} w_j exp(pos_j) / sum_{j on f} w_j )
         pos_i   = -|x_i - fix_f|^2 / (2 sigma_f^2)
 
-    where ``vote_f`` is the scan's floor log-likelihood (``sensors.floors.
+    where ``vote_f`` is the scan's floor log-likelihood (``sensors.floor_vote.
     floor_vote_log_likelihood``) and ``fix_f`` the fix made from floor f's fingerprints only
     (a floor without a fix gives every particle there the value of a fix 3 sigma away). The
     normaliser makes the position term a reweighting *within* each floor: the weight of a
@@ -408,7 +408,7 @@ class FloorFixLikelihood(MeasurementModel):
     # vote alone never gets there (its pseudo-count keeps floors within log(k + 1) = 1.6 nats
     # for k = 4); a barometer 2.6 m up a 4 m storey, 0.6 m past its half-way (-(4 m - h)^2 / 2
     # against -h^2 / 2 at 1 m sigma), or a given floor does. With connectors the height moves
-    # their particles first (``FloorChangeConfig.height_decides_in_connector``), so this is
+    # their particles first (``FloorChanges.change_floors``), so this is
     # for a cloud that is nowhere near one.
     floor_collapse_nats: float = 2.5
 

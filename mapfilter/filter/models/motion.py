@@ -22,6 +22,11 @@ from mapfilter.filter.models.interface import MotionModel, MoveKernel
 
 __all__ = ["ConstantVelocityMotion", "PDRMotion", "RandomWalkMotion", "StepInput"]
 
+# PDR (thesis eq. 8.23): the model's shape, not a user's choice
+TURN_THRESHOLD_RAD = 0.35  # a heading change at least this large (~20 deg) is a turn some particles ignore
+STEP_LENGTH_WALK_SIGMA_M = 0.02  # per step, the random walk of the state's step length (eq. 8.23)
+POSITION_SIGMA_M = 0.05  # per step, lateral/longitudinal slack: the step's end is not a point
+
 
 def _check_non_negative(owner: str, **values: float) -> None:
     for name, value in values.items():
@@ -165,25 +170,21 @@ class PDRMotion(MotionModel):
     """Pedestrian dead reckoning with the state [x, y, heading, step length] (Lund thesis eq. 8.23).
 
     Per particle: heading += change + N(0, heading_sigma^2), where a share ``false_turn_fraction``
-    of the particles ignores a change of at least ``turn_threshold_rad`` ("false turns"); step
-    length L += N(0, step_length_walk_sigma^2 n) clipped to [min, max] (a random walk the filter
-    adapts through resampling); then xy += n L (cos h, sin h) + N(0, position_sigma^2 n I).
+    of the particles ignores a change of at least ``TURN_THRESHOLD_RAD`` ("false turns"); step
+    length L += N(0, STEP_LENGTH_WALK_SIGMA_M^2 n) clipped to [min, max] (a random walk the filter
+    adapts through resampling); then xy += n L (cos h, sin h) + N(0, POSITION_SIGMA_M^2 n I).
     """
 
     walks_in_steps: ClassVar[bool] = True
 
-    heading_sigma_rad: float = 0.05  # per filter step
+    # 0.02 rad: the gyro is good over a step; 0.05 let clouds fan out and measured worse on ILC F1
+    heading_sigma_rad: float = 0.02  # per filter step
     false_turn_fraction: float = 0.15  # thesis: 15 % of particles ignore a detected turn
-    turn_threshold_rad: float = 0.35  # a change at least this large counts as a turn (~20 deg)
-    step_length_walk_sigma_m: float = 0.02  # per step, random walk of the state (eq. 8.23)
     step_length_min_m: float = 0.4  # the state's step length stays within [min, max]
     step_length_max_m: float = 1.0  # (see step_length_min_m)
-    position_sigma_m: float = 0.05  # per step, lateral/longitudinal slack
 
     def __post_init__(self) -> None:
-        _check_non_negative("PDR", heading_sigma_rad=self.heading_sigma_rad, turn_threshold_rad=self.turn_threshold_rad,
-                            step_length_walk_sigma_m=self.step_length_walk_sigma_m,
-                            position_sigma_m=self.position_sigma_m)
+        _check_non_negative("PDR", heading_sigma_rad=self.heading_sigma_rad)
         if not 0.0 <= self.false_turn_fraction <= 1.0:
             raise MapfilterError(f"PDR setting false_turn_fraction must be in [0, 1], got {self.false_turn_fraction}")
         if not 0.0 < self.step_length_min_m <= self.step_length_max_m < math.inf:
@@ -197,17 +198,17 @@ class PDRMotion(MotionModel):
         if n_steps < 0:
             raise ValueError(f"n_steps must be >= 0, got {n_steps}")
         change = float(inputs.heading_change_rad)
-        share = self.false_turn_fraction if abs(change) >= self.turn_threshold_rad else 0.0
+        share = self.false_turn_fraction if abs(change) >= TURN_THRESHOLD_RAD else 0.0
         params = np.zeros(8)
         params[_P_STEPS] = n_steps
         params[_P_CHANGE] = change
         params[_P_HEADING_SIGMA] = self.heading_sigma_rad
         params[_P_FALSE_TURN] = (-math.inf if share <= 0.0 else math.inf if share >= 1.0
                                  else statistics.NormalDist().inv_cdf(share))
-        params[_P_LENGTH_SIGMA] = self.step_length_walk_sigma_m * math.sqrt(n_steps)
+        params[_P_LENGTH_SIGMA] = STEP_LENGTH_WALK_SIGMA_M * math.sqrt(n_steps)
         params[_P_LENGTH_MIN] = self.step_length_min_m
         params[_P_LENGTH_MAX] = self.step_length_max_m
-        params[_P_POSITION_SIGMA] = self.position_sigma_m * math.sqrt(n_steps)
+        params[_P_POSITION_SIGMA] = POSITION_SIGMA_M * math.sqrt(n_steps)
         return MoveKernel(_pdr_step, params, 3)
 
     def predict(self, state: np.ndarray, inputs: StepInput | None, dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:

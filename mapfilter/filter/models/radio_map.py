@@ -19,21 +19,25 @@ from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.wifi import WifiScan
 
 
+# The spread of the radio map over space, past the kernel's width: a weak prior where data are
+# thin, so that a cell without data neither wins nor kills a particle
+SUPPORT_SIGMAS = 3.0  # cells farther than this many kernel sigmas from every point have no data
+SIGMA_FLOOR_DB = 4.0  # added in quadrature: the kernel average underestimates the spread
+PRIOR_SIGMA_DB = 6.0  # RSSI spread where an AP has few observations (pseudo-count below)
+PRIOR_WEIGHT = 0.5  # pseudo-count of the prior, in kernel-weight units
+PRIOR_HEARD = 0.05  # P(heard) where there is no data
+PRIOR_RSSI_DBM = -95.0  # mean RSSI assumed where an AP is heard without data there
+HEARD_CLIP = 0.02  # P(heard) kept in [clip, 1 - clip]: APs drop out and pop up at random
+MIN_OBSERVATIONS = 2  # APs heard in fewer reference points are ignored (no spread from one reading)
+MIN_WEIGHT = 0.02  # an AP's kernel weight below which a cell keeps the prior (keeps the tables sparse)
+
+
 @dataclasses.dataclass(frozen=True)
 class RadioMapLikelihoodConfig:
-    """How the radio map is spread over space (defaults in brackets)."""
+    """How the radio map is spread over space."""
 
     cell_m: float = 1.0  # grid cell; particles read their nearest cell
     bandwidth_m: float = 3.0  # Gaussian kernel sigma for averaging reference points
-    support_sigmas: float = 3.0  # cells farther than this many sigmas from every point: no data
-    sigma_floor_db: float = 4.0  # added in quadrature: the kernel average underestimates spread
-    prior_sigma_db: float = 6.0  # spread where an AP has few observations (pseudo-count below)
-    prior_weight: float = 0.5  # pseudo-count of the prior, in kernel-weight units
-    prior_heard: float = 0.05  # P(heard) where there is no data
-    prior_rssi_dbm: float = -95.0  # mean RSSI assumed where an AP is heard without data there
-    heard_clip: float = 0.02  # P(heard) kept in [clip, 1 - clip]: APs drop out / pop up at random
-    min_observations: int = 2  # APs heard in fewer reference points are ignored
-    min_weight: float = 0.02  # an AP's kernel weight below which a cell keeps the prior (sparsity)
     exponent: float = 1.0  # tempering: APs are not independent; < 1 flattens the likelihood
 
 
@@ -42,7 +46,7 @@ class RadioMapLikelihood(MeasurementModel):
 
     On a grid over the floor, each AP's RSSI mean mu_k, spread sigma_k and probability of
     being heard h_k are Gaussian-kernel averages of the reference points, shrunk toward a
-    weak prior (pseudo-count ``prior_weight``) where data are thin. A grown point with position
+    weak prior (pseudo-count ``PRIOR_WEIGHT``) where data are thin. A grown point with position
     uncertainty s (``RadioMap.xy_sigma_m``) enters with its kernel convolved by it (variance
     bandwidth^2 + s^2, height bandwidth^2 / (bandwidth^2 + s^2)). A scan's log-likelihood
     at a cell is
@@ -71,15 +75,15 @@ class RadioMapLikelihood(MeasurementModel):
 
         cfg = self.config = config
         heard = ~np.isnan(radio_map.rssi_dbm)
-        use_aps = np.nonzero(heard.sum(axis=0) >= cfg.min_observations)[0]
+        use_aps = np.nonzero(heard.sum(axis=0) >= MIN_OBSERVATIONS)[0]
         if use_aps.size == 0 or len(radio_map) == 0:
-            raise MapfilterError(f"the radio map has no AP heard in {cfg.min_observations} reference points")
+            raise MapfilterError(f"the radio map has no AP heard in {MIN_OBSERVATIONS} reference points")
         self.ap_keys = [radio_map.ap_keys[j] for j in use_aps]
         tabled = np.ones(use_aps.size, dtype=bool) if heard_keys is None else np.isin(self.ap_keys, list(heard_keys))
         self.key_index = {key: j for j, key in enumerate(self.ap_keys) if tabled[j]}
         n_aps = use_aps.size
         # grid: the floor plan's extent, else the reference points' bounding box plus the kernel support
-        reach = cfg.bandwidth_m * cfg.support_sigmas
+        reach = cfg.bandwidth_m * SUPPORT_SIGMAS
         if floorplan is not None:
             x0, x1, y0, y1 = floorplan.extent_m
         else:
@@ -97,7 +101,7 @@ class RadioMapLikelihood(MeasurementModel):
         self.cell_of[active] = np.arange(n_cells)
         self.cell_xy_m = centres[active]
 
-        prior_var = cfg.prior_sigma_db ** 2 + cfg.sigma_floor_db ** 2
+        prior_var = PRIOR_SIGMA_DB ** 2 + SIGMA_FLOOR_DB ** 2
         # kernel weights cell x reference point, sparse: only points within the support count,
         # and a point hears a few per cent of the APs, so W @ H is a sparse product
         from scipy import sparse
@@ -136,18 +140,18 @@ class RadioMapLikelihood(MeasurementModel):
         self._ap_ptr = np.zeros(n_aps + 1, dtype=np.int64)
         self._cell = np.zeros(0, dtype=np.int32)
         self._mu = self._inv_var = self._offset = np.zeros(0, dtype=np.float32)
-        clip = cfg.heard_clip
-        pw = cfg.prior_weight
+        clip = HEARD_CLIP
+        pw = PRIOR_WEIGHT
         # the prior per cell: an AP never heard near the cell
-        p0 = np.clip(cfg.prior_weight * cfg.prior_heard / (w_all + cfg.prior_weight), clip, 1 - clip)
-        self._prior_mu_dbm = cfg.prior_rssi_dbm
+        p0 = np.clip(PRIOR_WEIGHT * PRIOR_HEARD / (w_all + PRIOR_WEIGHT), clip, 1 - clip)
+        self._prior_mu_dbm = PRIOR_RSSI_DBM
         self._prior_inv_var = 1.0 / prior_var
         self._prior_offset = np.log(p0) - 0.5 * np.log(2 * np.pi * prior_var) - np.log1p(-p0)  # (cells + 1,)
         # every AP unheard: the prior everywhere, corrected where an AP has data (all APs)
         self.base = n_aps * np.log1p(-p0)
-        data = all_wh > cfg.min_weight
+        data = all_wh > MIN_WEIGHT
         base_cell = all_cell[data]
-        p_heard_all = np.clip((all_wh[data] + pw * cfg.prior_heard) / (w_all[base_cell] + pw), clip, 1 - clip)
+        p_heard_all = np.clip((all_wh[data] + pw * PRIOR_HEARD) / (w_all[base_cell] + pw), clip, 1 - clip)
         np.add.at(self.base, base_cell, np.log1p(-p_heard_all) - np.log1p(-p0[base_cell]))
 
     def build_tables(self, keys: Collection[str]) -> None:
@@ -165,7 +169,6 @@ class RadioMapLikelihood(MeasurementModel):
         if new.size == 0:
             return
         self._built[new] = True
-        cfg = self.config
         n_aps = self._n_aps
         ref, ap_col, values = self._observed
         all_cell, all_ap, all_wh = self._entries
@@ -186,16 +189,16 @@ class RadioMapLikelihood(MeasurementModel):
         in_table = tabled[all_ap]
         cell, ap, wh = all_cell[in_table], all_ap[in_table], all_wh[in_table]
         # below the threshold the prior's pseudo-count dominates: keep the prior there
-        keep = wh > cfg.min_weight
+        keep = wh > MIN_WEIGHT
         cell, ap, wh, s1, s2 = cell[keep], ap[keep], wh[keep], s1[keep], s2[keep]
-        pw = cfg.prior_weight
-        mu = (s1 + pw * cfg.prior_rssi_dbm) / (wh + pw)
+        pw = PRIOR_WEIGHT
+        mu = (s1 + pw * PRIOR_RSSI_DBM) / (wh + pw)
         # weighted spread around mu, the prior's spread counting as pw pseudo-observations
-        var = (s2 - 2 * mu * s1 + mu * mu * wh + pw * cfg.prior_sigma_db ** 2) / (wh + pw)
-        var = np.maximum(var, 0.0) + cfg.sigma_floor_db ** 2
-        p_heard = (wh + pw * cfg.prior_heard) / (w_all[cell] + pw)
+        var = (s2 - 2 * mu * s1 + mu * mu * wh + pw * PRIOR_SIGMA_DB ** 2) / (wh + pw)
+        var = np.maximum(var, 0.0) + SIGMA_FLOOR_DB ** 2
+        p_heard = (wh + pw * PRIOR_HEARD) / (w_all[cell] + pw)
         ap, cell = ap.astype(np.int64), cell.astype(np.int64)
-        p_heard = np.clip(p_heard, cfg.heard_clip, 1 - cfg.heard_clip)
+        p_heard = np.clip(p_heard, HEARD_CLIP, 1 - HEARD_CLIP)
         self._tables.append((ap, cell.astype(np.int32), mu.astype(np.float32), (1.0 / var).astype(np.float32),
                              (np.log(p_heard) - 0.5 * np.log(2 * np.pi * var) - np.log1p(-p_heard)).astype(np.float32)))
         # sparse per-AP tables (CSR by AP): log h + log N normaliser - log(1 - h), mean, 1/var;

@@ -24,7 +24,7 @@ from mapfilter.filter.tracker import MotionConfig
 from mapfilter.maps.paths import detour_wall_crossings
 from mapfilter.offline.placement import place_walk
 from mapfilter.offline.whole_walk import OfflineConfig, OfflineTrack, restarted_run, placed_track, whole_walk_track
-from mapfilter.sensors.floors import WholeWalkFloors, whole_walk_floor_path
+from mapfilter.sensors.floor_vote import WholeWalkFloors, whole_walk_floor_path
 from mapfilter.sensors.pdr import Steps
 from mapfilter.trackio import Track
 
@@ -155,7 +155,7 @@ def whole_walk_floors(changes: FloorChanges, evidence: BuildingEvidence, t_s: np
     """The floor of every row (T,) of an offline track (stack frame), decided from the whole walk,
     and each row's floor posterior (``WholeWalkFloors``).
 
-    The filter's own model, smoothed instead of filtered (``sensors.floors.whole_walk_floor_path``,
+    The filter's own model, smoothed instead of filtered (``sensors.floor_vote.whole_walk_floor_path``,
     Viterbi; the posterior by forward-backward): each usable scan weighs floors by the filter's
     floor evidence (the WiFi vote); the walker changes floor at the filter's rates (``FloorChangeConfig``): with connectors only
     between floors a connector links and only at rows where the track's building-frame point is
@@ -197,7 +197,7 @@ def whole_walk_floors(changes: FloorChanges, evidence: BuildingEvidence, t_s: np
             rates[:, f, nearest] = config.anywhere_rate_per_s / len(nearest)
     height = elevation = None
     if evidence.pressure is not None:
-        baro_t, baro_h = barometric_height(*evidence.pressure, evidence.barometer.smoothing_window_s, centred=True)
+        baro_t, baro_h = barometric_height(*evidence.pressure, centred=True)
         height = np.interp(times, baro_t, baro_h)
         elevation = evidence.elevation_m
     return whole_walk_floor_path(times, floor_evidence, rates, height, elevation, evidence.barometer.sigma_m)
