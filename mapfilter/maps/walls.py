@@ -308,15 +308,19 @@ _MIN_MARCH_PX = 0.5  # fronts whose clearance is below this stop the march
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def move_crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer):
-    """Does the move (ax, ay) -> (bx, by) in world metres touch a wall pixel? The one wall check
-    of the package (the filter's passes and :func:`crosses_wall`).
+    """Does the move (ax, ay) -> (bx, by) in world metres touch a wall pixel? The filter's wall
+    check (its passes and the smoother).
 
     First whether it ends in a wall or off the map, then the clearance of the pixels at its
     ends (a segment shorter than the sum of the clearances of its end pixels touches no wall:
     the two discs cover it), a march along the clearance from both ends ("sphere tracing"), a
     look at the pixel under the middle of what is left, and the exact walk of that piece.
     Callers in a hot loop test the start pixel's clearance themselves first (most moves end
-    there; written out in the loop, that test costs a fifth of a call)."""
+    there; written out in the loop, that test costs a fifth of a call).
+
+    The same answer as :func:`crosses_wall` except for a move through a lattice corner exactly
+    (the pieces are split at float points): measure zero for particles, whose positions are
+    continuous; :func:`crosses_wall` is exact."""
     h, w = clearance.shape
     u0 = (ax - x0_m) * inv_res
     v0 = h - (ay - y0_m) * inv_res
@@ -367,8 +371,8 @@ def move_crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer
 def _crosses_world_kernel(lo, hi, mask, clearance_px, x0_m, y0_m, resolution_m, from_xy_m, to_xy_m, out, no_buffer):
     inv = 1.0 / resolution_m
     for i in range(lo, hi):
-        out[i] = move_crosses(mask, clearance_px, x0_m, y0_m, inv, from_xy_m[i, 0], from_xy_m[i, 1],
-                              to_xy_m[i, 0], to_xy_m[i, 1], no_buffer)
+        out[i] = _segment_crosses_world(mask, clearance_px, x0_m, y0_m, inv, from_xy_m[i, 0], from_xy_m[i, 1],
+                                        to_xy_m[i, 0], to_xy_m[i, 1], no_buffer)
 
 
 _CLEARANCE_CACHE: "weakref.WeakKeyDictionary[FloorPlan, tuple[np.ndarray, np.ndarray]]" = weakref.WeakKeyDictionary()

@@ -243,8 +243,8 @@ class FloorChanges(FloorModel):
     def change_probability(self, xy_m: np.ndarray, dt_s: float) -> np.ndarray:
         """(M, F) the probability of moving to each floor over ``dt_s`` (the smoother's transition):
         in a connector, to each floor it links; without connectors, anywhere to every other floor.
-        With the barometer deciding in connectors, a connector's particle may take it at once
-        (the filter moves every one of them when the height says so): there, one half."""
+        The barometer decides in connectors (the filter moves every particle of a connector when
+        the height says so), so a connector's particle may take it at once: there, one half."""
         stack = self.stack
         out = np.zeros((len(xy_m), stack.n_floors))
         if stack.n_floors < 2 or dt_s <= 0.0:
@@ -252,9 +252,7 @@ class FloorChanges(FloorModel):
         if not self.has_connectors:
             out[:] = -math.expm1(-self.config.anywhere_rate_per_s * dt_s) / (stack.n_floors - 1)
             return out
-        p = -math.expm1(-self.config.connector_rate_per_s * dt_s)
-        if self.config.height_decides_in_connector:
-            p = max(p, 0.5)
+        p = max(-math.expm1(-self.config.connector_rate_per_s * dt_s), 0.5)
         rows, cols, inside = stack.plan.pixel_index(np.asarray(xy_m, dtype=np.float64))
         conn = np.full(len(xy_m), -1)
         conn[inside] = self.connector_id[rows[inside], cols[inside]]
