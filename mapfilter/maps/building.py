@@ -50,9 +50,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import shapely
 import yaml
-from shapely.geometry import shape as geojson_shape
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
@@ -91,6 +89,8 @@ class Floor:
     def outline_in_building(self) -> shapely.Polygon:
         """The map's rectangle (its extent) in the building frame."""
         x0, x1, y0, y1 = self.plan.extent_m
+        import shapely  # here: a map without connectors never needs it (a tenth of a second to import)
+
         return shapely.Polygon(self.to_building(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])))
 
 
@@ -323,6 +323,8 @@ def connector_pixels(plan: FloorPlan, polygon: shapely.Geometry) -> tuple[np.nda
     rr, cc = np.mgrid[r0:r1 + 1, c0:c1 + 1]
     rr, cc = rr.ravel(), cc.ravel()
     centres = plan.pixel_to_world(np.stack([cc + 0.5, rr + 0.5], axis=-1))
+    import shapely
+
     inside = shapely.contains_xy(polygon, centres[:, 0], centres[:, 1]) & ~plan.wall_mask[rr, cc]
     return rr[inside], cc[inside]
 
@@ -335,6 +337,8 @@ def read_connectors_geojson(path: str | os.PathLike) -> list[Connector]:
     features = meta.get("features")
     if not isinstance(features, list):
         raise MapfilterError("connector GeoJSON has no 'features' list", path)
+    import shapely.geometry
+
     by_name: dict[str, Connector] = {}
     for index, feature in enumerate(features):
         props = (feature or {}).get("properties") or {}
@@ -342,7 +346,7 @@ def read_connectors_geojson(path: str | os.PathLike) -> list[Connector]:
         if not (name and kind and floor):
             raise MapfilterError(f"feature {index}: properties must give 'name', 'kind' and 'floor'", path)
         try:
-            polygon = shapely.make_valid(geojson_shape(feature["geometry"]))
+            polygon = shapely.make_valid(shapely.geometry.shape(feature["geometry"]))
         except Exception as exc:  # shapely raises several types for bad geometry
             raise MapfilterError(f"feature {index} has no valid geometry ({exc})", path) from None
         if polygon.geom_type not in ("Polygon", "MultiPolygon") or polygon.is_empty:
@@ -396,6 +400,8 @@ def _read_connector(path: Path, index: int, meta: Any) -> Connector:
     floors = meta.get("floors")
     if not isinstance(floors, dict):
         raise MapfilterError(f"connector {name!r}: 'floors' must map floor names to polygons", path)
+    import shapely
+
     polygons = {}
     for floor_name, ring in floors.items():
         try:

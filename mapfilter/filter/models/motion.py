@@ -222,9 +222,9 @@ class PDRMotion(MotionModel):
                                                              np.sin(state[HEADING] + change)])
         # across the track the heading noise, along it the step length's walk, both the slack
         length = float(np.mean(state[STEP]))
-        spread = math.sqrt(n * self.position_sigma_m ** 2 + (n * length * self.heading_sigma_rad) ** 2
-                           + n ** 3 * self.step_length_walk_sigma_m ** 2)
-        share = self.false_turn_fraction if abs(change) >= self.turn_threshold_rad else 0.0
+        spread = math.sqrt(n * POSITION_SIGMA_M ** 2 + (n * length * self.heading_sigma_rad) ** 2
+                           + n ** 3 * STEP_LENGTH_WALK_SIGMA_M ** 2)
+        share = self.false_turn_fraction if abs(change) >= TURN_THRESHOLD_RAD else 0.0
         if share <= 0.0:
             return turned[None], np.ones(1), spread
         straight = xy + distance[:, None] * np.column_stack([np.cos(state[HEADING]), np.sin(state[HEADING])])
