@@ -234,7 +234,7 @@ def markdown(rows: list[dict], summary: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     parser.add_argument("traces", nargs="*", type=Path, help="ILC traces (default: all of site1 F1 and F2)")
     parser.add_argument("--json", type=Path, help="write per-trace numbers and the summary here")
     parser.add_argument("--threshold", type=float, default=PDRConfig.step_threshold_mps3,

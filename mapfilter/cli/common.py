@@ -9,6 +9,7 @@ import math
 import os
 import sys
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 from mapfilter.engine import Engine
@@ -39,6 +40,25 @@ def add_engine_arguments(parser: argparse.ArgumentParser) -> None:
 
 def engine_from(args: argparse.Namespace) -> Engine:
     return Engine(jobs=args.jobs, scheduler=args.scheduler)
+
+
+# ---- argument order ------------------------------------------------------------------------------
+MAP_SUFFIXES = (".yaml", ".yml")
+
+
+def check_map_first(usage: str, map_path: Path, log_paths: Sequence[Path] = ()) -> None:
+    """Refuse arguments in the wrong order (``track LOG MAP``) in one line that says the map comes
+    first: a MAP that is a phone log, or a LOG that is a map YAML. ``usage``: the command's
+    synopsis, e.g. ``mapfilter track MAP LOG...``."""
+    from mapfilter.sensors.logs import sniff_log_format  # not at import: --help loads no numerical library
+
+    if Path(map_path).is_file() and Path(map_path).suffix.lower() not in MAP_SUFFIXES:
+        log_format = sniff_log_format(map_path)
+        if log_format is not None:
+            raise MapfilterError(f"is a phone log ({log_format}), not a map: the map comes first ({usage})", map_path)
+    for path in log_paths:
+        if Path(path).suffix.lower() in MAP_SUFFIXES and Path(path).is_file():
+            raise MapfilterError(f"is a map YAML, not a phone log: the map comes first ({usage})", path)
 
 
 # ---- output paths ------------------------------------------------------------------------------

@@ -11,8 +11,8 @@ import sys
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path, engine_from,
-                                  warn)
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_map_first,
+                                  check_output_path, engine_from, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
 
@@ -109,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.maps.building import Building
     from mapfilter.sensors.recording import trace_name
 
+    check_map_first("mapfilter evaluate MAP LOG...", args.map, [*args.logs, *args.survey, *args.unlabelled])
     config = tracking_config_from(args)
     methods = None if args.methods is None else tuple(m.strip() for m in args.methods.split(",") if m.strip())
     engine = engine_from(args)

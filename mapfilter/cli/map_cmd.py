@@ -7,7 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from mapfilter.cli.common import check_output_path
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 
 _PREPARE_EPILOG = """\
 kinds:
@@ -178,7 +178,7 @@ def run_prepare(args: argparse.Namespace) -> int:
     kind = args.kind or ("geojson" if args.plan.suffix.lower() in (".json", ".geojson") else "lines")
     edits = prepare.read_edits(args.edits) if args.edits else None
     if args.access_points is not None and not args.access_points.is_file():
-        raise MapfilterError("file not found", args.access_points)
+        raise not_a_file(args.access_points)
     if kind == "geojson":
         if args.size or args.scale_points or args.scale_distance:
             raise MapfilterError("a GeoJSON floor is already in real units: give only --resolution (m per pixel)",

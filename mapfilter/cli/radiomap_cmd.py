@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path,
-                                  engine_from, warn)
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_map_first,
+                                  check_output_path, engine_from, warn)
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
@@ -79,6 +79,7 @@ def _load(args: argparse.Namespace):
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
 
+    check_map_first(f"mapfilter radiomap {args.radiomap_command} MAP LOG...", args.map, args.logs)
     check_output_path(args.out)
     building = Building.load(args.map)
     floorplan = building.floors[0].plan if building.is_single_floor else building

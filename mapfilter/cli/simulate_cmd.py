@@ -11,7 +11,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from mapfilter.cli.common import bounded_float, bounded_int, check_output_path, non_negative_int
+from mapfilter.cli.common import bounded_float, bounded_int, check_map_first, check_output_path, non_negative_int
 from mapfilter.errors import MapfilterError
 
 # The defaults of mapfilter.simulate.walk.SimConfig that the options show, written out so that
@@ -127,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.simulate.ilc_writer import write_ilc
     from mapfilter.simulate.walk import SimConfig, offset_access_points, simulate_walk
 
+    check_map_first("mapfilter simulate MAP --out WALK.txt.gz", args.map)
     check_output_path(args.out)
     check_output_path(args.write_aps, "--write-aps")
     building = Building.load(args.map)  # a map YAML is a one-floor building

@@ -11,8 +11,8 @@ import time
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path, engine_from,
-                                  warn)
+from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_map_first,
+                                  check_output_path, engine_from, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
 
@@ -104,6 +104,7 @@ def causal_path(path: Path) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_map_first("mapfilter track MAP LOG...", args.map, args.logs)
     config = tracking_config_from(args)
     # every output checked before the work
     check_output_path(args.out)
@@ -208,6 +209,8 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     if args.rerun is not None:
         written.append((args.rerun, "rerun recording"))
     print(_summary(building, recording, result, header_floor, written))
+    if args.out is None:
+        print("  no track file written: give --out track.csv (or .tum) to keep the track")
     return 0
 
 
@@ -260,6 +263,7 @@ def _run_batch(args: argparse.Namespace, config) -> int:
 
     from mapfilter.batch import BUILDING_SUMMARY_COLUMNS, SUMMARY_COLUMNS, BatchSetup, WalkResult, summary_row, track_logs
     from mapfilter.maps.building import Building
+    from mapfilter.sensors.logs import missing_log
     from mapfilter.trackio import write_track
 
     for option in ("out", "rerun"):
@@ -269,7 +273,7 @@ def _run_batch(args: argparse.Namespace, config) -> int:
         raise MapfilterError("--spawn is for one walk, not for --out-dir")
     for path in args.logs:
         if not path.is_file():
-            raise MapfilterError("file not found", path)
+            raise missing_log(path)
     engine = engine_from(args)
     building = Building.load(args.map)
     if args.floor is not None:

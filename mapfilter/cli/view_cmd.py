@@ -43,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mapfilter.cli.common import check_output_path, warn
+    from mapfilter.cli.common import check_map_first, check_output_path, warn
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
     from mapfilter.trackio import read_track
@@ -51,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.rerun is not None and args.rerun.suffix != ".rrd":
         raise MapfilterError("the output of --rerun must end in .rrd", args.rerun)
+    check_map_first("mapfilter view MAP [TRACK...] --log LOG", args.map, [] if args.log is None else [args.log])
     check_output_path(args.rerun, "--rerun")
     # load everything before writing anything: a bad input leaves no half-made recording
     building = Building.load(args.map)

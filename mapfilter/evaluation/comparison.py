@@ -62,7 +62,7 @@ from mapfilter.maps.building import Building
 from mapfilter.sensors.floors import (build_building_radio_map, check_building_radio_map, floor_hmm,
                                      floor_vote_log_likelihood)
 from mapfilter.sensors.logread import LogReadWarning
-from mapfilter.sensors.logs import read_log, read_log_header
+from mapfilter.sensors.logs import missing_log, read_log, read_log_header
 from mapfilter.sensors.pathloss import (AccessPointTable, check_access_points_on_map, estimate_access_points,
                                        least_squares_position, match_scan)
 from mapfilter.sensors.pdr import Steps, detect_steps
@@ -660,7 +660,7 @@ def checked_log_paths(log_paths: Sequence[str | os.PathLike]) -> list[Path]:
     paths = [Path(p) for p in log_paths]
     for path in paths:
         if not path.is_file():
-            raise MapfilterError("file not found", path)
+            raise missing_log(path)
     names = [trace_name(p) for p in paths]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:

@@ -27,7 +27,7 @@ import yaml
 from scipy import ndimage
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 
 # map_server's defaults; pixel values we write: 0 = occupied, 254 = free.
 DEFAULT_OCCUPIED_THRESH = 0.65
@@ -304,7 +304,7 @@ def image_size_px(path: str | os.PathLike) -> tuple[int, int]:
     """
     path = Path(path)
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise not_a_file(path)
     with path.open("rb") as handle:
         head = handle.read(26)
     # PNG: the signature, then the IHDR chunk (length, type, width, height: big-endian)
@@ -373,7 +373,7 @@ def read_yaml_mapping(path: Path, what: str = "a map YAML") -> dict:
     """The mapping of keys in a YAML file (also JSON); ``MapfilterError`` naming the file (and
     the line of a syntax error) when it is missing, malformed or not a mapping."""
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise not_a_file(path)
     try:
         meta = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:

@@ -33,7 +33,7 @@ import yaml
 from shapely.geometry import shape as geojson_shape
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.maps.floorplan import MAX_IMAGE_PIXELS, FloorPlan, SourceImage, check_image_size, plan_geometry_problem
 
 EARTH_RADIUS_M = 6378137.0  # Web Mercator sphere (ILC README)
@@ -410,7 +410,7 @@ def read_geojson_floor(path: str | os.PathLike, units: str = "lonlat") -> Vector
     """
     path = Path(path)
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise not_a_file(path)
     try:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
@@ -520,7 +520,7 @@ def read_edits(path: str | os.PathLike) -> MapEdits:
     whose features carry ``properties: {"set": "free" | "wall"}``."""
     path = Path(path)
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise not_a_file(path)
     try:
         data = yaml.safe_load(path.read_text())  # YAML is a superset of JSON: reads both
     except yaml.YAMLError as exc:
@@ -660,7 +660,7 @@ def read_ilc_floor_info(floor_dir: str | os.PathLike) -> tuple[float, float]:
     """(width, height) in metres from an ILC ``floor_info.json``."""
     path = Path(floor_dir) / "floor_info.json"
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise not_a_file(path)
     try:
         info = json.loads(path.read_text())["map_info"]
         return _positive(info["width"], "width", path), _positive(info["height"], "height", path)

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.sensors import ilc, ipin
 from mapfilter.sensors.logread import iter_bounded_lines, open_binary
 from mapfilter.sensors.recording import Recording
@@ -38,6 +38,11 @@ KNOWN_FORMATS = (f"{ILC} (tab-separated TYPE_... records, '#' header)",
 _SNIFF_LINES = 200
 
 
+def missing_log(path: str | os.PathLike) -> MapfilterError:
+    """The error for a log path that is not a file: a directory names the logs meant."""
+    return not_a_file(path, f"give the logs in it, e.g. {os.path.join(path, '*.txt.gz')}")
+
+
 def log_format(path: str | os.PathLike) -> str:
     """``"ILC 2.0"`` or ``"GetSensorData"``, from the first lines of the file (plain or gzip).
 
@@ -46,7 +51,7 @@ def log_format(path: str | os.PathLike) -> str:
     """
     path = Path(path)
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise missing_log(path)
     seen_any = False
     try:
         with open_binary(path) as handle:
@@ -67,6 +72,15 @@ def log_format(path: str | os.PathLike) -> str:
     if not seen_any:
         raise MapfilterError("empty log", path)
     raise MapfilterError(f"unknown log format: the known formats are {'; '.join(KNOWN_FORMATS)}", path)
+
+
+def sniff_log_format(path: str | os.PathLike) -> str | None:
+    """The format of ``path`` when it is a readable phone log, else None (never raises): for
+    telling a log given where a map was meant (arguments in the wrong order)."""
+    try:
+        return log_format(path)
+    except MapfilterError:
+        return None
 
 
 def read_log(path: str | os.PathLike, strict: bool = False, warn: Callable[[str], None] | None = None, *,
