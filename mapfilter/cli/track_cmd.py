@@ -157,6 +157,7 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     from mapfilter.trackio import write_track
 
     out_format = track_format(args.out, args.format)
+    spawn = args.spawn and _viewer_can_start()
     building = Building.load(args.map)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
@@ -175,8 +176,9 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
 
     shown_floor = walk.floor_index if walk.floor_index is not None else (header_floor or 0)
-    logger = make_logger(building.floors[shown_floor].plan, rrd_path=args.rerun, spawn=args.spawn,
-                         max_particles=args.max_drawn_particles, recording_name=recording.name, stack=walk.stack)
+    logger = make_logger(building.floors[shown_floor].plan, rrd_path=args.rerun, spawn=spawn,
+                         max_particles=args.max_drawn_particles, recording_name=recording.name, stack=walk.stack,
+                         warn=warn)
     progress = _Progress(recording, config)
     with logger, progress:
         if recording.has_ground_truth and (walk.stack is None or header_floor is not None
@@ -212,6 +214,18 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     if args.out is None:
         print("  no track file written: give --out track.csv (or .tum) to keep the track")
     return 0
+
+
+def _viewer_can_start() -> bool:
+    """--spawn: whether a rerun viewer can start here; if not, one line says so and the run goes
+    on without one (a viewer spawned without a display blocks, and its run could hang)."""
+    from mapfilter.viz import viewer_problem
+
+    problem = viewer_problem()
+    if problem is not None:
+        warn(f"--spawn: no rerun viewer can start here: {problem}; tracking without one (write a recording "
+             "with --rerun FILE.rrd and open it where there is a display)")
+    return problem is None
 
 
 def _summary(building, recording, result, header_floor, written) -> str:
