@@ -159,11 +159,16 @@ def test_cli_grow_end_to_end(office, tmp_path, capsys):
     # the grown map tracks a walk through the CLI like any radio map
     assert main(["track", str(plan_yaml), str(office["held_out"][0]), "--radiomap", str(tmp_path / "grown.npz"),
                  "--particles", "300", "--out", str(tmp_path / "track.csv")]) == 0
-    # logs with waypoints (no --ignore-waypoints) are added as surveyed points, not grown
+    # logs with waypoints (no --ignore-waypoints) are added as surveyed points, not grown, and
+    # the printout says so and how to grow from them anyway
+    capsys.readouterr()
     assert main(["radiomap", "grow", str(plan_yaml), logs[0], "--radiomap", str(tmp_path / "base.npz"),
                  "--iterations", "1", "--particles", "300", "--out", str(tmp_path / "plus.npz")]) == 0
     plus = RadioMap.load(tmp_path / "plus.npz")
     assert len(plus) > len(base) and not plus.is_grown
+    out = capsys.readouterr().out
+    assert "grown: nothing: the walk has waypoints, so it was added as surveyed points" in out
+    assert "--ignore-waypoints grows from walks with waypoints" in out and "0 of 0 walks" not in out
 
 
 def test_cli_grow_errors_are_one_line_and_write_nothing(office, tmp_path, capsys):

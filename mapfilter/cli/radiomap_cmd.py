@@ -229,10 +229,19 @@ def run_grow(args: argparse.Namespace) -> int:
     sigma = grown.xy_sigma_m[len(base):]
     last = report.iterations[-1] if report.iterations else {}
     moved = last.get("moved_median_m", float("nan"))
-    print(f"grown: {report.points} points from {report.grown_walks} of {len(unlabelled)} walks without waypoints"
-          + (f", position sigma median {np.median(sigma):.1f} m, p90 {np.percentile(sigma, 90):.1f} m" if sigma.size
-             else "")
-          + (f"; {len(report.iterations)} iterations, last moved {moved:.2f} m (median)" if report.iterations else ""))
+    if unlabelled:
+        walks = "walks (their waypoints not read)" if args.ignore_waypoints else "walks without waypoints"
+        print(f"grown: {report.points} points from {report.grown_walks} of {len(unlabelled)} {walks}"
+              + (f", position sigma median {np.median(sigma):.1f} m, p90 {np.percentile(sigma, 90):.1f} m"
+                 if sigma.size else "")
+              + (f"; {len(report.iterations)} iteration{'s' if len(report.iterations) != 1 else ''}"
+                 if report.iterations else "")
+              + (f", last moved {moved:.2f} m (median)" if np.isfinite(moved) else ""))
+    else:
+        n = len(labelled)
+        print(f"grown: nothing: {'the walk has' if n == 1 else f'all {n} walks have'} waypoints, so "
+              f"{'it was' if n == 1 else 'they were'} added as surveyed points (labelled scans) instead; "
+              "--ignore-waypoints grows from walks with waypoints without reading them")
     if labelled:
         print(f"surveyed: {len(surveyed)} points from {len(labelled)} walks with waypoints")
     print(f"radio map: {len(grown)} reference points ({len(base) - (len(surveyed) if labelled else 0)} from "
