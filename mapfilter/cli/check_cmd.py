@@ -17,9 +17,14 @@ lines that held two records (split), a gzip stream cut short; and long stretches
 record at all (time gaps). A last line counts the logs. The exit code is 1 if any log cannot
 be read (each is named).
 
+With --map MAP (a map or building YAML), a warning names each log whose waypoints fall in the
+map's walls or outside it (latitude/longitude waypoints need a georeferenced building, as
+`mapfilter map import-ipin` writes).
+
 examples:
   mapfilter check ../shared/data/ilc20/site1/*/path_data_files/*.txt.gz
   mapfilter check ../shared/data/ipin2023/logs/*.txt.gz
+  mapfilter check walks/*.txt.gz --map floor.yaml
 """
 
 
@@ -30,13 +35,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("logs", type=Path, nargs="+", metavar="LOG",
                         help="logs (ILC 2.0 traces or GetSensorData logs, plain or gzip)")
+    parser.add_argument("--map", type=Path, metavar="MAP",
+                        help="warn about waypoints that fall in the walls of this map or building YAML")
     add_strict_argument(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from mapfilter.cli.common import check_map_first, waypoints_in_walls, warn
+    from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log  # not at import: --help loads no numerical library
 
+    building = None
+    if args.map is not None:
+        check_map_first("mapfilter check LOG... --map MAP", args.map)
+        building = Building.load(args.map)
     counts = {"readable": 0, "pdr": 0, "skipped": 0, "refused": 0, "gaps": 0}
     for path in args.logs:
         try:
@@ -53,6 +66,10 @@ def run(args: argparse.Namespace) -> int:
             counts["skipped"] += 1
         counts["gaps"] += bool(report.time_gaps_s)
         print(describe(recording))
+        if building is not None:
+            message = waypoints_in_walls(building, recording)
+            if message is not None:
+                warn(message)
     print(f"{len(args.logs)} logs: {counts['readable']} readable ({counts['pdr']} with IMU for dead reckoning), "
           f"{counts['skipped']} with rows skipped or split, {counts['gaps']} with time gaps, "
           f"{counts['refused']} refused")

@@ -61,6 +61,47 @@ def check_map_first(usage: str, map_path: Path, log_paths: Sequence[Path] = ()) 
             raise MapfilterError(f"is a map YAML, not a phone log: the map comes first ({usage})", path)
 
 
+# ---- ground truth against the map --------------------------------------------------------------
+def waypoints_in_walls(building, recording) -> str | None:
+    """One line when waypoints of ``recording`` fall in the walls of ``building`` (or outside its
+    maps), naming the log, how many and the first; a line saying why they cannot be checked
+    (latitude/longitude waypoints and a map without a georeference, no floor named in a
+    building); None when every waypoint is on free space or the log has none."""
+    import numpy as np
+
+    from mapfilter.sensors.logs import localise
+
+    if not recording.has_ground_truth:
+        return None
+    where = recording.path
+    try:
+        if recording.needs_georeference:
+            recording = localise(recording, building)
+        n = recording.waypoint_t_s.size
+        if building.is_single_floor:
+            floors = [building.floors[0].name] * n
+        else:
+            header = building.floor_of_log(recording.floor_name, where)
+            floors = list(recording.waypoint_floor) if recording.waypoint_floor else (
+                [building.floor_names[header]] * n if header is not None else None)
+            if floors is None:
+                return f"{where}: names no floor (FloorName): its waypoints cannot be checked against a building"
+    except MapfilterError as exc:
+        return f"{where}: its waypoints cannot be checked: {exc.reason}"
+    in_walls = np.zeros(n, dtype=bool)
+    for name in dict.fromkeys(floors):
+        on = np.array([f == name for f in floors])
+        in_walls[on] = ~building.floor(name).plan.is_free(recording.waypoint_xy_m[on])
+    if not in_walls.any():
+        return None
+    first = int(np.flatnonzero(in_walls)[0])
+    x, y = recording.waypoint_xy_m[first]
+    t = recording.waypoint_t_s[first] - recording.waypoint_t_s[0]
+    return (f"{where}: {int(in_walls.sum())} of {n} waypoints fall in walls or outside the map (the first at "
+            f"x {x:.1f} m, y {y:.1f} m, t {t:+.0f} s): a wrong scale or origin, closed outlines (--open-outlines), "
+            "or a plan of another floor?")
+
+
 # ---- output paths ------------------------------------------------------------------------------
 def check_output_path(path: str | os.PathLike | None, option: str = "--out", directory: bool = False) -> None:
     """Refuse an output path that cannot be written, before any work is done.
