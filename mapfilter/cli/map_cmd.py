@@ -226,7 +226,7 @@ def run_prepare(args: argparse.Namespace) -> int:
         plan.access_points_csv = args.access_points.resolve()
     hints = {"lines": ("you gave --keep-outside", "--remove-text PX drops ink blobs shorter than PX plan pixels"),
              "regions": ("you gave --keep-outside", "--remove-below PX frees wall blobs of fewer than PX plan pixels"),
-             "geojson": (None, "")}[kind]
+             "geojson": (None, None)}[kind]
     found = [f"{args.out}: {message}" for message in prepare.mask_warnings(plan, *hints)]
     found += _waypoints_in_walls(plan, args.check_logs)
     _write(plan, args.out)
@@ -265,8 +265,9 @@ def run_import_ilc(args: argparse.Namespace) -> int:
         plan = dataclasses.replace(plan, floor_name=named)
     if edits is not None:
         plan = prepare.apply_edits(plan, edits)
-    found = prepare.mask_warnings(plan, "the image route keeps the outside free; --route geojson walls it"
-                                  if args.route == "image" else None)
+    image = args.route == "image"
+    found = prepare.mask_warnings(plan, "the image route keeps the outside free; --route geojson walls it" if image
+                                  else None, "" if image else None)
     _write(plan, args.out)
     for message in found:
         warn(f"{args.out}: {message}")

@@ -589,12 +589,13 @@ MIN_FREE_FRACTION = 0.01  # less free space than this is a plan the outside fill
 SMALL_BLOB_M2 = 1.0  # a wall blob inside free space smaller than this is text, a mark or a pillar
 
 
-def mask_warnings(plan: FloorPlan, outside_hint: str | None = "", blob_hint: str = "") -> list[str]:
+def mask_warnings(plan: FloorPlan, outside_hint: str | None = "", blob_hint: str | None = "") -> list[str]:
     """What looks wrong with a finished mask, one line each (empty when nothing does): almost no
     free space; almost no walls (the free space one open area); free space reaching the map's
     edge (the outside walkable: ``outside_hint`` says why or how to wall it; None: not checked,
     the kind of plan walls the outside, as a GeoJSON outline does); small wall blobs inside free
-    space (text in corridors: ``blob_hint`` says how to remove them)."""
+    space (text in corridors: ``blob_hint`` says how to remove them; None: not checked, a vector
+    floor's small polygons are obstacles drawn on purpose)."""
     wall = plan.wall_mask
     free = ~wall
     found = []
@@ -615,6 +616,8 @@ def mask_warnings(plan: FloorPlan, outside_hint: str | None = "", blob_hint: str
     if outside_hint is not None and border.any():
         found.append(f"free space reaches the edge of the map ({border.sum() * plan.resolution_m:.0f} m of its border): "
                      "the outside of the building is walkable" + (f" ({outside_hint})" if outside_hint else ""))
+    if blob_hint is None:
+        return found
     count, _, stats, _ = cv2.connectedComponentsWithStats(wall.astype(np.uint8), connectivity=8)
     x, y, w, h, area = (stats[1:, i] for i in range(5))
     inside = (x > 0) & (y > 0) & (x + w < wall.shape[1]) & (y + h < wall.shape[0])
