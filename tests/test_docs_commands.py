@@ -270,8 +270,8 @@ class DocsRunner:
 
     def _run(self, command: Command, cwd: Path) -> tuple[str, str]:
         if command.needs_real_data and not (REAL_SHARED / "data").is_dir():
-            return "skip", (f"needs the real data in {REAL_SHARED / 'data'}, absent (tools/get_data.py fetches it; "
-                            "docs/data.md)")
+            return "skip", (f"needs the real data in {REAL_SHARED / 'data'}, absent (get it with `python3 "
+                            "tools/get_data.py`, docs/data.md)")
         if command.language == "python":
             with _in(cwd):
                 exec(compile(command.text, command.document, "exec"), {})
@@ -279,7 +279,9 @@ class DocsRunner:
         text, redirect = (command.text.split(" > ", 1) + [None])[:2]
         words = shlex.split(text)
         program = words[0]
-        if program in ("python3", ".venv/bin/pip") or words[:3] == [".venv/bin/python", "-m", "pytest"]:
+        if words[1:2] == ["tools/get_data.py"] and "--verify" not in words:
+            return "skip", "downloads or writes the real data: tests/test_get_data.py lays it out from local copies"
+        if program == ".venv/bin/pip" or words[:3] in (["python3", "-m", "venv"], [".venv/bin/python", "-m", "pytest"]):
             return "skip", "installing and the test suite: the fresh-clone walk-through runs these"
         if program == "apt-get":
             return "skip", "installs a system package"
@@ -292,7 +294,7 @@ class DocsRunner:
             if not cwd.exists():
                 shutil.copytree(self.workspace, cwd, symlinks=True)
         argv = _expand(text, cwd)[1:]
-        if program.endswith("python"):
+        if program.endswith(("python", "python3")):
             return self._script(argv, cwd, command)
         assert program in ("mapfilter", ".venv/bin/mapfilter"), f"unknown program {program}"
         return _mapfilter(_cut_real_logs(argv, cwd), cwd, None if redirect is None else cwd / redirect.strip())
