@@ -79,6 +79,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     view = parser.add_mutually_exclusive_group()
     view.add_argument("--rerun", type=Path, metavar="FILE.rrd", help="write a rerun recording of the run")
     view.add_argument("--spawn", action="store_true", help="stream the run to a new rerun viewer")
+    parser.add_argument("--plot", type=Path, metavar="FILE.png",
+                        help="draw the tracks, the ground truth (when the log has one) and the walls into a PNG "
+                             "(no viewer needed)")
     parser.add_argument("--max-drawn-particles", type=int, default=5000, metavar="N",
                         help="cap on particles drawn per step in rerun (default: 5000)")
     add_engine_arguments(parser)
@@ -111,6 +114,9 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None and config.smooth:
         check_output_path(causal_path(args.out))
     check_output_path(args.rerun, "--rerun")
+    check_output_path(args.plot, "--plot")
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        raise MapfilterError("the picture of --plot must end in .png", args.plot)
     check_output_path(args.adapted_aps, "--adapted-aps")
     check_output_path(args.out_dir, "--out-dir", directory=True)
     if args.adapted_aps is not None and args.out_dir is not None:
@@ -210,10 +216,35 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
             written.append((args.adapted_aps, "adapted access-point table"))
     if args.rerun is not None:
         written.append((args.rerun, "rerun recording"))
+    if args.plot is not None:
+        _plot(building.floors[shown_floor], recording, result, args.plot, walk.floor_index is None)
+        written.append((args.plot, "picture of the tracks"))
     print(_summary(building, recording, result, header_floor, written))
     if args.out is None:
         print("  no track file written: give --out track.csv (or .tum) to keep the track")
     return 0
+
+
+def _plot(floor, recording, result, path: Path, several_floors: bool) -> None:
+    """The tracks and the ground truth over the floor's walls (``evaluation.plots``); with several
+    floors, the rows on this floor only."""
+    import numpy as np
+
+    from mapfilter.evaluation.plots import plot_tracks_on_map
+
+    tracks = {}
+    for name, track in (("causal", result.causal), ("offline", result.offline)):
+        if track is None:
+            continue
+        on = np.ones(len(track), dtype=bool) if track.floor is None or not several_floors else (
+            np.array(track.floor) == floor.name)
+        tracks[name] = track.xy_m[on]
+    truth = None
+    if recording.has_ground_truth:
+        truth = recording.waypoint_xy_m
+        if recording.waypoint_floor is not None:
+            truth = truth[np.array(recording.waypoint_floor) == floor.name]
+    plot_tracks_on_map(floor.plan, tracks, path, truth, title=f"{recording.name} on {floor.name}")
 
 
 def _viewer_can_start() -> bool:
@@ -280,7 +311,7 @@ def _run_batch(args: argparse.Namespace, config) -> int:
     from mapfilter.sensors.logs import missing_log
     from mapfilter.trackio import write_track
 
-    for option in ("out", "rerun"):
+    for option in ("out", "rerun", "plot"):
         if getattr(args, option) is not None:
             raise MapfilterError(f"--{option} is for one walk: with --out-dir every walk gets its own track file")
     if args.spawn:
