@@ -11,8 +11,9 @@ import sys
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_map_first,
-                                  check_output_path, engine_from, warn)
+from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arguments, add_strict_argument,
+                                  announce_estimate, check_map_first, check_output_path, duration_text, engine_from,
+                                  estimate_tracking_s, walk_spans_s, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
 
@@ -138,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
         _clear_earlier_run(args.out)
     args.out.mkdir(parents=True, exist_ok=True)
     plans = _plans_for_pictures(building, args.logs)
+    _announce(args, building, methods, config, len(resumed))
 
     def finished(outcome) -> None:
         # each walk's numbers, tracks and picture as it finishes: an interrupted run keeps them
@@ -167,6 +169,24 @@ def run(args: argparse.Namespace) -> int:
         warn(message)
     _write_summary(args, evaluation, config, methods_for(building), complete=True)
     return 1 if evaluation.failed else 0
+
+
+def _announce(args, building, methods, config, n_resumed: int) -> None:
+    """The run's rough time, before it starts, when it is long: the particle filter runs of every
+    walk (the baselines cost little beside them) and of the walks that grow the radio map."""
+    pf_runs = [m for m in (methods or (ALL_METHODS if building.is_single_floor else BUILDING_METHODS))
+               if m.startswith("pf")]
+    runs = len(pf_runs) + (SMOOTH_EXTRA_RUNS if config.smooth and "pf" in pf_runs else 0)
+    spans = walk_spans_s(args.logs)
+    growing = walk_spans_s(args.unlabelled) + (spans if args.transductive else [])
+    workers = args.jobs if args.scheduler is None else 1
+    seconds = estimate_tracking_s(spans, config.filter.n_particles, runs, workers)
+    seconds *= 1 - n_resumed / max(1, len(args.logs))
+    # growing: each walk tracked offline, up to 3 rounds (selftrain.GrowConfig.max_iterations)
+    seconds += estimate_tracking_s(growing, config.filter.n_particles, 3 * (1 + SMOOTH_EXTRA_RUNS), workers)
+    announce_estimate(f"evaluating {len(args.logs)} walk{'s' if len(args.logs) != 1 else ''}", seconds,
+                      f"{duration_text(sum(spans))} of walks, {len(pf_runs)} particle filter methods of "
+                      f"{config.filter.n_particles} particles, {workers} worker{'s' if workers != 1 else ''}")
 
 
 def _clear_earlier_run(out: Path) -> None:

@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_map_first,
-                                  check_output_path, engine_from, warn)
+from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arguments, add_strict_argument,
+                                  announce_estimate, check_map_first, check_output_path, duration_text, engine_from,
+                                  estimate_tracking_s, warn)
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
@@ -102,6 +103,14 @@ def _load(args: argparse.Namespace):
             recordings.append(recording)
             progress(done, len(paths), path.name)
     return floorplan, recordings
+
+
+def _span_s(recording) -> float:
+    """The walk's time in seconds: its span less the gaps its reader found."""
+    report = recording.read_report
+    if report is None or report.time_span_s is None:
+        return 0.0
+    return float(report.time_span_s[1] - report.time_span_s[0] - sum(b - a for a, b in report.time_gaps_s or ()))
 
 
 def _trace_id(path: Path) -> str:
@@ -220,6 +229,12 @@ def run_grow(args: argparse.Namespace) -> int:
         base = merge_radio_maps([base, surveyed])
     config = GrowConfig(tracking=TrackingConfig().with_particles(args.particles), max_iterations=args.iterations,
                         wifi_only=args.wifi_only, seed=args.seed)
+    spans = [_span_s(rec) for rec in unlabelled]
+    workers = args.jobs if args.scheduler is None else 1
+    announce_estimate(f"growing from {len(unlabelled)} walks", estimate_tracking_s(
+        spans, args.particles, args.iterations * (1 + SMOOTH_EXTRA_RUNS), workers),
+        f"{duration_text(sum(spans))} of walks, up to {args.iterations} rounds of {args.particles} particles, "
+        f"{workers} worker{'s' if workers != 1 else ''}")
     with ProgressBar("grow", len(unlabelled) * args.iterations) as progress:
         grown, report = grow_radio_map(space, base, unlabelled, config, progress=progress, engine=engine)
     grown.save(args.out)

@@ -11,8 +11,9 @@ import time
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_map_first,
-                                  check_output_path, engine_from, warn)
+from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arguments, add_strict_argument,
+                                  announce_estimate, announce_recording_size, check_map_first, check_output_path,
+                                  duration_text, engine_from, estimate_tracking_s, walk_spans_s, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
 
@@ -179,6 +180,14 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
             warn(f"{log_path}: {int(in_walls.sum())} of {in_walls.size} waypoints lie in walls or outside the "
                  f"map {args.map}")
 
+    span_s = _span_s(recording)
+    particles = config.filter.n_particles
+    announce_estimate(f"tracking {recording.name}", estimate_tracking_s(
+        [span_s], particles, 1 + (SMOOTH_EXTRA_RUNS if config.smooth else 0)),
+        f"a {duration_text(span_s)} walk, {particles} particles")
+    if args.rerun is not None:
+        announce_recording_size(span_s, min(particles, args.max_drawn_particles), args.rerun)
+
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
 
     shown_floor = walk.floor_index if walk.floor_index is not None else (header_floor or 0)
@@ -223,6 +232,16 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     if args.out is None:
         print("  no track file written: give --out track.csv (or .tum) to keep the track")
     return 0
+
+
+def _span_s(recording) -> float:
+    """The walk's time in seconds: its span less the gaps its reader found (else its WiFi scans')."""
+    report = recording.read_report
+    if report is not None and report.time_span_s is not None:
+        gaps = sum(end - start for start, end in report.time_gaps_s or ())
+        return float(report.time_span_s[1] - report.time_span_s[0] - gaps)
+    times = recording.wifi.t_s
+    return float(times[-1] - times[0]) if len(times) else 0.0
 
 
 def _plot(floor, recording, result, path: Path, several_floors: bool) -> None:
@@ -340,6 +359,12 @@ def _run_batch(args: argparse.Namespace, config) -> int:
                 write_track(result.causal, causal_path(path), out_format, building)
             track_files[result.trace] = path.name
 
+    spans = walk_spans_s(args.logs)
+    workers = args.jobs if args.scheduler is None else 1
+    announce_estimate(f"tracking {len(args.logs)} walk{'s' if len(args.logs) != 1 else ''}", estimate_tracking_s(
+        spans, config.filter.n_particles, 1 + (SMOOTH_EXTRA_RUNS if config.smooth else 0), workers),
+        f"{duration_text(sum(spans))} of walks, {config.filter.n_particles} particles, {workers} worker"
+        + ("s" if workers != 1 else ""))
     started = time.perf_counter()
     with ProgressBar("track", len(args.logs)) as progress:
         results = track_logs(building, args.logs, radio_map, ap_table, setup, engine, progress=progress,

@@ -99,6 +99,38 @@ def read_log(path: str | os.PathLike, strict: bool = False, warn: Callable[[str]
     return recording
 
 
+# a stretch longer than this with no record is a gap in the log, not walking time
+SPAN_GAP_S = 60.0
+
+
+def log_time_span_s(path: str | os.PathLike) -> float:
+    """Seconds of walking in a log: from its first record to its last, read from their time
+    stamps alone (ILC: the first column, ms; GetSensorData: a record's first time, s) without
+    parsing the records, less any stretch over ``SPAN_GAP_S`` with no record: for estimating a
+    run's time before it starts. 0 when the log has no timed record."""
+    fmt = log_format(path)
+    previous = None
+    span = 0.0
+    try:
+        with open_binary(Path(path)) as handle:
+            for _, line in iter_bounded_lines(handle):
+                if not line or line[0] in "#%":
+                    continue
+                fields = line.split("\t" if fmt == ILC else ";", 2)
+                try:
+                    t = float(fields[0]) / 1000.0 if fmt == ILC else float(fields[1])
+                except (IndexError, ValueError):
+                    continue
+                if previous is not None and 0.0 < t - previous <= SPAN_GAP_S:
+                    span += t - previous
+                previous = t if previous is None else max(previous, t)
+    except EOFError:
+        pass  # a cut gzip stream: the span up to the cut
+    except (OSError, zlib.error) as exc:
+        raise MapfilterError(f"cannot read log: {exc}", path) from None
+    return span
+
+
 def read_log_header(path: str | os.PathLike) -> dict[str, str]:
     """A log's header fields without reading its sensor records: ``FloorName`` (when the log
     names one floor), ``Model``, and ``format`` ("ILC 2.0" or "GetSensorData"), as strings."""
