@@ -32,10 +32,15 @@ methods in a building with several floors: {', '.join(BUILDING_METHODS)}
   pf        the floor in the filter's state         pf-floor  the same filter on the walker's floor
   kwnn      each scan on the WiFi floor HMM's floor
   kf, pdr   the Kalman filter and dead reckoning on those KWNN fixes, each row on their floor
-  floor_accuracy: the share of waypoints at which a method was on the walker's floor (its
-  header's, or each waypoint's own); ipin_score: the IPIN competitions' score, the 75th
-  percentile of the horizontal error plus 15 m per storey off. Logs that name their phone
-  (GetSensorData) also get the table per phone model.
+
+the table (docs/results.md): errors at the waypoints, mean, median, p75 (the EvAAL/IPIN
+percentile), p90, ce95 (the 95th percentile, ISO/IEC 18305's CE95), max, rmse; n waypoints
+scored, missed (before the method's first estimate); availability: the share of waypoints with
+an estimate; in a building also floor_accuracy (the share of the scored waypoints on the
+walker's floor: its header's, or each waypoint's own), floor_detection (ISO/IEC 18305's floor
+detection probability: right floor at all waypoints) and ipin_score (the IPIN competitions'
+score, the 75th percentile of the horizontal error plus 15 m per storey off). Logs that name
+their phone (GetSensorData) also get the table per phone model.
 
 The radio map: --radiomap (one file for all walks), --survey LOGS (built from these walks,
 which are never scored), or --leave-one-out (each walk's radio map from the other evaluated
@@ -68,8 +73,10 @@ same paths). Every walk seeds its own generator: serial, --jobs and a cluster gi
 numbers.
 """
 
-SUMMARY_COLUMNS = ("method", "mean", "median", "p75", "p90", "max", "rmse", "n", "missed", "wall_crossings",
-                   "collapses", "runtime_s")
+# docs/results.md describes every column (ISO/IEC 18305 and EvAAL figures among them)
+SUMMARY_COLUMNS = ("method", "mean", "median", "p75", "p90", "ce95", "max", "rmse", "n", "missed", "availability",
+                   "wall_crossings", "collapses", "runtime_s")
+BUILDING_COLUMNS = ("floor_accuracy", "floor_detection", "ipin_score")
 # what an earlier run leaves in OUT (removed before a new run writes there)
 RUN_FILES = ("summary.csv", "summary.json", "traces.csv", "walks.csv", "cdf.png", "config.yaml")
 RUN_DIRS = ("walks", "tracks")
@@ -236,7 +243,7 @@ def _write_summary(args, evaluation, config, methods, complete: bool) -> None:
     from mapfilter.evaluation.metrics import format_table
     from mapfilter.evaluation.plots import plot_error_cdf
 
-    columns = SUMMARY_COLUMNS + (("floor_accuracy", "ipin_score") if evaluation.has_floors else ())
+    columns = SUMMARY_COLUMNS + (BUILDING_COLUMNS if evaluation.has_floors else ())
     summary = evaluation.summary_rows()
     by_phone = evaluation.summary_rows(by_phone=True)
     table = format_table(summary, columns)

@@ -53,7 +53,8 @@ from mapfilter.engine import Engine, run_each
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.baselines import kalman_track, pdr_kwnn_track, pdr_track
 from mapfilter.evaluation.diagnostics import DIAGNOSTIC_COLUMNS, walk_diagnostics
-from mapfilter.evaluation.metrics import FloorScore, ipin_errors_m, ipin_score, summarise_errors
+from mapfilter.evaluation.metrics import (FloorScore, availability, floor_detection, ipin_errors_m, ipin_score,
+                                         summarise_errors)
 from mapfilter.evaluation.scoring import score_track
 from mapfilter.filter.evidence import calibrated_fix_sigma_m
 from mapfilter.selftrain import GrowConfig, grow_radio_map, grown_by_fold
@@ -769,10 +770,13 @@ class Evaluation:
         return seen
 
     def summary_rows(self, by_phone: bool = False) -> list[dict]:
-        """One row per method: error statistics over all waypoints of all walks, and totals; in a
-        building with several floors also the floor accuracy and the IPIN score (the 75th
-        percentile of the error plus 15 m per storey off, over the same waypoints). ``by_phone``:
-        one row per phone model and method (a ``phone`` column first), the walks of that phone."""
+        """One row per method: error statistics over all waypoints of all walks (with CE95, the
+        95th percentile), the availability (the share of waypoints with an estimate) and totals;
+        in a building with several floors also the floor accuracy, the floor detection probability
+        (right floor at all waypoints) and the IPIN score (the 75th percentile of the error plus
+        15 m per storey off, over the same waypoints). docs/results.md describes every column.
+        ``by_phone``: one row per phone model and method (a ``phone`` column first), the walks of
+        that phone."""
         if by_phone:
             return [{"phone": phone, **row} for phone in self.phones()
                     for row in self._rows([r for r in self.results if r.phone == phone])]
@@ -785,7 +789,8 @@ class Evaluation:
             if not mine:
                 continue
             stats = summarise_errors(np.concatenate([r.errors_m for r in mine]))
-            row = {"method": method, **stats, "missed": sum(r.missed for r in mine),
+            missed = sum(r.missed for r in mine)
+            row = {"method": method, **stats, "missed": missed, "availability": availability(stats["n"], missed),
                    "wall_crossings": sum(r.wall_crossings for r in mine),
                    "collapses": sum(r.collapses for r in mine),
                    "runtime_s": sum(r.runtime_s for r in mine), "traces": len(mine), "causal": mine[0].causal}
@@ -793,6 +798,7 @@ class Evaluation:
                 scores = [r.floor_score for r in mine if r.floor_score]
                 judged = sum(s.n_judged for s in scores)
                 row["floor_accuracy"] = sum(s.n_right for s in scores) / judged if judged else math.nan
+                row["floor_detection"] = floor_detection(scores)
                 row["ipin_score"] = ipin_score(np.concatenate([r.ipin_errors_m for r in mine]))
             rows.append(row)
         return rows
@@ -812,9 +818,11 @@ class Evaluation:
         rows = []
         for r in self.results:
             row = {"trace": r.trace, "method": r.method, **summarise_errors(r.errors_m), "missed": r.missed,
+                   "availability": availability(r.errors_m.size, r.missed),
                    "wall_crossings": r.wall_crossings, "collapses": r.collapses, "runtime_s": r.runtime_s}
             if self.has_floors:
                 row["floor_accuracy"] = r.floor_score.accuracy if r.floor_score else math.nan
+                row["floor_detection"] = floor_detection([r.floor_score]) if r.floor_score else math.nan
                 row["ipin_score"] = ipin_score(r.ipin_errors_m)
             if r.phone:
                 row["phone"] = r.phone
