@@ -78,7 +78,7 @@ def test_duration_text():
 def test_a_long_run_is_announced_before_it_starts(capsys):
     spans = [120.0] * 50  # 50 two-minute walks
     seconds = common.estimate_tracking_s(spans, 10_000, 3, workers=2)
-    assert seconds == pytest.approx(50 * 120 * 1.8 * 10_000 * 3 / 1.5e6 / 2)
+    assert seconds == pytest.approx(50 * 120 * 1.8 * 10_000 * 3 / common.PARTICLE_STEPS_PER_S / 2)
     assert common.estimate_tracking_s(spans, 10_000, 3, workers=1) == pytest.approx(2 * seconds)
     common.announce_estimate("evaluating 50 walks", seconds, "detail")
     assert capsys.readouterr().err == f"mapfilter: evaluating 50 walks: about {common.duration_text(seconds)} by a " \
@@ -100,7 +100,7 @@ def test_evaluate_announces_a_long_run(tmp_path, capsys, monkeypatch):
                  str(MAPS / "office_radiomap.npz"), "--particles", "1000000", "--out", str(tmp_path / "r")])
     assert code == 130
     err = capsys.readouterr().err
-    assert "mapfilter: evaluating 1 walk: about 7 min 12 s by a rough estimate (2 min 00 s of walks, 3 particle " \
+    assert "mapfilter: evaluating 1 walk: about 10 min 48 s by a rough estimate (2 min 00 s of walks, 3 particle " \
            "filter methods of 1000000 particles, 1 worker)" in err
 
 

@@ -278,10 +278,11 @@ def duration_text(seconds: float) -> str:
 
 # ---- how long a run will take, said before it starts ---------------------------------------------
 # A rough model, from warm runs on the 2-core machine: the causal filter with its evidence moves
-# about 1.5 M particle-steps a second on one worker (the office walk: 214 steps x 10,000
-# particles in 1.3 s; an ILC F1 walk: 134 steps in 0.8 s); a walker makes about 1.8 filter
-# steps a second; the offline track (--smooth) costs about one and a half causal runs more.
-PARTICLE_STEPS_PER_S = 1.5e6
+# 1.5-1.7 M particle-steps a second on one worker when the machine is quiet (the office walk:
+# 214 steps x 10,000 particles in 1.3 s; an ILC F1 walk: 134 steps in 0.8 s), less than half
+# that when it is shared, and a building's walks cost more: 1 M is taken. A walker makes about
+# 1.8 filter steps a second; the offline track (--smooth) costs about one and a half causal runs more.
+PARTICLE_STEPS_PER_S = 1.0e6
 FILTER_STEPS_PER_WALK_S = 1.8
 SMOOTH_EXTRA_RUNS = 1.5
 LARGE_RUN_S = 60.0  # runs expected to take longer than this are announced

@@ -219,10 +219,10 @@ def run_grow(args: argparse.Namespace) -> int:
             floors = []
             for rec in labelled:
                 index = space.floor_of_log(rec.floor_name, rec.path)
-                if index is None:
-                    raise MapfilterError("the log has waypoints but its header names no floor (FloorName): its "
-                                         "points need a floor", rec.path)
-                floors.append(index)
+                if index is None and not rec.waypoint_floor:
+                    raise MapfilterError("the log has waypoints but neither its header (FloorName) nor its "
+                                         "waypoints name a floor: its points need a floor", rec.path)
+                floors.append(index)  # None: a walk over several floors, each scan on its waypoints' floor
             surveyed = build_building_radio_map(labelled, floors, space.floor_names)
         else:
             surveyed = build_radio_map(labelled, space)
