@@ -234,8 +234,9 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recordi
         recordings = [read_walk(p, building, setup.strict) for p in paths] if setup.leave_one_out else []
         survey_recordings = [read_walk(p, building, setup.strict) for p in survey]
     true_floors = tuple(_true_floor(building, p) for p in paths)
+    # the evaluated walks join the survey material only with leave-one-out (``recordings``)
     all_walks = _all_walks(building, setup, methods, survey_recordings + recordings,
-                           [_true_floor(building, p) for p in survey] + list(true_floors))
+                           [_true_floor(building, p) for p in survey] + list(true_floors)[:len(recordings)])
     growth = None
     if setup.grows:
         with _collect_read_warnings(read_warnings):
