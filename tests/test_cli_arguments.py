@@ -7,7 +7,7 @@ import shutil
 import pytest
 from conftest import REPO
 
-from mapfilter.cli import _all_parsers, build_parser, main
+from mapfilter.cli import build_parser, main
 
 MAPS = REPO / "maps"
 OFFICE = MAPS / "office.yaml"
@@ -25,6 +25,8 @@ def _one_line_error(capsys, args, *needles):
 
 
 def test_every_parser_refuses_prefixes_of_options():
+    from mapfilter.cli import _all_parsers
+
     parsers = _all_parsers(build_parser())
     assert len(parsers) > 10  # the top level, every command and every subcommand
     assert all(parser.allow_abbrev is False for parser in parsers)

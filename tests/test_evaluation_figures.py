@@ -10,7 +10,7 @@ from conftest import REPO
 
 from mapfilter.cli import main
 from mapfilter.evaluation.comparison import Evaluation, MethodResult, WalkOutcome
-from mapfilter.evaluation.metrics import FloorScore, availability, floor_detection, summarise_errors
+from mapfilter.evaluation.metrics import FloorScore, summarise_errors
 from mapfilter.trackio import Track
 
 MAPS = REPO / "maps"
@@ -24,6 +24,8 @@ def test_ce95_is_the_95th_percentile():
 
 
 def test_availability_and_floor_detection():
+    from mapfilter.evaluation.metrics import availability, floor_detection
+
     assert availability(90, 10) == 0.9 and math.isnan(availability(0, 0))
     scores = [FloorScore(n_right=8, n_judged=10, missed=2), FloorScore(n_right=5, n_judged=5, missed=3)]
     assert floor_detection(scores) == pytest.approx(13 / 20)  # a missed point is not detected
