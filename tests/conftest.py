@@ -21,7 +21,7 @@ ILC_SITE1 = REPO.parent / "shared" / "data" / "ilc20" / "site1"
 @pytest.fixture(scope="session")
 def ilc_site1() -> Path:
     if not ILC_SITE1.is_dir():
-        pytest.skip(f"ILC 2.0 data absent: {ILC_SITE1} (../shared must sit beside the checkout)")
+        pytest.skip(f"ILC 2.0 data absent: {ILC_SITE1} (get it with `python3 tools/get_data.py`, docs/data.md)")
     return ILC_SITE1
 
 
@@ -31,7 +31,7 @@ IPIN2023 = REPO.parent / "shared" / "data" / "ipin2023"
 @pytest.fixture(scope="session")
 def ipin2023() -> Path:
     if not (IPIN2023 / "logs").is_dir():
-        pytest.skip(f"IPIN 2023 data absent: {IPIN2023} (../shared must sit beside the checkout)")
+        pytest.skip(f"IPIN 2023 data absent: {IPIN2023} (get it with `python3 tools/get_data.py`, docs/data.md)")
     return IPIN2023
 
 

@@ -306,3 +306,13 @@ def test_smooth_restarts_the_filter_for_a_walk_on_one_floor_only(office3, tmp_pa
     changes_floor = track(building, read_ilc(office3.walks[0]), radio_map, config=config.with_particles(2000),
                           rng=np.random.default_rng(0))
     assert changes_floor.restarted is None and len(set(changes_floor.offline.floor)) == 2
+
+
+def test_evaluate_a_building_with_survey_walks(office3, tmp_path, capsys):
+    """Survey logs (not leave-one-out) in a building: the survey alone makes the radio map."""
+    surveys = [str(office3.dir / f"survey_{name}.txt") for name in FLOORS]
+    assert main(["evaluate", str(office3.building), *map(str, office3.walks), "--survey", *surveys,
+                 "--methods", "kwnn", "--out", str(tmp_path / "r")]) == 0, capsys.readouterr().err
+    with (tmp_path / "r" / "summary.csv").open() as handle:
+        (row,) = list(csv.DictReader(handle))
+    assert row["method"] == "kwnn" and int(row["n"]) > 10 and 0.0 <= float(row["floor_detection"]) <= 1.0
