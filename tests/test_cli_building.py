@@ -273,7 +273,8 @@ def test_view_of_a_one_floor_map_ignores_a_floor_column(tracked, tmp_path, capsy
 def test_smooth_restarts_the_filter_for_a_walk_on_one_floor_only(office3, tmp_path):
     """--smooth: a walk that stays on one floor gets its offline track as on that floor's map,
     from a second (one-floor) filter run started at the placed start; a walk that changes floor
-    keeps its stretches. The causal track is the first run either way."""
+    keeps its stretches. The causal track is the first run either way. (The placement method:
+    the smoother makes no restarted run.)"""
     import dataclasses
 
     import numpy as np
@@ -288,9 +289,10 @@ def test_smooth_restarts_the_filter_for_a_walk_on_one_floor_only(office3, tmp_pa
     assert main(["simulate", str(office3.building), "--out", str(one_floor), "--seed", "3", "--floor-changes", "0",
                  "--start-floor", "F1"]) == 0
     building, radio_map = Building.load(office3.building), RadioMap.load(office3.radiomap)
-    config = tracking_config(n_particles=500, smooth=True)
+    config = tracking_config(n_particles=500, smooth=True, offline_method="placement")
     runs = {restart: track(building, read_ilc(one_floor), radio_map,
-                           config=tracking_config(n_particles=500, smooth=True, restart_from_placement=restart),
+                           config=tracking_config(n_particles=500, smooth=True, offline_method="placement",
+                                                  restart_from_placement=restart),
                            rng=np.random.default_rng(0))
             for restart in (False, True)}
     assert runs[False].restarted is None

@@ -173,7 +173,8 @@ def test_whole_walk_track_beats_the_causal_one_and_crosses_no_wall():
 
 def test_the_offline_track_restarts_the_filter_where_the_whole_walk_puts_the_start():
     """A first fix 35 m off starts the causal filter there; the second run (the offline track's
-    evidence) starts where the whole walk places the start, and stays closer for the first minute."""
+    evidence) starts where the whole walk places the start, and stays closer for the first minute
+    (the placement method: the smoother makes no restarted run)."""
     import dataclasses
 
     from mapfilter.offline.whole_walk import OfflineConfig
@@ -183,7 +184,8 @@ def test_the_offline_track_restarts_the_filter_where_the_whole_walk_puts_the_sta
     recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
     results = {}
     for restart in (False, True):
-        config = _config(particles=1000, smooth=True, offline=OfflineConfig(restart_from_placement=restart))
+        config = _config(particles=1000, smooth=True,
+                         offline=OfflineConfig(method="placement", restart_from_placement=restart))
         walk = prepare_walk(floorplan, recording, radio_map, config=config)
         wifi = walk.evidence
         first = int(np.argmax(wifi.usable))
