@@ -11,6 +11,9 @@ stays cheap)::
     result.causal.xy_m, result.offline.xy_m                  # numpy arrays (+ t_s, std_m, heading_rad, floor)
 
 Every function here is a thin wrapper over the stage that does the work (named in its docstring).
+The functions take each other's results and paths alike: a ``Building`` or a map YAML's path, a
+``Recording`` or a log's path, a ``RadioMap`` or its ``.npz``, an ``AccessPointTable`` or its CSV.
+An argument of another type is a one-line ``TypeError`` naming the argument.
 """
 
 from __future__ import annotations
@@ -20,11 +23,17 @@ import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import numpy as np
+
 from mapfilter.config import TrackingConfig
 from mapfilter.engine import Engine
+from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate as _evaluate
+from mapfilter.filter.events import StepReport
 from mapfilter.maps.building import Building
+from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.floor_vote import build_building_radio_map
+from mapfilter.sensors.logs import localise, sniff_log_format
 from mapfilter.sensors.logs import read_log as _read_log
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap
@@ -32,57 +41,103 @@ from mapfilter.sensors.radiomap import build_radio_map as _build_one_floor
 from mapfilter.selftrain import GrowConfig, GrowReport
 from mapfilter.selftrain import grow_radio_map as _grow
 from mapfilter.sensors.recording import Recording
-from mapfilter.tracking import TrackResult, track
+from mapfilter.tracking import TrackResult
+from mapfilter.tracking import track as _track
 from mapfilter.trackio import Track, read_track, write_track
 
 __all__ = ["Building", "Evaluation", "GrowConfig", "GrowReport", "RadioMap", "Recording", "Track", "TrackResult",
            "TrackingConfig", "build_radio_map", "evaluate", "grow_radio_map", "load_access_points", "load_map",
            "load_radio_map", "read_log", "read_track", "track", "write_track"]
 
+PathLike = str | os.PathLike
 
-def load_map(path: str | os.PathLike) -> Building:
+
+def load_map(path: PathLike) -> Building:
     """A map YAML (ROS map_server) as a one-floor building, or a building YAML (``maps.building``)."""
+    _check_path(path, "path", "a map or building YAML")
+    if not str(path).lower().endswith((".yaml", ".yml")):
+        log_format = sniff_log_format(path)
+        if log_format is not None:
+            raise MapfilterError(f"is a phone log ({log_format}), not a map: load it with mf.read_log", path)
     return Building.load(path)
 
 
-def read_log(path: str | os.PathLike, strict: bool = False, warn: Callable[[str], None] | None = None,
-             building: Building | None = None) -> Recording:
+def read_log(path: PathLike, strict: bool = False, warn: Callable[[str], None] | None = None,
+             building: Building | PathLike | None = None) -> Recording:
     """One phone log as a ``Recording``, its format (ILC trace or GetSensorData) told by its content
     (``sensors.logs``). Bad rows are skipped with one warning line (to ``warn``, else a
     ``LogReadWarning``); ``strict`` refuses a log with a bad row the tracker needs. Ground truth
     in latitude/longitude (IPIN logs) is put in metres by a georeferenced ``building``
     (``track`` and ``evaluate`` do that themselves)."""
-    return _read_log(path, strict=strict, warn=warn, building=building)
+    _check_path(path, "path", "a phone log")
+    if str(path).lower().endswith((".yaml", ".yml")):
+        raise MapfilterError("is a map YAML, not a phone log: load it with mf.load_map", path)
+    return _read_log(path, strict=strict, warn=warn, building=_building(building, "building", optional=True))
 
 
-def load_radio_map(path: str | os.PathLike) -> RadioMap:
+def load_radio_map(path: PathLike) -> RadioMap:
     """A radio map (``.npz``, one floor or a building's), as ``mapfilter radiomap build`` writes it."""
+    _check_path(path, "path", "a radio map (.npz)")
     return RadioMap.load(path)
 
 
-def load_access_points(path: str | os.PathLike) -> AccessPointTable:
+def load_access_points(path: PathLike) -> AccessPointTable:
     """An access-point table (CSV: positions and path-loss parameters) for trilateration."""
+    _check_path(path, "path", "an access-point table (CSV)")
     return AccessPointTable.read_csv(path)
 
 
-def build_radio_map(building: Building, recordings: Sequence[Recording]) -> RadioMap:
+def track(building: Building | FloorPlan | PathLike, recording: Recording | PathLike,
+          radio_map: RadioMap | PathLike | None = None, access_points: AccessPointTable | PathLike | None = None,
+          config: TrackingConfig | None = None, *, floor: str | None = None,
+          on_step: Callable[[StepReport], None] | None = None,
+          on_offline_step: Callable[[StepReport], None] | None = None,
+          rng: np.random.Generator | None = None) -> TrackResult:
+    """Track one walk (``tracking.track``): the causal track and, with ``config.smooth``, the
+    offline one. ``radio_map`` (fingerprinting) or ``access_points`` (trilateration), exactly
+    one; ``floor`` tracks on one floor of a building; ``on_step`` sees every filter step;
+    ``rng``: the run's random numbers (default: from ``config.seed``)."""
+    building = _building(building, "building")
+    recording = _recording(recording, "recording", building)
+    radio_map = _radio_map(radio_map, "radio_map")
+    access_points = _access_points(access_points, "access_points")
+    config = _config(config)
+    if floor is not None and not isinstance(floor, str):
+        raise TypeError(f"floor: expected a floor name (str), got {type(floor).__name__}")
+    if rng is not None and not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
+    return _track(building, recording, radio_map, access_points, config, floor=floor, on_step=on_step,
+                  on_offline_step=on_offline_step, rng=rng)
+
+
+def build_radio_map(building: Building | PathLike, recordings: Sequence[Recording | PathLike]) -> RadioMap:
     """A radio map from survey walks with waypoints (``sensors.radiomap``): on one floor, every
     scan labelled by its walk's waypoints; in a building, each walk's points on the floor its log
     names (``sensors.floor_vote``)."""
+    building = _building(building, "building")
+    recordings = _recordings(recordings, "recordings", building)
     if building.is_single_floor:
-        return _build_one_floor(list(recordings), building.floors[0].plan)
+        return _build_one_floor(recordings, building.floors[0].plan)
     # a walk over several floors (waypoints naming their floors) labels each scan by its waypoints
     floors = [building.floor_of_log(rec.floor_name, rec.path) for rec in recordings]
-    return build_building_radio_map(list(recordings), floors, building.floor_names)
+    return build_building_radio_map(recordings, floors, building.floor_names)
 
 
-def grow_radio_map(building: Building, radio_map: RadioMap, recordings: Sequence[Recording],
-                   config: TrackingConfig | None = None, grow: GrowConfig | None = None, jobs: int = 1,
+def grow_radio_map(building: Building | PathLike, radio_map: RadioMap | PathLike,
+                   recordings: Sequence[Recording | PathLike], config: TrackingConfig | None = None,
+                   grow: GrowConfig | None = None, jobs: int = 1,
                    progress: Callable[[int, int, str], None] | None = None) -> tuple[RadioMap, GrowReport]:
     """The radio map grown from walks without labels (``selftrain``, docs/self-training.md): each
     walk tracked offline over the map (``config``), its scans added where its offline track puts
     them, with their position uncertainty, until the map stops changing. Their waypoints, if any,
     are never read. Returns the grown map (surveyed + grown points) and what was added."""
+    building = _building(building, "building")
+    radio_map = _radio_map(radio_map, "radio_map", optional=False)
+    recordings = _recordings(recordings, "recordings", building)
+    config = _config(config)
+    if grow is not None and not isinstance(grow, GrowConfig):
+        raise TypeError(f"grow: expected a GrowConfig, got {type(grow).__name__}")
+    _check_jobs(jobs)
     grow = grow if grow is not None else GrowConfig()
     if config is not None:
         grow = dataclasses.replace(grow, tracking=config, seed=config.seed)
@@ -90,23 +145,124 @@ def grow_radio_map(building: Building, radio_map: RadioMap, recordings: Sequence
     return _grow(space, radio_map, recordings, grow, progress=progress, engine=Engine(jobs=jobs))
 
 
-def evaluate(building: Building, logs: Sequence[str | os.PathLike], *, radio_map: str | os.PathLike | None = None,
-             access_points: str | os.PathLike | None = None, survey: Sequence[str | os.PathLike] = (),
-             leave_one_out: bool = False, unlabelled: Sequence[str | os.PathLike] = (), transductive: bool = False,
+def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike], *,
+             radio_map: RadioMap | PathLike | None = None, access_points: AccessPointTable | PathLike | None = None,
+             survey: Sequence[Recording | PathLike] = (), leave_one_out: bool = False,
+             unlabelled: Sequence[Recording | PathLike] = (), transductive: bool = False,
              methods: Sequence[str] | None = None,
              config: TrackingConfig | None = None, jobs: int = 1, scheduler: str | None = None,
              progress: Callable[[int, int, str], None] | None = None) -> Evaluation:
     """Every method on the same walks (``evaluation.comparison``), as ``mapfilter evaluate`` runs them:
     ``evaluation.summary_rows()`` is its table, ``errors_by_method()`` its CDF.
 
-    The radio map: a file (``radio_map``), ``survey`` logs, or ``leave_one_out`` (each walk's from
-    the other walks); ``unlabelled`` walks grow it (self-training), ``transductive`` the evaluated
-    walks too. ``jobs``/``scheduler``: walks on local Dask worker processes or a cluster.
+    The walks (``logs``, ``survey``, ``unlabelled``): ``Recording``s or log paths. The radio map:
+    a ``RadioMap`` or its file (``radio_map``), ``survey`` walks, or ``leave_one_out`` (each walk's
+    from the other walks); ``unlabelled`` walks grow it (self-training), ``transductive`` the
+    evaluated walks too. ``jobs``/``scheduler``: walks on local Dask worker processes or a cluster.
     """
+    building = _building(building, "building")
+    walks = _walks(logs, "logs")
+    if methods is not None and (isinstance(methods, str) or not all(isinstance(m, str) for m in methods)):
+        raise TypeError(f"methods: expected a list of method names, got {methods!r}")
+    _check_jobs(jobs)
+    if scheduler is not None and not isinstance(scheduler, str):
+        raise TypeError(f"scheduler: expected an address such as 'tcp://HOST:8786', got {type(scheduler).__name__}")
+    given_map, map_path = _object_or_path(radio_map, RadioMap, "radio_map", "a RadioMap (mf.load_radio_map)")
+    given_aps, aps_path = _object_or_path(access_points, AccessPointTable, "access_points",
+                                          "an AccessPointTable (mf.load_access_points)")
+    config = _config(config)
     setup = EvaluationSetup(methods=None if methods is None else tuple(methods),
-                            radio_map_path=None if radio_map is None else Path(radio_map),
-                            ap_table_path=None if access_points is None else Path(access_points),
-                            survey_paths=tuple(Path(p) for p in survey), leave_one_out=leave_one_out,
-                            tracking=config if config is not None else TrackingConfig(),
-                            unlabelled_paths=tuple(Path(p) for p in unlabelled), transductive=transductive)
-    return _evaluate(building, logs, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)
+                            radio_map_path=None if map_path is None else Path(map_path),
+                            ap_table_path=None if aps_path is None else Path(aps_path), survey_paths=tuple(_walks(survey, "survey")),
+                            leave_one_out=bool(leave_one_out), tracking=config if config is not None else TrackingConfig(),
+                            unlabelled_paths=tuple(_walks(unlabelled, "unlabelled")), transductive=bool(transductive),
+                            radio_map=given_map, access_points=given_aps)
+    return _evaluate(building, walks, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)
+
+
+# ---- the arguments: the objects the functions return, or paths; anything else a TypeError ------
+def _type_error(name: str, expected: str, value) -> TypeError:
+    got = "None" if value is None else type(value).__name__
+    return TypeError(f"{name}: expected {expected}, got {got}")
+
+
+def _is_path(value) -> bool:
+    return isinstance(value, (str, os.PathLike))
+
+
+def _check_path(value, name: str, what: str) -> None:
+    if not _is_path(value):
+        raise _type_error(name, f"the path of {what}", value)
+
+
+def _building(value, name: str, optional: bool = False) -> Building | None:
+    """A ``Building``: given, made from a ``FloorPlan``, or loaded from a map or building YAML."""
+    if value is None and optional:
+        return None
+    if isinstance(value, Building):
+        return value
+    if isinstance(value, FloorPlan):
+        return Building.from_plan(value)
+    if _is_path(value):
+        return load_map(value)
+    raise _type_error(name, "a Building (mf.load_map) or the path of a map or building YAML", value)
+
+
+def _recording(value, name: str, building: Building) -> Recording:
+    """A ``Recording`` (its latitude/longitude ground truth placed in ``building``), or a log read."""
+    if isinstance(value, Recording):
+        return localise(value, building) if value.needs_georeference else value
+    if _is_path(value):
+        return read_log(value, building=building)
+    raise _type_error(name, "a Recording (mf.read_log) or the path of a phone log", value)
+
+
+def _recordings(values, name: str, building: Building) -> list[Recording]:
+    if _is_path(values) or isinstance(values, Recording) or not isinstance(values, Sequence):
+        raise _type_error(name, "a list of Recordings or log paths", values)
+    return [_recording(value, f"{name}[{i}]", building) for i, value in enumerate(values)]
+
+
+def _walks(values, name: str) -> list[Recording | str | os.PathLike]:
+    """Walks for ``evaluate``: Recordings or log paths, checked, not read (the evaluation reads them)."""
+    if _is_path(values) or isinstance(values, Recording) or not isinstance(values, Sequence):
+        raise _type_error(name, "a list of Recordings or log paths", values)
+    for i, value in enumerate(values):
+        if not (isinstance(value, Recording) or _is_path(value)):
+            raise _type_error(f"{name}[{i}]", "a Recording (mf.read_log) or the path of a phone log", value)
+    return list(values)
+
+
+def _radio_map(value, name: str, optional: bool = True) -> RadioMap | None:
+    given, path = _object_or_path(value, RadioMap, name, "a RadioMap (mf.load_radio_map)", optional)
+    return given if path is None else RadioMap.load(path)
+
+
+def _access_points(value, name: str) -> AccessPointTable | None:
+    given, path = _object_or_path(value, AccessPointTable, name, "an AccessPointTable (mf.load_access_points)")
+    return given if path is None else AccessPointTable.read_csv(path)
+
+
+def _object_or_path(value, kind: type, name: str, expected: str, optional: bool = True):
+    """(the object, None) or (None, its path); (None, None) for an optional argument not given."""
+    if value is None and optional:
+        return None, None
+    if isinstance(value, kind):
+        return value, None
+    if _is_path(value):
+        return None, os.fspath(value)
+    raise _type_error(name, f"{expected} or the path of its file", value)
+
+
+def _config(value) -> TrackingConfig | None:
+    if value is None or isinstance(value, TrackingConfig):
+        return value
+    raise _type_error("config", "a TrackingConfig (mf.TrackingConfig(...) or mf.TrackingConfig.from_yaml(text or "
+                      "path))", value)
+
+
+def _check_jobs(jobs) -> None:
+    if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)):
+        raise _type_error("jobs", "a whole number of worker processes", jobs)
+    if jobs < 1:
+        raise ValueError(f"jobs: at least 1 worker process, got {jobs}")

@@ -20,3 +20,11 @@ class MapfilterError(Exception):
         if self.path is not None:
             where = self.path + (f":{line}" if line is not None else "") + ": "
         super().__init__(where + message)
+
+
+def not_a_file(path: str | os.PathLike, hint: str = "") -> MapfilterError:
+    """The error for a path that should be a file but is not: a directory says so (with ``hint``,
+    e.g. which files in it were meant), anything else is not found."""
+    if os.path.isdir(path):
+        return MapfilterError("is a directory, not a file" + (f" ({hint})" if hint else ""), path)
+    return MapfilterError("file not found", path)

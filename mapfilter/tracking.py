@@ -231,8 +231,9 @@ class Tracker:
             return dataclasses.replace(track, floor=[self.building.floors[self.floor_index].name] * len(track))
         return track
 
-    def _smoothed_track(self) -> Track:
-        """The smoother's track in the plan's frame: the smoothed means made wall-free."""
+    def _smoothed_track(self, on_offline_step: Callable[[StepReport], None] | None = None) -> Track:
+        """The smoother's track in the plan's frame: the smoothed means made wall-free;
+        ``on_offline_step`` sees the steps of its second forward pass (progress)."""
         config, stream = self.config, self.stream
         history = self.history
         steps = stream.steps
@@ -245,7 +246,7 @@ class Tracker:
             history = ParticleHistory()
             run_over_scans(self.plan, self.evidence, config.motion, config.filter, self.rng, steps,
                            start_xy_m=start_xy, start_radius_m=config.offline.restart_radius_m,
-                           start_share=config.offline.restart_share, history=history)
+                           start_share=config.offline.restart_share, on_step=on_offline_step, history=history)
         smoothed = smooth(history, self.plan, config.motion.motion_model, self._floors)
         floor_p = None
         if smoothed.floor_shares is not None:
@@ -267,7 +268,7 @@ class Tracker:
         started = time.perf_counter()
         offline = None
         if self._smoother:
-            offline = OfflineTrack(self._smoothed_track())
+            offline = OfflineTrack(self._smoothed_track(on_offline_step))
         elif config.smooth:
             steps = stream.steps if config.motion.model == "pdr" else None
             causal_track = stream.track()

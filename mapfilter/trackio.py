@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 
 if TYPE_CHECKING:  # only for annotations
     from mapfilter.maps.building import Building
@@ -137,7 +137,7 @@ def read_track(path: str | os.PathLike) -> Track:
     """Read a track written by ``write_track_csv`` or ``write_track_tum`` (told apart by content)."""
     path = Path(path)
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise not_a_file(path)
     text = path.read_text(errors="replace")
     first = next((line for line in text.splitlines() if line.strip() and not line.startswith("#")), "")
     if first.startswith("t_s"):

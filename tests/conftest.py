@@ -21,7 +21,7 @@ ILC_SITE1 = REPO.parent / "shared" / "data" / "ilc20" / "site1"
 @pytest.fixture(scope="session")
 def ilc_site1() -> Path:
     if not ILC_SITE1.is_dir():
-        pytest.skip(f"ILC 2.0 data absent: {ILC_SITE1} (../shared must sit beside the checkout)")
+        pytest.skip(f"ILC 2.0 data absent: {ILC_SITE1} (get it with `python3 tools/get_data.py`, docs/data.md)")
     return ILC_SITE1
 
 
@@ -31,7 +31,7 @@ IPIN2023 = REPO.parent / "shared" / "data" / "ipin2023"
 @pytest.fixture(scope="session")
 def ipin2023() -> Path:
     if not (IPIN2023 / "logs").is_dir():
-        pytest.skip(f"IPIN 2023 data absent: {IPIN2023} (../shared must sit beside the checkout)")
+        pytest.skip(f"IPIN 2023 data absent: {IPIN2023} (get it with `python3 tools/get_data.py`, docs/data.md)")
     return IPIN2023
 
 
@@ -73,7 +73,7 @@ def office3_radio_map(office3, tmp_path_factory):
 def tracking_config(**settings):
     """A ``TrackingConfig`` from flat keywords, for tests: motion, n_particles, smooth, seed,
     use_map, fingerprint_model, kwnn_min_rssi_dbm, fix_sigma_m, adapt_path_loss, adapt_rssi_limit_dbm,
-    blocking_compensation, restart_from_placement."""
+    blocking_compensation, restart_from_placement, offline_method (offline.method)."""
     import dataclasses
 
     from mapfilter.config import TrackingConfig
@@ -82,7 +82,7 @@ def tracking_config(**settings):
     sections = {"motion": ("motion", "model"), "fingerprint_model": ("wifi", None), "kwnn_min_rssi_dbm": ("wifi", None),
                 "fix_sigma_m": ("wifi", None), "adapt_path_loss": ("trilateration", None),
                 "adapt_rssi_limit_dbm": ("trilateration", None), "blocking_compensation": ("trilateration", None),
-                "restart_from_placement": ("offline", None)}
+                "restart_from_placement": ("offline", None), "offline_method": ("offline", "method")}
     for name, value in settings.items():
         if name == "n_particles":
             config = config.with_particles(value)

@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from conftest import REPO
 
 from mapfilter.cli import main
@@ -62,3 +63,95 @@ def test_flags_override_the_config_file(tmp_path, capsys):
     config = tracking_config_from(args)
     assert (config.seed, config.filter.n_particles, config.motion.model) == (5, 1000, "cv")
     assert config == mf.TrackingConfig.from_yaml(config.to_yaml())
+
+
+# ---- an even API: each function takes the others' results and paths; other types are a TypeError
+OFFICE, WALK, RADIOMAP = MAPS / "office.yaml", MAPS / "office_walk.txt.gz", MAPS / "office_radiomap.npz"
+
+
+def _summary(evaluation):
+    return [(row["method"], round(row["mean"], 6), row["n"]) for row in evaluation.summary_rows()]
+
+
+def test_evaluate_takes_a_radio_map_and_recordings_as_well_as_paths():
+    import mapfilter as mf
+
+    config = mf.TrackingConfig(seed=2).with_particles(500)
+    by_path = mf.evaluate(str(OFFICE), [WALK], radio_map=str(RADIOMAP), methods=["pf", "kwnn"], config=config)
+    by_object = mf.evaluate(mf.load_map(OFFICE), [mf.read_log(WALK)], radio_map=mf.load_radio_map(RADIOMAP),
+                            methods=["pf", "kwnn"], config=config)
+    assert [m for m, _, _ in _summary(by_object)] == ["pf", "kwnn"]
+    assert _summary(by_object) == _summary(by_path)
+    assert not by_object.failed
+
+
+def test_evaluate_takes_recordings_as_survey_walks(tmp_path):
+    import shutil
+
+    import mapfilter as mf
+
+    survey_path = tmp_path / "survey_walk.txt.gz"  # the same walk under another name: a survey
+    shutil.copy(WALK, survey_path)
+    by_path = mf.evaluate(OFFICE, [WALK], survey=[survey_path], methods=["kwnn", "kf"])
+    by_object = mf.evaluate(OFFICE, [mf.read_log(WALK)], survey=[mf.read_log(survey_path)], methods=["kwnn", "kf"])
+    assert _summary(by_object) == _summary(by_path) and by_object.summary_rows()[0]["n"] > 100
+
+
+def test_track_takes_paths_as_well_as_objects():
+    import mapfilter as mf
+
+    config = mf.TrackingConfig(seed=4).with_particles(500)
+    by_path = mf.track(str(OFFICE), WALK, radio_map=RADIOMAP, config=config)
+    by_object = mf.track(mf.load_map(OFFICE), mf.read_log(WALK), radio_map=mf.load_radio_map(RADIOMAP), config=config)
+    np.testing.assert_array_equal(by_path.causal.xy_m, by_object.causal.xy_m)
+    grown, report = mf.grow_radio_map(OFFICE, RADIOMAP, [WALK], config=config, grow=mf.GrowConfig(max_iterations=1))
+    assert report.points > 0 and len(grown) > len(mf.load_radio_map(RADIOMAP))
+    assert len(mf.build_radio_map(str(OFFICE), [WALK])) > 0
+
+
+def _walk():
+    import mapfilter as mf
+
+    return mf.read_log(WALK)
+
+
+@pytest.mark.parametrize("call, argument, got", [
+    (lambda mf: mf.track(OFFICE, None, radio_map=RADIOMAP), "recording", "None"),
+    (lambda mf: mf.track({"map": "office"}, WALK, radio_map=RADIOMAP), "building", "dict"),
+    (lambda mf: mf.track(OFFICE, _walk(), radio_map=RADIOMAP, config={"seed": 3}), "config", "dict"),
+    (lambda mf: mf.track(OFFICE, _walk(), radio_map=3), "radio_map", "int"),
+    (lambda mf: mf.track(OFFICE, _walk(), access_points=["ap"]), "access_points", "list"),
+    (lambda mf: mf.track(OFFICE, _walk(), radio_map=RADIOMAP, rng=3), "rng", "int"),
+    (lambda mf: mf.evaluate(OFFICE, [WALK], radio_map=mf.load_map(OFFICE)), "radio_map", "Building"),
+    (lambda mf: mf.evaluate(OFFICE, str(WALK), radio_map=RADIOMAP), "logs", "str"),
+    (lambda mf: mf.evaluate(OFFICE, [WALK, None], radio_map=RADIOMAP), "logs[1]", "None"),
+    (lambda mf: mf.evaluate(OFFICE, [WALK], survey=[1.5]), "survey[0]", "float"),
+    (lambda mf: mf.evaluate(OFFICE, [WALK], radio_map=RADIOMAP, config="seed: 3"), "config", "str"),
+    (lambda mf: mf.evaluate(OFFICE, [WALK], radio_map=RADIOMAP, jobs="2"), "jobs", "str"),
+    (lambda mf: mf.build_radio_map(OFFICE, _walk()), "recordings", "Recording"),
+    (lambda mf: mf.build_radio_map(None, [WALK]), "building", "None"),
+    (lambda mf: mf.grow_radio_map(OFFICE, None, [WALK]), "radio_map", "None"),
+    (lambda mf: mf.grow_radio_map(OFFICE, RADIOMAP, [WALK], config=mf.GrowConfig()), "config", "GrowConfig"),
+    (lambda mf: mf.read_log(None), "path", "None"),
+    (lambda mf: mf.read_log(WALK, building=42), "building", "int"),
+    (lambda mf: mf.load_map(mf.load_map(OFFICE)), "path", "Building"),
+    (lambda mf: mf.load_radio_map({"points": []}), "path", "dict"),
+])
+def test_a_wrong_type_is_a_one_line_type_error_naming_the_argument(call, argument, got):
+    import mapfilter as mf
+
+    with pytest.raises(TypeError) as info:
+        call(mf)
+    message = str(info.value)
+    assert message.startswith(f"{argument}: expected ") and message.endswith(f"got {got}"), message
+    assert "\n" not in message
+
+
+def test_a_log_loaded_as_a_map_and_a_map_read_as_a_log_say_so():
+    import mapfilter as mf
+    from mapfilter.errors import MapfilterError
+
+    with pytest.raises(MapfilterError, match="is a phone log .* not a map: load it with mf.read_log"):
+        mf.load_map(WALK)
+    with pytest.raises(MapfilterError, match="is a map YAML, not a phone log: load it with mf.load_map"):
+        mf.read_log(OFFICE)

@@ -273,7 +273,8 @@ def test_view_of_a_one_floor_map_ignores_a_floor_column(tracked, tmp_path, capsy
 def test_smooth_restarts_the_filter_for_a_walk_on_one_floor_only(office3, tmp_path):
     """--smooth: a walk that stays on one floor gets its offline track as on that floor's map,
     from a second (one-floor) filter run started at the placed start; a walk that changes floor
-    keeps its stretches. The causal track is the first run either way."""
+    keeps its stretches. The causal track is the first run either way. (The placement method:
+    the smoother makes no restarted run.)"""
     import dataclasses
 
     import numpy as np
@@ -288,9 +289,10 @@ def test_smooth_restarts_the_filter_for_a_walk_on_one_floor_only(office3, tmp_pa
     assert main(["simulate", str(office3.building), "--out", str(one_floor), "--seed", "3", "--floor-changes", "0",
                  "--start-floor", "F1"]) == 0
     building, radio_map = Building.load(office3.building), RadioMap.load(office3.radiomap)
-    config = tracking_config(n_particles=500, smooth=True)
+    config = tracking_config(n_particles=500, smooth=True, offline_method="placement")
     runs = {restart: track(building, read_ilc(one_floor), radio_map,
-                           config=tracking_config(n_particles=500, smooth=True, restart_from_placement=restart),
+                           config=tracking_config(n_particles=500, smooth=True, offline_method="placement",
+                                                  restart_from_placement=restart),
                            rng=np.random.default_rng(0))
             for restart in (False, True)}
     assert runs[False].restarted is None
@@ -306,3 +308,13 @@ def test_smooth_restarts_the_filter_for_a_walk_on_one_floor_only(office3, tmp_pa
     changes_floor = track(building, read_ilc(office3.walks[0]), radio_map, config=config.with_particles(2000),
                           rng=np.random.default_rng(0))
     assert changes_floor.restarted is None and len(set(changes_floor.offline.floor)) == 2
+
+
+def test_evaluate_a_building_with_survey_walks(office3, tmp_path, capsys):
+    """Survey logs (not leave-one-out) in a building: the survey alone makes the radio map."""
+    surveys = [str(office3.dir / f"survey_{name}.txt") for name in FLOORS]
+    assert main(["evaluate", str(office3.building), *map(str, office3.walks), "--survey", *surveys,
+                 "--methods", "kwnn", "--out", str(tmp_path / "r")]) == 0, capsys.readouterr().err
+    with (tmp_path / "r" / "summary.csv").open() as handle:
+        (row,) = list(csv.DictReader(handle))
+    assert row["method"] == "kwnn" and int(row["n"]) > 10 and 0.0 <= float(row["floor_detection"]) <= 1.0

@@ -173,7 +173,8 @@ def test_whole_walk_track_beats_the_causal_one_and_crosses_no_wall():
 
 def test_the_offline_track_restarts_the_filter_where_the_whole_walk_puts_the_start():
     """A first fix 35 m off starts the causal filter there; the second run (the offline track's
-    evidence) starts where the whole walk places the start, and stays closer for the first minute."""
+    evidence) starts where the whole walk places the start, and stays closer for the first minute
+    (the placement method: the smoother makes no restarted run)."""
     import dataclasses
 
     from mapfilter.offline.whole_walk import OfflineConfig
@@ -183,7 +184,8 @@ def test_the_offline_track_restarts_the_filter_where_the_whole_walk_puts_the_sta
     recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
     results = {}
     for restart in (False, True):
-        config = _config(particles=1000, smooth=True, offline=OfflineConfig(restart_from_placement=restart))
+        config = _config(particles=1000, smooth=True,
+                         offline=OfflineConfig(method="placement", restart_from_placement=restart))
         walk = prepare_walk(floorplan, recording, radio_map, config=config)
         wifi = walk.evidence
         first = int(np.argmax(wifi.usable))
@@ -326,3 +328,39 @@ def test_a_row_stamped_years_ahead_costs_nothing_and_is_reported(tmp_path, capsy
         assert track.t_s[-1] == pytest.approx(later / 1000.0, abs=1e-3)
         # a row per step or scan (cv: a tick a second of the two-minute walk), none for the gap
         assert len(track) < 2 * n_events
+
+
+def test_plot_draws_the_tracks_truth_and_walls_into_a_png(tmp_path, capsys):
+    import cv2
+
+    picture = tmp_path / "track.png"
+    assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "500", "--smooth",
+                 "--plot", str(picture)]) == 0
+    assert f"wrote {picture} (picture of the tracks)" in capsys.readouterr().out
+    image = cv2.imread(str(picture))
+    assert image is not None and min(image.shape[:2]) >= 400
+    colours = {tuple(int(c) for c in px) for px in image.reshape(-1, 3)[::7]}
+    blue, orange = (180, 119, 31), (14, 127, 255)  # matplotlib's first two line colours (BGR): causal, offline
+    assert blue in colours and orange in colours
+    assert (image.reshape(-1, 3) == 0).all(axis=1).any()  # the ground truth, in black
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--plot", "{tmp}/track.jpg"], "must end in .png"),
+    (["--plot", "{tmp}/track.png", "--out-dir", "{tmp}/tracks"], "--plot is for one walk"),
+])
+def test_plot_mistakes_are_one_line(args, needle, tmp_path, capsys):
+    assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP),
+                 *[a.format(tmp=tmp_path) for a in args]]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and needle in err
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_live_run_refuses_plot_in_one_line(tmp_path, capsys):
+    """`track MAP - --plot`: a live run prints its rows as they come and draws no picture."""
+    picture = tmp_path / "track.png"
+    assert main(["track", str(OFFICE), "-", "--radiomap", str(RADIOMAP), "--plot", str(picture)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--plot is not for a live run" in err
+    assert not picture.exists()

@@ -158,15 +158,16 @@ def _regions_png(path: Path) -> None:
 
 
 def test_regions_transparent_walkable(tmp_path: Path):
-    _regions_png(tmp_path / "mall.png")
-    plan = mapprep.prepare_regions(tmp_path / "mall.png", PlanScale(size_m=(36.0, 24.0)))
+    _regions_png(tmp_path / "mall.png")  # the corridor reaches the image's edge: the outside kept free
+    plan = mapprep.prepare_regions(tmp_path / "mall.png", PlanScale(size_m=(36.0, 24.0)),
+                                   RegionOptions(outside_is_wall=False))
     assert plan.resolution_m == pytest.approx(0.3)
     wall = plan.wall_mask
     assert not wall[5, 5] and not wall[60, 5]  # corridor
     assert wall[30, 30] and wall[10, 30] and wall[30, 90]  # shop, its outline, the other shop
     assert wall[60:75, 25:50].any()  # text kept without clean-up
     cleaned = mapprep.prepare_regions(tmp_path / "mall.png", PlanScale(size_m=(36.0, 24.0)),
-                                      RegionOptions(remove_below_px=100, open_outlines_px=2))
+                                      RegionOptions(remove_below_px=100, open_outlines_px=2, outside_is_wall=False))
     wall = cleaned.wall_mask
     assert not wall[60:75, 25:50].any()  # text in the corridor removed
     assert not wall[10, 30] and not wall[11, 30] and not wall[30, 10]  # outline walkable
@@ -178,10 +179,12 @@ def test_regions_colour_list_with_tolerance(tmp_path: Path):
     _regions_png(tmp_path / "mall.png")
     # the yellow shop walkable too (given as #rrggbb a few levels off), plus transparent
     plan = mapprep.prepare_regions(tmp_path / "mall.png", PlanScale(resolution_m=0.3),
-                                   RegionOptions(walkable=("transparent", "#f8eeb8"), tolerance=10))
+                                   RegionOptions(walkable=("transparent", "#f8eeb8"), tolerance=10,
+                                                 outside_is_wall=False))
     assert not plan.wall_mask[30, 90] and plan.wall_mask[30, 30]
     plan = mapprep.prepare_regions(tmp_path / "mall.png", PlanScale(resolution_m=0.3),
-                                   RegionOptions(walkable=("195,235,245",), tolerance=0))  # only the blue
+                                   RegionOptions(walkable=("195,235,245",), tolerance=0,
+                                                 outside_is_wall=False))  # only the blue
     assert not plan.wall_mask[30, 30] and plan.wall_mask[5, 5]
     with pytest.raises(MapfilterError, match="bad colour"):
         mapprep.prepare_regions(tmp_path / "mall.png", PlanScale(resolution_m=0.3), RegionOptions(walkable=("blue",)))
@@ -242,10 +245,11 @@ def test_geojson_metres(tmp_path: Path):
         mapprep.prepare_geojson(tmp_path / "floor.json", 0.25, units="lonlat")
 
 
-def test_geojson_needs_resolution_and_polygons(tmp_path: Path):
+def test_geojson_without_a_resolution_takes_the_default_and_needs_polygons(tmp_path: Path):
     _floor_geojson(tmp_path / "floor.json")
-    with pytest.raises(MapfilterError, match="--resolution"):
-        mapprep.prepare_geojson(tmp_path / "floor.json", None)
+    plan = mapprep.prepare_geojson(tmp_path / "floor.json", None)
+    assert plan.resolution_m == mapprep.DEFAULT_GEOJSON_RESOLUTION_M == 0.1
+    assert plan.shape_px == mapprep.prepare_geojson(tmp_path / "floor.json", 0.1).shape_px
     (tmp_path / "lines.json").write_text(json.dumps({"type": "FeatureCollection", "features": [
         {"type": "Feature", "properties": {}, "geometry": {"type": "LineString", "coordinates": [[0, 0], [1, 1]]}}]}))
     with pytest.raises(MapfilterError, match="no polygons"):
@@ -421,8 +425,9 @@ def test_cli_prepare_and_import(tmp_path: Path, capsys, ilc_site1):
     (tmp_path / "edits.yaml").write_text("wall:\n  - [[0, 0], [3, 0], [3, 3], [0, 3]]\n")
     code, out, err = _run(["map", "prepare", tmp_path / "mall.png", "--kind", "regions", "--size", 36, 24,
                            "--walkable", "transparent", "--walkable", "250,240,180", "--edits", tmp_path / "edits.yaml",
-                           "--out", tmp_path / "m" / "mall.yaml"], capsys)
+                           "--keep-outside", "--out", tmp_path / "m" / "mall.yaml"], capsys)
     assert code == 0, err
+    assert "free space reaches the edge of the map" in err and "(you gave --keep-outside)" in err
     mall = FloorPlan.load(tmp_path / "m" / "mall.yaml")
     assert mall.is_free(np.array([[27.0, 15.0], [10.0, 23.0], [1.0, 1.0], [9.0, 15.0]])).tolist() == [
         True, True, False, False]  # yellow shop, corridor, closed corner, blue shop
@@ -461,7 +466,8 @@ def _bad_inputs(tmp: Path) -> list[tuple[list, str, str]]:
         (["map", "prepare", rooms], "rooms.png", "no scale"),
         (["map", "prepare", rooms, "--resolution", "0.1", "--size", "30", "10"], "rooms.png", "contradictory"),
         (["map", "prepare", rooms, "--resolution", "0.1", "--edits", tmp / "edits.yaml"], "edits.yaml", "not valid YAML"),
-        (["map", "prepare", tmp / "floor.json"], "floor.json", "--resolution"),
+        (["map", "prepare", tmp / "floor.json", "--check-logs", tmp / "nolog.txt"], "nolog.txt", "not found"),
+        (["map", "prepare", tmp / "floor.json", "--keep-outside"], "", "outside a GeoJSON floor's outline is wall"),
         (["map", "import-ilc", tmp / "nofloor"], "nofloor", "not an ILC floor"),
         (["map", "prepare", rooms, "--resolution", "0.1", "--access-points", tmp / "aps.csv"], "aps.csv", "not found"),
     ]
@@ -511,3 +517,105 @@ def test_a_map_resolution_that_would_not_fit_is_refused_before_resampling(tmp_pa
         == (100, 150)
     with pytest.raises(MapfilterError, match="'resolution' 1e-300 m/px is not a floor plan's"):
         mapprep.prepare_lines(plan, PlanScale(resolution_m=1e-300), LineOptions())
+
+
+# ---- a plan that turns into a useless mask says so ---------------------------------------------
+def _framed_png(path: Path, text: bool = False, inside: bool = True) -> None:
+    """300x200 px RGBA: transparent outside, a building with a 3 px outline and a transparent
+    inside (a corridor), a filled shop, and (``text``) a label in the corridor."""
+    image = np.zeros((200, 300, 4), dtype=np.uint8)
+    cv2.rectangle(image, (20, 20), (279, 179), (90, 90, 90, 255), 3)
+    if inside:
+        image[60:140, 120:200] = (245, 235, 195, 255)  # a shop
+    if text:
+        cv2.putText(image, "exit", (40, 165), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (102, 102, 102, 255), 1, cv2.LINE_8)
+    cv2.imwrite(str(path), image)
+
+
+def _warnings(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.startswith("mapfilter: warning: ")]
+
+
+def test_regions_wall_the_outside_by_default(tmp_path: Path, capsys):
+    _framed_png(tmp_path / "plan.png")
+    code, out, err = _run(["map", "prepare", tmp_path / "plan.png", "--kind", "regions", "--resolution", 0.1,
+                           "--out", tmp_path / "walled.yaml"], capsys)
+    assert code == 0 and _warnings(err) == [], err
+    walled = FloorPlan.load(tmp_path / "walled.yaml")
+    assert walled.is_free(np.array([[5.0, 5.0], [1.0, 1.0]])).tolist() == [True, False]  # inside, outside
+    code, out, err = _run(["map", "prepare", tmp_path / "plan.png", "--kind", "regions", "--resolution", 0.1,
+                           "--keep-outside", "--out", tmp_path / "open.yaml"], capsys)
+    assert code == 0 and FloorPlan.load(tmp_path / "open.yaml").is_free(np.array([[1.0, 1.0]])).all()
+    (line,) = _warnings(err)
+    assert "open.yaml: free space reaches the edge of the map" in line and "you gave --keep-outside" in line
+
+
+def test_regions_open_outlines_never_let_the_outside_in(tmp_path: Path):
+    _framed_png(tmp_path / "plan.png")
+    plan = mapprep.prepare_regions(tmp_path / "plan.png", PlanScale(resolution_m=0.1), RegionOptions(open_outlines_px=2))
+    # the shop's edge opened, the building's outline still closed: the outside stays wall
+    assert plan.is_free(np.array([[5.0, 5.0], [12.0, 10.0]])).tolist() == [True, True]
+    assert not plan.is_free(np.array([[1.0, 1.0], [29.0, 19.0]])).any()
+
+
+def test_text_in_a_corridor_warns_and_remove_below_frees_it(tmp_path: Path, capsys):
+    _framed_png(tmp_path / "plan.png", text=True)
+    args = ["map", "prepare", tmp_path / "plan.png", "--kind", "regions", "--resolution", 0.1]
+    code, out, err = _run([*args, "--out", tmp_path / "text.yaml"], capsys)
+    (line,) = _warnings(err)
+    assert code == 0 and "small wall blobs inside free space" in line and "--remove-below PX" in line
+    code, out, err = _run([*args, "--remove-below", 60, "--out", tmp_path / "clean.yaml"], capsys)
+    assert code == 0 and _warnings(err) == []
+
+
+def test_a_nearly_empty_plan_warns_almost_no_walls(tmp_path: Path, capsys):
+    _framed_png(tmp_path / "empty_plan.png", inside=False)
+    code, out, err = _run(["map", "prepare", tmp_path / "empty_plan.png", "--kind", "regions", "--resolution", 0.1,
+                           "--out", tmp_path / "empty.yaml"], capsys)
+    (line,) = _warnings(err)
+    assert code == 0 and "empty.yaml: almost no walls" in line and "nearly empty" in line
+    # a line drawing of (almost) nothing: the outside fill takes everything, or with the outside
+    # kept, there are no walls at all
+    image = np.full((200, 300), 255, np.uint8)
+    cv2.rectangle(image, (100, 100), (121, 121), 0, 1)  # a small closed mark (the IPIN plan's reference points)
+    cv2.imwrite(str(tmp_path / "dot_plan.png"), image)
+    code, out, err = _run(["map", "prepare", tmp_path / "dot_plan.png", "--resolution", 0.1, "--out",
+                           tmp_path / "dot.yaml"], capsys)
+    assert code == 0 and any("almost no free space" in line for line in _warnings(err)), err
+    code, out, err = _run(["map", "prepare", tmp_path / "dot_plan.png", "--resolution", 0.1, "--keep-outside", "--out",
+                           tmp_path / "dot.yaml"], capsys)
+    assert code == 0 and any("almost no walls" in line for line in _warnings(err)), err
+
+
+def test_mask_warnings_say_nothing_about_good_maps():
+    office = FloorPlan.load(REPO / "maps" / "office.yaml")
+    assert mapprep.mask_warnings(office) == []
+
+
+def test_the_ipin_floor_minus_1_plan_is_nearly_empty_and_says_so(ipin2023, tmp_path: Path, capsys):
+    code, out, err = _run(["map", "import-ipin", ipin2023 / "plans" / "calib_mapa_Nuremberg.cal", "--out",
+                           tmp_path / "venue.yaml"], capsys)
+    assert code == 0
+    assert any("venue_-1.yaml (floor -1): almost no walls" in line for line in _warnings(err)), err
+
+
+def test_check_logs_warns_about_waypoints_in_walls(tmp_path: Path, capsys):
+    walk = REPO / "maps" / "office_walk.txt.gz"
+    args = ["map", "prepare", REPO / "maps" / "office_plan.png", "--kind", "lines", "--map-resolution", 0.1,
+            "--remove-text", 60, "--check-logs", walk]
+    code, out, err = _run([*args, "--resolution", 0.05, "--out", tmp_path / "office.yaml"], capsys)
+    assert code == 0 and _warnings(err) == [], err  # the plan's own scale: every waypoint free
+    code, out, err = _run([*args, "--resolution", 0.04, "--out", tmp_path / "small.yaml"], capsys)
+    (line,) = _warnings(err)  # a wrong scale
+    assert code == 0 and f"{walk}: " in line and "waypoints fall in walls or outside the map" in line
+    # mapfilter check says the same against a map
+    code, out, err = _run(["check", walk, "--map", tmp_path / "small.yaml"], capsys)
+    assert code == 0 and "waypoints fall in walls" in err
+    code, out, err = _run(["check", walk, "--map", tmp_path / "office.yaml"], capsys)
+    assert code == 0 and err == ""
+
+
+def test_check_says_latlon_waypoints_need_a_georeferenced_map(ipin2023, capsys):
+    log = sorted((ipin2023 / "logs").glob("*.txt.gz"))[0]
+    code, out, err = _run(["check", log, "--map", REPO / "maps" / "office.yaml"], capsys)
+    assert code == 0 and "its waypoints cannot be checked" in err and "georeference" in err

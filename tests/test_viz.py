@@ -496,15 +496,23 @@ def test_a_step_without_estimate_or_live_particles_is_drawn_empty(tmp_path):
     verify(out)
 
 
-def test_track_smooth_records_the_restarted_run_and_the_smoothed_track(tmp_path):
-    """`track --smooth --rerun`: besides the causal steps, the second causal run (from the placed
-    start) and the offline track it placed, each a path of as many points as the filter has steps."""
+@pytest.mark.parametrize("method", ["smoother", "placement"])
+def test_track_smooth_records_the_restarted_run_and_the_smoothed_track(method, tmp_path):
+    """`track --smooth --rerun`: besides the causal steps, the offline track; with the placement
+    method also the second causal run (from the placed start) whose estimates placed it, a path
+    of as many points as the filter has steps (the smoother makes no such run)."""
     maps = Path(__file__).resolve().parent.parent / "maps"
     out = tmp_path / "office.rrd"
+    settings = tmp_path / "settings.yaml"
+    settings.write_text(f"offline:\n  method: {method}\n")
     assert cli_main(["track", str(maps / "office.yaml"), str(maps / "office_walk.txt.gz"), "--radiomap",
-                     str(maps / "office_radiomap.npz"), "--smooth", "--particles", "500", "--rerun", str(out)]) == 0
+                     str(maps / "office_radiomap.npz"), "--smooth", "--particles", "500", "--config", str(settings),
+                     "--rerun", str(out)]) == 0
     entities = read_rrd(out)
-    restarted = np.array(rows(entities["/map/world/tracks/restarted/path"], "LineStrips2D:strips")[0][0])
     assert "/map/world/tracks/smoothed/path" in entities
+    if method == "smoother":
+        assert "/map/world/tracks/restarted/path" not in entities
+        return
+    restarted = np.array(rows(entities["/map/world/tracks/restarted/path"], "LineStrips2D:strips")[0][0])
     steps = sum(b.num_rows for b in entities["/map/world/particles"] if "step" in b.schema.names)
     assert restarted.shape == (steps + 1, 2)

@@ -88,7 +88,7 @@ def timed_cpu(fn):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     parser.add_argument("--walks", default=",".join(WALKS), help="comma list of site1/F1 walk ids")
     parser.add_argument("--reps", type=int, default=3, help="runs of each (the median is reported)")
     parser.add_argument("--git", metavar="REV", help="compare with map_matching.py at this git revision")

@@ -68,7 +68,7 @@ def synthetic_reports(floor: FloorPlan, n_steps: int, n_particles: int, rng: np.
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n")[0])
     parser.add_argument("--steps", type=int, default=250)
     parser.add_argument("--particles", type=int, default=10_000)
     parser.add_argument("--max-particles", type=int, default=5000)

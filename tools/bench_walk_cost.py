@@ -28,7 +28,7 @@ WALK = "5dd9e7d1c5b77e0006b17343"  # 58.6 s of WiFi, not in sparse_set.txt (as i
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--jobs", type=int, default=1, help="Dask worker processes for the growing")
     args = parser.parse_args()
     warnings.simplefilter("ignore")  # the logs' skipped-row warnings

@@ -80,7 +80,7 @@ def outside_is_wall(plan: FloorPlan, geojson_path: Path) -> tuple[bool, int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--site", type=Path, default=DEFAULT_SITE, help="ILC site directory (default: %(default)s)")
     args = parser.parse_args(argv)
     ok = True

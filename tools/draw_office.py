@@ -172,7 +172,7 @@ def office_access_points() -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Draw the bundled synthetic office plan and its access points.")
+    parser = argparse.ArgumentParser(allow_abbrev=False, description="Draw the bundled synthetic office plan and its access points.")
     parser.add_argument("--out", type=Path, default=Path("maps/office_plan.png"), help="plan PNG (default: %(default)s)")
     parser.add_argument("--aps", type=Path, default=Path("maps/office_aps.csv"), help="AP CSV (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=7, help="seed of the scan defects (default: %(default)s)")

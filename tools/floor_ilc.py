@@ -57,7 +57,7 @@ ILC = REPO.parent / "shared" / "data" / "ilc20" / "site1"
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=ILC)
     parser.add_argument("--particles", type=int, default=10_000)
     parser.add_argument("--seed", type=int, default=0)

@@ -119,7 +119,7 @@ def floor_scores(track, truth_t_s: np.ndarray, truth_floor: list[str], changes: 
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--walks", type=int, default=10)
     parser.add_argument("--particles", type=int, default=5000)
     parser.add_argument("--seed", type=int, default=0)

@@ -64,7 +64,7 @@ def make_tower(out_dir: Path, n_floors: int) -> tuple[Building, dict[str, Access
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--floors", type=int, default=5)
     parser.add_argument("--floor-loss", type=float, default=3.0, help="dB per slab")
     parser.add_argument("--thin", type=float, default=0.03, help="share of the middle floor's survey kept")

@@ -72,7 +72,7 @@ def floor_changes(building: Building, walk, result) -> list[dict]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("venue", type=Path, help="the venue's building YAML (mapfilter map import-ipin)")
     parser.add_argument("--logs", type=Path, default=LOGS)
     parser.add_argument("--trial", default=TRIAL, help="the walk that changes floor (its trace name)")

@@ -26,7 +26,7 @@ from mapfilter.sensors.logs import read_log  # noqa: E402
 
 
 def main_(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     parser.add_argument("data", type=Path, help="the ipin2023 data folder")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--side", type=int, default=1400, help="longer side of the picture in pixels")

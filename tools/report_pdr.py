@@ -265,7 +265,7 @@ def markdown(rows: list[dict], summary: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     parser.add_argument("traces", nargs="*", type=Path,
                         help="ILC traces or IPIN logs (default: all of ILC site1 F1 and F2)")
     parser.add_argument("--ipin", action="store_true", help=f"the IPIN 2023 logs in {IPIN_LOGS} instead")

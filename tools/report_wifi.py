@@ -96,7 +96,7 @@ def summarise(errors: list[float]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--floor", type=Path, default=DEFAULT_FLOOR, help="ILC floor directory (default site1/F1)")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes (the machine is shared: <= 2)")
     parser.add_argument("--max-wifi-age", type=float, default=5.0, help="stale-row filter, seconds")

@@ -45,7 +45,7 @@ def timeline_range(rrd: Path, timeline: str) -> tuple[str, int, int] | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n")[0])
     parser.add_argument("rrd", type=Path)
     parser.add_argument("png", type=Path)
     parser.add_argument("--timeline", default="trace_time", help="timeline to put the cursor on (default trace_time)")

@@ -151,7 +151,7 @@ def grown_for_folds(floorplan, labelled, unlabelled, folds, grow: GrowConfig, en
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sets", nargs="+", choices=("f1", "f2"), default=["f1"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--maps", nargs="+", choices=("labelled", "true", "grown"),

@@ -154,7 +154,7 @@ class LoopbackCluster:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=ILC, help="folder of floor folders (default: %(default)s)")
     parser.add_argument("--floors", default="", help="comma-separated floor names (default: every floor)")
     parser.add_argument("--methods", default="pf,kwnn,kf", help="methods per walk (default: %(default)s)")

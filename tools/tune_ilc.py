@@ -39,7 +39,7 @@ def config_from_json(text: str) -> TrackingConfig:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("settings", nargs="*", default=["{}"], help="JSON object of dotted TrackingConfig settings ({} = defaults)")
     parser.add_argument("--floor", default="F1")
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])

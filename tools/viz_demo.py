@@ -31,7 +31,7 @@ WRONG_FIX_STEP = 80
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n")[0])
     parser.add_argument("map", type=Path)
     parser.add_argument("log", type=Path)
     parser.add_argument("out", type=Path)

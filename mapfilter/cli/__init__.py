@@ -32,14 +32,27 @@ COMMAND_MODULES = ("map_cmd", "radiomap_cmd", "check_cmd", "track_cmd", "evaluat
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="mapfilter",
+        prog="mapfilter", allow_abbrev=False,
         description="Track a walking person on an indoor floor plan with a map-aware particle filter.",
     )
     parser.add_argument("--version", action="version", version=f"mapfilter {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
         importlib.import_module(f"mapfilter.cli.{name}").register(subparsers)
+    for sub in _all_parsers(parser):
+        # no prefix matching: `--particle 500` must not quietly mean --particles
+        sub.allow_abbrev = False
     return parser
+
+
+def _all_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+    """The parser and every subparser below it (``map prepare``, ``radiomap build``, ...)."""
+    found = [parser]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in dict.fromkeys(action.choices.values()):
+                found += _all_parsers(sub)
+    return found
 
 
 class Terminated(KeyboardInterrupt):

@@ -10,8 +10,9 @@ import sys
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, check_output_path, engine_from,
-                                  input_paths, warn)
+from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arguments, add_strict_argument,
+                                  announce_estimate, check_map_first, check_output_path, duration_text, engine_from,
+                                  estimate_tracking_s, input_paths, walk_spans_s, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
 from mapfilter.memory import building_extents_m, check_tracking_fits
@@ -31,10 +32,15 @@ methods in a building with several floors: {', '.join(BUILDING_METHODS)}
   pf        the floor in the filter's state         pf-floor  the same filter on the walker's floor
   kwnn      each scan on the WiFi floor HMM's floor
   kf, pdr   the Kalman filter and dead reckoning on those KWNN fixes, each row on their floor
-  floor_accuracy: the share of waypoints at which a method was on the walker's floor (its
-  header's, or each waypoint's own); ipin_score: the IPIN competitions' score, the 75th
-  percentile of the horizontal error plus 15 m per storey off. Logs that name their phone
-  (GetSensorData) also get the table per phone model.
+
+the table (docs/results.md): errors at the waypoints, mean, median, p75 (the EvAAL/IPIN
+percentile), p90, ce95 (the 95th percentile, ISO/IEC 18305's CE95), max, rmse; n waypoints
+scored, missed (before the method's first estimate); availability: the share of waypoints with
+an estimate; in a building also floor_accuracy (the share of the scored waypoints on the
+walker's floor: its header's, or each waypoint's own), floor_detection (ISO/IEC 18305's floor
+detection probability: right floor at all waypoints) and ipin_score (the IPIN competitions'
+score, the 75th percentile of the horizontal error plus 15 m per storey off). Logs that name
+their phone (GetSensorData) also get the table per phone model.
 
 The radio map: --radiomap (one file for all walks), --survey LOGS (built from these walks,
 which are never scored), or --leave-one-out (each walk's radio map from the other evaluated
@@ -69,8 +75,10 @@ same paths). Every walk seeds its own generator: serial, --jobs and a cluster gi
 numbers.
 """
 
-SUMMARY_COLUMNS = ("method", "mean", "median", "p75", "p90", "max", "rmse", "n", "missed", "wall_crossings",
-                   "collapses", "runtime_s")
+# docs/results.md describes every column (ISO/IEC 18305 and EvAAL figures among them)
+SUMMARY_COLUMNS = ("method", "mean", "median", "p75", "p90", "ce95", "max", "rmse", "n", "missed", "availability",
+                   "wall_crossings", "collapses", "runtime_s")
+BUILDING_COLUMNS = ("floor_accuracy", "floor_detection", "ipin_score")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -108,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.maps.building import Building
     from mapfilter.sensors.recording import trace_name
 
+    check_map_first("mapfilter evaluate MAP LOG...", args.map, [*args.logs, *args.survey, *args.unlabelled])
     config = tracking_config_from(args)
     methods = None if args.methods is None else tuple(m.strip() for m in args.methods.split(",") if m.strip())
     engine = engine_from(args)
@@ -140,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
         out.clear()  # what an earlier run wrote there (its manifest), nothing else
     args.out.mkdir(parents=True, exist_ok=True)
     plans = _plans_for_pictures(building, args.logs)
+    _announce(args, building, methods, config, len(resumed))
 
     def finished(outcome) -> None:
         # each walk's numbers, tracks and picture as it finishes: an interrupted run keeps them
@@ -169,6 +179,25 @@ def run(args: argparse.Namespace) -> int:
         warn(message)
     _write_summary(args, out, evaluation, config, methods_for(building), complete=True)
     return 1 if evaluation.failed else 0
+
+
+def _announce(args, building, methods, config, n_resumed: int) -> None:
+    """The run's rough time, before it starts, when it is long: the particle filter runs of every
+    walk (the baselines cost little beside them) and of the walks that grow the radio map."""
+    pf_runs = [m for m in (methods or (ALL_METHODS if building.is_single_floor else BUILDING_METHODS))
+               if m.startswith("pf")]
+    runs = len(pf_runs) + (SMOOTH_EXTRA_RUNS if config.smooth and "pf" in pf_runs else 0)
+    spans = walk_spans_s(args.logs)
+    growing = walk_spans_s(args.unlabelled) + (spans if args.transductive else [])
+    workers = args.jobs if args.scheduler is None else 1
+    seconds = estimate_tracking_s(spans, config.filter.n_particles, runs, workers)
+    seconds *= 1 - n_resumed / max(1, len(args.logs))
+    # growing: each walk tracked offline, up to 3 rounds (selftrain.GrowConfig.max_iterations)
+    seconds += estimate_tracking_s(growing, config.filter.n_particles, 3 * (1 + SMOOTH_EXTRA_RUNS), workers)
+    announce_estimate(f"evaluating {len(args.logs)} walk{'s' if len(args.logs) != 1 else ''}", seconds,
+                      f"{duration_text(sum(spans))} of walks, {len(pf_runs)} particle filter methods of "
+                      f"{config.filter.n_particles} particles, {workers} worker{'s' if workers != 1 else ''}")
+
 
 
 def _plans_for_pictures(building, logs) -> dict:
@@ -209,7 +238,7 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
     from mapfilter.evaluation.metrics import format_table
     from mapfilter.evaluation.plots import plot_error_cdf
 
-    columns = SUMMARY_COLUMNS + (("floor_accuracy", "ipin_score") if evaluation.has_floors else ())
+    columns = SUMMARY_COLUMNS + (BUILDING_COLUMNS if evaluation.has_floors else ())
     summary = evaluation.summary_rows()
     by_phone = evaluation.summary_rows(by_phone=True)
     table = format_table(summary, columns)

@@ -6,9 +6,9 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from mapfilter.cli.common import bounded_float, bounded_int, check_output_path, input_paths
+from mapfilter.cli.common import bounded_float, bounded_int, check_output_path, input_paths, warn
+from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.outputs import check_output_files
-from mapfilter.errors import MapfilterError
 
 # option values, finite and within what a floor plan can use
 _PIXELS = bounded_int(0, 1000)  # a morphology radius or kernel: wall gaps and outlines are a few pixels
@@ -22,9 +22,19 @@ kinds:
   lines    dark walls on light paper (scans, CAD exports): threshold, close small gaps,
            drop text and specks, optionally thicken; outside the building becomes wall
   regions  filled-region plans (e.g. ILC floor_image.png): --walkable colours are free,
-           everything else wall (after --open-outlines / --remove-below clean-up)
+           everything else wall (after --open-outlines / --remove-below clean-up); outside
+           the building becomes wall
   geojson  vector floor: first 'floor' feature (else the first) = outline, the other
-           polygons = obstacles; outside the outline is wall (--resolution = output m/px)
+           polygons = obstacles; outside the outline is wall (--resolution = output m/px,
+           default 0.1)
+
+The outside: free space connected to the image border is outside the building and becomes
+wall (a floor plan's outside is not walkable); --keep-outside keeps it free.
+
+warnings (one line each; the map is written all the same): almost no free space, almost no
+walls (a nearly empty plan), free space reaching the map's edge, small wall blobs inside free
+space (text in corridors), and with --check-logs LOG... the waypoints of those logs that fall
+in walls (a wrong scale, closed outlines, a plan of another floor).
 
 scale (give one or more; they must agree within 2 %):
   --resolution M                 metres per plan pixel
@@ -44,7 +54,7 @@ NAME_preview.png (walls in red over the plan); nothing is written on error.
 
 example:
   mapfilter map prepare maps/office_plan.png --kind lines --resolution 0.05 \\
-      --map-resolution 0.1 --out maps/office.yaml
+      --map-resolution 0.1 --out maps/office.yaml --check-logs maps/office_walk.txt.gz
 """
 
 _IMPORT_EPILOG = """\
@@ -105,7 +115,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     prepare_parser.add_argument("--kind", choices=("lines", "regions", "geojson"), default=None,
                                 help="kind of plan (default: geojson for .json/.geojson, else lines)")
     scale = prepare_parser.add_argument_group("scale")
-    scale.add_argument("--resolution", type=_METRES_PER_PIXEL, metavar="M", help="metres per plan pixel (geojson: per output pixel)")
+    scale.add_argument("--resolution", type=_METRES_PER_PIXEL, metavar="M", help="metres per plan pixel (geojson: per output pixel, default 0.1)")
     scale.add_argument("--size", type=_METRES, nargs=2, metavar=("W", "H"), help="real width and height of the plan in metres")
     scale.add_argument("--scale-points", type=bounded_float(-1e6, 1e6), nargs=4, metavar=("U1", "V1", "U2", "V2"),
                        help="two image points (column, row) ...")
@@ -120,8 +130,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     lines.add_argument("--remove-text", type=_AREA, default=20, metavar="PX",
                        help="drop ink blobs whose bounding box is shorter than PX (text, specks; default: 20)")
     lines.add_argument("--thicken", type=_PIXELS, default=0, metavar="PX", help="dilate walls by PX pixels (default: 0)")
-    lines.add_argument("--keep-outside", action="store_true",
-                       help="keep free space connected to the image border (default: it is outside, so wall)")
+    prepare_parser.add_argument("--keep-outside", action="store_true",
+                                help="lines and regions: keep free space connected to the image border free "
+                                     "(default: it is outside the building, so wall)")
     regions = prepare_parser.add_argument_group("filled-region plans (--kind regions)")
     regions.add_argument("--walkable", action="append", metavar="COLOUR",
                          help="a walkable colour: transparent, #rrggbb or r,g,b; repeat for more (default: transparent)")
@@ -131,8 +142,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                          help="erode walls by PX pixels along free space (outlines walkable; default: 0)")
     regions.add_argument("--remove-below", type=_AREA, default=0, metavar="PX",
                          help="wall blobs of fewer than PX pixels become free (text in corridors; default: 0)")
-    regions.add_argument("--outside-wall", action="store_true",
-                         help="free space connected to the image border becomes wall")
+    regions.add_argument("--outside-wall", action="store_true", help=argparse.SUPPRESS)  # now the default
     vector = prepare_parser.add_argument_group("GeoJSON floors (--kind geojson)")
     vector.add_argument("--units", choices=("lonlat", "m"), default="lonlat",
                         help="coordinates: lon/lat (Web Mercator, ILC convention) or metres (default: lonlat)")
@@ -142,6 +152,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     prepare_parser.add_argument("--floor", metavar="NAME", help="floor name stored in the YAML")
     prepare_parser.add_argument("--access-points", type=Path, metavar="CSV",
                                 help="access-point table (bssid,x,y,band,C,n,alpha,d_max) referenced from the YAML")
+    prepare_parser.add_argument("--check-logs", type=Path, nargs="+", default=[], metavar="LOG",
+                                help="warn about waypoints of these logs (with waypoints in the map's metres) that "
+                                     "fall in walls")
     prepare_parser.set_defaults(func=run_prepare)
 
     ilc = commands.add_parser(
@@ -181,18 +194,23 @@ def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
 
 def run_prepare(args: argparse.Namespace) -> int:
     from mapfilter.maps import prepare
+    from mapfilter.sensors.logs import log_format
 
-    _check_map_outputs(args.out, input_paths(args.plan, args.edits, args.access_points))
+    _check_map_outputs(args.out, input_paths(args.plan, args.edits, args.access_points, args.check_logs))
     kind = args.kind or ("geojson" if args.plan.suffix.lower() in (".json", ".geojson") else "lines")
     edits = prepare.read_edits(args.edits) if args.edits else None
     if args.access_points is not None and not args.access_points.is_file():
-        raise MapfilterError("file not found", args.access_points)
+        raise not_a_file(args.access_points)
+    for path in args.check_logs:
+        log_format(path)  # a missing or unreadable log is refused before the work
     if kind == "geojson":
         if args.size or args.scale_points or args.scale_distance:
             raise MapfilterError("a GeoJSON floor is already in real units: give only --resolution (m per pixel)",
                                  args.plan)
-        plan = prepare.prepare_geojson(args.plan, args.resolution or args.map_resolution, args.units,
-                                       args.inset, 0.0, args.floor)
+        if args.keep_outside:
+            raise MapfilterError("--keep-outside is for image plans: outside a GeoJSON floor's outline is wall")
+        plan = prepare.prepare_geojson(args.plan, args.resolution or args.map_resolution, args.units, args.inset,
+                                       0.0, args.floor)
     else:
         points = None
         if args.scale_points is not None:
@@ -206,15 +224,39 @@ def run_prepare(args: argparse.Namespace) -> int:
                                           outside_is_wall=not args.keep_outside)
             plan = prepare.prepare_lines(args.plan, scale, options, args.map_resolution, args.floor)
         else:
-            options = prepare.RegionOptions(tuple(args.walkable or [prepare.TRANSPARENT]), args.tolerance, remove_below_px=args.remove_below,
-                                            open_outlines_px=args.open_outlines, outside_is_wall=args.outside_wall)
+            options = prepare.RegionOptions(tuple(args.walkable or [prepare.TRANSPARENT]), args.tolerance,
+                                            remove_below_px=args.remove_below, open_outlines_px=args.open_outlines,
+                                            outside_is_wall=not args.keep_outside)
             plan = prepare.prepare_regions(args.plan, scale, options, args.map_resolution, args.floor)
     if edits is not None:
         plan = prepare.apply_edits(plan, edits)
     if args.access_points is not None:
         plan.access_points_csv = args.access_points.resolve()
+    hints = {"lines": ("you gave --keep-outside", "--remove-text PX drops ink blobs shorter than PX plan pixels"),
+             "regions": ("you gave --keep-outside", "--remove-below PX frees wall blobs of fewer than PX plan pixels"),
+             "geojson": (None, None)}[kind]
+    found = [f"{args.out}: {message}" for message in prepare.mask_warnings(plan, *hints)]
+    found += _waypoints_in_walls(plan, args.check_logs)
     _write(plan, args.out)
+    for message in found:
+        warn(message)
     return 0
+
+
+def _waypoints_in_walls(plan, log_paths: list[Path]) -> list[str]:
+    """One warning per log whose waypoints fall in the map's walls (or say why they cannot be checked)."""
+    from mapfilter.cli.common import waypoints_in_walls
+    from mapfilter.maps.building import Building
+    from mapfilter.sensors.logs import read_log
+
+    building = Building.from_plan(plan)
+    found = []
+    for path in log_paths:
+        recording = read_log(path, warn=lambda message: None)
+        message = waypoints_in_walls(building, recording)
+        if message is not None:
+            found.append(message)
+    return found
 
 
 def run_import_ilc(args: argparse.Namespace) -> int:
@@ -233,7 +275,12 @@ def run_import_ilc(args: argparse.Namespace) -> int:
         plan = dataclasses.replace(plan, floor_name=named)
     if edits is not None:
         plan = prepare.apply_edits(plan, edits)
+    image = args.route == "image"
+    found = prepare.mask_warnings(plan, "the image route keeps the outside free; --route geojson walls it" if image
+                                  else None, "" if image else None)
     _write(plan, args.out)
+    for message in found:
+        warn(f"{args.out}: {message}")
     return 0
 
 
@@ -292,8 +339,7 @@ def run_import_ipin(args: argparse.Namespace) -> int:
     import cv2
 
     from mapfilter.atomic import atomic_paths
-    from mapfilter.cli.common import warn
-    from mapfilter.maps import ipin_venue
+    from mapfilter.maps import ipin_venue, prepare
 
     if args.out.suffix not in (".yaml", ".yml"):
         raise MapfilterError("the output building must be a .yaml file", args.out)
@@ -319,6 +365,9 @@ def run_import_ipin(args: argparse.Namespace) -> int:
                     raise MapfilterError("could not write the plan image", shown)
             floor.plan = venue_floor.with_display_file(shown)
         _write(floor.plan, floor.map_path)
+        if venue_floor.display is not None:  # a floor without its plan was reported as such
+            for message in prepare.mask_warnings(floor.plan, None):  # walled beyond the image
+                warn(f"{floor.map_path.name} (floor {floor.name}): {message}")
     building.save(args.out)
     geo = building.georeference
     print(f"wrote {args.out}: {len(building.floors)} floors ({', '.join(building.floor_names)}), storey height "

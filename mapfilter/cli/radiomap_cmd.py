@@ -6,8 +6,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, bounded_float, bounded_int,
-                                  check_output_path, non_negative_int, engine_from, input_paths, is_stdout, warn)
+from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arguments, add_strict_argument,
+                                  announce_estimate, bounded_float, bounded_int, check_map_first, check_output_path,
+                                  duration_text, engine_from, estimate_tracking_s, input_paths, is_stdout,
+                                  non_negative_int, warn)
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
@@ -80,6 +82,7 @@ def _load(args: argparse.Namespace):
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
 
+    check_map_first(f"mapfilter radiomap {args.radiomap_command} MAP LOG...", args.map, args.logs)
     # fit-aps writes a CSV, which may go to standard output (--out -); a radio map is binary
     check_output_path(args.out, inputs=input_paths(args.map, args.logs, getattr(args, "radiomap", None)),
                       allow_stdout=args.radiomap_command == "fit-aps")
@@ -104,6 +107,14 @@ def _load(args: argparse.Namespace):
             recordings.append(recording)
             progress(done, len(paths), path.name)
     return floorplan, recordings
+
+
+def _span_s(recording) -> float:
+    """The walk's time in seconds: its span less the gaps its reader found."""
+    report = recording.read_report
+    if report is None or report.time_span_s is None:
+        return 0.0
+    return float(report.time_span_s[1] - report.time_span_s[0] - sum(b - a for a, b in report.time_gaps_s or ()))
 
 
 def _trace_id(path: Path) -> str:
@@ -222,16 +233,22 @@ def run_grow(args: argparse.Namespace) -> int:
             floors = []
             for rec in labelled:
                 index = space.floor_of_log(rec.floor_name, rec.path)
-                if index is None:
-                    raise MapfilterError("the log has waypoints but its header names no floor (FloorName): its "
-                                         "points need a floor", rec.path)
-                floors.append(index)
+                if index is None and not rec.waypoint_floor:
+                    raise MapfilterError("the log has waypoints but neither its header (FloorName) nor its "
+                                         "waypoints name a floor: its points need a floor", rec.path)
+                floors.append(index)  # None: a walk over several floors, each scan on its waypoints' floor
             surveyed = build_building_radio_map(labelled, floors, space.floor_names)
         else:
             surveyed = build_radio_map(labelled, space)
         base = merge_radio_maps([base, surveyed])
     config = GrowConfig(tracking=TrackingConfig().with_particles(args.particles), max_iterations=args.iterations,
                         wifi_only=args.wifi_only, seed=args.seed)
+    spans = [_span_s(rec) for rec in unlabelled]
+    workers = args.jobs if args.scheduler is None else 1
+    announce_estimate(f"growing from {len(unlabelled)} walks", estimate_tracking_s(
+        spans, args.particles, args.iterations * (1 + SMOOTH_EXTRA_RUNS), workers),
+        f"{duration_text(sum(spans))} of walks, up to {args.iterations} rounds of {args.particles} particles, "
+        f"{workers} worker{'s' if workers != 1 else ''}")
     with ProgressBar("grow", len(unlabelled) * args.iterations) as progress:
         grown, report = grow_radio_map(space, base, unlabelled, config, progress=progress, engine=engine)
     grown.save(args.out)
@@ -241,10 +258,19 @@ def run_grow(args: argparse.Namespace) -> int:
     sigma = grown.xy_sigma_m[len(base):]
     last = report.iterations[-1] if report.iterations else {}
     moved = last.get("moved_median_m", float("nan"))
-    print(f"grown: {report.points} points from {report.grown_walks} of {len(unlabelled)} walks without waypoints"
-          + (f", position sigma median {np.median(sigma):.1f} m, p90 {np.percentile(sigma, 90):.1f} m" if sigma.size
-             else "")
-          + (f"; {len(report.iterations)} iterations, last moved {moved:.2f} m (median)" if report.iterations else ""))
+    if unlabelled:
+        walks = "walks (their waypoints not read)" if args.ignore_waypoints else "walks without waypoints"
+        print(f"grown: {report.points} points from {report.grown_walks} of {len(unlabelled)} {walks}"
+              + (f", position sigma median {np.median(sigma):.1f} m, p90 {np.percentile(sigma, 90):.1f} m"
+                 if sigma.size else "")
+              + (f"; {len(report.iterations)} iteration{'s' if len(report.iterations) != 1 else ''}"
+                 if report.iterations else "")
+              + (f", last moved {moved:.2f} m (median)" if np.isfinite(moved) else ""))
+    else:
+        n = len(labelled)
+        print(f"grown: nothing: {'the walk has' if n == 1 else f'all {n} walks have'} waypoints, so "
+              f"{'it was' if n == 1 else 'they were'} added as surveyed points (labelled scans) instead; "
+              "--ignore-waypoints grows from walks with waypoints without reading them")
     if labelled:
         print(f"surveyed: {len(surveyed)} points from {len(labelled)} walks with waypoints")
     print(f"radio map: {len(grown)} reference points ({len(base) - (len(surveyed) if labelled else 0)} from "

@@ -11,8 +11,8 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from mapfilter.cli.common import (bounded_float, bounded_int, check_distinct_outputs, check_output_path, input_paths,
-                                  non_negative_int)
+from mapfilter.cli.common import (bounded_float, bounded_int, check_distinct_outputs, check_map_first, check_output_path,
+                                  input_paths, non_negative_int)
 from mapfilter.errors import MapfilterError
 
 # The defaults of mapfilter.simulate.walk.SimConfig that the options show, written out so that
@@ -128,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.simulate.ilc_writer import write_ilc
     from mapfilter.simulate.walk import SimConfig, offset_access_points, simulate_walk
 
+    check_map_first("mapfilter simulate MAP --out WALK.txt.gz", args.map)
     inputs = input_paths(args.map, args.aps)
     check_output_path(args.out, inputs=inputs, allow_stdout=True)  # the summary goes to stderr
     check_output_path(args.write_aps, "--write-aps", inputs=inputs)

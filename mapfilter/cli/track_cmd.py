@@ -11,8 +11,10 @@ import time
 from pathlib import Path
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.cli.common import (ProgressBar, add_engine_arguments, add_strict_argument, bounded_int,
-                                  check_distinct_outputs, check_output_path, engine_from, input_paths, is_stdout, warn)
+from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arguments, add_strict_argument,
+                                  announce_estimate, announce_recording_size, bounded_int, check_distinct_outputs,
+                                  check_map_first, check_output_path, duration_text, engine_from, estimate_tracking_s,
+                                  input_paths, is_stdout, walk_spans_s, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
 from mapfilter.memory import building_extents_m, check_tracking_fits
@@ -86,6 +88,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     view = parser.add_mutually_exclusive_group()
     view.add_argument("--rerun", type=Path, metavar="FILE.rrd", help="write a rerun recording of the run")
     view.add_argument("--spawn", action="store_true", help="stream the run to a new rerun viewer")
+    parser.add_argument("--plot", type=Path, metavar="FILE.png",
+                        help="draw the tracks, the ground truth (when the log has one) and the walls into a PNG "
+                             "(no viewer needed)")
     parser.add_argument("--max-drawn-particles", type=bounded_int(0, 1_000_000), default=5000, metavar="N",
                         help="cap on particles drawn per step in rerun (default: 5000)")
     add_engine_arguments(parser)
@@ -111,6 +116,7 @@ def causal_path(path: Path) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_map_first("mapfilter track MAP LOG...", args.map, args.logs)
     config = tracking_config_from(args)
     # every output checked before the work: none is an input, a link, a device or another's file
     inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.config)
@@ -121,10 +127,13 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None and config.smooth:
         check_output_path(causal_path(args.out), inputs=inputs)
     check_output_path(args.rerun, "--rerun", inputs=inputs)
+    check_output_path(args.plot, "--plot", inputs=inputs)
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        raise MapfilterError("the picture of --plot must end in .png", args.plot)
     check_output_path(args.adapted_aps, "--adapted-aps", inputs=inputs, allow_stdout=True)
     check_distinct_outputs([("--out", args.out), ("--out (causal track)", causal_path(args.out) if args.out
                                                    is not None and config.smooth else None),
-                            ("--rerun", args.rerun), ("--adapted-aps", args.adapted_aps)])
+                            ("--rerun", args.rerun), ("--plot", args.plot), ("--adapted-aps", args.adapted_aps)])
     if sum(is_stdout(p) for p in (args.out, args.adapted_aps)) > 1:
         raise MapfilterError("--out - and --adapted-aps -: only one output can go to standard output")
     if args.adapted_aps is not None and args.out_dir is not None:
@@ -132,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out_dir is not None:
         if is_stdout(args.out_dir):
             raise MapfilterError("--out-dir needs a directory name, not -")
-        for option in ("out", "rerun"):
+        for option in ("out", "rerun", "plot"):
             if getattr(args, option) is not None:
                 raise MapfilterError(f"--{option} is for one walk: with --out-dir every walk gets its own track "
                                      "file")
@@ -180,6 +189,7 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     from mapfilter.trackio import write_track
 
     out_format = track_format(args.out, args.format)
+    spawn = args.spawn and _viewer_can_start()
     building = Building.load(args.map)
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     if args.floor is not None:
@@ -196,11 +206,20 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
             warn(f"{log_path}: {int(in_walls.sum())} of {in_walls.size} waypoints lie in walls or outside the "
                  f"map {args.map}")
 
+    span_s = _span_s(recording)
+    particles = config.filter.n_particles
+    announce_estimate(f"tracking {recording.name}", estimate_tracking_s(
+        [span_s], particles, 1 + (SMOOTH_EXTRA_RUNS if config.smooth else 0)),
+        f"a {duration_text(span_s)} walk, {particles} particles")
+    if args.rerun is not None:
+        announce_recording_size(span_s, min(particles, args.max_drawn_particles), args.rerun)
+
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
 
     shown_floor = walk.floor_index if walk.floor_index is not None else (header_floor or 0)
-    logger = make_logger(building.floors[shown_floor].plan, rrd_path=args.rerun, spawn=args.spawn,
-                         max_particles=args.max_drawn_particles, recording_name=recording.name, stack=walk.stack)
+    logger = make_logger(building.floors[shown_floor].plan, rrd_path=args.rerun, spawn=spawn,
+                         max_particles=args.max_drawn_particles, recording_name=recording.name, stack=walk.stack,
+                         warn=warn)
     progress = _Progress(recording, config)
     with logger, progress:
         if recording.has_ground_truth and (walk.stack is None or header_floor is not None
@@ -232,9 +251,14 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
             written.append((args.adapted_aps, "adapted access-point table"))
     if args.rerun is not None:
         written.append((args.rerun, "rerun recording"))
+    if args.plot is not None:
+        _plot(building.floors[shown_floor], recording, result, args.plot, walk.floor_index is None)
+        written.append((args.plot, "picture of the tracks"))
     # the track itself on standard output: the summary goes to stderr, out of its way
-    to_stdout = any(is_stdout(path) for path, _ in written)
-    print(_summary(building, recording, result, header_floor, written), file=sys.stderr if to_stdout else sys.stdout)
+    summary_to = sys.stderr if any(is_stdout(path) for path, _ in written) else sys.stdout
+    print(_summary(building, recording, result, header_floor, written), file=summary_to)
+    if args.out is None:
+        print("  no track file written: give --out track.csv (or .tum) to keep the track", file=summary_to)
     return 0
 
 
@@ -251,7 +275,7 @@ def _run_live(args: argparse.Namespace, config) -> int:
         raise MapfilterError("--smooth needs the whole walk: a live run (LOG -) gives the causal track")
     if is_stdout(args.out):
         raise MapfilterError("a live run (LOG -) prints its rows on standard output: --out takes a file name")
-    for option in ("rerun", "spawn", "adapted_aps"):
+    for option in ("rerun", "spawn", "adapted_aps", "plot"):
         if getattr(args, option):
             raise MapfilterError(f"--{option.replace('_', '-')} is not for a live run (LOG -)")
     out_format = track_format(args.out, args.format)
@@ -293,6 +317,50 @@ def _run_live(args: argparse.Namespace, config) -> int:
           f"{len(result.collapses)} collapses; causal {result.causal_runtime_s:.1f} s"
           + (f"; wrote {args.out} (causal track)" if args.out is not None else ""), file=sys.stderr)
     return 0
+
+
+def _span_s(recording) -> float:
+    """The walk's time in seconds: its span less the gaps its reader found (else its WiFi scans')."""
+    report = recording.read_report
+    if report is not None and report.time_span_s is not None:
+        gaps = sum(end - start for start, end in report.time_gaps_s or ())
+        return float(report.time_span_s[1] - report.time_span_s[0] - gaps)
+    times = recording.wifi.t_s
+    return float(times[-1] - times[0]) if len(times) else 0.0
+
+
+def _plot(floor, recording, result, path: Path, several_floors: bool) -> None:
+    """The tracks and the ground truth over the floor's walls (``evaluation.plots``); with several
+    floors, the rows on this floor only."""
+    import numpy as np
+
+    from mapfilter.evaluation.plots import plot_tracks_on_map
+
+    tracks = {}
+    for name, track in (("causal", result.causal), ("offline", result.offline)):
+        if track is None:
+            continue
+        on = np.ones(len(track), dtype=bool) if track.floor is None or not several_floors else (
+            np.array(track.floor) == floor.name)
+        tracks[name] = track.xy_m[on]
+    truth = None
+    if recording.has_ground_truth:
+        truth = recording.waypoint_xy_m
+        if recording.waypoint_floor is not None:
+            truth = truth[np.array(recording.waypoint_floor) == floor.name]
+    plot_tracks_on_map(floor.plan, tracks, path, truth, title=f"{recording.name} on {floor.name}")
+
+
+def _viewer_can_start() -> bool:
+    """--spawn: whether a rerun viewer can start here; if not, one line says so and the run goes
+    on without one (a viewer spawned without a display blocks, and its run could hang)."""
+    from mapfilter.viz import viewer_problem
+
+    problem = viewer_problem()
+    if problem is not None:
+        warn(f"--spawn: no rerun viewer can start here: {problem}; tracking without one (write a recording "
+             "with --rerun FILE.rrd and open it where there is a display)")
+    return problem is None
 
 
 def _summary(building, recording, result, header_floor, written) -> str:
@@ -369,15 +437,15 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
 
     from mapfilter.batch import BUILDING_SUMMARY_COLUMNS, SUMMARY_COLUMNS, BatchSetup, WalkResult, summary_row, track_logs
     from mapfilter.maps.building import Building
-    from mapfilter.trackio import write_track
-
+    from mapfilter.sensors.logs import missing_log
     from mapfilter.sensors.recording import trace_name
+    from mapfilter.trackio import write_track
 
     if args.spawn:
         raise MapfilterError("--spawn is for one walk, not for --out-dir")
     for path in args.logs:
         if not path.is_file():
-            raise MapfilterError("file not found", path)
+            raise missing_log(path)
     engine = engine_from(args)
     building = Building.load(args.map)
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
@@ -401,6 +469,12 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
                 write_track(result.causal, out_dir.claim(causal_path(path).name), out_format, building)
             track_files[result.trace] = path.name
 
+    spans = walk_spans_s(args.logs)
+    workers = args.jobs if args.scheduler is None else 1
+    announce_estimate(f"tracking {len(args.logs)} walk{'s' if len(args.logs) != 1 else ''}", estimate_tracking_s(
+        spans, config.filter.n_particles, 1 + (SMOOTH_EXTRA_RUNS if config.smooth else 0), workers),
+        f"{duration_text(sum(spans))} of walks, {config.filter.n_particles} particles, {workers} worker"
+        + ("s" if workers != 1 else ""))
     started = time.perf_counter()
     with ProgressBar("track", len(args.logs)) as progress:
         results = track_logs(building, args.logs, radio_map, ap_table, setup, engine, progress=progress,
@@ -448,9 +522,11 @@ class _Progress:
         self.t0 = float(times[0]) if times.size else 0.0
         self.span_s = max(float(times[-1]) - self.t0, 1e-9) if times.size else 1.0
         # filter runs over the walk, each an equal share of the bar: with --smooth the offline
-        # track runs the filter a second time (restart_from_placement; ``finish`` ends the bar
-        # where a walk has no second run)
-        self.runs = 2 if config.smooth and config.offline.restart_from_placement else 1
+        # track runs the filter a second time (the smoother: restart_share; the placement:
+        # restart_from_placement; ``finish`` ends the bar where a walk has no second run)
+        offline = config.offline
+        second_run = offline.restart_share > 0 if offline.method == "smoother" else offline.restart_from_placement
+        self.runs = 2 if config.smooth and second_run else 1
         self.bar = ProgressBar("tracking", 100, unit="%")
 
     def update(self, t_s: float, run: int = 0) -> None:

@@ -43,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mapfilter.cli.common import check_output_path, input_paths, warn
+    from mapfilter.cli.common import check_map_first, check_output_path, input_paths, warn
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
     from mapfilter.trackio import read_track
@@ -51,7 +51,15 @@ def run(args: argparse.Namespace) -> int:
 
     if args.rerun is not None and args.rerun.suffix != ".rrd":
         raise MapfilterError("the output of --rerun must end in .rrd", args.rerun)
+    check_map_first("mapfilter view MAP [TRACK...] --log LOG", args.map, [] if args.log is None else [args.log])
     check_output_path(args.rerun, "--rerun", inputs=input_paths(args.map, args.tracks, args.log))
+    if args.spawn:
+        from mapfilter.viz import viewer_problem
+
+        problem = viewer_problem()
+        if problem is not None:
+            raise MapfilterError(f"--spawn: no rerun viewer can start here: {problem}; write the recording with "
+                                 "--rerun FILE.rrd and open it where there is a display")
     # load everything before writing anything: a bad input leaves no half-made recording
     building = Building.load(args.map)
     tracks = [read_track(path) for path in args.tracks]
@@ -64,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
         truth_floor = _floors_on_plans(building, tracks, args.tracks, recording, args.log)
     view_map(building.floors[0].plan if building.is_single_floor else building, tracks, recording,
              rrd_path=args.rerun, spawn=args.spawn,
-             recording_name=args.map.stem if recording is None else recording.name, truth_floor=truth_floor)
+             recording_name=args.map.stem if recording is None else recording.name, truth_floor=truth_floor,
+             warn=warn)
     if args.rerun is not None:
         print(f"wrote {args.rerun}")
     return 0

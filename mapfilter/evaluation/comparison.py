@@ -53,14 +53,16 @@ from mapfilter.engine import Engine, run_each
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.baselines import kalman_track, pdr_kwnn_track, pdr_track
 from mapfilter.evaluation.diagnostics import DIAGNOSTIC_COLUMNS, walk_diagnostics
-from mapfilter.evaluation.metrics import FloorScore, ipin_errors_m, ipin_score, summarise_errors
+from mapfilter.evaluation.metrics import (FloorScore, availability, floor_detection, ipin_errors_m, ipin_score,
+                                         summarise_errors)
 from mapfilter.evaluation.scoring import score_track
 from mapfilter.filter.evidence import calibrated_fix_sigma_m
 from mapfilter.selftrain import GrowConfig, grow_radio_map, grown_by_fold
 from mapfilter.maps.building import Building
-from mapfilter.sensors.floor_vote import build_building_radio_map, floor_hmm, floor_vote_log_likelihood
+from mapfilter.sensors.floor_vote import (build_building_radio_map, check_building_radio_map, floor_hmm,
+                                         floor_vote_log_likelihood)
 from mapfilter.sensors.logread import LogReadWarning
-from mapfilter.sensors.logs import read_log, read_log_header
+from mapfilter.sensors.logs import localise, missing_log, read_log, read_log_header
 from mapfilter.sensors.pathloss import (AccessPointTable, check_access_points_on_map, estimate_access_points,
                                        least_squares_position, match_scan)
 from mapfilter.sensors.pdr import Steps, detect_steps
@@ -81,6 +83,10 @@ def methods_for(building: Building) -> tuple[str, ...]:
     return ALL_METHODS if building.is_single_floor else BUILDING_METHODS
 
 
+# A walk to evaluate: its log's path, or the log already read (the Python API takes both).
+Walk = Path | Recording
+
+
 @dataclasses.dataclass(frozen=True)
 class EvaluationSetup:
     """What every walk is evaluated with."""
@@ -88,17 +94,39 @@ class EvaluationSetup:
     methods: tuple[str, ...] | None = None  # None: every method of ``methods_for`` the WiFi source allows
     radio_map_path: Path | None = None  # one radio map for all walks
     ap_table_path: Path | None = None  # one access-point table for all walks
-    survey_paths: tuple[Path, ...] = ()  # logs with waypoints that make the radio map (never scored)
+    survey_paths: tuple[Walk, ...] = ()  # logs with waypoints that make the radio map (never scored)
     leave_one_out: bool = False  # the evaluated walks join the radio map; each walk's fold drops its own points
     fit_aps: bool = False  # with leave_one_out or a survey: fit an AP table even if no method asks for it
     strict: bool = False  # refuse a walk with a bad row in a record type it needs (default: skip the row, warn)
     tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)  # seed and smooth included
-    unlabelled_paths: tuple[Path, ...] = ()  # walks that grow the radio map (waypoints never read), never scored
+    unlabelled_paths: tuple[Walk, ...] = ()  # walks that grow the radio map (waypoints never read), never scored
     transductive: bool = False  # the evaluated walks grow the radio map too, without their own labels
+    radio_map: RadioMap | None = None  # one radio map for all walks, already loaded (instead of radio_map_path)
+    access_points: AccessPointTable | None = None  # one access-point table, already loaded (instead of ap_table_path)
 
     @property
     def grows(self) -> bool:
         return bool(self.unlabelled_paths) or self.transductive
+
+    @property
+    def has_radio_map(self) -> bool:
+        return self.radio_map is not None or self.radio_map_path is not None
+
+    @property
+    def has_access_points(self) -> bool:
+        return self.access_points is not None or self.ap_table_path is not None
+
+    def load_radio_map(self) -> RadioMap | None:
+        """The one radio map of every walk (given or read from its file), or None."""
+        if self.radio_map is not None:
+            return self.radio_map
+        return RadioMap.load(self.radio_map_path) if self.radio_map_path is not None else None
+
+    def load_access_points(self) -> AccessPointTable | None:
+        """The one access-point table of every walk (given or read from its file), or None."""
+        if self.access_points is not None:
+            return self.access_points
+        return AccessPointTable.read_csv(self.ap_table_path) if self.ap_table_path is not None else None
 
 
 @dataclasses.dataclass
@@ -133,7 +161,7 @@ class WalkOutcome:
 
     index: int
     trace: str
-    log_path: Path
+    log_path: Path | None  # None: a walk given as a Recording that was read from no file
     status: str  # ok | failed (the input's fault) | crashed (a bug)
     reason: str = ""
     results: list[MethodResult] = dataclasses.field(default_factory=list)
@@ -179,13 +207,13 @@ class _Context:
     building: Building
     setup: EvaluationSetup
     methods: tuple[str, ...]
-    paths: tuple[Path, ...]
+    paths: tuple[Walk, ...]
     all_walks: AllWalks | None
     true_floors: tuple[int | None, ...]  # per evaluated walk: its floor by the header (None: per waypoint or none)
     growth: Growth | None = None
 
 
-def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: EvaluationSetup,
+def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recording], setup: EvaluationSetup,
              engine: Engine = Engine(), progress: Callable[[int, int, str], None] | None = None,
              on_walk: Callable[[WalkOutcome], None] | None = None,
              resumed: Sequence[WalkOutcome] = (),
@@ -195,7 +223,9 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: 
     engine. A walk that fails is reported (``WalkOutcome.status``) and the others go on;
     ``on_walk`` sees each walk as it finishes (to write its results at once). ``resumed``: the
     outcomes of walks already done (``evaluation.store``): those walks are not run again.
-    ``grow_progress`` follows the growing of the radio map (self-training), which comes first."""
+    ``grow_progress`` follows the growing of the radio map (self-training), which comes first.
+    A walk is a log's path or a ``Recording`` already read (as are the setup's survey and
+    unlabelled walks)."""
     paths, survey, methods = validate_setup(building, log_paths, setup)
     started = time.perf_counter()
     read_warnings: list[str] = []
@@ -207,7 +237,8 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: 
         lent = [(rec, floor) for rec, floor in ((_surveying_walk(p, setup, building), f)
                                                 for p, f in zip(paths, true_floors)) if rec is not None] \
             if setup.leave_one_out else []
-        survey_recordings = [read_log(p, strict=setup.strict, building=building) for p in survey]
+        survey_recordings = [read_walk(p, building, setup.strict) for p in survey]
+    # the evaluated walks join the survey material only with leave-one-out (``lent``)
     recordings = [rec for rec, _ in lent]
     all_walks = _all_walks(building, setup, methods, survey_recordings + recordings,
                            [_true_floor(building, p) for p in survey] + [floor for _, floor in lent])
@@ -221,7 +252,7 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: 
     todo = [i for i in range(len(paths)) if i not in done]
     outcomes: list[WalkOutcome] = list(resumed)
     for _, outcome in run_each(_evaluate_walk, todo, engine, common=(context,), progress=progress,
-                               label=lambda index: paths[index].name):
+                               label=lambda index: walk_name(paths[index])):
         outcomes.append(outcome)
         read_warnings.extend(w for w in outcome.read_warnings if w not in read_warnings)
         if on_walk is not None:
@@ -231,26 +262,30 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: 
     return evaluation
 
 
-def validate_setup(building: Building, log_paths: Sequence[str | os.PathLike],
-                   setup: EvaluationSetup) -> tuple[list[Path], list[Path], tuple[str, ...]]:
+def validate_setup(building: Building, log_paths: Sequence[str | os.PathLike | Recording],
+                   setup: EvaluationSetup) -> tuple[list[Walk], list[Walk], tuple[str, ...]]:
     """Check an evaluation before it runs: (the walks, the survey logs, the methods), or a
     ``MapfilterError`` for a missing log, a repeated trace name, an unknown method or a WiFi
     source that does not fit."""
     paths = checked_log_paths(log_paths)
     survey = checked_log_paths(setup.survey_paths) if setup.survey_paths else []
-    overlap = {trace_name(p) for p in paths} & {trace_name(p) for p in survey}
+    overlap = {walk_name(p) for p in paths} & {walk_name(p) for p in survey}
     if overlap:
         raise MapfilterError(f"walk {sorted(overlap)[0]} is both a survey log and an evaluated walk: a walk is "
                              f"never scored against its own points (use --leave-one-out to let the evaluated "
                              f"walks survey each other)")
     methods = _checked_methods(building, setup)
-    sources = sum([setup.radio_map_path is not None, setup.ap_table_path is not None and building.is_single_floor,
+    if setup.radio_map is not None and setup.radio_map_path is not None:
+        raise MapfilterError("give the radio map as a file or as a RadioMap, not both")
+    if setup.access_points is not None and setup.ap_table_path is not None:
+        raise MapfilterError("give the access-point table as a file or as a table, not both")
+    sources = sum([setup.has_radio_map, setup.has_access_points and building.is_single_floor,
                    bool(survey) or setup.leave_one_out])
     if sources == 0:
         raise MapfilterError("no WiFi source: give a radio map, an access-point table, survey logs or --leave-one-out")
-    if setup.radio_map_path is not None and (survey or setup.leave_one_out):
+    if setup.has_radio_map and (survey or setup.leave_one_out):
         raise MapfilterError("give a radio map, or survey logs / --leave-one-out, not both (those build their own)")
-    if not building.is_single_floor and setup.ap_table_path is not None:
+    if not building.is_single_floor and setup.has_access_points:
         raise MapfilterError("a building is evaluated with a building's radio map, not an access-point table")
     if setup.leave_one_out and len(paths) + len(survey) < 2:
         raise MapfilterError("leave-one-out needs at least two logs")
@@ -258,15 +293,16 @@ def validate_setup(building: Building, log_paths: Sequence[str | os.PathLike],
         raise MapfilterError("--transductive grows the map from walks that are scored without their labels, but "
                              "--leave-one-out surveys with those labels: give the survey with --survey or --radiomap")
     unlabelled = checked_log_paths(setup.unlabelled_paths) if setup.unlabelled_paths else []
-    named = {trace_name(p) for p in paths + survey}
-    both = sorted(named & {trace_name(p) for p in unlabelled})
+    named = {walk_name(p) for p in paths + survey}
+    both = sorted(named & {walk_name(p) for p in unlabelled})
     if both:
         raise MapfilterError(f"walk {both[0]} is both unlabelled and labelled or scored: give it once "
                              f"(--transductive lets the scored walks grow the map without their labels)")
     return paths, survey, methods
 
 
-def evaluate_trace(building: Building, log_paths: Sequence[str | os.PathLike], index: int, setup: EvaluationSetup,
+def evaluate_trace(building: Building, log_paths: Sequence[str | os.PathLike | Recording], index: int,
+                   setup: EvaluationSetup,
                    all_walks: AllWalks | None = None) -> list[MethodResult]:
     """Every method of ``setup`` on walk ``log_paths[index]``, for scripts that drive the walks
     themselves; ``all_walks``: the survey material (leave-one-out drops this walk's points).
@@ -296,10 +332,12 @@ def _checked_methods(building: Building, setup: EvaluationSetup) -> tuple[str, .
     return tuple(setup.methods)
 
 
-def _true_floor(building: Building, path: Path) -> int | None:
+def _true_floor(building: Building, path: Walk) -> int | None:
     """The walk's floor by its header (a building refuses a floor it does not have); None when it
     names none, as a walk over several floors does (a GetSensorData log whose POSI rows name
     several floors: the scoring takes each waypoint's own floor, the radio map each scan's)."""
+    if isinstance(path, Recording):
+        return building.floor_of_log(path.floor_name, path.path)
     try:
         header = read_log_header(path).get("FloorName") or None
     except MapfilterError:
@@ -307,11 +345,11 @@ def _true_floor(building: Building, path: Path) -> int | None:
     return building.floor_of_log(header, path)
 
 
-def _surveying_walk(path: Path, setup: EvaluationSetup, building: Building) -> Recording | None:
+def _surveying_walk(walk: Walk, setup: EvaluationSetup, building: Building) -> Recording | None:
     """An evaluated walk as survey material for the others (leave-one-out), or None when it has
     nothing to lend (it cannot be read, or has no WiFi scan or no waypoint)."""
     try:
-        recording = read_log(path, strict=setup.strict, building=building)
+        recording = read_walk(walk, building, setup.strict)
     except MapfilterError:
         return None
     return recording if len(recording.wifi) and recording.has_ground_truth else None
@@ -324,7 +362,7 @@ def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, .
         return None
     if building.is_single_floor:
         radio_map = build_radio_map(recordings, building.floors[0].plan)
-        fit = setup.ap_table_path is None and (setup.fit_aps or "ls" in methods)
+        fit = not setup.has_access_points and (setup.fit_aps or "ls" in methods)
         return AllWalks(radio_map, estimate_access_points(radio_map) if fit else None)
     for rec, floor in zip(recordings, floors):
         if floor is None and not rec.waypoint_floor:
@@ -344,14 +382,15 @@ def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, .
 def _evaluate_walk(context: _Context, index: int) -> WalkOutcome:
     """One task: every method on walk ``index``; never raises (a failure is the outcome's status),
     with the reader's warnings brought back (a worker's would otherwise end in the worker's log)."""
-    path = context.paths[index]
-    outcome = WalkOutcome(index, trace_name(path), path, "ok")
+    walk = context.paths[index]
+    log_path = walk.path if isinstance(walk, Recording) else walk
+    outcome = WalkOutcome(index, walk_name(walk), log_path, "ok")
     started = time.perf_counter()
     try:
         with _collect_read_warnings(outcome.read_warnings):
-            recording = read_log(path, strict=context.setup.strict, building=context.building)
+            recording = read_walk(walk, context.building, context.setup.strict)
         if not recording.has_ground_truth:
-            raise MapfilterError("the log has no waypoints to evaluate against", path)
+            raise MapfilterError("the log has no waypoints to evaluate against", log_path)
         if context.building.is_single_floor:
             outcome.results = _one_floor_methods(context, index, recording)
         else:
@@ -524,18 +563,22 @@ def _building_radio_map(recording: Recording | None, setup: EvaluationSetup, all
         return all_walks.radio_map.without_traces([recording.name]) if setup.leave_one_out else all_walks.radio_map
     from mapfilter.sensors.floor_vote import load_building_radio_map
 
-    radio_map = load_building_radio_map(setup.radio_map_path, building.floor_names)
+    if setup.radio_map is not None:
+        radio_map = setup.radio_map
+        check_building_radio_map(radio_map, building.floor_names, "the radio map")
+    else:
+        radio_map = load_building_radio_map(setup.radio_map_path, building.floor_names)
     check_radio_map_on_map(radio_map, building, setup.radio_map_path, building.path)
     return radio_map
 
 
-def _growth(building: Building, setup: EvaluationSetup, paths: list[Path], labelled: list[Recording],
+def _growth(building: Building, setup: EvaluationSetup, paths: list[Walk], labelled: list[Recording],
             all_walks: AllWalks | None, engine: Engine, progress: Callable[[int, int, str], None] | None) -> Growth:
     """The radio map's grown points (``Growth``): from the unlabelled walks (and, transductive,
     the evaluated ones), over the labelled material the walks are scored with."""
-    read = [read_log(p, strict=setup.strict, building=building) for p in setup.unlabelled_paths]
+    read = [read_walk(p, building, setup.strict) for p in setup.unlabelled_paths]
     if setup.transductive:
-        read += [read_log(p, strict=setup.strict, building=building) for p in paths]
+        read += [read_walk(p, building, setup.strict) for p in paths]
     space = building.floors[0].plan if building.is_single_floor else building
     config = GrowConfig(tracking=setup.tracking, seed=setup.tracking.seed)
     if setup.leave_one_out:
@@ -545,7 +588,7 @@ def _growth(building: Building, setup: EvaluationSetup, paths: list[Path], label
     if all_walks is not None:  # the survey logs
         base = all_walks.radio_map
     elif building.is_single_floor:
-        base = RadioMap.load(setup.radio_map_path)
+        base = setup.load_radio_map()
     else:
         base = _building_radio_map(None, setup, None, building)
     result, _ = grow_radio_map(space, base, read, config, progress=progress, engine=engine)
@@ -599,8 +642,8 @@ def floor_path_baseline(building: Building, scan_t: np.ndarray, xy: np.ndarray, 
 
 def _wifi_sources(recording: Recording, setup: EvaluationSetup, all_walks: AllWalks | None,
                   building: Building) -> tuple[RadioMap | None, AccessPointTable | None]:
-    radio_map = RadioMap.load(setup.radio_map_path) if setup.radio_map_path else None
-    ap_table = AccessPointTable.read_csv(setup.ap_table_path) if setup.ap_table_path else None
+    radio_map = setup.load_radio_map()
+    ap_table = setup.load_access_points()
     if radio_map is not None:
         check_radio_map_on_map(radio_map, building, setup.radio_map_path, building.path)
     if ap_table is not None:
@@ -668,14 +711,28 @@ def _ls_fixes(ap_table: AccessPointTable, scans) -> np.ndarray:
 
 
 # ---- many walks ------------------------------------------------------------------------------
-def checked_log_paths(log_paths: Sequence[str | os.PathLike]) -> list[Path]:
-    """The logs as paths; ``MapfilterError`` for a missing file or two logs with one trace name
-    (walks are told apart by name: leave-one-out drops a walk's points by it)."""
-    paths = [Path(p) for p in log_paths]
+def walk_name(walk: Walk) -> str:
+    """A walk's trace name: its log file's (``trace_name``), or the ``Recording``'s own."""
+    return walk.name if isinstance(walk, Recording) else trace_name(walk)
+
+
+def read_walk(walk: Walk, building: Building, strict: bool = False) -> Recording:
+    """A walk as a ``Recording``: its log read (latitude/longitude ground truth placed in the
+    building), or the ``Recording`` given, placed likewise."""
+    if isinstance(walk, Recording):
+        return localise(walk, building) if walk.needs_georeference else walk
+    return read_log(walk, strict=strict, building=building)
+
+
+def checked_log_paths(log_paths: Sequence[str | os.PathLike | Recording]) -> list[Walk]:
+    """The walks as paths (or ``Recording``s, kept as they are); ``MapfilterError`` for a missing
+    file or two walks with one trace name (walks are told apart by name: leave-one-out drops a
+    walk's points by it)."""
+    paths = [p if isinstance(p, Recording) else Path(p) for p in log_paths]
     for path in paths:
-        if not path.is_file():
-            raise MapfilterError("file not found", path)
-    names = [trace_name(p) for p in paths]
+        if isinstance(path, Path) and not path.is_file():
+            raise missing_log(path)
+    names = [walk_name(p) for p in paths]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise MapfilterError(f"two logs share the trace name {repeated[0]}: walks are told apart by name")
@@ -725,10 +782,13 @@ class Evaluation:
         return seen
 
     def summary_rows(self, by_phone: bool = False) -> list[dict]:
-        """One row per method: error statistics over all waypoints of all walks, and totals; in a
-        building with several floors also the floor accuracy and the IPIN score (the 75th
-        percentile of the error plus 15 m per storey off, over the same waypoints). ``by_phone``:
-        one row per phone model and method (a ``phone`` column first), the walks of that phone."""
+        """One row per method: error statistics over all waypoints of all walks (with CE95, the
+        95th percentile), the availability (the share of waypoints with an estimate) and totals;
+        in a building with several floors also the floor accuracy, the floor detection probability
+        (right floor at all waypoints) and the IPIN score (the 75th percentile of the error plus
+        15 m per storey off, over the same waypoints). docs/results.md describes every column.
+        ``by_phone``: one row per phone model and method (a ``phone`` column first), the walks of
+        that phone."""
         if by_phone:
             return [{"phone": phone, **row} for phone in self.phones()
                     for row in self._rows([r for r in self.results if r.phone == phone])]
@@ -741,7 +801,8 @@ class Evaluation:
             if not mine:
                 continue
             stats = summarise_errors(np.concatenate([r.errors_m for r in mine]))
-            row = {"method": method, **stats, "missed": sum(r.missed for r in mine),
+            missed = sum(r.missed for r in mine)
+            row = {"method": method, **stats, "missed": missed, "availability": availability(stats["n"], missed),
                    "wall_crossings": sum(r.wall_crossings for r in mine),
                    "collapses": sum(r.collapses for r in mine),
                    "runtime_s": sum(r.runtime_s for r in mine), "traces": len(mine), "causal": mine[0].causal}
@@ -749,6 +810,7 @@ class Evaluation:
                 scores = [r.floor_score for r in mine if r.floor_score]
                 judged = sum(s.n_judged for s in scores)
                 row["floor_accuracy"] = sum(s.n_right for s in scores) / judged if judged else math.nan
+                row["floor_detection"] = floor_detection(scores)
                 row["ipin_score"] = ipin_score(np.concatenate([r.ipin_errors_m for r in mine]))
             rows.append(row)
         return rows
@@ -768,9 +830,11 @@ class Evaluation:
         rows = []
         for r in self.results:
             row = {"trace": r.trace, "method": r.method, **summarise_errors(r.errors_m), "missed": r.missed,
+                   "availability": availability(r.errors_m.size, r.missed),
                    "wall_crossings": r.wall_crossings, "collapses": r.collapses, "runtime_s": r.runtime_s}
             if self.has_floors:
                 row["floor_accuracy"] = r.floor_score.accuracy if r.floor_score else math.nan
+                row["floor_detection"] = floor_detection([r.floor_score]) if r.floor_score else math.nan
                 row["ipin_score"] = ipin_score(r.ipin_errors_m)
             if r.phone:
                 row["phone"] = r.phone

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-SUMMARY_FIELDS = ("mean", "median", "p75", "p90", "max", "rmse")
+SUMMARY_FIELDS = ("mean", "median", "p75", "p90", "ce95", "max", "rmse")
 # the IPIN competitions' floor penalty: 15 m for each floor the estimate is off by (EvAAL
 # framework; the IPIN 2023 Track 3 rules), added to the horizontal error before the 75th percentile
 IPIN_FLOOR_PENALTY_M = 15.0
@@ -61,7 +61,8 @@ def errors_at_waypoints(
 
 
 def summarise_errors(errors_m: Sequence[float] | np.ndarray) -> dict[str, float]:
-    """mean, median, p75 (the IPIN/EvAAL score), p90, max and RMSE of errors (NaN when empty)."""
+    """mean, median, p75 (the IPIN/EvAAL score), p90, CE95 (the 95th percentile, ISO/IEC 18305's
+    circular error at 95 %), max and RMSE of errors (NaN when empty)."""
     errors = np.asarray(errors_m, dtype=np.float64)
     if errors.size == 0:
         return {name: math.nan for name in SUMMARY_FIELDS} | {"n": 0}
@@ -70,6 +71,7 @@ def summarise_errors(errors_m: Sequence[float] | np.ndarray) -> dict[str, float]
         "median": float(np.median(errors)),
         "p75": float(np.percentile(errors, 75)),
         "p90": float(np.percentile(errors, 90)),
+        "ce95": float(np.percentile(errors, 95)),
         "max": float(errors.max()),
         "rmse": float(np.sqrt(np.mean(errors**2))),
         "n": int(errors.size),
@@ -132,6 +134,21 @@ def floor_at_waypoints(track_t_s: np.ndarray, track_floor: Sequence[str], waypoi
         storeys = np.array([abs(level.get(track_floor[row[i]], math.nan) - level.get(truth[i], math.nan))
                             for i in judged], dtype=np.float64)
     return FloorScore(int(right), int(have.sum()), int((~have).sum()), storeys)
+
+
+def availability(n_estimated: int, n_missed: int) -> float:
+    """ISO/IEC 18305's availability at the ground-truth points: the share of them for which the
+    method had an estimate (at or before the point, for a causal method); NaN without points."""
+    total = n_estimated + n_missed
+    return n_estimated / total if total else math.nan
+
+
+def floor_detection(scores: Sequence[FloorScore]) -> float:
+    """ISO/IEC 18305's floor detection probability: the share of all ground-truth points at which
+    the estimate was on the right floor (a point without an estimate is not detected; the floor
+    accuracy leaves those out); NaN without points."""
+    total = sum(s.n_judged + s.missed for s in scores)
+    return sum(s.n_right for s in scores) / total if total else math.nan
 
 
 def ipin_errors_m(errors_m: np.ndarray, storeys_off: np.ndarray | None,

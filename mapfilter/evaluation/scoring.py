@@ -68,3 +68,27 @@ def score_track(building: Building, recording: Recording, track: Track, header_f
             order = [f.name for f in sorted(building.floors, key=lambda f: f.elevation_m)]
             score = floor_at_waypoints(track.t_s, list(floor), recording.waypoint_t_s, true_floor, causal, order)
     return TrackScore(visited, crossings, true_floor, errors, score)
+
+
+def ground_truth_track(recording: Recording, at_t_s: np.ndarray | None = None) -> Track:
+    """A walk's ground truth as a track (its waypoints, each on its own floor where the log names
+    one), for trajectory tools such as evo. ``at_t_s``: instead, the ground truth at these times
+    (a track's), linear between waypoints and only within their span, each row on the floor of
+    the waypoint before it; then a tool that pairs rows by time pairs every row. The waypoints
+    must be in the map's metres (``sensors.logs.localise`` places latitude/longitude ones)."""
+    t_wp = recording.waypoint_t_s
+    xy_wp = recording.waypoint_xy_m
+    floors = recording.waypoint_floor
+    if floors is None and recording.floor_name is not None:
+        floors = [recording.floor_name] * t_wp.size
+    if at_t_s is None:
+        return Track(t_wp.copy(), xy_wp.copy(), floor=None if floors is None else list(floors),
+                     name=f"{recording.name}_truth")
+    t = np.asarray(at_t_s, dtype=np.float64)
+    t = t[(t >= t_wp[0]) & (t <= t_wp[-1])]
+    xy = np.column_stack([np.interp(t, t_wp, xy_wp[:, 0]), np.interp(t, t_wp, xy_wp[:, 1])])
+    floor = None
+    if floors is not None:
+        before = np.clip(np.searchsorted(t_wp, t, side="right") - 1, 0, t_wp.size - 1)
+        floor = [floors[i] for i in before]
+    return Track(t, xy, floor=floor, name=f"{recording.name}_truth")

@@ -27,7 +27,7 @@ import yaml
 from scipy import ndimage
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.yamlio import load_yaml
 
 # map_server's defaults; pixel values we write: 0 = occupied, 254 = free.
@@ -305,7 +305,7 @@ def image_size_px(path: str | os.PathLike) -> tuple[int, int]:
     """
     path = Path(path)
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise not_a_file(path)
     with path.open("rb") as handle:
         head = handle.read(26)
     # PNG: the signature, then the IHDR chunk (length, type, width, height: big-endian)
@@ -373,7 +373,7 @@ def read_gray_image(path: str | os.PathLike) -> np.ndarray:
 def read_yaml_mapping(path: Path, what: str = "a map YAML") -> dict:
     """The mapping of keys in a YAML file (also JSON), read by ``mapfilter.yamlio`` (size and
     alias limits, duplicate keys refused); ``MapfilterError`` naming the file (and the line)
-    when it is missing, malformed or not a mapping."""
+    when it is missing, a directory, malformed or not a mapping."""
     meta = load_yaml(Path(path), what)
     if not isinstance(meta, dict):
         raise MapfilterError(f"{what} must be a mapping of keys", path)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 
 # WGS-84 ellipsoid
 WGS84_A_M = 6378137.0
@@ -152,7 +152,7 @@ def read_cal(path: str | os.PathLike) -> list[CalFloor]:
     """The floors of an IPIN calibration file (``%`` comments; seven rows of one column per floor)."""
     path = Path(path)
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise not_a_file(path)
     if path.stat().st_size > 1_000_000:
         raise MapfilterError("too large for a calibration file (over 1 MB)", path)
     try:

@@ -32,7 +32,7 @@ import shapely
 from shapely.geometry import shape as geojson_shape
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.yamlio import load_yaml
 from mapfilter.maps.floorplan import MAX_IMAGE_PIXELS, FloorPlan, SourceImage, check_image_size, plan_geometry_problem
 
@@ -337,8 +337,11 @@ class RegionOptions:
     ``walkable`` holds colour specs: ``"transparent"`` (alpha <= ``alpha_max``), ``"#rrggbb"`` or
     ``"r,g,b"`` (opaque pixels within ``tolerance`` per channel). Everything else is wall, then:
     wall blobs smaller than ``remove_below_px`` pixels become free (text and marks inside
-    corridors), and walls are eroded by ``open_outlines_px`` where they meet free space (the
-    outlines drawn around filled regions are walkable: ILC waypoints lie on them).
+    corridors), free space connected to the image border is outside, so wall
+    (``outside_is_wall``, as a floor plan needs), and walls are eroded by ``open_outlines_px``
+    where they meet free space (the outlines drawn around filled regions are walkable: ILC
+    waypoints lie on them; the outside is walled first, so opening the building's own outline
+    never lets the outside in).
     """
 
     walkable: tuple[str, ...] = (TRANSPARENT,)
@@ -346,7 +349,7 @@ class RegionOptions:
     alpha_max: int = 127  # pixels at most this opaque count as transparent
     remove_below_px: int = 0  # wall blobs (8-connected) with fewer pixels become free (0 = off)
     open_outlines_px: int = 0  # erode walls by this many pixels along free space (0 = off)
-    outside_is_wall: bool = False  # free space connected to the image border becomes wall
+    outside_is_wall: bool = True  # free space connected to the image border is outside: wall
 
     def __post_init__(self) -> None:
         _check_pixel_counts(self, ("tolerance", "alpha_max", "remove_below_px", "open_outlines_px"))
@@ -397,14 +400,15 @@ def prepare_regions(
     wall = ~free
     if options.remove_below_px > 0:
         wall = _remove_small_areas(wall, options.remove_below_px)
+    if options.outside_is_wall:
+        wall = _fill_outside(wall, plan_path, keep_free_option="--keep-outside")
     if options.open_outlines_px > 0:
         wall = _erode(wall, options.open_outlines_px)
-    if options.outside_is_wall:
-        wall = _fill_outside(wall, plan_path, keep_free_option="no --outside-wall")
     return _finish(wall, resolution_m, map_resolution_m, plan_path, floor_name)
 
 
 # ---- GeoJSON floors -------------------------------------------------------------------------
+DEFAULT_GEOJSON_RESOLUTION_M = 0.1  # a door (about 0.8 m) is eight cells wide
 @dataclasses.dataclass
 class VectorFloor:
     """A vector floor in metres: outline (walkable area) and obstacles (shops), both shapely."""
@@ -423,7 +427,7 @@ def read_geojson_floor(path: str | os.PathLike, units: str = "lonlat") -> Vector
     """
     path = Path(path)
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise not_a_file(path)
     try:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
@@ -486,7 +490,7 @@ def prepare_geojson(
     Parameters
     ----------
     path : the GeoJSON file (see :func:`read_geojson_floor`).
-    resolution_m : metres per output pixel (required).
+    resolution_m : metres per output pixel (None: ``DEFAULT_GEOJSON_RESOLUTION_M``).
     units : "lonlat" (project, ILC convention) or "m".
     obstacle_inset_m : shrink every obstacle by this much first, so that a walker brushing a
         shop front (ILC waypoints lie on shop outlines) stays on free space.
@@ -494,9 +498,8 @@ def prepare_geojson(
     floor_name, source_image : passed to the FloorPlan.
     """
     path = Path(path)
-    if resolution_m is None:
-        raise MapfilterError("no scale given: a GeoJSON floor needs --resolution M (metres per pixel)", path)
-    resolution_m = _positive(resolution_m, "resolution", path)
+    resolution_m = _positive(DEFAULT_GEOJSON_RESOLUTION_M if resolution_m is None else resolution_m, "resolution",
+                             path)
     floor = read_geojson_floor(path, units)
     x_min, y_min, x_max, y_max = floor.outline.bounds
     x_min, y_min, x_max, y_max = x_min - margin_m, y_min - margin_m, x_max + margin_m, y_max + margin_m
@@ -533,7 +536,7 @@ def read_edits(path: str | os.PathLike) -> MapEdits:
     whose features carry ``properties: {"set": "free" | "wall"}``."""
     path = Path(path)
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise not_a_file(path)
     data = load_yaml(path, "an edits file", max_bytes=64 << 20)  # YAML is a superset of JSON: reads both
     edits = MapEdits([], [])
     if isinstance(data, dict) and data.get("type") == "FeatureCollection":
@@ -579,6 +582,57 @@ def apply_edits(plan: FloorPlan, edits: MapEdits) -> FloorPlan:
         wall[touched.astype(bool)] = value
     _check_mask(wall, None)
     return dataclasses.replace(plan, wall_mask=wall)
+
+
+# ---- checks of a finished mask ---------------------------------------------------------------
+# A plan can turn into a useless mask without an error; these say so (one line each).
+# The wall edge (wall pixels beside free ones) against the edge of a square of the same free
+# area: a nearly empty plan (IPIN 2023 floor -1) is one open area walled round its edge, 1.00;
+# an empty 2:1 rectangle 1.08; two rooms and a door 1.23; the office 5.3; ILC floors 5.6-14.5.
+MIN_WALL_EDGE_RATIO = 1.1
+MIN_WALL_FRACTION = 0.005  # fewer wall pixels than this: the plan drew (almost) nothing
+MIN_FREE_FRACTION = 0.01  # less free space than this is a plan the outside fill (or the ink) took
+SMALL_BLOB_M2 = 1.0  # a wall blob inside free space smaller than this is text, a mark or a pillar
+
+
+def mask_warnings(plan: FloorPlan, outside_hint: str | None = "", blob_hint: str | None = "") -> list[str]:
+    """What looks wrong with a finished mask, one line each (empty when nothing does): almost no
+    free space; almost no walls (the free space one open area); free space reaching the map's
+    edge (the outside walkable: ``outside_hint`` says why or how to wall it; None: not checked,
+    the kind of plan walls the outside, as a GeoJSON outline does); small wall blobs inside free
+    space (text in corridors: ``blob_hint`` says how to remove them; None: not checked, a vector
+    floor's small polygons are obstacles drawn on purpose)."""
+    wall = plan.wall_mask
+    free = ~wall
+    found = []
+    if free.mean() < MIN_FREE_FRACTION:
+        found.append(f"almost no free space ({free.mean():.1%} of the map): a nearly empty plan, or an outer wall "
+                     "with an opening, lets the outside fill take everything (look at the preview)")
+        return found
+    edge = np.zeros_like(wall)  # wall pixels with a free 4-neighbour
+    edge[1:] |= wall[1:] & free[:-1]
+    edge[:-1] |= wall[:-1] & free[1:]
+    edge[:, 1:] |= wall[:, 1:] & free[:, :-1]
+    edge[:, :-1] |= wall[:, :-1] & free[:, 1:]
+    ratio = edge.sum() / (4.0 * math.sqrt(free.sum()))
+    if ratio < MIN_WALL_EDGE_RATIO or wall.mean() < MIN_WALL_FRACTION:
+        found.append(f"almost no walls: the free space ({free.mean():.0%} of the map) is one open area; is the plan "
+                     "nearly empty, or its lines too faint? (look at the preview)")
+    border = np.concatenate([free[0], free[-1], free[1:-1, 0], free[1:-1, -1]])
+    if outside_hint is not None and border.any():
+        found.append(f"free space reaches the edge of the map ({border.sum() * plan.resolution_m:.0f} m of its border): "
+                     "the outside of the building is walkable" + (f" ({outside_hint})" if outside_hint else ""))
+    if blob_hint is None:
+        return found
+    count, _, stats, _ = cv2.connectedComponentsWithStats(wall.astype(np.uint8), connectivity=8)
+    x, y, w, h, area = (stats[1:, i] for i in range(5))
+    inside = (x > 0) & (y > 0) & (x + w < wall.shape[1]) & (y + h < wall.shape[0])
+    small = inside & (area * plan.resolution_m ** 2 < SMALL_BLOB_M2)
+    if small.any():
+        n = int(small.sum())
+        found.append(f"{n} small wall blob{'s' if n != 1 else ''} inside free space (under {SMALL_BLOB_M2:g} m2 each: "
+                     "text, marks or pillars? look at the preview)" + (f"; {blob_hint}" if blob_hint else ""))
+    return found
 
 
 # ---- output ---------------------------------------------------------------------------------
@@ -655,7 +709,10 @@ def write_map(plan: FloorPlan, yaml_path: str | os.PathLike, preview: bool = Tru
 # 2 px along free space opens the outlines and also removes 1-2 px text strokes and marks in
 # the corridors (measured with tools/check_ilc_maps.py: 0 px leaves 96.6 % / 85.5 % of F1 / F2
 # waypoints free in 3-4 pieces, 1-2 px give 100 % in one piece).
-ILC_REGION_OPTIONS = RegionOptions(walkable=(TRANSPARENT,), alpha_max=127, remove_below_px=0, open_outlines_px=2)
+# The outside stays walkable on this route (the transparent outside reaches the corridors through
+# the entrances; the GeoJSON route walls it).
+ILC_REGION_OPTIONS = RegionOptions(walkable=(TRANSPARENT,), alpha_max=127, remove_below_px=0, open_outlines_px=2,
+                                   outside_is_wall=False)
 # GeoJSON shop polygons are the outlines themselves: shrink them by 0.6 m (about two image
 # pixels) so that waypoints on a shop front stay free.
 ILC_OBSTACLE_INSET_M = 0.6
@@ -667,7 +724,7 @@ def read_ilc_floor_info(floor_dir: str | os.PathLike) -> tuple[float, float]:
     """(width, height) in metres from an ILC ``floor_info.json``."""
     path = Path(floor_dir) / "floor_info.json"
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise not_a_file(path)
     try:
         info = load_yaml(path, "floor_info.json")["map_info"]  # YAML reads JSON, within its limits
         size_m = _positive(info["width"], "width", path), _positive(info["height"], "height", path)

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.sensors import ilc, ipin
 from mapfilter.sensors.logread import SNIFF_LINES, LogParser, RecordStream, iter_bounded_lines, open_binary, read_whole
 from mapfilter.sensors.recording import Recording
@@ -106,6 +106,11 @@ class LogStream(RecordStream):
         raise _unknown_format(self.report.path)
 
 
+def missing_log(path: str | os.PathLike) -> MapfilterError:
+    """The error for a log path that is not a file: a directory names the logs meant."""
+    return not_a_file(path, f"give the logs in it, e.g. {os.path.join(path, '*.txt.gz')}")
+
+
 def log_format(path: str | os.PathLike) -> str:
     """``"ILC 2.0"`` or ``"GetSensorData"``, from the first lines of the file (plain or gzip).
 
@@ -114,7 +119,7 @@ def log_format(path: str | os.PathLike) -> str:
     """
     path = Path(path)
     if not path.is_file():
-        raise MapfilterError("file not found", path)
+        raise missing_log(path)
     seen_any = False
     try:
         with open_binary(path) as handle:
@@ -136,6 +141,15 @@ def log_format(path: str | os.PathLike) -> str:
     raise _unknown_format(path)
 
 
+def sniff_log_format(path: str | os.PathLike) -> str | None:
+    """The format of ``path`` when it is a readable phone log, else None (never raises): for
+    telling a log given where a map was meant (arguments in the wrong order)."""
+    try:
+        return log_format(path)
+    except MapfilterError:
+        return None
+
+
 def read_log(path: str | os.PathLike, strict: bool = False, warn: Callable[[str], None] | None = None, *,
              max_wifi_age_s: float = ilc.DEFAULT_MAX_WIFI_AGE_S, building: Building | None = None) -> Recording:
     """Read a log of any known format (see :func:`log_format`) into a ``Recording``: a
@@ -145,10 +159,44 @@ def read_log(path: str | os.PathLike, strict: bool = False, warn: Callable[[str]
     goes). With ``building``, latitude/longitude ground truth is placed in it (:func:`localise`);
     a log whose ground truth is already in metres is returned as read.
     """
+    if not Path(path).is_file():
+        raise missing_log(path)  # a directory says so, and names the logs in it
     recording = read_whole(path, LogStream(path, max_wifi_age_s, strict), warn)
     if building is not None and recording.needs_georeference:
         recording = localise(recording, building)
     return recording
+
+
+# a stretch longer than this with no record is a gap in the log, not walking time
+SPAN_GAP_S = 60.0
+
+
+def log_time_span_s(path: str | os.PathLike) -> float:
+    """Seconds of walking in a log: from its first record to its last, read from their time
+    stamps alone (ILC: the first column, ms; GetSensorData: a record's first time, s) without
+    parsing the records, less any stretch over ``SPAN_GAP_S`` with no record: for estimating a
+    run's time before it starts. 0 when the log has no timed record."""
+    fmt = log_format(path)
+    previous = None
+    span = 0.0
+    try:
+        with open_binary(Path(path)) as handle:
+            for _, line in iter_bounded_lines(handle):
+                if not line or line[0] in "#%":
+                    continue
+                fields = line.split("\t" if fmt == ILC else ";", 2)
+                try:
+                    t = float(fields[0]) / 1000.0 if fmt == ILC else float(fields[1])
+                except (IndexError, ValueError):
+                    continue
+                if previous is not None and 0.0 < t - previous <= SPAN_GAP_S:
+                    span += t - previous
+                previous = t if previous is None else max(previous, t)
+    except EOFError:
+        pass  # a cut gzip stream: the span up to the cut
+    except (OSError, zlib.error) as exc:
+        raise MapfilterError(f"cannot read log: {exc}", path) from None
+    return span
 
 
 def read_log_header(path: str | os.PathLike) -> dict[str, str]:

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.sensors.radiomap import RSSI_RANGE_DBM, RadioMap, build_radio_map, map_extents_m, metres_outside
 from mapfilter.sensors.wifi import WifiScan, ap_key
 
@@ -95,7 +95,7 @@ class AccessPointTable:
         """Read ``bssid,x,y,band,C,n,alpha,d_max`` (band, C, n, alpha, d_max optional: thesis defaults)."""
         path = Path(path)
         if not path.is_file():
-            raise MapfilterError("file not found", path)
+            raise not_a_file(path)
         rows: dict[str, list] = {c: [] for c in cls.COLUMNS}
         lines: list[int] = []
         first_line: dict[tuple[str, str], int] = {}  # (bssid, band) -> its line

@@ -71,7 +71,7 @@ import numpy as np
 from numba import njit
 
 from mapfilter.atomic import atomic_paths
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.pdr import Steps, detect_steps
 from mapfilter.sensors.recording import Recording
@@ -273,7 +273,7 @@ class RadioMap:
         """Read a radio map written by ``save``; ``MapfilterError`` on anything else."""
         path = Path(path)
         if not path.is_file():
-            raise MapfilterError("file not found", path)
+            raise not_a_file(path)
         _check_npz_headers(path)  # before numpy allocates what a header declares
         try:
             with np.load(path, allow_pickle=False) as data:

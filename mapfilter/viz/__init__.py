@@ -44,8 +44,8 @@ children as ``map/world`` (``floorplan``, ``walls``, ``ground_truth``, ``tracks/
 row of a track and each waypoint under the floor it is on (``viz.building.FloorPlansLayer``).
 """
 
-from mapfilter.viz.recorder import NullLogger, RerunLogger, make_logger, view_map
+from mapfilter.viz.recorder import NullLogger, RerunLogger, make_logger, view_map, viewer_problem
 from mapfilter.viz.style import interpolate_ground_truth, weight_colours, weight_faithful_subsample
 
-__all__ = ["NullLogger", "RerunLogger", "interpolate_ground_truth", "make_logger", "view_map", "weight_colours",
-           "weight_faithful_subsample"]
+__all__ = ["NullLogger", "RerunLogger", "interpolate_ground_truth", "make_logger", "view_map", "viewer_problem",
+           "weight_colours", "weight_faithful_subsample"]

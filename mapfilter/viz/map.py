@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from mapfilter.errors import MapfilterError
+from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.viz.canvas import Canvas
 from mapfilter.viz.style import BACKGROUND, Z_IMAGE, Z_MASK
 
@@ -47,7 +47,7 @@ class MapLayer:
         if self._picture is None:
             source = self.floorplan.source_image
             if not Path(source.path).is_file():
-                raise MapfilterError("file not found", source.path)
+                raise not_a_file(source.path)
             self._picture = cv2.imread(str(source.path), cv2.IMREAD_UNCHANGED)
             if self._picture is None:
                 raise MapfilterError("not a readable image", source.path)

@@ -11,7 +11,11 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Sequence
+import shutil
+import sys
+import time
+import warnings
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -33,6 +37,48 @@ if TYPE_CHECKING:  # pragma: no cover
     from mapfilter.maps.floorplan import FloorPlan
     from mapfilter.sensors.recording import Recording
     from mapfilter.trackio import Track
+
+
+# How long closing waits for a spawned viewer to take the last data, in slices short enough that
+# Ctrl-C and SIGTERM are handled between them (a flush without a timeout never returns when
+# the viewer cannot draw, and no signal handler runs while it waits).
+VIEWER_FLUSH_LIMIT_S = 20.0
+VIEWER_FLUSH_SLICE_S = 0.25
+
+
+def viewer_executable() -> str | None:
+    """The rerun viewer's executable: on PATH, or beside this Python (a virtual environment
+    that was not activated); None when it is not installed."""
+    found = shutil.which("rerun")
+    if found:
+        return found
+    beside = os.path.join(os.path.dirname(sys.executable), "rerun")
+    return beside if os.access(beside, os.X_OK) else None
+
+
+def viewer_problem() -> str | None:
+    """Why no rerun viewer can start here, or None when one can: no viewer executable, or (on
+    Linux and the BSDs) no display to open a window on. Nothing is spawned to find out: a
+    viewer spawned without a display blocks for seconds and its caller can hang."""
+    if viewer_executable() is None:
+        return "the rerun viewer is not installed (no `rerun` on PATH)"
+    if sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")) and not (
+            os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return "no display (DISPLAY and WAYLAND_DISPLAY are unset)"
+    return None
+
+
+def flush_bounded(rec: Any, limit_s: float | None = None, slice_s: float = VIEWER_FLUSH_SLICE_S) -> bool:
+    """Flush a recording stream within ``limit_s`` (default ``VIEWER_FLUSH_LIMIT_S``), in slices
+    of ``slice_s`` so that signal handlers run between them; True when everything was sent."""
+    deadline = time.monotonic() + (VIEWER_FLUSH_LIMIT_S if limit_s is None else limit_s)
+    while True:
+        try:
+            rec.flush(timeout_sec=slice_s)
+            return True
+        except RuntimeError:  # "Flush timed out - not all log messages were sent"
+            if time.monotonic() >= deadline:
+                return False
 
 
 class NullLogger:
@@ -74,7 +120,7 @@ class RerunLogger:
     rrd_path : write the recording to this ``.rrd`` file (atomically: it appears on
         :meth:`close`; :meth:`abort` or an exception in a ``with`` block leaves nothing).
     spawn : open a rerun viewer and stream to it instead (never in tests: with no display
-        it blocks for seconds and drops data).
+        it blocks for seconds and drops data; :func:`viewer_problem` says whether one can start).
     max_particles : cap on the particles drawn per step (weight-faithful subsample, see
         :func:`weight_faithful_subsample`); the killed moves drawn per step share this cap.
     application_id : rerun application id (the viewer groups recordings by it).
@@ -88,6 +134,8 @@ class RerunLogger:
         every floor's plan at once, each in its own view under ``floors/<floor>``
         (``viz.building.FloorPlansLayer``); tracks and ground truth are then logged with the floor
         of each row (instead of ``floorplan``, unused; no filter steps).
+    warn : where a spawned viewer that did not take the last data is reported (one line;
+        default: a Python warning).
 
     Exactly one of ``rrd_path`` and ``spawn`` must be given. Call :meth:`log_map` first
     (:func:`make_logger` does), then :meth:`log_ground_truth` if there is ground truth, then
@@ -107,6 +155,7 @@ class RerunLogger:
         filter_plots: bool = True,
         stack: Any = None,
         building: Any = None,
+        warn: Callable[[str], None] | None = None,
     ) -> None:
         import rerun as rr  # lazy: only a live logger pays for importing rerun
 
@@ -119,6 +168,8 @@ class RerunLogger:
         self.filter_plots = filter_plots
         self._closed = False
         self._stack = contextlib.ExitStack()
+        self._spawned = spawn
+        self._warn = warn
 
         self.rec = rr.RecordingStream(application_id)
         self.rec.set_log_time_enabled(False)  # our clock is the walk's: see the package docstring
@@ -148,7 +199,10 @@ class RerunLogger:
                 (tmp,) = self._stack.enter_context(atomic_paths(self.rrd_path))
                 self.rec.save(tmp, default_blueprint=blueprint)
             else:
-                self.rec.spawn(default_blueprint=blueprint)
+                problem = viewer_problem()
+                if problem is not None:
+                    raise MapfilterError(f"no rerun viewer can start here: {problem}")
+                rr.spawn(default_blueprint=blueprint, executable_path=viewer_executable(), recording=self.rec)
             # the flip that lets everything below map/world be logged in y-up metres
             if self.plans is None:
                 canvas.log("map/world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
@@ -259,6 +313,15 @@ class RerunLogger:
         """Flush and finish the recording; the ``.rrd`` file (if any) appears now."""
         if self._closed:
             return
+        if self._spawned:
+            if not flush_bounded(self.rec):
+                message = (f"the rerun viewer did not take the last data in {VIEWER_FLUSH_LIMIT_S:g} s: closed "
+                           "without it (write a recording with --rerun FILE.rrd instead)")
+                (self._warn or (lambda text: warnings.warn(text, stacklevel=2)))(message)
+            self._closed = True
+            self.rec.disconnect()
+            self._stack.close()
+            return
         try:
             self.rec.flush()
         except RuntimeError as exc:
@@ -297,6 +360,7 @@ def make_logger(
     filter_plots: bool = True,
     stack: Any = None,
     building: Any = None,
+    warn: Callable[[str], None] | None = None,
 ) -> RerunLogger | NullLogger:
     """A :class:`RerunLogger` with the map already logged, or a :class:`NullLogger`.
 
@@ -310,6 +374,7 @@ def make_logger(
     filter_plots : lay out the filter's plots (off when only showing finished tracks).
     stack : a building's ``FloorStack`` when the filter runs across floors (``RerunLogger``).
     building : a several-floor building whose finished tracks are shown (``RerunLogger``).
+    warn : where a spawned viewer that did not take the last data is reported (``RerunLogger``).
 
     Returns a NullLogger (no rerun import) when neither ``rrd_path`` nor ``spawn`` is given.
     Giving both is an error (one sink per run).
@@ -320,7 +385,7 @@ def make_logger(
         raise MapfilterError("give either an .rrd file to write or spawn a viewer, not both")
     logger = RerunLogger(floorplan, rrd_path=rrd_path, spawn=spawn, max_particles=max_particles,
                          recording_name=recording_name, filter_plots=filter_plots, stack=stack,
-                         building=building)
+                         building=building, warn=warn)
     try:
         logger.log_map()
     except BaseException:
@@ -337,6 +402,7 @@ def view_map(
     spawn: bool = False,
     recording_name: str | None = None,
     truth_floor: str | Sequence[str] | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> None:
     """Show a map, finished tracks and a recording's ground truth (no filtering).
 
@@ -353,6 +419,7 @@ def view_map(
     recording_name : name shown in the viewer.
     truth_floor : a building: the floor of the waypoints, one name or one per waypoint; None
         leaves the ground truth out (its floor unknown).
+    warn : where a spawned viewer that did not take the last data is reported.
     """
     if rrd_path is None and not spawn:
         raise MapfilterError("give an .rrd file to write or spawn a viewer")
@@ -365,7 +432,7 @@ def view_map(
     else:
         plan = floorplan.floors[0].plan if hasattr(floorplan, "floors") else floorplan
     logger = make_logger(plan, rrd_path=rrd_path, spawn=spawn, recording_name=recording_name,
-                         filter_plots=False, building=building)
+                         filter_plots=False, building=building, warn=warn)
     with logger:
         if recording is not None and recording.has_ground_truth:
             if building is None:

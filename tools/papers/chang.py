@@ -84,7 +84,7 @@ def their_pdr(walk, rng: np.random.Generator) -> Steps:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny smoke run: 2 short walks")
     parser.add_argument("--walks", type=int, default=None, help="walks (default 20; quick 2)")
     parser.add_argument("--duration", type=float, default=None, help="walk length, s (default 120; quick 30)")

@@ -277,7 +277,7 @@ def _figure(runs: list[dict], particles: tuple[int, ...], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny smoke run: 2 short walks, N in {100, 1000}")
     parser.add_argument("--walks", type=int, default=None, help="walks of the main table (default 10; quick 2)")
     parser.add_argument("--duration", type=float, default=None, help="walk length, s (default 120; quick 30)")

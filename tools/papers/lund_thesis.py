@@ -204,7 +204,7 @@ def _figure(step_runs: list[dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny smoke run: 2 short walks, 1000 particles")
     parser.add_argument("--walks", type=int, default=None, help="walks (default 10; quick 2)")
     parser.add_argument("--duration", type=float, default=None, help="walk length, s (default 180; quick 30)")
