@@ -543,4 +543,3 @@ def _border(n: int) -> np.ndarray:
     wall = np.zeros((n, n), dtype=bool)
     wall[0, :] = wall[-1, :] = wall[:, 0] = wall[:, -1] = True
     return wall
-    assert not out.exists()

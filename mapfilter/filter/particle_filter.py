@@ -268,7 +268,6 @@ class ParticleFilter:
         step_index = self._step_index
         self._step_index += 1
         prev = self.particles
-        n = self.n
         measured = model is not None and measurement is not None
         self.last_jitter_m2 = 0.0  # the variance per axis of this step's jitter (the smoother's transition)
         if measured and model.locates(measurement):

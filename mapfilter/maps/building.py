@@ -47,7 +47,7 @@ import dataclasses
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -56,6 +56,9 @@ from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
 from mapfilter.maps.floorplan import FloorPlan, is_number, read_yaml_mapping
 from mapfilter.maps.georef import LocalFrame
+
+if TYPE_CHECKING:
+    import shapely
 
 CONNECTOR_KINDS = ("stairs", "escalator", "lift")
 

@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 
 from mapfilter.filter.models.interface import FloorModel, MotionModel
-from mapfilter.filter.particles import HEADING, STATE_ROWS, STEP, X, Y
+from mapfilter.filter.particles import HEADING, X, Y
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import NO_BUFFER, clearance_px, move_crosses
 
