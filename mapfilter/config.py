@@ -61,6 +61,8 @@ RETIRED_SETTINGS: dict[str, str] = {
     "trilateration.blocking.max_ambiguous_scans": "removed with the per-AP drop check",
     "steps.step_length_m": "removed: never read (the step length is Weinberg's)",
     "steps.step_length_std_m": "removed: never read (the filter's step length walks by itself)",
+    "offline.restart_from_placement": "removed: the offline track always smooths a second forward pass on one floor",
+    "offline.restart_radius_m": "now a constant of mapfilter.tracking (RESTART_RADIUS_M)",
 }
 
 

@@ -73,7 +73,7 @@ def office3_radio_map(office3, tmp_path_factory):
 def tracking_config(**settings):
     """A ``TrackingConfig`` from flat keywords, for tests: motion, n_particles, smooth, seed,
     use_map, fingerprint_model, kwnn_min_rssi_dbm, fix_sigma_m, adapt_path_loss, adapt_rssi_limit_dbm,
-    blocking_compensation, restart_from_placement, offline_method (offline.method)."""
+    blocking_compensation."""
     import dataclasses
 
     from mapfilter.config import TrackingConfig
@@ -81,8 +81,7 @@ def tracking_config(**settings):
     config = TrackingConfig()
     sections = {"motion": ("motion", "model"), "fingerprint_model": ("wifi", None), "kwnn_min_rssi_dbm": ("wifi", None),
                 "fix_sigma_m": ("wifi", None), "adapt_path_loss": ("trilateration", None),
-                "adapt_rssi_limit_dbm": ("trilateration", None), "blocking_compensation": ("trilateration", None),
-                "restart_from_placement": ("offline", None), "offline_method": ("offline", "method")}
+                "adapt_rssi_limit_dbm": ("trilateration", None), "blocking_compensation": ("trilateration", None)}
     for name, value in settings.items():
         if name == "n_particles":
             config = config.with_particles(value)

@@ -270,13 +270,11 @@ def test_view_of_a_one_floor_map_ignores_a_floor_column(tracked, tmp_path, capsy
     assert len(counts) == len(read_track(tracked.out / "walk1.csv")) and set(counts) == {1}
 
 
-def test_smooth_restarts_the_filter_for_a_walk_on_one_floor_only(office3, tmp_path):
-    """--smooth: a walk that stays on one floor gets its offline track as on that floor's map,
-    from a second (one-floor) filter run started at the placed start; a walk that changes floor
-    keeps its stretches. The causal track is the first run either way. (The placement method:
-    the smoother makes no restarted run.)"""
-    import dataclasses
-
+def test_smooth_in_a_building_smooths_the_floor_with_the_track(office3, tmp_path):
+    """--smooth in a building: the smoother over the filter's own run, a floor per row with its
+    posterior share, for a walk that changes floor; a walk the smoother keeps on F1 is tracked
+    offline as on F1's map (a second forward pass there); the causal track is the same as
+    without --smooth."""
     import numpy as np
 
     from mapfilter.tracking import track
@@ -289,25 +287,19 @@ def test_smooth_restarts_the_filter_for_a_walk_on_one_floor_only(office3, tmp_pa
     assert main(["simulate", str(office3.building), "--out", str(one_floor), "--seed", "3", "--floor-changes", "0",
                  "--start-floor", "F1"]) == 0
     building, radio_map = Building.load(office3.building), RadioMap.load(office3.radiomap)
-    config = tracking_config(n_particles=500, smooth=True, offline_method="placement")
-    runs = {restart: track(building, read_ilc(one_floor), radio_map,
-                           config=tracking_config(n_particles=500, smooth=True, offline_method="placement",
-                                                  restart_from_placement=restart),
-                           rng=np.random.default_rng(0))
-            for restart in (False, True)}
-    assert runs[False].restarted is None
+    runs = {smooth: track(building, read_ilc(one_floor), radio_map,
+                          config=tracking_config(n_particles=500, smooth=smooth), rng=np.random.default_rng(0))
+            for smooth in (False, True)}
     np.testing.assert_array_equal(runs[True].causal.xy_m, runs[False].causal.xy_m)
-    restarted, smoothed = runs[True].restarted, runs[True].offline
-    assert set(restarted.floor) == set(smoothed.floor) == {"F1"}
-    # the one-floor run has no barometer ticks, but spans the walk as the first run does (whose
-    # idle ticks go on to the last record)
-    causal_t = runs[True].causal.t_s
-    assert abs(restarted.t_s[0] - causal_t[0]) < 3.0 and abs(restarted.t_s[-1] - causal_t[-1]) < 3.0
-    assert not np.array_equal(smoothed.xy_m, runs[False].offline.xy_m)
+    smoothed = runs[True].offline
+    assert set(runs[True].restarted.floor) == set(smoothed.floor) == {"F1"}
     assert count_wall_crossings(building.floors[building.floor_index("F1")].plan, smoothed.xy_m) == 0
-    changes_floor = track(building, read_ilc(office3.walks[0]), radio_map, config=config.with_particles(2000),
-                          rng=np.random.default_rng(0))
-    assert changes_floor.restarted is None and len(set(changes_floor.offline.floor)) == 2
+    changes_floor = track(building, read_ilc(office3.walks[0]), radio_map,
+                          config=tracking_config(n_particles=2000, smooth=True), rng=np.random.default_rng(0))
+    offline = changes_floor.offline
+    assert changes_floor.restarted is None and len(set(offline.floor)) == 2
+    assert offline.floor_p is not None and np.all((offline.floor_p >= 0) & (offline.floor_p <= 1))
+    assert np.median(offline.floor_p) > 0.9
 
 
 def test_evaluate_a_building_with_survey_walks(office3, tmp_path, capsys):

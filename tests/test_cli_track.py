@@ -172,20 +172,16 @@ def test_whole_walk_track_beats_the_causal_one_and_crosses_no_wall():
 
 
 def test_the_offline_track_restarts_the_filter_where_the_whole_walk_puts_the_start():
-    """A first fix 35 m off starts the causal filter there; the second run (the offline track's
-    evidence) starts where the whole walk places the start, and stays closer for the first minute
-    (the placement method: the smoother makes no restarted run)."""
-    import dataclasses
-
-    from mapfilter.offline.whole_walk import OfflineConfig
+    """A first fix 35 m off starts the causal filter there; the offline track's second forward
+    pass starts half its particles where the whole walk places the start, and stays closer for
+    the first minute; the causal track is the first run, as without --smooth."""
     from mapfilter.sensors.radiomap import RadioMap
-    from mapfilter.tracking import prepare_walk, track_prepared
+    from mapfilter.tracking import RESTART_RADIUS_M, prepare_walk, track_prepared
 
     recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
     results = {}
-    for restart in (False, True):
-        config = _config(particles=1000, smooth=True,
-                         offline=OfflineConfig(method="placement", restart_from_placement=restart))
+    for smooth in (False, True):
+        config = _config(particles=1000, smooth=smooth)
         walk = prepare_walk(floorplan, recording, radio_map, config=config)
         wifi = walk.evidence
         first = int(np.argmax(wifi.usable))
@@ -193,16 +189,15 @@ def test_the_offline_track_restarts_the_filter_where_the_whole_walk_puts_the_sta
         truth0 = np.array([np.interp(t0, recording.waypoint_t_s, recording.waypoint_xy_m[:, i]) for i in (0, 1)])
         free = floorplan.sample_free(2000, np.random.default_rng(0))
         wifi._fix[first] = free[np.argmax(np.linalg.norm(free - truth0, axis=1))]  # noqa: SLF001 - the far side of the office
-        results[restart] = track_prepared(walk, config)
-    assert results[False].restarted is None
+        results[smooth] = track_prepared(walk, config)
+    assert results[False].restarted is None and results[False].offline is None
     result = results[True]
     np.testing.assert_array_equal(result.causal.xy_m, results[False].causal.xy_m)  # the causal track is the first run
     assert np.linalg.norm(result.causal.xy_m[0] - truth0) > 20.0
-    assert np.linalg.norm(result.restarted.xy_m[0] - truth0) < OfflineConfig().restart_radius_m
     early = result.causal.t_s < t0 + 60.0
     assert _errors(result.restarted, recording)[early].mean() < 0.5 * _errors(result.causal, recording)[early].mean()
+    assert np.linalg.norm(result.offline.xy_m[0] - truth0) < RESTART_RADIUS_M
     assert count_wall_crossings(floorplan, result.offline.xy_m) == 0
-    assert dataclasses.replace(config).offline.restart_from_placement
 
 
 def test_a_map_and_its_one_floor_building_track_alike():
@@ -276,8 +271,8 @@ def test_progress_runs_to_the_end_once_over_both_filter_runs(tmp_path, monkeypat
 
 
 def test_progress_ends_at_100_when_smoothing_has_no_second_run(tmp_path, monkeypatch):
-    """--smooth with constant-velocity motion keeps the lineage as its offline track: no second
-    filter run, and the bar still ends at 100 % rather than at the half it gave the first run."""
+    """--smooth with constant-velocity motion smooths the one filter run (no dead-reckoned shape
+    to place, no second run): the run fills the whole bar, which ends at 100 %."""
     import mapfilter.cli.track_cmd as track_cmd
 
     values = []
@@ -295,7 +290,7 @@ def test_progress_ends_at_100_when_smoothing_has_no_second_run(tmp_path, monkeyp
     monkeypatch.setattr(track_cmd, "ProgressBar", Recorder)
     assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "300", "--smooth",
                  "--motion", "cv", "--out", str(tmp_path / "t.csv")]) == 0
-    assert max(values[:-1]) <= 50 and values[-1] == 100
+    assert values == sorted(values) and values[-1] == 100 and max(values[:-1]) > 50
 
 
 def test_a_row_stamped_years_ahead_costs_nothing_and_is_reported(tmp_path, capsys):

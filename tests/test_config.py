@@ -56,7 +56,7 @@ def test_bad_config_files_are_one_line_naming_file_and_line(tmp_path, text, need
 def test_config_show_prints_every_setting_and_a_file_back(tmp_path, capsys):
     assert main(["config", "show"]) == 0
     text = capsys.readouterr().out
-    assert "n_particles: 10000  #" in text and "restart_radius_m: 5.0  #" in text
+    assert "n_particles: 10000  #" in text and "lag_s: 0.0  #" in text
     assert TrackingConfig.from_yaml(text) == TrackingConfig()
     (tmp_path / "mine.yaml").write_text("seed: 4\n")
     assert main(["config", "show", "--config", str(tmp_path / "mine.yaml")]) == 0

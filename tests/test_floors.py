@@ -595,7 +595,7 @@ def test_whole_walk_floor_outvotes_a_wrong_start_that_the_causal_filter_follows(
     t = np.arange(n) * 2.0
     rate = FloorChangeConfig().anywhere_rate_per_s
     rates = np.zeros((n - 1, 5, 5))
-    for f in range(5):  # one storey at a time, as offline.building_track.whole_walk_floors
+    for f in range(5):  # one storey at a time, as the whole-walk floor path is run
         nearest = [g for g in (f - 1, f + 1) if 0 <= g < 5]
         rates[:, f, nearest] = rate / len(nearest)
     whole = whole_walk_floor_path(t, ll, rates)
@@ -664,20 +664,3 @@ def test_centred_barometric_height_has_no_lag_and_less_noise_than_the_causal_one
     assert abs(np.mean(hc[mid] - truth_c[mid])) < 0.1
 
 
-def test_whole_walk_floors_weighs_the_scan_the_filter_started_from(tmp_path):
-    """The lineage's first row comes after the scan the filter started from; a walk whose only
-    evidence is that scan still gets its floor (the lineage's own floor, L0, is not it)."""
-    from types import SimpleNamespace
-
-    from mapfilter.filter.models.barometer import BarometerConfig
-    from mapfilter.offline.building_track import whole_walk_floors
-
-    building = _building(tmp_path, connectors=False)
-    stack = FloorStack(building)
-    changes = FloorChanges(stack, FloorChangeConfig())
-    wifi = SimpleNamespace(scans=[SimpleNamespace(t_s=10.0)], usable=np.array([True]),
-                           floor_log_likelihood=np.log([[1 / 7, 1 / 7, 5 / 7]]), pressure=None,
-                           elevation_m=np.array([0.0, 4.0, 8.0]), barometer=BarometerConfig())
-    t = 10.4 + 0.5 * np.arange(20)
-    xy = stack.to_stack(np.tile([10.0, 5.0], (20, 1)), 0)  # the lineage on L0
-    assert np.all(whole_walk_floors(changes, wifi, t, xy).path == 2)

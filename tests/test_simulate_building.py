@@ -222,7 +222,7 @@ def test_a_walk_that_keeps_its_floor_gets_the_one_floor_offline_track(office3, o
                                     np.random.default_rng(7))
     write_ilc(sim, tmp_path / "flat.txt")
     rec = read_ilc(tmp_path / "flat.txt")
-    config = tracking_config(n_particles=2000, smooth=True, offline_method="placement")  # the placed track, not the smoother's
+    config = tracking_config(n_particles=2000, smooth=True)
     result = track(building, rec, office3_radio_map, config=config, rng=np.random.default_rng(1))
     assert set(result.offline.floor) == {"F1"}
     smoothed = result.offline

@@ -496,23 +496,17 @@ def test_a_step_without_estimate_or_live_particles_is_drawn_empty(tmp_path):
     verify(out)
 
 
-@pytest.mark.parametrize("method", ["smoother", "placement"])
-def test_track_smooth_records_the_restarted_run_and_the_smoothed_track(method, tmp_path):
-    """`track --smooth --rerun`: besides the causal steps, the offline track; with the placement
-    method also the second causal run (from the placed start) whose estimates placed it, a path
-    of as many points as the filter has steps (the smoother makes no such run)."""
+def test_track_smooth_records_the_restarted_run_and_the_smoothed_track(tmp_path):
+    """`track --smooth --rerun`: besides the causal steps, the offline track and the second
+    forward pass (half its particles from the placed start) that the smoother ran over, a path
+    of as many points as the filter has steps."""
     maps = Path(__file__).resolve().parent.parent / "maps"
     out = tmp_path / "office.rrd"
-    settings = tmp_path / "settings.yaml"
-    settings.write_text(f"offline:\n  method: {method}\n")
     assert cli_main(["track", str(maps / "office.yaml"), str(maps / "office_walk.txt.gz"), "--radiomap",
-                     str(maps / "office_radiomap.npz"), "--smooth", "--particles", "500", "--config", str(settings),
+                     str(maps / "office_radiomap.npz"), "--smooth", "--particles", "500",
                      "--rerun", str(out)]) == 0
     entities = read_rrd(out)
     assert "/map/world/tracks/smoothed/path" in entities
-    if method == "smoother":
-        assert "/map/world/tracks/restarted/path" not in entities
-        return
     restarted = np.array(rows(entities["/map/world/tracks/restarted/path"], "LineStrips2D:strips")[0][0])
     steps = sum(b.num_rows for b in entities["/map/world/particles"] if "step" in b.schema.names)
     assert restarted.shape == (steps + 1, 2)

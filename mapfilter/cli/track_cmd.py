@@ -521,12 +521,10 @@ class _Progress:
         times = recording.wifi.t_s
         self.t0 = float(times[0]) if times.size else 0.0
         self.span_s = max(float(times[-1]) - self.t0, 1e-9) if times.size else 1.0
-        # filter runs over the walk, each an equal share of the bar: with --smooth the offline
-        # track runs the filter a second time (the smoother: restart_share; the placement:
-        # restart_from_placement; ``finish`` ends the bar where a walk has no second run)
-        offline = config.offline
-        second_run = offline.restart_share > 0 if offline.method == "smoother" else offline.restart_from_placement
-        self.runs = 2 if config.smooth and second_run else 1
+        # filter runs over the walk, each an equal share of the bar: with --smooth and PDR the
+        # offline track of a walk on one floor runs the filter a second time (``finish`` ends
+        # the bar where a walk has no second run)
+        self.runs = 2 if config.smooth and config.motion.model == "pdr" else 1
         self.bar = ProgressBar("tracking", 100, unit="%")
 
     def update(self, t_s: float, run: int = 0) -> None:
