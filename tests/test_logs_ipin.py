@@ -168,7 +168,7 @@ def test_a_hand_written_log_reads_every_record(tmp_path):
     assert len(rec.wifi) == 2
     keys, rssi = rec.wifi.scan(0)
     assert dict(zip(keys, rssi.tolist())) == {"20:23:00:00:00:90@2.4": -75.0, "20:23:00:00:00:91@5": -80.0}
-    assert rec.beacons.beacon_id == ["11111111-1111-BEAC-2023-111111111111:1:6", "BE:AC:20:23:00:07"]
+    assert rec.beacons.beacon_id == ["BE:AC:20:23:00:06", "BE:AC:20:23:00:07"]  # by MAC, iBeacon or Eddystone
     assert np.isnan(rec.beacons.distance_m).all()
     assert rec.read_report.unknown_rows == 1  # GNSS
 

@@ -17,8 +17,8 @@ What is read, into the same ``Recording`` the ILC reader makes:
 - ``PRES`` the barometer (mbar = hPa);
 - ``WIFI`` one row per access point heard; the rows of one scan share their AppTimestamp, so a
   scan is the rows of one AppTimestamp, keyed ``bssid@2.4`` / ``bssid@5`` as everywhere;
-- ``BLE4`` Bluetooth LE beacons (iBeacon ``uuid:major:minor``, Eddystone its MAC), kept for
-  whoever uses them (no distance estimate: ``distance_m`` is NaN);
+- ``BLE4`` Bluetooth LE beacons, named by their MAC in upper case (iBeacon and Eddystone alike;
+  no distance estimate: ``distance_m`` is NaN);
 - ``POSI`` the ground truth: time, latitude, longitude and floor id of each marked point
   (``waypoint_latlon_deg``, ``waypoint_floor``; ``waypoint_xy_m`` stays NaN until the walk is
   placed in a georeferenced building: ``sensors/logs.localise``);
@@ -304,11 +304,7 @@ def _parse_record(fields: list[str], sensors, wifi_rows, beacon_rows, posi_rows)
             raise BadRow(kind, f"malformed BLE4 line: {len(fields)} fields, expected at least 5")
         app_s = _app_time(kind, fields)
         rssi = check_range(kind, "RSSI", parse_number(kind, fields, 4), "rssi_dbm")
-        if fields[2].strip() == "iBeacon" and len(fields) >= 9:
-            beacon_id = f"{fields[8].strip()}:{fields[6].strip()}:{fields[7].strip()}"
-        else:
-            beacon_id = fields[3].strip()  # Eddystone (and anything else): its MAC
-        beacon_rows.append((app_s, beacon_id, rssi, np.nan))
+        beacon_rows.append((app_s, fields[3].strip().upper(), rssi, np.nan))  # iBeacon or Eddystone: its MAC
     elif kind == "POSI":
         if len(fields) < 6:
             raise BadRow(kind, f"malformed POSI line: {len(fields)} fields, expected 7")
