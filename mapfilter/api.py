@@ -17,13 +17,16 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from mapfilter.config import TrackingConfig
 from mapfilter.engine import Engine
 from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate as _evaluate
 from mapfilter.maps.building import Building
+from mapfilter.sensors.beacons import BeaconFit, BeaconFitConfig, BeaconTable
+from mapfilter.sensors.beacons import fit_beacons as _fit_beacons
+from mapfilter.sensors.beacons import labelled_readings
 from mapfilter.sensors.floors import build_building_radio_map
 from mapfilter.sensors.logs import read_log as _read_log
 from mapfilter.sensors.pathloss import AccessPointTable
@@ -35,9 +38,10 @@ from mapfilter.sensors.recording import Recording
 from mapfilter.tracking import TrackResult, track
 from mapfilter.trackio import Track, read_track, write_track
 
-__all__ = ["Building", "Evaluation", "GrowConfig", "GrowReport", "RadioMap", "Recording", "Track", "TrackResult",
-           "TrackingConfig", "build_radio_map", "evaluate", "grow_radio_map", "load_access_points", "load_map",
-           "load_radio_map", "read_log", "read_track", "track", "write_track"]
+__all__ = ["BeaconFit", "BeaconTable", "Building", "Evaluation", "GrowConfig", "GrowReport", "RadioMap", "Recording",
+           "Track", "TrackResult", "TrackingConfig", "build_radio_map", "evaluate", "fit_beacons", "grow_radio_map",
+           "load_access_points", "load_beacons", "load_map", "load_radio_map", "read_log", "read_track", "track",
+           "write_track"]
 
 
 def load_map(path: str | os.PathLike) -> Building:
@@ -63,6 +67,24 @@ def load_radio_map(path: str | os.PathLike) -> RadioMap:
 def load_access_points(path: str | os.PathLike) -> AccessPointTable:
     """An access-point table (CSV: positions and path-loss parameters) for trilateration."""
     return AccessPointTable.read_csv(path)
+
+
+def load_beacons(path: str | os.PathLike, building: Building | None = None,
+                 ids: Mapping[str, str] | None = None) -> BeaconTable:
+    """A BLE beacon table (CSV: ids, positions, floors, path-loss parameters; ``sensors.beacons``).
+    Positions in latitude/longitude need a georeferenced ``building``; ``ids`` maps the file's
+    beacon names to the logs' ids (an IPIN venue's ``BLE_Locations.csv``: ``{"BLE1": "BE:AC:...", ...}``)."""
+    return BeaconTable.read_csv(path, building, ids)
+
+
+def fit_beacons(building: Building, positions: BeaconTable, recordings: Sequence[Recording],
+                config: BeaconFitConfig | None = None) -> BeaconFit:
+    """The beacons' path-loss parameters fitted from survey walks with waypoints (``sensors.beacons``,
+    as ``mapfilter radiomap fit-beacons``): ``.table`` is the fitted table (``mf.track(...,
+    beacons=)``), ``.rows`` how each beacon fitted and whether its readings fit another's position
+    better. The walks' ground truth must be in the building's metres (``read_log(..., building=)``)."""
+    readings = labelled_readings(positions, building, recordings)
+    return _fit_beacons(positions, readings, config if config is not None else BeaconFitConfig())
 
 
 def build_radio_map(building: Building, recordings: Sequence[Recording]) -> RadioMap:
@@ -93,7 +115,7 @@ def grow_radio_map(building: Building, radio_map: RadioMap, recordings: Sequence
 def evaluate(building: Building, logs: Sequence[str | os.PathLike], *, radio_map: str | os.PathLike | None = None,
              access_points: str | os.PathLike | None = None, survey: Sequence[str | os.PathLike] = (),
              leave_one_out: bool = False, unlabelled: Sequence[str | os.PathLike] = (), transductive: bool = False,
-             methods: Sequence[str] | None = None,
+             methods: Sequence[str] | None = None, beacons: str | os.PathLike | None = None,
              config: TrackingConfig | None = None, jobs: int = 1, scheduler: str | None = None,
              progress: Callable[[int, int, str], None] | None = None) -> Evaluation:
     """Every method on the same walks (``evaluation.comparison``), as ``mapfilter evaluate`` runs them:
@@ -101,12 +123,15 @@ def evaluate(building: Building, logs: Sequence[str | os.PathLike], *, radio_map
 
     The radio map: a file (``radio_map``), ``survey`` logs, or ``leave_one_out`` (each walk's from
     the other walks); ``unlabelled`` walks grow it (self-training), ``transductive`` the evaluated
-    walks too. ``jobs``/``scheduler``: walks on local Dask worker processes or a cluster.
+    walks too. ``beacons``: a BLE beacon table (adds the methods pf+ble, pf-ble; its C and n are
+    fitted again from the survey or the other walks). ``jobs``/``scheduler``: walks on local Dask
+    worker processes or a cluster.
     """
     setup = EvaluationSetup(methods=None if methods is None else tuple(methods),
                             radio_map_path=None if radio_map is None else Path(radio_map),
                             ap_table_path=None if access_points is None else Path(access_points),
                             survey_paths=tuple(Path(p) for p in survey), leave_one_out=leave_one_out,
                             tracking=config if config is not None else TrackingConfig(),
-                            unlabelled_paths=tuple(Path(p) for p in unlabelled), transductive=transductive)
+                            unlabelled_paths=tuple(Path(p) for p in unlabelled), transductive=transductive,
+                            beacon_table_path=None if beacons is None else Path(beacons))
     return _evaluate(building, logs, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)

@@ -14,6 +14,13 @@ causal: each method's latest estimate at or before the waypoint). On one floor:
 ``ls``         least-squares trilateration per scan (needs an access-point table)
 =============  ==========================================================================
 
+With a BLE beacon table (``beacon_table_path``), also ``pf+ble`` (``pf`` with the beacons'
+readings weighed too) and ``pf-ble`` (the filter on the beacons alone, no WiFi), and in a
+building ``pf-floor+ble`` (``pf-floor`` with the beacons). With survey logs or
+``leave_one_out``, each walk's beacon table is the given one's positions with C, n and the
+floor loss fitted on the labelled walks, never on the walk itself (``sensors.beacons``); with
+a radio map file, the table as given.
+
 In a building with several floors: ``pf`` (the floor in the filter's state, not given),
 ``pf-floor`` (the same filter on the walker's floor, given: what finding the floor costs; a
 walk that changes floor has no one floor to give), ``kwnn`` (each scan on the causal WiFi floor
@@ -59,6 +66,8 @@ from mapfilter.filter.evidence import calibrated_fix_sigma_m
 from mapfilter.selftrain import GrowConfig, grow_radio_map, grown_by_fold
 from mapfilter.filter.tracker import MotionConfig
 from mapfilter.maps.building import Building
+from mapfilter.sensors.beacons import (BeaconReadings, BeaconTable, check_beacons_on_map, fit_beacons,
+                                      labelled_readings)
 from mapfilter.sensors.floors import (build_building_radio_map, check_building_radio_map, floor_hmm,
                                      floor_vote_log_likelihood)
 from mapfilter.sensors.logread import LogReadWarning
@@ -73,14 +82,17 @@ from mapfilter.sensors.wifi import scans_of
 from mapfilter.tracking import prepare_walk, track_prepared
 from mapfilter.trackio import Track
 
-ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls")
-BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr")
+ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", "pf+ble", "pf-ble")
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", "pf+ble", "pf-floor+ble", "pf-ble")
+BLE_METHODS = ("pf+ble", "pf-floor+ble", "pf-ble")  # need a beacon table
 STATUSES = ("ok", "failed", "crashed")
 
 
-def methods_for(building: Building) -> tuple[str, ...]:
-    """The methods ``evaluate`` compares on this building (its floor count decides)."""
-    return ALL_METHODS if building.is_single_floor else BUILDING_METHODS
+def methods_for(building: Building, beacons: bool = False) -> tuple[str, ...]:
+    """The methods ``evaluate`` compares on this building (its floor count decides; the BLE
+    methods with a beacon table)."""
+    methods = ALL_METHODS if building.is_single_floor else BUILDING_METHODS
+    return methods if beacons else tuple(m for m in methods if m not in BLE_METHODS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,6 +109,7 @@ class EvaluationSetup:
     tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)  # seed and smooth included
     unlabelled_paths: tuple[Path, ...] = ()  # walks that grow the radio map (waypoints never read), never scored
     transductive: bool = False  # the evaluated walks grow the radio map too, without their own labels
+    beacon_table_path: Path | None = None  # BLE beacons (their positions; C and n refitted from survey walks)
 
     @property
     def grows(self) -> bool:
@@ -151,6 +164,7 @@ class AllWalks:
     radio_map: RadioMap
     ap_table: AccessPointTable | None  # APs fitted on every walk (None when no method needs them)
     fix_sigma_by_floor_m: dict[str, float] | None = None  # several floors: calibrated once per floor
+    beacon_readings: BeaconReadings | None = None  # the walks' beacon readings, labelled (with a beacon table)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,6 +199,7 @@ class _Context:
     all_walks: AllWalks | None
     true_floors: tuple[int | None, ...]  # per evaluated walk: its floor by the header (None: per waypoint or none)
     growth: Growth | None = None
+    beacons: BeaconTable | None = None  # the beacon table as given (positions)
 
 
 def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: EvaluationSetup,
@@ -211,14 +226,15 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike], setup: 
             if setup.leave_one_out else []
         survey_recordings = [read_log(p, strict=setup.strict, building=building) for p in survey]
     recordings = [rec for rec, _ in lent]
+    beacons = _beacon_table(building, setup)
     all_walks = _all_walks(building, setup, methods, survey_recordings + recordings,
-                           [_true_floor(building, p) for p in survey] + [floor for _, floor in lent])
+                           [_true_floor(building, p) for p in survey] + [floor for _, floor in lent], beacons)
     growth = None
     if setup.grows:
         with _collect_read_warnings(read_warnings):
             growth = _growth(building, setup, paths, survey_recordings + recordings, all_walks, engine,
                              grow_progress)
-    context = _Context(building, setup, methods, tuple(paths), all_walks, true_floors, growth)
+    context = _Context(building, setup, methods, tuple(paths), all_walks, true_floors, growth, beacons)
     done = {o.index for o in resumed}
     todo = [i for i in range(len(paths)) if i not in done]
     outcomes: list[WalkOutcome] = list(resumed)
@@ -259,6 +275,7 @@ def validate_setup(building: Building, log_paths: Sequence[str | os.PathLike],
     if setup.transductive and setup.leave_one_out:
         raise MapfilterError("--transductive grows the map from walks that are scored without their labels, but "
                              "--leave-one-out surveys with those labels: give the survey with --survey or --radiomap")
+    _beacon_table(building, setup)  # a bad table is one line before anything runs
     unlabelled = checked_log_paths(setup.unlabelled_paths) if setup.unlabelled_paths else []
     named = {trace_name(p) for p in paths + survey}
     both = sorted(named & {trace_name(p) for p in unlabelled})
@@ -276,7 +293,8 @@ def evaluate_trace(building: Building, log_paths: Sequence[str | os.PathLike], i
     paths = checked_log_paths(log_paths)
     methods = _checked_methods(building, setup)
     context = _Context(building, setup, methods, tuple(paths), all_walks,
-                       tuple(_true_floor(building, p) if i == index else None for i, p in enumerate(paths)))
+                       tuple(_true_floor(building, p) if i == index else None for i, p in enumerate(paths)),
+                       beacons=_beacon_table(building, setup))
     outcome = _evaluate_walk(context, index)
     if outcome.status != "ok":
         raise MapfilterError(outcome.reason)
@@ -284,13 +302,16 @@ def evaluate_trace(building: Building, log_paths: Sequence[str | os.PathLike], i
 
 
 def _checked_methods(building: Building, setup: EvaluationSetup) -> tuple[str, ...]:
-    known = methods_for(building)
+    known = methods_for(building, beacons=setup.beacon_table_path is not None)
     if setup.methods is None:
         return known
+    wanting = [m for m in setup.methods if m in BLE_METHODS and m in methods_for(building, beacons=True)]
+    if wanting and setup.beacon_table_path is None:
+        raise MapfilterError(f"method(s) {', '.join(wanting)} weigh BLE beacons: give a beacon table (--beacons)")
     unknown = [m for m in setup.methods if m not in ALL_METHODS + BUILDING_METHODS]
     if unknown:
         raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(known)}")
-    other = [m for m in setup.methods if m not in known]
+    other = [m for m in setup.methods if m not in methods_for(building, beacons=True)]
     if other:
         what = "one floor" if building.is_single_floor else "a building with several floors"
         raise MapfilterError(f"method(s) {', '.join(other)} are not evaluated on {what}: choose from "
@@ -319,15 +340,28 @@ def _surveying_walk(path: Path, setup: EvaluationSetup, building: Building) -> R
     return recording if len(recording.wifi) and recording.has_ground_truth else None
 
 
+def _beacon_table(building: Building, setup: EvaluationSetup) -> BeaconTable | None:
+    """The beacon table of ``setup`` (None without one), checked against the building."""
+    if setup.beacon_table_path is None:
+        return None
+    table = BeaconTable.read_csv(setup.beacon_table_path, building)
+    check_beacons_on_map(table, building, building.path)
+    return table
+
+
 def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, ...], recordings: list[Recording],
-               floors: list[int | None]) -> AllWalks | None:
-    """The survey material built once: the radio map of every survey walk (and fitted APs)."""
+               floors: list[int | None], beacons: BeaconTable | None = None) -> AllWalks | None:
+    """The survey material built once: the radio map of every survey walk (and fitted APs, and
+    the labelled beacon readings)."""
     if not recordings:
         return None
+    readings = None
+    if beacons is not None and any(m in BLE_METHODS for m in methods):
+        readings = labelled_readings(beacons, building, recordings)
     if building.is_single_floor:
         radio_map = build_radio_map(recordings, building.floors[0].plan)
         fit = setup.ap_table_path is None and (setup.fit_aps or "ls" in methods)
-        return AllWalks(radio_map, estimate_access_points(radio_map) if fit else None)
+        return AllWalks(radio_map, estimate_access_points(radio_map) if fit else None, beacon_readings=readings)
     for rec, floor in zip(recordings, floors):
         if floor is None and not rec.waypoint_floor:
             raise MapfilterError("the log's header names no floor (FloorName): its points cannot join a building's "
@@ -340,7 +374,19 @@ def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, .
         # walk costs tens of seconds a walk; the walk under test lends only its share to one number
         sigma = {name: calibrated_fix_sigma_m(radio_map.floor_map(i), setup.tracking.wifi.kwnn_k)
                  for i, name in enumerate(building.floor_names)}
-    return AllWalks(radio_map, None, sigma)
+    return AllWalks(radio_map, None, sigma, readings)
+
+
+def _walk_beacons(context: _Context, recording: Recording) -> BeaconTable | None:
+    """The beacon table a walk is tracked with: the given positions with C, n and the floor
+    loss fitted on the survey walks' readings (leave-one-out: every walk's but this one's), or
+    the table as given without survey walks."""
+    if context.beacons is None or not any(m in BLE_METHODS for m in context.methods):
+        return None
+    if context.all_walks is None or context.all_walks.beacon_readings is None:
+        return context.beacons
+    readings = context.all_walks.beacon_readings.without_traces([recording.name])
+    return fit_beacons(context.beacons, readings).table
 
 
 def _evaluate_walk(context: _Context, index: int) -> WalkOutcome:
@@ -412,6 +458,7 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
         tracking = dataclasses.replace(tracking, wifi=dataclasses.replace(
             wifi, fix_sigma_m=calibrated_fix_sigma_m(radio_map, wifi.kwnn_k)))
     scorer = _Scorer(context, index, recording)
+    beacons = _walk_beacons(context, recording)
     # the pf variants share one set of fingerprint evidence (fixes, radio-map likelihood: no
     # state); trilateration models may adapt during a run, so each run prepares its own
     motion = tracking.motion if steps is not None else dataclasses.replace(tracking.motion, model="cv")
@@ -443,6 +490,22 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
             if outcome.offline is not None:
                 scorer.add("pf-smooth", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
                            causal=False)
+        elif method in BLE_METHODS:
+            # the beacons with the WiFi (pf+ble) or alone (pf-ble); causal only (the offline
+            # stage places a walk by its WiFi)
+            config = dataclasses.replace(tracking, smooth=False)
+            with_wifi = method == "pf+ble"
+            if (steps is None and config.motion.model == "pdr") or (with_wifi and radio_map is None
+                                                                    and ap_table is None):
+                continue
+            rng = np.random.default_rng([tracking.seed, index, ALL_METHODS.index(method)])
+            if with_wifi and prepared is not None:
+                walk = dataclasses.replace(prepared, beacons=beacons)
+            else:
+                walk = prepare_walk(building, recording, None, ap_table if with_wifi else None, config, steps=steps,
+                                    beacons=beacons)
+            outcome = track_prepared(walk, config, rng=rng)
+            scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
         elif method == "kwnn" and radio_map is not None:
             scorer.timed(method, lambda: _fix_track(scan_t, fixes, "kwnn"))
         elif method == "pdr-kwnn" and radio_map is not None:
@@ -484,6 +547,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
     tracking = setup.tracking
     steps = _detected_steps(recording, tracking)
     has_steps = tracking.motion.model != "pdr" or (steps is not None and len(steps) > 0)
+    beacons = _walk_beacons(context, recording)
     fixes = None  # the KWNN fixes and floors, made once for kwnn, kf and pdr
     for method in context.methods:
         rng = np.random.default_rng([tracking.seed, index, BUILDING_METHODS.index(method)])
@@ -498,6 +562,18 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
             if outcome.offline is not None:
                 scorer.add("pf-smooth", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
                            causal=False)
+        elif method in BLE_METHODS:
+            # pf and pf-floor with the beacons too, and pf on the beacons (and barometer) alone;
+            # causal only (the offline stage places a walk by its WiFi)
+            if not has_steps or (method == "pf-floor+ble" and truth is None):
+                continue
+            config = dataclasses.replace(tracking, smooth=False)
+            wifi = None if method == "pf-ble" else radio_map
+            walk = prepare_walk(building, recording, wifi, None, config, steps=steps,
+                                floor=truth if method == "pf-floor+ble" else None,
+                                fix_sigma_by_floor_m=sigma if wifi is not None else None, beacons=beacons)
+            outcome = track_prepared(walk, config, rng=rng)
+            scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
         elif method in ("kwnn", "kf", "pdr"):
             if fixes is None:
                 started = time.perf_counter()
