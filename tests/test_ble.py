@@ -389,6 +389,11 @@ def test_cli_fit_beacons_track_and_evaluate_with_beacons(office_walk, tmp_path, 
     assert main(["track", str(OFFICE), str(log), "--beacons", str(fitted), "--radiomap",
                  str(REPO / "maps" / "office_radiomap.npz"), "--out", str(track_csv)] + common) == 0
     assert "beacon windows" in capsys.readouterr().out
+    # many walks (--out-dir): the same track as one walk tracked alone
+    assert main(["track", str(OFFICE), str(log), "--beacons", str(fitted), "--radiomap",
+                 str(REPO / "maps" / "office_radiomap.npz"), "--out-dir", str(tmp_path / "batch")] + common) == 0
+    assert "1 tracked" in capsys.readouterr().out
+    assert (tmp_path / "batch" / "walk.csv").read_bytes() == track_csv.read_bytes()
     # a bad table: one line naming it, exit 1, nothing written
     bad = _write(tmp_path, "beacon_id,x,y\nA,1,zz\n", "bad.csv")
     other = tmp_path / "other.csv"
@@ -474,3 +479,38 @@ def test_ipin_walk_with_beacons(ipin2023, ipin_venue):
         score = score_track(ipin_venue, walk, result.causal, None, True)
         assert score.errors.errors_m.size == walk.waypoint_t_s.size
         assert np.median(score.errors.errors_m) < (5.0 if result is both else 25.0)
+
+
+def test_leave_one_out_fits_each_walks_beacons_without_it(office_walk, tmp_path):
+    """evaluate --leave-one-out --beacons: a walk's table is fitted on the other walks' readings
+    only (never its own)."""
+    from mapfilter.evaluation import comparison
+    from mapfilter.sensors.pathloss import AccessPointTable
+    from mapfilter.simulate.ilc_writer import write_ilc
+    from mapfilter.simulate.walk import SimConfig, simulate_walk
+
+    plan, first, _, first_path = office_walk
+    aps = AccessPointTable.read_csv(REPO / "maps" / "office_aps.csv")
+    walk = simulate_walk(plan, aps, SimConfig(duration_s=80.0), np.random.default_rng(21))
+    plain = tmp_path / "plain.txt"
+    write_ilc(walk, plain)
+    second_path = tmp_path / "second.txt"
+    rows = _beacon_rows(walk, np.random.default_rng(22), noise_db=6.0)
+    second_path.write_text(plain.read_text() + "".join(rows))
+    second = read_ilc(second_path)
+    positions = tmp_path / "positions.csv"
+    _office_table(c_dbm=-50.0, n=3.0).write_csv(positions)
+    building = Building.from_plan(plan)
+    setup = comparison.EvaluationSetup(leave_one_out=True, beacon_table_path=positions)
+    table = comparison._beacon_table(building, setup)
+    methods = comparison.methods_for(building, beacons=True)
+    all_walks = comparison._all_walks(building, setup, methods, [first, second], [0, 0], table)
+    context = comparison._Context(building, setup, methods, (first_path, second_path), all_walks, (0, 0),
+                                  beacons=table)
+    for scored, other in ((first, second), (second, first)):
+        got = comparison._walk_beacons(context, scored)
+        alone = fit_beacons(table, labelled_readings(table, building, [other])).table
+        np.testing.assert_allclose(got.c_dbm, alone.c_dbm, atol=1e-6)
+        np.testing.assert_allclose(got.n, alone.n, atol=1e-6)
+        with_own = fit_beacons(table, labelled_readings(table, building, [first, second])).table
+        assert np.abs(got.c_dbm - with_own.c_dbm).max() > 0.01  # the walk's own readings would change it
