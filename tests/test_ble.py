@@ -508,9 +508,33 @@ def test_leave_one_out_fits_each_walks_beacons_without_it(office_walk, tmp_path)
     context = comparison._Context(building, setup, methods, (first_path, second_path), all_walks, (0, 0),
                                   beacons=table)
     for scored, other in ((first, second), (second, first)):
-        got = comparison._walk_beacons(context, scored)
+        got, config = comparison._walk_beacons(context, scored)
+        assert config.ble.rssi_offset_db == 0.0  # no phone model named
         alone = fit_beacons(table, labelled_readings(table, building, [other])).table
         np.testing.assert_allclose(got.c_dbm, alone.c_dbm, atol=1e-6)
         np.testing.assert_allclose(got.n, alone.n, atol=1e-6)
         with_own = fit_beacons(table, labelled_readings(table, building, [first, second])).table
         assert np.abs(got.c_dbm - with_own.c_dbm).max() > 0.01  # the walk's own readings would change it
+
+
+def test_the_fit_finds_each_phones_rssi_offset(office_walk, tmp_path):
+    plan, first, walk, _ = office_walk
+    building = Building.from_plan(plan)
+    low = dataclasses.replace(first, beacons=dataclasses.replace(first.beacons, rssi_dbm=first.beacons.rssi_dbm - 9.0),
+                              phone_model="QUIET")
+    loud = dataclasses.replace(first, phone_model="LOUD")
+    guess = _office_table(c_dbm=-50.0, n=3.0)
+    fit = fit_beacons(guess, labelled_readings(guess, building, [loud, low]))
+    assert fit.phone_offsets_db["LOUD"] - fit.phone_offsets_db["QUIET"] == pytest.approx(9.0, abs=0.5)
+    assert fit.phone_offsets_db["LOUD"] + fit.phone_offsets_db["QUIET"] == pytest.approx(0.0, abs=0.5)  # equal shares
+    np.testing.assert_allclose(np.median(fit.table.c_dbm), TRUE_C - 4.5, atol=2.5)
+    # the model adds a phone's offset to every beacon's C
+    offset = fit.phone_offsets_db["QUIET"]
+    shifted = BeaconLikelihood(fit.table, building, 25.0, rssi_offset_db=offset)
+    moved = BeaconLikelihood(fit.table.with_parameters(fit.table.c_dbm + offset, fit.table.n, fit.table.floor_loss_db),
+                             building, 25.0)
+    particles = _particles(np.random.default_rng(8).uniform(0, 38, (500, 2)))
+    window = BeaconWindow(0.0, np.array([0, 3, 5]), np.array([-80.0, -70.0, -90.0]))
+    np.testing.assert_array_equal(shifted.log_likelihood(particles, window), moved.log_likelihood(particles, window))
+    with pytest.raises(MapfilterError, match="rssi_offset_db"):
+        TrackingConfig().override({"ble.rssi_offset_db": 55.0})

@@ -18,8 +18,9 @@ With a BLE beacon table (``beacon_table_path``), also ``pf+ble`` (``pf`` with th
 readings weighed too) and ``pf-ble`` (the filter on the beacons alone, no WiFi), and in a
 building ``pf-floor+ble`` (``pf-floor`` with the beacons). With survey logs or
 ``leave_one_out``, each walk's beacon table is the given one's positions with C, n and the
-floor loss fitted on the labelled walks, never on the walk itself (``sensors.beacons``); with
-a radio map file, the table as given.
+floor loss fitted on the labelled walks, never on the walk itself (``sensors.beacons``), and the
+walk's phone gets the RSSI offset those walks give its phone model (``BleConfig.rssi_offset_db``;
+the config's when none of them has it); with a radio map file, the table and config as given.
 
 In a building with several floors: ``pf`` (the floor in the filter's state, not given),
 ``pf-floor`` (the same filter on the walker's floor, given: what finding the floor costs; a
@@ -377,16 +378,21 @@ def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, .
     return AllWalks(radio_map, None, sigma, readings)
 
 
-def _walk_beacons(context: _Context, recording: Recording) -> BeaconTable | None:
-    """The beacon table a walk is tracked with: the given positions with C, n and the floor
-    loss fitted on the survey walks' readings (leave-one-out: every walk's but this one's), or
-    the table as given without survey walks."""
+def _walk_beacons(context: _Context, recording: Recording) -> tuple[BeaconTable | None, TrackingConfig]:
+    """The beacon table a walk is tracked with and the config with its phone's RSSI offset: the
+    given positions with C, n and the floor loss fitted on the survey walks' readings
+    (leave-one-out: every walk's but this one's), and the offset those walks give the walk's
+    phone model (the config's when none of them has it); without survey walks, the table and
+    config as given."""
+    tracking = context.setup.tracking
     if context.beacons is None or not any(m in BLE_METHODS for m in context.methods):
-        return None
+        return None, tracking
     if context.all_walks is None or context.all_walks.beacon_readings is None:
-        return context.beacons
+        return context.beacons, tracking
     readings = context.all_walks.beacon_readings.without_traces([recording.name])
-    return fit_beacons(context.beacons, readings).table
+    fit = fit_beacons(context.beacons, readings)
+    offset = fit.phone_offsets_db.get(recording.phone_model or "", tracking.ble.rssi_offset_db)
+    return fit.table, dataclasses.replace(tracking, ble=dataclasses.replace(tracking.ble, rssi_offset_db=offset))
 
 
 def _evaluate_walk(context: _Context, index: int) -> WalkOutcome:
@@ -458,7 +464,7 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
         tracking = dataclasses.replace(tracking, wifi=dataclasses.replace(
             wifi, fix_sigma_m=calibrated_fix_sigma_m(radio_map, wifi.kwnn_k)))
     scorer = _Scorer(context, index, recording)
-    beacons = _walk_beacons(context, recording)
+    beacons, ble_tracking = _walk_beacons(context, recording)
     # the pf variants share one set of fingerprint evidence (fixes, radio-map likelihood: no
     # state); trilateration models may adapt during a run, so each run prepares its own
     motion = tracking.motion if steps is not None else dataclasses.replace(tracking.motion, model="cv")
@@ -493,7 +499,7 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
         elif method in BLE_METHODS:
             # the beacons with the WiFi (pf+ble) or alone (pf-ble); causal only (the offline
             # stage places a walk by its WiFi)
-            config = dataclasses.replace(tracking, smooth=False)
+            config = dataclasses.replace(tracking, smooth=False, ble=ble_tracking.ble)
             with_wifi = method == "pf+ble"
             if (steps is None and config.motion.model == "pdr") or (with_wifi and radio_map is None
                                                                     and ap_table is None):
@@ -547,7 +553,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
     tracking = setup.tracking
     steps = _detected_steps(recording, tracking)
     has_steps = tracking.motion.model != "pdr" or (steps is not None and len(steps) > 0)
-    beacons = _walk_beacons(context, recording)
+    beacons, ble_tracking = _walk_beacons(context, recording)
     fixes = None  # the KWNN fixes and floors, made once for kwnn, kf and pdr
     for method in context.methods:
         rng = np.random.default_rng([tracking.seed, index, BUILDING_METHODS.index(method)])
@@ -567,7 +573,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
             # causal only (the offline stage places a walk by its WiFi)
             if not has_steps or (method == "pf-floor+ble" and truth is None):
                 continue
-            config = dataclasses.replace(tracking, smooth=False)
+            config = dataclasses.replace(ble_tracking, smooth=False)
             wifi = None if method == "pf-ble" else radio_map
             walk = prepare_walk(building, recording, wifi, None, config, steps=steps,
                                 floor=truth if method == "pf-floor+ble" else None,

@@ -313,6 +313,7 @@ class BeaconReadings:
     floors_apart: np.ndarray  # (R,) floors between the walker and the beacon
     trace: np.ndarray  # (R,) index into ``traces``
     traces: tuple[str, ...]
+    phones: tuple[str | None, ...]  # the phone model each trace names (None: none)
     building_xy_m: np.ndarray  # (R, 2) the walker's position in the building frame
     floor: np.ndarray  # (R,) the walker's floor index
     beacon_xy_m: np.ndarray  # (K, 2) the table's beacons in the building frame
@@ -385,14 +386,15 @@ def labelled_readings(table: BeaconTable, building: Building, recordings: Sequen
             walker[on] = building.floors[int(f)].to_building(local[on])
         parts.append((row, rssi, np.linalg.norm(walker - beacon_xy[row], axis=1),
                       np.abs(floor - beacon_floor[row]), np.full(row.size, trace), walker, floor))
+    traces = tuple(r.name for r in recordings)
+    phones = tuple(r.phone_model for r in recordings)
     if not parts:
         empty = np.zeros(0)
         return BeaconReadings(empty.astype(np.int64), empty, empty, empty.astype(np.int64), empty.astype(np.int64),
-                              tuple(r.name for r in recordings), np.zeros((0, 2)), empty.astype(np.int64),
-                              beacon_xy, beacon_floor)
+                              traces, phones, np.zeros((0, 2)), empty.astype(np.int64), beacon_xy, beacon_floor)
     cat = [np.concatenate([p[j] for p in parts]) for j in range(7)]
-    return BeaconReadings(cat[0], cat[1], cat[2], cat[3], cat[4], tuple(r.name for r in recordings), cat[5], cat[6],
-                          beacon_xy, beacon_floor)
+    return BeaconReadings(cat[0], cat[1], cat[2], cat[3], cat[4], traces, phones, cat[5], cat[6], beacon_xy,
+                          beacon_floor)
 
 
 # ---- fitting -----------------------------------------------------------------------------------
@@ -433,6 +435,15 @@ class BeaconFit:
     floor_loss_db: float
     floor_loss_fitted: bool  # False: too few readings across floors, the table's value kept
     n_readings: int
+    # each phone model's RSSI minus the table's (the model of the survey walks' phones on
+    # average): what ``BleConfig.rssi_offset_db`` is for a walk with that phone
+    phone_offsets_db: dict[str, float] = dataclasses.field(default_factory=dict)
+    phone_readings: dict[str, int] = dataclasses.field(default_factory=dict)
+
+
+# rounds of fitting the path-loss parameters and the phones' offsets in turn (the offsets move
+# by under 0.1 dB after the third on the IPIN 2023 logs)
+_OFFSET_ROUNDS = 3
 
 
 def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitConfig = BeaconFitConfig()) -> BeaconFit:
@@ -443,7 +454,11 @@ def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitC
        ``min_readings`` readings are from another floor than their beacon's; else the table's
        median L is kept);
     2. each beacon with at least ``min_readings`` readings: its own C and n, L fixed at the shared
-       value; the others keep the shared C and n.
+       value; the others keep the shared C and n;
+    3. each phone model with at least ``min_readings`` readings: its RSSI offset, the median of its
+       readings' residuals, the offsets weighted by readings averaging 0 (phones report the same
+       signal several dB apart); 1-3 again on the readings less their phone's offset, three
+       times in all.
 
     ``MapfilterError`` when fewer than ``min_readings`` readings in all are labelled.
     """
@@ -455,41 +470,57 @@ def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitC
         raise MapfilterError(f"{len(readings)} labelled readings of the table's beacons in the survey walks (at least "
                              f"{config.min_readings} needed): nothing to fit")
     log_d = np.log10(np.maximum(readings.distance_m, MIN_DISTANCE_M))
-    z, apart, beacon = readings.rssi_dbm, readings.floors_apart.astype(np.float64), readings.beacon
+    apart, beacon = readings.floors_apart.astype(np.float64), readings.beacon
     fit_loss = int(np.count_nonzero(apart > 0)) >= config.min_readings
     kept_loss = float(np.median(table.floor_loss_db))
     c_lo, c_hi = config.c_bounds_dbm
     n_lo, n_hi = config.n_bounds
+    phone = np.array([p or "" for p in readings.phones], dtype=object)[readings.trace] if len(readings) else \
+        np.zeros(0, dtype=object)
+    names, counts = np.unique(phone.astype(str), return_counts=True)
+    phones = [str(p) for p, k in zip(names, counts) if p and k >= config.min_readings]
+    offset = np.zeros(len(readings))  # each reading's phone offset
 
     def solve(residual, start, lo, hi):
         start = np.clip(np.array(start, dtype=np.float64), np.array(lo) + 1e-6, np.array(hi) - 1e-6)
         return least_squares(residual, start, bounds=(lo, hi), loss="soft_l1", f_scale=config.f_scale_db).x
 
-    if fit_loss:
-        shared = solve(lambda p: p[0] - 10.0 * p[1] * log_d - p[2] * apart - z, [-60.0, 2.0, DEFAULT_FLOOR_LOSS_DB],
-                       [c_lo, n_lo, config.floor_loss_bounds_db[0]], [c_hi, n_hi, config.floor_loss_bounds_db[1]])
-        loss = float(shared[2])
-    else:
-        shared = solve(lambda p: p[0] - 10.0 * p[1] * log_d - kept_loss * apart - z, [-60.0, 2.0],
-                       [c_lo, n_lo], [c_hi, n_hi])
-        loss = kept_loss
+    for _ in range(_OFFSET_ROUNDS if phones else 1):
+        z = readings.rssi_dbm - offset
+        if fit_loss:
+            shared = solve(lambda p: p[0] - 10.0 * p[1] * log_d - p[2] * apart - z,
+                           [-60.0, 2.0, DEFAULT_FLOOR_LOSS_DB], [c_lo, n_lo, config.floor_loss_bounds_db[0]],
+                           [c_hi, n_hi, config.floor_loss_bounds_db[1]])
+            loss = float(shared[2])
+        else:
+            shared = solve(lambda p: p[0] - 10.0 * p[1] * log_d - kept_loss * apart - z, [-60.0, 2.0],
+                           [c_lo, n_lo], [c_hi, n_hi])
+            loss = kept_loss
 
-    def fit_one(log_dist, floors_apart, rssi):
-        return solve(lambda p: p[0] - 10.0 * p[1] * log_dist - loss * floors_apart - rssi, shared[:2],
-                     [c_lo, n_lo], [c_hi, n_hi])
+        def fit_one(log_dist, floors_apart, rssi):
+            return solve(lambda p: p[0] - 10.0 * p[1] * log_dist - loss * floors_apart - rssi, shared[:2],
+                         [c_lo, n_lo], [c_hi, n_hi])
+
+        c = np.full(len(table), shared[0])
+        n = np.full(len(table), shared[1])
+        own = np.zeros(len(table), dtype=bool)
+        for b in range(len(table)):
+            mine = beacon == b
+            if np.count_nonzero(mine) >= config.min_readings:
+                c[b], n[b] = fit_one(log_d[mine], apart[mine], z[mine])
+                own[b] = True
+        if phones:
+            residual = readings.rssi_dbm - (c[beacon] - 10.0 * n[beacon] * log_d - loss * apart)
+            by_phone = {p: float(np.median(residual[phone == p])) for p in phones}
+            counts = {p: int(np.count_nonzero(phone == p)) for p in phones}
+            mean = sum(by_phone[p] * counts[p] for p in phones) / sum(counts.values())
+            by_phone = {p: v - mean for p, v in by_phone.items()}
+            offset = np.array([by_phone.get(p, 0.0) for p in phone])
 
     def rmse(params, log_dist, floors_apart, rssi) -> float:
         residual = params[0] - 10.0 * params[1] * log_dist - loss * floors_apart - rssi
         return float(np.sqrt(np.mean(residual ** 2))) if residual.size else math.nan
 
-    c = np.full(len(table), shared[0])
-    n = np.full(len(table), shared[1])
-    own = np.zeros(len(table), dtype=bool)
-    for b in range(len(table)):
-        mine = beacon == b
-        if np.count_nonzero(mine) >= config.min_readings:
-            c[b], n[b] = fit_one(log_d[mine], apart[mine], z[mine])
-            own[b] = True
     # the check of the positions: each beacon's readings fitted at every beacon's position
     beacon_xy, beacon_floor = readings.beacon_xy_m, readings.beacon_floor
     rows = []
@@ -509,5 +540,7 @@ def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitC
                     best, best_rmse = table.beacon_id[other], there
         rows.append(BeaconFitRow(table.beacon_id[b], int(np.count_nonzero(mine)),
                                  int(np.count_nonzero(mine & (apart == 0))), bool(own[b]), here, best, best_rmse))
+    phone_offsets = {p: float(offset[phone == p][0]) for p in phones}
     return BeaconFit(table.with_parameters(c, n, loss), tuple(rows), float(shared[0]), float(shared[1]), loss,
-                     fit_loss, len(readings))
+                     fit_loss, len(readings), phone_offsets,
+                     {p: int(np.count_nonzero(phone == p)) for p in phones})

@@ -14,8 +14,8 @@ tracker never has to hold its other events for one). Beacons not heard in a wind
 (as an access point not in a WiFi scan): their readings are few and far between.
 
 Likelihood. The Lund thesis path-loss model of ``filter.models.path_loss.path_loss_kernel``
-(alpha 0) with each beacon's C and n, and a loss L per floor between the beacon and the phone
-(``sensors.beacons``): a particle on floor f weighs beacon b at the horizontal distance from
+(alpha 0) with each beacon's C and n, the phone's RSSI offset (``BleConfig.rssi_offset_db``),
+and a loss L per floor between the beacon and the phone (``sensors.beacons``): a particle on floor f weighs beacon b at the horizontal distance from
 the point of floor f above or below the beacon, with C_b - L |f - f_b| as its RSSI at 1 m. A
 reading thus says which floor too: a strong one puts the phone on the beacon's floor near it, a
 weak one is as likely a floor away as far on the same floor. On one floor (a single map, or a
@@ -43,6 +43,8 @@ from mapfilter.sensors.recording import Recording
 
 __all__ = ["BeaconLikelihood", "BeaconSource", "BeaconWindow", "BleConfig", "beacon_source"]
 
+MAX_RSSI_OFFSET_DB = 40.0  # a phone further off than this from the table reads another signal
+
 
 @dataclasses.dataclass(frozen=True)
 class BleConfig:
@@ -50,14 +52,22 @@ class BleConfig:
 
     # the IPIN 2023 phones report a beacon 0.3-3 times a second: 2 s holds one to six readings
     window_s: float = 2.0  # a measurement every window_s at most: each beacon's median RSSI over the trailing window_s
-    # the IPIN 2023 venue's fitted beacons leave 5-8 dB RMS per reading (radiomap fit-beacons)
-    rssi_variance_db2: float = 36.0  # RSSI noise variance of a window's median under the path-loss model
+    # (10 dB)^2, where the IPIN 2023 venue's fitted beacons leave 4-6 dB RMS per reading: a
+    # beacon's error on a route (its shadowing, -7 dB along one walked there) lasts for many
+    # windows, which the filter weighs as if independent. On 8 of the 29 IPIN 2023 walks, pf with
+    # the beacons had mean error 3.52 m at 36 dB^2, 2.92 m at 100 and 2.97 m at 225 (WiFi alone 3.50)
+    rssi_variance_db2: float = 100.0  # RSSI noise variance of a window's median under the path-loss model
+    # phones report one signal several dB apart: 9 dB between the two IPIN 2023 phones
+    rssi_offset_db: float = 0.0  # the phone's RSSI minus the beacon table's (radiomap fit-beacons prints it per phone model)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.window_s) and self.window_s > 0):
             raise MapfilterError(f"ble window_s must be a positive number of seconds, got {self.window_s}")
         if not (math.isfinite(self.rssi_variance_db2) and self.rssi_variance_db2 > 0):
             raise MapfilterError(f"ble rssi_variance_db2 must be positive, got {self.rssi_variance_db2}")
+        if not (math.isfinite(self.rssi_offset_db) and abs(self.rssi_offset_db) <= MAX_RSSI_OFFSET_DB):
+            raise MapfilterError(f"ble rssi_offset_db must be within +-{MAX_RSSI_OFFSET_DB:g} dB, got "
+                                 f"{self.rssi_offset_db}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,13 +111,14 @@ class BeaconLikelihood(MeasurementModel):
 
     ``table`` placed in ``building``; the state is one floor (``floor``: its index, the plan
     frame that floor's) or, with ``stack``, every floor of the building side by side.
+    ``rssi_offset_db``: the phone's RSSI minus the table's, added to every beacon's C.
     """
 
     kind = "beacons"
     log_likelihood_peak = 0.0  # -sum (z - R)^2 / (2 var), without its constant
 
     def __init__(self, table: BeaconTable, building: Building, variance_db2: float, *, floor: int = 0,
-                 stack: FloorStack | None = None) -> None:
+                 stack: FloorStack | None = None, rssi_offset_db: float = 0.0) -> None:
         if not (math.isfinite(variance_db2) and variance_db2 > 0):
             raise MapfilterError(f"RSSI variance must be positive, got {variance_db2}")
         self.table = table
@@ -122,7 +133,7 @@ class BeaconLikelihood(MeasurementModel):
             index = f if stack is not None else floor
             xy = building.floors[index].from_building(beacon_xy)
             self._xy_m.append(stack.to_stack(xy, index) if stack is not None else xy)
-            self._c_dbm.append(table.c_dbm - table.floor_loss_db * np.abs(index - beacon_floor))
+            self._c_dbm.append(table.c_dbm + rssi_offset_db - table.floor_loss_db * np.abs(index - beacon_floor))
         own = np.array([self._xy_m[int(f) if stack is not None else 0][i] for i, f in enumerate(beacon_floor)])
         self._own_xy_m = own.reshape(-1, 2)  # each beacon on its own floor, for the viewer
         self._tile_x_min_m = stack.tile_x_min_m if stack is not None else None
@@ -218,5 +229,5 @@ def beacon_source(table: BeaconTable, building: Building, config: BleConfig, *, 
                   stack: FloorStack | None = None) -> BeaconSource:
     """The beacons' measurement source for a filter on ``building``'s floor ``floor``, or on its
     stack plan with ``stack``."""
-    return BeaconSource(BeaconLikelihood(table, building, config.rssi_variance_db2, floor=floor, stack=stack),
-                        config.window_s)
+    return BeaconSource(BeaconLikelihood(table, building, config.rssi_variance_db2, floor=floor, stack=stack,
+                                         rssi_offset_db=config.rssi_offset_db), config.window_s)
