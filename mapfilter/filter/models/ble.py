@@ -50,7 +50,7 @@ MAX_RSSI_OFFSET_DB = 40.0  # a phone further off than this from the table reads 
 class BleConfig:
     """BLE beacons (a beacon table): how their readings weigh the particles."""
 
-    # the IPIN 2023 phones report a beacon 0.3-3 times a second: 2 s holds one to six readings
+    # the IPIN 2023 phones report a beacon 0.1-2.2 times a second (median 0.6): 2 s holds up to four readings
     window_s: float = 2.0  # a measurement every window_s at most: each beacon's median RSSI over the trailing window_s
     # (10 dB)^2, where the IPIN 2023 venue's fitted beacons leave 4-6 dB RMS per reading: a
     # beacon's error on a route (its shadowing, -7 dB along one walked there) lasts for many
