@@ -35,8 +35,8 @@ with --beacons TABLE.csv (BLE; fit one with `mapfilter radiomap fit-beacons`), a
   pf+ble    pf with the beacons' readings too       pf-ble    pf on the beacons alone (no WiFi)
   pf-floor+ble  pf-floor with the beacons too (a building)
   With --survey or --leave-one-out, each walk's beacons take the table's positions with C, n
-  and the floor loss fitted on the labelled walks (never the walk itself); with --radiomap,
-  the table as given.
+  and the floor loss fitted on the labelled walks (never the walk itself), and the walk's
+  phone model the RSSI offset those walks give it; with --radiomap, the table as given.
   floor_accuracy: the share of waypoints at which a method was on the walker's floor (its
   header's, or each waypoint's own); ipin_score: the IPIN competitions' score, the 75th
   percentile of the horizontal error plus 15 m per storey off. Logs that name their phone

@@ -27,8 +27,8 @@ BLE beacons: --beacons TABLE.csv (fit one with `mapfilter radiomap fit-beacons`)
 log's beacon readings too (config section ble); with --beacons and neither --radiomap nor
 --aps, the beacons alone (and, in a building, the barometer) place the walker.
 
-The starting position is unknown: the filter starts from the first usable WiFi scan, drawn
-over the map's free space. If the log has waypoints, the errors at the waypoint times are
+The starting position is unknown: the filter starts from the first usable WiFi scan (or
+beacon window), drawn over the map's free space. If the log has waypoints, the errors at the waypoint times are
 printed (the latest estimate at or before each waypoint; see "What the numbers mean" in the
 README).
 
