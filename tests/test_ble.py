@@ -6,7 +6,6 @@ Simulated walks on the bundled office carry beacon readings drawn from the path-
 from __future__ import annotations
 
 import dataclasses
-import gzip
 
 import numpy as np
 import pytest
@@ -38,9 +37,14 @@ BEACON_XY = np.array([[5.0, 5.0], [19.0, 4.0], [33.0, 6.0], [4.0, 19.0], [34.0, 
 TRUE_C, TRUE_N = -62.0, 2.1
 
 
+def _mac(i: int) -> str:
+    """The MAC the simulated log gives beacon i (row i of the table), as the log writes it."""
+    return f"00:ab:cd:ef:01:0{i}"
+
+
 def _office_table(c_dbm=TRUE_C, n=TRUE_N) -> BeaconTable:
     k = len(BEACON_XY)
-    return BeaconTable([f"{UUID}:1:{i + 1}".upper() for i in range(k)], BEACON_XY.copy(), [None] * k,
+    return BeaconTable([_mac(i).upper() for i in range(k)], BEACON_XY.copy(), [None] * k,
                        np.full(k, c_dbm), np.full(k, n), np.full(k, 10.0))
 
 
@@ -55,7 +59,7 @@ def _beacon_rows(walk, rng: np.random.Generator, noise_db: float = 4.0, rate_hz:
         rssi = np.round(beacon_rssi_dbm(d, TRUE_C, TRUE_N) + noise_db * rng.standard_normal(t.size))
         for ms, r in dict(zip(np.round(t * 1000).astype(np.int64), rssi)).items():  # one reading per ms
             if r >= -100:
-                rows.append((ms, f"{ms}\tTYPE_BEACON\t{UUID}\t1\t{i + 1}\t-59\t{int(r)}\t1.0\t00:ab:cd:ef:01:0{i}\t{ms}\n"))
+                rows.append((ms, f"{ms}\tTYPE_BEACON\t{UUID}\t1\t{i + 1}\t-59\t{int(r)}\t1.0\t{_mac(i)}\t{ms}\n"))
     return [line for _, line in sorted(rows)]
 
 
@@ -149,7 +153,7 @@ def _readings(t, ids, rssi) -> Beacons:
 
 def test_windows_take_the_trailing_readings_median_each_reading_once():
     source = _source(2.0)
-    b = [f"{UUID}:1:{i}".lower() for i in (1, 2, 3)]  # the table's ids matched in any case
+    b = [_mac(i).lower() for i in (0, 1, 2)]  # the table's ids matched in any case
     readings = _readings([0.0, 0.5, 1.0, 1.9, 2.1, 2.1, 2.5, 3.0, 4.2, 9.0, 9.5, 12.0],
                          [b[0], b[1], b[0], b[0], b[1], "unknown:1:1", b[2], b[2], b[2], b[0], b[1], b[1]],
                          [-70, -80, -72, -90, -81, -50, -60, -64, -66, -75, -85, -95])
@@ -170,7 +174,7 @@ def test_windows_take_the_trailing_readings_median_each_reading_once():
 def test_windows_do_not_depend_on_how_the_readings_arrive():
     rng = np.random.default_rng(5)
     t = np.sort(rng.uniform(0, 60, 300))
-    ids = [f"{UUID}:1:{k}" for k in rng.integers(1, 9, 300)]
+    ids = [_mac(k) for k in rng.integers(0, 8, 300)]
     rssi = rng.integers(-95, -50, 300).astype(float)
     whole = _source()
     whole_t = whole.add_records((t, np.array([whole._index[i.upper()] for i in ids]), rssi), final=True)
