@@ -253,6 +253,31 @@ def test_the_beacon_source_is_causal_and_streams(office_walk, with_wifi):
         np.testing.assert_array_equal(a, b)
 
 
+def test_a_live_run_weighs_each_beacon_reading_once(office_walk, tmp_path, monkeypatch, capsys):
+    """``track MAP - --beacons``: the log on standard input in pieces, each chunk of the log
+    stream carrying its own beacon readings (a chunk repeating earlier ones would bring them
+    back as late readings): the file run's track to the byte."""
+    import io
+    import sys
+
+    _, recording, _, path = office_walk
+    table = tmp_path / "beacons.csv"
+    _office_table().write_csv(table)
+    options = ["--beacons", str(table), "--particles", "2000", "--seed", "3"]  # the beacons alone
+    whole = tmp_path / "file.csv"
+    assert main(["track", str(OFFICE), str(path), *options, "--out", str(whole)]) == 0
+    # as a phone streams it: the records in time order (the fixture appended the beacon rows)
+    lines = path.read_text().splitlines(keepends=True)
+    records = sorted((line for line in lines if not line.startswith("#")), key=lambda line: int(line.split("\t")[0]))
+    data = "".join([*(line for line in lines if line.startswith("#")), *records]).encode()
+    assert len(data) > 20 * 65536  # many pieces
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BufferedReader(io.BytesIO(data))))
+    live = tmp_path / "live.csv"
+    assert main(["track", str(OFFICE), "-", *options, "--out", str(live)]) == 0
+    assert live.read_bytes() == whole.read_bytes()
+    assert "beacon windows" in capsys.readouterr().err
+
+
 def test_beacons_alone_refuse_the_offline_track_and_need_a_source(office_walk):
     plan, recording, _, _ = office_walk
     with pytest.raises(MapfilterError, match="places the walk by its WiFi"):

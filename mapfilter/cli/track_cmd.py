@@ -307,7 +307,8 @@ def _run_live(args: argparse.Namespace, config) -> int:
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     radio_map, ap_table = _wifi_source(args, building, config)
     floor = None if building.is_single_floor else args.floor
-    tracker = Tracker(building, radio_map, ap_table, config, floor=floor, log_name="standard input")
+    tracker = Tracker(building, radio_map, ap_table, config, floor=floor, log_name="standard input",
+                      beacons=_beacon_table(args, building))
     stream = LogStream("-", strict=args.strict)
     header_done = False
 
@@ -337,7 +338,8 @@ def _run_live(args: argparse.Namespace, config) -> int:
     result = tracker.result()
     if args.out is not None:
         write_track(result.causal, args.out, out_format, building)
-    print(f"standard input: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used, "
+    beacons = f", {result.n_beacon_windows} beacon windows" if result.n_beacon_windows else ""
+    print(f"standard input: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used{beacons}, "
           f"{len(result.collapses)} collapses; causal {result.causal_runtime_s:.1f} s"
           + (f"; wrote {args.out} (causal track)" if args.out is not None else ""), file=sys.stderr)
     return 0
