@@ -196,8 +196,9 @@ def run(args: argparse.Namespace) -> int:
 def _announce(args, building, methods, config, n_resumed: int) -> None:
     """The run's rough time, before it starts, when it is long: the particle filter runs of every
     walk (the baselines cost little beside them) and of the walks that grow the radio map."""
-    pf_runs = [m for m in (methods or (ALL_METHODS if building.is_single_floor else BUILDING_METHODS))
-               if m.startswith("pf")]
+    from mapfilter.evaluation.comparison import methods_for
+
+    pf_runs = [m for m in (methods or methods_for(building, args.beacons is not None)) if m.startswith("pf")]
     runs = len(pf_runs) + (SMOOTH_EXTRA_RUNS if config.smooth and "pf" in pf_runs else 0)
     spans = walk_spans_s(args.logs)
     growing = walk_spans_s(args.unlabelled) + (spans if args.transductive else [])
