@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,9 @@ from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluat
 from mapfilter.filter.events import StepReport
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.beacons import BeaconFit, BeaconFitConfig, BeaconTable
+from mapfilter.sensors.beacons import fit_beacons as _fit_beacons
+from mapfilter.sensors.beacons import labelled_readings
 from mapfilter.sensors.floor_vote import build_building_radio_map
 from mapfilter.sensors.logs import localise, sniff_log_format
 from mapfilter.sensors.logs import read_log as _read_log
@@ -45,9 +48,10 @@ from mapfilter.tracking import TrackResult
 from mapfilter.tracking import track as _track
 from mapfilter.trackio import Track, read_track, write_track
 
-__all__ = ["Building", "Evaluation", "GrowConfig", "GrowReport", "RadioMap", "Recording", "Track", "TrackResult",
-           "TrackingConfig", "build_radio_map", "evaluate", "grow_radio_map", "load_access_points", "load_map",
-           "load_radio_map", "read_log", "read_track", "track", "write_track"]
+__all__ = ["BeaconFit", "BeaconTable", "Building", "Evaluation", "GrowConfig", "GrowReport", "RadioMap", "Recording",
+           "Track", "TrackResult", "TrackingConfig", "build_radio_map", "evaluate", "fit_beacons", "grow_radio_map",
+           "load_access_points", "load_beacons", "load_map", "load_radio_map", "read_log", "read_track", "track",
+           "write_track"]
 
 PathLike = str | os.PathLike
 
@@ -92,22 +96,47 @@ def track(building: Building | FloorPlan | PathLike, recording: Recording | Path
           config: TrackingConfig | None = None, *, floor: str | None = None,
           on_step: Callable[[StepReport], None] | None = None,
           on_offline_step: Callable[[StepReport], None] | None = None,
-          rng: np.random.Generator | None = None) -> TrackResult:
+          rng: np.random.Generator | None = None, beacons: BeaconTable | PathLike | None = None) -> TrackResult:
     """Track one walk (``tracking.track``): the causal track and, with ``config.smooth``, the
-    offline one. ``radio_map`` (fingerprinting) or ``access_points`` (trilateration), exactly
-    one; ``floor`` tracks on one floor of a building; ``on_step`` sees every filter step;
-    ``rng``: the run's random numbers (default: from ``config.seed``)."""
+    offline one. ``radio_map`` (fingerprinting) or ``access_points`` (trilateration), at most
+    one; ``beacons``: a BLE beacon table weighed too (alone without the other two); ``floor``
+    tracks on one floor of a building; ``on_step`` sees every filter step; ``rng``: the run's
+    random numbers (default: from ``config.seed``)."""
     building = _building(building, "building")
     recording = _recording(recording, "recording", building)
     radio_map = _radio_map(radio_map, "radio_map")
     access_points = _access_points(access_points, "access_points")
+    beacons = _beacons(beacons, "beacons", building)
     config = _config(config)
     if floor is not None and not isinstance(floor, str):
         raise TypeError(f"floor: expected a floor name (str), got {type(floor).__name__}")
     if rng is not None and not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
     return _track(building, recording, radio_map, access_points, config, floor=floor, on_step=on_step,
-                  on_offline_step=on_offline_step, rng=rng)
+                  on_offline_step=on_offline_step, rng=rng, beacons=beacons)
+
+
+def load_beacons(path: PathLike, building: Building | PathLike | None = None,
+                 ids: Mapping[str, str] | None = None) -> BeaconTable:
+    """A BLE beacon table (CSV: ids, positions, floors, path-loss parameters; ``sensors.beacons``).
+    Positions in latitude/longitude need a georeferenced ``building``; ``ids`` maps the file's
+    beacon names to the logs' ids (an IPIN venue's ``BLE_Locations.csv``: ``{"BLE1": "BE:AC:...", ...}``)."""
+    _check_path(path, "path", "a beacon table CSV")
+    return BeaconTable.read_csv(path, _building(building, "building", optional=True), ids)
+
+
+def fit_beacons(building: Building | PathLike, positions: BeaconTable | PathLike,
+                recordings: Sequence[Recording | PathLike], config: BeaconFitConfig | None = None) -> BeaconFit:
+    """The beacons' path-loss parameters fitted from survey walks with waypoints (``sensors.beacons``,
+    as ``mapfilter radiomap fit-beacons``): ``.table`` is the fitted table (``mf.track(...,
+    beacons=)``), ``.rows`` how each beacon fitted and whether its readings fit another's position
+    better. Walks given as ``Recording``s have their latitude/longitude ground truth placed in the
+    building (``read_log(..., building=)``)."""
+    building = _building(building, "building")
+    positions = _beacons(positions, "positions", building, optional=False)
+    recordings = _recordings(recordings, "recordings", building)
+    readings = labelled_readings(positions, building, recordings)
+    return _fit_beacons(positions, readings, config if config is not None else BeaconFitConfig())
 
 
 def build_radio_map(building: Building | PathLike, recordings: Sequence[Recording | PathLike]) -> RadioMap:
@@ -149,7 +178,7 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
              radio_map: RadioMap | PathLike | None = None, access_points: AccessPointTable | PathLike | None = None,
              survey: Sequence[Recording | PathLike] = (), leave_one_out: bool = False,
              unlabelled: Sequence[Recording | PathLike] = (), transductive: bool = False,
-             methods: Sequence[str] | None = None,
+             methods: Sequence[str] | None = None, beacons: BeaconTable | PathLike | None = None,
              config: TrackingConfig | None = None, jobs: int = 1, scheduler: str | None = None,
              progress: Callable[[int, int, str], None] | None = None) -> Evaluation:
     """Every method on the same walks (``evaluation.comparison``), as ``mapfilter evaluate`` runs them:
@@ -158,7 +187,9 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
     The walks (``logs``, ``survey``, ``unlabelled``): ``Recording``s or log paths. The radio map:
     a ``RadioMap`` or its file (``radio_map``), ``survey`` walks, or ``leave_one_out`` (each walk's
     from the other walks); ``unlabelled`` walks grow it (self-training), ``transductive`` the
-    evaluated walks too. ``jobs``/``scheduler``: walks on local Dask worker processes or a cluster.
+    evaluated walks too. ``beacons``: a BLE beacon table or its file (adds the methods pf+ble,
+    pf-ble; its C and n are fitted again from the survey or the other walks).
+    ``jobs``/``scheduler``: walks on local Dask worker processes or a cluster.
     """
     building = _building(building, "building")
     walks = _walks(logs, "logs")
@@ -170,13 +201,15 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
     given_map, map_path = _object_or_path(radio_map, RadioMap, "radio_map", "a RadioMap (mf.load_radio_map)")
     given_aps, aps_path = _object_or_path(access_points, AccessPointTable, "access_points",
                                           "an AccessPointTable (mf.load_access_points)")
+    given_beacons, beacons_path = _object_or_path(beacons, BeaconTable, "beacons", "a BeaconTable (mf.load_beacons)")
     config = _config(config)
     setup = EvaluationSetup(methods=None if methods is None else tuple(methods),
                             radio_map_path=None if map_path is None else Path(map_path),
                             ap_table_path=None if aps_path is None else Path(aps_path), survey_paths=tuple(_walks(survey, "survey")),
                             leave_one_out=bool(leave_one_out), tracking=config if config is not None else TrackingConfig(),
                             unlabelled_paths=tuple(_walks(unlabelled, "unlabelled")), transductive=bool(transductive),
-                            radio_map=given_map, access_points=given_aps)
+                            radio_map=given_map, access_points=given_aps, beacons=given_beacons,
+                            beacon_table_path=None if beacons_path is None else Path(beacons_path))
     return _evaluate(building, walks, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)
 
 
@@ -252,6 +285,12 @@ def _object_or_path(value, kind: type, name: str, expected: str, optional: bool 
     if _is_path(value):
         return None, os.fspath(value)
     raise _type_error(name, f"{expected} or the path of its file", value)
+
+
+def _beacons(value, name: str, building: Building, optional: bool = True) -> BeaconTable | None:
+    """A ``BeaconTable``, or its CSV read (latitude/longitude placed in ``building``)."""
+    given, path = _object_or_path(value, BeaconTable, name, "a BeaconTable (mf.load_beacons)", optional)
+    return given if path is None else BeaconTable.read_csv(path, building)
 
 
 def _config(value) -> TrackingConfig | None:

@@ -17,6 +17,7 @@ from typing import Any
 
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.models.barometer import BarometerConfig
+from mapfilter.filter.models.ble import BleConfig
 from mapfilter.filter.evidence import TrilaterationConfig, WifiConfig
 from mapfilter.filter.models.building import FloorChangeConfig
 from mapfilter.filter.particle_filter import FilterConfig
@@ -86,6 +87,7 @@ class TrackingConfig:
     steps: PDRConfig = dataclasses.field(default_factory=PDRConfig)  # step detection, heading and step length from the IMU
     wifi: WifiConfig = dataclasses.field(default_factory=WifiConfig)  # fingerprinting (a radio map)
     trilateration: TrilaterationConfig = dataclasses.field(default_factory=TrilaterationConfig)  # an access-point table
+    ble: BleConfig = dataclasses.field(default_factory=BleConfig)  # BLE beacons (a beacon table: --beacons)
     filter: FilterConfig = dataclasses.field(default_factory=FilterConfig)  # the particle filter
     floors: FloorsConfig = dataclasses.field(default_factory=FloorsConfig)  # a building's floors
     offline: OfflineConfig = dataclasses.field(default_factory=OfflineConfig)  # the offline track (smooth)

@@ -8,7 +8,8 @@ line) and gives each causal estimate as soon as it exists; :func:`track` is the 
 recording through it. The stages:
 
 1. the walk's evidence as it comes: its WiFi scans as the filter weighs them
-   (``filter.evidence``), its steps (``sensors.pdr.OnlinePDR``, causal);
+   (``filter.evidence``), its BLE beacon readings with a beacon table (``filter.models.ble``,
+   with WiFi or alone), its steps (``sensors.pdr.OnlinePDR``, causal);
 2. the causal filter (``filter.tracker.StreamFilter``: one event, one filter step);
 3. with ``smooth``, after the last record, the offline track from the whole walk (``offline``).
 """
@@ -24,14 +25,16 @@ import numpy as np
 from mapfilter.config import TrackingConfig
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.events import CollapseEvent, StepReport
-from mapfilter.filter.evidence import BuildingEvidence, WifiEvidence
+from mapfilter.filter.evidence import BuildingEvidence, NoWifiEvidence, WifiEvidence
+from mapfilter.filter.models.ble import beacon_source
 from mapfilter.filter.models.building import FloorChanges, FloorStack
-from mapfilter.filter.tracker import StreamFilter, run_over_scans
+from mapfilter.filter.tracker import ReplayedMeasurements, StreamFilter, run_over_scans
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.paths import detour_wall_crossings
 from mapfilter.offline.smoother import FixedLagSmoother, ParticleHistory, smooth
 from mapfilter.offline.whole_walk import placed_track
+from mapfilter.sensors.beacons import BeaconTable
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.pdr import OnlinePDR, Steps, detect_steps
 from mapfilter.sensors.radiomap import RadioMap
@@ -58,6 +61,7 @@ class TrackResult:
     gaps: tuple[tuple[float, float], ...] = ()  # (from, to) s: gaps in the log where the filter started afresh
     access_points: AccessPointTable | None = None  # trilateration: the table at the end (adapted with adapt_path_loss)
     late_records: int = 0  # records dropped because they came after later ones had been processed
+    n_beacon_windows: int = 0  # measurements made of the BLE beacon readings (with a beacon table)
 
     @property
     def runtime_s(self) -> float:
@@ -71,10 +75,11 @@ class PreparedWalk:
 
     building: Building
     floor_index: int | None  # the floor tracked on; None: the floor is in the filter's state
-    evidence: WifiEvidence | BuildingEvidence
+    evidence: WifiEvidence | BuildingEvidence | NoWifiEvidence
     steps: Steps | None  # PDR steps (None without PDR)
     stack: FloorStack | None  # several floors: the stack plan the filter runs on
     recording: Recording
+    beacons: BeaconTable | None = None  # BLE beacons weighed besides (or instead of) the WiFi
 
 
 # the second forward pass of a walk on one floor (``Tracker._offline_track``): half its particles
@@ -98,11 +103,22 @@ def _as_building(building: Building | FloorPlan) -> Building:
 
 def _empty_evidence(building: Building, radio_map: RadioMap | None, access_points: AccessPointTable | None,
                     config: TrackingConfig, floor: str | None, fix_sigma_by_floor_m: dict[str, float] | None,
-                    floor_evidence: np.ndarray | None, log_name: str
-                    ) -> tuple[WifiEvidence | BuildingEvidence, int | None, FloorStack | None]:
-    """(the walk's evidence, not yet holding a scan; the floor index or None; the stack plan or None)."""
-    if (radio_map is None) == (access_points is None):
+                    floor_evidence: np.ndarray | None, log_name: str, beacons: BeaconTable | None = None
+                    ) -> tuple[WifiEvidence | BuildingEvidence | NoWifiEvidence, int | None, FloorStack | None]:
+    """(the walk's evidence, not yet holding a scan; the floor index or None; the stack plan or None).
+    Without a radio map and an access-point table, a beacon table alone: no WiFi evidence (in a
+    building, the barometer's)."""
+    if radio_map is not None and access_points is not None:
         raise MapfilterError("give either a radio map (fingerprinting) or an access-point table (trilateration)")
+    if radio_map is None and access_points is None:
+        if beacons is None:
+            raise MapfilterError("give a radio map (fingerprinting), an access-point table (trilateration) or a "
+                                 "beacon table (BLE)")
+        if building.is_single_floor or floor is not None:
+            return NoWifiEvidence(log_name), 0 if building.is_single_floor else building.floor_index(floor), None
+        stack = FloorStack(building)
+        return (BuildingEvidence(None, stack, config.wifi, None, log_name, config.floors.use_barometer,
+                                 config.floors.barometer, floor_evidence), None, stack)
     if building.is_single_floor or floor is not None:
         index = 0 if building.is_single_floor else building.floor_index(floor)
         plan_floor = building.floors[index]
@@ -152,13 +168,14 @@ class Tracker:
                  floor: str | None = None, rng: np.random.Generator | None = None,
                  on_step: Callable[[StepReport], None] | None = None,
                  fix_sigma_by_floor_m: dict[str, float] | None = None, floor_evidence: np.ndarray | None = None,
-                 log_name: str = "the log", evidence: WifiEvidence | BuildingEvidence | None = None,
-                 steps: Steps | None = None, stack: FloorStack | None = None) -> None:
+                 log_name: str = "the log", evidence: WifiEvidence | BuildingEvidence | NoWifiEvidence | None = None,
+                 steps: Steps | None = None, stack: FloorStack | None = None, beacons: BeaconTable | None = None
+                 ) -> None:
         self.config = config = config if config is not None else TrackingConfig()
         self.building = _as_building(building)
         if evidence is None:
             evidence, self.floor_index, stack = _empty_evidence(self.building, radio_map, access_points, config, floor,
-                                                                fix_sigma_by_floor_m, floor_evidence, log_name)
+                                                                fix_sigma_by_floor_m, floor_evidence, log_name, beacons)
         else:
             self.floor_index = None if stack is not None else (0 if self.building.is_single_floor
                                                                else self.building.floor_index(floor))
@@ -184,10 +201,14 @@ class Tracker:
         if config.offline.lag_s > 0:
             self.fixed_lag = FixedLagSmoother(plan, config.motion.motion_model, floors, config.offline.lag_s)
         recorders = tuple(r for r in (self.history, self.fixed_lag) if r is not None)
+        self._beacon_table = beacons
+        self.beacons = None if beacons is None else beacon_source(beacons, self.building, config.ble,
+                                                                  floor=self.floor_index or 0, stack=stack)
         self.stream = StreamFilter(plan, evidence, config.motion, config.filter, self.rng,
                                    pdr=OnlinePDR(config.steps) if pdr and steps is None else None,
                                    steps=steps if pdr else None, floors=floors, on_step=on_step,
                                    abs_heading_offset_rad=config.steps.abs_heading_offset_rad,
+                                   sources=() if self.beacons is None else (self.beacons,),
                                    history=_Recorders(recorders) if recorders else None)
         self._floors = floors
         self.runtime_s = 0.0
@@ -254,7 +275,7 @@ class Tracker:
         config, stream = self.config, self.stream
         smoothed = self._smoothed(self.history, self.plan, self._floors)
         steps = stream.steps if config.motion.model == "pdr" else None
-        if steps is None or len(steps) == 0:
+        if steps is None or len(steps) == 0 or not self.evidence.has_wifi:  # the shape is placed by the scans
             return smoothed, None
         plan, evidence, causal, floor_name = self.plan, self.evidence, stream.track(), None
         if self.stack is not None:
@@ -269,9 +290,15 @@ class Tracker:
         t0 = float(evidence.scans[int(np.argmax(evidence.usable))].t_s)
         start_xy = placed.xy_m[int(np.clip(np.searchsorted(placed.t_s, t0), 0, len(placed) - 1))]
         history = ParticleHistory()
+        sources = ()
+        if self.beacons is not None:  # the same beacon windows, weighed on this floor's map
+            model = beacon_source(self._beacon_table, self.building, config.ble,
+                                  floor=self.floor_index if floor_name is None else f).model
+            sources = (ReplayedMeasurements(self.beacons.stream, model, [m.t_s for m in self.beacons.measurements],
+                                            self.beacons.measurements),)
         second = run_over_scans(plan, evidence, config.motion, config.filter, self.rng, steps, start_xy_m=start_xy,
                                 start_radius_m=RESTART_RADIUS_M, start_share=RESTART_SHARE, on_step=on_offline_step,
-                                history=history)
+                                history=history, sources=sources)
         track = placed_track(plan, evidence, steps, self._smoothed(history, plan, None), config.offline)
         restarted = dataclasses.replace(second.track(), name="restarted")
         if floor_name is not None:
@@ -296,6 +323,9 @@ class Tracker:
         if not self.stream.closed:
             raise RuntimeError("close the tracker before asking for the result")
         if not self.stream.rows:
+            if self.beacons is not None:
+                raise MapfilterError(f"no WiFi scan and no reading of the table's beacons in {self.evidence.log_name} "
+                                     "gives a measurement")
             raise MapfilterError(f"no WiFi scan of {self.evidence.log_name} gives a fingerprint fix with this "
                                  "radio map")
         config, stream = self.config, self.stream
@@ -311,25 +341,27 @@ class Tracker:
             restarted=None if restarted is None else self._on_floors(restarted),
             collapses=stream.collapses, n_filter_steps=len(stream.rows) - 1, n_scans_used=stream.n_scans_used,
             causal_runtime_s=self.runtime_s, offline_runtime_s=offline_s, config=config, gaps=tuple(stream.gaps),
-            access_points=access_points, late_records=stream.late_records)
+            access_points=access_points, late_records=stream.late_records,
+            n_beacon_windows=0 if self.beacons is None else len(self.beacons.measurements))
 
 
 def prepare_walk(building: Building | FloorPlan, recording: Recording, radio_map: RadioMap | None = None,
                  access_points: AccessPointTable | None = None, config: TrackingConfig | None = None, *,
                  floor: str | None = None, steps: Steps | None = None,
                  fix_sigma_by_floor_m: dict[str, float] | None = None,
-                 floor_evidence: np.ndarray | None = None) -> PreparedWalk:
+                 floor_evidence: np.ndarray | None = None, beacons: BeaconTable | None = None) -> PreparedWalk:
     """The walk's evidence (every scan's measurement) and PDR steps, checked against the building.
 
     The arguments are ``track``'s. Only ``config.wifi``, ``config.trilateration``,
-    ``config.steps``, ``config.motion.model`` and ``config.floors`` matter here.
+    ``config.steps``, ``config.motion.model`` and ``config.floors`` matter here; the beacons are
+    weighed when the walk is tracked.
     """
     config = config if config is not None else TrackingConfig()
     building = _as_building(building)
     log_name = str(recording.path) if recording.path is not None else "the log"
     scans = scans_of(recording)
     evidence, index, stack = _empty_evidence(building, radio_map, access_points, config, floor, fix_sigma_by_floor_m,
-                                             floor_evidence, log_name)
+                                             floor_evidence, log_name, beacons)
     evidence.prepare(scans)
     evidence.add_scans(scans)
     if stack is not None and config.floors.use_barometer and recording.pressure_t_s.size >= 2:
@@ -338,7 +370,7 @@ def prepare_walk(building: Building | FloorPlan, recording: Recording, radio_map
     pdr = config.motion.model == "pdr"
     if pdr and steps is None:
         steps = detect_steps(recording, config.steps)
-    return PreparedWalk(building, index, evidence, steps if pdr else None, stack, recording)
+    return PreparedWalk(building, index, evidence, steps if pdr else None, stack, recording, beacons)
 
 
 def track(building: Building | FloorPlan, recording: Recording, radio_map: RadioMap | None = None,
@@ -347,15 +379,16 @@ def track(building: Building | FloorPlan, recording: Recording, radio_map: Radio
           on_step: Callable[[StepReport], None] | None = None,
           on_offline_step: Callable[[StepReport], None] | None = None,
           fix_sigma_by_floor_m: dict[str, float] | None = None,
-          floor_evidence: np.ndarray | None = None, rng: np.random.Generator | None = None) -> TrackResult:
+          floor_evidence: np.ndarray | None = None, rng: np.random.Generator | None = None,
+          beacons: BeaconTable | None = None) -> TrackResult:
     """Track one walk: the replay of its records through a ``Tracker``.
 
     Parameters
     ----------
     building : the map (a ``Building``, or a ``FloorPlan`` as a one-floor building).
     recording : the walk (WiFi scans; IMU for PDR).
-    radio_map / access_points : fingerprinting or trilateration (exactly one; a building with
-        several floors needs a building's radio map).
+    radio_map / access_points : fingerprinting or trilateration (at most one; a building with
+        several floors needs a building's radio map); neither: the beacons alone.
     config : every setting (``TrackingConfig``; default: the defaults). Its seed seeds the run.
     floor : track on this floor of the building only (default: find the floor, or the only one).
     steps : the walk's PDR steps if already detected with ``config.steps`` (else detected as the
@@ -368,6 +401,8 @@ def track(building: Building | FloorPlan, recording: Recording, radio_map: Radio
         the true floor, to measure what finding the floor costs).
     rng : the run's random numbers (default: ``default_rng(config.seed)``; an evaluation gives
         each walk and method its own).
+    beacons : a BLE beacon table (``sensors.beacons``): the log's beacon readings weigh the
+        particles too (``config.ble``), or alone without a radio map and an access-point table.
 
     Tracks carry a floor name per row when the building has several floors.
     """
@@ -375,7 +410,7 @@ def track(building: Building | FloorPlan, recording: Recording, radio_map: Radio
     log_name = str(recording.path) if recording.path is not None else "the log"
     tracker = Tracker(building, radio_map, access_points, config, floor=floor, rng=rng, on_step=on_step,
                       fix_sigma_by_floor_m=fix_sigma_by_floor_m, floor_evidence=floor_evidence, log_name=log_name,
-                      steps=steps)
+                      steps=steps, beacons=beacons)
     tracker.evidence.prepare(scans_of(recording))  # one line naming the log when no scan can be used
     tracker.feed(recording)
     tracker.close()
@@ -392,7 +427,7 @@ def track_prepared(walk: PreparedWalk, config: TrackingConfig | None = None, *, 
     floor = None if walk.floor_index is None or walk.building.is_single_floor \
         else walk.building.floor_names[walk.floor_index]
     tracker = Tracker(walk.building, config=config, floor=floor, rng=rng, on_step=on_step, evidence=walk.evidence,
-                      steps=walk.steps, stack=walk.stack)
+                      steps=walk.steps, stack=walk.stack, beacons=walk.beacons)
     tracker.feed(walk.recording)
     tracker.close()
     return tracker.result(on_offline_step)

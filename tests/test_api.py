@@ -22,8 +22,9 @@ def _api_page_code() -> str:
 def test_the_api_page_runs_and_its_causal_track_is_the_clis(tmp_path, monkeypatch):
     monkeypatch.chdir(REPO)
     namespace: dict = {}
-    exec(compile(_api_page_code().replace('"office_offline.csv"', repr(str(tmp_path / "offline.csv"))),
-                 "docs/api.md", "exec"), namespace)
+    code = _api_page_code().replace('"office_offline.csv"', repr(str(tmp_path / "offline.csv")))
+    exec(compile(code.replace('"office_beacons.csv"', repr(str(tmp_path / "beacons.csv"))), "docs/api.md", "exec"),
+         namespace)
     result = namespace["result"]
     assert main(["track", *ARGS, "--seed", "3", "--smooth", "--out", str(tmp_path / "cli.csv")]) == 0
     causal = read_track(tmp_path / "cli.causal.csv")
@@ -32,6 +33,8 @@ def test_the_api_page_runs_and_its_causal_track_is_the_clis(tmp_path, monkeypatc
     np.testing.assert_allclose(offline.xy_m, result.offline.xy_m, atol=5e-4)
     assert read_track(tmp_path / "offline.csv").xy_m.shape == result.offline.xy_m.shape
     assert namespace["evaluation"].summary_rows()[0]["method"] == "pf"
+    assert namespace["beacons"].beacon_id == ["AA:BB:CC:00:00:01", "AA:BB:CC:00:00:02"]
+    np.testing.assert_array_equal(namespace["both"].causal.xy_m, result.causal.xy_m)  # no readings: the same track
 
 
 def test_import_mapfilter_is_cheap_and_names_the_api():

@@ -15,6 +15,7 @@ are made here:
                             a scratch copy of the workspace, so that it stays the office
 ``walk.txt.gz``             the bundled walk
 ``survey/ walks/ test/``    walks simulated in the office (surveys on a 4 m grid, 60 s walks)
+``beacons.csv``             eight BLE beacons in the office, which the simulated surveys hear
 ``labelled/ batch/ more/``  the same; ``more/`` without waypoints (walks to grow a map from)
 ``radiomap.npz aps.csv``    the bundled radio map and fitted access points
 ``building.yaml``           the bundled office stacked three times (stairs, lift), ``tools/floor_sim.py``
@@ -142,6 +143,29 @@ def test_documented_command_runs_as_written(command, docs_runner):
 
 
 # ---- the workspace ------------------------------------------------------------------------------
+# the placeholder beacons.csv: eight beacons on the office's free space (x, y in metres)
+OFFICE_BEACONS_XY = ((5.0, 5.0), (19.0, 4.0), (33.0, 6.0), (4.0, 19.0), (34.0, 20.0), (6.0, 33.0), (19.0, 34.0),
+                     (32.0, 32.0))
+
+
+def _beacon_rows(walk, rng) -> str:
+    """TYPE_BEACON rows for a simulated walk: each office beacon heard once a second, its RSSI
+    the path-loss model's at the walker's position (C -62 dBm, n 2.1) plus 4 dB of noise."""
+    import numpy as np
+
+    from mapfilter.sensors.beacons import beacon_rssi_dbm
+
+    rows = []
+    for i, xy in enumerate(OFFICE_BEACONS_XY):
+        t_s = np.arange(walk.start_t_s + rng.uniform(0.0, 1.0), walk.end_t_s, 1.0)
+        distance_m = np.linalg.norm(walk.position_at(t_s) - np.array(xy), axis=1)
+        rssi = np.round(beacon_rssi_dbm(distance_m, -62.0, 2.1) + 4.0 * rng.standard_normal(t_s.size))
+        for ms, value in zip(np.round(t_s * 1000).astype(np.int64), rssi):
+            rows.append((ms, f"{ms}\tTYPE_BEACON\tfda50693\t1\t{i + 1}\t-59\t{int(value)}\t1.0"
+                             f"\t00:AB:CD:EF:01:0{i}\t{ms}\n"))
+    return "".join(row for _, row in sorted(rows))
+
+
 def _simulate(plan, aps, path: Path, seed: int, survey: bool = False, waypoints: bool = True) -> None:
     import gzip
 
@@ -153,7 +177,11 @@ def _simulate(plan, aps, path: Path, seed: int, survey: bool = False, waypoints:
     config = SimConfig(duration_s=None if survey else 60.0, survey=survey, survey_spacing_m=4.0,
                        survey_scans_per_point=1)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_ilc(simulate_walk(plan, aps, config, np.random.default_rng(seed)), path)
+    walk = simulate_walk(plan, aps, config, np.random.default_rng(seed))
+    write_ilc(walk, path)
+    if survey:  # the surveys hear the beacons of beacons.csv (their rows after the others: readers sort)
+        text = gzip.decompress(path.read_bytes()).decode() + _beacon_rows(walk, np.random.default_rng([seed, 1]))
+        path.write_bytes(gzip.compress(text.encode(), mtime=0))
     if not waypoints:
         lines = gzip.decompress(path.read_bytes()).decode().splitlines(keepends=True)
         path.write_bytes(gzip.compress("".join(l for l in lines if "\tTYPE_WAYPOINT\t" not in l).encode(), mtime=0))
@@ -214,6 +242,8 @@ def docs_workspace(tmp_path_factory) -> Path:
     shutil.copy(REPO / "maps" / "office_walk.txt.gz", base / "walk.txt.gz")
     shutil.copy(REPO / "maps" / "office_radiomap.npz", base / "radiomap.npz")
     shutil.copy(REPO / "maps" / "office_fitted_aps.csv", base / "aps.csv")
+    (base / "beacons.csv").write_text("beacon_id,x,y\n" + "".join(
+        f"00:AB:CD:EF:01:0{i},{x},{y}\n" for i, (x, y) in enumerate(OFFICE_BEACONS_XY)))
     plan = FloorPlan.load(REPO / "maps" / "office.yaml")
     aps = AccessPointTable.read_csv(REPO / "maps" / "office_aps.csv")
     for i in (1, 2):

@@ -16,7 +16,7 @@ from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.logs import read_log
 from mapfilter.sensors.radiomap import RadioMap
-from mapfilter.sensors.recording import Recording, WifiScans
+from mapfilter.sensors.recording import Beacons, Recording, WifiScans
 from mapfilter.tracking import Tracker, track
 from tests.conftest import REPO
 
@@ -40,6 +40,10 @@ def _between(rec: Recording, t0: float, t1: float) -> Recording:
     renumber[scans] = np.arange(scans.size)
     fields["wifi"] = WifiScans(wifi.t_s[scans], wifi.ap_keys, renumber[wifi.row_scan[rows]], wifi.row_ap[rows],
                                wifi.rssi_dbm[rows], wifi.freq_mhz[rows], wifi.age_s[rows])
+    beacons = rec.beacons
+    keep = (beacons.t_s > t0) & (beacons.t_s <= t1)
+    fields["beacons"] = Beacons(beacons.t_s[keep], [b for b, k in zip(beacons.beacon_id, keep) if k],
+                                beacons.rssi_dbm[keep], beacons.distance_m[keep])
     return dataclasses.replace(rec, **fields)
 
 

@@ -19,8 +19,8 @@ from mapfilter.memory import building_extents_m, check_tracking_fits
 
 # mapfilter.evaluation.comparison's methods, written out so that --help imports no numerical
 # library (tests/test_cli_startup.py holds them equal)
-ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls")
-BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr")
+ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", "pf+ble", "pf-ble")
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", "pf+ble", "pf-floor+ble", "pf-ble")
 
 _EPILOG = f"""\
 methods on one floor: {', '.join(ALL_METHODS)} (default: all that the WiFi source allows)
@@ -32,6 +32,13 @@ methods in a building with several floors: {', '.join(BUILDING_METHODS)}
   pf        the floor in the filter's state         pf-floor  the same filter on the walker's floor
   kwnn      each scan on the WiFi floor HMM's floor
   kf, pdr   the Kalman filter and dead reckoning on those KWNN fixes, each row on their floor
+
+with --beacons TABLE.csv (BLE; fit one with `mapfilter radiomap fit-beacons`), also:
+  pf+ble    pf with the beacons' readings too       pf-ble    pf on the beacons alone (no WiFi)
+  pf-floor+ble  pf-floor with the beacons too (a building)
+  With --survey or --leave-one-out, each walk's beacons take the table's positions with C, n
+  and the floor loss fitted on the labelled walks (never the walk itself), and the walk's
+  phone model the RSSI offset those walks give it; with --radiomap, the table as given.
 
 the table (docs/results.md): errors at the waypoints, mean, median, p75 (the EvAAL/IPIN
 percentile), p90, ce95 (the 95th percentile, ISO/IEC 18305's CE95), max, rmse; n waypoints
@@ -92,6 +99,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="comma-separated methods (default: all that the map and WiFi source allow)")
     parser.add_argument("--radiomap", type=Path, metavar="RM", help="one radio map for all walks")
     parser.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table (ls; pf if no radio map)")
+    parser.add_argument("--beacons", type=Path, metavar="TABLE.csv",
+                        help="BLE beacon table: adds pf+ble, pf-ble (and pf-floor+ble in a building)")
     parser.add_argument("--survey", type=Path, nargs="+", default=[], metavar="LOG",
                         help="walks with waypoints that make the radio map (and fitted APs); never scored")
     parser.add_argument("--leave-one-out", action="store_true",
@@ -120,20 +129,22 @@ def run(args: argparse.Namespace) -> int:
     config = tracking_config_from(args)
     methods = None if args.methods is None else tuple(m.strip() for m in args.methods.split(",") if m.strip())
     engine = engine_from(args)
-    inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.survey, args.unlabelled, args.config)
+    inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.survey, args.unlabelled, args.config,
+                         args.beacons)
     out = check_output_path(args.out, directory=True, inputs=inputs)  # holds only our files, no input
     building = Building.load(args.map)
     check_tracking_fits(config, building_extents_m(building))
     setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,
                             tracking=config, unlabelled_paths=tuple(args.unlabelled),
-                            transductive=args.transductive)
+                            transductive=args.transductive, beacon_table_path=args.beacons)
     validate_setup(building, args.logs, setup)  # before anything is written
     key = run_key({"map": str(args.map.resolve()), "logs": [str(p.resolve()) for p in args.logs],
                    "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
                    "aps": str(args.aps), "leave_one_out": args.leave_one_out, "methods": methods,
                    "unlabelled": [str(p.resolve()) for p in args.unlabelled], "transductive": args.transductive,
                    "strict": args.strict, "config": config.to_dict(),
+                   **({"beacons": str(args.beacons)} if args.beacons is not None else {}),
                    # by content: a log, map or model replaced at the same path is another run
                    "content": [file_digest(p) for p in inputs if p.is_file()]})
     walks_dir = args.out / "walks"
@@ -171,21 +182,23 @@ def run(args: argparse.Namespace) -> int:
             index = {name_of(p): i for i, p in enumerate(args.logs)}
             done = [dataclasses.replace(o, index=index[o.trace]) for o in done if o.trace in index]
             partial = Evaluation.from_outcomes(done, len(args.logs), 0.0)
-            _write_summary(args, out, partial, config, methods_for(building), complete=False)
+            _write_summary(args, out, partial, config, methods_for(building, args.beacons is not None),
+                           complete=False)
             print(f"interrupted: {len(done)} of {len(args.logs)} walks done; wrote a partial summary to "
                   f"{args.out} (mapfilter evaluate ... --resume runs the rest)")
             raise
     for message in evaluation.read_warnings:
         warn(message)
-    _write_summary(args, out, evaluation, config, methods_for(building), complete=True)
+    _write_summary(args, out, evaluation, config, methods_for(building, args.beacons is not None), complete=True)
     return 1 if evaluation.failed else 0
 
 
 def _announce(args, building, methods, config, n_resumed: int) -> None:
     """The run's rough time, before it starts, when it is long: the particle filter runs of every
     walk (the baselines cost little beside them) and of the walks that grow the radio map."""
-    pf_runs = [m for m in (methods or (ALL_METHODS if building.is_single_floor else BUILDING_METHODS))
-               if m.startswith("pf")]
+    from mapfilter.evaluation.comparison import methods_for
+
+    pf_runs = [m for m in (methods or methods_for(building, args.beacons is not None)) if m.startswith("pf")]
     runs = len(pf_runs) + (SMOOTH_EXTRA_RUNS if config.smooth and "pf" in pf_runs else 0)
     spans = walk_spans_s(args.logs)
     growing = walk_spans_s(args.unlabelled) + (spans if args.transductive else [])
@@ -262,6 +275,7 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
         s_json.write_text(json.dumps({
             "map": str(args.map), "logs": [str(p) for p in args.logs], "survey": [str(p) for p in args.survey],
             "radiomap": None if args.radiomap is None else str(args.radiomap), "leave_one_out": args.leave_one_out,
+            "beacons": None if args.beacons is None else str(args.beacons),
             "unlabelled": [str(p) for p in args.unlabelled], "transductive": args.transductive,
             "grown": evaluation.grown,
             "methods": list(methods), "complete": complete, "walks": evaluation.n_traces, "walks_done": n_done,

@@ -1,4 +1,5 @@
-"""``mapfilter radiomap build|fit-aps|grow``: radio maps and access-point tables from logs."""
+"""``mapfilter radiomap build|fit-aps|fit-beacons|grow``: radio maps, access-point and beacon
+tables from logs."""
 
 from __future__ import annotations
 
@@ -17,6 +18,11 @@ from mapfilter.errors import MapfilterError
 _MIN_OBSERVATIONS = 8
 # mapfilter.selftrain.GrowConfig.max_iterations, likewise
 _MAX_ITERATIONS = 3
+# mapfilter.sensors.beacons.BeaconFitConfig.min_readings, likewise
+_MIN_BEACON_READINGS = 30
+# a beacon's readings fitting another beacon's position better than its own by this much is
+# reported (an id on the wrong position); less is the noise of a few readings
+_BETTER_ELSEWHERE_DB = 1.0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -54,6 +60,36 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="with a building YAML: the floor to fit (default: the one floor every log is on)")
     fit.set_defaults(func=run_fit_aps)
 
+    beacons = sub.add_parser(
+        "fit-beacons", help="fit BLE beacons' path-loss parameters (CSV beacon table)",
+        description="Fit each BLE beacon's path-loss parameters (C at 1 m and the exponent n; one loss per floor "
+                    "for all) from survey logs with waypoints, the beacons' positions and floors as given: each "
+                    "beacon reading labelled by the walker's position between waypoints, robust least squares. "
+                    "A beacon with fewer than --min-readings readings takes the values fitted over every "
+                    "beacon. Prints how each beacon fits, and says so when a beacon's readings fit another "
+                    "beacon's position better than its own (an id on the wrong position); logs that name their "
+                    "phone (GetSensorData) also give each phone model's RSSI offset against the table (the "
+                    "config's ble.rssi_offset_db for a walk with that phone).",
+        epilog="examples:\n"
+               "  mapfilter radiomap fit-beacons venue.yaml survey/*.txt.gz --positions beacons.csv "
+               "--out fitted.csv\n"
+               "  mapfilter radiomap fit-beacons venue.yaml logs/*.txt.gz --positions BLE_Locations.csv \\\n"
+               "      --ids BLE1=BE:AC:20:23:00:01,BLE2=BE:AC:20:23:00:03,... --out beacons.csv",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    common(beacons)
+    beacons.add_argument("--positions", type=Path, required=True, metavar="CSV",
+                         help="the beacons: beacon_id,x,y[,floor] (metres, each floor's frame) or "
+                              "beacon_id,latitude,longitude[,floor] (a georeferenced building); an IPIN venue's "
+                              "BLE_Locations.csv (bleID,Lat,Lon,floor) with --ids")
+    beacons.add_argument("--ids", metavar="NAME=ID,...",
+                         help="the logs' id of each beacon the positions file names (e.g. BLE1=BE:AC:20:23:00:01,...)")
+    beacons.add_argument("--out", type=Path, required=True, metavar="BEACONS_CSV",
+                         help="output table beacon_id,x,y,floor,C,n,floor_loss")
+    beacons.add_argument("--min-readings", type=bounded_int(None, 1_000_000), default=_MIN_BEACON_READINGS,
+                         metavar="N", help=f"fit a beacon's own C and n from N labelled readings or more (default "
+                                           f"{_MIN_BEACON_READINGS})")
+    beacons.set_defaults(func=run_fit_beacons)
+
     grow = sub.add_parser(
         "grow", help="grow a radio map from tracked walks (self-training)",
         description="Track every walk without waypoints offline over the radio map, add its scans as grown "
@@ -84,8 +120,9 @@ def _load(args: argparse.Namespace):
 
     check_map_first(f"mapfilter radiomap {args.radiomap_command} MAP LOG...", args.map, args.logs)
     # fit-aps writes a CSV, which may go to standard output (--out -); a radio map is binary
-    check_output_path(args.out, inputs=input_paths(args.map, args.logs, getattr(args, "radiomap", None)),
-                      allow_stdout=args.radiomap_command == "fit-aps")
+    check_output_path(args.out, inputs=input_paths(args.map, args.logs, getattr(args, "radiomap", None),
+                                                   getattr(args, "positions", None)),
+                      allow_stdout=args.radiomap_command in ("fit-aps", "fit-beacons"))
     building = Building.load(args.map)
     floorplan = building.floors[0].plan if building.is_single_floor else building
     excluded = set(args.exclude)
@@ -193,6 +230,49 @@ def run_fit_aps(args: argparse.Namespace) -> int:
     print(f"access points: {len(table)} fitted from {len(recordings)} logs -> "
           + ("standard output" if is_stdout(args.out) else str(args.out)),
           file=sys.stderr if is_stdout(args.out) else sys.stdout)
+    return 0
+
+
+def run_fit_beacons(args: argparse.Namespace) -> int:
+    if args.min_readings < 3:
+        raise MapfilterError(f"--min-readings must be at least 3 (2 parameters per beacon), got {args.min_readings}")
+    ids = None
+    if args.ids is not None:
+        from mapfilter.sensors.beacons import parse_beacon_ids
+
+        try:
+            ids = parse_beacon_ids(args.ids)
+        except ValueError as exc:
+            raise MapfilterError(f"--ids: {exc}") from None
+    from mapfilter.maps.building import Building
+    from mapfilter.sensors.beacons import (BeaconFitConfig, BeaconTable, check_beacons_on_map, fit_beacons,
+                                           labelled_readings)
+
+    building = Building.load(args.map)
+    positions = BeaconTable.read_csv(args.positions, building, ids)  # before the logs: a bad table fails fast
+    check_beacons_on_map(positions, building, args.map)
+    _, recordings = _load(args)
+    fit = fit_beacons(positions, labelled_readings(positions, building, recordings),
+                      BeaconFitConfig(min_readings=args.min_readings))
+    fit.table.write_csv(args.out)
+    where = "standard output" if is_stdout(args.out) else str(args.out)
+    loss = (f"floor loss {fit.floor_loss_db:.1f} dB" if fit.floor_loss_fitted
+            else f"floor loss {fit.floor_loss_db:.1f} dB (the table's: too few readings across floors to fit it)")
+    lines = [f"beacons: {len(fit.table)} fitted from {fit.n_readings} labelled readings of {len(recordings)} logs "
+             f"({loss}; shared C {fit.shared_c_dbm:.1f} dBm, n {fit.shared_n:.2f}) -> {where}"]
+    for row, c, n in zip(fit.rows, fit.table.c_dbm, fit.table.n):
+        text = (f"  {row.beacon_id}: {row.readings} readings ({row.on_its_floor} on its floor), C {c:.1f} dBm, "
+                f"n {n:.2f}" + ("" if row.own_fit else " (shared: too few readings)"))
+        if row.readings:
+            text += f", RMS {row.rmse_db:.1f} dB"
+        if row.best_position != row.beacon_id and row.best_position_rmse_db < row.rmse_db - _BETTER_ELSEWHERE_DB:
+            text += (f"; its readings fit {row.best_position}'s position better (RMS {row.best_position_rmse_db:.1f} "
+                     "dB): is its id on the wrong position?")
+        lines.append(text)
+    for phone, offset in fit.phone_offsets_db.items():
+        lines.append(f"  phone {phone}: RSSI {offset:+.1f} dB against the table ({fit.phone_readings[phone]} readings; "
+                     f"track it with the config's ble: {{rssi_offset_db: {offset:.1f}}})")
+    print("\n".join(lines), file=sys.stderr if is_stdout(args.out) else sys.stdout)
     return 0
 
 

@@ -25,9 +25,12 @@ _EPILOG = """\
 WiFi: --radiomap RM (fingerprinting; build one with `mapfilter radiomap build`) or --aps
 APS.csv (trilateration with the path-loss model); without either, the map's own
 access-point table (mapfilter: access_points in its YAML) is used for trilateration.
+BLE beacons: --beacons TABLE.csv (fit one with `mapfilter radiomap fit-beacons`) weighs the
+log's beacon readings too (config section ble); with --beacons and neither --radiomap nor
+--aps, the beacons alone (and, in a building, the barometer) place the walker.
 
-The starting position is unknown: the filter starts from the first usable WiFi scan, drawn
-over the map's free space. If the log has waypoints, the errors at the waypoint times are
+The starting position is unknown: the filter starts from the first usable WiFi scan (or
+beacon window), drawn over the map's free space. If the log has waypoints, the errors at the waypoint times are
 printed (the latest estimate at or before each waypoint; see "What the numbers mean" in the
 README).
 
@@ -59,6 +62,7 @@ examples:
   mapfilter track F1.yaml walk.txt.gz --radiomap F1_radiomap.npz --out track.csv --seed 3
   mapfilter track F1.yaml walks/*.txt.gz --radiomap F1_radiomap.npz --out-dir tracks --jobs 2
   mapfilter track F1.yaml walk.txt.gz --radiomap F1_radiomap.npz --config my_settings.yaml
+  mapfilter track venue.yaml walk.txt.gz --radiomap venue_radiomap.npz --beacons beacons.csv
 """
 
 
@@ -74,6 +78,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     wifi = parser.add_mutually_exclusive_group()
     wifi.add_argument("--radiomap", type=Path, metavar="RM", help="radio map (.npz) for fingerprinting")
     wifi.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table for trilateration")
+    parser.add_argument("--beacons", type=Path, metavar="TABLE.csv",
+                        help="BLE beacon table (mapfilter radiomap fit-beacons): weigh the log's beacon readings "
+                             "too, or alone without --radiomap and --aps")
     parser.add_argument("--floor", metavar="NAME",
                         help="track on this floor of the map (default: the log's floor, found in a building)")
     parser.add_argument("--out", type=Path, metavar="FILE", help="write the track here (one log): .csv or .tum")
@@ -119,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     check_map_first("mapfilter track MAP LOG...", args.map, args.logs)
     config = tracking_config_from(args)
     # every output checked before the work: none is an input, a link, a device or another's file
-    inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.config)
+    inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.beacons, args.config)
     if is_stdout(args.out) and config.smooth:
         raise MapfilterError("--out - with --smooth: the offline and the causal track need two files; give a "
                              "file name")
@@ -156,8 +163,20 @@ def run(args: argparse.Namespace) -> int:
     return _run_one(args, config, args.logs[0])
 
 
+def _beacon_table(args: argparse.Namespace, building):
+    """The --beacons table (None without it), checked against the building."""
+    if args.beacons is None:
+        return None
+    from mapfilter.sensors.beacons import BeaconTable, check_beacons_on_map
+
+    table = BeaconTable.read_csv(args.beacons, building)
+    check_beacons_on_map(table, building, args.map)
+    return table
+
+
 def _wifi_source(args: argparse.Namespace, building, config):
-    """(radio map, access-point table) of the run: --radiomap, --aps, or the map's own table."""
+    """(radio map, access-point table) of the run: --radiomap, --aps, or the map's own table;
+    (None, None) with --beacons and neither (the beacons alone)."""
     from mapfilter.sensors.floor_vote import load_building_radio_map
     from mapfilter.sensors.pathloss import access_points_for_map
     from mapfilter.sensors.radiomap import RadioMap, check_radio_map_on_map
@@ -172,6 +191,10 @@ def _wifi_source(args: argparse.Namespace, building, config):
             radio_map = RadioMap.load(args.radiomap)
         check_radio_map_on_map(radio_map, building, args.radiomap, args.map)
         return radio_map, None
+    if args.beacons is not None and args.aps is None:
+        if args.adapt or args.adapted_aps is not None:
+            raise MapfilterError("--adapt and --adapted-aps adapt an access-point table: give --aps APS.csv")
+        return None, None
     if not building.is_single_floor and args.floor is None:
         raise MapfilterError("tracking in a building needs a building's radio map: --radiomap RM (mapfilter "
                              "radiomap build BUILDING.yaml LOGS...), or --floor NAME with --aps")
@@ -197,8 +220,9 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
     header_floor = building.floor_of_log(recording.floor_name, log_path, args.floor)  # refuses another floor
     radio_map, ap_table = _wifi_source(args, building, config)
+    beacons = _beacon_table(args, building)
     floor = None if building.is_single_floor else args.floor
-    walk = prepare_walk(building, recording, radio_map, ap_table, config, floor=floor)
+    walk = prepare_walk(building, recording, radio_map, ap_table, config, floor=floor, beacons=beacons)
     if recording.has_ground_truth and walk.floor_index is not None and recording.waypoint_floor is None:
         plan = building.floors[walk.floor_index].plan
         in_walls = ~plan.is_free(recording.waypoint_xy_m)
@@ -283,7 +307,8 @@ def _run_live(args: argparse.Namespace, config) -> int:
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     radio_map, ap_table = _wifi_source(args, building, config)
     floor = None if building.is_single_floor else args.floor
-    tracker = Tracker(building, radio_map, ap_table, config, floor=floor, log_name="standard input")
+    tracker = Tracker(building, radio_map, ap_table, config, floor=floor, log_name="standard input",
+                      beacons=_beacon_table(args, building))
     stream = LogStream("-", strict=args.strict)
     header_done = False
 
@@ -313,7 +338,8 @@ def _run_live(args: argparse.Namespace, config) -> int:
     result = tracker.result()
     if args.out is not None:
         write_track(result.causal, args.out, out_format, building)
-    print(f"standard input: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used, "
+    beacons = f", {result.n_beacon_windows} beacon windows" if result.n_beacon_windows else ""
+    print(f"standard input: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used{beacons}, "
           f"{len(result.collapses)} collapses; causal {result.causal_runtime_s:.1f} s"
           + (f"; wrote {args.out} (causal track)" if args.out is not None else ""), file=sys.stderr)
     return 0
@@ -371,7 +397,8 @@ def _summary(building, recording, result, header_floor, written) -> str:
     collapses = f"{len(result.collapses)} collapse{'s' if len(result.collapses) != 1 else ''}"
     if result.collapses:
         collapses += " (all recovered)"
-    lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used, "
+    beacons = f", {result.n_beacon_windows} beacon windows" if result.n_beacon_windows else ""
+    lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used{beacons}, "
              f"{collapses}; causal {result.causal_runtime_s:.1f} s"
              + (f", offline {result.offline_runtime_s:.1f} s" if result.offline is not None else "")]
     tracks = [("causal", result.causal, True)]
@@ -452,7 +479,8 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
     radio_map, ap_table = _wifi_source(args, building, config)
-    setup = BatchSetup(tracking=config, strict=args.strict, floor=None if building.is_single_floor else args.floor)
+    setup = BatchSetup(tracking=config, strict=args.strict, floor=None if building.is_single_floor else args.floor,
+                       beacons=_beacon_table(args, building))
     columns = SUMMARY_COLUMNS if building.is_single_floor else BUILDING_SUMMARY_COLUMNS
     out_format = args.format or "csv"
     track_names = batch_track_names([trace_name(p) for p in args.logs], out_format, config.smooth)
@@ -492,6 +520,7 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
         tmp_json.write_text(json.dumps({"map": str(args.map), "logs": [str(p) for p in args.logs],
                                         "radiomap": None if args.radiomap is None else str(args.radiomap),
                                         "aps": None if args.aps is None else str(args.aps),
+                                        "beacons": None if args.beacons is None else str(args.beacons),
                                         "engine": engine.describe(), "wall_time_s": wall_time_s,
                                         "config": config.to_dict(), "walks": rows}, indent=1))
         tmp_yaml.write_text(config.to_yaml())

@@ -14,6 +14,14 @@ causal: each method's latest estimate at or before the waypoint). On one floor:
 ``ls``         least-squares trilateration per scan (needs an access-point table)
 =============  ==========================================================================
 
+With a BLE beacon table (``beacon_table_path``), also ``pf+ble`` (``pf`` with the beacons'
+readings weighed too) and ``pf-ble`` (the filter on the beacons alone, no WiFi), and in a
+building ``pf-floor+ble`` (``pf-floor`` with the beacons). With survey logs or
+``leave_one_out``, each walk's beacon table is the given one's positions with C, n and the
+floor loss fitted on the labelled walks, never on the walk itself (``sensors.beacons``), and the
+walk's phone gets the RSSI offset those walks give its phone model (``BleConfig.rssi_offset_db``;
+the config's when none of them has it); with a radio map file, the table and config as given.
+
 In a building with several floors: ``pf`` (the floor in the filter's state, not given),
 ``pf-floor`` (the same filter on the walker's floor, given: what finding the floor costs; a
 walk that changes floor has no one floor to give), ``kwnn`` (each scan on the causal WiFi floor
@@ -59,6 +67,8 @@ from mapfilter.evaluation.scoring import score_track
 from mapfilter.filter.evidence import calibrated_fix_sigma_m
 from mapfilter.selftrain import GrowConfig, grow_radio_map, grown_by_fold
 from mapfilter.maps.building import Building
+from mapfilter.sensors.beacons import (BeaconReadings, BeaconTable, check_beacons_on_map, fit_beacons,
+                                      labelled_readings)
 from mapfilter.sensors.floor_vote import (build_building_radio_map, check_building_radio_map, floor_hmm,
                                          floor_vote_log_likelihood)
 from mapfilter.sensors.logread import LogReadWarning
@@ -73,14 +83,17 @@ from mapfilter.sensors.wifi import scans_of
 from mapfilter.tracking import prepare_walk, track_prepared
 from mapfilter.trackio import Track
 
-ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls")
-BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr")
+ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", "pf+ble", "pf-ble")
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", "pf+ble", "pf-floor+ble", "pf-ble")
+BLE_METHODS = ("pf+ble", "pf-floor+ble", "pf-ble")  # need a beacon table
 STATUSES = ("ok", "failed", "crashed")
 
 
-def methods_for(building: Building) -> tuple[str, ...]:
-    """The methods ``evaluate`` compares on this building (its floor count decides)."""
-    return ALL_METHODS if building.is_single_floor else BUILDING_METHODS
+def methods_for(building: Building, beacons: bool = False) -> tuple[str, ...]:
+    """The methods ``evaluate`` compares on this building (its floor count decides; the BLE
+    methods with a beacon table)."""
+    methods = ALL_METHODS if building.is_single_floor else BUILDING_METHODS
+    return methods if beacons else tuple(m for m in methods if m not in BLE_METHODS)
 
 
 # A walk to evaluate: its log's path, or the log already read (the Python API takes both).
@@ -103,6 +116,8 @@ class EvaluationSetup:
     transductive: bool = False  # the evaluated walks grow the radio map too, without their own labels
     radio_map: RadioMap | None = None  # one radio map for all walks, already loaded (instead of radio_map_path)
     access_points: AccessPointTable | None = None  # one access-point table, already loaded (instead of ap_table_path)
+    beacon_table_path: Path | None = None  # BLE beacons (their positions; C and n refitted from survey walks)
+    beacons: BeaconTable | None = None  # the beacon table, already loaded (instead of beacon_table_path)
 
     @property
     def grows(self) -> bool:
@@ -115,6 +130,10 @@ class EvaluationSetup:
     @property
     def has_access_points(self) -> bool:
         return self.access_points is not None or self.ap_table_path is not None
+
+    @property
+    def has_beacons(self) -> bool:
+        return self.beacons is not None or self.beacon_table_path is not None
 
     def load_radio_map(self) -> RadioMap | None:
         """The one radio map of every walk (given or read from its file), or None."""
@@ -177,6 +196,7 @@ class AllWalks:
     radio_map: RadioMap
     ap_table: AccessPointTable | None  # APs fitted on every walk (None when no method needs them)
     fix_sigma_by_floor_m: dict[str, float] | None = None  # several floors: calibrated once per floor
+    beacon_readings: BeaconReadings | None = None  # the walks' beacon readings, labelled (with a beacon table)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -211,6 +231,7 @@ class _Context:
     all_walks: AllWalks | None
     true_floors: tuple[int | None, ...]  # per evaluated walk: its floor by the header (None: per waypoint or none)
     growth: Growth | None = None
+    beacons: BeaconTable | None = None  # the beacon table as given (positions)
 
 
 def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recording], setup: EvaluationSetup,
@@ -240,14 +261,15 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recordi
         survey_recordings = [read_walk(p, building, setup.strict) for p in survey]
     # the evaluated walks join the survey material only with leave-one-out (``lent``)
     recordings = [rec for rec, _ in lent]
+    beacons = _beacon_table(building, setup)
     all_walks = _all_walks(building, setup, methods, survey_recordings + recordings,
-                           [_true_floor(building, p) for p in survey] + [floor for _, floor in lent])
+                           [_true_floor(building, p) for p in survey] + [floor for _, floor in lent], beacons)
     growth = None
     if setup.grows:
         with _collect_read_warnings(read_warnings):
             growth = _growth(building, setup, paths, survey_recordings + recordings, all_walks, engine,
                              grow_progress)
-    context = _Context(building, setup, methods, tuple(paths), all_walks, true_floors, growth)
+    context = _Context(building, setup, methods, tuple(paths), all_walks, true_floors, growth, beacons)
     done = {o.index for o in resumed}
     todo = [i for i in range(len(paths)) if i not in done]
     outcomes: list[WalkOutcome] = list(resumed)
@@ -292,6 +314,7 @@ def validate_setup(building: Building, log_paths: Sequence[str | os.PathLike | R
     if setup.transductive and setup.leave_one_out:
         raise MapfilterError("--transductive grows the map from walks that are scored without their labels, but "
                              "--leave-one-out surveys with those labels: give the survey with --survey or --radiomap")
+    _beacon_table(building, setup)  # a bad table is one line before anything runs
     unlabelled = checked_log_paths(setup.unlabelled_paths) if setup.unlabelled_paths else []
     named = {walk_name(p) for p in paths + survey}
     both = sorted(named & {walk_name(p) for p in unlabelled})
@@ -310,7 +333,8 @@ def evaluate_trace(building: Building, log_paths: Sequence[str | os.PathLike | R
     paths = checked_log_paths(log_paths)
     methods = _checked_methods(building, setup)
     context = _Context(building, setup, methods, tuple(paths), all_walks,
-                       tuple(_true_floor(building, p) if i == index else None for i, p in enumerate(paths)))
+                       tuple(_true_floor(building, p) if i == index else None for i, p in enumerate(paths)),
+                       beacons=_beacon_table(building, setup))
     outcome = _evaluate_walk(context, index)
     if outcome.status != "ok":
         raise MapfilterError(outcome.reason)
@@ -318,13 +342,16 @@ def evaluate_trace(building: Building, log_paths: Sequence[str | os.PathLike | R
 
 
 def _checked_methods(building: Building, setup: EvaluationSetup) -> tuple[str, ...]:
-    known = methods_for(building)
+    known = methods_for(building, beacons=setup.has_beacons)
     if setup.methods is None:
         return known
+    wanting = [m for m in setup.methods if m in BLE_METHODS and m in methods_for(building, beacons=True)]
+    if wanting and not setup.has_beacons:
+        raise MapfilterError(f"method(s) {', '.join(wanting)} weigh BLE beacons: give a beacon table (--beacons)")
     unknown = [m for m in setup.methods if m not in ALL_METHODS + BUILDING_METHODS]
     if unknown:
         raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(known)}")
-    other = [m for m in setup.methods if m not in known]
+    other = [m for m in setup.methods if m not in methods_for(building, beacons=True)]
     if other:
         what = "one floor" if building.is_single_floor else "a building with several floors"
         raise MapfilterError(f"method(s) {', '.join(other)} are not evaluated on {what}: choose from "
@@ -355,15 +382,28 @@ def _surveying_walk(walk: Walk, setup: EvaluationSetup, building: Building) -> R
     return recording if len(recording.wifi) and recording.has_ground_truth else None
 
 
+def _beacon_table(building: Building, setup: EvaluationSetup) -> BeaconTable | None:
+    """The beacon table of ``setup`` (None without one), checked against the building."""
+    if not setup.has_beacons:
+        return None
+    table = setup.beacons if setup.beacons is not None else BeaconTable.read_csv(setup.beacon_table_path, building)
+    check_beacons_on_map(table, building, building.path)
+    return table
+
+
 def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, ...], recordings: list[Recording],
-               floors: list[int | None]) -> AllWalks | None:
-    """The survey material built once: the radio map of every survey walk (and fitted APs)."""
+               floors: list[int | None], beacons: BeaconTable | None = None) -> AllWalks | None:
+    """The survey material built once: the radio map of every survey walk (and fitted APs, and
+    the labelled beacon readings)."""
     if not recordings:
         return None
+    readings = None
+    if beacons is not None and any(m in BLE_METHODS for m in methods):
+        readings = labelled_readings(beacons, building, recordings)
     if building.is_single_floor:
         radio_map = build_radio_map(recordings, building.floors[0].plan)
         fit = not setup.has_access_points and (setup.fit_aps or "ls" in methods)
-        return AllWalks(radio_map, estimate_access_points(radio_map) if fit else None)
+        return AllWalks(radio_map, estimate_access_points(radio_map) if fit else None, beacon_readings=readings)
     for rec, floor in zip(recordings, floors):
         if floor is None and not rec.waypoint_floor:
             raise MapfilterError("the log's header names no floor (FloorName): its points cannot join a building's "
@@ -376,7 +416,24 @@ def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, .
         # walk costs tens of seconds a walk; the walk under test lends only its share to one number
         sigma = {name: calibrated_fix_sigma_m(radio_map.floor_map(i), setup.tracking.wifi.kwnn_k)
                  for i, name in enumerate(building.floor_names)}
-    return AllWalks(radio_map, None, sigma)
+    return AllWalks(radio_map, None, sigma, readings)
+
+
+def _walk_beacons(context: _Context, recording: Recording) -> tuple[BeaconTable | None, TrackingConfig]:
+    """The beacon table a walk is tracked with and the config with its phone's RSSI offset: the
+    given positions with C, n and the floor loss fitted on the survey walks' readings
+    (leave-one-out: every walk's but this one's), and the offset those walks give the walk's
+    phone model (the config's when none of them has it); without survey walks, the table and
+    config as given."""
+    tracking = context.setup.tracking
+    if context.beacons is None or not any(m in BLE_METHODS for m in context.methods):
+        return None, tracking
+    if context.all_walks is None or context.all_walks.beacon_readings is None:
+        return context.beacons, tracking
+    readings = context.all_walks.beacon_readings.without_traces([recording.name])
+    fit = fit_beacons(context.beacons, readings)
+    offset = fit.phone_offsets_db.get(recording.phone_model or "", tracking.ble.rssi_offset_db)
+    return fit.table, dataclasses.replace(tracking, ble=dataclasses.replace(tracking.ble, rssi_offset_db=offset))
 
 
 def _evaluate_walk(context: _Context, index: int) -> WalkOutcome:
@@ -449,6 +506,7 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
         tracking = dataclasses.replace(tracking, wifi=dataclasses.replace(
             wifi, fix_sigma_m=calibrated_fix_sigma_m(radio_map, wifi.kwnn_k)))
     scorer = _Scorer(context, index, recording)
+    beacons, ble_tracking = _walk_beacons(context, recording)
     # the pf variants share one set of fingerprint evidence (fixes, radio-map likelihood: no
     # state); trilateration models may adapt during a run, so each run prepares its own
     motion = tracking.motion if steps is not None else dataclasses.replace(tracking.motion, model="cv")
@@ -480,6 +538,22 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
             if outcome.offline is not None:
                 scorer.add("pf-smooth", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
                            causal=False)
+        elif method in BLE_METHODS:
+            # the beacons with the WiFi (pf+ble) or alone (pf-ble); causal only (the offline
+            # stage places a walk by its WiFi)
+            config = dataclasses.replace(tracking, smooth=False, ble=ble_tracking.ble)
+            with_wifi = method == "pf+ble"
+            if (steps is None and config.motion.model == "pdr") or (with_wifi and radio_map is None
+                                                                    and ap_table is None):
+                continue
+            rng = np.random.default_rng([tracking.seed, index, ALL_METHODS.index(method)])
+            if with_wifi and prepared is not None:
+                walk = dataclasses.replace(prepared, beacons=beacons)
+            else:
+                walk = prepare_walk(building, recording, None, ap_table if with_wifi else None, config, steps=steps,
+                                    beacons=beacons)
+            outcome = track_prepared(walk, config, rng=rng)
+            scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
         elif method == "kwnn" and radio_map is not None:
             scorer.timed(method, lambda: _fix_track(scan_t, fixes, "kwnn"))
         elif method == "pdr-kwnn" and radio_map is not None:
@@ -521,6 +595,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
     tracking = setup.tracking
     steps = _detected_steps(recording, tracking)
     has_steps = tracking.motion.model != "pdr" or (steps is not None and len(steps) > 0)
+    beacons, ble_tracking = _walk_beacons(context, recording)
     fixes = None  # the KWNN fixes and floors, made once for kwnn, kf and pdr
     for method in context.methods:
         rng = np.random.default_rng([tracking.seed, index, BUILDING_METHODS.index(method)])
@@ -535,6 +610,18 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
             if outcome.offline is not None:
                 scorer.add("pf-smooth", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
                            causal=False)
+        elif method in BLE_METHODS:
+            # pf and pf-floor with the beacons too, and pf on the beacons (and barometer) alone;
+            # causal only (the offline stage places a walk by its WiFi)
+            if not has_steps or (method == "pf-floor+ble" and truth is None):
+                continue
+            config = dataclasses.replace(ble_tracking, smooth=False)
+            wifi = None if method == "pf-ble" else radio_map
+            walk = prepare_walk(building, recording, wifi, None, config, steps=steps,
+                                floor=truth if method == "pf-floor+ble" else None,
+                                fix_sigma_by_floor_m=sigma if wifi is not None else None, beacons=beacons)
+            outcome = track_prepared(walk, config, rng=rng)
+            scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
         elif method in ("kwnn", "kf", "pdr"):
             if fixes is None:
                 started = time.perf_counter()

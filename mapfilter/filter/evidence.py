@@ -7,7 +7,9 @@ and the radio-map likelihood's best cell; ``likelihood``: the radio map's own pr
 the scan at each particle) or trilateration from an access-point table (the Lund thesis
 path-loss likelihood, adaptive with ``TrilaterationConfig``). ``BuildingEvidence`` is several
 floors: per floor the ``WifiEvidence`` of that floor's fingerprints, per scan the WiFi floor
-vote, and the barometer between scans. The run loop (``filter.run``) asks both the same
+vote, and the barometer between scans (without a radio map, the barometer alone).
+``NoWifiEvidence`` is one floor without WiFi, where another source (BLE beacons,
+``filter.models.ble``) weighs the particles alone. The run loop (``filter.run``) asks both the same
 questions (``WalkEvidence``).
 """
 
@@ -118,6 +120,8 @@ class WifiEvidence:
     with ``add_scans``; each scan's fix depends on that scan and the radio map only, so adding
     them one by one or all at once gives the same numbers.
     """
+
+    has_wifi = True
 
     def __init__(self, radio_map: RadioMap | None, ap_table: AccessPointTable | None, floorplan: FloorPlan,
                  wifi: WifiConfig = WifiConfig(), trilateration: TrilaterationConfig = TrilaterationConfig(),
@@ -276,6 +280,44 @@ class WifiEvidence:
         return None
 
 
+class NoWifiEvidence:
+    """One floor without WiFi (``WalkEvidence``): another source weighs the particles (BLE
+    beacons alone); every scan says nothing."""
+
+    model = None
+    access_points = None
+    has_wifi = False
+
+    def __init__(self, log_name: str = "the log") -> None:
+        self.scans: list[WifiScan] = []
+        self.log_name = log_name
+
+    @property
+    def usable(self) -> np.ndarray:
+        return np.zeros(len(self.scans), dtype=bool)
+
+    def prepare(self, scans: list[WifiScan]) -> None:
+        return None
+
+    def require_usable(self) -> None:
+        return None
+
+    def add_scans(self, scans: list[WifiScan]) -> None:
+        self.scans.extend(scans)
+
+    def measurement(self, index: int) -> None:
+        return None
+
+    def between_scans(self, t_s: float) -> None:
+        return None
+
+    def has_evidence_between_scans(self) -> bool:
+        return False
+
+    def observe(self, report: StepReport) -> None:
+        return None
+
+
 def trilateration_model(ap_table: AccessPointTable, config: TrilaterationConfig = TrilaterationConfig()
                         ) -> MeasurementModel:
     """The path-loss likelihood, adaptive (Lund thesis ch. 7) when the config asks for adaptation or blocking."""
@@ -312,12 +354,13 @@ class BuildingEvidence:
     weighs floors by height against a ``BarometerReference`` that ``observe`` keeps.
     """
 
-    def __init__(self, radio_map: RadioMap, stack: FloorStack, wifi: WifiConfig = WifiConfig(),
+    def __init__(self, radio_map: RadioMap | None, stack: FloorStack, wifi: WifiConfig = WifiConfig(),
                  fix_sigma_by_floor_m: dict[str, float] | None = None, log_name: str = "the log",
                  use_barometer: bool = True, barometer: BarometerConfig = BarometerConfig(),
                  floor_evidence: np.ndarray | None = None):
         names = stack.building.floor_names
-        check_building_radio_map(radio_map, names)
+        if radio_map is not None:  # None: no WiFi (BLE beacons alone), the barometer only
+            check_building_radio_map(radio_map, names)
         self.scans: list[WifiScan] = []
         self.log_name = log_name
         self._radio_map, self._stack, self._wifi = radio_map, stack, wifi
@@ -329,6 +372,8 @@ class BuildingEvidence:
         self.floor_wifi: list[WifiEvidence | None] = [None] * n_floors
         sigma = np.full(n_floors, 5.0)
         for f, floor in enumerate(stack.building.floors):
+            if radio_map is None:
+                continue
             sub = radio_map.floor_map(f)
             if len(sub) == 0:
                 continue
@@ -358,7 +403,7 @@ class BuildingEvidence:
                 evidence.prepare(scans)
 
     def require_usable(self) -> None:
-        if not self.usable.any():
+        if self._radio_map is not None and not self.usable.any():
             raise MapfilterError(f"no WiFi scan of {self.log_name} gives a fingerprint fix with this radio map")
 
     def add_scans(self, scans: list[WifiScan]) -> None:
@@ -375,6 +420,8 @@ class BuildingEvidence:
         self._fix.extend(fix)
         if self._given_floor_ll is not None:
             self._floor_ll.extend(self._given_floor_ll[first:first + len(scans)])
+        elif self._radio_map is None:
+            self._floor_ll.extend(np.zeros((len(scans), n_floors)))
         else:
             radio_map = self._radio_map
             self._floor_ll.extend(floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans), k=self._wifi.kwnn_k))
@@ -389,6 +436,11 @@ class BuildingEvidence:
         if len(self._pressure_t) >= 2:
             # each reading's height depends on the readings up to it only (windowed sums of a cumsum)
             self._heights = barometric_height(np.array(self._pressure_t), np.array(self._pressure_hpa))
+
+    @property
+    def has_wifi(self) -> bool:
+        """False for the barometer alone (no radio map: BLE beacons weigh the particles)."""
+        return self._radio_map is not None
 
     @property
     def n_pressure(self) -> int:

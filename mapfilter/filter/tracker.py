@@ -115,6 +115,29 @@ class MeasurementSource(Protocol):
         ...
 
 
+class ReplayedMeasurements:
+    """The measurements another source made of a walk, given again to a second run over it
+    (``run_over_scans``), weighed by ``model`` (e.g. the same beacons on one floor's map)."""
+
+    def __init__(self, stream: str, model: MeasurementModel, times_s: list[float], measurements: list) -> None:
+        self.stream, self.model = stream, model
+        self._times_s, self._measurements = list(times_s), list(measurements)
+        self._given = False
+
+    def records_of(self, records: Recording) -> tuple:
+        """Every measurement's time (and index), once: the run's one chunk holds the whole walk."""
+        if self._given:
+            return np.zeros(0), np.zeros(0, dtype=np.int64)
+        self._given = True
+        return np.asarray(self._times_s, dtype=np.float64), np.arange(len(self._times_s))
+
+    def add_records(self, records: tuple, final: bool) -> list[float]:
+        return [float(t) for t in records[0]] if len(records) > 1 else []
+
+    def measurement(self, index: int) -> Any:
+        return self._measurements[index]
+
+
 # ---- records in: one time order over the sensors ---------------------------------------------------
 _IMU = ("acc", "gyro", "rotvec")
 
@@ -577,12 +600,14 @@ def run_over_scans(plan: FloorPlan, evidence: WalkEvidence, motion: MotionConfig
                    rng: np.random.Generator, steps: Steps | None, *, floors: FloorModel | None = None,
                    start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0, start_share: float = 1.0,
                    on_step: Callable[[StepReport], None] | None = None, keep_ancestry: bool = False,
-                   history=None) -> StreamFilter:
-    """The causal filter over the scans the evidence already holds and the given steps (a second
-    run over a walk, e.g. from a better start)."""
+                   history=None, sources: tuple[MeasurementSource, ...] = ()) -> StreamFilter:
+    """The causal filter over the scans the evidence already holds, the given steps and the
+    ``sources``' measurements (``ReplayedMeasurements``): a second run over a walk, e.g. from a
+    better start."""
     stream = StreamFilter(plan, evidence, motion, filter_config, rng, steps=steps if motion.model == "pdr" else None,
                           floors=floors, start_xy_m=start_xy_m, start_radius_m=start_radius_m,
-                          start_share=start_share, on_step=on_step, keep_ancestry=keep_ancestry, history=history)
+                          start_share=start_share, on_step=on_step, keep_ancestry=keep_ancestry, history=history,
+                          sources=sources)
     stream.feed(scans_recording(evidence.scans))
     stream.close()
     return stream
