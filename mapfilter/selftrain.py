@@ -16,10 +16,10 @@ walls and every scan of it. ``grow_radio_map`` puts those scans back into the ra
 Walks are tracked against the previous iteration's points (all of them at once), so the result
 does not depend on the order of the walks or on how they are spread over processes. Walks
 without IMU (no steps, no dead-reckoned shape) are left out unless ``GrowConfig.wifi_only``:
-their offline track is then a constant-velocity filter's lineage, which on ILC F2 placed them
+their offline track is then a constant-velocity filter's, smoothed, which on ILC F2 placed them
 too badly to help (docs/self-training.md).
 
-In a building, the offline track's whole-walk floor decides each grown point's floor.
+In a building, the offline track's floor (the smoother's) decides each grown point's floor.
 
 Every call to the tracker is in ``track_for_growing``.
 """
@@ -64,7 +64,7 @@ class GrowConfig:
     # 0.2-0.5 per fold, the best of the signals measured, docs/self-training.md)
     sigma_per_spread: float = 4.0
     spread_floor_m: float = 1.5
-    wifi_only: bool = False  # also grow walks without IMU (constant-velocity lineage; see the module docstring)
+    wifi_only: bool = False  # also grow walks without IMU (a constant-velocity filter; see the module docstring)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -137,7 +137,7 @@ def track_offline(space: FloorPlan | Building, radio_map: RadioMap, config: Grow
                   rng: np.random.Generator, fix_sigma: float | dict[str, float] | None = None) -> OfflineWalk:
     """Track one walk offline over ``radio_map``: its position and spread at every scan."""
     tracking = config.tracking
-    if not _has_imu(recording):  # no steps: a constant-velocity filter's lineage is the offline track
+    if not _has_imu(recording):  # no steps: a constant-velocity filter's, smoothed, is the offline track
         tracking = dataclasses.replace(tracking, motion=dataclasses.replace(tracking.motion, model="cv"))
     smoothed, causal = track_for_growing(space, recording, radio_map, tracking, rng, fix_sigma)
     t = np.array([s.t_s for s in scans_of(recording)])

@@ -39,7 +39,7 @@ def _draws(pf: ParticleFilter, resampled: bool) -> tuple[int, float | None, int 
 
 def _filter(plan, motion, n=700, ess_fraction=0.0, seed=3, centre=(3.0, 5.0), radius=2.0, heading=0.3):
     pf = ParticleFilter(plan, motion, FilterConfig(n_particles=n, resample_ess_fraction=ess_fraction),
-                        np.random.default_rng(seed), keep_ancestry=True)
+                        np.random.default_rng(seed))
     pf.initialise_around(centre, radius, heading_rad=heading)
     rng = np.random.default_rng(seed + 1)
     pf.particles.step_length_m = rng.uniform(0.5, 0.9, n)
@@ -130,7 +130,7 @@ def test_the_weights_are_the_formulas(kind):
 def test_resampling_and_the_jitter_are_the_oracles(regularise):
     pf = _filter(ROOMS, RandomWalkMotion(radius_mps=0.8), ess_fraction=1.0, centre=(5.0, 5.0), radius=3.0)
     pf.config = FilterConfig(n_particles=pf.n, resample_ess_fraction=1.0, regularise=regularise)
-    pf.step(0.5, 0.1)  # the lineage starts at the first step after the initialisation
+    pf.step(0.5, 0.1)  # parents exist from the first step after the initialisation
     before = pf.particles.copy()
     key, u, jitter_key = _draws(pf, resampled=True)
     model, fix = GaussianFixLikelihood(1.5), PositionFix((6.0, 5.5))
@@ -143,7 +143,7 @@ def test_resampling_and_the_jitter_are_the_oracles(regularise):
     log_w = np.where(alive, before.log_weight - ((moved[:2].T - [6.0, 5.5]) ** 2).sum(axis=1) / (2 * 1.5 ** 2), -np.inf)
     w = np.exp(log_w - np.logaddexp.reduce(log_w))
     parents = oracle.systematic_parents(w, u, pf.n)
-    got_parents = pf.ancestry.parents(len(pf.ancestry) - 1)
+    got_parents = pf.last_parents
     assert np.mean(parents == got_parents) > 0.995  # a bin edge within round-off may differ
     same = parents == got_parents
     if not regularise:
@@ -160,11 +160,11 @@ def test_resampling_and_the_jitter_are_the_oracles(regularise):
 
 def test_resampling_never_picks_a_dead_particle():
     pf = _filter(OPEN, RandomWalkMotion(radius_mps=0.0, sigma_mps=0.0), ess_fraction=1.0, centre=(20.0, 20.0))
-    pf.step(0.5, 1.0)  # the lineage starts at the first step after the initialisation
+    pf.step(0.5, 1.0)  # parents exist from the first step after the initialisation
     pf.particles.log_weight[:] = -np.inf
     pf.particles.log_weight[[17, 250, 699]] = np.log([0.2, 0.5, 0.3])
     pf.step(1.0, 1.0)
-    parents = pf.ancestry.parents(len(pf.ancestry) - 1)
+    parents = pf.last_parents
     assert set(np.unique(parents)) == {17, 250, 699} and np.all(np.diff(parents) >= 0)
     assert np.bincount(parents)[[17, 250, 699]] == pytest.approx([140, 350, 210], abs=1)
 

@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.ancestry import Ancestry
 from mapfilter.filter.estimate import circular_mean
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.kernels import passes
@@ -125,12 +124,10 @@ class ParticleFilter:
     rng : the only source of randomness (same seed, same result).
     floors : the floor in the state (``filter.models.building.FloorChanges``, whose stack plan
         ``floorplan`` must be); None: one floor (``OneFloor``, not a single extra random draw).
-    keep_ancestry : record every step's parents for ``lineage_track`` (N * 20 bytes per step).
     """
 
     def __init__(self, floorplan: FloorPlan, motion: MotionModel, config: FilterConfig | None = None,
-                 rng: np.random.Generator | None = None, floors: FloorModel | None = None,
-                 keep_ancestry: bool = False) -> None:
+                 rng: np.random.Generator | None = None, floors: FloorModel | None = None) -> None:
         if rng is None:
             raise ValueError("pass an explicit numpy.random.Generator (same seed, same result)")
         if floors is not None and floors.plan is not floorplan:
@@ -145,9 +142,9 @@ class ParticleFilter:
         self.estimate_xy_m: np.ndarray | None = None
         self.estimate_std_m: float = math.inf
         self.collapses: list[CollapseEvent] = []
-        self.ancestry: Ancestry | None = Ancestry() if keep_ancestry else None
+        self.last_parents: np.ndarray | None = None  # (N,) each particle's parent in the step before (-1: none)
         self._step_index = 0
-        self._lineage_broken = True
+        self._parents_unknown = True
         self._last_measurement: tuple[float, Any, Any] | None = None  # (t_s, model, measurement)
         self._recovery_level = 0
         self._healthy_steps = 0
@@ -179,7 +176,7 @@ class ParticleFilter:
     def _set(self, particles: Particles) -> None:
         self.particles = particles
         self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(particles.xy_m, particles.weight)
-        self._lineage_broken = True
+        self._parents_unknown = True
 
     def initialise_uniform(self, heading_rad: float | None = None) -> None:
         """N particles uniformly over the free space of the map."""
@@ -306,7 +303,7 @@ class ParticleFilter:
             run(passes.WEIGH, likelihood, moved.log_weight)
         totals = passes.Totals(sums, shift)
         cause = self._collapse_cause(totals, model if measured else None)
-        before_xy, recovery, resampled, w_before = None, None, False, None
+        before_xy, recovery, resampled = None, None, False
         if cause is not None:
             before_xy = self.estimate_xy_m
             new, parent, ess, recovery = self._recover_from_collapse(t_s, prev)
@@ -316,14 +313,13 @@ class ParticleFilter:
         else:
             n_alive = totals.n_finite
             new, parent, ess, resampled, weights, means = self._normalise_and_resample(prev, moved, totals, e, shift)
-            if self.ancestry is not None and resampled:
-                w_before = np.exp(moved.log_weight - totals.log_normaliser)
         self.particles = new
         self._spare.append(prev)  # its arrays are written again from the step after next
         if new is not moved:
             self._spare.append(moved)
         collapse = self._record_collapse(t_s, step_index, before_xy, cause, prev, recovery)
-        self._record_lineage(t_s, parent, new, weights, w_before, broken=cause is not None)
+        self.last_parents = np.full(self.n, -1) if self._parents_unknown or cause is not None else parent
+        self._parents_unknown = False
         return self._report(t_s, step_index, prev, moved, new, weights, np.flatnonzero(killed), ess, n_alive,
                             resampled, collapse, model if measured else None, measurement, means)
 
@@ -402,7 +398,7 @@ class ParticleFilter:
 
     # ---- collapse recovery -------------------------------------------------------------------
     def _recover_from_collapse(self, t_s: float, prev: Particles) -> tuple[Particles, np.ndarray, float, str]:
-        """A collapse: re-initialise (the lineage breaks here). Returns (particles, parents (all
+        """A collapse: re-initialise (no particle has a parent). Returns (particles, parents (all
         -1), ESS, how it recovered)."""
         recovery, new = self._recover(t_s)
         # PDR state: the walker's stride survives a collapse; the heading may be what failed,
@@ -446,19 +442,6 @@ class ParticleFilter:
         self.collapses.append(collapse)
         return collapse
 
-    def _record_lineage(self, t_s: float, parent: np.ndarray, new: Particles, weights: np.ndarray,
-                        weights_before_resampling: np.ndarray | None, broken: bool) -> None:
-        """With ``keep_ancestry``: who descends from whom, for the lineage track."""
-        if self.ancestry is not None:
-            # the lineage's "best" particle: by the weights that chose the survivors (after a
-            # resampling every new weight is equal and would say nothing)
-            best = weights
-            if weights_before_resampling is not None:
-                best = np.where(parent >= 0, weights_before_resampling[np.maximum(parent, 0)], 0.0)
-            self.ancestry.record(t_s, np.full(self.n, -1) if self._lineage_broken or broken else parent,
-                                 new.xy_m, best)
-        self._lineage_broken = False
-
     def _report(self, t_s: float, step_index: int, prev: Particles, moved: Particles, new: Particles,
                 weights: np.ndarray, killed: np.ndarray, ess: float, n_alive: int, resampled: bool,
                 collapse: CollapseEvent | None, model: MeasurementModel | None, measurement: Any,
@@ -482,10 +465,3 @@ class ParticleFilter:
             path_loss=model.viewer_state() if model is not None else None,
             **self.floors.report(new.xy_m, weights, self.estimate_xy_m),
         )
-
-    # ---- outputs -----------------------------------------------------------------------------
-    def lineage_track(self) -> tuple[np.ndarray, np.ndarray]:
-        """(t_s (T,), xy_m (T, 2)): the lineage of the final best particle (needs keep_ancestry)."""
-        if self.ancestry is None:
-            raise RuntimeError("lineage_track needs ParticleFilter(..., keep_ancestry=True)")
-        return self.ancestry.smoothed_track()

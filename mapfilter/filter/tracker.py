@@ -248,7 +248,6 @@ class StreamFilter:
     start_xy_m, start_radius_m : start around this point instead of from the first scan's likelihood;
         ``start_share`` of the particles only (the rest from the likelihood).
     on_step : called with every ``StepReport`` (the viewer, progress).
-    keep_ancestry : keep the particles' lineage (``lineage``).
     abs_heading_offset_rad : magnetic north to the map's +y axis (``PDRConfig``), for the start
         heading from the rotation vector.
     sources : measurement streams besides the WiFi scans (``MeasurementSource``: BLE beacons).
@@ -258,7 +257,7 @@ class StreamFilter:
     def __init__(self, plan: FloorPlan, evidence: WalkEvidence, motion: MotionConfig, filter_config: FilterConfig,
                  rng: np.random.Generator, *, pdr=None, steps: Steps | None = None, floors: FloorModel | None = None,
                  start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0, start_share: float = 1.0,
-                 on_step: Callable[[StepReport], None] | None = None, keep_ancestry: bool = False,
+                 on_step: Callable[[StepReport], None] | None = None,
                  abs_heading_offset_rad: float = 0.0, sources: tuple[MeasurementSource, ...] = (),
                  history=None) -> None:
         self.evidence = evidence
@@ -266,8 +265,7 @@ class StreamFilter:
         self.sources = tuple(sources)
         self.motion = motion
         self.rng = rng
-        self.pf = ParticleFilter(plan, motion.motion_model, filter_config, rng, floors=floors,
-                                 keep_ancestry=keep_ancestry)
+        self.pf = ParticleFilter(plan, motion.motion_model, filter_config, rng, floors=floors)
         self._uses_steps = motion.model == "pdr"
         if self._uses_steps and pdr is None and steps is None:
             raise ValueError("PDR motion needs the walk's steps or an OnlinePDR")
@@ -564,15 +562,6 @@ class StreamFilter:
                      np.array([r.std_m for r in rows]), heading if np.isfinite(heading).any() else None, name="pf",
                      floor_p=floor_p)
 
-    @property
-    def lineage(self) -> Track | None:
-        """The final best particle's lineage (with ``keep_ancestry``)."""
-        if self.pf.ancestry is None or not len(self.pf.ancestry):
-            return None
-        t, xy = self.pf.lineage_track()
-        return Track(t, xy, name="lineage")
-
-
 def rotation_vector_heading_of(xyz: np.ndarray, offset_rad: float) -> float:
     """Map heading of the phone's forward (+y) axis from one Android rotation vector (x, y, z of a
     unit quaternion, w >= 0): atan2(north, east) of the device y axis in East-North-Up."""
@@ -599,14 +588,14 @@ def _imu_in_order(released: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def run_over_scans(plan: FloorPlan, evidence: WalkEvidence, motion: MotionConfig, filter_config: FilterConfig,
                    rng: np.random.Generator, steps: Steps | None, *, floors: FloorModel | None = None,
                    start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0, start_share: float = 1.0,
-                   on_step: Callable[[StepReport], None] | None = None, keep_ancestry: bool = False,
+                   on_step: Callable[[StepReport], None] | None = None,
                    history=None, sources: tuple[MeasurementSource, ...] = ()) -> StreamFilter:
     """The causal filter over the scans the evidence already holds, the given steps and the
     ``sources``' measurements (``ReplayedMeasurements``): a second run over a walk, e.g. from a
     better start."""
     stream = StreamFilter(plan, evidence, motion, filter_config, rng, steps=steps if motion.model == "pdr" else None,
                           floors=floors, start_xy_m=start_xy_m, start_radius_m=start_radius_m,
-                          start_share=start_share, on_step=on_step, keep_ancestry=keep_ancestry, history=history,
+                          start_share=start_share, on_step=on_step, history=history,
                           sources=sources)
     stream.feed(scans_recording(evidence.scans))
     stream.close()

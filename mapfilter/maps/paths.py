@@ -1,6 +1,6 @@
 """Shortest wall-free paths on the floor plan, and tracks made wall-free with them.
 
-A track that jumps (a particle lineage broken by a collapse recovery) may cross a wall between
+A track that jumps (e.g. a smoothed mean across a collapse recovery) may cross a wall between
 two free points. ``detour_wall_crossings`` replaces every such segment with the shortest path
 between its ends over free pixels (Dijkstra on the 8-connected pixel grid of a window around
 the segment), so the track walks round the wall as the person must have.

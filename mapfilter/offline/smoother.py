@@ -44,7 +44,6 @@ SUBSAMPLE = 256
 # The transition's spread never below this: between two kept subsamples a particle's own
 # successor is rarely kept, so its density must reach the neighbours of that successor
 MIN_SPREAD_M = 0.3
-HEADING_SPREAD_RAD = None  # experiment: the heading's continuity in the transition (None: position only)
 # densities below this share of a successor's largest count as 0 (and are not wall checked): a
 # predecessor 4.3 spreads off its prediction
 _NEGLIGIBLE = 1e-4
@@ -102,8 +101,7 @@ class Smoothed:
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _backward_step(from_xy, means, mix, inv_two_var, from_floor, to_xy, to_floor, change_p, to_building,
-                   from_building, w_from, w_next, mask, clearance, x0, y0, inv_res, no_buffer, out,
-                   heading_pred, to_heading, inv_two_var_heading):
+                   from_building, w_from, w_next, mask, clearance, x0, y0, inv_res, no_buffer, out):
     """One step of the FFBSm recursion: out[i] = w_from[i] sum_j w_next[j] f_ij / sum_k w_from[k] f_kj.
 
     means (K, M, 2): the predicted positions of the particles at the earlier step (mixture of K,
@@ -134,10 +132,6 @@ def _backward_step(from_xy, means, mix, inv_two_var, from_floor, to_xy, to_floor
                     dx = to_building[j, 0] - (from_building[i, 0] + means[k, i, 0] - from_xy[i, 0])
                     dy = to_building[j, 1] - (from_building[i, 1] + means[k, i, 1] - from_xy[i, 1])
                 exponent = (dx * dx + dy * dy) * inv_two_var
-                if inv_two_var_heading > 0.0:
-                    dh = to_heading[j] - heading_pred[k, i]
-                    dh = (dh + math.pi) % (2.0 * math.pi) - math.pi
-                    exponent += dh * dh * inv_two_var_heading
                 if exponent < cutoff:  # far beyond the spread: exp would say 0
                     value += mix[k] * math.exp(-exponent)
             if value > 0.0 and not same:
@@ -213,11 +207,6 @@ def _backward_weights(history: ParticleHistory, motion: MotionModel, space: _Spa
         from_xy = np.ascontiguousarray(now.state[X:Y + 1].T)
         to_xy = np.ascontiguousarray(after.state[X:Y + 1].T)
         means, mix, spread_m = motion.predict(now.state, after.inputs, after.dt_s)
-        change = getattr(after.inputs, "heading_change_rad", 0.0) if after.inputs is not None else 0.0
-        heading_pred = np.repeat(now.state[HEADING][None], means.shape[0], axis=0)
-        if means.shape[0] >= 1:
-            heading_pred[0] = now.state[HEADING] + change
-        inv_h = 0.0 if HEADING_SPREAD_RAD is None else 0.5 / HEADING_SPREAD_RAD ** 2
         variance = max(spread_m ** 2 + after.jitter_m2, MIN_SPREAD_M ** 2)
         from_floor, from_building, n_floors = space.frame(from_xy)
         to_floor, to_building, _ = space.frame(to_xy)
@@ -226,8 +215,7 @@ def _backward_weights(history: ParticleHistory, motion: MotionModel, space: _Spa
                                np.ascontiguousarray(mix, dtype=np.float64), 0.5 / variance, from_floor, to_xy,
                                to_floor, space.change_probability(from_xy, after.dt_s, n_floors),
                                np.ascontiguousarray(to_building), np.ascontiguousarray(from_building), now.weight,
-                               w_next, space.mask, space.clearance, space.x0, space.y0, space.inv_res, NO_BUFFER, out,
-                               np.ascontiguousarray(heading_pred), np.ascontiguousarray(after.state[HEADING]), inv_h)
+                               w_next, space.mask, space.clearance, space.x0, space.y0, space.inv_res, NO_BUFFER, out)
         total = out.sum()
         # no kept particle can reach the next step's (the subsample missed the way): start afresh
         weights[t - first] = out / total if found and total > 0 else now.weight.copy()
