@@ -80,6 +80,7 @@ class PreparedWalk:
     stack: FloorStack | None  # several floors: the stack plan the filter runs on
     recording: Recording
     beacons: BeaconTable | None = None  # BLE beacons weighed besides (or instead of) the WiFi
+    prepare_s: float = 0.0  # the time making it took (counted in each of its tracks' causal runtime)
 
 
 # the second forward pass of a walk on one floor (``Tracker._offline_track``): half its particles
@@ -356,6 +357,7 @@ def prepare_walk(building: Building | FloorPlan, recording: Recording, radio_map
     ``config.steps``, ``config.motion.model`` and ``config.floors`` matter here; the beacons are
     weighed when the walk is tracked.
     """
+    started = time.perf_counter()
     config = config if config is not None else TrackingConfig()
     building = _as_building(building)
     log_name = str(recording.path) if recording.path is not None else "the log"
@@ -370,7 +372,8 @@ def prepare_walk(building: Building | FloorPlan, recording: Recording, radio_map
     pdr = config.motion.model == "pdr"
     if pdr and steps is None:
         steps = detect_steps(recording, config.steps)
-    return PreparedWalk(building, index, evidence, steps if pdr else None, stack, recording, beacons)
+    return PreparedWalk(building, index, evidence, steps if pdr else None, stack, recording, beacons,
+                        time.perf_counter() - started)
 
 
 def track(building: Building | FloorPlan, recording: Recording, radio_map: RadioMap | None = None,
@@ -430,4 +433,5 @@ def track_prepared(walk: PreparedWalk, config: TrackingConfig | None = None, *, 
                       steps=walk.steps, stack=walk.stack, beacons=walk.beacons)
     tracker.feed(walk.recording)
     tracker.close()
+    tracker.runtime_s += walk.prepare_s  # the walk's evidence is part of tracking it
     return tracker.result(on_offline_step)

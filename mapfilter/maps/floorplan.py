@@ -24,7 +24,6 @@ from typing import Any
 import cv2
 import numpy as np
 import yaml
-from scipy import ndimage
 
 from mapfilter.atomic import atomic_paths
 from mapfilter.errors import MapfilterError, not_a_file
@@ -168,7 +167,9 @@ class FloorPlan:
         """Per pixel: Euclidean distance (pixels) from its centre to the nearest wall pixel centre."""
         if not self.wall_mask.any():
             return np.full(self.wall_mask.shape, np.inf)
-        return ndimage.distance_transform_edt(~self.wall_mask)
+        # OpenCV's exact Euclidean transform (Felzenszwalb): scipy.ndimage takes 0.3 s to import
+        return cv2.distanceTransform((~self.wall_mask).astype(np.uint8), cv2.DIST_L2,
+                                     cv2.DIST_MASK_PRECISE).astype(np.float64)
 
     def distance_to_wall_m(self, xy_m: np.ndarray) -> np.ndarray:
         """Distance in metres from world points to the nearest wall pixel (0 on walls / outside)."""

@@ -391,10 +391,10 @@ def clearance_px(floorplan: FloorPlan) -> np.ndarray:
     cached = _CLEARANCE_CACHE.get(floorplan)
     if cached is not None and cached[0] is floorplan.wall_mask:
         return cached[1]
-    from scipy import ndimage  # here: only a command that checks walls pays for its import
+    import cv2  # OpenCV's exact Euclidean transform (Felzenszwalb): scipy.ndimage takes 0.3 s to import
 
     padded = np.pad(floorplan.wall_mask, 1, constant_values=True)
-    distance = ndimage.distance_transform_edt(~padded)[1:-1, 1:-1]
+    distance = cv2.distanceTransform((~padded).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
     clearance = np.maximum(distance - math.sqrt(2.0), 0.0).astype(np.float32)
     # float32 rounding must not make the bound optimistic: shave a little off
     clearance = np.maximum(clearance - np.float32(1e-3), np.float32(0.0))
