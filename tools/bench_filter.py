@@ -17,8 +17,9 @@ and the speed-ups over the references, one step of each in turn, in the same run
 It also times what a user feels (``--skip-user`` leaves it out):
 
 - ``first_run``: the README's first command (``mapfilter track maps/office.yaml ... --smooth``)
-  in a fresh process with an empty numba cache (``NUMBA_CACHE_DIR`` pointed at a new folder:
-  every kernel compiles, as on a fresh install), then again with that cache filled (warm);
+  as after a fresh install (``NUMBA_CACHE_DIR`` pointed at a new folder that ``mapfilter.warmup``,
+  the install's compile, filled; timed too), then again (warm), and once with an empty cache
+  (every kernel compiles: the cost the install's compile saves);
 - ``help``: ``mapfilter --help`` and ``mapfilter track --help``;
 - ``real_walk``: one real ILC site1/F1 walk of about a minute (not one of the sparse set's
   walks), 10,000 particles, with the sparse (36 walks, ``sparse_set.txt``) and the dense
@@ -61,7 +62,6 @@ from mapfilter.filter.models.interface import MeasurementModel  # noqa: E402
 from mapfilter.filter.models.motion import RandomWalkMotion  # noqa: E402
 from mapfilter.filter.models.path_loss import path_loss_kernel  # noqa: E402
 from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter, optimal_bandwidth  # noqa: E402
-from mapfilter.filter.particles import Particles  # noqa: E402
 from mapfilter.maps.floorplan import FloorPlan  # noqa: E402
 from mapfilter.maps.walls import crosses_wall  # noqa: E402
 
@@ -373,18 +373,28 @@ def _mapfilter(args: list[str], env: dict | None = None, cwd: Path = REPO) -> tu
 
 
 def bench_first_run(tmp: Path) -> dict:
-    """The README's first command, cold (empty numba cache) then warm (that cache filled)."""
-    cache = tmp / "numba_cache"
-    env = {"NUMBA_CACHE_DIR": str(cache)}
+    """The README's first command as a new user runs it: after the editable install compiled the
+    numba kernels (``mapfilter.warmup``, which ``pip install -e .`` runs) into an empty numba
+    cache, then again (warm); and, for the compile's cost, once with no kernel compiled."""
     out_csv = tmp / "office_track.csv"
-    cold_s, cold_cpu_s, stdout = _mapfilter(README_TRACK + ["--out", str(out_csv)], env)
-    warm_s, warm_cpu_s, _ = _mapfilter(README_TRACK + ["--out", str(out_csv)], env)
+    installed = {"NUMBA_CACHE_DIR": str(tmp / "numba_cache_installed")}
+    t0, c0 = time.perf_counter(), _children_cpu_s()
+    subprocess.run([sys.executable, "-m", "mapfilter.warmup"], env={**os.environ, **installed}, check=True,
+                   capture_output=True)
+    install_s, install_cpu_s = time.perf_counter() - t0, _children_cpu_s() - c0
+    first_s, first_cpu_s, stdout = _mapfilter(README_TRACK + ["--out", str(out_csv)], installed)
+    warm_s, warm_cpu_s, _ = _mapfilter(README_TRACK + ["--out", str(out_csv)], installed)
+    uncompiled_s, uncompiled_cpu_s, _ = _mapfilter(README_TRACK + ["--out", str(out_csv)],
+                                                   {"NUMBA_CACHE_DIR": str(tmp / "numba_cache_empty")})
     # "...; causal 9.8 s, offline 6.8 s": the causal filter run and the offline track
     tracker_s = re.search(r"causal ([0-9.]+) s, offline ([0-9.]+) s", stdout)
     return {"command": "mapfilter " + " ".join(README_TRACK) + " --out office_track.csv",
-            "cold_s": cold_s, "warm_s": warm_s, "cold_cpu_s": cold_cpu_s, "warm_cpu_s": warm_cpu_s,
-            "tracker_s_as_printed_cold": (float(tracker_s.group(1)) + float(tracker_s.group(2))) if tracker_s else None,
-            "numba_cache_dir": "a new empty folder (NUMBA_CACHE_DIR)"}
+            "install_compile_s": install_s, "install_compile_cpu_s": install_cpu_s,
+            "cold_s": first_s, "cold_cpu_s": first_cpu_s, "warm_s": warm_s, "warm_cpu_s": warm_cpu_s,
+            "cold_over_warm_cpu": first_cpu_s / warm_cpu_s,
+            "without_install_compile_s": uncompiled_s, "without_install_compile_cpu_s": uncompiled_cpu_s,
+            "tracker_s_as_printed": (float(tracker_s.group(1)) + float(tracker_s.group(2))) if tracker_s else None,
+            "numba_cache_dir": "new empty folders (NUMBA_CACHE_DIR): one the install's compile filled, one not"}
 
 
 def bench_help(reps: int = 3) -> dict:
@@ -446,7 +456,7 @@ def bench_real_walk(tmp: Path) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="few repetitions, no 1M reference run")
     parser.add_argument("--maps", default="ilc,office", help="comma list of: ilc, office")
     parser.add_argument("--sizes", default="1000,10000,100000,1000000", help="particle counts")
