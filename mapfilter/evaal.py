@@ -474,6 +474,7 @@ class TrialRun:
     dropped: int = 0  # requests sent again after a dropped connection
     resumed_at_s: float | None = None  # a run that continued a running trial: the trial time it took over at
     result: TrackResult | None = None  # the tracker's run (None when it never gave a row)
+    rows_given: np.ndarray | None = None  # online: the rows the tracker had given when each estimate was sent
 
     @property
     def timed_out(self) -> bool:
@@ -551,6 +552,7 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
     online = _OnlineTracker(tracker, name)
     trial_s: float | None = state.trial_s if resumed else None
     sent: list[tuple[float, float, float, int]] = []
+    given: list[int] = []
     labels = secrets.token_hex(4)  # this run's own request labels
     use_labels = True
     slowdown, slack_max_s = state.slowdown, state.slack_s
@@ -587,6 +589,7 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
             reply_text = reply.text.strip()
             if not final.timed_out and trial_s is not None:
                 sent.append((trial_s, *position))  # the server keeps the position of the request that ended it
+                given.append(online.rows)
                 requests += 1
             break
         if reply.status == 422:
@@ -605,6 +608,7 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
             sent.append((trial_s, *held))
         else:
             sent.append((trial_s, *position))
+        given.append(online.rows)
         trial_s += horizon_s  # as the server counts it
         online.feed(reply.text)
         if progress is not None and trial_s >= next_report_s:
@@ -617,7 +621,7 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
     return TrialRun(client.trial, False, Estimates.of_rows(sent), requests, reply_text, final, wall_s,
                     slack_left_s if slack_left_s is not None else slack_s,
                     lowest if lowest is not None else (lowest_s if math.isfinite(lowest_s) else None),
-                    too_fast, client.dropped, state.trial_s if resumed else None, result)
+                    too_fast, client.dropped, state.trial_s if resumed else None, result, np.array(given))
 
 
 def _where_it_stands(client: EvaalClient, trial_s: float | None, horizon_s: float) -> Callable[[], Reply | None]:
@@ -733,10 +737,11 @@ def _offline_run(tracker: Tracker, text: str, name: str) -> tuple[Estimates, Tra
 def _served_lines(log_path: str | Path) -> Iterable[tuple[str, float | None]]:
     """A log file's lines as the server serves them, with their time: from the first line with a
     time on (the header and the blank lines before it are not served)."""
-    from mapfilter.sensors.logs import log_format
+    from mapfilter.sensors.logs import GETSENSORDATA, log_format
 
     path = Path(log_path)
-    log_format(path)  # one line naming the file when it is missing or no log
+    if log_format(path) != GETSENSORDATA:  # also one line naming the file when it is missing or no log
+        raise MapfilterError("the competition's trials are GetSensorData logs (IPIN); this is another format", path)
     serving = False
     with open_binary(path) as handle:
         for _, line in iter_bounded_lines(handle):
@@ -760,6 +765,7 @@ def replay_online(tracker: Tracker, log_path: str | Path, horizon_s: float = DEF
     online = _OnlineTracker(tracker, str(log_path))
     batch: list[str] = []
     sent: list[tuple[float, float, float, int]] = []
+    given: list[int] = []
     trial_s: float | None = None  # the server's trial time: the next request gets [trial_s, trial_s + h)
     started = time.perf_counter()
     for line, t_s in _served_lines(log_path):
@@ -767,20 +773,23 @@ def replay_online(tracker: Tracker, log_path: str | Path, horizon_s: float = DEF
             initial = initial if initial is not None else _first_posi(log_path)
             trial_s = t_s
             sent.append((trial_s, *_initial(initial)))
+            given.append(0)
         while t_s is not None and t_s >= trial_s + horizon_s:  # that batch is served: the next request
             online.feed("".join(batch))
             batch = []
             trial_s += horizon_s
             sent.append((trial_s, *(online.position or _initial(initial))))
+            given.append(online.rows)
         batch.append(line)
     if trial_s is None:
         raise MapfilterError("the log has no line with a time", log_path)
     online.feed("".join(batch))
     trial_s += horizon_s
     sent.append((trial_s, *(online.position or _initial(initial))))  # the request that finds the log's end
+    given.append(online.rows)
     result = online.close()
     return TrialRun(str(log_path), False, Estimates.of_rows(sent), len(sent), "", None, time.perf_counter() - started,
-                    None, None, result=result)
+                    None, None, result=result, rows_given=np.array(given))
 
 
 def replay_offline(tracker: Tracker, log_path: str | Path) -> TrialRun:
@@ -823,6 +832,16 @@ def check_building(building: Building, where: str | None = None) -> None:
                              where or building.path)
     for floor in building.floors:
         floor_number(floor.name)
+
+
+def check_replay(building: Building, log_path: str | Path, map_path: str | Path | None = None) -> None:
+    """Before a replay (``track --evaal-out``): a building the positions can come from
+    (:func:`check_building`) and a GetSensorData log (``MapfilterError`` naming the file)."""
+    from mapfilter.sensors.logs import GETSENSORDATA, log_format
+
+    check_building(building, map_path)
+    if log_format(log_path) != GETSENSORDATA:
+        raise MapfilterError("the competition's trials are GetSensorData logs (IPIN); this is another format", log_path)
 
 
 def replay_log(tracker: Tracker, log_path: str | Path, horizon_s: float = DEFAULT_HORIZON_S) -> TrialRun:

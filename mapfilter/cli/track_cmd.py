@@ -193,9 +193,9 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
     if args.evaal_out is not None:
-        from mapfilter.evaal import check_building
+        from mapfilter.evaal import check_replay
 
-        check_building(building, args.map)
+        check_replay(building, log_path, args.map)
     recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
     header_floor = building.floor_of_log(recording.floor_name, log_path, args.floor)  # refuses another floor
     radio_map, ap_table = _wifi_source(args, building, config)
