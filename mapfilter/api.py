@@ -37,7 +37,7 @@ from mapfilter.trackio import Track, read_track, write_track
 
 __all__ = ["Building", "Evaluation", "GrowConfig", "GrowReport", "RadioMap", "Recording", "Track", "TrackResult",
            "TrackingConfig", "build_radio_map", "evaluate", "grow_radio_map", "load_access_points", "load_map",
-           "load_radio_map", "read_log", "read_track", "track", "write_track"]
+           "enter_trial", "load_radio_map", "read_log", "read_track", "track", "write_track"]
 
 
 def load_map(path: str | os.PathLike) -> Building:
@@ -110,3 +110,22 @@ def evaluate(building: Building, logs: Sequence[str | os.PathLike], *, radio_map
                             tracking=config if config is not None else TrackingConfig(),
                             unlabelled_paths=tuple(Path(p) for p in unlabelled), transductive=transductive)
     return _evaluate(building, logs, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)
+
+
+def enter_trial(server_url: str, trial: str, building: Building, *, radio_map: RadioMap | None = None,
+                access_points: AccessPointTable | None = None, config: TrackingConfig | None = None,
+                offline: bool = False, floor: str | None = None, timeout_s: float = 10.0):
+    """Enter an IPIN competition trial on its EvaalAPI server (``evaal``), as ``mapfilter evaal``
+    does: online, the streaming tracker's causal estimate with each request for the next 0.5 s of
+    log; ``offline``, the whole-walk track's estimates posted in one go. ``building`` must be
+    georeferenced. Returns the ``evaal.TrialRun`` (``estimates``: what the server keeps)."""
+    from mapfilter import evaal
+    from mapfilter.tracking import Tracker
+
+    config = config if config is not None else TrackingConfig()
+    if offline and not config.smooth:
+        config = dataclasses.replace(config, smooth=True)
+    evaal.check_building(building)
+    tracker = Tracker(building, radio_map, access_points, config, floor=floor, log_name=f"trial {trial}")
+    client = evaal.EvaalClient(server_url, trial, timeout_s=timeout_s)
+    return evaal.run_offline(client, tracker) if offline else evaal.run_online(client, tracker)

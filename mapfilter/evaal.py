@@ -217,7 +217,8 @@ class EvaalClient:
         reply = self.call("state")
         _check_found(reply, self.trial)
         if reply.status != 200:
-            raise MapfilterError(f"trial {self.trial}: the server answered {reply.status} to state: {_short(reply.text)}")
+            raise MapfilterError(f"trial {self.trial}: the server answered {reply.status} to state: "
+                                 f"{_short(reply.text)}")
         return TrialState.parse(reply.text)
 
     def reload(self) -> TrialState:

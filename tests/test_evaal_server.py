@@ -323,6 +323,14 @@ def test_the_wrong_mode_and_an_unknown_trial_are_refused_before_any_data(server,
     # neither trial was started (the server's pitfall: a refused first nextdata opens its log)
     assert not EvaalClient(server.url, "off0").state().started
     assert not EvaalClient(server.url, "on0").state().started
+    # the API refuses the same before any data
+    import mapfilter as mf
+    from mapfilter.errors import MapfilterError
+
+    _, building, _, _ = venue
+    with pytest.raises(MapfilterError, match="on0 is an online trial"):
+        mf.enter_trial(server.url, "on0", building, radio_map=mf.load_radio_map(venue[2]), offline=True)
+    assert not EvaalClient(server.url, "on0").state().started
     assert _evaal(server, venue, "nosuchtrial", tmp_path / "x.csv") == 1
     assert "no trial 'nosuchtrial' (404)" in capsys.readouterr().err
     assert not (tmp_path / "x.csv").exists()

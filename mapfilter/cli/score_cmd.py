@@ -30,7 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Score IPIN competition estimate files against a log's ground truth (POSI points), as the "
                     "competition does.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("log", type=Path, metavar="LOG", help="the GetSensorData log with POSI points (.txt or .txt.gz)")
+    parser.add_argument("log", type=Path, metavar="LOG",
+                        help="the GetSensorData log with POSI points (.txt or .txt.gz)")
     parser.add_argument("estimates", type=Path, nargs="+", metavar="ESTIMATES",
                         help="estimate files (pts,lon,lat,floor lines, or the server's pts,c,h,s,pos list)")
     add_strict_argument(parser)
