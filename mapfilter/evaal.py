@@ -27,16 +27,20 @@ it has no date and its rows are AppTimestamps. Either way a row's AppTimestamp i
 What an online estimate is. With the request for trial time T the client sends the latest row its
 tracker has given after every line before T (the lines of ``[T - h, T)`` came with the previous
 request). The tracker gives a row once the records it depends on are complete: a WiFi scan waits
-for a record of a later time, the merged sensors wait for each other, an IMU sample's time is its
-sensor time (a few ms from its AppTimestamp). So a row stamped just before T can come only with the
-next batch, and the estimate for T is then the row before it: what a live system would have shown.
-:func:`replay_online` is that client over a log file (the same batches, no server): the estimates
-``mapfilter evaal`` would send. The offline estimates are the whole-walk track at every 0.5 s of
-the log's clock from its first line and at its ``POSI`` times, interpolated.
+for a record of a later time, the merged sensors wait for each other (a barometer sample every
+0.1-0.17 s), an IMU sample's time is its sensor time (a few ms from its AppTimestamp). So a row
+stamped just before T can come only with the next batch, and the estimate for T is then the row
+before it: what a live system would have shown (on the IPIN 2023 logs a row is sent 0.3-0.5 s after
+its stamp, median, at most 0.65 s). :func:`replay_online` is that client over a log file (the same
+batches, no server): the estimates ``mapfilter evaal`` would send, to the bit. The ``POSI`` rows the
+server may send are ground truth: the tracker does not read them, the offline estimates take their
+times. The offline estimates are the whole-walk track at every 0.5 s of the log's clock from its
+first line and at its ``POSI`` times, interpolated.
 
 Connections. Every request has a timeout; a request whose connection dropped is sent again with
-the same ``label`` (the server answers a repeated label with the data it sent for it, so no batch
-is lost or read twice), after asking the trial's ``state`` where it stands.
+the same ``label`` (evaalapi.py answers a repeated label with the data it sent for it, so no batch
+is lost or read twice; evaalapi.md does not list the parameter, and a server that refuses it is
+asked without), after asking the trial's ``state`` where it stands.
 """
 
 from __future__ import annotations
@@ -69,8 +73,8 @@ from mapfilter.trackio import Track, with_latlon
 
 __all__ = ["DEFAULT_HORIZON_S", "ESTIMATE_STEP_S", "Estimates", "EvaalClient", "Reply", "TrialRun", "TrialState",
            "CompetitionScore", "competition_times", "floor_number", "log_clock_offset_s", "log_clock_s",
-           "offline_estimates", "read_estimates", "replay_offline", "replay_online", "run_offline", "run_online",
-           "score_against_log", "score_estimates"]
+           "check_building", "check_replay", "offline_estimates", "read_estimates", "replay_log", "replay_offline",
+           "replay_online", "run_offline", "run_online", "score_against_log", "score_estimates"]
 
 DEFAULT_HORIZON_S = 0.5  # the horizon evaalapi.md recommends: one estimate every 0.5 s
 ESTIMATE_STEP_S = 0.5  # offline: an estimate every 0.5 s of the log's clock (and at each POSI time)
@@ -476,6 +480,9 @@ class TrialRun:
     resumed_at_s: float | None = None  # a run that continued a running trial: the trial time it took over at
     result: TrackResult | None = None  # the tracker's run (None when it never gave a row)
     rows_given: np.ndarray | None = None  # online: the rows the tracker had given when each estimate was sent
+    # online: the client's own time per batch, from an answer to the next request (the tracker's work;
+    # a trial allows V h a request on average, S ahead)
+    busy_s: np.ndarray | None = None
 
     @property
     def timed_out(self) -> bool:
@@ -554,6 +561,8 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
     trial_s: float | None = state.trial_s if resumed else None
     sent: list[tuple[float, float, float, int]] = []
     given: list[int] = []
+    busy: list[float] = []
+    answered_s: float | None = None  # when the previous batch came
     labels = secrets.token_hex(4)  # this run's own request labels
     use_labels = True
     slowdown, slack_max_s = state.slowdown, state.slack_s
@@ -571,15 +580,19 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
         query = {"horizon": f"{horizon_s:g}", "position": format_position(*position)}
         if use_labels:
             query["label"] = f"{labels}-{requests}"
+        if answered_s is not None:
+            busy.append(clock() - answered_s)
+            answered_s = None
         if paced and previous_s is not None:
             wait_s = previous_s + previous_h + _PACE_MARGIN_S - clock()
             if wait_s > 0:
                 client.sleep(wait_s)
         sent_s = clock()
         reply = client.call("nextdata", query, before_retry=_where_it_stands(client, trial_s, horizon_s))
-        if reply.status == 423:  # faster than real time: wait h after the previous one
+        if reply.status == 423:  # faster than real time: from now on, wait h after the previous one
             too_fast += 1
             paced = True
+            client.sleep(_PACE_MARGIN_S)  # the server's clock read the previous one later than ours: never spin
             continue
         if reply.status == 422 and use_labels and "label" in reply.text:
             use_labels = False  # a server without retry labels
@@ -611,9 +624,10 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
             sent.append((trial_s, *position))
         given.append(online.rows)
         trial_s += horizon_s  # as the server counts it
+        answered_s = clock()
         online.feed(reply.text)
         if progress is not None and trial_s >= next_report_s:
-            progress(f"trial time {trial_s:.1f} s: {requests} requests, {online.rows} estimates made, slack "
+            progress(f"trial time {trial_s:.1f} s: {requests} requests, {online.rows} tracker rows, slack "
                      f"{slack_s:.1f} s (lowest {lowest_s:.1f} s)")
             next_report_s = trial_s + progress_every_s
     result = online.close()
@@ -622,7 +636,8 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
     return TrialRun(client.trial, False, Estimates.of_rows(sent), requests, reply_text, final, wall_s,
                     slack_left_s if slack_left_s is not None else slack_s,
                     lowest if lowest is not None else (lowest_s if math.isfinite(lowest_s) else None),
-                    too_fast, client.dropped, state.trial_s if resumed else None, result, np.array(given))
+                    too_fast, client.dropped, state.trial_s if resumed else None, result, np.array(given),
+                    np.array(busy))
 
 
 def _where_it_stands(client: EvaalClient, trial_s: float | None, horizon_s: float) -> Callable[[], Reply | None]:

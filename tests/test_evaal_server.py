@@ -129,8 +129,9 @@ def _same(a, b):
 @pytest.mark.parametrize("k", range(len(WALKS)))
 def test_an_online_trial(server, venue, file_runs, tmp_path, capsys, k):
     """One estimate per request, every 0.5 s of the log's clock, on the POSI rows' floor; the IPIN
-    score within 0.5 m of the file's causal track's; the local file is what the server keeps, and
-    `track --evaal-out` makes it from the log file to the byte."""
+    score within 0.5 m of the file's causal track's (the estimates are up to a batch old, and the
+    server's lines carry no date: the same filter over times rounded apart); the local file is what
+    the server keeps, and `track --evaal-out` makes it from the log file to the byte."""
     from mapfilter.cli import main
     from mapfilter.evaal import read_estimates, score_against_log
 

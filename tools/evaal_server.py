@@ -99,7 +99,8 @@ class LocalServer:
         return f"http://127.0.0.1:{self.port}/evaalapi/"
 
     def write_trials(self) -> None:
-        """The run folder: evaalapi.yaml with the trials, trials/ with their logs as plain text."""
+        """The run folder: evaalapi.yaml with the trials, trials/ with their logs as plain text (and
+        without what the server wrote there for them in an earlier run)."""
         folder = self.run_dir / "trials"
         folder.mkdir(parents=True, exist_ok=True)
         entries = []
@@ -107,6 +108,8 @@ class LocalServer:
             datafile = f"{trial.name}.txt"
             with _open(trial.log) as source, open(folder / datafile, "w", encoding="ascii") as target:
                 shutil.copyfileobj(source, target)
+            for made in (f"{trial.name}.log.xz", f"{trial.name}.est"):  # an earlier run's (a scoring trial
+                (folder / made).unlink(missing_ok=True)  # with a log of its own would refuse to start)
             initial = trial.initial or first_posi(trial.log)
             entries.append(f"{trial.name}:\n    datafile: {datafile}\n    commsep: '%'\n    sepch: ';'\n"
                            f"    V: {0 if trial.offline else trial.slowdown:g}\n    S: {trial.slack_s:g}\n"

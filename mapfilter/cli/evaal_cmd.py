@@ -136,6 +136,8 @@ def _enter(args: argparse.Namespace, config, out: Path) -> int:
 
 def _summary(run, out: Path) -> str:
     """What the run did, the server's last answer, the tracker's numbers, the file written."""
+    import numpy as np
+
     kind = "offline" if run.offline else "online"
     final = run.final
     timing = f", V={final.slowdown:g}, S={final.slack_s:g} s" if final is not None and not run.offline else ""
@@ -154,6 +156,10 @@ def _summary(run, out: Path) -> str:
         lines.append(f"  slack left at the end {run.slack_left_s:.2f} s (lowest {run.lowest_slack_s:.2f} s); "
                      f"{run.too_fast} request{'s' if run.too_fast != 1 else ''} refused as faster than real time, "
                      f"{run.dropped} sent again after a dropped connection")
+        if run.busy_s is not None and run.busy_s.size and final is not None:
+            lines.append(f"  the client's time per batch: median {1000 * np.median(run.busy_s):.0f} ms, max "
+                         f"{1000 * run.busy_s.max():.0f} ms (the trial allows V h = "
+                         f"{final.slowdown * final.horizon_s:g} s on average)")
     result = run.result
     if result is not None:
         lines.append(f"  the tracker: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used, "
