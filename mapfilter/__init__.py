@@ -54,8 +54,8 @@ def _writable(folder: str, parent: str | None) -> bool:
 _numba_cache_dir()
 
 _API = ("Building", "Evaluation", "GrowConfig", "GrowReport", "RadioMap", "Recording", "Track", "TrackResult",
-        "TrackingConfig", "build_radio_map", "evaluate", "grow_radio_map", "load_access_points", "load_map",
-        "load_radio_map", "read_log", "read_track", "track", "write_track")
+        "TrackingConfig", "build_radio_map", "enter_trial", "evaluate", "grow_radio_map", "load_access_points",
+        "load_map", "load_radio_map", "read_log", "read_track", "track", "write_track")
 
 __all__ = ["__version__", *_API]
 
