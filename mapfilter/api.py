@@ -49,9 +49,9 @@ from mapfilter.tracking import track as _track
 from mapfilter.trackio import Track, read_track, write_track
 
 __all__ = ["BeaconFit", "BeaconTable", "Building", "Evaluation", "GrowConfig", "GrowReport", "RadioMap", "Recording",
-           "Track", "TrackResult", "TrackingConfig", "build_radio_map", "evaluate", "fit_beacons", "grow_radio_map",
-           "load_access_points", "load_beacons", "load_map", "load_radio_map", "read_log", "read_track", "track",
-           "write_track"]
+           "Track", "TrackResult", "TrackingConfig", "build_radio_map", "enter_trial", "evaluate", "fit_beacons",
+           "grow_radio_map", "load_access_points", "load_beacons", "load_map", "load_radio_map", "read_log",
+           "read_track", "track", "write_track"]
 
 PathLike = str | os.PathLike
 
@@ -211,6 +211,35 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
                             radio_map=given_map, access_points=given_aps, beacons=given_beacons,
                             beacon_table_path=None if beacons_path is None else Path(beacons_path))
     return _evaluate(building, walks, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)
+
+
+def enter_trial(server_url: str, trial: str, building: Building | PathLike, *,
+                radio_map: RadioMap | PathLike | None = None, access_points: AccessPointTable | PathLike | None = None,
+                beacons: BeaconTable | PathLike | None = None, config: TrackingConfig | None = None,
+                offline: bool = False, floor: str | None = None, timeout_s: float = 10.0):
+    """Enter an IPIN competition trial on its EvaalAPI server (``evaal``), as ``mapfilter evaal``
+    does: online, the streaming tracker's causal estimate with each request for the next 0.5 s of
+    log; ``offline``, the whole-walk track's estimates posted in one go. ``building`` must be
+    georeferenced; ``beacons``: a BLE beacon table weighed too (or alone). Returns the
+    ``evaal.TrialRun`` (``estimates``: what the server keeps)."""
+    from mapfilter import evaal
+    from mapfilter.tracking import Tracker
+
+    building = _building(building, "building")
+    radio_map = _radio_map(radio_map, "radio_map")
+    access_points = _access_points(access_points, "access_points")
+    beacons = _beacons(beacons, "beacons", building)
+    config = _config(config)
+    if floor is not None and not isinstance(floor, str):
+        raise TypeError(f"floor: expected a floor name (str), got {type(floor).__name__}")
+    config = config if config is not None else TrackingConfig()
+    if offline and not config.smooth:
+        config = dataclasses.replace(config, smooth=True)
+    evaal.check_building(building)
+    tracker = Tracker(building, radio_map, access_points, config, floor=floor, log_name=f"trial {trial}",
+                      beacons=beacons)
+    client = evaal.EvaalClient(server_url, trial, timeout_s=timeout_s)
+    return evaal.run_offline(client, tracker) if offline else evaal.run_online(client, tracker)
 
 
 # ---- the arguments: the objects the functions return, or paths; anything else a TypeError ------

@@ -139,6 +139,8 @@ def _walk():
     (lambda mf: mf.read_log(WALK, building=42), "building", "int"),
     (lambda mf: mf.load_map(mf.load_map(OFFICE)), "path", "Building"),
     (lambda mf: mf.load_radio_map({"points": []}), "path", "dict"),
+    (lambda mf: mf.enter_trial("http://127.0.0.1:9/evaalapi/", "t", None, radio_map=RADIOMAP), "building", "None"),
+    (lambda mf: mf.enter_trial("http://127.0.0.1:9/evaalapi/", "t", OFFICE, radio_map=3), "radio_map", "int"),
 ])
 def test_a_wrong_type_is_a_one_line_type_error_naming_the_argument(call, argument, got):
     import mapfilter as mf

@@ -22,6 +22,8 @@ FORBIDDEN = {
     "selftrain": {"evaluation", "batch", "simulate", "viz", "cli"},
     "evaluation": {"batch", "simulate", "viz", "cli"},
     "batch": {"simulate", "viz", "cli"},
+    # the IPIN competition's client: the tracker and the competition's score, not the batch machinery
+    "evaal": {"selftrain", "batch", "simulate", "viz", "cli"},
     # how walks are dispatched knows nothing of what a walk is
     "engine": {"maps", "sensors", "filter", "offline", "config", "tracking", "selftrain", "evaluation", "batch",
                "simulate", "viz", "cli"},

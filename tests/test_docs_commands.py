@@ -26,8 +26,10 @@ are made here:
 the reason, when it is absent. A glob over the real logs is cut to its first few files (the
 command's options and paths stay as written) so that the real-data commands take seconds, not
 the documented minutes. Not run, each skipped with its reason: installing (the fresh-clone
-walk-through does that), the test suite itself, opening a viewer, and the long measurement
-scripts (tens of minutes: their options are checked against their ``--help`` instead).
+walk-through does that), the test suite itself, opening a viewer, the long measurement
+scripts and the EvaalAPI server (their options are checked against their ``--help`` instead),
+and ``mapfilter evaal``, which needs a server (its arguments are parsed; a later command reading
+the estimates it would write skips too). ``L=path`` sets ``$L`` for the document's later commands.
 """
 
 from __future__ import annotations
@@ -61,6 +63,7 @@ LONG_SCRIPTS = {
     "hostile_inputs.py": "every hostile input in a subprocess: minutes",
     "ipin_eval.py": "the IPIN walk over two floors with every method: minutes",
     "screenshot_rrd.py": "it spawns a viewer (never in tests: without a display it blocks)",
+    "evaal_server.py": "the EvaalAPI server: it serves until stopped; tests/test_evaal_server.py runs it",
 }
 
 
@@ -91,6 +94,7 @@ def document_commands(path: Path) -> list[Command]:
     text = path.read_text()
     name = str(path.relative_to(REPO))
     found: list[Command] = []
+    variables: dict[str, str] = {}
     for match in re.finditer(r"^```(\w*)\n(.*?)^```", text, flags=re.S | re.M):
         language, body = match.group(1), match.group(2)
         line = text[:match.start()].count("\n") + 1
@@ -101,6 +105,13 @@ def document_commands(path: Path) -> list[Command]:
         for logical in re.sub(r"\\\n\s*", " ", body).splitlines():
             logical = re.sub(r"(^|\s)#.*$", "", logical).strip()
             for part in (p.strip() for p in logical.split(" && ")):
+                assignment = re.fullmatch(r"([A-Za-z_]\w*)=(\S+)", part)
+                if assignment:  # L=path: later commands get the path where they say $L, as bash gives it
+                    variables[assignment.group(1)] = assignment.group(2)
+                    continue
+                for variable, value in variables.items():
+                    part = re.sub(rf"\$(\{{{variable}\}}|{variable}\b)", lambda _, value=value: value, part)
+                part = re.sub(r"\s*&$", "", part)  # started in the background: the same command
                 if part:
                     found.append(Command(name, line, len(found), part))
     return found
@@ -277,6 +288,7 @@ class DocsRunner:
         self.workspace, self.root, self.selected = workspace, root, selected
         self.outcomes: dict[Command, tuple[str, str]] = {}
         self.done: set[str] = set()
+        self.not_made: set[Path] = set()  # what a command not run would have written
 
     def outcome(self, command: Command) -> tuple[str, str]:
         if command.document not in self.done:
@@ -311,7 +323,7 @@ class DocsRunner:
         program = words[0]
         if words[1:2] == ["tools/get_data.py"] and "--verify" not in words:
             return "skip", "downloads or writes the real data: tests/test_get_data.py lays it out from local copies"
-        if program == ".venv/bin/pip" or words[:3] in (["python3", "-m", "venv"], [".venv/bin/python", "-m", "pytest"]):
+        if program.endswith("/bin/pip") or words[:3] in (["python3", "-m", "venv"], [".venv/bin/python", "-m", "pytest"]):
             return "skip", "installing and the test suite: the fresh-clone walk-through runs these"
         if program == "apt-get":
             return "skip", "installs a system package"
@@ -327,7 +339,28 @@ class DocsRunner:
         if program.endswith(("python", "python3")):
             return self._script(argv, cwd, command)
         assert program in ("mapfilter", ".venv/bin/mapfilter"), f"unknown program {program}"
+        unmade = [word for word in argv if (cwd / word).resolve() in self.not_made]
+        if unmade:
+            return "skip", f"reads {unmade[0]}, which a `mapfilter evaal` above writes (not run: it needs a server)"
+        if argv[:1] == ["evaal"]:
+            return self._evaal(argv, cwd)
         return _mapfilter(_cut_real_logs(argv, cwd), cwd, None if redirect is None else cwd / redirect.strip())
+
+    def _evaal(self, argv: list[str], cwd: Path) -> tuple[str, str]:
+        """``mapfilter evaal`` enters a trial on an EvaalAPI server (the competition's, or one the
+        document starts): its arguments are parsed as written, and what it would write is noted."""
+        from mapfilter.cli import build_parser
+        from mapfilter.cli.evaal_cmd import default_out
+
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err):
+            try:
+                args = build_parser().parse_args(argv)
+            except SystemExit as exc:
+                raise AssertionError(f"mapfilter {' '.join(argv)}: exit {exc.code}: {err.getvalue()[-2000:]}") from None
+        self.not_made.add((cwd / (args.out if args.out is not None else default_out(args.trial))).resolve())
+        return "skip", ("enters a trial on an EvaalAPI server: its arguments parse (tests/test_evaal_server.py "
+                        "enters trials on a local server)")
 
     def _script(self, argv: list[str], cwd: Path, command: Command) -> tuple[str, str]:
         script = Path(argv[0]).name

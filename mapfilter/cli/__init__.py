@@ -27,7 +27,7 @@ from mapfilter.errors import MapfilterError
 
 # Command modules, in the order they appear in --help.
 COMMAND_MODULES = ("map_cmd", "radiomap_cmd", "check_cmd", "track_cmd", "evaluate_cmd", "simulate_cmd", "view_cmd",
-                   "config_cmd")
+                   "config_cmd", "evaal_cmd", "score_cmd")
 
 
 def build_parser() -> argparse.ArgumentParser:

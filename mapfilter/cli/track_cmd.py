@@ -89,6 +89,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--format", choices=TRACK_FORMATS, default=None,
                         help="track file format; by default the --out file's extension (csv unless .tum); "
                              "with --out-dir: csv")
+    parser.add_argument("--evaal-out", type=Path, metavar="FILE",
+                        help="also write the IPIN competition's estimates (pts,lon,lat,floor; the log's clock): what "
+                             "`mapfilter evaal` would send on a trial of this log (a second run, the log served as "
+                             "the server serves it; with --smooth, an offline trial's); a georeferenced MAP")
     parser.add_argument("--adapted-aps", type=Path, metavar="OUT.csv",
                         help="with --adapt: write the access-point table as adapted at the end of the walk")
     add_tracking_arguments(parser)
@@ -138,9 +142,13 @@ def run(args: argparse.Namespace) -> int:
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise MapfilterError("the picture of --plot must end in .png", args.plot)
     check_output_path(args.adapted_aps, "--adapted-aps", inputs=inputs, allow_stdout=True)
+    check_output_path(args.evaal_out, "--evaal-out", inputs=inputs)
     check_distinct_outputs([("--out", args.out), ("--out (causal track)", causal_path(args.out) if args.out
                                                    is not None and config.smooth else None),
-                            ("--rerun", args.rerun), ("--plot", args.plot), ("--adapted-aps", args.adapted_aps)])
+                            ("--rerun", args.rerun), ("--plot", args.plot), ("--adapted-aps", args.adapted_aps),
+                            ("--evaal-out", args.evaal_out)])
+    if args.evaal_out is not None and (args.out_dir is not None or is_stdout(args.logs[0])):
+        raise MapfilterError("--evaal-out is for one log file (not --out-dir, not a live run)")
     if sum(is_stdout(p) for p in (args.out, args.adapted_aps)) > 1:
         raise MapfilterError("--out - and --adapted-aps -: only one output can go to standard output")
     if args.adapted_aps is not None and args.out_dir is not None:
@@ -217,6 +225,10 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
+    if args.evaal_out is not None:
+        from mapfilter.evaal import check_replay
+
+        check_replay(building, log_path, args.map)
     recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
     header_floor = building.floor_of_log(recording.floor_name, log_path, args.floor)  # refuses another floor
     radio_map, ap_table = _wifi_source(args, building, config)
@@ -273,6 +285,13 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
         if args.adapted_aps is not None:
             result.access_points.write_csv(args.adapted_aps)
             written.append((args.adapted_aps, "adapted access-point table"))
+        if args.evaal_out is not None:
+            from mapfilter.evaal import replay_log
+            from mapfilter.tracking import Tracker
+
+            replay = replay_log(Tracker(building, radio_map, ap_table, config, floor=floor), log_path)
+            replay.estimates.write(args.evaal_out)
+            written.append((args.evaal_out, f"competition estimates, {'offline' if config.smooth else 'online'}"))
     if args.rerun is not None:
         written.append((args.rerun, "rerun recording"))
     if args.plot is not None:

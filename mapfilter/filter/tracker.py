@@ -56,6 +56,11 @@ MOTION_MODELS = ("pdr", "cv", "rw")
 # a sensor silent this long while others go on is not waited for: the ILC logger writes its IMU
 # rows up to 1.8 s behind its WiFi rows, the GetSensorData logs every sensor in time order
 PAUSED_AFTER_S = 3.0
+# a log stream gives a WiFi scan once a record of a later time came (sensors/logs.LogStream), so the
+# scans are taken as passed at the newest record's time less this (IMU samples' own times run a few ms
+# from the times the scans are cut by); waiting for the next scan held rows 1.2-1.5 s (median; up to
+# PAUSED_AFTER_S) on the IPIN 2023 logs, and no scan came late with this on any of them (docs/ipin.md)
+SCAN_PASSED_BEFORE_NEWEST_S = 0.1
 # at equal times, a step before a scan, ticks before both (a prediction to the scan's time)
 _STEP, _SCAN, _TICK = 0, 1, 2
 # PDR with a barometer in a building: the longest gap between filter steps. A lift ride has no
@@ -172,7 +177,10 @@ class _Merge:
         if not self.last_t:
             return self.released_t
         newest = max(self.last_t.values())
-        streaming = [t for t in self.last_t.values() if newest - t <= PAUSED_AFTER_S]
+        last = dict(self.last_t)
+        if "wifi" in last:
+            last["wifi"] = max(last["wifi"], newest - SCAN_PASSED_BEFORE_NEWEST_S)
+        streaming = [t for t in last.values() if newest - t <= PAUSED_AFTER_S]
         return max(min(streaming), self.released_t)
 
     def release(self, horizon: float) -> dict[str, tuple]:
