@@ -197,6 +197,22 @@ def test_the_command_says_when_there_is_no_server(tmp_path, capsys):
     assert not (tmp_path / "e.csv").exists()
 
 
+def test_the_command_reads_the_beacon_table_before_the_server(tmp_path, capsys):
+    """--beacons: a bad table is refused in one line naming it, before any request; the beacons
+    alone (no --radiomap) are a source too."""
+    from mapfilter.cli import main
+
+    venue = str(_georeferenced_office(tmp_path))
+    table = tmp_path / "beacons.csv"
+    table.write_text("beacon_id,x,y\nAA:BB,1.0\n")
+    code = main(["evaal", "http://127.0.0.1:9/evaalapi/", "t", venue, "--beacons", str(table),
+                 "--out", str(tmp_path / "e.csv")])
+    err = capsys.readouterr().err
+    assert code == 1 and "beacons.csv" in err and err.strip().count("\n") == 0
+    assert main(["evaal", "http://127.0.0.1:9/evaalapi/", "t", venue, "--beacons", venue]) == 1
+    assert "venue.yaml" in capsys.readouterr().err  # a table that is the map: refused, nothing sent
+
+
 def test_the_command_refuses_smooth_online_and_a_trial_name_without_a_file_name(tmp_path, capsys):
     from mapfilter.cli import main
 
