@@ -262,7 +262,9 @@ class Tracker:
             return dataclasses.replace(track, floor=[self.building.floors[self.floor_index].name] * len(track))
         return track
 
-    def _offline_track(self, on_offline_step: Callable[[StepReport], None] | None) -> tuple[Track, Track | None]:
+    def _offline_track(self, on_offline_step: Callable[[StepReport], None] | None,
+                       on_smoothed: Callable[[float, np.ndarray, np.ndarray], None] | None
+                       ) -> tuple[Track, Track | None]:
         """The offline track (the plan's frame, or a floor's with its name) and the second forward
         pass's causal track (None without one).
 
@@ -272,11 +274,15 @@ class Tracker:
         starts half the particles of a second forward pass on that floor's map, and placed through
         that pass's smoothed track it is the offline track (ILC F1 sparse 8.23 m mean against
         8.83 m for the smoothed track alone, and 8.34 m for the shape placed through a restarted
-        filter run: docs/accuracy.md)."""
+        filter run: docs/accuracy.md). ``on_smoothed`` sees the smoothed cloud of the filter's own
+        run (``offline.smoother.smooth``'s ``on_row``)."""
         config, stream = self.config, self.stream
-        smoothed = self._smoothed(self.history, self.plan, self._floors)
         steps = stream.steps if config.motion.model == "pdr" else None
-        if steps is None or len(steps) == 0 or not self.evidence.has_wifi:  # the shape is placed by the scans
+        places_shape = steps is not None and len(steps) > 0 and self.evidence.has_wifi  # by the scans
+        smoothed = None
+        if self.stack is not None or not places_shape or on_smoothed is not None:
+            smoothed = self._smoothed(self.history, self.plan, self._floors, on_smoothed)
+        if not places_shape:
             return smoothed, None
         plan, evidence, causal, floor_name = self.plan, self.evidence, stream.track(), None
         if self.stack is not None:
@@ -307,9 +313,10 @@ class Tracker:
             restarted = dataclasses.replace(restarted, floor=[floor_name] * len(restarted))
         return track, restarted
 
-    def _smoothed(self, history: ParticleHistory, plan: FloorPlan, floors: FloorChanges | None) -> Track:
+    def _smoothed(self, history: ParticleHistory, plan: FloorPlan, floors: FloorChanges | None,
+                  on_row: Callable[[float, np.ndarray, np.ndarray], None] | None = None) -> Track:
         """The smoothed means of a forward pass, made wall-free, with each row's floor share."""
-        smoothed = smooth(history, plan, self.config.motion.motion_model, floors)
+        smoothed = smooth(history, plan, self.config.motion.motion_model, floors, on_row)
         floor_p = None
         if smoothed.floor_shares is not None:
             floor_of = self.stack.floor_of(smoothed.xy_m)
@@ -319,8 +326,12 @@ class Tracker:
         return Track(t_s, xy_m, smoothed.std_m[row], smoothed.heading_rad[row], name="pf-smooth",
                      floor_p=None if floor_p is None else floor_p[row])
 
-    def result(self, on_offline_step: Callable[[StepReport], None] | None = None) -> TrackResult:
-        """The walk tracked (after ``close``): the causal track and, with ``config.smooth``, the offline one."""
+    def result(self, on_offline_step: Callable[[StepReport], None] | None = None,
+               on_smoothed: Callable[[float, np.ndarray, np.ndarray], None] | None = None) -> TrackResult:
+        """The walk tracked (after ``close``): the causal track and, with ``config.smooth``, the
+        offline one. ``on_offline_step`` sees the offline stage's second forward pass step by step,
+        ``on_smoothed(t_s, xy_m, weight)`` the smoothed cloud of every step of the filter's own run
+        (the plan's frame; a building's stack frame)."""
         if not self.stream.closed:
             raise RuntimeError("close the tracker before asking for the result")
         if not self.stream.rows:
@@ -333,7 +344,7 @@ class Tracker:
         started = time.perf_counter()
         offline = restarted = None
         if config.smooth:
-            offline, restarted = self._offline_track(on_offline_step)
+            offline, restarted = self._offline_track(on_offline_step, on_smoothed)
         offline_s = time.perf_counter() - started
         access_points = self.evidence.access_points if isinstance(self.evidence, WifiEvidence) else None
         return TrackResult(
@@ -422,8 +433,10 @@ def track(building: Building | FloorPlan, recording: Recording, radio_map: Radio
 
 def track_prepared(walk: PreparedWalk, config: TrackingConfig | None = None, *, rng: np.random.Generator | None = None,
                    on_step: Callable[[StepReport], None] | None = None,
-                   on_offline_step: Callable[[StepReport], None] | None = None) -> TrackResult:
-    """Track a walk whose evidence ``prepare_walk`` made (with the same WiFi settings as ``config``)."""
+                   on_offline_step: Callable[[StepReport], None] | None = None,
+                   on_smoothed: Callable[[float, np.ndarray, np.ndarray], None] | None = None) -> TrackResult:
+    """Track a walk whose evidence ``prepare_walk`` made (with the same WiFi settings as ``config``);
+    the callbacks are ``Tracker.result``'s and ``on_step`` the filter's."""
     config = config if config is not None else TrackingConfig()
     if config.motion.model == "pdr" and walk.steps is None:
         raise MapfilterError("PDR motion needs the walk's steps: prepare the walk with the PDR motion model")
@@ -434,4 +447,4 @@ def track_prepared(walk: PreparedWalk, config: TrackingConfig | None = None, *, 
     tracker.feed(walk.recording)
     tracker.close()
     tracker.runtime_s += walk.prepare_s  # the walk's evidence is part of tracking it
-    return tracker.result(on_offline_step)
+    return tracker.result(on_offline_step, on_smoothed)

@@ -217,6 +217,19 @@ def test_view_draws_every_floor_and_each_track_row_and_waypoint_on_its_floor(off
             assert len(batch.column("Points2D:positions").to_pylist()[0]) == n
 
 
+def test_track_smooth_in_a_building_draws_the_smoothed_cloud_on_the_floor_shown(office3, tmp_path):
+    """`track --smooth --rerun` in a building (a walk that changes floor): the smoother's cloud at
+    every filter step, each on the floor the viewer shows then (never more points than kept)."""
+    rrd = tmp_path / "walk1.rrd"
+    assert main(["track", str(office3.building), str(office3.walks[0]), "--radiomap", str(office3.radiomap),
+                 *PARTICLES, "--smooth", "--rerun", str(rrd)]) == 0
+    entities = _entities(rrd)
+    counts = _points_per_row(entities["/map/world/smoothed_particles"])
+    steps = len(_points_per_row(entities["/map/world/particles"]))
+    assert len(counts) == steps + 1 and 0 < max(counts) <= 256
+    assert "/map/world/tracks/smoothed/path" in entities
+
+
 def test_view_puts_a_track_without_floors_on_the_logs_header_floor(office3, tmp_path, capsys):
     """A TUM track has no floor column: it is drawn on the floor the log's header names."""
     out = tmp_path / "tracks"

@@ -497,9 +497,9 @@ def test_a_step_without_estimate_or_live_particles_is_drawn_empty(tmp_path):
 
 
 def test_track_smooth_records_the_restarted_run_and_the_smoothed_track(tmp_path):
-    """`track --smooth --rerun`: besides the causal steps, the offline track and the second
-    forward pass (half its particles from the placed start) that the smoother ran over, a path
-    of as many points as the filter has steps."""
+    """`track --smooth --rerun`: besides the causal steps, the offline track, the second forward
+    pass (half its particles from the placed start), a path of as many points as the filter has
+    steps, and the smoother's cloud at every step of the filter's run, beside its own cloud."""
     maps = Path(__file__).resolve().parent.parent / "maps"
     out = tmp_path / "office.rrd"
     assert cli_main(["track", str(maps / "office.yaml"), str(maps / "office_walk.txt.gz"), "--radiomap",
@@ -510,3 +510,6 @@ def test_track_smooth_records_the_restarted_run_and_the_smoothed_track(tmp_path)
     restarted = np.array(rows(entities["/map/world/tracks/restarted/path"], "LineStrips2D:strips")[0][0])
     steps = sum(b.num_rows for b in entities["/map/world/particles"] if "step" in b.schema.names)
     assert restarted.shape == (steps + 1, 2)
+    # one smoothed cloud per step and one for the start (logged at the first step's time)
+    clouds = rows(entities["/map/world/smoothed_particles"], "Points2D:positions")
+    assert len(clouds) == steps + 1 and all(0 < len(cloud) <= 256 for cloud in clouds)

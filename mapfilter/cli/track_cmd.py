@@ -266,7 +266,8 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
             logger.log_step(report)
             progress.update(report.t_s)
 
-        result = track_prepared(walk, config, on_step=on_step, on_offline_step=progress.offline_step)
+        result = track_prepared(walk, config, on_step=on_step, on_offline_step=progress.offline_step,
+                                on_smoothed=logger.log_smoothed if logger.enabled else None)
         progress.finish()  # a walk without steps to place has no second run
         if result.restarted is not None:
             # the second causal run, from the placed start, whose estimates placed the offline track

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numba import njit
@@ -236,12 +237,18 @@ def _estimate(space: _Space, state: np.ndarray, weight: np.ndarray) -> tuple[np.
     return position, spread, circular_mean(state[HEADING], weight), shares
 
 
-def smooth(history: ParticleHistory, plan: FloorPlan, motion: MotionModel, floors: FloorModel | None = None) -> Smoothed:
-    """The smoothed estimate of every recorded step of a filter run (module docstring)."""
+def smooth(history: ParticleHistory, plan: FloorPlan, motion: MotionModel, floors: FloorModel | None = None,
+           on_row: Callable[[float, np.ndarray, np.ndarray], None] | None = None) -> Smoothed:
+    """The smoothed estimate of every recorded step of a filter run (module docstring);
+    ``on_row(t_s, xy_m (M, 2), weight (M,))`` sees each step's kept particles under their
+    smoothed weights (the smoothed cloud, e.g. for the viewer)."""
     if not len(history):
         raise ValueError("the history holds no step")
     space = _Space(plan, floors)
     weights = _backward_weights(history, motion, space, len(history) - 1)
+    if on_row is not None:
+        for step, w in zip(history.steps, weights):
+            on_row(step.t_s, np.ascontiguousarray(step.state[X:Y + 1].T), w)
     rows = [_estimate(space, step.state, w) for step, w in zip(history.steps, weights)]
     shares = np.array([r[3] for r in rows]) if space.floors is not None else None
     return Smoothed(np.array([s.t_s for s in history.steps]), np.array([r[0] for r in rows]),

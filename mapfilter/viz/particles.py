@@ -11,6 +11,7 @@ from mapfilter.viz.canvas import Canvas
 from mapfilter.viz.style import (
     ESTIMATE_COLOUR,
     RED,
+    SMOOTHED_COLOUR,
     TRAIL_PIECE_STEPS,
     Z_ESTIMATE,
     Z_KILLED,
@@ -38,6 +39,16 @@ class ParticleLayer:
         self.max_particles = int(max_particles)
         self._trail_xy: list[tuple[float, float]] = []
         self._trail_pieces = 0
+
+    def draw_smoothed(self, xy_m: np.ndarray, weight: np.ndarray) -> None:
+        """The smoother's cloud of a step (``map/world/smoothed_particles``): the kept particles under
+        their weights given the whole walk, one colour, sized by weight, beside the filter's cloud."""
+        keep = weight_faithful_subsample(weight, self.max_particles)
+        w = weight[keep]
+        radii = -(1.0 + 3.0 * np.sqrt(w / w.max())) if w.size and w.max() > 0 else -1.0
+        self.canvas.log("map/world/smoothed_particles",
+                        self.canvas.rr.Points2D(xy_m[keep], colors=SMOOTHED_COLOUR, radii=radii,
+                                                draw_order=Z_PARTICLES + 1.0))
 
     def draw(self, report: StepReport) -> tuple[np.ndarray, bool]:
         """Draw one step; returns the estimate (2,) and whether it is finite."""

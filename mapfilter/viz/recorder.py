@@ -98,6 +98,9 @@ class NullLogger:
     def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray, floor: Sequence[str] | None = None) -> None:
         pass
 
+    def log_smoothed(self, t_s: float, xy_m: np.ndarray, weight: np.ndarray) -> None:
+        pass
+
     def close(self) -> None:
         pass
 
@@ -182,6 +185,7 @@ class RerunLogger:
         self.events = EventLayer(canvas)
         self.truth = GroundTruthLayer(canvas)
         self.tracks = TrackLayer(canvas, self.truth)
+        self._steps_drawn: list[tuple[float, int, int]] = []  # (t_s, step index, floor shown) of each step
         self.floors = None
         if stack is not None:
             from mapfilter.viz.building import FloorLayer
@@ -284,6 +288,7 @@ class RerunLogger:
     def log_step(self, report: StepReport) -> None:
         """Draw one filter step on both timelines (``trace_time`` and ``step``)."""
         self.canvas.set_time(report.t_s, report.step_index)
+        self._steps_drawn.append((float(report.t_s), int(report.step_index), int(report.floor_index or 0)))
         if self.floors is not None:
             report = self.floors.draw(report)  # the current floor's plan and frame
         estimate_xy_m, has_estimate = self.particles.draw(report)
@@ -291,6 +296,21 @@ class RerunLogger:
         true_heading = self.truth.heading_rad(report.t_s) if report.heading_rad is not None else None
         self.plots.draw(report, error_m, true_heading)
         self.events.draw(report)
+
+    def log_smoothed(self, t_s: float, xy_m: np.ndarray, weight: np.ndarray) -> None:
+        """The smoother's cloud at a step already drawn (``tracking.Tracker.result``'s ``on_smoothed``;
+        a building's stack frame: the particles on the floor shown at that step)."""
+        if not self._steps_drawn:
+            return
+        times = [t for t, _, _ in self._steps_drawn]
+        _, step, floor = self._steps_drawn[max(int(np.searchsorted(times, t_s, side="right")) - 1, 0)]
+        self.canvas.set_time(t_s, step)
+        xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+        weight = np.asarray(weight, dtype=np.float64).reshape(-1)
+        if self.floors is not None:
+            xy, on = self.floors.stack.to_floor(xy)
+            xy, weight = xy[on == floor], weight[on == floor]
+        self.particles.draw_smoothed(xy, weight)
 
     def log_track(self, name: str, t_s: np.ndarray, xy_m: np.ndarray, floor: Sequence[str] | None = None) -> None:
         """Log a finished track: its path (static) and its position over ``trace_time``.

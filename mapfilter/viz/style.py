@@ -31,6 +31,7 @@ BACKGROUND = (235, 235, 235)  # the map view's background, also under transparen
 GT_COLOUR = (40, 200, 40)
 RECOVERY_COLOUR = (220, 0, 220)
 ESTIMATE_COLOUR = (255, 140, 0)
+SMOOTHED_COLOUR = (0, 150, 255)  # the smoother's cloud, beside the filter's (weight-coloured) one
 
 # Draw orders: pictures at the bottom, then paths, particles, the estimate, event markers on top.
 # The ground truth (thin) lies over the tracks (wider), so both stay visible where they agree.
