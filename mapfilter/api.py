@@ -36,7 +36,7 @@ from mapfilter.sensors.beacons import BeaconFit, BeaconFitConfig, BeaconTable
 from mapfilter.sensors.beacons import fit_beacons as _fit_beacons
 from mapfilter.sensors.beacons import labelled_readings
 from mapfilter.sensors.floor_vote import build_building_radio_map
-from mapfilter.sensors.logs import localise, sniff_log_format
+from mapfilter.sensors.logs import LogStream, localise, sniff_log_format
 from mapfilter.sensors.logs import read_log as _read_log
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap
@@ -44,12 +44,12 @@ from mapfilter.sensors.radiomap import build_radio_map as _build_one_floor
 from mapfilter.selftrain import GrowConfig, GrowReport
 from mapfilter.selftrain import grow_radio_map as _grow
 from mapfilter.sensors.recording import Recording
-from mapfilter.tracking import TrackResult
+from mapfilter.tracking import Tracker, TrackResult
 from mapfilter.tracking import track as _track
 from mapfilter.trackio import Track, read_track, write_track
 
-__all__ = ["BeaconFit", "BeaconTable", "Building", "Evaluation", "GrowConfig", "GrowReport", "RadioMap", "Recording",
-           "Track", "TrackResult", "TrackingConfig", "build_radio_map", "enter_trial", "evaluate", "fit_beacons",
+__all__ = ["BeaconFit", "BeaconTable", "Building", "Evaluation", "GrowConfig", "GrowReport", "LogStream", "RadioMap",
+           "Recording", "Track", "TrackResult", "Tracker", "TrackingConfig", "build_radio_map", "enter_trial", "evaluate", "fit_beacons",
            "grow_radio_map", "load_access_points", "load_beacons", "load_map", "load_radio_map", "read_log",
            "read_track", "track", "write_track"]
 

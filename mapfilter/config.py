@@ -64,6 +64,17 @@ RETIRED_SETTINGS: dict[str, str] = {
     "steps.step_length_std_m": "removed: never read (the filter's step length walks by itself)",
     "offline.restart_from_placement": "removed: the offline track always smooths a second forward pass on one floor",
     "offline.restart_radius_m": "now a constant of mapfilter.tracking (RESTART_RADIUS_M)",
+    # the one filter step (filter/kernels/passes.py) has one resampler and one kernel
+    "filter.fused_from_particles": "removed: every particle count takes the one step (filter/kernels/passes.py)",
+    "filter.resampler": "removed: the step resamples systematically",
+    "filter.kernel": "removed: the step's regularisation kernel is Gaussian",
+    **{f"filter.{name}": "a constant of mapfilter.filter.particle_filter" for name in (
+        "recovery_radius_m", "recovery_radius_growth", "recovery_reset_steps", "recovery_measurement_max_age_s",
+        "recovery_heading_keep_fraction")},
+    "motion.pdr.fixed_step_length_m": "removed: the step length is always the state's, a random walk "
+                                      "within motion.pdr.step_length_min_m..max_m",
+    "motion.pdr.step_length_input_sigma_m": "removed with motion.pdr.fixed_step_length_m (the state's random "
+                                            "walk: STEP_LENGTH_WALK_SIGMA_M in mapfilter.filter.models.motion)",
 }
 
 

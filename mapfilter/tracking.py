@@ -308,8 +308,10 @@ class Tracker:
                                 history=history, sources=sources)
         track = placed_track(plan, evidence, steps, self._smoothed(history, plan, None), config.offline)
         restarted = dataclasses.replace(second.track(), name="restarted")
-        if floor_name is not None:
-            track = dataclasses.replace(track, floor=[floor_name] * len(track))
+        if floor_name is not None:  # the floor's probability is the smoother's at or before each row
+            row = np.clip(np.searchsorted(smoothed.t_s, track.t_s, side="right") - 1, 0, len(smoothed) - 1)
+            track = dataclasses.replace(track, floor=[floor_name] * len(track),
+                                        floor_p=None if smoothed.floor_p is None else smoothed.floor_p[row])
             restarted = dataclasses.replace(restarted, floor=[floor_name] * len(restarted))
         return track, restarted
 

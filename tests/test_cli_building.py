@@ -306,6 +306,8 @@ def test_smooth_in_a_building_smooths_the_floor_with_the_track(office3, tmp_path
     np.testing.assert_array_equal(runs[True].causal.xy_m, runs[False].causal.xy_m)
     smoothed = runs[True].offline
     assert set(runs[True].restarted.floor) == set(smoothed.floor) == {"F1"}
+    # the smoother's floor probability goes with the one-floor track
+    assert smoothed.floor_p is not None and np.all((smoothed.floor_p >= 0) & (smoothed.floor_p <= 1))
     assert count_wall_crossings(building.floors[building.floor_index("F1")].plan, smoothed.xy_m) == 0
     changes_floor = track(building, read_ilc(office3.walks[0]), radio_map,
                           config=tracking_config(n_particles=2000, smooth=True), rng=np.random.default_rng(0))

@@ -12,7 +12,7 @@ import pytest
 
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.metrics import FloorScore, floor_at_waypoints, ipin_errors_m, ipin_score
-from mapfilter.sensors.floor_vote import build_building_radio_map, whole_walk_floor_path
+from mapfilter.sensors.floor_vote import build_building_radio_map
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.simulate.building import BuildingSimConfig, FloorChange, simulate_building_walk
 from mapfilter.simulate.ilc_writer import write_ilc
@@ -77,37 +77,6 @@ def test_a_floor_p_outside_0_1_is_refused_with_its_line(tmp_path):
     (tmp_path / "t.csv").write_text("t_s,x_m,y_m,floor,floor_p\n0,0,0,F1,0.5\n1,0,0,F1,1.5\n")
     with pytest.raises(MapfilterError, match=r"t\.csv:3: column floor_p is a probability"):
         read_track(tmp_path / "t.csv")
-
-
-# ---- the whole-walk floor posterior (the offline floor_p) ----------------------------------------
-def test_the_whole_walk_posterior_is_the_brute_force_marginal():
-    """Oracle: the forward-backward posterior of ``whole_walk_floor_path`` equals the marginals of
-    every floor sequence of a small walk weighed by evidence and transitions, one by one."""
-    import itertools
-
-    from mapfilter.sensors.floor_vote import _log_transition_rates
-
-    rng = np.random.default_rng(0)
-    n, f = 6, 3
-    t = np.cumsum(rng.uniform(0.5, 3.0, n))
-    evidence = np.log(rng.dirichlet([1.0] * f, size=n))
-    rates = np.zeros((n - 1, f, f))
-    for i in range(f):  # one storey at a time, at a rate high enough to matter
-        rates[:, i, [j for j in (i - 1, i + 1) if 0 <= j < f]] = 0.2
-    whole = whole_walk_floor_path(t, evidence, rates)
-    trans = [_log_transition_rates(rates[k], t[k + 1] - t[k]) for k in range(n - 1)]
-    marginal = np.zeros((n, f))
-    best, best_path = -np.inf, None
-    for seq in itertools.product(range(f), repeat=n):
-        log_p = evidence[0, seq[0]] + sum(trans[k][seq[k], seq[k + 1]] + evidence[k + 1, seq[k + 1]]
-                                          for k in range(n - 1))
-        marginal[np.arange(n), seq] += np.exp(log_p)
-        if log_p > best:
-            best, best_path = log_p, seq
-    marginal /= marginal.sum(axis=1, keepdims=True)
-    assert np.allclose(whole.posterior, marginal, atol=1e-10)
-    assert tuple(whole.path) == best_path
-    assert np.allclose(whole.path_p, marginal[np.arange(n), whole.path])
 
 
 # ---- a walk over several floors in a building's radio map ---------------------------------------

@@ -10,9 +10,8 @@ its header names. Every walk is then judged with that radio map *without its own
   filter with the floor in its state (``tracking.track``); the score is the
   share of waypoints at which the causal track is on the header's floor (waypoints before the
   first estimate are left out, as for the errors). The same run also gives the offline track
-  (``--smooth``: its floor decided from the whole walk, ``offline.building_track.whole_walk_floors``;
-  on one floor throughout, that floor's placed and map-matched whole-walk track, else the
-  filter's lineage), judged at the row nearest each waypoint in time, as
+  (``--smooth``: the smoother's floor at every row; a walk the smoother keeps on one floor
+  throughout gets that floor's one-floor offline track), judged at the row nearest each waypoint in time, as
   ``mapfilter evaluate --smooth`` judges ``pf-smooth``. The same walk is also tracked with the
   floor given, to compare the horizontal error (causal, at the waypoints);
 - every WiFi-only walk (B1 25, F2's other 28, F3 25, F4 25) gets the floor the WiFi floor
@@ -93,8 +92,8 @@ def main() -> int:
     print(f"{len(recordings)} logs, {len(radio_map)} reference points; fix sigma per floor: "
           + ", ".join(f"{n} {s:.1f} m" for n, s in sigma.items()), flush=True)
     config = TrackingConfig().with_particles(args.particles)
-    # the floor found also gives the offline track (--smooth), its floor decided from the whole
-    # walk; recording the lineage leaves the causal track as it is
+    # the floor found also gives the offline track (--smooth), its floor the smoother's; keeping
+    # the particle history for the smoother leaves the causal track as it is
     smooth_config = TrackingConfig(smooth=True).with_particles(args.particles)
 
     imu_rows, wifi_rows = [], []
@@ -189,9 +188,9 @@ def print_report(report: dict, names: list[str]) -> None:
         print(f"| {floor} | {s['walks']} | {s['waypoints']} | {100 * s['floor_accuracy']:.1f} % "
               f"| {s['error_found_m']['mean']:.2f} m | {s['error_given_m']['mean']:.2f} m "
               f"| {s['error_found_m']['p75']:.2f} m | {s['error_given_m']['p75']:.2f} m |")
-    print("\nThe same walks, offline (--smooth): the floor from the whole walk (Viterbi); on one floor "
-          "throughout, that floor's whole-walk track, else the lineage:")
-    print("| floor | waypoints | floor right, causal | floor right, whole walk | walks all right (whole walk) "
+    print("\nThe same walks, offline (--smooth): the smoother's floor at every row; on one floor "
+          "throughout, that floor's one-floor offline track:")
+    print("| floor | waypoints | floor right, causal | floor right, offline | walks all right (offline) "
           "| mean error, smoothed | p75 smoothed |")
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     for floor, s in report["imu"].items():

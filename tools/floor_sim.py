@@ -139,8 +139,8 @@ def main() -> int:
         radio_map = build_building_radio_map(surveys, [building.floor_index(s.floor_name) for s in surveys],
                                              building.floor_names)
         print(f"radio map: {len(radio_map)} points, {len(radio_map.ap_keys)} APs", flush=True)
-        # smooth: also the offline track, its floor decided from the whole walk (the causal
-        # track is the same with or without it: the lineage is only recorded)
+        # smooth: also the offline track, its floor the smoother's (the causal track is the same
+        # with or without it: the particle history is only recorded)
         smooth_config = TrackingConfig(smooth=True).with_particles(args.particles)
         for w in range(args.walks):
             rng = np.random.default_rng([args.seed, w])

@@ -9,8 +9,8 @@ path-loss likelihood, adaptive with ``TrilaterationConfig``). ``BuildingEvidence
 floors: per floor the ``WifiEvidence`` of that floor's fingerprints, per scan the WiFi floor
 vote, and the barometer between scans (without a radio map, the barometer alone).
 ``NoWifiEvidence`` is one floor without WiFi, where another source (BLE beacons,
-``filter.models.ble``) weighs the particles alone. The run loop (``filter.run``) asks both the same
-questions (``WalkEvidence``).
+``filter.models.ble``) weighs the particles alone. The stream filter
+(``filter.tracker.StreamFilter``) asks them the same questions (``WalkEvidence``).
 """
 
 from __future__ import annotations
