@@ -5,6 +5,7 @@ Simulated walks on the bundled office carry beacon readings drawn from the path-
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 
 import numpy as np
@@ -438,12 +439,16 @@ def test_cli_fit_beacons_track_and_evaluate_with_beacons(office_walk, tmp_path, 
     assert main(["track", str(OFFICE), str(log), "--beacons", str(bad), "--out", str(other)] + common) == 1
     err = capsys.readouterr().err
     assert err.strip() == f"mapfilter: error: {bad}:2: column y is not a number: 'zz'" and not other.exists()
-    # evaluate: the beacon methods beside the others
+    # evaluate: the beacon methods beside the others, pf+ble's offline track too
     assert main(["evaluate", str(OFFICE), str(log), "--radiomap", str(REPO / "maps" / "office_radiomap.npz"),
-                 "--beacons", str(fitted), "--methods", "pf,pf+ble,pf-ble", "--out", str(tmp_path / "eval")]
+                 "--beacons", str(fitted), "--methods", "pf,pf+ble,pf-ble", "--smooth", "--out", str(tmp_path / "eval")]
                 + common) == 0
     out = capsys.readouterr().out
-    assert "| pf+ble |" in out and "| pf-ble |" in out
+    assert "| pf+ble |" in out and "| pf-ble |" in out and "| pf-smooth+ble |" in out
+    with (tmp_path / "eval" / "summary.csv").open() as handle:
+        summary = {row["method"]: row for row in csv.DictReader(handle)}
+    assert int(summary["pf-smooth+ble"]["wall_crossings"]) == 0 and int(summary["pf-smooth+ble"]["missed"]) == 0
+    assert float(summary["pf-smooth+ble"]["mean"]) < float(summary["pf+ble"]["mean"])
     assert main(["evaluate", str(OFFICE), str(log), "--radiomap", str(REPO / "maps" / "office_radiomap.npz"),
                  "--methods", "pf-ble", "--out", str(tmp_path / "eval2")]) == 1
     assert "weigh BLE beacons: give a beacon table (--beacons)" in capsys.readouterr().err

@@ -15,7 +15,7 @@ causal: each method's latest estimate at or before the waypoint). On one floor:
 =============  ==========================================================================
 
 With a BLE beacon table (``beacon_table_path``), also ``pf+ble`` (``pf`` with the beacons'
-readings weighed too) and ``pf-ble`` (the filter on the beacons alone, no WiFi), and in a
+readings weighed too; with ``smooth``, its offline track ``pf-smooth+ble``) and ``pf-ble`` (the filter on the beacons alone, no WiFi), and in a
 building ``pf-floor+ble`` (``pf-floor`` with the beacons). With survey logs or
 ``leave_one_out``, each walk's beacon table is the given one's positions with C, n and the
 floor loss fitted on the labelled walks, never on the walk itself (``sensors.beacons``), and the
@@ -539,9 +539,8 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
                 scorer.add("pf-smooth", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
                            causal=False)
         elif method in BLE_METHODS:
-            # the beacons with the WiFi (pf+ble) or alone (pf-ble); causal only (the offline
-            # stage places a walk by its WiFi)
-            config = dataclasses.replace(tracking, smooth=False, ble=ble_tracking.ble)
+            # the beacons with the WiFi (pf+ble, and its offline track pf-smooth+ble) or alone (pf-ble)
+            config = dataclasses.replace(tracking, smooth=tracking.smooth and method == "pf+ble", ble=ble_tracking.ble)
             with_wifi = method == "pf+ble"
             if (steps is None and config.motion.model == "pdr") or (with_wifi and radio_map is None
                                                                     and ap_table is None):
@@ -554,6 +553,9 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
                                     beacons=beacons)
             outcome = track_prepared(walk, config, rng=rng)
             scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
+            if outcome.offline is not None:
+                scorer.add("pf-smooth+ble", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
+                           causal=False)
         elif method == "kwnn" and radio_map is not None:
             scorer.timed(method, lambda: _fix_track(scan_t, fixes, "kwnn"))
         elif method == "pdr-kwnn" and radio_map is not None:
@@ -611,17 +613,20 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
                 scorer.add("pf-smooth", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
                            causal=False)
         elif method in BLE_METHODS:
-            # pf and pf-floor with the beacons too, and pf on the beacons (and barometer) alone;
-            # causal only (the offline stage places a walk by its WiFi)
+            # pf and pf-floor with the beacons too (pf+ble's offline track: pf-smooth+ble), and pf
+            # on the beacons (and barometer) alone
             if not has_steps or (method == "pf-floor+ble" and truth is None):
                 continue
-            config = dataclasses.replace(ble_tracking, smooth=False)
+            config = dataclasses.replace(ble_tracking, smooth=tracking.smooth and method == "pf+ble")
             wifi = None if method == "pf-ble" else radio_map
             walk = prepare_walk(building, recording, wifi, None, config, steps=steps,
                                 floor=truth if method == "pf-floor+ble" else None,
                                 fix_sigma_by_floor_m=sigma if wifi is not None else None, beacons=beacons)
             outcome = track_prepared(walk, config, rng=rng)
             scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
+            if outcome.offline is not None:
+                scorer.add("pf-smooth+ble", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
+                           causal=False)
         elif method in ("kwnn", "kf", "pdr"):
             if fixes is None:
                 started = time.perf_counter()
