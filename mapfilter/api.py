@@ -104,12 +104,8 @@ def track(building: Building | FloorPlan | PathLike, recording: Recording | Path
     random numbers (default: from ``config.seed``)."""
     building = _building(building, "building")
     recording = _recording(recording, "recording", building)
-    radio_map = _radio_map(radio_map, "radio_map")
-    access_points = _access_points(access_points, "access_points")
-    beacons = _beacons(beacons, "beacons", building)
-    config = _config(config)
-    if floor is not None and not isinstance(floor, str):
-        raise TypeError(f"floor: expected a floor name (str), got {type(floor).__name__}")
+    radio_map, access_points, beacons, config = _tracking_inputs(building, radio_map, access_points, beacons, config,
+                                                                 floor)
     if rng is not None and not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
     return _track(building, recording, radio_map, access_points, config, floor=floor, on_step=on_step,
@@ -226,12 +222,8 @@ def enter_trial(server_url: str, trial: str, building: Building | PathLike, *,
     from mapfilter.tracking import Tracker
 
     building = _building(building, "building")
-    radio_map = _radio_map(radio_map, "radio_map")
-    access_points = _access_points(access_points, "access_points")
-    beacons = _beacons(beacons, "beacons", building)
-    config = _config(config)
-    if floor is not None and not isinstance(floor, str):
-        raise TypeError(f"floor: expected a floor name (str), got {type(floor).__name__}")
+    radio_map, access_points, beacons, config = _tracking_inputs(building, radio_map, access_points, beacons, config,
+                                                                 floor)
     config = config if config is not None else TrackingConfig()
     if offline and not config.smooth:
         config = dataclasses.replace(config, smooth=True)
@@ -255,6 +247,15 @@ def _is_path(value) -> bool:
 def _check_path(value, name: str, what: str) -> None:
     if not _is_path(value):
         raise _type_error(name, f"the path of {what}", value)
+
+
+def _tracking_inputs(building: Building, radio_map, access_points, beacons, config, floor):
+    """The checked radio map, access points, beacons and config of a tracking call (``floor`` a
+    floor name or None)."""
+    if floor is not None and not isinstance(floor, str):
+        raise TypeError(f"floor: expected a floor name (str), got {type(floor).__name__}")
+    return (_radio_map(radio_map, "radio_map"), _access_points(access_points, "access_points"),
+            _beacons(beacons, "beacons", building), _config(config))
 
 
 def _building(value, name: str, optional: bool = False) -> Building | None:

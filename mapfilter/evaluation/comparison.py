@@ -80,7 +80,7 @@ from mapfilter.sensors.radiomap import (GROWN, RadioMap, build_radio_map, check_
                                        merge_radio_maps)
 from mapfilter.sensors.recording import Recording, trace_name
 from mapfilter.sensors.wifi import scans_of
-from mapfilter.tracking import prepare_walk, track_prepared
+from mapfilter.tracking import TrackResult, prepare_walk, track_prepared
 from mapfilter.trackio import Track
 
 ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", "pf+ble", "pf-ble")
@@ -478,6 +478,14 @@ class _Scorer:
             errors.missed if errors else int(self.recording.waypoint_t_s.size), score.wall_crossings, collapses,
             runtime_s, causal, floor_score=score.floor_score, phone=self.recording.phone_model))
 
+    def add_run(self, method: str, outcome: TrackResult) -> None:
+        """A particle filter run: its causal track as ``method`` and, when it made one, its offline
+        track (``pf-smooth``, or ``pf-smooth+ble`` for a run with the beacons)."""
+        self.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
+        if outcome.offline is not None:
+            offline = "pf-smooth+ble" if method.endswith("+ble") else "pf-smooth"
+            self.add(offline, outcome.offline, len(outcome.collapses), outcome.offline_runtime_s, causal=False)
+
     def timed(self, method: str, make: Callable[[], Track], extra_s: float = 0.0) -> None:
         started = time.perf_counter()
         track = make()
@@ -534,10 +542,7 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
             walk = prepared if prepared is not None else prepare_walk(building, recording, None, ap_table, config,
                                                                      steps=steps)
             outcome = track_prepared(walk, config, rng=rng)
-            scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
-            if outcome.offline is not None:
-                scorer.add("pf-smooth", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
-                           causal=False)
+            scorer.add_run(method, outcome)
         elif method in BLE_METHODS:
             # the beacons with the WiFi (pf+ble, and its offline track pf-smooth+ble) or alone (pf-ble)
             config = dataclasses.replace(tracking, smooth=tracking.smooth and method == "pf+ble", ble=ble_tracking.ble)
@@ -552,10 +557,7 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
                 walk = prepare_walk(building, recording, None, ap_table if with_wifi else None, config, steps=steps,
                                     beacons=beacons)
             outcome = track_prepared(walk, config, rng=rng)
-            scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
-            if outcome.offline is not None:
-                scorer.add("pf-smooth+ble", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
-                           causal=False)
+            scorer.add_run(method, outcome)
         elif method == "kwnn" and radio_map is not None:
             scorer.timed(method, lambda: _fix_track(scan_t, fixes, "kwnn"))
         elif method == "pdr-kwnn" and radio_map is not None:
@@ -608,10 +610,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
             walk = prepare_walk(building, recording, radio_map, None, config, steps=steps,
                                 floor=truth if method == "pf-floor" else None, fix_sigma_by_floor_m=sigma)
             outcome = track_prepared(walk, config, rng=rng)
-            scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
-            if outcome.offline is not None:
-                scorer.add("pf-smooth", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
-                           causal=False)
+            scorer.add_run(method, outcome)
         elif method in BLE_METHODS:
             # pf and pf-floor with the beacons too (pf+ble's offline track: pf-smooth+ble), and pf
             # on the beacons (and barometer) alone
@@ -623,10 +622,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
                                 floor=truth if method == "pf-floor+ble" else None,
                                 fix_sigma_by_floor_m=sigma if wifi is not None else None, beacons=beacons)
             outcome = track_prepared(walk, config, rng=rng)
-            scorer.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
-            if outcome.offline is not None:
-                scorer.add("pf-smooth+ble", outcome.offline, len(outcome.collapses), outcome.offline_runtime_s,
-                           causal=False)
+            scorer.add_run(method, outcome)
         elif method in ("kwnn", "kf", "pdr"):
             if fixes is None:
                 started = time.perf_counter()
