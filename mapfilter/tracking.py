@@ -89,6 +89,12 @@ class PreparedWalk:
 # the placed start is a few metres off: 3, 5 and 10 m measured alike)
 RESTART_SHARE = 0.5
 RESTART_RADIUS_M = 5.0
+# The placed shape is bent by the walls within reach of its placement's error (the map
+# matching's anchor_sigma_m); a walk whose smoothed track stays, at its median, farther from
+# every wall than this many times that error keeps the smoothed track: there the rigid shape
+# only adds its drift (IPIN 2023's open floors, 18-30 m: 2.84 m mean against 4.82 m placed;
+# ILC site 1 F1's walks, 0.4-9.6 m, keep the placed shape: docs/accuracy.md)
+WALL_REACH_SIGMAS = 2.0
 
 
 def _to_floors(stack: FloorStack, track: Track) -> Track:
@@ -274,7 +280,8 @@ class Tracker:
         starts half the particles of a second forward pass on that floor's map, and placed through
         that pass's smoothed track it is the offline track (ILC F1 sparse 8.23 m mean against
         8.83 m for the smoothed track alone, and 8.34 m for the shape placed through a restarted
-        filter run: docs/accuracy.md). ``on_smoothed`` sees the smoothed cloud of the filter's own
+        filter run: docs/accuracy.md), unless that smoothed track stays far from every wall
+        (``WALL_REACH_SIGMAS``): then the smoothed track is. ``on_smoothed`` sees the smoothed cloud of the filter's own
         run (``offline.smoother.smooth``'s ``on_row``)."""
         config, stream = self.config, self.stream
         steps = stream.steps if config.motion.model == "pdr" else None
@@ -306,7 +313,10 @@ class Tracker:
         second = run_over_scans(plan, evidence, config.motion, config.filter, self.rng, steps, start_xy_m=start_xy,
                                 start_radius_m=RESTART_RADIUS_M, start_share=RESTART_SHARE, on_step=on_offline_step,
                                 history=history, sources=sources)
-        track = placed_track(plan, evidence, steps, self._smoothed(history, plan, None), config.offline)
+        second_smoothed = self._smoothed(history, plan, None)
+        reach_m = WALL_REACH_SIGMAS * config.offline.map_matching.anchor_sigma_m
+        track = (second_smoothed if np.median(plan.distance_to_wall_m(second_smoothed.xy_m)) > reach_m
+                 else placed_track(plan, evidence, steps, second_smoothed, config.offline))
         restarted = dataclasses.replace(second.track(), name="restarted")
         if floor_name is not None:  # the floor's probability is the smoother's at or before each row
             row = np.clip(np.searchsorted(smoothed.t_s, track.t_s, side="right") - 1, 0, len(smoothed) - 1)

@@ -161,6 +161,43 @@ def test_ipin_evaluate_end_to_end_on_real_logs(ipin2023, tmp_path):
         assert rows[method]["floor_accuracy"] >= 0.8, rows[method]
         assert rows[method]["ipin_score"] >= rows[method]["p75"] - 1e-9
     assert rows["kwnn"]["median"] < 10.0
+    # on these open floors (no plan: nothing for the walls to bend) the offline track is the
+    # smoothed filter, which uses every scan of the walk: better than the causal track
+    assert rows["pf-smooth"]["mean"] < rows["pf"]["mean"], (rows["pf-smooth"], rows["pf"])
     assert {r["phone"] for r in evaluation.summary_rows(by_phone=True)} == {"SM-A520F", "SM-G930F"}
     trial52 = [r for r in evaluation.results if r.trace.endswith("Trial52_repetition01") and r.method == "pf"]
     assert trial52 and trial52[0].floor_score.n_judged == 12
+
+
+@pytest.mark.real_data
+@pytest.mark.slow
+@pytest.mark.parametrize("reach_sigmas", [None, 1e9])
+def test_on_an_open_floor_the_offline_track_is_the_smoothed_filter(ipin2023, tmp_path, reach_sigmas, monkeypatch):
+    """IPIN 2023 trial 03 (floor 0, no plan: an open floor): the walk's smoothed track stays far
+    from every wall, so the offline track is the smoothed filter, not the dead-reckoned shape
+    placed rigidly (its gyro drifts over the 3-minute walk, and no wall bends it back): better than
+    the causal track. ``reach_sigmas=1e9`` places the shape anyway, and is worse (the check
+    that the test can fail)."""
+    import mapfilter.tracking as tracking
+    from mapfilter.api import build_radio_map, read_log, track
+    from mapfilter.cli import main
+    from mapfilter.config import TrackingConfig
+    from mapfilter.evaluation.scoring import score_track
+    from mapfilter.maps.building import Building
+
+    if reach_sigmas is not None:
+        monkeypatch.setattr(tracking, "WALL_REACH_SIGMAS", reach_sigmas)
+    venue = tmp_path / "venue.yaml"
+    assert main(["map", "import-ipin", str(ipin2023 / "plans" / "calib_mapa_Nuremberg.cal"), "--out", str(venue),
+                 "--storey-height", "2.8"]) == 0
+    building = Building.load(venue)
+    logs = [ipin2023 / "logs" / f"IPIN2023_T3_TrainingTrial0{t}_repetition0{r}.txt.gz" for t in (2, 3) for r in (1, 2, 3, 4)]
+    walk = read_log(logs[5], building=building)  # trial 03, repetition 02
+    radio_map = build_radio_map(building, [path for path in logs if path != logs[5]])
+    result = track(building, walk, radio_map, config=TrackingConfig(smooth=True, seed=0).with_particles(5000))
+    causal, offline = (score_track(building, walk, tr, None, causal=c).errors.errors_m.mean()
+                       for tr, c in ((result.causal, True), (result.offline, False)))
+    if reach_sigmas is None:
+        assert offline < causal and offline < 4.0, (offline, causal)
+    else:
+        assert offline > causal, (offline, causal)

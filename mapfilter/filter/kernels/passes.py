@@ -53,7 +53,6 @@ MOVE_FUNCTION = types.FunctionType(MOVE_SIGNATURE)
 LIKELIHOOD_FUNCTION = types.FunctionType(LIKELIHOOD_SIGNATURE)
 
 
-
 def _function_from_addresses(function_type):
     """An intrinsic that makes a first-class function of ``function_type`` from its two addresses
     (the C wrapper's and the compiled function's): the kernels take models' functions as integers,
