@@ -49,9 +49,9 @@ from mapfilter.tracking import track as _track
 from mapfilter.trackio import Track, read_track, write_track
 
 __all__ = ["BeaconFit", "BeaconTable", "Building", "Evaluation", "GrowConfig", "GrowReport", "LogStream", "RadioMap",
-           "Recording", "Track", "TrackResult", "Tracker", "TrackingConfig", "build_radio_map", "enter_trial", "evaluate", "fit_beacons",
-           "grow_radio_map", "load_access_points", "load_beacons", "load_map", "load_radio_map", "read_log",
-           "read_track", "track", "write_track"]
+           "Recording", "Track", "TrackResult", "Tracker", "TrackingConfig", "build_radio_map", "enter_trial",
+           "evaluate", "fit_beacons", "grow_radio_map", "load_access_points", "load_beacons", "load_map",
+           "load_radio_map", "read_log", "read_track", "track", "write_track"]
 
 PathLike = str | os.PathLike
 

@@ -191,7 +191,8 @@ def test_on_an_open_floor_the_offline_track_is_the_smoothed_filter(ipin2023, tmp
     assert main(["map", "import-ipin", str(ipin2023 / "plans" / "calib_mapa_Nuremberg.cal"), "--out", str(venue),
                  "--storey-height", "2.8"]) == 0
     building = Building.load(venue)
-    logs = [ipin2023 / "logs" / f"IPIN2023_T3_TrainingTrial0{t}_repetition0{r}.txt.gz" for t in (2, 3) for r in (1, 2, 3, 4)]
+    logs = [ipin2023 / "logs" / f"IPIN2023_T3_TrainingTrial0{t}_repetition0{r}.txt.gz"
+            for t in (2, 3) for r in (1, 2, 3, 4)]
     walk = read_log(logs[5], building=building)  # trial 03, repetition 02
     radio_map = build_radio_map(building, [path for path in logs if path != logs[5]])
     result = track(building, walk, radio_map, config=TrackingConfig(smooth=True, seed=0).with_particles(5000))

@@ -15,9 +15,9 @@ causal: each method's latest estimate at or before the waypoint). On one floor:
 =============  ==========================================================================
 
 With a BLE beacon table (``beacon_table_path``), also ``pf+ble`` (``pf`` with the beacons'
-readings weighed too; with ``smooth``, its offline track ``pf-smooth+ble``) and ``pf-ble`` (the filter on the beacons alone, no WiFi), and in a
-building ``pf-floor+ble`` (``pf-floor`` with the beacons). With survey logs or
-``leave_one_out``, each walk's beacon table is the given one's positions with C, n and the
+readings weighed too; with ``smooth``, its offline track ``pf-smooth+ble``) and ``pf-ble`` (the
+filter on the beacons alone, no WiFi), and in a building ``pf-floor+ble`` (``pf-floor`` with the
+beacons). With survey logs or ``leave_one_out``, each walk's beacon table is the given one's positions with C, n and the
 floor loss fitted on the labelled walks, never on the walk itself (``sensors.beacons``), and the
 walk's phone gets the RSSI offset those walks give its phone model (``BleConfig.rssi_offset_db``;
 the config's when none of them has it); with a radio map file, the table and config as given.
