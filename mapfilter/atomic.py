@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import csv
 import errno
 import os
 import secrets
@@ -10,7 +11,7 @@ import shutil
 import stat
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 from mapfilter.errors import MapfilterError
@@ -109,6 +110,16 @@ def atomic_paths(*final_paths: str | os.PathLike) -> Iterator[list[Path]]:
         for directory in reversed(made):
             with contextlib.suppress(OSError):  # not empty (something else wrote there): keep it
                 directory.rmdir()
+
+
+def write_csv_atomically(path: str | os.PathLike, header: Sequence[str], rows: Iterable[Sequence[object]]) -> None:
+    """A CSV file of ``header`` and ``rows`` (cells as given: numbers formatted by the caller),
+    written through ``atomic_paths``."""
+    with atomic_paths(path) as (tmp,):
+        with tmp.open("w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(header)
+            writer.writerows(rows)
 
 
 def _create_temporary(final: Path, temps: list[Path]) -> None:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.atomic import atomic_paths, write_csv_atomically
 from mapfilter.errors import MapfilterError, not_a_file
 
 if TYPE_CHECKING:  # only for annotations
@@ -104,11 +104,7 @@ def write_track_csv(track: Track, path: str | os.PathLike, building: Building | 
     """
     if track.latlon_deg is None and building is not None and building.georeference is not None:
         track = with_latlon(track, building)
-    with atomic_paths(path) as (tmp,):
-        with tmp.open("w", newline="") as handle:
-            writer = csv.writer(handle)
-            writer.writerow(csv_header(track))
-            writer.writerows(csv_rows(track))
+    write_csv_atomically(path, csv_header(track), csv_rows(track))
 
 
 def write_track_tum(track: Track, path: str | os.PathLike) -> None:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.atomic import write_csv_atomically
 from mapfilter.errors import MapfilterError
 from mapfilter.maps.building import Building
 from mapfilter.sensors.pathloss import MIN_DISTANCE_M
@@ -251,14 +251,10 @@ class BeaconTable:
 
     def write_csv(self, path: str | os.PathLike) -> None:
         """The table as CSV (``COLUMNS``), written atomically."""
-        with atomic_paths(path) as (tmp,):
-            with tmp.open("w", newline="") as handle:
-                writer = csv.writer(handle)
-                writer.writerow(self.COLUMNS)
-                for i in range(len(self)):
-                    writer.writerow([self.beacon_id[i], f"{self.xy_m[i, 0]:.3f}", f"{self.xy_m[i, 1]:.3f}",
-                                     "" if self.floor[i] is None else self.floor[i], f"{self.c_dbm[i]:.2f}",
-                                     f"{self.n[i]:.3f}", f"{self.floor_loss_db[i]:.2f}"])
+        write_csv_atomically(path, self.COLUMNS, (
+            [self.beacon_id[i], f"{self.xy_m[i, 0]:.3f}", f"{self.xy_m[i, 1]:.3f}",
+             "" if self.floor[i] is None else self.floor[i], f"{self.c_dbm[i]:.2f}", f"{self.n[i]:.3f}",
+             f"{self.floor_loss_db[i]:.2f}"] for i in range(len(self))))
 
 
 def _number(text: str, column: str, path: Path, line_no: int) -> float:

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.atomic import write_csv_atomically
 from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.sensors.radiomap import RSSI_RANGE_DBM, RadioMap, build_radio_map, map_extents_m, metres_outside
 from mapfilter.sensors.wifi import WifiScan, ap_key
@@ -151,14 +151,9 @@ class AccessPointTable:
         )
 
     def write_csv(self, path: str | os.PathLike) -> None:
-        with atomic_paths(path) as (tmp,):
-            with tmp.open("w", newline="") as handle:
-                writer = csv.writer(handle)
-                writer.writerow(self.COLUMNS)
-                for i in range(len(self)):
-                    writer.writerow([self.bssid[i], f"{self.xy_m[i, 0]:.3f}", f"{self.xy_m[i, 1]:.3f}", self.band[i],
-                                     f"{self.c_dbm[i]:.2f}", f"{self.n[i]:.3f}", f"{self.alpha_db_per_m[i]:.3f}",
-                                     f"{self.d_max_m[i]:.1f}"])
+        write_csv_atomically(path, self.COLUMNS, (
+            [self.bssid[i], f"{self.xy_m[i, 0]:.3f}", f"{self.xy_m[i, 1]:.3f}", self.band[i], f"{self.c_dbm[i]:.2f}",
+             f"{self.n[i]:.3f}", f"{self.alpha_db_per_m[i]:.3f}", f"{self.d_max_m[i]:.1f}"] for i in range(len(self))))
 
 
 def access_points_for_map(aps_path: str | os.PathLike | None, floorplan, map_path: str | os.PathLike,
