@@ -329,17 +329,15 @@ class Tracker:
                   on_row: Callable[[float, np.ndarray, np.ndarray], None] | None = None) -> Track:
         """The smoothed means of a forward pass, made wall-free, with each row's floor share."""
         smoothed = smooth(history, plan, self.config.motion.motion_model, floors, on_row)
-        floor_p = None
+        floor_p, runs = None, [np.arange(len(smoothed.t_s))]
         if smoothed.floor_shares is not None:
             floor_of = self.stack.floor_of(smoothed.xy_m)
             floor_p = np.clip(smoothed.floor_shares[np.arange(len(floor_of)), floor_of], 0.0, 1.0)
             # a change of floor is a jump between floors' places in the stack's plan, not a move
             # through its walls: each stretch on one floor walks round its own walls
-            runs = np.split(np.arange(len(floor_of)), np.flatnonzero(np.diff(floor_of)) + 1)
-            parts = [detour_wall_crossings(plan, smoothed.t_s[run], smoothed.xy_m[run]) for run in runs]
-            t_s, xy_m = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
-        else:
-            t_s, xy_m = detour_wall_crossings(plan, smoothed.t_s, smoothed.xy_m)
+            runs = np.split(runs[0], np.flatnonzero(np.diff(floor_of)) + 1)
+        parts = [detour_wall_crossings(plan, smoothed.t_s[run], smoothed.xy_m[run]) for run in runs]
+        t_s, xy_m = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
         row = np.clip(np.searchsorted(smoothed.t_s, t_s), 0, len(smoothed.t_s) - 1)
         return Track(t_s, xy_m, smoothed.std_m[row], smoothed.heading_rad[row], name="pf-smooth",
                      floor_p=None if floor_p is None else floor_p[row])
