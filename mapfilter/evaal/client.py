@@ -1,0 +1,424 @@
+"""The EvaalAPI client: a trial entered online or offline with a ``Tracker``
+(``protocol.py``: the messages).
+
+What an online estimate is. With the request for trial time T the client sends the latest row its
+tracker has given after every line before T (the lines of ``[T - h, T)`` came with the previous
+request). The tracker gives a row once the records it depends on are complete: a WiFi scan waits
+for a record of a later time, the merged sensors wait for each other (a barometer sample every
+0.1-0.17 s), an IMU sample's time is its sensor time (a few ms from its AppTimestamp). So a row
+stamped just before T can come only with the next batch, and the estimate for T is then the row
+before it: what a live system would have shown (on the IPIN 2023 logs a row is sent 0.3-0.5 s after
+its stamp, median, at most 0.65 s). :func:`replay_online` is that client over a log file (the same
+batches, no server): the estimates ``mapfilter evaal`` would send, to the bit. The ``POSI`` rows the
+server may send are ground truth: the tracker does not read them, the offline estimates take their
+times. The offline estimates are the whole-walk track at every 0.5 s of the log's clock from its
+first line and at its ``POSI`` times, interpolated.
+
+Connections. Every request has a timeout; a request whose connection dropped is sent again with
+the same ``label`` (evaalapi.py answers a repeated label with the data it sent for it, so no batch
+is lost or read twice; evaalapi.md does not list the parameter, and a server that refuses it is
+asked without), after asking the trial's ``state`` where it stands.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import gzip
+import http.client
+import math
+import re
+import secrets
+import time
+import urllib.error
+import urllib.parse
+import urllib.request
+from collections.abc import Callable
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+from mapfilter.evaal.protocol import (DEFAULT_HORIZON_S, Estimates, TrialRun, TrialState, competition_times,
+                                      floor_number, format_position, log_clock_offset_s, log_clock_s,
+                                      offline_estimates, parse_position, served_time_s)
+from mapfilter.io.tracks import Track, with_latlon
+from mapfilter.pipeline.tracker import TrackResult, Tracker
+from mapfilter.sensors.logs import LogStream
+from mapfilter.sensors.recording import concatenate
+
+# a scoring trial with V > 2 refuses a request less than h after the previous one (423): the
+# client then waits this much beyond h (the server's clock reads the request a little later)
+_PACE_MARGIN_S = 0.02
+
+
+# ---- HTTP ------------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Reply:
+    """One answer of the server."""
+
+    status: int
+    text: str
+
+
+class _Dropped(Exception):
+    """The connection dropped, timed out or was refused before an answer came."""
+
+
+class EvaalClient:
+    """The EvaalAPI commands of one trial over HTTP (standard library only).
+
+    ``server_url``: the API's root, e.g. ``https://evaal.aaloa.org/evaalapi/``; ``trial``: the
+    trial's name. Every request times out after ``timeout_s``; a dropped connection is retried for
+    up to ``retry_s`` seconds (:meth:`call`), ``on_retry`` told each time.
+    """
+
+    def __init__(self, server_url: str, trial: str, timeout_s: float = 10.0, retry_s: float = 30.0,
+                 on_retry: Callable[[str], None] | None = None,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        parts = urllib.parse.urlsplit(server_url)
+        if parts.scheme not in ("http", "https") or not parts.netloc:
+            raise MapfilterError(f"the server URL must be http://HOST[:PORT]/PATH or https://..., got {server_url!r}")
+        if not trial or not re.fullmatch(r"[A-Za-z0-9_.~-]+", trial):
+            raise MapfilterError(f"a trial name is letters, digits and _.~- only, got {trial!r}")
+        if not (timeout_s > 0 and math.isfinite(timeout_s)) or not (retry_s >= 0 and math.isfinite(retry_s)):
+            raise ValueError("timeout_s must be > 0 and retry_s >= 0")
+        self.trial = trial
+        self.url = server_url.rstrip("/") + "/" + trial
+        self.timeout_s = timeout_s
+        self.retry_s = retry_s
+        self.on_retry = on_retry
+        self.sleep = sleep
+        self.dropped = 0  # requests sent again after a dropped connection
+
+    def request(self, command: str, query: dict[str, str] | None = None, body: bytes | None = None) -> Reply:
+        """One request: ``GET TRIAL/command?query`` (``POST`` with ``body``); raises ``_Dropped``
+        when no answer came."""
+        url = f"{self.url}/{command}" + (f"?{urllib.parse.urlencode(query)}" if query else "")
+        headers = {"Accept-Encoding": "gzip"}  # the server compresses text when asked (Flask-Compress)
+        if body is not None:
+            headers["Content-Type"] = "text/csv; charset=us-ascii"  # the only type POST estimates takes
+        req = urllib.request.Request(url, data=body, headers=headers, method="POST" if body is not None else "GET")
+        try:
+            with urllib.request.urlopen(req, timeout=self.timeout_s) as response:
+                return Reply(response.status, _decode(response.read(), response.headers))
+        except urllib.error.HTTPError as exc:  # an answer, with an error status
+            with exc:
+                try:
+                    text = _decode(exc.read(), exc.headers)
+                except (OSError, http.client.HTTPException):
+                    text = ""
+            return Reply(exc.code, text)
+        except (urllib.error.URLError, OSError, http.client.HTTPException, EOFError) as exc:
+            reason = getattr(exc, "reason", None) or exc
+            raise _Dropped(f"{type(reason).__name__}: {reason}" if str(reason) else type(reason).__name__) from None
+
+    def call(self, command: str, query: dict[str, str] | None = None, body: bytes | None = None,
+             before_retry: Callable[[], Reply | None] | None = None) -> Reply:
+        """:meth:`request`, sent again while the connection drops (for up to ``retry_s``, pausing
+        0.2 s, then twice as long each time up to 2 s). ``before_retry`` runs before each new try
+        and may return the answer instead (e.g. the trial finished meanwhile)."""
+        deadline = time.monotonic() + self.retry_s
+        pause_s = 0.2
+        while True:
+            try:
+                return self.request(command, query, body)
+            except _Dropped as exc:
+                if time.monotonic() + pause_s > deadline:
+                    raise MapfilterError(f"no answer from {self.url}/{command} ({exc}) for {self.retry_s:g} s: the "
+                                         "server is down or unreachable; run the command again to continue "
+                                         "(the trial's state says where it stands)") from None
+                self.dropped += 1
+                if self.on_retry is not None:
+                    self.on_retry(f"{command}: {exc}; trying again in {pause_s:.1f} s")
+                self.sleep(pause_s)
+                pause_s = min(2 * pause_s, 2.0)
+                if before_retry is not None:
+                    answer = before_retry()
+                    if answer is not None:
+                        return answer
+
+    def state(self) -> TrialState:
+        """The trial's state (``GET TRIAL/state``)."""
+        reply = self.call("state")
+        _check_found(reply, self.trial)
+        if reply.status != 200:
+            raise MapfilterError(f"trial {self.trial}: the server answered {reply.status} to state: "
+                                 f"{_short(reply.text)}")
+        return TrialState.parse(reply.text)
+
+    def reload(self) -> TrialState:
+        """Put a test trial back to its start (``GET TRIAL/reload``; a scoring trial refuses: 422)."""
+        reply = self.call("reload")
+        _check_found(reply, self.trial)
+        if reply.status != 200:
+            raise MapfilterError(f"trial {self.trial} cannot be reloaded ({reply.status}: {_short(reply.text)}): only "
+                                 "test trials can")
+        return TrialState.parse(reply.text)
+
+    def estimates(self) -> Reply:
+        """The estimates the server holds (``GET TRIAL/estimates``: ``pts,c,h,s,pos`` lines)."""
+        return self.call("estimates")
+
+
+def _decode(data: bytes, headers) -> str:
+    if (headers.get("Content-Encoding") or "").lower() == "gzip":
+        data = gzip.decompress(data)
+    return data.decode("utf-8", errors="replace")
+
+
+def _short(text: str) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= 200 else text[:200] + "..."
+
+
+def _check_found(reply: Reply, trial: str) -> None:
+    if reply.status == 404:
+        raise MapfilterError(f"the server has no trial {trial!r} (404): check the trial name and the server URL "
+                             "(it ends in /evaalapi/)")
+
+
+class OnlineTracker:
+    """The tracker fed the batches of an online trial; the position of its latest row."""
+
+    def __init__(self, tracker: Tracker, name: str) -> None:
+        self.tracker = tracker
+        self.building = tracker.building
+        self.stream = LogStream(name)
+        self.position: tuple[float, float, int] | None = None
+        self.rows = 0
+
+    def feed(self, text: str) -> None:
+        chunk = self.stream.feed_text(text)
+        self._rows(self.tracker.feed(chunk))
+
+    def close(self) -> TrackResult | None:
+        chunk = self.stream.close() if self.stream.format is not None else None
+        if chunk is not None:
+            self._rows(self.tracker.feed(chunk))
+        self.tracker.close()
+        return self.tracker.result() if self.rows else None
+
+    def _rows(self, rows: Track) -> None:
+        if len(rows):
+            self.rows += len(rows)
+            last = rows.rows(slice(len(rows) - 1, len(rows)))
+            (lat, lon), = with_latlon(last, self.building).latlon_deg
+            floor = floor_number(last.floor[0] if last.floor is not None else self.building.floors[0].name)
+            self.position = (float(lon), float(lat), floor)
+
+
+def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT_HORIZON_S, *,
+               progress: Callable[[str], None] | None = None, progress_every_s: float = 30.0,
+               clock: Callable[[], float] = time.time) -> TrialRun:
+    """Enter an online trial with ``tracker`` (fresh, its building georeferenced): reads the
+    trial's state, then asks for the next ``horizon_s`` of lines until the trial ends, sending with
+    each request the latest row's position (before the first row: the position the server holds).
+
+    A trial another run started is continued from its trial time with this fresh tracker. A request
+    refused as faster than real time (423) is sent again ``h`` after the previous one, and from
+    then on every request waits for that. ``progress`` gets a line every ``progress_every_s`` of
+    trial time (the trial time, the requests, the slack as this client counts it). Returns the
+    run, also when it timed out (``TrialRun.timed_out``); ``MapfilterError`` for an offline or
+    finished trial, a refused request (422) or a lost server.
+    """
+    if not (horizon_s > 0 and math.isfinite(horizon_s)):
+        raise MapfilterError(f"the horizon must be a positive number of seconds, got {horizon_s}")
+    state = client.state()
+    name = f"trial {client.trial}"
+    if state.offline:
+        raise MapfilterError(f"{name} is an offline trial: enter it with --offline")
+    if state.finished:
+        raise MapfilterError(f"{name} has finished{' by a timeout' if state.timed_out else ''}: a test trial can be "
+                             "reloaded (--reload)")
+    held = parse_position(state.position, f"{name}: the server's position")
+    resumed = state.started
+    online = OnlineTracker(tracker, name)
+    trial_s: float | None = state.trial_s if resumed else None
+    sent: list[tuple[float, float, float, int]] = []
+    given: list[int] = []
+    busy: list[float] = []
+    answered_s: float | None = None  # when the previous batch came
+    labels = secrets.token_hex(4)  # this run's own request labels
+    use_labels = True
+    slowdown, slack_max_s = state.slowdown, state.slack_s
+    slack_s, lowest_s = slack_max_s, math.inf
+    previous_s: float | None = None  # wall clock of the previous request the server took
+    previous_h = 0.0
+    paced = False
+    too_fast = requests = 0
+    next_report_s = -math.inf
+    started_s = clock()
+    final: TrialState | None = None
+    reply_text = ""
+    while True:
+        position = held if online.position is None else online.position
+        query = {"horizon": f"{horizon_s:g}", "position": format_position(*position)}
+        if use_labels:
+            query["label"] = f"{labels}-{requests}"
+        if answered_s is not None:
+            busy.append(clock() - answered_s)
+            answered_s = None
+        if paced and previous_s is not None:
+            wait_s = previous_s + previous_h + _PACE_MARGIN_S - clock()
+            if wait_s > 0:
+                client.sleep(wait_s)
+        sent_s = clock()
+        reply = client.call("nextdata", query, before_retry=_where_it_stands(client, trial_s, horizon_s))
+        if reply.status == 423:  # faster than real time: from now on, wait h after the previous one
+            too_fast += 1
+            paced = True
+            client.sleep(_PACE_MARGIN_S)  # the server's clock read the previous one later than ours: never spin
+            continue
+        if reply.status == 422 and use_labels and "label" in reply.text:
+            use_labels = False  # a server without retry labels
+            continue
+        _check_found(reply, client.trial)
+        if reply.status == 405:
+            final = TrialState.parse(reply.text)
+            reply_text = reply.text.strip()
+            if not final.timed_out and trial_s is not None:
+                sent.append((trial_s, *position))  # the server keeps the position of the request that ended it
+                given.append(online.rows)
+                requests += 1
+            break
+        if reply.status == 422:
+            raise MapfilterError(f"{name}: the server refused the request (422): {_short(reply.text)}")
+        if reply.status != 200:
+            raise MapfilterError(f"{name}: the server answered {reply.status}: {_short(reply.text)}")
+        requests += 1
+        if previous_s is not None:
+            slack_s = min(slack_max_s, slack_s + slowdown * previous_h - (sent_s - previous_s))
+        lowest_s = min(lowest_s, slack_s)
+        previous_s, previous_h = sent_s, horizon_s
+        if trial_s is None:  # the first request: the server keeps its initial position at the first line
+            trial_s = served_time_s(reply.text)
+            if trial_s is None:
+                raise MapfilterError(f"{name}: the first batch of the log has no line with a time")
+            sent.append((trial_s, *held))
+        else:
+            sent.append((trial_s, *position))
+        given.append(online.rows)
+        trial_s += horizon_s  # as the server counts it
+        answered_s = clock()
+        online.feed(reply.text)
+        if progress is not None and trial_s >= next_report_s:
+            progress(f"trial time {trial_s:.1f} s: {requests} requests, {online.rows} tracker rows, slack "
+                     f"{slack_s:.1f} s (lowest {lowest_s:.1f} s)")
+            next_report_s = trial_s + progress_every_s
+    result = online.close()
+    wall_s = clock() - started_s
+    slack_left_s, lowest = _server_slack(client)
+    return TrialRun(client.trial, False, Estimates.of_rows(sent), requests, reply_text, final, wall_s,
+                    slack_left_s if slack_left_s is not None else slack_s,
+                    lowest if lowest is not None else (lowest_s if math.isfinite(lowest_s) else None),
+                    too_fast, client.dropped, state.trial_s if resumed else None, result, np.array(given),
+                    np.array(busy))
+
+
+def _where_it_stands(client: EvaalClient, trial_s: float | None, horizon_s: float) -> Callable[[], Reply | None]:
+    """Before a ``nextdata`` is sent again: the trial's state. Finished: that is the answer (as the
+    405 it would give). Still at ``trial_s`` (not taken) or one horizon on (taken: the repeated
+    label gets the same lines back): send it again. Anywhere else: another client moved it."""
+    def check() -> Reply | None:
+        try:
+            reply = client.request("state")
+        except _Dropped:
+            return None  # still down: the retry loop goes on
+        if reply.status != 200:
+            return None
+        state = TrialState.parse(reply.text)
+        if state.finished:
+            return Reply(405, reply.text)
+        if trial_s is not None and state.started and not any(
+                abs(state.trial_s - t) < 1e-3 for t in (trial_s, trial_s + horizon_s)):
+            raise MapfilterError(f"trial {client.trial} moved to trial time {state.trial_s:.3f} s while this client "
+                                 f"was at {trial_s:.3f} s: is another client using it?")
+        return None
+    return check
+
+
+def _server_slack(client: EvaalClient) -> tuple[float | None, float | None]:
+    """(the slack at the last request, the lowest) from the server's own list of estimates."""
+    try:
+        reply = client.request("estimates")
+    except _Dropped:
+        return None, None
+    if reply.status != 200:
+        return None, None
+    slack = []
+    for line in reply.text.splitlines()[2:]:  # the header, then the initial position (s = S)
+        fields = line.split(",")
+        try:
+            slack.append(float(fields[3]))
+        except (IndexError, ValueError):
+            continue
+    return (slack[-1], min(slack)) if slack else (None, None)
+
+
+def run_offline(client: EvaalClient, tracker: Tracker, *, progress: Callable[[str], None] | None = None,
+                clock: Callable[[], float] = time.time) -> TrialRun:
+    """Enter an offline trial with ``tracker`` (fresh, with ``config.smooth``): the whole log
+    (``nextdata?offline``), the whole-walk track, then its estimates (:func:`competition_times`)
+    posted in one go. Returns the run (the POST's answer in ``reply``; a timeout in
+    ``timed_out``); ``MapfilterError`` for an online, started or finished trial."""
+    name = f"trial {client.trial}"
+    state = client.state()
+    if not state.offline:
+        raise MapfilterError(f"{name} is an online trial: enter it without --offline")
+    if state.finished:
+        raise MapfilterError(f"{name} has finished: a test trial can be reloaded (--reload)")
+    if state.started:
+        raise MapfilterError(f"{name} has started: an offline trial sends its log once; a test trial can be "
+                             "reloaded (--reload)")
+    if not tracker.config.smooth:
+        raise ValueError("an offline trial posts the whole-walk track: give the tracker config.smooth")
+    started_s = clock()
+
+    def data_lost() -> Reply | None:
+        state_now = client.state()
+        if state_now.started or state_now.finished:
+            raise MapfilterError(f"{name}: the connection dropped while the server sent the log, and an offline "
+                                 "trial sends it once: a test trial can be reloaded (--reload)")
+        return None
+
+    reply = client.call("nextdata", {"offline": ""}, before_retry=data_lost)
+    _check_found(reply, client.trial)
+    if reply.status != 200:
+        raise MapfilterError(f"{name}: the server answered {reply.status} to nextdata?offline: {_short(reply.text)}")
+    if progress is not None:
+        progress(f"the log: {reply.text.count(chr(10))} lines in {clock() - started_s:.1f} s; tracking (the server "
+                 f"takes the estimates for {state.slack_s:g} s)")
+    estimates, result = offline_run(tracker, reply.text, name)
+    taken_s = clock() - started_s
+    if progress is not None:
+        progress(f"{len(estimates)} estimates after {taken_s:.1f} s: posting")
+
+    def posted_meanwhile() -> Reply | None:
+        # the answer was lost with the connection: the state says whether the estimates were taken
+        state_now = client.state()
+        if not state_now.finished:
+            return None
+        return Reply(405 if state_now.timed_out else 201, "the server took the estimates (its answer was lost)")
+
+    post = client.call("estimates", body="".join(line + "\n" for line in estimates.lines()).encode("ascii"),
+                       before_retry=posted_meanwhile)
+    final = client.state()
+    if post.status not in (201, 409, 405):
+        raise MapfilterError(f"{name}: the server answered {post.status} to the estimates: {_short(post.text)}")
+    return TrialRun(client.trial, True, estimates, 1, post.text.strip(), final, clock() - started_s,
+                    state.slack_s - taken_s, None, dropped=client.dropped, result=result)
+
+
+def offline_run(tracker: Tracker, text: str, name: str) -> tuple[Estimates, TrackResult]:
+    """The whole log's text through ``tracker`` (with smoothing): the offline estimates at the
+    competition's times (:func:`competition_times`) and the run."""
+    stream = LogStream(name)
+    recording = concatenate([stream.feed_text(text), stream.close()])
+    first_s = served_time_s(text)
+    last_s = next((t for t in map(served_time_s, reversed(text.splitlines())) if t is not None), None)
+    if first_s is None or last_s is None:
+        raise MapfilterError(f"{name}: the log has no line with a time")
+    tracker.feed(recording)
+    tracker.close()
+    result = tracker.result()
+    times = competition_times(first_s, last_s, log_clock_s(recording.waypoint_t_s, recording))
+    return offline_estimates(result.offline, tracker.building, times, log_clock_offset_s(recording)), result

@@ -1,0 +1,610 @@
+"""The streaming tracker: a phone's records in, the causal estimate out, as they arrive.
+
+A ``Tracker`` takes a walk's records in chunks of any size (``feed``: a ``Recording`` holding
+some records of each sensor, in time order within each sensor; a whole recording is one chunk)
+and gives the causal track's new rows after each chunk. Tracking a file is a replay of it.
+
+Records are merged across sensors into one time order: a record is released once every sensor
+still streaming has passed its time (a sensor that has sent nothing for ``PAUSED_AFTER_S``
+while others go on is not waited for; a record older than what was released is late and
+dropped, counted in ``late_records``). Released records become events, in time order:
+
+- every detected step (PDR: ``sensors.pdr.OnlinePDR``, causal) moves the particles; for the
+  ``cv``/``rw`` motion models a prediction tick does every ``tick_s``;
+- every WiFi scan weighs them (its measurement from ``filter.evidence``);
+- with a barometer in a building, an idle tick every ``IDLE_TICK_S`` without a step or scan
+  lets the height weigh floors (a lift ride has no steps).
+
+Each event is one filter step, and each step one row of the causal track, stamped with the time
+a live system has it: a scan's own time, a step's ``available_s`` (the IMU sample that
+revealed it). A row depends only on records stamped at or before its time, so the rows of a
+log cut at any time are the rows of the whole log up to the cut, and feeding a log in chunks of
+any size gives the same rows as feeding it whole.
+
+The filter starts at the first scan with a usable measurement, drawn over the map's free space
+from its likelihood (or around a given point); where nothing happened for longer than
+``max_gap_s`` (a phone asleep, a row stamped years ahead), nothing is made for the gap and the
+filter starts afresh at the next usable scan (``gaps``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import heapq
+import math
+from collections.abc import Callable
+from typing import Any, Protocol
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+from mapfilter.filter.estimate import circular_mean
+from mapfilter.filter.events import CollapseEvent, StepReport
+from mapfilter.filter.evidence import WalkEvidence
+from mapfilter.filter.models.interface import FloorModel, MeasurementModel, MotionModel
+from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
+from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.pdr import Steps
+from mapfilter.sensors.recording import Recording
+from mapfilter.sensors.wifi import iter_scans, scans_recording
+from mapfilter.io.tracks import Track
+
+__all__ = ["MOTION_MODELS", "Estimate", "MotionConfig", "CausalFilter", "merge_steps", "run_over_scans"]
+
+MOTION_MODELS = ("pdr", "cv", "rw")
+# a sensor silent this long while others go on is not waited for: the ILC logger writes its IMU
+# rows up to 1.8 s behind its WiFi rows, the GetSensorData logs every sensor in time order
+PAUSED_AFTER_S = 3.0
+# a log stream gives a WiFi scan once a record of a later time came (sensors/logs.LogStream), so the
+# scans are taken as passed at the newest record's time less this (IMU samples' own times run a few ms
+# from the times the scans are cut by); waiting for the next scan held rows 1.2-1.5 s (median; up to
+# PAUSED_AFTER_S) on the IPIN 2023 logs, and no scan came late with this on any of them (docs/ipin.md)
+SCAN_PASSED_BEFORE_NEWEST_S = 0.1
+# at equal times, a step before a scan, ticks before both (a prediction to the scan's time)
+_STEP, _SCAN, _TICK = 0, 1, 2
+# PDR with a barometer in a building: the longest gap between filter steps. A lift ride has no
+# steps, and scans are 2-4 s apart: about a walker's step interval, so the height weighs floors
+# as often standing as walking
+IDLE_TICK_S = 0.5
+# PDR: spread of the start headings around the rotation vector's (which deviates from the ILC
+# waypoint legs by 8.8 deg median); 0.2 rad measured better and steadier across seeds than
+# 30 deg on ILC F1 (docs/accuracy.md)
+INITIAL_HEADING_SIGMA_RAD = 0.2
+
+
+@dataclasses.dataclass(frozen=True)
+class MotionConfig:
+    """How the particles move between measurements."""
+
+    model: str = "pdr"  # pdr: steps and gyro (PDR) | cv: constant velocity | rw: random walk on a circle
+    pdr: PDRMotion = dataclasses.field(default_factory=PDRMotion)  # the PDR motion model (thesis eq. 8.23)
+    constant_velocity: ConstantVelocityMotion = dataclasses.field(default_factory=ConstantVelocityMotion)  # the cv model (Evennou & Marx)
+    random_walk: RandomWalkMotion = dataclasses.field(default_factory=RandomWalkMotion)  # the rw model (Lund thesis eq. 6.6)
+    tick_s: float = 1.0  # cv / rw: prediction interval between scans
+    start_heading_from_rotation_vector: bool = True  # PDR: start headings from the rotation vector when the log has one
+    max_gap_s: float = 60.0  # nothing happened for longer than this: the filter starts afresh at the next scan
+
+    def __post_init__(self) -> None:
+        if self.model not in MOTION_MODELS:
+            raise MapfilterError(f"unknown motion model {self.model!r}: choose one of {', '.join(MOTION_MODELS)}")
+        for name in ("tick_s", "max_gap_s"):
+            value = getattr(self, name)
+            if not (value > 0 and math.isfinite(value)):
+                raise MapfilterError(f"motion setting {name} must be a positive number of seconds, got {value}")
+
+    @property
+    def motion_model(self) -> MotionModel:
+        """The motion model ``model`` names."""
+        return {"pdr": self.pdr, "cv": self.constant_velocity, "rw": self.random_walk}[self.model]
+
+
+class MeasurementSource(Protocol):
+    """A stream of measurements besides the WiFi scans (e.g. BLE beacons, ``filter.models.ble``):
+    records in, measurements out. The tracker merges its records with the others' in time order."""
+
+    stream: str  # the sensor it reads, by the name the tracker merges it under
+    model: MeasurementModel
+
+    def records_of(self, records: Recording) -> tuple:
+        """(t_s, values...) of its sensor in a chunk of records (in time order)."""
+        ...
+
+    def add_records(self, records: tuple, final: bool) -> list[float]:
+        """Its released records (all before anything later released), ``final`` at the end of the
+        walk; returns the times of the measurements they completed, in order (indices follow on)."""
+        ...
+
+    def measurement(self, index: int) -> Any:
+        """Measurement ``index`` (None when it says nothing)."""
+        ...
+
+
+class ReplayedMeasurements:
+    """The measurements another source made of a walk, given again to a second run over it
+    (``run_over_scans``), weighed by ``model`` (e.g. the same beacons on one floor's map)."""
+
+    def __init__(self, stream: str, model: MeasurementModel, times_s: list[float], measurements: list) -> None:
+        self.stream, self.model = stream, model
+        self._times_s, self._measurements = list(times_s), list(measurements)
+        self._given = False
+
+    def records_of(self, records: Recording) -> tuple:
+        """Every measurement's time (and index), once: the run's one chunk holds the whole walk."""
+        if self._given:
+            return np.zeros(0), np.zeros(0, dtype=np.int64)
+        self._given = True
+        return np.asarray(self._times_s, dtype=np.float64), np.arange(len(self._times_s))
+
+    def add_records(self, records: tuple, final: bool) -> list[float]:
+        return [float(t) for t in records[0]] if len(records) > 1 else []
+
+    def measurement(self, index: int) -> Any:
+        return self._measurements[index]
+
+
+# ---- records in: one time order over the sensors ---------------------------------------------------
+_IMU = ("acc", "gyro", "rotvec")
+
+
+class _Merge:
+    """Per-sensor buffers of records released in one time order (``release``)."""
+
+    def __init__(self) -> None:
+        self.pending: dict[str, list] = {}  # sensor -> list of (t_s array, values...) chunks not yet released
+        self.last_t: dict[str, float] = {}  # sensor -> time of its latest record
+        self.released_t = -math.inf  # every record before this has been released
+        self.late_records = 0
+
+    def push(self, sensor: str, t_s: np.ndarray, *values) -> None:
+        if len(t_s) == 0:
+            return
+        late = t_s < self.released_t
+        if late.any():  # older than what was released: a live system has moved on
+            self.late_records += int(np.count_nonzero(late))
+            keep = ~late
+            t_s, values = t_s[keep], tuple(v[keep] if isinstance(v, np.ndarray) else [x for x, k in zip(v, keep) if k]
+                                           for v in values)
+            if len(t_s) == 0:
+                return
+        self.pending.setdefault(sensor, []).append((t_s, *values))
+        self.last_t[sensor] = max(self.last_t.get(sensor, -math.inf), float(t_s[-1]))
+
+    def horizon(self, final: bool) -> float:
+        """Records before this time can be released: every sensor still streaming has passed it."""
+        if final:
+            return math.inf
+        if not self.last_t:
+            return self.released_t
+        newest = max(self.last_t.values())
+        last = dict(self.last_t)
+        if "wifi" in last:
+            last["wifi"] = max(last["wifi"], newest - SCAN_PASSED_BEFORE_NEWEST_S)
+        streaming = [t for t in last.values() if newest - t <= PAUSED_AFTER_S]
+        return max(min(streaming), self.released_t)
+
+    def release(self, horizon: float) -> dict[str, tuple]:
+        """sensor -> (t_s, values...) of its records before ``horizon`` (all with ``inf``)."""
+        out = {}
+        for sensor, chunks in self.pending.items():
+            if not chunks:
+                continue
+            parts = [np.concatenate([c[k] for c in chunks]) if isinstance(chunks[0][k], np.ndarray)
+                     else [x for c in chunks for x in c[k]] for k in range(len(chunks[0]))]
+            t_s = parts[0]
+            n = int(np.searchsorted(t_s, horizon, side="left")) if math.isfinite(horizon) else len(t_s)
+            if n:
+                out[sensor] = tuple(p[:n] for p in parts)
+            rest = tuple(p[n:] for p in parts)
+            self.pending[sensor] = [rest] if len(rest[0]) else []
+        if math.isfinite(horizon):
+            self.released_t = max(self.released_t, horizon)
+        return out
+
+
+def _slice_steps(steps: Steps, start: int, stop: int) -> Steps:
+    """Steps ``start`` to ``stop - 1``."""
+    fields = {f.name: getattr(steps, f.name) for f in dataclasses.fields(Steps)}
+    return Steps(**{name: value if name == "t0_s" or value is None else value[start:stop]
+                    for name, value in fields.items()})
+
+
+def _known_s(steps: Steps) -> np.ndarray:
+    """When a live system has each step (``available_s`` where the detector gives it)."""
+    available = getattr(steps, "available_s", None)
+    return steps.t_s if available is None else available
+
+
+def merge_steps(a: Steps | None, b: Steps) -> Steps:
+    """``a`` followed by ``b`` (steps arrive in time order)."""
+    if a is None or len(a) == 0:
+        return b
+    if len(b) == 0:
+        return a
+    fields = {}
+    for field in dataclasses.fields(Steps):
+        x, y = getattr(a, field.name), getattr(b, field.name)
+        fields[field.name] = x if field.name == "t0_s" else (None if x is None or y is None else np.concatenate([x, y]))
+    return Steps(**fields)
+
+
+# ---- the tracker ------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Estimate:
+    """One row of the causal track: the estimate a live system has at ``t_s``."""
+
+    t_s: float
+    xy_m: np.ndarray  # (2,) in the filter's plan frame (a building: the stack frame)
+    std_m: float
+    heading_rad: float  # NaN without PDR
+    floor_shares: np.ndarray | None  # a building: the weight share of each floor
+    floor_index: int | None  # a building: the estimate's floor
+
+
+class CausalFilter:
+    """The causal filter over a stream of records (module docstring).
+
+    Parameters
+    ----------
+    plan : the filter's plan (a building's stack plan with ``floors``).
+    evidence : the walk's measurements as they come (``filter.evidence``; empty at the start).
+    motion, filter_config, rng : the motion settings, the filter's settings and its generator.
+    pdr : an ``OnlinePDR`` for the motion model ``pdr`` (None: ``steps`` given, or no PDR).
+    steps : the walk's steps already detected (``Steps`` with ``available_s``); used instead of
+        ``pdr`` (an evaluation detects them once per walk).
+    floors : the floor in the state (a building), else one floor.
+    start_xy_m, start_radius_m : start around this point instead of from the first scan's likelihood;
+        ``start_share`` of the particles only (the rest from the likelihood).
+    on_step : called with every ``StepReport`` (the viewer, progress).
+    abs_heading_offset_rad : magnetic north to the map's +y axis (``PDRConfig``), for the start
+        heading from the rotation vector.
+    sources : measurement streams besides the WiFi scans (``MeasurementSource``: BLE beacons).
+    history : keeps a subsample of every step's cloud for the smoother (``offline.smoother``).
+    """
+
+    def __init__(self, plan: FloorPlan, evidence: WalkEvidence, motion: MotionConfig, filter_config: FilterConfig,
+                 rng: np.random.Generator, *, pdr=None, steps: Steps | None = None, floors: FloorModel | None = None,
+                 start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0, start_share: float = 1.0,
+                 on_step: Callable[[StepReport], None] | None = None,
+                 abs_heading_offset_rad: float = 0.0, sources: tuple[MeasurementSource, ...] = (),
+                 history=None) -> None:
+        self.evidence = evidence
+        self.history = history  # an ``offline.smoother.ParticleHistory`` that keeps every step, or None
+        self.sources = tuple(sources)
+        self.motion = motion
+        self.rng = rng
+        self.pf = ParticleFilter(plan, motion.motion_model, filter_config, rng, floors=floors)
+        self._uses_steps = motion.model == "pdr"
+        if self._uses_steps and pdr is None and steps is None:
+            raise ValueError("PDR motion needs the walk's steps or an OnlinePDR")
+        self._pdr = pdr if steps is None else None
+        self._given_steps = steps
+        self._abs_heading_offset_rad = abs_heading_offset_rad
+        self.steps: Steps | None = None  # the steps detected so far
+        self._start_xy_m, self._start_radius_m, self._start_share = start_xy_m, start_radius_m, start_share
+        self._on_step = on_step
+        self._merge = _Merge()
+        self._n_scans = 0  # scans released so far (the evidence may hold them already: a prepared walk)
+        self._n_pressure = 0  # barometer readings released so far (likewise)
+        self._n_measurements = [0] * len(self.sources)
+        self._events: list = []  # heap of (t_s, kind, sequence, payload)
+        self._sequence = 0
+        self._idle_ticks = motion.model == "pdr" and evidence.has_evidence_between_scans()
+        self._rotvec: list[tuple[np.ndarray, np.ndarray]] = []  # released rotation-vector samples
+        # the run's state
+        self.started = False
+        self._waiting_for_scan = False  # after a gap: start afresh at the next usable scan
+        self._t0: float | None = None  # the first start (ticks count from it)
+        self._last_event_t = -math.inf  # the latest event, used or not (the gap rule)
+        self._last_row_t = -math.inf
+        self._next_tick_t = math.inf
+        self.rows: list[Estimate] = []
+        self.gaps: list[tuple[float, float]] = []
+        self.n_scans_used = 0
+        self.closed = False
+
+    # ---- records in --------------------------------------------------------------------------
+    def feed(self, records: Recording) -> list[Estimate]:
+        """Records of the walk (a ``Recording`` holding the next records of each sensor); returns the
+        causal rows they completed."""
+        if self.closed:
+            raise RuntimeError("the tracker is closed")
+        merge = self._merge
+        merge.push("acc", records.acc_t_s, records.acc_mps2)
+        merge.push("gyro", records.gyro_t_s, records.gyro_radps)
+        merge.push("rotvec", records.rotvec_t_s, records.rotvec_xyz)
+        merge.push("pressure", records.pressure_t_s, records.pressure_hpa)
+        scans = list(iter_scans(records))
+        if scans:
+            merge.push("wifi", np.array([s.t_s for s in scans]), scans)
+        for source in self.sources:
+            merge.push(source.stream, *source.records_of(records))
+        return self._advance(final=False)
+
+    def close(self) -> list[Estimate]:
+        """The end of the walk: every record still held is processed; returns the last rows."""
+        if self.closed:
+            return []
+        rows = self._advance(final=True)
+        self.closed = True
+        return rows
+
+    @property
+    def late_records(self) -> int:
+        """Records dropped because they came after later ones had been processed."""
+        return self._merge.late_records
+
+    def _advance(self, final: bool) -> list[Estimate]:
+        merge = self._merge
+        horizon = merge.horizon(final)
+        released = merge.release(horizon)
+        n_before = len(self.rows)
+        self._take_steps(released, final)
+        if "pressure" in released and hasattr(self.evidence, "add_pressure"):
+            t_s, hpa = released["pressure"]
+            first = self._n_pressure
+            self._n_pressure += len(t_s)
+            known = self.evidence.n_pressure  # a prepared walk's evidence holds them already
+            if known < self._n_pressure:
+                self.evidence.add_pressure(t_s[max(known - first, 0):], hpa[max(known - first, 0):])
+        if "wifi" in released:
+            scans = list(released["wifi"][1])
+            first = self._n_scans
+            self._n_scans += len(scans)
+            known = len(self.evidence.scans)
+            if known < self._n_scans:
+                self.evidence.add_scans(scans[max(known - first, 0):])
+            for k, scan in enumerate(scans):
+                self._push_event(float(scan.t_s), _SCAN, first + k)
+        for number, source in enumerate(self.sources):
+            first = self._n_measurements[number]
+            times = source.add_records(released.get(source.stream, (np.zeros(0),)), final)
+            self._n_measurements[number] += len(times)
+            for k, t_s in enumerate(times):
+                self._push_event(float(t_s), _SCAN, first + k, number)
+        if final:  # every event, and ticks up to the last record or event
+            last = max(merge.last_t.values()) if merge.last_t else -math.inf
+            self._run_events(math.inf, inclusive=True)
+            self._ticks_until(max(last, self._last_event_t), inclusive=True)
+        else:
+            self._run_events(horizon, inclusive=False)
+        return self.rows[n_before:]
+
+    def _take_steps(self, released: dict, final: bool) -> None:
+        """The steps the released IMU records revealed, as events at the time each became known."""
+        if not self._uses_steps:
+            return
+        if self._given_steps is not None:
+            steps = self._given_steps
+            done = 0 if self.steps is None else len(self.steps)
+            horizon = self._merge.released_t if not final else math.inf
+            n = int(np.searchsorted(_known_s(steps), horizon, side="left")) if math.isfinite(horizon) else len(steps)
+            new = _slice_steps(steps, done, n)
+        else:
+            t, stream, values = _imu_in_order(released)
+            new = self._pdr.feed(t, stream, values) if t.size else None
+            if final:
+                tail = self._pdr.close()
+                new = tail if new is None else merge_steps(new, tail)
+        if "rotvec" in released:
+            self._rotvec.append(released["rotvec"])
+        if new is None or len(new) == 0:
+            return
+        first = 0 if self.steps is None else len(self.steps)
+        self.steps = merge_steps(self.steps, new)
+        known = _known_s(new)
+        for k in range(len(new)):
+            self._push_event(float(known[k]), _STEP, first + k)
+
+    def _push_event(self, t_s: float, kind: int, index: int, source: int = -1) -> None:
+        """An event at ``t_s``: a step, or measurement ``index`` of the WiFi evidence (source -1) or of
+        ``sources[source]``."""
+        heapq.heappush(self._events, (t_s, kind, self._sequence, source, index))
+        self._sequence += 1
+
+    # ---- events -----------------------------------------------------------------------------
+    def _run_events(self, end_t: float, inclusive: bool) -> None:
+        """Every event before ``end_t`` (at or before, with ``inclusive``), with the ticks between."""
+        events = self._events
+        while events and (events[0][0] < end_t or (inclusive and events[0][0] <= end_t)):
+            t_s, kind, _, source, index = heapq.heappop(events)
+            self._ticks_until(t_s, inclusive=False)
+            self._event(t_s, kind, index, source)
+        if math.isfinite(end_t):
+            self._ticks_until(end_t, inclusive)
+
+    def _ticks_until(self, end_t: float, inclusive: bool) -> None:
+        """Prediction ticks (cv, rw) or idle ticks (PDR with a barometer) before ``end_t``."""
+        while self.started and not self._waiting_for_scan:
+            tick = self._next_tick_t
+            if not (tick < end_t or (inclusive and tick <= end_t)) or tick - self._last_event_t > self.motion.max_gap_s:
+                return
+            self._tick(tick)
+
+    def _schedule_ticks(self) -> None:
+        """The next tick after an event: cv / rw tick every ``tick_s`` from the first start; PDR
+        with a barometer ticks ``IDLE_TICK_S`` after the latest step or scan."""
+        if not self._uses_steps:
+            k = math.floor((self._last_event_t - self._t0) / self.motion.tick_s) + 1
+            self._next_tick_t = self._t0 + k * self.motion.tick_s
+        elif self._idle_ticks:
+            self._next_tick_t = self._last_event_t + IDLE_TICK_S
+        else:
+            self._next_tick_t = math.inf
+
+    def _tick(self, t_s: float) -> None:
+        if self._uses_steps:
+            # PDR standing still (a lift ride): only the barometer has news
+            between = self.evidence.between_scans(t_s)
+            if between is not None:
+                self._step(t_s, None, self.evidence.model, between)
+            self._next_tick_t = t_s + IDLE_TICK_S
+        else:
+            self._step(t_s, None, None, None)
+            self._next_tick_t = t_s + self.motion.tick_s
+
+    def _source(self, source: int):
+        """(model, measurement getter) of the WiFi evidence (-1) or of a source."""
+        if source < 0:
+            return self.evidence.model, self.evidence.measurement
+        return self.sources[source].model, self.sources[source].measurement
+
+    def _event(self, t_s: float, kind: int, index: int, source: int = -1) -> None:
+        if self.started and not self._waiting_for_scan and t_s - self._last_event_t > self.motion.max_gap_s:
+            # start afresh at the next usable scan: the gap's length says nothing about where
+            self.gaps.append((self._last_row_t, t_s))
+            self._waiting_for_scan = True
+        self._last_event_t = t_s
+        if kind == _SCAN:
+            model, measurement_of = self._source(source)
+            measurement = measurement_of(index)
+            if measurement is None:
+                return
+            if not self.started or self._waiting_for_scan:
+                self._start(t_s, model, measurement)
+            else:
+                # cv / rw move over the time since the last step by themselves; PDR only on steps
+                self._step(t_s, None, model, measurement)
+            self.n_scans_used += source < 0
+        elif kind == _STEP and self.started and not self._waiting_for_scan:
+            # in a building with a barometer, the height weighs floors at every step, not only at scans
+            between = self.evidence.between_scans(t_s)
+            step_input = StepInput(1, float(self.steps.heading_change_rad[index]))
+            self._step(t_s, step_input, self.evidence.model if between is not None else None, between)
+        if self.started:
+            self._schedule_ticks()
+
+    def _step(self, t_s: float, step_input: StepInput | None, model, measurement) -> None:
+        dt_s = max(t_s - self._last_row_t, 0.0)
+        report = self.pf.step(t_s, dt_s, step_input, model, measurement)
+        if self.history is not None:
+            self.history.record(t_s, self.pf.particles.state, report.particles_weight, step_input, dt_s,
+                                self.pf.last_jitter_m2, report.collapse is not None)
+        self._add_row(report.t_s, report.estimate_xy_m, report.estimate_std_m,
+                      report.heading_rad if report.heading_rad is not None else math.nan,
+                      report.floor_shares, report.floor_index)
+        self.evidence.observe(report)
+        if self._on_step is not None:
+            self._on_step(report)
+
+    def _start(self, t_s: float, model: MeasurementModel, measurement: Any) -> None:
+        """Particles at a measurement: from its likelihood over the map, or around the start point."""
+        pf = self.pf
+        if self._start_xy_m is None or self.started:
+            pf.initialise_from_measurement(t_s, model, measurement)
+        elif self._start_share < 1.0:
+            pf.initialise_from_measurement_and_around(t_s, model, measurement, self._start_xy_m,
+                                                      self._start_radius_m, self._start_share)
+        else:
+            pf.initialise_around(self._start_xy_m, self._start_radius_m)
+        if self._uses_steps:
+            self._start_headings(t_s)
+        self.started, self._waiting_for_scan = True, False
+        if self._t0 is None:
+            self._t0 = t_s
+        particles = pf.particles
+        report = pf.floors.report(particles.xy_m, particles.weight, pf.estimate_xy_m)
+        heading = circular_mean(particles.heading_rad, particles.weight) if self._uses_steps else math.nan
+        if self.history is not None:
+            self.history.record(t_s, particles.state, particles.weight, None, 0.0, 0.0, True)
+        self._add_row(t_s, pf.estimate_xy_m.copy(), pf.estimate_std_m, heading, report.get("floor_shares"),
+                      report.get("floor_index"))
+
+    def _start_headings(self, t_s: float) -> None:
+        """PDR particles start with the rotation vector's heading (plus spread), else uniform: the
+        gyro heading is relative; the rotation vector (magnetometer) gives the map heading, biased
+        by the building's steel. The heading of the latest step known at the start, else of the
+        latest rotation-vector sample."""
+        n = self.pf.n
+        heading = None
+        if self.motion.start_heading_from_rotation_vector:
+            steps = self.steps
+            known = 0 if steps is None else int(np.searchsorted(_known_s(steps), t_s, side="right"))
+            if known and steps.abs_heading_rad is not None:
+                heading = float(steps.abs_heading_rad[known - 1])
+            else:
+                heading = self._rotation_vector_heading(t_s)
+        if heading is not None and math.isfinite(heading):
+            self.pf.particles.heading_rad = heading + INITIAL_HEADING_SIGMA_RAD * self.rng.standard_normal(n)
+        else:
+            self.pf.particles.heading_rad = self.rng.uniform(-math.pi, math.pi, n)
+
+    def _rotation_vector_heading(self, t_s: float) -> float | None:
+        """The map heading of the phone's forward axis by the latest rotation-vector sample at or before
+        ``t_s`` (``sensors.pdr.rotation_vector_heading`` of one sample), or None."""
+        for t, xyz in reversed(self._rotvec):
+            k = int(np.searchsorted(t, t_s, side="right"))
+            if k:
+                return float(rotation_vector_heading_of(xyz[k - 1], self._abs_heading_offset_rad))
+        return None
+
+    def _add_row(self, t_s, xy_m, std_m, heading_rad, floor_shares, floor_index) -> None:
+        self.rows.append(Estimate(float(t_s), np.asarray(xy_m, dtype=np.float64), float(std_m), float(heading_rad),
+                                  None if floor_shares is None else np.asarray(floor_shares, dtype=np.float64),
+                                  None if floor_index is None else int(floor_index)))
+        self._last_row_t = float(t_s)
+
+    # ---- outputs ----------------------------------------------------------------------------
+    @property
+    def collapses(self) -> tuple[CollapseEvent, ...]:
+        return tuple(self.pf.collapses)
+
+    @property
+    def floor_shares(self) -> np.ndarray | None:
+        """(T, F) the weight share of each floor per row, or None (one floor)."""
+        if not self.rows or any(r.floor_shares is None for r in self.rows):
+            return None
+        return np.array([r.floor_shares for r in self.rows])
+
+    def track(self) -> Track:
+        """The causal rows so far as a track in the plan's frame (``floor_p``: the share of the
+        estimate's floor, in a building)."""
+        rows = self.rows
+        heading = np.array([r.heading_rad for r in rows])
+        shares = self.floor_shares
+        floor_p = None
+        if shares is not None:
+            # a probability (the shares of normalised weights may sum to 1 + 1e-16)
+            floor_p = np.clip(shares[np.arange(len(rows)), [r.floor_index for r in rows]], 0.0, 1.0)
+        return Track(np.array([r.t_s for r in rows]), np.array([r.xy_m for r in rows]).reshape(-1, 2),
+                     np.array([r.std_m for r in rows]), heading if np.isfinite(heading).any() else None, name="pf",
+                     floor_p=floor_p)
+
+def rotation_vector_heading_of(xyz: np.ndarray, offset_rad: float) -> float:
+    """Map heading of the phone's forward (+y) axis from one Android rotation vector (x, y, z of a
+    unit quaternion, w >= 0): atan2(north, east) of the device y axis in East-North-Up."""
+    x, y, z = (float(v) for v in xyz)
+    w = math.sqrt(max(1.0 - x * x - y * y - z * z, 0.0))
+    east = 2.0 * (x * y - z * w)
+    north = 1.0 - 2.0 * (x * x + z * z)
+    return math.atan2(north, east) + offset_rad
+
+
+def _imu_in_order(released: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The released IMU records in one time order (ties: accelerometer, gyroscope, rotation vector)."""
+    parts = [(released[s][0], np.full(len(released[s][0]), k, dtype=np.int8), released[s][1])
+             for k, s in enumerate(_IMU) if s in released]
+    if not parts:
+        return np.zeros(0), np.zeros(0, dtype=np.int8), np.zeros((0, 3))
+    t = np.concatenate([p[0] for p in parts])
+    stream = np.concatenate([p[1] for p in parts])
+    values = np.concatenate([p[2] for p in parts])
+    order = np.lexsort((stream, t))
+    return t[order], stream[order], values[order]
+
+
+def run_over_scans(plan: FloorPlan, evidence: WalkEvidence, motion: MotionConfig, filter_config: FilterConfig,
+                   rng: np.random.Generator, steps: Steps | None, *, floors: FloorModel | None = None,
+                   start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0, start_share: float = 1.0,
+                   on_step: Callable[[StepReport], None] | None = None,
+                   history=None, sources: tuple[MeasurementSource, ...] = ()) -> CausalFilter:
+    """The causal filter over the scans the evidence already holds, the given steps and the
+    ``sources``' measurements (``ReplayedMeasurements``): a second run over a walk, e.g. from a
+    better start."""
+    stream = CausalFilter(plan, evidence, motion, filter_config, rng, steps=steps if motion.model == "pdr" else None,
+                          floors=floors, start_xy_m=start_xy_m, start_radius_m=start_radius_m,
+                          start_share=start_share, on_step=on_step, history=history,
+                          sources=sources)
+    stream.feed(scans_recording(evidence.scans))
+    stream.close()
+    return stream

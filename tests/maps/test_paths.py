@@ -1,0 +1,91 @@
+"""Shortest wall-free paths and tracks made wall-free with them."""
+
+import numpy as np
+
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.paths import detour_wall_crossings, free_path, nearest_free
+from mapfilter.maps.walls import count_wall_crossings
+
+
+def two_rooms() -> FloorPlan:
+    """20 x 10 m at 0.1 m/px: a wall at x = 10 m with a door at y in [7, 8] m, outer walls."""
+    wall = np.zeros((100, 200), dtype=bool)
+    wall[[0, -1], :] = wall[:, [0, -1]] = True
+    wall[:, 99:101] = True
+    wall[20:30, 99:101] = False  # rows 20-29 from the top: y in (7, 8] m
+    return FloorPlan(wall, 0.1, (0.0, 0.0))
+
+
+def test_free_path_goes_through_the_door():
+    plan = two_rooms()
+    a, b = np.array([5.0, 2.0]), np.array([15.0, 2.0])
+    assert count_wall_crossings(plan, np.stack([a, b])) == 1
+    path = free_path(plan, a, b)
+    assert path is not None and np.allclose(path[0], a) and np.allclose(path[-1], b)
+    assert count_wall_crossings(plan, path) == 0
+    at_wall = path[np.abs(path[:, 0] - 10.0) < 0.2]
+    assert np.all((at_wall[:, 1] > 7.0) & (at_wall[:, 1] < 8.0))
+    # about the length of the two straight legs via the door, not much more
+    length = np.linalg.norm(np.diff(path, axis=0), axis=1).sum()
+    direct = np.linalg.norm([5.0, 5.5]) * 2
+    assert direct - 0.5 < length < direct * 1.1
+
+
+def test_no_path_into_a_closed_room_or_from_a_wall():
+    plan = two_rooms()
+    closed = plan.wall_mask.copy()
+    closed[20:30, 99:101] = True
+    sealed = FloorPlan(closed, 0.1, (0.0, 0.0))
+    assert free_path(sealed, [5.0, 2.0], [15.0, 2.0]) is None
+    assert free_path(plan, [10.0, 2.0], [15.0, 2.0]) is None  # starts inside the wall
+
+
+def test_detour_removes_every_crossing_and_keeps_time_order():
+    plan = two_rooms()
+    t = np.array([0.0, 1.0, 2.0, 3.0])
+    xy = np.array([[3.0, 2.0], [5.0, 2.0], [15.0, 2.0], [16.0, 3.0]])
+    t2, xy2 = detour_wall_crossings(plan, t, xy)
+    assert count_wall_crossings(plan, xy2) == 0
+    assert np.all(np.diff(t2) >= 0) and t2[0] == 0.0 and t2[-1] == 3.0
+    for ti, p in zip(t, xy):  # every original point is kept at its time
+        k = np.flatnonzero(np.isclose(t2, ti))
+        assert k.size and np.allclose(xy2[k[0]], p)
+    free_track = np.array([[3.0, 2.0], [5.0, 2.0]])
+    t3, xy3 = detour_wall_crossings(plan, t[:2], free_track)
+    assert np.array_equal(xy3, free_track) and np.array_equal(t3, t[:2])
+
+
+def test_nearest_free_moves_only_blocked_points_and_lands_next_to_the_wall():
+    plan = two_rooms()
+    xy = np.array([[5.0, 2.0], [10.02, 2.0], [-3.0, 5.0]])  # free, inside the wall, off the map
+    out = nearest_free(plan, xy)
+    assert np.array_equal(out[0], xy[0])
+    assert plan.is_free(out[1:]).all()
+    assert abs(out[1, 0] - 10.0) < 0.2 and abs(out[1, 1] - 2.0) < 0.1  # beside the wall, not through the door
+    assert 0.0 < out[2, 0] < 0.25 and abs(out[2, 1] - 5.0) < 0.1
+
+
+def test_wall_free_track_of_a_track_through_a_wall():
+    from mapfilter.maps.paths import wall_free_track
+
+    plan = two_rooms()
+    t = np.linspace(0.0, 10.0, 21)
+    xy = np.column_stack([np.linspace(6.0, 14.0, 21), np.full(21, 3.0)])  # straight through the wall
+    t2, xy2 = wall_free_track(plan, t, xy)
+    assert count_wall_crossings(plan, xy2) == 0 and plan.is_free(xy2).all()
+    assert np.all(np.diff(t2) >= 0) and t2[0] == t[0] and t2[-1] == t[-1]
+    assert xy2[:, 1].max() > 7.0  # it went round by the door
+
+
+def test_wall_free_track_keeps_the_walk_in_one_free_area():
+    from mapfilter.maps.paths import wall_free_track
+
+    wall = two_rooms().wall_mask.copy()
+    wall[60:80, 40:42] = wall[60:80, 58:60] = True  # a closed 1.6 x 1.8 m cell in the left room
+    wall[60:62, 40:60] = wall[78:80, 40:60] = True
+    plan = FloorPlan(wall, 0.1, (0.0, 0.0))
+    t = np.arange(6.0)
+    xy = np.array([[2.0, 5.0], [3.0, 4.0], [5.0, 3.0], [6.0, 3.0], [7.0, 4.0], [8.0, 5.0]])  # [5, 3] is in the cell
+    assert not free_path(plan, xy[1], xy[2])
+    t2, xy2 = wall_free_track(plan, t, xy)
+    assert count_wall_crossings(plan, xy2) == 0 and plan.is_free(xy2).all()
