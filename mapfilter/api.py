@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.config import TrackingConfig
-from mapfilter.engine import Engine
+from mapfilter.runtime.dispatch import Engine
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate as _evaluate
 from mapfilter.filter.events import StepReport
@@ -41,12 +41,12 @@ from mapfilter.sensors.logs import read_log as _read_log
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.radiomap import build_radio_map as _build_one_floor
-from mapfilter.selftrain import GrowConfig, GrowReport
-from mapfilter.selftrain import grow_radio_map as _grow
+from mapfilter.pipeline.selftrain import GrowConfig, GrowReport
+from mapfilter.pipeline.selftrain import grow_radio_map as _grow
 from mapfilter.sensors.recording import Recording
-from mapfilter.tracking import Tracker, TrackResult
-from mapfilter.tracking import track as _track
-from mapfilter.trackio import Track, read_track, write_track
+from mapfilter.pipeline.tracker import Tracker, TrackResult
+from mapfilter.pipeline.tracker import track as _track
+from mapfilter.io.tracks import Track, read_track, write_track
 
 __all__ = ["BeaconFit", "BeaconTable", "Building", "Evaluation", "GrowConfig", "GrowReport", "LogStream", "RadioMap",
            "Recording", "Track", "TrackResult", "Tracker", "TrackingConfig", "build_radio_map", "enter_trial",
@@ -97,7 +97,7 @@ def track(building: Building | FloorPlan | PathLike, recording: Recording | Path
           on_step: Callable[[StepReport], None] | None = None,
           on_offline_step: Callable[[StepReport], None] | None = None,
           rng: np.random.Generator | None = None, beacons: BeaconTable | PathLike | None = None) -> TrackResult:
-    """Track one walk (``tracking.track``): the causal track and, with ``config.smooth``, the
+    """Track one walk (``pipeline.tracker.track``): the causal track and, with ``config.smooth``, the
     offline one. ``radio_map`` (fingerprinting) or ``access_points`` (trilateration), at most
     one; ``beacons``: a BLE beacon table weighed too (alone without the other two); ``floor``
     tracks on one floor of a building; ``on_step`` sees every filter step; ``rng``: the run's
@@ -217,9 +217,10 @@ def enter_trial(server_url: str, trial: str, building: Building | PathLike, *,
     does: online, the streaming tracker's causal estimate with each request for the next 0.5 s of
     log; ``offline``, the whole-walk track's estimates posted in one go. ``building`` must be
     georeferenced; ``beacons``: a BLE beacon table weighed too (or alone). Returns the
-    ``evaal.TrialRun`` (``estimates``: what the server keeps)."""
-    from mapfilter import evaal
-    from mapfilter.tracking import Tracker
+    ``evaal.protocol.TrialRun`` (``estimates``: what the server keeps)."""
+    from mapfilter.evaal.client import EvaalClient, run_offline, run_online
+    from mapfilter.evaal.protocol import check_building
+    from mapfilter.pipeline.tracker import Tracker
 
     building = _building(building, "building")
     radio_map, access_points, beacons, config = _tracking_inputs(building, radio_map, access_points, beacons, config,
@@ -227,11 +228,11 @@ def enter_trial(server_url: str, trial: str, building: Building | PathLike, *,
     config = config if config is not None else TrackingConfig()
     if offline and not config.smooth:
         config = dataclasses.replace(config, smooth=True)
-    evaal.check_building(building)
+    check_building(building)
     tracker = Tracker(building, radio_map, access_points, config, floor=floor, log_name=f"trial {trial}",
                       beacons=beacons)
-    client = evaal.EvaalClient(server_url, trial, timeout_s=timeout_s)
-    return evaal.run_offline(client, tracker) if offline else evaal.run_online(client, tracker)
+    client = EvaalClient(server_url, trial, timeout_s=timeout_s)
+    return run_offline(client, tracker) if offline else run_online(client, tracker)
 
 
 # ---- the arguments: the objects the functions return, or paths; anything else a TypeError ------

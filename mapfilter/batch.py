@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from mapfilter.config import TrackingConfig
-from mapfilter.engine import Engine, run_each
+from mapfilter.runtime.dispatch import Engine, run_each
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.metrics import FloorScore, summarise_errors
 from mapfilter.evaluation.scoring import score_track
@@ -31,8 +31,8 @@ from mapfilter.sensors.logs import read_log, read_log_header
 from mapfilter.sensors.pathloss import AccessPointTable
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording, trace_name
-from mapfilter.tracking import track
-from mapfilter.trackio import Track
+from mapfilter.pipeline.tracker import track
+from mapfilter.io.tracks import Track
 
 STATUSES = ("ok", "failed", "crashed")
 

@@ -21,7 +21,7 @@ from mapfilter.filter.models.ble import BleConfig
 from mapfilter.filter.evidence import TrilaterationConfig, WifiConfig
 from mapfilter.filter.models.building import FloorChangeConfig
 from mapfilter.filter.particle_filter import FilterConfig
-from mapfilter.filter.tracker import MotionConfig
+from mapfilter.filter.causal import MotionConfig
 from mapfilter.offline.whole_walk import OfflineConfig
 from mapfilter.sensors.pdr import PDRConfig
 from mapfilter.settings import (replace_setting, retired_setting_message, settings_from_yaml, settings_to_dict,
@@ -34,7 +34,7 @@ __all__ = ["RETIRED_SETTINGS", "FloorsConfig", "TrackingConfig"]
 _FOLDED = {
     "mapfilter.filter.models.motion": ("motion.pdr.turn_threshold_rad", "motion.pdr.step_length_walk_sigma_m",
                                        "motion.pdr.position_sigma_m"),
-    "mapfilter.filter.tracker": ("motion.idle_tick_s", "motion.initial_heading_sigma_rad"),
+    "mapfilter.filter.causal": ("motion.idle_tick_s", "motion.initial_heading_sigma_rad"),
     "mapfilter.sensors.pdr": tuple(f"steps.{name}" for name in (
         "sample_rate_hz", "lowpass_hz", "lowpass_order", "step_threshold_rms_fraction", "step_threshold_window_s",
         "min_step_threshold_mps3", "gravity_lowpass_hz", "max_step_window_s", "imu_gap_s", "max_gap_s")),
@@ -63,7 +63,7 @@ RETIRED_SETTINGS: dict[str, str] = {
     "steps.step_length_m": "removed: never read (the step length is Weinberg's)",
     "steps.step_length_std_m": "removed: never read (the filter's step length walks by itself)",
     "offline.restart_from_placement": "removed: the offline track always smooths a second forward pass on one floor",
-    "offline.restart_radius_m": "now a constant of mapfilter.tracking (RESTART_RADIUS_M)",
+    "offline.restart_radius_m": "now a constant of mapfilter.pipeline.tracker (RESTART_RADIUS_M)",
     # the one filter step (filter/kernels/passes.py) has one resampler and one kernel
     "filter.fused_from_particles": "removed: every particle count takes the one step (filter/kernels/passes.py)",
     "filter.resampler": "removed: the step resamples systematically",

@@ -26,7 +26,7 @@ from typing import Any
 import yaml
 
 from mapfilter.errors import MapfilterError
-from mapfilter.yamlio import compose_yaml, construct, read_yaml_text
+from mapfilter.io.yamlio import compose_yaml, construct, read_yaml_text
 
 _MAX_INT = 2**63 - 1  # a whole number setting ends up in an int64 (numpy, numba)
 

@@ -9,7 +9,7 @@ import pytest
 from conftest import REPO
 
 from mapfilter.cli import main
-from mapfilter.trackio import read_track
+from mapfilter.io.tracks import read_track
 
 MAPS = REPO / "maps"
 ARGS = [str(MAPS / "office.yaml"), str(MAPS / "office_walk.txt.gz"), "--radiomap", str(MAPS / "office_radiomap.npz")]

@@ -63,7 +63,7 @@ LONG_SCRIPTS = {
     "hostile_inputs.py": "every hostile input in a subprocess: minutes",
     "ipin_eval.py": "the IPIN walk over two floors with every method: minutes",
     "screenshot_rrd.py": "it spawns a viewer (never in tests: without a display it blocks)",
-    "evaal_server.py": "the EvaalAPI server: it serves until stopped; tests/test_evaal_server.py runs it",
+    "evaal_server.py": "the EvaalAPI server: it serves until stopped; tests/evaal/test_evaal_server.py runs it",
 }
 
 
@@ -366,7 +366,7 @@ class DocsRunner:
             except SystemExit as exc:
                 raise AssertionError(f"mapfilter {' '.join(argv)}: exit {exc.code}: {err.getvalue()[-2000:]}") from None
         self.not_made.add((cwd / (args.out if args.out is not None else default_out(args.trial))).resolve())
-        return "skip", ("enters a trial on an EvaalAPI server: its arguments parse (tests/test_evaal_server.py "
+        return "skip", ("enters a trial on an EvaalAPI server: its arguments parse (tests/evaal/test_evaal_server.py "
                         "enters trials on a local server)")
 
     def _script(self, argv: list[str], cwd: Path, command: Command) -> tuple[str, str]:

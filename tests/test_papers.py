@@ -1,4 +1,4 @@
-"""Smoke tests of the paper-reproduction scripts (tools/papers/*.py) on tiny configurations,
+"""Smoke tests of the paper-reproduction scripts (tools/experiments/papers/*.py) on tiny configurations,
 and oracle/property tests of their shared helpers."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-PAPERS = Path(__file__).resolve().parents[1] / "tools" / "papers"
+PAPERS = Path(__file__).resolve().parents[1] / "tools" / "experiments" / "papers"
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ and the speed-ups over the references, one step of each in turn, in the same run
 It also times what a user feels (``--skip-user`` leaves it out):
 
 - ``first_run``: the README's first command (``mapfilter track maps/office.yaml ... --smooth``)
-  as after a fresh install (``NUMBA_CACHE_DIR`` pointed at a new folder that ``mapfilter.warmup``,
+  as after a fresh install (``NUMBA_CACHE_DIR`` pointed at a new folder that ``mapfilter.runtime.warmup``,
   the install's compile, filled; timed too), then again (warm), and once with an empty cache
   (every kernel compiles: the cost the install's compile saves);
 - ``help``: ``mapfilter --help`` and ``mapfilter track --help``;
@@ -374,12 +374,12 @@ def _mapfilter(args: list[str], env: dict | None = None, cwd: Path = REPO) -> tu
 
 def bench_first_run(tmp: Path) -> dict:
     """The README's first command as a new user runs it: after the editable install compiled the
-    numba kernels (``mapfilter.warmup``, which ``pip install -e .`` runs) into an empty numba
+    numba kernels (``mapfilter.runtime.warmup``, which ``pip install -e .`` runs) into an empty numba
     cache, then again (warm); and, for the compile's cost, once with no kernel compiled."""
     out_csv = tmp / "office_track.csv"
     installed = {"NUMBA_CACHE_DIR": str(tmp / "numba_cache_installed")}
     t0, c0 = time.perf_counter(), _children_cpu_s()
-    subprocess.run([sys.executable, "-m", "mapfilter.warmup"], env={**os.environ, **installed}, check=True,
+    subprocess.run([sys.executable, "-m", "mapfilter.runtime.warmup"], env={**os.environ, **installed}, check=True,
                    capture_output=True)
     install_s, install_cpu_s = time.perf_counter() - t0, _children_cpu_s() - c0
     first_s, first_cpu_s, stdout = _mapfilter(README_TRACK + ["--out", str(out_csv)], installed)
@@ -412,7 +412,7 @@ def bench_real_walk(tmp: Path) -> dict:
     from mapfilter.sensors.ilc import read_ilc
     from mapfilter.sensors.radiomap import RadioMap
     from mapfilter.config import TrackingConfig
-    from mapfilter.tracking import track
+    from mapfilter.pipeline.tracker import track
 
     logs_dir = ILC_FLOOR / "path_data_files"
     sparse = [logs_dir / f"{name}.txt.gz" for name in (ILC_FLOOR / "sparse_set.txt").read_text().split()]
@@ -507,7 +507,7 @@ def main(argv: list[str] | None = None) -> int:
                                                        json.loads(args.baseline_config))})
     import numba
 
-    from mapfilter.threads import n_threads
+    from mapfilter.runtime.threads import n_threads
     doc = {
         "unit": "particle-steps per second (median step time; full step forces resampling every step); "
                 "*_cpu_ms: CPU time of the process (all threads) for one step",

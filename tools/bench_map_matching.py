@@ -3,7 +3,7 @@
 Times ``mapfilter.offline.map_matching.map_match`` (the offline whole-walk track's forward-
 backward pass over a 0.25 m grid of the plan's free cells) on real ILC site1/F1 walks, against
 the same steps in plain numpy, one numpy array per operation: ``numpy_map_match`` of
-tests/test_map_matching.py (map_match as it was before its numba kernels, on the same grid),
+tests/offline/test_map_matching.py (map_match as it was before its numba kernels, on the same grid),
 or with ``--git REV`` the module ``mapfilter/offline/map_matching.py`` as it was at git
 revision REV (its own grid code too). The two alternate, walk by walk, so that both see the
 same load on a shared machine; each result is the median of ``--reps`` runs.
@@ -63,7 +63,7 @@ def reference_map_match(git_rev: str | None, tmp: Path):
     """(function, description) of the plain-numpy map matching to compare with."""
     if git_rev is None:
         tests = load_module(REPO / "tests" / "test_map_matching.py", "_bench_test_map_matching")
-        return tests.numpy_map_match, "tests/test_map_matching.py numpy_map_match (same grid)"
+        return tests.numpy_map_match, "tests/offline/test_map_matching.py numpy_map_match (same grid)"
     source = subprocess.run(["git", "show", f"{git_rev}:mapfilter/offline/map_matching.py"], cwd=REPO,
                             check=True, capture_output=True, text=True).stdout
     path = tmp / "map_matching_reference.py"

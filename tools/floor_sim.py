@@ -34,7 +34,7 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from mapfilter.atomic import atomic_paths  # noqa: E402
+from mapfilter.io.atomic import atomic_paths  # noqa: E402
 from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors  # noqa: E402
 from mapfilter.maps.building import Building  # noqa: E402
 from mapfilter.maps.floorplan import FloorPlan  # noqa: E402
@@ -49,7 +49,7 @@ from mapfilter.simulate.building import (  # noqa: E402
 )
 from mapfilter.simulate.ilc_writer import write_ilc  # noqa: E402
 from mapfilter.config import FloorsConfig, TrackingConfig  # noqa: E402
-from mapfilter.tracking import track  # noqa: E402
+from mapfilter.pipeline.tracker import track  # noqa: E402
 
 FLOORS = ("F0", "F1", "F2")
 STOREY_M = 4.0

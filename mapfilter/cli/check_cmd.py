@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.cli.common import check_map_first, check_output_path, waypoints_in_walls, warn
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log  # not at import: --help loads no numerical library
-    from mapfilter.trackio import read_track
+    from mapfilter.io.tracks import read_track
 
     building = None
     if args.truth is not None:
@@ -105,7 +105,7 @@ def _write_truth(recording, building, map_path, out: Path, at) -> None:
     from mapfilter.cli.track_cmd import track_format
     from mapfilter.evaluation.scoring import ground_truth_track
     from mapfilter.sensors.logs import localise
-    from mapfilter.trackio import write_track
+    from mapfilter.io.tracks import write_track
 
     if not recording.has_ground_truth:
         raise MapfilterError("the log has no waypoints: no ground truth to write", recording.path)

@@ -12,9 +12,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from mapfilter.engine import Engine
+from mapfilter.runtime.dispatch import Engine
 from mapfilter.errors import MapfilterError
-from mapfilter.outputs import OutputDirectory, check_output_file, input_paths, is_stdout  # noqa: F401 - for the commands
+from mapfilter.io.outputs import OutputDirectory, check_output_file, input_paths, is_stdout  # noqa: F401 - for the commands
 
 
 def warn(message: str) -> None:
@@ -41,8 +41,8 @@ def add_engine_arguments(parser: argparse.ArgumentParser) -> None:
 
 def engine_from(args: argparse.Namespace) -> Engine:
     """The engine of ``--jobs`` / ``--scheduler``: at most one local worker per core, and only as
-    many as fit in memory (``mapfilter.engine.check_local_jobs``)."""
-    from mapfilter.engine import check_local_jobs
+    many as fit in memory (``mapfilter.runtime.dispatch.check_local_jobs``)."""
+    from mapfilter.runtime.dispatch import check_local_jobs
 
     if args.scheduler is None:
         check_local_jobs(args.jobs)
@@ -112,7 +112,7 @@ def waypoints_in_walls(building, recording) -> str | None:
 # ---- output paths ------------------------------------------------------------------------------
 def check_output_path(path: str | os.PathLike | None, option: str = "--out", directory: bool = False,
                       inputs: Sequence[Path] = (), allow_stdout: bool = False) -> OutputDirectory | None:
-    """Refuse an output path before any work is done (``mapfilter.outputs``: one line naming the
+    """Refuse an output path before any work is done (``mapfilter.io.outputs``: one line naming the
     path and the option).
 
     ``path`` is a file to write (``directory=False``: never one of ``inputs``, a directory, a

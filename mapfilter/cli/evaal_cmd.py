@@ -102,20 +102,21 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _enter(args: argparse.Namespace, config, out: Path) -> int:
-    from mapfilter import evaal
+    from mapfilter.evaal.client import EvaalClient, run_offline, run_online
+    from mapfilter.evaal.protocol import check_building
     from mapfilter.cli.track_cmd import _beacon_table, _wifi_source
     from mapfilter.maps.building import Building
-    from mapfilter.memory import building_extents_m, check_tracking_fits
-    from mapfilter.tracking import Tracker
+    from mapfilter.runtime.memory import building_extents_m, check_tracking_fits
+    from mapfilter.pipeline.tracker import Tracker
 
     building = Building.load(args.map)
-    evaal.check_building(building, args.map)
+    check_building(building, args.map)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     radio_map, ap_table = _wifi_source(args, building, config)
     beacons = _beacon_table(args, building)
-    client = evaal.EvaalClient(args.server, args.trial, timeout_s=args.timeout, retry_s=args.retry,
+    client = EvaalClient(args.server, args.trial, timeout_s=args.timeout, retry_s=args.retry,
                                on_retry=lambda message: warn(f"trial {args.trial}: connection dropped: {message}"))
     if args.reload:
         client.reload()
@@ -128,9 +129,9 @@ def _enter(args: argparse.Namespace, config, out: Path) -> int:
         print(f"trial {args.trial}: {message}", file=sys.stderr, flush=True)
 
     if args.offline:
-        run = evaal.run_offline(client, tracker, progress=progress)
+        run = run_offline(client, tracker, progress=progress)
     else:
-        run = evaal.run_online(client, tracker, args.horizon, progress=progress)
+        run = run_online(client, tracker, args.horizon, progress=progress)
     run.estimates.write(out)
     print(_summary(run, out))
     if run.timed_out:

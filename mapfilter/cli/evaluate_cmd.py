@@ -9,16 +9,16 @@ import json
 import sys
 from pathlib import Path
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.io.atomic import atomic_paths
 from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arguments, add_strict_argument,
                                   announce_estimate, check_map_first, check_output_path, duration_text, engine_from,
                                   estimate_tracking_s, input_paths, walk_spans_s, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
-from mapfilter.memory import building_extents_m, check_tracking_fits
+from mapfilter.runtime.memory import building_extents_m, check_tracking_fits
 
 # mapfilter.evaluation.comparison's methods, written out so that --help imports no numerical
-# library (tests/test_cli_startup.py holds them equal)
+# library (tests/cli/test_cli_startup.py holds them equal)
 ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", "pf+ble", "pf-ble")
 BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", "pf+ble", "pf-floor+ble", "pf-ble")
 
@@ -233,7 +233,7 @@ def _plans_for_pictures(building, logs) -> dict:
 def _write_walk_tracks(out, outcome, plans: dict, building) -> None:
     from mapfilter.evaluation.plots import plot_tracks_on_map
     from mapfilter.sensors.logs import read_log
-    from mapfilter.trackio import write_track_csv
+    from mapfilter.io.tracks import write_track_csv
 
     if not outcome.results:
         return

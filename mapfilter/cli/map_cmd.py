@@ -8,7 +8,7 @@ from pathlib import Path
 
 from mapfilter.cli.common import bounded_float, bounded_int, check_output_path, input_paths, warn
 from mapfilter.errors import MapfilterError, not_a_file
-from mapfilter.outputs import check_output_files
+from mapfilter.io.outputs import check_output_files
 
 # option values, finite and within what a floor plan can use
 _PIXELS = bounded_int(0, 1000)  # a morphology radius or kernel: wall gaps and outlines are a few pixels
@@ -338,7 +338,7 @@ def _import_ilc_site(args: argparse.Namespace, inputs: list[Path]) -> int:
 def run_import_ipin(args: argparse.Namespace) -> int:
     import cv2
 
-    from mapfilter.atomic import atomic_paths
+    from mapfilter.io.atomic import atomic_paths
     from mapfilter.maps import ipin_venue, prepare
 
     if args.out.suffix not in (".yaml", ".yml"):

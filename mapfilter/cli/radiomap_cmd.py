@@ -14,9 +14,9 @@ from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arg
 from mapfilter.errors import MapfilterError
 
 # mapfilter.sensors.pathloss.ApFitConfig.min_observations, written out so that --help imports
-# no numerical library (tests/test_cli_startup.py holds the two equal)
+# no numerical library (tests/cli/test_cli_startup.py holds the two equal)
 _MIN_OBSERVATIONS = 8
-# mapfilter.selftrain.GrowConfig.max_iterations, likewise
+# mapfilter.pipeline.selftrain.GrowConfig.max_iterations, likewise
 _MAX_ITERATIONS = 3
 # mapfilter.sensors.beacons.BeaconFitConfig.min_readings, likewise
 _MIN_BEACON_READINGS = 30
@@ -282,7 +282,7 @@ def run_grow(args: argparse.Namespace) -> int:
     if args.particles < 1:
         raise MapfilterError(f"--particles must be at least 1, got {args.particles}")
     engine = engine_from(args)
-    from mapfilter import memory
+    from mapfilter.runtime import memory
 
     # the particles are refused before the logs are read (about 200 bytes each)
     memory.check_fits(memory.particle_filter_bytes(args.particles), f"--particles {args.particles}",
@@ -290,7 +290,7 @@ def run_grow(args: argparse.Namespace) -> int:
     import numpy as np
 
     from mapfilter.maps.building import Building
-    from mapfilter.selftrain import GrowConfig, grow_radio_map, labelled_and_unlabelled
+    from mapfilter.pipeline.selftrain import GrowConfig, grow_radio_map, labelled_and_unlabelled
     from mapfilter.config import TrackingConfig
     from mapfilter.sensors.radiomap import RadioMap, build_radio_map, check_radio_map_on_map, merge_radio_maps
 

@@ -41,7 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from mapfilter.evaal import read_estimates, score_against_log
+    from mapfilter.evaal.protocol import read_estimates, score_against_log
     from mapfilter.sensors.logs import read_log
 
     recording = read_log(args.log, strict=args.strict, warn=warn)

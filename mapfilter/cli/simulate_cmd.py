@@ -16,16 +16,16 @@ from mapfilter.cli.common import (bounded_float, bounded_int, check_distinct_out
 from mapfilter.errors import MapfilterError
 
 # The defaults of mapfilter.simulate.walk.SimConfig that the options show, written out so that
-# --help imports no numerical library (tests/test_cli_startup.py holds them equal to SimConfig).
+# --help imports no numerical library (tests/cli/test_cli_startup.py holds them equal to SimConfig).
 _SIM_DEFAULTS = {"duration_s": 120.0, "survey_spacing_m": 2.0, "survey_scans_per_point": 3,
                  "shadowing_sigma_db": 5.0, "wall_loss_2g4_db": 3.5, "wall_loss_5g_db": 5.0,
                  "start_time_ms": 1_600_000_000_000}
-# ...and of mapfilter.simulate.building.BuildingSimConfig (tests/test_cli_simulate_building.py
+# ...and of mapfilter.simulate.building.BuildingSimConfig (tests/cli/test_cli_simulate_building.py
 # holds them equal to the library's).
 _BUILDING_DEFAULTS = {"segment_s": (25.0, 40.0), "floor_loss_db": 15.0}
 DEFAULT_FLOOR_CHANGES = 3  # as tools/floor_sim.py walks
 # The limits of mapfilter.simulate.walk (MAX_*), written out for the same reason
-# (tests/test_cli_startup.py holds them equal): far beyond any real use, they keep a typo from
+# (tests/cli/test_cli_startup.py holds them equal): far beyond any real use, they keep a typo from
 # asking for more memory or time than the machine has.
 _SIM_LIMITS = {"MAX_DURATION_S": 14400.0, "MAX_SCANS_PER_POINT": 100, "MAX_DB": 100.0,
                "MAX_START_TIME_MS": 4_102_444_800_000}

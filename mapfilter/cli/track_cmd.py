@@ -10,14 +10,14 @@ import sys
 import time
 from pathlib import Path
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.io.atomic import atomic_paths
 from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arguments, add_strict_argument,
                                   announce_estimate, announce_recording_size, bounded_int, check_distinct_outputs,
                                   check_map_first, check_output_path, duration_text, engine_from, estimate_tracking_s,
                                   input_paths, is_stdout, walk_spans_s, warn)
 from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
 from mapfilter.errors import MapfilterError
-from mapfilter.memory import building_extents_m, check_tracking_fits
+from mapfilter.runtime.memory import building_extents_m, check_tracking_fits
 
 TRACK_FORMATS = ("csv", "tum")
 
@@ -216,8 +216,8 @@ def _wifi_source(args: argparse.Namespace, building, config):
 def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
-    from mapfilter.tracking import prepare_walk, track_prepared
-    from mapfilter.trackio import write_track
+    from mapfilter.pipeline.tracker import prepare_walk, track_prepared
+    from mapfilter.io.tracks import write_track
 
     out_format = track_format(args.out, args.format)
     spawn = args.spawn and _viewer_can_start()
@@ -226,7 +226,7 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
     if args.evaal_out is not None:
-        from mapfilter.evaal import check_replay
+        from mapfilter.evaal.replay import check_replay
 
         check_replay(building, log_path, args.map)
     recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
@@ -287,8 +287,8 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
             result.access_points.write_csv(args.adapted_aps)
             written.append((args.adapted_aps, "adapted access-point table"))
         if args.evaal_out is not None:
-            from mapfilter.evaal import replay_log
-            from mapfilter.tracking import Tracker
+            from mapfilter.evaal.replay import replay_log
+            from mapfilter.pipeline.tracker import Tracker
 
             replay = replay_log(Tracker(building, radio_map, ap_table, config, floor=floor), log_path)
             replay.estimates.write(args.evaal_out)
@@ -312,8 +312,8 @@ def _run_live(args: argparse.Namespace, config) -> int:
     as soon as it exists, ``--out`` written at the end."""
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import LogStream
-    from mapfilter.tracking import Tracker
-    from mapfilter.trackio import csv_header, csv_rows, with_latlon, write_track
+    from mapfilter.pipeline.tracker import Tracker
+    from mapfilter.io.tracks import csv_header, csv_rows, with_latlon, write_track
 
     if config.smooth:
         raise MapfilterError("--smooth needs the whole walk: a live run (LOG -) gives the causal track")
@@ -486,7 +486,7 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import missing_log
     from mapfilter.sensors.recording import trace_name
-    from mapfilter.trackio import write_track
+    from mapfilter.io.tracks import write_track
 
     if args.spawn:
         raise MapfilterError("--spawn is for one walk, not for --out-dir")

@@ -3,7 +3,7 @@
 Every setting lives in the ``TrackingConfig`` (``mapfilter config show`` prints them all); a
 flag given on the command line overrides the file's value, a flag not given leaves it alone.
 The defaults are written out here so that ``--help`` imports no numerical library;
-``tests/test_cli_startup.py`` holds them equal to the library's.
+``tests/cli/test_cli_startup.py`` holds them equal to the library's.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 from mapfilter.cli.common import bounded_float, non_negative_int, positive_int
 
-MOTION_MODELS = ("pdr", "cv", "rw")  # filter.tracker.MOTION_MODELS
+MOTION_MODELS = ("pdr", "cv", "rw")  # filter.causal.MOTION_MODELS
 FINGERPRINT_MODELS = ("fix", "blend", "likelihood")  # filter.evidence.FINGERPRINT_MODELS
 DEFAULT_PARTICLES = 10_000  # FilterConfig.n_particles
 DEFAULT_FINGERPRINT_MODEL = "blend"  # WifiConfig.fingerprint_model

@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.cli.common import check_map_first, check_output_path, input_paths, warn
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
-    from mapfilter.trackio import read_track
+    from mapfilter.io.tracks import read_track
     from mapfilter.viz import view_map
 
     if args.rerun is not None and args.rerun.suffix != ".rrd":

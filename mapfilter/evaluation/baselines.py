@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from mapfilter.sensors.pdr import Steps, wrap_angle
-from mapfilter.trackio import Track
+from mapfilter.io.tracks import Track
 
 # chi-square 2-dof quantile at 99.9 %: a fix farther than this (Mahalanobis) is an outlier
 _GATE_CHI2_2DOF = 13.82

@@ -57,7 +57,7 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.config import TrackingConfig
-from mapfilter.engine import Engine, run_each
+from mapfilter.runtime.dispatch import Engine, run_each
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.baselines import kalman_track, pdr_kwnn_track, pdr_track
 from mapfilter.evaluation.diagnostics import DIAGNOSTIC_COLUMNS, walk_diagnostics
@@ -65,7 +65,7 @@ from mapfilter.evaluation.metrics import (FloorScore, availability, floor_detect
                                          summarise_errors)
 from mapfilter.evaluation.scoring import score_track
 from mapfilter.filter.evidence import calibrated_fix_sigma_m
-from mapfilter.selftrain import GrowConfig, grow_radio_map, grown_by_fold
+from mapfilter.pipeline.selftrain import GrowConfig, grow_radio_map, grown_by_fold
 from mapfilter.maps.building import Building
 from mapfilter.sensors.beacons import (BeaconReadings, BeaconTable, check_beacons_on_map, fit_beacons,
                                       labelled_readings)
@@ -80,8 +80,8 @@ from mapfilter.sensors.radiomap import (GROWN, RadioMap, build_radio_map, check_
                                        merge_radio_maps)
 from mapfilter.sensors.recording import Recording, trace_name
 from mapfilter.sensors.wifi import scans_of
-from mapfilter.tracking import TrackResult, prepare_walk, track_prepared
-from mapfilter.trackio import Track
+from mapfilter.pipeline.tracker import TrackResult, prepare_walk, track_prepared
+from mapfilter.io.tracks import Track
 
 ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", "pf+ble", "pf-ble")
 BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", "pf+ble", "pf-floor+ble", "pf-ble")

@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.io.atomic import atomic_paths
 
 
 def plot_error_cdf(errors_by_method: dict[str, np.ndarray], path: str | os.PathLike, title: str = "") -> None:

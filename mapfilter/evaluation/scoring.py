@@ -11,7 +11,7 @@ from mapfilter.evaluation.metrics import FloorScore, WaypointErrors, errors_at_w
 from mapfilter.maps.building import Building
 from mapfilter.maps.walls import count_wall_crossings
 from mapfilter.sensors.recording import Recording
-from mapfilter.trackio import Track
+from mapfilter.io.tracks import Track
 
 
 @dataclasses.dataclass(frozen=True)

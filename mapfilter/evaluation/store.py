@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.io.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.comparison import MethodResult, WalkOutcome
 from mapfilter.evaluation.metrics import FloorScore
-from mapfilter.trackio import Track
+from mapfilter.io.tracks import Track
 
 __all__ = ["file_digest", "read_outcome", "run_key", "write_outcome"]
 

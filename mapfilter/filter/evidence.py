@@ -10,7 +10,7 @@ floors: per floor the ``WifiEvidence`` of that floor's fingerprints, per scan th
 vote, and the barometer between scans (without a radio map, the barometer alone).
 ``NoWifiEvidence`` is one floor without WiFi, where another source (BLE beacons,
 ``filter.models.ble``) weighs the particles alone. The stream filter
-(``filter.tracker.StreamFilter``) asks them the same questions (``WalkEvidence``).
+(``filter.causal.CausalFilter``) asks them the same questions (``WalkEvidence``).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ class WifiConfig:
     # differently where the survey is thin
     fingerprint_model: str = "blend"  # fix: KWNN fix + Gaussian | blend: fix averaged with the radio-map likelihood's best cell | likelihood: per-particle radio map
     # Evennou & Marx fix 5 m for a dense office survey; the bundled office calibrates to 2.4 m,
-    # ILC site1 F1 (leave-one-trace-out) to about 18 m, where 5-30 m tried by tools/tune_ilc.py
+    # ILC site1 F1 (leave-one-trace-out) to about 18 m, where 5-30 m tried by tools/experiments/tune_ilc.py
     # put the best at 15-20 m: the calibration lands where tuning would
     fix_sigma_m: float | None = None  # Gaussian of the fix; null: calibrated per radio map (RMS of its cross-validated KWNN errors / sqrt 2)
     kwnn_k: int = 4  # neighbours of a KWNN fix (Chang et al.)

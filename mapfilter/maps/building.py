@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.io.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
 from mapfilter.maps.floorplan import FloorPlan, is_number, read_yaml_mapping
 from mapfilter.maps.georef import LocalFrame

@@ -25,9 +25,9 @@ import cv2
 import numpy as np
 import yaml
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.io.atomic import atomic_paths
 from mapfilter.errors import MapfilterError, not_a_file
-from mapfilter.yamlio import load_yaml
+from mapfilter.io.yamlio import load_yaml
 
 # map_server's defaults; pixel values we write: 0 = occupied, 254 = free.
 DEFAULT_OCCUPIED_THRESH = 0.65
@@ -372,7 +372,7 @@ def read_gray_image(path: str | os.PathLike) -> np.ndarray:
 
 
 def read_yaml_mapping(path: Path, what: str = "a map YAML") -> dict:
-    """The mapping of keys in a YAML file (also JSON), read by ``mapfilter.yamlio`` (size and
+    """The mapping of keys in a YAML file (also JSON), read by ``mapfilter.io.yamlio`` (size and
     alias limits, duplicate keys refused); ``MapfilterError`` naming the file (and the line)
     when it is missing, a directory, malformed or not a mapping."""
     meta = load_yaml(Path(path), what)

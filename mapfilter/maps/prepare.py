@@ -31,9 +31,9 @@ import numpy as np
 import shapely
 from shapely.geometry import shape as geojson_shape
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.io.atomic import atomic_paths
 from mapfilter.errors import MapfilterError, not_a_file
-from mapfilter.yamlio import load_yaml
+from mapfilter.io.yamlio import load_yaml
 from mapfilter.maps.floorplan import MAX_IMAGE_PIXELS, FloorPlan, SourceImage, check_image_size, plan_geometry_problem
 
 EARTH_RADIUS_M = 6378137.0  # Web Mercator sphere (ILC README)
@@ -201,7 +201,7 @@ def prepare_lines(
 
 def _check_morphology_fits(mask: np.ndarray, radius_px: int, what: str) -> None:
     """A kernel of ``radius_px`` and the image padded by it, refused before cv2 allocates them."""
-    from mapfilter.memory import check_fits
+    from mapfilter.runtime.memory import check_fits
 
     side = 2 * int(radius_px) + 1
     rows, cols = mask.shape[:2]
@@ -707,7 +707,7 @@ def write_map(plan: FloorPlan, yaml_path: str | os.PathLike, preview: bool = Tru
 # The ILC floor images: transparent corridors, light-blue shops with ~2 px darker outlines that
 # the walkers brush along, grey shop names, a few marks in the corridors. Eroding the walls by
 # 2 px along free space opens the outlines and also removes 1-2 px text strokes and marks in
-# the corridors (measured with tools/check_ilc_maps.py: 0 px leaves 96.6 % / 85.5 % of F1 / F2
+# the corridors (measured with tools/experiments/check_ilc_maps.py: 0 px leaves 96.6 % / 85.5 % of F1 / F2
 # waypoints free in 3-4 pieces, 1-2 px give 100 % in one piece).
 # The outside stays walkable on this route (the transparent outside reaches the corridors through
 # the entrances; the GeoJSON route walls it).

@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.threads import for_slices
+from mapfilter.runtime.threads import for_slices
 
 # The walk and its kernels are compiled without numba's reference counting (_nrt=False:
 # they allocate nothing). With it, every call counted its array arguments in and out with

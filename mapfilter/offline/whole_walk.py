@@ -2,7 +2,7 @@
 moved onto free space and map-matched.
 
 Dead reckoning gets a walk's *shape* right; what WiFi gets wrong is where that shape sits. The
-offline track (``tracking.Tracker``) places the shape twice: through the causal track, to start a
+offline track (``pipeline.tracker.Tracker``) places the shape twice: through the causal track, to start a
 second forward pass near the walk's true start, and through that pass's smoothed track
 (``offline.smoother``), for the offline track itself. Each placement:
 
@@ -29,7 +29,7 @@ from mapfilter.maps.paths import wall_free_track
 from mapfilter.offline.map_matching import MapMatchConfig, map_match
 from mapfilter.offline.placement import PlacementConfig, WalkPlacement, place_walk, shift_onto_free_space
 from mapfilter.sensors.pdr import Steps
-from mapfilter.trackio import Track
+from mapfilter.io.tracks import Track
 
 
 @dataclasses.dataclass(frozen=True)

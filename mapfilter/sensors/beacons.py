@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapfilter.atomic import write_csv_atomically
+from mapfilter.io.atomic import write_csv_atomically
 from mapfilter.errors import MapfilterError
 from mapfilter.maps.building import Building
 from mapfilter.sensors.pathloss import MIN_DISTANCE_M
@@ -153,7 +153,7 @@ class BeaconTable:
         path = Path(path)
         if not path.is_file():
             raise MapfilterError("file not found", path)
-        from mapfilter.yamlio import decode_text
+        from mapfilter.io.yamlio import decode_text
 
         text = decode_text(path.read_bytes(), path, "a beacon table")
         with io.StringIO(text, newline="") as handle:

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mapfilter.atomic import write_csv_atomically
+from mapfilter.io.atomic import write_csv_atomically
 from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.sensors.radiomap import RSSI_RANGE_DBM, RadioMap, build_radio_map, map_extents_m, metres_outside
 from mapfilter.sensors.wifi import WifiScan, ap_key
@@ -99,7 +99,7 @@ class AccessPointTable:
         rows: dict[str, list] = {c: [] for c in cls.COLUMNS}
         lines: list[int] = []
         first_line: dict[tuple[str, str], int] = {}  # (bssid, band) -> its line
-        from mapfilter.yamlio import decode_text
+        from mapfilter.io.yamlio import decode_text
 
         # UTF-8 with or without the byte-order mark Excel writes; another encoding is one line
         text = decode_text(path.read_bytes(), path, "an access-point table")

@@ -78,7 +78,7 @@ IMU_GAP_S = 3.0  # accelerometer or gyroscope silent longer than this: the stret
 @dataclasses.dataclass(frozen=True)
 class PDRConfig:
     """The step detector's and step length's settings a user may change (tuned on the ILC site1
-    traces, ``tools/report_pdr.py``)."""
+    traces, ``tools/experiments/report_pdr.py``)."""
 
     # a step = upward crossing of this level by the filtered d|a|/dt; walking on the ILC phone
     # gives peaks of 50-120 m/s^3; 12-20 fit the ILC site1 waypoint distances best, 2-5 count sway
@@ -87,7 +87,7 @@ class PDRConfig:
     # drops the fastest steps
     min_step_interval_s: float = 0.4  # no two steps closer than this
     # Weinberg K for |a| (m/s^2) low-passed at LOWPASS_HZ, fitted to the ILC site1 waypoint
-    # distances (tools/report_pdr.py: 0.402, leave-one-out 0.401-0.403)
+    # distances (tools/experiments/report_pdr.py: 0.402, leave-one-out 0.401-0.403)
     weinberg_k: float = 0.40  # Weinberg step length = K (a_max - a_min)^(1/4)
     # added to pi/2 - azimuth: the angle from magnetic north to the map's +y axis; measured
     # -2.4 deg on ILC site1 (median leg deviation 8.8 deg), so 0 there

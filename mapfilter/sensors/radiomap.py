@@ -41,7 +41,7 @@ version 3: every point also carries its floor, and positions are in that floor's
 
 Single-floor maps are still written as version 2, so older readers keep reading them.
 
-A radio map that grew from tracked walks (``mapfilter.selftrain``, ``mapfilter radiomap grow``)
+A radio map that grew from tracked walks (``mapfilter.pipeline.selftrain``, ``mapfilter radiomap grow``)
 is version 4: every point also carries where its position came from and how well it is known.
 It may have floors (the three keys above) or not.
 
@@ -70,7 +70,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.io.atomic import atomic_paths
 from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.pdr import Steps, detect_steps
@@ -84,7 +84,7 @@ GROWN_FORMAT_VERSION = 4  # per-point source and position sigma (a map grown fro
 READABLE_VERSIONS = (1, 2, 3, 4)
 # per-point source codes (``RadioMap.source``)
 SURVEYED = 0  # labelled from a survey walk's waypoints
-GROWN = 1  # placed by the offline track of a walk without waypoints (``mapfilter.selftrain``)
+GROWN = 1  # placed by the offline track of a walk without waypoints (``mapfilter.pipeline.selftrain``)
 # the cross-validation stored in every file: what the tracker's calibration asks for by default
 _STORED_CV_PARAMS = (4, 200, 1.0)
 # A point of position sigma s counts POSITION_SIGMA_REF_M^2 / (POSITION_SIGMA_REF_M^2 + s^2) of a
@@ -445,7 +445,7 @@ def _check_npz_headers(path: Path, max_bytes: int = MAX_RADIOMAP_BYTES) -> None:
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError) as exc:
         raise MapfilterError(f"{_NOT_A_RADIO_MAP}: {exc}", path) from None
     _check_array_kinds(headers, path)
-    from mapfilter.memory import check_fits
+    from mapfilter.runtime.memory import check_fits
 
     # loading holds each array once, and the checks a NaN mask and a copy of the largest
     check_fits(3 * total, f"the radio map's arrays ({total / 2**20:.0f} MiB when decompressed)")
@@ -832,7 +832,7 @@ def _ref_weights(radio_map: RadioMap) -> np.ndarray | None:
 # by 10-20 dB in what they report for weak APs and in how many they hear at all (an ILC F1 walk
 # reports 20 dB less than the survey walk beside it and hears 40-110 APs where the survey heard
 # 300), and with -100 dBm for every AP heard on one side the plain distance is decided by those.
-# Leave-one-walk-out on ILC site 1 (tools/accuracy_ilc.py sets), fix error at the scans,
+# Leave-one-walk-out on ILC site 1 (tools/experiments/accuracy_ilc.py sets), fix error at the scans,
 # mean / p75 m, plain -> floor -85: F1 sparse 15.6/16.3 -> 14.0/15.2, F1 dense 7.10/7.92 ->
 # 7.11/7.53, F2 30.2/48.7 -> 25.2/42.9; floor -90 (missing -95) changed little, -80 about as -85.
 STRONG_MIN_RSSI_DBM = -85.0

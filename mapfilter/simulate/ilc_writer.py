@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.io.atomic import atomic_paths
 from mapfilter.simulate.walk import SimConfig, SimulatedWalk
 
 

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from mapfilter.atomic import atomic_paths
+from mapfilter.io.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
 from mapfilter.viz.canvas import Canvas
 from mapfilter.viz.events import EventLayer
@@ -36,7 +36,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from mapfilter.maps.building import Building
     from mapfilter.maps.floorplan import FloorPlan
     from mapfilter.sensors.recording import Recording
-    from mapfilter.trackio import Track
+    from mapfilter.io.tracks import Track
 
 
 # How long closing waits for a spawned viewer to take the last data, in slices short enough that
@@ -298,7 +298,7 @@ class RerunLogger:
         self.events.draw(report)
 
     def log_smoothed(self, t_s: float, xy_m: np.ndarray, weight: np.ndarray) -> None:
-        """The smoother's cloud at a step already drawn (``tracking.Tracker.result``'s ``on_smoothed``;
+        """The smoother's cloud at a step already drawn (``pipeline.tracker.Tracker.result``'s ``on_smoothed``;
         a building's stack frame: the particles on the floor shown at that step)."""
         if not self._steps_drawn:
             return
@@ -431,7 +431,7 @@ def view_map(
     floorplan : the map; or a building with several floors: every floor is drawn in its own
         view (``floors/<floor>/...``), each track row on the plan of its floor (``Track.floor``,
         which every track then needs) and the ground truth on ``truth_floor``.
-    tracks : finished tracks (:class:`mapfilter.trackio.Track`), each drawn under
+    tracks : finished tracks (:class:`mapfilter.io.tracks.Track`), each drawn under
         ``map/world/tracks/<name>`` (names made unique).
     recording : a walk whose waypoints are drawn as ground truth (if it has any); tracks
         then get an error plot against them.

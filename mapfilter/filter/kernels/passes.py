@@ -37,7 +37,7 @@ from numba.extending import intrinsic
 
 from mapfilter.filter.kernels.draws import BLOCK, cos_sin, exp_block, normal_pairs
 from mapfilter.maps.walls import NO_BUFFER, move_crosses
-from mapfilter.threads import for_slices
+from mapfilter.runtime.threads import for_slices
 
 __all__ = ["BLOCK", "LIKELIHOOD_SIGNATURE", "MOVE_SIGNATURE", "advance_pass", "resample_pass"]
 

@@ -1,7 +1,7 @@
 """BLE beacons as a measurement model: windows of beacon readings weighed by path loss.
 
 A plug-in through the filter's interfaces alone (``filter.models.interface``,
-``filter.tracker.MeasurementSource``): ``BeaconSource`` groups the stream's BLE readings into
+``filter.causal.MeasurementSource``): ``BeaconSource`` groups the stream's BLE readings into
 measurements and ``BeaconLikelihood`` weighs the particles by them.
 
 Measurements. A measurement is made at the time of a reading that comes at least ``window_s``
@@ -163,7 +163,7 @@ class BeaconLikelihood(MeasurementModel):
 
 
 class BeaconSource:
-    """The BLE readings of a stream as measurements (``filter.tracker.MeasurementSource``;
+    """The BLE readings of a stream as measurements (``filter.causal.MeasurementSource``;
     module docstring). Readings of beacons the table does not have are left out."""
 
     stream = "ble"
