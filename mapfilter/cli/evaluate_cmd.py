@@ -51,11 +51,19 @@ their phone (GetSensorData) also get the table per phone model.
 
 The radio map: --radiomap (one file for all walks), --survey LOGS (built from these walks,
 which are never scored), or --leave-one-out (each walk's radio map from the other evaluated
-walks, plus any --survey logs). Self-training (docs/self-training.md): --unlabelled LOGS grow
-that radio map from walks without labels (tracked offline, their scans added where the offline
-track puts them; with --leave-one-out grown once per fold of the labelled walks, so that no
-walk is scored with points its own labels placed); --transductive lets the evaluated walks grow
-it too, each scored with the other walks' grown points. Errors are taken at the ground-truth waypoint times from each
+walks, plus any --survey logs). Leave a group out instead of one walk (docs/ipin.md): each walk's
+radio map (and fitted access points, beacons, fix calibration, grown points) without every walk
+of its group: --leave-out route (every repetition of an IPIN trial: the trial number of
+..._TrainingTrialNN_repetitionR; other names are refused), --leave-out-group REGEX (the regex's
+first group, or its whole match, in the log's file name), or --groups FILE.csv (rows log,group;
+a header line 'log,group'); the printout, summary.json, walks.csv and config.yaml name the
+protocol, and the table per group (per route) follows the summary.
+Self-training (docs/self-training.md): --unlabelled LOGS grow that radio map from walks without
+labels (tracked offline, their scans added where the offline track puts them; left out by walk
+or group, grown once per fold of the labelled walks, a group's walks in one fold, so that no
+walk is scored with points its own or its group's labels placed); --transductive lets the
+evaluated walks grow it too, each scored with the other walks' grown points (left out by walk
+or group: each fold's walks grow that fold's points, over the survey of the other folds). Errors are taken at the ground-truth waypoint times from each
 method's latest estimate at or before that time (causal); waypoints before a method's first
 estimate are counted as missed, not scored. --smooth adds pf-smooth, the offline whole-walk
 track (not causal). runtime_s is each method's own time.
@@ -103,13 +111,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="BLE beacon table: adds pf+ble, pf-ble (and pf-floor+ble in a building)")
     parser.add_argument("--survey", type=Path, nargs="+", default=[], metavar="LOG",
                         help="walks with waypoints that make the radio map (and fitted APs); never scored")
-    parser.add_argument("--leave-one-out", action="store_true",
-                        help="each walk's radio map (and fitted APs for ls) from the other walks too")
+    leave_out = parser.add_mutually_exclusive_group()
+    leave_out.add_argument("--leave-one-out", action="store_true",
+                           help="each walk's radio map (and fitted APs for ls) from the other walks too")
+    leave_out.add_argument("--leave-out", choices=("walk", "route"), default=None,
+                           help="walk: as --leave-one-out; route: each walk's radio map without every repetition of "
+                                "its IPIN trial (the trial number in ..._TrainingTrialNN_repetitionR)")
+    leave_out.add_argument("--leave-out-group", default=None, metavar="REGEX",
+                           help="each walk's radio map without its group: the regex's first group (or whole match) "
+                                "in the log's file name")
+    leave_out.add_argument("--groups", type=Path, default=None, metavar="FILE.csv",
+                           help="each walk's radio map without its group: a CSV with the header log,group")
     parser.add_argument("--unlabelled", type=Path, nargs="+", default=[], metavar="LOG",
                         help="walks that grow the radio map (self-training; their waypoints never read); never scored")
     parser.add_argument("--transductive", action="store_true",
                         help="the evaluated walks grow the radio map too, without their labels; each walk is scored "
-                             "with the others' grown points (needs --survey or --radiomap)")
+                             "with the others' grown points")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--resume", action="store_true",
                         help="keep the walks an interrupted run with the same settings finished in OUT")
@@ -126,18 +143,21 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.sensors.recording import trace_name
 
     check_map_first("mapfilter evaluate MAP LOG...", args.map, [*args.logs, *args.survey, *args.unlabelled])
+    if args.leave_out == "walk":
+        args.leave_one_out = True
+    grouping = _grouping(args)
     config = tracking_config_from(args)
     methods = None if args.methods is None else tuple(m.strip() for m in args.methods.split(",") if m.strip())
     engine = engine_from(args)
     inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.survey, args.unlabelled, args.config,
-                         args.beacons)
+                         args.beacons, args.groups)
     out = check_output_path(args.out, directory=True, inputs=inputs)  # holds only our files, no input
     building = Building.load(args.map)
     check_tracking_fits(config, building_extents_m(building))
     setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,
                             tracking=config, unlabelled_paths=tuple(args.unlabelled),
-                            transductive=args.transductive, beacon_table_path=args.beacons)
+                            transductive=args.transductive, beacon_table_path=args.beacons, groups=grouping)
     validate_setup(building, args.logs, setup)  # before anything is written
     key = run_key({"map": str(args.map.resolve()), "logs": [str(p.resolve()) for p in args.logs],
                    "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
@@ -145,6 +165,7 @@ def run(args: argparse.Namespace) -> int:
                    "unlabelled": [str(p.resolve()) for p in args.unlabelled], "transductive": args.transductive,
                    "strict": args.strict, "config": config.to_dict(),
                    **({"beacons": str(args.beacons)} if args.beacons is not None else {}),
+                   **({"groups": dict(grouping.group_of)} if grouping is not None else {}),
                    # by content: a log, map or model replaced at the same path is another run
                    "content": [file_digest(p) for p in inputs if p.is_file()]})
     walks_dir = args.out / "walks"
@@ -182,6 +203,7 @@ def run(args: argparse.Namespace) -> int:
             index = {name_of(p): i for i, p in enumerate(args.logs)}
             done = [dataclasses.replace(o, index=index[o.trace]) for o in done if o.trace in index]
             partial = Evaluation.from_outcomes(done, len(args.logs), 0.0)
+            partial.protocol, partial.grouping = setup.protocol, setup.groups
             _write_summary(args, out, partial, config, methods_for(building, args.beacons is not None),
                            complete=False)
             print(f"interrupted: {len(done)} of {len(args.logs)} walks done; wrote a partial summary to "
@@ -191,6 +213,24 @@ def run(args: argparse.Namespace) -> int:
         warn(message)
     _write_summary(args, out, evaluation, config, methods_for(building, args.beacons is not None), complete=True)
     return 1 if evaluation.failed else 0
+
+
+def _grouping(args):
+    """The grouping of a leave-a-group-out run (None: by walk, or no leave-out), over the
+    evaluated and the survey logs; one line and exit 1 for names it cannot group."""
+    from mapfilter.evaluation import groups
+
+    walks = [*args.survey, *args.logs]
+    if args.leave_out == "route":
+        grouping = groups.by_ipin_trial(walks)
+    elif args.leave_out_group is not None:
+        grouping = groups.by_regex(walks, args.leave_out_group)
+    elif args.groups is not None:
+        grouping = groups.from_csv(args.groups, walks)
+    else:
+        return None
+    print(grouping.describe())
+    return grouping
 
 
 def _announce(args, building, methods, config, n_resumed: int) -> None:
@@ -254,27 +294,38 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
     columns = SUMMARY_COLUMNS + (BUILDING_COLUMNS if evaluation.has_floors else ())
     summary = evaluation.summary_rows()
     by_phone = evaluation.summary_rows(by_phone=True)
+    grouping = evaluation.grouping
+    by_group = evaluation.summary_rows(by_group=True) if grouping is not None else []
     table = format_table(summary, columns)
     waypoints = summary[0]["n"] + summary[0]["missed"] if summary else 0
     n_done = len({r.trace for r in evaluation.results}) + len(evaluation.failed)
     grown = f"; radio map + {evaluation.grown}" if evaluation.grown else ""
-    print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s{grown}\n"
-          f"{table}")
+    print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s{grown}; "
+          f"scored against {evaluation.protocol}\n{table}")
     if len(evaluation.phones()) > 1:
         print(f"\nper phone model:\n{format_table(by_phone, ('phone',) + columns)}")
+    if grouping is not None:
+        print(f"\nper {grouping.unit} ({evaluation.protocol}):\n{format_table(by_group, ('group',) + columns)}")
     out: Path = args.out
     trace_rows = evaluation.trace_rows()
-    walk_rows = evaluation.walk_rows()
+    # every walk's row names the protocol it was scored with, so walks.csv stands on its own
+    walk_rows = [{"trace": row["trace"], "protocol": evaluation.protocol, **row} for row in evaluation.walk_rows()]
     failed = [{"trace": o.trace, "log": str(o.log_path), "status": o.status, "reason": o.reason}
               for o in evaluation.failed]
-    with atomic_paths(*(out_dir.claim(name) for name in ("summary.csv", "traces.csv", "walks.csv", "summary.json",
-                                                         "config.yaml"))) as (s_csv, t_csv, w_csv, s_json, c_yaml):
+    names = ("summary.csv", "traces.csv", "walks.csv", "summary.json", "config.yaml") + (
+        ("groups.csv",) if grouping is not None else ())
+    with atomic_paths(*(out_dir.claim(name) for name in names)) as (s_csv, t_csv, w_csv, s_json, c_yaml, *g_csv):
         _write_csv(s_csv, summary, columns)
-        _write_csv(t_csv, trace_rows, ("trace",) + columns + (("phone",) if by_phone else ()))
+        _write_csv(t_csv, trace_rows, ("trace",) + (("group",) if grouping is not None else ()) + columns
+                   + (("phone",) if by_phone else ()))
         _write_csv(w_csv, walk_rows, list(dict.fromkeys(k for row in walk_rows for k in row)) or ["trace"])
+        if g_csv:
+            _write_csv(g_csv[0], by_group, ("group",) + columns + ("traces",))
         s_json.write_text(json.dumps({
             "map": str(args.map), "logs": [str(p) for p in args.logs], "survey": [str(p) for p in args.survey],
             "radiomap": None if args.radiomap is None else str(args.radiomap), "leave_one_out": args.leave_one_out,
+            "protocol": evaluation.protocol,
+            "groups": None if grouping is None else dict(grouping.group_of),
             "beacons": None if args.beacons is None else str(args.beacons),
             "unlabelled": [str(p) for p in args.unlabelled], "transductive": args.transductive,
             "grown": evaluation.grown,
@@ -282,10 +333,13 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
             "wall_time_s": evaluation.wall_time_s, "config": config.to_dict(), "failed": failed,
             "summary": [{k: nan_to_none(v) for k, v in row.items()} for row in summary],
             "summary_by_phone": [{k: nan_to_none(v) for k, v in row.items()} for row in by_phone],
+            "summary_by_group": [{k: nan_to_none(v) for k, v in row.items()} for row in by_group],
             "traces": [{k: nan_to_none(v) for k, v in row.items()} for row in trace_rows],
             "per_walk": [{k: nan_to_none(v) for k, v in row.items()} for row in walk_rows],
         }, indent=1))
-        c_yaml.write_text(config.to_yaml())
+        # the protocol as a comment: the file still loads with --config
+        c_yaml.write_text(f"# scored against {evaluation.protocol} (mapfilter evaluate; summary.json has the rest)\n"
+                          + config.to_yaml())
     if evaluation.results:
         plot_error_cdf(evaluation.errors_by_method(), out_dir.claim("cdf.png"),
                        title=f"{n_done} walks on {args.map.name}" + ("" if complete else " (partial)"))
@@ -293,7 +347,7 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
         print(f"{len(failed)} walk{'s' if len(failed) != 1 else ''} without results (summary.json lists why): "
               + ", ".join(item["trace"] for item in failed))
     print(f"wrote {out}/summary.csv, summary.json, traces.csv, walks.csv (why each walk went wrong), cdf.png, "
-          f"config.yaml, walks/, tracks/")
+          f"config.yaml, " + ("groups.csv (per group), " if grouping is not None else "") + "walks/, tracks/")
 
 
 def _write_csv(path: Path, rows: list[dict], columns) -> None:

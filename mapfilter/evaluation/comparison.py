@@ -33,14 +33,19 @@ IPIN score (the 75th percentile of the horizontal error plus 15 m per storey off
 With ``smooth`` in the tracking config, ``pf``'s offline track is reported as ``pf-smooth``
 (not causal). The radio map of the walks comes from a radio map file, from survey logs
 (``survey_paths``), or, with ``leave_one_out``, from the other evaluated walks (and any survey
-logs): each walk's fold drops its own points, as the ILC evaluation needs.
+logs): each walk's fold drops its own points, as the ILC evaluation needs. With ``groups``
+(``evaluation.groups``: every repetition of an IPIN trial, or a user's grouping) each walk's fold
+drops every walk of its group, and so does everything fitted from the survey for that walk: the
+access-point table, the beacons' fit, the fix calibration, the points the growing places.
 
 Self-training (``selftrain``, docs/self-training.md): walks without labels grow that radio map.
 ``unlabelled_paths`` grow it and are never scored (with ``leave_one_out``, grown once per fold of
 the labelled walks, so no scored walk's labels place the points it is scored with:
-``selftrain.grown_by_fold``); ``transductive``: the evaluated walks grow it too, their waypoints
-never read, and each walk is scored with the other walks' grown points (a user who tracks a
-batch, grows the map and tracks it again).
+``selftrain.grown_by_fold``; with ``groups``, a group's walks share a fold); ``transductive``: the
+evaluated walks grow it too, their waypoints never read, and each walk is scored with the other
+walks' grown points (a user who tracks a batch, grows the map and tracks it again); left out by
+walk or group, each fold's evaluated walks grow that fold's points over the survey of the other
+folds.
 """
 
 from __future__ import annotations
@@ -61,6 +66,7 @@ from mapfilter.runtime.dispatch import Engine, run_each
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.baselines import kalman_track, pdr_kwnn_track, pdr_track
 from mapfilter.evaluation.diagnostics import DIAGNOSTIC_COLUMNS, walk_diagnostics
+from mapfilter.evaluation.groups import Grouping
 from mapfilter.evaluation.metrics import (FloorScore, availability, floor_detection, ipin_errors_m, ipin_score,
                                          summarise_errors)
 from mapfilter.evaluation.scoring import score_track
@@ -118,6 +124,29 @@ class EvaluationSetup:
     access_points: AccessPointTable | None = None  # one access-point table, already loaded (instead of ap_table_path)
     beacon_table_path: Path | None = None  # BLE beacons (their positions; C and n refitted from survey walks)
     beacons: BeaconTable | None = None  # the beacon table, already loaded (instead of beacon_table_path)
+    # leave a group out (evaluation.groups): each walk's survey drops every walk of its group; the
+    # evaluated walks survey each other, as with leave_one_out
+    groups: Grouping | None = None
+
+    @property
+    def leaves_out(self) -> bool:
+        """The evaluated walks survey each other, each walk's fold without its walk or group."""
+        return self.leave_one_out or self.groups is not None
+
+    def left_out_with(self, trace: str) -> list[str]:
+        """The walks that leave the survey with walk ``trace``: its group's, or itself."""
+        return self.groups.members(trace) if self.groups is not None else [trace]
+
+    @property
+    def protocol(self) -> str:
+        """What the walks are scored against, for the tables."""
+        if self.groups is not None:
+            return self.groups.protocol
+        if self.leave_one_out:
+            return "leave-one-walk-out" + (" (with survey logs)" if self.survey_paths else "")
+        if self.survey_paths:
+            return "survey logs (never scored)"
+        return "a given radio map" if self.has_radio_map else "a given access-point table"
 
     @property
     def grows(self) -> bool:
@@ -197,6 +226,14 @@ class AllWalks:
     ap_table: AccessPointTable | None  # APs fitted on every walk (None when no method needs them)
     fix_sigma_by_floor_m: dict[str, float] | None = None  # several floors: calibrated once per floor
     beacon_readings: BeaconReadings | None = None  # the walks' beacon readings, labelled (with a beacon table)
+    # several floors, left out by group: calibrated once per floor for each group, without its walks
+    fix_sigma_by_group: dict[str, dict[str, float]] | None = None
+
+    def fix_sigma_for(self, setup: EvaluationSetup, trace: str) -> dict[str, float] | None:
+        """The per-floor fix sigma walk ``trace`` is tracked with (None: calibrate on its own map)."""
+        if self.fix_sigma_by_group is not None and setup.groups is not None:
+            return self.fix_sigma_by_group[setup.groups.group(trace)]
+        return self.fix_sigma_by_floor_m
 
 
 @dataclasses.dataclass(frozen=True)
@@ -248,18 +285,20 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recordi
     A walk is a log's path or a ``Recording`` already read (as are the setup's survey and
     unlabelled walks)."""
     paths, survey, methods = validate_setup(building, log_paths, setup)
+    if setup.groups is not None:
+        setup = dataclasses.replace(setup, groups=setup.groups.checked(walk_name(p) for p in survey + paths))
     started = time.perf_counter()
     read_warnings: list[str] = []
     true_floors = tuple(_true_floor(building, p) for p in paths)
     with _collect_read_warnings(read_warnings):
-        # leave-one-out: the evaluated walks survey each other; one that cannot (unreadable, no
+        # left out by walk or group: the evaluated walks survey each other; one that cannot (unreadable, no
         # WiFi scan, no waypoint) lends nothing and fails in its own task, named, as the README
         # promises, while the others go on
         lent = [(rec, floor) for rec, floor in ((_surveying_walk(p, setup, building), f)
                                                 for p, f in zip(paths, true_floors)) if rec is not None] \
-            if setup.leave_one_out else []
+            if setup.leaves_out else []
         survey_recordings = [read_walk(p, building, setup.strict) for p in survey]
-    # the evaluated walks join the survey material only with leave-one-out (``lent``)
+    # the evaluated walks join the survey material only when left out by walk or group (``lent``)
     recordings = [rec for rec, _ in lent]
     beacons = _beacon_table(building, setup)
     all_walks = _all_walks(building, setup, methods, survey_recordings + recordings,
@@ -281,6 +320,8 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recordi
             on_walk(outcome)
     evaluation = Evaluation.from_outcomes(outcomes, len(paths), time.perf_counter() - started, read_warnings)
     evaluation.grown = growth.describe() if growth is not None else ""
+    evaluation.protocol = setup.protocol
+    evaluation.grouping = setup.groups
     return evaluation
 
 
@@ -302,18 +343,21 @@ def validate_setup(building: Building, log_paths: Sequence[str | os.PathLike | R
     if setup.access_points is not None and setup.ap_table_path is not None:
         raise MapfilterError("give the access-point table as a file or as a table, not both")
     sources = sum([setup.has_radio_map, setup.has_access_points and building.is_single_floor,
-                   bool(survey) or setup.leave_one_out])
+                   bool(survey) or setup.leaves_out])
     if sources == 0:
         raise MapfilterError("no WiFi source: give a radio map, an access-point table, survey logs or --leave-one-out")
-    if setup.has_radio_map and (survey or setup.leave_one_out):
-        raise MapfilterError("give a radio map, or survey logs / --leave-one-out, not both (those build their own)")
+    if setup.has_radio_map and (survey or setup.leaves_out):
+        raise MapfilterError("give a radio map, or survey logs / a leave-out protocol, not both (those build their "
+                             "own)")
     if not building.is_single_floor and setup.has_access_points:
         raise MapfilterError("a building is evaluated with a building's radio map, not an access-point table")
-    if setup.leave_one_out and len(paths) + len(survey) < 2:
+    if setup.leaves_out and len(paths) + len(survey) < 2:
         raise MapfilterError("leave-one-out needs at least two logs")
-    if setup.transductive and setup.leave_one_out:
-        raise MapfilterError("--transductive grows the map from walks that are scored without their labels, but "
-                             "--leave-one-out surveys with those labels: give the survey with --survey or --radiomap")
+    if setup.groups is not None:
+        grouping = setup.groups.checked(walk_name(p) for p in survey + paths)
+        if len(grouping.groups()) < 2:
+            raise MapfilterError(f"{grouping.protocol} needs at least two groups: the walks are all in "
+                                 f"{grouping.unit} {grouping.groups()[0]}, so no walk has a survey")
     _beacon_table(building, setup)  # a bad table is one line before anything runs
     unlabelled = checked_log_paths(setup.unlabelled_paths) if setup.unlabelled_paths else []
     named = {walk_name(p) for p in paths + survey}
@@ -410,19 +454,31 @@ def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, .
                                  "radio map", rec.path)
     # a walk over several floors: each scan on the floor of its waypoints (sensors.floor_vote)
     radio_map = build_building_radio_map(recordings, floors, building.floor_names)
-    sigma = None
-    if setup.tracking.wifi.fix_sigma_m is None:
+    sigma = by_group = None
+    if setup.tracking.wifi.fix_sigma_m is None and setup.groups is not None:
+        # a group (a route's repetitions) is a large share of the map: each group's without it
+        by_group = {group: _radio_map_sigmas(radio_map.without_traces(setup.groups.members(group_walk)), building,
+                                             setup.tracking)
+                    for group, group_walk in _one_walk_per_group(setup.groups).items()}
+    elif setup.tracking.wifi.fix_sigma_m is None:
         # once per floor from the whole radio map: cross-validating every floor again for every
         # walk costs tens of seconds a walk; the walk under test lends only its share to one number
-        sigma = {name: calibrated_fix_sigma_m(radio_map.floor_map(i), setup.tracking.wifi.kwnn_k)
-                 for i, name in enumerate(building.floor_names)}
-    return AllWalks(radio_map, None, sigma, readings)
+        sigma = _radio_map_sigmas(radio_map, building, setup.tracking)
+    return AllWalks(radio_map, None, sigma, readings, by_group)
+
+
+def _one_walk_per_group(grouping: Grouping) -> dict[str, str]:
+    """group -> its first walk."""
+    first: dict[str, str] = {}
+    for trace, group in grouping.group_of.items():
+        first.setdefault(group, trace)
+    return first
 
 
 def _walk_beacons(context: _Context, recording: Recording) -> tuple[BeaconTable | None, TrackingConfig]:
     """The beacon table a walk is tracked with and the config with its phone's RSSI offset: the
     given positions with C, n and the floor loss fitted on the survey walks' readings
-    (leave-one-out: every walk's but this one's), and the offset those walks give the walk's
+    (left out by walk or group: every walk's but those of this one's group), and the offset those walks give the walk's
     phone model (the config's when none of them has it); without survey walks, the table and
     config as given."""
     tracking = context.setup.tracking
@@ -430,7 +486,7 @@ def _walk_beacons(context: _Context, recording: Recording) -> tuple[BeaconTable 
         return None, tracking
     if context.all_walks is None or context.all_walks.beacon_readings is None:
         return context.beacons, tracking
-    readings = context.all_walks.beacon_readings.without_traces([recording.name])
+    readings = context.all_walks.beacon_readings.without_traces(context.setup.left_out_with(recording.name))
     fit = fit_beacons(context.beacons, readings)
     offset = fit.phone_offsets_db.get(recording.phone_model or "", tracking.ble.rssi_offset_db)
     return fit.table, dataclasses.replace(tracking, ble=dataclasses.replace(tracking.ble, rssi_offset_db=offset))
@@ -590,7 +646,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
     radio_map = _building_radio_map(recording, setup, context.all_walks, building)
     if context.growth is not None:
         radio_map = merge_radio_maps([radio_map, context.growth.for_walk(recording.name)])
-    sigma = context.all_walks.fix_sigma_by_floor_m if context.all_walks is not None else None
+    sigma = context.all_walks.fix_sigma_for(setup, recording.name) if context.all_walks is not None else None
     if sigma is None and setup.tracking.wifi.fix_sigma_m is None and context.all_walks is None:
         sigma = _radio_map_sigmas(radio_map, building, setup.tracking)
     header_floor = context.true_floors[index]
@@ -648,7 +704,8 @@ def _radio_map_sigmas(radio_map: RadioMap, building: Building, tracking: Trackin
 def _building_radio_map(recording: Recording | None, setup: EvaluationSetup, all_walks: AllWalks | None,
                         building: Building) -> RadioMap:
     if all_walks is not None:
-        return all_walks.radio_map.without_traces([recording.name]) if setup.leave_one_out else all_walks.radio_map
+        return (all_walks.radio_map.without_traces(setup.left_out_with(recording.name)) if setup.leaves_out
+                else all_walks.radio_map)
     from mapfilter.sensors.floor_vote import load_building_radio_map
 
     if setup.radio_map is not None:
@@ -665,14 +722,19 @@ def _growth(building: Building, setup: EvaluationSetup, paths: list[Walk], label
     """The radio map's grown points (``Growth``): from the unlabelled walks (and, transductive,
     the evaluated ones), over the labelled material the walks are scored with."""
     read = [read_walk(p, building, setup.strict) for p in setup.unlabelled_paths]
-    if setup.transductive:
-        read += [read_walk(p, building, setup.strict) for p in paths]
+    scored = [read_walk(p, building, setup.strict) for p in paths] if setup.transductive else []
     space = building.floors[0].plan if building.is_single_floor else building
     config = GrowConfig(tracking=setup.tracking, seed=setup.tracking.seed)
-    if setup.leave_one_out:
-        # once per fold of the labelled walks: a scored walk's labels never place its grown points
-        grown, _, fold = grown_by_fold(space, labelled, read, config, engine=engine, progress=progress)
-        return Growth(tuple(grown), {rec.name: int(f) for rec, f in zip(labelled, fold)}, False)
+    if setup.leaves_out:
+        # once per fold of the labelled walks: a scored walk's labels never place its grown points;
+        # transductive: each fold's scored walks grow its points
+        folds, fold = growth_folds(setup, [rec.name for rec in labelled])
+        fold_of = {rec.name: int(f) for rec, f in zip(labelled, fold)}
+        fold_walks = [[rec for rec in scored if fold_of.get(rec.name) == f] for f in range(folds)] if scored else None
+        grown, _, _ = grown_by_fold(space, labelled, read, config, folds=folds, engine=engine, progress=progress,
+                                    fold=fold, fold_walks=fold_walks)
+        return Growth(tuple(grown), fold_of, setup.transductive)
+    read += scored
     if all_walks is not None:  # the survey logs
         base = all_walks.radio_map
     elif building.is_single_floor:
@@ -681,6 +743,19 @@ def _growth(building: Building, setup: EvaluationSetup, paths: list[Walk], label
         base = _building_radio_map(None, setup, None, building)
     result, _ = grow_radio_map(space, base, read, config, progress=progress, engine=engine)
     return Growth((result.select(result.source == GROWN),), {}, setup.transductive)
+
+
+def growth_folds(setup: EvaluationSetup, labelled: Sequence[str], folds: int = 4) -> tuple[int, np.ndarray]:
+    """The folds a left-out evaluation grows its points in: (number of folds, each labelled walk's
+    fold). Walk i in fold i % ``folds``; left out by group, every walk of a group in its group's
+    fold, so that no walk of a group helps place the points its group is scored with."""
+    if setup.groups is not None:
+        order = setup.groups.groups()
+        folds = min(folds, len(order))
+        return folds, np.array([order.index(setup.groups.group(name)) % folds for name in labelled], dtype=np.int64)
+    if setup.transductive:
+        folds = max(1, min(folds, len(labelled)))  # each fold grows from its own walks: none empty
+    return folds, np.arange(len(labelled), dtype=np.int64) % folds
 
 
 def kwnn_floor_fixes(radio_map: RadioMap, scans, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -737,21 +812,22 @@ def _wifi_sources(recording: Recording, setup: EvaluationSetup, all_walks: AllWa
     if ap_table is not None:
         check_access_points_on_map(ap_table, building.floors[0].plan, building.path)
     if all_walks is not None:
-        radio_map = _drop_unheard_aps(all_walks.radio_map.without_traces([recording.name]))
+        # without the walk, or every walk of its group (and with survey logs alone, nothing to drop)
+        radio_map = _drop_unheard_aps(all_walks.radio_map.without_traces(setup.left_out_with(recording.name)))
         if len(radio_map) == 0:
             raise MapfilterError("no survey points left for this walk: it needs other walks with waypoints and WiFi",
                                  recording.path)
         if ap_table is None and all_walks.ap_table is not None:
-            ap_table = _leave_one_out_aps(all_walks, radio_map, recording.name)
+            ap_table = _leave_one_out_aps(all_walks, radio_map, setup.left_out_with(recording.name))
     return radio_map, ap_table
 
 
-def _leave_one_out_aps(all_walks: AllWalks, fold_map: RadioMap, trace: str) -> AccessPointTable:
-    """The AP table fitted without ``trace``: an AP's fit depends only on its own observations,
-    so only the APs this walk heard are fitted again (on the fold's radio map); the others keep
-    their all-walks fit, which is exactly what a fit without this walk gives them."""
+def _leave_one_out_aps(all_walks: AllWalks, fold_map: RadioMap, traces: Sequence[str]) -> AccessPointTable:
+    """The AP table fitted without the walks ``traces``: an AP's fit depends only on its own
+    observations, so only the APs these walks heard are fitted again (on the fold's radio map);
+    the others keep their all-walks fit, which is exactly what a fit without these walks gives them."""
     full = all_walks.radio_map
-    mine = np.isin(full.trace, [i for i, name in enumerate(full.source_traces) if name == trace])
+    mine = np.isin(full.trace, [i for i, name in enumerate(full.source_traces) if name in set(traces)])
     heard = set(np.array(full.ap_keys)[~np.all(np.isnan(full.rssi_dbm[mine]), axis=0)].tolist())
     columns = [j for j, key in enumerate(fold_map.ap_keys) if key in heard]
     table = all_walks.ap_table
@@ -837,6 +913,8 @@ class Evaluation:
     read_warnings: list[str] = dataclasses.field(default_factory=list)  # rows the log reader skipped, per log
     failed: list[WalkOutcome] = dataclasses.field(default_factory=list)  # walks without results, and why
     grown: str = ""  # self-training: what grew the radio map ("" without)
+    protocol: str = ""  # what the walks were scored against (EvaluationSetup.protocol)
+    grouping: Grouping | None = None  # left out by group: every walk's group (the per-group rows)
 
     @classmethod
     def from_outcomes(cls, outcomes: Sequence[WalkOutcome], n_traces: int, wall_time_s: float,
@@ -869,14 +947,23 @@ class Evaluation:
                 seen.append(r.phone)
         return seen
 
-    def summary_rows(self, by_phone: bool = False) -> list[dict]:
+    def group_of(self, trace: str) -> str:
+        """The walk's group (left out by group), else its own name."""
+        return self.grouping.group_of.get(trace, trace) if self.grouping is not None else trace
+
+    def summary_rows(self, by_phone: bool = False, by_group: bool = False) -> list[dict]:
         """One row per method: error statistics over all waypoints of all walks (with CE95, the
         95th percentile), the availability (the share of waypoints with an estimate) and totals;
         in a building with several floors also the floor accuracy, the floor detection probability
         (right floor at all waypoints) and the IPIN score (the 75th percentile of the error plus
         15 m per storey off, over the same waypoints). docs/results.md describes every column.
         ``by_phone``: one row per phone model and method (a ``phone`` column first), the walks of
-        that phone."""
+        that phone. ``by_group``: one row per group (a route, left out by group) and method (a
+        ``group`` column first), the walks of that group."""
+        if by_group:
+            groups = list(dict.fromkeys(self.group_of(r.trace) for r in self.results))
+            return [{"group": group, **row} for group in groups
+                    for row in self._rows([r for r in self.results if self.group_of(r.trace) == group])]
         if by_phone:
             return [{"phone": phone, **row} for phone in self.phones()
                     for row in self._rows([r for r in self.results if r.phone == phone])]
@@ -908,8 +995,9 @@ class Evaluation:
         method's mean error on it."""
         rows: dict[str, dict] = {}
         for r in self.results:
-            row = rows.setdefault(r.trace, {"trace": r.trace, **{c: r.diagnostics.get(c, math.nan)
-                                                                  for c in DIAGNOSTIC_COLUMNS}})
+            group = {"group": self.group_of(r.trace)} if self.grouping is not None else {}
+            row = rows.setdefault(r.trace, {"trace": r.trace, **group, **{c: r.diagnostics.get(c, math.nan)
+                                                                           for c in DIAGNOSTIC_COLUMNS}})
             row[f"{r.method} mean"] = float(r.errors_m.mean()) if r.errors_m.size else math.nan
         return list(rows.values())
 
@@ -926,6 +1014,8 @@ class Evaluation:
                 row["ipin_score"] = ipin_score(r.ipin_errors_m)
             if r.phone:
                 row["phone"] = r.phone
+            if self.grouping is not None:
+                row["group"] = self.group_of(r.trace)
             rows.append(row)
         return rows
 

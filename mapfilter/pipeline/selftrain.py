@@ -322,7 +322,9 @@ def grow_radio_map(space: FloorPlan | Building, radio_map: RadioMap, recordings:
 def grown_by_fold(space: FloorPlan | Building, labelled: Sequence[Recording], unlabelled: Sequence[Recording],
                   config: GrowConfig = GrowConfig(), folds: int = 4, base_of=None,
                   progress: Callable[[int, int, str], None] | None = None,
-                  engine: Engine | None = None) -> tuple[list[RadioMap], list[GrowReport], np.ndarray]:
+                  engine: Engine | None = None, fold: Sequence[int] | None = None,
+                  fold_walks: Sequence[Sequence[Recording]] | None = None,
+                  ) -> tuple[list[RadioMap], list[GrowReport], np.ndarray]:
     """Grown points for a leave-one-out evaluation of the ``labelled`` walks that never uses a
     scored walk's labels: (grown points of each fold, its report, the fold of each labelled walk).
 
@@ -337,25 +339,30 @@ def grown_by_fold(space: FloorPlan | Building, labelled: Sequence[Recording], un
 
     ``base_of(recordings) -> RadioMap`` builds a base map (default: ``build_radio_map`` on a
     floor, ``sensors.floor_vote.build_building_radio_map`` with each log's header floor in a building).
-    For a transductive evaluation (the walks being scored grow the map too, without their own
-    labels) grow once with the scored walks among ``recordings`` of ``grow_radio_map`` and score
-    each walk with ``grown.without_traces([walk])``: its own grown points left out.
+    ``fold``: each labelled walk's fold (0 .. folds - 1) instead, so that walks that must leave a
+    survey together (a route's repetitions) share one. ``fold_walks``: per fold, walks that grow
+    only that fold's points, over the same base: a transductive evaluation's scored walks of
+    that fold, without their labels (each then scored with ``grown.without_traces([walk])``, its
+    own grown points left out).
     """
     if folds < 1:
         raise MapfilterError(f"folds must be at least 1, got {folds}")
     if base_of is None:
         base_of = (lambda recs: _building_base(space, recs)) if isinstance(space, Building) else (
             lambda recs: build_radio_map(recs, space))
-    fold = np.arange(len(labelled)) % folds
+    fold = np.arange(len(labelled)) % folds if fold is None else np.asarray(fold, dtype=np.int64)
+    if fold.shape != (len(labelled),) or (fold.size and (fold.min() < 0 or fold.max() >= folds)):
+        raise ValueError(f"fold: one index in 0..{folds - 1} per labelled walk")
     grown, reports = [], []
     for f in range(folds):
         base = base_of([r for r, g in zip(labelled, fold) if g != f or folds == 1])
+        growing = list(unlabelled) + (list(fold_walks[f]) if fold_walks is not None else [])
 
         def tick(done: int, total: int, name: str, f: int = f) -> None:
             if progress is not None:
                 progress(f * total + done, folds * total, name)
 
-        result, report = grow_radio_map(space, base, unlabelled, config, progress=tick, engine=engine)
+        result, report = grow_radio_map(space, base, growing, config, progress=tick, engine=engine)
         grown.append(result.select(result.source == GROWN))
         reports.append(report)
     return grown, reports, fold

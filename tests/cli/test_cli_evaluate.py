@@ -193,9 +193,65 @@ def test_unlabelled_and_transductive_walks_grow_the_radio_map_and_are_named(tmp_
     assert main(common + ["--transductive", "--out", str(tmp_path / "t")]) == 0
     summary = json.loads((tmp_path / "t" / "summary.json").read_text())
     assert "(transductive)" in summary["grown"] and summary["transductive"] is True
-    # a scored walk's own labels never grow its map: transductive needs a survey that is not the scored walks
+    # left out by walk: each fold's scored walks grow its points over the other folds' labels
     assert main(["evaluate", str(MAPS / "office.yaml"), *map(str, walks[:2]), "--leave-one-out", "--transductive",
-                 "--out", str(tmp_path / "x")]) == 1
-    assert "--transductive" in capsys.readouterr().err and not (tmp_path / "x").exists()
+                 "--methods", "kwnn", "--particles", "500", "--out", str(tmp_path / "x")]) == 0
+    summary = json.loads((tmp_path / "x" / "summary.json").read_text())
+    assert "per fold of the labelled walks (2 folds)" in summary["grown"] and "(transductive)" in summary["grown"]
     assert main(common + ["--unlabelled", str(walks[0]), "--out", str(tmp_path / "y")]) == 1
     assert "both unlabelled and labelled or scored" in capsys.readouterr().err
+
+
+def test_leave_out_route_names_its_protocol_and_groups_as_a_regex_or_csv_does(tmp_path, capsys):
+    """--leave-out route on logs with IPIN trial names: the protocol in the printout, summary.json,
+    walks.csv and config.yaml (which still loads), a row per route; --leave-out-group and --groups
+    with the same groups give the same table; a name it cannot place is refused in one line."""
+    walks = []
+    for i, path in enumerate(_office_walks(tmp_path, 4)):
+        named = tmp_path / f"IPIN2023_T3_TrainingTrial0{1 + i // 2}_repetition0{1 + i % 2}.txt.gz"
+        path.rename(named)
+        walks.append(named)
+    common = ["evaluate", str(MAPS / "office.yaml"), *map(str, walks), "--methods", "kwnn,pf", "--particles", "500"]
+    assert main(common + ["--leave-out", "route", "--out", str(tmp_path / "route")]) == 0
+    printed = capsys.readouterr().out
+    assert "leave-one-route-out (IPIN trials): 2 routes of 2 walks" in printed
+    assert "scored against leave-one-route-out (IPIN trials)" in printed and "per route" in printed
+    summary = json.loads((tmp_path / "route" / "summary.json").read_text())
+    assert summary["protocol"] == "leave-one-route-out (IPIN trials)"
+    assert summary["groups"]["IPIN2023_T3_TrainingTrial02_repetition01"] == "T02"
+    assert [(r["group"], r["method"], r["traces"]) for r in summary["summary_by_group"]] == [
+        ("T01", "kwnn", 2), ("T01", "pf", 2), ("T02", "kwnn", 2), ("T02", "pf", 2)]
+    walk_rows = list(csv.DictReader((tmp_path / "route" / "walks.csv").open()))
+    assert {(r["protocol"], r["group"]) for r in walk_rows} == {("leave-one-route-out (IPIN trials)", "T01"),
+                                                                ("leave-one-route-out (IPIN trials)", "T02")}
+    groups = list(csv.DictReader((tmp_path / "route" / "groups.csv").open()))
+    assert [(r["group"], r["method"]) for r in groups] == [("T01", "kwnn"), ("T01", "pf"), ("T02", "kwnn"),
+                                                             ("T02", "pf")]
+    config = (tmp_path / "route" / "config.yaml").read_text()
+    assert config.startswith("# scored against leave-one-route-out")
+    # the same groups by a regex and by a CSV: the same numbers
+    table = tmp_path / "groups.csv"
+    table.write_text("log,group\n" + "".join(f"{w.name},{'ab'[i // 2]}\n" for i, w in enumerate(walks)))
+    assert main(common + ["--leave-out-group", r"Trial(\d+)", "--out", str(tmp_path / "regex")]) == 0
+    assert main(common + ["--groups", str(table), "--config", str(tmp_path / "route" / "config.yaml"),
+                          "--out", str(tmp_path / "csv")]) == 0
+
+    def numbers(out):
+        return [{k: v for k, v in row.items() if k != "runtime_s"}
+                for row in csv.DictReader((out / "summary.csv").open())]
+
+    assert numbers(tmp_path / "regex") == numbers(tmp_path / "route") == numbers(tmp_path / "csv")
+    # leave-one-walk-out keeps the other repetition of the route: another radio map, another table
+    assert main(common + ["--leave-out", "walk", "--out", str(tmp_path / "walk")]) == 0
+    assert json.loads((tmp_path / "walk" / "summary.json").read_text())["protocol"] == "leave-one-walk-out"
+    assert numbers(tmp_path / "walk") != numbers(tmp_path / "route")
+    capsys.readouterr()
+    # a walk whose route it cannot tell: one line, nothing written
+    other = tmp_path / "walk9.txt.gz"
+    other.write_bytes(walks[0].read_bytes())
+    assert main(common[:2] + [str(other)] + common[2:] + ["--leave-out", "route", "--out", str(tmp_path / "x")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "walk9.txt.gz" in err and not (tmp_path / "x").exists()
+    # one group only: no walk would have a survey
+    assert main(common + ["--leave-out-group", "IPIN", "--out", str(tmp_path / "y")]) == 1
+    assert "at least two groups" in capsys.readouterr().err and not (tmp_path / "y").exists()

@@ -211,6 +211,31 @@ def test_grown_by_fold_never_uses_the_labels_of_the_folds_walks(office, tmp_path
     assert not np.array_equal(again[1].xy_m, grown[1].xy_m)
 
 
+def test_grown_by_fold_keeps_given_folds_and_grows_each_folds_own_walks_there(office):
+    """Folds given per walk (a route's walks together): each fold's base holds every labelled walk
+    but its own fold's, and a fold's own walks (a transductive evaluation's) grow only its points."""
+    from mapfilter.pipeline.selftrain import grown_by_fold
+
+    plan = office["plan"]
+    labelled = [read_ilc(office["survey"]), read_ilc(office["held_out"][0]), read_ilc(office["held_out"][1])]
+    own = [read_ilc(office["unlabelled"][0])]
+    bases = []
+
+    def base_of(recordings):
+        bases.append([r.name for r in recordings])
+        return build_radio_map(recordings, plan)
+
+    config = GrowConfig(tracking=TrackingConfig().with_particles(300), max_iterations=1)
+    grown, _, fold = grown_by_fold(plan, labelled, [], config, folds=2, base_of=base_of, fold=[1, 0, 1],
+                                   fold_walks=[own, []])
+    assert fold.tolist() == [1, 0, 1]
+    assert bases == [[labelled[0].name, labelled[2].name], [labelled[1].name]]
+    assert set(np.array(grown[0].source_traces)[np.unique(grown[0].trace)]) == {own[0].name}
+    assert len(grown[1]) == 0
+    with pytest.raises(ValueError, match="fold"):
+        grown_by_fold(plan, labelled, [], config, folds=2, fold=[0, 2, 1])
+
+
 def test_cli_grow_in_a_building_puts_each_point_on_the_offline_tracks_floor(tmp_path, capsys):
     """Three simulated office floors, a coarse survey per floor; two walks that change floor
     grow the building's radio map: their points carry floors, mostly the true ones."""
