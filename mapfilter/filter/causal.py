@@ -29,6 +29,7 @@ filter starts afresh at the next usable scan (``gaps``).
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import heapq
 import math
@@ -215,6 +216,50 @@ def _known_s(steps: Steps) -> np.ndarray:
     return steps.t_s if available is None else available
 
 
+class _StepLog:
+    """The steps detected so far, kept in the pieces they came in: joining them at every chunk
+    would copy the whole walk's steps each time (a live run's cost would grow with its length)."""
+
+    def __init__(self) -> None:
+        self._pieces: list[Steps] = []
+        self._starts: list[int] = []  # the index of each piece's first step
+        self._n = 0
+        self._joined: Steps | None = None  # the pieces joined, kept until the next piece
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, steps: Steps) -> None:
+        if len(steps):
+            self._pieces.append(steps)
+            self._starts.append(self._n)
+            self._n += len(steps)
+            self._joined = None
+
+    def heading_change_rad(self, index: int) -> float:
+        """Step ``index``'s gyro heading change."""
+        piece = bisect.bisect_right(self._starts, index) - 1
+        return float(self._pieces[piece].heading_change_rad[index - self._starts[piece]])
+
+    def latest_abs_heading_rad(self, t_s: float) -> float | None:
+        """The rotation vector's heading at the latest step known at or before ``t_s`` (NaN: none
+        yet); None when no step is known by then or the steps carry no such heading."""
+        for piece in reversed(self._pieces):
+            known = int(np.searchsorted(_known_s(piece), t_s, side="right"))
+            if known:
+                return None if piece.abs_heading_rad is None else float(piece.abs_heading_rad[known - 1])
+        return None
+
+    def joined(self) -> Steps | None:
+        """Every step so far as one ``Steps`` (None before the first)."""
+        if self._joined is None and self._pieces:
+            self._joined = self._pieces[0]
+            for piece in self._pieces[1:]:
+                self._joined = merge_steps(self._joined, piece)
+            self._pieces, self._starts = [self._joined], [0]
+        return self._joined
+
+
 def merge_steps(a: Steps | None, b: Steps) -> Steps:
     """``a`` followed by ``b`` (steps arrive in time order)."""
     if a is None or len(a) == 0:
@@ -280,7 +325,7 @@ class CausalFilter:
         self._pdr = pdr if steps is None else None
         self._given_steps = steps
         self._abs_heading_offset_rad = abs_heading_offset_rad
-        self.steps: Steps | None = None  # the steps detected so far
+        self._steps = _StepLog()  # the steps detected so far
         self._start_xy_m, self._start_radius_m, self._start_share = start_xy_m, start_radius_m, start_share
         self._on_step = on_step
         self._merge = _Merge()
@@ -368,7 +413,17 @@ class CausalFilter:
             self._ticks_until(max(last, self._last_event_t), inclusive=True)
         else:
             self._run_events(horizon, inclusive=False)
+        self._forget_old_rotation_vectors()
         return self.rows[n_before:]
+
+    def _forget_old_rotation_vectors(self) -> None:
+        """Keep the rotation-vector samples a later start can ask for: from the latest one at or
+        before the latest event on (every later event is at or after it)."""
+        rotvec = self._rotvec
+        for i in range(len(rotvec) - 1, 0, -1):
+            if rotvec[i][0].size and rotvec[i][0][0] <= self._last_event_t:
+                del rotvec[:i]
+                return
 
     def _take_steps(self, released: dict, final: bool) -> None:
         """The steps the released IMU records revealed, as events at the time each became known."""
@@ -376,7 +431,7 @@ class CausalFilter:
             return
         if self._given_steps is not None:
             steps = self._given_steps
-            done = 0 if self.steps is None else len(self.steps)
+            done = len(self._steps)
             horizon = self._merge.released_t if not final else math.inf
             n = int(np.searchsorted(_known_s(steps), horizon, side="left")) if math.isfinite(horizon) else len(steps)
             new = _slice_steps(steps, done, n)
@@ -390,8 +445,8 @@ class CausalFilter:
             self._rotvec.append(released["rotvec"])
         if new is None or len(new) == 0:
             return
-        first = 0 if self.steps is None else len(self.steps)
-        self.steps = merge_steps(self.steps, new)
+        first = len(self._steps)
+        self._steps.append(new)
         known = _known_s(new)
         for k in range(len(new)):
             self._push_event(float(known[k]), _STEP, first + k)
@@ -469,7 +524,7 @@ class CausalFilter:
         elif kind == _STEP and self.started and not self._waiting_for_scan:
             # in a building with a barometer, the height weighs floors at every step, not only at scans
             between = self.evidence.between_scans(t_s)
-            step_input = StepInput(1, float(self.steps.heading_change_rad[index]))
+            step_input = StepInput(1, self._steps.heading_change_rad(index))
             self._step(t_s, step_input, self.evidence.model if between is not None else None, between)
         if self.started:
             self._schedule_ticks()
@@ -518,11 +573,8 @@ class CausalFilter:
         n = self.pf.n
         heading = None
         if self.motion.start_heading_from_rotation_vector:
-            steps = self.steps
-            known = 0 if steps is None else int(np.searchsorted(_known_s(steps), t_s, side="right"))
-            if known and steps.abs_heading_rad is not None:
-                heading = float(steps.abs_heading_rad[known - 1])
-            else:
+            heading = self._steps.latest_abs_heading_rad(t_s)
+            if heading is None:
                 heading = self._rotation_vector_heading(t_s)
         if heading is not None and math.isfinite(heading):
             self.pf.particles.heading_rad = heading + INITIAL_HEADING_SIGMA_RAD * self.rng.standard_normal(n)
@@ -546,29 +598,39 @@ class CausalFilter:
 
     # ---- outputs ----------------------------------------------------------------------------
     @property
+    def steps(self) -> Steps | None:
+        """The steps detected so far (None before the first)."""
+        return self._steps.joined()
+
+    @property
     def collapses(self) -> tuple[CollapseEvent, ...]:
         return tuple(self.pf.collapses)
 
     @property
     def floor_shares(self) -> np.ndarray | None:
         """(T, F) the weight share of each floor per row, or None (one floor)."""
-        if not self.rows or any(r.floor_shares is None for r in self.rows):
-            return None
-        return np.array([r.floor_shares for r in self.rows])
+        return _floor_shares(self.rows)
 
-    def track(self) -> Track:
-        """The causal rows so far as a track in the plan's frame (``floor_p``: the share of the
-        estimate's floor, in a building)."""
-        rows = self.rows
-        heading = np.array([r.heading_rad for r in rows])
-        shares = self.floor_shares
+    def track(self, rows: list[Estimate] | None = None) -> Track:
+        """The causal rows so far (or ``rows``, e.g. those one ``feed`` returned) as a track in the
+        plan's frame (``floor_p``: the share of the estimate's floor, in a building); headings
+        with PDR motion only."""
+        rows = self.rows if rows is None else rows
+        shares = _floor_shares(rows)
         floor_p = None
         if shares is not None:
             # a probability (the shares of normalised weights may sum to 1 + 1e-16)
             floor_p = np.clip(shares[np.arange(len(rows)), [r.floor_index for r in rows]], 0.0, 1.0)
+        heading = np.array([r.heading_rad for r in rows]) if self._uses_steps else None
         return Track(np.array([r.t_s for r in rows]), np.array([r.xy_m for r in rows]).reshape(-1, 2),
-                     np.array([r.std_m for r in rows]), heading if np.isfinite(heading).any() else None, name="pf",
-                     floor_p=floor_p)
+                     np.array([r.std_m for r in rows]), heading, name="pf", floor_p=floor_p)
+
+
+def _floor_shares(rows: list[Estimate]) -> np.ndarray | None:
+    """(T, F) the weight share of each floor per row, or None (one floor)."""
+    if not rows or any(r.floor_shares is None for r in rows):
+        return None
+    return np.array([r.floor_shares for r in rows])
 
 def rotation_vector_heading_of(xyz: np.ndarray, offset_rad: float) -> float:
     """Map heading of the phone's forward (+y) axis from one Android rotation vector (x, y, z of a

@@ -211,6 +211,11 @@ class WifiEvidence:
         return np.array(self._fix).reshape(-1, 2) if self._radio_map is not None and self._wifi.fingerprint_model != \
             "likelihood" else None
 
+    def fix_xy_m_since(self, first: int) -> np.ndarray | None:
+        """``fix_xy_m[first:]``, without making the whole walk's array (a live run adds scans all along)."""
+        return np.array(self._fix[first:]).reshape(-1, 2) if self._radio_map is not None and \
+            self._wifi.fingerprint_model != "likelihood" else None
+
     @property
     def kwnn_xy_m(self) -> np.ndarray | None:
         """(S, 2) KWNN fixes, one per scan (NaN: none); None for the other models."""
@@ -416,7 +421,7 @@ class BuildingEvidence:
         for f, evidence in enumerate(self.floor_wifi):
             if evidence is not None:
                 evidence.add_scans(scans)
-                fix[:, f] = self._stack.to_stack(evidence.fix_xy_m[first:], f)
+                fix[:, f] = self._stack.to_stack(evidence.fix_xy_m_since(first), f)
         self._fix.extend(fix)
         if self._given_floor_ll is not None:
             self._floor_ll.extend(self._given_floor_ll[first:first + len(scans)])

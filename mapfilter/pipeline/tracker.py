@@ -225,7 +225,7 @@ class Tracker:
         started = time.perf_counter()
         rows = self.stream.feed(records)
         self.runtime_s += time.perf_counter() - started
-        return self._rows_track(len(rows))
+        return self._on_floors(self.stream.track(rows))
 
     def close(self) -> Track:
         """The end of the walk; returns the last causal rows."""
@@ -234,11 +234,7 @@ class Tracker:
         if self.fixed_lag is not None:
             self.fixed_lag.close()
         self.runtime_s += time.perf_counter() - started
-        return self._rows_track(len(rows))
-
-    def _rows_track(self, n_new: int) -> Track:
-        track = self.causal
-        return track.rows(slice(len(track) - n_new, len(track)))
+        return self._on_floors(self.stream.track(rows))
 
     @property
     def causal(self) -> Track:

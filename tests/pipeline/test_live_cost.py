@@ -1,0 +1,67 @@
+"""A live run's cost per chunk does not grow with the run: each chunk makes only its own rows.
+
+Timing would be noisy here; the test counts what a chunk makes instead: the rows of the tracks
+it builds, the steps it copies, the rotation-vector samples it keeps for a later start."""
+
+from __future__ import annotations
+
+import gzip
+
+import numpy as np
+
+import mapfilter.filter.causal as causal
+from mapfilter.config import TrackingConfig
+from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.pipeline.tracker import Tracker
+from mapfilter.sensors.logs import LogStream
+from mapfilter.sensors.radiomap import RadioMap
+from tests.conftest import REPO
+
+PIECE_BYTES = 16384
+
+
+def _repeated_walk(times: int) -> bytes:
+    """The office walk played ``times`` times, each 120 s after the one before (one ILC log)."""
+    lines = gzip.open(REPO / "maps" / "office_walk.txt.gz", "rt").read().splitlines(True)
+    out = [line for line in lines if line.startswith("#")]
+    body = [line.split("\t", 1) for line in lines if line.strip() and not line.startswith("#")]
+    for k in range(times):
+        out += [f"{int(t) + k * 120_000}\t{rest}" for t, rest in body]
+    return "".join(out).encode()
+
+
+def test_a_chunk_late_in_a_long_run_makes_only_its_own_rows(monkeypatch):
+    built = []  # the rows of every track the causal filter builds
+    steps_copied = []
+
+    class CountedTrack(causal.Track):
+        def __init__(self, t_s, *args, **kwargs):
+            built.append(len(t_s))
+            super().__init__(t_s, *args, **kwargs)
+
+    def counted_merge(a, b):
+        steps_copied.append((0 if a is None else len(a)) + len(b))
+        return merge(a, b)
+
+    merge = causal.merge_steps
+    monkeypatch.setattr(causal, "Track", CountedTrack)
+    monkeypatch.setattr(causal, "merge_steps", counted_merge)
+    data = _repeated_walk(2)
+    tracker = Tracker(FloorPlan.load(REPO / "maps" / "office.yaml"), RadioMap.load(REPO / "maps" / "office_radiomap.npz"),
+                      config=TrackingConfig(seed=0).override({"filter.n_particles": 200}))
+    stream = LogStream("the repeated walk")
+    kept_rotvec = []
+    for i in range(0, len(data), PIECE_BYTES):
+        built.clear()
+        new = tracker.feed(stream.feed_bytes(data[i:i + PIECE_BYTES]))
+        assert sum(built) == len(new)  # the chunk's rows only, never the track so far
+        kept_rotvec.append(sum(t.size for t, _ in tracker.stream._rotvec))
+    assert steps_copied == []  # steps are joined only when the whole walk's are asked for
+    tracker.feed(stream.close())
+    tracker.close()
+    assert len(tracker.stream.rows) > 350  # two walks: the run was long
+    # a later start needs the latest rotation-vector sample only: a chunk or two of them are kept
+    # (a 16 KiB piece holds about 80), not the 11,836 of the two walks
+    assert 0 < max(kept_rotvec) < 1000
+    steps = tracker.stream.steps
+    assert len(steps) > 300 and np.all(np.diff(steps.t_s) > 0)  # joined once, in order, when asked for
