@@ -44,14 +44,15 @@ from mapfilter.sensors.radiomap import build_radio_map as _build_one_floor
 from mapfilter.pipeline.selftrain import GrowConfig, GrowReport
 from mapfilter.pipeline.selftrain import grow_radio_map as _grow
 from mapfilter.sensors.recording import Recording
-from mapfilter.pipeline.tracker import Tracker, TrackResult
+from mapfilter.pipeline.tracker import Tracker, TrackingInputs, TrackResult
 from mapfilter.pipeline.tracker import track as _track
+from mapfilter.filter.sources import plugin
 from mapfilter.io.tracks import Track, read_track, write_track
 
 __all__ = ["BeaconFit", "BeaconTable", "Building", "Evaluation", "GrowConfig", "GrowReport", "LogStream", "RadioMap",
-           "Recording", "Track", "TrackResult", "Tracker", "TrackingConfig", "build_radio_map", "enter_trial",
-           "evaluate", "fit_beacons", "grow_radio_map", "load_access_points", "load_beacons", "load_map",
-           "load_radio_map", "read_log", "read_track", "track", "write_track"]
+           "Recording", "Track", "TrackResult", "Tracker", "TrackingConfig", "TrackingInputs", "build_radio_map",
+           "enter_trial", "evaluate", "fit_beacons", "grow_radio_map", "load_access_points", "load_beacons",
+           "load_map", "load_radio_map", "load_sources", "read_log", "read_track", "track", "write_track"]
 
 PathLike = str | os.PathLike
 
@@ -96,20 +97,45 @@ def track(building: Building | FloorPlan | PathLike, recording: Recording | Path
           config: TrackingConfig | None = None, *, floor: str | None = None,
           on_step: Callable[[StepReport], None] | None = None,
           on_offline_step: Callable[[StepReport], None] | None = None,
-          rng: np.random.Generator | None = None, beacons: BeaconTable | PathLike | None = None) -> TrackResult:
+          rng: np.random.Generator | None = None, sources: Mapping[str, object] | None = None) -> TrackResult:
     """Track one walk (``pipeline.tracker.track``): the causal track and, with ``config.smooth``, the
     offline one. ``radio_map`` (fingerprinting) or ``access_points`` (trilateration), at most
-    one; ``beacons``: a BLE beacon table weighed too (alone without the other two); ``floor``
-    tracks on one floor of a building; ``on_step`` sees every filter step; ``rng``: the run's
-    random numbers (default: from ``config.seed``)."""
+    one; ``sources``: measurement sources weighed too (alone without the other two), ``{name: its
+    input, or its file (several files: {option: path})}`` (``load_sources``); ``floor`` tracks on
+    one floor of a building; ``on_step`` sees every filter step; ``rng``: the run's random
+    numbers (default: from ``config.seed``)."""
     building = _building(building, "building")
     recording = _recording(recording, "recording", building)
-    radio_map, access_points, beacons, config = _tracking_inputs(building, radio_map, access_points, beacons, config,
+    radio_map, access_points, sources, config = _tracking_inputs(building, radio_map, access_points, sources, config,
                                                                  floor)
     if rng is not None and not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
     return _track(building, recording, radio_map, access_points, config, floor=floor, on_step=on_step,
-                  on_offline_step=on_offline_step, rng=rng, beacons=beacons)
+                  on_offline_step=on_offline_step, rng=rng, sources=sources)
+
+
+def load_sources(sources: Mapping[str, object], building: Building | PathLike) -> dict[str, object]:
+    """The inputs of measurement sources (``filter.sources``) by name: each given as the input
+    itself (e.g. a ``BeaconTable`` for ``"ble"``), the path of its one file, or ``{option: path}``
+    for a source of several files (the options' names without dashes, e.g. ``{"anchors": ...}``)."""
+    building = _building(building, "building")
+    if not isinstance(sources, Mapping):
+        raise _type_error("sources", "a mapping {source name: its input or file}", sources)
+    loaded = {}
+    for name, value in sources.items():
+        entry = plugin(name)
+        keys = [o.key for o in entry.options]
+        if _is_path(value) and len(keys) == 1:
+            loaded[name] = entry.load({keys[0]: Path(value)}, building)
+        elif isinstance(value, Mapping) and all(_is_path(v) for v in value.values()):
+            missing = sorted(set(keys) - set(value))
+            if missing or set(value) - set(keys):
+                raise TypeError(f"sources[{name!r}]: expected the files {{{', '.join(map(repr, keys))}}}, got "
+                                f"{{{', '.join(map(repr, value))}}}")
+            loaded[name] = entry.load({k: Path(v) for k, v in value.items()}, building)
+        else:
+            loaded[name] = entry.check(value)
+    return loaded
 
 
 def load_beacons(path: PathLike, building: Building | PathLike | None = None,
@@ -125,7 +151,7 @@ def fit_beacons(building: Building | PathLike, positions: BeaconTable | PathLike
                 recordings: Sequence[Recording | PathLike], config: BeaconFitConfig | None = None) -> BeaconFit:
     """The beacons' path-loss parameters fitted from survey walks with waypoints (``sensors.beacons``,
     as ``mapfilter radiomap fit-beacons``): ``.table`` is the fitted table (``mf.track(...,
-    beacons=)``), ``.rows`` how each beacon fitted and whether its readings fit another's position
+    sources={"ble": table})``), ``.rows`` how each beacon fitted and whether its readings fit another's position
     better. Walks given as ``Recording``s have their latitude/longitude ground truth placed in the
     building (``read_log(..., building=)``)."""
     building = _building(building, "building")
@@ -174,7 +200,7 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
              radio_map: RadioMap | PathLike | None = None, access_points: AccessPointTable | PathLike | None = None,
              survey: Sequence[Recording | PathLike] = (), leave_one_out: bool = False,
              unlabelled: Sequence[Recording | PathLike] = (), transductive: bool = False,
-             methods: Sequence[str] | None = None, beacons: BeaconTable | PathLike | None = None,
+             methods: Sequence[str] | None = None, sources: Mapping[str, object] | None = None,
              config: TrackingConfig | None = None, jobs: int = 1, scheduler: str | None = None,
              progress: Callable[[int, int, str], None] | None = None) -> Evaluation:
     """Every method on the same walks (``evaluation.comparison``), as ``mapfilter evaluate`` runs them:
@@ -183,8 +209,9 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
     The walks (``logs``, ``survey``, ``unlabelled``): ``Recording``s or log paths. The radio map:
     a ``RadioMap`` or its file (``radio_map``), ``survey`` walks, or ``leave_one_out`` (each walk's
     from the other walks); ``unlabelled`` walks grow it (self-training), ``transductive`` the
-    evaluated walks too. ``beacons``: a BLE beacon table or its file (adds the methods pf+ble,
-    pf-ble; its C and n are fitted again from the survey or the other walks).
+    evaluated walks too. ``sources``: measurement sources (as ``track`` takes them), each adding
+    its methods (``pf+NAME``, ``pf-NAME``; a source may fit its input again on the survey or
+    the other walks).
     ``jobs``/``scheduler``: walks on local Dask worker processes or a cluster.
     """
     building = _building(building, "building")
@@ -197,40 +224,39 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
     given_map, map_path = _object_or_path(radio_map, RadioMap, "radio_map", "a RadioMap (mf.load_radio_map)")
     given_aps, aps_path = _object_or_path(access_points, AccessPointTable, "access_points",
                                           "an AccessPointTable (mf.load_access_points)")
-    given_beacons, beacons_path = _object_or_path(beacons, BeaconTable, "beacons", "a BeaconTable (mf.load_beacons)")
+    loaded = load_sources(sources, building) if sources is not None else {}
     config = _config(config)
     setup = EvaluationSetup(methods=None if methods is None else tuple(methods),
                             radio_map_path=None if map_path is None else Path(map_path),
                             ap_table_path=None if aps_path is None else Path(aps_path), survey_paths=tuple(_walks(survey, "survey")),
                             leave_one_out=bool(leave_one_out), tracking=config if config is not None else TrackingConfig(),
                             unlabelled_paths=tuple(_walks(unlabelled, "unlabelled")), transductive=bool(transductive),
-                            radio_map=given_map, access_points=given_aps, beacons=given_beacons,
-                            beacon_table_path=None if beacons_path is None else Path(beacons_path))
+                            radio_map=given_map, access_points=given_aps, sources=loaded)
     return _evaluate(building, walks, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)
 
 
 def enter_trial(server_url: str, trial: str, building: Building | PathLike, *,
                 radio_map: RadioMap | PathLike | None = None, access_points: AccessPointTable | PathLike | None = None,
-                beacons: BeaconTable | PathLike | None = None, config: TrackingConfig | None = None,
+                sources: Mapping[str, object] | None = None, config: TrackingConfig | None = None,
                 offline: bool = False, floor: str | None = None, timeout_s: float = 10.0):
     """Enter an IPIN competition trial on its EvaalAPI server (``evaal``), as ``mapfilter evaal``
     does: online, the streaming tracker's causal estimate with each request for the next 0.5 s of
     log; ``offline``, the whole-walk track's estimates posted in one go. ``building`` must be
-    georeferenced; ``beacons``: a BLE beacon table weighed too (or alone). Returns the
+    georeferenced; ``sources``: measurement sources weighed too, or alone (as ``track``). Returns the
     ``evaal.protocol.TrialRun`` (``estimates``: what the server keeps)."""
     from mapfilter.evaal.client import EvaalClient, run_offline, run_online
     from mapfilter.evaal.protocol import check_building
     from mapfilter.pipeline.tracker import Tracker
 
     building = _building(building, "building")
-    radio_map, access_points, beacons, config = _tracking_inputs(building, radio_map, access_points, beacons, config,
+    radio_map, access_points, sources, config = _tracking_inputs(building, radio_map, access_points, sources, config,
                                                                  floor)
     config = config if config is not None else TrackingConfig()
     if offline and not config.smooth:
         config = dataclasses.replace(config, smooth=True)
     check_building(building)
-    tracker = Tracker(building, radio_map, access_points, config, floor=floor, log_name=f"trial {trial}",
-                      beacons=beacons)
+    tracker = Tracker(building, TrackingInputs(radio_map, access_points, sources), config, floor=floor,
+                      log_name=f"trial {trial}")
     client = EvaalClient(server_url, trial, timeout_s=timeout_s)
     return run_offline(client, tracker) if offline else run_online(client, tracker)
 
@@ -250,13 +276,13 @@ def _check_path(value, name: str, what: str) -> None:
         raise _type_error(name, f"the path of {what}", value)
 
 
-def _tracking_inputs(building: Building, radio_map, access_points, beacons, config, floor):
-    """The checked radio map, access points, beacons and config of a tracking call (``floor`` a
-    floor name or None)."""
+def _tracking_inputs(building: Building, radio_map, access_points, sources, config, floor):
+    """The checked radio map, access points, sources' inputs and config of a tracking call
+    (``floor`` a floor name or None)."""
     if floor is not None and not isinstance(floor, str):
         raise TypeError(f"floor: expected a floor name (str), got {type(floor).__name__}")
     return (_radio_map(radio_map, "radio_map"), _access_points(access_points, "access_points"),
-            _beacons(beacons, "beacons", building), _config(config))
+            load_sources(sources, building) if sources is not None else {}, _config(config))
 
 
 def _building(value, name: str, optional: bool = False) -> Building | None:

@@ -16,8 +16,9 @@ import math
 import os
 import time
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from mapfilter.config import TrackingConfig
 from mapfilter.runtime.dispatch import Engine, run_each
@@ -25,7 +26,6 @@ from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.metrics import FloorScore, summarise_errors
 from mapfilter.evaluation.scoring import score_track
 from mapfilter.maps.building import Building
-from mapfilter.sensors.beacons import BeaconTable
 from mapfilter.sensors.floor_vote import check_building_radio_map
 from mapfilter.sensors.logs import read_log, read_log_header
 from mapfilter.sensors.pathloss import AccessPointTable
@@ -44,7 +44,9 @@ class BatchSetup:
     tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)  # seed included
     strict: bool = False  # refuse a walk with a bad row in a record type it needs (default: skip the row, warn)
     floor: str | None = None  # track every walk on this floor (default: find the floor, or the header's)
-    beacons: BeaconTable | None = None  # BLE beacons weighed besides (or, without WiFi, instead of) the WiFi
+    # {measurement source name: its input} (``filter.sources``), weighed besides (or, without WiFi,
+    # instead of) the WiFi
+    sources: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass
@@ -99,7 +101,7 @@ def _track_into(result: WalkResult, building: Building, recording: Recording, ra
                 access_points: AccessPointTable | None, setup: BatchSetup) -> None:
     header_floor = building.floor_of_log(recording.floor_name, result.log_path, setup.floor)
     outcome = track(building, recording, radio_map, access_points, setup.tracking, floor=setup.floor,
-                    beacons=setup.beacons)
+                    sources=setup.sources)
     smoothed = outcome.offline is not None
     result.track = outcome.offline if smoothed else outcome.causal
     result.causal = outcome.causal
@@ -129,8 +131,9 @@ def track_logs(building: Building, log_paths: Sequence[str | os.PathLike], radio
     track file at once, so that an interrupted batch keeps the walks already done).
     """
     paths = _distinct_paths(log_paths)
-    if radio_map is None and access_points is None and setup.beacons is None:
-        raise MapfilterError("no WiFi source: give a radio map or an access-point table (or a beacon table)")
+    if radio_map is None and access_points is None and not setup.sources:
+        raise MapfilterError("nothing to weigh the particles by: give a radio map or an access-point table (or a "
+                             "measurement source's input)")
     if not building.is_single_floor and setup.floor is None and (radio_map is not None or access_points is not None):
         if radio_map is None:
             raise MapfilterError("tracking across floors needs a building's radio map (or give the floor)")

@@ -17,17 +17,17 @@ from typing import Any
 
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.models.barometer import BarometerConfig
-from mapfilter.filter.models.ble import BleConfig
 from mapfilter.filter.evidence import TrilaterationConfig, WifiConfig
 from mapfilter.filter.models.building import FloorChangeConfig
 from mapfilter.filter.particle_filter import FilterConfig
 from mapfilter.filter.causal import MotionConfig
+from mapfilter.filter.sources import registered
 from mapfilter.offline.whole_walk import OfflineConfig
 from mapfilter.sensors.pdr import PDRConfig
 from mapfilter.settings import (replace_setting, retired_setting_message, settings_from_yaml, settings_to_dict,
                                 settings_to_yaml)
 
-__all__ = ["RETIRED_SETTINGS", "FloorsConfig", "TrackingConfig"]
+__all__ = ["RETIRED_SETTINGS", "FloorsConfig", "SourcesConfig", "TrackingConfig"]
 
 # Settings that were folded into their model's constants: the model's shape, not a user's choice
 # (the reason beside each constant, the measurements in docs/accuracy.md)
@@ -63,7 +63,7 @@ RETIRED_SETTINGS: dict[str, str] = {
     "steps.step_length_m": "removed: never read (the step length is Weinberg's)",
     "steps.step_length_std_m": "removed: never read (the filter's step length walks by itself)",
     "offline.restart_from_placement": "removed: the offline track always smooths a second forward pass on one floor",
-    "offline.restart_radius_m": "now a constant of mapfilter.pipeline.tracker (RESTART_RADIUS_M)",
+    "offline.restart_radius_m": "now a constant of mapfilter.pipeline.offline (RESTART_RADIUS_M)",
     # the one filter step (filter/kernels/passes.py) has one resampler and one kernel
     "filter.fused_from_particles": "removed: every particle count takes the one step (filter/kernels/passes.py)",
     "filter.resampler": "removed: the step resamples systematically",
@@ -75,6 +75,8 @@ RETIRED_SETTINGS: dict[str, str] = {
                                       "within motion.pdr.step_length_min_m..max_m",
     "motion.pdr.step_length_input_sigma_m": "removed with motion.pdr.fixed_step_length_m (the state's random "
                                             "walk: STEP_LENGTH_WALK_SIGMA_M in mapfilter.filter.models.motion)",
+    # the BLE section became a measurement source's (filter/sources/ble.py)
+    **{f"ble.{name}": f"now sources.ble.{name}" for name in ("window_s", "rssi_variance_db2", "rssi_offset_db")},
 }
 
 
@@ -85,6 +87,15 @@ class FloorsConfig:
     changes: FloorChangeConfig = dataclasses.field(default_factory=FloorChangeConfig)  # how particles change floor
     use_barometer: bool = True  # weigh floors by the log's barometer when it has one
     barometer: BarometerConfig = dataclasses.field(default_factory=BarometerConfig)  # how the barometer weighs floors
+
+
+# one section per registered measurement source (filter.sources), each the source's own config
+SourcesConfig = dataclasses.make_dataclass(
+    "SourcesConfig", [(p.name, p.config, dataclasses.field(
+        default_factory=p.config, metadata={"doc": f"{p.title} ({', '.join(o.flag for o in p.options)})"}))
+        for p in registered()], frozen=True)
+SourcesConfig.__module__ = __name__  # pickled by name (to Dask workers)
+SourcesConfig.__doc__ = "The measurement sources besides WiFi (``filter.sources``): a section each."
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,10 +109,10 @@ class TrackingConfig:
     steps: PDRConfig = dataclasses.field(default_factory=PDRConfig)  # step detection, heading and step length from the IMU
     wifi: WifiConfig = dataclasses.field(default_factory=WifiConfig)  # fingerprinting (a radio map)
     trilateration: TrilaterationConfig = dataclasses.field(default_factory=TrilaterationConfig)  # an access-point table
-    ble: BleConfig = dataclasses.field(default_factory=BleConfig)  # BLE beacons (a beacon table: --beacons)
     filter: FilterConfig = dataclasses.field(default_factory=FilterConfig)  # the particle filter
     floors: FloorsConfig = dataclasses.field(default_factory=FloorsConfig)  # a building's floors
     offline: OfflineConfig = dataclasses.field(default_factory=OfflineConfig)  # the offline track (smooth)
+    sources: SourcesConfig = dataclasses.field(default_factory=SourcesConfig)  # measurement sources besides WiFi, weighed when given
 
     def __post_init__(self) -> None:
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:

@@ -36,11 +36,13 @@ __all__ = ["field_docs", "retired_setting_message", "settings_from_yaml", "setti
 
 @functools.cache
 def field_docs(cls: type) -> dict[str, str]:
-    """{field name: the comment at the end of its line} of a dataclass (from its source)."""
+    """{field name: the comment at the end of its line} of a dataclass (from its source), or its
+    field's ``metadata["doc"]`` (a dataclass made at run time has no source)."""
+    given = {f.name: f.metadata["doc"] for f in dataclasses.fields(cls) if "doc" in f.metadata}
     try:
         source = textwrap.dedent(inspect.getsource(cls))
     except (OSError, TypeError):
-        return {}
+        return given
     comments = {tok.start[0]: tok.string.lstrip("#").strip()
                 for tok in tokenize.generate_tokens(io.StringIO(source).readline) if tok.type == tokenize.COMMENT}
     body = ast.parse(source).body[0]
@@ -50,7 +52,7 @@ def field_docs(cls: type) -> dict[str, str]:
             comment = comments.get(node.end_lineno)
             if comment:
                 docs[node.target.id] = comment
-    return docs
+    return {**docs, **given}
 
 
 def _settings_fields(cls: type) -> list[dataclasses.Field]:

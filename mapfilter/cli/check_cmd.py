@@ -11,7 +11,7 @@ from mapfilter.errors import MapfilterError
 _EPILOG = """\
 One line per log: its format (ILC 2.0 or GetSensorData, told by content) and phone, floor,
 duration, waypoints, WiFi scans and access points, IMU rows (and whether dead reckoning is
-possible), barometer and beacon rows, then what was skipped: bad rows per record type (with
+possible), barometer and BLE rows, then what was skipped: bad rows per record type (with
 the first bad line; values outside their physical range are bad rows), exact duplicate rows,
 rows that went back in time (dropped), lines that held two records (split), a gzip stream cut short; and long stretches with no
 record at all (time gaps). A last line counts the logs. The exit code is 1 if any log cannot
@@ -151,8 +151,7 @@ def describe(recording) -> str:
         parts.append("no IMU (WiFi only: no dead reckoning)")
     if recording.pressure_t_s.size:
         parts.append(f"{recording.pressure_t_s.size} barometer rows")
-    if recording.beacons.t_s.size:
-        parts.append(f"{recording.beacons.t_s.size} beacon rows")
+    parts += [f"{n} {sensor} rows" for sensor, n in recording.source_rows.items() if n]
     text = f"{recording.path}: " + ", ".join(parts)
     skipped = report.warning() if report is not None else None
     if skipped:

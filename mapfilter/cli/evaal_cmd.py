@@ -10,7 +10,8 @@ from pathlib import Path
 
 from mapfilter.cli.common import (bounded_float, check_distinct_outputs, check_map_first, check_output_path, input_paths,
                                   warn)
-from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
+from mapfilter.cli.tracking_options import (add_source_arguments, add_tracking_arguments, load_sources, source_paths,
+                                            tracking_config_from)
 from mapfilter.errors import MapfilterError
 
 _EPILOG = """\
@@ -55,9 +56,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     wifi = parser.add_mutually_exclusive_group()
     wifi.add_argument("--radiomap", type=Path, metavar="RM", help="radio map (.npz) for fingerprinting")
     wifi.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table for trilateration")
-    parser.add_argument("--beacons", type=Path, metavar="TABLE.csv",
-                        help="BLE beacon table (mapfilter radiomap fit-beacons): weigh the trial's beacon readings "
-                             "too; without --radiomap and --aps, the beacons alone")
     parser.add_argument("--floor", metavar="NAME", help="track on this floor only (default: find the floor)")
     parser.add_argument("--offline", action="store_true",
                         help="an offline trial: the whole log at once, the whole-walk track posted in one go")
@@ -73,6 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--retry", type=bounded_float(0.0, 3600.0), default=30.0, metavar="S",
                         help="seconds to keep trying after a dropped connection (default: 30)")
     add_tracking_arguments(parser)
+    add_source_arguments(parser)
     parser.set_defaults(func=run, adapted_aps=None)
 
 
@@ -95,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         raise MapfilterError("--smooth needs the whole walk: an online trial gets the causal estimates (an offline "
                              "trial, --offline, gets the whole-walk track)")
     out = args.out if args.out is not None else default_out(args.trial)
-    inputs = input_paths(args.map, args.radiomap, args.aps, args.beacons, args.config)
+    inputs = input_paths(args.map, args.radiomap, args.aps, *source_paths(args), args.config)
     check_output_path(out, inputs=inputs)
     check_distinct_outputs([("--out", out)])
     return _enter(args, config, out)
@@ -104,10 +103,10 @@ def run(args: argparse.Namespace) -> int:
 def _enter(args: argparse.Namespace, config, out: Path) -> int:
     from mapfilter.evaal.client import EvaalClient, run_offline, run_online
     from mapfilter.evaal.protocol import check_building
-    from mapfilter.cli.track_cmd import _beacon_table, _wifi_source
+    from mapfilter.cli.track_cmd import _wifi_source
     from mapfilter.maps.building import Building
     from mapfilter.runtime.memory import building_extents_m, check_tracking_fits
-    from mapfilter.pipeline.tracker import Tracker
+    from mapfilter.pipeline.tracker import Tracker, TrackingInputs
 
     building = Building.load(args.map)
     check_building(building, args.map)
@@ -115,15 +114,15 @@ def _enter(args: argparse.Namespace, config, out: Path) -> int:
         building.floor_index(args.floor, args.map)
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     radio_map, ap_table = _wifi_source(args, building, config)
-    beacons = _beacon_table(args, building)
+    sources = load_sources(args, building)
     client = EvaalClient(args.server, args.trial, timeout_s=args.timeout, retry_s=args.retry,
                                on_retry=lambda message: warn(f"trial {args.trial}: connection dropped: {message}"))
     if args.reload:
         client.reload()
         print(f"trial {args.trial}: reloaded", file=sys.stderr)
     floor = None if building.is_single_floor else args.floor
-    tracker = Tracker(building, radio_map, ap_table, config, floor=floor, log_name=f"trial {args.trial}",
-                      beacons=beacons)
+    tracker = Tracker(building, TrackingInputs(radio_map, ap_table, sources), config, floor=floor,
+                      log_name=f"trial {args.trial}")
 
     def progress(message: str) -> None:
         print(f"trial {args.trial}: {message}", file=sys.stderr, flush=True)
@@ -170,7 +169,10 @@ def _summary(run, out: Path) -> str:
                          f"{final.slowdown * final.horizon_s:g} s on average)")
     result = run.result
     if result is not None:
-        lines.append(f"  the tracker: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used, "
+        from mapfilter.cli.track_cmd import _measured
+
+        lines.append(f"  the tracker: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used"
+                     f"{_measured(result)}, "
                      f"{len(result.collapses)} collapses; causal {result.causal_runtime_s:.1f} s"
                      + (f", offline {result.offline_runtime_s:.1f} s" if result.offline is not None else ""))
     lines.append(f"  wrote {out} (the estimates the server keeps: pts,lon,lat,floor)")

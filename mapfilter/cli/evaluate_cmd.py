@@ -13,14 +13,30 @@ from mapfilter.io.atomic import atomic_paths
 from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arguments, add_strict_argument,
                                   announce_estimate, check_map_first, check_output_path, duration_text, engine_from,
                                   estimate_tracking_s, input_paths, walk_spans_s, warn)
-from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
+from mapfilter.cli.tracking_options import (add_source_arguments, add_tracking_arguments, load_sources, source_files,
+                                            source_paths, tracking_config_from)
 from mapfilter.errors import MapfilterError
+from mapfilter.filter.sources import evaluation_methods, registered
 from mapfilter.runtime.memory import building_extents_m, check_tracking_fits
 
 # mapfilter.evaluation.comparison's methods, written out so that --help imports no numerical
-# library (tests/cli/test_cli_startup.py holds them equal)
-ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", "pf+ble", "pf-ble")
-BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", "pf+ble", "pf-floor+ble", "pf-ble")
+# library (tests/cli/test_cli_startup.py holds them equal); the sources' from their registry
+ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", *evaluation_methods(True))
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", *evaluation_methods(False))
+
+
+def _sources_epilog() -> str:
+    """What each measurement source adds (``filter.sources``)."""
+    lines = ["with a measurement source's files, also (NAME: the source's name):",
+             "  pf+NAME   pf with the source's measurements too   pf-NAME   pf on the source alone (no WiFi)",
+             "  pf-floor+NAME  pf-floor with the source too (a building); with --smooth, pf-smooth+NAME",
+             "  With --survey or --leave-one-out a source may fit its input again on the labelled walks",
+             "  (never the walk itself); with --radiomap, the inputs as given. The sources:"]
+    for entry in registered():
+        files = " ".join(f"{o.flag} {o.metavar}" for o in entry.options)
+        lines.append(f"  {entry.name:8s}  {entry.title} ({files})")
+    return "\n".join(lines)
+
 
 _EPILOG = f"""\
 methods on one floor: {', '.join(ALL_METHODS)} (default: all that the WiFi source allows)
@@ -33,12 +49,7 @@ methods in a building with several floors: {', '.join(BUILDING_METHODS)}
   kwnn      each scan on the WiFi floor HMM's floor
   kf, pdr   the Kalman filter and dead reckoning on those KWNN fixes, each row on their floor
 
-with --beacons TABLE.csv (BLE; fit one with `mapfilter radiomap fit-beacons`), also:
-  pf+ble    pf with the beacons' readings too       pf-ble    pf on the beacons alone (no WiFi)
-  pf-floor+ble  pf-floor with the beacons too (a building)
-  With --survey or --leave-one-out, each walk's beacons take the table's positions with C, n
-  and the floor loss fitted on the labelled walks (never the walk itself), and the walk's
-  phone model the RSSI offset those walks give it; with --radiomap, the table as given.
+{{sources}}
 
 the table (docs/results.md): errors at the waypoints, mean, median, p75 (the EvAAL/IPIN
 percentile), p90, ce95 (the 95th percentile, ISO/IEC 18305's CE95), max, rmse; n waypoints
@@ -52,7 +63,7 @@ their phone (GetSensorData) also get the table per phone model.
 The radio map: --radiomap (one file for all walks), --survey LOGS (built from these walks,
 which are never scored), or --leave-one-out (each walk's radio map from the other evaluated
 walks, plus any --survey logs). Leave a group out instead of one walk (docs/ipin.md): each walk's
-radio map (and fitted access points, beacons, fix calibration, grown points) without every walk
+radio map (and fitted access points, the sources' fits, fix calibration, grown points) without every walk
 of its group: --leave-out route (every repetition of an IPIN trial: the trial number of
 ..._TrainingTrialNN_repetitionR; other names are refused), --leave-out-group REGEX (the regex's
 first group, or its whole match, in the log's file name), or --groups FILE.csv (rows log,group;
@@ -100,15 +111,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "evaluate", help="compare every method on the same walks (errors, CDF plot, tracks)",
         description="Run every method on the same walks and compare their errors against ground truth.",
-        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=_EPILOG.replace("{sources}", _sources_epilog()),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("map", type=Path, metavar="MAP", help="map YAML or building YAML")
     parser.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="walks with waypoints (scored)")
     parser.add_argument("--methods", default=None, metavar="M1,M2",
                         help="comma-separated methods (default: all that the map and WiFi source allow)")
     parser.add_argument("--radiomap", type=Path, metavar="RM", help="one radio map for all walks")
     parser.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table (ls; pf if no radio map)")
-    parser.add_argument("--beacons", type=Path, metavar="TABLE.csv",
-                        help="BLE beacon table: adds pf+ble, pf-ble (and pf-floor+ble in a building)")
     parser.add_argument("--survey", type=Path, nargs="+", default=[], metavar="LOG",
                         help="walks with waypoints that make the radio map (and fitted APs); never scored")
     leave_out = parser.add_mutually_exclusive_group()
@@ -131,6 +141,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--resume", action="store_true",
                         help="keep the walks an interrupted run with the same settings finished in OUT")
     add_tracking_arguments(parser)
+    add_source_arguments(parser)
     add_engine_arguments(parser)
     add_strict_argument(parser)
     parser.set_defaults(func=run)
@@ -150,21 +161,21 @@ def run(args: argparse.Namespace) -> int:
     methods = None if args.methods is None else tuple(m.strip() for m in args.methods.split(",") if m.strip())
     engine = engine_from(args)
     inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.survey, args.unlabelled, args.config,
-                         args.beacons, args.groups)
+                         *source_paths(args), args.groups)
     out = check_output_path(args.out, directory=True, inputs=inputs)  # holds only our files, no input
     building = Building.load(args.map)
     check_tracking_fits(config, building_extents_m(building))
     setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,
                             tracking=config, unlabelled_paths=tuple(args.unlabelled),
-                            transductive=args.transductive, beacon_table_path=args.beacons, groups=grouping)
+                            transductive=args.transductive, sources=load_sources(args, building), groups=grouping)
     validate_setup(building, args.logs, setup)  # before anything is written
     key = run_key({"map": str(args.map.resolve()), "logs": [str(p.resolve()) for p in args.logs],
                    "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
                    "aps": str(args.aps), "leave_one_out": args.leave_one_out, "methods": methods,
                    "unlabelled": [str(p.resolve()) for p in args.unlabelled], "transductive": args.transductive,
                    "strict": args.strict, "config": config.to_dict(),
-                   **({"beacons": str(args.beacons)} if args.beacons is not None else {}),
+                   **({"sources": _source_files(args)} if source_files(args) else {}),
                    **({"groups": dict(grouping.group_of)} if grouping is not None else {}),
                    # by content: a log, map or model replaced at the same path is another run
                    "content": [file_digest(p) for p in inputs if p.is_file()]})
@@ -204,14 +215,14 @@ def run(args: argparse.Namespace) -> int:
             done = [dataclasses.replace(o, index=index[o.trace]) for o in done if o.trace in index]
             partial = Evaluation.from_outcomes(done, len(args.logs), 0.0)
             partial.protocol, partial.grouping = setup.protocol, setup.groups
-            _write_summary(args, out, partial, config, methods_for(building, args.beacons is not None),
+            _write_summary(args, out, partial, config, methods_for(building, source_files(args)),
                            complete=False)
             print(f"interrupted: {len(done)} of {len(args.logs)} walks done; wrote a partial summary to "
                   f"{args.out} (mapfilter evaluate ... --resume runs the rest)")
             raise
     for message in evaluation.read_warnings:
         warn(message)
-    _write_summary(args, out, evaluation, config, methods_for(building, args.beacons is not None), complete=True)
+    _write_summary(args, out, evaluation, config, methods_for(building, source_files(args)), complete=True)
     return 1 if evaluation.failed else 0
 
 
@@ -233,12 +244,16 @@ def _grouping(args):
     return grouping
 
 
+def _source_files(args) -> dict[str, dict[str, str]]:
+    return {name: {key: str(path) for key, path in files.items()} for name, files in source_files(args).items()}
+
+
 def _announce(args, building, methods, config, n_resumed: int) -> None:
     """The run's rough time, before it starts, when it is long: the particle filter runs of every
     walk (the baselines cost little beside them) and of the walks that grow the radio map."""
     from mapfilter.evaluation.comparison import methods_for
 
-    pf_runs = [m for m in (methods or methods_for(building, args.beacons is not None)) if m.startswith("pf")]
+    pf_runs = [m for m in (methods or methods_for(building, source_files(args))) if m.startswith("pf")]
     runs = len(pf_runs) + (SMOOTH_EXTRA_RUNS if config.smooth and "pf" in pf_runs else 0)
     spans = walk_spans_s(args.logs)
     growing = walk_spans_s(args.unlabelled) + (spans if args.transductive else [])
@@ -326,7 +341,7 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
             "radiomap": None if args.radiomap is None else str(args.radiomap), "leave_one_out": args.leave_one_out,
             "protocol": evaluation.protocol,
             "groups": None if grouping is None else dict(grouping.group_of),
-            "beacons": None if args.beacons is None else str(args.beacons),
+            "sources": _source_files(args),
             "unlabelled": [str(p) for p in args.unlabelled], "transductive": args.transductive,
             "grown": evaluation.grown,
             "methods": list(methods), "complete": complete, "walks": evaluation.n_traces, "walks_done": n_done,

@@ -7,6 +7,7 @@ import argparse
 import csv
 import json
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -15,7 +16,9 @@ from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arg
                                   announce_estimate, announce_recording_size, bounded_int, check_distinct_outputs,
                                   check_map_first, check_output_path, duration_text, engine_from, estimate_tracking_s,
                                   input_paths, is_stdout, walk_spans_s, warn)
-from mapfilter.cli.tracking_options import add_tracking_arguments, tracking_config_from
+from mapfilter.cli.tracking_options import (add_source_arguments, add_tracking_arguments, load_sources, source_files,
+                                            source_paths, tracking_config_from)
+from mapfilter.filter.sources import registered
 from mapfilter.errors import MapfilterError
 from mapfilter.runtime.memory import building_extents_m, check_tracking_fits
 
@@ -24,13 +27,14 @@ TRACK_FORMATS = ("csv", "tum")
 _EPILOG = """\
 WiFi: --radiomap RM (fingerprinting; build one with `mapfilter radiomap build`) or --aps
 APS.csv (trilateration with the path-loss model); without either, the map's own
-access-point table (mapfilter: access_points in its YAML) is used for trilateration.
-BLE beacons: --beacons TABLE.csv (fit one with `mapfilter radiomap fit-beacons`) weighs the
-log's beacon readings too (config section ble); with --beacons and neither --radiomap nor
---aps, the beacons alone (and, in a building, the barometer) place the walker.
+access-point table (mapfilter: access_points in its YAML) is used for trilateration, unless a
+measurement source's files are given: then that source alone (and, in a building, the
+barometer) places the walker.
+
+{sources}
 
 The starting position is unknown: the filter starts from the first usable WiFi scan (or
-beacon window), drawn over the map's free space. If the log has waypoints, the errors at the waypoint times are
+measurement of another source), drawn over the map's free space. If the log has waypoints, the errors at the waypoint times are
 printed (the latest estimate at or before each waypoint; see "What the numbers mean" in the
 README).
 
@@ -62,15 +66,20 @@ examples:
   mapfilter track F1.yaml walk.txt.gz --radiomap F1_radiomap.npz --out track.csv --seed 3
   mapfilter track F1.yaml walks/*.txt.gz --radiomap F1_radiomap.npz --out-dir tracks --jobs 2
   mapfilter track F1.yaml walk.txt.gz --radiomap F1_radiomap.npz --config my_settings.yaml
-  mapfilter track venue.yaml walk.txt.gz --radiomap venue_radiomap.npz --beacons beacons.csv
 """
+
+
+def _epilog() -> str:
+    """The epilog with each measurement source's paragraph (``filter.sources``)."""
+    paragraphs = [textwrap.fill(entry.help, 94) for entry in registered() if entry.help]
+    return _EPILOG.replace("{sources}", "\n\n".join(paragraphs) if paragraphs else "(no other measurement source)")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "track", help="track a walk (map + phone log) with the particle filter",
         description="Track a walk on a floor plan with the map-aware particle filter.",
-        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("map", type=Path, metavar="MAP", help="map YAML (ROS map_server) or building YAML")
     parser.add_argument("logs", type=Path, nargs="+", metavar="LOG",
                         help="phone log(s) (.txt or .txt.gz); several need --out-dir; - reads one from standard "
@@ -78,9 +87,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     wifi = parser.add_mutually_exclusive_group()
     wifi.add_argument("--radiomap", type=Path, metavar="RM", help="radio map (.npz) for fingerprinting")
     wifi.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table for trilateration")
-    parser.add_argument("--beacons", type=Path, metavar="TABLE.csv",
-                        help="BLE beacon table (mapfilter radiomap fit-beacons): weigh the log's beacon readings "
-                             "too, or alone without --radiomap and --aps")
     parser.add_argument("--floor", metavar="NAME",
                         help="track on this floor of the map (default: the log's floor, found in a building)")
     parser.add_argument("--out", type=Path, metavar="FILE", help="write the track here (one log): .csv or .tum")
@@ -96,6 +102,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--adapted-aps", type=Path, metavar="OUT.csv",
                         help="with --adapt: write the access-point table as adapted at the end of the walk")
     add_tracking_arguments(parser)
+    add_source_arguments(parser)
     view = parser.add_mutually_exclusive_group()
     view.add_argument("--rerun", type=Path, metavar="FILE.rrd", help="write a rerun recording of the run")
     view.add_argument("--spawn", action="store_true", help="stream the run to a new rerun viewer")
@@ -130,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     check_map_first("mapfilter track MAP LOG...", args.map, args.logs)
     config = tracking_config_from(args)
     # every output checked before the work: none is an input, a link, a device or another's file
-    inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.beacons, args.config)
+    inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, *source_paths(args), args.config)
     if is_stdout(args.out) and config.smooth:
         raise MapfilterError("--out - with --smooth: the offline and the causal track need two files; give a "
                              "file name")
@@ -171,20 +178,9 @@ def run(args: argparse.Namespace) -> int:
     return _run_one(args, config, args.logs[0])
 
 
-def _beacon_table(args: argparse.Namespace, building):
-    """The --beacons table (None without it), checked against the building."""
-    if args.beacons is None:
-        return None
-    from mapfilter.sensors.beacons import BeaconTable, check_beacons_on_map
-
-    table = BeaconTable.read_csv(args.beacons, building)
-    check_beacons_on_map(table, building, args.map)
-    return table
-
-
 def _wifi_source(args: argparse.Namespace, building, config):
     """(radio map, access-point table) of the run: --radiomap, --aps, or the map's own table;
-    (None, None) with --beacons and neither (the beacons alone)."""
+    (None, None) with a measurement source's files and neither (the source alone)."""
     from mapfilter.sensors.floor_vote import load_building_radio_map
     from mapfilter.sensors.pathloss import access_points_for_map
     from mapfilter.sensors.radiomap import RadioMap, check_radio_map_on_map
@@ -199,7 +195,7 @@ def _wifi_source(args: argparse.Namespace, building, config):
             radio_map = RadioMap.load(args.radiomap)
         check_radio_map_on_map(radio_map, building, args.radiomap, args.map)
         return radio_map, None
-    if args.beacons is not None and args.aps is None:
+    if source_files(args) and args.aps is None:
         if args.adapt or args.adapted_aps is not None:
             raise MapfilterError("--adapt and --adapted-aps adapt an access-point table: give --aps APS.csv")
         return None, None
@@ -232,9 +228,9 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
     header_floor = building.floor_of_log(recording.floor_name, log_path, args.floor)  # refuses another floor
     radio_map, ap_table = _wifi_source(args, building, config)
-    beacons = _beacon_table(args, building)
+    sources = load_sources(args, building)
     floor = None if building.is_single_floor else args.floor
-    walk = prepare_walk(building, recording, radio_map, ap_table, config, floor=floor, beacons=beacons)
+    walk = prepare_walk(building, recording, radio_map, ap_table, config, floor=floor, sources=sources)
     if recording.has_ground_truth and walk.floor_index is not None and recording.waypoint_floor is None:
         plan = building.floors[walk.floor_index].plan
         in_walls = ~plan.is_free(recording.waypoint_xy_m)
@@ -290,7 +286,7 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
             from mapfilter.evaal.replay import replay_log
             from mapfilter.pipeline.tracker import Tracker
 
-            replay = replay_log(Tracker(building, radio_map, ap_table, config, floor=floor), log_path)
+            replay = replay_log(Tracker(building, walk.inputs, config, floor=floor), log_path)
             replay.estimates.write(args.evaal_out)
             written.append((args.evaal_out, f"competition estimates, {'offline' if config.smooth else 'online'}"))
     if args.rerun is not None:
@@ -312,7 +308,7 @@ def _run_live(args: argparse.Namespace, config) -> int:
     as soon as it exists, ``--out`` written at the end."""
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import LogStream
-    from mapfilter.pipeline.tracker import Tracker
+    from mapfilter.pipeline.tracker import Tracker, TrackingInputs
     from mapfilter.io.tracks import csv_header, csv_rows, with_latlon, write_track
 
     if config.smooth:
@@ -327,8 +323,8 @@ def _run_live(args: argparse.Namespace, config) -> int:
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     radio_map, ap_table = _wifi_source(args, building, config)
     floor = None if building.is_single_floor else args.floor
-    tracker = Tracker(building, radio_map, ap_table, config, floor=floor, log_name="standard input",
-                      beacons=_beacon_table(args, building))
+    tracker = Tracker(building, TrackingInputs(radio_map, ap_table, load_sources(args, building)), config, floor=floor,
+                      log_name="standard input")
     stream = LogStream("-", strict=args.strict)
     header_done = False
 
@@ -358,8 +354,8 @@ def _run_live(args: argparse.Namespace, config) -> int:
     result = tracker.result()
     if args.out is not None:
         write_track(result.causal, args.out, out_format, building)
-    beacons = f", {result.n_beacon_windows} beacon windows" if result.n_beacon_windows else ""
-    print(f"standard input: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used{beacons}, "
+    print(f"standard input: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used"
+          f"{_measured(result)}, "
           f"{len(result.collapses)} collapses; causal {result.causal_runtime_s:.1f} s"
           + (f"; wrote {args.out} (causal track)" if args.out is not None else ""), file=sys.stderr)
     return 0
@@ -409,6 +405,12 @@ def _viewer_can_start() -> bool:
     return problem is None
 
 
+def _measured(result) -> str:
+    """", 120 windows" for each measurement source that measured (its ``counts``)."""
+    counts = {entry.name: entry.counts for entry in registered()}
+    return "".join(f", {n} {counts[name]}" for name, n in result.n_measurements.items() if n)
+
+
 def _summary(building, recording, result, header_floor, written) -> str:
     """The printout of one walk: what ran, each track's numbers, collapses, the files written."""
     from mapfilter.evaluation.metrics import summarise_errors
@@ -417,8 +419,8 @@ def _summary(building, recording, result, header_floor, written) -> str:
     collapses = f"{len(result.collapses)} collapse{'s' if len(result.collapses) != 1 else ''}"
     if result.collapses:
         collapses += " (all recovered)"
-    beacons = f", {result.n_beacon_windows} beacon windows" if result.n_beacon_windows else ""
-    lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used{beacons}, "
+    lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used"
+             f"{_measured(result)}, "
              f"{collapses}; causal {result.causal_runtime_s:.1f} s"
              + (f", offline {result.offline_runtime_s:.1f} s" if result.offline is not None else "")]
     tracks = [("causal", result.causal, True)]
@@ -500,7 +502,7 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
         building.floor_index(args.floor, args.map)
     radio_map, ap_table = _wifi_source(args, building, config)
     setup = BatchSetup(tracking=config, strict=args.strict, floor=None if building.is_single_floor else args.floor,
-                       beacons=_beacon_table(args, building))
+                       sources=load_sources(args, building))
     columns = SUMMARY_COLUMNS if building.is_single_floor else BUILDING_SUMMARY_COLUMNS
     out_format = args.format or "csv"
     track_names = batch_track_names([trace_name(p) for p in args.logs], out_format, config.smooth)
@@ -540,7 +542,8 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
         tmp_json.write_text(json.dumps({"map": str(args.map), "logs": [str(p) for p in args.logs],
                                         "radiomap": None if args.radiomap is None else str(args.radiomap),
                                         "aps": None if args.aps is None else str(args.aps),
-                                        "beacons": None if args.beacons is None else str(args.beacons),
+                                        "sources": {name: {key: str(path) for key, path in files.items()}
+                                                    for name, files in source_files(args).items()},
                                         "engine": engine.describe(), "wall_time_s": wall_time_s,
                                         "config": config.to_dict(), "walks": rows}, indent=1))
         tmp_yaml.write_text(config.to_yaml())

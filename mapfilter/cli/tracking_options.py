@@ -98,3 +98,47 @@ def tracking_config_from(args: argparse.Namespace):
     if hasattr(args, "kwnn_min_rssi"):  # given (None is a value here: plain KWNN)
         config = dataclasses.replace(config, wifi=dataclasses.replace(config.wifi, kwnn_min_rssi_dbm=args.kwnn_min_rssi))
     return config
+
+
+def add_source_arguments(parser: argparse.ArgumentParser) -> None:
+    """The files of every registered measurement source (``filter.sources``)."""
+    from mapfilter.filter.sources import registered
+
+    group = parser.add_argument_group("measurement sources besides WiFi (each weighed when its files are given; "
+                                      "config section sources)")
+    for entry in registered():
+        for option in entry.options:
+            group.add_argument(option.flag, type=Path, metavar=option.metavar, dest=f"source_{option.key}",
+                               help=option.help)
+
+
+def source_files(args: argparse.Namespace) -> dict[str, dict[str, Path]]:
+    """{source name: {option key: path}} of the sources whose files were given; a source given
+    only some of its files is a ``MapfilterError`` naming the missing option."""
+    from mapfilter.errors import MapfilterError
+    from mapfilter.filter.sources import registered
+
+    files = {}
+    for entry in registered():
+        given = {o.key: getattr(args, f"source_{o.key}", None) for o in entry.options}
+        if all(path is None for path in given.values()):
+            continue
+        missing = [o.flag for o in entry.options if given[o.key] is None]
+        if missing:
+            named = next(o.flag for o in entry.options if given[o.key] is not None)
+            raise MapfilterError(f"{named} needs {' and '.join(missing)} too ({entry.title})")
+        files[entry.name] = given
+    return files
+
+
+def source_paths(args: argparse.Namespace) -> list[Path]:
+    """Every source file given (the inputs no output may overwrite)."""
+    return [path for files in source_files(args).values() for path in files.values()]
+
+
+def load_sources(args: argparse.Namespace, building) -> dict:
+    """{source name: its input} of the sources whose files were given, loaded and checked against
+    ``building``."""
+    from mapfilter.filter.sources import plugin
+
+    return {name: plugin(name).load(files, building) for name, files in source_files(args).items()}

@@ -14,13 +14,13 @@ causal: each method's latest estimate at or before the waypoint). On one floor:
 ``ls``         least-squares trilateration per scan (needs an access-point table)
 =============  ==========================================================================
 
-With a BLE beacon table (``beacon_table_path``), also ``pf+ble`` (``pf`` with the beacons'
-readings weighed too; with ``smooth``, its offline track ``pf-smooth+ble``) and ``pf-ble`` (the
-filter on the beacons alone, no WiFi), and in a building ``pf-floor+ble`` (``pf-floor`` with the
-beacons). With survey logs or ``leave_one_out``, each walk's beacon table is the given one's positions with C, n and the
-floor loss fitted on the labelled walks, never on the walk itself (``sensors.beacons``), and the
-walk's phone gets the RSSI offset those walks give its phone model (``BleConfig.rssi_offset_db``;
-the config's when none of them has it); with a radio map file, the table and config as given.
+With a measurement source's input (``sources``: ``{name: input}``, ``filter.sources``), also
+``pf+NAME`` (``pf`` with the source's measurements weighed too; with ``smooth``, its offline
+track ``pf-smooth+NAME``), ``pf-NAME`` (the filter on the source alone, no WiFi) and in a
+building ``pf-floor+NAME`` (``pf-floor`` with the source). With survey logs or
+``leave_one_out``, a source may fit its input again on the labelled walks, never on the walk
+itself (``SourcePlugin.survey``, ``for_walk``);
+with a radio map file, the inputs as given.
 
 In a building with several floors: ``pf`` (the floor in the filter's state, not given),
 ``pf-floor`` (the same filter on the walker's floor, given: what finding the floor costs; a
@@ -36,7 +36,7 @@ With ``smooth`` in the tracking config, ``pf``'s offline track is reported as ``
 logs): each walk's fold drops its own points, as the ILC evaluation needs. With ``groups``
 (``evaluation.groups``: every repetition of an IPIN trial, or a user's grouping) each walk's fold
 drops every walk of its group, and so does everything fitted from the survey for that walk: the
-access-point table, the beacons' fit, the fix calibration, the points the growing places.
+access-point table, the sources' fits, the fix calibration, the points the growing places.
 
 Self-training (``selftrain``, docs/self-training.md): walks without labels grow that radio map.
 ``unlabelled_paths`` grow it and are never scored (with ``leave_one_out``, grown once per fold of
@@ -56,7 +56,8 @@ import os
 import time
 import traceback
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -71,10 +72,9 @@ from mapfilter.evaluation.metrics import (FloorScore, availability, floor_detect
                                          summarise_errors)
 from mapfilter.evaluation.scoring import score_track
 from mapfilter.filter.evidence import calibrated_fix_sigma_m
+from mapfilter.filter.sources import evaluation_methods, plugin
 from mapfilter.pipeline.selftrain import GrowConfig, grow_radio_map, grown_by_fold
 from mapfilter.maps.building import Building
-from mapfilter.sensors.beacons import (BeaconReadings, BeaconTable, check_beacons_on_map, fit_beacons,
-                                      labelled_readings)
 from mapfilter.sensors.floor_vote import (build_building_radio_map, check_building_radio_map, floor_hmm,
                                          floor_vote_log_likelihood)
 from mapfilter.sensors.logread import LogReadWarning
@@ -89,17 +89,18 @@ from mapfilter.sensors.wifi import scans_of
 from mapfilter.pipeline.tracker import TrackResult, prepare_walk, track_prepared
 from mapfilter.io.tracks import Track
 
-ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", "pf+ble", "pf-ble")
-BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", "pf+ble", "pf-floor+ble", "pf-ble")
-BLE_METHODS = ("pf+ble", "pf-floor+ble", "pf-ble")  # need a beacon table
+# {method: (source name, what it runs: pf | pf-floor | alone)} of every registered source
+SOURCE_METHODS = {**evaluation_methods(single_floor=True), **evaluation_methods(single_floor=False)}
+ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", *evaluation_methods(True))
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", *evaluation_methods(False))
 STATUSES = ("ok", "failed", "crashed")
 
 
-def methods_for(building: Building, beacons: bool = False) -> tuple[str, ...]:
-    """The methods ``evaluate`` compares on this building (its floor count decides; the BLE
-    methods with a beacon table)."""
+def methods_for(building: Building, sources: Collection[str] = ()) -> tuple[str, ...]:
+    """The methods ``evaluate`` compares on this building (its floor count decides), with those
+    of the measurement sources named in ``sources``."""
     methods = ALL_METHODS if building.is_single_floor else BUILDING_METHODS
-    return methods if beacons else tuple(m for m in methods if m not in BLE_METHODS)
+    return tuple(m for m in methods if m not in SOURCE_METHODS or SOURCE_METHODS[m][0] in sources)
 
 
 # A walk to evaluate: its log's path, or the log already read (the Python API takes both).
@@ -122,8 +123,8 @@ class EvaluationSetup:
     transductive: bool = False  # the evaluated walks grow the radio map too, without their own labels
     radio_map: RadioMap | None = None  # one radio map for all walks, already loaded (instead of radio_map_path)
     access_points: AccessPointTable | None = None  # one access-point table, already loaded (instead of ap_table_path)
-    beacon_table_path: Path | None = None  # BLE beacons (their positions; C and n refitted from survey walks)
-    beacons: BeaconTable | None = None  # the beacon table, already loaded (instead of beacon_table_path)
+    # {measurement source name: its input} (``filter.sources``), each adding its methods
+    sources: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     # leave a group out (evaluation.groups): each walk's survey drops every walk of its group; the
     # evaluated walks survey each other, as with leave_one_out
     groups: Grouping | None = None
@@ -159,10 +160,6 @@ class EvaluationSetup:
     @property
     def has_access_points(self) -> bool:
         return self.access_points is not None or self.ap_table_path is not None
-
-    @property
-    def has_beacons(self) -> bool:
-        return self.beacons is not None or self.beacon_table_path is not None
 
     def load_radio_map(self) -> RadioMap | None:
         """The one radio map of every walk (given or read from its file), or None."""
@@ -225,7 +222,8 @@ class AllWalks:
     radio_map: RadioMap
     ap_table: AccessPointTable | None  # APs fitted on every walk (None when no method needs them)
     fix_sigma_by_floor_m: dict[str, float] | None = None  # several floors: calibrated once per floor
-    beacon_readings: BeaconReadings | None = None  # the walks' beacon readings, labelled (with a beacon table)
+    # {source name: what it takes from the labelled walks} (``SourcePlugin.survey``)
+    source_surveys: dict[str, Any] = dataclasses.field(default_factory=dict)
     # several floors, left out by group: calibrated once per floor for each group, without its walks
     fix_sigma_by_group: dict[str, dict[str, float]] | None = None
 
@@ -268,7 +266,6 @@ class _Context:
     all_walks: AllWalks | None
     true_floors: tuple[int | None, ...]  # per evaluated walk: its floor by the header (None: per waypoint or none)
     growth: Growth | None = None
-    beacons: BeaconTable | None = None  # the beacon table as given (positions)
 
 
 def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recording], setup: EvaluationSetup,
@@ -300,15 +297,14 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recordi
         survey_recordings = [read_walk(p, building, setup.strict) for p in survey]
     # the evaluated walks join the survey material only when left out by walk or group (``lent``)
     recordings = [rec for rec, _ in lent]
-    beacons = _beacon_table(building, setup)
     all_walks = _all_walks(building, setup, methods, survey_recordings + recordings,
-                           [_true_floor(building, p) for p in survey] + [floor for _, floor in lent], beacons)
+                           [_true_floor(building, p) for p in survey] + [floor for _, floor in lent])
     growth = None
     if setup.grows:
         with _collect_read_warnings(read_warnings):
             growth = _growth(building, setup, paths, survey_recordings + recordings, all_walks, engine,
                              grow_progress)
-    context = _Context(building, setup, methods, tuple(paths), all_walks, true_floors, growth, beacons)
+    context = _Context(building, setup, methods, tuple(paths), all_walks, true_floors, growth)
     done = {o.index for o in resumed}
     todo = [i for i in range(len(paths)) if i not in done]
     outcomes: list[WalkOutcome] = list(resumed)
@@ -358,7 +354,6 @@ def validate_setup(building: Building, log_paths: Sequence[str | os.PathLike | R
         if len(grouping.groups()) < 2:
             raise MapfilterError(f"{grouping.protocol} needs at least two groups: the walks are all in "
                                  f"{grouping.unit} {grouping.groups()[0]}, so no walk has a survey")
-    _beacon_table(building, setup)  # a bad table is one line before anything runs
     unlabelled = checked_log_paths(setup.unlabelled_paths) if setup.unlabelled_paths else []
     named = {walk_name(p) for p in paths + survey}
     both = sorted(named & {walk_name(p) for p in unlabelled})
@@ -377,8 +372,7 @@ def evaluate_trace(building: Building, log_paths: Sequence[str | os.PathLike | R
     paths = checked_log_paths(log_paths)
     methods = _checked_methods(building, setup)
     context = _Context(building, setup, methods, tuple(paths), all_walks,
-                       tuple(_true_floor(building, p) if i == index else None for i, p in enumerate(paths)),
-                       beacons=_beacon_table(building, setup))
+                       tuple(_true_floor(building, p) if i == index else None for i, p in enumerate(paths)))
     outcome = _evaluate_walk(context, index)
     if outcome.status != "ok":
         raise MapfilterError(outcome.reason)
@@ -386,16 +380,21 @@ def evaluate_trace(building: Building, log_paths: Sequence[str | os.PathLike | R
 
 
 def _checked_methods(building: Building, setup: EvaluationSetup) -> tuple[str, ...]:
-    known = methods_for(building, beacons=setup.has_beacons)
+    for name in setup.sources:
+        plugin(name)  # a source that is not registered is one line
+    known = methods_for(building, setup.sources)
     if setup.methods is None:
         return known
-    wanting = [m for m in setup.methods if m in BLE_METHODS and m in methods_for(building, beacons=True)]
-    if wanting and not setup.has_beacons:
-        raise MapfilterError(f"method(s) {', '.join(wanting)} weigh BLE beacons: give a beacon table (--beacons)")
+    every = methods_for(building, {name for name, _ in SOURCE_METHODS.values()})
+    for method in setup.methods:
+        if method in SOURCE_METHODS and method in every and SOURCE_METHODS[method][0] not in setup.sources:
+            entry = plugin(SOURCE_METHODS[method][0])
+            raise MapfilterError(f"method {method} weighs {entry.title}: give "
+                                 f"{' '.join(f'{o.flag} {o.metavar}' for o in entry.options)}")
     unknown = [m for m in setup.methods if m not in ALL_METHODS + BUILDING_METHODS]
     if unknown:
         raise MapfilterError(f"unknown method(s) {', '.join(unknown)}: choose from {', '.join(known)}")
-    other = [m for m in setup.methods if m not in methods_for(building, beacons=True)]
+    other = [m for m in setup.methods if m not in every]
     if other:
         what = "one floor" if building.is_single_floor else "a building with several floors"
         raise MapfilterError(f"method(s) {', '.join(other)} are not evaluated on {what}: choose from "
@@ -426,28 +425,19 @@ def _surveying_walk(walk: Walk, setup: EvaluationSetup, building: Building) -> R
     return recording if len(recording.wifi) and recording.has_ground_truth else None
 
 
-def _beacon_table(building: Building, setup: EvaluationSetup) -> BeaconTable | None:
-    """The beacon table of ``setup`` (None without one), checked against the building."""
-    if not setup.has_beacons:
-        return None
-    table = setup.beacons if setup.beacons is not None else BeaconTable.read_csv(setup.beacon_table_path, building)
-    check_beacons_on_map(table, building, building.path)
-    return table
-
-
 def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, ...], recordings: list[Recording],
-               floors: list[int | None], beacons: BeaconTable | None = None) -> AllWalks | None:
+               floors: list[int | None]) -> AllWalks | None:
     """The survey material built once: the radio map of every survey walk (and fitted APs, and
-    the labelled beacon readings)."""
+    what each measurement source takes from them)."""
     if not recordings:
         return None
-    readings = None
-    if beacons is not None and any(m in BLE_METHODS for m in methods):
-        readings = labelled_readings(beacons, building, recordings)
+    used = {SOURCE_METHODS[m][0] for m in methods if m in SOURCE_METHODS}
+    surveys = {name: plugin(name).survey(given, building, recordings) for name, given in setup.sources.items()
+               if name in used}
     if building.is_single_floor:
         radio_map = build_radio_map(recordings, building.floors[0].plan)
         fit = not setup.has_access_points and (setup.fit_aps or "ls" in methods)
-        return AllWalks(radio_map, estimate_access_points(radio_map) if fit else None, beacon_readings=readings)
+        return AllWalks(radio_map, estimate_access_points(radio_map) if fit else None, source_surveys=surveys)
     for rec, floor in zip(recordings, floors):
         if floor is None and not rec.waypoint_floor:
             raise MapfilterError("the log's header names no floor (FloorName): its points cannot join a building's "
@@ -464,7 +454,7 @@ def _all_walks(building: Building, setup: EvaluationSetup, methods: tuple[str, .
         # once per floor from the whole radio map: cross-validating every floor again for every
         # walk costs tens of seconds a walk; the walk under test lends only its share to one number
         sigma = _radio_map_sigmas(radio_map, building, setup.tracking)
-    return AllWalks(radio_map, None, sigma, readings, by_group)
+    return AllWalks(radio_map, None, sigma, surveys, by_group)
 
 
 def _one_walk_per_group(grouping: Grouping) -> dict[str, str]:
@@ -475,21 +465,15 @@ def _one_walk_per_group(grouping: Grouping) -> dict[str, str]:
     return first
 
 
-def _walk_beacons(context: _Context, recording: Recording) -> tuple[BeaconTable | None, TrackingConfig]:
-    """The beacon table a walk is tracked with and the config with its phone's RSSI offset: the
-    given positions with C, n and the floor loss fitted on the survey walks' readings
-    (left out by walk or group: every walk's but those of this one's group), and the offset those walks give the walk's
-    phone model (the config's when none of them has it); without survey walks, the table and
-    config as given."""
-    tracking = context.setup.tracking
-    if context.beacons is None or not any(m in BLE_METHODS for m in context.methods):
-        return None, tracking
-    if context.all_walks is None or context.all_walks.beacon_readings is None:
-        return context.beacons, tracking
-    readings = context.all_walks.beacon_readings.without_traces(context.setup.left_out_with(recording.name))
-    fit = fit_beacons(context.beacons, readings)
-    offset = fit.phone_offsets_db.get(recording.phone_model or "", tracking.ble.rssi_offset_db)
-    return fit.table, dataclasses.replace(tracking, ble=dataclasses.replace(tracking.ble, rssi_offset_db=offset))
+def _walk_sources(context: _Context, recording: Recording) -> dict[str, Any]:
+    """{source name: the input the walk is tracked with} of the sources the methods use: each
+    source's input for this walk from the survey walks less the walks it is left out with (its
+    own, or its group's; ``SourcePlugin.for_walk``), or as given without survey walks."""
+    used = {SOURCE_METHODS[m][0] for m in context.methods if m in SOURCE_METHODS}
+    surveys = context.all_walks.source_surveys if context.all_walks is not None else {}
+    left_out = context.setup.left_out_with(recording.name)
+    return {name: plugin(name).for_walk(given, surveys[name], left_out) if name in surveys else given
+            for name, given in context.setup.sources.items() if name in used}
 
 
 def _evaluate_walk(context: _Context, index: int) -> WalkOutcome:
@@ -536,10 +520,10 @@ class _Scorer:
 
     def add_run(self, method: str, outcome: TrackResult) -> None:
         """A particle filter run: its causal track as ``method`` and, when it made one, its offline
-        track (``pf-smooth``, or ``pf-smooth+ble`` for a run with the beacons)."""
+        track (``pf-smooth``, or ``pf-smooth+NAME`` for a run with source NAME)."""
         self.add(method, outcome.causal, len(outcome.collapses), outcome.causal_runtime_s)
         if outcome.offline is not None:
-            offline = "pf-smooth+ble" if method.endswith("+ble") else "pf-smooth"
+            offline = f"pf-smooth+{method.partition('+')[2]}" if "+" in method else "pf-smooth"
             self.add(offline, outcome.offline, len(outcome.collapses), outcome.offline_runtime_s, causal=False)
 
     def timed(self, method: str, make: Callable[[], Track], extra_s: float = 0.0) -> None:
@@ -570,7 +554,7 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
         tracking = dataclasses.replace(tracking, wifi=dataclasses.replace(
             wifi, fix_sigma_m=calibrated_fix_sigma_m(radio_map, wifi.kwnn_k)))
     scorer = _Scorer(context, index, recording)
-    beacons, ble_tracking = _walk_beacons(context, recording)
+    sources = _walk_sources(context, recording)
     # the pf variants share one set of fingerprint evidence (fixes, radio-map likelihood: no
     # state); trilateration models may adapt during a run, so each run prepares its own
     motion = tracking.motion if steps is not None else dataclasses.replace(tracking.motion, model="cv")
@@ -599,19 +583,21 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
                                                                      steps=steps)
             outcome = track_prepared(walk, config, rng=rng)
             scorer.add_run(method, outcome)
-        elif method in BLE_METHODS:
-            # the beacons with the WiFi (pf+ble, and its offline track pf-smooth+ble) or alone (pf-ble)
-            config = dataclasses.replace(tracking, smooth=tracking.smooth and method == "pf+ble", ble=ble_tracking.ble)
-            with_wifi = method == "pf+ble"
+        elif method in SOURCE_METHODS:
+            # a source with the WiFi (pf+NAME, and its offline track pf-smooth+NAME) or alone (pf-NAME)
+            name, kind = SOURCE_METHODS[method]
+            with_wifi = kind == "pf"
+            config = dataclasses.replace(tracking, smooth=tracking.smooth and with_wifi)
             if (steps is None and config.motion.model == "pdr") or (with_wifi and radio_map is None
                                                                     and ap_table is None):
                 continue
             rng = np.random.default_rng([tracking.seed, index, ALL_METHODS.index(method)])
+            given = {name: sources[name]}
             if with_wifi and prepared is not None:
-                walk = dataclasses.replace(prepared, beacons=beacons)
+                walk = dataclasses.replace(prepared, inputs=dataclasses.replace(prepared.inputs, sources=given))
             else:
                 walk = prepare_walk(building, recording, None, ap_table if with_wifi else None, config, steps=steps,
-                                    beacons=beacons)
+                                    sources=given)
             outcome = track_prepared(walk, config, rng=rng)
             scorer.add_run(method, outcome)
         elif method == "kwnn" and radio_map is not None:
@@ -655,7 +641,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
     tracking = setup.tracking
     steps = _detected_steps(recording, tracking)
     has_steps = tracking.motion.model != "pdr" or (steps is not None and len(steps) > 0)
-    beacons, ble_tracking = _walk_beacons(context, recording)
+    sources = _walk_sources(context, recording)
     fixes = None  # the KWNN fixes and floors, made once for kwnn, kf and pdr
     for method in context.methods:
         rng = np.random.default_rng([tracking.seed, index, BUILDING_METHODS.index(method)])
@@ -667,16 +653,18 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
                                 floor=truth if method == "pf-floor" else None, fix_sigma_by_floor_m=sigma)
             outcome = track_prepared(walk, config, rng=rng)
             scorer.add_run(method, outcome)
-        elif method in BLE_METHODS:
-            # pf and pf-floor with the beacons too (pf+ble's offline track: pf-smooth+ble), and pf
-            # on the beacons (and barometer) alone
-            if not has_steps or (method == "pf-floor+ble" and truth is None):
+        elif method in SOURCE_METHODS:
+            # pf and pf-floor with a source too (pf+NAME's offline track: pf-smooth+NAME), and pf
+            # on the source (and barometer) alone
+            name, kind = SOURCE_METHODS[method]
+            if not has_steps or (kind == "pf-floor" and truth is None):
                 continue
-            config = dataclasses.replace(ble_tracking, smooth=tracking.smooth and method == "pf+ble")
-            wifi = None if method == "pf-ble" else radio_map
+            config = dataclasses.replace(tracking, smooth=tracking.smooth and kind == "pf")
+            wifi = None if kind == "alone" else radio_map
             walk = prepare_walk(building, recording, wifi, None, config, steps=steps,
-                                floor=truth if method == "pf-floor+ble" else None,
-                                fix_sigma_by_floor_m=sigma if wifi is not None else None, beacons=beacons)
+                                floor=truth if kind == "pf-floor" else None,
+                                fix_sigma_by_floor_m=sigma if wifi is not None else None,
+                                sources={name: sources[name]})
             outcome = track_prepared(walk, config, rng=rng)
             scorer.add_run(method, outcome)
         elif method in ("kwnn", "kf", "pdr"):

@@ -34,7 +34,7 @@ import dataclasses
 import heapq
 import math
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -46,12 +46,13 @@ from mapfilter.filter.models.interface import FloorModel, MeasurementModel, Moti
 from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.sensors.pdr import Steps
+from mapfilter.sensors.pdr import OnlinePDR, Steps
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import iter_scans, scans_recording
 from mapfilter.io.tracks import Track
 
-__all__ = ["MOTION_MODELS", "Estimate", "MotionConfig", "CausalFilter", "merge_steps", "run_over_scans"]
+__all__ = ["MOTION_MODELS", "CausalFilter", "Estimate", "MeasurementSource", "MotionConfig", "ReplayedMeasurements",
+           "RunSettings", "Start", "merge_steps", "run_over_scans"]
 
 MOTION_MODELS = ("pdr", "cv", "rw")
 # a sensor silent this long while others go on is not waited for: the ILC logger writes its IMU
@@ -100,48 +101,113 @@ class MotionConfig:
         return {"pdr": self.pdr, "cv": self.constant_velocity, "rw": self.random_walk}[self.model]
 
 
-class MeasurementSource(Protocol):
-    """A stream of measurements besides the WiFi scans (e.g. BLE beacons, ``filter.models.ble``):
-    records in, measurements out. The tracker merges its records with the others' in time order."""
+class MeasurementSource:
+    """A stream of measurements besides the WiFi scans, merged by time with the other sensors'
+    records: the adapter between a measurement model and the log (a registered source's,
+    ``filter.sources``). Subclasses write ``records_of``, ``measure`` and ``model_on``; the
+    causal loop calls the rest.
 
-    stream: str  # the sensor it reads, by the name the tracker merges it under
+    The contract, which keeps the causal track the same however the log is chunked:
+
+    1. ``records_of(chunk)`` gives the source's records of a chunk, (t_s, values...) in time
+       order. It may give records stamped after the chunk's newest record (a table read ahead, a
+       replay): the base class holds those back until a chunk reaches their time, or the end
+       (``take``). A source never runs ahead of its chunk: a record handed to the merge before
+       the other sensors reach its time would make theirs late.
+    2. ``measure(records, final)`` gets its records released in time order (every record of every
+       sensor before them already released; ``final``: the walk's last) and returns the
+       measurements they complete, ``(t_s, measurement)`` in time order, each stamped at or after
+       the latest record it uses: a measurement depends only on records stamped at or before its
+       time.
+    3. ``model_on(frame)`` is its model on another frame (``filter.models.frame.StateFrame``),
+       with what the source learnt of the walk (the offline track's second pass on one floor
+       weighs the same measurements there: ``ReplayedMeasurements``).
+
+    ``times_s`` and ``measurements`` keep every measurement made, in order.
+    """
+
+    stream: str = ""  # the sensor it reads: its records are merged under this name
     model: MeasurementModel
 
-    def records_of(self, records: Recording) -> tuple:
-        """(t_s, values...) of its sensor in a chunk of records (in time order)."""
-        ...
+    def __init__(self) -> None:
+        self.times_s: list[float] = []
+        self.measurements: list = []
+        self._held: tuple | None = None  # records stamped after the newest chunk so far
 
-    def add_records(self, records: tuple, final: bool) -> list[float]:
-        """Its released records (all before anything later released), ``final`` at the end of the
-        walk; returns the times of the measurements they completed, in order (indices follow on)."""
-        ...
+    def records_of(self, records: Recording) -> tuple:
+        """(t_s, values...) of its records in a chunk (module docstring of the class: 1)."""
+        raise NotImplementedError
+
+    def measure(self, records: tuple, final: bool) -> list[tuple[float, Any]]:
+        """The measurements its released records complete (the class docstring: 2)."""
+        raise NotImplementedError
+
+    def model_on(self, frame) -> MeasurementModel:
+        """Its model on another frame (the class docstring: 3)."""
+        raise NotImplementedError
+
+    # ---- what the causal loop calls ---------------------------------------------------------
+    def take(self, records: Recording | None) -> tuple | None:
+        """Its records of a chunk up to the chunk's newest record (``None``: the end of the walk,
+        every record held back), or None when there are none."""
+        new = self.records_of(records) if records is not None else None
+        parts = [p for p in (self._held, new) if p is not None and len(p[0])]
+        if not parts:
+            self._held = None
+            return None
+        merged = parts[0] if len(parts) == 1 else _concatenate_records(parts)
+        if records is None:
+            self._held = None
+            return merged
+        n = int(np.searchsorted(merged[0], records.newest_t_s, side="right"))
+        self._held = tuple(p[n:] for p in merged) if n < len(merged[0]) else None
+        return tuple(p[:n] for p in merged) if n else None
+
+    def add(self, records: tuple, final: bool) -> list[float]:
+        """Its released records in; the times of the measurements they completed (numbered on)."""
+        made = self.measure(records, final)
+        for t_s, measurement in made:
+            self.times_s.append(float(t_s))
+            self.measurements.append(measurement)
+        return [float(t_s) for t_s, _ in made]
 
     def measurement(self, index: int) -> Any:
         """Measurement ``index`` (None when it says nothing)."""
-        ...
+        return self.measurements[index]
+
+    @property
+    def n_measurements(self) -> int:
+        return len(self.measurements)
 
 
-class ReplayedMeasurements:
-    """The measurements another source made of a walk, given again to a second run over it
-    (``run_over_scans``), weighed by ``model`` (e.g. the same beacons on one floor's map)."""
+def _concatenate_records(parts: list[tuple]) -> tuple:
+    return tuple(np.concatenate([p[k] for p in parts]) if isinstance(parts[0][k], np.ndarray)
+                 else [x for p in parts for x in p[k]] for k in range(len(parts[0])))
 
-    def __init__(self, stream: str, model: MeasurementModel, times_s: list[float], measurements: list) -> None:
-        self.stream, self.model = stream, model
-        self._times_s, self._measurements = list(times_s), list(measurements)
-        self._given = False
+
+class ReplayedMeasurements(MeasurementSource):
+    """The measurements another source made of a walk, given again to another run over it,
+    weighed by ``model`` (e.g. on one floor's map: ``original.model_on``). Its
+    records are the measurements' times, handed over as the run's chunks reach them."""
+
+    def __init__(self, original: MeasurementSource, model: MeasurementModel) -> None:
+        super().__init__()
+        self.stream, self.model = original.stream, model
+        self._original = original
+        self._replayed_t = np.asarray(original.times_s, dtype=np.float64)
+        self._replayed = list(original.measurements)
+        self._given = 0
 
     def records_of(self, records: Recording) -> tuple:
-        """Every measurement's time (and index), once: the run's one chunk holds the whole walk."""
-        if self._given:
-            return np.zeros(0), np.zeros(0, dtype=np.int64)
-        self._given = True
-        return np.asarray(self._times_s, dtype=np.float64), np.arange(len(self._times_s))
+        """Every measurement not handed over yet (the base class holds back those ahead of the chunk)."""
+        start, self._given = self._given, len(self._replayed)
+        return self._replayed_t[start:], np.arange(start, len(self._replayed))
 
-    def add_records(self, records: tuple, final: bool) -> list[float]:
-        return [float(t) for t in records[0]] if len(records) > 1 else []
+    def measure(self, records: tuple, final: bool) -> list[tuple[float, Any]]:
+        return [(float(t), self._replayed[int(i)]) for t, i in zip(*records)]
 
-    def measurement(self, index: int) -> Any:
-        return self._measurements[index]
+    def model_on(self, frame) -> MeasurementModel:
+        return self._original.model_on(frame)
 
 
 # ---- records in: one time order over the sensors ---------------------------------------------------
@@ -286,6 +352,26 @@ class Estimate:
     floor_index: int | None  # a building: the estimate's floor
 
 
+@dataclasses.dataclass(frozen=True)
+class RunSettings:
+    """The settings of a causal run: how particles move, the filter's own, and the heading the
+    rotation vector's start heading is read against."""
+
+    motion: MotionConfig
+    filter: FilterConfig
+    abs_heading_offset_rad: float = 0.0  # magnetic north to the map's +y axis (``PDRConfig``)
+
+
+@dataclasses.dataclass(frozen=True)
+class Start:
+    """Where a run starts: from its first usable measurement's likelihood over the map, or, with
+    ``xy_m``, ``share`` of the particles within ``radius_m`` of it (the rest from the likelihood)."""
+
+    xy_m: np.ndarray | None = None
+    radius_m: float = 5.0
+    share: float = 1.0
+
+
 class CausalFilter:
     """The causal filter over a stream of records (module docstring).
 
@@ -293,45 +379,40 @@ class CausalFilter:
     ----------
     plan : the filter's plan (a building's stack plan with ``floors``).
     evidence : the walk's measurements as they come (``filter.evidence``; empty at the start).
-    motion, filter_config, rng : the motion settings, the filter's settings and its generator.
-    pdr : an ``OnlinePDR`` for the motion model ``pdr`` (None: ``steps`` given, or no PDR).
-    steps : the walk's steps already detected (``Steps`` with ``available_s``); used instead of
-        ``pdr`` (an evaluation detects them once per walk).
+    settings, rng : the run's settings and its generator.
+    steps : for the motion model ``pdr``: the walk's steps already detected (``Steps`` with
+        ``available_s``: an evaluation detects them once per walk), or an ``OnlinePDR`` that
+        detects them as the IMU records come.
     floors : the floor in the state (a building), else one floor.
-    start_xy_m, start_radius_m : start around this point instead of from the first scan's likelihood;
-        ``start_share`` of the particles only (the rest from the likelihood).
+    sources : measurement streams besides the WiFi scans (``MeasurementSource``).
+    start : where the run starts (``Start``).
     on_step : called with every ``StepReport`` (the viewer, progress).
-    abs_heading_offset_rad : magnetic north to the map's +y axis (``PDRConfig``), for the start
-        heading from the rotation vector.
-    sources : measurement streams besides the WiFi scans (``MeasurementSource``: BLE beacons).
-    history : keeps a subsample of every step's cloud for the smoother (``offline.smoother``).
+    history : keeps every step's cloud for the smoother (``offline.smoother``).
     """
 
-    def __init__(self, plan: FloorPlan, evidence: WalkEvidence, motion: MotionConfig, filter_config: FilterConfig,
-                 rng: np.random.Generator, *, pdr=None, steps: Steps | None = None, floors: FloorModel | None = None,
-                 start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0, start_share: float = 1.0,
-                 on_step: Callable[[StepReport], None] | None = None,
-                 abs_heading_offset_rad: float = 0.0, sources: tuple[MeasurementSource, ...] = (),
-                 history=None) -> None:
+    def __init__(self, plan: FloorPlan, evidence: WalkEvidence, settings: RunSettings, rng: np.random.Generator, *,
+                 steps: Steps | OnlinePDR | None = None, floors: FloorModel | None = None,
+                 sources: tuple[MeasurementSource, ...] = (), start: Start = Start(),
+                 on_step: Callable[[StepReport], None] | None = None, history=None) -> None:
+        motion = settings.motion
         self.evidence = evidence
         self.history = history  # an ``offline.smoother.ParticleHistory`` that keeps every step, or None
         self.sources = tuple(sources)
         self.motion = motion
         self.rng = rng
-        self.pf = ParticleFilter(plan, motion.motion_model, filter_config, rng, floors=floors)
+        self.pf = ParticleFilter(plan, motion.motion_model, settings.filter, rng, floors=floors)
         self._uses_steps = motion.model == "pdr"
-        if self._uses_steps and pdr is None and steps is None:
+        if self._uses_steps and steps is None:
             raise ValueError("PDR motion needs the walk's steps or an OnlinePDR")
-        self._pdr = pdr if steps is None else None
-        self._given_steps = steps
-        self._abs_heading_offset_rad = abs_heading_offset_rad
+        self._pdr = steps if isinstance(steps, OnlinePDR) else None
+        self._given_steps = steps if isinstance(steps, Steps) else None
+        self._abs_heading_offset_rad = settings.abs_heading_offset_rad
         self._steps = _StepLog()  # the steps detected so far
-        self._start_xy_m, self._start_radius_m, self._start_share = start_xy_m, start_radius_m, start_share
+        self._start_at = start
         self._on_step = on_step
         self._merge = _Merge()
         self._n_scans = 0  # scans released so far (the evidence may hold them already: a prepared walk)
         self._n_pressure = 0  # barometer readings released so far (likewise)
-        self._n_measurements = [0] * len(self.sources)
         self._events: list = []  # heap of (t_s, kind, sequence, payload)
         self._sequence = 0
         self._idle_ticks = motion.model == "pdr" and evidence.has_evidence_between_scans()
@@ -363,13 +444,19 @@ class CausalFilter:
         if scans:
             merge.push("wifi", np.array([s.t_s for s in scans]), scans)
         for source in self.sources:
-            merge.push(source.stream, *source.records_of(records))
+            taken = source.take(records)
+            if taken is not None:
+                merge.push(source.stream, *taken)
         return self._advance(final=False)
 
     def close(self) -> list[Estimate]:
         """The end of the walk: every record still held is processed; returns the last rows."""
         if self.closed:
             return []
+        for source in self.sources:  # the records a source held back beyond the last chunk
+            taken = source.take(None)
+            if taken is not None:
+                self._merge.push(source.stream, *taken)
         rows = self._advance(final=True)
         self.closed = True
         return rows
@@ -402,9 +489,10 @@ class CausalFilter:
             for k, scan in enumerate(scans):
                 self._push_event(float(scan.t_s), _SCAN, first + k)
         for number, source in enumerate(self.sources):
-            first = self._n_measurements[number]
-            times = source.add_records(released.get(source.stream, (np.zeros(0),)), final)
-            self._n_measurements[number] += len(times)
+            if source.stream not in released:
+                continue
+            first = source.n_measurements
+            times = source.add(released[source.stream], final)
             for k, t_s in enumerate(times):
                 self._push_event(float(t_s), _SCAN, first + k, number)
         if final:  # every event, and ticks up to the last record or event
@@ -545,13 +633,13 @@ class CausalFilter:
     def _start(self, t_s: float, model: MeasurementModel, measurement: Any) -> None:
         """Particles at a measurement: from its likelihood over the map, or around the start point."""
         pf = self.pf
-        if self._start_xy_m is None or self.started:
+        start = self._start_at
+        if start.xy_m is None or self.started:
             pf.initialise_from_measurement(t_s, model, measurement)
-        elif self._start_share < 1.0:
-            pf.initialise_from_measurement_and_around(t_s, model, measurement, self._start_xy_m,
-                                                      self._start_radius_m, self._start_share)
+        elif start.share < 1.0:
+            pf.initialise_from_measurement_and_around(t_s, model, measurement, start.xy_m, start.radius_m, start.share)
         else:
-            pf.initialise_around(self._start_xy_m, self._start_radius_m)
+            pf.initialise_around(start.xy_m, start.radius_m)
         if self._uses_steps:
             self._start_headings(t_s)
         self.started, self._waiting_for_scan = True, False
@@ -655,18 +743,15 @@ def _imu_in_order(released: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return t[order], stream[order], values[order]
 
 
-def run_over_scans(plan: FloorPlan, evidence: WalkEvidence, motion: MotionConfig, filter_config: FilterConfig,
-                   rng: np.random.Generator, steps: Steps | None, *, floors: FloorModel | None = None,
-                   start_xy_m: np.ndarray | None = None, start_radius_m: float = 5.0, start_share: float = 1.0,
-                   on_step: Callable[[StepReport], None] | None = None,
-                   history=None, sources: tuple[MeasurementSource, ...] = ()) -> CausalFilter:
+def run_over_scans(plan: FloorPlan, evidence: WalkEvidence, settings: RunSettings, rng: np.random.Generator,
+                   steps: Steps | None, *, floors: FloorModel | None = None, sources: tuple[MeasurementSource, ...] = (),
+                   start: Start = Start(), on_step: Callable[[StepReport], None] | None = None,
+                   history=None) -> CausalFilter:
     """The causal filter over the scans the evidence already holds, the given steps and the
     ``sources``' measurements (``ReplayedMeasurements``): a second run over a walk, e.g. from a
     better start."""
-    stream = CausalFilter(plan, evidence, motion, filter_config, rng, steps=steps if motion.model == "pdr" else None,
-                          floors=floors, start_xy_m=start_xy_m, start_radius_m=start_radius_m,
-                          start_share=start_share, on_step=on_step, history=history,
-                          sources=sources)
+    stream = CausalFilter(plan, evidence, settings, rng, steps=steps if settings.motion.model == "pdr" else None,
+                          floors=floors, sources=sources, start=start, on_step=on_step, history=history)
     stream.feed(scans_recording(evidence.scans))
     stream.close()
     return stream

@@ -8,8 +8,8 @@ the scan at each particle) or trilateration from an access-point table (the Lund
 path-loss likelihood, adaptive with ``TrilaterationConfig``). ``BuildingEvidence`` is several
 floors: per floor the ``WifiEvidence`` of that floor's fingerprints, per scan the WiFi floor
 vote, and the barometer between scans (without a radio map, the barometer alone).
-``NoWifiEvidence`` is one floor without WiFi, where another source (BLE beacons,
-``filter.models.ble``) weighs the particles alone. The stream filter
+``NoWifiEvidence`` is one floor without WiFi, where a measurement source (``filter.sources``)
+weighs the particles alone. The stream filter
 (``filter.causal.CausalFilter``) asks them the same questions (``WalkEvidence``).
 """
 
@@ -286,8 +286,8 @@ class WifiEvidence:
 
 
 class NoWifiEvidence:
-    """One floor without WiFi (``WalkEvidence``): another source weighs the particles (BLE
-    beacons alone); every scan says nothing."""
+    """One floor without WiFi (``WalkEvidence``): a measurement source weighs the particles alone;
+    every scan says nothing."""
 
     model = None
     access_points = None
@@ -364,7 +364,7 @@ class BuildingEvidence:
                  use_barometer: bool = True, barometer: BarometerConfig = BarometerConfig(),
                  floor_evidence: np.ndarray | None = None):
         names = stack.building.floor_names
-        if radio_map is not None:  # None: no WiFi (BLE beacons alone), the barometer only
+        if radio_map is not None:  # None: no WiFi (a measurement source alone), the barometer only
             check_building_radio_map(radio_map, names)
         self.scans: list[WifiScan] = []
         self.log_name = log_name
@@ -444,7 +444,7 @@ class BuildingEvidence:
 
     @property
     def has_wifi(self) -> bool:
-        """False for the barometer alone (no radio map: BLE beacons weigh the particles)."""
+        """False for the barometer alone (no radio map: a measurement source weighs the particles)."""
         return self._radio_map is not None
 
     @property

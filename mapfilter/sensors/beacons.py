@@ -95,6 +95,8 @@ class BeaconTable:
     floor_loss_db: np.ndarray  # (K,) dB off per floor between the beacon and the phone
     source_path: Path | None = None  # the CSV it was read from (for messages), or None
     source_lines: list[int] | None = None  # the CSV line of each row, or None
+    # {phone model: its RSSI minus the table's}: phones report one signal several dB apart
+    phone_offsets_db: dict[str, float] = dataclasses.field(default_factory=dict)
 
     COLUMNS = ("beacon_id", "x", "y", "floor", "C", "n", "floor_loss")
 
@@ -431,8 +433,8 @@ class BeaconFit:
     floor_loss_db: float
     floor_loss_fitted: bool  # False: too few readings across floors, the table's value kept
     n_readings: int
-    # each phone model's RSSI minus the table's (the model of the survey walks' phones on
-    # average): what ``BleConfig.rssi_offset_db`` is for a walk with that phone
+    # each phone model's RSSI minus the table's (the survey walks' phones on average), as the
+    # fitted table carries them
     phone_offsets_db: dict[str, float] = dataclasses.field(default_factory=dict)
     phone_readings: dict[str, int] = dataclasses.field(default_factory=dict)
 
@@ -537,6 +539,7 @@ def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitC
         rows.append(BeaconFitRow(table.beacon_id[b], int(np.count_nonzero(mine)),
                                  int(np.count_nonzero(mine & (apart == 0))), bool(own[b]), here, best, best_rmse))
     phone_offsets = {p: float(offset[phone == p][0]) for p in phones}
-    return BeaconFit(table.with_parameters(c, n, loss), tuple(rows), float(shared[0]), float(shared[1]), loss,
+    fitted = dataclasses.replace(table.with_parameters(c, n, loss), phone_offsets_db=phone_offsets)
+    return BeaconFit(fitted, tuple(rows), float(shared[0]), float(shared[1]), loss,
                      fit_loss, len(readings), phone_offsets,
                      {p: int(np.count_nonzero(phone == p)) for p in phones})

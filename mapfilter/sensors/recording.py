@@ -246,6 +246,18 @@ class Recording:
         return self.waypoint_t_s.shape[0] > 0
 
     @property
+    def newest_t_s(self) -> float:
+        """The time of the newest record of any sensor (ground truth aside; -inf: none)."""
+        times = (self.acc_t_s, self.gyro_t_s, self.magnet_t_s, self.rotvec_t_s, self.pressure_t_s, self.wifi.t_s,
+                 self.beacons.t_s)
+        return max((float(np.max(t)) for t in times if len(t)), default=-np.inf)
+
+    @property
+    def source_rows(self) -> dict[str, int]:
+        """{sensor: rows} of the sensors only measurement sources read (``filter.sources``), for reports."""
+        return {"BLE": len(self.beacons.t_s)}
+
+    @property
     def needs_georeference(self) -> bool:
         """True while the ground truth is only in latitude/longitude (not yet in a building's metres)."""
         return (self.waypoint_latlon_deg is not None and self.waypoint_t_s.shape[0] > 0

@@ -67,7 +67,7 @@ def scans_of(recording: Recording) -> list[WifiScan]:
 
 def scans_recording(scans: list[WifiScan]) -> Recording:
     """A recording holding only these scans (e.g. to run the filter again over a walk's scans)."""
-    from mapfilter.sensors.recording import Beacons, Recording, WifiScans
+    from mapfilter.sensors.recording import Recording, WifiScans
 
     keys: dict[str, int] = {}
     row_scan, row_ap, rssi = [], [], []
@@ -80,8 +80,4 @@ def scans_recording(scans: list[WifiScan]) -> Recording:
     wifi = WifiScans(np.array([s.t_s for s in scans], dtype=np.float64), list(keys), np.array(row_scan, dtype=np.int64),
                      np.array(row_ap, dtype=np.int64), np.array(rssi, dtype=np.float32), np.zeros(n, np.float32),
                      np.zeros(n, np.float32))
-    empty3, empty = np.zeros((0, 3)), np.zeros(0)
-    return Recording(path=None, floor_name=None, start_t_s=None, waypoint_t_s=empty, waypoint_xy_m=np.zeros((0, 2)),
-                     acc_t_s=empty, acc_mps2=empty3, gyro_t_s=empty, gyro_radps=empty3, magnet_t_s=empty,
-                     magnet_ut=empty3, rotvec_t_s=empty, rotvec_xyz=empty3, wifi=wifi,
-                     beacons=Beacons(empty, [], np.zeros(0, np.float32), np.zeros(0, np.float32)))
+    return dataclasses.replace(Recording.empty(), wifi=wifi)

@@ -176,7 +176,8 @@ def test_the_offline_track_restarts_the_filter_where_the_whole_walk_puts_the_sta
     pass starts half its particles where the whole walk places the start, and stays closer for
     the first minute; the causal track is the first run, as without --smooth."""
     from mapfilter.sensors.radiomap import RadioMap
-    from mapfilter.pipeline.tracker import RESTART_RADIUS_M, prepare_walk, track_prepared
+    from mapfilter.pipeline.offline import RESTART_RADIUS_M
+    from mapfilter.pipeline.tracker import prepare_walk, track_prepared
 
     recording, radio_map, floorplan = read_ilc(WALK), RadioMap.load(RADIOMAP), FloorPlan.load(OFFICE)
     results = {}

@@ -245,7 +245,7 @@ def test_dropped_connections_lose_no_batch(server, venue):
     from mapfilter.evaal.client import EvaalClient, run_online
     from mapfilter.evaal.replay import replay_online
     from mapfilter.sensors.floor_vote import load_building_radio_map
-    from mapfilter.pipeline.tracker import Tracker
+    from mapfilter.pipeline.tracker import Tracker, TrackingInputs
 
     _, building, rm, logs = venue
     radio_map = load_building_radio_map(rm, building.floor_names)
@@ -258,12 +258,12 @@ def test_dropped_connections_lose_no_batch(server, venue):
         client.reload()
         notes = []
         client.on_retry = notes.append
-        run = run_online(client, Tracker(building, radio_map, config=config))
+        run = run_online(client, Tracker(building, TrackingInputs(radio_map), config=config))
     finally:
         proxy.shutdown()
         proxy.server_close()
     assert run.dropped == 5 and len(notes) == 5 and not run.timed_out
-    replay = replay_online(Tracker(building, radio_map, config=config), logs[WALKS[1]])
+    replay = replay_online(Tracker(building, TrackingInputs(radio_map), config=config), logs[WALKS[1]])
     np.testing.assert_array_equal(run.estimates.t_s, replay.estimates.t_s)
     np.testing.assert_array_equal(run.estimates.lon_deg, replay.estimates.lon_deg)
     np.testing.assert_array_equal(run.estimates.floor, replay.estimates.floor)
@@ -276,7 +276,7 @@ def test_a_client_that_stopped_is_continued_from_the_trials_state(server, venue,
     from mapfilter.config import TrackingConfig
     from mapfilter.evaal.client import EvaalClient, run_online
     from mapfilter.sensors.floor_vote import load_building_radio_map
-    from mapfilter.pipeline.tracker import Tracker
+    from mapfilter.pipeline.tracker import Tracker, TrackingInputs
 
     _, building, rm, _ = venue
     radio_map = load_building_radio_map(rm, building.floor_names)
@@ -292,11 +292,11 @@ def test_a_client_that_stopped_is_continued_from_the_trials_state(server, venue,
             raise Stop
 
     with pytest.raises(Stop):
-        run_online(client, Tracker(building, radio_map, config=config), progress=stop_after_a_minute,
+        run_online(client, Tracker(building, TrackingInputs(radio_map), config=config), progress=stop_after_a_minute,
                    progress_every_s=5.0)
     stood = client.state()
     assert stood.started and not stood.finished and stood.trial_s > 60.0
-    second = run_online(EvaalClient(server.url, "on0"), Tracker(building, radio_map, config=config))
+    second = run_online(EvaalClient(server.url, "on0"), Tracker(building, TrackingInputs(radio_map), config=config))
     assert second.resumed_at_s == stood.trial_s and not second.timed_out
     kept = _server_estimates(server, "on0", tmp_path)
     np.testing.assert_allclose(np.diff(kept.t_s), 0.5, atol=1.1e-3)  # none missing, none twice
@@ -350,13 +350,13 @@ def test_each_estimate_is_the_latest_row_given_and_rows_come_within_a_batch(venu
     from mapfilter.config import TrackingConfig
     from mapfilter.evaal.replay import replay_online
     from mapfilter.sensors.floor_vote import load_building_radio_map
-    from mapfilter.pipeline.tracker import Tracker
+    from mapfilter.pipeline.tracker import Tracker, TrackingInputs
 
     _, building, rm, logs = venue
     radio_map = load_building_radio_map(rm, building.floor_names)
     config = TrackingConfig().override({"filter.n_particles": int(PARTICLES)})
     for walk in WALKS:
-        run = replay_online(Tracker(building, radio_map, config=config), logs[walk])
+        run = replay_online(Tracker(building, TrackingInputs(radio_map), config=config), logs[walk])
         est, given = run.estimates, run.rows_given
         np.testing.assert_allclose(np.diff(est.t_s), 0.5, atol=1e-6)
         assert (est.lon_deg[0], est.lat_deg[0], est.floor[0]) == pytest.approx(

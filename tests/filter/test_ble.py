@@ -16,8 +16,10 @@ from mapfilter.config import TrackingConfig
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
 from mapfilter.evaluation.scoring import score_track
-from mapfilter.filter.models.ble import BeaconLikelihood, BeaconSource, BeaconWindow, BleConfig
+from mapfilter.filter.models.ble import BeaconLikelihood, BeaconSource, BeaconWindow
 from mapfilter.filter.models.building import FloorStack
+from mapfilter.filter.models.frame import StateFrame
+from mapfilter.filter.sources.ble import BleConfig
 from mapfilter.filter.particles import Particles
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
@@ -26,7 +28,7 @@ from mapfilter.sensors.beacons import (BeaconFitConfig, BeaconTable, beacon_rssi
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Beacons
-from mapfilter.pipeline.tracker import Tracker, track
+from mapfilter.pipeline.tracker import Tracker, TrackingInputs, track
 from tests.conftest import REPO
 from tests.pipeline.test_tracker_stream import _between, _span
 
@@ -99,7 +101,7 @@ def _particles(xy_m: np.ndarray) -> Particles:
 def test_the_kernel_is_the_path_loss_formula_on_one_floor():
     table = _office_table().with_parameters(np.linspace(-70, -55, 8), np.linspace(1.5, 3.0, 8), 10.0)
     plan = FloorPlan.load(OFFICE)
-    model = BeaconLikelihood(table, Building.from_plan(plan), variance_db2=30.0)
+    model = BeaconLikelihood(table, StateFrame(Building.from_plan(plan)), variance_db2=30.0)
     rng = np.random.default_rng(3)
     xy = np.vstack([rng.uniform(-5, 45, (3000, 2)), BEACON_XY[2] + [0.3, 0.2]])  # one inside the 1 m clamp
     window = BeaconWindow(0.0, np.array([1, 2, 6]), np.array([-75.0, -61.0, -90.0]))
@@ -120,7 +122,7 @@ def test_the_kernel_in_a_stack_plan_weighs_each_particle_on_its_own_floor(office
     floors = [building.floor_names[i] for i in (0, 1, 2, 2, 0)]
     table = BeaconTable([f"B{i}" for i in range(k)], rng.uniform(3, 35, (k, 2)), floors, rng.uniform(-70, -55, k),
                         rng.uniform(1.5, 3.0, k), np.full(k, 12.0))
-    model = BeaconLikelihood(table, building, variance_db2=25.0, stack=stack)
+    model = BeaconLikelihood(table, StateFrame(building, stack=stack), variance_db2=25.0)
     n = 4000
     particle_floor = rng.integers(0, len(building.floors), n)
     local = rng.uniform(0, 38, (n, 2))
@@ -143,8 +145,8 @@ def test_the_kernel_in_a_stack_plan_weighs_each_particle_on_its_own_floor(office
 
 # ---- the source ---------------------------------------------------------------------------------
 def _source(window_s=2.0) -> BeaconSource:
-    table = _office_table()
-    return BeaconSource(BeaconLikelihood(table, Building.from_plan(FloorPlan.load(OFFICE)), 16.0), window_s)
+    frame = StateFrame(Building.from_plan(FloorPlan.load(OFFICE)))
+    return BeaconSource(_office_table(), frame, BleConfig(window_s=window_s, rssi_variance_db2=16.0))
 
 
 def _readings(t, ids, rssi) -> Beacons:
@@ -161,7 +163,7 @@ def test_windows_take_the_trailing_readings_median_each_reading_once():
     rec = dataclasses.replace(_empty_recording(), beacons=readings)
     records = source.records_of(rec)
     assert len(records[0]) == 11  # the unknown beacon is left out
-    times = source.add_records(records, final=True)
+    times = source.add(records, final=True)
     # first at the first reading a full window after the first one (2.1), then the first reading
     # at least 2 s after the previous measurement: 4.2, 9.0, 12.0
     assert times == [2.1, 4.2, 9.0, 12.0]
@@ -178,13 +180,12 @@ def test_windows_do_not_depend_on_how_the_readings_arrive():
     ids = [_mac(k) for k in rng.integers(0, 8, 300)]
     rssi = rng.integers(-95, -50, 300).astype(float)
     whole = _source()
-    whole_t = whole.add_records((t, np.array([whole._index[i.upper()] for i in ids]), rssi), final=True)
+    whole_t = whole.add((t, np.array([whole._index[i.upper()] for i in ids]), rssi), final=True)
     pieces = _source()
     pieces_t = []
     rows = np.array([pieces._index[i.upper()] for i in ids])
     for lo, hi in zip([0, 7, 8, 150, 151, 299], [7, 8, 150, 151, 299, 300]):
-        pieces_t += pieces.add_records((t[lo:hi], rows[lo:hi], rssi[lo:hi]), final=hi == 300)
-        pieces_t += pieces.add_records((np.zeros(0),), final=False)  # nothing of this stream released
+        pieces_t += pieces.add((t[lo:hi], rows[lo:hi], rssi[lo:hi]), final=hi == 300)
     assert whole_t == pieces_t and len(whole_t) > 20
     for i in range(len(whole_t)):
         a, b = whole.measurement(i), pieces.measurement(i)
@@ -207,8 +208,9 @@ def test_beacons_alone_track_a_simulated_walk_and_add_to_the_wifi(office_walk):
     radio_map = RadioMap.load(REPO / "maps" / "office_radiomap.npz")
     table = _office_table()
     errors = {}
-    for label, kwargs in (("wifi", {"radio_map": radio_map}), ("both", {"radio_map": radio_map, "beacons": table}),
-                          ("ble", {"beacons": table})):
+    for label, kwargs in (("wifi", {"radio_map": radio_map}),
+                          ("both", {"radio_map": radio_map, "sources": {"ble": table}}),
+                          ("ble", {"sources": {"ble": table}})):
         runs = [_mean_error(plan, recording, track(plan, recording, config=_config(seed=seed), **kwargs))
                 for seed in (1, 2)]
         errors[label] = float(np.mean(runs))
@@ -219,7 +221,7 @@ def test_beacons_alone_track_a_simulated_walk_and_add_to_the_wifi(office_walk):
     a = track(plan, recording, radio_map, config=_config())
     b = track(plan, bare, radio_map, config=_config())
     np.testing.assert_array_equal(a.causal.xy_m, b.causal.xy_m)
-    assert a.n_beacon_windows == 0
+    assert a.n_measurements == {}
 
 
 def _cut(rec, t0, t1):
@@ -227,7 +229,7 @@ def _cut(rec, t0, t1):
 
 
 def _stream_rows(plan, rec, config, table, radio_map, chunks=None):
-    tracker = Tracker(plan, radio_map, config=config, beacons=table)
+    tracker = Tracker(plan, TrackingInputs(radio_map, sources={"ble": table}), config=config)
     bounds = [-np.inf, *(chunks if chunks is not None else []), np.inf]
     for t0, t1 in zip(bounds[:-1], bounds[1:]):
         tracker.feed(_cut(rec, t0, t1))
@@ -285,24 +287,26 @@ def test_beacons_alone_smooth_their_track_and_need_a_source(office_walk):
     from mapfilter.maps.walls import count_wall_crossings
 
     plan, recording, _, _ = office_walk
-    result = track(plan, recording, config=_config(smooth=True), beacons=_office_table())
+    result = track(plan, recording, config=_config(smooth=True), sources={"ble": _office_table()})
     assert result.restarted is None and count_wall_crossings(plan, result.offline.xy_m) == 0
     causal = errors_at_waypoints(result.causal.t_s, result.causal.xy_m, recording.waypoint_t_s,
                                  recording.waypoint_xy_m, True).errors_m
     offline = errors_at_waypoints(result.offline.t_s, result.offline.xy_m, recording.waypoint_t_s,
                                   recording.waypoint_xy_m, False).errors_m
     assert offline.mean() < causal.mean()  # measured: 1.40 -> 0.61 m
-    with pytest.raises(MapfilterError, match="beacon table"):
+    with pytest.raises(MapfilterError, match=r"BLE beacons \(--beacons\)"):
         track(plan, recording, config=_config())
 
 
 def test_ble_settings_are_saved_and_reloaded():
-    config = TrackingConfig().override({"ble.window_s": 3.5, "ble.rssi_variance_db2": 20.0})
+    config = TrackingConfig().override({"sources.ble.window_s": 3.5, "sources.ble.rssi_variance_db2": 20.0})
     text = config.to_yaml()
-    assert "ble:" in text and "window_s: 3.5" in text and "rssi_variance_db2: 20.0" in text
-    assert TrackingConfig.from_yaml(text).ble == BleConfig(3.5, 20.0)
+    assert "  ble:" in text and "window_s: 3.5" in text and "rssi_variance_db2: 20.0" in text
+    assert TrackingConfig.from_yaml(text).sources.ble == BleConfig(3.5, 20.0)
     with pytest.raises(MapfilterError, match="window_s"):
-        TrackingConfig.from_yaml("ble: {window_s: 0}")
+        TrackingConfig.from_yaml("sources: {ble: {window_s: 0}}")
+    with pytest.raises(MapfilterError, match=r"'ble.window_s' is no longer a setting \(now sources.ble.window_s\)"):
+        TrackingConfig.from_yaml("ble: {window_s: 3}")
 
 
 # ---- the table ----------------------------------------------------------------------------------
@@ -451,7 +455,7 @@ def test_cli_fit_beacons_track_and_evaluate_with_beacons(office_walk, tmp_path, 
     assert float(summary["pf-smooth+ble"]["mean"]) < float(summary["pf+ble"]["mean"])
     assert main(["evaluate", str(OFFICE), str(log), "--radiomap", str(REPO / "maps" / "office_radiomap.npz"),
                  "--methods", "pf-ble", "--out", str(tmp_path / "eval2")]) == 1
-    assert "weigh BLE beacons: give a beacon table (--beacons)" in capsys.readouterr().err
+    assert "method pf-ble weighs BLE beacons: give --beacons TABLE.csv" in capsys.readouterr().err
 
 
 def test_cli_fit_beacons_refuses_bad_ids_and_tables(office_walk, tmp_path, capsys):
@@ -515,9 +519,9 @@ def test_ipin_walk_with_beacons(ipin2023, ipin_venue):
     fitted = fit_beacons(table, labelled_readings(table, ipin_venue, others)).table
     radio_map = build_radio_map(ipin_venue, others)
     config = TrackingConfig().override({"filter.n_particles": 3000})
-    both = track(ipin_venue, walk, radio_map, config=config, beacons=fitted)
-    alone = track(ipin_venue, walk, config=config, beacons=fitted)
-    assert both.n_beacon_windows == alone.n_beacon_windows > 30
+    both = track(ipin_venue, walk, radio_map, config=config, sources={"ble": fitted})
+    alone = track(ipin_venue, walk, config=config, sources={"ble": fitted})
+    assert both.n_measurements["ble"] == alone.n_measurements["ble"] > 30
     for result in (both, alone):
         score = score_track(ipin_venue, walk, result.causal, None, True)
         assert score.errors.errors_m.size == walk.waypoint_t_s.size
@@ -544,15 +548,14 @@ def test_leave_one_out_fits_each_walks_beacons_without_it(office_walk, tmp_path)
     positions = tmp_path / "positions.csv"
     _office_table(c_dbm=-50.0, n=3.0).write_csv(positions)
     building = Building.from_plan(plan)
-    setup = comparison.EvaluationSetup(leave_one_out=True, beacon_table_path=positions)
-    table = comparison._beacon_table(building, setup)
-    methods = comparison.methods_for(building, beacons=True)
-    all_walks = comparison._all_walks(building, setup, methods, [first, second], [0, 0], table)
-    context = comparison._Context(building, setup, methods, (first_path, second_path), all_walks, (0, 0),
-                                  beacons=table)
+    table = BeaconTable.read_csv(positions, building)
+    setup = comparison.EvaluationSetup(leave_one_out=True, sources={"ble": table})
+    methods = comparison.methods_for(building, {"ble"})
+    all_walks = comparison._all_walks(building, setup, methods, [first, second], [0, 0])
+    context = comparison._Context(building, setup, methods, (first_path, second_path), all_walks, (0, 0))
     for scored, other in ((first, second), (second, first)):
-        got, config = comparison._walk_beacons(context, scored)
-        assert config.ble.rssi_offset_db == 0.0  # no phone model named
+        got = comparison._walk_sources(context, scored)["ble"]
+        assert got.phone_offsets_db == {}  # no phone model named
         alone = fit_beacons(table, labelled_readings(table, building, [other])).table
         np.testing.assert_allclose(got.c_dbm, alone.c_dbm, atol=1e-6)
         np.testing.assert_allclose(got.n, alone.n, atol=1e-6)
@@ -573,11 +576,17 @@ def test_the_fit_finds_each_phones_rssi_offset(office_walk, tmp_path):
     np.testing.assert_allclose(np.median(fit.table.c_dbm), TRUE_C - 4.5, atol=2.5)
     # the model adds a phone's offset to every beacon's C
     offset = fit.phone_offsets_db["QUIET"]
-    shifted = BeaconLikelihood(fit.table, building, 25.0, rssi_offset_db=offset)
+    frame = StateFrame(building)
+    shifted = BeaconLikelihood(fit.table, frame, 25.0, rssi_offset_db=offset)
     moved = BeaconLikelihood(fit.table.with_parameters(fit.table.c_dbm + offset, fit.table.n, fit.table.floor_loss_db),
-                             building, 25.0)
+                             frame, 25.0)
     particles = _particles(np.random.default_rng(8).uniform(0, 38, (500, 2)))
     window = BeaconWindow(0.0, np.array([0, 3, 5]), np.array([-80.0, -70.0, -90.0]))
     np.testing.assert_array_equal(shifted.log_likelihood(particles, window), moved.log_likelihood(particles, window))
     with pytest.raises(MapfilterError, match="rssi_offset_db"):
-        TrackingConfig().override({"ble.rssi_offset_db": 55.0})
+        TrackingConfig().override({"sources.ble.rssi_offset_db": 55.0})
+    # the fitted table carries each phone's offset, and the source applies the log's phone's
+    assert fit.table.phone_offsets_db == fit.phone_offsets_db
+    source = BeaconSource(fit.table, frame, BleConfig())
+    source.records_of(low)
+    assert source.offset_db == offset and source.model.rssi_offset_db == offset

@@ -178,7 +178,7 @@ def test_on_an_open_floor_the_offline_track_is_the_smoothed_filter(ipin2023, tmp
     placed rigidly (its gyro drifts over the 3-minute walk, and no wall bends it back): better than
     the causal track. ``reach_sigmas=1e9`` places the shape anyway, and is worse (the check
     that the test can fail)."""
-    import mapfilter.pipeline.tracker as tracking
+    import mapfilter.pipeline.offline as tracking
     from mapfilter.api import build_radio_map, read_log, track
     from mapfilter.cli import main
     from mapfilter.config import TrackingConfig

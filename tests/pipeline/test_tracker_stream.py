@@ -17,7 +17,7 @@ from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.logs import read_log
 from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Beacons, Recording, WifiScans
-from mapfilter.pipeline.tracker import Tracker, track
+from mapfilter.pipeline.tracker import Tracker, TrackingInputs, track
 from tests.conftest import REPO
 
 _STREAMS = (("acc_t_s", ("acc_mps2",)), ("gyro_t_s", ("gyro_radps",)), ("rotvec_t_s", ("rotvec_xyz",)),
@@ -59,7 +59,7 @@ def _rows(tracker: Tracker):
 
 
 def _run(space, rec, radio_map, config, chunks=None) -> Tracker:
-    tracker = Tracker(space, radio_map, config=config)
+    tracker = Tracker(space, TrackingInputs(radio_map), config=config)
     if chunks is None:
         tracker.feed(rec)
     else:

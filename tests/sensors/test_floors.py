@@ -413,7 +413,7 @@ def test_barometer_between_scans_weighs_floors_only_and_never_collapses_or_becom
 def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_step_or_scan():
     from mapfilter.filter.models.position_fix import GaussianFixLikelihood, PositionFix
     from mapfilter.filter.particle_filter import FilterConfig
-    from mapfilter.filter.causal import MotionConfig, CausalFilter
+    from mapfilter.filter.causal import CausalFilter, MotionConfig, RunSettings
     from mapfilter.maps.floorplan import FloorPlan
     from mapfilter.sensors.pdr import Steps
     from mapfilter.sensors.wifi import WifiScan, scans_recording
@@ -448,8 +448,8 @@ def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_ste
     plan = FloorPlan(np.pad(np.zeros((98, 98), dtype=bool), 1, constant_values=True), 0.1)
 
     def row_times(model, between):
-        stream = CausalFilter(plan, Evidence([], between), MotionConfig(model=model, tick_s=1.0),
-                              FilterConfig(n_particles=100), np.random.default_rng(0),
+        settings = RunSettings(MotionConfig(model=model, tick_s=1.0), FilterConfig(n_particles=100))
+        stream = CausalFilter(plan, Evidence([], between), settings, np.random.default_rng(0),
                               steps=steps if model == "pdr" else None)
         stream.feed(scans_recording(scans))
         stream.close()

@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     from mapfilter.evaluation.scoring import score_track
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
-    from mapfilter.pipeline.tracker import Tracker, track
+    from mapfilter.pipeline.tracker import Tracker, TrackingInputs, track
 
     parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("evaal_ipin"), help="folder for the tables")
@@ -82,8 +82,8 @@ def main(argv: list[str] | None = None) -> int:
                 errors = ipin_errors_m(score.errors.errors_m, score.floor_score.storeys_off)
                 pooled.setdefault(name, []).append(errors)
                 numbers[name] = float(np.percentile(errors, 75))
-            online = run_online(EvaalClient(server.url, f"on{k}"), Tracker(building, radio_map, config=config))
-            offline = run_offline(EvaalClient(server.url, f"off{k}"), Tracker(building, radio_map, config=smooth))
+            online = run_online(EvaalClient(server.url, f"on{k}"), Tracker(building, TrackingInputs(radio_map), config=config))
+            offline = run_offline(EvaalClient(server.url, f"off{k}"), Tracker(building, TrackingInputs(radio_map), config=smooth))
             for name, trial, run in (("online", f"on{k}", online), ("offline", f"off{k}", offline)):
                 reply = EvaalClient(server.url, trial).estimates()
                 kept_path = args.out / f"{rec.name}_{name}_server.csv"
@@ -96,8 +96,8 @@ def main(argv: list[str] | None = None) -> int:
                 numbers[f"{name}_timed_out"] = run.timed_out
             # the same clients over the log file (no server): the same estimates?
             for name, run, replay in (
-                    ("online", online, replay_online(Tracker(building, radio_map, config=config), log)),
-                    ("offline", offline, replay_offline(Tracker(building, radio_map, config=smooth), log))):
+                    ("online", online, replay_online(Tracker(building, TrackingInputs(radio_map), config=config), log)),
+                    ("offline", offline, replay_offline(Tracker(building, TrackingInputs(radio_map), config=smooth), log))):
                 a, b = run.estimates, replay.estimates
                 numbers[f"{name}_replay_same"] = len(a) == len(b) and all(
                     np.array_equal(getattr(a, f), getattr(b, f)) for f in ("t_s", "lon_deg", "lat_deg", "floor"))

@@ -2,7 +2,7 @@
 ch. 6), R(d) = C - 10 n log10(d) - alpha min(d, d_max), with Gaussian RSSI noise.
 
 :func:`path_loss_kernel` is the per-particle log-likelihood -sum_k (z_k - R_k(d_k))^2 / (2 var)
-as a filter kernel; the BLE beacon model uses it too.
+as a filter kernel; the BLE model (``filter.models.ble``) uses it too.
 """
 
 from __future__ import annotations

@@ -1,0 +1,168 @@
+"""Measurement sources (filter/sources, filter.causal.MeasurementSource): the registry, and the
+adapters' contract that a chunked feed gives the whole file's track.
+
+The BLE walk is test_ble's simulated office walk with beacon readings; every registered source
+with a simulated input has its own chunk test beside its plug-in's tests."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from mapfilter.config import TrackingConfig
+from mapfilter.errors import MapfilterError
+from mapfilter.filter.causal import CausalFilter, MeasurementSource, ReplayedMeasurements, RunSettings
+from mapfilter.filter.evidence import NoWifiEvidence
+from mapfilter.filter.sources import SourceOption, SourcePlugin, evaluation_methods, plugin, registered
+from mapfilter.io.tracks import write_track
+from mapfilter.pipeline.tracker import Tracker, TrackingInputs, track
+from mapfilter.sensors.logs import LogStream, read_log
+from mapfilter.sensors.pdr import OnlinePDR
+from mapfilter.sensors.recording import Recording
+from tests.filter.test_ble import OFFICE, _office_table, office_walk  # noqa: F401 - the fixture
+from tests.sensors.test_logs_stream import random_pieces
+
+
+def _csv_bytes(track_, tmp_path, name: str) -> bytes:
+    path = tmp_path / f"{name}.csv"
+    write_track(track_, path, "csv")
+    return path.read_bytes()
+
+
+def _in_time_order(path, tmp_path):
+    """The walk's log with its records in time order, as a phone streams them (test_ble's
+    fixture appends the beacon rows at the end)."""
+    lines = path.read_text().splitlines(keepends=True)
+    records = sorted((line for line in lines if not line.startswith("#")), key=lambda line: int(line.split("\t")[0]))
+    ordered = tmp_path / "ordered.txt"
+    ordered.write_text("".join([*(line for line in lines if line.startswith("#")), *records]))
+    return ordered
+
+
+def _fed_in_pieces(tracker, data: bytes, rng: np.random.Generator) -> None:
+    stream = LogStream("walk")
+    for piece in random_pieces(data, rng):
+        tracker.feed(stream.feed_bytes(piece))
+    tracker.feed(stream.close())
+    tracker.close()
+
+
+# ---- the registry ---------------------------------------------------------------------------------
+def test_the_registry_lists_ble_with_its_options_config_and_methods():
+    names = [p.name for p in registered()]
+    assert "ble" in names and names == sorted(names)
+    ble = plugin("ble")
+    assert [o.flag for o in ble.options] == ["--beacons"] and ble.options[0].key == "beacons"
+    assert TrackingConfig().sources.ble == ble.config()
+    assert evaluation_methods(True)["pf+ble"] == ("ble", "pf")
+    assert evaluation_methods(False)["pf-floor+ble"] == ("ble", "pf-floor")
+    with pytest.raises(MapfilterError, match="no measurement source named 'radar'"):
+        plugin("radar")
+    with pytest.raises(MapfilterError, match="no measurement source named 'radar'"):
+        TrackingInputs(sources={"radar": object()})
+
+
+def test_a_plugin_that_breaks_the_rules_is_refused():
+    from mapfilter.filter.sources import _add
+
+    class Bad(SourcePlugin):
+        name = "Bad Name"
+        config = TrackingConfig
+
+    with pytest.raises(TypeError, match="lower-case"):
+        _add({}, Bad(), "here")
+    with pytest.raises(TypeError, match="must be a SourcePlugin"):
+        _add({}, object(), "here")
+
+    class NoConfig(SourcePlugin):
+        name = "x"
+
+    with pytest.raises(TypeError, match="config section"):
+        _add({}, NoConfig(), "here")
+    found = {}
+    _add(found, plugin("ble"), "here")
+    with pytest.raises(TypeError, match="registered twice"):
+        _add(found, plugin("ble"), "there")
+    assert SourceOption("--ranges-log", "R", "h").key == "ranges_log"
+
+
+def test_a_source_alone_is_tracked_and_nothing_at_all_is_refused(office_walk):
+    plan, recording, _, _ = office_walk
+    config = TrackingConfig(seed=1).with_particles(1000)
+    result = track(plan, recording, config=config, sources={"ble": _office_table()})
+    assert result.n_scans_used == 0 and result.n_measurements["ble"] > 30
+    with pytest.raises(MapfilterError, match=r"nothing to weigh the particles by: .* BLE beacons \(--beacons\)"):
+        track(plan, recording, config=config)
+
+
+# ---- the adapters' contract ----------------------------------------------------------------------
+def test_a_source_fed_in_random_pieces_gives_the_whole_files_track(office_walk, tmp_path):
+    """A live feed (a LogStream in pieces of 1 byte to 64 KiB): the file's track to the byte."""
+    plan, _, _, path = office_walk
+    path = _in_time_order(path, tmp_path)
+    config = TrackingConfig(seed=4).with_particles(1000)
+    for inputs in (TrackingInputs(sources={"ble": _office_table()}),):
+        whole = track(plan, read_log(path), config=config, sources=inputs.sources)
+        for seed in (1, 2):
+            tracker = Tracker(plan, inputs, config)
+            _fed_in_pieces(tracker, path.read_bytes(), np.random.default_rng(seed))
+            assert tracker.stream.late_records == 0
+            assert _csv_bytes(tracker.causal, tmp_path, "piece") == _csv_bytes(whole.causal, tmp_path, "whole")
+            assert tracker.result().n_measurements == whole.n_measurements
+
+
+def _replay_filter(plan, source: MeasurementSource, config: TrackingConfig) -> CausalFilter:
+    """The causal filter on the beacons' measurements replayed, no WiFi (as the Tracker builds it)."""
+    settings = RunSettings(config.motion, config.filter, config.steps.abs_heading_offset_rad)
+    return CausalFilter(plan, NoWifiEvidence("walk"), settings, np.random.default_rng(config.seed),
+                        steps=OnlinePDR(config.steps), sources=(ReplayedMeasurements(source, source.model),))
+
+
+def test_replayed_measurements_fed_in_random_pieces_give_the_original_track(office_walk, tmp_path):
+    """ReplayedMeasurements hands over no measurement before a chunk reaches its time: fed 4 KiB
+    pieces, or random ones, it gives the track of the source it replays, to the byte, and drops
+    no record as late (handing every time over at once gave a fraction of the rows)."""
+    plan, _, _, path = office_walk
+    path = _in_time_order(path, tmp_path)
+    config = TrackingConfig(seed=4).with_particles(1000)
+    original = Tracker(plan, TrackingInputs(sources={"ble": _office_table()}), config)
+    original.feed(read_log(path))
+    original.close()
+    source = original.sources[0]
+    assert source.n_measurements > 30
+    data = path.read_bytes()
+    expected = _csv_bytes(original.stream.track(), tmp_path, "original")
+    for pieces in ([data[k:k + 4096] for k in range(0, len(data), 4096)], random_pieces(data, np.random.default_rng(3))):
+        replay = _replay_filter(plan, source, config)
+        stream = LogStream("walk")
+        for piece in pieces:
+            replay.feed(stream.feed_bytes(piece))
+        replay.feed(stream.close())
+        replay.close()
+        assert replay.late_records == 0
+        assert _csv_bytes(replay.track(), tmp_path, "replay") == expected
+
+
+def test_the_base_class_holds_back_what_runs_ahead_of_the_chunk():
+    class Ahead(MeasurementSource):
+        stream = "ahead"
+
+        def records_of(self, records):
+            return (np.array([1.0, 2.0, 5.0, 9.0]), np.arange(4)) if not self.measurements and self._held is None \
+                else (np.zeros(0), np.zeros(0, dtype=np.int64))
+
+        def measure(self, records, final):
+            return [(float(t), int(i)) for t, i in zip(*records)]
+
+    def chunk(t_s: float) -> Recording:
+        return dataclasses.replace(Recording.empty(), acc_t_s=np.array([t_s]), acc_mps2=np.zeros((1, 3)))
+
+    source = Ahead()
+    taken = source.take(chunk(2.0))
+    assert taken[0].tolist() == [1.0, 2.0]  # at or before the chunk's newest record
+    assert source.take(chunk(3.0)) is None
+    assert source.take(chunk(6.0))[0].tolist() == [5.0]
+    assert source.take(None)[0].tolist() == [9.0]  # the end of the walk: the rest
+    assert source.add(taken, final=False) == [1.0, 2.0] and source.measurement(1) == 1
