@@ -12,7 +12,7 @@ import numpy as np
 import mapfilter.filter.causal as causal
 from mapfilter.config import TrackingConfig
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.pipeline.tracker import Tracker
+from mapfilter.pipeline.tracker import Tracker, TrackingInputs
 from mapfilter.sensors.logs import LogStream
 from mapfilter.sensors.radiomap import RadioMap
 from tests.conftest import REPO
@@ -47,7 +47,8 @@ def test_a_chunk_late_in_a_long_run_makes_only_its_own_rows(monkeypatch):
     monkeypatch.setattr(causal, "Track", CountedTrack)
     monkeypatch.setattr(causal, "merge_steps", counted_merge)
     data = _repeated_walk(2)
-    tracker = Tracker(FloorPlan.load(REPO / "maps" / "office.yaml"), RadioMap.load(REPO / "maps" / "office_radiomap.npz"),
+    tracker = Tracker(FloorPlan.load(REPO / "maps" / "office.yaml"),
+                      TrackingInputs(RadioMap.load(REPO / "maps" / "office_radiomap.npz")),
                       config=TrackingConfig(seed=0).override({"filter.n_particles": 200}))
     stream = LogStream("the repeated walk")
     kept_rotvec = []
