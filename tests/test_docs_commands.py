@@ -416,11 +416,22 @@ def _cut_real_logs(argv: list[str], cwd: Path) -> list[str]:
             continue
         if run:
             named = [w for w in run if any(Path(w).name.split(".")[0] in other for other in argv if other not in run)]
-            out += [w for w in run if w in run[:LOGS_PER_GLOB] or w in named]
+            first = run[:LOGS_PER_GLOB]
+            if "--leave-out" in argv and "route" in argv:  # a route left out needs other routes to survey it
+                first = list({_route(w): w for w in reversed(run)}.values())[::-1][:LOGS_PER_GLOB]
+            out += [w for w in run if w in first or w in named]
             run = []
         if word:
             out.append(word)
     return out
+
+
+def _route(log: str) -> str:
+    """An IPIN training log's trial (its route), else the log itself."""
+    from mapfilter.evaluation.groups import IPIN_TRIAL
+
+    match = IPIN_TRIAL.search(Path(log).name)
+    return match.group(1) if match else log
 
 
 def _mapfilter(argv: list[str], cwd: Path, redirect: Path | None) -> tuple[str, str]:
@@ -455,3 +466,8 @@ def test_cutting_real_logs_keeps_options_and_named_logs(tmp_path):
     cut = _cut_real_logs(argv, tmp_path)
     assert cut[:3] == argv[:3] and cut[-4:] == argv[-4:]
     assert cut[3:-4] == logs[:LOGS_PER_GLOB] + [logs[10]]
+    # a route left out: the first log of each of the first routes
+    ipin = sorted(str(p) for p in (data / "ipin2023" / "logs").glob("*.txt.gz"))
+    cut = _cut_real_logs(["evaluate", "venue.yaml", *ipin, "--leave-out", "route", "--out", "x"], tmp_path)
+    assert [Path(w).name[:40] for w in cut[2:-4]] == [f"IPIN2023_T3_TrainingTrial{t}_repetition01"
+                                                       for t in ("01", "02", "03")]

@@ -74,10 +74,11 @@ labels (tracked offline, their scans added where the offline track puts them; le
 or group, grown once per fold of the labelled walks, a group's walks in one fold, so that no
 walk is scored with points its own or its group's labels placed); --transductive lets the
 evaluated walks grow it too, each scored with the other walks' grown points (left out by walk
-or group: each fold's walks grow that fold's points, over the survey of the other folds). Errors are taken at the ground-truth waypoint times from each
-method's latest estimate at or before that time (causal); waypoints before a method's first
-estimate are counted as missed, not scored. --smooth adds pf-smooth, the offline whole-walk
-track (not causal). runtime_s is each method's own time.
+or group: each fold's walks grow that fold's points, over the survey of the other folds).
+Errors are taken at the ground-truth waypoint times from each method's latest estimate at or
+before that time (causal); waypoints before a method's first estimate are counted as missed,
+not scored. --smooth adds pf-smooth, the offline whole-walk track (not causal). runtime_s is
+each method's own time.
 
 writes into OUT, each walk's files as the walk finishes: walks/<trace>.json (its numbers),
 tracks/<trace>/<method>.csv and tracks/<trace>.png (tracks on the plan, zoomed on the walk);
