@@ -1,0 +1,73 @@
+"""Ranges to known anchors (UWB, WiFi RTT) as a measurement source.
+
+The anchor table and the range log are ``sensors.anchors``; the model and its stream adapter
+``filter.models.ranges``. Written against the registry alone (docs/models.md walks through it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from mapfilter.errors import MapfilterError
+from mapfilter.filter.sources import SourceOption, SourcePlugin
+
+
+@dataclasses.dataclass(frozen=True)
+class RangesConfig:
+    """Ranges to known anchors: how they weigh the particles."""
+
+    # UWB ranges scatter by 0.1-0.3 m in line of sight, more through walls and bodies
+    range_sigma_m: float = 0.3  # spread of a measured range around the true 3-D distance
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.range_sigma_m) and self.range_sigma_m > 0):
+            raise MapfilterError(f"ranges range_sigma_m must be a positive number of metres, got {self.range_sigma_m}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Ranges:
+    """The ``ranges`` source's input: the anchors and the ranges measured to them."""
+
+    table: Any  # sensors.anchors.AnchorTable
+    log: Any  # sensors.anchors.RangeLog
+
+
+class RangesPlugin(SourcePlugin):
+    """Ranges to known anchors: an anchor table and a range log are the input."""
+
+    name = "ranges"
+    title = "ranges to anchors"
+    options = (SourceOption("--anchors", "ANCHORS.csv", "anchor table (anchor_id,x,y[,floor][,height]) for --ranges"),
+               SourceOption("--ranges", "RANGES.csv", "ranges to the anchors (t_s,anchor_id,range_m on the log's "
+                                                      "clock: UWB, WiFi RTT): weighed too, or alone without WiFi"))
+    config = RangesConfig
+    counts = "range sets"
+    help = ("Ranges to anchors (UWB, WiFi RTT): --anchors ANCHORS.csv --ranges RANGES.csv weighs the ranges "
+            "measured to known anchors too (config section sources.ranges), or alone without WiFi; the range log "
+            "is t_s,anchor_id,range_m rows on the log's clock, and each walk takes the ranges of its own time "
+            "span (docs/formats.md).")
+
+    def load(self, files: Mapping[str, Path], building) -> Ranges:
+        from mapfilter.sensors.anchors import AnchorTable, read_ranges
+
+        table = AnchorTable.read_csv(files["anchors"], building)
+        table.check_on(building, building.path)
+        return Ranges(table, read_ranges(files["ranges"], table))
+
+    def check(self, given: Any) -> Ranges:
+        if not isinstance(given, Ranges):
+            raise TypeError(f"sources['ranges']: expected filter.sources.ranges.Ranges(table, log) or the files "
+                            f"{{'anchors': ..., 'ranges': ...}}, got {type(given).__name__}")
+        return given
+
+    def source(self, given: Ranges, frame, config: RangesConfig):
+        from mapfilter.filter.models.ranges import RangeSource
+
+        return RangeSource(given, frame, config)
+
+
+SOURCE = RangesPlugin()

@@ -1,0 +1,252 @@
+"""Ranges to known anchors (UWB, WiFi RTT): the anchor table and the range log.
+
+An ``AnchorTable`` holds each anchor's id, position (in its floor's frame, or latitude and
+longitude placed by a georeferenced building), floor and height above the phone. A
+``RangeLog`` holds the measured ranges, ``t_s,anchor_id,range_m`` rows on the walk's own clock
+(the log's: Unix seconds in an ILC trace, the AppTimestamp in a GetSensorData log): what a UWB
+tag or an Android ``WifiRttManager`` app writes beside the phone's log. Both are CSV files with
+a header (docs/formats.md); every problem is one line naming the file and line.
+``simulate_ranges`` draws the ranges a walk would have measured (the tests, docs/models.md).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+from mapfilter.io.atomic import write_csv_atomically
+from mapfilter.maps.building import Building
+from mapfilter.sensors.radiomap import map_extents_m, metres_outside
+
+__all__ = ["AnchorTable", "RangeLog", "read_ranges", "simulate_ranges"]
+
+# what a row's columns can be (a row outside is refused, naming its line)
+COLUMN_RANGES = {"x": (-1e7, 1e7), "y": (-1e7, 1e7), "latitude": (-90.0, 90.0), "longitude": (-180.0, 180.0),
+                 "height": (-100.0, 100.0), "t_s": (-1e11, 1e11), "range_m": (0.0, 1000.0)}
+# UWB reaches 50-100 m indoors: an anchor further off its floor's map belongs to another frame
+MAX_ANCHOR_OFF_MAP_M = 100.0
+
+
+def _number(text: str, column: str, path: Path, line_no: int) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise MapfilterError(f"column {column} is not a number: {text.strip()!r}", path, line_no) from None
+    if not math.isfinite(value):
+        raise MapfilterError(f"column {column} is not finite: {text.strip()!r}", path, line_no)
+    low, high = COLUMN_RANGES[column]
+    if not low <= value <= high:
+        raise MapfilterError(f"column {column} is {value:g}, outside {low:g} to {high:g}", path, line_no)
+    return value
+
+
+def _rows(path: str | os.PathLike, what: str) -> tuple[Path, dict[str, int], list[tuple[int, list[str]]]]:
+    """(path, {lower-case column: index}, [(line, fields)]) of a CSV with a header."""
+    from mapfilter.io.yamlio import decode_text
+
+    path = Path(path)
+    if not path.is_file():
+        raise MapfilterError("file not found", path)
+    text = decode_text(path.read_bytes(), path, what)
+    reader = csv.reader(io.StringIO(text, newline=""))
+    header = next(reader, None)
+    if header is None:
+        raise MapfilterError(f"{what} is empty: it needs a header line", path, 1)
+    column = {name.strip().lower(): j for j, name in enumerate(header)}
+    rows = []
+    for fields in reader:
+        if not any(f.strip() for f in fields):
+            continue
+        if len(fields) < len(header):
+            raise MapfilterError(f"{len(fields)} fields, the header has {len(header)}", path, reader.line_num)
+        rows.append((reader.line_num, fields))
+    if not rows:
+        raise MapfilterError(f"{what} has no rows", path)
+    return path, column, rows
+
+
+@dataclasses.dataclass
+class AnchorTable:
+    """Anchors with positions (arrays of length K)."""
+
+    anchor_id: list[str]  # as the range log names them (trimmed)
+    xy_m: np.ndarray  # (K, 2) in the frame of the anchor's floor
+    floor: list[str | None]  # the floor each is on (None: the one floor of a single map)
+    height_m: np.ndarray  # (K,) height above the phone (an anchor on the ceiling: about 1.5 m)
+    source_path: Path | None = None  # the CSV it was read from (for messages), or None
+    source_lines: list[int] | None = None  # the CSV line of each row, or None
+
+    COLUMNS = ("anchor_id", "x", "y", "floor", "height")
+
+    def __len__(self) -> int:
+        return len(self.anchor_id)
+
+    @property
+    def index(self) -> dict[str, int]:
+        """Row of each anchor id."""
+        return {key: i for i, key in enumerate(self.anchor_id)}
+
+    def building_xy_m(self, building: Building) -> tuple[np.ndarray, np.ndarray]:
+        """((K, 2) positions in the building frame, (K,) floor indices); a ``MapfilterError``
+        naming the table's line for a floor the building does not have."""
+        floors = np.zeros(len(self), dtype=np.int64)
+        out = np.empty_like(self.xy_m)
+        for i, name in enumerate(self.floor):
+            if not building.is_single_floor:
+                if name not in building.floor_names:
+                    what = "has no floor" if name is None else f"is on floor {name!r}, which the building does not have"
+                    raise MapfilterError(f"anchor {self.anchor_id[i]} {what} (floors: {', '.join(building.floor_names)})",
+                                         self.source_path, self._line(i))
+                floors[i] = building.floor_names.index(name)
+            out[i] = building.floors[floors[i]].to_building(self.xy_m[i])
+        return out, floors
+
+    def _line(self, i: int) -> int | None:
+        return self.source_lines[i] if self.source_lines is not None else None
+
+    @classmethod
+    def read_csv(cls, path: str | os.PathLike, building: Building | None = None) -> AnchorTable:
+        """Read an anchor table: ``anchor_id``, the position as ``x,y`` (metres in its floor's
+        frame) or ``latitude,longitude`` (placed by ``building``'s georeference), optional
+        ``floor`` (needed in a building with several floors) and ``height`` (m above the phone,
+        default 0)."""
+        path, column, rows = _rows(path, "the anchor table")
+        if "anchor_id" not in column:
+            raise MapfilterError("an anchor table needs an anchor_id column (the id the range log names it by)",
+                                 path, 1)
+        if "x" in column and "y" in column:
+            names, geographic = ("x", "y"), False
+        elif "latitude" in column and "longitude" in column:
+            names, geographic = ("latitude", "longitude"), True
+            if building is None or building.georeference is None:
+                raise MapfilterError("the anchors' positions are latitude/longitude: they need a georeferenced "
+                                     "building", path, 1)
+        else:
+            raise MapfilterError("an anchor table needs the position as columns x,y (metres) or latitude,longitude",
+                                 path, 1)
+        ids, ab, floors, heights, lines, first = [], [], [], [], [], {}
+        for line_no, fields in rows:
+            name = fields[column["anchor_id"]].strip()
+            if not name:
+                raise MapfilterError("empty anchor id", path, line_no)
+            if name in first:
+                raise MapfilterError(f"anchor {name} is listed twice (lines {first[name]} and {line_no}): keep one",
+                                     path, line_no)
+            first[name] = line_no
+            ab.append([_number(fields[column[c]], c, path, line_no) for c in names])
+            text = fields[column["height"]].strip() if "height" in column else ""
+            heights.append(_number(text, "height", path, line_no) if text else 0.0)
+            floor = fields[column["floor"]].strip() if "floor" in column else ""
+            if not floor and building is not None and not building.is_single_floor:
+                raise MapfilterError("no floor: a building with several floors needs each anchor's floor (column "
+                                     "floor)", path, line_no)
+            if floor and building is not None and not building.is_single_floor and floor not in building.floor_names:
+                raise MapfilterError(f"floor {floor!r} is not in the building (floors: "
+                                     f"{', '.join(building.floor_names)})", path, line_no)
+            ids.append(name)
+            floors.append(floor or None)
+            lines.append(line_no)
+        ab = np.array(ab, dtype=np.float64).reshape(-1, 2)
+        if geographic:
+            xy = building.latlon_to_floor_xy(ab, [f if f is not None else building.floors[0].name for f in floors], path)
+        else:
+            xy = ab
+        return cls(ids, xy, floors, np.array(heights), path, lines)
+
+    def write_csv(self, path: str | os.PathLike) -> None:
+        """The table as CSV (``COLUMNS``), written atomically."""
+        write_csv_atomically(path, self.COLUMNS, (
+            [self.anchor_id[i], f"{self.xy_m[i, 0]:.3f}", f"{self.xy_m[i, 1]:.3f}",
+             "" if self.floor[i] is None else self.floor[i], f"{self.height_m[i]:.2f}"] for i in range(len(self))))
+
+    def check_on(self, building: Building, map_path: str | os.PathLike | None = None) -> None:
+        """Refuse a table that cannot belong to ``building``: an anchor on a floor it does not
+        have, or more than ``MAX_ANCHOR_OFF_MAP_M`` outside its floor's map."""
+        _, floors = self.building_xy_m(building)
+        for i in range(len(self)):
+            extents = map_extents_m(building.floors[int(floors[i])].plan)
+            off_m = min(float(metres_outside(self.xy_m[i:i + 1], e)[0]) for e in extents)
+            if off_m > MAX_ANCHOR_OFF_MAP_M:
+                x, y = self.xy_m[i]
+                on = f" {map_path}" if map_path is not None else ""
+                raise MapfilterError(f"anchor {self.anchor_id[i]} at ({x:.6g}, {y:.6g}) m lies {off_m:.0f} m outside "
+                                     f"the map{on} (at most {MAX_ANCHOR_OFF_MAP_M:g} m): is the table in the map's "
+                                     "frame?", self.source_path, self._line(i))
+
+
+@dataclasses.dataclass(frozen=True)
+class RangeLog:
+    """Measured ranges, in time order (arrays of length R)."""
+
+    t_s: np.ndarray  # (R,) on the walk's clock
+    anchor: np.ndarray  # (R,) row of the anchor in the table
+    range_m: np.ndarray  # (R,)
+
+    def __len__(self) -> int:
+        return int(self.t_s.size)
+
+    def write_csv(self, path: str | os.PathLike, table: AnchorTable) -> None:
+        """The log as CSV ``t_s,anchor_id,range_m``, written atomically."""
+        write_csv_atomically(path, ("t_s", "anchor_id", "range_m"), (
+            [f"{self.t_s[i]:.3f}", table.anchor_id[int(self.anchor[i])], f"{self.range_m[i]:.3f}"]
+            for i in range(len(self))))
+
+
+def read_ranges(path: str | os.PathLike, table: AnchorTable) -> RangeLog:
+    """A range log: ``t_s,anchor_id,range_m`` (seconds on the walk's clock, an anchor of
+    ``table``, metres), in any order (sorted by time, stably)."""
+    path, column, rows = _rows(path, "the range log")
+    missing = [c for c in ("t_s", "anchor_id", "range_m") if c not in column]
+    if missing:
+        raise MapfilterError(f"a range log needs the columns t_s,anchor_id,range_m (missing: {', '.join(missing)})",
+                             path, 1)
+    index = table.index
+    t, anchor, ranges = [], [], []
+    for line_no, fields in rows:
+        name = fields[column["anchor_id"]].strip()
+        if name not in index:
+            raise MapfilterError(f"anchor {name!r} is not in the anchor table {table.source_path or ''}".rstrip(),
+                                 path, line_no)
+        t.append(_number(fields[column["t_s"]], "t_s", path, line_no))
+        anchor.append(index[name])
+        ranges.append(_number(fields[column["range_m"]], "range_m", path, line_no))
+    order = np.argsort(np.array(t), kind="stable")
+    return RangeLog(np.array(t)[order], np.array(anchor, dtype=np.int64)[order], np.array(ranges)[order])
+
+
+def simulate_ranges(table: AnchorTable, building: Building, t_s: np.ndarray, xy_m: np.ndarray,
+                    floor: np.ndarray | int, rng: np.random.Generator, *, rate_hz: float = 2.0,
+                    sigma_m: float = 0.1, max_range_m: float = 30.0) -> RangeLog:
+    """The ranges a walk at ``xy_m`` (floor frames; ``floor``: building floor index per point, or
+    one) at times ``t_s`` would have measured: each anchor ranged ``rate_hz`` times a second at
+    random times within the walk, the true 3-D distance (the anchor's height, the floors'
+    elevations) plus Gaussian noise ``sigma_m``, anchors beyond ``max_range_m`` unheard."""
+    t_s, xy_m = np.asarray(t_s, dtype=np.float64), np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    floor = np.broadcast_to(np.asarray(floor, dtype=np.int64), t_s.shape)
+    anchor_xy, anchor_floor = table.building_xy_m(building)
+    elevation = np.array([f.elevation_m for f in building.floors])
+    parts = []
+    for k in range(len(table)):
+        n = rng.poisson(rate_hz * (t_s[-1] - t_s[0]))
+        when = np.sort(rng.uniform(t_s[0], t_s[-1], n))
+        i = np.clip(np.searchsorted(t_s, when), 1, t_s.size - 1)
+        a = ((when - t_s[i - 1]) / np.maximum(t_s[i] - t_s[i - 1], 1e-9))[:, None]
+        local = xy_m[i - 1] + a * (xy_m[i] - xy_m[i - 1])
+        on = floor[i - 1]
+        walker = np.array([building.floors[int(f)].to_building(p) for f, p in zip(on, local)]).reshape(-1, 2)
+        dz = table.height_m[k] + elevation[anchor_floor[k]] - elevation[on]
+        d = np.sqrt(np.sum((walker - anchor_xy[k]) ** 2, axis=1) + dz ** 2)
+        measured = np.maximum(d + sigma_m * rng.standard_normal(d.size), 0.0)
+        heard = d <= max_range_m
+        parts.append((when[heard], np.full(int(heard.sum()), k), measured[heard]))
+    t = np.concatenate([p[0] for p in parts])
+    order = np.argsort(t, kind="stable")
+    return RangeLog(t[order], np.concatenate([p[1] for p in parts]).astype(np.int64)[order],
+                    np.concatenate([p[2] for p in parts])[order])
