@@ -33,6 +33,7 @@ from mapfilter.cli import main as cli  # noqa: E402
 from mapfilter.evaluation.comparison import EvaluationSetup, evaluate  # noqa: E402
 from mapfilter.evaluation.groups import by_ipin_trial  # noqa: E402
 from mapfilter.evaluation.metrics import format_table  # noqa: E402
+from mapfilter.filter.sources import plugin  # noqa: E402
 from mapfilter.maps.building import Building  # noqa: E402
 from mapfilter.runtime.dispatch import Engine  # noqa: E402
 
@@ -58,12 +59,14 @@ def ipin_venue(work: Path, beacons: bool) -> tuple[Path, Path | None]:
 def run_ipin(work: Path, tracking, jobs: int, quick: bool, beacons: bool) -> dict:
     """The IPIN 2023 logs leave-one-route-out: summary rows and rows per route."""
     venue, table = ipin_venue(work, beacons)
+    building = Building.load(venue)
+    sources = {"ble": plugin("ble").load({"beacons": table}, building)} if table is not None else {}
     logs = sorted((IPIN / "logs").glob("*.txt.gz"))
     scored = [p for p in logs if p.name.endswith("repetition01.txt.gz")] if quick else logs
     setup = EvaluationSetup(methods=("pf", "kwnn") + (("pf+ble",) if beacons else ()),
                             survey_paths=tuple(p for p in logs if p not in scored), groups=by_ipin_trial(logs),
-                            beacon_table_path=table, tracking=tracking)
-    evaluation = evaluate(Building.load(venue), scored, setup, Engine(jobs=jobs))
+                            sources=sources, tracking=tracking)
+    evaluation = evaluate(building, scored, setup, Engine(jobs=jobs))
     failed = [f"{o.trace}: {o.reason}" for o in evaluation.failed]
     return {"protocol": evaluation.protocol, "walks": len(scored), "failed": failed,
             "summary": evaluation.summary_rows(), "by_route": evaluation.summary_rows(by_group=True)}
