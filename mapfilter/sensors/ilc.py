@@ -45,8 +45,9 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.logread import (BadRow, GapTracker, LogReadWarning, RecordStream, ScanAssembler, TimeOrder,
-                                       check_range, count_bad_row, group_scans, iter_bounded_lines,
-                                       open_binary, parse_number, quick_numbers, read_whole)
+                                       check_range, clock_before_rows, count_bad_row, count_rows, group_scans,
+                                       handle_each, iter_bounded_lines, open_binary, parse_columns, parse_number,
+                                       quick_numbers, read_whole, split_by)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 __all__ = ["DEFAULT_MAX_WIFI_AGE_S", "NEEDED_TYPES", "IlcParser", "LogReadWarning", "read_ilc", "read_ilc_header"]
@@ -72,6 +73,18 @@ NEEDED_TYPES = frozenset({"TYPE_WAYPOINT", "TYPE_ACCELEROMETER", "TYPE_GYROSCOPE
 _TIME_DIGITS = 13
 _RECORD_TYPE = re.compile(r"TYPE_[A-Z0-9_]+")
 _MAC = re.compile(r"[0-9A-Fa-f]{2}(?::[0-9A-Fa-f]{2}){5}")
+
+# What the block parse reads of each record type: the columns that are numbers (column 0, the
+# time, first) and their quantities (logread.RANGES), as the line parse reads them
+_NUMBER_COLUMNS = {
+    **{kind: ((0, 2, 3, 4), ("unix_ms", quantity, quantity, quantity)) for kind, (_, quantity) in _VECTOR_TYPES.items()},
+    "TYPE_WIFI": ((0, 4, 5, 6), ("unix_ms", "rssi_dbm", "freq_mhz", "unix_ms")),
+    "TYPE_PRESSURE": ((0, 2), ("unix_ms", "pressure_hpa")),
+    "TYPE_WAYPOINT": ((0, 2, 3), ("unix_ms", "position_m", "position_m")),
+    "TYPE_BEACON": ((0, 6, 7), ("unix_ms", "rssi_dbm", "distance_m")),
+}
+# Below this share of lines the block parse takes, a block is read line by line (the same records)
+_BLOCK_SHARE = 0.9
 
 
 def read_ilc(path: str | os.PathLike, max_wifi_age_s: float = DEFAULT_MAX_WIFI_AGE_S, *,
@@ -110,10 +123,10 @@ class IlcParser:
         self._report = report
         self._strict = strict
         self._max_wifi_age_s = max_wifi_age_s
-        # rows not yet taken, per sensor list: (t_s, x, y, z) / (t_s, hPa)
-        self._vectors: dict[str, list[tuple[float, ...]]] = {name: [] for name, _ in _VECTOR_TYPES.values()}
+        # rows not yet taken, per sensor list, as tables of rows (t_s, x, y, z) / (t_s, hPa)
+        self._vectors: dict[str, list[np.ndarray]] = {name: [] for name, _ in _VECTOR_TYPES.values()}
         self._vector_order = {name: TimeOrder(report, kind) for kind, (name, _) in _VECTOR_TYPES.items()}
-        self._pressure: list[tuple[float, float]] = []
+        self._pressure: list[np.ndarray] = []
         self._pressure_order = TimeOrder(report, "TYPE_PRESSURE")
         self._waypoints = TimeOrder(report, "TYPE_WAYPOINT")  # records (t_s, x, y, floor or None)
         self._beacons = TimeOrder(report, "TYPE_BEACON")  # records (t_s, id, rssi, distance)
@@ -139,13 +152,99 @@ class IlcParser:
             except BadRow as bad:
                 count_bad_row(report, bad, line_no, self._strict, report.path)
 
+    def handle_lines(self, first: int, lines: list[str | None], bad_row) -> None:
+        """Lines ``first``, ``first + 1``, ...: what :meth:`handle_line` does to each in turn. The
+        lines that hold one good record of a known type (a time, a ``TYPE_`` field and no other,
+        every number read and in range) are parsed together per record type; the others (headers,
+        blank, bad or glued lines) go through :meth:`handle_line` in their place in the order."""
+        # each line's record type ("": not for the block parse), the lines of each type in order
+        heads = [line.split("\t", 2) if line is not None and line[:1] != "#" and line.count("TYPE_") == 1 else None
+                 for line in lines]
+        kinds = [head[1] if head is not None and len(head) > 1 and head[1][:5] == "TYPE_" else "" for head in heads]
+        groups = split_by(kinds)
+        groups.pop("", None)
+        n = len(lines)
+        fast = np.zeros(n, dtype=bool)
+        clock_t = np.full(n, -np.inf)  # each fast line's time, if it moves the WiFi scans' clock
+        is_wifi = np.zeros(n, dtype=bool)
+        parsed: dict[str, tuple[np.ndarray, object]] = {}  # kind -> (its lines, its records)
+        for kind, index in groups.items():
+            if kind not in _NUMBER_COLUMNS:
+                fast[index] = True  # a type this reader does not know: counted, nothing else
+                parsed[kind] = (index, None)
+                continue
+            texts = [lines[i] for i in index.tolist()]
+            columns, quantities = _NUMBER_COLUMNS[kind]
+            values, ok = parse_columns(texts, "\t", columns, quantities)
+            t_s = values[:, 0] / 1000.0
+            if kind in _VECTOR_TYPES or kind == "TYPE_PRESSURE":
+                records = np.column_stack([t_s, values[:, 1:]])  # a float table
+            elif kind == "TYPE_WIFI":
+                bssids = [text.split("\t", 4)[3].strip() if ok_i else "" for text, ok_i in zip(texts, ok.tolist())]
+                ok &= np.array([bool(b) for b in bssids], dtype=bool)
+                age_s = (values[:, 0] - values[:, 3]) / 1000.0
+                records = list(zip(t_s.tolist(), bssids, values[:, 1].tolist(), values[:, 2].tolist(), age_s.tolist()))
+                is_wifi[index] = True
+            elif kind == "TYPE_WAYPOINT":
+                rows = [text.split("\t") for text in texts]
+                records = [(t, x, y, row[4].strip() if len(row) > 4 and row[4].strip() else None)
+                           for t, x, y, row in zip(t_s.tolist(), values[:, 1].tolist(), values[:, 2].tolist(), rows)]
+            else:  # TYPE_BEACON
+                rows = [text.split("\t") for text in texts]
+                records = [(t, _beacon_id(row), rssi, distance) for t, rssi, distance, row in
+                           zip(t_s.tolist(), values[:, 1].tolist(), values[:, 2].tolist(), rows)]
+            fast[index[ok]] = True
+            clock_t[index] = t_s
+            parsed[kind] = (index, records)
+        if np.count_nonzero(fast) < _BLOCK_SHARE * n:
+            handle_each(self.handle_line, first, lines, bad_row)
+            return
+        begin = 0
+        for slow in [*np.flatnonzero(~fast).tolist(), n]:
+            if slow > begin:
+                self._take_block(begin, slow, parsed, clock_t, is_wifi)
+            if slow < n:
+                handle_each(self.handle_line, first + slow, [lines[slow]], bad_row)
+            begin = slow + 1
+
+    def _take_block(self, begin: int, end: int, parsed: dict, clock_t: np.ndarray, is_wifi: np.ndarray) -> None:
+        """The fast lines ``begin .. end - 1`` (all good records), as line by line."""
+        first_line, counts, wifi = [], [], None
+        report = self._report
+        for kind, (index, records) in parsed.items():
+            lo, hi = np.searchsorted(index, (begin, end))
+            if hi == lo:
+                continue
+            first_line.append(int(index[lo]))
+            counts.append((kind, int(hi - lo)))
+            if records is None:
+                continue
+            if kind in _VECTOR_TYPES:
+                self._vectors[_VECTOR_TYPES[kind][0]].append(records[lo:hi])
+            elif kind == "TYPE_PRESSURE":
+                self._pressure.append(records[lo:hi])
+            elif kind == "TYPE_WAYPOINT":
+                for record in records[lo:hi]:
+                    self._waypoints.add(record[0], record)
+            elif kind == "TYPE_BEACON":
+                for record in records[lo:hi]:
+                    self._beacons.add(record[0], record)
+            else:
+                wifi = records[lo:hi]
+        order = np.argsort(first_line, kind="stable").tolist()
+        known = [counts[i] for i in order if counts[i][0] in _NUMBER_COLUMNS]
+        count_rows(report, [kind for kind, _ in known], [n for _, n in known])
+        report.unknown_rows += sum(n for kind, n in counts if kind not in _NUMBER_COLUMNS)
+        before, after = clock_before_rows(clock_t[begin:end], is_wifi[begin:end])
+        self._scans.add_rows(wifi or [], before, after)
+
     def take(self, final: bool) -> Recording:
         vectors = {}
         for name, order in self._vector_order.items():
-            rows = order.accept(np.array(self._vectors[name], dtype=np.float64).reshape(-1, 4), final)
+            rows = order.accept(_table(self._vectors[name], 4), final)
             self._vectors[name] = []
             vectors[name] = rows[:, 0].copy(), rows[:, 1:].copy()
-        baro = self._pressure_order.accept(np.array(self._pressure, dtype=np.float64).reshape(-1, 2), final)
+        baro = self._pressure_order.accept(_table(self._pressure, 2), final)
         self._pressure = []
         waypoints = self._waypoints.take(final)
         wp = np.array([w[:3] for w in waypoints], dtype=np.float64).reshape(-1, 3)
@@ -196,7 +295,7 @@ class IlcParser:
                 t_s = _time_s(fields)
                 values = [check_range(kind, axis, parse_number(kind, fields, column), quantity)
                           for axis, column in (("x", 2), ("y", 3), ("z", 4))]
-            self._vectors[name].append((t_s, *values))
+            self._vectors[name].append(np.array([[t_s, *values]], dtype=np.float64))
             if t_s > self._scans.open_t:
                 self._scans.clock(t_s)
             return kind
@@ -221,21 +320,31 @@ class IlcParser:
             self._waypoints.add(t_s, (t_s, x, y, floor))
         elif kind == "TYPE_PRESSURE":
             t_s = _time_s(fields)
-            self._pressure.append((t_s, check_range(kind, "pressure", parse_number(kind, fields, 2), "pressure_hpa")))
+            hpa = check_range(kind, "pressure", parse_number(kind, fields, 2), "pressure_hpa")
+            self._pressure.append(np.array([[t_s, hpa]], dtype=np.float64))
         elif kind == "TYPE_BEACON":
             if len(fields) < 8:
                 raise BadRow(kind, f"malformed TYPE_BEACON line: {len(fields)} fields, expected 10")
             t_s = _time_s(fields)
             rssi = check_range(kind, "RSSI", parse_number(kind, fields, 6), "rssi_dbm")
             distance = check_range(kind, "distance", parse_number(kind, fields, 7), "distance_m")
-            mac = fields[8].strip() if len(fields) > 8 else ""
-            # the MAC tells the beacons apart (the site-1 beacons share one uuid:major:minor)
-            beacon_id = mac.upper() if _MAC.fullmatch(mac) else f"{fields[2]}:{fields[3]}:{fields[4]}"
-            self._beacons.add(t_s, (t_s, beacon_id, rssi, distance))
+            self._beacons.add(t_s, (t_s, _beacon_id(fields), rssi, distance))
         else:
             return None  # other record types are skipped
         self._scans.clock(t_s)
         return kind
+
+
+def _beacon_id(fields: list[str]) -> str:
+    """A TYPE_BEACON row's beacon: its MAC (the site-1 beacons share one uuid:major:minor), else
+    ``uuid:major:minor``."""
+    mac = fields[8].strip() if len(fields) > 8 else ""
+    return mac.upper() if _MAC.fullmatch(mac) else f"{fields[2]}:{fields[3]}:{fields[4]}"
+
+
+def _table(pieces: list[np.ndarray], width: int) -> np.ndarray:
+    """Row tables (each (rows, width)) one under the other."""
+    return np.concatenate(pieces) if pieces else np.zeros((0, width))
 
 
 def read_ilc_header(path: str | os.PathLike) -> dict[str, str]:

@@ -64,8 +64,8 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.logread import (BadRow, GapTracker, RecordStream, ScanAssembler, TimeOrder, check_range,
-                                       group_scans, iter_bounded_lines, open_binary, parse_number, quick_numbers,
-                                       read_whole)
+                                       clock_before_rows, count_rows, group_scans, handle_each, iter_bounded_lines,
+                                       open_binary, parse_columns, parse_number, quick_numbers, read_whole, split_by)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 FORMAT_NAME = "GetSensorData"
@@ -91,6 +91,16 @@ _SENSOR_TYPES = {
 }
 _AXES = ("x", "y", "z")
 _RECORD = re.compile(r"[A-Z][A-Z0-9]{3};")
+# What the block parse reads of each record type as numbers (AppTimestamp first) and their
+# quantities (logread.RANGES), as the line parse reads them
+_NUMBER_COLUMNS = {
+    **{kind: ((1, 2, *range(6 if kind == "AHRS" else 3, (6 if kind == "AHRS" else 3) + n_values)),
+              ("log_s", "sensor_s", *[quantity] * n_values)) for kind, (_, quantity, n_values) in _SENSOR_TYPES.items()},
+    "WIFI": ((1, 2, 5, 6), ("log_s", "sensor_s", "freq_mhz", "rssi_dbm")),
+    "BLE4": ((1, 4), ("log_s", "rssi_dbm")),
+}
+# Below this share of lines the block parse takes, a block is read line by line (the same records)
+_BLOCK_SHARE = 0.9
 
 
 def looks_like_getsensordata(line: str) -> bool:
@@ -133,8 +143,8 @@ class GsdParser:
     def __init__(self, report: ReadReport, max_wifi_age_s: float, strict: bool):
         self._report = report
         self._max_wifi_age_s = max_wifi_age_s
-        # rows not yet placed on the app clock, per sensor list: (app_s, sensor_s, values...)
-        self._raw: dict[str, list[tuple[float, ...]]] = {name: [] for name, _, _ in _SENSOR_TYPES.values()}
+        # rows not yet placed on the app clock, per sensor list, as tables of rows (app_s, sensor_s, values...)
+        self._raw: dict[str, list[np.ndarray]] = {name: [] for name, _, _ in _SENSOR_TYPES.values()}
         self._order = {name: TimeOrder(report, kind) for kind, (name, _, _) in _SENSOR_TYPES.items()}
         self._offset_s: dict[str, float] = {}  # each sensor stream's (app - sensor) once known
         self._window_end_s: dict[str, float] = {}  # streams that began late -> end of their own window
@@ -165,6 +175,97 @@ class GsdParser:
         else:
             report.rows[kind] = report.rows.get(kind, 0) + 1
 
+    def handle_lines(self, first: int, lines: list[str | None], bad_row) -> None:
+        """Lines ``first``, ``first + 1``, ...: what :meth:`handle_line` does to each in turn. The
+        lines that hold one good record of a type read in bulk (the sensors, WiFi, BLE4 and the
+        types not read; every number read and in range) are parsed together per record type; the
+        others (headers, blank or bad lines, POSI), and a record that ends a clock window or
+        begins a late stream, go through :meth:`handle_line` in their place in the order."""
+        kinds = [line[:4] if line is not None and line[4:5] == ";" else "" for line in lines]
+        groups = split_by(kinds)
+        n = len(lines)
+        fast = np.zeros(n, dtype=bool)
+        app_t = np.full(n, -np.inf)  # each fast line's AppTimestamp, if it moves the clocks
+        is_wifi = np.zeros(n, dtype=bool)
+        stream = np.full(n, -1)  # a sensor record's stream (its place in _SENSOR_TYPES)
+        parsed: dict[str, tuple[np.ndarray, object]] = {}  # kind -> (its lines, its records)
+        for kind, index in groups.items():
+            if kind in _SENSOR_TYPES or kind in ("WIFI", "BLE4"):
+                texts = [lines[i] for i in index.tolist()]
+                columns, quantities = _NUMBER_COLUMNS[kind]
+                values, ok = parse_columns(texts, ";", columns, quantities)
+                app_s = values[:, 0]
+                if kind in _SENSOR_TYPES:
+                    if kind == "AHRS":  # a unit quaternion's x, y, z
+                        ok &= values[:, 2] ** 2 + values[:, 3] ** 2 + values[:, 4] ** 2 <= 1.0 + 1e-3
+                    records = values
+                elif kind == "WIFI":
+                    rows = [text.split(";") for text in texts]
+                    bssids = [row[4].strip() if len(row) == 7 else "" for row in rows]  # a plain row: 7 fields
+                    ok &= np.array([bool(b) for b in bssids], dtype=bool)
+                    records = list(zip(app_s.tolist(), bssids, values[:, 3].tolist(), values[:, 2].tolist(),
+                                       values[:, 1].tolist()))
+                    is_wifi[index] = True
+                else:  # BLE4: iBeacon and Eddystone alike, by MAC
+                    macs = [text.split(";", 4)[3].strip().upper() if ok_i else ""
+                            for text, ok_i in zip(texts, ok.tolist())]
+                    ok &= np.array([bool(m) for m in macs], dtype=bool)
+                    records = list(zip(app_s.tolist(), macs, values[:, 1].tolist()))
+                fast[index[ok]] = True
+                app_t[index] = app_s
+                parsed[kind] = (index, records)
+            elif kind and kind != "POSI" and _RECORD.match(kind + ";"):
+                fast[index] = True  # a type not read (GNSS, LIGH, SOUN, ...): counted, nothing else
+                parsed[kind] = (index, None)
+        if np.count_nonzero(fast) < _BLOCK_SHARE * n:
+            handle_each(self.handle_line, first, lines, bad_row)
+            return
+        for j, kind in enumerate(_SENSOR_TYPES):
+            if kind in parsed:
+                stream[parsed[kind][0]] = j
+        begin = 0
+        for slow in [*np.flatnonzero(~fast).tolist(), n]:
+            while begin < slow:
+                # the next record that ends a window (or the log's first) or begins a late stream
+                event = app_t[begin:slow] > self._next_end_s
+                if self._waiting:
+                    event |= np.isin(stream[begin:slow], [j for j, (name, _, _) in enumerate(_SENSOR_TYPES.values())
+                                                          if name in self._waiting])
+                end = begin + int(np.argmax(event)) if event.any() else slow
+                if end > begin:
+                    self._take_block(begin, end, parsed, app_t, is_wifi)
+                if end < slow:
+                    handle_each(self.handle_line, first + end, [lines[end]], bad_row)
+                    end += 1
+                begin = end
+            if slow < n:
+                handle_each(self.handle_line, first + slow, [lines[slow]], bad_row)
+            begin = slow + 1
+
+    def _take_block(self, begin: int, end: int, parsed: dict, app_t: np.ndarray, is_wifi: np.ndarray) -> None:
+        """The fast lines ``begin .. end - 1`` (good records; none ends a window), as line by line."""
+        first_line, counts, wifi = [], [], None
+        report = self._report
+        for kind, (index, records) in parsed.items():
+            lo, hi = np.searchsorted(index, (begin, end))
+            if hi == lo:
+                continue
+            first_line.append(int(index[lo]))
+            counts.append((kind, int(hi - lo)))
+            if kind in _SENSOR_TYPES:
+                self._raw[_SENSOR_TYPES[kind][0]].append(records[lo:hi])
+            elif kind == "BLE4":
+                for record in records[lo:hi]:
+                    self._beacons.add(record[0], record)
+            elif kind == "WIFI":
+                wifi = records[lo:hi]
+        order = np.argsort(first_line, kind="stable").tolist()
+        known = [counts[i] for i in order if parsed[counts[i][0]][1] is not None]
+        count_rows(report, [kind for kind, _ in known], [n for _, n in known])
+        report.unknown_rows += sum(n for kind, n in counts if parsed[kind][1] is None)
+        before, after = clock_before_rows(app_t[begin:end], is_wifi[begin:end])
+        self._wifi.add_rows(wifi or [], before, after)
+
     def take(self, final: bool) -> Recording:
         if final:
             self._end_windows()
@@ -179,7 +280,7 @@ class GsdParser:
             rows = []
             if offset_s is not None:  # else the stream is still in its own window: it keeps its rows
                 rows, self._raw[name] = self._raw[name], []
-            raw = np.array(rows, dtype=np.float64).reshape(-1, 2 + n_values)
+            raw = np.concatenate(rows) if rows else np.zeros((0, 2 + n_values))
             t_s = self._place(kind, raw, offset_s) if rows else raw[:, 0]
             # (t_s on the app clock, app_s, sensor_s, values...): ordered by t_s, repeats by every column
             placed = self._order[name].accept(np.column_stack([t_s, raw]), final)
@@ -310,7 +411,7 @@ class GsdParser:
                 self._wifi.clock(app_s)
             if name in self._waiting:
                 self._begin_late_stream(name, app_s)
-            self._raw[name].append((app_s, sensor_s, *values))
+            self._raw[name].append(np.array([[app_s, sensor_s, *values]], dtype=np.float64))
             return kind
         if kind == "WIFI":
             while len(fields) > 7 and not fields[-1].strip():
@@ -359,9 +460,9 @@ class GsdParser:
         return kind
 
 
-def _median_offset(rows: list[tuple[float, ...]]) -> float:
-    """The median (AppTimestamp - SensorTimestamp) of (app_s, sensor_s, ...) rows."""
-    raw = np.array([row[:2] for row in rows], dtype=np.float64)
+def _median_offset(rows: list[np.ndarray]) -> float:
+    """The median (AppTimestamp - SensorTimestamp) of tables of (app_s, sensor_s, ...) rows."""
+    raw = np.concatenate(rows)
     return float(np.median(raw[:, 0] - raw[:, 1]))
 
 

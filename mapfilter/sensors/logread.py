@@ -107,6 +107,56 @@ def quick_numbers(fields: list[str], columns: range, quantity: str) -> list[floa
     return values
 
 
+def parse_columns(lines: list[str], delimiter: str, columns: tuple[int, ...], quantities: tuple[str, ...]
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The fields ``columns`` of every line (split at ``delimiter``) as one float table (lines,
+    columns), and whether each line's values are all numbers within the ranges of their
+    ``quantities`` (:data:`RANGES`): the lines that the line-by-line parse takes as they are.
+
+    numpy's text reader parses the table in one call: its numbers are those of Python's
+    ``float`` (both are CPython's correctly rounded ``PyOS_string_to_double``), and what it
+    refuses (a field that is not a number, too few fields) sends the lines to ``float`` one by
+    one, which also takes what only ``float`` reads (``1_000``, other scripts' digits). A line
+    that fails is left to the line-by-line parse, which says what is wrong with it."""
+    values = None
+    if lines:
+        try:
+            values = np.loadtxt(lines, dtype=np.float64, delimiter=delimiter, usecols=columns, comments=None,
+                                ndmin=2, quotechar=None)
+        except (ValueError, IndexError, TypeError):
+            values = None
+        if values is not None and values.shape != (len(lines), len(columns)):
+            values = None  # e.g. a carriage return inside a line made two rows of it
+    if values is None:
+        values = np.full((len(lines), len(columns)), np.nan)
+        for i, line in enumerate(lines):
+            fields = line.split(delimiter)
+            try:
+                values[i] = [float(fields[c]) for c in columns]
+            except (ValueError, IndexError):
+                pass
+    ok = np.ones(len(lines), dtype=bool)
+    for j, quantity in enumerate(quantities):
+        low, high, _ = RANGES[quantity]
+        ok &= (values[:, j] >= low) & (values[:, j] <= high)  # NaN fails both
+    return values, ok
+
+
+def clock_before_rows(times_s: np.ndarray, is_row: np.ndarray) -> tuple[np.ndarray, float]:
+    """Records in file order with ``times_s`` (-inf: a record that moves no clock), of which
+    ``is_row`` are WiFi rows: the latest time among the other records since the row before, for
+    each row, and among those after the last row (what :meth:`ScanAssembler.add_rows` takes)."""
+    clock = np.where(is_row, -np.inf, times_s)
+    rows = np.flatnonzero(is_row)
+    if clock.size == 0:
+        return np.zeros(0), -math.inf
+    if rows.size == 0:
+        return np.zeros(0), float(clock.max())
+    # spans [0, r0), [r0, r1), ..., [r_last, end): each holds its row's -inf, so none is empty
+    spans = np.maximum.reduceat(clock, np.concatenate(([0], rows)))
+    return spans[:-1], float(spans[-1])
+
+
 def parse_number(kind: str, fields: list[str], column: int, separator_name: str = "column") -> float:
     """Field ``column`` of a row as a finite float; ``BadRow`` naming the column otherwise."""
     if column >= len(fields):
@@ -183,34 +233,35 @@ def emit_warning(report: ReadReport, warn: Callable[[str], None] | None, stackle
 
 def group_scans(rows: list[tuple[float, str, float, float, float]], max_age_s: float) -> WifiScans:
     """WiFi rows (t_s, bssid, rssi_dbm, freq_mhz, age_s) grouped by scan time: rows older than
-    ``max_age_s`` (stale cached results) dropped, APs keyed by BSSID and band, and a BSSID heard
-    twice in one scan on the same band keeping its strongest row."""
-    keys: dict[str, int] = {}
-    per_scan: dict[float, dict[int, tuple[float, float, float]]] = {}
-    for t_s, bssid, rssi, freq, age_s in rows:
-        if age_s > max_age_s:
-            continue
-        index = keys.setdefault(ap_key(bssid, band_of_frequency(freq)), len(keys))
-        scan = per_scan.setdefault(t_s, {})
-        if index not in scan or rssi > scan[index][0]:
-            scan[index] = (rssi, freq, age_s)
-    scan_times = sorted(per_scan)
-    row_scan, row_ap, rssi_dbm, freq_mhz, age = [], [], [], [], []
-    for s, t_s in enumerate(scan_times):
-        for index, (rssi, freq, age_s) in per_scan[t_s].items():
-            row_scan.append(s)
-            row_ap.append(index)
-            rssi_dbm.append(rssi)
-            freq_mhz.append(freq)
-            age.append(age_s)
+    ``max_age_s`` (stale cached results) dropped, APs keyed by BSSID and band in the order they
+    were first heard, and a BSSID heard twice in one scan on the same band keeping its strongest
+    row (the first of equals) in the place where the scan first heard it."""
+    rows = [row for row in rows if not row[4] > max_age_s]
+    if not rows:
+        return WifiScans.empty()
+    t_s, bssids, rssi, freq, age = zip(*rows)
+    rssi, freq = np.array(rssi, dtype=np.float64), np.array(freq, dtype=np.float64)
+    keys = list(map(ap_key, bssids, map(band_of_frequency, freq.tolist())))
+    index = {key: j for j, key in enumerate(dict.fromkeys(keys))}
+    ap = np.fromiter(map(index.__getitem__, keys), dtype=np.int64, count=len(keys))
+    scan_times, scan = np.unique(np.array(t_s, dtype=np.float64), return_inverse=True)
+    scan = scan.reshape(-1).astype(np.int64)
+    position = np.arange(len(rows))
+    pair = scan * len(index) + ap
+    # per (scan, AP): the strongest row, the first of equals, kept where the scan first heard the AP
+    order = np.lexsort((position, -rssi, pair))
+    starts = np.flatnonzero(np.concatenate(([True], pair[order][1:] != pair[order][:-1])))
+    best = order[starts]
+    first_heard = np.minimum.reduceat(position[order], starts)
+    best = best[np.lexsort((first_heard, scan[best]))]
     return WifiScans(
-        t_s=np.array(scan_times, dtype=np.float64),
-        ap_keys=list(keys),
-        row_scan=np.array(row_scan, dtype=np.int64),
-        row_ap=np.array(row_ap, dtype=np.int64),
-        rssi_dbm=np.array(rssi_dbm, dtype=np.float32),
-        freq_mhz=np.array(freq_mhz, dtype=np.float32),
-        age_s=np.array(age, dtype=np.float32),
+        t_s=scan_times,
+        ap_keys=list(index),
+        row_scan=scan[best],
+        row_ap=ap[best],
+        rssi_dbm=rssi[best].astype(np.float32),
+        freq_mhz=freq[best].astype(np.float32),
+        age_s=np.array(age, dtype=np.float64)[best].astype(np.float32),
     )
 
 
@@ -476,6 +527,17 @@ class ScanAssembler:
         if t > self.open_t:
             self.finish()
 
+    def add_rows(self, rows: list[tuple], clock_before: np.ndarray, clock_after: float) -> None:
+        """WiFi rows in file order (each's time first), each after a :meth:`clock` of
+        ``clock_before`` (the latest record of another type since the row before: -inf, none),
+        then a clock of ``clock_after``: what :meth:`add` and :meth:`clock` would do line by line."""
+        for row, t in zip(rows, clock_before.tolist()):
+            if t > self.open_t:
+                self.finish()
+            self.add(row[0], row)
+        if clock_after > self.open_t:
+            self.finish()
+
     def finish(self) -> None:
         """The scan being filled is complete."""
         if self._rows:
@@ -528,6 +590,33 @@ class GapTracker:
         self._report.time_span_s = (merged[0][0], max(end for _, end in merged))
 
 
+def handle_each(handle_line: Callable[[int, str], None], first: int, lines: list[str | None],
+                bad_row: Callable[[BadRow, int], None]) -> None:
+    """``handle_line`` of each line in turn, a line it cannot use (or one too long) to ``bad_row``."""
+    for line_no, text in enumerate(lines, first):
+        try:
+            if text is None:
+                raise BadRow("?", f"line longer than {MAX_LINE_BYTES} bytes")
+            handle_line(line_no, text)
+        except BadRow as bad:
+            bad_row(bad, line_no)
+
+
+def split_by(labels: list[str]) -> dict[str, np.ndarray]:
+    """The positions of each label in ``labels`` (ascending), labels in the order they first come."""
+    codes = {label: j for j, label in enumerate(dict.fromkeys(labels))}
+    code = np.fromiter(map(codes.__getitem__, labels), dtype=np.int64, count=len(labels))
+    order = np.argsort(code, kind="stable")
+    bounds = np.searchsorted(code[order], np.arange(len(codes) + 1))
+    return {label: order[bounds[j]:bounds[j + 1]] for label, j in codes.items()}
+
+
+def count_rows(report: ReadReport, kinds: list[str], counts: list[int]) -> None:
+    """Add ``counts`` rows of ``kinds`` (in the order the kinds first came) to ``report.rows``."""
+    for kind, n in zip(kinds, counts):
+        report.rows[kind] = report.rows.get(kind, 0) + n
+
+
 class LogParser(Protocol):
     """What a log format gives a :class:`RecordStream`: its lines in, records out."""
 
@@ -538,6 +627,11 @@ class LogParser(Protocol):
 
     def handle_line(self, line_no: int, line: str) -> None:
         """Read one line (without its line end); ``BadRow`` for a line it cannot use."""
+
+    def handle_lines(self, first: int, lines: list[str | None], bad_row: Callable[[BadRow, int], None]) -> None:
+        """Lines ``first``, ``first + 1``, ... (None: a line too long to read): what
+        :meth:`handle_line` does to each in turn, the common rows parsed together; each line
+        it cannot use goes to ``bad_row`` with its number."""
 
     def take(self, final: bool) -> Recording:
         """The records completed since the last call (``final``: the log has ended)."""
@@ -634,14 +728,11 @@ class RecordStream:
         if not lines:
             return
         self._new_lines = True
-        handle_line = self._parser.handle_line
-        for line_no, text in enumerate(lines, first):
-            try:
-                if text is None:
-                    raise BadRow("?", f"line longer than {MAX_LINE_BYTES} bytes")
-                handle_line(line_no, text)
-            except BadRow as bad:
-                count_bad_row(report, bad, line_no, self._strict, report.path)
+        self._parser.handle_lines(first, lines, self._bad_row)
+
+    def _bad_row(self, bad: BadRow, line_no: int) -> None:
+        report = self._report
+        count_bad_row(report, bad, line_no, self._strict, report.path)
 
     def _sniff(self, first: int, lines: list[str | None]) -> tuple[int, list[str | None]]:
         """Hold lines until the format is known; then all lines held so far (from line 1)."""
@@ -686,15 +777,21 @@ def read_whole(path: str | os.PathLike, stream: RecordStream, warn: Callable[[st
         raise MapfilterError("file not found", path)
     chunks = []
     truncated = False
+    pending: list[bytes] = []  # pieces read and not yet fed: fed READ_CHUNK_BYTES at a time
     try:
         with open_binary(path) as handle:
             while data := handle.read1(READ_CHUNK_BYTES):
-                chunks.append(stream.feed_bytes(data))
+                pending.append(data)
+                if sum(map(len, pending)) >= READ_CHUNK_BYTES:
+                    chunks.append(stream.feed_bytes(b"".join(pending)))
+                    pending = []
     except EOFError:
-        # gzip without its end-of-stream marker: what was decompressed before the cut was fed
+        # gzip without its end-of-stream marker: what was decompressed before the cut is fed
         truncated = True
     except (OSError, gzip.BadGzipFile, zlib.error) as exc:
         raise MapfilterError(f"cannot read log: {exc}", path) from None
+    if pending:
+        chunks.append(stream.feed_bytes(b"".join(pending)))
     chunks.append(stream.close(truncated=truncated))
     recording = concatenate(chunks)
     emit_warning(recording.read_report, warn, stacklevel=4)  # the caller of read_log / read_ilc / read_ipin
