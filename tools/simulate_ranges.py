@@ -6,8 +6,11 @@ table is ranged ``--rate`` times a second at random times, its true 3-D distance
 height above the phone, the floors' elevations) plus Gaussian noise of ``--sigma`` metres,
 anchors beyond ``--max-range`` unheard. Writes ``t_s,anchor_id,range_m`` (docs/formats.md).
 
+``--corners`` first writes ``--anchors``: four anchors, one at the free space nearest each corner
+of the first floor's map, 1.5 m above the phone (a ceiling at 2.7 m, a phone held at 1.2 m).
+
 Usage: ``.venv/bin/python tools/simulate_ranges.py MAP LOG --anchors ANCHORS.csv --out RANGES.csv
-[--sigma 0.1] [--rate 2] [--max-range 40] [--seed 0]``
+[--corners] [--sigma 0.1] [--rate 2] [--max-range 40] [--seed 0]``
 """
 
 from __future__ import annotations
@@ -34,11 +37,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=2.0, help="ranges per anchor per second (default 2)")
     parser.add_argument("--max-range", type=float, default=40.0, help="anchors further off are unheard (default 40 m)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--corners", action="store_true", help="first write --anchors: four anchors in the corners")
     args = parser.parse_args(argv)
     try:
         if args.out.resolve() in {p.resolve() for p in (args.map, args.log, args.anchors)}:
             raise MapfilterError("--out would overwrite an input", args.out)
         building = Building.load(args.map)
+        if args.corners:
+            if args.anchors.exists():
+                raise MapfilterError("--corners writes the anchors, but the file exists: give a new name",
+                                     args.anchors)
+            corner_anchors(building).write_csv(args.anchors)
         table = AnchorTable.read_csv(args.anchors, building)
         table.check_on(building, args.map)
         walk = read_log(args.log, building=building)
@@ -55,6 +64,19 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     print(f"wrote {args.out}: {len(log)} ranges to {len(table)} anchors over {walk.waypoint_t_s[-1] - walk.waypoint_t_s[0]:.0f} s")
     return 0
+
+
+def corner_anchors(building: Building) -> AnchorTable:
+    """Four anchors, each on the free pixel nearest a corner of the first floor's map."""
+    floor = building.floors[0]
+    plan = floor.plan
+    rows, cols = np.nonzero(~plan.wall_mask)
+    free = plan.pixel_to_world(np.column_stack([cols + 0.5, rows + 0.5]))
+    x0, x1, y0, y1 = plan.extent_m
+    corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
+    xy = np.array([free[np.argmin(np.sum((free - c) ** 2, axis=1))] for c in corners])
+    name = None if building.is_single_floor else floor.name
+    return AnchorTable([f"A{i + 1}" for i in range(4)], xy, [name] * 4, np.full(4, 1.5))
 
 
 if __name__ == "__main__":

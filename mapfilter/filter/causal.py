@@ -60,8 +60,7 @@ MOTION_MODELS = ("pdr", "cv", "rw")
 PAUSED_AFTER_S = 3.0
 # a log stream gives a WiFi scan once a record of a later time came (sensors/logs.LogStream), so the
 # scans are taken as passed at the newest record's time less this (IMU samples' own times run a few ms
-# from the times the scans are cut by); waiting for the next scan held rows 1.2-1.5 s (median; up to
-# PAUSED_AFTER_S) on the IPIN 2023 logs, and no scan came late with this on any of them (docs/ipin.md)
+# from the times the scans are cut by): rows are not held for the next scan (docs/ipin.md)
 SCAN_PASSED_BEFORE_NEWEST_S = 0.1
 # at equal times, a step before a scan, ticks before both (a prediction to the scan's time)
 _STEP, _SCAN, _TICK = 0, 1, 2
@@ -69,9 +68,8 @@ _STEP, _SCAN, _TICK = 0, 1, 2
 # steps, and scans are 2-4 s apart: about a walker's step interval, so the height weighs floors
 # as often standing as walking
 IDLE_TICK_S = 0.5
-# PDR: spread of the start headings around the rotation vector's (which deviates from the ILC
-# waypoint legs by 8.8 deg median); 0.2 rad measured better and steadier across seeds than
-# 30 deg on ILC F1 (docs/accuracy.md)
+# PDR: spread of the start headings around the rotation vector's, which the building's steel
+# bends by a few degrees (docs/accuracy.md)
 INITIAL_HEADING_SIGMA_RAD = 0.2
 
 

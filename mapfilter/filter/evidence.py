@@ -45,13 +45,9 @@ FINGERPRINT_MODELS = ("fix", "blend", "likelihood")
 class WifiConfig:
     """How fingerprints (a radio map) weigh the particles."""
 
-    # blend: on ILC site 1 it lowered pf's mean error on all three sets against fix (F1 sparse
-    # 11.7 -> 10.7 m, F1 dense 6.1 -> 5.4 m, F2 21.3 -> 20.8 m): two estimators that err
-    # differently where the survey is thin
+    # blend: two estimators that err differently where the survey is thin (docs/accuracy.md)
     fingerprint_model: str = "blend"  # fix: KWNN fix + Gaussian | blend: fix averaged with the radio-map likelihood's best cell | likelihood: per-particle radio map
-    # Evennou & Marx fix 5 m for a dense office survey; the bundled office calibrates to 2.4 m,
-    # ILC site1 F1 (leave-one-trace-out) to about 18 m, where 5-30 m tried by tools/experiments/tune_ilc.py
-    # put the best at 15-20 m: the calibration lands where tuning would
+    # a fix is as good as its radio map: calibrated per map, it lands where tuning would (docs/accuracy.md)
     fix_sigma_m: float | None = None  # Gaussian of the fix; null: calibrated per radio map (RMS of its cross-validated KWNN errors / sqrt 2)
     kwnn_k: int = 4  # neighbours of a KWNN fix (Chang et al.)
     # ``sensors.radiomap.strong_kwnn_fixes``: phones disagree most on weak APs

@@ -707,8 +707,7 @@ def write_map(plan: FloorPlan, yaml_path: str | os.PathLike, preview: bool = Tru
 # The ILC floor images: transparent corridors, light-blue shops with ~2 px darker outlines that
 # the walkers brush along, grey shop names, a few marks in the corridors. Eroding the walls by
 # 2 px along free space opens the outlines and also removes 1-2 px text strokes and marks in
-# the corridors (measured with tools/experiments/check_ilc_maps.py: 0 px leaves 96.6 % / 85.5 % of F1 / F2
-# waypoints free in 3-4 pieces, 1-2 px give 100 % in one piece).
+# the corridors, leaving every waypoint on free space in one piece (docs/accuracy.md).
 # The outside stays walkable on this route (the transparent outside reaches the corridors through
 # the entrances; the GeoJSON route walls it).
 ILC_REGION_OPTIONS = RegionOptions(walkable=(TRANSPARENT,), alpha_max=127, remove_below_px=0, open_outlines_px=2,

@@ -116,9 +116,8 @@ class _Grid:
 # added in row order). Loops run over 1-D row views indexed from 0: an index such as ``c - 1``,
 # which numba cannot prove non-negative, gets a wrap-around branch that keeps LLVM from
 # vectorising the loop (4-8x slower here). Serial: on row slices over two threads
-# (``threads.for_slices``) a first version of these passes (a kernel per operation) ran four
-# ILC walks in 0.72 s instead of 0.52 s, a slice's hand-over costing more than its share of a
-# 0.1-0.3 ms pass; and ``mapfilter evaluate`` runs a walk per core. They allocate nothing:
+# (``threads.for_slices``) a slice's hand-over costs more than its share of a 0.1-0.3 ms pass
+# (docs/benchmarks.md); and ``mapfilter evaluate`` runs a walk per core. They allocate nothing:
 # compiled without reference counting (see maps/walls.py). A first call with an empty numba
 # cache takes about 3 s, compiling them (then cached); the plain numpy steps compiled nothing
 # but ran about 4x slower (tools/bench_map_matching.py).

@@ -34,12 +34,9 @@ __all__ = ["PlacementConfig", "WalkPlacement", "pdr_shape", "place_walk", "robus
 class PlacementConfig:
     """How a walk's shape is placed by its evidence and then moved onto free space."""
 
-    # 2-20 m gave the same error within 0.3 m on ILC F1 (36 and 76 walks) and F2 (12); 10 m
-    # sits in the middle
+    # the error hardly depends on it over 2-20 m (docs/accuracy.md): the middle
     huber_m: float = 10.0  # Huber threshold of the fix offsets: residuals beyond it count linearly
-    # tried 1.0 and 0.5 on ILC F1 sparse and dense and F2 (seed 0): 0.5 lowered pf-smooth's mean
-    # and p75 on all three (7.88 -> 7.35, 4.56 -> 4.29, 20.2 -> 19.1 m mean); 1.0 lowered the
-    # means but raised p75 on two sets
+    # half: the walls correct the placement without overruling its evidence (docs/accuracy.md)
     map_shift_share: float = 0.5  # the walls may move the placement by this share of its median fix residual
     map_shift_step_m: float = 0.5  # grid of the shifts tried
     map_shift_max_m: float = 10.0  # ... and never farther than this

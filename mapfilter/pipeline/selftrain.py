@@ -54,14 +54,12 @@ class GrowConfig:
 
     # how each walk is tracked; the offline track is always made (smooth is forced on)
     tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)
-    # ILC F1: the grown points' error fell from 5.9 to 4.6 m (mean over four folds) from the
-    # first to the third iteration, and moved 0.3-0.4 m (median) in the third
+    # by the third iteration the grown points barely move (docs/accuracy.md)
     max_iterations: int = 3
     stop_moved_m: float = 0.5  # done when the grown points moved less than this (median) in an iteration
     # A grown point's position sigma (per axis) is sigma_per_spread x (s - spread_floor_m), s the
-    # causal filter's position spread at the scan (its particles' std): on ILC F1 the offline
-    # track's error rose from 2.2 m (mean) where s < 2.1 m to 6.1 m where s > 2.9 m (Spearman
-    # 0.2-0.5 per fold, the best of the signals measured, docs/self-training.md)
+    # causal filter's position spread at the scan: the trust signal that ranked the grown points'
+    # errors best (docs/accuracy.md, docs/self-training.md)
     sigma_per_spread: float = 4.0
     spread_floor_m: float = 1.5
     wifi_only: bool = False  # also grow walks without IMU (a constant-velocity filter; see the module docstring)

@@ -30,9 +30,7 @@ from mapfilter.sensors.recording import Recording
 
 # k = 4 as for the KWNN fixes (Chang et al.), and a pseudo-count of one vote per floor: a
 # unanimous scan weighs its floor (4 + 1) / 1 = 5 times (1.6 nats) above a floor with no vote,
-# so a few scans decide and one odd scan cannot outvote a walk. On ILC site 1 (191 walks, five
-# floors, leave-one-walk-out; tools/experiments/floor_ilc.py) k = 3-5 with a pseudo-count of 0.25-1 all
-# put 190 walks on the right floor; k = 2 or 6-16 put 188-189.
+# so a few scans decide and one odd scan cannot outvote a walk (docs/accuracy.md).
 DEFAULT_VOTE_K = 4
 DEFAULT_VOTE_PSEUDO_COUNT = 1.0
 # A floor change every 10 minutes or so at most: walkers ride a lift or stairs rarely

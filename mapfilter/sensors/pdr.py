@@ -80,17 +80,15 @@ class PDRConfig:
     """The step detector's and step length's settings a user may change (tuned on the ILC site1
     traces, ``tools/experiments/report_pdr.py``)."""
 
-    # a step = upward crossing of this level by the filtered d|a|/dt; walking on the ILC phone
-    # gives peaks of 50-120 m/s^3; 12-20 fit the ILC site1 waypoint distances best, 2-5 count sway
+    # walking gives peaks of 50-120 m/s^3, sway a few: a level between (docs/accuracy.md)
     step_threshold_mps3: float = 15.0  # a step: an upward crossing of this level by the filtered d|a|/dt
-    # brisk walking is ~0.45-0.5 s per step; with 0.3 some ILC site1 steps cross twice, 0.5
-    # drops the fastest steps
+    # brisk walking is ~0.45-0.5 s per step: shorter counts a step twice, longer drops the fastest
     min_step_interval_s: float = 0.4  # no two steps closer than this
     # Weinberg K for |a| (m/s^2) low-passed at LOWPASS_HZ, fitted to the ILC site1 waypoint
     # distances (tools/experiments/report_pdr.py: 0.402, leave-one-out 0.401-0.403)
     weinberg_k: float = 0.40  # Weinberg step length = K (a_max - a_min)^(1/4)
-    # added to pi/2 - azimuth: the angle from magnetic north to the map's +y axis; measured
-    # -2.4 deg on ILC site1 (median leg deviation 8.8 deg), so 0 there
+    # added to pi/2 - azimuth: the angle from magnetic north to the map's +y axis (0 on ILC site 1,
+    # docs/accuracy.md)
     abs_heading_offset_rad: float = 0.0  # magnetic north to the map's +y axis, added to the rotation vector's heading
 
     def __post_init__(self) -> None:

@@ -89,10 +89,8 @@ GROWN = 1  # placed by the offline track of a walk without waypoints (``mapfilte
 _STORED_CV_PARAMS = (4, 200, 1.0)
 # A point of position sigma s counts POSITION_SIGMA_REF_M^2 / (POSITION_SIGMA_REF_M^2 + s^2) of a
 # surveyed one (``RadioMap.position_weights``): the scale of how far a KWNN neighbour lies from
-# where the scan was taken (on a thinly surveyed floor: metres to tens of metres). ILC F1 with
-# 40 grown walks (docs/self-training.md), seed 0, pf / pf-smooth mean: every point as surveyed
-# 7.88 / 6.42 m; 3 m 8.04 / 6.64 (grown points counted 0.1-0.5); 10 m 8.00 / 6.52, p75 7.06 ->
-# 6.77 for pf-smooth: weighing grown points hard costs more coverage than their errors cost
+# where the scan was taken (on a thinly surveyed floor: metres to tens of metres); weighing grown
+# points harder cost more coverage than their errors cost (docs/accuracy.md)
 POSITION_SIGMA_REF_M = 10.0
 # The most a radio map file may declare, read from the array headers in the zip before numpy
 # allocates anything: 1 GiB (a map of 100 000 reference points x 2 500 access points; the ILC
@@ -805,11 +803,7 @@ def kwnn_fix_many(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4, p:
     distance in dB per AP that does not grow with how many APs a reference point heard (the
     walk diagnostic ``signal_distance_db``).
     """
-    # per_ap as the filter's strong fixes: fix error at the scans, leave-one-walk-out, ILC site 1,
-    # F1 sparse 14.0 -> 12.4 m, F1 dense 7.11 -> 6.50, F2 26.4 -> 25.2 mean, lower on every set;
-    # the tracks did not follow (pf mean 0.1-0.3 m lower on each set, seeds 0-4, dense seed 0 only;
-    # pf-smooth mean 1.2 m higher on F2, 0.06 m on F1 sparse):
-    # not the default there
+    # per_ap gives better fixes but not better tracks: not the default (docs/accuracy.md)
     if k < 1 or p <= 0 or q < 0:
         raise MapfilterError(f"KWNN needs k >= 1, p > 0, q >= 0; got k={k}, p={p}, q={q}")
     scans = np.ascontiguousarray(scan_rssi_dbm, dtype=np.float64)
@@ -831,10 +825,8 @@ def _ref_weights(radio_map: RadioMap) -> np.ndarray | None:
 # counts as STRONG_MISSING_DBM on the other (5 dB under the floor: just not heard). Phones differ
 # by 10-20 dB in what they report for weak APs and in how many they hear at all (an ILC F1 walk
 # reports 20 dB less than the survey walk beside it and hears 40-110 APs where the survey heard
-# 300), and with -100 dBm for every AP heard on one side the plain distance is decided by those.
-# Leave-one-walk-out on ILC site 1 (tools/experiments/accuracy_ilc.py sets), fix error at the scans,
-# mean / p75 m, plain -> floor -85: F1 sparse 15.6/16.3 -> 14.0/15.2, F1 dense 7.10/7.92 ->
-# 7.11/7.53, F2 30.2/48.7 -> 25.2/42.9; floor -90 (missing -95) changed little, -80 about as -85.
+# 300), and with -100 dBm for every AP heard on one side the plain distance is decided by those
+# (the floor's fixes: docs/accuracy.md).
 STRONG_MIN_RSSI_DBM = -85.0
 STRONG_MISSING_DBM = -90.0
 

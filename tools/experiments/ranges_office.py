@@ -44,8 +44,9 @@ def main() -> int:
     ranges = {"ranges": Ranges(table, log)}
     runs = {"WiFi": {"radio_map": radio_map}, "WiFi + ranges": {"radio_map": radio_map, "sources": ranges},
             "ranges alone": {"sources": ranges}}
-    print(f"| inputs | causal mean (m) |{' offline mean (m) |' if args.smooth else ''} seeds")
-    print(f"|---|---|{'---|' if args.smooth else ''}")
+    print(f"{args.particles} particles, seeds {' '.join(map(str, args.seeds))}: mean (lowest-highest seed)")
+    print(f"| inputs | causal mean (m) |{' offline mean (m) |' if args.smooth else ''}")
+    print(f"| --- | --- |{' --- |' if args.smooth else ''}")
     for label, inputs in runs.items():
         causal, offline = [], []
         for seed in args.seeds:
@@ -57,7 +58,7 @@ def main() -> int:
         cells = f"{np.mean(causal):.2f} ({min(causal):.2f}-{max(causal):.2f})"
         if args.smooth:
             cells += f" | {np.mean(offline):.2f} ({min(offline):.2f}-{max(offline):.2f})"
-        print(f"| {label} | {cells} | {' '.join(map(str, args.seeds))}", flush=True)
+        print(f"| {label} | {cells} |", flush=True)
     return 0
 
 

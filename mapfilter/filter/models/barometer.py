@@ -21,8 +21,7 @@ ANCHOR_SHARE = 0.95  # the reference moves to a floor only when this share of th
 STEADY_M = 0.5  # ... and the height changed less than this ...
 STEADY_WINDOW_S = 3.0  # ... over this long
 # 0.01 m/s is 36 m/h, about 4 hPa/h, above any weather front (1-3 hPa/h); a climber pausing on
-# the stairs looks steady for a few seconds, and without this limit the reference crept up
-# with each pause and the new floor was found late
+# the stairs looks steady for a few seconds, and a faster reference would follow each pause
 DRIFT_M_PER_S = 0.01
 # pressure readings of the last this-many seconds make one height (a phone barometer's noise is
 # about 0.25 m per sample)

@@ -169,8 +169,7 @@ class FloorChangeConfig:
 # on stairs a step advances one tread, not a stride: building codes ask 0.22-0.30 m of going
 # (tread depth) and most stairs have 0.25-0.30 m; a particle starting a step on a stairs polygon
 # moves this far instead (drawn per step), so the cloud stays on the stairs while the climber
-# does and can take them when the height says so (PDR's 0.4-1.0 m stride walked it off a 6 m
-# flight before the climber was half-way up)
+# does and can take them when the height says so (a stride walks it off the flight)
 STAIRS_TREAD_M = (0.22, 0.32)
 
 

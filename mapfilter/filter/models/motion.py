@@ -177,7 +177,7 @@ class PDRMotion(MotionModel):
 
     walks_in_steps: ClassVar[bool] = True
 
-    # 0.02 rad: the gyro is good over a step; 0.05 let clouds fan out and measured worse on ILC F1
+    # the gyro is good over a step: more lets the clouds fan out (docs/accuracy.md)
     heading_sigma_rad: float = 0.02  # per filter step
     false_turn_fraction: float = 0.15  # thesis: 15 % of particles ignore a detected turn
     step_length_min_m: float = 0.4  # the state's step length stays within [min, max]
