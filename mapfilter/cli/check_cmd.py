@@ -54,7 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mapfilter.cli.common import check_map_first, check_output_path, waypoints_in_walls, warn
+    from mapfilter.cli.common import check_map_first, check_output_path, input_paths, waypoints_in_walls, warn
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log  # not at import: --help loads no numerical library
     from mapfilter.io.tracks import read_track
@@ -63,9 +63,8 @@ def run(args: argparse.Namespace) -> int:
     if args.truth is not None:
         if len(args.logs) != 1:
             raise MapfilterError(f"--truth writes one log's ground truth: {len(args.logs)} logs given")
-        check_output_path(args.truth, "--truth")
-        if args.truth.resolve() == args.logs[0].resolve():
-            raise MapfilterError("--truth would write over the log", args.truth)
+        # the output policy, before any work: never the log, the --at track, the map or what it names
+        check_output_path(args.truth, "--truth", inputs=input_paths(args.logs, args.at, args.map))
     elif args.at is not None:
         raise MapfilterError("--at is for --truth: give --truth GT.tum too")
     at = read_track(args.at) if args.at is not None else None  # refused before any output

@@ -9,7 +9,6 @@ import json
 import sys
 from pathlib import Path
 
-from mapfilter.io.atomic import atomic_paths
 from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arguments, add_strict_argument,
                                   announce_estimate, check_map_first, check_output_path, duration_text, engine_from,
                                   estimate_tracking_s, input_paths, walk_spans_s, warn)
@@ -190,40 +189,49 @@ def run(args: argparse.Namespace) -> int:
                 resumed.append(outcome)
         print(f"resuming: {len(resumed)} of {len(args.logs)} walks already done in {args.out}")
     else:
-        out.clear()  # what an earlier run wrote there (its manifest), nothing else
+        out.replace_earlier_run()  # what an earlier run wrote there (its manifest) goes with the commit
     args.out.mkdir(parents=True, exist_ok=True)
     plans = _plans_for_pictures(building, args.logs)
     _announce(args, building, methods, config, len(resumed))
+    done: list = list(resumed)  # the walks with an outcome, for a partial summary
 
     def finished(outcome) -> None:
-        # each walk's numbers, tracks and picture as it finishes: an interrupted run keeps them
-        write_outcome(outcome, out.claim(f"walks/{outcome.trace}.json"), key)
+        # each walk's numbers, tracks and picture staged as it finishes: an interrupted run commits them
+        with out.writing(f"walks/{outcome.trace}.json") as (tmp,):
+            write_outcome(outcome, tmp, key)
+        done.append(outcome)
         if outcome.status != "ok":
             print(f"mapfilter: {outcome.status}: {outcome.reason}", file=sys.stderr)
         _write_walk_tracks(out, outcome, plans, building)
 
     from mapfilter.sensors.recording import trace_name as name_of
 
+    # every file of the run is staged and committed together at the end: a run that fails (a full
+    # disk) leaves an earlier evaluation whole; an interrupted one commits the walks done so far
     evaluation = None
-    with ProgressBar("evaluate", len(args.logs)) as progress, ProgressBar("growing the radio map", 1) as growing:
-        try:
-            evaluation = evaluate(building, args.logs, setup, engine, progress=progress, on_walk=finished,
-                                  resumed=resumed, grow_progress=growing if setup.grows else None)
-        except KeyboardInterrupt:
-            # a consistent partial result: the summary of the walks finished so far
-            done = [o for o in (read_outcome(p, key) for p in sorted(walks_dir.glob("*.json"))) if o is not None]
-            index = {name_of(p): i for i, p in enumerate(args.logs)}
-            done = [dataclasses.replace(o, index=index[o.trace]) for o in done if o.trace in index]
-            partial = Evaluation.from_outcomes(done, len(args.logs), 0.0)
-            partial.protocol, partial.grouping = setup.protocol, setup.groups
-            _write_summary(args, out, partial, config, methods_for(building, source_files(args)),
-                           complete=False)
-            print(f"interrupted: {len(done)} of {len(args.logs)} walks done; wrote a partial summary to "
-                  f"{args.out} (mapfilter evaluate ... --resume runs the rest)")
-            raise
-    for message in evaluation.read_warnings:
-        warn(message)
-    _write_summary(args, out, evaluation, config, methods_for(building, source_files(args)), complete=True)
+    try:
+        with ProgressBar("evaluate", len(args.logs)) as progress, ProgressBar("growing the radio map", 1) as growing:
+            try:
+                evaluation = evaluate(building, args.logs, setup, engine, progress=progress, on_walk=finished,
+                                      resumed=resumed, grow_progress=growing if setup.grows else None)
+            except KeyboardInterrupt:
+                # a consistent partial result: the summary of the walks finished so far
+                index = {name_of(p): i for i, p in enumerate(args.logs)}
+                partial = Evaluation.from_outcomes([dataclasses.replace(o, index=index[o.trace]) for o in done
+                                                    if o.trace in index], len(args.logs), 0.0)
+                partial.protocol, partial.grouping = setup.protocol, setup.groups
+                _write_summary(args, out, partial, config, methods_for(building, source_files(args)),
+                               complete=False)
+                out.commit()
+                print(f"interrupted: {len(done)} of {len(args.logs)} walks done; wrote a partial summary to "
+                      f"{args.out} (mapfilter evaluate ... --resume runs the rest)")
+                raise
+        for message in evaluation.read_warnings:
+            warn(message)
+        _write_summary(args, out, evaluation, config, methods_for(building, source_files(args)), complete=True)
+        out.commit()
+    finally:
+        out.discard()
     return 1 if evaluation.failed else 0
 
 
@@ -294,12 +302,12 @@ def _write_walk_tracks(out, outcome, plans: dict, building) -> None:
     if not outcome.results:
         return
     for result in outcome.results:
-        write_track_csv(dataclasses.replace(result.track, name=result.method),
-                        out.claim(f"tracks/{outcome.trace}/{result.method}.csv"), building=building)
+        with out.writing(f"tracks/{outcome.trace}/{result.method}.csv") as (tmp,):
+            write_track_csv(dataclasses.replace(result.track, name=result.method), tmp, building=building)
     recording = read_log(outcome.log_path, warn=lambda message: None, building=building)  # warnings reported once
     shown = {r.method: r.track.xy_m for r in outcome.results if r.method in ("pf", "pf-smooth", "kwnn", "kf", "pdr")}
-    plot_tracks_on_map(plans[outcome.trace], shown, out.claim(f"tracks/{outcome.trace}.png"), recording.waypoint_xy_m,
-                       title=outcome.trace)
+    with out.writing(f"tracks/{outcome.trace}.png") as (tmp,):
+        plot_tracks_on_map(plans[outcome.trace], shown, tmp, recording.waypoint_xy_m, title=outcome.trace)
 
 
 def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -> None:
@@ -330,7 +338,7 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
               for o in evaluation.failed]
     names = ("summary.csv", "traces.csv", "walks.csv", "summary.json", "config.yaml") + (
         ("groups.csv",) if grouping is not None else ())
-    with atomic_paths(*(out_dir.claim(name) for name in names)) as (s_csv, t_csv, w_csv, s_json, c_yaml, *g_csv):
+    with out_dir.writing(*names) as (s_csv, t_csv, w_csv, s_json, c_yaml, *g_csv):
         _write_csv(s_csv, summary, columns)
         _write_csv(t_csv, trace_rows, ("trace",) + (("group",) if grouping is not None else ()) + columns
                    + (("phone",) if by_phone else ()))
@@ -357,8 +365,9 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
         c_yaml.write_text(f"# scored against {evaluation.protocol} (mapfilter evaluate; summary.json has the rest)\n"
                           + config.to_yaml())
     if evaluation.results:
-        plot_error_cdf(evaluation.errors_by_method(), out_dir.claim("cdf.png"),
-                       title=f"{n_done} walks on {args.map.name}" + ("" if complete else " (partial)"))
+        with out_dir.writing("cdf.png") as (tmp,):
+            plot_error_cdf(evaluation.errors_by_method(), tmp,
+                           title=f"{n_done} walks on {args.map.name}" + ("" if complete else " (partial)"))
     if failed:
         print(f"{len(failed)} walk{'s' if len(failed) != 1 else ''} without results (summary.json lists why): "
               + ", ".join(item["trace"] for item in failed))

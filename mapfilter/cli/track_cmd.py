@@ -273,8 +273,9 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
         written = []
         if args.out is not None:
             if result.offline is not None:
-                write_track(result.offline, args.out, out_format, building)
-                write_track(result.causal, causal_path(args.out), out_format, building)
+                with atomic_paths(args.out, causal_path(args.out)) as (tmp, tmp_causal):  # both files or neither
+                    write_track(result.offline, tmp, out_format, building)
+                    write_track(result.causal, tmp_causal, out_format, building)
                 written += [(args.out, "offline track"), (causal_path(args.out), "causal track")]
             else:
                 write_track(result.causal, args.out, out_format, building)
@@ -509,15 +510,18 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
     track_files: dict[str, str] = {}
 
     def write(result: WalkResult) -> None:
-        # each track is written as its walk finishes (atomically): an interrupted batch keeps them
+        # each track is staged as its walk finishes; they are committed together at the end (an
+        # earlier run's files stay whole if this one fails), or when the batch is interrupted
         if result.read_warning:
             warn(result.read_warning)
         if result.ok:
-            path = out_dir.claim(track_names[result.trace])
-            write_track(result.track, path, out_format, building)
+            name = track_names[result.trace]
+            with out_dir.writing(name) as (tmp,):
+                write_track(result.track, tmp, out_format, building)
             if config.smooth and result.causal is not None:
-                write_track(result.causal, out_dir.claim(causal_path(path).name), out_format, building)
-            track_files[result.trace] = path.name
+                with out_dir.writing(causal_path(Path(name)).name) as (tmp,):
+                    write_track(result.causal, tmp, out_format, building)
+            track_files[result.trace] = name
 
     spans = walk_spans_s(args.logs)
     workers = args.jobs if args.scheduler is None else 1
@@ -526,27 +530,34 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
         f"{duration_text(sum(spans))} of walks, {config.filter.n_particles} particles, {workers} worker"
         + ("s" if workers != 1 else ""))
     started = time.perf_counter()
-    with ProgressBar("track", len(args.logs)) as progress:
-        results = track_logs(building, args.logs, radio_map, ap_table, setup, engine, progress=progress,
-                             on_result=write)
-    wall_time_s = time.perf_counter() - started
-    summary, summary_json, config_yaml = (out_dir.claim(name) for name in BATCH_FILES)
-    rows = [summary_row(result, track_files.get(result.trace), columns) for result in results]
-    with atomic_paths(summary, summary_json, config_yaml) as (tmp, tmp_json, tmp_yaml):
-        with tmp.open("w", newline="") as handle:
-            writer = csv.DictWriter(handle, columns)
-            writer.writeheader()
-            for row in rows:
-                writer.writerow({k: (f"{v:.4f}" if isinstance(v, float) else ("" if v is None else v))
-                                 for k, v in row.items()})
-        tmp_json.write_text(json.dumps({"map": str(args.map), "logs": [str(p) for p in args.logs],
-                                        "radiomap": None if args.radiomap is None else str(args.radiomap),
-                                        "aps": None if args.aps is None else str(args.aps),
-                                        "sources": {name: {key: str(path) for key, path in files.items()}
-                                                    for name, files in source_files(args).items()},
-                                        "engine": engine.describe(), "wall_time_s": wall_time_s,
-                                        "config": config.to_dict(), "walks": rows}, indent=1))
-        tmp_yaml.write_text(config.to_yaml())
+    try:
+        with ProgressBar("track", len(args.logs)) as progress:
+            results = track_logs(building, args.logs, radio_map, ap_table, setup, engine, progress=progress,
+                                 on_result=write)
+        wall_time_s = time.perf_counter() - started
+        summary = out_dir.path / BATCH_FILES[0]
+        rows = [summary_row(result, track_files.get(result.trace), columns) for result in results]
+        with out_dir.writing(*BATCH_FILES) as (tmp, tmp_json, tmp_yaml):
+            with tmp.open("w", newline="") as handle:
+                writer = csv.DictWriter(handle, columns)
+                writer.writeheader()
+                for row in rows:
+                    writer.writerow({k: (f"{v:.4f}" if isinstance(v, float) else ("" if v is None else v))
+                                     for k, v in row.items()})
+            tmp_json.write_text(json.dumps({"map": str(args.map), "logs": [str(p) for p in args.logs],
+                                            "radiomap": None if args.radiomap is None else str(args.radiomap),
+                                            "aps": None if args.aps is None else str(args.aps),
+                                            "sources": {name: {key: str(path) for key, path in files.items()}
+                                                        for name, files in source_files(args).items()},
+                                            "engine": engine.describe(), "wall_time_s": wall_time_s,
+                                            "config": config.to_dict(), "walks": rows}, indent=1))
+            tmp_yaml.write_text(config.to_yaml())
+        out_dir.commit()
+    except KeyboardInterrupt:
+        out_dir.commit()  # an interrupted batch keeps the tracks it finished
+        raise
+    finally:
+        out_dir.discard()  # after a failure: nothing of this run, the earlier files whole
     bad = [r for r in results if not r.ok]
     for result in bad:
         print(f"mapfilter: {result.status}: {result.reason}", file=sys.stderr)

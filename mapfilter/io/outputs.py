@@ -10,7 +10,8 @@ the option, raised before anything is read.
 - ``OutputDirectory``: a directory a run fills with many files (``track --out-dir``,
   ``evaluate --out``). Every file written there is first recorded in the directory's manifest
   (``.mapfilter-manifest.json``); an existing directory may only hold files listed there, and a
-  new run removes only those.
+  new run removes only those. The run's files are staged and committed together: a run that
+  fails leaves an earlier run's files whole.
 - ``input_paths``: the files a run reads, with what a map or building YAML names (its image,
   its floors' maps, an access-point table), so that none of them is an output.
 """
@@ -24,7 +25,7 @@ import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
-from mapfilter.io.atomic import STDOUT, atomic_paths, check_not_special, is_stdout
+from mapfilter.io.atomic import STDOUT, StagedFiles, atomic_paths, check_not_special, is_stdout
 from mapfilter.errors import MapfilterError
 
 MANIFEST = ".mapfilter-manifest.json"
@@ -195,7 +196,13 @@ class OutputDirectory:
     Every file is recorded in the directory's manifest (``MANIFEST``) before it is written, so
     that a later run (or a resumed one) knows what it may remove or overwrite. An existing
     directory that holds any file not listed there, or any input of the run, is refused before
-    the work. ``clear`` removes the files an earlier run recorded, and nothing else.
+    the work.
+
+    A run writes its files through ``writing`` (staged beside their final names) and ``commit``
+    moves them into place together (``io.atomic.StagedFiles``): all of them, or, when the commit
+    fails, none, with the earlier run's files whole. ``replace_earlier_run`` makes the commit also
+    remove the files an earlier run recorded that this one did not write (and nothing else);
+    ``clear`` removes them at once.
     """
 
     def __init__(self, path: str | os.PathLike, option: str = "--out", inputs: Sequence[Path] = ()) -> None:
@@ -212,6 +219,9 @@ class OutputDirectory:
                 raise MapfilterError(f"{option}: holds {source}, an input of this run: give an output directory "
                                      "that holds no input", self.path)
         self.files: set[str] = self._read_manifest()
+        self._staged = StagedFiles()
+        self._earlier: set[str] = set()  # an earlier run's files that go with the next commit
+        self._committed = set(self.files)  # the manifest as the files on disk stand
         foreign = self._foreign_files()
         if foreign:
             first, more = foreign[0], len(foreign) - 1
@@ -263,19 +273,65 @@ class OutputDirectory:
             self._write_manifest()
         return path
 
+    @contextlib.contextmanager
+    def writing(self, *relatives: str | os.PathLike):
+        """Temporaries for the files ``relatives`` (claimed: recorded in the manifest first),
+        moved into place by :meth:`commit`; a block that raises leaves them out."""
+        finals = [self.claim(relative) for relative in relatives]
+        with self._staged.writing(*finals) as temps:
+            yield temps
+
+    def replace_earlier_run(self) -> None:
+        """The next :meth:`commit` removes the files an earlier run recorded that this run does not
+        write (until then they stay whole)."""
+        self._earlier = set(self.files)
+
+    def commit(self) -> None:
+        """The staged files into place together, and an earlier run's files removed (after
+        :meth:`replace_earlier_run`); on failure nothing changes and the error is raised."""
+        written = {final.relative_to(self.path).as_posix() for final in self._staged.written_paths}
+        gone = self._earlier - written
+        for name in sorted(gone):
+            path = self.path / name
+            if path.is_file() and not path.is_symlink():
+                self._staged.remove_at_commit(path)
+        self._staged.commit()
+        self._earlier = set()
+        if gone:
+            self._remove_empty_folders(gone)
+            self.files -= gone
+            self._write_manifest()
+        self._committed = set(self.files)
+
+    def discard(self) -> None:
+        """Drop what was staged and not committed: the directory as the last commit left it (the
+        manifest too, where it can be written)."""
+        self._staged.discard()
+        self._earlier = set()
+        if self.files != self._committed and self.manifest_path.exists():
+            self.files = set(self._committed)
+            with contextlib.suppress(MapfilterError, OSError):  # a manifest listing more is harmless
+                if self.files:
+                    self._write_manifest()
+                else:
+                    self.manifest_path.unlink()
+
+    def _remove_empty_folders(self, names: set[str]) -> None:
+        folders = {p for name in names for p in Path(name).parents if str(p) != "."}
+        for folder in sorted(folders, key=lambda p: len(p.parts), reverse=True):
+            with contextlib.suppress(OSError):  # not empty: keep it
+                (self.path / folder).rmdir()
+
     def clear(self) -> None:
         """Remove the files an earlier run recorded (and the folders that this leaves empty)."""
-        folders = set()
         for name in sorted(self.files):
             path = self.path / name
             with contextlib.suppress(FileNotFoundError, IsADirectoryError):
                 if not path.is_symlink() and path.is_file():
                     path.unlink()
-            folders.update(p for p in Path(name).parents if str(p) != ".")
-        for folder in sorted(folders, key=lambda p: len(p.parts), reverse=True):
-            with contextlib.suppress(OSError):  # not empty: keep it
-                (self.path / folder).rmdir()
+        self._remove_empty_folders(self.files)
         self.files = set()
+        self._committed = set()
         if self.manifest_path.exists():
             self._write_manifest()
 

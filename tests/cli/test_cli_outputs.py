@@ -122,6 +122,53 @@ def test_atomic_writes_leave_nothing_on_a_disk_error(tmp_path):
     assert list(tmp_path.iterdir()) == []  # the directory made for it is gone too
 
 
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _disk_full(*args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_a_failed_evaluation_leaves_the_earlier_one_whole(tmp_path, monkeypatch, capsys):
+    """A full disk at the last file of a second evaluation (its cdf.png): the earlier evaluation's
+    files are all there, byte for byte, and no temporary is left."""
+    from mapfilter.evaluation import plots
+
+    out = tmp_path / "eval"
+    argv = ["evaluate", str(MAPS / "office.yaml"), str(MAPS / "office_walk.txt.gz"), "--radiomap",
+            str(MAPS / "office_radiomap.npz"), "--methods", "kwnn", "--out", str(out)]
+    assert main(argv) == 0
+    earlier = _snapshot(out)
+    assert "cdf.png" in earlier and "summary.csv" in earlier
+    monkeypatch.setattr(plots, "plot_error_cdf", _disk_full)
+    assert main([*argv[:-3], "kwnn,kf", "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and err.strip().count("\n") == 0, err
+    assert _snapshot(out) == earlier
+
+
+def test_track_smooth_writes_both_tracks_or_neither(tmp_path, monkeypatch, capsys):
+    """The causal track (t.causal.csv) fails to write: t.csv is not replaced either."""
+    from mapfilter.io import tracks
+
+    out = tmp_path / "t.csv"
+    out.write_text("t_s,x_m,y_m\n0,1,2\n")
+    real_write, calls = tracks.write_track, []
+
+    def second_fails(track, path, *args, **kwargs):
+        calls.append(path)
+        if len(calls) == 2:
+            _disk_full()
+        real_write(track, path, *args, **kwargs)
+
+    monkeypatch.setattr(tracks, "write_track", second_fails)
+    code = main(["track", str(MAPS / "office.yaml"), str(MAPS / "office_walk.txt.gz"), "--radiomap",
+                 str(MAPS / "office_radiomap.npz"), "--smooth", "--particles", "300", "--out", str(out)])
+    assert code == 1 and len(calls) == 2 and "No space left on device" in capsys.readouterr().err
+    assert out.read_text() == "t_s,x_m,y_m\n0,1,2\n" and sorted(p.name for p in tmp_path.iterdir()) == ["t.csv"]
+
+
 def test_a_closed_pipe_is_quiet(tmp_path):
     """`mapfilter check LOG... | head -1`: the reader has gone; no traceback, no 'Exception ignored'."""
     logs = [str(MAPS / "office_walk.txt.gz")] * 3

@@ -44,13 +44,33 @@ def test_truth_at_a_tracks_times_pairs_every_row(tmp_path, capsys):
     ([str(WALK), "--truth", "{tmp}/gt.tum"], "--truth writes one log's ground truth: 2 logs given"),
     (["--at", "{tmp}/track.tum"], "--at is for --truth"),
     (["--truth", "{tmp}/gt.tum", "--at", "{tmp}/none.tum"], "none.tum: file not found"),
-    (["--truth", str(WALK)], "--truth would write over the log"),
+    (["--truth", str(WALK)], "--truth: is an input of this run"),
 ])
 def test_truth_mistakes_are_one_line(args, needle, tmp_path, capsys):
     assert main(["check", str(WALK), *[a.format(tmp=tmp_path) for a in args]]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and needle in err, err
     assert not (tmp_path / "gt.tum").exists()
+
+
+def test_truth_never_writes_over_the_at_track_the_map_or_its_image(tmp_path, capsys):
+    """The output policy: --truth is refused in one line, before any work, when it is the --at
+    track, the --map YAML or the image that map names; each is left byte-identical."""
+    import shutil
+
+    for name in ("office.yaml", "office.png"):
+        shutil.copy(MAPS / name, tmp_path / name)
+    track = tmp_path / "track.csv"
+    track.write_text("t_s,x_m,y_m\n1600000000.0,1.0,2.0\n")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    for truth in (track, tmp_path / "office.yaml", tmp_path / "office.png"):
+        code = main(["check", str(WALK), "--map", str(tmp_path / "office.yaml"), "--truth", str(truth), "--at",
+                     str(track)])
+        captured = capsys.readouterr()
+        assert code == 1 and captured.out == "", captured.out  # refused before the log is read
+        err = captured.err.strip()
+        assert len(err.splitlines()) == 1 and f"{truth}: --truth: is an input of this run" in err, err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
 
 
 def test_latlon_truth_needs_a_georeferenced_map_and_is_placed_by_it(ipin2023, tmp_path, capsys):

@@ -124,3 +124,36 @@ def test_a_log_named_summary_gets_its_own_track_file():
     names = batch_track_names(["summary", "walk", "config"], "csv", smooth=True)
     assert names == {"summary": "summary.track.csv", "walk": "walk.csv", "config": "config.csv"}
     assert batch_track_names(["a", "a.causal"], "csv", smooth=True)["a.causal"] == "a.causal.track.csv"
+
+
+def test_an_output_directory_commits_a_run_all_or_nothing(tmp_path):
+    """A second run's files are staged: nothing changes until its commit, which replaces the
+    earlier run's files and removes those it did not write; a run discarded (it failed) leaves
+    the earlier files and manifest byte-identical."""
+    first = OutputDirectory(tmp_path / "out")
+    with first.writing("walks/a.json", "summary.csv") as (a, summary):
+        a.write_text("a1")
+        summary.write_text("s1")
+    first.commit()
+    before = {p.name: p.read_bytes() for p in (tmp_path / "out").rglob("*") if p.is_file()}
+    assert set(before) == {"a.json", "summary.csv", MANIFEST}
+
+    failed = OutputDirectory(tmp_path / "out")
+    failed.replace_earlier_run()
+    with failed.writing("walks/b.json") as (b,):
+        b.write_text("b2")
+    with pytest.raises(MapfilterError, match="summary.csv: could not write: Input/output error"):
+        with failed.writing("summary.csv") as (summary,):
+            raise OSError(5, "Input/output error")
+    failed.discard()
+    assert {p.name: p.read_bytes() for p in (tmp_path / "out").rglob("*") if p.is_file()} == before
+
+    second = OutputDirectory(tmp_path / "out")
+    second.replace_earlier_run()
+    with second.writing("walks/b.json", "summary.csv") as (b, summary):
+        b.write_text("b2")
+        summary.write_text("s2")
+    assert (tmp_path / "out" / "walks" / "a.json").read_text() == "a1"  # until the commit
+    second.commit()
+    assert sorted(p.name for p in (tmp_path / "out").rglob("*") if p.is_file()) == [MANIFEST, "b.json", "summary.csv"]
+    assert OutputDirectory(tmp_path / "out").files == {"walks/b.json", "summary.csv"}
