@@ -173,3 +173,166 @@ def test_everything_laid_out_from_local_copies_is_the_shared_data(ilc_site1, ipi
     assert get_data.main(["--out", str(out), "--ilc-from", str(ilc), "--ipin-from", str(ipin)]) == 0
     for row in rows:
         assert _sha(out / row["path"]) == _sha(DATA / row["path"]), row["path"]
+
+
+# ---- hostile sources (issue 45) -------------------------------------------------------------------
+LOG_ROW = "ipin2023/logs/IPIN2023_T3_TrainingTrial01_repetition01.txt.gz"
+
+
+@pytest.fixture
+def one_log(ipin2023, tmp_path):
+    """(the manifest row of one IPIN log, a folder holding its source: the log uncompressed)."""
+    row = next(r for r in get_data.read_manifest() if r["path"] == LOG_ROW)
+    source = tmp_path / "sources"
+    source.mkdir()
+    (source / row["source_path"]).write_bytes(gzip.decompress((DATA / LOG_ROW).read_bytes()))
+    return row, source
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.rglob(".*") if p.is_file())
+
+
+@pytest.mark.parametrize("damage", ["corrupted", "linked"])
+def test_a_bad_source_is_refused_before_it_is_laid_out(one_log, tmp_path, capsys, damage):
+    """A source with one byte changed, or a link to another file, is refused in one line and
+    nothing is written, so that a run with the right source then lays it out."""
+    row, source = one_log
+    log = source / row["source_path"]
+    good = log.read_bytes()
+    if damage == "corrupted":
+        log.write_bytes(good[:1000] + b"X" + good[1001:])
+    else:
+        log.unlink()
+        (tmp_path / "other.txt").write_bytes(good[:-10])
+        log.symlink_to(tmp_path / "other.txt")
+    out = tmp_path / "data"
+    assert get_data.main(["--out", str(out), "--from-dir", str(source), "--only", LOG_ROW]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "is not the source of " + LOG_ROW in err and "nothing written" in err
+    assert not (out / LOG_ROW).exists() and _leftovers(tmp_path) == []
+    log.unlink()
+    log.write_bytes(good)
+    assert get_data.main(["--out", str(out), "--from-dir", str(source), "--only", LOG_ROW]) == 0
+    assert _sha(out / LOG_ROW) == row["sha256"]
+
+
+def test_a_full_disk_leaves_no_temporary(one_log, tmp_path):
+    """A file-size limit makes the write fail (EFBIG, as a full disk): one line, no temporary."""
+    import resource
+    import subprocess
+
+    row, source = one_log
+    out = tmp_path / "data"
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (100_000, 100_000))
+
+    done = subprocess.run([sys.executable, str(REPO / "tools" / "get_data.py"), "--out", str(out), "--from-dir",
+                           str(source), "--only", LOG_ROW], preexec_fn=limit, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 1 and done.stderr.startswith("get_data: error: [Errno 27] File too large")
+    assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr
+    assert not (out / LOG_ROW).exists() and _leftovers(tmp_path) == []
+
+
+class _Zenodo:
+    """A Zenodo record on 127.0.0.1: ``files`` maps a URL path to (bytes sent, Content-Length
+    announced); ``/record`` is the listing ``listing`` (a list of the record's file entries)."""
+
+    def __init__(self, files: dict[str, tuple[bytes, int]], listing: list[dict]) -> None:
+        import http.server
+        import threading
+
+        zenodo = self
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def do_GET(self):  # noqa: N802 - the http.server name
+                if self.path == "/record":
+                    body = json.dumps({"files": zenodo.listing}).encode()
+                    length = len(body)
+                else:
+                    body, length = zenodo.files[self.path]
+                self.send_response(200)
+                self.send_header("Content-Length", str(length))
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *args):
+                pass
+
+        self.files, self.listing = files, listing
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}"
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def _package(row, source: Path) -> bytes:
+    import io
+
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.write(source / row["source_path"], f"logs/{row['source_path']}")
+    return buffer.getvalue()
+
+
+@pytest.mark.parametrize("name", ["../../victim.txt", "/tmp/mapfilter-get-data-victim.txt", "a/../../b.zip"])
+def test_a_record_file_name_that_leaves_the_folder_is_refused(one_log, tmp_path, monkeypatch, capsys, name):
+    row, source = one_log
+    victim = tmp_path / "victim.txt"
+    victim.write_text("the user's own file")
+    zenodo = _Zenodo({"/f": (b"overwritten", 11)}, [{"key": name, "size": 11, "links": {"self": "URL/f"}}])
+    zenodo.listing[0]["links"]["self"] = zenodo.url + "/f"
+    monkeypatch.setattr(get_data, "ZENODO_API_URL", zenodo.url + "/record")
+    try:
+        out = tmp_path / "deep" / "data"
+        assert get_data.main(["--out", str(out), "--only", LOG_ROW]) == 1
+    finally:
+        zenodo.close()
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"the record's file {name!r} would leave its folder" in err, err
+    assert victim.read_text() == "the user's own file" and not Path("/tmp/mapfilter-get-data-victim.txt").exists()
+
+
+def test_a_download_shorter_than_announced_is_refused_and_not_kept(one_log, tmp_path, monkeypatch, capsys):
+    row, source = one_log
+    package = _package(row, source)
+    zenodo = _Zenodo({"/p.zip": (package[:len(package) // 2], len(package))}, [])
+    zenodo.listing.append({"key": "p.zip", "size": len(package), "links": {"self": zenodo.url + "/p.zip"}})
+    monkeypatch.setattr(get_data, "ZENODO_API_URL", zenodo.url + "/record")
+    out = tmp_path / "data"
+    try:
+        assert get_data.main(["--out", str(out), "--only", LOG_ROW]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1].startswith("get_data: error: ") and "bytes received" in err[-1] and "cut short" in err[-1]
+        assert not (out / ".downloads" / "ipin" / "p.zip").exists() and _leftovers(tmp_path) == []
+        zenodo.files["/p.zip"] = (package, len(package))  # the next run downloads it whole
+        assert get_data.main(["--out", str(out), "--only", LOG_ROW]) == 0
+    finally:
+        zenodo.close()
+    assert _sha(out / LOG_ROW) == row["sha256"]
+
+
+def test_a_half_downloaded_package_is_one_line_and_removed(one_log, tmp_path, monkeypatch, capsys):
+    """A record that gives neither size nor MD5, and a package cut in half: the unpacking fails in
+    one line and the bad file is removed, so that the next run downloads it again."""
+    row, source = one_log
+    package = _package(row, source)
+    half = package[:len(package) // 2]
+    zenodo = _Zenodo({"/p.zip": (half, len(half))}, [])
+    zenodo.listing.append({"key": "p.zip", "links": {"self": zenodo.url + "/p.zip"}})
+    monkeypatch.setattr(get_data, "ZENODO_API_URL", zenodo.url + "/record")
+    out = tmp_path / "data"
+    try:
+        assert get_data.main(["--out", str(out), "--only", LOG_ROW]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert "p.zip: not a whole zip archive" in err[-1] and "Traceback" not in "".join(err)
+        assert not (out / ".downloads" / "ipin" / "p.zip").exists() and _leftovers(tmp_path) == []
+        zenodo.files["/p.zip"] = (package, len(package))
+        assert get_data.main(["--out", str(out), "--only", LOG_ROW]) == 0
+    finally:
+        zenodo.close()

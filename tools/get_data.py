@@ -14,7 +14,11 @@ copies with --ilc-from / --ipin-from / --from-dir, where they may lie in any fol
 record types the project uses and are gzip-compressed, IPIN logs are gzip-compressed whole,
 plans and floor files are copied, and the project's own notes come from `tools/data/`), and
 **verify** every file's SHA-256 against the manifest. A file already there with the right
-checksum is kept; one with another checksum is refused, never overwritten.
+checksum is kept; one with another checksum is refused, never overwritten. Every file is checked
+before it is laid out (a damaged or wrong source is refused, nothing written); a download must
+hold every byte its Content-Length and the record announce, and its MD5 where the record gives
+one (a cached download is checked again before use, and a bad one removed); a file name that
+would leave its folder (absolute, or with ``..``) is refused; a failed write leaves no temporary.
 
     python3 tools/get_data.py                                  # download into ../shared/data
     python3 tools/get_data.py --out data --from-dir ~/downloads # from local copies, no network
@@ -39,8 +43,9 @@ import sys
 import tempfile
 import urllib.request
 import zipfile
-from collections.abc import Iterator
-from pathlib import Path
+import zlib
+from collections.abc import Iterable, Iterator
+from pathlib import Path, PurePosixPath
 
 REPO = Path(__file__).resolve().parents[1]
 MANIFEST = REPO / "tools" / "data" / "manifest.csv"
@@ -75,6 +80,32 @@ def read_manifest(path: Path = MANIFEST) -> list[dict[str, str]]:
 
 def sha256_of(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
+
+
+def inside(name: str, what: str) -> str:
+    """``name`` when it is a relative path that stays in its folder (no ``..``, not absolute, no
+    drive or backslash); ``DataError`` naming ``what`` otherwise."""
+    parts = PurePosixPath(name).parts
+    if (not name or "\0" in name or "\\" in name or name.startswith("/") or ".." in parts
+            or (parts and ":" in parts[0])):
+        raise DataError(f"{what} {name!r} would leave its folder (an absolute path, or one with ..): refused")
+    return name
+
+
+def write_new(path: Path, blocks: Iterable[bytes]) -> None:
+    """``blocks`` to ``path`` through a temporary beside it, moved into place at the end; on any
+    failure (a full disk, Ctrl-C) the temporary is removed and ``path`` is untouched."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            for block in blocks:
+                handle.write(block)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
 
 
 def sha256_file(path: Path) -> str:
@@ -116,29 +147,50 @@ def _files_named(root: Path, name: str) -> list[Path]:
     return _NAME_INDEX[root].get(name, [])
 
 
-def download(url: str, path: Path, md5: str | None = None) -> None:
-    """``url`` to ``path`` (atomically), its MD5 checked when the source publishes one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+def download(url: str, path: Path, md5: str | None = None, size: int | None = None) -> None:
+    """``url`` to ``path`` (atomically), refused when it holds fewer or more bytes than its
+    Content-Length (or ``size``), or another MD5 than ``md5`` (when the source publishes them)."""
     digest = hashlib.md5()
-    with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", delete=False) as tmp:
-        try:
-            with urllib.request.urlopen(url, timeout=120) as response:
-                for block in iter(lambda: response.read(1 << 20), b""):
-                    tmp.write(block)
-                    digest.update(block)
-        except BaseException:
-            os.unlink(tmp.name)
-            raise
-    if md5 is not None and digest.hexdigest() != md5:
-        os.unlink(tmp.name)
-        raise DataError(f"{url}: MD5 {digest.hexdigest()}, the source publishes {md5}")
-    os.replace(tmp.name, path)
+    received = 0
+    declared: list[int] = []
+
+    def blocks() -> Iterator[bytes]:
+        nonlocal received
+        with urllib.request.urlopen(url, timeout=120) as response:
+            length = (response.headers.get("Content-Length") or "").strip()
+            if length.isdigit():
+                declared.append(int(length))
+            for block in iter(lambda: response.read(1 << 20), b""):
+                digest.update(block)
+                received += len(block)
+                yield block
+        for expected in declared + ([] if size is None else [size]):
+            if received != expected:
+                raise DataError(f"{url}: {received} bytes received, {expected} announced: the download was cut short "
+                                "(run again)")
+        if md5 is not None and digest.hexdigest() != md5:
+            raise DataError(f"{url}: MD5 {digest.hexdigest()}, the source publishes {md5}")
+
+    write_new(path, blocks())
+
+
+def _cached_ok(path: Path, md5: str | None, size: int | None) -> bool:
+    """A download kept from an earlier run is whole: its size and MD5 (where the record gives them)."""
+    if size is not None and path.stat().st_size != size:
+        return False
+    if md5 is not None:
+        digest = hashlib.md5()
+        with path.open("rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+        return digest.hexdigest() == md5
+    return True
 
 
 def download_ilc(rows: list[dict[str, str]], into: Path) -> Path:
     """The ILC files of ``rows`` from the repository at its commit, one file each, into ``into``."""
     for row in rows:
-        target = into / row["source_path"]
+        target = into / inside(row["source_path"], "the manifest's source path")
         if not target.is_file():
             print(f"download {row['source_path']}", file=sys.stderr)
             download(ILC_RAW_URL.format(path=row["source_path"]), target)
@@ -146,22 +198,55 @@ def download_ilc(rows: list[dict[str, str]], into: Path) -> Path:
 
 
 def download_ipin(into: Path) -> Path:
-    """Every file of the Zenodo record (MD5 checked) into ``into``, zip archives unpacked."""
+    """Every file of the Zenodo record (MD5 and size checked) into ``into``, zip archives unpacked."""
     with urllib.request.urlopen(ZENODO_API_URL, timeout=60) as response:
-        record = json.load(response)
-    for item in record.get("files", []):
-        name = item["key"]
-        target = into / name
-        checksum = item.get("checksum", "")
+        try:
+            record = json.loads(response.read(16 << 20))
+        except ValueError:
+            raise DataError(f"{ZENODO_API_URL}: the record's listing is not JSON") from None
+    files = record.get("files") if isinstance(record, dict) else None
+    if not isinstance(files, list):
+        raise DataError(f"{ZENODO_API_URL}: the record's listing has no list of files")
+    for item in files:
+        try:
+            name, url = str(item["key"]), str(item["links"]["self"])
+            size = int(item["size"]) if item.get("size") is not None else None
+            checksum = str(item.get("checksum") or "")
+        except (KeyError, TypeError, ValueError, AttributeError):
+            raise DataError(f"{ZENODO_API_URL}: a file of the record's listing lacks its key, link or size") from None
+        target = into / inside(name, "the record's file")
+        md5 = checksum.removeprefix("md5:") if checksum.startswith("md5:") else None
+        if target.is_file() and not _cached_ok(target, md5, size):
+            print(f"{target}: a download kept from an earlier run is not whole: downloading it again", file=sys.stderr)
+            target.unlink()
         if not target.is_file():
-            print(f"download {name} ({item.get('size', 0) / 1e6:.0f} MB)", file=sys.stderr)
-            download(item["links"]["self"], target, checksum.removeprefix("md5:") if checksum.startswith("md5:")
-                     else None)
-        if name.lower().endswith(".zip") and not (into / f".{name}.unpacked").exists():
-            with zipfile.ZipFile(target) as archive:
-                archive.extractall(into / Path(name).stem)
-            (into / f".{name}.unpacked").touch()
+            print(f"download {name} ({(size or 0) / 1e6:.0f} MB)", file=sys.stderr)
+            download(url, target, md5, size)
+        if name.lower().endswith(".zip"):
+            unpack(target, into / Path(name).parent / Path(name).stem)
     return into
+
+
+def unpack(archive: Path, folder: Path) -> None:
+    """A zip archive unpacked into ``folder``, whole or not at all (a marker beside it says it is
+    done); an archive that is not a whole zip is refused and removed, to be downloaded again."""
+    marker = folder.parent / f".{archive.name}.unpacked"
+    if marker.exists():
+        return
+    staging = Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}."))
+    try:
+        try:
+            with zipfile.ZipFile(archive) as package:
+                package.extractall(staging)
+        except (zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError) as exc:
+            archive.unlink()
+            raise DataError(f"{archive}: not a whole zip archive ({exc}): removed; run again to download it") from None
+        if folder.exists():
+            shutil.rmtree(folder)  # an unpacking of ours cut short before its marker
+        os.replace(staging, folder)
+        marker.touch()
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
 
 
 # ---- step 2: lay the files out -------------------------------------------------------------------
@@ -201,9 +286,13 @@ def ilc_records(data: bytes, keep: set[bytes]) -> bytes:
 
 
 def lay_out(rows: list[dict[str, str]], out: Path, sources: dict[str, list[Path]]) -> Iterator[tuple[str, str]]:
-    """Write every file of ``rows`` under ``out`` from its source; yields (path, what happened)."""
+    """Write every file of ``rows`` under ``out`` from its source, each checked against the
+    manifest before it is written (a gzip of the right content by another zlib is written, and
+    ``verify`` names it); yields (path, what happened)."""
     for row in rows:
-        target = out / row["path"]
+        target = out / inside(row["path"], "the manifest's path")
+        if target.is_symlink() or (target.exists() and not target.is_file()):
+            raise DataError(f"{target}: exists and is not a plain file: not overwritten")
         if target.is_file():
             if sha256_file(target) == row["sha256"]:
                 yield row["path"], "kept (checksum right)"
@@ -211,16 +300,18 @@ def lay_out(rows: list[dict[str, str]], out: Path, sources: dict[str, list[Path]
             raise DataError(f"{target}: exists with another checksum: not overwritten (move it away, or lay out "
                             "elsewhere with --out)")
         if row["source"] == "project":
-            source = PROJECT_FILES / row["source_path"]
+            source = PROJECT_FILES / inside(row["source_path"], "the manifest's source path")
         else:
             if not sources.get(row["source"]):
                 raise DataError(f"{row['path']}: no {row['source']} source given")
             source = find_source(sources[row["source"]], row["source_path"])
-        data, _ = transformed(source, row["transform"])
-        target.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=target.parent, prefix=f".{target.name}.", delete=False) as tmp:
-            tmp.write(data)
-        os.replace(tmp.name, target)
+        data, content = transformed(source, row["transform"])
+        if sha256_of(data) != row["sha256"] and not (row["content_sha256"]
+                                                     and sha256_of(content) == row["content_sha256"]):
+            raise DataError(f"{source}: is not the source of {row['path']} (laid out, its SHA-256 would be "
+                            f"{sha256_of(data)[:16]}..., the manifest says {row['sha256'][:16]}...): a damaged or "
+                            "another file; nothing written")
+        write_new(target, [data])
         yield row["path"], f"written from {source}"
 
 
@@ -351,7 +442,7 @@ def main(argv: list[str] | None = None) -> int:
     except DataError as exc:
         print(f"get_data: error: {exc}", file=sys.stderr)
         return 1
-    except OSError as exc:  # the network, a full disk
+    except (OSError, EOFError, zlib.error, subprocess.CalledProcessError) as exc:  # the network, a full disk
         print(f"get_data: error: {exc}", file=sys.stderr)
         return 1
 
