@@ -14,24 +14,36 @@ server may send are ground truth: the tracker does not read them, the offline es
 times. The offline estimates are the whole-walk track at every 0.5 s of the log's clock from its
 first line and at its ``POSI`` times, interpolated.
 
-Connections. Every request has a timeout; a request whose connection dropped is sent again with
-the same ``label`` (evaalapi.py answers a repeated label with the data it sent for it, so no batch
-is lost or read twice; evaalapi.md does not list the parameter, and a server that refuses it is
-asked without), after asking the trial's ``state`` where it stands.
+Connections. Every request has one deadline, from the connection to the answer's last byte (a
+server that drips its answer a byte at a time cannot hold it longer), and an answer is read to at
+most a bound, counted after decompression (``MAX_STATE_BYTES``, ``MAX_LOG_BYTES``). A request
+whose connection dropped or ran out of time is sent again with the same ``label`` (evaalapi.py
+answers a repeated label with the data it sent for it, so no batch is lost or read twice;
+evaalapi.md does not list the parameter, and a server that refuses it is asked without), after
+asking the trial's ``state`` where it stands, for up to ``retry_s``.
+
+A server that does not keep the protocol is refused in one line, its own text shown printable
+(escape sequences and raw bytes as ``\\xNN``): an answer over the bound; ``MAX_TOO_FAST``
+refusals in a row as faster than real time (423) although each request waited ``h``; an online
+trial that goes on without sending the log's next lines for ``MAX_SILENT_S`` of trial time, that
+runs past its slack by ``SLACK_MARGIN_S`` (the server must end a trial once its wall clock passes
+V times the trial time plus the slack), or past ``MAX_TRIAL_S`` of trial time.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-import gzip
 import http.client
 import math
 import re
 import secrets
+import socket
+import ssl
+import threading
 import time
-import urllib.error
 import urllib.parse
-import urllib.request
+import zlib
 from collections.abc import Callable
 
 import numpy as np
@@ -48,6 +60,15 @@ from mapfilter.sensors.recording import concatenate
 # a scoring trial with V > 2 refuses a request less than h after the previous one (423): the
 # client then waits this much beyond h (the server's clock reads the request a little later)
 _PACE_MARGIN_S = 0.02
+MAX_TOO_FAST = 8  # 423s in a row, each sent h after the previous request taken (pauses doubling from 0.02 s)
+MAX_STATE_BYTES = 1 << 20  # a state line, a POST's answer: a few hundred bytes
+# a log or a batch of it, decompressed: the IPIN 2023 logs are 16 kB/s (3.7 MB for 4 min), so
+# 256 MiB is over four hours of a log
+MAX_LOG_BYTES = 256 << 20
+MAX_SILENT_S = 10.0  # trial time with no line of the log (the IPIN 2023 logs never pause for 0.2 s)
+SLACK_MARGIN_S = 5.0  # beyond its slack: the server would have ended the trial (its clock reads ours +- latency)
+MAX_TRIAL_S = 6 * 3600.0  # an online trial is one walk
+_READ_BYTES = 1 << 16
 
 
 # ---- HTTP ------------------------------------------------------------------------------------------
@@ -67,52 +88,83 @@ class EvaalClient:
     """The EvaalAPI commands of one trial over HTTP (standard library only).
 
     ``server_url``: the API's root, e.g. ``https://evaal.aaloa.org/evaalapi/``; ``trial``: the
-    trial's name. Every request times out after ``timeout_s``; a dropped connection is retried for
-    up to ``retry_s`` seconds (:meth:`call`), ``on_retry`` told each time.
+    trial's name. Every request must be answered, to its last byte, within ``timeout_s``; a dropped
+    connection or a late answer is retried for up to ``retry_s`` seconds (:meth:`call`),
+    ``on_retry`` told each time.
     """
 
     def __init__(self, server_url: str, trial: str, timeout_s: float = 10.0, retry_s: float = 30.0,
                  on_retry: Callable[[str], None] | None = None,
                  sleep: Callable[[float], None] = time.sleep) -> None:
         parts = urllib.parse.urlsplit(server_url)
-        if parts.scheme not in ("http", "https") or not parts.netloc:
+        if parts.scheme not in ("http", "https") or not parts.hostname:
             raise MapfilterError(f"the server URL must be http://HOST[:PORT]/PATH or https://..., got {server_url!r}")
+        try:
+            parts.port  # noqa: B018 - a port that is no number is refused here
+        except ValueError:
+            raise MapfilterError(f"the server URL has a port that is not a number: {server_url!r}") from None
         if not trial or not re.fullmatch(r"[A-Za-z0-9_.~-]+", trial):
             raise MapfilterError(f"a trial name is letters, digits and _.~- only, got {trial!r}")
         if not (timeout_s > 0 and math.isfinite(timeout_s)) or not (retry_s >= 0 and math.isfinite(retry_s)):
             raise ValueError("timeout_s must be > 0 and retry_s >= 0")
         self.trial = trial
         self.url = server_url.rstrip("/") + "/" + trial
+        self._parts = urllib.parse.urlsplit(self.url)
         self.timeout_s = timeout_s
         self.retry_s = retry_s
         self.on_retry = on_retry
         self.sleep = sleep
         self.dropped = 0  # requests sent again after a dropped connection
 
-    def request(self, command: str, query: dict[str, str] | None = None, body: bytes | None = None) -> Reply:
-        """One request: ``GET TRIAL/command?query`` (``POST`` with ``body``); raises ``_Dropped``
-        when no answer came."""
-        url = f"{self.url}/{command}" + (f"?{urllib.parse.urlencode(query)}" if query else "")
-        headers = {"Accept-Encoding": "gzip"}  # the server compresses text when asked (Flask-Compress)
+    def request(self, command: str, query: dict[str, str] | None = None, body: bytes | None = None,
+                max_bytes: int | None = None) -> Reply:
+        """One request: ``GET TRIAL/command?query`` (``POST`` with ``body``), answered within
+        ``timeout_s`` (connection, status, headers, body); raises ``_Dropped`` when no whole answer
+        came in time, ``MapfilterError`` for an answer of more than ``max_bytes`` (decompressed;
+        default ``MAX_STATE_BYTES``)."""
+        max_bytes = MAX_STATE_BYTES if max_bytes is None else max_bytes
+        path = f"{self._parts.path}/{command}" + (f"?{urllib.parse.urlencode(query)}" if query else "")
+        headers = {"Accept-Encoding": "gzip", "Connection": "close"}  # the server compresses text when asked
         if body is not None:
             headers["Content-Type"] = "text/csv; charset=us-ascii"  # the only type POST estimates takes
-        req = urllib.request.Request(url, data=body, headers=headers, method="POST" if body is not None else "GET")
+        deadline = time.monotonic() + self.timeout_s
+        expired = threading.Event()
+        if self._parts.scheme == "https":
+            connection = http.client.HTTPSConnection(self._parts.hostname, self._parts.port, timeout=self.timeout_s,
+                                                     context=ssl.create_default_context())
+        else:
+            connection = http.client.HTTPConnection(self._parts.hostname, self._parts.port, timeout=self.timeout_s)
+
+        def cut() -> None:  # the deadline passed: whatever read is waiting ends now
+            expired.set()
+            with contextlib.suppress(OSError, AttributeError):
+                connection.sock.shutdown(socket.SHUT_RDWR)
+
+        watchdog = None
         try:
-            with urllib.request.urlopen(req, timeout=self.timeout_s) as response:
-                return Reply(response.status, _decode(response.read(), response.headers))
-        except urllib.error.HTTPError as exc:  # an answer, with an error status
-            with exc:
-                try:
-                    text = _decode(exc.read(), exc.headers)
-                except (OSError, http.client.HTTPException):
-                    text = ""
-            return Reply(exc.code, text)
-        except (urllib.error.URLError, OSError, http.client.HTTPException, EOFError) as exc:
-            reason = getattr(exc, "reason", None) or exc
-            raise _Dropped(f"{type(reason).__name__}: {reason}" if str(reason) else type(reason).__name__) from None
+            connection.connect()
+            watchdog = threading.Timer(max(deadline - time.monotonic(), 0.0), cut)
+            watchdog.daemon = True
+            watchdog.start()
+            connection.request("POST" if body is not None else "GET", path, body=body, headers=headers)
+            response = connection.getresponse()
+            text = _read_answer(response, max_bytes, f"{self.url}/{command}")
+            if expired.is_set():
+                raise _Dropped(f"no whole answer within {self.timeout_s:g} s")
+            return Reply(response.status, text)
+        except (_Dropped, OSError, http.client.HTTPException, EOFError, ValueError) as exc:
+            if expired.is_set() or isinstance(exc, TimeoutError):
+                raise _Dropped(f"no whole answer within {self.timeout_s:g} s") from None
+            if isinstance(exc, _Dropped):
+                raise
+            raise _Dropped(_short(f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__)) from None
+        finally:
+            if watchdog is not None:
+                watchdog.cancel()
+            connection.close()
 
     def call(self, command: str, query: dict[str, str] | None = None, body: bytes | None = None,
-             before_retry: Callable[[], Reply | None] | None = None) -> Reply:
+             before_retry: Callable[[], Reply | None] | None = None, max_bytes: int | None = None) -> Reply:
         """:meth:`request`, sent again while the connection drops (for up to ``retry_s``, pausing
         0.2 s, then twice as long each time up to 2 s). ``before_retry`` runs before each new try
         and may return the answer instead (e.g. the trial finished meanwhile)."""
@@ -120,7 +172,7 @@ class EvaalClient:
         pause_s = 0.2
         while True:
             try:
-                return self.request(command, query, body)
+                return self.request(command, query, body, max_bytes)
             except _Dropped as exc:
                 if time.monotonic() + pause_s > deadline:
                     raise MapfilterError(f"no answer from {self.url}/{command} ({exc}) for {self.retry_s:g} s: the "
@@ -156,17 +208,68 @@ class EvaalClient:
 
     def estimates(self) -> Reply:
         """The estimates the server holds (``GET TRIAL/estimates``: ``pts,c,h,s,pos`` lines)."""
-        return self.call("estimates")
+        return self.call("estimates", max_bytes=MAX_LOG_BYTES)
 
 
-def _decode(data: bytes, headers) -> str:
-    if (headers.get("Content-Encoding") or "").lower() == "gzip":
-        data = gzip.decompress(data)
-    return data.decode("utf-8", errors="replace")
+def _read_answer(response: http.client.HTTPResponse, max_bytes: int, where: str) -> str:
+    """The body of ``response`` as text, gunzipped when it says so, refused beyond ``max_bytes``
+    (raw or decompressed: a gzip bomb stops at the bound); ``_Dropped`` when it was cut short."""
+    encoding = (response.getheader("Content-Encoding") or "identity").strip().lower()
+    if encoding not in ("identity", "gzip"):
+        raise MapfilterError(f"{where}: the server answered in the encoding {_printable(encoding[:40])!r}, which "
+                             "this client did not ask for")
+    declared = response.getheader("Content-Length")
+    if declared is not None and declared.strip().isdigit() and int(declared) > max_bytes:
+        raise _too_large(where, max_bytes)
+    gunzip = zlib.decompressobj(16 + zlib.MAX_WBITS) if encoding == "gzip" else None
+    blocks: list[bytes] = []
+    size = raw = 0
+    while True:
+        block = response.read(_READ_BYTES)
+        if not block:
+            break
+        raw += len(block)
+        if raw > max_bytes:
+            raise _too_large(where, max_bytes)
+        if gunzip is None:
+            size += len(block)
+            blocks.append(block)
+        else:
+            try:
+                while block:
+                    out = gunzip.decompress(block, max_bytes - size + 1)
+                    size += len(out)
+                    blocks.append(out)
+                    if size > max_bytes:
+                        break
+                    block = gunzip.unconsumed_tail
+            except zlib.error:
+                raise MapfilterError(f"{where}: the server's gzip answer is not gzip") from None
+        if size > max_bytes:
+            raise _too_large(where, max_bytes)
+    if response.length:  # fewer bytes than its Content-Length said
+        raise _Dropped(f"the answer was cut short ({response.length} bytes missing)")
+    if gunzip is not None and raw and not gunzip.eof:
+        raise _Dropped("the gzip answer was cut short")
+    return b"".join(blocks).decode("utf-8", errors="replace")
+
+
+def _too_large(where: str, max_bytes: int) -> MapfilterError:
+    return MapfilterError(f"{where}: the server's answer is larger than {max_bytes >> 20} MiB (decompressed): not an "
+                          "EvaalAPI answer this client takes")
+
+
+def _printable(text: str) -> str:
+    """``text`` with every character that is not printable (escape sequences, raw bytes, line
+    breaks) as ``\\xNN``: a server's text can never move the cursor or recolour a terminal."""
+    return "".join(c if c.isprintable() else f"\\x{ord(c):02x}" if ord(c) < 256 else f"\\u{ord(c):04x}"
+                   for c in text)
 
 
 def _short(text: str) -> str:
-    text = " ".join(text.split())
+    """A server's text for one line of ours: whitespace runs as one space, printable, at most 200
+    characters."""
+    text = _printable(" ".join(text.split()))
     return text if len(text) <= 200 else text[:200] + "..."
 
 
@@ -218,7 +321,8 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
     then on every request waits for that. ``progress`` gets a line every ``progress_every_s`` of
     trial time (the trial time, the requests, the slack as this client counts it). Returns the
     run, also when it timed out (``TrialRun.timed_out``); ``MapfilterError`` for an offline or
-    finished trial, a refused request (422) or a lost server.
+    finished trial, a refused request (422), a lost server, or a server that breaks the protocol
+    (the module's docstring: 423 without end, no end to the trial, an answer too large).
     """
     if not (horizon_s > 0 and math.isfinite(horizon_s)):
         raise MapfilterError(f"the horizon must be a positive number of seconds, got {horizon_s}")
@@ -249,6 +353,8 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
     started_s = clock()
     final: TrialState | None = None
     reply_text = ""
+    too_fast_in_row = 0
+    silent_s = 0.0  # trial time since a batch last held a line of its window
     while True:
         position = held if online.position is None else online.position
         query = {"horizon": f"{horizon_s:g}", "position": format_position(*position)}
@@ -262,19 +368,29 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
             if wait_s > 0:
                 client.sleep(wait_s)
         sent_s = clock()
-        reply = client.call("nextdata", query, before_retry=_where_it_stands(client, trial_s, horizon_s))
+        reply = client.call("nextdata", query, before_retry=_where_it_stands(client, trial_s, horizon_s),
+                            max_bytes=MAX_LOG_BYTES)
         if reply.status == 423:  # faster than real time: from now on, wait h after the previous one
             too_fast += 1
+            too_fast_in_row += 1
+            if too_fast_in_row >= MAX_TOO_FAST:
+                waited = (f"although each came {previous_h:g} s after the one it took" if previous_s is not None
+                          else "before it took any")
+                raise MapfilterError(f"{name}: the server refused {too_fast_in_row} requests in a row as faster than "
+                                     f"real time (423), {waited}: it does not keep the protocol "
+                                     f"({_short(reply.text)})")
             paced = True
-            client.sleep(_PACE_MARGIN_S)  # the server's clock read the previous one later than ours: never spin
+            # the server's clock read the previous one later than ours: never spin
+            client.sleep(_PACE_MARGIN_S * 2 ** (too_fast_in_row - 1))
             continue
+        too_fast_in_row = 0
         if reply.status == 422 and use_labels and "label" in reply.text:
             use_labels = False  # a server without retry labels
             continue
         _check_found(reply, client.trial)
         if reply.status == 405:
             final = TrialState.parse(reply.text)
-            reply_text = reply.text.strip()
+            reply_text = _short(reply.text)
             if not final.timed_out and trial_s is not None:
                 sent.append((trial_s, *position))  # the server keeps the position of the request that ended it
                 given.append(online.rows)
@@ -297,7 +413,9 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
         else:
             sent.append((trial_s, *position))
         given.append(online.rows)
+        silent_s = 0.0 if _holds_window(reply.text, trial_s, horizon_s) else silent_s + horizon_s
         trial_s += horizon_s  # as the server counts it
+        _check_trial_goes_on(name, trial_s, silent_s, slack_s)
         answered_s = clock()
         online.feed(reply.text)
         if progress is not None and trial_s >= next_report_s:
@@ -312,6 +430,30 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
                     lowest if lowest is not None else (lowest_s if math.isfinite(lowest_s) else None),
                     too_fast, client.dropped, state.trial_s if resumed else None, result, np.array(given),
                     np.array(busy))
+
+
+def _holds_window(text: str, start_s: float, horizon_s: float) -> bool:
+    """A batch holds a line of its window ``[start_s, start_s + h)`` (the server's times: a line's
+    first number; 1 s either side, as times are kept to the ms)."""
+    for line in text.splitlines():
+        time_s = served_time_s(line)
+        if time_s is not None and start_s - 1.0 <= time_s < start_s + horizon_s + 1.0:
+            return True
+    return False
+
+
+def _check_trial_goes_on(name: str, trial_s: float, silent_s: float, slack_s: float) -> None:
+    """Refuse a trial the server should have ended: no line of the log for ``MAX_SILENT_S`` of
+    trial time (the log has ended), past its slack (it timed out), past ``MAX_TRIAL_S``."""
+    if silent_s > MAX_SILENT_S:
+        raise MapfilterError(f"{name}: the server sent no line of the log for {silent_s:g} s of trial time (at "
+                             f"{trial_s:.1f} s) and does not end the trial: it does not keep the protocol")
+    if slack_s < -SLACK_MARGIN_S:
+        raise MapfilterError(f"{name}: the trial ran {-slack_s:.1f} s past its slack (V times the trial time plus S) "
+                             "and the server does not end it: it does not keep the protocol")
+    if trial_s > MAX_TRIAL_S:
+        raise MapfilterError(f"{name}: the trial goes on past {MAX_TRIAL_S / 3600:g} h of trial time: no walk is "
+                             "that long")
 
 
 def _where_it_stands(client: EvaalClient, trial_s: float | None, horizon_s: float) -> Callable[[], Reply | None]:
@@ -339,7 +481,7 @@ def _where_it_stands(client: EvaalClient, trial_s: float | None, horizon_s: floa
 def _server_slack(client: EvaalClient) -> tuple[float | None, float | None]:
     """(the slack at the last request, the lowest) from the server's own list of estimates."""
     try:
-        reply = client.request("estimates")
+        reply = client.request("estimates", max_bytes=MAX_LOG_BYTES)
     except _Dropped:
         return None, None
     if reply.status != 200:
@@ -380,7 +522,7 @@ def run_offline(client: EvaalClient, tracker: Tracker, *, progress: Callable[[st
                                  "trial sends it once: a test trial can be reloaded (--reload)")
         return None
 
-    reply = client.call("nextdata", {"offline": ""}, before_retry=data_lost)
+    reply = client.call("nextdata", {"offline": ""}, before_retry=data_lost, max_bytes=MAX_LOG_BYTES)
     _check_found(reply, client.trial)
     if reply.status != 200:
         raise MapfilterError(f"{name}: the server answered {reply.status} to nextdata?offline: {_short(reply.text)}")
@@ -404,7 +546,7 @@ def run_offline(client: EvaalClient, tracker: Tracker, *, progress: Callable[[st
     final = client.state()
     if post.status not in (201, 409, 405):
         raise MapfilterError(f"{name}: the server answered {post.status} to the estimates: {_short(post.text)}")
-    return TrialRun(client.trial, True, estimates, 1, post.text.strip(), final, clock() - started_s,
+    return TrialRun(client.trial, True, estimates, 1, _short(post.text), final, clock() - started_s,
                     state.slack_s - taken_s, None, dropped=client.dropped, result=result)
 
 
