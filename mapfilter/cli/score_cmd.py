@@ -41,11 +41,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from mapfilter.evaal.protocol import read_estimates, score_against_log
+    from mapfilter.evaal.protocol import far_from_the_points, read_estimates, score_against_log
     from mapfilter.sensors.logs import read_log
 
     recording = read_log(args.log, strict=args.strict, warn=warn)
-    scores = [(path, score_against_log(read_estimates(path), recording)) for path in args.estimates]
+    scores = []
+    for path in args.estimates:
+        estimates = read_estimates(path)
+        scores.append((path, score_against_log(estimates, recording)))
+        far = far_from_the_points(estimates, recording, scores[-1][1])
+        if far is not None:
+            warn(f"{path}: {far}")
     n = recording.waypoint_t_s.size
     print(f"{recording.name}: {n} POSI point{'s' if n != 1 else ''}; IPIN score = 75th percentile of the "
           "horizontal error + 15 m per floor off")

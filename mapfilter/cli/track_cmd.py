@@ -99,6 +99,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="also write the IPIN competition's estimates (pts,lon,lat,floor; the log's clock): what "
                              "`mapfilter evaal` would send on a trial of this log (a second run, the log served as "
                              "the server serves it; with --smooth, an offline trial's); a georeferenced MAP")
+    parser.add_argument("--evaal-start", metavar="LON,LAT,FLOOR",
+                        help="with --evaal-out, online: the trial's initial position, as the competition gives it "
+                             "(default: the log's first POSI point; a log without one needs it)")
     parser.add_argument("--adapted-aps", type=Path, metavar="OUT.csv",
                         help="with --adapt: write the access-point table as adapted at the end of the walk")
     add_tracking_arguments(parser)
@@ -156,6 +159,8 @@ def run(args: argparse.Namespace) -> int:
                             ("--evaal-out", args.evaal_out)])
     if args.evaal_out is not None and (args.out_dir is not None or is_stdout(args.logs[0])):
         raise MapfilterError("--evaal-out is for one log file (not --out-dir, not a live run)")
+    if args.evaal_start is not None and args.evaal_out is None:
+        raise MapfilterError("--evaal-start is the initial position of --evaal-out: give --evaal-out FILE too")
     if sum(is_stdout(p) for p in (args.out, args.adapted_aps)) > 1:
         raise MapfilterError("--out - and --adapted-aps -: only one output can go to standard output")
     if args.adapted_aps is not None and args.out_dir is not None:
@@ -221,10 +226,15 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
+    evaal_start = None
+    if args.evaal_start is not None:
+        from mapfilter.evaal.protocol import parse_position
+
+        evaal_start = parse_position(args.evaal_start, "--evaal-start")
     if args.evaal_out is not None:
         from mapfilter.evaal.replay import check_replay
 
-        check_replay(building, log_path, args.map)
+        check_replay(building, log_path, args.map, online=not config.smooth, initial=evaal_start)
     recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
     header_floor = building.floor_of_log(recording.floor_name, log_path, args.floor)  # refuses another floor
     radio_map, ap_table = _wifi_source(args, building, config)
@@ -287,7 +297,7 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
             from mapfilter.evaal.replay import replay_log
             from mapfilter.pipeline.tracker import Tracker
 
-            replay = replay_log(Tracker(building, walk.inputs, config, floor=floor), log_path)
+            replay = replay_log(Tracker(building, walk.inputs, config, floor=floor), log_path, initial=evaal_start)
             replay.estimates.write(args.evaal_out)
             written.append((args.evaal_out, f"competition estimates, {'offline' if config.smooth else 'online'}"))
     if args.rerun is not None:

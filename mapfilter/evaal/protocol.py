@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+from array import array
 from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -49,6 +50,7 @@ if TYPE_CHECKING:
     from mapfilter.pipeline.tracker import TrackResult
 
 DEFAULT_HORIZON_S = 0.5  # the horizon evaalapi.md recommends: one estimate every 0.5 s
+MAX_ESTIMATES = 200_000  # an estimates file: one every 0.5 s for 28 hours (a trial is a walk)
 ESTIMATE_STEP_S = 0.5  # offline: an estimate every 0.5 s of the log's clock (and at each POSI time)
 _SERVER_HEADER = "pts,c,h,s,pos"  # the first line of the server's estimates (GET TRIAL/estimates)
 
@@ -171,7 +173,7 @@ def read_estimates(path: str | Path) -> Estimates:
     path = Path(path)
     if not path.is_file():
         raise MapfilterError("file not found", path)
-    rows = []
+    rows = _EstimateRows()
     server = False
     try:
         with open_binary(path) as handle:
@@ -197,14 +199,38 @@ def read_estimates(path: str | Path) -> Estimates:
                 if not math.isfinite(t_s):
                     raise MapfilterError(f"the time is not finite: {fields[0]!r}", path, line_no)
                 lon, lat, floor = parse_position(",".join(fields[-3:]), f"{path}:{line_no}: the position")
-                if rows and t_s < rows[-1][0]:
-                    raise MapfilterError(f"the time goes back ({t_s:g} s after {rows[-1][0]:g} s)", path, line_no)
-                rows.append((t_s, lon, lat, floor))
+                if rows and t_s < rows.t_s[-1]:
+                    raise MapfilterError(f"the time goes back ({t_s:g} s after {rows.t_s[-1]:g} s)", path, line_no)
+                if len(rows) >= MAX_ESTIMATES:
+                    raise MapfilterError(f"more than {MAX_ESTIMATES} estimates (one every 0.5 s for "
+                                         f"{MAX_ESTIMATES / 2 / 3600:.0f} hours): not a trial's", path, line_no)
+                rows.append(t_s, lon, lat, floor)
     except OSError as exc:
         raise MapfilterError(f"cannot read estimates: {exc}", path) from None
     if not rows:
         raise MapfilterError("no estimates in the file", path)
-    return Estimates.of_rows(rows)
+    return rows.estimates()
+
+
+class _EstimateRows:
+    """Estimates as they are read: four packed columns (32 bytes a row, not a tuple's 200)."""
+
+    def __init__(self) -> None:
+        self.t_s, self.lon_deg, self.lat_deg = array("d"), array("d"), array("d")
+        self.floor = array("q")
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    def append(self, t_s: float, lon_deg: float, lat_deg: float, floor: int) -> None:
+        self.t_s.append(t_s)
+        self.lon_deg.append(lon_deg)
+        self.lat_deg.append(lat_deg)
+        self.floor.append(floor)
+
+    def estimates(self) -> Estimates:
+        return Estimates(*(np.frombuffer(column, dtype=dtype).copy() for column, dtype in (
+            (self.t_s, np.float64), (self.lon_deg, np.float64), (self.lat_deg, np.float64), (self.floor, np.int64))))
 
 
 def log_clock_offset_s(recording: Recording) -> float:
@@ -302,6 +328,28 @@ def score_against_log(estimates: Estimates, recording: Recording) -> Competition
                              recording.path)
     return score_estimates(estimates, log_clock_s(recording.waypoint_t_s, recording),
                            recording.waypoint_latlon_deg, list(recording.waypoint_floor))
+
+
+FAR_FROM_THE_POINTS_M = 1000.0  # a venue's POSI points lie within a few hundred metres of each other
+
+
+def far_from_the_points(estimates: Estimates, recording: Recording, score: CompetitionScore) -> str | None:
+    """A score that cannot be the venue's (a median error over ``FAR_FROM_THE_POINTS_M``): a line
+    saying how far the estimates lie, naming latitude and longitude swapped when the swapped
+    estimates lie near the points; None for a score within the venue."""
+    if score.errors_m.size == 0 or float(np.median(score.errors_m)) <= FAR_FROM_THE_POINTS_M:
+        return None
+    far_km = float(np.median(score.errors_m)) / 1000.0
+    if np.all(np.abs(estimates.lon_deg) <= 90.0):
+        swapped = score_against_log(dataclasses.replace(estimates, lon_deg=estimates.lat_deg,
+                                                        lat_deg=estimates.lon_deg), recording)
+        near_m = float(np.median(swapped.errors_m)) if swapped.errors_m.size else math.inf
+        if near_m <= FAR_FROM_THE_POINTS_M:
+            return (f"the estimates lie {far_km:,.0f} km from the log's POSI points (median), and {near_m:.1f} m with "
+                    "latitude and longitude swapped: the file has them swapped (its lines must be "
+                    "pts,longitude,latitude,floor)")
+    return (f"the estimates lie {far_km:,.0f} km from the log's POSI points (median): estimates of another venue "
+            "or another log?")
 
 
 # ---- the runs --------------------------------------------------------------------------------------

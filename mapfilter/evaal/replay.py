@@ -91,9 +91,14 @@ def replay_offline(tracker: Tracker, log_path: str | Path) -> TrialRun:
                     result=result)
 
 
+_NO_START = ("the log has no POSI point to start the trial from: give the trial's initial position (the competition "
+             "gives it with the trial): track --evaal-start LON,LAT,FLOOR, or replay_online(..., initial=(lon, lat, "
+             "floor))")
+
+
 def _initial(initial: tuple[float, float, int] | None) -> tuple[float, float, int]:
     if initial is None:
-        raise MapfilterError("the log has no POSI point to start from: give the initial position")
+        raise MapfilterError(_NO_START)
     return initial
 
 
@@ -109,20 +114,26 @@ def _first_posi(log_path: str | Path) -> tuple[float, float, int] | None:
     return None
 
 
-def check_replay(building: Building, log_path: str | Path, map_path: str | Path | None = None) -> None:
+def check_replay(building: Building, log_path: str | Path, map_path: str | Path | None = None, *,
+                 online: bool = False, initial: tuple[float, float, int] | None = None) -> None:
     """Before a replay (``track --evaal-out``): a building the positions can come from
-    (:func:`check_building`) and a GetSensorData log (``MapfilterError`` naming the file)."""
+    (:func:`check_building`), a GetSensorData log, and for an ``online`` one an initial position
+    (``initial``, or the log's first POSI point); ``MapfilterError`` naming the file otherwise."""
     from mapfilter.sensors.logs import GETSENSORDATA, log_format
 
     check_building(building, map_path)
     if log_format(log_path) != GETSENSORDATA:
         raise MapfilterError("the competition's trials are GetSensorData logs (IPIN); this is another format", log_path)
+    if online and initial is None and _first_posi(log_path) is None:
+        raise MapfilterError(_NO_START, log_path)
 
 
-def replay_log(tracker: Tracker, log_path: str | Path, horizon_s: float = DEFAULT_HORIZON_S) -> TrialRun:
+def replay_log(tracker: Tracker, log_path: str | Path, horizon_s: float = DEFAULT_HORIZON_S,
+               initial: tuple[float, float, int] | None = None) -> TrialRun:
     """The estimates a trial of this log would get from ``tracker``: the offline ones
-    (``replay_offline``) when its config smooths, else the online ones (``replay_online``)."""
+    (``replay_offline``) when its config smooths, else the online ones (``replay_online``, from
+    ``initial`` or the log's first POSI point)."""
     check_building(tracker.building)
     if tracker.config.smooth:
         return replay_offline(tracker, log_path)
-    return replay_online(tracker, log_path, horizon_s)
+    return replay_online(tracker, log_path, horizon_s, initial)

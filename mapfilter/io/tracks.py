@@ -8,7 +8,6 @@ carries each row's WGS-84 latitude and longitude: the output the IPIN competitio
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import math
 import os
@@ -18,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mapfilter.io.atomic import atomic_paths, write_csv_atomically
+from mapfilter.io.tables import table_dict_reader
 from mapfilter.errors import MapfilterError, not_a_file
 
 if TYPE_CHECKING:  # only for annotations
@@ -134,8 +134,9 @@ def read_track(path: str | os.PathLike) -> Track:
     path = Path(path)
     if not path.is_file():
         raise not_a_file(path)
-    text = path.read_text(errors="replace")
-    first = next((line for line in text.splitlines() if line.strip() and not line.startswith("#")), "")
+    with path.open("rb") as handle:
+        head = handle.read(1 << 20).decode("utf-8", errors="replace")  # the first line is what tells
+    first = next((line for line in head.splitlines() if line.strip() and not line.startswith("#")), "")
     if first.startswith("t_s"):
         return _read_csv(path)
     return _read_tum(path)
@@ -143,7 +144,7 @@ def read_track(path: str | os.PathLike) -> Track:
 
 def _read_csv(path: Path) -> Track:
     with path.open(newline="") as handle:
-        reader = csv.DictReader(handle)
+        reader = table_dict_reader(handle, path)  # a field over the csv module's limit: one line
         fields = reader.fieldnames or []
         if not {"t_s", "x_m", "y_m"} <= set(fields):
             raise MapfilterError("a track CSV needs the columns t_s,x_m,y_m", path, 1)

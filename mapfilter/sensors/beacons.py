@@ -15,7 +15,6 @@ floors, not the height. A ``BeaconTable`` holds each beacon's id (as the logs na
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import io
 import math
@@ -155,11 +154,11 @@ class BeaconTable:
         path = Path(path)
         if not path.is_file():
             raise MapfilterError("file not found", path)
-        from mapfilter.io.yamlio import decode_text
+        from mapfilter.io.tables import read_table_text, table_reader
 
-        text = decode_text(path.read_bytes(), path, "a beacon table")
+        text = read_table_text(path, "a beacon table")  # bounded: a table is kilobytes
         with io.StringIO(text, newline="") as handle:
-            reader = csv.reader(handle)
+            reader = table_reader(handle, path)  # a field over the csv module's limit: one line
             header = next(reader, None)
             if header is None:
                 raise MapfilterError("the beacon table is empty: it needs a header line", path, 1)

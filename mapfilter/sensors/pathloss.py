@@ -9,7 +9,6 @@ the other measurement models in ``mapfilter.filter.models``.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import functools
 import io
@@ -99,12 +98,13 @@ class AccessPointTable:
         rows: dict[str, list] = {c: [] for c in cls.COLUMNS}
         lines: list[int] = []
         first_line: dict[tuple[str, str], int] = {}  # (bssid, band) -> its line
-        from mapfilter.io.yamlio import decode_text
+        from mapfilter.io.tables import read_table_text, table_dict_reader
 
-        # UTF-8 with or without the byte-order mark Excel writes; another encoding is one line
-        text = decode_text(path.read_bytes(), path, "an access-point table")
+        # UTF-8 with or without the byte-order mark Excel writes; another encoding, or a file over
+        # the bound, is one line
+        text = read_table_text(path, "an access-point table")
         with io.StringIO(text, newline="") as handle:
-            reader = csv.DictReader(handle)
+            reader = table_dict_reader(handle, path)
             if reader.fieldnames is None or not {"bssid", "x", "y"} <= set(reader.fieldnames):
                 raise MapfilterError("an access-point table needs the columns bssid,x,y", path, 1)
             defaults = {"band": "2.4", "C": DEFAULT_C_DBM, "n": DEFAULT_PATH_LOSS_EXPONENT,

@@ -244,3 +244,93 @@ def test_score_and_evaal_out_refuse_other_inputs(tmp_path, capsys):
                  "--radiomap", str(REPO / "maps" / "office_radiomap.npz"), "--floor", "0",
                  "--evaal-out", str(tmp_path / "x.csv")]) == 1
     assert "GetSensorData" in capsys.readouterr().err and not (tmp_path / "x.csv").exists()
+
+
+# ---- bad inputs of score and --evaal-out (issue 45) -----------------------------------------------
+LOG01 = "IPIN2023_T3_TrainingTrial01_repetition01.txt.gz"
+
+
+def _posi_estimates(log, path, swapped: bool = False):
+    """The log's own POSI points as an estimates file (latitude and longitude swapped if asked)."""
+    from mapfilter.evaal.protocol import log_clock_s
+    from mapfilter.sensors.logs import read_log
+
+    recording = read_log(log)
+    latlon = recording.waypoint_latlon_deg
+    lon, lat = (latlon[:, 0], latlon[:, 1]) if swapped else (latlon[:, 1], latlon[:, 0])
+    t_s = np.floor(log_clock_s(recording.waypoint_t_s, recording) * 1000.0 + 1e-6) / 1000.0  # kept to the ms
+    Estimates(t_s, lon, lat,
+              np.array([floor_number(f) for f in recording.waypoint_floor])).write(path)
+    return path
+
+
+def test_score_names_latitude_and_longitude_swapped(ipin2023, tmp_path, capsys):
+    from mapfilter.cli import main
+
+    log = ipin2023 / "logs" / LOG01
+    assert main(["score", str(log), str(_posi_estimates(log, tmp_path / "right.csv"))]) == 0
+    captured = capsys.readouterr()
+    assert "IPIN score 0.00 m" in captured.out and "warning" not in captured.err
+    swapped = _posi_estimates(log, tmp_path / "swapped.csv", swapped=True)
+    assert main(["score", str(log), str(swapped)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{swapped}: the estimates lie " in err
+    assert "and 0.0 m with latitude and longitude swapped: the file has them swapped" in err
+
+
+def test_score_refuses_more_estimates_than_a_trial_holds(tmp_path, monkeypatch):
+    from mapfilter.evaal import protocol
+
+    monkeypatch.setattr(protocol, "MAX_ESTIMATES", 10)
+    path = tmp_path / "many.csv"
+    path.write_text("".join(f"{i}.0,11.1,49.4,0\n" for i in range(11)))
+    with pytest.raises(MapfilterError, match="more than 10 estimates") as error:
+        read_estimates(path)
+    assert str(error.value).startswith(f"{path}:11: ")
+
+
+def _without_posi(log, path, seconds: float = 8.0):
+    """The log's header and first seconds, without its POSI rows (as a scoring trial's log)."""
+    import gzip
+
+    with gzip.open(log, "rt") as source, open(path, "w") as target:
+        for line in source:
+            fields = line.split(";")
+            if len(fields) > 1 and fields[1].replace(".", "", 1).isdigit() and float(fields[1]) >= seconds:
+                break
+            if not line.startswith("POSI;"):
+                target.write(line)
+    return path
+
+
+def test_evaal_out_on_a_log_without_posi_names_evaal_start(ipin2023, tmp_path, capsys):
+    """Online --evaal-out needs the trial's initial position: without a POSI row, the one line
+    names --evaal-start, before any tracking; with it, the replay starts there."""
+    from mapfilter.cli import main
+    from mapfilter.config import TrackingConfig
+    from mapfilter.evaal.replay import replay_online
+    from mapfilter.maps.building import Building
+    from mapfilter.pipeline.tracker import Tracker, TrackingInputs
+    from mapfilter.sensors.logs import read_log
+    from mapfilter.api import build_radio_map
+
+    venue = tmp_path / "venue.yaml"
+    assert main(["map", "import-ipin", str(ipin2023 / "plans" / "calib_mapa_Nuremberg.cal"), "--out", str(venue),
+                 "--storey-height", "2.8"]) == 0
+    log = _without_posi(ipin2023 / "logs" / LOG01, tmp_path / "no_posi.txt")
+    capsys.readouterr()
+    assert main(["track", str(venue), str(log), "--floor", "0", "--evaal-out", str(tmp_path / "e.csv")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{log}: the log has no POSI point" in err and "--evaal-start LON,LAT,FLOOR" in err
+    assert not (tmp_path / "e.csv").exists()
+    assert main(["track", str(venue), str(log), "--floor", "0", "--evaal-start", "11.1,49.4,0"]) == 1
+    assert "give --evaal-out FILE too" in capsys.readouterr().err
+
+    building = Building.load(venue)
+    other = read_log(ipin2023 / "logs" / "IPIN2023_T3_TrainingTrial01_repetition02.txt.gz", building=building)
+    tracker = Tracker(building, TrackingInputs(build_radio_map(building, [other])), floor="0",
+                      config=TrackingConfig().override({"filter.n_particles": 300}))
+    start = (11.110964442580, 49.461316433032, 0)
+    run = replay_online(tracker, log, initial=start)
+    assert (run.estimates.lon_deg[0], run.estimates.lat_deg[0], run.estimates.floor[0]) == start
+    assert len(run.estimates) > 10
