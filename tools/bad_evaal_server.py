@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import socketserver
+import struct
 import sys
 import threading
 import time
@@ -46,13 +47,24 @@ ESCAPES = b"\x1b[2J\x1b[31mgotcha\x07\r\nsecond line\xff\xfe\x00 end"
 
 
 def gzip_of_zeros(n_bytes: int) -> bytes:
-    """A gzip member of ``n_bytes`` zeros (3 GB compress to 3 MB), made a block at a time."""
-    packer = zlib.compressobj(9, zlib.DEFLATED, 16 + zlib.MAX_WBITS)
+    """A gzip member of ``n_bytes`` zeros (3 GB in 3 MB): after a full flush the compressor has
+    forgotten what came before, so every further MiB of zeros compresses to the same bytes, made
+    once; the trailer's CRC-32 is the data's."""
     block = bytes(1 << 20)
-    parts = [packer.compress(block) for _ in range(n_bytes >> 20)]
-    parts.append(packer.compress(bytes(n_bytes & ((1 << 20) - 1))))
-    parts.append(packer.flush())
-    return b"".join(parts)
+    packer = zlib.compressobj(9, zlib.DEFLATED, -zlib.MAX_WBITS)
+    n_blocks, rest = divmod(n_bytes, 1 << 20)
+    parts = []
+    if n_blocks:
+        parts.append(packer.compress(block) + packer.flush(zlib.Z_FULL_FLUSH))
+    if n_blocks > 1:
+        parts.append((packer.compress(block) + packer.flush(zlib.Z_FULL_FLUSH)) * (n_blocks - 1))
+    parts.append(packer.compress(bytes(rest)) + packer.flush())
+    crc = 0
+    for _ in range(n_blocks):
+        crc = zlib.crc32(block, crc)
+    crc = zlib.crc32(bytes(rest), crc)
+    header = b"\x1f\x8b\x08\x00\x00\x00\x00\x00\x02\xff"  # gzip, deflate, no name, no time
+    return header + b"".join(parts) + struct.pack("<II", crc, n_bytes & 0xFFFFFFFF)
 
 
 class _Handler(socketserver.StreamRequestHandler):

@@ -24,10 +24,13 @@ Online (the default): the trial's state first, then `nextdata?horizon=H&position
 server says the trial has finished (405): each batch of log lines is fed to the streaming
 tracker, and the next request carries the latest causal estimate (before the first one, the
 position the server holds). A scoring trial with V > 2 refuses requests faster than real time
-(423): they are sent again H after the previous one. A dropped connection is retried with the
-same request label (the server gives the same lines again), for up to --retry seconds; a trial
-that another run of this command started is continued from its trial time with a fresh
-tracker. The slack left (as this client counts it) is printed every 30 s of trial time, and the
+(423): they are sent again H after the previous one. A dropped connection, or an answer not
+whole within --timeout, is retried with the same request label (the server gives the same lines
+again), for up to --retry seconds; a trial that another run of this command started is
+continued from its trial time with a fresh tracker. A server that breaks the protocol is
+refused in one line (docs/robustness.md): an answer over 1 MiB (a state) or 256 MiB (a log),
+8 refusals as too fast in a row, no line of the log for 10 s of trial time, a trial past its
+slack. The slack left (as this client counts it) is printed every 30 s of trial time, and the
 server's own figure at the end.
 
 Offline (--offline): `nextdata?offline` (the whole log), the whole-walk (smoothed) track, and
@@ -67,7 +70,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", type=Path, metavar="FILE",
                         help="the estimates the server keeps (pts,lon,lat,floor lines; default: TRIAL_estimates.csv)")
     parser.add_argument("--timeout", type=bounded_float(0.0, 600.0, low_open=True), default=10.0, metavar="S",
-                        help="seconds to wait for each answer (default: 10)")
+                        help="seconds for each request, to the answer's last byte (default: 10)")
     parser.add_argument("--retry", type=bounded_float(0.0, 3600.0), default=30.0, metavar="S",
                         help="seconds to keep trying after a dropped connection (default: 30)")
     add_tracking_arguments(parser)

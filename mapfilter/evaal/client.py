@@ -242,7 +242,12 @@ def _read_answer(response: http.client.HTTPResponse, max_bytes: int, where: str)
                     blocks.append(out)
                     if size > max_bytes:
                         break
-                    block = gunzip.unconsumed_tail
+                    if gunzip.eof:  # a member ended: another may follow (RFC 1952)
+                        block = gunzip.unused_data
+                        if block:
+                            gunzip = zlib.decompressobj(16 + zlib.MAX_WBITS)
+                    else:
+                        block = gunzip.unconsumed_tail
             except zlib.error:
                 raise MapfilterError(f"{where}: the server's gzip answer is not gzip") from None
         if size > max_bytes:

@@ -143,3 +143,35 @@ def test_enter_trial_has_the_same_bounds(tmp_path):
         with pytest.raises(MapfilterError, match="no whole answer within 0.5 s"):
             mf.enter_trial(server.url, "t", _georeferenced_office(tmp_path),
                            radio_map=REPO / "maps" / "office_radiomap.npz", timeout_s=0.5, retry_s=0.0)
+
+
+class _Answer:
+    """What ``_read_answer`` reads of an HTTP response: its headers, its body in pieces, and the
+    bytes its Content-Length still promises."""
+
+    def __init__(self, body: bytes, headers: dict[str, str], missing: int = 0) -> None:
+        self.body, self.headers, self.length = body, headers, missing
+
+    def getheader(self, name: str):
+        return self.headers.get(name)
+
+    def read(self, n: int) -> bytes:
+        piece, self.body = self.body[:n], self.body[n:]
+        return piece
+
+
+def test_gzip_answers_of_several_members_are_read_whole_and_cut_ones_are_dropped():
+    import gzip
+
+    from mapfilter.evaal.client import _Dropped, _read_answer
+
+    two = gzip.compress(b"first line\n") + gzip.compress(b"second line\n")
+    assert _read_answer(_Answer(two, {"Content-Encoding": "gzip"}), 1 << 20, "u") == "first line\nsecond line\n"
+    with pytest.raises(_Dropped, match="gzip answer was cut short"):
+        _read_answer(_Answer(two[:-12], {"Content-Encoding": "gzip"}), 1 << 20, "u")
+    with pytest.raises(_Dropped, match=r"cut short \(5 bytes missing\)"):
+        _read_answer(_Answer(b"abc", {}, missing=5), 1 << 20, "u")
+    with pytest.raises(MapfilterError, match="larger than 1 MiB"):  # declared: refused before any byte is read
+        _read_answer(_Answer(b"", {"Content-Length": str(2 << 20)}), 1 << 20, "u")
+    with pytest.raises(MapfilterError, match="encoding 'br'"):
+        _read_answer(_Answer(b"x", {"Content-Encoding": "br"}), 1 << 20, "u")
