@@ -272,8 +272,30 @@ def group_scans(rows: list[tuple[float, str, float, float, float]], max_age_s: f
 # The longest pause in one stream of the real logs: 28.5 s (ILC beacons), 78 s (IPIN beacons,
 # which are then held, not dropped).
 JUMP_CHECK_S = GAP_REPORT_S
-# How far into a log its format is looked for (a header is some 40 lines): lines are held until then.
+# How far into a log its format is looked for (a header is some 40 lines), blank lines included:
+# lines are held until then.
 SNIFF_LINES = 200
+# A line with a NUL, or with more than this share of characters that are no text (bytes that are
+# not UTF-8, control characters other than a tab), is binary data, not a log's line.
+BINARY_SHARE = 0.1
+
+
+def looks_binary(text: str) -> bool:
+    """Whether a line (decoded with ``errors="replace"``) is binary data rather than text."""
+    if "\x00" in text:
+        return True
+    odd = sum(1 for c in text if c == "\ufffd" or (c < " " and c != "\t") or c == "\x7f")
+    return odd > BINARY_SHARE * len(text)
+
+
+def no_format_reason(line_no: int, text: str | None) -> str | None:
+    """Why a log whose line ``line_no`` is ``text``, read before its format is known, cannot be
+    a phone log of any format (None: it may still be one): an over-long line, binary data."""
+    if text is None:
+        return f"line {line_no} is longer than {MAX_LINE_BYTES} bytes: binary data, not a phone log"
+    if looks_binary(text):
+        return f"line {line_no} is binary data, not text"
+    return None
 # The pieces a whole file is read in (the result does not depend on it).
 READ_CHUNK_BYTES = 1 << 20
 
@@ -703,8 +725,9 @@ class RecordStream:
         self._handle(*self._lines.close(drop_partial=truncated))
         if self._parser is None:
             if not self._seen_text:
-                raise MapfilterError("empty log", path)
-            self._no_format()
+                blank = f" ({self._lines.n_lines} blank lines)" if self._lines.n_lines else ""
+                raise MapfilterError(f"empty log{blank}", path)
+            self._no_format(f"none of its {self._lines.n_lines} lines shows one")
         chunk = self._take(final=True)
         check_usable(self._report, path)
         return chunk
@@ -713,8 +736,8 @@ class RecordStream:
         """The parser for a log whose first non-empty line so far is ``line`` (None: look on)."""
         return self._parser_class
 
-    def _no_format(self) -> None:
-        raise MapfilterError("unknown log format", self._report.path)
+    def _no_format(self, reason: str) -> None:
+        raise MapfilterError(f"unknown log format ({reason})", self._report.path)
 
     def _check_open(self) -> None:
         if self._closed:
@@ -735,23 +758,28 @@ class RecordStream:
         count_bad_row(report, bad, line_no, self._strict, report.path)
 
     def _sniff(self, first: int, lines: list[str | None]) -> tuple[int, list[str | None]]:
-        """Hold lines until the format is known; then all lines held so far (from line 1)."""
+        """Hold lines until the format is known (at most ``SNIFF_LINES``, blank ones included);
+        then all lines held so far (from line 1). Binary data is refused at its first line."""
         self._held.extend(lines)
         for line_no in range(first, first + len(lines)):
             text = self._held[line_no - 1]
-            if text is None or not text.strip():
-                continue
-            self._seen_text = True
-            parser = self._choose_parser(text)
-            if parser is not None:
-                report = self._report
-                report.format = parser.FORMAT_NAME
-                report.needed = parser.NEEDED_TYPES if self._needed is None else self._needed
-                self._parser = parser(report, self._max_wifi_age_s, self._strict)
-                held, self._held = self._held, []
-                return 1, held
+            reason = no_format_reason(line_no, text)
+            if reason is not None:
+                self._seen_text = True
+                self._no_format(reason)
+            if text.strip():
+                self._seen_text = True
+                parser = self._choose_parser(text)
+                if parser is not None:
+                    report = self._report
+                    report.format = parser.FORMAT_NAME
+                    report.needed = parser.NEEDED_TYPES if self._needed is None else self._needed
+                    self._parser = parser(report, self._max_wifi_age_s, self._strict)
+                    held, self._held = self._held, []
+                    return 1, held
             if line_no >= SNIFF_LINES:
-                self._no_format()
+                self._no_format(f"none of its first {SNIFF_LINES} lines shows one" if self._seen_text
+                                else f"its first {SNIFF_LINES} lines are blank")
         return first, []
 
     def _take(self, final: bool) -> Recording:

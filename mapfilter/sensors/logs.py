@@ -26,7 +26,8 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.sensors import ilc, ipin
-from mapfilter.sensors.logread import SNIFF_LINES, LogParser, RecordStream, iter_bounded_lines, open_binary, read_whole
+from mapfilter.sensors.logread import (SNIFF_LINES, LogParser, RecordStream, iter_bounded_lines, no_format_reason,
+                                       open_binary, read_whole)
 from mapfilter.sensors.recording import Recording
 
 if TYPE_CHECKING:  # only for annotations
@@ -48,8 +49,8 @@ def format_of_line(line: str) -> str | None:
     return None
 
 
-def _unknown_format(path: str | os.PathLike) -> MapfilterError:
-    return MapfilterError(f"unknown log format: the known formats are {'; '.join(KNOWN_FORMATS)}", path)
+def _unknown_format(path: str | os.PathLike, reason: str) -> MapfilterError:
+    return MapfilterError(f"unknown log format ({reason}): the known formats are {'; '.join(KNOWN_FORMATS)}", path)
 
 
 class LogStream(RecordStream):
@@ -102,8 +103,8 @@ class LogStream(RecordStream):
     def _choose_parser(self, line: str) -> type[LogParser] | None:
         return self._parser_class or _PARSERS.get(format_of_line(line))
 
-    def _no_format(self) -> None:
-        raise _unknown_format(self.report.path)
+    def _no_format(self, reason: str) -> None:
+        raise _unknown_format(self.report.path, reason)
 
 
 def missing_log(path: str | os.PathLike) -> MapfilterError:
@@ -121,24 +122,27 @@ def log_format(path: str | os.PathLike) -> str:
     if not path.is_file():
         raise missing_log(path)
     seen_any = False
+    n_lines = 0
     try:
         with open_binary(path) as handle:
-            for line_no, line in iter_bounded_lines(handle):
-                if line is None or not line.strip():
-                    continue
-                seen_any = True
-                fmt = format_of_line(line)
-                if fmt is not None:
-                    return fmt
-                if line_no >= SNIFF_LINES:
+            for n_lines, line in iter_bounded_lines(handle):
+                reason = no_format_reason(n_lines, line)
+                if reason is not None:
+                    raise _unknown_format(path, reason)
+                if line.strip():
+                    seen_any = True
+                    fmt = format_of_line(line)
+                    if fmt is not None:
+                        return fmt
+                if n_lines >= SNIFF_LINES:
                     break
     except EOFError:
         pass  # a cut gzip: decide on what came before the cut
     except (OSError, zlib.error) as exc:
         raise MapfilterError(f"cannot read log: {exc}", path) from None
     if not seen_any:
-        raise MapfilterError("empty log", path)
-    raise _unknown_format(path)
+        raise MapfilterError(f"empty log ({n_lines} blank lines)" if n_lines else "empty log", path)
+    raise _unknown_format(path, f"none of its first {n_lines} lines shows one")
 
 
 def sniff_log_format(path: str | os.PathLike) -> str | None:

@@ -12,7 +12,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.sensors.ilc import read_ilc
 from mapfilter.sensors.ipin import read_ipin
 from mapfilter.sensors.logread import MAX_LINE_BYTES
-from mapfilter.sensors.logs import LogStream, read_log
+from mapfilter.sensors.logs import LogStream, log_format, read_log
 from mapfilter.sensors.recording import Recording, concatenate
 
 _STREAMS = ("waypoint", "acc", "gyro", "magnet", "rotvec", "pressure")
@@ -402,7 +402,8 @@ def test_stream_errors_name_the_stream():
         LogStream().close()
     stream = LogStream("stdin")
     stream.feed_text("t,x,y\n" * 199)
-    with pytest.raises(MapfilterError, match="^stdin: unknown log format: the known formats are ILC 2.0"):
+    with pytest.raises(MapfilterError, match=r"^stdin: unknown log format \(none of its first 200 lines shows one\): "
+                                             "the known formats are ILC 2.0"):
         stream.feed_text("1,2,3\n")
     stream = LogStream("phone", strict=True)
     stream.feed_text("#\tFloorName:F1\n1574559495401\tTYPE_ACCELEROMETER\t0.1")
@@ -528,3 +529,39 @@ def test_a_pause_of_thirty_days_drops_nothing_and_is_a_gap(tmp_path):
     gaps = rec.read_report.time_gaps_s
     assert len(gaps) == 1 and 30 * 86400 <= gaps[0][1] - gaps[0][0] < 30 * 86400 + 1
     assert_same(stream_pieces(random_pieces(path.read_bytes(), np.random.default_rng(6)), path), rec)
+
+
+def test_blank_lines_count_towards_the_lines_a_format_is_looked_for_in():
+    """A stream of blank lines is refused at the sniff limit instead of being held without end
+    (it grew by 40 MB/s), and a log after a few blank lines is read as usual."""
+    stream = LogStream("-")
+    stream.feed_bytes(b"\n" * 199)
+    with pytest.raises(MapfilterError, match=r"^-: unknown log format \(its first 200 lines are blank\)"):
+        stream.feed_bytes(b"\n" * 1_000_000)
+    stream = LogStream("-")
+    stream.feed_bytes(b"\n" * 150)
+    chunk = stream.feed_bytes(b"#\tFloorName:F1\n1574559495401\tTYPE_ACCELEROMETER\t0.1\t0.2\t9.8\n")
+    assert chunk.acc_t_s.size == 1 and stream.format == "ILC 2.0" and stream.report.n_lines == 152
+    with pytest.raises(MapfilterError, match=r"^-: empty log \(3 blank lines\)"):
+        stream = LogStream("-")
+        stream.feed_bytes(b"\n\n\n")
+        stream.close()
+
+
+@pytest.mark.parametrize("newlines", [True, False])
+def test_random_bytes_are_called_binary_data_not_an_empty_log(tmp_path, newlines):
+    """Random bytes (with newlines, and one line of them without any) are refused at once as
+    binary data, streamed or read from a file; no line of them is taken for a header."""
+    data = np.random.default_rng(45).integers(0, 256, 4_000_000, dtype=np.uint8).tobytes()
+    if not newlines:
+        data = data.replace(b"\n", b"x")
+    stream = LogStream("-")
+    with pytest.raises(MapfilterError, match="binary data") as caught:
+        for i in range(0, len(data), 65536):
+            stream.feed_bytes(data[i:i + 65536])
+    assert "empty log" not in str(caught.value) and i < 200_000  # refused within the first pieces
+    path = tmp_path / "random.bin"
+    path.write_bytes(data)
+    for read in (read_log, log_format):
+        with pytest.raises(MapfilterError, match=r"unknown log format \(line \d+ .*binary data"):
+            read(path)
