@@ -4,8 +4,12 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
+import dataclasses
 import json
+import os
+import stat
 import sys
 import textwrap
 import time
@@ -58,7 +62,13 @@ whose header names a floor the map does not have is refused (--floor tracks it a
 
 A live run: LOG - reads the log from standard input as it is written (a phone streaming its
 sensors, `tail -f`, a socket) and prints each causal estimate as a CSV row on standard output
-as soon as it exists (the columns of a track file); --out also writes the track at the end.
+as soon as it exists (the columns of a track file). --out FILE gets each row before it is
+printed: the file is in place from the first row on (an earlier FILE is replaced then, not
+before), so `tail -f FILE` follows it, and whatever stops the run it holds every row printed,
+in whole lines. --rerun FILE.rrd grows alike, --spawn shows the run in a viewer as it happens,
+--plot draws the track (and the log's ground truth) at the end. Ctrl-C or SIGTERM while the
+run waits for its input ends the walk there: the records read are tracked to the end, the
+summary is printed, and the exit code is 130 (143 for SIGTERM).
 
 examples:
   mapfilter track maps/office.yaml maps/office_walk.txt.gz --radiomap maps/office_radiomap.npz --smooth
@@ -214,6 +224,29 @@ def _wifi_source(args: argparse.Namespace, building, config):
                                        hint="give --radiomap RM or --aps APS.csv")
 
 
+def wifi_source_text(args: argparse.Namespace, building, ap_table) -> str:
+    """What the run weighs the WiFi with, for the summary: the radio map, the --aps table or the
+    map's own access-point table (named, so that a forgotten --radiomap shows); and a radio map
+    lying beside the map (``STEM*.npz``) that was not used."""
+    if args.radiomap is not None:
+        return f"WiFi: fingerprints of the radio map {args.radiomap}"
+    if ap_table is None:
+        return "WiFi: none (the measurement sources alone)"
+    if args.aps is not None:
+        text = f"WiFi: trilateration from the access-point table {args.aps} ({len(ap_table)} APs)"
+    else:
+        floor = building.floors[0 if args.floor is None else building.floor_index(args.floor)]
+        table = os.path.relpath(floor.plan.access_points_csv)
+        if table.startswith(".."):
+            table = str(floor.plan.access_points_csv)
+        text = f"WiFi: trilateration from the map's own access-point table {table} ({len(ap_table)} APs)"
+    beside = sorted(args.map.parent.glob(f"{args.map.stem}*.npz"))
+    if beside:
+        text += (f"; not used: the radio map {beside[0]} beside the map (give --radiomap {beside[0]} to "
+                 "fingerprint with it)")
+    return text
+
+
 def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
@@ -307,7 +340,8 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
         written.append((args.plot, "picture of the tracks"))
     # the track itself on standard output: the summary goes to stderr, out of its way
     summary_to = sys.stderr if any(is_stdout(path) for path, _ in written) else sys.stdout
-    print(_summary(building, recording, result, header_floor, written), file=summary_to)
+    print(_summary(building, recording, result, header_floor, written, wifi_source_text(args, building, ap_table)),
+          file=summary_to)
     if args.out is None:
         print("  no track file written: give --out track.csv (or .tum) to keep the track", file=summary_to)
     return 0
@@ -316,60 +350,145 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
 def _run_live(args: argparse.Namespace, config) -> int:
     """``mapfilter track MAP -``: the log on standard input as it is written (a phone streaming its
     sensors, ``tail -f``, a socket); each causal estimate printed to standard output as a CSV row
-    as soon as it exists, ``--out`` written at the end."""
+    as soon as it exists, and written to ``--out`` before that (``io.live``: the file is in place
+    from the first row on and holds every row printed, whatever stops the run; ``--rerun`` grows
+    alike). Ctrl-C or SIGTERM while waiting for input ends the walk there: the records already
+    read are tracked to the end and the summary printed; the exit code is the signal's."""
+    import numpy as np
+
+    from mapfilter.io.live import LiveTrackFile
     from mapfilter.maps.building import Building
-    from mapfilter.sensors.logs import LogStream
     from mapfilter.pipeline.tracker import Tracker, TrackingInputs
-    from mapfilter.io.tracks import csv_header, csv_rows, with_latlon, write_track
 
     if config.smooth:
         raise MapfilterError("--smooth needs the whole walk: a live run (LOG -) gives the causal track")
     if is_stdout(args.out):
         raise MapfilterError("a live run (LOG -) prints its rows on standard output: --out takes a file name")
-    for option in ("rerun", "spawn", "adapted_aps", "plot"):
-        if getattr(args, option):
-            raise MapfilterError(f"--{option.replace('_', '-')} is not for a live run (LOG -)")
+    if args.adapted_aps is not None:
+        raise MapfilterError("--adapted-aps is not for a live run (LOG -)")
+    _refuse_standard_input_as_output(args)
     out_format = track_format(args.out, args.format)
     building = Building.load(args.map)
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     radio_map, ap_table = _wifi_source(args, building, config)
     floor = None if building.is_single_floor else args.floor
+    spawn = args.spawn and _viewer_can_start()
+    logger = None
+
+    def on_step(report) -> None:
+        logger.log_step(report)
+
     tracker = Tracker(building, TrackingInputs(radio_map, ap_table, load_sources(args, building)), config, floor=floor,
-                      log_name="standard input")
+                      log_name="standard input", on_step=on_step)
+    shown = 0 if floor is None else building.floor_index(floor, args.map)
+
+    from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
+
+    logger = make_logger(building.floors[shown].plan, rrd_path=args.rerun, spawn=spawn,
+                         max_particles=args.max_drawn_particles, recording_name="standard input", stack=tracker.stack,
+                         warn=warn, growing=True)
+    with logger:
+        with LiveTrackFile(args.out, out_format, building) if args.out is not None else contextlib.nullcontext() as out:
+            printed, truth, interrupted = _follow_standard_input(args, building, tracker, out)
+        result = tracker.result()
+    written = [(path, what) for path, what in ((args.out, f"causal track, {printed} rows as they came"),
+                                                (args.rerun, "rerun recording, drawn as it came")) if path is not None]
+    if args.plot is not None:
+        several = floor is None and not building.is_single_floor
+        if several:  # the floor most rows are on
+            names, counts = np.unique(result.causal.floor, return_counts=True)
+            shown = building.floor_index(str(names[np.argmax(counts)]))
+        _plot(building.floors[shown], truth, result, args.plot, several)
+        written.append((args.plot, "picture of the tracks"))
+    ended = ""
+    if interrupted is not None:
+        from mapfilter.cli import Terminated
+
+        ended = f"ended by {'SIGTERM' if isinstance(interrupted, Terminated) else 'Ctrl-C'}; "
+    print(f"standard input: {ended}{result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used{_measured(result)}, "
+          f"{len(result.collapses)} collapses; causal {result.causal_runtime_s:.1f} s"
+          + "".join(f"; wrote {path} ({what})" for path, what in written), file=sys.stderr)
+    print(f"  {wifi_source_text(args, building, ap_table)}", file=sys.stderr)
+    if interrupted is not None:
+        raise interrupted  # the exit code says how the walk ended (130, 143)
+    return 0
+
+
+def _follow_standard_input(args: argparse.Namespace, building, tracker, out):
+    """Feed standard input to ``tracker`` as it comes and print (after writing it to ``out``)
+    each chunk of rows: (rows printed, the log's ground truth as a ``Recording``, the interrupt
+    that ended the input or None)."""
+    import numpy as np
+
+    from mapfilter.io.tracks import csv_header, csv_rows, with_latlon
+    from mapfilter.sensors.logs import LogStream, localise
+    from mapfilter.sensors.recording import Recording
+
     stream = LogStream("-", strict=args.strict)
-    header_done = False
+    printed = 0
+    truth_t, truth_xy, truth_floor = [], [], []  # the waypoints read, for the picture
 
     def emit(rows) -> None:
-        nonlocal header_done
+        nonlocal printed
         if not len(rows):
             return
         if building.georeference is not None:
             rows = with_latlon(rows, building)
-        if not header_done:
-            print(",".join(csv_header(rows)))
-            header_done = True
-        for row in csv_rows(rows):
-            print(",".join(row))
-        sys.stdout.flush()
+        if out is not None:
+            out.append(rows)  # the file first: it holds every row printed
+        lines = [",".join(row) for row in csv_rows(rows)]
+        if not printed:
+            lines.insert(0, ",".join(csv_header(rows)))
+        print("\n".join(lines), flush=True)
+        printed += len(rows)
 
+    def keep_truth(records: Recording) -> Recording:
+        if records.has_ground_truth:
+            if records.needs_georeference and building.georeference is not None:
+                records = localise(records, building)
+            if not records.needs_georeference:
+                truth_t.append(records.waypoint_t_s)
+                truth_xy.append(records.waypoint_xy_m)
+                truth_floor.append(records.waypoint_floor)
+        return records
+
+    interrupted = None
     source = sys.stdin.buffer
-    while True:
-        data = source.read1(65536)  # what has arrived, as soon as anything has
-        if not data:
-            break
-        emit(tracker.feed(stream.feed_bytes(data)))
-    emit(tracker.feed(stream.close()))
-    emit(tracker.close())
+    try:
+        while True:
+            try:
+                data = source.read1(65536)  # what has arrived, as soon as anything has
+            except KeyboardInterrupt as signal:  # Ctrl-C or SIGTERM while waiting: the walk ends here
+                interrupted = signal
+                break
+            if not data:
+                break
+            emit(tracker.feed(keep_truth(stream.feed_bytes(data))))
+        emit(tracker.feed(keep_truth(stream.close())))
+        emit(tracker.close())
+    except KeyboardInterrupt:
+        kept = f"; {args.out} holds them" if out is not None and out.n_rows else ""
+        print(f"standard input: stopped after {printed} rows{kept}", file=sys.stderr)
+        raise
     if stream.report.warning():
         warn(stream.report.warning())
-    result = tracker.result()
-    if args.out is not None:
-        write_track(result.causal, args.out, out_format, building)
-    print(f"standard input: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used"
-          f"{_measured(result)}, "
-          f"{len(result.collapses)} collapses; causal {result.causal_runtime_s:.1f} s"
-          + (f"; wrote {args.out} (causal track)" if args.out is not None else ""), file=sys.stderr)
-    return 0
+    truth = Recording.empty(Path("standard input"))
+    if truth_t:
+        floors = None if any(f is None for f in truth_floor) else [name for part in truth_floor for name in part]
+        truth = dataclasses.replace(truth, waypoint_t_s=np.concatenate(truth_t), waypoint_xy_m=np.concatenate(truth_xy),
+                                    waypoint_floor=floors)
+    return printed, truth, interrupted
+
+
+def _refuse_standard_input_as_output(args: argparse.Namespace) -> None:
+    """A live run reading a file (``< live.csv``) never writes its --out over that file."""
+    try:
+        given = os.fstat(sys.stdin.fileno())
+    except (OSError, ValueError, AttributeError):  # no standard input, or a stand-in without a descriptor
+        return
+    for option, path in (("--out", args.out), ("--rerun", args.rerun), ("--plot", args.plot)):
+        if path is not None and stat.S_ISREG(given.st_mode) and path.exists() and os.path.samestat(given, os.stat(path)):
+            raise MapfilterError(f"{option} is the file standard input reads: give another name", path)
 
 
 def _span_s(recording) -> float:
@@ -422,8 +541,9 @@ def _measured(result) -> str:
     return "".join(f", {n} {counts[name]}" for name, n in result.n_measurements.items() if n)
 
 
-def _summary(building, recording, result, header_floor, written) -> str:
-    """The printout of one walk: what ran, each track's numbers, collapses, the files written."""
+def _summary(building, recording, result, header_floor, written, wifi: str) -> str:
+    """The printout of one walk: what ran (``wifi``: what weighed the WiFi), each track's numbers,
+    collapses, the files written."""
     from mapfilter.evaluation.metrics import summarise_errors
     from mapfilter.evaluation.scoring import score_track
 
@@ -433,7 +553,7 @@ def _summary(building, recording, result, header_floor, written) -> str:
     lines = [f"{recording.name}: {result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used"
              f"{_measured(result)}, "
              f"{collapses}; causal {result.causal_runtime_s:.1f} s"
-             + (f", offline {result.offline_runtime_s:.1f} s" if result.offline is not None else "")]
+             + (f", offline {result.offline_runtime_s:.1f} s" if result.offline is not None else ""), f"  {wifi}"]
     tracks = [("causal", result.causal, True)]
     if result.offline is not None:
         tracks.append(("offline", result.offline, False))

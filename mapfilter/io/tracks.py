@@ -107,14 +107,22 @@ def write_track_csv(track: Track, path: str | os.PathLike, building: Building | 
     write_csv_atomically(path, csv_header(track), csv_rows(track))
 
 
-def write_track_tum(track: Track, path: str | os.PathLike) -> None:
-    """Write TUM ``t x y z qx qy qz qw`` lines (z = 0; yaw-only quaternion), atomically."""
+def tum_lines(track: Track) -> list[str]:
+    """The TUM lines of a track: ``t x y z qx qy qz qw`` (z = 0; yaw-only quaternion; identity
+    without a heading), each with its newline."""
     heading = track.heading_rad if track.heading_rad is not None else np.zeros(len(track))
+    lines = []
+    for t, (x, y), yaw in zip(track.t_s, track.xy_m, heading):
+        qz, qw = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
+        lines.append(f"{t:.6f} {x:.4f} {y:.4f} 0.0 0.0 0.0 {qz:.6f} {qw:.6f}\n")
+    return lines
+
+
+def write_track_tum(track: Track, path: str | os.PathLike) -> None:
+    """Write TUM ``t x y z qx qy qz qw`` lines (``tum_lines``), atomically."""
     with atomic_paths(path) as (tmp,):
         with tmp.open("w") as handle:
-            for t, (x, y), yaw in zip(track.t_s, track.xy_m, heading):
-                qz, qw = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
-                handle.write(f"{t:.6f} {x:.4f} {y:.4f} 0.0 0.0 0.0 {qz:.6f} {qw:.6f}\n")
+            handle.writelines(tum_lines(track))
 
 
 def write_track(track: Track, path: str | os.PathLike, track_format: str = "csv",

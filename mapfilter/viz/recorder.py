@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mapfilter.io.atomic import atomic_paths
+from mapfilter.io.live import GrowingFile
 from mapfilter.errors import MapfilterError
 from mapfilter.viz.canvas import Canvas
 from mapfilter.viz.events import EventLayer
@@ -122,6 +123,9 @@ class RerunLogger:
     floorplan : the map everything is drawn on.
     rrd_path : write the recording to this ``.rrd`` file (atomically: it appears on
         :meth:`close`; :meth:`abort` or an exception in a ``with`` block leaves nothing).
+    growing : with ``rrd_path``, a live run's recording (``io.live.GrowingFile``): the file is
+        in place from the first filter step on and grows as the run goes; an abort after that
+        keeps what was drawn (flushed), one before it leaves nothing.
     spawn : open a rerun viewer and stream to it instead (never in tests: with no display
         it blocks for seconds and drops data; :func:`viewer_problem` says whether one can start).
     max_particles : cap on the particles drawn per step (weight-faithful subsample, see
@@ -159,6 +163,7 @@ class RerunLogger:
         stack: Any = None,
         building: Any = None,
         warn: Callable[[str], None] | None = None,
+        growing: bool = False,
     ) -> None:
         import rerun as rr  # lazy: only a live logger pays for importing rerun
 
@@ -173,6 +178,7 @@ class RerunLogger:
         self._stack = contextlib.ExitStack()
         self._spawned = spawn
         self._warn = warn
+        self._growing = GrowingFile(rrd_path) if growing and rrd_path is not None else None
 
         self.rec = rr.RecordingStream(application_id)
         self.rec.set_log_time_enabled(False)  # our clock is the walk's: see the package docstring
@@ -199,7 +205,9 @@ class RerunLogger:
         blueprint = self.blueprint()
         self.rrd_path: Path | None = None if rrd_path is None else Path(rrd_path)
         try:
-            if self.rrd_path is not None:
+            if self._growing is not None:
+                self.rec.save(self._growing.create(), default_blueprint=blueprint)
+            elif self.rrd_path is not None:
                 (tmp,) = self._stack.enter_context(atomic_paths(self.rrd_path))
                 self.rec.save(tmp, default_blueprint=blueprint)
             else:
@@ -296,6 +304,9 @@ class RerunLogger:
         true_heading = self.truth.heading_rad(report.t_s) if report.heading_rad is not None else None
         self.plots.draw(report, error_m, true_heading)
         self.events.draw(report)
+        if self._growing is not None and not self._growing.published:
+            self._flush()  # the map and the first step in the file before it is in place
+            self._growing.publish()
 
     def log_smoothed(self, t_s: float, xy_m: np.ndarray, weight: np.ndarray) -> None:
         """The smoother's cloud at a step already drawn (``pipeline.tracker.Tracker.result``'s ``on_smoothed``;
@@ -342,6 +353,14 @@ class RerunLogger:
             self.rec.disconnect()
             self._stack.close()
             return
+        self._flush()
+        self._closed = True
+        self.rec.disconnect()
+        if self._growing is not None:
+            self._growing.publish()
+        self._stack.close()
+
+    def _flush(self) -> None:
         try:
             self.rec.flush()
         except RuntimeError as exc:
@@ -349,16 +368,18 @@ class RerunLogger:
             # and flush reports it as "File-writer thread shut down prematurely"
             self.abort()  # remove the temporary
             raise MapfilterError(f"could not write the recording ({exc}): is the disk full?", self.rrd_path) from None
-        self._closed = True
-        self.rec.disconnect()
-        self._stack.close()
 
     def abort(self) -> None:
         """Finish without keeping the ``.rrd`` file (e.g. the run failed)."""
         if self._closed:
             return
         self._closed = True
+        if self._growing is not None and self._growing.published:
+            with contextlib.suppress(RuntimeError):  # a live run's recording keeps what was drawn
+                self.rec.flush()
         self.rec.disconnect()
+        if self._growing is not None:
+            self._growing.discard()  # only when it was never in place
         self._stack.__exit__(RuntimeError, RuntimeError("aborted"), None)
 
     def __enter__(self) -> RerunLogger:
@@ -381,6 +402,7 @@ def make_logger(
     stack: Any = None,
     building: Any = None,
     warn: Callable[[str], None] | None = None,
+    growing: bool = False,
 ) -> RerunLogger | NullLogger:
     """A :class:`RerunLogger` with the map already logged, or a :class:`NullLogger`.
 
@@ -395,6 +417,7 @@ def make_logger(
     stack : a building's ``FloorStack`` when the filter runs across floors (``RerunLogger``).
     building : a several-floor building whose finished tracks are shown (``RerunLogger``).
     warn : where a spawned viewer that did not take the last data is reported (``RerunLogger``).
+    growing : a live run's ``.rrd``: in place from the first step on, growing (``RerunLogger``).
 
     Returns a NullLogger (no rerun import) when neither ``rrd_path`` nor ``spawn`` is given.
     Giving both is an error (one sink per run).
@@ -405,7 +428,7 @@ def make_logger(
         raise MapfilterError("give either an .rrd file to write or spawn a viewer, not both")
     logger = RerunLogger(floorplan, rrd_path=rrd_path, spawn=spawn, max_particles=max_particles,
                          recording_name=recording_name, filter_plots=filter_plots, stack=stack,
-                         building=building, warn=warn)
+                         building=building, warn=warn, growing=growing)
     try:
         logger.log_map()
     except BaseException:

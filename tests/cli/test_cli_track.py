@@ -353,10 +353,13 @@ def test_plot_mistakes_are_one_line(args, needle, tmp_path, capsys):
     assert not list(tmp_path.iterdir())
 
 
-def test_a_live_run_refuses_plot_in_one_line(tmp_path, capsys):
-    """`track MAP - --plot`: a live run prints its rows as they come and draws no picture."""
-    picture = tmp_path / "track.png"
-    assert main(["track", str(OFFICE), "-", "--radiomap", str(RADIOMAP), "--plot", str(picture)]) == 1
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "--plot is not for a live run" in err
-    assert not picture.exists()
+def test_the_summary_names_the_wifi_source_and_a_radio_map_left_unused(tmp_path, capsys):
+    """Forgetting --radiomap on the office map tracked with the map's access-point table and said
+    nothing; the summary names the source, and the radio map beside the map that was not used."""
+    assert main(["track", str(OFFICE), str(WALK), "--particles", "300"]) == 0
+    out = capsys.readouterr().out
+    assert "WiFi: trilateration from the map's own access-point table" in out and "office_aps.csv (28 APs)" in out
+    assert f"not used: the radio map {OFFICE.parent / 'office_radiomap.npz'} beside the map" in out
+    assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "300"]) == 0
+    out = capsys.readouterr().out
+    assert f"WiFi: fingerprints of the radio map {RADIOMAP}" in out and "not used" not in out
