@@ -21,13 +21,18 @@ PIECE_BYTES = 16384
 
 
 def _repeated_walk(times: int) -> bytes:
-    """The office walk played ``times`` times, each 120 s after the one before (one ILC log)."""
-    lines = gzip.open(REPO / "maps" / "office_walk.txt.gz", "rt").read().splitlines(True)
+    """The office walk played ``times`` times, each 120 s after the one before (one ILC log: the
+    first column is the time in ms, and a WiFi row's last the time its AP was last seen)."""
+    lines = gzip.open(REPO / "maps" / "office_walk.txt.gz", "rt").read().splitlines()
     out = [line for line in lines if line.startswith("#")]
-    body = [line.split("\t", 1) for line in lines if line.strip() and not line.startswith("#")]
+    body = [line.split("\t") for line in lines if line.strip() and not line.startswith("#")]
     for k in range(times):
-        out += [f"{int(t) + k * 120_000}\t{rest}" for t, rest in body]
-    return "".join(out).encode()
+        for fields in body:
+            shifted = [str(int(fields[0]) + k * 120_000), *fields[1:]]
+            if fields[1] == "TYPE_WIFI":
+                shifted[6] = str(int(fields[6]) + k * 120_000)
+            out.append("\t".join(shifted))
+    return ("\n".join(out) + "\n").encode()
 
 
 def test_a_chunk_late_in_a_long_run_makes_only_its_own_rows(monkeypatch):
@@ -60,7 +65,7 @@ def test_a_chunk_late_in_a_long_run_makes_only_its_own_rows(monkeypatch):
     assert steps_copied == []  # steps are joined only when the whole walk's are asked for
     tracker.feed(stream.close())
     tracker.close()
-    assert len(tracker.stream.rows) > 350  # two walks: the run was long
+    assert len(tracker.stream.rows) > 350 and tracker.stream.n_scans_used > 60  # two walks, both with WiFi
     # a later start needs the latest rotation-vector sample only: a chunk or two of them are kept
     # (a 16 KiB piece holds about 80), not the 11,836 of the two walks
     assert 0 < max(kept_rotvec) < 1000
