@@ -5,13 +5,21 @@ keeps them for the next). ``pip install -e .`` builds through ``build_editable``
 for the kernels' own dependencies in the build environment, then runs ``mapfilter.runtime.warmup`` on
 the sources, which stay where they are, so numba's cache beside them is the one every command
 loads. Any failure there only costs the first command its compile: the install goes on.
+
+The editable wheel also gets ``FIRST_PTH``: setuptools' editable install finds the package
+through an import hook it appends after Python's own path search, so Python started in the
+folder that holds a clone named ``mapfilter`` took that folder for a namespace package
+(``module 'mapfilter' has no attribute 'load_map'``); the line puts the hook first.
 """
 
 from __future__ import annotations
 
+import base64
+import hashlib
 import os
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 from setuptools import build_meta as _setuptools
@@ -26,10 +34,33 @@ def get_requires_for_build_editable(config_settings=None):
     return _setuptools.get_requires_for_build_editable(config_settings) + KERNEL_REQUIREMENTS
 
 
+# a .pth file's line runs at every start of Python: setuptools' editable finder for mapfilter
+# ahead of the path search (its __editable__ .pth, which sorts first, has appended it)
+FIRST_PTH = ("mapfilter_finder_first.pth",
+             "import sys; sys.meta_path[:] = sorted(sys.meta_path, key=lambda finder: not getattr(finder, "
+             "'__module__', '').startswith('__editable___mapfilter'))\n")
+
+
 def build_editable(wheel_directory, config_settings=None, metadata_directory=None):
     wheel = _setuptools.build_editable(wheel_directory, config_settings, metadata_directory)
+    _add_to_wheel(Path(wheel_directory) / wheel, *FIRST_PTH)
     _compile_kernels()
     return wheel
+
+
+def _add_to_wheel(wheel: Path, name: str, text: str) -> None:
+    """The wheel with one more top-level file, listed in its RECORD (the wheel is rewritten)."""
+    data = text.encode()
+    digest = base64.urlsafe_b64encode(hashlib.sha256(data).digest()).rstrip(b"=").decode()
+    rewritten = wheel.with_name(wheel.name + ".tmp")
+    with zipfile.ZipFile(wheel) as source, zipfile.ZipFile(rewritten, "w", zipfile.ZIP_DEFLATED) as target:
+        for item in source.infolist():
+            content = source.read(item)
+            if item.filename.endswith(".dist-info/RECORD"):
+                content += f"{name},sha256={digest},{len(data)}\n".encode()
+            target.writestr(item, content)
+        target.writestr(name, data)
+    os.replace(rewritten, wheel)
 
 
 def _compile_kernels() -> None:

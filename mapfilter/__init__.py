@@ -56,7 +56,7 @@ _numba_cache_dir()
 _API = ("BeaconFit", "BeaconTable", "Building", "Evaluation", "GrowConfig", "GrowReport", "LogStream", "RadioMap",
         "Recording", "Track", "TrackResult", "Tracker", "TrackingConfig", "TrackingInputs", "build_radio_map",
         "enter_trial", "evaluate", "fit_beacons", "grow_radio_map", "load_access_points", "load_beacons", "load_map",
-        "load_radio_map", "load_sources", "read_log", "read_track", "track", "write_track")
+        "load_radio_map", "load_sources", "read_log", "read_track", "score", "track", "write_track")
 
 __all__ = ["__version__", *_API]
 

@@ -52,7 +52,7 @@ from mapfilter.io.tracks import Track, read_track, write_track
 __all__ = ["BeaconFit", "BeaconTable", "Building", "Evaluation", "GrowConfig", "GrowReport", "LogStream", "RadioMap",
            "Recording", "Track", "TrackResult", "Tracker", "TrackingConfig", "TrackingInputs", "build_radio_map",
            "enter_trial", "evaluate", "fit_beacons", "grow_radio_map", "load_access_points", "load_beacons",
-           "load_map", "load_radio_map", "load_sources", "read_log", "read_track", "track", "write_track"]
+           "load_map", "load_radio_map", "load_sources", "read_log", "read_track", "score", "track", "write_track"]
 
 PathLike = str | os.PathLike
 
@@ -233,6 +233,46 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
                             unlabelled_paths=tuple(_walks(unlabelled, "unlabelled")), transductive=bool(transductive),
                             radio_map=given_map, access_points=given_aps, sources=loaded)
     return _evaluate(building, walks, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)
+
+
+def score(track: Track | PathLike, recording: Recording | PathLike, building: Building | PathLike, *,
+          causal: bool = True) -> dict[str, object]:
+    """One track's error against its walk's ground truth, as ``evaluate`` scores a method on a walk
+    (``evaluation.scoring.score_track``; a row of its per-walk table): ``mean``, ``median``,
+    ``p75`` (the IPIN/EvAAL score), ``p90``, ``ce95``, ``max``, ``rmse`` (metres), ``n`` (waypoints
+    scored), ``missed`` (waypoints before the first row, not scored), ``availability``,
+    ``wall_crossings``, ``errors_m`` (each scored waypoint's error, e.g. for a CDF), and with
+    several floors ``floor_accuracy`` (the share of waypoints on the walker's floor).
+
+    ``track``: a ``Track`` or a track file; ``recording``: the walk (a ``Recording`` or its log),
+    with waypoints; ``building``: the map it was tracked on. ``causal``: each waypoint takes the
+    latest row at or before it, as a live system has it (a causal track; ``evaluate``'s ``pf``),
+    else the track interpolated at its time (an offline track: ``result.offline``).
+    """
+    from mapfilter.evaluation.metrics import availability, summarise_errors
+    from mapfilter.evaluation.scoring import score_track
+
+    building = _building(building, "building")
+    if not isinstance(track, Track):
+        _check_path(track, "track", "a Track or a track file")
+        track = read_track(track)
+    recording = _recording(recording, "recording", building)
+    if not recording.has_ground_truth:
+        raise MapfilterError("the log has no waypoints to score against", recording.path)
+    if recording.needs_georeference:
+        raise MapfilterError("the log's ground truth is in latitude/longitude and the map has no georeference",
+                             recording.path)
+    header_floor = building.floor_of_log(recording.floor_name, recording.path)
+    result = score_track(building, recording, track, header_floor, bool(causal))
+    if result.errors is None:
+        raise MapfilterError("the log names no floor for its ground truth in this building", recording.path)
+    errors_m = result.errors.errors_m
+    scores: dict[str, object] = {**summarise_errors(errors_m), "missed": result.errors.missed,
+                                 "availability": availability(errors_m.size, result.errors.missed),
+                                 "wall_crossings": result.wall_crossings, "errors_m": errors_m}
+    if not building.is_single_floor:
+        scores["floor_accuracy"] = result.floor_score.accuracy if result.floor_score is not None else float("nan")
+    return scores
 
 
 def enter_trial(server_url: str, trial: str, building: Building | PathLike, *,

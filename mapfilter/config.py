@@ -11,6 +11,7 @@ results, so a run can be repeated from its outputs::
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from collections.abc import Mapping
 from typing import Any
@@ -150,3 +151,52 @@ class TrackingConfig:
         the defaults). Unknown settings and wrong values are one line naming the file and line; a
         setting of an older mapfilter (``RETIRED_SETTINGS``) says it is no longer a setting."""
         return settings_from_yaml(cls, text_or_path, base, RETIRED_SETTINGS)
+
+
+def _setting_names(section: type, prefix: str = "") -> list[str]:
+    """Every setting below a config dataclass, by its dotted name (``filter.n_particles``)."""
+    names = []
+    for field in dataclasses.fields(section):
+        kind = field.type if isinstance(field.type, type) else globals().get(str(field.type))
+        default = field.default_factory() if field.default_factory is not dataclasses.MISSING else field.default
+        if dataclasses.is_dataclass(kind) or dataclasses.is_dataclass(default):
+            names += _setting_names(type(default) if dataclasses.is_dataclass(default) else kind,
+                                    f"{prefix}{field.name}.")
+        else:
+            names.append(prefix + field.name)
+    return names
+
+
+def flat_setting_message(name: str, value: Any) -> str:
+    """Why ``TrackingConfig(name=value)`` is refused, and what to write instead: a setting of a
+    section is named with its section (``override``), the particle count has ``with_particles``."""
+    import difflib
+
+    dotted = [n for n in _setting_names(TrackingConfig) if n.rsplit(".", 1)[-1] == name and "." in n]
+    if not dotted:
+        near = difflib.get_close_matches(name, {n.rsplit(".", 1)[-1] for n in _setting_names(TrackingConfig)}, n=1)
+        hint = f"; did you mean {near[0]!r}?" if near else ""
+        return f"TrackingConfig has no setting {name!r}{hint} (mapfilter config show lists every setting)"
+    instead = f"TrackingConfig().override({{{dotted[0]!r}: {value!r}}})"
+    if dotted == ["filter.n_particles"]:
+        instead = f"TrackingConfig().with_particles({value!r}) or {instead}"
+    where = f"the setting {dotted[0]}" if len(dotted) == 1 else f"a setting of several sections ({', '.join(dotted)})"
+    return f"TrackingConfig takes no {name!r} of its own: it is {where}; give {instead}"
+
+
+def _own_settings_only(init):
+    """``TrackingConfig(...)`` takes its own fields; a section's setting given flat
+    (``TrackingConfig(n_particles=2000)``) is a ``TypeError`` saying where it lives."""
+    own = {field.name for field in dataclasses.fields(TrackingConfig)}
+
+    @functools.wraps(init)
+    def checked(self, *args, **settings) -> None:
+        for name, value in settings.items():
+            if name not in own:
+                raise TypeError(flat_setting_message(name, value))
+        init(self, *args, **settings)
+
+    return checked
+
+
+TrackingConfig.__init__ = _own_settings_only(TrackingConfig.__init__)

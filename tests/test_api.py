@@ -160,3 +160,51 @@ def test_a_log_loaded_as_a_map_and_a_map_read_as_a_log_say_so():
         mf.load_map(WALK)
     with pytest.raises(MapfilterError, match="is a map YAML, not a phone log: load it with mf.load_map"):
         mf.read_log(OFFICE)
+
+
+def test_a_sections_setting_given_flat_to_tracking_config_says_where_it_lives():
+    """`mf.TrackingConfig(n_particles=2000)` was a bare "unexpected keyword argument"."""
+    import mapfilter as mf
+
+    with pytest.raises(TypeError, match=r"it is the setting filter\.n_particles; give "
+                                        r"TrackingConfig\(\)\.with_particles\(2000\)"):
+        mf.TrackingConfig(n_particles=2000)
+    with pytest.raises(TypeError, match=r"override\(\{'motion\.model': 'cv'\}\)"):
+        mf.TrackingConfig(seed=2, model="cv")
+    with pytest.raises(TypeError, match="did you mean 'n_particles'"):
+        mf.TrackingConfig(n_partcles=5)
+    config = mf.TrackingConfig(smooth=True, seed=3)  # its own settings, as before
+    assert config.smooth and config.seed == 3 and config.with_particles(2000).filter.n_particles == 2000
+
+
+def test_score_gives_one_tracks_errors_as_evaluate_scores_it():
+    """`mf.score(track, recording, building)`: the numbers of evaluate's per-walk table for the
+    same track, causal (latest row at each waypoint) and offline (interpolated)."""
+    import mapfilter as mf
+
+    building, walk = mf.load_map(MAPS / "office.yaml"), mf.read_log(MAPS / "office_walk.txt.gz")
+    evaluation = mf.evaluate(building, [walk], radio_map=MAPS / "office_radiomap.npz", methods=["pf", "kwnn"],
+                             config=mf.TrackingConfig(smooth=True).with_particles(500))
+    rows = {row["method"]: row for row in evaluation.trace_rows()}
+    checked = set()
+    for result in evaluation.results:
+        scores = mf.score(result.track, walk, building, causal=result.causal)
+        for key in ("mean", "median", "p75", "p90", "ce95", "max", "rmse", "n", "missed", "availability",
+                    "wall_crossings"):
+            assert scores[key] == rows[result.method][key], (result.method, key)
+        np.testing.assert_array_equal(scores["errors_m"], result.errors_m)
+        checked.add(result.method)
+    assert {"pf", "pf-smooth", "kwnn"} <= checked
+    assert mf.score(evaluation.results[0].track, MAPS / "office_walk.txt.gz", MAPS / "office.yaml")["n"] > 100
+
+
+def test_python_in_the_folder_holding_a_clone_named_mapfilter_imports_the_package(tmp_path):
+    """`python` started beside a clone folder named mapfilter (no __init__.py at its top) took
+    that folder for a namespace package: the install puts its own finder first."""
+    clone = tmp_path / "mapfilter"
+    (clone / "docs").mkdir(parents=True)
+    (clone / "README.md").write_text("a clone\n")
+    done = subprocess.run([sys.executable, "-c", "import mapfilter; print(mapfilter.__file__); mapfilter.load_map"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().endswith("__init__.py")
