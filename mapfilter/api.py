@@ -30,6 +30,7 @@ from mapfilter.runtime.dispatch import Engine
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate as _evaluate
 from mapfilter.filter.events import StepReport
+from mapfilter.filter.models.radio_map import keep_tables
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.beacons import BeaconFit, BeaconFitConfig, BeaconTable
@@ -168,7 +169,8 @@ def build_radio_map(building: Building | PathLike, recordings: Sequence[Recordin
     building = _building(building, "building")
     recordings = _recordings(recordings, "recordings", building)
     if building.is_single_floor:
-        return _build_one_floor(recordings, building.floors[0].plan)
+        # with the radio-map likelihood's grid on the floor kept for its file (filter.models.radio_map)
+        return keep_tables(_build_one_floor(recordings, building.floors[0].plan), building.floors[0].plan)
     # a walk over several floors (waypoints naming their floors) labels each scan by its waypoints
     floors = [building.floor_of_log(rec.floor_name, rec.path) for rec in recordings]
     return build_building_radio_map(recordings, floors, building.floor_names)
@@ -193,7 +195,8 @@ def grow_radio_map(building: Building | PathLike, radio_map: RadioMap | PathLike
     if config is not None:
         grow = dataclasses.replace(grow, tracking=config, seed=config.seed)
     space = building.floors[0].plan if building.is_single_floor else building
-    return _grow(space, radio_map, recordings, grow, progress=progress, engine=Engine(jobs=jobs))
+    grown, report = _grow(space, radio_map, recordings, grow, progress=progress, engine=Engine(jobs=jobs))
+    return (keep_tables(grown, space) if building.is_single_floor else grown), report
 
 
 def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike], *,

@@ -185,8 +185,11 @@ def run_build(args: argparse.Namespace) -> int:
         print(f"radio map: {len(radio_map)} reference points ({counts}), {len(radio_map.ap_keys)} access points "
               f"from {len(recordings)} logs -> {args.out}")
         return 0
+    from mapfilter.filter.models.radio_map import keep_tables
+
     radio_map = build_radio_map(recordings, floorplan, use_steps=args.steps)
     check_radio_map_on_map(radio_map, floorplan, map_path=args.map)
+    keep_tables(radio_map, floorplan)  # the likelihood's grid on this map, for every walk tracked with it
     radio_map.save(args.out)
     print(f"radio map: {len(radio_map)} reference points, {len(radio_map.ap_keys)} access points "
           f"from {len(recordings)} logs -> {args.out}")
@@ -331,6 +334,10 @@ def run_grow(args: argparse.Namespace) -> int:
         f"{workers} worker{'s' if workers != 1 else ''}")
     with ProgressBar("grow", len(unlabelled) * args.iterations) as progress:
         grown, report = grow_radio_map(space, base, unlabelled, config, progress=progress, engine=engine)
+    if not isinstance(space, Building):
+        from mapfilter.filter.models.radio_map import keep_tables
+
+        keep_tables(grown, space)
     grown.save(args.out)
     for walk in report.walks:
         if walk.skipped:

@@ -55,6 +55,12 @@ It may have floors (the three keys above) or not.
 
 A map of surveyed points only is written as version 2 or 3 (as before), and older files load
 with every point surveyed.
+
+A one-floor radio map written by ``mapfilter radiomap build`` or ``grow`` also keeps the
+radio-map likelihood's grid on the floor plan it was built for (``likelihood_*`` arrays, their
+layout versioned by ``likelihood_version``; ``filter.models.radio_map``): a walk tracked with it on
+that plan starts from them. They are checked when used, and a file without them, or with
+them for another plan, configuration or version, is tracked as before (the grid built for the run).
 """
 
 from __future__ import annotations
@@ -136,6 +142,9 @@ class RadioMap:
     floor_names: list[str] | None = None
     source: np.ndarray | None = None
     xy_sigma_m: np.ndarray | None = None
+    # what the radio-map likelihood keeps of this map for its file (filter.models.radio_map.keep_tables);
+    # {} for none. A map made from this one (select, merge, ...) has none: they would not apply
+    likelihood_tables: dict[str, np.ndarray] = dataclasses.field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         self.xy_m = np.asarray(self.xy_m, dtype=np.float64).reshape(-1, 2)
@@ -264,6 +273,7 @@ class RadioMap:
                     rssi_dbm=self.rssi_dbm, source_traces=np.array(self.source_traces, dtype=str),
                     floor_name=np.array(self.floor_name or ""), cv_fix_errors_m=cv_errors,
                     cv_fix_errors_params=np.array(_STORED_CV_PARAMS, dtype=np.float64), **floors, **grown,
+                    **{f"likelihood_{name}": array for name, array in self.likelihood_tables.items()},
                 )
 
     @classmethod
@@ -330,7 +340,8 @@ class RadioMap:
             if not (np.all(np.isfinite(xy_sigma)) and np.all(xy_sigma >= 0)):
                 raise MapfilterError("radio map xy_sigma_m must be finite and >= 0", path)
         radio_map = cls(xy, [str(k) for k in keys], rssi, arrays["t_s"], arrays["trace"], traces, floor or None,
-                        point_floor, floor_names, source, xy_sigma)
+                        point_floor, floor_names, source, xy_sigma,
+                        {key[len("likelihood_"):]: array for key, array in arrays.items() if key.startswith("likelihood_")})
         cv_errors, cv_params = arrays.get("cv_fix_errors_m"), arrays.get("cv_fix_errors_params")
         if version >= 2 and cv_errors is not None and cv_params is not None:
             if (cv_errors.ndim != 1 or cv_params.shape != (3,) or not np.all(np.isfinite(cv_errors))
@@ -460,11 +471,14 @@ _ARRAY_KINDS = {"format": (0, "U"), "version": (0, "iu"), "xy_m": (2, "fiu"), "t
 
 def _check_array_kinds(headers: dict[str, tuple[tuple[int, ...], np.dtype]], path: Path) -> None:
     for name, (shape, dtype) in headers.items():
-        if name not in _ARRAY_KINDS:
+        if name.startswith("likelihood_"):  # numbers, checked in full where they are used
+            ndim, kinds = len(shape), "fiub"
+        elif name not in _ARRAY_KINDS:
             continue  # a later version's array: its version number decides
-        ndim, kinds = _ARRAY_KINDS[name]
+        else:
+            ndim, kinds = _ARRAY_KINDS[name]
         if len(shape) != ndim or dtype.kind not in kinds:
-            what = {"f": "floats", "i": "integers", "u": "integers", "U": "text", "S": "text"}
+            what = {"f": "floats", "i": "integers", "u": "integers", "b": "booleans", "U": "text", "S": "text"}
             raise MapfilterError(f"{_NOT_A_RADIO_MAP}: array {name!r} is {len(shape)}-d {dtype} (shape {shape}); "
                                  f"it must be {ndim}-d {' or '.join(dict.fromkeys(what[k] for k in kinds))}", path)
     xy, rssi, keys = headers.get("xy_m"), headers.get("rssi_dbm"), headers.get("ap_keys")

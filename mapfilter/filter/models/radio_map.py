@@ -4,6 +4,7 @@ weighed by the radio map's own probability of the scan at its position."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import weakref
 from collections.abc import Collection
@@ -59,6 +60,11 @@ class RadioMapLikelihood(MeasurementModel):
     heard APs): a per-cell constant sum_k log(1 - h_k), a vectorised prior term for the
     heard APs, and sparse corrections. Particles read the value of their cell (nearest
     lookup); off the grid, on walls or far from all data they get the prior cell's value.
+
+    The grid, the kernel weights of every cell's reference points and the not-heard constant
+    depend on the radio map, the floor plan and the configuration only: ``radiomap build``
+    stores them in the radio map's file (:func:`keep_tables`), and a likelihood of that
+    map on that plan with that configuration starts from them (no KD-tree, no scipy).
     """
 
     kind = "radio_map"
@@ -71,8 +77,6 @@ class RadioMapLikelihood(MeasurementModel):
         build's time and memory); every AP still counts where it is *not* heard. An AP outside
         the set, heard by a scan anyway, is ignored like an AP the radio map does not know.
         None: all APs."""
-        from scipy.spatial import cKDTree
-
         cfg = self.config = config
         heard = ~np.isnan(radio_map.rssi_dbm)
         use_aps = np.nonzero(heard.sum(axis=0) >= MIN_OBSERVATIONS)[0]
@@ -82,58 +86,22 @@ class RadioMapLikelihood(MeasurementModel):
         tabled = np.ones(use_aps.size, dtype=bool) if heard_keys is None else np.isin(self.ap_keys, list(heard_keys))
         self.key_index = {key: j for j, key in enumerate(self.ap_keys) if tabled[j]}
         n_aps = use_aps.size
-        # grid: the floor plan's extent, else the reference points' bounding box plus the kernel support
-        reach = cfg.bandwidth_m * SUPPORT_SIGMAS
-        if floorplan is not None:
-            x0, x1, y0, y1 = floorplan.extent_m
-        else:
-            (x0, y0), (x1, y1) = radio_map.xy_m.min(axis=0) - reach, radio_map.xy_m.max(axis=0) + reach
-        self.origin_m = (float(x0), float(y0))
-        self.shape = (max(int(math.ceil((y1 - y0) / cfg.cell_m)), 1), max(int(math.ceil((x1 - x0) / cfg.cell_m)), 1))
-        rows, cols = np.indices(self.shape)
-        centres = np.column_stack([x0 + (cols.ravel() + 0.5) * cfg.cell_m, y0 + (rows.ravel() + 0.5) * cfg.cell_m])
-        near = cKDTree(radio_map.xy_m).query(centres, distance_upper_bound=reach)[0] < np.inf
-        if floorplan is not None:
-            near &= floorplan.is_free(centres)
-        active = np.nonzero(near)[0]
-        n_cells = active.size
-        self.cell_of = np.full(centres.shape[0], n_cells, dtype=np.int64)  # row n_cells = the prior cell
-        self.cell_of[active] = np.arange(n_cells)
-        self.cell_xy_m = centres[active]
-
-        prior_var = PRIOR_SIGMA_DB ** 2 + SIGMA_FLOOR_DB ** 2
-        # kernel weights cell x reference point, sparse: only points within the support count,
-        # and a point hears a few per cent of the APs, so W @ H is a sparse product
-        from scipy import sparse
-
-        pairs = cKDTree(self.cell_xy_m).sparse_distance_matrix(cKDTree(radio_map.xy_m), reach,
-                                                                 output_type="coo_matrix")
-        kernel = np.exp(-0.5 * pairs.data ** 2 / cfg.bandwidth_m ** 2)
-        if radio_map.is_grown:
-            # a point whose position is uncertain (sigma) spreads its reading over the kernel
-            # convolved with that uncertainty: variance b^2 + sigma^2, height b^2 / (b^2 + sigma^2)
-            # (the 2-D Gaussian's peak), so it counts less and less sharply than a surveyed point
-            variance = cfg.bandwidth_m ** 2 + radio_map.xy_sigma_m[pairs.col] ** 2
-            kernel = cfg.bandwidth_m ** 2 / variance * np.exp(-0.5 * pairs.data ** 2 / variance)
-        weight = sparse.csr_matrix((kernel.astype(np.float32), (pairs.row, pairs.col)),
-                                   shape=(n_cells, len(radio_map)))
-        w_all = np.zeros(n_cells + 1)
-        w_all[:n_cells] = np.asarray(weight.sum(axis=1)).ravel()
-        observed = heard[:, use_aps]
-        ref, ap_col = np.nonzero(observed)
+        # every reading of the APs in use, by reference point (rows) then AP (np.nonzero's order)
+        ref, ap_col = np.nonzero(heard[:, use_aps])
         values = radio_map.rssi_dbm[:, use_aps][ref, ap_col].astype(np.float32)
-        # P(heard) of every AP (for the not-heard term) as a sparse product (the RSSI sums of an
-        # AP come when its table is built)
-        heard_sum = (weight @ sparse.csr_matrix((np.ones_like(values), (ref, ap_col)),
-                                                shape=(len(radio_map), n_aps))).tocsr()
-        heard_sum.sort_indices()
-        heard_sum = heard_sum.tocoo()
-        all_cell, all_ap = heard_sum.row.astype(np.int64), heard_sum.col.astype(np.int64)
-        all_wh = heard_sum.data.astype(np.float64)
-        # the per-AP tables are built when a scan first hears the AP (_build_tables): what they need
-        self._weight, self._n_refs, self._n_aps = weight, len(radio_map), n_aps
-        self._observed = (ref, ap_col, values)
-        self._entries = (all_cell, all_ap, all_wh)
+        self._readings = (ref.astype(np.int64), ap_col.astype(np.int64), values)
+        self._n_refs, self._n_aps = len(radio_map), n_aps
+        grid = _stored_grid(radio_map, floorplan, cfg, use_aps)
+        self.from_stored_tables = grid is not None
+        if grid is None:
+            grid = _built_grid(radio_map, floorplan, cfg)
+        (x0, y0), self.shape, active, self._weight, w_all, stored_base = grid
+        self.origin_m = (float(x0), float(y0))
+        n_cells = active.size
+        self.cell_of = np.full(self.shape[0] * self.shape[1], n_cells, dtype=np.int64)  # row n_cells = the prior cell
+        self.cell_of[active] = np.arange(n_cells)
+        rows, cols = np.divmod(active, self.shape[1])
+        self.cell_xy_m = np.column_stack([x0 + (cols + 0.5) * cfg.cell_m, y0 + (rows + 0.5) * cfg.cell_m])
         self._w_all = w_all
         self._built = ~tabled  # an AP outside heard_keys never gets a table
         self._tables: list[tuple[np.ndarray, ...]] = []  # per batch: (ap, cell, mu, 1/var, offset)
@@ -141,18 +109,36 @@ class RadioMapLikelihood(MeasurementModel):
         self._cell = np.zeros(0, dtype=np.int32)
         self._mu = self._inv_var = self._offset = np.zeros(0, dtype=np.float32)
         clip = HEARD_CLIP
-        pw = PRIOR_WEIGHT
+        prior_var = PRIOR_SIGMA_DB ** 2 + SIGMA_FLOOR_DB ** 2
         # the prior per cell: an AP never heard near the cell
         p0 = np.clip(PRIOR_WEIGHT * PRIOR_HEARD / (w_all + PRIOR_WEIGHT), clip, 1 - clip)
         self._prior_mu_dbm = PRIOR_RSSI_DBM
         self._prior_inv_var = 1.0 / prior_var
         self._prior_offset = np.log(p0) - 0.5 * np.log(2 * np.pi * prior_var) - np.log1p(-p0)  # (cells + 1,)
-        # every AP unheard: the prior everywhere, corrected where an AP has data (all APs)
-        self.base = n_aps * np.log1p(-p0)
-        data = all_wh > MIN_WEIGHT
-        base_cell = all_cell[data]
-        p_heard_all = np.clip((all_wh[data] + pw * PRIOR_HEARD) / (w_all[base_cell] + pw), clip, 1 - clip)
-        np.add.at(self.base, base_cell, np.log1p(-p_heard_all) - np.log1p(-p0[base_cell]))
+        if stored_base is not None:
+            self.base = stored_base
+        else:
+            # every AP unheard: the prior everywhere, corrected where an AP has data (all APs)
+            all_cell, _, all_wh, _, _ = self._sums(np.ones(n_aps, dtype=bool))
+            self.base = grid_base = n_aps * np.log1p(-p0)
+            data = all_wh > MIN_WEIGHT
+            base_cell = all_cell[data]
+            p_heard_all = np.clip((all_wh[data] + PRIOR_WEIGHT * PRIOR_HEARD) / (w_all[base_cell] + PRIOR_WEIGHT),
+                                  clip, 1 - clip)
+            # each cell's terms added in AP order
+            np.add.at(grid_base, base_cell, np.log1p(-p_heard_all) - np.log1p(-p0[base_cell]))
+        self._use_aps = use_aps
+
+    def _sums(self, aps: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(cell, ap, weight, weighted RSSI sum, weighted RSSI^2 sum) of every cell and AP of
+        ``aps`` (a mask over the APs in use) that a reference point within the kernel's reach of
+        the cell heard, in (AP, cell) order; the sums are float32 (``_weighted_sums``)."""
+        ref, ap_col, values = self._readings
+        mine = aps[ap_col]
+        ref_ptr = np.searchsorted(ref[mine], np.arange(self._n_refs + 1)).astype(np.int64)
+        w_ptr, w_ref, w_val = self._weight
+        cell, ap, wh, s1, s2 = _weighted_sums(w_ptr, w_ref, w_val, ref_ptr, ap_col[mine], values[mine], self._n_aps)
+        return cell, ap, wh.astype(np.float64), s1.astype(np.float64), s2.astype(np.float64)
 
     def build_tables(self, keys: Collection[str]) -> None:
         """Build the per-AP tables of these APs now (else each is built when a scan first hears it)."""
@@ -163,31 +149,13 @@ class RadioMapLikelihood(MeasurementModel):
         """The per-AP tables of the APs ``cols`` not built yet: each AP's RSSI mean, spread and
         P(heard) on the cells where it has data. An AP's table depends on its own readings only,
         so building some now and others later gives the same numbers as building all at once."""
-        from scipy import sparse
-
         new = np.unique(cols[~self._built[cols]])
         if new.size == 0:
             return
         self._built[new] = True
-        n_aps = self._n_aps
-        ref, ap_col, values = self._observed
-        all_cell, all_ap, all_wh = self._entries
-        w_all = self._w_all
-        tabled = np.zeros(n_aps, dtype=bool)
+        tabled = np.zeros(self._n_aps, dtype=bool)
         tabled[new] = True
-        # the RSSI sums of these APs, as a sparse product whose entries line up with the P(heard)
-        # sums' (an entry's pattern is the same: sparse products drop exact zeros only, and r < 0)
-        mine = tabled[ap_col]
-        rssi_sums = (self._weight @ sparse.csr_matrix(
-            (np.concatenate([values[mine], values[mine] ** 2]),
-             (np.tile(ref[mine], 2), np.concatenate([ap_col[mine], ap_col[mine] + n_aps]))),
-            shape=(self._n_refs, 2 * n_aps))).tocsr()
-        rssi_sums.sort_indices()
-        rssi_sums = rssi_sums.tocoo()
-        block = rssi_sums.col // n_aps
-        s1, s2 = (rssi_sums.data[block == b].astype(np.float64) for b in range(2))
-        in_table = tabled[all_ap]
-        cell, ap, wh = all_cell[in_table], all_ap[in_table], all_wh[in_table]
+        cell, ap, wh, s1, s2 = self._sums(tabled)
         # below the threshold the prior's pseudo-count dominates: keep the prior there
         keep = wh > MIN_WEIGHT
         cell, ap, wh, s1, s2 = cell[keep], ap[keep], wh[keep], s1[keep], s2[keep]
@@ -196,7 +164,7 @@ class RadioMapLikelihood(MeasurementModel):
         # weighted spread around mu, the prior's spread counting as pw pseudo-observations
         var = (s2 - 2 * mu * s1 + mu * mu * wh + pw * PRIOR_SIGMA_DB ** 2) / (wh + pw)
         var = np.maximum(var, 0.0) + SIGMA_FLOOR_DB ** 2
-        p_heard = (wh + pw * PRIOR_HEARD) / (w_all[cell] + pw)
+        p_heard = (wh + pw * PRIOR_HEARD) / (self._w_all[cell] + pw)
         ap, cell = ap.astype(np.int64), cell.astype(np.int64)
         p_heard = np.clip(p_heard, HEARD_CLIP, 1 - HEARD_CLIP)
         self._tables.append((ap, cell.astype(np.int32), mu.astype(np.float32), (1.0 / var).astype(np.float32),
@@ -205,8 +173,22 @@ class RadioMapLikelihood(MeasurementModel):
         # each AP's entries come from one batch, in cell order
         ap, cell, mu, inv_var, offset = (np.concatenate(parts) for parts in zip(*self._tables))
         order = np.argsort(ap, kind="stable")
-        self._ap_ptr = np.searchsorted(ap[order], np.arange(n_aps + 1))
+        self._ap_ptr = np.searchsorted(ap[order], np.arange(self._n_aps + 1))
         self._cell, self._mu, self._inv_var, self._offset = cell[order], mu[order], inv_var[order], offset[order]
+
+    def stored_tables(self, radio_map: RadioMap, floorplan: FloorPlan) -> dict[str, np.ndarray]:
+        """What a radio map file keeps of this likelihood (``RadioMap.likelihood_tables``): the
+        grid, the kernel weights, the not-heard constant, and what they were made of."""
+        w_ptr, w_ref, w_val = self._weight
+        rows, cols = self.shape
+        return {"version": np.array(TABLES_VERSION, dtype=np.int64),
+                "parameters": _parameters(self.config), "plan": _plan_digest(floorplan),
+                "radio_map": _radio_map_digest(radio_map), "aps": self._use_aps.astype(np.int64),
+                "origin_m": np.array(self.origin_m, dtype=np.float64), "shape": np.array([rows, cols], dtype=np.int64),
+                "cells": np.flatnonzero(self.cell_of < self.n_cells).astype(np.int64),
+                "weight_ptr": w_ptr.astype(np.int64), "weight_ref": w_ref.astype(np.int32),
+                "weight": w_val.astype(np.float32), "w_all": self._w_all.astype(np.float64),
+                "base": self.base.astype(np.float64)}
 
     @property
     def n_cells(self) -> int:
@@ -256,6 +238,185 @@ class RadioMapLikelihood(MeasurementModel):
         if ll.size == 0:
             return np.full(2, np.nan)
         return self.cell_xy_m[int(np.argmax(ll))]
+
+
+# ---- the tables a radio map file keeps (RadioMap.likelihood_tables) ------------------------------
+TABLES_VERSION = 1  # the layout of the stored tables; another version is not used (built as if absent)
+
+
+def keep_tables(radio_map: RadioMap, floorplan: FloorPlan,
+                config: RadioMapLikelihoodConfig = RadioMapLikelihoodConfig()) -> RadioMap:
+    """Keep the likelihood's grid on ``floorplan`` in the radio map (``RadioMap.likelihood_tables``,
+    derived data like its cross-validated errors, written to its file by ``RadioMap.save``) and
+    return the map: a walk tracked with the saved map on that plan and ``config`` starts from
+    them instead of building them."""
+    model = radio_map_likelihood(radio_map, floorplan, config)
+    radio_map.likelihood_tables = model.stored_tables(radio_map, floorplan)
+    return radio_map
+
+
+def _parameters(config: RadioMapLikelihoodConfig) -> np.ndarray:
+    """Every number the stored grid depends on besides the radio map and the floor plan."""
+    return np.array([config.cell_m, config.bandwidth_m, SUPPORT_SIGMAS, SIGMA_FLOOR_DB, PRIOR_SIGMA_DB,
+                     PRIOR_WEIGHT, PRIOR_HEARD, PRIOR_RSSI_DBM, HEARD_CLIP, MIN_OBSERVATIONS, MIN_WEIGHT],
+                    dtype=np.float64)
+
+
+def _plan_digest(floorplan: FloorPlan) -> np.ndarray:
+    """(32,) uint8: SHA-256 of the floor plan's wall mask, shape, resolution and origin."""
+    digest = hashlib.sha256(np.packbits(floorplan.wall_mask).tobytes())
+    digest.update(np.array([*floorplan.wall_mask.shape, floorplan.resolution_m, *floorplan.origin_m],
+                           dtype=np.float64).tobytes())
+    return np.frombuffer(digest.digest(), dtype=np.uint8).copy()
+
+
+def _radio_map_digest(radio_map: RadioMap) -> np.ndarray:
+    """(32,) uint8: SHA-256 of what the likelihood reads of a radio map (positions, their
+    uncertainty, RSSI), so that tables of another map, or of this one changed, are never used."""
+    digest = hashlib.sha256()
+    for array in (radio_map.xy_m, radio_map.xy_sigma_m, radio_map.rssi_dbm):
+        digest.update(np.ascontiguousarray(array).tobytes())
+    return np.frombuffer(digest.digest(), dtype=np.uint8).copy()
+
+
+def _stored_grid(radio_map: RadioMap, floorplan: FloorPlan | None, config: RadioMapLikelihoodConfig,
+                 use_aps: np.ndarray) -> tuple | None:
+    """The grid kept in the radio map's file, if it was made of this map on this plan with this
+    configuration, and is whole (every index in range: the numba kernels index with them);
+    None otherwise (the likelihood is then built as without it)."""
+    tables = radio_map.likelihood_tables
+    if floorplan is None or not tables or int(tables.get("version", -1)) != TABLES_VERSION:
+        return None
+    try:
+        if not (np.array_equal(tables["parameters"], _parameters(config))
+                and np.array_equal(tables["plan"], _plan_digest(floorplan))
+                and np.array_equal(tables["aps"], use_aps)
+                and np.array_equal(tables["radio_map"], _radio_map_digest(radio_map))):
+            return None
+        origin, shape, cells = tables["origin_m"], tables["shape"], tables["cells"]
+        w_ptr, w_ref, w_val = tables["weight_ptr"], tables["weight_ref"], tables["weight"]
+        w_all, base = tables["w_all"], tables["base"]
+    except KeyError:
+        return None
+    x0, x1, y0, y1 = floorplan.extent_m
+    expected_shape = (max(int(math.ceil((y1 - y0) / config.cell_m)), 1),
+                      max(int(math.ceil((x1 - x0) / config.cell_m)), 1))
+    n = cells.size
+    whole = (origin.shape == (2,) and tuple(origin.tolist()) == (float(x0), float(y0))
+             and shape.shape == (2,) and tuple(shape.tolist()) == expected_shape
+             and cells.ndim == 1 and (n == 0 or (cells[0] >= 0 and cells[-1] < expected_shape[0] * expected_shape[1]
+                                                and np.all(np.diff(cells) > 0)))
+             and w_ptr.shape == (n + 1,) and w_ptr[0] == 0 and np.all(np.diff(w_ptr) >= 0)
+             and w_ref.shape == w_val.shape == (int(w_ptr[-1]),)
+             and (w_ref.size == 0 or (w_ref.min() >= 0 and w_ref.max() < len(radio_map)))
+             and w_val.dtype == np.float32 and np.all(np.isfinite(w_val))
+             and w_all.shape == base.shape == (n + 1,) and np.all(np.isfinite(w_all)) and np.all(np.isfinite(base)))
+    if not whole:
+        return None
+    return ((float(x0), float(y0)), expected_shape, cells.astype(np.int64),
+            (w_ptr.astype(np.int64), w_ref.astype(np.int64), w_val), w_all.astype(np.float64), base.astype(np.float64))
+
+
+def _built_grid(radio_map: RadioMap, floorplan: FloorPlan | None, config: RadioMapLikelihoodConfig) -> tuple:
+    """(origin, shape, active cells, kernel weights (CSR: cells x reference points), each cell's
+    total weight, None): the grid over the floor plan's extent (else the reference points'
+    bounding box plus the kernel's support), its cells near a reference point and free."""
+    from scipy import sparse
+    from scipy.spatial import cKDTree
+
+    reach = config.bandwidth_m * SUPPORT_SIGMAS
+    if floorplan is not None:
+        x0, x1, y0, y1 = floorplan.extent_m
+    else:
+        (x0, y0), (x1, y1) = radio_map.xy_m.min(axis=0) - reach, radio_map.xy_m.max(axis=0) + reach
+    shape = (max(int(math.ceil((y1 - y0) / config.cell_m)), 1), max(int(math.ceil((x1 - x0) / config.cell_m)), 1))
+    rows, cols = np.indices(shape)
+    centres = np.column_stack([x0 + (cols.ravel() + 0.5) * config.cell_m, y0 + (rows.ravel() + 0.5) * config.cell_m])
+    near = cKDTree(radio_map.xy_m).query(centres, distance_upper_bound=reach)[0] < np.inf
+    if floorplan is not None:
+        near &= floorplan.is_free(centres)
+    active = np.nonzero(near)[0]
+    n_cells = active.size
+    # kernel weights cell x reference point, sparse: only points within the support count
+    pairs = cKDTree(centres[active]).sparse_distance_matrix(cKDTree(radio_map.xy_m), reach, output_type="coo_matrix")
+    kernel = np.exp(-0.5 * pairs.data ** 2 / config.bandwidth_m ** 2)
+    if radio_map.is_grown:
+        # a point whose position is uncertain (sigma) spreads its reading over the kernel
+        # convolved with that uncertainty: variance b^2 + sigma^2, height b^2 / (b^2 + sigma^2)
+        # (the 2-D Gaussian's peak), so it counts less and less sharply than a surveyed point
+        variance = config.bandwidth_m ** 2 + radio_map.xy_sigma_m[pairs.col] ** 2
+        kernel = config.bandwidth_m ** 2 / variance * np.exp(-0.5 * pairs.data ** 2 / variance)
+    weight = sparse.csr_matrix((kernel.astype(np.float32), (pairs.row, pairs.col)), shape=(n_cells, len(radio_map)))
+    w_all = np.zeros(n_cells + 1)
+    w_all[:n_cells] = np.asarray(weight.sum(axis=1)).ravel()
+    return ((float(x0), float(y0)), shape, active.astype(np.int64),
+            (weight.indptr.astype(np.int64), weight.indices.astype(np.int64), weight.data), w_all, None)
+
+
+@njit(cache=True, nogil=True)
+def _weighted_sums(w_ptr, w_ref, w_val, ref_ptr, reading_ap, reading_rssi, n_aps):
+    """Per cell (row of the kernel weights ``w_*``, CSR) and per AP that a reference point of the
+    cell heard (readings ``reading_*`` in CSR by reference point): sum w, sum w r and sum w r^2 in
+    float32, added in the order of the cell's row: scipy's sparse product (csr_matmat), whose
+    numbers the likelihood has always had. Entries in (AP, cell) order."""
+    n_cells = w_ptr.shape[0] - 1
+    seen = np.full(n_aps, -1, dtype=np.int64)
+    count = np.zeros(n_cells + 1, dtype=np.int64)
+    for i in range(n_cells):
+        for jj in range(w_ptr[i], w_ptr[i + 1]):
+            r = w_ref[jj]
+            for kk in range(ref_ptr[r], ref_ptr[r + 1]):
+                a = reading_ap[kk]
+                if seen[a] != i:
+                    seen[a] = i
+                    count[i + 1] += 1
+    ptr = np.cumsum(count)
+    total = ptr[-1]
+    cell = np.empty(total, dtype=np.int64)
+    ap = np.empty(total, dtype=np.int64)
+    wh = np.empty(total, dtype=np.float32)
+    s1 = np.empty(total, dtype=np.float32)
+    s2 = np.empty(total, dtype=np.float32)
+    acc_w = np.zeros(n_aps, dtype=np.float32)
+    acc_1 = np.zeros(n_aps, dtype=np.float32)
+    acc_2 = np.zeros(n_aps, dtype=np.float32)
+    seen[:] = -1
+    for i in range(n_cells):
+        start = ptr[i]
+        n = 0
+        for jj in range(w_ptr[i], w_ptr[i + 1]):
+            r = w_ref[jj]
+            v = w_val[jj]
+            for kk in range(ref_ptr[r], ref_ptr[r + 1]):
+                a = reading_ap[kk]
+                x = reading_rssi[kk]
+                acc_w[a] += v
+                acc_1[a] += v * x
+                acc_2[a] += v * (x * x)
+                if seen[a] != i:
+                    seen[a] = i
+                    ap[start + n] = a
+                    n += 1
+        ap[start:start + n].sort()
+        for e in range(start, start + n):
+            a = ap[e]
+            cell[e] = i
+            wh[e] = acc_w[a]
+            s1[e] = acc_1[a]
+            s2[e] = acc_2[a]
+            acc_w[a] = 0.0
+            acc_1[a] = 0.0
+            acc_2[a] = 0.0
+    # (AP, cell) order: a stable counting sort by AP
+    first = np.zeros(n_aps + 1, dtype=np.int64)
+    for e in range(total):
+        first[ap[e] + 1] += 1
+    first = np.cumsum(first)
+    order = np.empty(total, dtype=np.int64)
+    for e in range(total):
+        order[first[ap[e]]] = e
+        first[ap[e]] += 1
+    return cell[order], ap[order], wh[order], s1[order], s2[order]
 
 
 # id(radio map) -> (weak reference to it, its arrays when the entry was made, {(id(floor plan),
