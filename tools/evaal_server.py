@@ -13,7 +13,9 @@ virtual environment of its own (``.ci/run`` makes ``.venv-evaalapi`` in the chec
 
 As a script: ``python tools/evaal_server.py LOG... [--dir DIR] [--port 54321] [--slowdown 3]
 [--slack 15] [--scoring]`` serves each log as the trials ``TRACE_online`` and ``TRACE_offline``
-until Ctrl-C.
+until it is stopped: Ctrl-C in the foreground; started in the background (``&``), the shell's
+Ctrl-C never reaches it, and ``kill PID`` (SIGTERM; the banner names the PID) stops it and its
+server.
 """
 
 from __future__ import annotations
@@ -172,7 +174,8 @@ def _interrupt(signum, frame) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(allow_abbrev=False,
                                      description="Serve GetSensorData logs as EvaalAPI trials on 127.0.0.1 "
-                                                 "(TRACE_online and TRACE_offline per log) until Ctrl-C.")
+                                                 "(TRACE_online and TRACE_offline per log) until stopped: Ctrl-C in the "
+                                                 "foreground, kill PID in the background (the banner names it).")
     parser.add_argument("logs", type=Path, nargs="+", metavar="LOG")
     parser.add_argument("--dir", type=Path, default=Path("evaal_run"), help="the run folder (default: evaal_run)")
     parser.add_argument("--port", type=int, default=54321)
@@ -189,7 +192,9 @@ def main(argv: list[str] | None = None) -> int:
         trials.append(Trial(f"{trace}_offline", log, offline=True, slack_s=args.offline_slack))
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated tool stops its server too
     with LocalServer(args.dir, trials, args.port) as server:
-        print(f"EvaalAPI on {server.url}: trials {', '.join(t.name for t in trials)} (Ctrl-C stops it)", flush=True)
+        # in the background (`&`) the shell's Ctrl-C never reaches this process: SIGTERM does
+        print(f"EvaalAPI on {server.url}: trials {', '.join(t.name for t in trials)}; stop it with Ctrl-C in the "
+              f"foreground, or kill {os.getpid()} in the background", flush=True)
         try:
             server.process.wait()
         except KeyboardInterrupt:

@@ -371,3 +371,32 @@ def test_each_estimate_is_the_latest_row_given_and_rows_come_within_a_batch(venu
         on_time = first_sent < len(est)  # the last rows: given when the log ended, after the last request
         delay_s = est.t_s[first_sent[on_time]] - causal.t_s[on_time]
         assert on_time.mean() > 0.99 and delay_s.min() > 0 and delay_s.max() < 1.0
+
+
+def test_the_servers_banner_says_how_to_stop_it_in_the_background(monkeypatch, capsys, tmp_path):
+    """Started with `&`, the server never sees the shell's Ctrl-C: the banner said "Ctrl-C stops
+    it"; it names its PID for kill (the server itself a stand-in here)."""
+    import os
+
+    import evaal_server
+
+    class StandIn:
+        url = "http://127.0.0.1:54321/evaalapi/"
+
+        def __init__(self, run_dir, trials, port):
+            self.process = self
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def wait(self):
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(evaal_server, "LocalServer", StandIn)
+    monkeypatch.setattr(evaal_server.signal, "signal", lambda *args: None)  # this process keeps its SIGTERM
+    assert evaal_server.main([str(tmp_path / "walk.txt"), "--dir", str(tmp_path / "run")]) == 0
+    banner = capsys.readouterr().out
+    assert f"kill {os.getpid()} in the background" in banner and "walk_online" in banner
