@@ -64,7 +64,7 @@ floor's lower-left corner) and record floor_image.png for display under the mask
   geojson  outline minus shops (shrunk by 0.6 m) rasterised at --resolution (default 0.25 m);
            outside the building is wall (the default)
   image    transparent pixels walkable, shop outlines opened by 2 px, scale from floor_info.json;
-           the outside of the building is transparent too, so walkable
+           outside the outline of geojson_map.json is wall as on the other route
 The floor is named by its logs' headers (FloorName in path_data_files), else by the folder.
 
 A SITE_DIR (a folder of floor folders, e.g. site1 with B1, F1, ..., F4) becomes one building:
@@ -165,8 +165,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="e.g. ../shared/data/ilc20/site1/F1, or site1 for every floor as one building")
     ilc.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output map YAML")
     ilc.add_argument("--route", choices=("image", "geojson"), default="geojson",
-                     help="from the GeoJSON polygons (the floor's outline minus its shops: outside the building is "
-                          "wall) or the floor image (transparent pixels walkable, the outside too) (default: geojson)")
+                     help="from the GeoJSON polygons (the floor's outline minus its shops) or the floor image "
+                          "(transparent pixels walkable); either way outside the floor's outline is wall (default: "
+                          "geojson)")
     ilc.add_argument("--resolution", type=_METRES_PER_PIXEL, metavar="M",
                      help="metres per output pixel (default: the image's ~0.3 m, or 0.25 m for geojson)")
     ilc.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall")
@@ -275,9 +276,7 @@ def run_import_ilc(args: argparse.Namespace) -> int:
         plan = dataclasses.replace(plan, floor_name=named)
     if edits is not None:
         plan = prepare.apply_edits(plan, edits)
-    image = args.route == "image"
-    found = prepare.mask_warnings(plan, "the image route keeps the outside free; --route geojson walls it" if image
-                                  else None, "" if image else None)
+    found = prepare.mask_warnings(plan, None, "" if args.route == "image" else None)  # the outline walls the outside
     _write(plan, args.out)
     for message in found:
         warn(f"{args.out}: {message}")

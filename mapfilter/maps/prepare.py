@@ -708,10 +708,14 @@ def write_map(plan: FloorPlan, yaml_path: str | os.PathLike, preview: bool = Tru
 # the walkers brush along, grey shop names, a few marks in the corridors. Eroding the walls by
 # 2 px along free space opens the outlines and also removes 1-2 px text strokes and marks in
 # the corridors, leaving every waypoint on free space in one piece (docs/accuracy.md).
-# The outside stays walkable on this route (the transparent outside reaches the corridors through
-# the entrances; the GeoJSON route walls it).
+# The transparent outside reaches the corridors through the entrances, so no flood from the
+# image's border can tell it from them: the floor's outline (geojson_map.json) walls it instead,
+# as on the GeoJSON route and as `map prepare` walls a plan's outside.
 ILC_REGION_OPTIONS = RegionOptions(walkable=(TRANSPARENT,), alpha_max=127, remove_below_px=0, open_outlines_px=2,
                                    outside_is_wall=False)
+# the outline grown by this much first: the image and the GeoJSON outline differ by up to about a
+# metre, and corridor ends on the outline were cut off from the rest (F1: 34 of 544 waypoints)
+ILC_OUTLINE_MARGIN_M = 1.0
 # GeoJSON shop polygons are the outlines themselves: shrink them by 0.6 m (about two image
 # pixels) so that waypoints on a shop front stay free.
 ILC_OBSTACLE_INSET_M = 0.6
@@ -739,9 +743,10 @@ def import_ilc(floor_dir: str | os.PathLike, route: str = "image", resolution_m:
     """FloorPlan of an ILC floor directory (floor_image.png, floor_info.json, geojson_map.json).
 
     ``route="image"``: the floor image, transparent = walkable, scaled by floor_info.json
-    (``resolution_m`` resamples the mask). ``route="geojson"``: the vector floor rasterised at
-    ``resolution_m`` (default 0.25 m), outside the outline = wall. Both share the ILC metre
-    frame (origin at the floor's lower-left corner) and show floor_image.png underneath.
+    (``resolution_m`` resamples the mask), outside the outline of geojson_map.json (when the
+    folder has one; grown by ``ILC_OUTLINE_MARGIN_M``) = wall. ``route="geojson"``: the vector floor rasterised at ``resolution_m``
+    (default 0.25 m), outside the outline = wall. Both share the ILC metre frame (origin at the
+    floor's lower-left corner) and show floor_image.png underneath.
     """
     floor_dir = Path(floor_dir)
     if not floor_dir.is_dir():
@@ -750,8 +755,16 @@ def import_ilc(floor_dir: str | os.PathLike, route: str = "image", resolution_m:
     image_path = floor_dir / "floor_image.png"
     floor_name = floor_dir.name
     if route == "image":
-        return prepare_regions(image_path, PlanScale(size_m=(width_m, height_m)), ILC_REGION_OPTIONS,
+        plan = prepare_regions(image_path, PlanScale(size_m=(width_m, height_m)), ILC_REGION_OPTIONS,
                                resolution_m, floor_name)
+        if (floor_dir / "geojson_map.json").is_file():
+            outline = read_geojson_floor(floor_dir / "geojson_map.json").outline.buffer(ILC_OUTLINE_MARGIN_M)
+            rows, cols = np.indices(plan.shape_px)
+            centres = plan.pixel_to_world(np.stack([cols + 0.5, rows + 0.5], axis=-1)).reshape(-1, 2)
+            shapely.prepare(outline)
+            outside = ~shapely.contains_xy(outline, centres[:, 0], centres[:, 1]).reshape(plan.shape_px)
+            plan = dataclasses.replace(plan, wall_mask=plan.wall_mask | outside)
+        return plan
     if route == "geojson":
         source = None
         if image_path.is_file():
