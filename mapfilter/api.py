@@ -281,11 +281,13 @@ def score(track: Track | PathLike, recording: Recording | PathLike, building: Bu
 def enter_trial(server_url: str, trial: str, building: Building | PathLike, *,
                 radio_map: RadioMap | PathLike | None = None, access_points: AccessPointTable | PathLike | None = None,
                 sources: Mapping[str, object] | None = None, config: TrackingConfig | None = None,
-                offline: bool = False, floor: str | None = None, timeout_s: float = 10.0, retry_s: float = 30.0):
+                offline: bool = False, floor: str | None = None, timeout_s: float = 10.0, retry_s: float = 30.0,
+                phone: str | None = None):
     """Enter an IPIN competition trial on its EvaalAPI server (``evaal``), as ``mapfilter evaal``
     does: online, the streaming tracker's causal estimate with each request for the next 0.5 s of
     log; ``offline``, the whole-walk track's estimates posted in one go. ``building`` must be
-    georeferenced; ``sources``: measurement sources weighed too, or alone (as ``track``). Each
+    georeferenced; ``sources``: measurement sources weighed too, or alone (as ``track``); ``phone``:
+    the trial's phone model (the server sends no log header: a beacon table's offset for it). Each
     request must be answered within ``timeout_s``; a dropped connection is retried for ``retry_s``.
     Returns the ``evaal.protocol.TrialRun`` (``estimates``: what the server keeps)."""
     from mapfilter.evaal.client import EvaalClient, run_offline, run_online
@@ -299,8 +301,8 @@ def enter_trial(server_url: str, trial: str, building: Building | PathLike, *,
     if offline and not config.smooth:
         config = dataclasses.replace(config, smooth=True)
     check_building(building)
-    tracker = Tracker(building, TrackingInputs(radio_map, access_points, sources), config, floor=floor,
-                      log_name=f"trial {trial}")
+    tracker = Tracker(building, TrackingInputs(radio_map, access_points, sources, phone_model=phone), config,
+                      floor=floor, log_name=f"trial {trial}")
     client = EvaalClient(server_url, trial, timeout_s=timeout_s, retry_s=retry_s)
     return run_offline(client, tracker) if offline else run_online(client, tracker)
 

@@ -60,6 +60,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     wifi.add_argument("--radiomap", type=Path, metavar="RM", help="radio map (.npz) for fingerprinting")
     wifi.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table for trilateration")
     parser.add_argument("--floor", metavar="NAME", help="track on this floor only (default: find the floor)")
+    parser.add_argument("--phone", metavar="MODEL",
+                        help="the trial's phone model (the server sends no log header): a source's table applies "
+                             "what it says of that phone (a beacon table's offset_db:MODEL)")
     parser.add_argument("--offline", action="store_true",
                         help="an offline trial: the whole log at once, the whole-walk track posted in one go")
     parser.add_argument("--reload", action="store_true",
@@ -124,8 +127,8 @@ def _enter(args: argparse.Namespace, config, out: Path) -> int:
         client.reload()
         print(f"trial {args.trial}: reloaded", file=sys.stderr)
     floor = None if building.is_single_floor else args.floor
-    tracker = Tracker(building, TrackingInputs(radio_map, ap_table, sources), config, floor=floor,
-                      log_name=f"trial {args.trial}")
+    tracker = Tracker(building, TrackingInputs(radio_map, ap_table, sources, phone_model=args.phone), config,
+                      floor=floor, log_name=f"trial {args.trial}")
 
     def progress(message: str) -> None:
         print(f"trial {args.trial}: {message}", file=sys.stderr, flush=True)

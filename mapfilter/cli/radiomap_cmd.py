@@ -68,8 +68,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "A beacon with fewer than --min-readings readings takes the values fitted over every "
                     "beacon. Prints how each beacon fits, and says so when a beacon's readings fit another "
                     "beacon's position better than its own (an id on the wrong position); logs that name their "
-                    "phone (GetSensorData) also give each phone model's RSSI offset against the table (the "
-                    "config's ble.rssi_offset_db for a walk with that phone).",
+                    "phone (GetSensorData) also give each phone model's RSSI offset against the table (written "
+                    "as its column offset_db:MODEL: track and evaal apply it to a log of that phone).",
         epilog="examples:\n"
                "  mapfilter radiomap fit-beacons venue.yaml survey/*.txt.gz --positions beacons.csv "
                "--out fitted.csv\n"
@@ -274,7 +274,7 @@ def run_fit_beacons(args: argparse.Namespace) -> int:
         lines.append(text)
     for phone, offset in fit.phone_offsets_db.items():
         lines.append(f"  phone {phone}: RSSI {offset:+.1f} dB against the table ({fit.phone_readings[phone]} readings; "
-                     f"track it with the config's ble: {{rssi_offset_db: {offset:.1f}}})")
+                     f"column offset_db:{phone}, applied to a log of that phone)")
     print("\n".join(lines), file=sys.stderr if is_stdout(args.out) else sys.stdout)
     return 0
 

@@ -330,7 +330,9 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
             from mapfilter.evaal.replay import replay_log
             from mapfilter.pipeline.tracker import Tracker
 
-            replay = replay_log(Tracker(building, walk.inputs, config, floor=floor), log_path, initial=evaal_start)
+            # the server sends no header: the log's phone model as the competitor knows it
+            inputs = dataclasses.replace(walk.inputs, phone_model=recording.phone_model)
+            replay = replay_log(Tracker(building, inputs, config, floor=floor), log_path, initial=evaal_start)
             replay.estimates.write(args.evaal_out)
             written.append((args.evaal_out, f"competition estimates, {'offline' if config.smooth else 'online'}"))
     if args.rerun is not None:

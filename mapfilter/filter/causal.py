@@ -126,6 +126,9 @@ class MeasurementSource:
 
     stream: str = ""  # the sensor it reads: its records are merged under this name
     model: MeasurementModel
+    # how far behind the log's newest record its records can be written (None: unknown; the merge
+    # then waits for its next record, as for a dense sensor, which holds the rows of a sparse one)
+    written_behind_s: float | None = None
 
     def __init__(self) -> None:
         self.times_s: list[float] = []
@@ -191,6 +194,7 @@ class ReplayedMeasurements(MeasurementSource):
     def __init__(self, original: MeasurementSource, model: MeasurementModel) -> None:
         super().__init__()
         self.stream, self.model = original.stream, model
+        self.written_behind_s = 0.0  # every measurement up to the chunk's newest record is handed over
         self._original = original
         self._replayed_t = np.asarray(original.times_s, dtype=np.float64)
         self._replayed = list(original.measurements)
@@ -235,16 +239,20 @@ class _Merge:
         self.pending.setdefault(sensor, []).append((t_s, *values))
         self.last_t[sensor] = max(self.last_t.get(sensor, -math.inf), float(t_s[-1]))
 
-    def horizon(self, final: bool) -> float:
-        """Records before this time can be released: every sensor still streaming has passed it."""
+    def horizon(self, final: bool, passed_behind_s: dict[str, float] | None = None) -> float:
+        """Records before this time can be released: every sensor still streaming has passed it.
+        ``passed_behind_s``: {stream: s} of streams known to have passed the newest record's time
+        less s (a sparse stream that was waited for would hold every row until its next record)."""
         if final:
             return math.inf
         if not self.last_t:
             return self.released_t
         newest = max(self.last_t.values())
         last = dict(self.last_t)
-        if "wifi" in last:
-            last["wifi"] = max(last["wifi"], newest - SCAN_PASSED_BEFORE_NEWEST_S)
+        behind = {"wifi": SCAN_PASSED_BEFORE_NEWEST_S, **(passed_behind_s or {})}
+        for stream, behind_s in behind.items():
+            if stream in last:
+                last[stream] = max(last[stream], newest - behind_s)
         streaming = [t for t in last.values() if newest - t <= PAUSED_AFTER_S]
         return max(min(streaming), self.released_t)
 
@@ -466,7 +474,8 @@ class CausalFilter:
 
     def _advance(self, final: bool) -> list[Estimate]:
         merge = self._merge
-        horizon = merge.horizon(final)
+        horizon = merge.horizon(final, {s.stream: s.written_behind_s for s in self.sources
+                                        if s.written_behind_s is not None})
         released = merge.release(horizon)
         n_before = len(self.rows)
         self._take_steps(released, final)

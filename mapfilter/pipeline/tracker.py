@@ -62,6 +62,9 @@ class TrackingInputs:
     # (S, F) floor log-likelihood per scan instead of the WiFi floor vote (e.g. the true floor, to
     # measure what finding the floor costs)
     floor_evidence: np.ndarray | None = None
+    # the phone, where the log does not name it (a competition server sends no header): what a
+    # source knows of it applies (a beacon table's RSSI offset for that phone model)
+    phone_model: str | None = None
 
     def __post_init__(self) -> None:
         known = {p.name for p in registered()}
@@ -251,6 +254,8 @@ class Tracker:
 
     def feed(self, records: Recording) -> Track:
         """The next records of the walk; returns the causal rows they completed (floor frames)."""
+        if self.inputs.phone_model is not None and records.phone_model is None:
+            records = dataclasses.replace(records, phone_model=self.inputs.phone_model)
         started = time.perf_counter()
         rows = self.stream.feed(records)
         self.runtime_s += time.perf_counter() - started

@@ -42,7 +42,7 @@ DEFAULT_PATH_LOSS_EXPONENT = 2.0
 DEFAULT_FLOOR_LOSS_DB = 10.0
 # what a row's columns can be (a row outside is refused, naming its line)
 COLUMN_RANGES = {"x": (-1e7, 1e7), "y": (-1e7, 1e7), "latitude": (-90.0, 90.0), "longitude": (-180.0, 180.0),
-                 "C": (-120.0, 20.0), "n": (0.5, 10.0), "floor_loss": (0.0, 100.0)}
+                 "C": (-120.0, 20.0), "n": (0.5, 10.0), "floor_loss": (0.0, 100.0), "offset_db": (-40.0, 40.0)}
 # BLE reaches about 50 m indoors: a beacon further off its floor's map cannot be heard on it
 MAX_BEACON_OFF_MAP_M = 100.0
 # the columns a table may name each thing by (case and surrounding spaces ignored); ``bleID`` is
@@ -94,10 +94,12 @@ class BeaconTable:
     floor_loss_db: np.ndarray  # (K,) dB off per floor between the beacon and the phone
     source_path: Path | None = None  # the CSV it was read from (for messages), or None
     source_lines: list[int] | None = None  # the CSV line of each row, or None
-    # {phone model: its RSSI minus the table's}: phones report one signal several dB apart
-    phone_offsets_db: dict[str, float] = dataclasses.field(default_factory=dict)
+    # {phone model: (K,) its RSSI minus the table's, per beacon}: phones report one signal
+    # several dB apart (columns offset_db:MODEL)
+    phone_offsets_db: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     COLUMNS = ("beacon_id", "x", "y", "floor", "C", "n", "floor_loss")
+    OFFSET_PREFIX = "offset_db:"  # a column per phone model: its RSSI minus the table's, per beacon
 
     def __len__(self) -> int:
         return len(self.beacon_id)
@@ -147,9 +149,10 @@ class BeaconTable:
         ``x,y`` (metres in the floor's frame) or ``latitude,longitude`` (also ``Lat,Lon``:
         converted with ``building``'s georeference, ``mapfilter map import-ipin``); optional
         ``floor`` (the building's floor name; ``00`` reads as ``0``), ``C``, ``n``,
-        ``floor_loss`` (defaults above). ``ids`` maps the file's names to the logs' ids (the
-        IPIN venues' ``BLE_Locations.csv`` names its beacons BLE1, BLE2, ...). Every problem is
-        a ``MapfilterError`` naming the file and line.
+        ``floor_loss`` (defaults above), and ``offset_db:MODEL`` columns, each phone model's RSSI
+        minus the table's (``fit_beacons``' per-phone offsets). ``ids`` maps the file's names to
+        the logs' ids (the IPIN venues' ``BLE_Locations.csv`` names its beacons BLE1, BLE2, ...).
+        Every problem is a ``MapfilterError`` naming the file and line.
         """
         path = Path(path)
         if not path.is_file():
@@ -188,6 +191,12 @@ class BeaconTable:
             optional = {"C": column.get("c"), "n": column.get("n"), "floor_loss": column.get("floor_loss")}
             defaults = {"C": DEFAULT_C_DBM, "n": DEFAULT_PATH_LOSS_EXPONENT, "floor_loss": DEFAULT_FLOOR_LOSS_DB}
             floor_col = column.get("floor")
+            phone_cols = {name.strip()[len(cls.OFFSET_PREFIX):].strip(): j for j, name in enumerate(header)
+                          if name.strip().lower().startswith(cls.OFFSET_PREFIX)}
+            if "" in phone_cols:
+                raise MapfilterError(f"a column {cls.OFFSET_PREFIX} names no phone model ({cls.OFFSET_PREFIX}MODEL)",
+                                     path, 1)
+            offsets: dict[str, list[float]] = {phone: [] for phone in phone_cols}
             rows: dict[str, list] = {k: [] for k in ("id", "a", "b", "floor", "C", "n", "floor_loss")}
             lines: list[int] = []
             named: list[str] = []  # the ids as the file writes them
@@ -233,6 +242,9 @@ class BeaconTable:
                 rows["floor"].append(floor)
                 for label in ("C", "n", "floor_loss"):
                     rows[label].append(values[label])
+                for phone, j in phone_cols.items():
+                    text_value = fields[j].strip()
+                    offsets[phone].append(_number(text_value, "offset_db", path, line_no) if text_value else 0.0)
                 lines.append(line_no)
         if not rows["id"]:
             raise MapfilterError("the beacon table has no rows", path)
@@ -248,14 +260,17 @@ class BeaconTable:
             xy = ab
         return cls(beacon_id=rows["id"], xy_m=xy, floor=rows["floor"], c_dbm=np.array(rows["C"]),
                    n=np.array(rows["n"]), floor_loss_db=np.array(rows["floor_loss"]), source_path=path,
-                   source_lines=lines)
+                   source_lines=lines, phone_offsets_db={p: np.array(v) for p, v in offsets.items()})
 
     def write_csv(self, path: str | os.PathLike) -> None:
-        """The table as CSV (``COLUMNS``), written atomically."""
-        write_csv_atomically(path, self.COLUMNS, (
+        """The table as CSV (``COLUMNS``, then an ``offset_db:MODEL`` column per phone model), written
+        atomically."""
+        phones = sorted(self.phone_offsets_db)
+        write_csv_atomically(path, (*self.COLUMNS, *(self.OFFSET_PREFIX + p for p in phones)), (
             [self.beacon_id[i], f"{self.xy_m[i, 0]:.3f}", f"{self.xy_m[i, 1]:.3f}",
              "" if self.floor[i] is None else self.floor[i], f"{self.c_dbm[i]:.2f}", f"{self.n[i]:.3f}",
-             f"{self.floor_loss_db[i]:.2f}"] for i in range(len(self))))
+             f"{self.floor_loss_db[i]:.2f}", *(f"{self.phone_offsets_db[p][i]:.2f}" for p in phones)]
+            for i in range(len(self))))
 
 
 def _number(text: str, column: str, path: Path, line_no: int) -> float:
@@ -538,7 +553,8 @@ def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitC
         rows.append(BeaconFitRow(table.beacon_id[b], int(np.count_nonzero(mine)),
                                  int(np.count_nonzero(mine & (apart == 0))), bool(own[b]), here, best, best_rmse))
     phone_offsets = {p: float(offset[phone == p][0]) for p in phones}
-    fitted = dataclasses.replace(table.with_parameters(c, n, loss), phone_offsets_db=phone_offsets)
+    fitted = dataclasses.replace(table.with_parameters(c, n, loss),
+                                 phone_offsets_db={p: np.full(len(table), v) for p, v in phone_offsets.items()})
     return BeaconFit(fitted, tuple(rows), float(shared[0]), float(shared[1]), loss,
                      fit_loss, len(readings), phone_offsets,
                      {p: int(np.count_nonzero(phone == p)) for p in phones})

@@ -212,6 +212,11 @@ def test_the_command_reads_the_beacon_table_before_the_server(tmp_path, capsys):
     assert code == 1 and "beacons.csv" in err and err.strip().count("\n") == 0
     assert main(["evaal", "http://127.0.0.1:9/evaalapi/", "t", venue, "--beacons", venue]) == 1
     assert "venue.yaml" in capsys.readouterr().err  # a table that is the map: refused, nothing sent
+    from mapfilter.cli import build_parser
+
+    args = build_parser().parse_args(["evaal", "http://h/evaalapi/", "t", venue, "--beacons", "b.csv", "--phone",
+                                      "SM-A520F"])
+    assert args.phone == "SM-A520F"  # the trial's phone: the server sends no header to name it
 
 
 def test_the_command_refuses_smooth_online_and_a_trial_name_without_a_file_name(tmp_path, capsys):

@@ -586,7 +586,44 @@ def test_the_fit_finds_each_phones_rssi_offset(office_walk, tmp_path):
     with pytest.raises(MapfilterError, match="rssi_offset_db"):
         TrackingConfig().override({"sources.ble.rssi_offset_db": 55.0})
     # the fitted table carries each phone's offset, and the source applies the log's phone's
-    assert fit.table.phone_offsets_db == fit.phone_offsets_db
-    source = BeaconSource(fit.table, frame, BleConfig())
+    assert {p: v.tolist() for p, v in fit.table.phone_offsets_db.items()} == {
+        p: [v] * len(guess) for p, v in fit.phone_offsets_db.items()}
+    source = BeaconSource(fit.table, frame, BleConfig(rssi_offset_db=-30.0))
     source.records_of(low)
-    assert source.offset_db == offset and source.model.rssi_offset_db == offset
+    assert np.all(source.offset_db == offset) and np.all(source.model.rssi_offset_db == offset)
+    other = BeaconSource(fit.table, frame, BleConfig(rssi_offset_db=-30.0))
+    other.records_of(dataclasses.replace(low, phone_model="UNKNOWN"))  # no offset for it: the config's
+    assert np.all(other.model.rssi_offset_db == -30.0)
+
+
+def test_the_table_carries_the_phones_offsets_to_track_and_a_replay(office_walk, tmp_path):
+    """fit-beacons writes each phone's offset as a column offset_db:MODEL; read back, the BLE
+    source applies the log's phone's (the log names it, or the TrackingInputs do, as a competition
+    server sends no header), and tracks as the config's offset does."""
+    plan, first, _, _ = office_walk
+    building = Building.from_plan(plan)
+    low = dataclasses.replace(first, beacons=dataclasses.replace(first.beacons, rssi_dbm=first.beacons.rssi_dbm - 9.0),
+                              phone_model="QUIET")
+    loud = dataclasses.replace(first, phone_model="LOUD")
+    guess = _office_table(c_dbm=-50.0, n=3.0)
+    table = fit_beacons(guess, labelled_readings(guess, building, [loud, low])).table
+    path = tmp_path / "fitted.csv"
+    table.write_csv(path)
+    header = path.read_text().splitlines()[0]
+    assert header.endswith(",offset_db:LOUD,offset_db:QUIET")
+    back = BeaconTable.read_csv(path)
+    np.testing.assert_allclose(back.phone_offsets_db["QUIET"], table.phone_offsets_db["QUIET"], atol=0.005)
+    quiet = float(back.phone_offsets_db["QUIET"][0])
+    config = _config()
+    by_table = track(plan, low, config=config, sources={"ble": back})
+    by_config = track(plan, dataclasses.replace(low, phone_model=None),
+                      config=config.override({"sources.ble.rssi_offset_db": quiet}), sources={"ble": back})
+    np.testing.assert_array_equal(by_table.causal.xy_m, by_config.causal.xy_m)
+    unnamed = Tracker(plan, TrackingInputs(sources={"ble": back}, phone_model="QUIET"), config)
+    unnamed.feed(dataclasses.replace(low, phone_model=None))
+    unnamed.close()
+    np.testing.assert_array_equal(unnamed.causal.xy_m, by_table.causal.xy_m)
+    assert BeaconTable.read_csv(_write(tmp_path, "beacon_id,x,y,offset_db:P\nA,1,2,\nB,3,4,-2.5\n")
+                                ).phone_offsets_db["P"].tolist() == [0.0, -2.5]
+    with pytest.raises(MapfilterError, match="column offset_db is 55, outside"):
+        BeaconTable.read_csv(_write(tmp_path, "beacon_id,x,y,offset_db:P\nA,1,2,55\n"))

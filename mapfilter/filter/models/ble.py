@@ -81,19 +81,20 @@ def _by_floor(params, state, lo, m, out):
 
 class BeaconLikelihood(MeasurementModel):
     """Particles weighed by a window of beacon readings (module docstring): ``table`` seen from
-    each floor of ``frame``; ``rssi_offset_db``: the phone's RSSI minus the table's, added to
-    every beacon's C."""
+    each floor of ``frame``; ``rssi_offset_db``: the phone's RSSI minus the table's (one value, or
+    one per beacon), added to every beacon's C."""
 
     kind = "beacons"
     log_likelihood_peak = 0.0  # -sum (z - R)^2 / (2 var), without its constant
 
-    def __init__(self, table: BeaconTable, frame: StateFrame, variance_db2: float, rssi_offset_db: float = 0.0) -> None:
+    def __init__(self, table: BeaconTable, frame: StateFrame, variance_db2: float,
+                 rssi_offset_db: float | np.ndarray = 0.0) -> None:
         if not (np.isfinite(variance_db2) and variance_db2 > 0):
             raise MapfilterError(f"RSSI variance must be positive, got {variance_db2}")
         self.table = table
         self.frame = frame
         self.variance_db2 = float(variance_db2)
-        self.rssi_offset_db = float(rssi_offset_db)
+        self.rssi_offset_db = np.broadcast_to(np.asarray(rssi_offset_db, dtype=np.float64), (len(table),))
         beacon_xy, beacon_floor = table.building_xy_m(frame.building)
         # per floor of the state: each beacon seen from it (the point above or below it, in the
         # state's frame) and its RSSI at 1 m there
@@ -124,9 +125,14 @@ class BeaconLikelihood(MeasurementModel):
 class BeaconSource(MeasurementSource):
     """The BLE readings of a stream as measurements (module docstring); readings of beacons the
     table does not have are left out. The RSSI offset is the table's for the log's phone model
-    (the first chunk that names one), else the config's."""
+    (the first chunk that names one: ``offset_db:MODEL``), else the config's."""
 
     stream = "ble"
+    # readings come 0.1-2 times a second per beacon: the merge must not wait for the next one.
+    # GetSensorData logs its BLE4 rows in time order with the others; the ILC logger writes its
+    # TYPE_BEACON rows up to 1.0 s behind the newest record (IPIN 2023, ILC site 1 F1)
+    WRITTEN_BEHIND_S = {"GetSensorData": 0.1}
+    WRITTEN_BEHIND_OTHER_S = 1.5
 
     def __init__(self, table: BeaconTable, frame: StateFrame, config: BleConfig) -> None:
         super().__init__()
@@ -146,10 +152,13 @@ class BeaconSource(MeasurementSource):
 
     def records_of(self, records: Recording) -> tuple:
         """(t_s, table row, RSSI) of the chunk's readings of the table's beacons, in time order."""
+        report = records.read_report
+        if self.written_behind_s is None and report is not None and report.format:
+            self.written_behind_s = self.WRITTEN_BEHIND_S.get(report.format, self.WRITTEN_BEHIND_OTHER_S)
         if not self._phone_known and records.phone_model:
             self._phone_known = True
             offset = self.table.phone_offsets_db.get(records.phone_model)
-            if offset is not None and offset != self.offset_db:
+            if offset is not None:
                 self.offset_db = offset
                 self.model = self.model_on(self.model.frame)
         beacons = records.beacons

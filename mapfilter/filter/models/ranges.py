@@ -96,6 +96,7 @@ class RangeSource(MeasurementSource):
     """The ranges of a range log as measurements (module docstring)."""
 
     stream = "ranges"
+    written_behind_s = 0.0  # the ranges up to the chunk's newest record are handed over
 
     def __init__(self, ranges, frame: StateFrame, config) -> None:
         super().__init__()
