@@ -53,6 +53,12 @@ def _writable(folder: str, parent: str | None) -> bool:
 
 _numba_cache_dir()
 
+# cached kernels load without numba's whole compiler set up (runtime/numba_cache.py); numba is
+# not imported here
+from mapfilter.runtime import numba_cache as _numba_cache  # noqa: E402
+
+_numba_cache.install()
+
 _API = ("BeaconFit", "BeaconTable", "Building", "Evaluation", "GrowConfig", "GrowReport", "LogStream", "RadioMap",
         "Recording", "Track", "TrackResult", "Tracker", "TrackingConfig", "TrackingInputs", "build_radio_map",
         "enter_trial", "evaluate", "fit_beacons", "grow_radio_map", "load_access_points", "load_beacons", "load_map",

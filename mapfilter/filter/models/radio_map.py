@@ -359,19 +359,22 @@ def _weighted_sums(w_ptr, w_ref, w_val, ref_ptr, reading_ap, reading_rssi, n_aps
     cell heard (readings ``reading_*`` in CSR by reference point): sum w, sum w r and sum w r^2 in
     float32, added in the order of the cell's row: scipy's sparse product (csr_matmat), whose
     numbers the likelihood has always had. Entries in (AP, cell) order."""
+    # plain loops, no numpy function that numba implements in numba.np.arraymath: loading a kernel
+    # that calls one imports it, and with it scipy.linalg (runtime/numba_cache.py)
     n_cells = w_ptr.shape[0] - 1
-    seen = np.full(n_aps, -1, dtype=np.int64)
-    count = np.zeros(n_cells + 1, dtype=np.int64)
+    seen = np.empty(n_aps, dtype=np.int64)
+    seen[:] = -1
+    ptr = np.zeros(n_cells + 1, dtype=np.int64)
     for i in range(n_cells):
+        ptr[i + 1] = ptr[i]
         for jj in range(w_ptr[i], w_ptr[i + 1]):
             r = w_ref[jj]
             for kk in range(ref_ptr[r], ref_ptr[r + 1]):
                 a = reading_ap[kk]
                 if seen[a] != i:
                     seen[a] = i
-                    count[i + 1] += 1
-    ptr = np.cumsum(count)
-    total = ptr[-1]
+                    ptr[i + 1] += 1
+    total = ptr[n_cells]
     cell = np.empty(total, dtype=np.int64)
     ap = np.empty(total, dtype=np.int64)
     wh = np.empty(total, dtype=np.float32)
@@ -397,8 +400,7 @@ def _weighted_sums(w_ptr, w_ref, w_val, ref_ptr, reading_ap, reading_rssi, n_aps
                     seen[a] = i
                     ap[start + n] = a
                     n += 1
-        ap[start:start + n].sort()
-        for e in range(start, start + n):
+        for e in range(start, start + n):  # the cell's APs as first heard: the order below is by AP
             a = ap[e]
             cell[e] = i
             wh[e] = acc_w[a]
@@ -407,11 +409,12 @@ def _weighted_sums(w_ptr, w_ref, w_val, ref_ptr, reading_ap, reading_rssi, n_aps
             acc_w[a] = 0.0
             acc_1[a] = 0.0
             acc_2[a] = 0.0
-    # (AP, cell) order: a stable counting sort by AP
+    # (AP, cell) order: a stable counting sort by AP (each AP's entries are in cell order)
     first = np.zeros(n_aps + 1, dtype=np.int64)
     for e in range(total):
         first[ap[e] + 1] += 1
-    first = np.cumsum(first)
+    for a in range(n_aps):
+        first[a + 1] += first[a]
     order = np.empty(total, dtype=np.int64)
     for e in range(total):
         order[first[ap[e]]] = e

@@ -1,0 +1,46 @@
+"""Kernels loaded from numba's cache without numba's whole context (runtime/numba_cache.py)."""
+
+import subprocess
+import sys
+import textwrap
+
+_CHILD = textwrap.dedent("""
+    import sys
+
+    import numpy as np
+
+    import mapfilter
+    from mapfilter.runtime.numba_cache import installed
+    from mapfilter.filter.models.motion import RandomWalkMotion
+    from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
+    from mapfilter.maps.floorplan import FloorPlan
+
+    wall = np.zeros((40, 40), dtype=bool)
+    wall[:, 20] = True
+    pf = ParticleFilter(FloorPlan(wall, 0.1), RandomWalkMotion(), FilterConfig(n_particles=500),
+                        np.random.default_rng(0))
+    pf.initialise_uniform()
+    for _ in range(3):
+        pf.step(0.0, 1.0, None, None, None)
+    loaded_only = "numba.np.arraymath" not in sys.modules and "scipy.linalg" not in sys.modules
+
+    # a kernel that is in no cache still compiles (numba's compiler sets its context up itself)
+    from numba import njit
+
+    @njit
+    def norm_and_dot(x):
+        return np.linalg.norm(x) + np.dot(x, x)
+
+    print(installed(), loaded_only, norm_and_dot(np.ones(3)))
+""")
+
+
+def test_cached_kernels_load_without_numbas_whole_context_and_new_ones_still_compile():
+    runs = [subprocess.run([sys.executable, "-c", _CHILD], capture_output=True, text=True, timeout=600)
+            for _ in range(2)]  # the first fills numba's cache if a kernel changed
+    assert runs[1].returncode == 0, runs[1].stderr[-2000:]
+    replaced, loaded_only, value = runs[1].stdout.split()
+    assert replaced == "True", ("numba's cache loader is not the one mapfilter/runtime/numba_cache.py replaces "
+                                "(another numba?): every command pays numba's whole context at start-up")
+    assert loaded_only == "True"  # no numba.np.arraymath, no scipy.linalg
+    assert float(value) == 3.0 + 3.0 ** 0.5
