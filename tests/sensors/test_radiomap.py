@@ -638,8 +638,8 @@ def test_merged_radio_maps_unite_access_points_and_keep_sources():
 
 
 @pytest.mark.parametrize("floor_dbm,missing", [(None, -100.0), (-85.0, -90.0), (None, -95.0)])
-def test_distances_by_sparse_products_equal_the_pairwise_merge_to_the_last_bit(floor_dbm, missing):
-    """Oracle: on whole dBm the p = 2 fast path (sparse products) gives the merge kernel's
+def test_distances_by_matrix_products_equal_the_pairwise_merge_to_the_last_bit(floor_dbm, missing):
+    """Oracle: on whole dBm the p = 2 fast path (matrix products) gives the merge kernel's
     distances and shared counts exactly; readings below the floor and missing APs included."""
     from mapfilter.sensors.radiomap import (_below_floor_unheard, _distances_to_references, _reference_rows,
                                            _signal_distances, _sparse_rows)
