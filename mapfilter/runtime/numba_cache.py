@@ -18,8 +18,6 @@ fails loudly when that happens on the numba a checkout is tested with).
 
 from __future__ import annotations
 
-import importlib.abc
-import importlib.util
 import sys
 
 __all__ = ["install", "installed"]
@@ -63,13 +61,15 @@ def _replace(caching) -> None:
     caching.Cache.load_overload = load_overload
 
 
-class _WhenImported(importlib.abc.MetaPathFinder):
-    """Finds nothing itself; when numba's caching module is imported, lets the normal finders load
-    it and then replaces its loader."""
+class _WhenImported:
+    """A meta path finder that finds nothing itself; when numba's caching module is imported, lets
+    the normal finders load it and then replaces its loader."""
 
     def find_spec(self, name, path=None, target=None):
         if name != _MODULE:
             return None
+        import importlib.util
+
         sys.meta_path.remove(self)
         spec = importlib.util.find_spec(name)
         if spec is None or spec.loader is None:
@@ -78,7 +78,7 @@ class _WhenImported(importlib.abc.MetaPathFinder):
         return spec
 
 
-class _ThenReplace(importlib.abc.Loader):
+class _ThenReplace:
     def __init__(self, loader):
         self._loader = loader
 
