@@ -62,7 +62,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--floor", metavar="NAME", help="track on this floor only (default: find the floor)")
     parser.add_argument("--phone", metavar="MODEL",
                         help="the trial's phone model (the server sends no log header): a source's table applies "
-                             "what it says of that phone (a beacon table's offset_db:MODEL)")
+                             "what it says of that phone (an RSSI offset: offset_db:MODEL)")
     parser.add_argument("--offline", action="store_true",
                         help="an offline trial: the whole log at once, the whole-walk track posted in one go")
     parser.add_argument("--reload", action="store_true",

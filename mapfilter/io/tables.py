@@ -1,4 +1,4 @@
-"""The small CSV tables a user writes (access-point and beacon tables) and the track files read
+"""The small CSV tables a user writes (access-point tables, measurement sources' tables) and the track files read
 back: the text of a table read whole within a bound, and the csv module's own refusals (a field
 longer than its limit, a NUL byte) as one line naming the file and line."""
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 from mapfilter.errors import MapfilterError
 
-MAX_TABLE_BYTES = 16 << 20  # 16 MiB: a table of 100 000 beacons or access points is about 6 MB
+MAX_TABLE_BYTES = 16 << 20  # 16 MiB: a table of 100 000 transmitters is about 6 MB
 
 
 def read_table_text(path: str | os.PathLike, what: str) -> str:

@@ -63,7 +63,7 @@ class TrackingInputs:
     # measure what finding the floor costs)
     floor_evidence: np.ndarray | None = None
     # the phone, where the log does not name it (a competition server sends no header): what a
-    # source knows of it applies (a beacon table's RSSI offset for that phone model)
+    # source knows of it applies (a table's RSSI offset for that phone model)
     phone_model: str | None = None
 
     def __post_init__(self) -> None:

@@ -166,3 +166,16 @@ def test_the_base_class_holds_back_what_runs_ahead_of_the_chunk():
     assert source.take(chunk(6.0))[0].tolist() == [5.0]
     assert source.take(None)[0].tolist() == [9.0]  # the end of the walk: the rest
     assert source.add(taken, final=False) == [1.0, 2.0] and source.measurement(1) == 1
+
+
+def test_outside_the_log_readers_only_the_ble_plugins_files_name_beacons():
+    """BLE is an ordinary plug-in: its registration, model and table/fit, its fit command and the
+    API's exports name beacons; the log readers read their rows; nothing else does."""
+    from tests.conftest import REPO
+
+    package = REPO / "mapfilter"
+    naming = {str(p.relative_to(package)) for p in package.rglob("*.py") if "beacon" in p.read_text().lower()}
+    readers = {"sensors/ilc.py", "sensors/ipin.py", "sensors/logread.py", "sensors/recording.py"}
+    plugin_files = {"filter/sources/ble.py", "filter/models/ble.py", "sensors/beacons.py", "cli/radiomap_cmd.py",
+                    "api.py", "__init__.py"}
+    assert naming - readers <= plugin_files, sorted(naming - readers - plugin_files)
