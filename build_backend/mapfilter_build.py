@@ -25,8 +25,9 @@ from pathlib import Path
 from setuptools import build_meta as _setuptools
 from setuptools.build_meta import *  # noqa: F401,F403 - every other hook is setuptools'
 
-# what ``mapfilter.runtime.warmup`` imports (the same lower bounds as the project's dependencies)
-KERNEL_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "pyyaml>=6.0", "opencv-python-headless>=4.8"]
+# what ``mapfilter.runtime.warmup`` imports (the same bounds as the project's dependencies: numba's cache
+# holds for the numba release that wrote it)
+KERNEL_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11", "numba>=0.61,<0.69", "pyyaml>=6.0", "opencv-python-headless>=4.8"]
 SOURCE = Path(__file__).resolve().parents[1]
 
 

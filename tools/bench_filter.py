@@ -11,6 +11,8 @@ the bundled map maps/office.yaml, it times
 - with ``--baseline REV``: the same step by the filter of an earlier revision of this repository
   (a temporary git worktree, run in a child process that times its own steps; its default path
   at that N, or the path ``--baseline-config`` names), one step of each in turn;
+- ``one_thread`` (from 100,000 particles, on a machine with more than one CPU): the same step on
+  one thread (``MAPFILTER_THREADS=1``), for what the threads buy;
 
 and the speed-ups over the references, one step of each in turn, in the same run.
 
@@ -64,6 +66,7 @@ from mapfilter.filter.models.path_loss import path_loss_kernel  # noqa: E402
 from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter, optimal_bandwidth  # noqa: E402
 from mapfilter.maps.floorplan import FloorPlan  # noqa: E402
 from mapfilter.maps.walls import crosses_wall  # noqa: E402
+from mapfilter.runtime.threads import n_threads  # noqa: E402
 
 ILC_FLOOR = REPO.parent / "shared" / "data" / "ilc20" / "site1" / "F1"
 OFFICE_YAML = REPO / "maps" / "office.yaml"
@@ -226,6 +229,23 @@ def per_step_seconds(fn, reps: int) -> float:
     return float(np.median(times))
 
 
+THREADS_FROM = 100_000  # particle counts from which the step is also timed on one thread
+
+
+@contextlib.contextmanager
+def _threads(count: int):
+    """``MAPFILTER_THREADS`` set to ``count`` inside the block (the kernels read it at every call)."""
+    before = os.environ.get("MAPFILTER_THREADS")
+    os.environ["MAPFILTER_THREADS"] = str(count)
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ["MAPFILTER_THREADS"]
+        else:
+            os.environ["MAPFILTER_THREADS"] = before
+
+
 def _pf(fp: FloorPlan, n: int, true_xy: np.ndarray, seed: int) -> ParticleFilter:
     # the filter starts around the truth so that the cloud is realistic (not map-wide)
     pf = ParticleFilter(fp, RandomWalkMotion(), FilterConfig(n_particles=n, resample_ess_fraction=1.0),
@@ -243,8 +263,12 @@ import numpy as np
 sys.path.insert(0, sys.argv[1])
 sys.path.insert(0, sys.argv[1] + "/tools")
 import bench_filter as b
-from mapfilter.filter.pf import FilterConfig, ParticleFilter
-from mapfilter.filter.motion import RandomWalkMotion
+try:
+    from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
+    from mapfilter.filter.models.motion import RandomWalkMotion
+except ImportError:  # a revision before the filter's modules were renamed
+    from mapfilter.filter.pf import FilterConfig, ParticleFilter
+    from mapfilter.filter.motion import RandomWalkMotion
 key, n, seed, extra = sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), json.loads(sys.argv[5])
 fp, _ = {"ilc": b.load_ilc_map, "office": b.load_office_map}[key]()
 rng = np.random.default_rng(seed)
@@ -314,6 +338,16 @@ def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: 
 
         step()  # warm-up at this size
         runs: dict = {"step": step}
+        if n_threads() > 1 and n >= THREADS_FROM:
+            # the same step on one thread (same seed: the same particles whatever the threads)
+            single = _pf(fp, n, true_xy[0], seed)
+
+            def one_thread(single=single):
+                with _threads(1):
+                    single.step(0.0, DT_S, None, model, observed)
+
+            one_thread()
+            runs["one_thread"] = one_thread
         if n <= ref_max_n:
             ref = NumpyReferenceFilter(fp, _pf(fp, n, true_xy[0], seed).particles.xy_m, np.random.default_rng(seed))
             runs["reference"] = lambda: ref.step(model, observed)
@@ -341,6 +375,9 @@ def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: 
             if other in times:
                 row[f"speedup_vs_{other}"] = row[f"{other}_step_ms"] / row["step_step_ms"]
                 row[f"speedup_vs_{other}_cpu"] = row[f"{other}_step_cpu_ms"] / row["step_step_cpu_ms"]
+        if "one_thread" in times:
+            row["threads"] = n_threads()
+            row["speedup_of_threads"] = row["one_thread_step_ms"] / row["step_step_ms"]
         row["resampled_share"] = stats["resampled"] / stats["steps"]
         row["killed_per_step_share"] = stats["killed"] / stats["steps"] / n
         rows.append(row)
@@ -507,7 +544,6 @@ def main(argv: list[str] | None = None) -> int:
                                                        json.loads(args.baseline_config))})
     import numba
 
-    from mapfilter.runtime.threads import n_threads
     doc = {
         "unit": "particle-steps per second (median step time; full step forces resampling every step); "
                 "*_cpu_ms: CPU time of the process (all threads) for one step",

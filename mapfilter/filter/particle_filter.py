@@ -28,6 +28,7 @@ from mapfilter.filter.models.building import OneFloor
 from mapfilter.filter.models.interface import FloorModel, LikelihoodKernel, MeasurementModel, MotionModel, MoveKernel
 from mapfilter.filter.particles import HEADING, STEP, X, Y, Particles
 from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import wall_grid
 
 __all__ = ["FilterConfig", "ParticleFilter", "evaluate_log_likelihood"]
 
@@ -137,7 +138,7 @@ class ParticleFilter:
         self.motion = motion
         self.config = config or FilterConfig()
         self.rng = rng
-        self.walls = passes.WallGrid(floorplan)
+        self.walls = wall_grid(floorplan)
         self.particles: Particles | None = None
         self.estimate_xy_m: np.ndarray | None = None
         self.estimate_std_m: float = math.inf
@@ -151,7 +152,9 @@ class ParticleFilter:
         self.last_jitter_m2 = 0.0
         n = self.n
         self._spare: list[Particles] = []
-        self._scratch = (np.empty(n, dtype=np.bool_), np.empty(n), np.empty((passes.n_blocks(n), passes.N_ADVANCE_SUMS)))
+        self._scratch = (np.empty(n, dtype=np.bool_), np.empty(n), passes.advance_sums(n))
+        self._uniform_weights = np.full(n, 1.0 / n)  # a resampled cloud's weights (the reports share it)
+        self._uniform_weights.flags.writeable = False
 
     @property
     def n(self) -> int:
@@ -240,18 +243,20 @@ class ParticleFilter:
         state = candidates.state
         log_weight = np.zeros(m)
         e = np.empty(m)
-        sums = np.empty((passes.n_blocks(m), passes.N_ADVANCE_SUMS))
+        sums = passes.advance_sums(m)
         shift = state[X:Y + 1, 0].copy()
-        passes.advance_pass(passes.WEIGH, 0, 0, passes.stay, _NO_PARAMS, state, log_weight, self.walls,
-                            kernel.function, kernel.params, shift, state, log_weight, np.zeros(m, dtype=np.bool_),
-                            e, sums)
+        passes.advance_pass(passes.Advance(passes.WEIGH, np.uint64(0), 0, float(shift[0]), float(shift[1])),
+                            passes.move_call(passes.stay, _NO_PARAMS),
+                            passes.likelihood_call(kernel.function, kernel.params), self.walls,
+                            passes.Cloud(state, log_weight),
+                            passes.Advanced(state, log_weight, np.zeros(m, dtype=np.bool_), e, sums))
         totals = passes.Totals(sums, shift)
         if totals.n_finite == 0:
             return None
         cov = totals.covariance_m2 if not self.floors.changes_floors else self.floors.covariance(
             candidates.xy_m, np.exp(log_weight - totals.log_normaliser))
         out = Particles.empty(self.n if n is None else n)
-        self._resample(totals, e, state, state, shift, cov, out.state, walks=False)
+        self._resample(totals, e, state, state, shift, cov, out, walks=False)
         return out.xy_m.copy()
 
     # ---- the step ----------------------------------------------------------------------------
@@ -278,11 +283,16 @@ class ParticleFilter:
         killed, e, sums = self._scratch
         key = self._draw_key()
 
+        move_call = passes.move_call(move.function, move.params)
+
         def run(flags: int, kernel: LikelihoodKernel | None = None, src_log_weight: np.ndarray = prev.log_weight):
             kernel = kernel or likelihood or LikelihoodKernel(passes.flat_log_likelihood, _NO_PARAMS)
-            passes.advance_pass(flags, key, move.normal_pairs, move.function, move.params, prev.state,
-                                src_log_weight, self.walls, kernel.function, kernel.params, shift, moved.state,
-                                moved.log_weight, killed, e, sums)
+            # moved's arrays as they are now: a floor model may have given it new log weights
+            passes.advance_pass(passes.Advance(flags, np.uint64(key), int(move.normal_pairs), float(shift[0]),
+                                               float(shift[1])), move_call,
+                                passes.likelihood_call(kernel.function, kernel.params), self.walls,
+                                passes.Cloud(prev.state, src_log_weight),
+                                passes.Advanced(moved.state, moved.log_weight, killed, e, sums))
 
         if not self.floors.changes_floors and likelihood is not None:
             run(passes.MOVE | passes.KILL | passes.WEIGH)  # the common step: one pass
@@ -320,7 +330,8 @@ class ParticleFilter:
         collapse = self._record_collapse(t_s, step_index, before_xy, cause, prev, recovery)
         self.last_parents = np.full(self.n, -1) if self._parents_unknown or cause is not None else parent
         self._parents_unknown = False
-        return self._report(t_s, step_index, prev, moved, new, weights, np.flatnonzero(killed), ess, n_alive,
+        return self._report(t_s, step_index, passes.killed_moves(killed, sums, prev.state, moved.state), new,
+                            weights, ess, n_alive,
                             resampled, collapse, model if measured else None, measurement, means)
 
     def _draw_key(self) -> int:
@@ -361,31 +372,33 @@ class ParticleFilter:
         cov = totals.covariance_m2 if not self.floors.changes_floors else self.floors.covariance(
             moved.xy_m, np.exp(moved.log_weight - totals.log_normaliser))
         new = self._buffer()
-        new.log_weight[:] = -math.log(n)
-        parent, s = self._resample(totals, e, prev.state, moved.state, shift, cov, new.state, walks)
-        weights = np.full(n, 1.0 / n)
-        ex, ey = s[passes.R_X] / n, s[passes.R_Y] / n
-        cov_new = np.array([[s[passes.R_XX] / n - ex * ex, s[passes.R_XY] / n - ex * ey],
-                            [s[passes.R_XY] / n - ex * ey, s[passes.R_YY] / n - ey * ey]])
+        parent, s = self._resample(totals, e, prev.state, moved.state, shift, cov, new, walks)
+        weights = self._uniform_weights
+        ex, ey = s["dx"] / n, s["dy"] / n
+        cov_new = np.array([[s["dxx"] / n - ex * ex, s["dxy"] / n - ex * ey],
+                            [s["dxy"] / n - ex * ey, s["dyy"] / n - ey * ey]])
         self._estimate(new, weights, shift + np.array([ex, ey]), cov_new)
-        means = (math.atan2(s[passes.R_SIN], s[passes.R_COS]), float(s[passes.R_STEP] / n)) if walks else None
+        means = (math.atan2(s["sin_heading"], s["cos_heading"]), float(s["step_length_m"] / n)) if walks else None
         return new, parent, float(totals.ess), True, weights, means
 
     def _resample(self, totals: passes.Totals, e: np.ndarray, origin: np.ndarray, src: np.ndarray,
-                  shift: np.ndarray, cov: np.ndarray, dst: np.ndarray, walks: bool) -> tuple[np.ndarray, np.ndarray]:
-        """Systematic resampling of ``src`` into ``dst`` and the jitter; (parents, summed new moments)."""
+                  shift: np.ndarray, cov: np.ndarray, dst: Particles, walks: bool) -> tuple[np.ndarray, dict]:
+        """Systematic resampling of ``src`` into ``dst`` (equal weights) and the jitter; (parents, the
+        new cloud's sums by ``passes.RESAMPLE_SUMS`` field)."""
         cfg = self.config
-        n_out = dst.shape[1]
+        n_out = len(dst)
         u = float(self.rng.random())
         key = self._draw_key()
         tries = REGULARISE_TRIES if cfg.regularise else 0
         h, root = bandwidth_and_root(self.floorplan.resolution_m, cov, n_out, cfg.bandwidth_scale)
         self.last_jitter_m2 = 0.5 * h * h * float(np.trace(root @ root.T)) if tries else 0.0
         parent = np.empty(n_out, dtype=np.int64)
-        sums = np.empty((passes.n_blocks(n_out), passes.N_RESAMPLE_SUMS))
-        passes.resample_pass(totals, e, n_out, u, key, tries, walks, h, root, self.walls, origin, src, shift, parent,
-                             dst, sums)
-        return parent, sums.sum(axis=0)
+        sums = passes.resample_sums(n_out)
+        passes.resample_pass(totals, e, u, key, tries, walks, h, root, self.walls, origin, src, shift,
+                             passes.Resampled(parent, dst.state, dst.log_weight, sums))
+        # added in block order, as a (blocks, fields) array (every field is a float64)
+        summed = sums.view(np.float64).reshape(len(sums), -1).sum(axis=0)
+        return parent, dict(zip(passes.RESAMPLE_SUMS.names, summed.tolist()))
 
     def _estimate(self, particles: Particles, weights: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> None:
         """The weighted mean when it is a free point of one floor, else the floor model's estimate
@@ -442,8 +455,8 @@ class ParticleFilter:
         self.collapses.append(collapse)
         return collapse
 
-    def _report(self, t_s: float, step_index: int, prev: Particles, moved: Particles, new: Particles,
-                weights: np.ndarray, killed: np.ndarray, ess: float, n_alive: int, resampled: bool,
+    def _report(self, t_s: float, step_index: int, killed_moves: tuple[np.ndarray, np.ndarray], new: Particles,
+                weights: np.ndarray, ess: float, n_alive: int, resampled: bool,
                 collapse: CollapseEvent | None, model: MeasurementModel | None, measurement: Any,
                 means: tuple[float, float] | None) -> StepReport:
         """What happened this step, for the viewer and the tracks."""
@@ -454,8 +467,8 @@ class ParticleFilter:
         return StepReport(
             t_s=float(t_s), step_index=step_index, estimate_xy_m=self.estimate_xy_m.copy(),
             estimate_std_m=float(self.estimate_std_m), ess=ess, n_particles=self.n, n_alive=n_alive,
-            n_killed=int(killed.size), resampled=resampled, particles_xy_m=new.xy_m,
-            particles_weight=weights, killed_from_xy_m=prev.xy_m[killed], killed_to_xy_m=moved.xy_m[killed],
+            n_killed=len(killed_moves[0]), resampled=resampled, particles_xy_m=new.xy_m,
+            particles_weight=weights, killed_from_xy_m=killed_moves[0], killed_to_xy_m=killed_moves[1],
             collapse=collapse,
             heading_rad=means[0] if steps else None,
             step_length_m=means[1] if steps else None,

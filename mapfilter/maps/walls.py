@@ -17,33 +17,40 @@ Leaving the map counts as touching a wall. A segment with a non-finite coordinat
 The walk decides which grid line comes next by comparing dist_x |dv| with dist_y |du| (no
 division), which is exact for lattice-aligned coordinates, where exact corner passes happen;
 the plain-Python oracle (:func:`touched_pixels_reference`, a brute-force clip of the segment
-against every pixel square) agrees with it except on float ties a few ulps apart. The numba
-check also skips pieces of a move that the clearance map proves wall free (``clearance_px``).
+against every pixel square) agrees with it except on float ties a few ulps apart.
+
+The filter's check (:func:`move_crosses`, behind :func:`crosses_wall`) gives the walk's answer
+cheaper, from tables built once per plan (:class:`WallGrid`): a move shorter than its start
+pixel's clearance (a distance transform of the walls) touches no wall; any other move reads one
+table entry per pixel row (or column) it spans, and the walk decides the rare move that passes
+within a millionth of a pixel of a pixel edge.
 """
 
 from __future__ import annotations
 
 import math
 import weakref
+from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import njit, types
 
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.runtime.threads import for_slices
 
-# The walk and its kernels are compiled without numba's reference counting (_nrt=False:
-# they allocate nothing). With it, every call counted its array arguments in and out with
-# atomic operations: the 100k-segment check took 6.7 ms of CPU instead of 3.5. (IR-level
-# inline="always" hid that cost before, at 10 s of compile time on a fresh install.) The
-# kernels use numpy's error model (no ZeroDivisionError branches), as prange loops did.
+# The walk and its kernels are compiled without numba's reference counting (_nrt=False: they
+# allocate nothing, and counting every array argument in and out doubled a check's cost), with
+# numpy's error model (no ZeroDivisionError branches).
 # the walk records nothing in check mode; passed in (a global would be a read-only constant)
 NO_BUFFER = np.empty(0, dtype=np.int64)
 
 __all__ = [
+    "WALL_GRID",
+    "WallGrid",
     "crosses_wall",
     "move_crosses",
     "crosses_wall_uv",
+    "crossings",
     "clearance_px",
     "count_wall_crossings",
     "forget_clearance",
@@ -52,6 +59,7 @@ __all__ = [
     "touched_pixels_capacity",
     "touched_pixels_into",
     "touched_pixels_reference",
+    "wall_grid",
 ]
 
 
@@ -194,217 +202,217 @@ def _crosses_uv_kernel(lo, hi, mask, u0, v0, u1, v1, out, no_buffer):
         out[i] = _walk(mask, u0[i], v0[i], u1[i], v1[i], False, no_buffer, no_buffer) == 1
 
 
-_MIN_JUMP_PX = 2.0  # jump ahead on the clearance map only when it skips at least this much
+class WallGrid(NamedTuple):
+    """A plan's walls as the numba checks take them (:func:`wall_grid`; the filter's passes, the
+    smoother and :func:`crosses_wall`)."""
+
+    mask: np.ndarray  # (H, W) bool, True = wall
+    clearance_px: np.ndarray  # (H, W) float32: a move starting in the pixel and shorter than this touches no wall
+    wall_ahead_in_row: np.ndarray  # (H, W) uint16: columns from pixel (r, c) to the first wall at or after it in row r
+    wall_ahead_in_column: np.ndarray  # (W, H) uint16: the same down column c (the transposed mask's table)
+    x0_m: float  # world position of the mask's lower-left corner
+    y0_m: float
+    inv_resolution: float  # pixels per metre
+    no_buffer: np.ndarray  # the recording walk's buffer, unused in check mode (a global would be read-only)
 
 
-@njit(cache=True, _nrt=False)
-def _walk_until_clear(mask, clearance_px, u0, v0, u1, v1):
-    """The check-mode walk of a segment with du != 0 and dv != 0 that stops on entering a
-    pixel whose clearance is at least ``_MIN_JUMP_PX`` (not the end pixel).
+WALL_GRID = types.NamedTuple((types.boolean[:, ::1], types.float32[:, ::1], types.uint16[:, ::1],
+                              types.uint16[:, ::1], types.float64, types.float64, types.float64,
+                              types.int64[::1]), WallGrid)
 
-    Returns (1, t, 0) on touching a wall, (0, 1, 0) on reaching the end without, or
-    (2, t, c): stopped where the segment enters a clear pixel at parameter t, clearance c.
-    Same touching rule as ``_walk`` (corners, end points on grid lines).
-    """
-    du = u1 - u0
-    dv = v1 - v0
-    ix = int(math.floor(u0))
-    iy = int(math.floor(v0))
-    sx = 1 if du > 0 else -1
-    sy = 1 if dv > 0 else -1
-    nx = abs(int(math.floor(u1)) - ix)
-    ny = abs(int(math.floor(v1)) - iy)
-    if _hit(mask, iy, ix):
-        return 1, 0.0, 0.0
-    for e in range(2):
-        pu = u0 if e == 0 else u1
-        pv = v0 if e == 0 else v1
-        cu = int(math.floor(pu))
-        cv = int(math.floor(pv))
-        if pu == cu or pv == cv:
-            for dc in range(-1 if pu == cu else 0, 1):
-                for dr in range(-1 if pv == cv else 0, 1):
-                    if _hit(mask, cv + dr, cu + dc):
-                        return 1, 0.0, 0.0
-    adu = abs(du)
-    adv = abs(dv)
-    while nx > 0 or ny > 0:
-        order = _next_crossing(ix, iy, sx, sy, u0, v0, adu, adv, nx, ny)
-        if order == 0:
-            if _hit(mask, iy, ix + sx) or _hit(mask, iy + sy, ix):
-                return 1, 0.0, 0.0
-            ix += sx
-            iy += sy
-            nx -= 1
-            ny -= 1
-        elif order < 0:
-            ix += sx
-            nx -= 1
+_AHEAD_MAX = 65535  # uint16: a run this long or longer is left to the exact walk
+# The band check's margin in pixels: far above the rounding of the u (or v) it computes where the
+# segment meets a band's edge (a few ulps of coordinates below 10^6 px: < 1e-9 px), far below a pixel
+_EDGE_PX = 1e-6
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _bands(ahead, n_lines, n_across, p0, q0, p1, q1):
+    """Does the closed segment (p0, q0)-(p1, q1) touch a wall pixel? Line by line along q: pixel
+    line r (the band r <= q <= r + 1) is touched over the closed run of pixels whose squares meet the
+    piece of the segment inside the band, and ``ahead[r, first]`` says whether a wall lies in that
+    run. Called with q the axis the segment advances less along (fewest lines), so q0 != q1 unless
+    the segment is a point.
+
+    Returns 1 (touches), 0 (does not) or 2: a run's end lies within ``_EDGE_PX`` of a pixel edge,
+    where the rounding of the computed end could decide (the exact walk decides then)."""
+    q_lo = min(q0, q1)
+    q_hi = max(q0, q1)
+    if q_lo <= 0.0 or q_hi >= n_lines:
+        return 1  # it touches a line outside the map (exact: q_lo and q_hi are the end points' own)
+    dq = q1 - q0
+    slope = (p1 - p0) / dq if dq != 0.0 else 0.0
+    if not math.isfinite(slope):
+        return 2  # a minor axis so short that the slope overflows
+    undecided = False
+    for r in range(int(math.ceil(q_lo)) - 1, int(math.floor(q_hi)) + 1):
+        # the piece inside the band: from q = max(r, q_lo) to min(r + 1, q_hi); at the segment's
+        # ends p is the end's own, in between computed (rounded)
+        qa = max(float(r), q_lo)
+        qb = min(float(r + 1), q_hi)
+        if dq == 0.0:
+            pa = p0
+            pb = p1
         else:
-            iy += sy
-            ny -= 1
-        if _hit(mask, iy, ix):
-            return 1, 0.0, 0.0
-        if nx > 0 or ny > 0:
-            c = clearance_px[iy, ix]
-            if c >= _MIN_JUMP_PX:
-                # parameter where the segment entered this pixel (the boundary just crossed)
-                if order <= 0:
-                    t_enter = abs((ix if sx > 0 else ix + 1) - u0) / adu
-                else:
-                    t_enter = abs((iy if sy > 0 else iy + 1) - v0) / adv
-                return 2, t_enter, c
-    return 0, 1.0, 0.0
+            pa = p0 if qa == q0 else (p1 if qa == q1 else p0 + (qa - q0) * slope)
+            pb = p0 if qb == q0 else (p1 if qb == q1 else p0 + (qb - q0) * slope)
+        lo = min(pa, pb)
+        hi = max(pa, pb)
+        # pixel c's closed square meets [lo, hi] when c <= hi and c + 1 >= lo
+        if lo - _EDGE_PX <= 0.0 or hi + _EDGE_PX >= n_across:  # the outside, or nearly
+            if lo + _EDGE_PX <= 0.0 or hi - _EDGE_PX >= n_across:
+                return 1
+            undecided = True
+            continue
+        first = int(math.ceil(lo - _EDGE_PX)) - 1
+        last = int(math.floor(hi + _EDGE_PX))
+        if last - first >= _AHEAD_MAX:
+            undecided = True
+            continue
+        if ahead[r, first] <= last - first:
+            # a wall in the widened run; in the narrowed one too, or only within the margins?
+            first_sure = int(math.ceil(lo + _EDGE_PX)) - 1
+            last_sure = int(math.floor(hi - _EDGE_PX))
+            if first_sure <= last_sure and ahead[r, first_sure] <= last_sure - first_sure:
+                return 1
+            undecided = True
+    return 2 if undecided else 0
 
 
-@njit(cache=True, _nrt=False)
-def _segment_crosses_world(mask, clearance_px, x0_m, y0_m, inv_resolution, ax, ay, bx, by, no_buffer):
-    """One move in world metres: does it touch a wall pixel (exact walk, clearance jumps)?"""
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def move_crosses(walls, ax, ay, bx, by):
+    """Does the move (ax, ay) -> (bx, by) in world metres touch a wall pixel or leave the map? The
+    filter's wall check (the smoother's; the passes and :func:`crosses_wall` take a batch of moves:
+    :func:`crossings`), with the same answer as the exact walk of every pixel the segment touches
+    (the module's touching rule).
+
+    A move shorter than the clearance of the pixel it starts in touches no wall
+    (:func:`clearance_px`); any other is checked band by band along its minor axis (one table
+    read per pixel row or column it spans: :func:`_bands`), and the rare move that passes within
+    ``_EDGE_PX`` of a pixel edge is walked pixel by pixel."""
+    mask = walls.mask
     h, w = mask.shape
-    # world -> continuous pixel coordinates, as FloorPlan.world_to_pixel
-    u0 = (ax - x0_m) * inv_resolution
-    v0 = h - (ay - y0_m) * inv_resolution
-    u1 = (bx - x0_m) * inv_resolution
-    v1 = h - (by - y0_m) * inv_resolution
+    u0 = (ax - walls.x0_m) * walls.inv_resolution
+    v0 = h - (ay - walls.y0_m) * walls.inv_resolution
+    u1 = (bx - walls.x0_m) * walls.inv_resolution
+    v1 = h - (by - walls.y0_m) * walls.inv_resolution
     if not (math.isfinite(u0) and math.isfinite(v0) and math.isfinite(u1) and math.isfinite(v1)):
         return True
     du = u1 - u0
     dv = v1 - v0
-    length = math.sqrt(du * du + dv * dv)
-    if du == 0.0 or dv == 0.0:
-        # axis-aligned (measure zero for particles): the plain walk handles grid-line cases
-        pass
-    else:
-        # "Sphere tracing" on the clearance map: a piece of the segment shorter than the
-        # clearance of the pixel it starts in touches no wall, so it is skipped; the pieces in
-        # between are walked exactly until they enter a clear pixel again. Splitting a segment
-        # does not change the set of pixels it touches (a pixel is touched by a point of it).
-        t = 0.0
-        while True:
-            pu = u0 + t * du
-            pv = v0 + t * dv
-            c = 0.0
-            if 0.0 <= pu < w and 0.0 <= pv < h:
-                c = clearance_px[int(pv), int(pu)]
-            remaining = (1.0 - t) * length
-            if c > 0.0 and remaining < c:
-                return False
-            if c >= _MIN_JUMP_PX:
-                t += 0.999 * c / length  # a jump strictly shorter than the clearance
-                continue
-            status, s, c_stop = _walk_until_clear(mask, clearance_px, pu, pv, u1, v1)
-            if status != 2:
-                return status == 1
-            t_entry = t + s * (1.0 - t)
-            if (1.0 - t_entry) * length < c_stop:
-                return False
-            t = t_entry + 0.999 * c_stop / length
-    return _walk(mask, u0, v0, u1, v1, False, no_buffer, no_buffer) == 1
-
-
-_MARCH_STEPS = 12  # clearance steps from each end before the exact walk
-_MIN_MARCH_PX = 0.5  # fronts whose clearance is below this stop the march
-
-
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def move_crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer):
-    """Does the move (ax, ay) -> (bx, by) in world metres touch a wall pixel? The filter's wall
-    check (its passes and the smoother).
-
-    First whether it ends in a wall or off the map, then the clearance of the pixels at its
-    ends (a segment shorter than the sum of the clearances of its end pixels touches no wall:
-    the two discs cover it), a march along the clearance from both ends ("sphere tracing"), a
-    look at the pixel under the middle of what is left, and the exact walk of that piece.
-    Callers in a hot loop test the start pixel's clearance themselves first (most moves end
-    there; written out in the loop, that test costs a fifth of a call).
-
-    The same answer as :func:`crosses_wall` except for a move through a lattice corner exactly
-    (the pieces are split at float points): measure zero for particles, whose positions are
-    continuous; :func:`crosses_wall` is exact."""
-    h, w = clearance.shape
-    u0 = (ax - x0_m) * inv_res
-    v0 = h - (ay - y0_m) * inv_res
-    u1 = (bx - x0_m) * inv_res
-    v1 = h - (by - y0_m) * inv_res
-    du = u1 - u0
-    dv = v1 - v0
-    length = math.sqrt(du * du + dv * dv)
-    if not (0.0 <= u1 < w and 0.0 <= v1 < h) or mask[int(v1), int(u1)]:
-        return True  # it ends in a wall pixel or off the map (NaN ends in the walk below)
-    c_end = clearance[int(v1), int(u1)]
-    c_start = clearance[int(v0), int(u0)] if 0.0 <= u0 < w and 0.0 <= v0 < h else 0.0
-    if length > 0.0 and math.isfinite(length):
-        step = 0.999 / length
-        t_lo = c_start * step
-        t_hi = 1.0 - c_end * step
-        if t_lo >= t_hi:
+    if 0.0 <= u0 < w and 0.0 <= v0 < h:
+        c = walls.clearance_px[int(v0), int(u0)]
+        if du * du + dv * dv < c * c:
             return False
-        for _ in range(_MARCH_STEPS):
-            pu = u0 + t_lo * du
-            pv = v0 + t_lo * dv
-            c_lo = clearance[int(pv), int(pu)] if 0.0 <= pu < w and 0.0 <= pv < h else 0.0
-            qu = u0 + t_hi * du
-            qv = v0 + t_hi * dv
-            c_hi = clearance[int(qv), int(qu)] if 0.0 <= qu < w and 0.0 <= qv < h else 0.0
-            if c_lo < _MIN_MARCH_PX and c_hi < _MIN_MARCH_PX:
-                break  # against a wall at both fronts: the exact walk decides
-            t_lo += c_lo * step
-            t_hi -= c_hi * step
-            if t_lo >= t_hi:
-                return False
-        # a wall pixel under the middle of the piece in between: the move touches it (the fronts
-        # stop on both sides of a thin wall, most crossing moves end here)
-        t_mid = 0.5 * (max(t_lo, 0.0) + min(t_hi, 1.0))
-        mu = u0 + t_mid * du
-        mv = v0 + t_mid * dv
-        if 0.0 <= mu < w and 0.0 <= mv < h and mask[int(mv), int(mu)]:
-            return True
-        if t_lo > 0.0 or t_hi < 1.0:
-            # the exact walk of the piece in between (the pieces at the ends touch no wall)
-            return _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, ax + t_lo * (bx - ax),
-                                          ay + t_lo * (by - ay), ax + t_hi * (bx - ax), ay + t_hi * (by - ay),
-                                          no_buffer)
-    return _segment_crosses_world(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer)
+    if abs(dv) <= abs(du):
+        found = _bands(walls.wall_ahead_in_row, h, w, u0, v0, u1, v1)
+    else:
+        found = _bands(walls.wall_ahead_in_column, w, h, v0, u0, v1, u1)
+    if found == 2:
+        return _walk(mask, u0, v0, u1, v1, False, walls.no_buffer, walls.no_buffer) == 1
+    return found == 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _crosses_world_kernel(lo, hi, mask, clearance_px, x0_m, y0_m, resolution_m, from_xy_m, to_xy_m, out, no_buffer):
-    inv = 1.0 / resolution_m
-    for i in range(lo, hi):
-        out[i] = _segment_crosses_world(mask, clearance_px, x0_m, y0_m, inv, from_xy_m[i, 0], from_xy_m[i, 1],
-                                        to_xy_m[i, 0], to_xy_m[i, 1], no_buffer)
+def crossings(walls, ax, ay, bx, by, m, out):
+    """``out[k]`` = :func:`move_crosses` of the move (ax[k], ay[k]) -> (bx[k], by[k]), k < m: the same
+    check written out over a batch (numba passes each array of ``walls`` as several words, so a call
+    per move costs more than the clearance test that decides most moves)."""
+    mask = walls.mask
+    clearance = walls.clearance_px
+    h, w = mask.shape
+    x0 = walls.x0_m
+    y0 = walls.y0_m
+    inv = walls.inv_resolution
+    for k in range(m):
+        u0 = (ax[k] - x0) * inv
+        v0 = h - (ay[k] - y0) * inv
+        u1 = (bx[k] - x0) * inv
+        v1 = h - (by[k] - y0) * inv
+        if not (math.isfinite(u0) and math.isfinite(v0) and math.isfinite(u1) and math.isfinite(v1)):
+            out[k] = True
+            continue
+        du = u1 - u0
+        dv = v1 - v0
+        if 0.0 <= u0 < w and 0.0 <= v0 < h:
+            c = clearance[int(v0), int(u0)]
+            if du * du + dv * dv < c * c:
+                out[k] = False
+                continue
+        if abs(dv) <= abs(du):
+            found = _bands(walls.wall_ahead_in_row, h, w, u0, v0, u1, v1)
+        else:
+            found = _bands(walls.wall_ahead_in_column, w, h, v0, u0, v1, u1)
+        if found == 2:
+            found = _walk(mask, u0, v0, u1, v1, False, walls.no_buffer, walls.no_buffer)
+        out[k] = found == 1
 
 
-_CLEARANCE_CACHE: "weakref.WeakKeyDictionary[FloorPlan, tuple[np.ndarray, np.ndarray]]" = weakref.WeakKeyDictionary()
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _crosses_world_kernel(lo, hi, walls, ax, ay, bx, by, out):
+    crossings(walls, ax[lo:hi], ay[lo:hi], bx[lo:hi], by[lo:hi], hi - lo, out[lo:hi])
+
+
+_GRIDS: "weakref.WeakKeyDictionary[FloorPlan, tuple[np.ndarray, WallGrid]]" = weakref.WeakKeyDictionary()
+
+
+def _clearance_table(wall_mask: np.ndarray) -> np.ndarray:
+    """(H, W) float32: the distance in pixels from any point of each pixel to the nearest wall pixel
+    (the outside of the map counts as wall), less a margin.
+
+    Why a move shorter than this touches no wall: a move of length L starts at a point p of pixel
+    P (the closed unit square of column c, row r), so each of its points q lies within L of p. Every
+    point of P is at least d(P, Q) = sqrt(max(|c' - c| - 1, 0)^2 + max(|r' - r| - 1, 0)^2) from
+    wall pixel Q (column c', row r': the gaps between two unit squares along each axis), so
+    dist(q, Q) >= d(P, Q) - L > 0 when L < d(P, Q): no point of the move lies in a wall pixel.
+    The smallest d(P, Q) over the walls is the Euclidean distance between pixel centres to the
+    walls dilated by one pixel in all 8 directions (Q + e, e in {-1, 0, 1}^2, nearest at
+    e = sign(Q - P) per axis, makes each axis' |d| into max(|d| - 1, 0)). A one-pixel ring of
+    wall around the mask stands for the outside: the nearest outside pixel is in that ring.
+    """
+    import cv2  # OpenCV's exact Euclidean transform (Felzenszwalb): scipy.ndimage takes 0.3 s to import
+
+    padded = np.pad(wall_mask, 1, constant_values=True).astype(np.uint8)
+    dilated = cv2.dilate(padded, np.ones((3, 3), np.uint8))
+    distance = cv2.distanceTransform(1 - dilated, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    # float32 rounding of sqrt(integer) must not make the bound optimistic: shave a little off
+    return np.maximum(distance - np.float32(1e-3), np.float32(0.0)).astype(np.float32)
+
+
+def _wall_ahead(wall_mask: np.ndarray) -> np.ndarray:
+    """(H, W) uint16: per pixel, how many columns on to the first wall at or after it in its row
+    (the column past the map's right edge counts as wall), capped at ``_AHEAD_MAX``."""
+    h, w = wall_mask.shape
+    column = np.arange(w, dtype=np.int64)
+    next_wall = np.where(wall_mask, column[None, :], w)
+    next_wall = np.minimum.accumulate(next_wall[:, ::-1], axis=1)[:, ::-1]
+    return np.ascontiguousarray(np.minimum(next_wall - column[None, :], _AHEAD_MAX).astype(np.uint16))
+
+
+def wall_grid(floorplan: FloorPlan) -> WallGrid:
+    """The plan's :class:`WallGrid`, built once per FloorPlan (and mask object): after editing a mask
+    *in place*, call :func:`forget_clearance` (a new mask array or a new FloorPlan is picked up by
+    itself)."""
+    cached = _GRIDS.get(floorplan)
+    if cached is not None and cached[0] is floorplan.wall_mask:
+        return cached[1]
+    mask = np.ascontiguousarray(floorplan.wall_mask, dtype=np.bool_)
+    grid = WallGrid(mask, _clearance_table(mask), _wall_ahead(mask), _wall_ahead(np.ascontiguousarray(mask.T)),
+                    float(floorplan.origin_m[0]), float(floorplan.origin_m[1]), 1.0 / float(floorplan.resolution_m),
+                    NO_BUFFER)
+    _GRIDS[floorplan] = (floorplan.wall_mask, grid)
+    return grid
 
 
 def clearance_px(floorplan: FloorPlan) -> np.ndarray:
-    """(H, W) float32: a segment starting in pixel (r, c) and shorter than this touches no wall.
-
-    With D = distance from the pixel's centre to the nearest wall pixel's centre (the map's
-    outside counts as wall), any point q of a segment of length L from p reaches at most
-    |centre - q| <= L + sqrt(2)/2, and touching a wall pixel needs |q - wall centre| <=
-    sqrt(2)/2; so L < D - sqrt(2) cannot touch one. Cached per FloorPlan (and mask object):
-    after editing a mask *in place*, call :func:`forget_clearance` (a new mask array or a new
-    FloorPlan is picked up by itself).
-    """
-    cached = _CLEARANCE_CACHE.get(floorplan)
-    if cached is not None and cached[0] is floorplan.wall_mask:
-        return cached[1]
-    import cv2  # OpenCV's exact Euclidean transform (Felzenszwalb): scipy.ndimage takes 0.3 s to import
-
-    padded = np.pad(floorplan.wall_mask, 1, constant_values=True)
-    distance = cv2.distanceTransform((~padded).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
-    clearance = np.maximum(distance - math.sqrt(2.0), 0.0).astype(np.float32)
-    # float32 rounding must not make the bound optimistic: shave a little off
-    clearance = np.maximum(clearance - np.float32(1e-3), np.float32(0.0))
-    _CLEARANCE_CACHE[floorplan] = (floorplan.wall_mask, clearance)
-    return clearance
+    """(H, W) float32: a segment starting in pixel (r, c) and shorter than this touches no wall (the
+    proof: :func:`_clearance_table`). Part of the plan's :func:`wall_grid`."""
+    return wall_grid(floorplan).clearance_px
 
 
 def forget_clearance(floorplan: FloorPlan) -> None:
-    """Drop the cached clearance map of ``floorplan`` (needed only after editing its mask in place)."""
-    _CLEARANCE_CACHE.pop(floorplan, None)
+    """Drop the cached wall grid of ``floorplan`` (needed only after editing its mask in place)."""
+    _GRIDS.pop(floorplan, None)
 
 
 def crosses_wall_uv(wall_mask: np.ndarray, from_uv_px: np.ndarray, to_uv_px: np.ndarray) -> np.ndarray:
@@ -457,8 +465,8 @@ def crosses_wall(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarra
     if a.shape != b.shape:
         raise ValueError(f"from and to must have the same shape, got {a.shape} and {b.shape}")
     out = np.empty(a.shape[0], dtype=np.bool_)
-    for_slices(_crosses_world_kernel, a.shape[0], floorplan.wall_mask, clearance_px(floorplan),
-               floorplan.origin_m[0], floorplan.origin_m[1], floorplan.resolution_m, a, b, out, NO_BUFFER)
+    for_slices(_crosses_world_kernel, a.shape[0], wall_grid(floorplan), a[:, 0].copy(), a[:, 1].copy(),
+               b[:, 0].copy(), b[:, 1].copy(), out)
     return out
 
 

@@ -35,7 +35,7 @@ from numba import njit
 from mapfilter.filter.models.interface import FloorModel, MotionModel
 from mapfilter.filter.particles import HEADING, X, Y
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.maps.walls import NO_BUFFER, clearance_px, move_crosses
+from mapfilter.maps.walls import move_crosses, wall_grid
 
 __all__ = ["FixedLagSmoother", "ParticleHistory", "Smoothed", "smooth"]
 
@@ -102,7 +102,7 @@ class Smoothed:
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _backward_step(from_xy, means, mix, inv_two_var, from_floor, to_xy, to_floor, change_p, to_building,
-                   from_building, w_from, w_next, mask, clearance, x0, y0, inv_res, no_buffer, out):
+                   from_building, w_from, w_next, walls, out):
     """One step of the FFBSm recursion: out[i] = w_from[i] sum_j w_next[j] f_ij / sum_k w_from[k] f_kj.
 
     means (K, M, 2): the predicted positions of the particles at the earlier step (mixture of K,
@@ -151,8 +151,7 @@ def _backward_step(from_xy, means, mix, inv_two_var, from_floor, to_xy, to_floor
                 continue
             if from_floor[i] == to_floor[j]:
                 # a move through a wall has density 0
-                if move_crosses(mask, clearance, x0, y0, inv_res, from_xy[i, 0], from_xy[i, 1], to_xy[j, 0],
-                                to_xy[j, 1], no_buffer):
+                if move_crosses(walls, from_xy[i, 0], from_xy[i, 1], to_xy[j, 0], to_xy[j, 1]):
                     f[i] = 0.0
                     continue
             total += w_from[i] * value
@@ -174,10 +173,7 @@ class _Space:
     def __init__(self, plan: FloorPlan, floors: FloorModel | None) -> None:
         self.plan = plan
         self.floors = floors if floors is not None and floors.changes_floors else None
-        self.mask = np.ascontiguousarray(plan.wall_mask, dtype=np.bool_)
-        self.clearance = np.ascontiguousarray(clearance_px(plan), dtype=np.float32)
-        self.x0, self.y0 = float(plan.origin_m[0]), float(plan.origin_m[1])
-        self.inv_res = 1.0 / plan.resolution_m
+        self.walls = wall_grid(plan)
 
     def frame(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """(floor index per point, building-frame positions, number of floors)."""
@@ -216,7 +212,7 @@ def _backward_weights(history: ParticleHistory, motion: MotionModel, space: _Spa
                                np.ascontiguousarray(mix, dtype=np.float64), 0.5 / variance, from_floor, to_xy,
                                to_floor, space.change_probability(from_xy, after.dt_s, n_floors),
                                np.ascontiguousarray(to_building), np.ascontiguousarray(from_building), now.weight,
-                               w_next, space.mask, space.clearance, space.x0, space.y0, space.inv_res, NO_BUFFER, out)
+                               w_next, space.walls, out)
         total = out.sum()
         # no kept particle can reach the next step's (the subsample missed the way): start afresh
         weights[t - first] = out / total if found and total > 0 else now.weight.copy()

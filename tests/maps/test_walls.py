@@ -5,6 +5,7 @@ import pytest
 
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import (
+    _bands,
     clearance_px,
     count_wall_crossings,
     crosses_wall,
@@ -13,6 +14,7 @@ from mapfilter.maps.walls import (
     touched_pixels_capacity,
     touched_pixels_into,
     touched_pixels_reference,
+    wall_grid,
 )
 
 
@@ -209,3 +211,70 @@ def test_clearance_is_conservative_and_refreshable():
             end = (start[0] + length * np.cos(angle), start[1] + length * np.sin(angle))
             touched = touched_pixels_reference(start, end)
             assert not any(not (0 <= rr < 30 and 0 <= cc < 30) or fp.wall_mask[rr, cc] for rr, cc in touched)
+
+
+def test_the_filters_check_is_the_exact_walk_on_lattice_points_and_near_pixel_edges():
+    """``crosses_wall`` (clearance, then the band check) against the exact walk of the same segments,
+    with many end points on the lattice, on half pixels and a hair off them: the band check's
+    undecided moves (the walk decides them) are exercised and agree."""
+    rng = np.random.default_rng(11)
+    size = 40
+    mask = rng.random((size, size)) < 0.05
+    mask[12, 5:30] = True
+    mask[5:35, 20] = True
+    fp = FloorPlan(mask, 1.0)
+    a, b = _random_segments(rng, 20_000, size)
+    hair = rng.random(a.shape) < 0.2
+    a[hair] += rng.choice([-1e-7, 1e-7, -1e-12, 1e-12], hair.sum())
+    a_xy, b_xy = fp.pixel_to_world(a), fp.pixel_to_world(b)
+    a, b = fp.world_to_pixel(a_xy), fp.world_to_pixel(b_xy)  # the check's own pixel coordinates (1 m pixels)
+    assert np.array_equal(crosses_wall(fp, a_xy, b_xy), crosses_wall_uv(mask, a, b))
+    # the band check itself leaves the near-edge moves to the walk, and decides the others
+    grid = wall_grid(fp)
+    found = np.array([_bands(grid.wall_ahead_in_row, size, size, *a[i], *b[i]) if abs(b[i, 1] - a[i, 1]) <=
+                      abs(b[i, 0] - a[i, 0]) else _bands(grid.wall_ahead_in_column, size, size, a[i, 1], a[i, 0],
+                                                         b[i, 1], b[i, 0]) for i in range(len(a))])
+    assert 0.02 < (found == 2).mean() < 0.5
+    decided = found != 2
+    assert np.array_equal(found[decided] == 1, crosses_wall_uv(mask, a[decided], b[decided]))
+
+
+def test_the_clearance_is_the_distance_from_any_point_of_the_pixel_to_the_nearest_wall_square():
+    rng = np.random.default_rng(5)
+    mask = rng.random((23, 31)) < 0.04
+    fp = FloorPlan(mask, 0.5)
+    table = clearance_px(fp)
+    # brute force: the gap between two unit squares along each axis, over every wall pixel and the
+    # ring of pixels just outside the map
+    padded = np.pad(mask, 1, constant_values=True)
+    walls = np.argwhere(padded) - 1
+    rows, cols = np.mgrid[0:23, 0:31]
+    gap_r = np.maximum(np.abs(rows[..., None] - walls[:, 0]) - 1, 0)
+    gap_c = np.maximum(np.abs(cols[..., None] - walls[:, 1]) - 1, 0)
+    exact = np.sqrt(gap_r ** 2 + gap_c ** 2).min(axis=-1)
+    assert np.all(table <= exact) and np.all(table >= exact - 2e-3)  # the margin: float32 and a shave
+
+
+def test_moves_shorter_than_the_clearance_never_cross_and_the_clearance_decides_many():
+    from pathlib import Path
+
+    fp = FloorPlan.load(Path(__file__).resolve().parents[2] / "maps" / "office.yaml")
+    rng = np.random.default_rng(8)
+    a_xy = fp.sample_free(4000, rng)
+    b_xy = a_xy + rng.normal(0.0, 0.6, a_xy.shape)
+    ua, ub = fp.world_to_pixel(a_xy), fp.world_to_pixel(b_xy)
+    rows, cols, _ = fp.pixel_index(a_xy)
+    short = np.linalg.norm(ub - ua, axis=1) < clearance_px(fp)[rows, cols]
+    assert 0.2 < short.mean() < 0.9
+    mask = fp.wall_mask
+    h, w = mask.shape
+    for i in np.flatnonzero(short)[:600]:
+        assert not any(not (0 <= r < h and 0 <= c < w) or mask[r, c] for r, c in touched_pixels_reference(ua[i], ub[i]))
+    assert not crosses_wall(fp, a_xy[short], b_xy[short]).any()
+
+
+def test_a_run_longer_than_the_table_can_count_is_left_to_the_walk():
+    width = 140_000
+    ahead = np.full((3, width), 65_535, dtype=np.uint16)  # no wall within the table's reach
+    assert _bands(ahead, 3, width, 10.5, 1.2, 100_000.5, 1.8) == 2  # a run of 100,000 pixels: undecided
+    assert _bands(ahead, 3, width, 10.5, 1.2, 30_000.5, 1.8) == 0

@@ -2,20 +2,26 @@
 
 1. :func:`advance_pass` -- per block: the motion model's kernel moves every particle (with
    normals drawn here), the wall check kills the live particles whose move touches a wall, the
-   measurement model's kernel adds its log-likelihood, and the block's sums (largest log weight,
-   sums of e = exp(lw - max), e^2, e dx, e dy, e dx^2, e dx dy, e dy^2, particles alive, with a
-   finite weight, the best live log-likelihood) are kept for the normalisation, the ESS, the
-   estimate and the regularisation's covariance. The three stages can run in one call (one
-   floor) or in turn on the same arrays (a building, whose floor changes happen in between).
+   measurement model's kernel adds its log-likelihood, and the block's sums (``ADVANCE_SUMS``:
+   largest log weight, sums of e = exp(lw - max), e^2, e dx, e dy, e dx^2, e dx dy, e dy^2,
+   particles alive, with a finite weight, the best live log-likelihood) are kept for the
+   normalisation, the ESS, the estimate and the regularisation's covariance. The three stages can
+   run in one call (one floor) or in turn on the same arrays (a building, whose floor changes
+   happen in between).
 2. :func:`resample_pass` -- systematic resampling from the block sums, the gather of the
    ancestors' state and the wall-safe jitter of the Regularised Particle Filter (Musso, Oudjane
-   & Le Gland), with the sums of the new cloud.
+   & Le Gland), with the sums of the new cloud (``RESAMPLE_SUMS``).
 
 Each block's sums are kept apart and added in block order, and every random number is a
 counter-based draw of the particle's index, so the result does not depend on how the blocks
 are spread over threads.
 
-Models plug in through two function-pointer types, compiled once with these signatures:
+The kernels take their arguments as a few small structs (the ``NamedTuple`` classes below),
+handed over as plain tuples (numba types a plain tuple in its C dispatcher, a named one in Python
+at several times the cost) and named again on entry (``Advance(*advance)``).
+
+Models plug in through two function-pointer types, compiled once with these signatures
+(``kernels.pointers`` turns a model's kernel into the addresses the passes call):
 
 - ``MOVE_SIGNATURE``: ``move(params, src, dst, normals, lo, m)`` writes the moved state of
   particles ``lo .. lo + m - 1`` (``src``, ``dst``: the (STATE_ROWS, N) state arrays of
@@ -28,18 +34,20 @@ Models plug in through two function-pointer types, compiled once with these sign
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
+import numba
 import numpy as np
-from llvmlite import ir
 from numba import njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
 
 from mapfilter.filter.kernels.draws import BLOCK, cos_sin, exp_block, normal_pairs
-from mapfilter.maps.walls import NO_BUFFER, move_crosses
+from mapfilter.filter.kernels.pointers import function_at, pointer
+from mapfilter.maps.walls import WALL_GRID, WallGrid, crossings
 from mapfilter.runtime.threads import for_slices
 
-__all__ = ["BLOCK", "LIKELIHOOD_SIGNATURE", "MOVE_SIGNATURE", "advance_pass", "resample_pass"]
+__all__ = ["ADVANCE_SUMS", "BLOCK", "LIKELIHOOD_SIGNATURE", "MOVE_SIGNATURE", "RESAMPLE_SUMS", "Advance", "Advanced",
+           "Cloud", "ModelCall", "Resample", "Resampled", "Totals", "Weights", "advance_pass", "killed_moves",
+           "likelihood_call", "move_call", "resample_pass"]
 
 # rows of the state array (filter.particles)
 X, Y, VX, VY, HEADING, STEP = range(6)
@@ -49,113 +57,167 @@ _state = types.float64[:, ::1]
 _params = types.float64[::1]
 MOVE_SIGNATURE = types.void(_params, _state, _state, _state, types.int64, types.int64)
 LIKELIHOOD_SIGNATURE = types.void(_params, _state, types.int64, types.int64, types.float64[::1])
-MOVE_FUNCTION = types.FunctionType(MOVE_SIGNATURE)
-LIKELIHOOD_FUNCTION = types.FunctionType(LIKELIHOOD_SIGNATURE)
-
-
-def _function_from_addresses(function_type):
-    """An intrinsic that makes a first-class function of ``function_type`` from its two addresses
-    (the C wrapper's and the compiled function's): the kernels take models' functions as integers,
-    because numba's own unboxing of a function argument costs tens of microseconds per call."""
-
-    @intrinsic
-    def make(typingctx, c_address, jit_address):
-        def codegen(context, builder, signature, args):
-            value = cgutils.create_struct_proxy(function_type)(context, builder)
-            void_pointer = context.get_value_type(types.voidptr)
-            value.c_addr = builder.inttoptr(args[0], void_pointer)
-            value.py_addr = ir.Constant(void_pointer, None)
-            value.jit_addr = builder.inttoptr(args[1], void_pointer)  # called directly (numba's convention)
-            return value._getvalue()
-        return function_type(types.uint64, types.uint64), codegen
-
-    return make
-
-
-_move_at = _function_from_addresses(MOVE_FUNCTION)
-_likelihood_at = _function_from_addresses(LIKELIHOOD_FUNCTION)
-_ADDRESSES: dict = {}
-
-
-def function_addresses(function, signature) -> tuple[int, int]:
-    """(C wrapper address, compiled function address) of a model's kernel compiled with ``signature``."""
-    addresses = _ADDRESSES.get(function)  # a kernel has one signature (hashing numba's types is slow)
-    if addresses is None:
-        from numba.experimental.function_type import _get_jit_address, _get_wrapper_address
-
-        addresses = _ADDRESSES[function] = (_get_wrapper_address(function, signature),
-                                            _get_jit_address(function, signature))
-    return addresses
-
+_move_at = function_at(MOVE_SIGNATURE)
+_likelihood_at = function_at(LIKELIHOOD_SIGNATURE)
 
 # what advance_pass does (flags)
 MOVE, KILL, WEIGH = 1, 2, 4
-# per-block sums of advance_pass
-A_MAX, A_SUM, A_SUM2, A_X, A_Y, A_XX, A_XY, A_YY, A_ALIVE, A_FINITE, A_BEST_LL = range(11)
-N_ADVANCE_SUMS = 11
-# per-block sums of resample_pass: dx, dy, dx^2, dx dy, dy^2, cos h, sin h, step length
-R_X, R_Y, R_XX, R_XY, R_YY, R_COS, R_SIN, R_STEP = range(8)
-N_RESAMPLE_SUMS = 8
 
-_bool2 = types.boolean[:, ::1]
-_f32_2 = types.float32[:, ::1]
-_f64 = types.float64
-_i64 = types.int64
-_i64_1 = types.int64[::1]
-
+# per-block sums of advance_pass, relative to the block's largest log weight (e = exp(lw - max));
+# dx, dy: a particle's position less the pass' shift; written by the weighing, but for the
+# particles the wall check killed, which it writes
+ADVANCE_SUMS = np.dtype([("max_log_weight", np.float64), ("e", np.float64), ("e2", np.float64),
+                         ("e_dx", np.float64), ("e_dy", np.float64), ("e_dxx", np.float64), ("e_dxy", np.float64),
+                         ("e_dyy", np.float64), ("alive", np.int64), ("finite", np.int64),
+                         ("best_log_likelihood", np.float64), ("killed", np.int64)])
+# per-block sums of resample_pass over the new cloud (every particle weighs the same)
+RESAMPLE_SUMS = np.dtype([("dx", np.float64), ("dy", np.float64), ("dxx", np.float64), ("dxy", np.float64),
+                          ("dyy", np.float64), ("cos_heading", np.float64), ("sin_heading", np.float64),
+                          ("step_length_m", np.float64)])
 
 _u64 = types.uint64
+_f64 = types.float64
+_i64 = types.int64
+_vector = types.float64[::1]
 
 
-@njit(types.void(_i64, _i64, _i64, _i64, _u64, _i64, _u64, _u64, _params, _state, types.float64[::1],
-                 _bool2, _f32_2, _f64, _f64, _f64, _i64_1, _u64, _u64, _params, _f64, _f64, _state,
-                 types.float64[::1], types.boolean[::1], types.float64[::1], types.float64[:, ::1]),
+def _tuple_type(cls, **field_types) -> types.Tuple:
+    """The numba type of ``tuple(an instance of cls)``: the fields' types in the NamedTuple's order."""
+    return types.Tuple(tuple(field_types[name] for name in cls._fields))
+
+
+class Advance(NamedTuple):
+    """What pass 1 does."""
+
+    flags: int  # MOVE | KILL | WEIGH
+    key: np.uint64  # the step's counter-based draws
+    normal_pairs: int  # pairs of standard normals per particle that the move takes
+    shift_x_m: float  # the origin of the sums' dx, dy (near the cloud: no cancellation)
+    shift_y_m: float
+
+
+class ModelCall(NamedTuple):
+    """A model's kernel as a pass calls it (:func:`move_call`, :func:`likelihood_call`)."""
+
+    c_address: np.uint64
+    jit_address: np.uint64
+    params: np.ndarray  # float64
+
+
+class Cloud(NamedTuple):
+    """The particles a pass reads."""
+
+    state: np.ndarray  # (STATE_ROWS, N)
+    log_weight: np.ndarray  # (N,)
+
+
+class Advanced(NamedTuple):
+    """What pass 1 writes."""
+
+    state: np.ndarray  # (STATE_ROWS, N) the moved state
+    log_weight: np.ndarray  # (N,) -inf: dead
+    killed: np.ndarray  # (N,) bool: killed by the wall check of this call
+    e: np.ndarray  # (N,) exp(log weight - its block's largest)
+    sums: np.ndarray  # (blocks,) ADVANCE_SUMS
+
+
+class Resample(NamedTuple):
+    """What pass 2 does: systematic resampling with offset ``u`` and the jitter ``h root eps``."""
+
+    u: float  # output j takes the particle whose cumulative-weight bin holds (j + u) / n_out
+    log_weight: float  # every new particle's, -log n_out
+    last: int  # the last particle with a positive weight (it closes the last bin at 1)
+    key: np.uint64  # the jitter's counter-based draws
+    tries: int  # a jitter through a wall is drawn again this often, then the particle stays put
+    h: float  # the bandwidth
+    root: np.ndarray  # (2, 2) a square root of the jitter's covariance
+    walks: bool  # also sum the headings' cos and sin and the step lengths
+    shift_x_m: float  # the origin of the sums' dx, dy
+    shift_y_m: float
+
+
+class Weights(NamedTuple):
+    """Pass 1's weights as pass 2 draws from them: w_i = e[i] * block_scale[block of i]."""
+
+    e: np.ndarray  # (N,)
+    block_scale: np.ndarray  # (blocks,)
+    cum_start: np.ndarray  # (blocks,) the summed weight of the blocks before
+
+
+class Resampled(NamedTuple):
+    """What pass 2 writes."""
+
+    parent: np.ndarray  # (n_out,) int64
+    state: np.ndarray  # (STATE_ROWS, n_out)
+    log_weight: np.ndarray  # (n_out,)
+    sums: np.ndarray  # (blocks,) RESAMPLE_SUMS
+
+
+_ADVANCE = _tuple_type(Advance, flags=_i64, key=_u64, normal_pairs=_i64, shift_x_m=_f64, shift_y_m=_f64)
+_MODEL_CALL = _tuple_type(ModelCall, c_address=_u64, jit_address=_u64, params=_params)
+_CLOUD = _tuple_type(Cloud, state=_state, log_weight=_vector)
+_ADVANCED = _tuple_type(Advanced, state=_state, log_weight=_vector, killed=types.boolean[::1], e=_vector,
+                        sums=numba.from_dtype(ADVANCE_SUMS)[::1])
+_RESAMPLE = _tuple_type(Resample, u=_f64, log_weight=_f64, last=_i64, key=_u64, tries=_i64, h=_f64, root=types.float64[:, ::1],
+                        walks=types.boolean, shift_x_m=_f64, shift_y_m=_f64)
+_WEIGHTS = _tuple_type(Weights, e=_vector, block_scale=_vector, cum_start=_vector)
+_RESAMPLED = _tuple_type(Resampled, parent=types.int64[::1], state=_state, log_weight=_vector,
+                         sums=numba.from_dtype(RESAMPLE_SUMS)[::1])
+_WALLS = _tuple_type(WallGrid, **dict(zip(WallGrid._fields, WALL_GRID.types)))
+
+
+def move_call(function, params: np.ndarray) -> ModelCall:
+    """A motion model's kernel (compiled with ``MOVE_SIGNATURE``) with its parameters."""
+    return ModelCall(*pointer(function, MOVE_SIGNATURE), np.ascontiguousarray(params, dtype=np.float64))
+
+
+def likelihood_call(function, params: np.ndarray) -> ModelCall:
+    """A measurement model's kernel (compiled with ``LIKELIHOOD_SIGNATURE``) with its parameters."""
+    return ModelCall(*pointer(function, LIKELIHOOD_SIGNATURE), np.ascontiguousarray(params, dtype=np.float64))
+
+
+@njit(types.void(_i64, _i64, _ADVANCE, _MODEL_CALL, _MODEL_CALL, _WALLS, _CLOUD, _ADVANCED),
       cache=True, nogil=True, error_model="numpy")
-def _advance_kernel(lo_block, hi_block, n, flags, key, n_pairs, move_c, move_jit, move_params, src, src_lw, mask,
-                    clearance, x0_m, y0_m, inv_res, no_buffer, ll_c, ll_jit, ll_params, shift_x, shift_y, dst, lw,
-                    killed, e_out, sums):
-    move = _move_at(move_c, move_jit)
-    log_likelihood = _likelihood_at(ll_c, ll_jit)
+def _advance_kernel(lo_block, hi_block, advance, move, likelihood, walls, before, after):
+    advance = Advance(*advance)
+    move = ModelCall(*move)
+    likelihood = ModelCall(*likelihood)
+    walls = WallGrid(*walls)
+    before = Cloud(*before)
+    after = Advanced(*after)
+    move_function = _move_at(move.c_address, move.jit_address)
+    log_likelihood = _likelihood_at(likelihood.c_address, likelihood.jit_address)
+    src = before.state
+    dst = after.state
+    lw = after.log_weight
+    n = src.shape[1]
     iota = np.arange(BLOCK)
     normals = np.empty((6, BLOCK))
     scratch = np.empty(BLOCK)
     ll = np.empty(BLOCK)
     e_block = np.empty(BLOCK)
-    mask_h, mask_w = clearance.shape
+    hits = np.empty(BLOCK, dtype=np.bool_)
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
-        if flags & MOVE:
-            for pair in range(n_pairs):
-                normal_pairs(key, pair, lo, iota, m, normals[2 * pair], normals[2 * pair + 1], scratch)
-            move(move_params, src, dst, normals, lo, m)
-        if flags & KILL:
+        if advance.flags & MOVE:
+            for pair in range(advance.normal_pairs):
+                normal_pairs(advance.key, pair, lo, iota, m, normals[2 * pair], normals[2 * pair + 1], scratch)
+            move_function(move.params, src, dst, normals, lo, m)
+        if advance.flags & KILL:
             # a move through a wall kills its particle (Evennou & Marx: P_m = 0); the dead stay dead
+            crossings(walls, src[X, lo:lo + m], src[Y, lo:lo + m], dst[X, lo:lo + m], dst[Y, lo:lo + m], m, hits)
+            n_killed = 0
             for j in range(m):
                 i = lo + j
-                w0 = src_lw[i]
-                hit = False
-                if w0 > -np.inf and w0 < np.inf:
-                    ax = src[X, i]
-                    ay = src[Y, i]
-                    bx = dst[X, i]
-                    by = dst[Y, i]
-                    # the start pixel's clearance decides most moves (see maps.walls.move_crosses)
-                    u0 = (ax - x0_m) * inv_res
-                    v0 = mask_h - (ay - y0_m) * inv_res
-                    du = (bx - ax) * inv_res
-                    dv = (by - ay) * inv_res
-                    c = 0.0
-                    if 0.0 <= u0 < mask_w and 0.0 <= v0 < mask_h:
-                        c = clearance[int(v0), int(u0)]
-                    if not du * du + dv * dv < c * c:
-                        hit = move_crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, bx, by, no_buffer)
-                else:
-                    w0 = -np.inf
-                killed[i] = hit
-                lw[i] = -np.inf if hit else w0
-        if flags & WEIGH:
-            log_likelihood(ll_params, dst, lo, m, ll)
+                w0 = before.log_weight[i]
+                live = -np.inf < w0 < np.inf
+                after.killed[i] = live and hits[j]
+                n_killed += live and hits[j]
+                lw[i] = w0 if live and not hits[j] else -np.inf
+            after.sums[block].killed = n_killed
+        if advance.flags & WEIGH:
+            log_likelihood(likelihood.params, dst, lo, m, ll)
             top = -np.inf
             best_ll = -np.inf
             alive = 0
@@ -189,9 +251,9 @@ def _advance_kernel(lo_block, hi_block, n, flags, key, n_pairs, move_c, move_jit
                 for j in range(m):
                     i = lo + j
                     e = e_block[j]
-                    e_out[i] = e
-                    dx = dst[X, i] - shift_x
-                    dy = dst[Y, i] - shift_y
+                    after.e[i] = e
+                    dx = dst[X, i] - advance.shift_x_m
+                    dy = dst[Y, i] - advance.shift_y_m
                     s += e
                     s2 += e * e
                     sx += e * dx
@@ -201,55 +263,71 @@ def _advance_kernel(lo_block, hi_block, n, flags, key, n_pairs, move_c, move_jit
                     syy += e * dy * dy
             else:
                 for j in range(m):
-                    e_out[lo + j] = 0.0
-            sums[block, A_MAX] = top
-            sums[block, A_SUM] = s
-            sums[block, A_SUM2] = s2
-            sums[block, A_X] = sx
-            sums[block, A_Y] = sy
-            sums[block, A_XX] = sxx
-            sums[block, A_XY] = sxy
-            sums[block, A_YY] = syy
-            sums[block, A_ALIVE] = alive
-            sums[block, A_FINITE] = finite
-            sums[block, A_BEST_LL] = best_ll
+                    after.e[lo + j] = 0.0
+            sums = after.sums[block]
+            sums.max_log_weight = top
+            sums.e = s
+            sums.e2 = s2
+            sums.e_dx = sx
+            sums.e_dy = sy
+            sums.e_dxx = sxx
+            sums.e_dxy = sxy
+            sums.e_dyy = syy
+            sums.alive = alive
+            sums.finite = finite
+            sums.best_log_likelihood = best_ll
 
 
-@njit(types.void(_i64, _i64, _i64, types.float64[::1], types.float64[::1], types.float64[::1], _i64, _f64,
-                 types.uint64, _i64, types.boolean, _f64, types.float64[:, ::1], _bool2, _f32_2, _f64, _f64, _f64,
-                 _i64_1, _state, _state, _f64, _f64, _i64_1, _state, types.float64[:, ::1]),
+@njit(types.void(_i64, _i64, _RESAMPLE, _WEIGHTS, _WALLS, _state, _state, _RESAMPLED),
       cache=True, nogil=True, error_model="numpy")
-def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, key, tries, walks, h, root, mask,
-                     clearance, x0_m, y0_m, inv_res, no_buffer, origin, src, shift_x, shift_y, parent, dst, sums):
+def _resample_kernel(lo_block, hi_block, resample, weights, walls, origin, src, after):
+    resample = Resample(*resample)
+    weights = Weights(*weights)
+    walls = WallGrid(*walls)
+    after = Resampled(*after)
+    e = weights.e
+    parent = after.parent
+    dst = after.state
+    root = resample.root
+    h = resample.h
+    n = dst.shape[1]
+    n_in_blocks = weights.block_scale.shape[0]
     z0 = np.empty(BLOCK)
     z1 = np.empty(BLOCK)
     scratch = np.empty(BLOCK)
     pending = np.empty(BLOCK, dtype=np.int64)
-    n_in_blocks = block_scale.shape[0]
-    mask_h, mask_w = clearance.shape
+    # the pending particles' jitter: from the parent (px, py) and its position before the step (ox, oy) to (cx, cy)
+    px = np.empty(BLOCK)
+    py = np.empty(BLOCK)
+    ox = np.empty(BLOCK)
+    oy = np.empty(BLOCK)
+    cx = np.empty(BLOCK)
+    cy = np.empty(BLOCK)
+    hit_from_parent = np.empty(BLOCK, dtype=np.bool_)
+    hit_from_origin = np.empty(BLOCK, dtype=np.bool_)
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
         # systematic resampling: output j takes the particle whose cumulative-weight bin holds
         # (j + u) / n. The walk starts at the input block where the block's first position falls
-        p0 = (lo + u) / n
+        p0 = (lo + resample.u) / n
         b = 0
         hi_b = n_in_blocks - 1
         while b < hi_b:  # the last input block whose cumulative start is <= p0
             mid = (b + hi_b + 1) // 2
-            if cum_start[mid] <= p0:
+            if weights.cum_start[mid] <= p0:
                 b = mid
             else:
                 hi_b = mid - 1
         i = b * BLOCK
-        w = e[i] * block_scale[b]
-        cum = cum_start[b] + w
+        w = e[i] * weights.block_scale[b]
+        cum = weights.cum_start[b] + w
         for j in range(m):
-            p = (lo + j + u) / n
+            p = (lo + j + resample.u) / n
             # the last positive weight closes the last bin at 1 (round-off guard); zero weights have empty bins
-            while (p >= cum or w <= 0.0) and i < last:
+            while (p >= cum or w <= 0.0) and i < resample.last:
                 i += 1
-                w = e[i] * block_scale[i // BLOCK]
+                w = e[i] * weights.block_scale[i // BLOCK]
                 cum += w
             parent[lo + j] = i
         # gather, and the jitter: parent + h root eps, redrawn up to ``tries`` times while the move
@@ -259,43 +337,33 @@ def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, 
             k = parent[lo + j]
             for row in range(dst.shape[0]):
                 dst[row, lo + j] = src[row, k]
+            after.log_weight[lo + j] = resample.log_weight
             pending[j] = j
         n_pending = m
-        for t in range(tries):
+        for t in range(resample.tries):
             if n_pending == 0:
                 break
             # draws for the pending particles only (a particle's draw at try t is the same whichever are)
-            normal_pairs(key, t, lo, pending, n_pending, z0, z1, scratch)
+            normal_pairs(resample.key, t, lo, pending, n_pending, z0, z1, scratch)
+            for q in range(n_pending):
+                k = parent[lo + pending[q]]
+                px[q] = src[X, k]
+                py[q] = src[Y, k]
+                ox[q] = origin[X, k]
+                oy[q] = origin[Y, k]
+                cx[q] = px[q] + h * (root[0, 0] * z0[q] + root[0, 1] * z1[q])
+                cy[q] = py[q] + h * (root[1, 0] * z0[q] + root[1, 1] * z1[q])
+            crossings(walls, px, py, cx, cy, n_pending, hit_from_parent)
+            crossings(walls, ox, oy, cx, cy, n_pending, hit_from_origin)
             n_left = 0
             for q in range(n_pending):
                 j = pending[q]
-                i = lo + j
-                k = parent[i]
-                px = src[X, k]
-                py = src[Y, k]
-                cx = px + h * (root[0, 0] * z0[q] + root[0, 1] * z1[q])
-                cy = py + h * (root[1, 0] * z0[q] + root[1, 1] * z1[q])
-                hit = False
-                for end in range(2):  # from the parent, then from the parent's position before the step
-                    ax = px if end == 0 else origin[X, k]
-                    ay = py if end == 0 else origin[Y, k]
-                    u0 = (ax - x0_m) * inv_res
-                    v0 = mask_h - (ay - y0_m) * inv_res
-                    du = (cx - ax) * inv_res
-                    dv = (cy - ay) * inv_res
-                    c = 0.0
-                    if 0.0 <= u0 < mask_w and 0.0 <= v0 < mask_h:
-                        c = clearance[int(v0), int(u0)]
-                    if not du * du + dv * dv < c * c:
-                        hit = move_crosses(mask, clearance, x0_m, y0_m, inv_res, ax, ay, cx, cy, no_buffer)
-                        if hit:
-                            break
-                if hit:
+                if hit_from_parent[q] or hit_from_origin[q]:
                     pending[n_left] = j  # q >= n_left: already read
                     n_left += 1
                     continue
-                dst[X, i] = cx
-                dst[Y, i] = cy
+                dst[X, lo + j] = cx[q]
+                dst[Y, lo + j] = cy[q]
             n_pending = n_left
         sx = 0.0
         sy = 0.0
@@ -307,14 +375,14 @@ def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, 
         sl = 0.0
         for j in range(m):
             i = lo + j
-            dx = dst[X, i] - shift_x
-            dy = dst[Y, i] - shift_y
+            dx = dst[X, i] - resample.shift_x_m
+            dy = dst[Y, i] - resample.shift_y_m
             sx += dx
             sy += dy
             sxx += dx * dx
             sxy += dx * dy
             syy += dy * dy
-            if walks:
+            if resample.walks:
                 heading = dst[HEADING, i]
                 if not -math.pi <= heading <= math.pi:
                     heading = ((heading + math.pi) % (2.0 * math.pi)) - math.pi
@@ -322,14 +390,15 @@ def _resample_kernel(lo_block, hi_block, n, e, block_scale, cum_start, last, u, 
                 sc += c
                 ss += s
                 sl += dst[STEP, i]
-        sums[block, R_X] = sx
-        sums[block, R_Y] = sy
-        sums[block, R_XX] = sxx
-        sums[block, R_XY] = sxy
-        sums[block, R_YY] = syy
-        sums[block, R_COS] = sc
-        sums[block, R_SIN] = ss
-        sums[block, R_STEP] = sl
+        sums = after.sums[block]
+        sums.dx = sx
+        sums.dy = sy
+        sums.dxx = sxx
+        sums.dxy = sxy
+        sums.dyy = syy
+        sums.cos_heading = sc
+        sums.sin_heading = ss
+        sums.step_length_m = sl
 
 
 @njit(LIKELIHOOD_SIGNATURE, cache=True, nogil=True)
@@ -354,8 +423,7 @@ def stay(params, src, dst, normals, lo, m):
             dst[row, lo + j] = src[row, lo + j]
 
 
-
-# ---- the Python side: arrays in, sums added up ---------------------------------------------------
+# ---- the Python side: structs in, sums added up ---------------------------------------------------
 MIN_BLOCKS_PER_THREAD = 16  # below 2 x 16,384 particles a step runs on one thread (the hand-over costs more)
 
 
@@ -363,34 +431,17 @@ def n_blocks(n: int) -> int:
     return (n + BLOCK - 1) // BLOCK
 
 
-class WallGrid:
-    """A plan's wall mask and clearance as the kernels take them (``None`` plan: no walls)."""
-
-    __slots__ = ("mask", "clearance", "x0_m", "y0_m", "inv_resolution")
-
-    def __init__(self, plan) -> None:
-        from mapfilter.maps.walls import clearance_px
-
-        self.mask = np.ascontiguousarray(plan.wall_mask, dtype=np.bool_)
-        self.clearance = np.ascontiguousarray(clearance_px(plan), dtype=np.float32)
-        self.x0_m = float(plan.origin_m[0])
-        self.y0_m = float(plan.origin_m[1])
-        self.inv_resolution = 1.0 / float(plan.resolution_m)
+def advance_sums(n: int) -> np.ndarray:
+    """The block sums array that :func:`advance_pass` writes for ``n`` particles."""
+    return np.empty(n_blocks(n), dtype=ADVANCE_SUMS)
 
 
-def advance_pass(flags: int, key: int, n_pairs: int, move, move_params: np.ndarray, src: np.ndarray,
-                 src_log_weight: np.ndarray, walls: WallGrid, log_likelihood, ll_params: np.ndarray,
-                 shift_xy_m: np.ndarray, dst: np.ndarray, log_weight: np.ndarray, killed: np.ndarray,
-                 e: np.ndarray, sums: np.ndarray) -> None:
-    """Pass 1 over every particle: the stages ``flags`` asks for (MOVE | KILL | WEIGH), writing
-    ``dst`` (moved state), ``log_weight``, ``killed``, ``e`` and the block ``sums``."""
-    n = src.shape[1]
-    move_c, move_jit = function_addresses(move, MOVE_SIGNATURE)
-    ll_c, ll_jit = function_addresses(log_likelihood, LIKELIHOOD_SIGNATURE)
-    for_slices(_advance_kernel, n_blocks(n), n, int(flags), np.uint64(key), int(n_pairs), move_c, move_jit, move_params,
-               src, src_log_weight, walls.mask, walls.clearance, walls.x0_m, walls.y0_m, walls.inv_resolution,
-               NO_BUFFER, ll_c, ll_jit, ll_params, float(shift_xy_m[0]), float(shift_xy_m[1]), dst, log_weight,
-               killed, e, sums, min_per_thread=MIN_BLOCKS_PER_THREAD)
+def advance_pass(advance: Advance, move: ModelCall, likelihood: ModelCall, walls: WallGrid, before: Cloud,
+                 after: Advanced) -> None:
+    """Pass 1 over every particle: the stages ``advance.flags`` asks for (MOVE | KILL | WEIGH), from
+    ``before`` into ``after`` (moved state, log weights, killed, e and the block sums)."""
+    for_slices(_advance_kernel, n_blocks(before.state.shape[1]), tuple(advance), tuple(move), tuple(likelihood),
+               tuple(walls), tuple(before), tuple(after), min_per_thread=MIN_BLOCKS_PER_THREAD)
 
 
 class Totals:
@@ -400,10 +451,10 @@ class Totals:
                  "max_log_weight", "block_scale", "block_weight")
 
     def __init__(self, sums: np.ndarray, shift_xy_m: np.ndarray) -> None:
-        top = sums[:, A_MAX]
-        self.n_alive = int(sums[:, A_ALIVE].sum())  # alive after the wall check
-        self.n_finite = int(sums[:, A_FINITE].sum())  # with a finite weight after weighing
-        self.best_log_likelihood = float(sums[:, A_BEST_LL].max())
+        top = sums["max_log_weight"]
+        self.n_alive = int(sums["alive"].sum())  # alive after the wall check
+        self.n_finite = int(sums["finite"].sum())  # with a finite weight after weighing
+        self.best_log_likelihood = float(sums["best_log_likelihood"].max())
         m = float(top.max())
         self.max_log_weight = m
         if not self.n_finite or not math.isfinite(m):
@@ -413,35 +464,74 @@ class Totals:
             self.block_scale = self.block_weight = zeros
             return
         f = np.exp(top - m)  # 0 for blocks without weight
-        total = float(f @ sums[:, A_SUM])
+        total = float(f @ sums["e"])
         self.log_normaliser = m + math.log(total)
-        self.ess = total * total / float((f * f) @ sums[:, A_SUM2])
-        ex, ey = float(f @ sums[:, A_X]) / total, float(f @ sums[:, A_Y]) / total
-        cxx = float(f @ sums[:, A_XX]) / total - ex * ex
-        cxy = float(f @ sums[:, A_XY]) / total - ex * ey
-        cyy = float(f @ sums[:, A_YY]) / total - ey * ey
+        self.ess = total * total / float((f * f) @ sums["e2"])
+        ex, ey = float(f @ sums["e_dx"]) / total, float(f @ sums["e_dy"]) / total
+        cxx = float(f @ sums["e_dxx"]) / total - ex * ex
+        cxy = float(f @ sums["e_dxy"]) / total - ex * ey
+        cyy = float(f @ sums["e_dyy"]) / total - ey * ey
         self.mean_xy_m = np.array([float(shift_xy_m[0]) + ex, float(shift_xy_m[1]) + ey])
         self.covariance_m2 = np.array([[cxx, cxy], [cxy, cyy]])
         self.block_scale = f / total  # w_i = e_i * block_scale[block of i]
-        self.block_weight = f * sums[:, A_SUM] / total
+        self.block_weight = f * sums["e"] / total
 
 
-def resample_pass(totals: Totals, e: np.ndarray, n_out: int, u: float, key: int, tries: int, walks: bool,
-                  h: float, root: np.ndarray, walls: WallGrid, origin: np.ndarray, src: np.ndarray,
-                  shift_xy_m: np.ndarray, parent: np.ndarray, dst: np.ndarray, sums: np.ndarray) -> None:
-    """Pass 2: ``n_out`` particles drawn systematically (positions (j + u) / n_out) by the weights of
-    pass 1, their ancestors' state gathered into ``dst`` and jittered by ``h root eps`` (``tries``
-    draws, 0: no jitter), never through a wall from the ancestor nor from ``origin`` (the state
-    before the step); ``walks``: also sum the headings' cos and sin and the step lengths."""
+def resample_pass(totals: Totals, e: np.ndarray, u: float, key: int, tries: int, walks: bool, h: float,
+                  root: np.ndarray, walls: WallGrid, origin: np.ndarray, src: np.ndarray, shift_xy_m: np.ndarray,
+                  after: Resampled) -> None:
+    """Pass 2: ``after.state``'s particles drawn systematically (positions (j + u) / n_out) by the
+    weights of pass 1 (``totals``, ``e``), their ancestors' state gathered from ``src`` and jittered
+    by ``h root eps`` (``tries`` draws, 0: no jitter), never through a wall from the ancestor nor
+    from ``origin`` (the state before the step); ``walks``: also sum the headings' cos and sin and
+    the step lengths into ``after.sums`` (``RESAMPLE_SUMS``)."""
     blocks = np.flatnonzero(totals.block_weight > 0)
     b = int(blocks[-1])
     segment = e[b * BLOCK:(b + 1) * BLOCK] * totals.block_scale[b]
     last = b * BLOCK + int(np.flatnonzero(segment > 0)[-1])  # the last positive weight: the last bin
     cum_start = np.concatenate([[0.0], np.cumsum(totals.block_weight)[:-1]])
-    for_slices(_resample_kernel, n_blocks(n_out), n_out, e, totals.block_scale, cum_start, last, float(u),
-               np.uint64(key), int(tries), bool(walks), float(h), np.ascontiguousarray(root, dtype=np.float64),
-               walls.mask, walls.clearance, walls.x0_m, walls.y0_m, walls.inv_resolution, NO_BUFFER, origin, src,
-               float(shift_xy_m[0]), float(shift_xy_m[1]), parent, dst, sums, min_per_thread=MIN_BLOCKS_PER_THREAD)
+    resample = Resample(float(u), -math.log(after.state.shape[1]), last, np.uint64(key), int(tries), float(h),
+                        np.ascontiguousarray(root, dtype=np.float64), bool(walks), float(shift_xy_m[0]),
+                        float(shift_xy_m[1]))
+    for_slices(_resample_kernel, n_blocks(after.state.shape[1]), tuple(resample),
+               tuple(Weights(e, totals.block_scale, cum_start)), tuple(walls), origin, src, tuple(after),
+               min_per_thread=MIN_BLOCKS_PER_THREAD)
+
+
+@njit(types.void(_i64, _i64, types.boolean[::1], types.int64[::1], _state, _state, types.float64[:, ::1],
+                 types.float64[:, ::1]), cache=True, nogil=True)
+def _killed_kernel(lo_block, hi_block, killed, start, before, after, from_xy, to_xy):
+    n = killed.shape[0]
+    for block in range(lo_block, hi_block):
+        k = start[block]
+        for i in range(block * BLOCK, min(n, (block + 1) * BLOCK)):
+            if killed[i]:
+                from_xy[k, 0] = before[X, i]
+                from_xy[k, 1] = before[Y, i]
+                to_xy[k, 0] = after[X, i]
+                to_xy[k, 1] = after[Y, i]
+                k += 1
+
+
+def killed_moves(killed: np.ndarray, sums: np.ndarray, before: np.ndarray, after: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """((K, 2), (K, 2)): where the particles that pass 1's wall check killed (``killed``, counted
+    per block in ``sums``) moved from and to, in particle order (gathered on the threads: a large
+    cloud's kills are too many for numpy's gather to stay out of the step's way)."""
+    counts = sums["killed"]
+    start = np.zeros(len(counts), dtype=np.int64)
+    np.cumsum(counts[:-1], out=start[1:])
+    total = int(counts.sum())
+    from_xy, to_xy = np.empty((total, 2)), np.empty((total, 2))
+    if total:
+        for_slices(_killed_kernel, len(counts), killed, start, before, after, from_xy, to_xy,
+                   min_per_thread=MIN_BLOCKS_PER_THREAD)
+    return from_xy, to_xy
+
+
+def resample_sums(n: int) -> np.ndarray:
+    """The block sums array that :func:`resample_pass` writes for ``n`` particles."""
+    return np.empty(n_blocks(n), dtype=RESAMPLE_SUMS)
 
 
 def run_likelihood(function, params: np.ndarray, state: np.ndarray) -> np.ndarray:
