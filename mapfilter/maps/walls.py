@@ -231,44 +231,49 @@ def _bands(ahead, n_lines, n_across, p0, q0, p1, q1):
     """Does the closed segment (p0, q0)-(p1, q1) touch a wall pixel? Line by line along q: pixel
     line r (the band r <= q <= r + 1) is touched over the closed run of pixels whose squares meet the
     piece of the segment inside the band, and ``ahead[r, first]`` says whether a wall lies in that
-    run. Called with q the axis the segment advances less along (fewest lines), so q0 != q1 unless
-    the segment is a point.
+    run. Called with q the axis the segment advances less along (fewest lines).
 
     Returns 1 (touches), 0 (does not) or 2: a run's end lies within ``_EDGE_PX`` of a pixel edge,
     where the rounding of the computed end could decide (the exact walk decides then)."""
     q_lo = min(q0, q1)
     q_hi = max(q0, q1)
-    if q_lo <= 0.0 or q_hi >= n_lines:
-        return 1  # it touches a line outside the map (exact: q_lo and q_hi are the end points' own)
-    dq = q1 - q0
-    slope = (p1 - p0) / dq if dq != 0.0 else 0.0
+    p_lo = min(p0, p1)
+    p_hi = max(p0, p1)
+    # the outside of the map: exact, from the end points' own coordinates
+    if q_lo <= 0.0 or q_hi >= n_lines or p_lo <= 0.0 or p_hi >= n_across:
+        return 1
+    if p_lo <= _EDGE_PX or p_hi >= n_across - _EDGE_PX or p_hi - p_lo + 2.0 >= _AHEAD_MAX:
+        return 2  # a run's widened end outside the map, or a run longer than the table counts
+    if q1 < q0:
+        p0, q0, p1, q1 = p1, q1, p0, q0
+    undecided = False
+    r_first = int(math.ceil(q0)) - 1
+    r_last = int(math.floor(q1))
+    if q1 == q0:  # along the lines: the same run on the one or two lines it touches
+        first = int(math.ceil(p_lo - _EDGE_PX)) - 1
+        last = int(math.floor(p_hi + _EDGE_PX))
+        for r in range(r_first, r_last + 1):
+            if ahead[r, first] <= last - first:
+                first_sure = int(math.ceil(p_lo + _EDGE_PX)) - 1
+                last_sure = int(math.floor(p_hi - _EDGE_PX))
+                if first_sure <= last_sure and ahead[r, first_sure] <= last_sure - first_sure:
+                    return 1
+                undecided = True
+        return 2 if undecided else 0
+    slope = (p1 - p0) / (q1 - q0)
     if not math.isfinite(slope):
         return 2  # a minor axis so short that the slope overflows
-    undecided = False
-    for r in range(int(math.ceil(q_lo)) - 1, int(math.floor(q_hi)) + 1):
-        # the piece inside the band: from q = max(r, q_lo) to min(r + 1, q_hi); at the segment's
-        # ends p is the end's own, in between computed (rounded)
-        qa = max(float(r), q_lo)
-        qb = min(float(r + 1), q_hi)
-        if dq == 0.0:
-            pa = p0
-            pb = p1
-        else:
-            pa = p0 if qa == q0 else (p1 if qa == q1 else p0 + (qa - q0) * slope)
-            pb = p0 if qb == q0 else (p1 if qb == q1 else p0 + (qb - q0) * slope)
+    # the piece in band r runs from p at q = max(r, q0) to p at min(r + 1, q1): the end points' own
+    # p at the ends, computed (rounded) in between
+    pa = p0
+    for r in range(r_first, r_last + 1):
+        edge = r + 1.0
+        pb = p1 if edge >= q1 else p0 + (edge - q0) * slope
         lo = min(pa, pb)
         hi = max(pa, pb)
-        # pixel c's closed square meets [lo, hi] when c <= hi and c + 1 >= lo
-        if lo - _EDGE_PX <= 0.0 or hi + _EDGE_PX >= n_across:  # the outside, or nearly
-            if lo + _EDGE_PX <= 0.0 or hi - _EDGE_PX >= n_across:
-                return 1
-            undecided = True
-            continue
+        # pixel c's closed square meets [lo, hi] when c <= hi and c + 1 >= lo; widened by the margin
         first = int(math.ceil(lo - _EDGE_PX)) - 1
         last = int(math.floor(hi + _EDGE_PX))
-        if last - first >= _AHEAD_MAX:
-            undecided = True
-            continue
         if ahead[r, first] <= last - first:
             # a wall in the widened run; in the narrowed one too, or only within the margins?
             first_sure = int(math.ceil(lo + _EDGE_PX)) - 1
@@ -276,6 +281,7 @@ def _bands(ahead, n_lines, n_across, p0, q0, p1, q1):
             if first_sure <= last_sure and ahead[r, first_sure] <= last_sure - first_sure:
                 return 1
             undecided = True
+        pa = pb
     return 2 if undecided else 0
 
 
@@ -287,9 +293,10 @@ def move_crosses(walls, ax, ay, bx, by):
     (the module's touching rule).
 
     A move shorter than the clearance of the pixel it starts in touches no wall
-    (:func:`clearance_px`); any other is checked band by band along its minor axis (one table
-    read per pixel row or column it spans: :func:`_bands`), and the rare move that passes within
-    ``_EDGE_PX`` of a pixel edge is walked pixel by pixel."""
+    (:func:`clearance_px`), nor does one shorter than the clearances of its two end pixels together
+    (the two discs cover it); one that ends in a wall pixel touches it; any other is checked band
+    by band along its minor axis (one table read per pixel row or column it spans: :func:`_bands`),
+    and the rare move that passes within ``_EDGE_PX`` of a pixel edge is walked pixel by pixel."""
     mask = walls.mask
     h, w = mask.shape
     u0 = (ax - walls.x0_m) * walls.inv_resolution
@@ -300,10 +307,17 @@ def move_crosses(walls, ax, ay, bx, by):
         return True
     du = u1 - u0
     dv = v1 - v0
+    length2 = du * du + dv * dv
+    c = 0.0
     if 0.0 <= u0 < w and 0.0 <= v0 < h:
         c = walls.clearance_px[int(v0), int(u0)]
-        if du * du + dv * dv < c * c:
+        if length2 < c * c:
             return False
+    if not (0.0 <= u1 < w and 0.0 <= v1 < h) or mask[int(v1), int(u1)]:
+        return True  # it ends in a wall pixel or off the map
+    reach = c + walls.clearance_px[int(v1), int(u1)]
+    if length2 < reach * reach:
+        return False  # the discs of the two ends' clearances cover it
     if abs(dv) <= abs(du):
         found = _bands(walls.wall_ahead_in_row, h, w, u0, v0, u1, v1)
     else:
@@ -334,11 +348,20 @@ def crossings(walls, ax, ay, bx, by, m, out):
             continue
         du = u1 - u0
         dv = v1 - v0
+        length2 = du * du + dv * dv
+        c = 0.0
         if 0.0 <= u0 < w and 0.0 <= v0 < h:
             c = clearance[int(v0), int(u0)]
-            if du * du + dv * dv < c * c:
+            if length2 < c * c:
                 out[k] = False
                 continue
+        if not (0.0 <= u1 < w and 0.0 <= v1 < h) or mask[int(v1), int(u1)]:
+            out[k] = True  # it ends in a wall pixel or off the map
+            continue
+        reach = c + clearance[int(v1), int(u1)]
+        if length2 < reach * reach:
+            out[k] = False  # the discs of the two ends' clearances cover it
+            continue
         if abs(dv) <= abs(du):
             found = _bands(walls.wall_ahead_in_row, h, w, u0, v0, u1, v1)
         else:
