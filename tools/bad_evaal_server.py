@@ -154,6 +154,7 @@ class _Handler(socketserver.StreamRequestHandler):
         for i in range(len(data)):
             self.wfile.write(data[i:i + 1])
             self.wfile.flush()
+            self.server.dripped += 1
             if self.server.stop.wait(self.server.drip_s):
                 return
         self.server.completed += 1
@@ -186,6 +187,7 @@ class BadServer:
         self.server.bomb = bomb if bomb is not None or not kind.startswith("bomb") else gzip_of_zeros(huge_bytes)
         self.server.requests = []  # the commands asked, in order
         self.server.completed = 0  # answers dripped or streamed to their end
+        self.server.dripped = 0  # bytes dripped so far
         self.server.stop = threading.Event()
         self.server.lock = threading.Lock()
         self.server.trial_s = 0.05  # endless-log: the start of the next window
@@ -202,6 +204,10 @@ class BadServer:
     @property
     def completed(self) -> int:
         return self.server.completed
+
+    @property
+    def dripped(self) -> int:
+        return self.server.dripped
 
     def __enter__(self) -> BadServer:
         self.thread.start()

@@ -1,4 +1,4 @@
-"""Throw broken and hostile inputs (issues 27 and 36) at the CLI and print what each does.
+"""Throw broken and hostile inputs (issues 27, 36 and 45) at the CLI and print what each does.
 
 Every case runs ``python -m mapfilter ...`` as a subprocess with its address space capped
 (``RLIMIT_AS``, default 4 GB: a case that asks for more gets a MemoryError instead of taking
@@ -9,7 +9,9 @@ table gives each case's exit code, the first line of its stderr that says someth
 a verdict: ``ok`` when there is no traceback, the exit code is the one expected, the peak is
 under 2 GB and the time under 2 minutes (issue 27's bar), a case that used to hang ends within
 10 s, and every file a case names as its user's (``keep``: its inputs, a file of theirs in the
-output folder) is byte-identical afterwards (issue 36).
+output folder) is byte-identical afterwards (issue 36). Issue 45's cases (a bad EvaalAPI server,
+``check --truth``, a full disk under a multi-file output, ``tools/get_data.py``, tables and
+estimates files) must end within 15 s, their stderr printable, with one error line.
 
 The hostile files are made in a temporary directory (removed at the end unless ``--keep``),
 never in the repository. Usage::
@@ -62,6 +64,7 @@ class Case:
     must_say: str = ""  # the first stderr line must hold this (a row skipped: the warning that says so)
     keep: tuple[str, ...] = ()  # files of the work directory that must be byte-identical afterwards
     max_s: float = BAR_S  # a case that used to hang must end within this
+    one_line: bool = False  # stderr printable (no escape sequence, no raw byte), one error line at most
 
 
 @dataclasses.dataclass
@@ -92,6 +95,12 @@ class Outcome:
             problems.append("left " + ", ".join(self.leftovers))
         if self.changed:
             problems.append("DESTROYED " + ", ".join(self.changed))
+        if self.case.one_line:
+            lines = self.stderr.splitlines()
+            if not all(line.isprintable() for line in lines):
+                problems.append("unprintable stderr")
+            if sum(": error: " in line for line in lines) > 1:
+                problems.append("more than one error line")
         return "ok" if not problems else "FAILS: " + "; ".join(problems)
 
 
@@ -245,6 +254,7 @@ def make_files(work: Path, skip_slow: bool) -> None:
     (work / "a-file").write_text("x")
     (work / "outdir").mkdir()
     make_files_36(work)
+    make_files_45(work, skip_slow)
 
 
 # ---- issue 36's files -------------------------------------------------------------------------
@@ -363,6 +373,191 @@ def make_files_36(work: Path) -> None:
                                               f"  - {{name: b, map: {MAP}, elevation_m: 0}}\n")
     shutil.copy(WALK, work / "summary.txt.gz")
     _write_walk(work / "clock_back.txt", lambda lines: _shift_after(lines, 1_600_000_060_000, -20_000))
+
+
+# ---- issue 45's files ------------------------------------------------------------------------
+TOOLS = REPO / "tools"
+IPIN_ROW = "ipin2023/logs/IPIN2023_T3_TrainingTrial01_repetition01.txt.gz"  # a file of get_data's manifest
+LONG_FIELD = "7" * 200_000  # over the csv module's field limit (131 072)
+
+
+def write_getsensordata(path: Path, posi: bool = True, swapped: bool = False) -> Path:
+    """A small GetSensorData log in the georeferenced office (12 s of IMU, six POSI points), and,
+    with ``swapped``, its POSI points as estimates with latitude and longitude swapped."""
+    lines = ["% LogFile created by the 'GetSensorData' App for Android.\n",
+             "% Date of creation: Wed Jun 14 10:00:58 GMT+02:00 2023\n"]
+    points = []
+    for i in range(600):
+        t = 0.02 * i
+        lines += [f"ACCE;{t:.3f};{1000 + t:.3f};0.1;9.8;0.2;3\n", f"GYRO;{t + 0.001:.3f};{1000 + t:.3f};0.0;0.0;0.0;3\n"]
+        if i % 100 == 50:
+            points.append((t, 49.4601 + 1e-5 * i, 11.1101 + 1e-5 * i))
+            if posi:
+                lines.append(f"POSI;{t:.4f};{len(points)};{points[-1][1]:.9f};{points[-1][2]:.9f};0;100\n")
+    path.write_text("".join(lines))
+    if swapped:
+        path.with_suffix(".swapped.csv").write_text("".join(f"{t:.3f},{lat:.9f},{lon:.9f},0\n" for t, lat, lon in points))
+    return path
+
+
+def make_files_45(work: Path, skip_slow: bool) -> None:
+    """Issue 45's inputs: a georeferenced venue, a gzip bomb for the bad EvaalAPI server, tables and
+    files over their bounds, a user's track beside its log, get_data's sources."""
+    sys.path.insert(0, str(TOOLS))
+    from bad_evaal_server import gzip_of_zeros
+
+    (work / "venue.yaml").write_text(f"floors:\n- name: '0'\n  map: {MAP}\n  elevation_m: 0.0\n"
+                                     "georeference:\n  origin_lat_deg: 49.46\n  origin_lon_deg: 11.11\n")
+    (work / "bomb.gz").write_bytes(gzip_of_zeros(3 << 30))  # 3 GB of zeros in 3 MB
+    with (work / "big_beacons.csv").open("w") as handle:  # one row, then 600 MB of spaces
+        handle.write("beacon_id,x,y\nbe:ac:20:23:00:01,1.0,2.0\n")
+        block = " " * (1 << 20)
+        for _ in range(600):
+            handle.write(block)
+    (work / "long_beacons.csv").write_text(f"beacon_id,x,y\nbe:ac:20:23:00:01,{LONG_FIELD},2.0\n")
+    aps = APS.read_text().splitlines()
+    header = aps[0].split(",")
+    fields = aps[1].split(",")
+    fields[header.index("x")] = LONG_FIELD
+    (work / "long_aps.csv").write_text("\n".join([aps[0], ",".join(fields)] + aps[2:]) + "\n")
+    with (work / "long_track.csv").open("w") as handle:  # a track of one line of 100 MB
+        handle.write("t_s,x_m,y_m\n")
+        block = "7" * (1 << 20)
+        for _ in range(100):
+            handle.write(block)
+        handle.write(",1,2\n")
+    with (work / "many_estimates.csv").open("w") as handle:  # 10 million estimates
+        block = "0.500,11.110000000,49.460000000,0\n" * 1_000_000
+        for _ in range(10):
+            handle.write(block)
+    write_getsensordata(work / "gsd.txt", swapped=True)
+    write_getsensordata(work / "gsd_no_posi.txt", posi=False)
+    with gzip.open(WALK, "rt") as handle:  # the user's own track of the walk (its waypoints' times)
+        times = [line.split("\t")[0] for line in handle if "\tTYPE_WAYPOINT\t" in line]
+    (work / "user" / "track.csv").write_text("t_s,x_m,y_m\n" + "".join(f"{int(t) / 1000:.3f},10.0,10.0\n"
+                                                                      for t in times))
+    gd = work / "gd"
+    (gd / "src_bad").mkdir(parents=True)
+    (gd / "src_link").mkdir()
+    name = Path(IPIN_ROW).name.removesuffix(".gz")
+    (gd / "src_bad" / name).write_text("% not the log the manifest names\n")
+    os.symlink(work / "user" / "walk.txt", gd / "src_link" / name)
+    (gd / "victim.txt").write_text("a file of the user's, outside the data folder\n")
+    (gd / "abs_victim.txt").write_text("another file of the user's\n")
+
+
+# a bad EvaalAPI server (tools/bad_evaal_server.py) in the case's process, entered by the command
+_BAD_SERVER = """
+import sys
+sys.path.insert(0, {tools!r})
+from bad_evaal_server import BadServer
+bomb = open("bomb.gz", "rb").read() if {kind!r}.startswith("bomb") else None
+with BadServer({kind!r}, bomb=bomb) as server:
+    from mapfilter.cli import main
+    code = main(["evaal", server.url, "t", "venue.yaml", "--radiomap", {rm!r}, "--timeout", "2", "--retry", "0",
+                 "--out", "outdir/evaal_{kind}.csv"] + {extra!r})
+sys.exit(code)
+"""
+
+# the same through the Python API
+_BAD_SERVER_API = """
+import sys
+sys.path.insert(0, {tools!r})
+from bad_evaal_server import BadServer
+import mapfilter as mf
+from mapfilter.errors import MapfilterError
+bomb = open("bomb.gz", "rb").read() if {kind!r}.startswith("bomb") else None
+with BadServer({kind!r}, bomb=bomb) as server:
+    try:
+        mf.enter_trial(server.url, "t", "venue.yaml", radio_map={rm!r}, offline={offline!r}, timeout_s=2.0,
+                       retry_s=0.0)
+    except MapfilterError as exc:
+        print(f"mapfilter: error: {{exc}}", file=sys.stderr)
+        sys.exit(1)
+sys.exit(0)
+"""
+
+# a second run over an earlier one's files on a full disk (a file-size limit set after the first run):
+# every file of the earlier run byte-identical afterwards
+_FULL_DISK_AGAIN = """
+import hashlib, pathlib, resource, sys
+from mapfilter.cli import main
+args = {args!r}
+out = pathlib.Path({out!r})
+assert main(args) == 0
+def files():
+    return {{str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(out.rglob("*")) if p.is_file()}}
+before = files()
+resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit}))
+code = main(args)
+after = files()
+if after != before:
+    print(f"CHANGED: {{sorted(set(before.items()) ^ set(after.items()))[:3]}}", file=sys.stderr)
+    sys.exit(3)
+sys.exit(code)
+"""
+
+# track --smooth over t.csv and t.causal.csv, the second write failing as on a full disk
+_SMOOTH_SECOND_FAILS = """
+import errno, os, pathlib, sys
+from mapfilter.cli import main
+from mapfilter.io import tracks
+args = ["track", {map!r}, {walk!r}, "--radiomap", {rm!r}, "--smooth", "--particles", "300", "--out", "outdir/t.csv"]
+assert main(args) == 0
+before = {{p: pathlib.Path(p).read_bytes() for p in ("outdir/t.csv", "outdir/t.causal.csv")}}
+real, calls = tracks.write_track, []
+def second_fails(track, path, *rest, **kw):
+    calls.append(path)
+    if len(calls) == 2:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    return real(track, path, *rest, **kw)
+tracks.write_track = second_fails
+code = main(args)
+if any(pathlib.Path(p).read_bytes() != data for p, data in before.items()):
+    print("CHANGED: t.csv or t.causal.csv", file=sys.stderr)
+    sys.exit(3)
+sys.exit(code)
+"""
+
+# tools/get_data.py against a Zenodo record on 127.0.0.1 (a listing and the files it names)
+_GET_DATA = """
+import http.server, io, json, sys, threading, zipfile
+sys.path.insert(0, {tools!r})
+import get_data
+kind = {kind!r}
+buffer = io.BytesIO()
+with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+    archive.writestr("logs/walk.txt", open("user/walk.txt", "rb").read())
+package = buffer.getvalue()
+files = {{"/p.zip": (package, len(package))}}
+entry = {{"key": "p.zip", "size": len(package)}}
+if kind == "short":
+    files["/p.zip"] = (package[:len(package) // 2], len(package))
+elif kind == "half":
+    files["/p.zip"] = (package[:len(package) // 2], len(package) // 2)
+    entry = {{"key": "p.zip"}}
+elif kind in ("victim", "absolute"):
+    entry["key"] = "../../../victim.txt" if kind == "victim" else str(__import__("pathlib").Path("gd/abs_victim.txt").resolve())
+class Handler(http.server.BaseHTTPRequestHandler):
+    def do_GET(self):
+        if self.path == "/record":
+            body = json.dumps({{"files": [entry]}}).encode()
+            length = len(body)
+        else:
+            body, length = files[self.path]
+        self.send_response(200)
+        self.send_header("Content-Length", str(length))
+        self.end_headers()
+        self.wfile.write(body)
+    def log_message(self, *args):
+        pass
+server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+threading.Thread(target=server.serve_forever, daemon=True).start()
+url = f"http://127.0.0.1:{{server.server_address[1]}}"
+entry["links"] = {{"self": url + "/p.zip"}}
+get_data.ZENODO_API_URL = url + "/record"
+sys.exit(get_data.main(["--out", "gd/data", "--only", {row!r}]))
+"""
 
 
 # a scheduler that is not one: silent, an HTTP server, random bytes (run in the case's process)
@@ -747,6 +942,91 @@ CASES = [
          must_say="own elevation"),
     Case("track --out a name of 250 characters", "io/atomic.py",
          _track(WALK, "--radiomap", str(RADIOMAP), "--out", "{w}/outdir/" + "t" * 246 + ".csv"), (0,)),
+] + [  # issue 45: a bad EvaalAPI server, each refusal within 15 s in one printable line
+    *[Case(f"evaal: {what}", "evaal/client.py", None, python=_fmt(_BAD_SERVER, tools=str(TOOLS), kind=kind,
+                                                                   rm=str(RADIOMAP), extra=extra),
+           max_s=15, one_line=True)
+      for what, kind, extra in (
+          ("an answer's body dripped a byte a second (--timeout 2 --retry 0)", "drip-body", []),
+          ("the status line dripped a byte a second", "drip-status", []),
+          ("a 3 GB answer to state", "huge-state", []),
+          ("a 3 GB answer to nextdata", "huge-nextdata", []),
+          ("a 3 GB log to nextdata?offline", "huge-offline", ["--offline"]),
+          ("a gzip bomb (3 MB to 3 GB) on state", "bomb-state", []),
+          ("a gzip bomb on nextdata", "bomb-nextdata", []),
+          ("a gzip bomb on nextdata?offline", "bomb-offline", ["--offline"]),
+          ("423 (faster than real time) forever", "too-fast", []),
+          ("a trial that never ends: empty batches", "endless-empty", []),
+          ("a trial that never ends: the first batch again and again", "endless-repeat", []),
+          ("escape sequences and raw bytes in the server's text", "escape", []))],
+    *[Case(f"mf.enter_trial: {what}", "evaal/client.py", None,
+           python=_fmt(_BAD_SERVER_API, tools=str(TOOLS), kind=kind, rm=str(RADIOMAP), offline=offline),
+           max_s=15, one_line=True)
+      for what, kind, offline in (
+          ("the status line dripped a byte a second", "drip-status", False),
+          ("a gzip bomb on nextdata?offline", "bomb-offline", True),
+          ("423 forever", "too-fast", False),
+          ("a trial that never ends", "endless-repeat", False),
+          ("escape sequences in the server's text", "escape", False))],
+    # outputs
+    Case("check --truth onto its --at track", "io/outputs.py",
+         lambda w: ["check", "user/office_walk.txt.gz", "--truth", "user/track.csv", "--at", "user/track.csv"],
+         keep=USER + ("user/track.csv",), max_s=15, one_line=True),
+    Case("check --truth onto the map YAML", "io/outputs.py",
+         lambda w: ["check", "user/office_walk.txt.gz", "--map", "user/office.yaml", "--truth", "user/office.yaml"],
+         keep=USER, max_s=15, one_line=True),
+    Case("check --truth onto the map's image", "io/outputs.py",
+         lambda w: ["check", "user/office_walk.txt.gz", "--map", "user/office.yaml", "--truth", "user/office.png"],
+         keep=USER, max_s=15, one_line=True),
+    Case("full disk: evaluate over an earlier evaluation", "io/outputs.py, io/atomic.py", None,
+         python=_fmt(_FULL_DISK_AGAIN, limit=20_000, out="outdir/again_eval", args=[
+             "evaluate", str(MAP), str(WALK), "--radiomap", str(RADIOMAP), "--methods", "kwnn", "--out",
+             "outdir/again_eval"]), one_line=True),
+    Case("full disk: track --out-dir over an earlier batch", "io/outputs.py, io/atomic.py", None,
+         python=_fmt(_FULL_DISK_AGAIN, limit=2_000, out="outdir/again_batch", args=[
+             "track", str(MAP), str(WALK), "user/walk.txt", "--radiomap", str(RADIOMAP), "--particles", "300",
+             "--out-dir", "outdir/again_batch"]), one_line=True),
+    Case("full disk: track --smooth, t.causal.csv fails after t.csv", "io/atomic.py, cli/track_cmd.py", None,
+         python=_fmt(_SMOOTH_SECOND_FAILS, **_OFFICE), one_line=True),
+    # tools/get_data.py
+    *[Case(f"get_data: {what}", "tools/get_data.py", None,
+           python=_fmt(_GET_DATA, tools=str(TOOLS), kind=kind, row=IPIN_ROW), keep=keep, max_s=15, one_line=True)
+      for what, kind, keep in (
+          ("a record's file named ../../../victim.txt", "victim", ("gd/victim.txt",)),
+          ("a record's file named by an absolute path", "absolute", ("gd/abs_victim.txt",)),
+          ("a download shorter than its Content-Length", "short", ()),
+          ("a half-downloaded package (no size, no MD5 in the record)", "half", ()))],
+    Case("get_data: a corrupted source", "tools/get_data.py",
+         None, python=f"import sys; sys.path.insert(0, {str(TOOLS)!r}); import get_data; "
+                      f"sys.exit(get_data.main(['--out', 'gd/data_bad', '--from-dir', 'gd/src_bad', '--only', "
+                      f"{IPIN_ROW!r}]))", max_s=15, one_line=True),
+    Case("get_data: a source that is a link to another file", "tools/get_data.py",
+         None, python=f"import sys; sys.path.insert(0, {str(TOOLS)!r}); import get_data; "
+                      f"sys.exit(get_data.main(['--out', 'gd/data_link', '--from-dir', 'gd/src_link', '--only', "
+                      f"{IPIN_ROW!r}]))", keep=USER, max_s=15, one_line=True),
+    Case("get_data: a full disk while downloading", "tools/get_data.py", None,
+         python=_fmt(_GET_DATA, tools=str(TOOLS), kind="full", row=IPIN_ROW), fsize_bytes=100_000, max_s=15,
+         one_line=True),
+    # memory and input checks
+    Case("beacon table of 600 MB: one row, then spaces", "io/tables.py, sensors/beacons.py",
+         _track(WALK, "--radiomap", str(RADIOMAP), "--beacons", "{w}/big_beacons.csv"), max_s=15, one_line=True),
+    Case("beacon table: a field of 200 kB", "io/tables.py, sensors/beacons.py",
+         _track(WALK, "--radiomap", str(RADIOMAP), "--beacons", "{w}/long_beacons.csv"), max_s=15, one_line=True,
+         must_say="long_beacons.csv:2: "),
+    Case("access-point table: a field of 200 kB", "io/tables.py, sensors/pathloss.py",
+         _track(WALK, "--aps", "{w}/long_aps.csv"), max_s=15, one_line=True, must_say="long_aps.csv:2: "),
+    Case("check --at a track of one 100 MB line", "io/tables.py, io/tracks.py",
+         lambda w: ["check", str(WALK), "--truth", f"{w}/outdir/gt.csv", "--at", f"{w}/long_track.csv"],
+         max_s=15, one_line=True, must_say="long_track.csv:2: "),
+    Case("score of 10 million estimates", "evaal/protocol.py",
+         lambda w: ["score", f"{w}/gsd.txt", f"{w}/many_estimates.csv"], max_s=15, one_line=True,
+         must_say="more than 200000 estimates"),
+    Case("score with latitude and longitude swapped", "evaal/protocol.py, cli/score_cmd.py",
+         lambda w: ["score", f"{w}/gsd.txt", f"{w}/gsd.swapped.csv"], (0,), max_s=15, one_line=True,
+         must_say="has them swapped"),
+    Case("track --evaal-out, a log without POSI rows", "evaal/replay.py, cli/track_cmd.py",
+         lambda w: ["track", f"{w}/venue.yaml", f"{w}/gsd_no_posi.txt", "--radiomap", str(RADIOMAP), "--evaal-out",
+                    f"{w}/outdir/no_posi.csv"], max_s=15, one_line=True, must_say="--evaal-start LON,LAT,FLOOR"),
 ]
 
 

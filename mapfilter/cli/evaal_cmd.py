@@ -28,9 +28,9 @@ position the server holds). A scoring trial with V > 2 refuses requests faster t
 whole within --timeout, is retried with the same request label (the server gives the same lines
 again), for up to --retry seconds; a trial that another run of this command started is
 continued from its trial time with a fresh tracker. A server that breaks the protocol is
-refused in one line (docs/robustness.md): an answer over 1 MiB (a state) or 256 MiB (a log),
-8 refusals as too fast in a row, no line of the log for 10 s of trial time, a trial past its
-slack. The slack left (as this client counts it) is printed every 30 s of trial time, and the
+refused in one line (docs/robustness.md): an answer over 1 MiB (a state), 16 MiB (a batch) or
+256 MiB (an offline log), 8 refusals as too fast in a row, no line of the log for 10 s of trial
+time, a trial past its slack. The slack left (as this client counts it) is printed every 30 s of trial time, and the
 server's own figure at the end.
 
 Offline (--offline): `nextdata?offline` (the whole log), the whole-walk (smoothed) track, and

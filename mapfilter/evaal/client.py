@@ -16,7 +16,8 @@ first line and at its ``POSI`` times, interpolated.
 
 Connections. Every request has one deadline, from the connection to the answer's last byte (a
 server that drips its answer a byte at a time cannot hold it longer), and an answer is read to at
-most a bound, counted after decompression (``MAX_STATE_BYTES``, ``MAX_LOG_BYTES``). A request
+most a bound, counted after decompression (``MAX_STATE_BYTES``, ``MAX_BATCH_BYTES``,
+``MAX_LOG_BYTES``). A request
 whose connection dropped or ran out of time is sent again with the same ``label`` (evaalapi.py
 answers a repeated label with the data it sent for it, so no batch is lost or read twice;
 evaalapi.md does not list the parameter, and a server that refuses it is asked without), after
@@ -62,9 +63,11 @@ from mapfilter.sensors.recording import concatenate
 _PACE_MARGIN_S = 0.02
 MAX_TOO_FAST = 8  # 423s in a row, each sent h after the previous request taken (pauses doubling from 0.02 s)
 MAX_STATE_BYTES = 1 << 20  # a state line, a POST's answer: a few hundred bytes
-# a log or a batch of it, decompressed: the IPIN 2023 logs are 16 kB/s (3.7 MB for 4 min), so
-# 256 MiB is over four hours of a log
+# a log or a batch of it, decompressed: the IPIN 2023 logs are 16 kB/s (3.7 MB for 4 min), so a
+# whole log of 256 MiB is over four hours, and a batch (h at most 10 s) of 16 MiB a hundred times
+# denser than theirs
 MAX_LOG_BYTES = 256 << 20
+MAX_BATCH_BYTES = 16 << 20
 MAX_SILENT_S = 10.0  # trial time with no line of the log (the IPIN 2023 logs never pause for 0.2 s)
 SLACK_MARGIN_S = 5.0  # beyond its slack: the server would have ended the trial (its clock reads ours +- latency)
 MAX_TRIAL_S = 6 * 3600.0  # an online trial is one walk
@@ -135,14 +138,18 @@ class EvaalClient:
         else:
             connection = http.client.HTTPConnection(self._parts.hostname, self._parts.port, timeout=self.timeout_s)
 
-        def cut() -> None:  # the deadline passed: whatever read is waiting ends now
-            expired.set()
-            with contextlib.suppress(OSError, AttributeError):
-                connection.sock.shutdown(socket.SHUT_RDWR)
-
         watchdog = None
         try:
             connection.connect()
+            # the connection's own socket: once the status line says the server will close,
+            # http.client lets go of it (connection.sock is None) while the answer is read through it
+            sock = connection.sock
+
+            def cut() -> None:  # the deadline passed: whatever read is waiting ends now
+                expired.set()
+                with contextlib.suppress(OSError):
+                    sock.shutdown(socket.SHUT_RDWR)
+
             watchdog = threading.Timer(max(deadline - time.monotonic(), 0.0), cut)
             watchdog.daemon = True
             watchdog.start()
@@ -374,7 +381,7 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
                 client.sleep(wait_s)
         sent_s = clock()
         reply = client.call("nextdata", query, before_retry=_where_it_stands(client, trial_s, horizon_s),
-                            max_bytes=MAX_LOG_BYTES)
+                            max_bytes=MAX_BATCH_BYTES)
         if reply.status == 423:  # faster than real time: from now on, wait h after the previous one
             too_fast += 1
             too_fast_in_row += 1
