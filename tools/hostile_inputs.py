@@ -1109,6 +1109,9 @@ def _first_line(stderr: str) -> str:
         return ""
     if any(line.startswith("Traceback") for line in lines):
         return "(traceback) " + lines[-1].strip()
+    for line in lines:  # the refusal, after any progress line
+        if ": error: " in line:
+            return line.strip()
     for prefix in ("mapfilter: ", "mapfilter "):  # ours (and argparse's usage errors)
         for line in lines:
             if line.startswith(prefix):

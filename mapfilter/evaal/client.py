@@ -183,8 +183,8 @@ class EvaalClient:
             except _Dropped as exc:
                 if time.monotonic() + pause_s > deadline:
                     raise MapfilterError(f"no answer from {self.url}/{command} ({exc}) for {self.retry_s:g} s: the "
-                                         "server is down or unreachable; run the command again to continue "
-                                         "(the trial's state says where it stands)") from None
+                                         "server is down, unreachable or too slow; run the command again to "
+                                         "continue (the trial's state says where it stands)") from None
                 self.dropped += 1
                 if self.on_retry is not None:
                     self.on_retry(f"{command}: {exc}; trying again in {pause_s:.1f} s")
