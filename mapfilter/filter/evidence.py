@@ -24,7 +24,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.filter.models.adaptive_path_loss import (THESIS_BLOCKING_DROP_DB, THESIS_RSSI_LIMIT_DBM,
                                                         AdaptiveTrilaterationLikelihood, check_adaptive_settings)
 from mapfilter.filter.models.barometer import (STEADY_M, STEADY_WINDOW_S, BarometerConfig, BarometerReference,
-                                               barometric_height)
+                                               BarometricHeights)
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.models.building import FloorFix, FloorFixLikelihood, FloorStack
 from mapfilter.filter.models.path_loss import TrilaterationLikelihood
@@ -391,9 +391,7 @@ class BuildingEvidence:
         self.barometer = barometer
         self.use_barometer = use_barometer
         self._n_pressure_seen = 0
-        self._pressure_t: list[float] = []
-        self._pressure_hpa: list[float] = []
-        self._heights: tuple[np.ndarray, np.ndarray] | None = None  # barometric_height of the readings so far
+        self._heights = BarometricHeights()  # barometric_height of the readings so far
         self.reference = BarometerReference(self.elevation_m, barometer)
         self.model = FloorFixLikelihood(stack, sigma)
 
@@ -432,11 +430,8 @@ class BuildingEvidence:
         self._n_pressure_seen += len(t_s)
         if not self.use_barometer or len(t_s) == 0:
             return
-        self._pressure_t.extend(np.asarray(t_s, dtype=np.float64).tolist())
-        self._pressure_hpa.extend(np.asarray(pressure_hpa, dtype=np.float64).tolist())
-        if len(self._pressure_t) >= 2:
-            # each reading's height depends on the readings up to it only (windowed sums of a cumsum)
-            self._heights = barometric_height(np.array(self._pressure_t), np.array(self._pressure_hpa))
+        # each reading's height depends on the readings up to it only (windowed sums of a cumsum)
+        self._heights.add(t_s, pressure_hpa)
 
     @property
     def has_wifi(self) -> bool:
@@ -464,22 +459,22 @@ class BuildingEvidence:
     @property
     def pressure(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The barometer readings so far (times, hPa), or None without a barometer."""
-        if self._heights is None:
+        if len(self._heights) < 2:
             return None
-        return np.array(self._pressure_t), np.array(self._pressure_hpa)
+        return self._heights.t_s.copy(), self._heights.pressure_hpa.copy()
 
     def height_m(self, t_s: float) -> float:
         """The barometer's height at ``t_s`` (relative to its first sample), NaN without one."""
-        if self._heights is None:
+        if len(self._heights) < 2:
             return float("nan")
         # the last reading at or before t_s: nothing from the future
-        i = int(np.searchsorted(self._heights[0], t_s, side="right")) - 1
-        return float(self._heights[1][max(i, 0)])
+        i = int(np.searchsorted(self._heights.t_s, t_s, side="right")) - 1
+        return float(self._heights.height_m[max(i, 0)])
 
     def observe(self, report: StepReport) -> None:
         """After each filter step: move the barometer's reference (``BarometerReference.update``);
         steady = less than ``STEADY_M`` of height change over ``STEADY_WINDOW_S``."""
-        if self._heights is None or report.floor_shares is None:
+        if len(self._heights) < 2 or report.floor_shares is None:
             return
         h = self.height_m(report.t_s)
         steady = abs(h - self.height_m(report.t_s - STEADY_WINDOW_S)) < STEADY_M
@@ -491,7 +486,7 @@ class BuildingEvidence:
     def between_scans(self, t_s: float) -> FloorFix | None:
         """The barometer alone at ``t_s`` (a step between scans): floors weighed by height as in
         ``measurement``, no position fix; None without a barometer or before a reference."""
-        if self._heights is None:
+        if len(self._heights) < 2:
             return None
         floor_ll = self.reference.floor_log_likelihood(self.height_m(t_s))
         if floor_ll is None:
@@ -505,7 +500,7 @@ class BuildingEvidence:
             return None
         floor_ll = self._floor_ll[index]
         height_floor = None
-        if self._heights is not None:
+        if len(self._heights) >= 2:
             height_ll = self.reference.floor_log_likelihood(self.height_m(self.scans[index].t_s))
             if height_ll is not None:
                 floor_ll = floor_ll + height_ll

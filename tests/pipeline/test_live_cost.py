@@ -71,3 +71,20 @@ def test_a_chunk_late_in_a_long_run_makes_only_its_own_rows(monkeypatch):
     assert 0 < max(kept_rotvec) < 1000
     steps = tracker.stream.steps
     assert len(steps) > 300 and np.all(np.diff(steps.t_s) > 0)  # joined once, in order, when asked for
+
+
+def test_barometer_heights_made_piece_by_piece_are_the_whole_walks_to_the_bit():
+    """A building's barometer heights were made again from every reading at every chunk; now each
+    reading's once, with the same numbers as ``barometric_height`` of all readings so far."""
+    from mapfilter.filter.models.barometer import BarometricHeights, barometric_height
+
+    rng = np.random.default_rng(45)
+    t_s = 1.6e9 + np.cumsum(rng.uniform(0.02, 0.3, 5000))
+    hpa = 1013.25 - np.cumsum(rng.normal(0.0, 0.01, 5000)) + rng.normal(0.0, 0.03, 5000)
+    heights = BarometricHeights()
+    cuts = np.sort(rng.choice(np.arange(1, 5000), 60, replace=False))
+    for a, b in zip([0, *cuts], [*cuts, 5000]):
+        heights.add(t_s[a:b], hpa[a:b])
+        whole_t, whole_h = barometric_height(t_s[:b], hpa[:b])
+        np.testing.assert_array_equal(heights.t_s, whole_t)
+        np.testing.assert_array_equal(heights.height_m, whole_h)  # to the bit

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import math
+
 import numpy as np
 
 from mapfilter.errors import MapfilterError
@@ -116,3 +118,65 @@ def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float
     else:
         smooth = p_hpa[0] + mean_p + slope * (tr - mean_t)
     return t, 44330.8 * (1.0 - (smooth / smooth[0]) ** (1.0 / 5.25588))
+
+
+class BarometricHeights:
+    """``barometric_height`` of readings that come in pieces (a live run), each reading's height
+    made once: the same numbers, to the bit, as ``barometric_height`` of every reading so far (its
+    windowed sums are differences of running sums, and a running sum carried on is the whole's),
+    at a cost per piece that does not grow with the walk."""
+
+    def __init__(self, window_s: float = SMOOTHING_WINDOW_S) -> None:
+        self.window_s = window_s
+        self._n = 0
+        self._t = np.zeros(64)
+        self._hpa = np.zeros(64)
+        self._height = np.zeros(64)
+        self._cum = np.zeros((65, 4))  # running sums of tr, p, tr^2, tr p (row 0: none yet)
+        self._smooth_first = math.nan
+
+    def __len__(self) -> int:
+        return self._n
+
+    @property
+    def t_s(self) -> np.ndarray:
+        return self._t[:self._n]
+
+    @property
+    def pressure_hpa(self) -> np.ndarray:
+        return self._hpa[:self._n]
+
+    @property
+    def height_m(self) -> np.ndarray:
+        return self._height[:self._n]
+
+    def add(self, t_s: np.ndarray, pressure_hpa: np.ndarray) -> None:
+        """The next readings (in time order, after those already added)."""
+        t_new = np.asarray(t_s, dtype=np.float64).reshape(-1)
+        hpa_new = np.asarray(pressure_hpa, dtype=np.float64).reshape(-1)
+        if t_new.size == 0:
+            return
+        k0, k1 = self._n, self._n + t_new.size
+        if k1 > self._t.size:  # twice the room
+            size = max(2 * self._t.size, k1)
+            self._t, self._hpa, self._height = (np.resize(a, size) for a in (self._t, self._hpa, self._height))
+            self._cum = np.resize(self._cum, (size + 1, 4))
+        self._t[k0:k1], self._hpa[k0:k1] = t_new, hpa_new
+        self._n = k1
+        t, hpa = self._t[:k1], self._hpa[:k1]
+        p = hpa_new - hpa[0]  # small numbers keep the windowed sums exact over long logs
+        tr = t_new - t[0]
+        for j, x in enumerate((tr, p, tr * tr, tr * p)):
+            self._cum[k0 + 1:k1 + 1, j] = np.cumsum(np.concatenate([[self._cum[k0, j]], x]))[1:]
+        lo = np.searchsorted(t, t_new - self.window_s, side="left")
+        hi = np.arange(k0 + 1, k1 + 1)  # reading i's window ends at reading i
+        sums = self._cum[hi] - self._cum[lo]
+        n = (hi - lo).astype(np.float64)
+        mean_t, mean_p = sums[:, 0] / n, sums[:, 1] / n
+        var_t = sums[:, 2] / n - mean_t ** 2
+        cov = sums[:, 3] / n - mean_t * mean_p
+        slope = np.where(var_t > 1e-9, cov / np.maximum(var_t, 1e-9), 0.0)
+        smooth = hpa[0] + mean_p + slope * (tr - mean_t)
+        if k0 == 0:
+            self._smooth_first = float(smooth[0])
+        self._height[k0:k1] = 44330.8 * (1.0 - (smooth / self._smooth_first) ** (1.0 / 5.25588))
