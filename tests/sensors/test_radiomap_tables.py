@@ -58,9 +58,10 @@ def test_the_tables_sums_are_scipys_sparse_product_to_the_bit():
 
     plan, radio_map, _ = _office()
     model = RadioMapLikelihood(radio_map, plan)
-    ref, ap, rssi = model._readings  # noqa: SLF001
+    ap_ptr, ref, rssi = model._readings  # noqa: SLF001
     w_ptr, w_ref, w_val = model._weight  # noqa: SLF001
     n = model._n_aps  # noqa: SLF001
+    ap = np.repeat(np.arange(n), np.diff(ap_ptr))
     weight = sparse.csr_matrix((w_val, w_ref, w_ptr), shape=(w_ptr.size - 1, len(radio_map)))
     readings = sparse.csr_matrix((np.concatenate([np.ones_like(rssi), rssi, rssi ** 2]),
                                   (np.tile(ref, 3), np.concatenate([ap, ap + n, ap + 2 * n]))),

@@ -86,16 +86,23 @@ class RadioMapLikelihood(MeasurementModel):
         tabled = np.ones(use_aps.size, dtype=bool) if heard_keys is None else np.isin(self.ap_keys, list(heard_keys))
         self.key_index = {key: j for j, key in enumerate(self.ap_keys) if tabled[j]}
         n_aps = use_aps.size
-        # every reading of the APs in use, by reference point (rows) then AP (np.nonzero's order)
+        # every reading of the APs in use, by AP, each AP's in reference-point order (CSR by AP)
         ref, ap_col = np.nonzero(heard[:, use_aps])
         values = radio_map.rssi_dbm[:, use_aps][ref, ap_col].astype(np.float32)
-        self._readings = (ref.astype(np.int64), ap_col.astype(np.int64), values)
+        by_ap = np.argsort(ap_col, kind="stable")
+        self._readings = (np.searchsorted(ap_col[by_ap], np.arange(n_aps + 1)).astype(np.int64),
+                          ref[by_ap].astype(np.int64), values[by_ap])
         self._n_refs, self._n_aps = len(radio_map), n_aps
         grid = _stored_grid(radio_map, floorplan, cfg, use_aps)
         self.from_stored_tables = grid is not None
         if grid is None:
             grid = _built_grid(radio_map, floorplan, cfg)
         (x0, y0), self.shape, active, self._weight, w_all, stored_base = grid
+        # the kernel weights by reference point (CSC), each point's cells in cell order
+        w_ptr, w_ref, w_val = self._weight
+        by_ref = np.argsort(w_ref, kind="stable")
+        self._weight_by_ref = (np.searchsorted(w_ref[by_ref], np.arange(len(radio_map) + 1)).astype(np.int64),
+                               np.repeat(np.arange(w_ptr.size - 1), np.diff(w_ptr))[by_ref], w_val[by_ref])
         self.origin_m = (float(x0), float(y0))
         n_cells = active.size
         self.cell_of = np.full(self.shape[0] * self.shape[1], n_cells, dtype=np.int64)  # row n_cells = the prior cell
@@ -133,11 +140,10 @@ class RadioMapLikelihood(MeasurementModel):
         """(cell, ap, weight, weighted RSSI sum, weighted RSSI^2 sum) of every cell and AP of
         ``aps`` (a mask over the APs in use) that a reference point within the kernel's reach of
         the cell heard, in (AP, cell) order; the sums are float32 (``_weighted_sums``)."""
-        ref, ap_col, values = self._readings
-        mine = aps[ap_col]
-        ref_ptr = np.searchsorted(ref[mine], np.arange(self._n_refs + 1)).astype(np.int64)
-        w_ptr, w_ref, w_val = self._weight
-        cell, ap, wh, s1, s2 = _weighted_sums(w_ptr, w_ref, w_val, ref_ptr, ap_col[mine], values[mine], self._n_aps)
+        ap_ptr, reading_ref, reading_rssi = self._readings
+        c_ptr, c_cell, c_val = self._weight_by_ref
+        cell, ap, wh, s1, s2 = _weighted_sums(c_ptr, c_cell, c_val, ap_ptr, reading_ref, reading_rssi,
+                                              np.flatnonzero(aps).astype(np.int64), self.n_cells)
         return cell, ap, wh.astype(np.float64), s1.astype(np.float64), s2.astype(np.float64)
 
     def build_tables(self, keys: Collection[str]) -> None:
@@ -354,72 +360,62 @@ def _built_grid(radio_map: RadioMap, floorplan: FloorPlan | None, config: RadioM
 
 
 @njit(cache=True, nogil=True)
-def _weighted_sums(w_ptr, w_ref, w_val, ref_ptr, reading_ap, reading_rssi, n_aps):
-    """Per cell (row of the kernel weights ``w_*``, CSR) and per AP that a reference point of the
-    cell heard (readings ``reading_*`` in CSR by reference point): sum w, sum w r and sum w r^2 in
-    float32, added in the order of the cell's row: scipy's sparse product (csr_matmat), whose
-    numbers the likelihood has always had. Entries in (AP, cell) order."""
+def _weighted_sums(c_ptr, c_cell, c_val, ap_ptr, reading_ref, reading_rssi, aps, n_cells):
+    """Per AP of ``aps`` (ascending) and per cell near a reference point that heard it: sum w,
+    sum w r and sum w r^2 in float32 over those points in ascending order, w the cell's kernel
+    weight of the point (``c_*``: the weights by point, CSC) and r the point's reading (``ap_ptr``,
+    ``reading_*``: the readings by AP, CSR): the order of scipy's sparse product (csr_matmat) of
+    the weights (each cell's row in point order) by the readings, whose numbers the likelihood
+    has always had. Entries in (AP, cell) order."""
     # plain loops, no numpy function that numba implements in numba.np.arraymath: loading a kernel
     # that calls one imports it, and with it scipy.linalg (runtime/numba_cache.py)
-    n_cells = w_ptr.shape[0] - 1
-    seen = np.empty(n_aps, dtype=np.int64)
+    seen = np.empty(n_cells, dtype=np.int64)
     seen[:] = -1
-    ptr = np.zeros(n_cells + 1, dtype=np.int64)
-    for i in range(n_cells):
-        ptr[i + 1] = ptr[i]
-        for jj in range(w_ptr[i], w_ptr[i + 1]):
-            r = w_ref[jj]
-            for kk in range(ref_ptr[r], ref_ptr[r + 1]):
-                a = reading_ap[kk]
-                if seen[a] != i:
-                    seen[a] = i
-                    ptr[i + 1] += 1
-    total = ptr[n_cells]
+    total = 0
+    for t in range(aps.shape[0]):
+        a = aps[t]
+        for kk in range(ap_ptr[a], ap_ptr[a + 1]):
+            r = reading_ref[kk]
+            for jj in range(c_ptr[r], c_ptr[r + 1]):
+                c = c_cell[jj]
+                if seen[c] != a:
+                    seen[c] = a
+                    total += 1
     cell = np.empty(total, dtype=np.int64)
     ap = np.empty(total, dtype=np.int64)
     wh = np.empty(total, dtype=np.float32)
     s1 = np.empty(total, dtype=np.float32)
     s2 = np.empty(total, dtype=np.float32)
-    acc_w = np.zeros(n_aps, dtype=np.float32)
-    acc_1 = np.zeros(n_aps, dtype=np.float32)
-    acc_2 = np.zeros(n_aps, dtype=np.float32)
-    seen[:] = -1
-    for i in range(n_cells):
-        start = ptr[i]
-        n = 0
-        for jj in range(w_ptr[i], w_ptr[i + 1]):
-            r = w_ref[jj]
-            v = w_val[jj]
-            for kk in range(ref_ptr[r], ref_ptr[r + 1]):
-                a = reading_ap[kk]
-                x = reading_rssi[kk]
-                acc_w[a] += v
-                acc_1[a] += v * x
-                acc_2[a] += v * (x * x)
-                if seen[a] != i:
-                    seen[a] = i
-                    ap[start + n] = a
-                    n += 1
-        for e in range(start, start + n):  # the cell's APs as first heard: the order below is by AP
-            a = ap[e]
-            cell[e] = i
-            wh[e] = acc_w[a]
-            s1[e] = acc_1[a]
-            s2[e] = acc_2[a]
-            acc_w[a] = 0.0
-            acc_1[a] = 0.0
-            acc_2[a] = 0.0
-    # (AP, cell) order: a stable counting sort by AP (each AP's entries are in cell order)
-    first = np.zeros(n_aps + 1, dtype=np.int64)
-    for e in range(total):
-        first[ap[e] + 1] += 1
-    for a in range(n_aps):
-        first[a + 1] += first[a]
-    order = np.empty(total, dtype=np.int64)
-    for e in range(total):
-        order[first[ap[e]]] = e
-        first[ap[e]] += 1
-    return cell[order], ap[order], wh[order], s1[order], s2[order]
+    acc_w = np.zeros(n_cells, dtype=np.float32)
+    acc_1 = np.zeros(n_cells, dtype=np.float32)
+    acc_2 = np.zeros(n_cells, dtype=np.float32)
+    touched = np.zeros(n_cells, dtype=np.bool_)
+    e = 0
+    for t in range(aps.shape[0]):
+        a = aps[t]
+        for kk in range(ap_ptr[a], ap_ptr[a + 1]):
+            r = reading_ref[kk]
+            x = reading_rssi[kk]
+            for jj in range(c_ptr[r], c_ptr[r + 1]):
+                c = c_cell[jj]
+                v = c_val[jj]
+                acc_w[c] += v
+                acc_1[c] += v * x
+                acc_2[c] += v * (x * x)
+                touched[c] = True
+        for c in range(n_cells):  # the AP's cells in cell order
+            if touched[c]:
+                cell[e] = c
+                ap[e] = a
+                wh[e] = acc_w[c]
+                s1[e] = acc_1[c]
+                s2[e] = acc_2[c]
+                e += 1
+                acc_w[c] = 0.0
+                acc_1[c] = 0.0
+                acc_2[c] = 0.0
+                touched[c] = False
+    return cell, ap, wh, s1, s2
 
 
 # id(radio map) -> (weak reference to it, its arrays when the entry was made, {(id(floor plan),
