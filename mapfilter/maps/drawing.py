@@ -1,0 +1,457 @@
+"""Reading a floor-plan drawing: which ink is wall, where the building is, what is walkable.
+
+A drawing (a scan, a CAD export, a real-estate plan) draws walls as the heaviest ink: solid or
+grey fills, or two heavier lines with the wall between them (empty or hatched). Everything else
+is drawn thinner or smaller: door leaves and swing arcs, windows, furniture and fixtures, text,
+dimension, axis and hatch lines, the sheet's frame and title block. :func:`read_drawing` turns
+a grey image and its pixel size into a wall mask in these steps:
+
+1. the paper is made even: the image is divided by its background (a closing far wider than any
+   wall, on a reduced copy), so grey, yellowed or unevenly lit paper becomes white;
+2. ink is what is darker than a threshold (Otsu's on the evened image, or a number);
+3. strokes are split by width: the widths of the ink's ridges (twice the distance to paper)
+   fall into the thin lines of annotation and the heavier walls; the thin are not walls;
+4. wall cavities are filled: a narrow, elongated gap enclosed by heavy ink is the inside of a
+   double-line or hatched wall, or a window in a wall;
+5. door symbols are found among the thin strokes (a quarter circle round a hinge beside a wall,
+   its leaf a radius of it); a leaf drawn heavy enough to pass for a wall is removed;
+6. the building is found on a copy of the walls with door-wide gaps closed (so an open
+   entrance, whose symbol was thin, never lets the outside in); outside it is wall; a sheet's
+   frame (a ring of ink round everything near the image border) is no building;
+7. small wall blobs inside the building that are not solid columns are text: removed.
+
+Pixel sizes come from the plan's scale, so the rules are in metres where a rule is about
+buildings (wall thickness, door width) and in pixels where it is about the drawing (line
+weights).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import cv2
+import numpy as np
+
+from mapfilter.errors import MapfilterError
+
+# what a building's walls and doors measure (metres); the rules below hold for any drawing
+MIN_WALL_M = 0.075  # the thinnest partition a plan draws
+MAX_LINE_M = 0.04  # the widest annotation line (a 0.2 mm pen at 1:200)
+MIN_RUN_M = 0.3  # a wall end that bounds a gap runs at least this far
+MAX_WALL_M = 0.6
+HATCH_M = 0.1  # an enclosed gap narrower than this is the inside of a wall (between hatch lines)
+THIN_PERCENTILE = 25.0
+HEAVY_RATIO = 1.3  # ink this many times a thin line's (width times darkness) is drawn heavy
+WALL_OUTLINE_SHARE = 0.7  # a wall's inside is drawn round in heavy lines along this share at least  # thicker than any wall: a gap this wide between wall lines is a room or a corridor
+PAPER_KERNEL_M = 1.2  # the background closing spans this: wider than any wall or column
+DOOR_RADIUS_M = (0.45, 1.3)  # a door leaf's length (the swing arc's radius)
+TEXT_BLOB_M = 1.0  # a wall blob shorter than this, not a solid column, is a label
+COLUMN_MIN_M = 0.15  # a solid blob at least this wide each way, and compact, is a column
+FRAME_RING_M = 0.12
+SMALL_GAP_M = 0.3  # scan breaks in the outer wall once its windows and doors are filled
+SLIVER_M2 = 1.0  # free space touching the outside and smaller than this is a gap's or a corner's sliver  # a sheet frame is a ring of ink at most this thick on average (area / perimeter)
+
+
+@dataclasses.dataclass(frozen=True)
+class DrawingOptions:
+    """How :func:`read_drawing` reads a drawing (pixel sizes are plan pixels).
+
+    ``threshold``: ``"auto"`` (Otsu on the paper-evened image), ``"adaptive"`` (a mean over
+    ``adaptive_block_px``) or a grey level 1-254 of the evened image (paper = 255): darker is ink.
+    ``thin_lines_px``: strokes at most this wide are annotation, not walls (None: from the
+    drawing's own line weights; 0: every stroke is a wall, as in a plan drawn with one pen).
+    ``outline_gap_m``: openings in the outer wall up to this wide are closed when the building's
+    outline is found. ``remove_text_px``: wall blobs whose longer side is below this many pixels
+    are dropped (None: ``TEXT_BLOB_M``, keeping solid columns). ``close_gaps_px``: a closing of
+    the ink first (scan breaks); ``thicken_px``: a dilation of the walls at the end.
+    """
+
+    threshold: str | int = "auto"
+    adaptive_block_px: int = 51
+    close_gaps_px: int = 0
+    thin_lines_px: int | None = None
+    remove_text_px: int | None = None
+    outline_gap_m: float = 3.0
+    find_doors: bool = False
+    thicken_px: int = 0
+    outside_is_wall: bool = True
+
+
+@dataclasses.dataclass
+class DoorSymbol:
+    """A door found in a drawing: the hinge, the free jamb and the leaf's tip (pixels: column, row)."""
+
+    hinge_px: tuple[float, float]
+    jamb_px: tuple[float, float]
+    leaf_tip_px: tuple[float, float]
+    radius_px: float
+
+
+@dataclasses.dataclass
+class DrawingReading:
+    """What :func:`read_drawing` found; ``wall`` is the mask (outside the building included)."""
+
+    wall: np.ndarray
+    inside: np.ndarray  # the building's footprint (None when the outside is kept)
+    threshold: float  # grey level of the evened image below which a pixel is ink
+    thin_width_px: float  # strokes up to this wide were taken for annotation (0: none)
+    doors: list[DoorSymbol]
+    text_blobs: int  # wall blobs dropped as text
+
+
+def even_paper(gray: np.ndarray, resolution_m: float) -> np.ndarray:
+    """The drawing divided by its background, so paper reads 255 wherever it is grey or shaded.
+
+    The background is a grey-level closing (the ink removed) with a kernel of
+    ``PAPER_KERNEL_M``, computed on a copy reduced to about 12 pixels per kernel."""
+    rows, cols = gray.shape
+    kernel_px = max(15.0, PAPER_KERNEL_M / resolution_m)
+    factor = max(1, int(kernel_px // 12))
+    small = cv2.resize(gray, (max(1, cols // factor), max(1, rows // factor)), interpolation=cv2.INTER_AREA)
+    side = int(kernel_px / factor) | 1
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side))
+    background = cv2.morphologyEx(small, cv2.MORPH_CLOSE, disc, borderType=cv2.BORDER_REPLICATE)
+    background = cv2.blur(background, (side, side))
+    background = cv2.resize(background, (cols, rows), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+    evened = gray.astype(np.float32) * (255.0 / np.maximum(background, 1.0))
+    return np.clip(evened, 0, 255).astype(np.uint8)
+
+
+def ink_threshold(evened: np.ndarray) -> float:
+    """Otsu's threshold of the evened image between paper and ink."""
+    level, _ = cv2.threshold(evened, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+    return float(level)
+
+
+def half_darkness(evened: np.ndarray, ink: np.ndarray) -> np.ndarray:
+    """The ink at half its own darkness or darker: each stroke at its full width at half maximum.
+
+    Blur widens a thin line's threshold mask but lowers its peak; measured against its own peak
+    (the darkest pixel within 3 pixels) a stroke keeps its drawn width, whatever its grey."""
+    darkness = 255.0 - evened.astype(np.float32)
+    peak = cv2.dilate(darkness, _disc(7))
+    return ink & (darkness >= 0.5 * peak)
+
+
+def stroke_widths(ink: np.ndarray) -> np.ndarray:
+    """The widths (pixels) at the ridge pixels of the ink: twice the distance to paper, minus one."""
+    distance = cv2.distanceTransform(ink.astype(np.uint8), cv2.DIST_L2, 5)
+    ridge = (distance > 0) & (distance >= cv2.dilate(distance, np.ones((3, 3), np.uint8)) - 1e-3)
+    return 2.0 * distance[ridge] - 1.0
+
+
+def thin_line_width(widths: np.ndarray, resolution_m: float) -> float:
+    """The widest stroke (pixels) that is annotation rather than wall, from the ridge widths.
+
+    Widths come in odd steps (a line of ridge width w is w or w + 1 pixels wide). The thin lines
+    are the most common width; the split lies above it, and below ``MIN_WALL_M`` unless the
+    thin lines are wider still; of those splits the widest that leaves the walls a fifth of the
+    ink's area at least (a drawing whose walls are two heavy lines has nothing heavier than
+    those lines: the split then falls between them and the thin lines). None fits (one pen for
+    everything): 0, nothing is thin."""
+    if widths.size < 50:
+        return 0.0
+    classes = np.floor(np.clip(widths, 0, 1000) / 2.0).astype(np.int64)  # class k: widths 2k+1 and 2k+2
+    length = np.bincount(classes).astype(np.float64)
+    area = length * (2 * np.arange(len(length)) + 1)
+    widest_thin = max(1, int(MAX_LINE_M / resolution_m) // 2)
+    thin_mode = int(np.argmax(length[:widest_thin + 1]))
+    mode_width = 2 * thin_mode + 1
+    upper = max(mode_width + 1, int(MIN_WALL_M / resolution_m))
+    for split in range(upper - upper % 2, mode_width, -2):  # even splits, widest first
+        if area[(2 * np.arange(len(area)) + 1) > split].sum() >= 0.2 * area.sum():
+            return float(split)
+    return 0.0
+
+
+def _disc(diameter_px: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (diameter_px, diameter_px))
+
+
+def _widest(labels: np.ndarray, count: int, mask: np.ndarray) -> np.ndarray:
+    """Per label, the largest distance from inside it to its edge (half its inscribed width)."""
+    distance = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
+    widest = np.zeros(count, dtype=np.float32)
+    np.maximum.at(widest, labels.ravel(), distance.ravel())
+    return widest
+
+
+def ink_mass(evened: np.ndarray, window_px: int = 7) -> np.ndarray:
+    """At each pixel, the ink across a line through it: darkness summed over a disc of
+    ``window_px`` divided by its diameter, in pixels of full black. It is a line's drawn width
+    times its darkness, whatever the blur; a wall wider than the disc reads about ``window_px``."""
+    darkness = (255.0 - evened.astype(np.float32)) / 255.0
+    disc = _disc(window_px).astype(np.float32)
+    return cv2.filter2D(darkness, -1, disc, borderType=cv2.BORDER_REPLICATE) / window_px
+
+
+def fill_wall_cavities(ink: np.ndarray, heavy_lines: np.ndarray | None, resolution_m: float) -> np.ndarray:
+    """Fill the insides of double-line and hatched walls and of windows: gaps enclosed by ink that
+    are very narrow (under ``HATCH_M``: between hatch lines), or narrow (under ``MAX_WALL_M``),
+    elongated (2.5 times as long as wide) and drawn round in heavy lines (``heavy_lines``: at
+    least ``WALL_OUTLINE_SHARE`` of the ink along them), as a wall's outline is; a counter's or a
+    wardrobe's is drawn in thin lines, with the wall's heavy line along one side only.
+    ``heavy_lines`` None: the ink is all heavy (its thin lines removed), every narrow elongated
+    gap is filled."""
+    free = (~ink).astype(np.uint8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(free, connectivity=4)
+    if count <= 1:
+        return ink
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    width_m = 2.0 * _widest(labels, count, free) * resolution_m
+    area_m2 = stats[:, cv2.CC_STAT_AREA] * resolution_m ** 2
+    elongation = area_m2 / np.maximum(width_m, resolution_m) ** 2
+    tiny = width_m <= HATCH_M  # between hatch lines, in a window, a door leaf drawn as a box
+    candidate = (width_m <= MAX_WALL_M) & (elongation >= 2.5) & ~tiny
+    candidate[0] = tiny[0] = False
+    candidate[border] = tiny[border] = False
+    if heavy_lines is None or not candidate.any():
+        return ink | (tiny | candidate)[labels] if heavy_lines is None else ink | tiny[labels]
+    # the ink along each candidate: its pixels within two pixels of the gap, given to the nearest gap
+    seeds = candidate[labels]
+    distance, nearest = cv2.distanceTransformWithLabels((~seeds).astype(np.uint8), cv2.DIST_L2, 5,
+                                                       labelType=cv2.DIST_LABEL_CCOMP)
+    seed_label = np.zeros(nearest.max() + 1, dtype=np.int64)
+    seed_label[nearest[seeds]] = labels[seeds]
+    edge = ink & (distance <= 2.0)
+    owner = seed_label[nearest[edge]]
+    total = np.bincount(owner, minlength=count).astype(np.float64)
+    heavy = np.bincount(owner, weights=heavy_lines[edge], minlength=count)
+    outlined = heavy / np.maximum(total, 1.0)
+    fill = (candidate & (outlined >= WALL_OUTLINE_SHARE)) | tiny
+    return ink | fill[labels]
+
+
+def heavy_lines(evened: np.ndarray, core: np.ndarray) -> tuple[np.ndarray, float]:
+    """(the ink drawn heavier than the drawing's thin lines, the thin lines' ink mass).
+
+    The thin lines are the lightest quarter of the ink mass along the ink's ridges (most of a
+    drawing's lines are thin; a double-line drawing's walls may be most of the rest); heavy ink
+    carries at least
+    ``HEAVY_RATIO`` times as much (walls drawn solid, or outlined with a heavier pen)."""
+    mass = ink_mass(evened)
+    distance = cv2.distanceTransform(core.astype(np.uint8), cv2.DIST_L2, 5)
+    ridge = (distance > 0) & (distance >= cv2.dilate(distance, np.ones((3, 3), np.uint8)) - 1e-3)
+    values = mass[ridge]
+    if values.size < 50:
+        return core, 0.0
+    thin = float(np.percentile(values, THIN_PERCENTILE))
+    return core & (mass >= HEAVY_RATIO * thin), thin
+
+
+def _drop_frames(heavy: np.ndarray, resolution_m: float) -> np.ndarray:
+    """Remove a sheet frame: a thin ring of ink near all four image edges around everything."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(heavy.astype(np.uint8), connectivity=8)
+    rows, cols = heavy.shape
+    drop = np.zeros(count, dtype=bool)
+    for i in range(1, count):
+        x, y, w, h, area = stats[i]
+        near_edges = x < 0.1 * cols and y < 0.1 * rows and x + w > 0.9 * cols and y + h > 0.9 * rows
+        if near_edges and area / (2.0 * (w + h)) * resolution_m < FRAME_RING_M:
+            drop[i] = True
+    return heavy & ~drop[labels] if drop.any() else heavy
+
+
+def _close_by_distance(mask: np.ndarray, radius_px: float) -> np.ndarray:
+    """Morphological closing by a disc of ``radius_px``, as two distance transforms (any radius, one cost)."""
+    to_mask = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 5)
+    dilated = to_mask <= radius_px
+    to_outside = cv2.distanceTransform(dilated.astype(np.uint8), cv2.DIST_L2, 5)
+    # the image border is not a wall: pad so that the erosion does not eat in from it
+    return to_outside > radius_px
+
+
+def _drop_text_blobs(wall: np.ndarray, resolution_m: float, below_px: int | None) -> tuple[np.ndarray, int]:
+    """Remove wall blobs shorter than ``below_px`` (default ``TEXT_BLOB_M``) that are not solid
+    compact columns."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(wall.astype(np.uint8), connectivity=8)
+    if count <= 1:
+        return wall, 0
+    x, y, w, h, area = (stats[1:, i] for i in range(5))
+    longer, shorter = np.maximum(w, h), np.minimum(w, h)
+    if below_px is None:
+        small = longer * resolution_m < TEXT_BLOB_M
+        column = (area >= 0.6 * w * h) & (longer <= 2.5 * shorter) & (shorter * resolution_m >= COLUMN_MIN_M)
+        drop = small & ~column
+    else:
+        drop = longer < below_px
+    keep = np.ones(count, dtype=bool)
+    keep[1:] = ~drop
+    return wall & keep[labels], int(drop.sum())
+
+
+def _rotate(mask: np.ndarray, angle_deg: float, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """``mask`` turned by ``angle_deg`` about its centre onto a canvas big enough for it (or back
+    onto ``shape``), nearest pixel."""
+    rows, cols = mask.shape
+    if shape is None:
+        side = int(math.ceil(math.hypot(rows, cols))) + 2
+        out_rows, out_cols = side, side
+        matrix = cv2.getRotationMatrix2D((cols / 2, rows / 2), angle_deg, 1.0)
+        matrix[:, 2] += [out_cols / 2 - cols / 2, out_rows / 2 - rows / 2]
+    else:
+        out_rows, out_cols = shape
+        matrix = cv2.getRotationMatrix2D((cols / 2, rows / 2), angle_deg, 1.0)
+        matrix[:, 2] += [out_cols / 2 - cols / 2, out_rows / 2 - rows / 2]
+    return cv2.warpAffine(mask.astype(np.uint8), matrix, (out_cols, out_rows), flags=cv2.INTER_NEAREST).astype(bool)
+
+
+def _thin_enough(fills: np.ndarray, resolution_m: float) -> np.ndarray:
+    """The pieces of ``fills`` as thick as a wall: no thicker than ``MAX_WALL_M``, and no thinner
+    than half ``MIN_WALL_M`` (a closing between specks)."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(fills.astype(np.uint8), connectivity=4)
+    if count <= 1:
+        return fills
+    depth = cv2.distanceTransform(fills.astype(np.uint8), cv2.DIST_L2, 5)
+    widest = np.zeros(count, dtype=np.float32)
+    np.maximum.at(widest, labels.ravel(), depth.ravel())
+    thickness_m = 2 * widest * resolution_m
+    keep = (thickness_m <= MAX_WALL_M) & (thickness_m >= 0.5 * MIN_WALL_M) & (widest >= 1.5)
+    keep[0] = False
+    return keep[labels]
+
+
+def _run_lengths(mask: np.ndarray) -> np.ndarray:
+    """At each pixel of ``mask``, the length of the horizontal run of mask pixels it lies in."""
+    rows, cols = mask.shape
+    padded = np.zeros((rows, cols + 1), dtype=bool)  # a blank column: runs never cross rows
+    padded[:, :cols] = mask
+    flat = padded.ravel()
+    starts = flat.copy()
+    starts[1:] &= ~flat[:-1]
+    run_id = np.cumsum(starts)
+    lengths = np.bincount(run_id, weights=flat)
+    return np.where(flat, lengths[run_id], 0.0).reshape(rows, cols + 1)[:, :cols]
+
+
+def wall_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> np.ndarray:
+    """The gaps between wall ends in line, up to ``max_gap_m`` wide: doors, passages, windows
+    drawn in thin lines, entrances, each filled exactly between the two ends.
+
+    For each of the four directions of a plan's walls (0, 45, 90 and 135 degrees) the walls that
+    run that way (a pixel whose run of wall along the direction is longer than across it; twice
+    as long for the diagonals, whose runs across an upright wall are long too) are closed along
+    it; a filled piece is kept when it is no thicker than a wall (``MAX_WALL_M``)."""
+    length = int(max_gap_m / resolution_m) | 1
+    shortest = MIN_RUN_M / resolution_m
+    fills = np.zeros_like(wall)
+    for angle, dominance in ((0.0, 1.0), (45.0, 2.0)):
+        turned = wall if angle == 0 else _rotate(wall, angle)
+        along_x = _run_lengths(turned)
+        along_y = _run_lengths(turned.T).T
+        for running, kernel in ((turned & (along_x >= dominance * along_y) & (along_x >= shortest),
+                                 np.ones((1, length), np.uint8)),
+                                (turned & (along_y >= dominance * along_x) & (along_y >= shortest),
+                                 np.ones((length, 1), np.uint8))):
+            closed = cv2.morphologyEx(running.astype(np.uint8), cv2.MORPH_CLOSE, kernel).astype(bool) & ~turned
+            if angle:
+                closed = _rotate(closed, -angle, wall.shape) & ~wall
+            fills |= _thin_enough(closed, resolution_m)
+    return fills
+
+
+def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(inside the building, the filled gaps of its outer wall).
+
+    The walls with every gap between wall ends in line closed (:func:`wall_gap_fills`) enclose
+    the rooms; the holes filled, the pieces of at least a quarter of the largest one's area are
+    the building (a title block, a scale bar or a north arrow is no building). The gaps filled on
+    the outline are windows and entrances: wall, as the outside is."""
+    fills = wall_gap_fills(wall, resolution_m, max_gap_m)
+    closed = wall | fills
+    radius_px = 0.5 * SMALL_GAP_M / resolution_m
+    pad = int(math.ceil(radius_px)) + 2
+    padded = cv2.copyMakeBorder(closed.astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0).astype(bool)
+    closed = _close_by_distance(padded, radius_px)[pad:-pad, pad:-pad]
+    count, labels, stats, _ = cv2.connectedComponentsWithStats((~closed).astype(np.uint8), connectivity=4)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    filled = ~np.isin(labels, border[border > 0])  # closed walls and their holes
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(filled.astype(np.uint8), connectivity=8)
+    if count <= 1:
+        return filled, np.zeros_like(wall)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    keep = np.zeros(count, dtype=bool)
+    keep[1:] = areas >= 0.25 * areas.max()
+    inside = keep[labels]
+    # gap fills on the outline: those touching the outside
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(fills.astype(np.uint8), connectivity=4)
+    outside_near = cv2.dilate((~inside).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    outer = np.zeros(count, dtype=bool)
+    outer[np.unique(labels[outside_near & fills])] = True
+    outer[0] = False
+    return inside, outer[labels]
+
+
+def _drop_outer_slivers(wall: np.ndarray, inside: np.ndarray, resolution_m: float) -> np.ndarray:
+    """Free pieces that touch the outside and are smaller than a room (the corners and bays the
+    outline's closing took in, the ends of filled gaps) become wall."""
+    free = ~wall
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(free.astype(np.uint8), connectivity=4)
+    if count <= 1:
+        return wall
+    outside_near = cv2.dilate((~inside).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    touching = np.zeros(count, dtype=bool)
+    touching[np.unique(labels[outside_near & free])] = True
+    small = stats[:, cv2.CC_STAT_AREA] * resolution_m ** 2 < SLIVER_M2
+    drop = touching & small
+    drop[0] = False
+    return wall | drop[labels]
+
+
+def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions = DrawingOptions(),
+                 path=None) -> DrawingReading:
+    """Wall mask of a drawing (``gray``: 8-bit, paper light; ``resolution_m``: metres per pixel)."""
+    evened = even_paper(gray, resolution_m)
+    if options.threshold == "adaptive":
+        block = max(3, options.adaptive_block_px | 1)
+        # a pixel is ink when it is 10 grey levels darker than its neighbourhood's mean
+        ink = cv2.adaptiveThreshold(evened, 1, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 10).astype(bool)
+        level = float("nan")
+    else:
+        if options.threshold == "auto":
+            if int(evened.max()) - int(evened.min()) < 16:
+                if gray.mean() < 128:
+                    raise MapfilterError("the plan has no free space (it is dark all over)", path)
+                raise MapfilterError("no walls found in the plan (it is blank)", path)
+            level = ink_threshold(evened)
+        else:
+            level = float(options.threshold)
+        ink = evened < level
+    if not ink.any():
+        raise MapfilterError("no walls found in the plan (no ink darker than the threshold)", path)
+    if options.close_gaps_px > 0:
+        ink = cv2.morphologyEx(ink.astype(np.uint8), cv2.MORPH_CLOSE, _disc(options.close_gaps_px)).astype(bool)
+
+    # strokes thinner than a wall are annotation: widths measured at half each stroke's darkness
+    core = half_darkness(evened, ink)
+    if options.thin_lines_px is None:
+        thin_px = max(1.0, MAX_LINE_M / resolution_m)
+    else:
+        thin_px = float(options.thin_lines_px)
+    diameter = int(math.ceil(thin_px)) + 1  # an opening by this disc removes strokes up to thin_px wide
+    # walls drawn in two heavier lines, hatched walls: filled where their lines are heavier than
+    # the thin ones (high resolution: their lines may be thinner than MAX_LINE_M), then where
+    # their lines outlast the thin ones (low resolution)
+    outlines, _ = heavy_lines(evened, core)
+    body = fill_wall_cavities(core, outlines, resolution_m)
+    if thin_px > 0:
+        heavy = cv2.morphologyEx(body.astype(np.uint8), cv2.MORPH_OPEN, _disc(diameter)).astype(bool)
+        heavy = fill_wall_cavities(heavy, None, resolution_m)
+    else:
+        heavy = body
+    doors: list[DoorSymbol] = []
+    if options.find_doors and thin_px > 0:
+        from mapfilter.maps.doors import find_door_symbols, erase_leaves
+
+        doors = find_door_symbols(ink & ~heavy, heavy, resolution_m)
+        heavy = erase_leaves(heavy, doors, thin_px)
+    heavy = _drop_frames(heavy, resolution_m)
+    wall, n_text = _drop_text_blobs(heavy, resolution_m, options.remove_text_px)
+    inside = None
+    if options.outside_is_wall:
+        inside, outer_gaps = building_footprint(wall, resolution_m, options.outline_gap_m)
+        wall = _drop_outer_slivers(wall | outer_gaps | ~inside, inside, resolution_m)
+    if options.thicken_px > 0:
+        wall = cv2.dilate(wall.astype(np.uint8), _disc(2 * options.thicken_px + 1)).astype(bool)
+    return DrawingReading(wall, inside, level, thin_px, doors, n_text)
