@@ -34,21 +34,26 @@ import cv2
 import numpy as np
 
 from mapfilter.errors import MapfilterError
+from mapfilter.maps.doors import DoorSymbol, erase_leaves, find_door_symbols
 
 # what a building's walls and doors measure (metres); the rules below hold for any drawing
 MIN_WALL_M = 0.075  # the thinnest partition a plan draws
 MAX_LINE_M = 0.04  # the widest annotation line (a 0.2 mm pen at 1:200)
 MIN_RUN_M = 0.3  # a wall end that bounds a gap runs at least this far
+MIN_BAND_RUN_M = 0.8  # a wall's line runs straight at least this far (a door arc does not)
+MAX_BAND_M = 0.5  # a wall's two lines are at most this far apart (a kitchen counter is 0.6 m deep)
+SPECK_M = 0.1  # a blob of wall this small on a thin line is a speck the line left
+LEAF_HALF_M = 0.04  # half a door leaf's drawn width (a leaf drawn as a box is about 4 cm thick)
 MAX_WALL_M = 0.6
-HATCH_M = 0.1  # an enclosed gap narrower than this is the inside of a wall (between hatch lines)
-THIN_PERCENTILE = 25.0
+HATCH_M = 0.1  # enclosed gaps narrower than this, side by side, are between hatch lines
+HATCH_CELLS = 4  # hatching has at least this many cells together
 HEAVY_RATIO = 1.3  # ink this many times a thin line's (width times darkness) is drawn heavy
 WALL_OUTLINE_SHARE = 0.7  # a wall's inside is drawn round in heavy lines along this share at least  # thicker than any wall: a gap this wide between wall lines is a room or a corridor
 PAPER_KERNEL_M = 1.2  # the background closing spans this: wider than any wall or column
-DOOR_RADIUS_M = (0.45, 1.3)  # a door leaf's length (the swing arc's radius)
 TEXT_BLOB_M = 1.0  # a wall blob shorter than this, not a solid column, is a label
 COLUMN_MIN_M = 0.15  # a solid blob at least this wide each way, and compact, is a column
-FRAME_RING_M = 0.12
+WORK_M = 0.03  # the outline is found at about this many metres per pixel
+LEAK_SHARE = 0.7  # the outline leaked when it holds less than this share of the rough outline's free space
 SMALL_GAP_M = 0.3  # scan breaks in the outer wall once its windows and doors are filled
 SLIVER_M2 = 1.0  # free space touching the outside and smaller than this is a gap's or a corner's sliver  # a sheet frame is a ring of ink at most this thick on average (area / perimeter)
 
@@ -73,19 +78,9 @@ class DrawingOptions:
     thin_lines_px: int | None = None
     remove_text_px: int | None = None
     outline_gap_m: float = 3.0
-    find_doors: bool = False
+    find_doors: bool = True
     thicken_px: int = 0
     outside_is_wall: bool = True
-
-
-@dataclasses.dataclass
-class DoorSymbol:
-    """A door found in a drawing: the hinge, the free jamb and the leaf's tip (pixels: column, row)."""
-
-    hinge_px: tuple[float, float]
-    jamb_px: tuple[float, float]
-    leaf_tip_px: tuple[float, float]
-    radius_px: float
 
 
 @dataclasses.dataclass
@@ -172,83 +167,137 @@ def _disc(diameter_px: int) -> np.ndarray:
 def _widest(labels: np.ndarray, count: int, mask: np.ndarray) -> np.ndarray:
     """Per label, the largest distance from inside it to its edge (half its inscribed width)."""
     distance = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
+    # a component's largest distance lies on a local maximum: only those are compared
+    ridge = (distance > 0) & (distance >= cv2.dilate(distance, np.ones((3, 3), np.uint8)))
     widest = np.zeros(count, dtype=np.float32)
-    np.maximum.at(widest, labels.ravel(), distance.ravel())
+    np.maximum.at(widest, labels[ridge], distance[ridge])
     return widest
 
 
-def ink_mass(evened: np.ndarray, window_px: int = 7) -> np.ndarray:
-    """At each pixel, the ink across a line through it: darkness summed over a disc of
-    ``window_px`` divided by its diameter, in pixels of full black. It is a line's drawn width
-    times its darkness, whatever the blur; a wall wider than the disc reads about ``window_px``."""
-    darkness = (255.0 - evened.astype(np.float32)) / 255.0
+def ink_mass(evened: np.ndarray, ink: np.ndarray, window_px: int = 7) -> np.ndarray:
+    """At each pixel, the ink across a line through it: the darkness of ``ink`` summed over a
+    disc of ``window_px`` divided by its diameter, in pixels of full black. It is a line's drawn
+    width times its darkness, nearly whatever the blur (light fills beside it are not ink, so do
+    not count); a wall wider than the disc reads about ``window_px``."""
+    darkness = np.where(ink, (255.0 - evened.astype(np.float32)) / 255.0, 0.0).astype(np.float32)
     disc = _disc(window_px).astype(np.float32)
     return cv2.filter2D(darkness, -1, disc, borderType=cv2.BORDER_REPLICATE) / window_px
 
 
-def fill_wall_cavities(ink: np.ndarray, heavy_lines: np.ndarray | None, resolution_m: float) -> np.ndarray:
-    """Fill the insides of double-line and hatched walls and of windows: gaps enclosed by ink that
-    are very narrow (under ``HATCH_M``: between hatch lines), or narrow (under ``MAX_WALL_M``),
-    elongated (2.5 times as long as wide) and drawn round in heavy lines (``heavy_lines``: at
-    least ``WALL_OUTLINE_SHARE`` of the ink along them), as a wall's outline is; a counter's or a
-    wardrobe's is drawn in thin lines, with the wall's heavy line along one side only.
-    ``heavy_lines`` None: the ink is all heavy (its thin lines removed), every narrow elongated
-    gap is filled."""
-    free = (~ink).astype(np.uint8)
+def _enclosed_gaps(lines: np.ndarray, resolution_m: float):
+    """(labels, count, inscribed width in metres, elongation, enclosed) of the gaps between ``lines``."""
+    free = (~lines).astype(np.uint8)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(free, connectivity=4)
-    if count <= 1:
-        return ink
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     width_m = 2.0 * _widest(labels, count, free) * resolution_m
     area_m2 = stats[:, cv2.CC_STAT_AREA] * resolution_m ** 2
     elongation = area_m2 / np.maximum(width_m, resolution_m) ** 2
-    tiny = width_m <= HATCH_M  # between hatch lines, in a window, a door leaf drawn as a box
-    candidate = (width_m <= MAX_WALL_M) & (elongation >= 2.5) & ~tiny
-    candidate[0] = tiny[0] = False
-    candidate[border] = tiny[border] = False
-    if heavy_lines is None or not candidate.any():
-        return ink | (tiny | candidate)[labels] if heavy_lines is None else ink | tiny[labels]
-    # the ink along each candidate: its pixels within two pixels of the gap, given to the nearest gap
-    seeds = candidate[labels]
-    distance, nearest = cv2.distanceTransformWithLabels((~seeds).astype(np.uint8), cv2.DIST_L2, 5,
-                                                       labelType=cv2.DIST_LABEL_CCOMP)
-    seed_label = np.zeros(nearest.max() + 1, dtype=np.int64)
-    seed_label[nearest[seeds]] = labels[seeds]
-    edge = ink & (distance <= 2.0)
-    owner = seed_label[nearest[edge]]
-    total = np.bincount(owner, minlength=count).astype(np.float64)
-    heavy = np.bincount(owner, weights=heavy_lines[edge], minlength=count)
-    outlined = heavy / np.maximum(total, 1.0)
-    fill = (candidate & (outlined >= WALL_OUTLINE_SHARE)) | tiny
-    return ink | fill[labels]
+    enclosed = np.ones(count, dtype=bool)
+    enclosed[0] = False
+    enclosed[border] = False
+    return labels, count, width_m, elongation, enclosed
 
 
-def heavy_lines(evened: np.ndarray, core: np.ndarray) -> tuple[np.ndarray, float]:
-    """(the ink drawn heavier than the drawing's thin lines, the thin lines' ink mass).
+def fill_hatching(ink: np.ndarray, resolution_m: float) -> np.ndarray:
+    """The cells of hatching: enclosed gaps narrower than ``HATCH_M``, ``HATCH_CELLS`` or more side
+    by side (a door leaf drawn as a thin box, a sliding door's panels, a letter's eye stand alone)."""
+    labels, count, width_m, _, enclosed = _enclosed_gaps(ink, resolution_m)
+    tiny = enclosed & (width_m <= HATCH_M)
+    tiny &= _in_clusters(labels, tiny, resolution_m)
+    return tiny[labels]
 
-    The thin lines are the lightest quarter of the ink mass along the ink's ridges (most of a
-    drawing's lines are thin; a double-line drawing's walls may be most of the rest); heavy ink
-    carries at least
-    ``HEAVY_RATIO`` times as much (walls drawn solid, or outlined with a heavier pen)."""
-    mass = ink_mass(evened)
+
+def fill_between_lines(lines: np.ndarray, resolution_m: float) -> np.ndarray:
+    """The insides of walls drawn as two parallel heavy lines: between two lines that run the same
+    way (0, 45, 90 or 135 degrees; each longer than ``MIN_BAND_RUN_M``) at most ``MAX_WALL_M``
+    apart. No enclosure is needed, so a break in a wall's line (a scan, a crossing) does not
+    open it; door arcs and furniture are no such pair."""
+    across = max(3, int(MAX_BAND_M / resolution_m)) | 1
+    shortest = MIN_BAND_RUN_M / resolution_m
+    fills = np.zeros_like(lines)
+    for angle in (0.0, 45.0):
+        turned = lines if angle == 0 else _rotate(lines, angle)
+        along_x = _run_lengths(turned)
+        along_y = _run_lengths(turned.T).T
+        between = np.zeros_like(turned)
+        for running, kernel in ((turned & (along_x >= shortest), np.ones((across, 1), np.uint8)),
+                                (turned & (along_y >= shortest), np.ones((1, across), np.uint8))):
+            between |= cv2.morphologyEx(running.astype(np.uint8), cv2.MORPH_CLOSE, kernel).astype(bool) & ~turned
+        fills |= between if angle == 0 else _rotate(between, -angle, lines.shape)
+    return fills & ~lines
+
+
+def fill_wall_bands(lines: np.ndarray, resolution_m: float) -> np.ndarray:
+    """The insides of walls drawn as two lines, and of windows: enclosed gaps between ``lines``
+    (heavy lines only: a room's furniture and a window's glass are drawn thin) narrower than
+    ``MAX_WALL_M`` and at least 2.5 times as long as wide."""
+    labels, count, width_m, elongation, enclosed = _enclosed_gaps(lines, resolution_m)
+    band = enclosed & (width_m <= MAX_WALL_M) & (elongation >= 2.5)
+    return band[labels]
+
+
+def _in_clusters(labels: np.ndarray, tiny: np.ndarray, resolution_m: float) -> np.ndarray:
+    """Of the very narrow gaps, those side by side with at least ``HATCH_CELLS`` - 1 others
+    (within ``HATCH_M``): the cells of hatching. A door leaf drawn as a thin box, a sliding
+    door's panels or a letter's eye stand alone."""
+    cells = tiny[labels]
+    if not cells.any():
+        return tiny
+    reach = max(3, int(round(HATCH_M / resolution_m)) | 1)
+    groups, group_labels = cv2.connectedComponents(cv2.dilate(cells.astype(np.uint8), _disc(reach)), connectivity=8)
+    # how many cells each group holds: each cell counted once, at its own label
+    cell_ids = np.nonzero(tiny)[0]
+    flat_labels = labels.ravel()
+    order = np.flatnonzero(cells.ravel())
+    _, where = np.unique(flat_labels[order], return_index=True)
+    group_of_cell = np.zeros(len(tiny), dtype=np.int64)
+    group_of_cell[flat_labels[order[where]]] = group_labels.ravel()[order[where]]
+    per_group = np.bincount(group_of_cell[cell_ids], minlength=groups)
+    keep = np.zeros(len(tiny), dtype=bool)
+    keep[cell_ids] = per_group[group_of_cell[cell_ids]] >= HATCH_CELLS
+    return keep
+
+
+def heavy_lines(evened: np.ndarray, ink: np.ndarray, core: np.ndarray) -> tuple[np.ndarray, float]:
+    """(the ink drawn heavier than the drawing's thin lines, the ink mass that splits them).
+
+    The split is Otsu's on the log ink mass along the ink's ridges (a drawing's thin lines and
+    its heavier wall lines or fills), at least ``HEAVY_RATIO`` times the lightest tenth."""
+    mass = ink_mass(evened, ink)
     distance = cv2.distanceTransform(core.astype(np.uint8), cv2.DIST_L2, 5)
     ridge = (distance > 0) & (distance >= cv2.dilate(distance, np.ones((3, 3), np.uint8)) - 1e-3)
     values = mass[ridge]
+    values = values[values > 0.05]
     if values.size < 50:
         return core, 0.0
-    thin = float(np.percentile(values, THIN_PERCENTILE))
-    return core & (mass >= HEAVY_RATIO * thin), thin
+    logs = np.log(values)
+    counts, edges = np.histogram(logs, bins=64)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    weight = np.cumsum(counts)
+    moment = np.cumsum(counts * centres)
+    total, total_moment = weight[-1], moment[-1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        between = (total_moment * weight - total * moment) ** 2 / (weight * (total - weight))
+    split = float(np.exp(edges[int(np.nanargmax(between[:-1])) + 1]))
+    split = max(split, HEAVY_RATIO * float(np.percentile(values, 10)))
+    return core & (mass >= split), split
 
 
 def _drop_frames(heavy: np.ndarray, resolution_m: float) -> np.ndarray:
-    """Remove a sheet frame: a thin ring of ink near all four image edges around everything."""
+    """Remove a sheet frame: ink reaching near all four edges of the image whose holes hold
+    another large piece of ink (the building), as a frame drawn round a plan does."""
     count, labels, stats, _ = cv2.connectedComponentsWithStats(heavy.astype(np.uint8), connectivity=8)
     rows, cols = heavy.shape
     drop = np.zeros(count, dtype=bool)
+    large = (stats[:, cv2.CC_STAT_WIDTH] * stats[:, cv2.CC_STAT_HEIGHT] >= 0.05 * rows * cols)
     for i in range(1, count):
         x, y, w, h, area = stats[i]
-        near_edges = x < 0.1 * cols and y < 0.1 * rows and x + w > 0.9 * cols and y + h > 0.9 * rows
-        if near_edges and area / (2.0 * (w + h)) * resolution_m < FRAME_RING_M:
+        if not (x < 0.1 * cols and y < 0.1 * rows and x + w > 0.9 * cols and y + h > 0.9 * rows):
+            continue
+        inner = large.copy()
+        inner[[0, i]] = False
+        sx, sy, sw, sh = (stats[inner, k] for k in range(4))
+        if (inner.any() and ((sx > x) & (sy > y) & (sx + sw < x + w) & (sy + sh < y + h)).any()):
             drop[i] = True
     return heavy & ~drop[labels] if drop.any() else heavy
 
@@ -260,6 +309,14 @@ def _close_by_distance(mask: np.ndarray, radius_px: float) -> np.ndarray:
     to_outside = cv2.distanceTransform(dilated.astype(np.uint8), cv2.DIST_L2, 5)
     # the image border is not a wall: pad so that the erosion does not eat in from it
     return to_outside > radius_px
+
+
+def _small_blobs(mask: np.ndarray, below_px: float) -> np.ndarray:
+    """The 8-connected blobs of ``mask`` whose bounding box's longer side is under ``below_px``."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    small = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) < below_px
+    small[0] = False
+    return small[labels]
 
 
 def _drop_text_blobs(wall: np.ndarray, resolution_m: float, below_px: int | None) -> tuple[np.ndarray, int]:
@@ -303,9 +360,7 @@ def _thin_enough(fills: np.ndarray, resolution_m: float) -> np.ndarray:
     count, labels, stats, _ = cv2.connectedComponentsWithStats(fills.astype(np.uint8), connectivity=4)
     if count <= 1:
         return fills
-    depth = cv2.distanceTransform(fills.astype(np.uint8), cv2.DIST_L2, 5)
-    widest = np.zeros(count, dtype=np.float32)
-    np.maximum.at(widest, labels.ravel(), depth.ravel())
+    widest = _widest(labels, count, fills)
     thickness_m = 2 * widest * resolution_m
     keep = (thickness_m <= MAX_WALL_M) & (thickness_m >= 0.5 * MIN_WALL_M) & (widest >= 1.5)
     keep[0] = False
@@ -325,17 +380,18 @@ def _run_lengths(mask: np.ndarray) -> np.ndarray:
     return np.where(flat, lengths[run_id], 0.0).reshape(rows, cols + 1)[:, :cols]
 
 
-def wall_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> np.ndarray:
+def wall_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> list[np.ndarray]:
     """The gaps between wall ends in line, up to ``max_gap_m`` wide: doors, passages, windows
     drawn in thin lines, entrances, each filled exactly between the two ends.
 
     For each of the four directions of a plan's walls (0, 45, 90 and 135 degrees) the walls that
     run that way (a pixel whose run of wall along the direction is longer than across it; twice
     as long for the diagonals, whose runs across an upright wall are long too) are closed along
-    it; a filled piece is kept when it is no thicker than a wall (``MAX_WALL_M``)."""
+    it; a filled piece is kept when it is no thicker than a wall (``MAX_WALL_M``). One mask per
+    direction."""
     length = int(max_gap_m / resolution_m) | 1
     shortest = MIN_RUN_M / resolution_m
-    fills = np.zeros_like(wall)
+    fills = []
     for angle, dominance in ((0.0, 1.0), (45.0, 2.0)):
         turned = wall if angle == 0 else _rotate(wall, angle)
         along_x = _run_lengths(turned)
@@ -347,7 +403,7 @@ def wall_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> n
             closed = cv2.morphologyEx(running.astype(np.uint8), cv2.MORPH_CLOSE, kernel).astype(bool) & ~turned
             if angle:
                 closed = _rotate(closed, -angle, wall.shape) & ~wall
-            fills |= _thin_enough(closed, resolution_m)
+            fills.append(_thin_enough(closed, resolution_m))
     return fills
 
 
@@ -358,29 +414,59 @@ def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float) 
     the rooms; the holes filled, the pieces of at least a quarter of the largest one's area are
     the building (a title block, a scale bar or a north arrow is no building). The gaps filled on
     the outline are windows and entrances: wall, as the outside is."""
-    fills = wall_gap_fills(wall, resolution_m, max_gap_m)
-    closed = wall | fills
-    radius_px = 0.5 * SMALL_GAP_M / resolution_m
+    # at about WORK_M per pixel: walls stay two pixels thick, and it is many times faster
+    factor = max(1, int(WORK_M / resolution_m))
+    rows, cols = wall.shape
+    if factor > 1:
+        small_shape = (max(1, cols // factor), max(1, rows // factor))
+        work = cv2.resize(wall.astype(np.float32), small_shape, interpolation=cv2.INTER_AREA) >= 0.3
+        work_m = resolution_m * cols / small_shape[0]
+    else:
+        work, work_m = wall, resolution_m
+    fills = wall_gap_fills(work, work_m, max_gap_m)
+    closed = work.copy()
+    for fill in fills:
+        closed |= fill
+    inside = _enclosed(closed, 0.5 * SMALL_GAP_M / work_m)
+    # a gap the fills missed lets the outside in: then the walls closed over door-wide gaps
+    # (a disc a little wider than max_gap_m cannot pass them) give the outline
+    rough = _enclosed(work, 0.625 * max_gap_m / work_m)
+    if (inside & ~work).sum() < LEAK_SHARE * (rough & ~work).sum():
+        inside = rough
+    # gap fills on the outline: the pieces (of each direction) touching the outside
+    outside_near = cv2.dilate((~inside).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    outer_fills = np.zeros_like(inside)
+    for fill in fills:
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(fill.astype(np.uint8), connectivity=4)
+        outer = np.zeros(count, dtype=bool)
+        outer[np.unique(labels[outside_near & fill])] = True
+        outer[0] = False
+        outer_fills |= outer[labels]
+    return _resize_mask(inside, wall.shape), _resize_mask(outer_fills, wall.shape) & ~wall
+
+
+def _enclosed(wall: np.ndarray, radius_px: float) -> np.ndarray:
+    """The building: ``wall`` closed by a disc of ``radius_px``, its holes filled, the pieces of at
+    least a quarter of the largest one's area (a title block, a scale bar, a north arrow is none)."""
     pad = int(math.ceil(radius_px)) + 2
-    padded = cv2.copyMakeBorder(closed.astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0).astype(bool)
+    padded = cv2.copyMakeBorder(wall.astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0).astype(bool)
     closed = _close_by_distance(padded, radius_px)[pad:-pad, pad:-pad]
     count, labels, stats, _ = cv2.connectedComponentsWithStats((~closed).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     filled = ~np.isin(labels, border[border > 0])  # closed walls and their holes
     count, labels, stats, _ = cv2.connectedComponentsWithStats(filled.astype(np.uint8), connectivity=8)
     if count <= 1:
-        return filled, np.zeros_like(wall)
+        return filled
     areas = stats[1:, cv2.CC_STAT_AREA]
     keep = np.zeros(count, dtype=bool)
     keep[1:] = areas >= 0.25 * areas.max()
-    inside = keep[labels]
-    # gap fills on the outline: those touching the outside
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(fills.astype(np.uint8), connectivity=4)
-    outside_near = cv2.dilate((~inside).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    outer = np.zeros(count, dtype=bool)
-    outer[np.unique(labels[outside_near & fills])] = True
-    outer[0] = False
-    return inside, outer[labels]
+    return keep[labels]
+
+
+def _resize_mask(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    if mask.shape == shape:
+        return mask
+    return cv2.resize(mask.astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST).astype(bool)
 
 
 def _drop_outer_slivers(wall: np.ndarray, inside: np.ndarray, resolution_m: float) -> np.ndarray:
@@ -433,19 +519,28 @@ def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions 
     # walls drawn in two heavier lines, hatched walls: filled where their lines are heavier than
     # the thin ones (high resolution: their lines may be thinner than MAX_LINE_M), then where
     # their lines outlast the thin ones (low resolution)
-    outlines, _ = heavy_lines(evened, core)
-    body = fill_wall_cavities(core, outlines, resolution_m)
+    # hatched walls, then walls drawn in two heavier lines (their lines may be thinner than
+    # MAX_LINE_M at high resolution, so they are told by their ink mass), then at low
+    # resolution the bands whose lines outlast the thin ones
+    clean = core & ~_small_blobs(core, SPECK_M / resolution_m)  # dust, the crossings of faint tile lines
+    hatching = fill_hatching(clean, resolution_m)
+    outlines, _ = heavy_lines(evened, ink, core)
+    outlines = cv2.morphologyEx((outlines | hatching).astype(np.uint8), cv2.MORPH_CLOSE, _disc(3)).astype(bool)
+    body = core | hatching | fill_wall_bands(outlines, resolution_m) | fill_between_lines(outlines, resolution_m)
     if thin_px > 0:
         heavy = cv2.morphologyEx(body.astype(np.uint8), cv2.MORPH_OPEN, _disc(diameter)).astype(bool)
-        heavy = fill_wall_cavities(heavy, None, resolution_m)
+        heavy |= fill_wall_bands(heavy, resolution_m)
     else:
         heavy = body
     doors: list[DoorSymbol] = []
     if options.find_doors and thin_px > 0:
-        from mapfilter.maps.doors import find_door_symbols, erase_leaves
-
-        doors = find_door_symbols(ink & ~heavy, heavy, resolution_m)
-        heavy = erase_leaves(heavy, doors, thin_px)
+        # the thin strokes at the ink threshold (a faint arc's core may break), joined over a
+        # pixel; specks the opening left on a thin line do not break it
+        specks = _small_blobs(heavy, SPECK_M / resolution_m)
+        thin = ink & ~cv2.dilate((heavy & ~specks).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        thin = cv2.morphologyEx(thin.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
+        doors = find_door_symbols(thin, heavy, ink, resolution_m)
+        heavy = erase_leaves(heavy, doors, LEAF_HALF_M / resolution_m + 1.0)
     heavy = _drop_frames(heavy, resolution_m)
     wall, n_text = _drop_text_blobs(heavy, resolution_m, options.remove_text_px)
     inside = None
