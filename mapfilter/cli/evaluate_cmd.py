@@ -151,6 +151,7 @@ def run(args: argparse.Namespace) -> int:
     from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate, methods_for, validate_setup
     from mapfilter.evaluation.store import file_digest, read_outcome, run_key, write_outcome
     from mapfilter.maps.building import Building
+    from mapfilter.maps.walkable import check_before_tracking
     from mapfilter.sensors.recording import trace_name
 
     check_map_first("mapfilter evaluate MAP LOG...", args.map, [*args.logs, *args.survey, *args.unlabelled])
@@ -164,6 +165,8 @@ def run(args: argparse.Namespace) -> int:
                          *source_paths(args), args.groups)
     out = check_output_path(args.out, directory=True, inputs=inputs)  # holds only our files, no input
     building = Building.load(args.map)
+    for message in check_before_tracking(building, args.map):
+        warn(message)
     check_tracking_fits(config, building_extents_m(building))
     setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,

@@ -18,23 +18,26 @@ _METRES = bounded_float(0.0, 1e5, low_open=True)
 _STOREY = bounded_float(0.0, 100.0, low_open=True)
 
 _PREPARE_EPILOG = """\
-kinds:
-  lines    dark walls on light paper (scans, CAD exports): threshold, close small gaps,
-           drop text and specks, optionally thicken; outside the building becomes wall
-  regions  filled-region plans (e.g. ILC floor_image.png): --walkable colours are free,
-           everything else wall (after --open-outlines / --remove-below clean-up); outside
-           the building becomes wall
+kinds (chosen from the image unless given: a filled-region plan's filled areas are metres
+across, a drawing's walls and lines are not; .json/.geojson files are GeoJSON):
+  lines    a drawing, dark walls on light paper (scans, CAD exports, real-estate plans): the
+           paper evened (grey, yellowed, unevenly lit), ink darker than --threshold, strokes
+           thinner than a wall dropped (text, furniture, door arcs, dimension, axis and hatch
+           lines), double-line and hatched walls filled, door leaves removed, the building's
+           outline found with its windows and entrances closed; outside it is wall
+  regions  filled-region plans (e.g. ILC floor_image.png): --walkable colours are free (default:
+           transparent, or the paper), everything else wall; small blobs in free space dropped,
+           the outlines drawn round filled regions opened by their own width; outside is wall
   geojson  vector floor: first 'floor' feature (else the first) = outline, the other
            polygons = obstacles; outside the outline is wall (--resolution = output m/px,
            default 0.1)
 
-The outside: free space connected to the image border is outside the building and becomes
-wall (a floor plan's outside is not walkable); --keep-outside keeps it free.
-
-warnings (one line each; the map is written all the same): almost no free space, almost no
-walls (a nearly empty plan), free space reaching the map's edge, small wall blobs inside free
-space (text in corridors), and with --check-logs LOG... the waypoints of those logs that fall
-in walls (a wrong scale, closed outlines, a plan of another floor).
+The report: what the reader did, the free share, how much of the free space is one connected
+region, and the rooms cut off from it (their pixel box in the mask). Warnings (one line each;
+the map is written all the same): almost no free space, almost no walls, free space reaching
+the map's edge, small wall blobs in free space, rooms cut off, and with --check-logs LOG...
+the waypoints of those logs that fall in walls (a wrong scale, a plan of another floor).
+A plan that comes out with no free space at all is refused.
 
 scale (give one or more; they must agree within 2 %):
   --resolution M                 metres per plan pixel
@@ -52,9 +55,9 @@ edits file (metres, world frame: x right, y up, origin at the plan's lower-left 
 writes NAME.yaml (ROS map_server), NAME.png (mask: 0 = wall, 254 = free) and
 NAME_preview.png (walls in red over the plan); nothing is written on error.
 
-example:
-  mapfilter map prepare maps/office_plan.png --kind lines --resolution 0.05 \\
-      --map-resolution 0.1 --out maps/office.yaml --check-logs maps/office_walk.txt.gz
+examples:
+  mapfilter map prepare plan.jpg --resolution 0.02 --out floor.yaml
+  mapfilter map prepare ../shared/data/ilc20/site1/F1/floor_image.png --size 239.8 176.4 --out F1.yaml
 """
 
 _IMPORT_EPILOG = """\
@@ -113,7 +116,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     prepare_parser.add_argument("plan", type=Path, metavar="PLAN", help="plan image (PNG, JPEG, PGM, ...) or GeoJSON file")
     prepare_parser.add_argument("--out", type=Path, required=True, metavar="NAME.yaml", help="output map YAML")
     prepare_parser.add_argument("--kind", choices=("lines", "regions", "geojson"), default=None,
-                                help="kind of plan (default: geojson for .json/.geojson, else lines)")
+                                help="kind of plan (default: geojson for .json/.geojson, else chosen from the image)")
     scale = prepare_parser.add_argument_group("scale")
     scale.add_argument("--resolution", type=_METRES_PER_PIXEL, metavar="M", help="metres per plan pixel (geojson: per output pixel, default 0.1)")
     scale.add_argument("--size", type=_METRES, nargs=2, metavar=("W", "H"), help="real width and height of the plan in metres")
@@ -122,26 +125,35 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     scale.add_argument("--scale-distance", type=_METRES, metavar="M", help="... and their real distance in metres")
     scale.add_argument("--map-resolution", type=_METRES_PER_PIXEL, metavar="M",
                        help="metres per pixel of the output mask (default: the plan's own; coarser keeps walls closed)")
-    lines = prepare_parser.add_argument_group("line drawings (--kind lines)")
-    lines.add_argument("--threshold", choices=("otsu", "adaptive"), default="otsu",
-                       help="ink threshold: global Otsu, or adaptive for uneven scans (default: otsu)")
-    lines.add_argument("--close-gaps", type=_PIXELS, default=3, metavar="PX",
-                       help="close wall gaps narrower than PX plan pixels (0 = off; default: 3)")
-    lines.add_argument("--remove-text", type=_AREA, default=20, metavar="PX",
-                       help="drop ink blobs whose bounding box is shorter than PX (text, specks; default: 20)")
+    lines = prepare_parser.add_argument_group("drawings (--kind lines)")
+    lines.add_argument("--threshold", type=_threshold, default="auto", metavar="auto|adaptive|N",
+                       help="ink: darker than Otsu's level of the evened paper (auto), than the neighbourhood "
+                            "(adaptive), or than grey level N (1-254, paper = 255) (default: auto)")
+    lines.add_argument("--thin-lines", type=_PIXELS, default=None, metavar="PX",
+                       help="strokes up to PX plan pixels wide are annotation, not walls (0: every stroke is a wall; "
+                            "default: 4 cm at the plan's scale)")
+    lines.add_argument("--outline-gap", type=bounded_float(0.0, 50.0, low_open=True), default=3.0, metavar="M",
+                       help="openings in the outer wall (entrances, windows) up to M metres are closed when the "
+                            "building's outline is found (default: 3)")
+    lines.add_argument("--close-gaps", type=_PIXELS, default=0, metavar="PX",
+                       help="close breaks in the ink narrower than PX plan pixels first (scans; default: 0)")
+    lines.add_argument("--remove-text", type=_AREA, default=None, metavar="PX",
+                       help="drop wall blobs whose bounding box is shorter than PX (default: under 1 m and not a "
+                            "solid column)")
     lines.add_argument("--thicken", type=_PIXELS, default=0, metavar="PX", help="dilate walls by PX pixels (default: 0)")
     prepare_parser.add_argument("--keep-outside", action="store_true",
-                                help="lines and regions: keep free space connected to the image border free "
-                                     "(default: it is outside the building, so wall)")
+                                help="lines and regions: keep the outside of the building free "
+                                     "(default: outside the building is wall)")
     regions = prepare_parser.add_argument_group("filled-region plans (--kind regions)")
     regions.add_argument("--walkable", action="append", metavar="COLOUR",
-                         help="a walkable colour: transparent, #rrggbb or r,g,b; repeat for more (default: transparent)")
+                         help="a walkable colour: transparent, #rrggbb or r,g,b; repeat for more "
+                              "(default: transparent, or the paper of an opaque plan)")
     regions.add_argument("--tolerance", type=bounded_int(0, 255), default=24, metavar="N",
                          help="max per-channel difference to a walkable colour (default: 24)")
-    regions.add_argument("--open-outlines", type=_PIXELS, default=0, metavar="PX",
-                         help="erode walls by PX pixels along free space (outlines walkable; default: 0)")
-    regions.add_argument("--remove-below", type=_AREA, default=0, metavar="PX",
-                         help="wall blobs of fewer than PX pixels become free (text in corridors; default: 0)")
+    regions.add_argument("--open-outlines", type=_PIXELS, default=None, metavar="PX",
+                         help="erode walls by PX pixels along free space (default: the drawn outlines' own width)")
+    regions.add_argument("--remove-below", type=_AREA, default=None, metavar="PX",
+                         help="wall blobs of fewer than PX pixels become free (default: blobs under 0.5 m2)")
     regions.add_argument("--outside-wall", action="store_true", help=argparse.SUPPRESS)  # now the default
     vector = prepare_parser.add_argument_group("GeoJSON floors (--kind geojson)")
     vector.add_argument("--units", choices=("lonlat", "m"), default="lonlat",
@@ -193,17 +205,34 @@ def _missing_subcommand(parser: argparse.ArgumentParser) -> int:
     return 2
 
 
+def _threshold(text: str):
+    """argparse type of --threshold: auto (otsu is the same), adaptive, or a grey level 1-254."""
+    if text in ("auto", "otsu"):
+        return "auto"
+    if text == "adaptive":
+        return text
+    try:
+        level = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be auto, adaptive or a grey level 1-254, got {text!r}") from None
+    if not 1 <= level <= 254:
+        raise argparse.ArgumentTypeError(f"a grey level must be 1-254, got {text}")
+    return level
+
+
 def run_prepare(args: argparse.Namespace) -> int:
-    from mapfilter.maps import prepare
+    from mapfilter.maps import prepare, walkable
+    from mapfilter.maps.drawing import DrawingOptions
     from mapfilter.sensors.logs import log_format
 
     _check_map_outputs(args.out, input_paths(args.plan, args.edits, args.access_points, args.check_logs))
-    kind = args.kind or ("geojson" if args.plan.suffix.lower() in (".json", ".geojson") else "lines")
+    kind = args.kind or ("geojson" if args.plan.suffix.lower() in (".json", ".geojson") else None)
     edits = prepare.read_edits(args.edits) if args.edits else None
     if args.access_points is not None and not args.access_points.is_file():
         raise not_a_file(args.access_points)
     for path in args.check_logs:
         log_format(path)  # a missing or unreadable log is refused before the work
+    notes = []
     if kind == "geojson":
         if args.size or args.scale_points or args.scale_distance:
             raise MapfilterError("a GeoJSON floor is already in real units: give only --resolution (m per pixel)",
@@ -219,26 +248,33 @@ def run_prepare(args: argparse.Namespace) -> int:
             points = ((u1, v1), (u2, v2))
         scale = prepare.PlanScale(args.resolution, tuple(args.size) if args.size else None, points,
                                   args.scale_distance)
-        if kind == "lines":
-            options = prepare.LineOptions(args.threshold, close_gaps_px=args.close_gaps,
-                                          remove_below_px=args.remove_text, thicken_px=args.thicken,
-                                          outside_is_wall=not args.keep_outside)
-            plan = prepare.prepare_lines(args.plan, scale, options, args.map_resolution, args.floor)
-        else:
-            options = prepare.RegionOptions(tuple(args.walkable or [prepare.TRANSPARENT]), args.tolerance,
-                                            remove_below_px=args.remove_below, open_outlines_px=args.open_outlines,
-                                            outside_is_wall=not args.keep_outside)
-            plan = prepare.prepare_regions(args.plan, scale, options, args.map_resolution, args.floor)
+        drawing = DrawingOptions(args.threshold, close_gaps_px=args.close_gaps, thin_lines_px=args.thin_lines,
+                                 remove_text_px=args.remove_text, outline_gap_m=args.outline_gap,
+                                 thicken_px=args.thicken, outside_is_wall=not args.keep_outside)
+        regions = prepare.RegionOptions(tuple(args.walkable or ()), args.tolerance, remove_below_px=args.remove_below,
+                                        open_outlines_px=args.open_outlines, outside_is_wall=not args.keep_outside)
+        prepared = prepare.prepare_plan(args.plan, scale, kind, drawing, regions, args.map_resolution, args.floor)
+        plan, kind, notes = prepared.plan, prepared.kind, prepared.notes
     if edits is not None:
         plan = prepare.apply_edits(plan, edits)
     if args.access_points is not None:
         plan.access_points_csv = args.access_points.resolve()
-    hints = {"lines": ("you gave --keep-outside", "--remove-text PX drops ink blobs shorter than PX plan pixels"),
-             "regions": ("you gave --keep-outside", "--remove-below PX frees wall blobs of fewer than PX plan pixels"),
+    outside = ("you gave --keep-outside" if args.keep_outside else
+               "an opening in the outer wall wider than --outline-gap let it in, or an edit freed it: close it with "
+               "--edits")
+    hints = {"lines": (outside, "--remove-text PX drops wall blobs shorter than PX plan pixels"),
+             "regions": (outside, "--remove-below PX frees wall blobs of fewer than PX plan pixels"),
              "geojson": (None, None)}[kind]
     found = [f"{args.out}: {message}" for message in prepare.mask_warnings(plan, *hints)]
+    walk = walkable.assess(plan.wall_mask, plan.resolution_m)
+    cut_off = walkable.cut_off_message(walk, "open their doors with --edits (free polygons), or look at the preview")
+    if cut_off:
+        found.append(f"{args.out}: {cut_off}")
     found += _waypoints_in_walls(plan, args.check_logs)
     _write(plan, args.out)
+    for note in notes:
+        print(f"  {note}")
+    print(f"  {walkable.summary(walk)}")
     for message in found:
         warn(message)
     return 0

@@ -13,6 +13,7 @@ import stat
 import sys
 import textwrap
 import time
+from collections import Counter
 from pathlib import Path
 
 from mapfilter.io.atomic import atomic_paths
@@ -27,6 +28,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.runtime.memory import building_extents_m, check_tracking_fits
 
 TRACK_FORMATS = ("csv", "tum")
+MAX_COLLAPSE_LINES = 3  # more collapses than this are summarised in one line
 
 _EPILOG = """\
 WiFi: --radiomap RM (fingerprinting; build one with `mapfilter radiomap build`) or --aps
@@ -256,6 +258,7 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     out_format = track_format(args.out, args.format)
     spawn = args.spawn and _viewer_can_start()
     building = Building.load(args.map)
+    _check_walkable(building, args.map)
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
@@ -371,6 +374,7 @@ def _run_live(args: argparse.Namespace, config) -> int:
     _refuse_standard_input_as_output(args)
     out_format = track_format(args.out, args.format)
     building = Building.load(args.map)
+    _check_walkable(building, args.map)
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     radio_map, ap_table = _wifi_source(args, building, config)
     floor = None if building.is_single_floor else args.floor
@@ -537,6 +541,27 @@ def _viewer_can_start() -> bool:
     return problem is None
 
 
+def _check_walkable(building, map_path: Path) -> None:
+    """A map with no free space is refused; one whose free space is mostly cut off is warned about."""
+    from mapfilter.maps.walkable import check_before_tracking
+
+    for message in check_before_tracking(building, map_path):
+        warn(message)
+
+
+def _collapse_lines(collapses, t0: float) -> list[str]:
+    """One line per collapse, or one line for them all when they repeat."""
+    if len(collapses) <= MAX_COLLAPSE_LINES:
+        return [f"  collapse at t={e.t_s - t0:+.1f} s ({e.cause}, {e.particles_lost} particles lost) -> recovered by "
+                f"{e.recovery}" for e in collapses]
+    causes = Counter(e.cause for e in collapses)
+    recoveries = Counter(e.recovery for e in collapses)
+    return [f"  {len(collapses)} collapses from t={collapses[0].t_s - t0:+.1f} s to t={collapses[-1].t_s - t0:+.1f} s "
+            f"({', '.join(f'{c} {n}' for c, n in causes.most_common())}; recovered by "
+            f"{', '.join(f'{r} {n}' for r, n in recoveries.most_common())}): the map may trap the particles "
+            "(look at its preview) or the WiFi may disagree with it"]
+
+
 def _measured(result) -> str:
     """", 120 windows" for each measurement source that measured (its ``counts``)."""
     counts = {entry.name: entry.counts for entry in registered()}
@@ -579,9 +604,7 @@ def _summary(building, recording, result, header_floor, written, wifi: str) -> s
                     text += " (rows on another floor compared in their own floor's frame)"
         lines.append(text)
     t0 = float(recording.wifi.t_s[0]) if len(recording.wifi) else 0.0
-    for event in result.collapses:
-        lines.append(f"  collapse at t={event.t_s - t0:+.1f} s ({event.cause}, {event.particles_lost} particles "
-                     f"lost) -> recovered by {event.recovery}")
+    lines += _collapse_lines(result.collapses, t0)
     for start, end in result.gaps:
         lines.append(f"  gap in the log from t={start - t0:+.1f} s to t={end - t0:+.1f} s: the filter started afresh")
     for path, what in written:
@@ -630,6 +653,7 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
             raise missing_log(path)
     engine = engine_from(args)
     building = Building.load(args.map)
+    _check_walkable(building, args.map)
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)

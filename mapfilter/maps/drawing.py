@@ -46,12 +46,15 @@ SPECK_M = 0.1  # a blob of wall this small on a thin line is a speck the line le
 LEAF_HALF_M = 0.04  # half a door leaf's drawn width (a leaf drawn as a box is about 4 cm thick)
 MAX_WALL_M = 0.6
 HATCH_M = 0.1  # enclosed gaps narrower than this, side by side, are between hatch lines
-HATCH_CELLS = 4  # hatching has at least this many cells together
+HATCH_CELLS = 8  # hatching has at least this many cells together (a word has a few letter eyes)
 HEAVY_RATIO = 1.3  # ink this many times a thin line's (width times darkness) is drawn heavy
 WALL_OUTLINE_SHARE = 0.7  # a wall's inside is drawn round in heavy lines along this share at least  # thicker than any wall: a gap this wide between wall lines is a room or a corridor
 PAPER_KERNEL_M = 1.2  # the background closing spans this: wider than any wall or column
 TEXT_BLOB_M = 1.0  # a wall blob shorter than this, not a solid column, is a label
-COLUMN_MIN_M = 0.15  # a solid blob at least this wide each way, and compact, is a column
+COLUMN_MIN_M = 0.2  # a solid compact blob at least this wide each way (and COLUMN_MIN_PX) is a column
+COLUMN_MIN_PX = 6  # smaller than this a column cannot be told from a letter
+FRAME_BAND = 0.02  # a sheet frame's lines lie within this share of its box's size from the box's edges ...
+FRAME_ALONG_EDGES = 0.5  # ... with at least this share of its ink
 WORK_M = 0.03  # the outline is found at about this many metres per pixel
 LEAK_SHARE = 0.7  # the outline leaked when it holds less than this share of the rough outline's free space
 SMALL_GAP_M = 0.3  # scan breaks in the outer wall once its windows and doors are filled
@@ -166,7 +169,8 @@ def _disc(diameter_px: int) -> np.ndarray:
 
 def _widest(labels: np.ndarray, count: int, mask: np.ndarray) -> np.ndarray:
     """Per label, the largest distance from inside it to its edge (half its inscribed width)."""
-    distance = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
+    # (a mask without any zero pixel has no edge: its distances are capped at the image's size)
+    distance = np.minimum(cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5), float(sum(mask.shape)))
     # a component's largest distance lies on a local maximum: only those are compared
     ridge = (distance > 0) & (distance >= cv2.dilate(distance, np.ones((3, 3), np.uint8)))
     widest = np.zeros(count, dtype=np.float32)
@@ -230,9 +234,11 @@ def fill_between_lines(lines: np.ndarray, resolution_m: float) -> np.ndarray:
 def fill_wall_bands(lines: np.ndarray, resolution_m: float) -> np.ndarray:
     """The insides of walls drawn as two lines, and of windows: enclosed gaps between ``lines``
     (heavy lines only: a room's furniture and a window's glass are drawn thin) narrower than
-    ``MAX_WALL_M`` and at least 2.5 times as long as wide."""
+    ``MAX_WALL_M``, at least 2.5 times as long as wide and ``MIN_RUN_M`` long (a letter's eye is
+    shorter)."""
     labels, count, width_m, elongation, enclosed = _enclosed_gaps(lines, resolution_m)
-    band = enclosed & (width_m <= MAX_WALL_M) & (elongation >= 2.5)
+    length_m = elongation * width_m  # area / width
+    band = enclosed & (width_m <= MAX_WALL_M) & (elongation >= 2.5) & (length_m >= MIN_RUN_M)
     return band[labels]
 
 
@@ -284,8 +290,9 @@ def heavy_lines(evened: np.ndarray, ink: np.ndarray, core: np.ndarray) -> tuple[
 
 
 def _drop_frames(heavy: np.ndarray, resolution_m: float) -> np.ndarray:
-    """Remove a sheet frame: ink reaching near all four edges of the image whose holes hold
-    another large piece of ink (the building), as a frame drawn round a plan does."""
+    """Remove a sheet frame: ink reaching near all four edges of the image, round another large
+    piece of ink (the building), lying mostly along the edges of its own box (a frame is a
+    rectangle with a title block in a corner; a building's outer wall carries its partitions)."""
     count, labels, stats, _ = cv2.connectedComponentsWithStats(heavy.astype(np.uint8), connectivity=8)
     rows, cols = heavy.shape
     drop = np.zeros(count, dtype=bool)
@@ -297,7 +304,12 @@ def _drop_frames(heavy: np.ndarray, resolution_m: float) -> np.ndarray:
         inner = large.copy()
         inner[[0, i]] = False
         sx, sy, sw, sh = (stats[inner, k] for k in range(4))
-        if (inner.any() and ((sx > x) & (sy > y) & (sx + sw < x + w) & (sy + sh < y + h)).any()):
+        if not (inner.any() and ((sx > x) & (sy > y) & (sx + sw < x + w) & (sy + sh < y + h)).any()):
+            continue
+        ys, xs = np.nonzero(labels[y:y + h, x:x + w] == i)
+        band = FRAME_BAND * min(w, h)
+        along_edges = (xs < band) | (ys < band) | (xs >= w - band) | (ys >= h - band)
+        if along_edges.mean() >= FRAME_ALONG_EDGES:
             drop[i] = True
     return heavy & ~drop[labels] if drop.any() else heavy
 
@@ -329,7 +341,7 @@ def _drop_text_blobs(wall: np.ndarray, resolution_m: float, below_px: int | None
     longer, shorter = np.maximum(w, h), np.minimum(w, h)
     if below_px is None:
         small = longer * resolution_m < TEXT_BLOB_M
-        column = (area >= 0.6 * w * h) & (longer <= 2.5 * shorter) & (shorter * resolution_m >= COLUMN_MIN_M)
+        column = (area >= 0.6 * w * h) & (longer <= 2.5 * shorter) & (shorter >= max(COLUMN_MIN_M / resolution_m, COLUMN_MIN_PX))
         drop = small & ~column
     else:
         drop = longer < below_px
@@ -362,7 +374,7 @@ def _thin_enough(fills: np.ndarray, resolution_m: float) -> np.ndarray:
         return fills
     widest = _widest(labels, count, fills)
     thickness_m = 2 * widest * resolution_m
-    keep = (thickness_m <= MAX_WALL_M) & (thickness_m >= 0.5 * MIN_WALL_M) & (widest >= 1.5)
+    keep = (thickness_m <= MAX_WALL_M) & (thickness_m >= 0.5 * MIN_WALL_M) & (widest >= 1.0)
     keep[0] = False
     return keep[labels]
 
@@ -503,7 +515,7 @@ def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions 
             level = ink_threshold(evened)
         else:
             level = float(options.threshold)
-        ink = evened < level
+        ink = evened <= level  # Otsu returns the darker class's top (0 for a pure black-and-white plan)
     if not ink.any():
         raise MapfilterError("no walls found in the plan (no ink darker than the threshold)", path)
     if options.close_gaps_px > 0:

@@ -2,11 +2,15 @@
 
 One function per kind of plan, each returning a :class:`~mapfilter.maps.floorplan.FloorPlan`:
 
-- :func:`prepare_lines`: dark walls on a light background (scanned or anti-aliased drawings):
-  Otsu or adaptive threshold, morphological closing of small gaps, removal of text and specks
-  by connected-component size, optional wall thickening.
+- :func:`prepare_lines`: drawings, dark walls on light paper (scans, CAD exports, real-estate
+  plans): the reader of :mod:`mapfilter.maps.drawing` (paper evened, walls told from annotation,
+  door symbols, the building's outline with its entrances closed).
 - :func:`prepare_regions`: filled-region plans such as the ILC ``floor_image.png`` (transparent
-  corridors, filled shops, outlines, text): the caller names the walkable colours.
+  corridors, filled shops, outlines, text): the walkable colours (transparent by default), the
+  drawn outlines of the filled regions opened and small blobs in corridors dropped.
+
+:func:`detect_kind` tells a drawing from a filled-region plan, and :func:`prepare_plan` does
+either kind chosen from the image.
 - :func:`prepare_geojson`: vector floors (outline + shop polygons, lon/lat or metres) rasterised
   at a chosen resolution with shapely; outside the outline is wall.
 
@@ -34,6 +38,7 @@ from shapely.geometry import shape as geojson_shape
 from mapfilter.io.atomic import atomic_paths
 from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.io.yamlio import load_yaml
+from mapfilter.maps.drawing import MAX_WALL_M, DrawingOptions, DrawingReading, even_paper, read_drawing
 from mapfilter.maps.floorplan import MAX_IMAGE_PIXELS, FloorPlan, SourceImage, check_image_size, plan_geometry_problem
 
 EARTH_RADIUS_M = 6378137.0  # Web Mercator sphere (ILC README)
@@ -138,65 +143,43 @@ def _flatten_on_white(bgra: np.ndarray) -> np.ndarray:
 
 
 # ---- line drawings --------------------------------------------------------------------------
-@dataclasses.dataclass(frozen=True)
-class LineOptions:
-    """Options of :func:`prepare_lines` (pixel sizes are plan pixels)."""
-
-    threshold: str = "otsu"  # "otsu" (global) or "adaptive" (uneven scans)
-    adaptive_block_px: int = 51  # neighbourhood of the adaptive threshold (odd)
-    close_gaps_px: int = 3  # closing kernel: wall gaps narrower than this are closed (0 = off)
-    remove_below_px: int = 20  # ink blobs whose bounding box is shorter than this are text/specks
-    thicken_px: int = 0  # dilate walls by this many pixels after cleaning (0 = off)
-    outside_is_wall: bool = True  # free space connected to the image border is outside: wall
-
-    def __post_init__(self) -> None:
-        _check_pixel_counts(self, ("adaptive_block_px", "close_gaps_px", "remove_below_px", "thicken_px"))
-
-
 def prepare_lines(
     plan_path: str | os.PathLike,
     scale: PlanScale,
-    options: LineOptions = LineOptions(),
+    options: DrawingOptions = DrawingOptions(),
     map_resolution_m: float | None = None,
     floor_name: str | None = None,
 ) -> FloorPlan:
-    """Wall mask of a line drawing (dark walls on light paper).
+    """Wall mask of a drawing (dark walls on light paper): see :mod:`mapfilter.maps.drawing`.
 
     Parameters
     ----------
     plan_path : the plan image (PNG, JPEG, PGM, ...; transparent pixels count as paper).
     scale : the plan's scale.
-    options : thresholding and clean-up, see :class:`LineOptions`.
+    options : see :class:`~mapfilter.maps.drawing.DrawingOptions`.
     map_resolution_m : metres per pixel of the output mask (default: the plan's own); a coarser
         mask marks a cell wall if any plan wall pixel falls in it, so walls stay closed.
     floor_name : optional floor label.
     """
+    return read_lines(plan_path, scale, options, map_resolution_m, floor_name)[0]
+
+
+def read_lines(plan_path: str | os.PathLike, scale: PlanScale, options: DrawingOptions = DrawingOptions(),
+               map_resolution_m: float | None = None, floor_name: str | None = None) -> tuple[FloorPlan, DrawingReading]:
+    """:func:`prepare_lines` and what the reader found (doors, threshold, text blobs dropped)."""
     plan_path = Path(plan_path)
     bgra = read_plan_image(plan_path)
     resolution_m = scale.resolve(bgra.shape[:2], plan_path)
-    gray = cv2.cvtColor(_flatten_on_white(bgra), cv2.COLOR_BGR2GRAY)
-    if options.threshold == "otsu":
-        if int(gray.max()) - int(gray.min()) < 16:  # one flat tone: all paper or all ink
-            if gray.mean() < 128:
-                raise MapfilterError("the plan has no free space (it is dark all over)", plan_path)
-            raise MapfilterError("no walls found in the plan (it is blank)", plan_path)
-        _, ink = cv2.threshold(gray, 0, 1, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
-    elif options.threshold == "adaptive":
-        block = max(3, options.adaptive_block_px | 1)
-        # a pixel is ink when it is 10 grey levels darker than its neighbourhood's mean
-        ink = cv2.adaptiveThreshold(gray, 1, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 10)
-    else:
-        raise MapfilterError(f"unknown threshold method {options.threshold!r} (otsu or adaptive)")
-    ink = ink.astype(bool)
+    problem = plan_geometry_problem(resolution_m, (0.0, 0.0), "resolution")
+    if problem:  # the reader's sizes are in metres: checked before any is turned into pixels
+        raise MapfilterError(problem, plan_path)
     if options.close_gaps_px > 0:
-        ink = _close(ink, options.close_gaps_px)
-    if options.remove_below_px > 0:
-        ink = _remove_small_blobs(ink, options.remove_below_px)
+        _check_morphology_fits(bgra, options.close_gaps_px, "--close-gaps")
     if options.thicken_px > 0:
-        ink = _dilate(ink, options.thicken_px)
-    if options.outside_is_wall:
-        ink = _fill_outside(ink, plan_path, keep_free_option="--keep-outside")
-    return _finish(ink, resolution_m, map_resolution_m, plan_path, floor_name)
+        _check_morphology_fits(bgra, options.thicken_px, "dilating walls by")
+    gray = cv2.cvtColor(_flatten_on_white(bgra), cv2.COLOR_BGR2GRAY)
+    reading = read_drawing(gray, resolution_m, options, plan_path)
+    return _finish(reading.wall, resolution_m, map_resolution_m, plan_path, floor_name), reading
 
 
 def _check_morphology_fits(mask: np.ndarray, radius_px: int, what: str) -> None:
@@ -207,16 +190,6 @@ def _check_morphology_fits(mask: np.ndarray, radius_px: int, what: str) -> None:
     rows, cols = mask.shape[:2]
     check_fits(float(side) ** 2 + 3.0 * (rows + 2 * side) * (cols + 2 * side), f"{what} {radius_px} px",
                "wall gaps are a few pixels wide")
-
-
-def _close(mask: np.ndarray, size_px: int) -> np.ndarray:
-    _check_morphology_fits(mask, size_px, "--close-gaps")
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
-    # pad so that closing does not glue walls to the image border
-    pad = size_px
-    padded = cv2.copyMakeBorder(mask.astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
-    closed = cv2.morphologyEx(padded, cv2.MORPH_CLOSE, kernel)
-    return closed[pad:-pad, pad:-pad].astype(bool)
 
 
 def _dilate(mask: np.ndarray, radius_px: int) -> np.ndarray:
@@ -230,15 +203,6 @@ def _erode(mask: np.ndarray, radius_px: int) -> np.ndarray:
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
     # border value 1: the image edge does not eat into walls that touch it
     return cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=1).astype(bool)
-
-
-def _remove_small_blobs(mask: np.ndarray, below_px: int) -> np.ndarray:
-    """Drop 8-connected components whose bounding box's longer side is < ``below_px``."""
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
-    longer = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT])
-    keep = longer >= below_px
-    keep[0] = False  # label 0 is the background
-    return keep[labels]
 
 
 def _remove_small_areas(mask: np.ndarray, below_px: int) -> np.ndarray:
@@ -337,22 +301,26 @@ class RegionOptions:
     ``walkable`` holds colour specs: ``"transparent"`` (alpha <= ``alpha_max``), ``"#rrggbb"`` or
     ``"r,g,b"`` (opaque pixels within ``tolerance`` per channel). Everything else is wall, then:
     wall blobs smaller than ``remove_below_px`` pixels become free (text and marks inside
-    corridors), free space connected to the image border is outside, so wall
-    (``outside_is_wall``, as a floor plan needs), and walls are eroded by ``open_outlines_px``
-    where they meet free space (the outlines drawn around filled regions are walkable: ILC
-    waypoints lie on them; the outside is walled first, so opening the building's own outline
-    never lets the outside in).
+    corridors; None: blobs under ``REGION_BLOB_M2`` lying wholly in free space), free space
+    connected to the image border is outside, so wall (``outside_is_wall``, as a floor plan
+    needs), and walls are eroded by ``open_outlines_px`` where they meet free space (the
+    outlines drawn around filled regions are walkable: ILC waypoints lie on them; None: the
+    outlines' own width, measured; the outside is walled first, so opening the building's own
+    outline never lets the outside in).
     """
 
     walkable: tuple[str, ...] = (TRANSPARENT,)
     tolerance: int = 24  # max per-channel difference to a walkable colour (0-255)
     alpha_max: int = 127  # pixels at most this opaque count as transparent
-    remove_below_px: int = 0  # wall blobs (8-connected) with fewer pixels become free (0 = off)
-    open_outlines_px: int = 0  # erode walls by this many pixels along free space (0 = off)
+    remove_below_px: int | None = None  # wall blobs (8-connected) with fewer pixels become free (0 = off)
+    open_outlines_px: int | None = None  # erode walls by this many pixels along free space (0 = off)
     outside_is_wall: bool = True  # free space connected to the image border is outside: wall
 
     def __post_init__(self) -> None:
-        _check_pixel_counts(self, ("tolerance", "alpha_max", "remove_below_px", "open_outlines_px"))
+        _check_pixel_counts(self, ("tolerance", "alpha_max"))  # an empty walkable is refused by prepare_regions
+        for name in ("remove_below_px", "open_outlines_px"):
+            if getattr(self, name) is not None:
+                _check_pixel_counts(self, (name,))
 
 
 def parse_colour(spec: str) -> tuple[int, int, int] | str:
@@ -381,6 +349,12 @@ def prepare_regions(
 
     Parameters are as for :func:`prepare_lines`; see :class:`RegionOptions` for the clean-up.
     """
+    return read_regions(plan_path, scale, options, map_resolution_m, floor_name)[0]
+
+
+def read_regions(plan_path: str | os.PathLike, scale: PlanScale, options: RegionOptions = RegionOptions(),
+                 map_resolution_m: float | None = None, floor_name: str | None = None) -> tuple[FloorPlan, list[str]]:
+    """:func:`prepare_regions` and what it did, one line each (outlines opened, blobs dropped)."""
     plan_path = Path(plan_path)
     bgra = read_plan_image(plan_path)
     resolution_m = scale.resolve(bgra.shape[:2], plan_path)
@@ -398,13 +372,164 @@ def prepare_regions(
             diff = np.abs(bgra[..., :3].astype(np.int16) - bgr).max(axis=2)
             free |= opaque & (diff <= options.tolerance)
     wall = ~free
-    if options.remove_below_px > 0:
+    notes = []
+    if options.remove_below_px is None:
+        wall, dropped = _drop_region_blobs(wall, resolution_m)
+        if dropped:
+            notes.append(f"{dropped} small blob{'s' if dropped != 1 else ''} in free space dropped (text, marks)")
+    elif options.remove_below_px > 0:
         wall = _remove_small_areas(wall, options.remove_below_px)
     if options.outside_is_wall:
         wall = _fill_outside(wall, plan_path, keep_free_option="--keep-outside")
-    if options.open_outlines_px > 0:
-        wall = _erode(wall, options.open_outlines_px)
-    return _finish(wall, resolution_m, map_resolution_m, plan_path, floor_name)
+    outline_px = options.open_outlines_px
+    if outline_px is None:
+        outline_px = outline_width_px(bgra, ~free)
+        if outline_px:
+            notes.append(f"the filled regions' outlines ({outline_px} px) opened")
+    if outline_px > 0:
+        wall = _erode(wall, outline_px)
+    return _finish(wall, resolution_m, map_resolution_m, plan_path, floor_name), notes
+
+
+OUTLINE_RING_SHARE = 0.11
+REGION_BLOB_M2 = 0.5  # a wall blob in free space smaller than this is text or a mark, not a pillar
+
+
+def _drop_region_blobs(wall: np.ndarray, resolution_m: float) -> tuple[np.ndarray, int]:
+    """Wall blobs (8-connected) under ``REGION_BLOB_M2`` that touch no other wall: free."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(wall.astype(np.uint8), connectivity=8)
+    small = stats[:, cv2.CC_STAT_AREA] * resolution_m ** 2 < REGION_BLOB_M2
+    small[0] = False
+    return wall & ~small[labels], int(small.sum())
+
+
+def outline_width_px(bgra: np.ndarray, wall: np.ndarray) -> int:
+    """The width of the outlines drawn round a filled-region plan's filled regions, in pixels (0:
+    none): the wall pixels along free space whose colour is not the fill's, measured inward.
+
+    A region's fill is the mean colour of its wall pixels at least four pixels from free space
+    (within 15 pixels); the outline pixels are wall pixels within six pixels of free space that
+    differ by more than 40 levels in some channel from it and from the plan's commonest fill; the width is the number of rings (pixels from
+    free space), one after another from the edge, that hold at least ``OUTLINE_RING_SHARE`` as
+    many outline pixels as the first (the ILC floors: 2 px)."""
+    distance = cv2.distanceTransform(wall.astype(np.uint8), cv2.DIST_L2, 3)
+    deep = (wall & (distance >= 4)).astype(np.float32)
+    if deep.sum() < 100:
+        return 0
+    # each region's own fill: the mean colour of the deep pixels around (within 15 pixels)
+    window = (31, 31)
+    weight = cv2.boxFilter(deep, -1, window, normalize=False)
+    colour = bgra[..., :3].astype(np.float32)
+    fill = cv2.boxFilter(colour * deep[..., None], -1, window, normalize=False) / np.maximum(weight, 1.0)[..., None]
+    edge = wall & (distance <= 6) & (weight > 0)
+    deep_colours = (bgra[..., :3][deep > 0] // 8).astype(np.int32)
+    key = int(np.bincount(deep_colours[:, 0] * 1024 + deep_colours[:, 1] * 32 + deep_colours[:, 2]).argmax())
+    commonest = np.array([key // 1024, (key // 32) % 32, key % 32], dtype=np.float32) * 8 + 4
+    differs = (np.abs(colour - fill).max(axis=2) > 40) & (np.abs(colour - commonest).max(axis=2) > 40)
+    outline = edge & differs & (bgra[..., 3] > 127)
+    if outline.sum() < 0.2 * (edge & (distance <= 1)).sum():
+        return 0
+    counts = np.bincount(np.round(distance[outline]).astype(np.int64), minlength=8)[1:7]
+    # the outline reaches as deep as the rings that, one after another from the edge, still hold
+    # a ninth of the first ring's pixels (text across a region's edge adds a flat tail)
+    held = counts >= OUTLINE_RING_SHARE * counts[0]
+    return int(np.argmin(held)) if not held.all() else len(held)
+
+
+# ---- the kind of plan, told from the image ----------------------------------------------------
+FILLED_M = 0.75  # a region this far from its own edge (1.5 m across) is a filled room or shop, never a wall
+FILLED_SHARE = 0.3  # a plan whose marked area is this much filled regions is a filled-region plan
+
+
+@dataclasses.dataclass(frozen=True)
+class KindChoice:
+    """The kind of plan :func:`detect_kind` chose, the walkable colour for a filled-region plan,
+    and why (one line)."""
+
+    kind: str  # "lines" or "regions"
+    walkable: str  # "transparent" or "#rrggbb"
+    reason: str
+
+
+def detect_kind(bgra: np.ndarray, resolution_m: float) -> KindChoice:
+    """Drawing or filled-region plan, from the image.
+
+    What a plan marks on its background (the opaque pixels of a plan with a transparent
+    background; elsewhere the pixels that differ from the paper, channel by channel, after the
+    paper is evened) is, in a drawing, lines and walls, none more than ``MAX_WALL_M`` across; in a
+    filled-region plan mostly filled rooms or shops metres across. The share of the marked area
+    lying deeper than ``FILLED_M`` inside it decides."""
+    alpha = bgra[..., 3]
+    transparent = alpha <= 127
+    if transparent.mean() >= 0.05:
+        marked, walkable, background = ~transparent, TRANSPARENT, "transparent"
+    else:
+        bgr = bgra[..., :3]
+        gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+        dark = even_paper(gray, resolution_m) < 200  # ink, on paper evened however it is lit
+        light = bgr[gray >= np.percentile(gray, 90)]  # the paper is the lightest thing on the sheet
+        paper_bgr = np.median(light, axis=0) if light.size else np.array([255.0, 255.0, 255.0])
+        # colour against the paper's own (a yellowed or tinted sheet is no colour)
+        balanced = bgr.astype(np.float32) * (255.0 / np.maximum(paper_bgr, 1.0))
+        coloured = (balanced.max(axis=2) - balanced.min(axis=2)) > 25
+        marked = dark | coloured
+        b, g, r = (int(round(v)) for v in paper_bgr)
+        walkable, background = f"#{r:02x}{g:02x}{b:02x}", f"the paper ({f'#{r:02x}{g:02x}{b:02x}'})"
+    if not marked.any():
+        return KindChoice("lines", walkable, "the image is blank: read as a drawing")
+    depth = cv2.distanceTransform(marked.astype(np.uint8), cv2.DIST_L2, 3) * resolution_m
+    share = float((depth >= FILLED_M).sum()) / float(marked.sum())
+    if share >= FILLED_SHARE:
+        return KindChoice("regions", walkable, f"filled regions ({share:.0%} of what is marked lies over "
+                                               f"{FILLED_M:g} m inside a filled area); walkable: {background}")
+    return KindChoice("lines", walkable, f"a drawing (lines and walls: {share:.0%} of the ink lies over "
+                                         f"{FILLED_M:g} m inside a filled area)")
+
+
+@dataclasses.dataclass
+class PreparedPlan:
+    """A plan read by :func:`prepare_plan`: the map, its kind and what the reader did (one line each)."""
+
+    plan: FloorPlan
+    kind: str
+    notes: list[str]
+
+
+def prepare_plan(plan_path: str | os.PathLike, scale: PlanScale, kind: str | None = None,
+                 drawing: DrawingOptions = DrawingOptions(), regions: RegionOptions = RegionOptions(walkable=()),
+                 map_resolution_m: float | None = None, floor_name: str | None = None) -> PreparedPlan:
+    """A drawing or a filled-region plan, its kind chosen from the image unless given (``kind``:
+    "lines" or "regions"). ``regions.walkable`` empty: transparent, or, when the kind was chosen
+    from the image, the paper of an opaque plan."""
+    plan_path = Path(plan_path)
+    notes = []
+    if kind is None:
+        bgra = read_plan_image(plan_path)
+        if bgra[..., 3].min() > 127:
+            gray = cv2.cvtColor(bgra[..., :3], cv2.COLOR_BGR2GRAY)
+            if int(gray.max()) - int(gray.min()) < 16:  # one flat tone: all paper or all ink
+                if gray.mean() < 128:
+                    raise MapfilterError("the plan has no free space (it is dark all over)", plan_path)
+                raise MapfilterError("no walls found in the plan (it is blank)", plan_path)
+        choice = detect_kind(bgra, scale.resolve(bgra.shape[:2], plan_path))
+        kind = choice.kind
+        notes.append(f"kind: {choice.kind}, chosen from the image: {choice.reason}")
+        if not regions.walkable:
+            regions = dataclasses.replace(regions, walkable=(choice.walkable,))
+    if not regions.walkable:
+        regions = dataclasses.replace(regions, walkable=(TRANSPARENT,))
+    if kind == "lines":
+        plan, reading = read_lines(plan_path, scale, drawing, map_resolution_m, floor_name)
+        notes.append(f"ink darker than grey {reading.threshold:.0f} of the evened paper; "
+                     + (f"strokes up to {reading.thin_width_px:.1f} px taken for annotation; "
+                        if reading.thin_width_px else "every stroke taken for a wall; ")
+                     + f"{len(reading.doors)} door symbol{'s' if len(reading.doors) != 1 else ''} found, "
+                     f"{reading.text_blobs} small blob{'s' if reading.text_blobs != 1 else ''} dropped (text, marks)")
+        return PreparedPlan(plan, kind, notes)
+    if kind == "regions":
+        plan, region_notes = read_regions(plan_path, scale, regions, map_resolution_m, floor_name)
+        return PreparedPlan(plan, kind, notes + region_notes)
+    raise MapfilterError(f"unknown kind of plan {kind!r} (lines or regions)")
 
 
 # ---- GeoJSON floors -------------------------------------------------------------------------

@@ -17,7 +17,8 @@ from mapfilter.cli import main as cli_main
 from mapfilter.errors import MapfilterError
 from mapfilter.maps import prepare as mapprep
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.maps.prepare import LineOptions, PlanScale, RegionOptions
+from mapfilter.maps.drawing import DrawingOptions
+from mapfilter.maps.prepare import PlanScale, RegionOptions
 from mapfilter.sensors.ilc import read_ilc
 
 REPO = Path(__file__).resolve().parents[2]
@@ -58,21 +59,20 @@ def test_lines_two_rooms(tmp_path: Path):
     assert plan.source_image.path == (tmp_path / "rooms.png").resolve()
 
 
-def test_lines_without_closing_the_outside_leaks_in(tmp_path: Path):
+def test_lines_keep_outside_leaves_the_outside_and_the_break_free(tmp_path: Path):
     _two_rooms_png(tmp_path / "rooms.png")
-    with pytest.raises(MapfilterError, match="outer wall has an opening"):
-        mapprep.prepare_lines(tmp_path / "rooms.png", PlanScale(resolution_m=0.1), LineOptions(close_gaps_px=0))
     plan = mapprep.prepare_lines(tmp_path / "rooms.png", PlanScale(resolution_m=0.1),
-                                 LineOptions(close_gaps_px=0, outside_is_wall=False))
-    assert not plan.wall_mask[0, 0] and not plan.wall_mask[90, 61]
+                                 DrawingOptions(outside_is_wall=False))
+    assert not plan.wall_mask[0, 0] and not plan.wall_mask[95, 100] and not plan.wall_mask[90, 61]
+    assert plan.wall_mask[10, 50] and plan.wall_mask[30, 100]
 
 
 def test_lines_thicken_and_keep_text(tmp_path: Path):
     _two_rooms_png(tmp_path / "rooms.png")
     thin = mapprep.prepare_lines(tmp_path / "rooms.png", PlanScale(resolution_m=0.1))
-    thick = mapprep.prepare_lines(tmp_path / "rooms.png", PlanScale(resolution_m=0.1), LineOptions(thicken_px=2))
+    thick = mapprep.prepare_lines(tmp_path / "rooms.png", PlanScale(resolution_m=0.1), DrawingOptions(thicken_px=2))
     assert thick.wall_mask.sum() > thin.wall_mask.sum() and (thick.wall_mask | ~thin.wall_mask).all()
-    texty = mapprep.prepare_lines(tmp_path / "rooms.png", PlanScale(resolution_m=0.1), LineOptions(remove_below_px=0))
+    texty = mapprep.prepare_lines(tmp_path / "rooms.png", PlanScale(resolution_m=0.1), DrawingOptions(remove_text_px=0))
     assert texty.wall_mask[40:60, 28:65].any()
 
 
@@ -83,7 +83,7 @@ def test_lines_adaptive_threshold_on_uneven_scan(tmp_path: Path):
     shade = np.linspace(1.0, 0.45, image.shape[1])[None, :]  # paper from 255 down to ~115
     cv2.imwrite(str(tmp_path / "shaded.png"), (image * shade).round().astype(np.uint8))
     plan = mapprep.prepare_lines(tmp_path / "shaded.png", PlanScale(resolution_m=0.1),
-                                 LineOptions(threshold="adaptive", adaptive_block_px=31))
+                                 DrawingOptions(threshold="adaptive", adaptive_block_px=31))
     assert plan.wall_mask[10, 180] and plan.wall_mask[30, 100] and not plan.wall_mask[50, 150]
     assert not plan.wall_mask[50, 55] and _free_components(plan) == 1
 
@@ -160,19 +160,21 @@ def _regions_png(path: Path) -> None:
 def test_regions_transparent_walkable(tmp_path: Path):
     _regions_png(tmp_path / "mall.png")  # the corridor reaches the image's edge: the outside kept free
     plan = mapprep.prepare_regions(tmp_path / "mall.png", PlanScale(size_m=(36.0, 24.0)),
-                                   RegionOptions(outside_is_wall=False))
+                                   RegionOptions(remove_below_px=0, open_outlines_px=0, outside_is_wall=False))
     assert plan.resolution_m == pytest.approx(0.3)
     wall = plan.wall_mask
     assert not wall[5, 5] and not wall[60, 5]  # corridor
     assert wall[30, 30] and wall[10, 30] and wall[30, 90]  # shop, its outline, the other shop
     assert wall[60:75, 25:50].any()  # text kept without clean-up
-    cleaned = mapprep.prepare_regions(tmp_path / "mall.png", PlanScale(size_m=(36.0, 24.0)),
-                                      RegionOptions(remove_below_px=100, open_outlines_px=2, outside_is_wall=False))
-    wall = cleaned.wall_mask
-    assert not wall[60:75, 25:50].any()  # text in the corridor removed
-    assert not wall[10, 30] and not wall[11, 30] and not wall[30, 10]  # outline walkable
-    assert wall[13, 30] and wall[30, 30] and wall[30, 90]  # shops stay walls
-    assert _free_components(cleaned) == 1
+    for options in (RegionOptions(remove_below_px=100, open_outlines_px=2, outside_is_wall=False),
+                    RegionOptions(outside_is_wall=False)):  # given, and measured by default
+        cleaned = mapprep.prepare_regions(tmp_path / "mall.png", PlanScale(size_m=(36.0, 24.0)), options)
+        wall = cleaned.wall_mask
+        assert not wall[60:75, 25:50].any()  # text in the corridor removed
+        assert not wall[10, 30] and not wall[11, 30] and not wall[30, 10]  # outline walkable
+        assert wall[13, 30] and wall[30, 30] and wall[30, 90]  # shops stay walls
+        assert _free_components(cleaned) == 1
+    assert mapprep.outline_width_px(mapprep.read_plan_image(tmp_path / "mall.png"), ~wall) in (0, 2)
 
 
 def test_regions_colour_list_with_tolerance(tmp_path: Path):
@@ -411,7 +413,7 @@ def test_bundled_office_map():
     assert plan.is_free(aps.xy_m).all()
     # the committed mask is what the README's command makes from the committed plan
     remade = mapprep.prepare_lines(REPO / "maps" / "office_plan.png", PlanScale(resolution_m=0.05),
-                                   LineOptions(remove_below_px=60), map_resolution_m=0.1)
+                                   map_resolution_m=0.1)
     np.testing.assert_array_equal(remade.wall_mask, plan.wall_mask)
 
 
@@ -524,11 +526,11 @@ def test_a_map_resolution_that_would_not_fit_is_refused_before_resampling(tmp_pa
     cv2.rectangle(image, (20, 20), (280, 180), 0, 3)
     cv2.imwrite(str(plan), image)
     with pytest.raises(MapfilterError, match=r"gives a 15000x10000 mask, more than 120 M pixels"):
-        mapprep.prepare_lines(plan, PlanScale(resolution_m=0.05), LineOptions(), map_resolution_m=0.001)
-    assert mapprep.prepare_lines(plan, PlanScale(resolution_m=0.05), LineOptions(), map_resolution_m=0.1).shape_px \
+        mapprep.prepare_lines(plan, PlanScale(resolution_m=0.05), DrawingOptions(), map_resolution_m=0.001)
+    assert mapprep.prepare_lines(plan, PlanScale(resolution_m=0.05), DrawingOptions(), map_resolution_m=0.1).shape_px \
         == (100, 150)
     with pytest.raises(MapfilterError, match="'resolution' 1e-300 m/px is not a floor plan's"):
-        mapprep.prepare_lines(plan, PlanScale(resolution_m=1e-300), LineOptions())
+        mapprep.prepare_lines(plan, PlanScale(resolution_m=1e-300), DrawingOptions())
 
 
 # ---- a plan that turns into a useless mask says so ---------------------------------------------
@@ -570,14 +572,15 @@ def test_regions_open_outlines_never_let_the_outside_in(tmp_path: Path):
     assert not plan.is_free(np.array([[1.0, 1.0], [29.0, 19.0]])).any()
 
 
-def test_text_in_a_corridor_warns_and_remove_below_frees_it(tmp_path: Path, capsys):
+def test_text_in_a_corridor_is_dropped_by_default_and_warned_about_when_kept(tmp_path: Path, capsys):
     _framed_png(tmp_path / "plan.png", text=True)
     args = ["map", "prepare", tmp_path / "plan.png", "--kind", "regions", "--resolution", 0.1]
-    code, out, err = _run([*args, "--out", tmp_path / "text.yaml"], capsys)
+    code, out, err = _run([*args, "--remove-below", 0, "--out", tmp_path / "text.yaml"], capsys)
     (line,) = _warnings(err)
     assert code == 0 and "small wall blobs inside free space" in line and "--remove-below PX" in line
-    code, out, err = _run([*args, "--remove-below", 60, "--out", tmp_path / "clean.yaml"], capsys)
-    assert code == 0 and _warnings(err) == []
+    for extra in ([], ["--remove-below", 60]):
+        code, out, err = _run([*args, *extra, "--out", tmp_path / "clean.yaml"], capsys)
+        assert code == 0 and _warnings(err) == [], err
 
 
 def test_a_nearly_empty_plan_warns_almost_no_walls(tmp_path: Path, capsys):
@@ -586,17 +589,16 @@ def test_a_nearly_empty_plan_warns_almost_no_walls(tmp_path: Path, capsys):
                            "--out", tmp_path / "empty.yaml"], capsys)
     (line,) = _warnings(err)
     assert code == 0 and "empty.yaml: almost no walls" in line and "nearly empty" in line
-    # a line drawing of (almost) nothing: the outside fill takes everything, or with the outside
-    # kept, there are no walls at all
+    # a drawing of nothing but a thin mark: no building, so no free space (refused in one line), or
+    # with the outside kept, no walls at all (refused too); nothing is written
     image = np.full((200, 300), 255, np.uint8)
     cv2.rectangle(image, (100, 100), (121, 121), 0, 1)  # a small closed mark (the IPIN plan's reference points)
     cv2.imwrite(str(tmp_path / "dot_plan.png"), image)
-    code, out, err = _run(["map", "prepare", tmp_path / "dot_plan.png", "--resolution", 0.1, "--out",
-                           tmp_path / "dot.yaml"], capsys)
-    assert code == 0 and any("almost no free space" in line for line in _warnings(err)), err
-    code, out, err = _run(["map", "prepare", tmp_path / "dot_plan.png", "--resolution", 0.1, "--keep-outside", "--out",
-                           tmp_path / "dot.yaml"], capsys)
-    assert code == 0 and any("almost no walls" in line for line in _warnings(err)), err
+    for extra, words in (([], "no free space"), (["--keep-outside"], "no walls")):
+        code, out, err = _run(["map", "prepare", tmp_path / "dot_plan.png", "--resolution", 0.1, *extra, "--out",
+                               tmp_path / "dot.yaml"], capsys)
+        assert code == 1 and len(err.strip().splitlines()) == 1 and words in err, err
+        assert not (tmp_path / "dot.yaml").exists()
 
 
 def test_mask_warnings_say_nothing_about_good_maps():
