@@ -51,7 +51,8 @@ HEAVY_RATIO = 1.3  # ink this many times a thin line's (width times darkness) is
 WALL_OUTLINE_SHARE = 0.7  # a wall's inside is drawn round in heavy lines along this share at least  # thicker than any wall: a gap this wide between wall lines is a room or a corridor
 PAPER_KERNEL_M = 1.2  # the background closing spans this: wider than any wall or column
 TEXT_BLOB_M = 1.0  # a wall blob shorter than this, not a solid column, is a label
-COLUMN_MIN_M = 0.2  # a solid compact blob at least this wide each way (and COLUMN_MIN_PX) is a column
+TEXT_LINE_M = 0.6  # a line of letters is no taller than this
+COLUMN_MIN_M = 0.2  # a column is at least this wide each way (and COLUMN_MIN_PX)
 COLUMN_MIN_PX = 6  # smaller than this a column cannot be told from a letter
 FRAME_BAND = 0.02  # a sheet frame's lines lie within this share of its box's size from the box's edges ...
 FRAME_ALONG_EDGES = 0.5  # ... with at least this share of its ink
@@ -332,8 +333,10 @@ def _small_blobs(mask: np.ndarray, below_px: float) -> np.ndarray:
 
 
 def _drop_text_blobs(wall: np.ndarray, resolution_m: float, below_px: int | None) -> tuple[np.ndarray, int]:
-    """Remove wall blobs shorter than ``below_px`` (default ``TEXT_BLOB_M``) that are not solid
-    compact columns."""
+    """Remove the wall blobs that are labels: shorter than ``below_px``; by default shorter than
+    ``TEXT_BLOB_M`` and not a column (compact and solid: as thick as it is wide), or a line of
+    letters (a blob no taller than ``TEXT_LINE_M`` whose strokes are under a third of its height:
+    a free-standing piece of wall is as thick as it is tall)."""
     count, labels, stats, _ = cv2.connectedComponentsWithStats(wall.astype(np.uint8), connectivity=8)
     if count <= 1:
         return wall, 0
@@ -341,8 +344,12 @@ def _drop_text_blobs(wall: np.ndarray, resolution_m: float, below_px: int | None
     longer, shorter = np.maximum(w, h), np.minimum(w, h)
     if below_px is None:
         small = longer * resolution_m < TEXT_BLOB_M
-        column = (area >= 0.6 * w * h) & (longer <= 2.5 * shorter) & (shorter >= max(COLUMN_MIN_M / resolution_m, COLUMN_MIN_PX))
-        drop = small & ~column
+        stroke = 2.0 * _widest(labels, count, wall)[1:]
+        # a column is solid: as thick as it is wide (a bold letter's strokes are a third of its size)
+        column = ((stroke >= 0.7 * shorter) & (longer <= 2.5 * shorter)
+                  & (shorter >= max(COLUMN_MIN_M / resolution_m, COLUMN_MIN_PX)))
+        words = (shorter * resolution_m <= TEXT_LINE_M) & (shorter >= 3.0 * stroke)
+        drop = (small & ~column) | words
     else:
         drop = longer < below_px
     keep = np.ones(count, dtype=bool)
@@ -547,11 +554,11 @@ def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions 
     doors: list[DoorSymbol] = []
     if options.find_doors and thin_px > 0:
         # the thin strokes at the ink threshold (a faint arc's core may break), joined over a
-        # pixel; specks the opening left on a thin line do not break it
-        specks = _small_blobs(heavy, SPECK_M / resolution_m)
-        thin = ink & ~cv2.dilate((heavy & ~specks).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        # pixel; the bits of a thin line the opening left (its diagonal stretches) do not break it
+        network, _ = _drop_text_blobs(heavy, resolution_m, None)
+        thin = ink & ~cv2.dilate(network.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
         thin = cv2.morphologyEx(thin.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
-        doors = find_door_symbols(thin, heavy, ink, resolution_m)
+        doors = find_door_symbols(thin, network, ink, resolution_m)
         heavy = erase_leaves(heavy, doors, LEAF_HALF_M / resolution_m + 1.0)
     heavy = _drop_frames(heavy, resolution_m)
     wall, n_text = _drop_text_blobs(heavy, resolution_m, options.remove_text_px)

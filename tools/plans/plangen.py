@@ -510,6 +510,50 @@ def _exterior_opening(jambs, outline: Polygon, exterior_m: float, kind: str, roo
                    bool(rng.random() < 0.5), 90.0 if rng.random() < 0.7 else float(rng.uniform(25, 60)))
 
 
+def house_layout(exterior_m: float = 0.3, interior_m: float = 0.12, door_m: float = 0.9,
+                 entrance: str = "swing") -> Layout:
+    """A fixed small building for tests and pictures: 12 x 8 m, two rooms on a corridor, a door
+    from each room to the corridor and from one room to the other, an entrance (``entrance``:
+    swing, double or passage) at the corridor's end, two windows."""
+    outline = box(0, 0, 12, 8)
+    rooms = [Room(box(0, 0, 6, 5), "office", "OFFICE 1"), Room(box(6, 0, 12, 5), "office", "OFFICE 2"),
+             Room(box(0, 5, 12, 8), "corridor", "CORRIDOR")]
+    inner = outline.buffer(-exterior_m, join_style="mitre")
+    partitions = MultiLineString([[(6, 0), (6, 5)], [(0, 5), (12, 5)]]).buffer(
+        interior_m / 2, cap_style="square", join_style="mitre").intersection(outline)
+    walls = unary_union([outline.difference(inner), partitions])
+
+    def interior(a, b, rooms_ab, hinge_at_a=True, side=1):
+        a, b = np.array(a, float), np.array(b, float)
+        d = (b - a) / np.linalg.norm(b - a)
+        return Opening(a, b, np.array([-d[1], d[0]]), interior_m, False, "swing", rooms_ab, side, hinge_at_a, 90.0)
+
+    openings = [interior((2.0, 5.0), (2.0 + door_m, 5.0), (0, 2)),
+                interior((8.0, 5.0), (8.0 + door_m, 5.0), (1, 2), False),
+                interior((6.0, 3.0), (6.0, 3.0 + door_m), (0, 1), True, -1)]
+    width = {"swing": 1.0, "double": 1.6, "passage": 1.6}[entrance]
+    openings.append(Opening(np.array([0.0, 6.5 - width / 2]), np.array([0.0, 6.5 + width / 2]), np.array([1.0, 0.0]),
+                            exterior_m, True, entrance, (2, -1), 1, True, 90.0))
+    windows = [Opening(np.array([2.0, 0.0]), np.array([4.0, 0.0]), np.array([0.0, 1.0]), exterior_m, True, "window",
+                       (0, -1)),
+               Opening(np.array([8.0, 0.0]), np.array([10.0, 0.0]), np.array([0.0, 1.0]), exterior_m, True, "window",
+                       (1, -1))]
+    walls = walls.difference(unary_union([o.cut() for o in openings] + [w.cut(0.0) for w in windows]))
+    return Layout(outline, rooms, walls, windows, openings, [], exterior_m, interior_m)
+
+
+def plain_style(wall: str = "solid", paper: str = "white", px_per_m: float = 50.0, **changes) -> Style:
+    """A drawing style with nothing but walls, doors and windows (each feature switched on by
+    ``changes``): 50 px per metre, thin lines 1 px, heavy 2.5 px, black ink on white paper."""
+    base = Style(wall=wall, paper=paper, px_per_m=px_per_m, thin_px=1.0, heavy_px=2.5, wall_level=0,
+                 wall_outline=False, wall_fill_level=255, hatch_spacing_px=4.0, cross_hatch=False, ink_level=0,
+                 leaf_as_rect=False, dashed_arcs=False, furniture=False, furniture_fill=255, room_names=False,
+                 room_areas=False, bold_names=False, dimensions=False, interior_dimensions=False, axes=False,
+                 title_block=False, north_arrow=False, scale_bar=False, tiles=False, colour=False, jpeg_quality=0,
+                 blur_sigma_px=0.0, noise_sigma=0.0, skew_deg=0.0, dark_edge_px=0)
+    return dataclasses.replace(base, **changes)
+
+
 # ---- drawing ----------------------------------------------------------------------------------
 @dataclasses.dataclass
 class Style:
@@ -952,15 +996,17 @@ class GeneratedPlan:
     jpeg: bytes | None = None  # the JPEG file's bytes when the plan is a JPEG (``image`` is them decoded)
 
 
-def draw_plan(rng: np.random.Generator, layout: Layout, wall: str | None = None, paper: str | None = None) -> GeneratedPlan:
-    """Draw ``layout`` in a random style (``wall`` and ``paper`` fix those two) with its truth."""
+def draw_plan(rng: np.random.Generator, layout: Layout, wall: str | None = None, paper: str | None = None,
+              style: Style | None = None) -> GeneratedPlan:
+    """Draw ``layout`` in a random style (``wall`` and ``paper`` fix those two; ``style`` all of
+    it) with its truth."""
     bx0, by0, bx1, by1 = layout.footprint.bounds
     margin_dim = rng.uniform(2.2, 4.5)
     left, top, right, bottom = (margin_dim + rng.uniform(0, 1.5) for _ in range(4))
     title_h = 0.0
     sheet_w = (bx1 - bx0) + left + right
     sheet_h = (by1 - by0) + top + bottom
-    style0 = random_style(rng, (sheet_w, sheet_h), wall, paper)
+    style0 = style if style is not None else random_style(rng, (sheet_w, sheet_h), wall, paper)
     if style0.title_block:
         title_h = max(2.5, 0.14 * sheet_h)
         sheet_h += title_h
