@@ -22,8 +22,9 @@ HINGE_TO_WALL_M = 0.15  # the hinge lies this close to a wall at most
 ARC_COVER = 0.55  # share of the arc's length that must be drawn (dashed arcs too)
 STRAIGHT_M = 0.5  # a thin line straight for this long is no arc
 LEAF_SEARCH_DEG = 20.0  # the leaf is looked for this far beyond the arc's drawn ends
-RANSAC_TRIES = 80
-MAX_POINTS = 600  # points of a stroke the circle is fitted to
+RANSAC_TRIES = 150
+CANDIDATES = 6  # distinct circles tried per stroke, most inliers first
+MAX_POINTS = 300  # points of a stroke the circle is fitted to
 
 
 @dataclasses.dataclass
@@ -68,35 +69,43 @@ def _arc_extent(angles: np.ndarray) -> tuple[float, float, float]:
     return float(start), float(span), filled / bins
 
 
-def _fit_arc(points: np.ndarray, radius_px: tuple[float, float], rng: np.random.Generator):
-    """The best circle (RANSAC) through ``points`` with a radius in ``radius_px``: (centre,
-    radius, inlier mask), or None."""
+def _fit_arcs(points: np.ndarray, radius_px: tuple[float, float], rng: np.random.Generator):
+    """The best circles (RANSAC, the ``CANDIDATES`` with most inliers, each refined by least
+    squares) through ``points`` with a radius in ``radius_px``: a list of (centre, radius,
+    inlier mask). A door's arc shares its pixels with its leaf, so the circle with most inliers
+    is not always the arc: each is tried in turn."""
     n = len(points)
     if n < 12:
-        return None
+        return []
     triples = rng.integers(0, n, size=(RANSAC_TRIES, 3))
     centres, radii = _circles(points, triples)
     ok = (radii >= radius_px[0]) & (radii <= radius_px[1])
     if not ok.any():
-        return None
+        return []
     centres, radii = centres[ok], radii[ok]
     distance = np.linalg.norm(points[None, :, :] - centres[:, None, :], axis=2)
     tolerance = max(1.5, 0.03 * radii.mean())
     inliers = np.abs(distance - radii[:, None]) <= tolerance
-    best = int(np.argmax(inliers.sum(1)))
-    mask = inliers[best]
-    if mask.sum() < 10:
-        return None
-    # refine: least-squares circle through the inliers (algebraic fit)
-    x, y = points[mask, 0], points[mask, 1]
-    design = np.stack([x, y, np.ones_like(x)], axis=1)
-    solution, *_ = np.linalg.lstsq(design, x ** 2 + y ** 2, rcond=None)
-    cx, cy = solution[0] / 2, solution[1] / 2
-    radius = math.sqrt(max(solution[2] + cx ** 2 + cy ** 2, 0.0))
-    if not (radius_px[0] <= radius <= radius_px[1]):
-        return None
-    mask = np.abs(np.linalg.norm(points - [cx, cy], axis=1) - radius) <= tolerance
-    return np.array([cx, cy]), radius, mask
+    counts = inliers.sum(1)
+    found: list = []
+    tried: list[np.ndarray] = []
+    for best in np.argsort(-counts):
+        if len(found) >= CANDIDATES or counts[best] < 10:
+            break
+        if tried and np.min(np.hypot(*(np.array(tried) - centres[best]).T)) < 3.0:  # the same circle again
+            continue
+        tried.append(centres[best])
+        mask = inliers[best]
+        # refine: least-squares circle through the inliers (algebraic fit)
+        x, y = points[mask, 0], points[mask, 1]
+        design = np.stack([x, y, np.ones_like(x)], axis=1)
+        solution, *_ = np.linalg.lstsq(design, x ** 2 + y ** 2, rcond=None)
+        cx, cy = solution[0] / 2, solution[1] / 2
+        radius = math.sqrt(max(solution[2] + cx ** 2 + cy ** 2, 0.0))
+        if radius_px[0] <= radius <= radius_px[1]:
+            found.append((np.array([cx, cy]), radius,
+                          np.abs(np.linalg.norm(points - [cx, cy], axis=1) - radius) <= tolerance))
+    return found
 
 
 def _ink_along(near_ink: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> float:
@@ -109,6 +118,36 @@ def _ink_along(near_ink: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> float:
     cols = np.clip(np.round(xy[:, 0]).astype(int), 0, near_ink.shape[1] - 1)
     rows = np.clip(np.round(xy[:, 1]).astype(int), 0, near_ink.shape[0] - 1)
     return float(near_ink[rows, cols].mean())
+
+
+def _door_of_arc(points, centre, radius, mask, walls, to_wall, near_ink, resolution_m) -> DoorSymbol | None:
+    """The door a fitted circle is, if its inliers are a drawn arc of a door's angle whose centre
+    lies beside a wall and from one end of which a leaf is drawn; else None."""
+    angles = np.arctan2(points[mask, 1] - centre[1], points[mask, 0] - centre[0])
+    start, span, covered = _arc_extent(angles)
+    if not (math.radians(ARC_SPAN_DEG[0]) <= span <= math.radians(ARC_SPAN_DEG[1])) or covered < ARC_COVER:
+        return None
+    hinge_r, hinge_c = int(round(centre[1])), int(round(centre[0]))
+    if not (0 <= hinge_r < walls.shape[0] and 0 <= hinge_c < walls.shape[1]):
+        return None
+    if to_wall[hinge_r, hinge_c] * resolution_m > HINGE_TO_WALL_M:
+        return None
+    # the leaf: a radius drawn in ink near one end of the arc (whose drawn end may fall short)
+    best, leaf_angle, leaf_end = 0.0, 0.0, 0
+    for end, angle in enumerate((start, start + span)):
+        outward = -1.0 if end == 0 else 1.0
+        for turn in np.radians(np.arange(-LEAF_SEARCH_DEG, LEAF_SEARCH_DEG + 0.1, 4.0)):
+            a = angle + outward * turn
+            share = _ink_along(near_ink, centre, centre + radius * np.array([math.cos(a), math.sin(a)]))
+            if share > best:
+                best, leaf_angle, leaf_end = share, a, end
+    if best < 0.7:
+        return None
+    other = start + span if leaf_end == 0 else start
+    jamb = centre + radius * np.array([math.cos(other), math.sin(other)])
+    tip = centre + radius * np.array([math.cos(leaf_angle), math.sin(leaf_angle)])
+    return DoorSymbol((float(centre[0]), float(centre[1])), (float(jamb[0]), float(jamb[1])),
+                      (float(tip[0]), float(tip[1])), float(radius), math.degrees(span))
 
 
 def find_door_symbols(thin: np.ndarray, walls: np.ndarray, ink: np.ndarray, resolution_m: float,
@@ -129,6 +168,7 @@ def find_door_symbols(thin: np.ndarray, walls: np.ndarray, ink: np.ndarray, reso
     strokes &= ~cv2.dilate(straight, np.ones((3, 3), np.uint8))
     count, labels, stats, _ = cv2.connectedComponentsWithStats(strokes, connectivity=8)
     to_wall = cv2.distanceTransform((~walls).astype(np.uint8), cv2.DIST_L2, 5)
+    near_wall = to_wall * resolution_m <= HINGE_TO_WALL_M  # a door's strokes meet its wall at both jambs
     near_ink = cv2.dilate(ink.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     doors: list[DoorSymbol] = []
     longer = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT])
@@ -138,38 +178,16 @@ def find_door_symbols(thin: np.ndarray, walls: np.ndarray, ink: np.ndarray, reso
             continue
         x, y, w, h, _ = stats[index]
         rows, cols = np.nonzero(labels[y:y + h, x:x + w] == index)
+        if not near_wall[rows + y, cols + x].any():
+            continue
         points = np.stack([cols + x, rows + y], axis=1).astype(np.float64)
         if len(points) > MAX_POINTS:
             points = points[rng.choice(len(points), MAX_POINTS, replace=False)]
-        fit = _fit_arc(points, (low, high), rng)
-        if fit is None:
-            continue
-        centre, radius, mask = fit
-        angles = np.arctan2(points[mask, 1] - centre[1], points[mask, 0] - centre[0])
-        start, span, covered = _arc_extent(angles)
-        if not (math.radians(ARC_SPAN_DEG[0]) <= span <= math.radians(ARC_SPAN_DEG[1])) or covered < ARC_COVER:
-            continue
-        hinge_r, hinge_c = int(round(centre[1])), int(round(centre[0]))
-        if not (0 <= hinge_r < walls.shape[0] and 0 <= hinge_c < walls.shape[1]):
-            continue
-        if to_wall[hinge_r, hinge_c] * resolution_m > HINGE_TO_WALL_M:
-            continue
-        # the leaf: a radius drawn in ink near one end of the arc (whose drawn end may fall short)
-        best, leaf_angle, leaf_end = 0.0, 0.0, 0
-        for end, angle in enumerate((start, start + span)):
-            outward = -1.0 if end == 0 else 1.0
-            for turn in np.radians(np.arange(-LEAF_SEARCH_DEG, LEAF_SEARCH_DEG + 0.1, 2.0)):
-                a = angle + outward * turn
-                share = _ink_along(near_ink, centre, centre + radius * np.array([math.cos(a), math.sin(a)]))
-                if share > best:
-                    best, leaf_angle, leaf_end = share, a, end
-        if best < 0.7:
-            continue
-        other = start + span if leaf_end == 0 else start
-        jamb = centre + radius * np.array([math.cos(other), math.sin(other)])
-        tip = centre + radius * np.array([math.cos(leaf_angle), math.sin(leaf_angle)])
-        doors.append(DoorSymbol((float(centre[0]), float(centre[1])), (float(jamb[0]), float(jamb[1])),
-                                (float(tip[0]), float(tip[1])), float(radius), math.degrees(span)))
+        for centre, radius, mask in _fit_arcs(points, (low, high), rng):
+            door = _door_of_arc(points, centre, radius, mask, walls, to_wall, near_ink, resolution_m)
+            if door is not None:
+                doors.append(door)
+                break
     return doors
 
 

@@ -127,7 +127,8 @@ def half_darkness(evened: np.ndarray, ink: np.ndarray) -> np.ndarray:
     """The ink at half its own darkness or darker: each stroke at its full width at half maximum.
 
     Blur widens a thin line's threshold mask but lowers its peak; measured against its own peak
-    (the darkest pixel within 3 pixels) a stroke keeps its drawn width, whatever its grey."""
+    (the darkest pixel within 3 pixels) a stroke stays close to its drawn width, whatever its
+    grey."""
     darkness = 255.0 - evened.astype(np.float32)
     peak = cv2.dilate(darkness, _disc(7))
     return ink & (darkness >= 0.5 * peak)
@@ -219,15 +220,16 @@ def fill_between_lines(lines: np.ndarray, resolution_m: float) -> np.ndarray:
     open it; door arcs and furniture are no such pair."""
     across = max(3, int(MAX_BAND_M / resolution_m)) | 1
     shortest = MIN_BAND_RUN_M / resolution_m
+    run = max(3, int(shortest)) | 1
     fills = np.zeros_like(lines)
     for angle in (0.0, 45.0):
-        turned = lines if angle == 0 else _rotate(lines, angle)
-        along_x = _run_lengths(turned)
-        along_y = _run_lengths(turned.T).T
-        between = np.zeros_like(turned)
-        for running, kernel in ((turned & (along_x >= shortest), np.ones((across, 1), np.uint8)),
-                                (turned & (along_y >= shortest), np.ones((1, across), np.uint8))):
-            between |= cv2.morphologyEx(running.astype(np.uint8), cv2.MORPH_CLOSE, kernel).astype(bool) & ~turned
+        turned = (lines if angle == 0 else _rotate(lines, angle)).astype(np.uint8)
+        between = np.zeros(turned.shape, dtype=bool)
+        # a pixel lies on a run at least `run` long exactly when an opening by that line keeps it
+        for along, kernel in ((np.ones((1, run), np.uint8), np.ones((across, 1), np.uint8)),
+                              (np.ones((run, 1), np.uint8), np.ones((1, across), np.uint8))):
+            running = cv2.morphologyEx(turned, cv2.MORPH_OPEN, along)
+            between |= cv2.morphologyEx(running, cv2.MORPH_CLOSE, kernel).astype(bool) & ~turned.astype(bool)
         fills |= between if angle == 0 else _rotate(between, -angle, lines.shape)
     return fills & ~lines
 

@@ -138,6 +138,8 @@ def read_plan_image(path: str | os.PathLike) -> np.ndarray:
 
 def _flatten_on_white(bgra: np.ndarray) -> np.ndarray:
     """BGR picture of a BGRA plan composited over white (transparent = paper)."""
+    if bgra[..., 3].min() == 255:  # opaque: nothing to composite
+        return np.ascontiguousarray(bgra[..., :3])
     alpha = bgra[..., 3:4].astype(np.float32) / 255.0
     return (bgra[..., :3] * alpha + 255.0 * (1.0 - alpha)).round().astype(np.uint8)
 
@@ -439,6 +441,7 @@ def outline_width_px(bgra: np.ndarray, wall: np.ndarray) -> int:
 # ---- the kind of plan, told from the image ----------------------------------------------------
 FILLED_M = 0.75  # a region this far from its own edge (1.5 m across) is a filled room or shop, never a wall
 FILLED_SHARE = 0.3  # a plan whose marked area is this much filled regions is a filled-region plan
+DETECT_SIDE_PX = 800
 
 
 @dataclasses.dataclass(frozen=True)
@@ -459,6 +462,11 @@ def detect_kind(bgra: np.ndarray, resolution_m: float) -> KindChoice:
     paper is evened) is, in a drawing, lines and walls, none more than ``MAX_WALL_M`` across; in a
     filled-region plan mostly filled rooms or shops metres across. The share of the marked area
     lying deeper than ``FILLED_M`` inside it decides."""
+    # the kind is a coarse property: told on a copy of at most DETECT_SIDE_PX a side
+    factor = max(1, int(math.ceil(max(bgra.shape[:2]) / DETECT_SIDE_PX)))
+    if factor > 1:
+        bgra = cv2.resize(bgra, (bgra.shape[1] // factor, bgra.shape[0] // factor), interpolation=cv2.INTER_AREA)
+        resolution_m *= factor
     alpha = bgra[..., 3]
     transparent = alpha <= 127
     if transparent.mean() >= 0.05:
@@ -775,11 +783,13 @@ def preview_image(plan: FloorPlan, max_side_px: int = 2000) -> np.ndarray:
     res = max(res, max(x_max - x_min, y_max - y_min) / max_side_px)
     cols = int(math.ceil((x_max - x_min) / res))
     rows = int(math.ceil((y_max - y_min) / res))
+    if (source is not None and (rows, cols) == plan.shape_px == source.shape[:2] and res == plan.resolution_m
+            and plan.source_image.resolution_m == res and tuple(plan.source_image.origin_m) == tuple(plan.origin_m)):
+        return _tint_walls(_flatten_on_white(source), plan.wall_mask)  # the plan's own grid: no resampling
     # world coordinates of the preview's pixel centres
     x_c = x_min + (np.arange(cols) + 0.5) * res
     y_c = y_max - (np.arange(rows) + 0.5) * res
     xx, yy = np.meshgrid(x_c, y_c)
-    xy = np.stack([xx, yy], axis=-1)
     canvas = np.full((rows, cols, 3), 255, dtype=np.uint8)
     if source is not None:
         src = plan.source_image
@@ -789,10 +799,24 @@ def preview_image(plan: FloorPlan, max_side_px: int = 2000) -> np.ndarray:
         v = h_src - (yy - src.origin_m[1]) / src.resolution_m
         canvas = cv2.remap(picture, u.astype(np.float32), v.astype(np.float32), cv2.INTER_LINEAR,
                            borderMode=cv2.BORDER_CONSTANT, borderValue=(255, 255, 255))
-    wall = ~plan.is_free(xy)
-    tinted = canvas.astype(np.float32)
-    tinted[wall] = 0.5 * tinted[wall] + 0.5 * np.array([40, 40, 230], dtype=np.float32)  # BGR red
-    return tinted.round().astype(np.uint8)
+    # the mask's cell under each preview pixel (pixel centres; outside the mask counts as wall)
+    mask_rows = np.floor((plan.extent_m[3] - y_c) / plan.resolution_m).astype(np.int64)
+    mask_cols = np.floor((x_c - plan.extent_m[0]) / plan.resolution_m).astype(np.int64)
+    inside = ((mask_rows >= 0) & (mask_rows < plan.shape_px[0]))[:, None] & \
+        ((mask_cols >= 0) & (mask_cols < plan.shape_px[1]))[None, :]
+    wall = np.ones((rows, cols), dtype=bool)
+    rr = np.clip(mask_rows, 0, plan.shape_px[0] - 1)
+    cc = np.clip(mask_cols, 0, plan.shape_px[1] - 1)
+    wall[inside] = plan.wall_mask[np.ix_(rr, cc)][inside]
+    return _tint_walls(canvas, wall)
+
+
+def _tint_walls(canvas: np.ndarray, wall: np.ndarray) -> np.ndarray:
+    """``canvas`` with the wall pixels half red."""
+    tinted = canvas.copy()
+    red = np.array([40, 40, 230], dtype=np.uint16)  # BGR
+    tinted[wall] = ((tinted[wall].astype(np.uint16) + red + 1) // 2).astype(np.uint8)
+    return tinted
 
 
 def preview_path_for(yaml_path: str | os.PathLike) -> Path:

@@ -363,3 +363,26 @@ def test_the_summary_names_the_wifi_source_and_a_radio_map_left_unused(tmp_path,
     assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--particles", "300"]) == 0
     out = capsys.readouterr().out
     assert f"WiFi: fingerprints of the radio map {RADIOMAP}" in out and "not used" not in out
+
+
+def test_a_map_without_free_space_is_refused_before_tracking(tmp_path, capsys):
+    """Issue 45 friction 5: an all-wall map was tracked with a collapse line per step."""
+    office = FloorPlan.load(OFFICE)
+    FloorPlan(np.ones(office.shape_px, bool), office.resolution_m, office.origin_m).save(tmp_path / "walls.yaml")
+    out = tmp_path / "t.csv"
+    _run_expect_error(["track", str(tmp_path / "walls.yaml"), str(WALK), "--radiomap", str(RADIOMAP), "--out", str(out)],
+                      capsys, "walls.yaml", "no free space", "map prepare")
+    assert not out.exists()
+
+
+def test_repeated_collapses_are_summarised_in_one_line():
+    from types import SimpleNamespace
+
+    from mapfilter.cli.track_cmd import MAX_COLLAPSE_LINES, _collapse_lines
+
+    events = [SimpleNamespace(t_s=100.0 + i, cause="walls" if i % 5 else "measurement", particles_lost=3000,
+                              recovery="jitter") for i in range(175)]
+    (line,) = _collapse_lines(events, 100.0)
+    assert "175 collapses from t=+0.0 s to t=+174.0 s" in line and "walls 140" in line and "measurement 35" in line
+    few = _collapse_lines(events[:MAX_COLLAPSE_LINES], 100.0)
+    assert len(few) == MAX_COLLAPSE_LINES and few[1].startswith("  collapse at t=+1.0 s (walls")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import cv2
@@ -633,3 +634,30 @@ def test_check_says_latlon_waypoints_need_a_georeferenced_map(ipin2023, capsys):
     log = sorted((ipin2023 / "logs").glob("*.txt.gz"))[0]
     code, out, err = _run(["check", log, "--map", REPO / "maps" / "office.yaml"], capsys)
     assert code == 0 and "its waypoints cannot be checked" in err and "georeference" in err
+
+
+def test_the_outside_warning_blames_keep_outside_only_when_it_was_given(tmp_path: Path, capsys):
+    """Issue 45 friction 4: free space at the map's edge was blamed on --keep-outside, given or not."""
+    _two_rooms_png(tmp_path / "rooms.png")
+    # an edit frees a strip along the bottom edge (metres, origin at the lower-left corner)
+    (tmp_path / "edits.yaml").write_text("free:\n  - [[2, 0], [8, 0], [8, 0.3], [2, 0.3]]\n")
+    code, out, err = _run(["map", "prepare", tmp_path / "rooms.png", "--resolution", 0.1, "--edits",
+                           tmp_path / "edits.yaml", "--out", tmp_path / "edited.yaml"], capsys)
+    (line,) = [w for w in _warnings(err) if "edge of the map" in w]
+    assert code == 0 and "--keep-outside" not in line and "--edits" in line
+    code, out, err = _run(["map", "prepare", tmp_path / "rooms.png", "--resolution", 0.1, "--keep-outside",
+                           "--out", tmp_path / "open.yaml"], capsys)
+    (line,) = [w for w in _warnings(err) if "edge of the map" in w]
+    assert "you gave --keep-outside" in line
+
+
+def test_the_report_names_the_rooms_cut_off(tmp_path: Path, capsys):
+    image = np.full((100, 200), 255, np.uint8)
+    cv2.rectangle(image, (10, 10), (189, 89), 0, 3)
+    cv2.line(image, (100, 10), (100, 89), 0, 3)  # two rooms, no door between them
+    cv2.imwrite(str(tmp_path / "shut_plan.png"), image)
+    code, out, err = _run(["map", "prepare", tmp_path / "shut_plan.png", "--resolution", 0.1, "--out",
+                           tmp_path / "shut.yaml"], capsys)
+    assert code == 0 and re.search(r"free space \d+\.\d% of the map, 5\d\.\d% of it in one connected region \(1 room of 1 m2 or more cut off\)", out), out
+    (line,) = [w for w in _warnings(err) if "cut off" in w]
+    assert "1 room is cut off from the largest free region" in line and "at px " in line and "--edits" in line

@@ -813,7 +813,7 @@ def _door_symbols(opening: Opening, style: Style) -> tuple[list, list, Polygon]:
             normal = opening.inward * side
             # the leaf turns from the closed position (along the opening) towards the swing side
             angle = math.radians(opening.leaf_angle_deg)
-            sign = 1.0 if float(np.cross(towards, normal)) > 0 else -1.0
+            sign = 1.0 if towards[0] * normal[1] - towards[1] * normal[0] > 0 else -1.0
             leaf_dir = _rotate(towards, sign * angle)
             tip = hinge + leaf_dir * radius
             start = math.atan2(towards[1], towards[0])
