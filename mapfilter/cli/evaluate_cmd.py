@@ -370,7 +370,8 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
     if evaluation.results:
         with out_dir.writing("cdf.png") as (tmp,):
             plot_error_cdf(evaluation.errors_by_method(), tmp,
-                           title=f"{n_done} walks on {args.map.name}" + ("" if complete else " (partial)"))
+                           title=f"{n_done} walks on {args.map.name}, {evaluation.protocol}"
+                           + ("" if complete else " (partial)"))
     if failed:
         print(f"{len(failed)} walk{'s' if len(failed) != 1 else ''} without results (summary.json lists why): "
               + ", ".join(item["trace"] for item in failed))

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from split_ilc import COLUMNS, FLOORS, REPO, describe, run_split, tracking_config  # noqa: E402
+from split_ilc import COLUMNS, FLOORS, REPO, describe, progress, run_split, tracking_config  # noqa: E402
 
 from mapfilter.cli import main as cli  # noqa: E402
 from mapfilter.evaluation.comparison import EvaluationSetup, evaluate  # noqa: E402
@@ -66,7 +66,7 @@ def run_ipin(work: Path, tracking, jobs: int, quick: bool, beacons: bool) -> dic
     setup = EvaluationSetup(methods=("pf", "kwnn") + (("pf+ble",) if beacons else ()),
                             survey_paths=tuple(p for p in logs if p not in scored), groups=by_ipin_trial(logs),
                             sources=sources, tracking=tracking)
-    evaluation = evaluate(building, scored, setup, Engine(jobs=jobs))
+    evaluation = evaluate(building, scored, setup, Engine(jobs=jobs), progress=progress("IPIN 2023"))
     failed = [f"{o.trace}: {o.reason}" for o in evaluation.failed]
     return {"protocol": evaluation.protocol, "walks": len(scored), "failed": failed,
             "summary": evaluation.summary_rows(), "by_route": evaluation.summary_rows(by_group=True)}

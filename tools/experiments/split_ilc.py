@@ -76,7 +76,8 @@ def run_split(floor: str, tracking: TrackingConfig, jobs: int, work: Path, every
         by_name = {w.name: w for w in test}
         started = time.perf_counter()
         evaluation = evaluate(building, test, EvaluationSetup(methods=METHODS, survey_paths=tuple(survey),
-                                                              tracking=tracking), Engine(jobs=jobs))
+                                                              tracking=tracking), Engine(jobs=jobs),
+                              progress=progress(f"{floor} {split.describe(direction.surveyed_side)} surveyed"))
         failed = [{"trace": o.trace, "reason": o.reason} for o in evaluation.failed]
         for item in failed:  # e.g. a walk that hears none of the survey's access points: no WiFi track
             log(f"{floor}: {item['trace']} not tracked: {item['reason']}")
@@ -110,6 +111,17 @@ def run_split(floor: str, tracking: TrackingConfig, jobs: int, work: Path, every
             "not_tracked": [f["trace"] for d in directions for f in d["failed"]],
             "cut_m": split.cut_m, "rows": _rows(floor, errors), "directions": directions,
             "coverage_m": {h: _stats(np.concatenate(c) if c else np.zeros(0)) for h, c in coverage.items()}}
+
+
+def progress(what: str):
+    """A progress callback for ``evaluate``: one line on standard error per walk done."""
+    started = time.perf_counter()
+
+    def tick(done: int, total: int, walk: str) -> None:
+        print(f"{what}: {done} of {total} walks ({walk}), {time.perf_counter() - started:.0f} s", file=sys.stderr,
+              flush=True)
+
+    return tick
 
 
 def _stats(errors: np.ndarray) -> dict:
