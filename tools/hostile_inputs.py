@@ -65,6 +65,7 @@ class Case:
     keep: tuple[str, ...] = ()  # files of the work directory that must be byte-identical afterwards
     max_s: float = BAR_S  # a case that used to hang must end within this
     one_line: bool = False  # stderr printable (no escape sequence, no raw byte), one error line at most
+    stdin: str | None = None  # a file of the work directory fed on standard input (a live run: LOG -)
 
 
 @dataclasses.dataclass
@@ -402,7 +403,15 @@ def write_getsensordata(path: Path, posi: bool = True, swapped: bool = False) ->
 
 def make_files_45(work: Path, skip_slow: bool) -> None:
     """Issue 45's inputs: a georeferenced venue, a gzip bomb for the bad EvaalAPI server, tables and
-    files over their bounds, a user's track beside its log, get_data's sources."""
+    files over their bounds, a user's track beside its log, get_data's sources; for live runs 100 MB
+    of blank lines, 100 MB of random bytes (and 20 MB of them without a newline)."""
+    with (work / "blank_lines.txt").open("wb") as handle:
+        for _ in range(100):
+            handle.write(b"\n" * (1 << 20))
+    with (work / "random.bin").open("wb") as handle:
+        for _ in range(100):
+            handle.write(os.urandom(1 << 20))
+    (work / "random_one_line.bin").write_bytes(os.urandom(20 << 20).replace(b"\n", b"x"))
     sys.path.insert(0, str(TOOLS))
     from bad_evaal_server import gzip_of_zeros
 
@@ -702,6 +711,26 @@ sys.exit(run.returncode)
 def _fmt(code: str, **values: str) -> str:
     return code.format(**values)
 
+
+# the same log fed to the tracker whole and in 64 KiB pieces gives the same rows
+_CHUNKED_ROWS = """
+import sys
+from mapfilter.config import TrackingConfig
+from mapfilter.maps.building import Building
+from mapfilter.pipeline.tracker import Tracker, TrackingInputs
+from mapfilter.sensors.logs import LogStream
+from mapfilter.sensors.radiomap import RadioMap
+data = open({log!r}, "rb").read()
+building, radio_map = Building.load({map!r}), RadioMap.load({rm!r})
+counts = []
+for piece in (len(data), 65536):
+    tracker, stream = Tracker(building, TrackingInputs(radio_map), TrackingConfig(seed=1).with_particles(1000)), LogStream("x")
+    rows = sum(len(tracker.feed(stream.feed_bytes(data[i:i + piece]))) for i in range(0, len(data), piece))
+    rows += len(tracker.feed(stream.close())) + len(tracker.close())
+    counts.append(rows)
+print(f"fed whole: {{counts[0]}} rows; in 64 KiB pieces: {{counts[1]}} rows", file=sys.stderr)
+sys.exit(0 if counts[0] == counts[1] else 1)
+"""
 
 _OFFICE = {"map": str(MAP), "walk": str(WALK), "rm": str(RADIOMAP)}
 USER = ("user/office.yaml", "user/office.png", "user/office_radiomap.npz", "user/office_walk.txt.gz",
@@ -1027,6 +1056,18 @@ CASES = [
     Case("track --evaal-out, a log without POSI rows", "evaal/replay.py, cli/track_cmd.py",
          lambda w: ["track", f"{w}/venue.yaml", f"{w}/gsd_no_posi.txt", "--radiomap", str(RADIOMAP), "--evaal-out",
                     f"{w}/outdir/no_posi.csv"], max_s=15, one_line=True, must_say="--evaal-start LON,LAT,FLOOR"),
+] + [  # issue 45: a live run (track MAP -)
+    Case("live: 100 MB of blank lines on standard input", "sensors/logread.py",
+         _track("-", "--radiomap", str(RADIOMAP)), max_s=15, one_line=True, stdin="blank_lines.txt",
+         must_say="its first 200 lines are blank"),
+    Case("live: 100 MB of random bytes on standard input", "sensors/logread.py",
+         _track("-", "--radiomap", str(RADIOMAP)), max_s=15, one_line=True, stdin="random.bin",
+         must_say="binary data"),
+    Case("a log of 20 MB of random bytes without a newline", "sensors/logread.py",
+         _track("{w}/random_one_line.bin", "--radiomap", str(RADIOMAP)), max_s=15, one_line=True,
+         must_say="binary data"),
+    Case("an IMU clock 20 s back, fed whole and in 64 KiB pieces", "filter/causal.py (open)", None, (0,),
+         python=_fmt(_CHUNKED_ROWS, log="clock_back.txt", **_OFFICE), must_say="fed whole"),
 ]
 
 
@@ -1051,7 +1092,8 @@ def run_case(case: Case, work: Path, memory_bytes: int, timeout_s: float) -> Out
         os.close(read_end)  # the reader has gone, as after `| head -1`
     with err_path.open("w") as err:
         start = time.monotonic()
-        process = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stderr=err, cwd=work / (case.cwd or ""),
+        stdin = (work / case.stdin).open("rb") if case.stdin else subprocess.DEVNULL
+        process = subprocess.Popen(argv, stdin=stdin, stderr=err, cwd=work / (case.cwd or ""),
                                    preexec_fn=limits,
                                    stdout=(write_end if write_end is not None else
                                            err if case.python is not None else subprocess.DEVNULL),
@@ -1074,6 +1116,8 @@ def run_case(case: Case, work: Path, memory_bytes: int, timeout_s: float) -> Out
                 killed = True
             time.sleep(0.05)
         wall = time.monotonic() - start
+        if case.stdin:
+            stdin.close()
         process.returncode = os.waitstatus_to_exitcode(status)  # keep Popen from waiting again
     text = err_path.read_text(errors="replace")
     err_path.unlink()
