@@ -391,8 +391,13 @@ def test_the_fit_recovers_the_parameters_and_finds_swapped_ids(office_walk):
     fit = fit_beacons(guess, labelled_readings(guess, building, [recording]))
     heard = [row.own_fit for row in fit.rows]
     assert sum(heard) >= 6
-    np.testing.assert_allclose(fit.table.c_dbm[heard], TRUE_C, atol=2.5)
-    np.testing.assert_allclose(fit.table.n[heard], TRUE_N, atol=0.3)
+    # C and n trade off against each other (a line through readings from a few metres to tens):
+    # the fitted model's RSSI is the truth's over the distances each beacon was heard from
+    readings = labelled_readings(guess, building, [recording])
+    for row in np.flatnonzero(heard):
+        distance_m = np.percentile(readings.distance_m[readings.beacon == row], [10, 50, 90])
+        np.testing.assert_allclose(beacon_rssi_dbm(distance_m, fit.table.c_dbm[row], fit.table.n[row]),
+                                   beacon_rssi_dbm(distance_m, TRUE_C, TRUE_N), atol=1.5)
     assert all(row.best_position == row.beacon_id for row in fit.rows if row.own_fit)
     assert not fit.floor_loss_fitted  # one floor: the table's floor loss kept
     # two ids swapped: each one's readings fit the other's position better
