@@ -38,7 +38,7 @@ from shapely.geometry import shape as geojson_shape
 from mapfilter.io.atomic import atomic_paths
 from mapfilter.errors import MapfilterError, not_a_file
 from mapfilter.io.yamlio import load_yaml
-from mapfilter.maps.drawing import MAX_WALL_M, DrawingOptions, DrawingReading, even_paper, read_drawing
+from mapfilter.maps.drawing import DrawingOptions, DrawingReading, even_paper, read_drawing
 from mapfilter.maps.floorplan import MAX_IMAGE_PIXELS, FloorPlan, SourceImage, check_image_size, plan_geometry_problem
 
 EARTH_RADIUS_M = 6378137.0  # Web Mercator sphere (ILC README)
