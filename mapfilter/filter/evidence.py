@@ -2,8 +2,9 @@
 per scan, made once per walk.
 
 ``WifiEvidence`` is one floor: fingerprinting against a radio map (``fix``: one KWNN fix per
-scan, Chang et al., weighed with a Gaussian, Evennou & Marx; ``blend``: the mean of that fix
-and the radio-map likelihood's best cell; ``likelihood``: the radio map's own probability of
+scan, Chang et al., weighed with a Gaussian, Evennou & Marx, where the scan matches the survey
+and flatter where it does not, ``filter.models.survey_reach``; ``blend``: the mean of that fix
+and the radio-map likelihood's best cell, weighed the same way; ``likelihood``: the radio map's own probability of
 the scan at each particle) or trilateration from an access-point table (the Lund thesis
 path-loss likelihood, adaptive with ``TrilaterationConfig``). ``BuildingEvidence`` is several
 floors: per floor the ``WifiEvidence`` of that floor's fingerprints, per scan the WiFi floor
@@ -28,17 +29,20 @@ from mapfilter.filter.models.barometer import (STEADY_M, STEADY_WINDOW_S, Barome
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.models.building import FloorFix, FloorFixLikelihood, FloorStack
 from mapfilter.filter.models.path_loss import TrilaterationLikelihood
-from mapfilter.filter.models.position_fix import GaussianFixLikelihood, PositionFix
 from mapfilter.filter.models.interface import MeasurementModel
 from mapfilter.filter.models.radio_map import RadioMapLikelihood, RadioMapLikelihoodConfig, radio_map_likelihood
+from mapfilter.filter.models.survey_reach import (DistanceGrid, ReachFix, ReachFixLikelihood, SurveyReach,
+                                                  distance_grid, survey_reach)
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.floor_vote import check_building_radio_map, floor_vote_log_likelihood
 from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position, match_scan
 from mapfilter.sensors.radiomap import (STRONG_MIN_RSSI_DBM, RadioMap, cross_validated_fix_errors, kwnn_fix_many,
+                                       memo_of,
                                        strong_kwnn_fixes)
 from mapfilter.sensors.wifi import WifiScan
 
 FINGERPRINT_MODELS = ("fix", "blend", "likelihood")
+OWN_FLOOR_MIN_PROBABILITY = 0.5  # a building floor's own fingerprints give its fix where they reach the scan this well
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,7 +125,7 @@ class WifiEvidence:
 
     def __init__(self, radio_map: RadioMap | None, ap_table: AccessPointTable | None, floorplan: FloorPlan,
                  wifi: WifiConfig = WifiConfig(), trilateration: TrilaterationConfig = TrilaterationConfig(),
-                 log_name: str = "the log"):
+                 log_name: str = "the log", reach: SurveyReach | None = None, grid: DistanceGrid | None = None):
         if (radio_map is None) == (ap_table is None):
             raise MapfilterError("give either a radio map (fingerprinting) or an access-point table (trilateration)")
         self.scans: list[WifiScan] = []
@@ -132,13 +136,18 @@ class WifiEvidence:
         self._kwnn: list[np.ndarray] = []  # per scan: the KWNN fix (NaN: none)
         self._best: list[np.ndarray] = []  # per scan: the radio-map likelihood's best cell (blend; NaN: none)
         self._usable: list[bool] = []
+        self._in_survey: list[float] = []  # per scan: P(taken inside the survey) (fix, blend)
+        self.reach: SurveyReach | None = None
         self._radio_map_model: RadioMapLikelihood | None = None
         self.model: MeasurementModel
         if radio_map is not None:
             if wifi.fingerprint_model in ("fix", "blend"):
                 sigma_m = wifi.fix_sigma_m if wifi.fix_sigma_m is not None else calibrated_fix_sigma_m(
                     radio_map, wifi.kwnn_k)
-                self.model = GaussianFixLikelihood(sigma_m=sigma_m)
+                # a building's floors get the building's reach (its points on every floor)
+                self.reach = reach if reach is not None else survey_reach(radio_map)
+                grid = grid if grid is not None else distance_grid(radio_map.xy_m, floorplan.extent_m)
+                self.model = ReachFixLikelihood(sigma_m, grid)
             else:
                 self.model = self.radio_map_model()
         else:
@@ -192,6 +201,7 @@ class WifiEvidence:
                 if np.isfinite(kwnn[i]).all():
                     best[i] = model.best_position(scan)
         fix = np.where(np.isfinite(best), 0.5 * (kwnn + best), kwnn)
+        self._in_survey.extend(self.reach.in_survey_probability(matrix))
         self._kwnn.extend(kwnn)
         self._best.extend(best)
         self._fix.extend(fix)
@@ -220,13 +230,18 @@ class WifiEvidence:
     @property
     def fix_sigma_m(self) -> float | None:
         """The Gaussian of the fingerprint fixes (None for the other models)."""
-        return self.model.sigma_m if isinstance(self.model, GaussianFixLikelihood) else None
+        return self.model.sigma_m if isinstance(self.model, ReachFixLikelihood) else None
+
+    @property
+    def in_survey(self) -> np.ndarray:
+        """(S,) each scan's probability of having been taken inside the survey (fix, blend; else empty)."""
+        return np.array(self._in_survey, dtype=np.float64)
 
     def measurement(self, index: int) -> Any:
         if not self._usable[index]:
             return None
         if self._radio_map is not None and self._wifi.fingerprint_model != "likelihood":
-            return PositionFix(self._fix[index])
+            return ReachFix(self._fix[index], self._in_survey[index])
         return self.scans[index]
 
     def between_scans(self, t_s: float) -> None:
@@ -319,6 +334,28 @@ class NoWifiEvidence:
         return None
 
 
+def _every_floor_on(radio_map: RadioMap, building, floor: int) -> tuple[RadioMap, DistanceGrid]:
+    """Every floor's reference points in floor ``floor``'s frame, as one floor's radio map, and the
+    3-D distance from each cell of that floor to the nearest of them (storeys apart by their
+    elevations). Kept per radio map and building (the walks of an evaluation share them)."""
+    memo = memo_of(radio_map)
+    key = ("every floor", id(building), floor)
+    if key in memo and memo[key][0] is building:
+        return memo[key][1]
+    floors = building.floors
+    xy = np.zeros_like(radio_map.xy_m)
+    for f, other in enumerate(floors):
+        on = radio_map.floor == f
+        xy[on] = floors[floor].from_building(other.to_building(radio_map.xy_m[on]))
+    merged = dataclasses.replace(radio_map, xy_m=xy, floor=None, floor_names=None, floor_name=floors[floor].name,
+                                 likelihood_tables={})
+    elevation_m = np.array([f.elevation_m for f in floors])
+    grid = distance_grid(np.column_stack([xy, elevation_m[radio_map.floor]]), floors[floor].plan.extent_m,
+                         height_m=float(elevation_m[floor]))
+    memo[key] = (building, (merged, grid))
+    return merged, grid
+
+
 def trilateration_model(ap_table: AccessPointTable, config: TrilaterationConfig = TrilaterationConfig()
                         ) -> MeasurementModel:
     """The path-loss likelihood, adaptive (Lund thesis ch. 7) when the config asks for adaptation or blocking."""
@@ -345,10 +382,12 @@ def calibrated_fix_sigma_m(radio_map: RadioMap, k: int = 4, default_m: float = 5
 class BuildingEvidence:
     """A walk's scans as the multi-floor filter weighs them (``WalkEvidence``; a ``FloorFix`` per scan).
 
-    Per floor, the fix of ``WifiEvidence`` made from that floor's fingerprints only (so
-    ``blend``, ``fix`` and the fix-sigma calibration work as on one floor), moved into the stack
-    frame; per scan, the floor vote of ``sensors.floor_vote.floor_vote_log_likelihood`` over the
-    whole building's fingerprints. Scans come with ``add_scans``, the barometer's readings with
+    Per floor, the fix of ``WifiEvidence`` made from every floor's fingerprints moved into that
+    floor's frame (a scan's nearest fingerprints may lie a storey up or down: a floor nobody
+    surveyed still gets the fix of the survey above or below it), weighed by each particle's 3-D
+    distance to the survey (``filter.models.survey_reach``), moved into the stack frame; per scan,
+    the floor vote of ``sensors.floor_vote.floor_vote_log_likelihood`` over the whole building's
+    fingerprints. Scans come with ``add_scans``, the barometer's readings with
     ``add_pressure``.
 
     With a barometer, each scan, and each filter step between scans (``between_scans``), also
@@ -372,20 +411,28 @@ class BuildingEvidence:
         # each floor's own evidence (None: its fingerprints share nothing with the walk)
         self.floor_wifi: list[WifiEvidence | None] = [None] * n_floors
         sigma = np.full(n_floors, 5.0)
+        # per floor, the evidence of every floor's fingerprints too: their fix where the floor's own do not reach
+        self._every_floor: list[tuple[RadioMap, WifiEvidence] | None] = [None] * n_floors
+        reach = None if radio_map is None else survey_reach(radio_map)  # one for every floor: all its points
         for f, floor in enumerate(stack.building.floors):
             if radio_map is None:
                 continue
-            sub = radio_map.floor_map(f)
-            if len(sub) == 0:
+            if len(radio_map.floor_map(f)) == 0:
                 continue
             floor_config = wifi
             if fix_sigma_by_floor_m and floor.name in fix_sigma_by_floor_m:
                 floor_config = dataclasses.replace(wifi, fix_sigma_m=fix_sigma_by_floor_m[floor.name])
-            evidence = WifiEvidence(sub, None, floor.plan, floor_config, log_name=log_name)
+            every_floor, grid = _every_floor_on(radio_map, stack.building, f)
+            own_map = radio_map.floor_map(f)
+            evidence = WifiEvidence(own_map, None, floor.plan, floor_config, log_name=log_name, reach=reach, grid=grid)
             if evidence.fix_sigma_m is None:
                 raise MapfilterError("tracking across floors weighs fingerprint fixes: use the fingerprint "
                                      "model fix or blend")
             self.floor_wifi[f] = evidence
+            # every floor's fingerprints: their fix (the same model) with the floor's own sigma
+            every_config = dataclasses.replace(floor_config, fix_sigma_m=evidence.fix_sigma_m)
+            self._every_floor[f] = (own_map, WifiEvidence(every_floor, None, floor.plan, every_config,
+                                                          log_name=log_name, reach=reach, grid=grid))
             sigma[f] = evidence.fix_sigma_m
         self.elevation_m = np.array([f.elevation_m for f in stack.building.floors])
         self.barometer = barometer
@@ -393,13 +440,16 @@ class BuildingEvidence:
         self._n_pressure_seen = 0
         self._heights = BarometricHeights()  # barometric_height of the readings so far
         self.reference = BarometerReference(self.elevation_m, barometer)
-        self.model = FloorFixLikelihood(stack, sigma)
+        self._in_survey: list[float] = []  # per scan: P(taken inside the survey)
+        grids = None if radio_map is None else [None if e is None else e.model.grid for e in self.floor_wifi]
+        self.model = FloorFixLikelihood(stack, sigma, grids)
 
     def prepare(self, scans: list[WifiScan]) -> None:
         """Build the per-floor radio-map tables of the APs the scans hear in one go (as ``WifiEvidence``)."""
-        for evidence in self.floor_wifi:
+        for evidence, every in zip(self.floor_wifi, self._every_floor):
             if evidence is not None and any(k in evidence._radio_map.key_index for s in scans for k in s.ap_keys):
                 evidence.prepare(scans)
+                every[1].prepare(scans)
 
     def require_usable(self) -> None:
         if self._radio_map is not None and not self.usable.any():
@@ -415,8 +465,18 @@ class BuildingEvidence:
         for f, evidence in enumerate(self.floor_wifi):
             if evidence is not None:
                 evidence.add_scans(scans)
-                fix[:, f] = self._stack.to_stack(evidence.fix_xy_m_since(first), f)
+                own_map, every = self._every_floor[f]
+                every.add_scans(scans)
+                # the floor's own fingerprints where they reach the scan (a surveyed route: as on one
+                # floor), every floor's where they do not (a floor surveyed only above or below)
+                own_reach = evidence.reach.in_survey_probability(own_map.scan_matrix(scans), against=own_map)
+                fix[:, f] = self._stack.to_stack(np.where((own_reach >= OWN_FLOOR_MIN_PROBABILITY)[:, None],
+                                                          evidence.fix_xy_m_since(first), every.fix_xy_m_since(first)), f)
         self._fix.extend(fix)
+        # every floor's evidence matches the scans against all the building's points: one probability
+        wifi = next((e for e in self.floor_wifi if e is not None), None)
+        if wifi is not None:
+            self._in_survey.extend(wifi.in_survey[first:])
         if self._given_floor_ll is not None:
             self._floor_ll.extend(self._given_floor_ll[first:first + len(scans)])
         elif self._radio_map is None:
@@ -505,4 +565,4 @@ class BuildingEvidence:
             if height_ll is not None:
                 floor_ll = floor_ll + height_ll
                 height_floor = int(np.argmax(height_ll))
-        return FloorFix(fix, floor_ll, height_floor)
+        return FloorFix(fix, floor_ll, height_floor, in_survey=self._in_survey[index] if self._in_survey else None)

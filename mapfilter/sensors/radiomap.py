@@ -61,6 +61,9 @@ radio-map likelihood's grid on the floor plan it was built for (``likelihood_*``
 layout versioned by ``likelihood_version``; ``filter.models.radio_map``): a walk tracked with it on
 that plan starts from them. They are checked when used, and a file without them, or with
 them for another plan, configuration or version, is tracked as before (the grid built for the run).
+Every file written now also keeps the survey's own match distances (``survey_*_match_db``, with
+the numbers they depend on in ``survey_match_params``; ``filter.models.survey_reach``), made once
+here rather than for every walk; a file without them, or with other parameters, makes them when used.
 """
 
 from __future__ import annotations
@@ -273,6 +276,8 @@ class RadioMap:
                     rssi_dbm=self.rssi_dbm, source_traces=np.array(self.source_traces, dtype=str),
                     floor_name=np.array(self.floor_name or ""), cv_fix_errors_m=cv_errors,
                     cv_fix_errors_params=np.array(_STORED_CV_PARAMS, dtype=np.float64), **floors, **grown,
+                    **dict(zip(("survey_inside_match_db", "survey_outside_match_db"), survey_match_distances_db(self))),
+                    survey_match_params=_survey_match_params(),
                     **{f"likelihood_{name}": array for name, array in self.likelihood_tables.items()},
                 )
 
@@ -342,6 +347,14 @@ class RadioMap:
         radio_map = cls(xy, [str(k) for k in keys], rssi, arrays["t_s"], arrays["trace"], traces, floor or None,
                         point_floor, floor_names, source, xy_sigma,
                         {key[len("likelihood_"):]: array for key, array in arrays.items() if key.startswith("likelihood_")})
+        inside, outside = arrays.get("survey_inside_match_db"), arrays.get("survey_outside_match_db")
+        match_params = arrays.get("survey_match_params")
+        if inside is not None and outside is not None and match_params is not None \
+                and np.array_equal(match_params, _survey_match_params()):
+            if not (np.all(np.isfinite(inside)) and np.all(np.isfinite(outside))):
+                raise MapfilterError("radio map has malformed survey_inside_match_db / survey_outside_match_db", path)
+            memo_of(radio_map)["match distances"] = (np.sort(inside.astype(np.float64)),
+                                                     np.sort(outside.astype(np.float64)))
         cv_errors, cv_params = arrays.get("cv_fix_errors_m"), arrays.get("cv_fix_errors_params")
         if version >= 2 and cv_errors is not None and cv_params is not None:
             if (cv_errors.ndim != 1 or cv_params.shape != (3,) or not np.all(np.isfinite(cv_errors))
@@ -466,7 +479,8 @@ _ARRAY_KINDS = {"format": (0, "U"), "version": (0, "iu"), "xy_m": (2, "fiu"), "t
                 "trace": (1, "iu"), "ap_keys": (1, "US"), "rssi_dbm": (2, "f"), "source_traces": (1, "US"),
                 "floor_name": (0, "US"), "floor": (1, "iu"), "floor_names": (1, "US"), "source": (1, "iu"),
                 "xy_sigma_m": (1, "fiu"), "cv_fix_errors_m": (1, "fiu"), "cv_fix_errors_params": (1, "fiu"),
-                "cv_fix_errors_floor": (1, "iu")}
+                "cv_fix_errors_floor": (1, "iu"), "survey_inside_match_db": (1, "fiu"),
+                "survey_outside_match_db": (1, "fiu"), "survey_match_params": (1, "fiu")}
 
 
 def _check_array_kinds(headers: dict[str, tuple[tuple[int, ...], np.dtype]], path: Path) -> None:
@@ -897,6 +911,81 @@ def cross_validated_fix_errors(radio_map: RadioMap, k: int = 4, max_groups: int 
     if params not in memo:
         memo[params] = _cross_validated_fix_errors(radio_map, *params)
     return memo[params].copy()
+
+
+# ---- where the survey reaches: how well a scan matches it (filter.models.survey_reach) ----------
+MATCH_MIN_RSSI_DBM = -85.0  # readings below count as unheard in a match distance (weak APs differ most by phone)
+MATCH_MIN_SHARED_APS = 3  # a reference point sharing fewer APs with the scan does not match it
+INSIDE_WITHIN_M = 3.0  # a survey point this near another walk's point stands for a scan taken inside the survey
+OUTSIDE_BEYOND_M = 10.0  # one this far from every other walk's point, for a scan taken outside it
+MAX_MATCHED_POINTS = 1200  # survey points matched against the other walks' (spread over the survey): the cost is theirs times the map's
+
+
+def _survey_match_params() -> np.ndarray:
+    """Every number the stored survey match distances depend on besides the radio map."""
+    return np.array([MATCH_MIN_RSSI_DBM, MATCH_MIN_SHARED_APS, INSIDE_WITHIN_M, OUTSIDE_BEYOND_M, MAX_MATCHED_POINTS],
+                    dtype=np.float64)
+
+
+def match_distance_db(radio_map: RadioMap, scan_rssi_dbm: np.ndarray) -> np.ndarray:
+    """(S,) each scan's signal distance (dB) to its best-matching reference point (inf: none
+    shares ``MATCH_MIN_SHARED_APS`` APs heard at ``MATCH_MIN_RSSI_DBM`` or more)."""
+    scans = np.ascontiguousarray(scan_rssi_dbm, dtype=np.float64).reshape(-1, len(radio_map.ap_keys))
+    if scans.shape[0] == 0 or len(radio_map) == 0:
+        return np.full(scans.shape[0], np.inf)
+    dist, shared = _distances_to_references(radio_map, scans, 2.0, -100.0, min_rssi_dbm=MATCH_MIN_RSSI_DBM,
+                                            per_ap=True)
+    return np.where(shared >= MATCH_MIN_SHARED_APS, dist, np.inf).min(axis=1)
+
+
+def memo_of(radio_map: RadioMap) -> dict:
+    """What was made from this radio map (kept on it, so it goes with it), emptied when its arrays
+    were replaced."""
+    arrays = (radio_map.xy_m, radio_map.rssi_dbm, radio_map.trace, radio_map.floor)
+    cached = getattr(radio_map, "_survey_reach_memo", None)
+    if cached is None or any(a is not b for a, b in zip(cached[0], arrays)):
+        cached = (arrays, {})
+        radio_map._survey_reach_memo = cached
+    return cached[1]
+
+
+def survey_match_distances_db(radio_map: RadioMap) -> tuple[np.ndarray, np.ndarray]:
+    """The match distances (sorted, dB) of scans taken inside the survey and of scans taken
+    outside it, as the survey itself shows them: each survey walk's points matched against the
+    other walks' points (``MAX_MATCHED_POINTS`` of them at most, spread over the map); inside, the points
+    within ``INSIDE_WITHIN_M`` of another walk's point on their floor, outside those farther than
+    ``OUTSIDE_BEYOND_M`` from all of them. Kept on the radio map (an evaluation's walks share it)."""
+    from scipy.spatial import cKDTree
+
+    memo = memo_of(radio_map)
+    if "match distances" in memo:
+        return memo["match distances"]
+    walk = np.asarray(radio_map.trace)
+    floor = np.zeros(len(radio_map), dtype=np.int64) if radio_map.floor is None else np.asarray(radio_map.floor)
+    walks = np.unique(walk)
+    found, away = [], []  # the survey's own matches, inside and outside
+    if walks.size >= 2:
+        matched = np.zeros(len(radio_map), dtype=bool)
+        matched[np.linspace(0, len(radio_map) - 1, min(MAX_MATCHED_POINTS, len(radio_map))).round().astype(int)] = True
+        for w in np.unique(walk[matched]):
+            inside = walk == w
+            points = inside & matched
+            dist, shared = _distances_to_references(radio_map, radio_map.rssi_dbm[points].astype(np.float64), 2.0,
+                                                    -100.0, min_rssi_dbm=MATCH_MIN_RSSI_DBM, per_ap=True)
+            dist = np.where(shared >= MATCH_MIN_SHARED_APS, dist, np.inf)
+            dist[:, inside] = np.inf
+            best = dist.min(axis=1)
+            gap = np.full(int(points.sum()), np.inf)  # to the nearest point of another walk on the floor
+            for f in np.unique(floor[points]):
+                others = ~inside & (floor == f)
+                mine = floor[points] == f
+                if others.any():
+                    gap[mine] = cKDTree(radio_map.xy_m[others]).query(radio_map.xy_m[points][mine])[0]
+            found.append(best[(gap <= INSIDE_WITHIN_M) & np.isfinite(best)])
+            away.append(best[(gap > OUTSIDE_BEYOND_M) & np.isfinite(best)])
+    result = tuple(np.sort(np.concatenate(part)) if part else np.zeros(0) for part in (found, away))
+    memo["match distances"] = result
+    return result
 
 
 def _cv_memo(radio_map: RadioMap) -> dict:

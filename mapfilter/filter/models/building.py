@@ -29,6 +29,7 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.estimate import weighted_estimate, weighted_moments
 from mapfilter.filter.models.interface import FloorModel, MeasurementModel
+from mapfilter.filter.models.survey_reach import mixture_log_likelihood
 from mapfilter.filter.particles import Particles
 from mapfilter.maps.building import Building, connector_pixels
 from mapfilter.maps.floorplan import FloorPlan
@@ -370,6 +371,7 @@ class FloorFix:
     xy_m: np.ndarray  # (F, 2) stack positions
     floor_log_likelihood: np.ndarray  # (F,)
     height_floor: int | None = None  # the floor the barometer's height is nearest (None: no barometer)
+    in_survey: float | None = None  # P(the scan was taken inside the survey) (None: a plain Gaussian fix)
 
     @property
     def evidence_only(self) -> bool:
@@ -386,6 +388,9 @@ class FloorFixLikelihood(MeasurementModel):
         log L_i = vote_f + pos_i - log( sum_{j on f} w_j exp(pos_j) / sum_{j on f} w_j )
         pos_i   = -|x_i - fix_f|^2 / (2 sigma_f^2)
 
+    (with ``grids``, pos_i is ``survey_reach.mixture_log_likelihood``: the fix weighed by the
+    scan's in-survey probability and the particle's distance to the survey)
+
     where ``vote_f`` is the scan's floor log-likelihood (``sensors.floor_vote.
     floor_vote_log_likelihood``) and ``fix_f`` the fix made from floor f's fingerprints only
     (a floor without a fix gives every particle there the value of a fix 3 sigma away). The
@@ -398,6 +403,7 @@ class FloorFixLikelihood(MeasurementModel):
 
     stack: FloorStack
     sigma_m: np.ndarray  # (F,) fix sigma per floor
+    grids: list | None = None  # (F,) survey_reach.DistanceGrid of each floor (None: none; all None: a Gaussian)
     kind: ClassVar[str] = "floor_fix"
     # When the floor evidence puts every live particle's floor this far (nats) below the best
     # floor, no particle is where the walker can be: every value is -inf, and the filter
@@ -416,8 +422,19 @@ class FloorFixLikelihood(MeasurementModel):
         floor = self.stack.floor_of(particles.xy_m)
         fix = measurement.xy_m[floor]
         sigma = np.asarray(self.sigma_m, dtype=np.float64)[floor]
-        d2 = ((particles.xy_m - fix) ** 2).sum(axis=1) / (sigma * sigma)
-        position = np.where(np.isfinite(d2), -0.5 * d2, -4.5)
+        r2 = ((particles.xy_m - fix) ** 2).sum(axis=1)
+        if self.grids is not None and measurement.in_survey is not None:
+            floor_xy = particles.xy_m - self.stack.shift_m[floor]
+            d2 = np.zeros(len(floor))
+            for f, grid in enumerate(self.grids):
+                on = floor == f
+                if grid is not None and on.any():
+                    d2[on] = grid.at(floor_xy[on]) ** 2
+            w = float(measurement.in_survey)
+            with np.errstate(invalid="ignore"):
+                position = np.where(np.isfinite(r2), mixture_log_likelihood(r2, d2, sigma * sigma, w), -4.5)
+        else:
+            position = np.where(np.isfinite(r2), -0.5 * r2 / (sigma * sigma), -4.5)
         prior = np.asarray(particles.log_weight, dtype=np.float64)
         live = np.isfinite(prior)
         floor_ll = np.asarray(measurement.floor_log_likelihood, dtype=np.float64)

@@ -1,0 +1,136 @@
+"""The fingerprint fix that knows where its survey reaches (filter/models/survey_reach.py): the
+kernel against its numpy twin, the Gaussian inside the survey, a flatter likelihood away from it,
+the in-survey probability of scans, and the distance grid against brute force."""
+
+import numpy as np
+import pytest
+
+from mapfilter.filter.models.survey_reach import (ReachFix, ReachFixLikelihood, distance_grid,
+                                                  mixture_log_likelihood, survey_reach)
+from mapfilter.filter.particle_filter import evaluate_log_likelihood
+from mapfilter.filter.particles import Particles
+from mapfilter.sensors.radiomap import RadioMap
+
+EXTENT = (0.0, 60.0, 0.0, 30.0)  # a 60 m x 30 m floor; the survey covers x < 20 m only
+
+
+def _survey(n_walks: int = 6, seed: int = 0) -> tuple[RadioMap, np.ndarray]:
+    """Walks along y at x < 20 m, 3 m apart, and (with more than one) a last one alone at x = 32 m
+    (its points stand for scans from outside the others); 12 APs along the floor, a log-distance
+    model with 2 dB noise."""
+    rng = np.random.default_rng(seed)
+    aps = np.column_stack([np.linspace(2, 58, 12), np.tile([5.0, 25.0], 6)])
+    x_m = [2.0 + 3.0 * w for w in range(n_walks)] + ([32.0] if n_walks > 1 else [])
+    n_walks = len(x_m)
+    xy = np.concatenate([np.column_stack([np.full(30, x), np.linspace(1, 29, 30)]) for x in x_m])
+    return RadioMap(xy, [f"ap{i}@2.4" for i in range(12)], _rssi(xy, aps, rng), np.arange(len(xy), dtype=float),
+                    np.repeat(np.arange(n_walks), 30), [f"walk{w}" for w in range(n_walks)]), aps
+
+
+def _rssi(xy: np.ndarray, aps: np.ndarray, rng) -> np.ndarray:
+    d = np.maximum(np.linalg.norm(xy[:, None] - aps[None], axis=2), 1.0)
+    rssi = -40.0 - 25.0 * np.log10(d) + rng.normal(0, 2.0, d.shape)
+    return np.where(rssi >= -95, np.round(rssi), np.nan).astype(np.float32)
+
+
+def test_the_kernel_is_its_numpy_twin():
+    radio_map, _ = _survey()
+    grid = distance_grid(radio_map.xy_m, EXTENT)
+    model = ReachFixLikelihood(3.0, grid)
+    rng = np.random.default_rng(1)
+    xy = rng.uniform([-5, -5], [65, 35], (4000, 2))  # beyond the grid too: its edge value
+    for w in (0.0, 0.3, 1.0):
+        fix = ReachFix(np.array([10.0, 12.0]), w)
+        ll = evaluate_log_likelihood(model, fix, Particles.at(xy))
+        r2 = ((xy - fix.xy_m) ** 2).sum(axis=1)
+        np.testing.assert_allclose(ll, mixture_log_likelihood(r2, grid.at(xy) ** 2, 9.0, w), rtol=1e-9, atol=1e-9)
+
+
+def test_a_scan_inside_the_survey_weighs_as_the_gaussian_fix():
+    radio_map, _ = _survey()
+    model = ReachFixLikelihood(4.0, distance_grid(radio_map.xy_m, EXTENT))
+    xy = np.array([[10.0, 10.0], [14.0, 13.0], [40.0, 10.0], [400.0, 10.0]])  # the last 97 sigma off: no floor
+    ll = evaluate_log_likelihood(model, ReachFix(np.array([10.0, 10.0]), 1.0), Particles.at(xy))
+    np.testing.assert_allclose(ll, -((xy - [10.0, 10.0]) ** 2).sum(axis=1) / 32.0, atol=1e-9)
+
+
+def test_a_scan_from_outside_the_survey_pulls_far_particles_less():
+    radio_map, _ = _survey()
+    model = ReachFixLikelihood(3.0, distance_grid(radio_map.xy_m, EXTENT))
+    fix_at_the_edge = np.array([17.0, 15.0])
+    inside, far = np.array([[17.0, 15.0]]), np.array([[45.0, 15.0]])  # far: 28 m off the fix, 28 m off the survey
+
+    def gap(w: float) -> float:  # how much more the particle at the fix weighs than the far one (nats)
+        ll = evaluate_log_likelihood(model, ReachFix(fix_at_the_edge, w), Particles.at(np.vstack([inside, far])))
+        return float(ll[0] - ll[1])
+
+    assert gap(1.0) == pytest.approx(28.0 ** 2 / 18.0, rel=1e-6)  # the Gaussian: 43.6 nats
+    assert gap(0.0) < 5.0  # out of the survey the far particle is nearly as likely
+    assert gap(0.0) < gap(0.5) < gap(1.0)
+
+
+def test_in_survey_probability_ranks_scans_by_how_well_they_match():
+    radio_map, aps = _survey()
+    reach = survey_reach(radio_map)
+    assert reach.in_survey_match_db.size >= 100  # every walk's points have a neighbour walk 3 m away
+    assert reach.outside_match_db.size == 30  # the lone walk's: 15 m from the others
+    rng = np.random.default_rng(7)
+    inside_xy = np.column_stack([np.full(40, 9.5), np.linspace(2, 28, 40)])
+    outside_xy = np.column_stack([np.full(40, 55.0), np.linspace(2, 28, 40)])
+    w_in = reach.in_survey_probability(_rssi(inside_xy, aps, rng))
+    w_out = reach.in_survey_probability(_rssi(outside_xy, aps, rng))
+    assert np.all((w_in >= 0) & (w_in <= 1)) and np.all((w_out >= 0) & (w_out <= 1))
+    assert np.median(w_in) > 0.3 and np.median(w_out) < 0.05
+    deaf = np.full((1, len(radio_map.ap_keys)), np.nan, dtype=np.float32)
+    assert reach.in_survey_probability(deaf)[0] == 0.0  # a scan that matches nothing
+
+
+def test_a_survey_that_shows_no_scan_from_outside_counts_every_matching_scan_as_inside():
+    radio_map, aps = _survey()
+    overlapping = radio_map.without_traces([radio_map.source_traces[-1]])  # no lone walk: no outside matches
+    reach = survey_reach(overlapping)
+    assert reach.outside_match_db.size == 0 and reach.in_survey_match_db.size >= 100
+    w = reach.in_survey_probability(_rssi(np.array([[9.5, 10.0], [55.0, 10.0]]), aps, np.random.default_rng(0)))
+    assert np.all(w == 1.0)  # it cannot tell: the plain Gaussian fix, as before
+
+
+def test_a_survey_of_one_walk_counts_every_matching_scan_as_inside():
+    radio_map, aps = _survey(n_walks=1)
+    reach = survey_reach(radio_map)
+    assert reach.in_survey_match_db.size == 0
+    w = reach.in_survey_probability(_rssi(np.array([[50.0, 10.0]]), aps, np.random.default_rng(0)))
+    assert w[0] == 1.0  # nothing to compare with: the plain Gaussian fix, as before
+
+
+def test_the_distance_grid_is_the_nearest_reference_point():
+    rng = np.random.default_rng(3)
+    refs = rng.uniform([0, 0], [60, 30], (50, 2))
+    grid = distance_grid(refs, EXTENT)
+    centres = rng.integers([0, 0], [60, 30], (500, 2)) + 0.5
+    brute = np.linalg.norm(centres[:, None] - refs[None], axis=2).min(axis=1)
+    np.testing.assert_allclose(grid.at(centres), brute, atol=1e-9)
+    refs_3d = np.column_stack([refs, np.where(np.arange(50) < 25, 0.0, 4.0)])
+    upstairs = distance_grid(refs_3d, EXTENT, height_m=4.0)
+    brute_3d = np.linalg.norm(np.column_stack([centres, np.full(500, 4.0)])[:, None] - refs_3d[None], axis=2).min(axis=1)
+    np.testing.assert_allclose(upstairs.at(centres), brute_3d, atol=1e-9)
+
+
+def test_a_building_floor_fix_inside_the_survey_is_the_gaussian_and_flatter_outside():
+    """FloorFixLikelihood with each floor's distance grid: a scan taken inside the survey weighs
+    positions as the plain Gaussian fix; one taken outside spares the particles far from the survey."""
+    from mapfilter.filter.models.building import FloorFix, FloorFixLikelihood, FloorStack
+    from mapfilter.maps.building import Building
+    from mapfilter.maps.floorplan import FloorPlan
+
+    plan = FloorPlan(np.pad(np.zeros((298, 598), dtype=bool), 1, constant_values=True), 0.1)  # 60 m x 30 m
+    stack = FloorStack(Building.from_plan(plan))
+    radio_map, _ = _survey()
+    grid = distance_grid(radio_map.xy_m, plan.extent_m)
+    gaussian, reach = FloorFixLikelihood(stack, np.array([3.0])), FloorFixLikelihood(stack, np.array([3.0]), [grid])
+    particles = Particles.at(stack.to_stack(np.array([[10.0, 10.0], [12.0, 14.0], [45.0, 15.0]]), 0))
+    fix = stack.to_stack(np.array([[10.0, 10.0]]), 0)
+    plain = gaussian.log_likelihood(particles, FloorFix(fix, np.zeros(1)))
+    inside = reach.log_likelihood(particles, FloorFix(fix, np.zeros(1), in_survey=1.0))
+    np.testing.assert_allclose(inside, plain, atol=1e-9)
+    outside = reach.log_likelihood(particles, FloorFix(fix, np.zeros(1), in_survey=0.0))
+    assert outside[2] - outside[0] > plain[2] - plain[0] + 50.0  # the far particle: 35 m off, in unsurveyed space
