@@ -411,8 +411,8 @@ class BuildingEvidence:
         # each floor's own evidence (None: its fingerprints share nothing with the walk)
         self.floor_wifi: list[WifiEvidence | None] = [None] * n_floors
         sigma = np.full(n_floors, 5.0)
-        # per floor, the evidence of every floor's fingerprints too: their fix where the floor's own do not reach
-        self._every_floor: list[tuple[RadioMap, WifiEvidence] | None] = [None] * n_floors
+        # per floor, the evidence of its own fingerprints too: their fix where they reach the scan
+        self._own_floor: list[tuple[RadioMap, WifiEvidence] | None] = [None] * n_floors
         reach = None if radio_map is None else survey_reach(radio_map)  # one for every floor: all its points
         for f, floor in enumerate(stack.building.floors):
             if radio_map is None:
@@ -424,15 +424,17 @@ class BuildingEvidence:
                 floor_config = dataclasses.replace(wifi, fix_sigma_m=fix_sigma_by_floor_m[floor.name])
             every_floor, grid = _every_floor_on(radio_map, stack.building, f)
             own_map = radio_map.floor_map(f)
-            evidence = WifiEvidence(own_map, None, floor.plan, floor_config, log_name=log_name, reach=reach, grid=grid)
-            if evidence.fix_sigma_m is None:
+            own = WifiEvidence(own_map, None, floor.plan, floor_config, log_name=log_name, reach=reach, grid=grid)
+            if own.fix_sigma_m is None:
                 raise MapfilterError("tracking across floors weighs fingerprint fixes: use the fingerprint "
                                      "model fix or blend")
+            # every floor's fingerprints, the floor's own sigma: the floor's evidence (its fixes also
+            # place the offline track), the floor's own fingerprints' fix where they reach the scan
+            every_config = dataclasses.replace(floor_config, fix_sigma_m=own.fix_sigma_m)
+            evidence = WifiEvidence(every_floor, None, floor.plan, every_config, log_name=log_name, reach=reach,
+                                    grid=grid)
             self.floor_wifi[f] = evidence
-            # every floor's fingerprints: their fix (the same model) with the floor's own sigma
-            every_config = dataclasses.replace(floor_config, fix_sigma_m=evidence.fix_sigma_m)
-            self._every_floor[f] = (own_map, WifiEvidence(every_floor, None, floor.plan, every_config,
-                                                          log_name=log_name, reach=reach, grid=grid))
+            self._own_floor[f] = (own_map, own)
             sigma[f] = evidence.fix_sigma_m
         self.elevation_m = np.array([f.elevation_m for f in stack.building.floors])
         self.barometer = barometer
@@ -446,10 +448,10 @@ class BuildingEvidence:
 
     def prepare(self, scans: list[WifiScan]) -> None:
         """Build the per-floor radio-map tables of the APs the scans hear in one go (as ``WifiEvidence``)."""
-        for evidence, every in zip(self.floor_wifi, self._every_floor):
+        for evidence, own in zip(self.floor_wifi, self._own_floor):
             if evidence is not None and any(k in evidence._radio_map.key_index for s in scans for k in s.ap_keys):
                 evidence.prepare(scans)
-                every[1].prepare(scans)
+                own[1].prepare(scans)
 
     def require_usable(self) -> None:
         if self._radio_map is not None and not self.usable.any():
@@ -465,13 +467,13 @@ class BuildingEvidence:
         for f, evidence in enumerate(self.floor_wifi):
             if evidence is not None:
                 evidence.add_scans(scans)
-                own_map, every = self._every_floor[f]
-                every.add_scans(scans)
+                own_map, own = self._own_floor[f]
+                own.add_scans(scans)
                 # the floor's own fingerprints where they reach the scan (a surveyed route: as on one
                 # floor), every floor's where they do not (a floor surveyed only above or below)
                 own_reach = evidence.reach.in_survey_probability(own_map.scan_matrix(scans), against=own_map)
                 fix[:, f] = self._stack.to_stack(np.where((own_reach >= OWN_FLOOR_MIN_PROBABILITY)[:, None],
-                                                          evidence.fix_xy_m_since(first), every.fix_xy_m_since(first)), f)
+                                                          own.fix_xy_m_since(first), evidence.fix_xy_m_since(first)), f)
         self._fix.extend(fix)
         # every floor's evidence matches the scans against all the building's points: one probability
         wifi = next((e for e in self.floor_wifi if e is not None), None)
