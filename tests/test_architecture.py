@@ -1,4 +1,6 @@
-"""The package's stages import one way only (docs/architecture.md)."""
+"""The package's stages import one way only (docs/architecture.md), imports for annotations
+(``if TYPE_CHECKING:``) counted like any other: a type-only import upward is still a stage
+that knows one above it."""
 
 from __future__ import annotations
 
@@ -40,6 +42,21 @@ FORBIDDEN = {
 }
 # the warm-up tracks a simulated walk through every stage to fill numba's cache: it sits on top
 STAGE_OF = {"mapfilter.runtime.warmup": "warmup"}
+# inside filter/, its layers from the bottom up (docs/architecture.md, "filter/"): a module imports
+# only from its own layer or those below. The kernels; the state and what is read off it; the
+# models (likelihoods and moves); a source's adapter base; the registered sources; a walk's
+# WiFi evidence; the step; the reference step in numpy; the causal loop.
+FILTER_LAYERS = (
+    ("mapfilter.filter.kernels",),
+    ("mapfilter.filter.particles", "mapfilter.filter.estimate", "mapfilter.filter.events"),
+    ("mapfilter.filter.models",),
+    ("mapfilter.filter.measurement",),
+    ("mapfilter.filter.sources",),
+    ("mapfilter.filter.evidence",),
+    ("mapfilter.filter.particle_filter",),
+    ("mapfilter.filter.reference",),
+    ("mapfilter.filter.causal",),
+)
 
 
 def _imports() -> dict[str, set[str]]:
@@ -49,12 +66,7 @@ def _imports() -> dict[str, set[str]]:
         parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
         name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
         found = graph.setdefault(name, set())
-        tree = ast.parse(path.read_text())
-        # names imported for annotations only (``if TYPE_CHECKING:``) are no dependency at run time
-        for node in ast.walk(tree):
-            if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING":
-                node.body = []
-        for node in ast.walk(tree):
+        for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("mapfilter."):
                 found.add(node.module)
             elif isinstance(node, ast.Import):
@@ -89,3 +101,31 @@ def test_no_module_imports_itself_back():
         return seen
 
     assert sorted(m for m in graph if m in reachable(m)) == []
+
+
+def _filter_layer(module: str) -> int | None:
+    for depth, layer in enumerate(FILTER_LAYERS):
+        if any(module == prefix or module.startswith(prefix + ".") for prefix in layer):
+            return depth
+    return None
+
+
+def test_every_filter_module_has_a_layer():
+    graph = _imports()
+    modules = [m for m in graph if m.startswith("mapfilter.filter.")]
+    assert "mapfilter.filter.causal" in modules and "mapfilter.filter.models.ble" in modules
+    assert [m for m in modules if _filter_layer(m) is None] == []
+
+
+def test_filter_layers_import_one_way():
+    graph = _imports()
+    upward = sorted((a, b) for a, targets in graph.items() if _filter_layer(a) is not None
+                    for b in targets if _filter_layer(b) is not None and _filter_layer(b) > _filter_layer(a))
+    assert upward == []
+
+
+def test_the_checks_see_type_only_imports():
+    """An upward import inside ``if TYPE_CHECKING:`` counts: the graph has it."""
+    graph = _imports()
+    # filter.measurement imports the models' interface for its annotations only
+    assert "mapfilter.filter.models.interface" in graph["mapfilter.filter.measurement"]

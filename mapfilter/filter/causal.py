@@ -42,6 +42,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.filter.estimate import circular_mean
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.evidence import WalkEvidence
+from mapfilter.filter.measurement import MeasurementSource
 from mapfilter.filter.models.interface import FloorModel, MeasurementModel, MotionModel
 from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
@@ -51,8 +52,8 @@ from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import iter_scans, scans_recording
 from mapfilter.io.tracks import Track
 
-__all__ = ["MOTION_MODELS", "CausalFilter", "Estimate", "MeasurementSource", "MotionConfig", "ReplayedMeasurements",
-           "RunSettings", "Start", "merge_steps", "run_over_scans"]
+__all__ = ["MOTION_MODELS", "CausalFilter", "Estimate", "MotionConfig", "RunSettings", "Start", "merge_steps",
+           "run_over_scans"]
 
 MOTION_MODELS = ("pdr", "cv", "rw")
 # a sensor silent this long while others go on is not waited for: the ILC logger writes its IMU
@@ -97,119 +98,6 @@ class MotionConfig:
     def motion_model(self) -> MotionModel:
         """The motion model ``model`` names."""
         return {"pdr": self.pdr, "cv": self.constant_velocity, "rw": self.random_walk}[self.model]
-
-
-class MeasurementSource:
-    """A stream of measurements besides the WiFi scans, merged by time with the other sensors'
-    records: the adapter between a measurement model and the log (a registered source's,
-    ``filter.sources``). Subclasses write ``records_of``, ``measure`` and ``model_on``; the
-    causal loop calls the rest.
-
-    The contract, which keeps the causal track the same however the log is chunked:
-
-    1. ``records_of(chunk)`` gives the source's records of a chunk, (t_s, values...) in time
-       order. It may give records stamped after the chunk's newest record (a table read ahead, a
-       replay): the base class holds those back until a chunk reaches their time, or the end
-       (``take``). A source never runs ahead of its chunk: a record handed to the merge before
-       the other sensors reach its time would make theirs late.
-    2. ``measure(records, final)`` gets its records released in time order (every record of every
-       sensor before them already released; ``final``: the walk's last) and returns the
-       measurements they complete, ``(t_s, measurement)`` in time order, each stamped at or after
-       the latest record it uses: a measurement depends only on records stamped at or before its
-       time.
-    3. ``model_on(frame)`` is its model on another frame (``filter.models.frame.StateFrame``),
-       with what the source learnt of the walk (the offline track's second pass on one floor
-       weighs the same measurements there: ``ReplayedMeasurements``).
-
-    ``times_s`` and ``measurements`` keep every measurement made, in order.
-    """
-
-    stream: str = ""  # the sensor it reads: its records are merged under this name
-    model: MeasurementModel
-    # how far behind the log's newest record its records can be written (None: unknown; the merge
-    # then waits for its next record, as for a dense sensor, which holds the rows of a sparse one)
-    written_behind_s: float | None = None
-
-    def __init__(self) -> None:
-        self.times_s: list[float] = []
-        self.measurements: list = []
-        self._held: tuple | None = None  # records stamped after the newest chunk so far
-
-    def records_of(self, records: Recording) -> tuple:
-        """(t_s, values...) of its records in a chunk (module docstring of the class: 1)."""
-        raise NotImplementedError
-
-    def measure(self, records: tuple, final: bool) -> list[tuple[float, Any]]:
-        """The measurements its released records complete (the class docstring: 2)."""
-        raise NotImplementedError
-
-    def model_on(self, frame) -> MeasurementModel:
-        """Its model on another frame (the class docstring: 3)."""
-        raise NotImplementedError
-
-    # ---- what the causal loop calls ---------------------------------------------------------
-    def take(self, records: Recording | None) -> tuple | None:
-        """Its records of a chunk up to the chunk's newest record (``None``: the end of the walk,
-        every record held back), or None when there are none."""
-        new = self.records_of(records) if records is not None else None
-        parts = [p for p in (self._held, new) if p is not None and len(p[0])]
-        if not parts:
-            self._held = None
-            return None
-        merged = parts[0] if len(parts) == 1 else _concatenate_records(parts)
-        if records is None:
-            self._held = None
-            return merged
-        n = int(np.searchsorted(merged[0], records.newest_t_s, side="right"))
-        self._held = tuple(p[n:] for p in merged) if n < len(merged[0]) else None
-        return tuple(p[:n] for p in merged) if n else None
-
-    def add(self, records: tuple, final: bool) -> list[float]:
-        """Its released records in; the times of the measurements they completed (numbered on)."""
-        made = self.measure(records, final)
-        for t_s, measurement in made:
-            self.times_s.append(float(t_s))
-            self.measurements.append(measurement)
-        return [float(t_s) for t_s, _ in made]
-
-    def measurement(self, index: int) -> Any:
-        """Measurement ``index`` (None when it says nothing)."""
-        return self.measurements[index]
-
-    @property
-    def n_measurements(self) -> int:
-        return len(self.measurements)
-
-
-def _concatenate_records(parts: list[tuple]) -> tuple:
-    return tuple(np.concatenate([p[k] for p in parts]) if isinstance(parts[0][k], np.ndarray)
-                 else [x for p in parts for x in p[k]] for k in range(len(parts[0])))
-
-
-class ReplayedMeasurements(MeasurementSource):
-    """The measurements another source made of a walk, given again to another run over it,
-    weighed by ``model`` (e.g. on one floor's map: ``original.model_on``). Its
-    records are the measurements' times, handed over as the run's chunks reach them."""
-
-    def __init__(self, original: MeasurementSource, model: MeasurementModel) -> None:
-        super().__init__()
-        self.stream, self.model = original.stream, model
-        self.written_behind_s = 0.0  # every measurement up to the chunk's newest record is handed over
-        self._original = original
-        self._replayed_t = np.asarray(original.times_s, dtype=np.float64)
-        self._replayed = list(original.measurements)
-        self._given = 0
-
-    def records_of(self, records: Recording) -> tuple:
-        """Every measurement not handed over yet (the base class holds back those ahead of the chunk)."""
-        start, self._given = self._given, len(self._replayed)
-        return self._replayed_t[start:], np.arange(start, len(self._replayed))
-
-    def measure(self, records: tuple, final: bool) -> list[tuple[float, Any]]:
-        return [(float(t), self._replayed[int(i)]) for t, i in zip(*records)]
-
-    def model_on(self, frame) -> MeasurementModel:
-        return self._original.model_on(frame)
 
 
 # ---- records in: one time order over the sensors ---------------------------------------------------

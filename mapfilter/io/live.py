@@ -19,14 +19,10 @@ import io
 import os
 import secrets
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from mapfilter.errors import MapfilterError
 from mapfilter.io.atomic import DISK_ERRNOS, check_not_special
-from mapfilter.io.tracks import Track, csv_header, csv_rows, tum_lines, with_latlon
-
-if TYPE_CHECKING:  # only for annotations
-    from mapfilter.maps.building import Building
+from mapfilter.io.tracks import Georeferenced, Track, csv_header, csv_rows, tum_lines, with_latlon
 
 _NAME_MAX = 255  # bytes in a file name
 
@@ -108,7 +104,7 @@ class LiveTrackFile:
     back to its last whole line; a file that never got a row is not made.
     """
 
-    def __init__(self, path: str | os.PathLike, track_format: str = "csv", building: Building | None = None) -> None:
+    def __init__(self, path: str | os.PathLike, track_format: str = "csv", building: Georeferenced | None = None) -> None:
         if track_format not in ("csv", "tum"):
             raise MapfilterError(f"unknown track format {track_format!r}: csv or tum", path)
         self.path = Path(path)

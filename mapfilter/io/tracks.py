@@ -12,7 +12,7 @@ import dataclasses
 import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
@@ -20,8 +20,17 @@ from mapfilter.io.atomic import atomic_paths, write_csv_atomically
 from mapfilter.io.tables import table_dict_reader
 from mapfilter.errors import MapfilterError, not_a_file
 
-if TYPE_CHECKING:  # only for annotations
-    from mapfilter.maps.building import Building
+
+
+class Georeferenced(Protocol):
+    """What a track's writer asks of a building (``maps.building.Building``, a stage above this
+    one): whether it has a georeference, and the latitude and longitude of points on its floors."""
+
+    georeference: object | None
+
+    def floor_xy_to_latlon(self, xy_m: np.ndarray, floor_names: list[str] | str | None) -> np.ndarray:
+        """(T, 2) latitude, longitude of each point on its floor's frame (floors by name)."""
+        ...
 
 
 @dataclasses.dataclass
@@ -53,7 +62,7 @@ class Track:
                                    latlon_deg=pick(self.latlon_deg), floor_p=pick(self.floor_p))
 
 
-def with_latlon(track: Track, building: Building) -> Track:
+def with_latlon(track: Track, building: Georeferenced) -> Track:
     """A new track with each row's latitude and longitude from a georeferenced ``building`` (rows
     on their own floor's frame; a track without floors is on the building's first floor)."""
     latlon = building.floor_xy_to_latlon(track.xy_m, track.floor)
@@ -96,7 +105,7 @@ def csv_rows(track: Track) -> list[list[str]]:
     return rows
 
 
-def write_track_csv(track: Track, path: str | os.PathLike, building: Building | None = None) -> None:
+def write_track_csv(track: Track, path: str | os.PathLike, building: Georeferenced | None = None) -> None:
     """Write ``t_s,x_m,y_m[,floor][,floor_p][,latitude_deg,longitude_deg][,std_m][,heading_rad]`` atomically.
 
     Latitude and longitude are written when the track has them (``with_latlon``) or when
@@ -126,7 +135,7 @@ def write_track_tum(track: Track, path: str | os.PathLike) -> None:
 
 
 def write_track(track: Track, path: str | os.PathLike, track_format: str = "csv",
-                building: Building | None = None) -> None:
+                building: Georeferenced | None = None) -> None:
     """Write a track as ``csv`` (``write_track_csv``; with latitude and longitude in a
     georeferenced ``building``) or ``tum`` (``write_track_tum``), atomically."""
     if track_format == "tum":

@@ -168,3 +168,18 @@ def _check_duplicate_keys(node: yaml.MappingNode, where) -> None:
             raise MapfilterError(f"key {key_node.value!r} given twice (lines {seen[ident]} and {line}): "
                                  "remove one", where, line)
         seen[ident] = line
+
+
+def path_in_yaml(yaml_path: Path, name: Any) -> Path:
+    """The file a YAML file names (``image: plan.png``): relative to the YAML's folder unless
+    absolute; a name that cannot be resolved (a loop of symbolic links) is one line naming the YAML."""
+    candidate = Path(str(name))
+    try:
+        return candidate if candidate.is_absolute() else (yaml_path.parent / candidate).resolve()
+    except (RuntimeError, OSError) as exc:  # a symbolic link loop (RuntimeError before Python 3.13)
+        raise MapfilterError(f"{str(name)[:200]!r} cannot be found: {exc}", yaml_path) from None
+
+
+def path_for_yaml(path: str | os.PathLike, folder: Path) -> str:
+    """How a YAML file in ``folder`` names ``path``: relative to the folder."""
+    return os.path.relpath(Path(path).resolve(), folder.resolve())

@@ -54,6 +54,7 @@ import yaml
 
 from mapfilter.io.atomic import atomic_paths
 from mapfilter.errors import MapfilterError
+from mapfilter.io.yamlio import path_for_yaml, path_in_yaml
 from mapfilter.maps.floorplan import FloorPlan, is_number, read_yaml_mapping
 from mapfilter.maps.georef import LocalFrame
 
@@ -275,7 +276,7 @@ class Building:
         if not isinstance(meta.get("connectors") or [], list):
             raise MapfilterError("'connectors' must be a list", path)
         if meta.get("connectors_geojson"):
-            connectors += read_connectors_geojson(_resolve(path, meta["connectors_geojson"]))
+            connectors += read_connectors_geojson(path_in_yaml(path, meta["connectors_geojson"]))
         storey = meta.get("storey_height_m")
         building = cls(floors, connectors, None if meta.get("building") is None else str(meta["building"]), path,
                        float(storey) if is_number(storey) else None, _read_georeference(path, meta))
@@ -289,7 +290,7 @@ class Building:
         for floor in self.floors:
             if floor.map_path is None:
                 raise MapfilterError(f"floor {floor.name!r} has no map file to reference: write it first", path)
-            entry: dict[str, Any] = {"name": floor.name, "map": _relative(floor.map_path, path.parent),
+            entry: dict[str, Any] = {"name": floor.name, "map": path_for_yaml(floor.map_path, path.parent),
                                      "elevation_m": float(floor.elevation_m),
                                      "offset_m": [float(floor.offset_m[0]), float(floor.offset_m[1])]}
             if floor.rotation_rad:
@@ -378,7 +379,7 @@ def _read_floor(path: Path, index: int, meta: Any) -> Floor:
     rotation = meta.get("rotation_deg", 0.0)
     if not is_number(rotation):
         raise MapfilterError(f"floor {name!r}: rotation_deg must be a number, got {rotation!r}", path)
-    map_path = _resolve(path, meta["map"])
+    map_path = path_in_yaml(path, meta["map"])
     plan = FloorPlan.load(map_path)
     return Floor(name, plan, float(elevation), (float(offset[0]), float(offset[1])), math.radians(float(rotation)),
                  map_path)
@@ -427,18 +428,6 @@ def _in_elevation_order(floors: list[Floor], path: Path) -> list[Floor]:
             raise MapfilterError(f"floors {lower.name!r} and {upper.name!r} are both at elevation_m "
                                  f"{lower.elevation_m:g}: each floor needs its own elevation", path)
     return ordered
-
-
-def _resolve(yaml_path: Path, name: Any) -> Path:
-    candidate = Path(str(name))
-    try:
-        return candidate if candidate.is_absolute() else (yaml_path.parent / candidate).resolve()
-    except (RuntimeError, OSError) as exc:  # a symbolic link loop (RuntimeError before Python 3.13)
-        raise MapfilterError(f"{str(name)[:200]!r} cannot be found: {exc}", yaml_path) from None
-
-
-def _relative(path: Path, base: Path) -> str:
-    return os.path.relpath(Path(path).resolve(), base.resolve())
 
 
 # ---- ILC sites -------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ import yaml
 
 from mapfilter.io.atomic import atomic_paths
 from mapfilter.errors import MapfilterError, not_a_file
-from mapfilter.io.yamlio import load_yaml
+from mapfilter.io.yamlio import load_yaml, path_for_yaml, path_in_yaml
 
 # map_server's defaults; pixel values we write: 0 = occupied, 254 = free.
 DEFAULT_OCCUPIED_THRESH = 0.65
@@ -214,7 +214,7 @@ class FloorPlan:
         if mode not in ("trinary", "scale", "raw"):
             raise MapfilterError(f"'mode' must be trinary, scale or raw, got {mode!r}", yaml_path)
 
-        image_path = _resolve(yaml_path, meta["image"])
+        image_path = path_in_yaml(yaml_path, meta["image"])
         gray = read_gray_image(image_path)
         # the rule for each of the 256 grey values, looked up per pixel: the same numbers as
         # computing it per pixel, without (H, W) float64 temporaries
@@ -236,7 +236,7 @@ class FloorPlan:
             if not (isinstance(src_origin, list) and len(src_origin) >= 2 and all(is_number(v) for v in src_origin[:2])):
                 raise MapfilterError(f"'source_origin' must be [x, y] numbers, got {src_origin!r}", yaml_path)
             source = SourceImage(
-                path=_resolve(yaml_path, ours["source_image"]),
+                path=path_in_yaml(yaml_path, ours["source_image"]),
                 resolution_m=_positive_float(ours.get("source_resolution", resolution), "source_resolution", yaml_path),
                 origin_m=(float(src_origin[0]), float(src_origin[1])),
             )
@@ -244,7 +244,7 @@ class FloorPlan:
             if problem:
                 raise MapfilterError(problem, yaml_path)
             _check_source_image_size(source.path, yaml_path)
-        aps = _resolve(yaml_path, ours["access_points"]) if ours.get("access_points") else None
+        aps = path_in_yaml(yaml_path, ours["access_points"]) if ours.get("access_points") else None
         floor = ours.get("floor")
         return cls(wall, resolution, (float(origin[0]), float(origin[1])),
                    None if floor is None else str(floor), source, aps)
@@ -271,11 +271,11 @@ class FloorPlan:
         if self.floor_name is not None:
             ours["floor"] = self.floor_name
         if self.source_image is not None:
-            ours["source_image"] = _relative(self.source_image.path, yaml_path.parent)
+            ours["source_image"] = path_for_yaml(self.source_image.path, yaml_path.parent)
             ours["source_resolution"] = self.source_image.resolution_m
             ours["source_origin"] = list(self.source_image.origin_m)
         if self.access_points_csv is not None:
-            ours["access_points"] = _relative(self.access_points_csv, yaml_path.parent)
+            ours["access_points"] = path_for_yaml(self.access_points_csv, yaml_path.parent)
         if ours:
             meta["mapfilter"] = ours
         with atomic_paths(yaml_path, image_path) as (tmp_yaml, tmp_image):
@@ -395,15 +395,3 @@ def _positive_float(value: Any, key: str, path: Path) -> float:
     if not is_number(value) or value <= 0:
         raise MapfilterError(f"'{key}' must be a positive number, got {value!r}", path)
     return float(value)
-
-
-def _resolve(yaml_path: Path, name: Any) -> Path:
-    candidate = Path(str(name))
-    try:
-        return candidate if candidate.is_absolute() else (yaml_path.parent / candidate).resolve()
-    except (RuntimeError, OSError) as exc:  # a symbolic link loop (RuntimeError before Python 3.13)
-        raise MapfilterError(f"{str(name)[:200]!r} cannot be found: {exc}", yaml_path) from None
-
-
-def _relative(path: Path, base: Path) -> str:
-    return os.path.relpath(Path(path).resolve(), base.resolve())

@@ -5,7 +5,7 @@
 and WiFi (in a building: one the smoother keeps on one floor throughout), the whole walk placed
 (``offline.whole_walk``): its dead-reckoned shape placed through the causal track starts half
 the particles of a second forward pass on that floor's map, with every measurement source's
-measurements replayed there (``filter.causal.ReplayedMeasurements``), and placed through that
+measurements replayed there (``filter.measurement.ReplayedMeasurements``), and placed through that
 pass's smoothed track it is the offline track (docs/accuracy.md), unless that smoothed track
 stays far from every wall (``WALL_REACH_SIGMAS``): then the smoothed track is.
 """
@@ -18,7 +18,8 @@ from collections.abc import Callable
 import numpy as np
 
 from mapfilter.config import TrackingConfig
-from mapfilter.filter.causal import MeasurementSource, ReplayedMeasurements, RunSettings, Start, run_over_scans
+from mapfilter.filter.causal import RunSettings, Start, run_over_scans
+from mapfilter.filter.measurement import MeasurementSource, ReplayedMeasurements
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.evidence import BuildingEvidence, NoWifiEvidence, WifiEvidence
 from mapfilter.filter.models.building import FloorChanges, FloorStack

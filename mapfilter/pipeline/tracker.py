@@ -26,7 +26,8 @@ import numpy as np
 
 from mapfilter.config import TrackingConfig
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.causal import CausalFilter, MeasurementSource, RunSettings
+from mapfilter.filter.causal import CausalFilter, RunSettings
+from mapfilter.filter.measurement import MeasurementSource
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.evidence import BuildingEvidence, NoWifiEvidence, WifiEvidence
 from mapfilter.filter.models.building import FloorChanges, FloorStack

@@ -11,10 +11,7 @@ a header (docs/formats.md); every problem is one line naming the file and line.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io
-import math
 import os
 from pathlib import Path
 
@@ -22,6 +19,7 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.io.atomic import write_csv_atomically
+from mapfilter.io.tables import Column, TimedTable, read_csv_table, read_timed_table
 from mapfilter.maps.building import Building
 from mapfilter.sensors.radiomap import map_extents_m, metres_outside
 
@@ -29,47 +27,9 @@ __all__ = ["AnchorTable", "RangeLog", "read_ranges", "simulate_ranges"]
 
 # what a row's columns can be (a row outside is refused, naming its line)
 COLUMN_RANGES = {"x": (-1e7, 1e7), "y": (-1e7, 1e7), "latitude": (-90.0, 90.0), "longitude": (-180.0, 180.0),
-                 "height": (-100.0, 100.0), "t_s": (-1e11, 1e11), "range_m": (0.0, 1000.0)}
+                 "height": (-100.0, 100.0), "range_m": (0.0, 1000.0)}
 # UWB reaches 50-100 m indoors: an anchor further off its floor's map belongs to another frame
 MAX_ANCHOR_OFF_MAP_M = 100.0
-
-
-def _number(text: str, column: str, path: Path, line_no: int) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise MapfilterError(f"column {column} is not a number: {text.strip()!r}", path, line_no) from None
-    if not math.isfinite(value):
-        raise MapfilterError(f"column {column} is not finite: {text.strip()!r}", path, line_no)
-    low, high = COLUMN_RANGES[column]
-    if not low <= value <= high:
-        raise MapfilterError(f"column {column} is {value:g}, outside {low:g} to {high:g}", path, line_no)
-    return value
-
-
-def _rows(path: str | os.PathLike, what: str) -> tuple[Path, dict[str, int], list[tuple[int, list[str]]]]:
-    """(path, {lower-case column: index}, [(line, fields)]) of a CSV with a header."""
-    from mapfilter.io.yamlio import decode_text
-
-    path = Path(path)
-    if not path.is_file():
-        raise MapfilterError("file not found", path)
-    text = decode_text(path.read_bytes(), path, what)
-    reader = csv.reader(io.StringIO(text, newline=""))
-    header = next(reader, None)
-    if header is None:
-        raise MapfilterError(f"{what} is empty: it needs a header line", path, 1)
-    column = {name.strip().lower(): j for j, name in enumerate(header)}
-    rows = []
-    for fields in reader:
-        if not any(f.strip() for f in fields):
-            continue
-        if len(fields) < len(header):
-            raise MapfilterError(f"{len(fields)} fields, the header has {len(header)}", path, reader.line_num)
-        rows.append((reader.line_num, fields))
-    if not rows:
-        raise MapfilterError(f"{what} has no rows", path)
-    return path, column, rows
 
 
 @dataclasses.dataclass
@@ -117,7 +77,8 @@ class AnchorTable:
         frame) or ``latitude,longitude`` (placed by ``building``'s georeference), optional
         ``floor`` (needed in a building with several floors) and ``height`` (m above the phone,
         default 0)."""
-        path, column, rows = _rows(path, "the anchor table")
+        table = read_csv_table(path, "the anchor table")
+        path, column = table.path, table.column
         if "anchor_id" not in column:
             raise MapfilterError("an anchor table needs an anchor_id column (the id the range log names it by)",
                                  path, 1)
@@ -132,7 +93,7 @@ class AnchorTable:
             raise MapfilterError("an anchor table needs the position as columns x,y (metres) or latitude,longitude",
                                  path, 1)
         ids, ab, floors, heights, lines, first = [], [], [], [], [], {}
-        for line_no, fields in rows:
+        for line_no, fields in table.rows:
             name = fields[column["anchor_id"]].strip()
             if not name:
                 raise MapfilterError("empty anchor id", path, line_no)
@@ -140,9 +101,9 @@ class AnchorTable:
                 raise MapfilterError(f"anchor {name} is listed twice (lines {first[name]} and {line_no}): keep one",
                                      path, line_no)
             first[name] = line_no
-            ab.append([_number(fields[column[c]], c, path, line_no) for c in names])
+            ab.append([table.number(fields, c, line_no, *COLUMN_RANGES[c]) for c in names])
             text = fields[column["height"]].strip() if "height" in column else ""
-            heights.append(_number(text, "height", path, line_no) if text else 0.0)
+            heights.append(table.number(fields, "height", line_no, *COLUMN_RANGES["height"]) if text else 0.0)
             floor = fields[column["floor"]].strip() if "floor" in column else ""
             if not floor and building is not None and not building.is_single_floor:
                 raise MapfilterError("no floor: a building with several floors needs each anchor's floor (column "
@@ -182,15 +143,19 @@ class AnchorTable:
 
 
 @dataclasses.dataclass(frozen=True)
-class RangeLog:
-    """Measured ranges, in time order (arrays of length R)."""
+class RangeLog(TimedTable):
+    """Measured ranges, in time order: ``t_s`` (R,) on the walk's clock and the columns
+    ``anchor_id`` (each range's anchor, a row of the table) and ``range_m``."""
 
-    t_s: np.ndarray  # (R,) on the walk's clock
-    anchor: np.ndarray  # (R,) row of the anchor in the table
-    range_m: np.ndarray  # (R,)
+    @property
+    def anchor(self) -> np.ndarray:
+        """(R,) the row of each range's anchor in the table."""
+        return self.columns["anchor_id"]
 
-    def __len__(self) -> int:
-        return int(self.t_s.size)
+    @property
+    def range_m(self) -> np.ndarray:
+        """(R,) the measured ranges."""
+        return self.columns["range_m"]
 
     def write_csv(self, path: str | os.PathLike, table: AnchorTable) -> None:
         """The log as CSV ``t_s,anchor_id,range_m``, written atomically."""
@@ -202,23 +167,11 @@ class RangeLog:
 def read_ranges(path: str | os.PathLike, table: AnchorTable) -> RangeLog:
     """A range log: ``t_s,anchor_id,range_m`` (seconds on the walk's clock, an anchor of
     ``table``, metres), in any order (sorted by time, stably)."""
-    path, column, rows = _rows(path, "the range log")
-    missing = [c for c in ("t_s", "anchor_id", "range_m") if c not in column]
-    if missing:
-        raise MapfilterError(f"a range log needs the columns t_s,anchor_id,range_m (missing: {', '.join(missing)})",
-                             path, 1)
-    index = table.index
-    t, anchor, ranges = [], [], []
-    for line_no, fields in rows:
-        name = fields[column["anchor_id"]].strip()
-        if name not in index:
-            raise MapfilterError(f"anchor {name!r} is not in the anchor table {table.source_path or ''}".rstrip(),
-                                 path, line_no)
-        t.append(_number(fields[column["t_s"]], "t_s", path, line_no))
-        anchor.append(index[name])
-        ranges.append(_number(fields[column["range_m"]], "range_m", path, line_no))
-    order = np.argsort(np.array(t), kind="stable")
-    return RangeLog(np.array(t)[order], np.array(anchor, dtype=np.int64)[order], np.array(ranges)[order])
+    log = read_timed_table(path, "the range log", (
+        Column("anchor_id", names=table.index, names_in=f"the anchor table {table.source_path or ''}",
+               called="anchor"),
+        Column("range_m", *COLUMN_RANGES["range_m"])))
+    return RangeLog(log.t_s, log.columns, log.path)
 
 
 def simulate_ranges(table: AnchorTable, building: Building, t_s: np.ndarray, xy_m: np.ndarray,
@@ -248,5 +201,5 @@ def simulate_ranges(table: AnchorTable, building: Building, t_s: np.ndarray, xy_
         parts.append((when[heard], np.full(int(heard.sum()), k), measured[heard]))
     t = np.concatenate([p[0] for p in parts])
     order = np.argsort(t, kind="stable")
-    return RangeLog(t[order], np.concatenate([p[1] for p in parts]).astype(np.int64)[order],
-                    np.concatenate([p[2] for p in parts])[order])
+    return RangeLog(t[order], {"anchor_id": np.concatenate([p[1] for p in parts]).astype(np.int64)[order],
+                               "range_m": np.concatenate([p[2] for p in parts])[order]})

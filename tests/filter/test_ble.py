@@ -16,10 +16,10 @@ from mapfilter.config import TrackingConfig
 from mapfilter.errors import MapfilterError
 from mapfilter.evaluation.metrics import errors_at_waypoints, summarise_errors
 from mapfilter.evaluation.scoring import score_track
-from mapfilter.filter.models.ble import BeaconLikelihood, BeaconSource, BeaconWindow
+from mapfilter.filter.models.ble import BeaconLikelihood, BeaconWindow
 from mapfilter.filter.models.building import FloorStack
 from mapfilter.filter.models.frame import StateFrame
-from mapfilter.filter.sources.ble import BleConfig
+from mapfilter.filter.sources.ble import BeaconSource, BleConfig
 from mapfilter.filter.particles import Particles
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan

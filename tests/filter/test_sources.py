@@ -13,7 +13,8 @@ import pytest
 
 from mapfilter.config import TrackingConfig
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.causal import CausalFilter, MeasurementSource, ReplayedMeasurements, RunSettings
+from mapfilter.filter.causal import CausalFilter, RunSettings
+from mapfilter.filter.measurement import MeasurementSource, ReplayedMeasurements
 from mapfilter.filter.evidence import NoWifiEvidence
 from mapfilter.filter.sources import SourceOption, SourcePlugin, evaluation_methods, plugin, registered
 from mapfilter.io.tracks import write_track

@@ -1,14 +1,7 @@
-"""Ranges to known anchors (UWB, WiFi RTT) as a measurement model and its stream adapter.
+"""Ranges to known anchors (UWB, WiFi RTT) as a measurement model.
 
-The model and stream adapter of the ``ranges`` source (registered in ``filter.sources.ranges``;
-the anchor table and the range log are ``sensors.anchors``).
-
-Measurements. The ranges stamped at one time (a tag's ranging round) are one measurement, at
-that time: it depends on nothing later, and a range weighs the particles where they are when it
-was measured (a window of ranges, as BLE's readings are grouped, would lag a walker by half a
-window). The ranges come from a file beside the log, handed over as the log's chunks reach their
-times (a source never runs ahead of its chunk), and only those of the walk: from its log's start
-(the header's, where it gives one) to its newest record.
+The likelihood of the ``ranges`` source (registered with its stream adapter in
+``filter.sources.ranges``; the anchor table and the range log are ``sensors.anchors``).
 
 Likelihood. A range r to anchor a is Gaussian around the 3-D distance from the particle to the
 anchor, sqrt(d^2 + h^2), d horizontal, h the anchor's height above the phone plus the elevation
@@ -25,13 +18,11 @@ import numpy as np
 from numba import njit
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.causal import MeasurementSource
 from mapfilter.filter.kernels.passes import LIKELIHOOD_SIGNATURE, X, Y
 from mapfilter.filter.models.frame import StateFrame, floor_block, particle_floor
 from mapfilter.filter.models.interface import LikelihoodKernel, MeasurementModel
-from mapfilter.sensors.recording import Recording
 
-__all__ = ["RangeLikelihood", "RangeSet", "RangeSource"]
+__all__ = ["RangeLikelihood", "RangeSet"]
 
 
 class RangeSet:
@@ -90,37 +81,3 @@ class RangeLikelihood(MeasurementModel):
             table = np.column_stack([self._xy_m[f][rows], self._h2[f][rows], measurement.range_m])
             blocks.append(np.concatenate([[0.5 / self.sigma_m ** 2, float(rows.size)], table.ravel()]))
         return LikelihoodKernel(_ranges, self.frame.pack(blocks))
-
-
-class RangeSource(MeasurementSource):
-    """The ranges of a range log as measurements (module docstring)."""
-
-    stream = "ranges"
-    written_behind_s = 0.0  # the ranges up to the chunk's newest record are handed over
-
-    def __init__(self, ranges, frame: StateFrame, config) -> None:
-        super().__init__()
-        self.ranges, self.config = ranges, config
-        self.model = self.model_on(frame)
-        self._given = 0  # ranges of the log handed over (or passed over, before the walk)
-        self._start_s: float | None = None  # the walk's start by its log's header, if it gives one
-
-    def model_on(self, frame: StateFrame) -> RangeLikelihood:
-        return RangeLikelihood(self.ranges.table, frame, self.config.range_sigma_m)
-
-    def records_of(self, records: Recording) -> tuple:
-        """(t_s, anchor row, range) of the log's ranges the chunk's records reached."""
-        log = self.ranges.log
-        if self._start_s is None and records.start_t_s is not None:
-            self._start_s = float(records.start_t_s)
-            self._given = max(self._given, int(np.searchsorted(log.t_s, self._start_s, side="left")))
-        stop = int(np.searchsorted(log.t_s, records.newest_t_s, side="right"))
-        start, self._given = self._given, max(self._given, stop)
-        return log.t_s[start:stop], log.anchor[start:stop], log.range_m[start:stop]
-
-    def measure(self, records: tuple, final: bool) -> list[tuple[float, RangeSet]]:
-        """The ranges stamped at one time, a measurement each (all of one time come in one chunk)."""
-        t_s, anchor, range_m = records
-        cuts = np.flatnonzero(np.diff(t_s)) + 1
-        return [(float(t_s[a]), RangeSet(float(t_s[a]), anchor[a:b], range_m[a:b]))
-                for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(t_s)])]

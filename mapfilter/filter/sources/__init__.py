@@ -1,7 +1,7 @@
 """Measurement sources besides WiFi, as plug-ins: each one registered once, in one module.
 
 A source is a measurement model (``filter.models.interface.MeasurementModel``) with its stream
-adapter (``filter.causal.MeasurementSource``: a walk's records in, measurements out) and what
+adapter (``filter.measurement.MeasurementSource``: a walk's records in, measurements out) and what
 the rest of mapfilter needs to reach it, all said by one ``SourcePlugin``:
 
 - ``name``: its config section (``TrackingConfig.sources.<name>``), the key of its input in
@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 from mapfilter.errors import MapfilterError
 
 if TYPE_CHECKING:
-    from mapfilter.filter.causal import MeasurementSource
+    from mapfilter.filter.measurement import MeasurementSource
     from mapfilter.filter.models.frame import StateFrame
     from mapfilter.maps.building import Building
     from mapfilter.sensors.recording import Recording

@@ -1,7 +1,17 @@
 """BLE beacons as a measurement source: the log's beacon readings weighed against a beacon table.
 
-The model and its stream adapter are ``filter.models.ble``; the table, the survey readings and
-the fit are ``sensors.beacons`` (``mapfilter radiomap fit-beacons``).
+Its registration, config section and stream adapter; the likelihood is ``filter.models.ble``;
+the table, the survey readings and the fit are ``sensors.beacons`` (``mapfilter radiomap
+fit-beacons``).
+
+Measurements. A measurement is made at the time of a reading that comes at least ``window_s``
+after the previous measurement (the first a full window after the first reading), from the
+readings of the trailing ``window_s`` up to and including it: per beacon heard, the median RSSI
+(a median, because a fade now and then takes 10-20 dB off one reading). So a measurement
+depends only on readings stamped at or before its time, each reading counts in one measurement
+at most, and a stream that goes quiet leaves no measurement waiting for a later reading (the
+tracker never has to hold its other events for one). Beacons not heard in a window say nothing
+(as an access point not in a WiFi scan): their readings are few and far between.
 """
 
 from __future__ import annotations
@@ -13,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from mapfilter.errors import MapfilterError
+from mapfilter.filter.measurement import MeasurementSource
 from mapfilter.filter.sources import SourceOption, SourcePlugin
 
 MAX_RSSI_OFFSET_DB = 40.0  # a phone further off than this from the table reads another signal
@@ -72,9 +83,7 @@ class BlePlugin(SourcePlugin):
                             f"{type(given).__name__}")
         return given
 
-    def source(self, given: Any, frame, config: BleConfig):
-        from mapfilter.filter.models.ble import BeaconSource
-
+    def source(self, given: Any, frame, config: BleConfig) -> BeaconSource:
         return BeaconSource(given, frame, config)
 
     def survey(self, given: Any, building, recordings: Sequence) -> Any:
@@ -90,6 +99,94 @@ class BlePlugin(SourcePlugin):
         if survey is None:
             return given
         return fit_beacons(given, survey.without_traces(left_out)).table
+
+
+class BeaconSource(MeasurementSource):
+    """The BLE readings of a stream as measurements (module docstring); readings of beacons the
+    table does not have are left out. The RSSI offset is the table's for the log's phone model
+    (the first chunk that names one: ``offset_db:MODEL``), else the config's."""
+
+    stream = "ble"
+    # readings come 0.1-2 times a second per beacon: the merge must not wait for the next one.
+    # GetSensorData logs its BLE4 rows in time order with the others; the ILC logger writes its
+    # TYPE_BEACON rows up to 1.0 s behind the newest record (IPIN 2023, ILC site 1 F1)
+    WRITTEN_BEHIND_S = {"GetSensorData": 0.1}
+    WRITTEN_BEHIND_OTHER_S = 1.5
+
+    def __init__(self, table, frame, config: BleConfig) -> None:
+        super().__init__()
+        self.table, self.config = table, config
+        self.window_s = float(config.window_s)
+        self.offset_db = config.rssi_offset_db
+        self._phone_known = False
+        self.model = self.model_on(frame)
+        self._index = table.index
+        self._t: list[float] = []  # readings of the current window (and before, until dropped)
+        self._beacon: list[int] = []
+        self._rssi: list[float] = []
+        self._next_t: float | None = None  # a measurement comes at the first reading at or after this
+
+    def model_on(self, frame):
+        from mapfilter.filter.models.ble import BeaconLikelihood
+
+        return BeaconLikelihood(self.table, frame, self.config.rssi_variance_db2, self.offset_db)
+
+    def records_of(self, records) -> tuple:
+        """(t_s, table row, RSSI) of the chunk's readings of the table's beacons, in time order."""
+        import numpy as np
+
+        from mapfilter.sensors.beacons import beacon_key
+
+        report = records.read_report
+        if self.written_behind_s is None and report is not None and report.format:
+            self.written_behind_s = self.WRITTEN_BEHIND_S.get(report.format, self.WRITTEN_BEHIND_OTHER_S)
+        if not self._phone_known and records.phone_model:
+            self._phone_known = True
+            offset = self.table.phone_offsets_db.get(records.phone_model)
+            if offset is not None:
+                self.offset_db = offset
+                self.model = self.model_on(self.model.frame)
+        beacons = records.beacons
+        if len(beacons.t_s) == 0:
+            return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0)
+        row = np.array([self._index.get(beacon_key(b), -1) for b in beacons.beacon_id], dtype=np.int64)
+        rssi = np.asarray(beacons.rssi_dbm, dtype=np.float64)
+        keep = (row >= 0) & np.isfinite(rssi)
+        t = np.asarray(beacons.t_s, dtype=np.float64)[keep]
+        order = np.argsort(t, kind="stable")
+        return t[order], row[keep][order], rssi[keep][order]
+
+    def measure(self, records: tuple, final: bool) -> list[tuple[float, Any]]:
+        """Released readings in; the measurements they completed."""
+        t_s, rows, rssi = records
+        made = []
+        n = len(t_s)
+        for i in range(n):
+            t = float(t_s[i])
+            self._t.append(t)
+            self._beacon.append(int(rows[i]))
+            self._rssi.append(float(rssi[i]))
+            if self._next_t is None:
+                self._next_t = t + self.window_s
+            # a reading at the window's end, after every reading stamped at its time
+            if t >= self._next_t and (i + 1 == n or float(t_s[i + 1]) > t):
+                made.append((t, self._window(t)))
+                self._next_t = t + self.window_s
+        return made
+
+    def _window(self, t_s: float):
+        """The measurement at ``t_s``: readings in (t_s - window_s, t_s]; older ones are dropped."""
+        import numpy as np
+
+        from mapfilter.filter.models.ble import BeaconWindow
+
+        t = np.array(self._t)
+        keep = t > t_s - self.window_s
+        beacon = np.array(self._beacon)[keep]
+        rssi = np.array(self._rssi)[keep]
+        self._t, self._beacon, self._rssi = [], [], []  # the next window starts after this reading
+        heard = np.unique(beacon)
+        return BeaconWindow(t_s, heard, np.array([np.median(rssi[beacon == b]) for b in heard]))
 
 
 SOURCE = BlePlugin()

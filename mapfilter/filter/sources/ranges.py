@@ -1,7 +1,13 @@
-"""Ranges to known anchors (UWB, WiFi RTT) as a measurement source.
+"""Ranges to known anchors (UWB, WiFi RTT) as a measurement source: its registration, config
+section and stream adapter.
 
-The anchor table and the range log are ``sensors.anchors``; the model and its stream adapter
+The anchor table and the range log are ``sensors.anchors``; the likelihood is
 ``filter.models.ranges``. Written against the registry alone (docs/models.md walks through it).
+
+Measurements. The ranges stamped at one time (a tag's ranging round) are one measurement, at
+that time: it depends on nothing later, and a range weighs the particles where they are when it
+was measured (a window of ranges, as BLE's readings are grouped, would lag a walker by half a
+window). The range log is a table beside the log (``filter.measurement.TimedTableSource``).
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from mapfilter.errors import MapfilterError
+from mapfilter.filter.measurement import TimedTableSource
 from mapfilter.filter.sources import SourceOption, SourcePlugin
 
 
@@ -64,10 +71,29 @@ class RangesPlugin(SourcePlugin):
                             f"{{'anchors': ..., 'ranges': ...}}, got {type(given).__name__}")
         return given
 
-    def source(self, given: Ranges, frame, config: RangesConfig):
-        from mapfilter.filter.models.ranges import RangeSource
-
+    def source(self, given: Ranges, frame, config: RangesConfig) -> RangeSource:
         return RangeSource(given, frame, config)
+
+
+class RangeSource(TimedTableSource):
+    """The ranges of a range log as measurements (module docstring)."""
+
+    stream = "ranges"
+
+    def __init__(self, ranges: Ranges, frame, config: RangesConfig) -> None:
+        super().__init__(ranges.log)
+        self.ranges, self.config = ranges, config
+        self.model = self.model_on(frame)
+
+    def model_on(self, frame):
+        from mapfilter.filter.models.ranges import RangeLikelihood
+
+        return RangeLikelihood(self.ranges.table, frame, self.config.range_sigma_m)
+
+    def from_rows(self, t_s: float, rows: dict[str, Any]):
+        from mapfilter.filter.models.ranges import RangeSet
+
+        return RangeSet(t_s, rows["anchor_id"], rows["range_m"])
 
 
 SOURCE = RangesPlugin()
