@@ -112,8 +112,6 @@ def load_office_map() -> tuple[FloorPlan, str]:
 class RssiModel(MeasurementModel):
     """20 access points with the thesis path-loss model; the numba kernel."""
 
-    kind = "wifi"
-
     def __init__(self, ap_xy_m: np.ndarray) -> None:
         k = ap_xy_m.shape[0]
         self.ap_xy_m = ap_xy_m

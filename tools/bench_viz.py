@@ -62,7 +62,7 @@ def synthetic_reports(floor: FloorPlan, n_steps: int, n_particles: int, rng: np.
             ess=float(1.0 / np.sum(w**2)), n_particles=n_particles, n_alive=int(np.count_nonzero(w)),
             n_killed=int(killed.sum()), resampled=(i % 3 == 0), particles_xy_m=moved, particles_weight=w,
             killed_from_xy_m=xy[killed], killed_to_xy_m=moved[killed], collapse=collapse,
-            heading_rad=0.0, step_length_m=0.7, measurement_kind="fix" if i % 4 == 0 else None,
+            heading_rad=0.0, step_length_m=0.7,
             fix_xy_m=truth + rng.normal(0, 2.0, 2) if i % 4 == 0 else None,
         ), truth
 

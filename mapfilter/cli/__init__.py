@@ -39,6 +39,9 @@ def build_parser() -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
         importlib.import_module(f"mapfilter.cli.{name}").register(subparsers)
+    from mapfilter.cli.tracking_options import attach_source_arguments
+
+    attach_source_arguments(_all_parsers(parser))
     for sub in _all_parsers(parser):
         # no prefix matching: `--particle 500` must not quietly mean --particles
         sub.allow_abbrev = False
@@ -76,6 +79,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     parser = build_parser()
+    from mapfilter.filter.sources import refusals
+
+    for line in refusals():  # a measurement source that could not be registered
+        print(f"mapfilter: warning: {line}", file=sys.stderr)
     argv = list(sys.argv[1:] if argv is None else argv)
     command = _command_parser(parser, argv)
     argv = _join_negative_values(command, argv)

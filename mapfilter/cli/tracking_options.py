@@ -101,15 +101,33 @@ def tracking_config_from(args: argparse.Namespace):
 
 
 def add_source_arguments(parser: argparse.ArgumentParser) -> None:
-    """The files of every registered measurement source (``filter.sources``)."""
-    from mapfilter.filter.sources import registered
+    """A place for the files of every registered measurement source (``filter.sources``); they are
+    added once every command's own options are known (``attach_source_arguments``)."""
+    parser._source_group = parser.add_argument_group(  # noqa: SLF001 - read by attach_source_arguments
+        "measurement sources besides WiFi (each weighed when its files are given; config section sources)")
 
-    group = parser.add_argument_group("measurement sources besides WiFi (each weighed when its files are given; "
-                                      "config section sources)")
+
+def attach_source_arguments(parsers: list[argparse.ArgumentParser]) -> None:
+    """Every registered source's files on each parser that asked for them; a source whose option
+    one of these commands takes itself is left out (one warning line, ``filter.sources.refusals``),
+    never a traceback that stops every command."""
+    from mapfilter.filter.sources import refuse, registered
+
+    wanting = [p for p in parsers if getattr(p, "_source_group", None) is not None]
+    own: dict[str, str] = {}  # flag -> the first command that takes it
+    for p in wanting:
+        for action in p._actions:
+            for flag in action.option_strings:
+                own.setdefault(flag, p.prog)
     for entry in registered():
-        for option in entry.options:
-            group.add_argument(option.flag, type=Path, metavar=option.metavar, dest=f"source_{option.key}",
-                               help=option.help)
+        clash = next((o.flag for o in entry.options if o.flag in own), None)
+        if clash:
+            refuse(entry, f"its option {clash} is `{own[clash]}`'s own")
+    for p in wanting:
+        for entry in registered():
+            for option in entry.options:
+                p._source_group.add_argument(option.flag, type=Path, metavar=option.metavar,
+                                             dest=f"source_{option.key}", help=option.help)
 
 
 def source_files(args: argparse.Namespace) -> dict[str, dict[str, Path]]:

@@ -49,7 +49,6 @@ class StepReport:
     collapse: CollapseEvent | None = None
     heading_rad: float | None = None  # PDR: weighted circular mean heading
     step_length_m: float | None = None  # PDR: weighted mean step length
-    measurement_kind: str | None = None  # the model's ``kind`` ("fix", ...) or "other"; None: no measurement
     fix_xy_m: np.ndarray | None = None  # fingerprint fix used this step, if any
     heard_ap_xy_m: np.ndarray | None = None  # trilateration: positions of the APs heard this step
     # adaptive trilateration (``filter.adaptive_pathloss.PathLossState``): H, the nearest AP's C

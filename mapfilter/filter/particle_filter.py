@@ -472,7 +472,6 @@ class ParticleFilter:
             collapse=collapse,
             heading_rad=means[0] if steps else None,
             step_length_m=means[1] if steps else None,
-            measurement_kind=model.kind if model is not None else None,
             fix_xy_m=None if fix_xy is None else np.asarray(fix_xy, dtype=np.float64).ravel()[:2].copy(),
             heard_ap_xy_m=model.heard_ap_xy_m(measurement) if model is not None else None,
             path_loss=model.viewer_state() if model is not None else None,

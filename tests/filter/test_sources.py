@@ -65,28 +65,95 @@ def test_the_registry_lists_ble_with_its_options_config_and_methods():
         TrackingInputs(sources={"radar": object()})
 
 
-def test_a_plugin_that_breaks_the_rules_is_refused():
-    from mapfilter.filter.sources import _add
+class _Complete(SourcePlugin):
+    """A plug-in that writes every hook (what each refusal below takes away one at a time)."""
 
-    class Bad(SourcePlugin):
-        name = "Bad Name"
-        config = TrackingConfig
+    name = "tag"
+    title = "a proximity tag"
+    options = (SourceOption("--tags", "TAGS.csv", "tags"),)
+    config = TrackingConfig
 
-    with pytest.raises(TypeError, match="lower-case"):
-        _add({}, Bad(), "here")
-    with pytest.raises(TypeError, match="must be a SourcePlugin"):
-        _add({}, object(), "here")
+    def load(self, files, building):
+        return files
 
-    class NoConfig(SourcePlugin):
-        name = "x"
+    def source(self, given, frame, config):
+        raise AssertionError("not run")
 
-    with pytest.raises(TypeError, match="config section"):
-        _add({}, NoConfig(), "here")
-    found = {}
-    _add(found, plugin("ble"), "here")
-    with pytest.raises(TypeError, match="registered twice"):
-        _add(found, plugin("ble"), "there")
+    def check(self, given):
+        return given
+
+
+@pytest.fixture
+def installed(monkeypatch):
+    """Installs plug-ins as a package's entry points would (``installed(plugin, ...)``; an
+    exception: a package that fails to load), with the registry read afresh before and after."""
+    import importlib.metadata
+
+    from mapfilter.filter import sources
+
+    def install(*plugins):
+        points = [importlib.metadata.EntryPoint(f"p{i}", f"pkg{i}:SOURCE", sources.ENTRY_POINT_GROUP)
+                  for i in range(len(plugins))]
+        by_value = {p.value: plugin_ for p, plugin_ in zip(points, plugins)}
+        def load(point):
+            if isinstance(by_value[point.value], Exception):
+                raise by_value[point.value]
+            return by_value[point.value]
+
+        monkeypatch.setattr(importlib.metadata.EntryPoint, "load", load)
+        monkeypatch.setattr(importlib.metadata, "entry_points",
+                            lambda group=None: points if group == sources.ENTRY_POINT_GROUP else [])
+        sources._discovered.cache_clear()
+        sources._refused_by_caller.clear()
+
+    yield install
+    monkeypatch.undo()
+    sources._discovered.cache_clear()
+    sources._refused_by_caller.clear()
+
+
+@pytest.mark.parametrize("change, problem", [
+    ({"name": "Bad Name"}, "lower-case letters"),
+    ({"name": "ble"}, "the name 'ble' is already the source of module mapfilter.filter.sources.ble"),
+    ({"config": None}, "needs a config section"),
+    ({"options": (SourceOption("--beacons", "T", "h"),)},
+     "takes --beacons, which source 'ble' of module mapfilter.filter.sources.ble takes already"),
+    ({"options": (SourceOption("-t", "T", "h"),)}, "an option is --name"),
+    ({"check": SourcePlugin.check}, "does not write check"),
+    ({"load": SourcePlugin.load, "source": SourcePlugin.source}, "does not write load, source"),
+])
+def test_a_plugin_that_breaks_the_rules_is_left_out_in_one_line_naming_both(installed, change, problem):
+    bad = type("Bad", (_Complete,), change)()
+    installed(bad)
+    assert [p.name for p in registered()] == ["ble", "ranges"]  # the others still work
+    from mapfilter.filter.sources import refusals
+
+    lines = refusals()
+    assert len(lines) == 1 and lines[0].startswith("entry point p0 (pkg0:SOURCE): left out") and problem in lines[0]
+
+
+def test_a_plugin_that_is_not_a_plugin_or_does_not_load_is_left_out(installed):
+    from mapfilter.filter.sources import refusals
+
+    installed(object(), ImportError("No module named 'numpyy'"))
+    assert refusals() == ["entry point p0 (pkg0:SOURCE): left out: SOURCE must be a SourcePlugin, got object",
+                          "entry point p1 (pkg1:SOURCE): left out, it does not load: ImportError: No module named "
+                          "'numpyy'"]
+    installed(_Complete())
+    assert [p.name for p in registered()] == ["ble", "ranges", "tag"] and refusals() == []
     assert SourceOption("--ranges-log", "R", "h").key == "ranges_log"
+
+
+def test_a_plugin_taking_a_commands_own_option_is_left_out_and_every_command_still_runs(installed, capsys):
+    """A plug-in using --seed once broke every command, `config show` included, with argparse's
+    traceback: now it is left out with one warning line naming it and the command."""
+    from mapfilter.cli import main
+
+    installed(type("Seeded", (_Complete,), {"options": (SourceOption("--seed", "S", "h"),)})())
+    assert main(["config", "show"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["mapfilter: warning: source 'tag': left out: its option --seed is `mapfilter track`'s own"]
+    assert [p.name for p in registered()] == ["ble", "ranges"]
 
 
 def test_a_source_alone_is_tracked_and_nothing_at_all_is_refused(office_walk):
@@ -169,14 +236,20 @@ def test_the_base_class_holds_back_what_runs_ahead_of_the_chunk():
     assert source.add(taken, final=False) == [1.0, 2.0] and source.measurement(1) == 1
 
 
-def test_outside_the_log_readers_only_the_ble_plugins_files_name_beacons():
-    """BLE is an ordinary plug-in: its registration, model and table/fit, its fit command and the
-    API's exports name beacons; the log readers read their rows; nothing else does."""
-    from tests.conftest import REPO
+def test_nothing_but_a_sources_own_files_imports_them():
+    """What keeps a source a plug-in (docs/models.md): the filter, the offline track, the pipeline,
+    evaluation, batch, evaal, config and the rest reach a source through the registry only, so a
+    new source is new files and nothing else changes. A source's own files are its plug-in
+    module, its model (``filter/models/NAME.py``) and the sensor tables its plug-in module reads;
+    only the API (which re-exports a source's tables: ``mf.load_beacons``) and a command for the
+    source's own files (``radiomap fit-beacons``) may import them too."""
+    from tests.test_architecture import _imports
 
-    package = REPO / "mapfilter"
-    naming = {str(p.relative_to(package)) for p in package.rglob("*.py") if "beacon" in p.read_text().lower()}
-    readers = {"sensors/ilc.py", "sensors/ipin.py", "sensors/logread.py", "sensors/recording.py"}
-    plugin_files = {"filter/sources/ble.py", "filter/models/ble.py", "sensors/beacons.py", "cli/radiomap_cmd.py",
-                    "api.py", "__init__.py"}
-    assert naming - readers <= plugin_files, sorted(naming - readers - plugin_files)
+    graph = _imports()
+    allowed = {"mapfilter.api", "mapfilter.cli.radiomap_cmd", "mapfilter"}
+    for entry in registered():
+        module = f"mapfilter.filter.sources.{entry.name}"
+        own = {module, f"mapfilter.filter.models.{entry.name}"} | {
+            m for m in graph[module] if m.startswith("mapfilter.sensors.")}
+        importers = {a for a, targets in graph.items() if targets & own} - own - allowed
+        assert importers == set(), (entry.name, sorted(importers))

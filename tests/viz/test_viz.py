@@ -105,7 +105,6 @@ def synthetic_steps(floor: FloorPlan, n_steps: int, n_particles: int, rng: np.ra
             killed_from_xy_m=start[killed], killed_to_xy_m=moved[killed], collapse=collapse,
             heading_rad=0.1 * i, step_length_m=0.7,
             # even steps: a fingerprint fix; steps 1 and 3 mod 6: three heard APs; others nothing
-            measurement_kind="fix" if i % 2 == 0 else ("wifi" if i % 6 in (1, 3) else None),
             fix_xy_m=truth.copy() if i % 2 == 0 else None,
             heard_ap_xy_m=(truth + np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])).astype(np.float32)
             if i % 6 in (1, 3) else None,

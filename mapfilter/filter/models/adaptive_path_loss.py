@@ -97,8 +97,6 @@ class AdaptiveTrilaterationLikelihood(MeasurementModel):
         reference; None: no blocking compensation.
     """
 
-    kind = "trilateration"
-
     def __init__(self, ap_table: AccessPointTable, variance_db2: float = 25.0,
                  adapt_rssi_limit_dbm: float | None = THESIS_RSSI_LIMIT_DBM,
                  blocking_drop_db: float | None = THESIS_BLOCKING_DROP_DB):

@@ -68,7 +68,6 @@ class BeaconLikelihood(MeasurementModel):
     each floor of ``frame``; ``rssi_offset_db``: the phone's RSSI minus the table's (one value, or
     one per beacon), added to every beacon's C."""
 
-    kind = "beacons"
     log_likelihood_peak = 0.0  # -sum (z - R)^2 / (2 var), without its constant
 
     def __init__(self, table: BeaconTable, frame: StateFrame, variance_db2: float,

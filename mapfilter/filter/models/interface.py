@@ -71,8 +71,6 @@ class MotionModel(Protocol):
 class MeasurementModel(Protocol):
     """Weighs particles by a measurement."""
 
-    # what the viewer calls this kind of measurement ("fix", "trilateration", ...)
-    kind: str = "other"
     # the largest value the log-likelihood can take, if the model knows it (0 for a Gaussian fix
     # without its constant): the filter then treats a step whose every particle falls ~745
     # (float64 underflow) below it as a collapse. None: unknown

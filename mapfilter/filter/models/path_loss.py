@@ -95,8 +95,6 @@ class TrilaterationLikelihood(MeasurementModel):
     weights unchanged. ``variance_db2``: the RSSI noise (thesis: 25 dB^2).
     """
 
-    kind = "trilateration"
-
     def __init__(self, ap_table: AccessPointTable, variance_db2: float = 25.0):
         if not (math.isfinite(variance_db2) and variance_db2 > 0):
             raise MapfilterError(f"RSSI variance must be positive, got {variance_db2}")

@@ -67,8 +67,6 @@ class RadioMapLikelihood(MeasurementModel):
     map on that plan with that configuration starts from them (no KD-tree, no scipy).
     """
 
-    kind = "radio_map"
-
     def __init__(self, radio_map: RadioMap, floorplan: FloorPlan | None = None,
                  config: RadioMapLikelihoodConfig = RadioMapLikelihoodConfig(),
                  heard_keys: Collection[str] | None = None):

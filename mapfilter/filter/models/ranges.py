@@ -55,7 +55,6 @@ class RangeLikelihood(MeasurementModel):
     """Particles weighed by a set of ranges (module docstring): ``table`` (``sensors.anchors``)
     seen from each floor of ``frame``, Gaussian ranges of spread ``sigma_m``."""
 
-    kind = "ranges"
     log_likelihood_peak = 0.0  # -sum residual^2 / (2 sigma^2), without its constant
 
     def __init__(self, table, frame: StateFrame, sigma_m: float) -> None:

@@ -43,7 +43,8 @@ if TYPE_CHECKING:
     from mapfilter.maps.building import Building
     from mapfilter.sensors.recording import Recording
 
-__all__ = ["ENTRY_POINT_GROUP", "SourceOption", "SourcePlugin", "evaluation_methods", "plugin", "registered"]
+__all__ = ["ENTRY_POINT_GROUP", "SourceOption", "SourcePlugin", "evaluation_methods", "plugin", "refusals", "refuse",
+           "registered"]
 
 ENTRY_POINT_GROUP = "mapfilter.sources"
 
@@ -86,8 +87,10 @@ class SourcePlugin:
 
     def check(self, given: Any) -> Any:
         """``given`` if it is this source's input (what ``load`` returns), else a ``TypeError``
-        naming what was expected (the Python API takes inputs and files alike)."""
-        return given
+        naming what was expected: ``mf.track(..., sources={name: given})`` takes an input or its
+        files, and a wrong object must fail here, in one line, not deep inside a run. Every
+        source writes it (a source that does not is refused)."""
+        raise NotImplementedError
 
     def survey(self, given: Any, building: Building, recordings: Sequence[Recording]) -> Any:
         """What an evaluation takes from labelled walks once for all its walks (None: nothing)."""
@@ -103,33 +106,82 @@ class SourcePlugin:
 
 
 @functools.cache
-def registered() -> tuple[SourcePlugin, ...]:
-    """Every registered source: this package's modules', then installed packages' (entry points)."""
-    found: dict[str, SourcePlugin] = {}
+def _discovered() -> tuple[tuple[SourcePlugin, ...], tuple[str, ...]]:
+    """(the sources found and accepted, a line for each one refused): this package's modules'
+    in name order, then installed packages' entry points; each checked against those before it."""
+    found: dict[str, tuple[SourcePlugin, str]] = {}
+    refused: list[str] = []
+    candidates = []
     for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        _add(found, getattr(importlib.import_module(f"{__name__}.{info.name}"), "SOURCE", None), info.name)
+        if not info.name.startswith("_"):
+            candidates.append((f"module {__name__}.{info.name}",
+                               lambda name=info.name: getattr(importlib.import_module(f"{__name__}.{name}"), "SOURCE",
+                                                              None)))
     from importlib.metadata import entry_points
 
     for point in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda p: p.name):
-        _add(found, point.load(), f"entry point {point.name} ({point.value})")
-    return tuple(found.values())
+        candidates.append((f"entry point {point.name} ({point.value})", point.load))
+    for where, load in candidates:
+        try:
+            entry = load()
+        except Exception as exc:  # a broken installed package must not stop every command
+            refused.append(f"{where}: left out, it does not load: {type(exc).__name__}: {exc}")
+            continue
+        if entry is None:
+            continue
+        problem = _problem(entry, where, found)
+        if problem:
+            refused.append(f"{where}: left out: {problem}")
+        else:
+            found[entry.name] = (entry, where)
+    return tuple(entry for entry, _ in found.values()), tuple(refused)
 
 
-def _add(found: dict[str, SourcePlugin], plugin: Any, where: str) -> None:
-    if plugin is None:
-        return
-    if not isinstance(plugin, SourcePlugin):
-        raise TypeError(f"{where}: SOURCE must be a SourcePlugin, got {type(plugin).__name__}")
-    name = plugin.name
+def _problem(entry: Any, where: str, found: dict[str, tuple[SourcePlugin, str]]) -> str | None:
+    """Why ``entry`` cannot be registered beside ``found`` (None: it can)."""
+    if not isinstance(entry, SourcePlugin):
+        return f"SOURCE must be a SourcePlugin, got {type(entry).__name__}"
+    name = entry.name
     if not name or not name.replace("_", "").isalnum() or name != name.lower():
-        raise TypeError(f"{where}: a source's name is lower-case letters, digits and _, got {name!r}")
+        return f"a source's name is lower-case letters, digits and _, got {name!r}"
     if name in found:
-        raise TypeError(f"{where}: a source named {name!r} is registered twice")
-    if plugin.config is None or not dataclasses.is_dataclass(plugin.config):
-        raise TypeError(f"{where}: source {name!r} needs a config section (a dataclass)")
-    found[name] = plugin
+        return f"the name {name!r} is already the source of {found[name][1]}"
+    if entry.config is None or not dataclasses.is_dataclass(entry.config):
+        return f"source {name!r} needs a config section (a dataclass)"
+    missing = [hook for hook in ("load", "source", "check") if getattr(type(entry), hook) is getattr(SourcePlugin, hook)]
+    if missing:
+        return f"source {name!r} does not write {', '.join(missing)} (docs/models.md)"
+    taken = {option.flag: (other, other_where) for other, other_where in found.values() for option in other.options}
+    keys = {option.key: (other, other_where) for other, other_where in found.values() for option in other.options}
+    for option in entry.options:
+        if not option.flag.startswith("--") or len(option.flag) < 4:
+            return f"source {name!r}: an option is --name, got {option.flag!r}"
+        clash = taken.get(option.flag) or keys.get(option.key)
+        if clash:
+            return (f"source {name!r} takes {option.flag}, which source {clash[0].name!r} of {clash[1]} takes "
+                    f"already")
+    return None
+
+
+_refused_by_caller: dict[str, str] = {}  # source name -> why a caller refused it (``refuse``)
+
+
+def registered() -> tuple[SourcePlugin, ...]:
+    """Every registered source: this package's modules', then installed packages' (entry points);
+    a source that clashes with one before it, or that a caller refused, is left out
+    (``refusals``)."""
+    return tuple(entry for entry in _discovered()[0] if entry.name not in _refused_by_caller)
+
+
+def refusals() -> list[str]:
+    """One line per source left out, and why."""
+    return [*_discovered()[1], *_refused_by_caller.values()]
+
+
+def refuse(entry: SourcePlugin, reason: str) -> None:
+    """Leave a registered source out from now on (the command line refuses a source whose option
+    is one of a command's own)."""
+    _refused_by_caller[entry.name] = f"source {entry.name!r}: left out: {reason}"
 
 
 def plugin(name: str) -> SourcePlugin:
