@@ -13,7 +13,7 @@ The names are loaded on first use: ``import mapfilter`` alone imports no numeric
 
 import os as _os
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 
 def _numba_cache_dir() -> None:

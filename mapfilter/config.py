@@ -25,61 +25,9 @@ from mapfilter.filter.causal import MotionConfig
 from mapfilter.filter.sources import registered
 from mapfilter.offline.whole_walk import OfflineConfig
 from mapfilter.sensors.pdr import PDRConfig
-from mapfilter.settings import (replace_setting, retired_setting_message, settings_from_yaml, settings_to_dict,
-                                settings_to_yaml)
+from mapfilter.settings import REMOVED_SETTINGS_NOTE, replace_setting, settings_from_yaml, settings_to_dict, settings_to_yaml
 
-__all__ = ["RETIRED_SETTINGS", "FloorsConfig", "SourcesConfig", "TrackingConfig"]
-
-# Settings that were folded into their model's constants: the model's shape, not a user's choice
-# (the reason beside each constant, the measurements in docs/accuracy.md)
-_FOLDED = {
-    "mapfilter.filter.models.motion": ("motion.pdr.turn_threshold_rad", "motion.pdr.step_length_walk_sigma_m",
-                                       "motion.pdr.position_sigma_m"),
-    "mapfilter.filter.causal": ("motion.idle_tick_s", "motion.initial_heading_sigma_rad"),
-    "mapfilter.sensors.pdr": tuple(f"steps.{name}" for name in (
-        "sample_rate_hz", "lowpass_hz", "lowpass_order", "step_threshold_rms_fraction", "step_threshold_window_s",
-        "min_step_threshold_mps3", "gravity_lowpass_hz", "max_step_window_s", "imu_gap_s", "max_gap_s")),
-    "mapfilter.filter.models.radio_map": tuple(f"wifi.radio_map_likelihood.{name}" for name in (
-        "support_sigmas", "sigma_floor_db", "prior_sigma_db", "prior_weight", "prior_heard", "prior_rssi_dbm",
-        "heard_clip", "min_observations", "min_weight")),
-    "mapfilter.filter.models.adaptive_path_loss": tuple(
-        [f"trilateration.adaptation.{name}" for name in (
-            "vertical_distance_m", "c_gain", "alpha_gain", "alpha_min_distance_m", "alpha_min_aps",
-            "alpha_bounds_db_per_m", "share_c_correction")]
-        + [f"trilateration.blocking.{name}" for name in (
-            "top_k", "recover_db", "reference_gain", "max_blocked_s", "h_source")]),
-    "mapfilter.filter.particle_filter": ("filter.regularise_tries",),
-    "mapfilter.filter.models.building": ("floors.changes.height_decides_in_connector", "floors.changes.stairs_tread_m"),
-    "mapfilter.filter.models.barometer": tuple(f"floors.barometer.{name}" for name in (
-        "anchor_share", "steady_m", "steady_window_s", "drift_m_per_s", "smoothing_window_s")),
-}
-# {dotted name in an old config file: what became of it}; such a file is refused naming the line
-RETIRED_SETTINGS: dict[str, str] = {
-    **{name: f"a constant of {module}" for module, names in _FOLDED.items() for name in names},
-    "trilateration.adaptation.rssi_limit_dbm": "now trilateration.adapt_rssi_limit_dbm",
-    "trilateration.blocking.drop_db": "now trilateration.blocking_drop_db",
-    # off by default and measured worse (docs/accuracy.md): the code is gone
-    "trilateration.blocking.min_fraction_dropped": "removed: the per-AP drop check missed real onsets",
-    "trilateration.blocking.max_ambiguous_scans": "removed with the per-AP drop check",
-    "steps.step_length_m": "removed: never read (the step length is Weinberg's)",
-    "steps.step_length_std_m": "removed: never read (the filter's step length walks by itself)",
-    "offline.restart_from_placement": "removed: the offline track always smooths a second forward pass on one floor",
-    "offline.restart_radius_m": "now a constant of mapfilter.pipeline.offline (RESTART_RADIUS_M)",
-    # the one filter step (filter/kernels/passes.py) has one resampler and one kernel
-    "filter.fused_from_particles": "removed: every particle count takes the one step (filter/kernels/passes.py)",
-    "filter.resampler": "removed: the step resamples systematically",
-    "filter.kernel": "removed: the step's regularisation kernel is Gaussian",
-    **{f"filter.{name}": "a constant of mapfilter.filter.particle_filter" for name in (
-        "recovery_radius_m", "recovery_radius_growth", "recovery_reset_steps", "recovery_measurement_max_age_s",
-        "recovery_heading_keep_fraction")},
-    "motion.pdr.fixed_step_length_m": "removed: the step length is always the state's, a random walk "
-                                      "within motion.pdr.step_length_min_m..max_m",
-    "motion.pdr.step_length_input_sigma_m": "removed with motion.pdr.fixed_step_length_m (the state's random "
-                                            "walk: STEP_LENGTH_WALK_SIGMA_M in mapfilter.filter.models.motion)",
-    # the BLE section became a measurement source's (filter/sources/ble.py)
-    **{f"ble.{name}": f"now sources.ble.{name}" for name in ("window_s", "rssi_variance_db2", "rssi_offset_db")},
-}
-
+__all__ = ["FloorsConfig", "SourcesConfig", "TrackingConfig"]
 
 @dataclasses.dataclass(frozen=True)
 class FloorsConfig:
@@ -131,8 +79,7 @@ class TrackingConfig:
             try:
                 config = replace_setting(config, dotted, value)
             except (AttributeError, TypeError):
-                raise MapfilterError(retired_setting_message(dotted, RETIRED_SETTINGS)
-                                     or f"unknown setting {dotted!r}") from None
+                raise MapfilterError(f"unknown setting {dotted!r} ({REMOVED_SETTINGS_NOTE})") from None
         return config
 
     def to_yaml(self) -> str:
@@ -148,9 +95,8 @@ class TrackingConfig:
     @classmethod
     def from_yaml(cls, text_or_path: str | os.PathLike, base: TrackingConfig | None = None) -> TrackingConfig:
         """A config from YAML text or a file: the settings given, the rest from ``base`` (default:
-        the defaults). Unknown settings and wrong values are one line naming the file and line; a
-        setting of an older mapfilter (``RETIRED_SETTINGS``) says it is no longer a setting."""
-        return settings_from_yaml(cls, text_or_path, base, RETIRED_SETTINGS)
+        the defaults). Unknown settings and wrong values are one line naming the file and line."""
+        return settings_from_yaml(cls, text_or_path, base)
 
 
 def _setting_names(section: type, prefix: str = "") -> list[str]:

@@ -20,7 +20,6 @@ import textwrap
 import tokenize
 import types
 import typing
-from collections.abc import Mapping
 from typing import Any
 
 import yaml
@@ -28,9 +27,11 @@ import yaml
 from mapfilter.errors import MapfilterError
 from mapfilter.io.yamlio import compose_yaml, construct, read_yaml_text
 
+# what a setting unknown to this release may be: one an older release removed (each named there)
+REMOVED_SETTINGS_NOTE = "settings removed by a release: docs/changelog.md"
 _MAX_INT = 2**63 - 1  # a whole number setting ends up in an int64 (numpy, numba)
 
-__all__ = ["field_docs", "retired_setting_message", "settings_from_yaml", "settings_to_dict", "settings_to_yaml",
+__all__ = ["REMOVED_SETTINGS_NOTE", "field_docs", "settings_from_yaml", "settings_to_dict", "settings_to_yaml",
            "replace_setting"]
 
 
@@ -99,42 +100,17 @@ def _yaml_lines(config: Any, indent: int, lines: list[str]) -> None:
             lines.append(f"{pad}{f.name}: {_scalar(plain)}" + (f"  # {doc}" if doc else ""))
 
 
-def settings_from_yaml(cls: type, text_or_path: str | os.PathLike, base: Any = None,
-                       retired: Mapping[str, str] | None = None) -> Any:
+def settings_from_yaml(cls: type, text_or_path: str | os.PathLike, base: Any = None) -> Any:
     """A ``cls`` from YAML text or a YAML file: the keys given replace those of ``base`` (default:
     ``cls()``), the rest keep their values. Unknown keys and values of the wrong type are a
-    ``MapfilterError`` naming the file, the line and the setting; a key of ``retired`` ({dotted
-    name: what became of it}, e.g. a setting folded into a constant) says it is no longer a setting."""
+    ``MapfilterError`` naming the file, the line and the setting (and where a setting an older
+    release removed is listed: ``REMOVED_SETTINGS_NOTE``)."""
     where, text = _source(text_or_path)
     node = compose_yaml(text, where)  # size, alias and duplicate-key limits of every YAML mapfilter reads
     base = base if base is not None else cls()
     if node is None:
         return base
-    return _apply(base, node, where, "", retired or {})
-
-
-def retired_setting_message(dotted: str, retired: Mapping[str, str]) -> str | None:
-    """What to say of a dotted name that ``retired`` knows (a setting, or a section all of whose
-    settings retired), else None."""
-    if dotted in retired:
-        return f"{dotted!r} is no longer a setting ({retired[dotted]})"
-    fates = sorted({retired[name] for name in retired if name.startswith(dotted + ".")})
-    if fates:
-        return f"{dotted!r} is no longer a section ({'; '.join(fates)})"
-    return None
-
-
-def _retired_error(node: yaml.Node, name: str, where: str, line: int, retired: Mapping[str, str]) -> MapfilterError | None:
-    """The error for a retired key (inside a retired section: its first key's, at that key's line)."""
-    if name in retired or not isinstance(node, yaml.MappingNode) or not node.value:
-        message = retired_setting_message(name, retired)
-        return None if message is None else MapfilterError(f"{where} line {line}: {message}")
-    key_node, value_node = node.value[0]
-    inner = _retired_error(value_node, f"{name}.{key_node.value}", where, key_node.start_mark.line + 1, retired)
-    if inner is not None:
-        return inner
-    message = retired_setting_message(name, retired)
-    return None if message is None else MapfilterError(f"{where} line {line}: {message}")
+    return _apply(base, node, where, "")
 
 
 def _source(text_or_path: str | os.PathLike) -> tuple[str, str]:
@@ -144,7 +120,7 @@ def _source(text_or_path: str | os.PathLike) -> tuple[str, str]:
     return "the config", str(text_or_path)
 
 
-def _apply(config: Any, node: yaml.Node, where: str, prefix: str, retired: Mapping[str, str]) -> Any:
+def _apply(config: Any, node: yaml.Node, where: str, prefix: str) -> Any:
     cls = type(config)
     if not isinstance(node, yaml.MappingNode):
         raise MapfilterError(f"{where} line {node.start_mark.line + 1}: {prefix.rstrip('.') or 'the config'} must "
@@ -157,14 +133,12 @@ def _apply(config: Any, node: yaml.Node, where: str, prefix: str, retired: Mappi
         name = f"{prefix}{key}"
         line = key_node.start_mark.line + 1
         if key not in fields:
-            error = _retired_error(value_node, name, where, line, retired)
-            if error is not None:
-                raise error
             known = ", ".join(fields)
-            raise MapfilterError(f"{where} line {line}: unknown setting {name!r} (known here: {known})")
+            raise MapfilterError(f"{where} line {line}: unknown setting {name!r} (known here: {known}; "
+                                 f"{REMOVED_SETTINGS_NOTE})")
         current = getattr(config, key)
         if dataclasses.is_dataclass(current):
-            changes[key] = _apply(current, value_node, where, f"{name}.", retired)
+            changes[key] = _apply(current, value_node, where, f"{name}.")
         else:
             value = construct(value_node)
             changes[key] = _coerce(value, hints[key], f"{where} line {line}: {name}")

@@ -5,7 +5,7 @@ import dataclasses
 import pytest
 
 from mapfilter.cli import main
-from mapfilter.config import RETIRED_SETTINGS, TrackingConfig
+from mapfilter.config import TrackingConfig
 from mapfilter.errors import MapfilterError
 from mapfilter.settings import field_docs
 
@@ -65,60 +65,47 @@ def test_config_show_prints_every_setting_and_a_file_back(tmp_path, capsys):
     assert "missing.yaml: file not found" in capsys.readouterr().err
 
 
-def _nested_yaml(dotted: str, value: str = "1") -> tuple[str, int]:
-    """YAML setting the dotted name, and the line of its last key."""
-    parts = dotted.split(".")
-    lines = [f"{'  ' * depth}{part}:" for depth, part in enumerate(parts[:-1])]
-    lines.append(f"{'  ' * (len(parts) - 1)}{parts[-1]}: {value}")
-    return "seed: 1\n" + "\n".join(lines) + "\n", len(lines) + 1
+def _removed_settings() -> dict[str, str]:
+    """{dotted name: what became of it} of every setting docs/changelog.md says a release removed."""
+    import re
+
+    from tests.conftest import REPO
+
+    text = (REPO / "docs" / "changelog.md").read_text()
+    return dict(re.findall(r"^\| `([a-z_.]+)` \| (.+) \|$", text, flags=re.M))
 
 
-@pytest.mark.parametrize("dotted", sorted(RETIRED_SETTINGS))
-def test_an_old_config_naming_a_retired_setting_is_refused_in_one_line(tmp_path, dotted):
-    import importlib
-
-    text, line = _nested_yaml(dotted)
-    path = tmp_path / "old.yaml"
-    path.write_text(text)
-    with pytest.raises(MapfilterError) as error:
-        TrackingConfig.from_yaml(path)
-    message = str(error.value)
-    assert f"{path} line {line}: {dotted!r} is no longer a setting ({RETIRED_SETTINGS[dotted]})" == message
-    if RETIRED_SETTINGS[dotted].startswith("a constant of "):
-        importlib.import_module(RETIRED_SETTINGS[dotted].removeprefix("a constant of "))  # the module exists
-    with pytest.raises(MapfilterError, match="is no longer a setting"):
-        TrackingConfig().override({dotted: 1})
-
-
-def test_a_config_written_before_the_fold_is_refused_at_its_first_folded_line(tmp_path, capsys):
+def test_an_old_config_naming_a_removed_setting_is_refused_at_its_line_pointing_to_the_changelog(tmp_path, capsys):
     old = tmp_path / "saved.yaml"
     old.write_text("seed: 3\nmotion:\n  model: pdr\n  pdr:\n    heading_sigma_rad: 0.02\n"
-                   "    turn_threshold_rad: 0.35\n  tick_s: 1.0\nsteps:\n  imu_gap_s: 3.0\n")
+                   "    turn_threshold_rad: 0.35\n  tick_s: 1.0\n")
     assert main(["config", "show", "--config", str(old)]) == 1
     err = capsys.readouterr().err.strip()
-    assert err == (f"mapfilter: error: {old} line 6: 'motion.pdr.turn_threshold_rad' is no longer a setting "
-                   "(a constant of mapfilter.filter.models.motion)")
+    assert err.startswith(f"mapfilter: error: {old} line 6: unknown setting 'motion.pdr.turn_threshold_rad' (known "
+                          "here: ") and err.endswith("; settings removed by a release: docs/changelog.md)")
+    assert "\n" not in err
+    with pytest.raises(MapfilterError, match=r"unknown setting 'filter.kernel' \(settings removed by a release"):
+        TrackingConfig().override({"filter.kernel": 1})
 
 
-def test_a_retired_section_and_the_renamed_settings(tmp_path):
-    with pytest.raises(MapfilterError, match=r"line 2: 'trilateration.blocking' is no longer a section \(.*now "
-                                             r"trilateration.blocking_drop_db"):
-        TrackingConfig.from_yaml("trilateration:\n  blocking: {}\n")
-    with pytest.raises(MapfilterError, match="line 3: 'trilateration.blocking.drop_db' is no longer a setting "
-                                             r"\(now trilateration.blocking_drop_db\)"):
-        TrackingConfig.from_yaml("trilateration:\n  blocking:\n    drop_db: 8\n")
-    config = TrackingConfig.from_yaml("trilateration:\n  adapt_rssi_limit_dbm: -40\n  blocking_drop_db: 8\n")
-    assert (config.trilateration.adapt_rssi_limit_dbm, config.trilateration.blocking_drop_db) == (-40.0, 8.0)
-    # a key that never was a setting is still "unknown", with the known ones listed
-    with pytest.raises(MapfilterError, match="unknown setting 'steps.stride'"):
-        TrackingConfig.from_yaml("steps:\n  stride: 1\n")
-
-
-def test_no_retired_name_is_a_setting_again():
+def test_the_changelog_lists_the_removed_settings_and_none_is_a_setting_again():
     from mapfilter.settings import settings_to_dict
 
     def leaves(tree, prefix=""):
         for key, value in tree.items():
             yield from leaves(value, f"{prefix}{key}.") if isinstance(value, dict) else [prefix + key]
 
-    assert not set(leaves(settings_to_dict(TrackingConfig()))) & set(RETIRED_SETTINGS)
+    removed = _removed_settings()
+    assert len(removed) >= 60 and "motion.pdr.turn_threshold_rad" in removed
+    assert not set(leaves(settings_to_dict(TrackingConfig()))) & set(removed)
+    for fate in removed.values():
+        if fate.startswith("now ") and " " not in fate[4:]:  # renamed: the new name is a setting
+            TrackingConfig().override({fate[4:]: getattr_dotted(TrackingConfig(), fate[4:])})
+
+
+def getattr_dotted(config, dotted: str):
+    for part in dotted.split("."):
+        config = getattr(config, part)
+    return config
+
+
