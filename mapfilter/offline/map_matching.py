@@ -2,8 +2,7 @@
 
 The whole-walk placement (``offline.placement``) puts the walk's dead-reckoned shape where all
 of its WiFi evidence says, as one rigid piece. A rigid shape still drifts (heading and step
-length errors add up: placed at the true position it errs 1.7-1.9 m on ILC site 1) and knows
-nothing of walls. This stage lets the walk bend where the walls say it must, as the 3rd place
+length errors add up) and knows nothing of walls. This stage lets the walk bend where the walls say it must, as the 3rd place
 of the ILC 2.0 competition did: a hidden Markov model on a grid of the floor's free cells whose
 transition is the walk's own dead-reckoned move plus a little diffusion, with moves into wall
 cells given probability zero, and whose observations are the placed shape's positions at the
@@ -15,10 +14,8 @@ the mass that lands in a wall cell dropped after each, so no mass jumps a wall. 
 messages are kept at checkpoints only and recomputed per segment in the backward pass: memory
 grows with the walk's length / ``checkpoint_every``, not with the length.
 
-Measured on ILC site 1 (leave-one-walk-out, seed 0, the README's three sets), against the
-placed shape made wall-free alone: F1 sparse 7.70 / 7.39 -> 7.17 / 7.13 m (mean / p75), F1
-dense 4.33 / 4.98 -> 4.17 / 4.94, F2 17.76 / 25.23 -> 16.92 / 24.69 (lab replay of the cached
-placements; the README's table has the filter's numbers over five seeds).
+What it gains over the placed shape alone, and the variants measured: docs/accuracy.md
+("Map matching the placed walk").
 """
 
 from __future__ import annotations
@@ -36,16 +33,9 @@ __all__ = ["MapMatchConfig", "MapMatch", "map_match"]
 
 @dataclasses.dataclass(frozen=True)
 class MapMatchConfig:
-    """Parameters of the forward-backward map matching (the same for every floor and walk).
-
-    On ILC site 1 (three sets, seed 0 and 1) anchor sigmas 3, 6 and 10 m, step sigmas 0.15,
-    0.25 and 0.4 m and cells of 0.25, 0.5 and 1 m all gained over the placement alone; 6 m and
-    0.25 m gained on every set. Cells must be small beside a door: on six simulated office walks
-    (0.1 m plan, doors about 1 m) 0.5 m cells lost (1.82 -> 1.88 m mean), 0.25 m cells gained
-    (1.82 -> 0.71 m). Adding the WiFi fixes themselves as observations (tempered
-    0.1-0.3) helped F1 but raised F2's p75 (25.2 -> 26.0-26.5 m): their bias is the
-    placement's to handle.
-    """
+    """Parameters of the forward-backward map matching (the same for every floor and walk):
+    the values that gained on every ILC set, with cells small beside a door (docs/accuracy.md,
+    "Map matching the placed walk")."""
 
     cell_m: float = 0.25  # grid cell; a cell is free when most of it is free on the plan
     step_sigma_m: float = 0.25  # diffusion per step (shape drift: heading and length errors)

@@ -56,9 +56,8 @@ def placement_evidence(evidence: WifiEvidence, causal: Track) -> tuple[np.ndarra
     Three estimators with different failure modes, each once per scan: the scan's own position
     fix (KWNN, or trilateration), with a radio map also the radio-map likelihood's best cell
     (a per-AP model of mean, spread and P(heard) errs differently from nearest neighbours where
-    the survey is thin), and the causal filter's estimate at the scan (map-aware). On ILC
-    site 1 (sparse and dense F1, F2) placing the walk by all three measured better than by
-    any one or two of them.
+    the survey is thin), and the causal filter's estimate at the scan (map-aware): all three
+    measured better than any one or two of them (docs/accuracy.md).
     """
     scan_t = scan_times(evidence)
     fixes = evidence.position_fixes()
@@ -80,8 +79,8 @@ def whole_walk_track(plan: FloorPlan, placement: WalkPlacement, scan_t_s: np.nda
     shape at the scan times ``scan_t_s``, then lets the walk bend where the walls say it must
     (the rigid shape drifts). Points still in walls move to the nearest free pixel and moves
     that still cross a wall walk round it by the shortest free path (``maps.paths.wall_free_track``).
-    (A second particle filter following the placed shape did the same job with more error:
-    ILC F2 18.9 m mean / 31.7 m p75 against 18.5 / 29.0, and cost a filter run.)
+    (A second particle filter following the placed shape did the same job with more error and
+    cost a filter run: docs/accuracy.md.)
     """
     placement = shift_onto_free_space(plan, placement, config.placement)
     matched = map_match(plan, placement.t_s, placement.xy_m, scan_t_s, config.map_matching)

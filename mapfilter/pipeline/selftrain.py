@@ -328,8 +328,7 @@ def grown_by_fold(space: FloorPlan | Building, labelled: Sequence[Recording], un
 
     Growing over every labelled walk and then scoring each one leave-one-out leaks its labels:
     the walks grown near it were placed by its points, and their points then stand in for its
-    own (on ILC F1, one growing over all 36 sparse walks gave pf-smooth 5.00 m mean, better than
-    the 40 walks' *true* labels at 5.10 m, against 6.42 m without the leak). Here the labelled
+    own (it scored better than the walks' true labels: docs/self-training.md). Here the labelled
     walks are split into ``folds`` (walk i in fold i % folds); the unlabelled walks grow once per
     fold over the labelled walks of the other folds; walk i is then scored with its map (the
     other labelled walks) plus ``grown[fold[i]]``, points grown without its labels. A fold's
