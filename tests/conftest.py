@@ -11,7 +11,7 @@ def pytest_collection_modifyitems(config, items):
     """Tests that read the real walks in ../shared/data are marked ``real_data`` (and skip,
     with the reason, when the data is absent): ``-m "not real_data"`` is the quick run."""
     for item in items:
-        if {"ilc_site1", "ipin2023"} & set(getattr(item, "fixturenames", ())):
+        if {"ilc_site1", "ilc_f1_plan", "ipin2023"} & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.real_data)
 
 
@@ -23,6 +23,14 @@ def ilc_site1() -> Path:
     if not ILC_SITE1.is_dir():
         pytest.skip(f"ILC 2.0 data absent: {ILC_SITE1} (get it with `python3 tools/get_data.py`, docs/data.md)")
     return ILC_SITE1
+
+
+@pytest.fixture(scope="session")
+def ilc_f1_plan(ilc_site1):
+    """ILC site 1 F1 as `map import-ilc` makes it (read-only: shared by every test of the run)."""
+    from mapfilter.maps.prepare import import_ilc
+
+    return import_ilc(ilc_site1 / "F1")
 
 
 IPIN2023 = REPO.parent / "shared" / "data" / "ipin2023"

@@ -59,6 +59,7 @@ __all__ = [
     "touched_pixels_capacity",
     "touched_pixels_into",
     "touched_pixels_reference",
+    "touches_wall_reference",
     "wall_grid",
 ]
 
@@ -590,3 +591,15 @@ def _segment_meets_square(u0, v0, du, dv, col, row) -> bool:
             return False
     return True
 
+
+def touches_wall_reference(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarray) -> np.ndarray:
+    """Plain-Python oracle of the wall check, per move: whether it touches a wall pixel or leaves
+    the map (every pixel square the segment meets, :func:`touched_pixels_reference`). Slow; the
+    reference step's (``filter.reference``) and the tests'."""
+    rows, cols = floorplan.wall_mask.shape
+    from_uv, to_uv = floorplan.world_to_pixel(from_xy_m), floorplan.world_to_pixel(to_xy_m)
+    out = np.zeros(len(from_uv), dtype=bool)
+    for i in range(len(from_uv)):
+        out[i] = any(not (0 <= row < rows and 0 <= col < cols) or floorplan.wall_mask[row, col]
+                     for row, col in touched_pixels_reference(from_uv[i], to_uv[i]))
+    return out

@@ -1,6 +1,8 @@
-"""The one filter step (two numba passes calling the models' kernels) held to the plain oracle of
-``tests/oracle_filter.py`` stage by stage, fed the same counter-based draws; determinism across
-threads; a model plugged in from outside the package; a building's floors."""
+"""The one filter step (two numba passes calling the models' kernels) stage by stage: each motion
+kernel against its numpy twin (``MotionModel.move``), the wall kill against the brute-force check,
+the weights against the formulas, fed the same counter-based draws (the whole step against the
+reference step: test_reference_step.py); determinism across threads; a model plugged in from
+outside the package; a building's floors."""
 
 from __future__ import annotations
 
@@ -13,18 +15,24 @@ from numba import njit
 from scipy import stats
 
 from mapfilter.filter.kernels.draws import counter_normals, counter_uniforms
-from mapfilter.filter.kernels.passes import LIKELIHOOD_SIGNATURE, X, Y
+from mapfilter.filter.kernels.passes import LIKELIHOOD_SIGNATURE, X
 from mapfilter.filter.models.interface import LikelihoodKernel, MeasurementModel
 from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.models.path_loss import path_loss_kernel
 from mapfilter.filter.models.position_fix import GaussianFixLikelihood, PositionFix
-from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter, bandwidth_and_root
+from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
 from mapfilter.filter.particles import Particles
+from mapfilter.filter.reference import reference_step
 from mapfilter.maps.floorplan import FloorPlan
-from tests import oracle_filter as oracle
+from mapfilter.maps.walls import touches_wall_reference
 from tests.filter.test_filter_pf import ROOMS
 
 KEY = 0x1234_5678_9ABC
+
+
+def _normals(key: int, pairs: int, n: int) -> np.ndarray:
+    """(2 pairs, n): the standard normals the move kernel gets (pair k in rows 2k, 2k + 1)."""
+    return np.vstack([np.vstack(counter_normals(key, pair, n)) for pair in range(pairs)])
 
 
 def _draws(pf: ParticleFilter, resampled: bool) -> tuple[int, float | None, int | None]:
@@ -63,13 +71,9 @@ def test_the_move_is_the_oracles(motion, step_input):
     before = pf.particles.state.copy()
     key, _, _ = _draws(pf, resampled=False)
     pf.step(1.0, 0.7, step_input)
-    z = oracle.normals(key, 3, before.shape[1])
-    if isinstance(motion, RandomWalkMotion):
-        expected = oracle.move_random_walk(before, z, motion.radius_mps * 0.7, motion.sigma_mps * 0.7)
-    elif isinstance(motion, ConstantVelocityMotion):
-        expected = oracle.move_constant_velocity(before, z, 0.7, motion.accel_sigma_mps2, motion.max_speed_mps)
-    else:
-        expected = oracle.move_pdr(before, z, motion, step_input.n_steps, step_input.heading_change_rad)
+    z = _normals(key, 3, before.shape[1])
+    expected = motion.move(before, z, step_input, 0.7)
+    if isinstance(motion, PDRMotion):
         if step_input.n_steps == 2:
             ignored = np.isclose(np.mod(expected[4] - before[4] + math.pi, 2 * math.pi) - math.pi,
                                  motion.heading_sigma_rad * z[0], atol=1e-9)
@@ -86,7 +90,7 @@ def test_the_wall_kill_is_the_brute_force_check_of_every_live_move(motion, step_
     after = pf.particles
     moved_dead = ~np.isfinite(after.log_weight)
     live_before = np.isfinite(before.log_weight)
-    expected = oracle.crosses(ROOMS, before.xy_m[live_before], after.xy_m[live_before])
+    expected = touches_wall_reference(ROOMS, before.xy_m[live_before], after.xy_m[live_before])
     assert expected.sum() > 50  # the test sees many crossings
     np.testing.assert_array_equal(moved_dead[live_before], expected)
     assert moved_dead[~live_before].all()
@@ -127,35 +131,18 @@ def test_the_weights_are_the_formulas(kind):
 
 
 @pytest.mark.parametrize("regularise", [False, True])
-def test_resampling_and_the_jitter_are_the_oracles(regularise):
+def test_resampling_with_and_without_the_jitter_is_the_reference_steps(regularise):
     pf = _filter(ROOMS, RandomWalkMotion(radius_mps=0.8), ess_fraction=1.0, centre=(5.0, 5.0), radius=3.0)
     pf.config = FilterConfig(n_particles=pf.n, resample_ess_fraction=1.0, regularise=regularise)
     pf.step(0.5, 0.1)  # parents exist from the first step after the initialisation
-    before = pf.particles.copy()
-    key, u, jitter_key = _draws(pf, resampled=True)
+    before, rng = pf.particles.copy(), copy.deepcopy(pf.rng)
     model, fix = GaussianFixLikelihood(1.5), PositionFix((6.0, 5.5))
-    report = pf.step(1.0, 1.0, None, model, fix)
-    assert report.resampled
-    # the stages before, from the oracle (held to the kernels by the tests above)
-    z = oracle.normals(key, 3, pf.n)
-    moved = oracle.move_random_walk(before.state, z, 0.8, 0.5)
-    alive = ~oracle.crosses(ROOMS, before.xy_m, moved[:2].T)
-    log_w = np.where(alive, before.log_weight - ((moved[:2].T - [6.0, 5.5]) ** 2).sum(axis=1) / (2 * 1.5 ** 2), -np.inf)
-    w = np.exp(log_w - np.logaddexp.reduce(log_w))
-    parents = oracle.systematic_parents(w, u, pf.n)
-    got_parents = pf.last_parents
-    assert np.mean(parents == got_parents) > 0.995  # a bin edge within round-off may differ
-    same = parents == got_parents
-    if not regularise:
-        np.testing.assert_allclose(pf.particles.xy_m[same], moved[:2].T[got_parents[same]], atol=2e-6)
-        return
-    mean = (w[:, None] * moved[:2].T).sum(axis=0)
-    cov = (w[:, None, None] * np.einsum("ni,nj->nij", moved[:2].T - mean, moved[:2].T - mean)).sum(axis=0)
-    h, root = bandwidth_and_root(ROOMS.resolution_m, cov, pf.n)
-    expected = oracle.jitter(ROOMS, moved[:, got_parents], before.xy_m[got_parents], jitter_key, 3, h, root)
-    close = np.all(np.abs(pf.particles.xy_m - expected) < 1e-5, axis=1)
+    assert pf.step(1.0, 1.0, None, model, fix).resampled
+    expected = reference_step(ROOMS, before, pf.motion, None, 1.0, [(model, fix)], pf.config, rng)
+    same = expected.parents == pf.last_parents
+    assert same.mean() > 0.995  # a bin edge within round-off may differ
+    close = np.all(np.abs(pf.particles.xy_m - expected.particles.xy_m) < 1e-5, axis=1)
     assert close[same].mean() > 0.995
-    assert not np.array_equal(pf.particles.xy_m, moved[:2].T[got_parents])  # the jitter moved them
 
 
 def test_resampling_never_picks_a_dead_particle():

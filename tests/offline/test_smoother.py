@@ -11,10 +11,10 @@ import pytest
 from mapfilter.filter.models.motion import RandomWalkMotion
 from mapfilter.filter.particles import STATE_ROWS, X, Y
 from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.maps.walls import touches_wall_reference
 from mapfilter.offline import smoother
 from mapfilter.offline.smoother import FixedLagSmoother, ParticleHistory, smooth
 
-from oracle_filter import crosses
 
 
 def _rooms() -> FloorPlan:
@@ -61,7 +61,7 @@ def _oracle_weights(history: ParticleHistory, plan: FloorPlan, variance_m2: floa
         exponent = d2 / (2 * variance_m2)
         f = np.where(exponent < -np.log(smoother._NEGLIGIBLE), np.exp(-exponent), 0.0)  # the kernel's cut-offs
         ii, jj = np.meshgrid(np.arange(len(a)), np.arange(len(b)), indexing="ij")
-        f[crosses(plan, a[ii.ravel()], b[jj.ravel()]).reshape(f.shape)] = 0.0
+        f[touches_wall_reference(plan, a[ii.ravel()], b[jj.ravel()]).reshape(f.shape)] = 0.0
         f[f <= smoother._NEGLIGIBLE * f.max(axis=0, keepdims=True)] = 0.0
         denominator = now.weight @ f
         w = now.weight * (f @ np.where(denominator > 0, weights[t + 1] / np.where(denominator > 0, denominator, 1), 0))

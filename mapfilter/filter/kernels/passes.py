@@ -534,6 +534,18 @@ def resample_sums(n: int) -> np.ndarray:
     return np.empty(n_blocks(n), dtype=RESAMPLE_SUMS)
 
 
+def run_move(function, params: np.ndarray, state: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """The state after a move kernel's move of every particle of ``state`` (serially, block by
+    block), given each particle's normals (rows: the kernel's normal pairs, columns: particles)."""
+    out = np.empty_like(state)
+    block = np.zeros((max(normals.shape[0], 1), BLOCK))
+    for lo in range(0, state.shape[1], BLOCK):
+        m = min(state.shape[1], lo + BLOCK) - lo
+        block[:normals.shape[0], :m] = normals[:, lo:lo + m]
+        function(params, state, out, block, lo, m)
+    return out
+
+
 def run_likelihood(function, params: np.ndarray, state: np.ndarray) -> np.ndarray:
     """(N,) a likelihood kernel's values over every particle of ``state`` (serially, block by
     block): for models and callers that need the values themselves."""

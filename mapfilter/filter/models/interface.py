@@ -23,7 +23,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from mapfilter.filter.kernels.passes import run_likelihood
+from mapfilter.filter.kernels.passes import run_likelihood, run_move
 from mapfilter.filter.particles import Particles
 from mapfilter.maps.floorplan import FloorPlan
 
@@ -60,6 +60,13 @@ class MotionModel(Protocol):
         """This step's move over ``dt_s`` seconds; ``inputs`` is model specific (None for the random
         walk and constant velocity, a ``StepInput`` for PDR)."""
         ...
+
+    def move(self, state: np.ndarray, normals: np.ndarray, inputs: Any, dt_s: float) -> np.ndarray:
+        """The same move in numpy over every particle (the reference step's, ``filter.reference``):
+        ``state`` (STATE_ROWS, N) before, ``normals`` (2 x the kernel's pairs, N), the state after.
+        A model with only a kernel inherits this (its kernel over the particles)."""
+        kernel = self.kernel(inputs, dt_s)
+        return run_move(kernel.function, kernel.params, state, normals[:2 * kernel.normal_pairs])
 
     def predict(self, state: np.ndarray, inputs: Any, dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
         """The move's density, for the smoother (``offline.smoother``): (means (K, M, 2) of the

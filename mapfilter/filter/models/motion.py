@@ -3,6 +3,8 @@
 Each gives the filter a compiled move kernel and its parameters per step; the kernel reads the
 state before the step and writes the state after it (heading 0 = +x, counter-clockwise,
 radians), with standard normals drawn by the filter (``normals[k, j]`` for particle lo + j).
+``move`` is the same move in numpy over every particle, the kernel's twin: the reference step
+(``filter.reference``) calls it, and the tests hold each kernel to it.
 """
 
 from __future__ import annotations
@@ -67,6 +69,14 @@ class RandomWalkMotion(MotionModel):
         dt = max(float(dt_s), 0.0)
         return MoveKernel(_circle_walk, np.array([self.radius_mps * dt, self.sigma_mps * dt]), 2)
 
+    def move(self, state: np.ndarray, normals: np.ndarray, inputs: object, dt_s: float) -> np.ndarray:
+        dt = max(float(dt_s), 0.0)
+        phi = np.arctan2(normals[3], normals[2])  # the second normal pair's direction: uniform
+        out = state.copy()
+        out[X] += self.radius_mps * dt * np.cos(phi) + self.sigma_mps * dt * normals[0]
+        out[Y] += self.radius_mps * dt * np.sin(phi) + self.sigma_mps * dt * normals[1]
+        return out
+
     def predict(self, state: np.ndarray, inputs: object, dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
         # the ring as an isotropic Gaussian of the same second moment: r^2 / 2 + sigma^2 per axis
         dt = max(float(dt_s), 0.0)
@@ -113,6 +123,17 @@ class ConstantVelocityMotion(MotionModel):
     def kernel(self, inputs: object, dt_s: float) -> MoveKernel:
         params = np.array([max(float(dt_s), 0.0), self.accel_sigma_mps2, self.max_speed_mps])
         return MoveKernel(_constant_velocity, params, 1)
+
+    def move(self, state: np.ndarray, normals: np.ndarray, inputs: object, dt_s: float) -> np.ndarray:
+        dt = max(float(dt_s), 0.0)
+        accel = self.accel_sigma_mps2 * normals[:2]
+        out = state.copy()
+        out[X:Y + 1] += state[VX:VY + 1] * dt + 0.5 * dt ** 2 * accel
+        velocity = state[VX:VY + 1] + accel * dt
+        speed = np.hypot(velocity[0], velocity[1])
+        out[VX:VY + 1] = velocity * np.where(speed > self.max_speed_mps, self.max_speed_mps / np.maximum(speed, 1e-300),
+                                             1.0)
+        return out
 
     def predict(self, state: np.ndarray, inputs: object, dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
         dt = max(float(dt_s), 0.0)
@@ -210,6 +231,27 @@ class PDRMotion(MotionModel):
         params[_P_LENGTH_MAX] = self.step_length_max_m
         params[_P_POSITION_SIGMA] = POSITION_SIGMA_M * math.sqrt(n_steps)
         return MoveKernel(_pdr_step, params, 3)
+
+    def move(self, state: np.ndarray, normals: np.ndarray, inputs: StepInput | None, dt_s: float) -> np.ndarray:
+        out = state.copy()
+        if inputs is None:
+            return out
+        n = int(inputs.n_steps)
+        change = float(inputs.heading_change_rad)
+        share = self.false_turn_fraction if abs(change) >= TURN_THRESHOLD_RAD else 0.0
+        ignores = normals[5] < (-math.inf if share <= 0 else math.inf if share >= 1
+                                else statistics.NormalDist().inv_cdf(share))  # false turns
+        heading = state[HEADING] + np.where(ignores, 0.0, change) + self.heading_sigma_rad * normals[0]
+        heading = np.mod(heading + math.pi, 2 * math.pi) - math.pi
+        length = state[STEP]
+        if n > 0:
+            length = np.clip(length + STEP_LENGTH_WALK_SIGMA_M * math.sqrt(n) * normals[1], self.step_length_min_m,
+                             self.step_length_max_m)
+        out[X] += n * length * np.cos(heading) + POSITION_SIGMA_M * math.sqrt(n) * normals[2]
+        out[Y] += n * length * np.sin(heading) + POSITION_SIGMA_M * math.sqrt(n) * normals[3]
+        out[HEADING] = heading
+        out[STEP] = length
+        return out
 
     def predict(self, state: np.ndarray, inputs: StepInput | None, dt_s: float) -> tuple[np.ndarray, np.ndarray, float]:
         xy = state[X:Y + 1].T
