@@ -9,7 +9,6 @@ the offline track; fed in pieces; weighed by the kernel as the formula says."""
 from __future__ import annotations
 
 import csv
-import io
 import sys
 
 import numpy as np
@@ -24,11 +23,9 @@ from mapfilter.filter.models.frame import StateFrame
 from mapfilter.filter.models.ranges import RangeLikelihood, RangeSet
 from mapfilter.filter.particles import Particles
 from mapfilter.filter.sources.ranges import Ranges, RangesConfig
-from mapfilter.pipeline.tracker import Tracker, TrackingInputs
 from mapfilter.sensors.anchors import AnchorTable, read_ranges, simulate_ranges
-from mapfilter.sensors.logs import LogStream, read_log
+from mapfilter.sensors.logs import read_log
 from tests.conftest import REPO
-from tests.sensors.test_logs_stream import random_pieces
 
 OFFICE = REPO / "maps" / "office.yaml"
 WALK = REPO / "maps" / "office_walk.txt.gz"
@@ -170,59 +167,6 @@ def test_the_offline_track_replays_the_ranges(files):
     assert _mean_error(both.restarted, walk) < 0.4 < 1.0 < _mean_error(wifi.restarted, walk)
     assert _mean_error(both.offline, walk) < _mean_error(wifi.offline, walk) + 0.05
     assert count_wall_crossings(mf.load_map(OFFICE).floors[0].plan, both.offline.xy_m) == 0
-
-
-def test_mapfilter_track_with_ranges_is_mf_tracks(files, tmp_path, capsys):
-    anchors, ranges = files
-    out = tmp_path / "track.csv"
-    assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIO_MAP), "--anchors", str(anchors),
-                 "--ranges", str(ranges), "--particles", "2000", "--seed", "1", "--out", str(out)]) == 0
-    printed = capsys.readouterr().out
-    assert "range sets" in printed and "40 WiFi scans used" in printed
-    api = mf.track(OFFICE, WALK, radio_map=RADIO_MAP, config=_config(),
-                   sources={"ranges": {"anchors": anchors, "ranges": ranges}})
-    mf.write_track(api.causal, tmp_path / "api.csv")
-    assert out.read_bytes() == (tmp_path / "api.csv").read_bytes()
-
-
-def test_a_live_run_with_ranges_is_the_file_runs_track(files, tmp_path, monkeypatch, capsys):
-    import gzip
-
-    anchors, ranges = files
-    options = ["--anchors", str(anchors), "--ranges", str(ranges), "--particles", "2000", "--seed", "3"]
-    whole = tmp_path / "file.csv"
-    assert main(["track", str(OFFICE), str(WALK), *options, "--out", str(whole)]) == 0
-    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BufferedReader(io.BytesIO(gzip.decompress(
-        WALK.read_bytes())))))
-    live = tmp_path / "live.csv"
-    assert main(["track", str(OFFICE), "-", *options, "--out", str(live)]) == 0
-    assert live.read_bytes() == whole.read_bytes()
-    assert "range sets" in capsys.readouterr().err
-
-
-def test_fed_in_random_pieces_the_ranges_give_the_whole_files_track(files):
-    import gzip
-
-    anchors, ranges = files
-    inputs = TrackingInputs(mf.load_radio_map(RADIO_MAP), sources=mf.load_sources(
-        {"ranges": {"anchors": anchors, "ranges": ranges}}, OFFICE))
-    building, config = mf.load_map(OFFICE), _config(seed=5)
-    whole = Tracker(building, inputs, config)
-    whole.feed(read_log(WALK))
-    whole.close()
-    data = gzip.decompress(WALK.read_bytes())
-    for seed in (1, 2):
-        tracker = Tracker(building, inputs, config)
-        stream = LogStream("walk")
-        for piece in random_pieces(data, np.random.default_rng(seed)):
-            tracker.feed(stream.feed_bytes(piece))
-        tracker.feed(stream.close())
-        tracker.close()
-        assert tracker.stream.late_records == 0
-        for a, b in zip((whole.causal.t_s, whole.causal.xy_m, whole.causal.std_m),
-                        (tracker.causal.t_s, tracker.causal.xy_m, tracker.causal.std_m)):
-            np.testing.assert_array_equal(a, b)
-        assert tracker.sources[0].n_measurements == whole.sources[0].n_measurements
 
 
 def test_only_the_walks_own_ranges_are_weighed(files, tmp_path):

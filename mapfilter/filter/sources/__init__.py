@@ -13,6 +13,10 @@ the rest of mapfilter needs to reach it, all said by one ``SourcePlugin``:
 - ``load``: its files -> its input (a table, ...), checked against the building;
 - ``source``: its input -> a walk's ``MeasurementSource`` on the filter's frame
   (``filter.models.frame.StateFrame``);
+- ``check``: whether an object is its input (the API takes inputs and files alike);
+- ``example``: its files for a walk with ground truth, as its sensor would have measured them:
+  the contract tests (``tests/filter/test_source_contract.py``) run every registered source on
+  it, so a new source gets them without a line of test code;
 - ``survey`` and ``for_walk`` (optional): what an evaluation fits on labelled walks, and the
   input a walk is evaluated with (never fitted on that walk).
 
@@ -20,6 +24,9 @@ From there it reaches ``mf.track``, ``mf.Tracker``, ``mapfilter track`` (a file,
 a live stream), ``evaluate``, the offline track's second pass and ``evaal``; nothing else names
 it. Every module of this package that sets ``SOURCE`` is one (in name order); a package
 installed beside mapfilter adds its own through the entry-point group ``mapfilter.sources``.
+The registry protects itself: a plug-in that does not write ``load``, ``source`` and ``check``,
+whose name or option another plug-in has, or whose option is a command's own, is left out with
+one line saying why (``refusals``), and every other command and source still works.
 A plug-in module imports nothing numerical at its top, so that ``--help`` lists its options
 without numpy: its hooks import the model and the tables when a run calls them.
 docs/models.md writes one.
@@ -91,6 +98,13 @@ class SourcePlugin:
         files, and a wrong object must fail here, in one line, not deep inside a run. Every
         source writes it (a source that does not is refused)."""
         raise NotImplementedError
+
+    def example(self, log: Path, building: Building, folder: Path, rng: Any) -> tuple[dict[str, Path], Path]:
+        """Its files for the walk of ``log`` (a log with ground truth: waypoints every few
+        metres), written into ``folder`` as its sensor would have measured them along the truth
+        (``rng``: a ``numpy.random.Generator``), and the log to track with them (``log``, or a
+        copy with the source's rows added). The contract tests run every source on it."""
+        raise NotImplementedError(f"source {self.name!r} writes no example (docs/models.md)")
 
     def survey(self, given: Any, building: Building, recordings: Sequence[Recording]) -> Any:
         """What an evaluation takes from labelled walks once for all its walks (None: nothing)."""

@@ -86,6 +86,47 @@ class BlePlugin(SourcePlugin):
     def source(self, given: Any, frame, config: BleConfig) -> BeaconSource:
         return BeaconSource(given, frame, config)
 
+    def example(self, log: Path, building, folder: Path, rng) -> tuple[dict[str, Path], Path]:
+        """Eight beacons on the first floor's free space (C -62 dBm, n 2.1), each read about
+        once a second along the walk's waypoints with 4 dB of noise, unheard below -100 dBm:
+        the table, and the log (an ILC trace) with the readings as TYPE_BEACON rows."""
+        import gzip
+
+        import numpy as np
+
+        from mapfilter.sensors.beacons import beacon_rssi_dbm
+        from mapfilter.sensors.logs import read_log, read_log_header
+
+        if read_log_header(log).get("format") != "ILC 2.0":
+            raise MapfilterError("the BLE example writes TYPE_BEACON rows: it needs an ILC 2.0 trace", log)
+        xy = building.floors[0].plan.sample_free(8, rng)
+        floor = "" if building.is_single_floor else building.floor_names[0]
+        macs = [f"00:AB:CD:EF:01:{i:02X}" for i in range(len(xy))]
+        table = folder / "beacons.csv"
+        table.write_text("beacon_id,x,y,floor,C,n\n" + "".join(
+            f"{mac},{x:.2f},{y:.2f},{floor},-62,2.1\n" for mac, (x, y) in zip(macs, xy)))
+        walk = read_log(log)
+        t0, t1 = walk.waypoint_t_s[0], walk.waypoint_t_s[-1]
+        rows = []
+        for mac, beacon_xy in zip(macs, xy):
+            t = np.sort(rng.uniform(t0, t1, int(t1 - t0)))
+            truth = np.column_stack([np.interp(t, walk.waypoint_t_s, walk.waypoint_xy_m[:, k]) for k in (0, 1)])
+            rssi = np.round(beacon_rssi_dbm(np.linalg.norm(truth - beacon_xy, axis=1), -62.0, 2.1)
+                            + 4.0 * rng.standard_normal(t.size))
+            # an ILC trace's TYPE_BEACON row: uuid, major, minor, tx power, RSSI, distance, MAC, time
+            rows += [(ms, f"{ms}\tTYPE_BEACON\tfda50693-a4e2-4fb1-afcf-c6eb07647825\t1\t1\t-59\t{int(r)}\t1.0\t"
+                          f"{mac}\t{ms}\n") for ms, r in zip(np.round(t * 1000).astype(np.int64).tolist(), rssi)
+                     if r >= -100]
+        data = Path(log).read_bytes()
+        lines = (gzip.decompress(data) if data[:2] == b"\x1f\x8b" else data).decode().splitlines(keepends=True)
+        records = sorted([(int(line.split("\t", 1)[0]), line) for line in lines if not line.startswith("#")]
+                         + rows, key=lambda row: row[0])
+        out = folder / "walk_with_beacons.txt"
+        out.write_text("".join([*(line for line in lines if line.startswith("#") and "endTime" not in line),
+                                *(line for _, line in records),
+                                *(line for line in lines if line.startswith("#") and "endTime" in line)]))
+        return {"beacons": table}, out
+
     def survey(self, given: Any, building, recordings: Sequence) -> Any:
         from mapfilter.sensors.beacons import labelled_readings
 

@@ -74,6 +74,28 @@ class RangesPlugin(SourcePlugin):
     def source(self, given: Ranges, frame, config: RangesConfig) -> RangeSource:
         return RangeSource(given, frame, config)
 
+    def example(self, log: Path, building, folder: Path, rng) -> tuple[dict[str, Path], Path]:
+        """An anchor 1.5 m above the phone in each corner of the first floor's free space, each
+        ranged twice a second with 0.1 m of noise along the walk's waypoints."""
+        import numpy as np
+
+        from mapfilter.sensors.anchors import AnchorTable, simulate_ranges
+        from mapfilter.sensors.logs import read_log
+
+        plan = building.floors[0].plan
+        free = plan.sample_free(20_000, rng)
+        low, high = np.percentile(free, 2, axis=0), np.percentile(free, 98, axis=0)
+        corners = [(low[0], low[1]), (high[0], low[1]), (low[0], high[1]), (high[0], high[1])]
+        floor = "" if building.is_single_floor else building.floor_names[0]
+        anchors = folder / "anchors.csv"
+        anchors.write_text("anchor_id,x,y,floor,height\n" + "".join(
+            f"A{i},{x:.2f},{y:.2f},{floor},1.5\n" for i, (x, y) in enumerate(corners)))
+        table = AnchorTable.read_csv(anchors, building)
+        walk = read_log(log)
+        simulate_ranges(table, building, walk.waypoint_t_s, walk.waypoint_xy_m, 0, rng).write_csv(
+            folder / "ranges.csv", table)
+        return {"anchors": anchors, "ranges": folder / "ranges.csv"}, log
+
 
 class RangeSource(TimedTableSource):
     """The ranges of a range log as measurements (module docstring)."""
