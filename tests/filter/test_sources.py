@@ -1,4 +1,4 @@
-"""Measurement sources (filter/sources, filter.causal.MeasurementSource): the registry, and the
+"""Measurement sources (filter/sources, filter.measurement.MeasurementSource): the registry, and the
 adapters' contract that a chunked feed gives the whole file's track.
 
 The BLE walk is test_ble's simulated office walk with beacon readings; every registered source
