@@ -37,8 +37,7 @@ from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.floor_vote import check_building_radio_map, floor_vote_log_likelihood
 from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position, match_scan
 from mapfilter.sensors.radiomap import (STRONG_MIN_RSSI_DBM, RadioMap, cross_validated_fix_errors, kwnn_fix_many,
-                                       memo_of,
-                                       strong_kwnn_fixes)
+                                       kwnn_fixes_by_floor, match_distance_by_floor_db, memo_of, strong_kwnn_fixes)
 from mapfilter.sensors.wifi import WifiScan
 
 FINGERPRINT_MODELS = ("fix", "blend", "likelihood")
@@ -170,7 +169,12 @@ class WifiEvidence:
         if not any(self._usable):
             raise MapfilterError(f"no WiFi scan of {self.log_name} gives a fingerprint fix with this radio map")
 
-    def add_scans(self, scans: list[WifiScan]) -> None:
+    def add_scans(self, scans: list[WifiScan], kwnn_xy_m: np.ndarray | None = None, in_survey: np.ndarray | None = None,
+                  wanted: np.ndarray | None = None) -> None:
+        """The scans' measurements. A building (``BuildingEvidence``) gives what it computed for
+        every floor at once: ``kwnn_xy_m`` (S, 2) the KWNN fixes on this floor's frame,
+        ``in_survey`` (S,) the scans' in-survey probabilities, and ``wanted`` (S,) the scans whose
+        fix it will read (the others get none)."""
         if not scans:
             return
         self.scans.extend(scans)
@@ -189,11 +193,15 @@ class WifiEvidence:
             self._kwnn.extend(nan2)
             self._best.extend(nan2)
             return
-        matrix = radio_map.scan_matrix(scans)
-        if wifi.kwnn_min_rssi_dbm is None:
+        matrix = radio_map.scan_matrix(scans) if kwnn_xy_m is None or in_survey is None else None
+        if kwnn_xy_m is not None:
+            kwnn = np.array(kwnn_xy_m, dtype=np.float64).reshape(-1, 2)
+        elif wifi.kwnn_min_rssi_dbm is None:
             kwnn = kwnn_fix_many(radio_map, matrix, k=wifi.kwnn_k).xy_m
         else:
             kwnn = strong_kwnn_fixes(radio_map, matrix, wifi.kwnn_k, wifi.kwnn_min_rssi_dbm)
+        if wanted is not None:
+            kwnn[~np.asarray(wanted, dtype=bool)] = np.nan
         best = np.full((len(scans), 2), np.nan)
         if wifi.fingerprint_model == "blend":
             model = self.radio_map_model()
@@ -201,7 +209,7 @@ class WifiEvidence:
                 if np.isfinite(kwnn[i]).all():
                     best[i] = model.best_position(scan)
         fix = np.where(np.isfinite(best), 0.5 * (kwnn + best), kwnn)
-        self._in_survey.extend(self.reach.in_survey_probability(matrix))
+        self._in_survey.extend(self.reach.in_survey_probability(matrix) if in_survey is None else in_survey)
         self._kwnn.extend(kwnn)
         self._best.extend(best)
         self._fix.extend(fix)
@@ -334,6 +342,15 @@ class NoWifiEvidence:
         return None
 
 
+def _floor_map(radio_map: RadioMap, floor: int) -> RadioMap:
+    """``radio_map.floor_map(floor)``, kept with the radio map: the radio-map likelihood built for
+    it is then built once for every walk tracked with it."""
+    memo = memo_of(radio_map)
+    if ("floor", floor) not in memo:
+        memo[("floor", floor)] = radio_map.floor_map(floor)
+    return memo[("floor", floor)]
+
+
 def _every_floor_on(radio_map: RadioMap, building, floor: int) -> tuple[RadioMap, DistanceGrid]:
     """Every floor's reference points in floor ``floor``'s frame, as one floor's radio map, and the
     3-D distance from each cell of that floor to the nearest of them (storeys apart by their
@@ -414,16 +431,23 @@ class BuildingEvidence:
         # per floor, the evidence of its own fingerprints too: their fix where they reach the scan
         self._own_floor: list[tuple[RadioMap, WifiEvidence] | None] = [None] * n_floors
         reach = None if radio_map is None else survey_reach(radio_map)  # one for every floor: all its points
+        self._reach = reach
+        # every reference point in the building's frame (the fix from every floor's points)
+        self._points_in_building = None if radio_map is None else np.zeros_like(radio_map.xy_m)
+        for f, floor in enumerate(stack.building.floors):
+            if radio_map is not None:
+                on = radio_map.floor == f
+                self._points_in_building[on] = floor.to_building(radio_map.xy_m[on])
         for f, floor in enumerate(stack.building.floors):
             if radio_map is None:
                 continue
-            if len(radio_map.floor_map(f)) == 0:
+            own_map = _floor_map(radio_map, f)
+            if len(own_map) == 0:
                 continue
             floor_config = wifi
             if fix_sigma_by_floor_m and floor.name in fix_sigma_by_floor_m:
                 floor_config = dataclasses.replace(wifi, fix_sigma_m=fix_sigma_by_floor_m[floor.name])
             every_floor, grid = _every_floor_on(radio_map, stack.building, f)
-            own_map = radio_map.floor_map(f)
             own = WifiEvidence(own_map, None, floor.plan, floor_config, log_name=log_name, reach=reach, grid=grid)
             if own.fix_sigma_m is None:
                 raise MapfilterError("tracking across floors weighs fingerprint fixes: use the fingerprint "
@@ -464,21 +488,29 @@ class BuildingEvidence:
         self.scans.extend(scans)
         n_floors = len(self.floor_wifi)
         fix = np.full((len(scans), n_floors, 2), np.nan)
-        for f, evidence in enumerate(self.floor_wifi):
-            if evidence is not None:
-                evidence.add_scans(scans)
-                own_map, own = self._own_floor[f]
-                own.add_scans(scans)
+        if self._radio_map is not None:
+            # one matrix of signal distances for every floor: the fixes from every floor's points
+            # (building frame), each floor's from its own, and each scan's match to each floor
+            radio_map, floors = self._radio_map, self._stack.building.floors
+            matrix = radio_map.scan_matrix(scans)
+            every_xy, own_xy = kwnn_fixes_by_floor(radio_map, matrix, self._points_in_building, self._wifi.kwnn_k,
+                                                   self._wifi.kwnn_min_rssi_dbm)
+            match = match_distance_by_floor_db(radio_map, matrix)
+            reach = self._reach
+            in_survey = reach.probability(match.min(axis=1, initial=np.inf))
+            self._in_survey.extend(in_survey)
+            for f, evidence in enumerate(self.floor_wifi):
+                if evidence is None:
+                    continue
                 # the floor's own fingerprints where they reach the scan (a surveyed route: as on one
                 # floor), every floor's where they do not (a floor surveyed only above or below)
-                own_reach = evidence.reach.in_survey_probability(own_map.scan_matrix(scans), against=own_map)
-                fix[:, f] = self._stack.to_stack(np.where((own_reach >= OWN_FLOOR_MIN_PROBABILITY)[:, None],
-                                                          own.fix_xy_m_since(first), evidence.fix_xy_m_since(first)), f)
+                own_reaches = reach.probability(match[:, f]) >= OWN_FLOOR_MIN_PROBABILITY
+                evidence.add_scans(scans, floors[f].from_building(every_xy), in_survey)
+                own = self._own_floor[f][1]
+                own.add_scans(scans, own_xy[:, f], in_survey, wanted=own_reaches)
+                fix[:, f] = self._stack.to_stack(np.where(own_reaches[:, None], own.fix_xy_m_since(first),
+                                                          evidence.fix_xy_m_since(first)), f)
         self._fix.extend(fix)
-        # every floor's evidence matches the scans against all the building's points: one probability
-        wifi = next((e for e in self.floor_wifi if e is not None), None)
-        if wifi is not None:
-            self._in_survey.extend(wifi.in_survey[first:])
         if self._given_floor_ll is not None:
             self._floor_ll.extend(self._given_floor_ll[first:first + len(scans)])
         elif self._radio_map is None:

@@ -30,7 +30,7 @@ from mapfilter.filter.causal import CausalFilter, RunSettings
 from mapfilter.filter.measurement import MeasurementSource
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.evidence import BuildingEvidence, NoWifiEvidence, WifiEvidence
-from mapfilter.filter.models.building import FloorChanges, FloorStack
+from mapfilter.filter.models.building import FloorChanges, FloorStack, floor_stack
 from mapfilter.filter.models.frame import StateFrame
 from mapfilter.filter.sources import registered
 from mapfilter.io.tracks import Track
@@ -141,7 +141,7 @@ def _empty_evidence(building: Building, inputs: TrackingInputs, config: Tracking
                                  f"access-point table (trilateration){others}")
         if building.is_single_floor or floor is not None:
             return NoWifiEvidence(log_name), 0 if building.is_single_floor else building.floor_index(floor), None
-        stack = FloorStack(building)
+        stack = floor_stack(building)
         return (BuildingEvidence(None, stack, config.wifi, None, log_name, config.floors.use_barometer,
                                  config.floors.barometer, floor_evidence), None, stack)
     if building.is_single_floor or floor is not None:
@@ -160,7 +160,7 @@ def _empty_evidence(building: Building, inputs: TrackingInputs, config: Tracking
     if access_points is not None:
         raise MapfilterError("tracking across floors needs a building's radio map, not an access-point table "
                              "(or give the floor)")
-    stack = FloorStack(building)
+    stack = floor_stack(building)
     evidence = BuildingEvidence(radio_map, stack, config.wifi, sigma, log_name, config.floors.use_barometer,
                                 config.floors.barometer, floor_evidence)
     return evidence, None, stack

@@ -886,6 +886,49 @@ def strong_kwnn_fixes(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4
     return fixes
 
 
+def kwnn_fixes_by_floor(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, point_xy_m: np.ndarray, k: int = 4,
+                        min_rssi_dbm: float | None = STRONG_MIN_RSSI_DBM) -> tuple[np.ndarray, np.ndarray]:
+    """A building's KWNN fixes from one matrix of signal distances: ((S, 2) the fix from every
+    floor's points, placed at ``point_xy_m`` (P, 2), e.g. each point in the building's frame;
+    (S, F, 2) each floor's fix from its own points, in its own frame). The same fixes as
+    ``strong_kwnn_fixes`` (``min_rssi_dbm`` None: ``kwnn_fix_many``) of the whole map and of each
+    ``floor_map``, without computing the distances once per floor."""
+    scans = np.ascontiguousarray(scan_rssi_dbm, dtype=np.float64)
+    n_floors = len(radio_map.floor_names)
+    every = np.full((scans.shape[0], 2), np.nan)
+    own = np.full((scans.shape[0], n_floors, 2), np.nan)
+    if scans.shape[0] == 0 or len(radio_map) == 0:
+        return every, own
+    weights = _ref_weights(radio_map)
+    floor = np.asarray(radio_map.floor)
+
+    def fixes(rows: np.ndarray, missing_dbm: float, floor_rssi_dbm: float | None) -> None:
+        dist, shared = _distances_to_references(radio_map, scans[rows], 2.0, missing_dbm, floor_rssi_dbm)
+        heard = np.count_nonzero(~np.isnan(_below_floor_unheard(scans[rows], floor_rssi_dbm)), axis=1)
+        every[rows] = _kwnn_from_distances(point_xy_m, dist.copy(), shared, heard, k, 2.0, 3, weights).xy_m
+        for f in range(n_floors):
+            on = floor == f
+            if on.any():
+                own[rows, f] = _kwnn_from_distances(radio_map.xy_m[on], dist[:, on], shared[:, on], heard, k, 2.0, 3,
+                                                    None if weights is None else weights[on]).xy_m
+
+    all_rows = np.arange(scans.shape[0])
+    if min_rssi_dbm is None:
+        fixes(all_rows, -100.0, None)
+        return every, own
+    fixes(all_rows, STRONG_MISSING_DBM, min_rssi_dbm)
+    # a scan (or a floor) with too few strong APs for a fix takes its plain KWNN fix, as strong_kwnn_fixes
+    strong_every, strong_own = every.copy(), own.copy()
+    missing = ~np.isfinite(every).all(axis=1) | ~np.isfinite(own).all(axis=2).all(axis=1)
+    if missing.any():
+        fixes(np.flatnonzero(missing), -100.0, None)
+        keep_every = np.isfinite(strong_every).all(axis=1)
+        every[keep_every] = strong_every[keep_every]
+        keep_own = np.isfinite(strong_own).all(axis=2)
+        own[keep_own] = strong_own[keep_own]
+    return every, own
+
+
 def cross_validated_fix_errors(radio_map: RadioMap, k: int = 4, max_groups: int = 200,
                                min_separation_m: float = 1.0) -> np.ndarray:
     """KWNN fix errors (m) of the radio map's own reference points, each fixed without its group.
@@ -930,12 +973,26 @@ def _survey_match_params() -> np.ndarray:
 def match_distance_db(radio_map: RadioMap, scan_rssi_dbm: np.ndarray) -> np.ndarray:
     """(S,) each scan's signal distance (dB) to its best-matching reference point (inf: none
     shares ``MATCH_MIN_SHARED_APS`` APs heard at ``MATCH_MIN_RSSI_DBM`` or more)."""
+    return _match_distances(radio_map, scan_rssi_dbm).min(axis=1, initial=np.inf)
+
+
+def match_distance_by_floor_db(radio_map: RadioMap, scan_rssi_dbm: np.ndarray) -> np.ndarray:
+    """(S, F) each scan's match distance (``match_distance_db``) to each floor's points of a
+    building's radio map, from one matrix of signal distances."""
+    dist = _match_distances(radio_map, scan_rssi_dbm)
+    floor = np.asarray(radio_map.floor)
+    return np.stack([dist[:, floor == f].min(axis=1, initial=np.inf) for f in range(len(radio_map.floor_names))],
+                    axis=1).reshape(dist.shape[0], len(radio_map.floor_names))
+
+
+def _match_distances(radio_map: RadioMap, scan_rssi_dbm: np.ndarray) -> np.ndarray:
+    """(S, P) the match distance of each scan to each point (inf where they share too few APs)."""
     scans = np.ascontiguousarray(scan_rssi_dbm, dtype=np.float64).reshape(-1, len(radio_map.ap_keys))
     if scans.shape[0] == 0 or len(radio_map) == 0:
-        return np.full(scans.shape[0], np.inf)
+        return np.full((scans.shape[0], len(radio_map)), np.inf)
     dist, shared = _distances_to_references(radio_map, scans, 2.0, -100.0, min_rssi_dbm=MATCH_MIN_RSSI_DBM,
                                             per_ap=True)
-    return np.where(shared >= MATCH_MIN_SHARED_APS, dist, np.inf).min(axis=1)
+    return np.where(shared >= MATCH_MIN_SHARED_APS, dist, np.inf)
 
 
 def memo_of(radio_map: RadioMap) -> dict:

@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+import dataclasses
 import numpy as np
 import pytest
 from conftest import ILC_SITE1
@@ -654,3 +655,32 @@ def test_distances_by_matrix_products_equal_the_pairwise_merge_to_the_last_bit(f
     _signal_distances(rows.ptr, rows.col, rows.val, refs.ptr, refs.col, refs.val, 2.0, missing, False, dist, shared)
     np.testing.assert_array_equal(fast[0], dist)
     np.testing.assert_array_equal(fast[1], shared)
+
+
+def test_a_buildings_fixes_and_matches_from_one_distance_matrix_are_each_floors(office3, office3_radio_map):
+    """kwnn_fixes_by_floor and match_distance_by_floor_db (BuildingEvidence computes them once for
+    every floor) against strong_kwnn_fixes and match_distance_db of the whole map and of each floor's."""
+    from mapfilter.sensors.radiomap import (kwnn_fixes_by_floor, match_distance_by_floor_db, match_distance_db,
+                                            strong_kwnn_fixes)
+
+    building, _ = office3
+    radio_map = office3_radio_map
+    rng = np.random.default_rng(4)
+    points = rng.choice(len(radio_map), 40, replace=False)
+    scans = radio_map.rssi_dbm[points].astype(np.float64) + rng.normal(0.0, 3.0, (40, len(radio_map.ap_keys)))
+    scans = np.where(np.isnan(radio_map.rssi_dbm[points]), np.nan, np.round(scans))
+    scans[:3, :] = np.where(scans[:3, :] > -80, -88.0, scans[:3, :])  # too few strong APs: the plain fix
+    in_building = np.zeros_like(radio_map.xy_m)
+    for f, floor in enumerate(building.floors):
+        on = radio_map.floor == f
+        in_building[on] = floor.to_building(radio_map.xy_m[on])
+    every, own = kwnn_fixes_by_floor(radio_map, scans, in_building, k=4)
+    moved = dataclasses.replace(radio_map, xy_m=in_building, floor=None, floor_names=None)
+    np.testing.assert_allclose(every, strong_kwnn_fixes(moved, scans, 4), atol=1e-9)
+    match = match_distance_by_floor_db(radio_map, scans)
+    np.testing.assert_array_equal(match.min(axis=1), match_distance_db(radio_map, scans))
+    for f in range(len(building.floors)):
+        floor_map = radio_map.floor_map(f)
+        np.testing.assert_allclose(own[:, f], strong_kwnn_fixes(floor_map, scans, 4), atol=1e-9)
+        np.testing.assert_array_equal(match[:, f], match_distance_db(floor_map, scans))
+    assert np.isfinite(own).all(axis=2).mean() > 0.5 and np.isfinite(every).all()

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import ClassVar
 
 import numpy as np
 
@@ -36,6 +35,16 @@ from mapfilter.maps.floorplan import FloorPlan
 
 # wall pixels between two floors' tiles (and around the stack): wider than any jitter
 _TILE_GAP_PX = 4
+
+
+def floor_stack(building: Building) -> FloorStack:
+    """The building's ``FloorStack``, made once per building: its stack plan carries the wall
+    check's tables, which every walk tracked in the building shares."""
+    stack = getattr(building, "_floor_stack", None)
+    if stack is None or stack.building is not building:
+        stack = FloorStack(building)
+        building._floor_stack = stack
+    return stack
 
 
 class FloorStack:
@@ -404,7 +413,6 @@ class FloorFixLikelihood(MeasurementModel):
     stack: FloorStack
     sigma_m: np.ndarray  # (F,) fix sigma per floor
     grids: list | None = None  # (F,) survey_reach.DistanceGrid of each floor (None: none; all None: a Gaussian)
-    kind: ClassVar[str] = "floor_fix"
     # When the floor evidence puts every live particle's floor this far (nats) below the best
     # floor, no particle is where the walker can be: every value is -inf, and the filter
     # collapses and re-draws its particles from this measurement over every floor. The WiFi

@@ -44,7 +44,6 @@ class GaussianFixLikelihood(MeasurementModel):
     (what ``FilterConfig.min_log_likelihood`` compares with)."""
 
     sigma_m: float = 5.0
-    kind: ClassVar[str] = "fix"
     log_likelihood_peak: ClassVar[float] = 0.0  # at the fix: lets the filter tell a hopeless fix (weights underflow)
 
     def fix_xy_m(self, measurement: PositionFix) -> np.ndarray:

@@ -102,7 +102,11 @@ class SurveyReach:
         point; 1 for every scan that matches where the survey shows fewer than ``MIN_SURVEY_MATCHES``
         inside or outside scans (a survey of one walk, or of routes that all overlap: it cannot
         tell, and the fix weighs as a plain Gaussian; the p-value alone flattened surveyed walks)."""
-        match = match_distance_db(self.radio_map if against is None else against, scan_rssi_dbm)
+        return self.probability(match_distance_db(self.radio_map if against is None else against, scan_rssi_dbm))
+
+    def probability(self, match_db: np.ndarray) -> np.ndarray:
+        """``in_survey_probability`` of scans whose match distances (dB) are known already."""
+        match = np.asarray(match_db, dtype=np.float64)
         matched = np.isfinite(match)
         inside, outside = self.in_survey_match_db, self.outside_match_db
         if inside.size < MIN_SURVEY_MATCHES:
@@ -188,7 +192,6 @@ class ReachFixLikelihood(MeasurementModel):
 
     sigma_m: float
     grid: DistanceGrid
-    kind: ClassVar[str] = "fix"
     log_likelihood_peak: ClassVar[float] = 0.0
 
     def __post_init__(self) -> None:
