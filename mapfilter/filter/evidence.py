@@ -37,7 +37,8 @@ from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.floor_vote import check_building_radio_map, floor_vote_log_likelihood
 from mapfilter.sensors.pathloss import AccessPointTable, least_squares_position, match_scan
 from mapfilter.sensors.radiomap import (STRONG_MIN_RSSI_DBM, RadioMap, cross_validated_fix_errors, kwnn_fix_many,
-                                       kwnn_fixes_by_floor, match_distance_by_floor_db, memo_of, strong_kwnn_fixes)
+                                       kwnn_fixes_by_floor, match_distance_by_floor_db, memo_of,
+                                       plain_signal_distances, strong_kwnn_fixes)
 from mapfilter.sensors.wifi import WifiScan
 
 FINGERPRINT_MODELS = ("fix", "blend", "likelihood")
@@ -493,8 +494,9 @@ class BuildingEvidence:
             # (building frame), each floor's from its own, and each scan's match to each floor
             radio_map, floors = self._radio_map, self._stack.building.floors
             matrix = radio_map.scan_matrix(scans)
+            plain = plain_signal_distances(radio_map, matrix)  # the floor vote's, and the fixes' fall-back
             every_xy, own_xy = kwnn_fixes_by_floor(radio_map, matrix, self._points_in_building, self._wifi.kwnn_k,
-                                                   self._wifi.kwnn_min_rssi_dbm)
+                                                   self._wifi.kwnn_min_rssi_dbm, plain)
             match = match_distance_by_floor_db(radio_map, matrix)
             reach = self._reach
             in_survey = reach.probability(match.min(axis=1, initial=np.inf))
@@ -516,8 +518,7 @@ class BuildingEvidence:
         elif self._radio_map is None:
             self._floor_ll.extend(np.zeros((len(scans), n_floors)))
         else:
-            radio_map = self._radio_map
-            self._floor_ll.extend(floor_vote_log_likelihood(radio_map, radio_map.scan_matrix(scans), k=self._wifi.kwnn_k))
+            self._floor_ll.extend(floor_vote_log_likelihood(radio_map, matrix, k=self._wifi.kwnn_k, distances=plain))
 
     def add_pressure(self, t_s: np.ndarray, pressure_hpa: np.ndarray) -> None:
         """Barometer readings (in time order, after those already added)."""

@@ -105,13 +105,15 @@ def check_building_radio_map(radio_map: RadioMap, floor_names: Sequence[str], pa
 
 def floor_vote_log_likelihood(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = DEFAULT_VOTE_K,
                               pseudo_count: float = DEFAULT_VOTE_PSEUDO_COUNT,
-                              min_shared_aps: int = 3) -> np.ndarray:
+                              min_shared_aps: int = 3,
+                              distances: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(S, F) log-likelihood of each floor for each scan (an (S, K) matrix over the map's APs).
 
     The k nearest reference points (signal distance, p = 2, missing AP = -100 dBm, at least
     ``min_shared_aps`` shared APs) vote for their floors with weight 1 each; the likelihood of
     floor f is ``(votes_f + pseudo_count) / (k + F * pseudo_count)``. A scan with no candidate
-    says nothing (a row of equal values).
+    says nothing (a row of equal values). ``distances``: the scans' ``radiomap.plain_signal_distances``
+    if the caller has them already.
     """
     if not radio_map.has_floors:
         raise MapfilterError("the radio map has no floor labels: build it from a building (mapfilter radiomap "
@@ -121,7 +123,7 @@ def floor_vote_log_likelihood(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k:
     out = np.full((scans.shape[0], n_floors), -math.log(n_floors))
     if scans.shape[0] == 0 or len(radio_map) == 0:
         return out
-    dist, shared = _distances_to_references(radio_map, scans, 2.0, -100.0)
+    dist, shared = distances if distances is not None else _distances_to_references(radio_map, scans, 2.0, -100.0)
     dist = np.where(shared >= min_shared_aps, dist, np.inf)
     kk = min(k, dist.shape[1])
     nearest = np.argpartition(dist, kk - 1, axis=1)[:, :kk]

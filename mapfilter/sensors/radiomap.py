@@ -886,13 +886,22 @@ def strong_kwnn_fixes(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4
     return fixes
 
 
+def plain_signal_distances(radio_map: RadioMap, scan_rssi_dbm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(S, P) the plain KWNN signal distances of the scans to every point (p = 2, an AP heard on
+    one side only at -100 dBm) and (S, P) their shared APs: what ``kwnn_fix_many``'s defaults
+    and the floor vote use, for a caller that needs both."""
+    return _distances_to_references(radio_map, np.ascontiguousarray(scan_rssi_dbm, dtype=np.float64), 2.0, -100.0)
+
+
 def kwnn_fixes_by_floor(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, point_xy_m: np.ndarray, k: int = 4,
-                        min_rssi_dbm: float | None = STRONG_MIN_RSSI_DBM) -> tuple[np.ndarray, np.ndarray]:
+                        min_rssi_dbm: float | None = STRONG_MIN_RSSI_DBM,
+                        plain: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """A building's KWNN fixes from one matrix of signal distances: ((S, 2) the fix from every
     floor's points, placed at ``point_xy_m`` (P, 2), e.g. each point in the building's frame;
     (S, F, 2) each floor's fix from its own points, in its own frame). The same fixes as
     ``strong_kwnn_fixes`` (``min_rssi_dbm`` None: ``kwnn_fix_many``) of the whole map and of each
-    ``floor_map``, without computing the distances once per floor."""
+    ``floor_map``, without computing the distances once per floor; ``plain``: the scans'
+    ``plain_signal_distances`` if the caller has them already."""
     scans = np.ascontiguousarray(scan_rssi_dbm, dtype=np.float64)
     n_floors = len(radio_map.floor_names)
     every = np.full((scans.shape[0], 2), np.nan)
@@ -903,7 +912,10 @@ def kwnn_fixes_by_floor(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, point_xy
     floor = np.asarray(radio_map.floor)
 
     def fixes(rows: np.ndarray, missing_dbm: float, floor_rssi_dbm: float | None) -> None:
-        dist, shared = _distances_to_references(radio_map, scans[rows], 2.0, missing_dbm, floor_rssi_dbm)
+        if floor_rssi_dbm is None and plain is not None:
+            dist, shared = plain[0][rows], plain[1][rows]
+        else:
+            dist, shared = _distances_to_references(radio_map, scans[rows], 2.0, missing_dbm, floor_rssi_dbm)
         heard = np.count_nonzero(~np.isnan(_below_floor_unheard(scans[rows], floor_rssi_dbm)), axis=1)
         every[rows] = _kwnn_from_distances(point_xy_m, dist.copy(), shared, heard, k, 2.0, 3, weights).xy_m
         for f in range(n_floors):
