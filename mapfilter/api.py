@@ -215,7 +215,7 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
     evaluated walks too. ``sources``: measurement sources (as ``track`` takes them), each adding
     its methods (``pf+NAME``, ``pf-NAME``; a source may fit its input again on the survey or
     the other walks).
-    ``jobs``/``scheduler``: walks on local Dask worker processes or a cluster.
+    ``jobs``/``scheduler``: walks on local worker processes or a Dask cluster.
     """
     building = _building(building, "building")
     walks = _walks(logs, "logs")

@@ -31,8 +31,8 @@ def add_strict_argument(parser: argparse.ArgumentParser) -> None:
 def add_engine_arguments(parser: argparse.ArgumentParser) -> None:
     engine = parser.add_mutually_exclusive_group()
     engine.add_argument("--jobs", type=positive_int, default=1, metavar="N",
-                        help="walks in N local Dask worker processes on 127.0.0.1, reachable only by this run "
-                             "(TLS with temporary credentials; default: 1, serial, no Dask)")
+                        help="walks in N local worker processes, forked from this one with the map, the radio map "
+                             "and the compiled kernels already loaded (default: 1, serial)")
     engine.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                         help="run the walks on an existing Dask cluster that you trust: whoever can use it runs "
                              "code as its workers, and its results are unpickled here (workers need mapfilter "

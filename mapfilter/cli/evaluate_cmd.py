@@ -94,7 +94,7 @@ examples (an ILC floor):
   mapfilter evaluate F1.yaml test/*.txt.gz --survey survey/*.txt.gz --out results/F1-test --smooth
   mapfilter evaluate site1.yaml walks/*/*.txt.gz --leave-one-out --out results/site1
 
---jobs N runs the walks on N local Dask worker processes; --scheduler tcp://HOST:PORT on a
+--jobs N runs the walks on N local worker processes; --scheduler tcp://HOST:PORT on a
 Dask cluster you trust (pip install 'mapfilter[distributed]'; `dask scheduler` and
 `dask worker tcp://HOST:PORT --nworkers N --nthreads 1`; the workers need the logs at the
 same paths). Every walk seeds its own generator: serial, --jobs and a cluster give the same

@@ -53,7 +53,7 @@ Many walks: give several logs and --out-dir DIR: one track per walk (DIR/<trace>
 --smooth also DIR/<trace>.causal.csv), DIR/summary.csv (one row per walk: status ok | failed
 | crashed, the reason, errors), DIR/summary.json and DIR/config.yaml (the settings that ran:
 `--config DIR/config.yaml` repeats the run). A walk that fails is reported and the others go
-on; the exit code is 1 if any walk failed. --jobs N runs the walks on N local Dask worker
+on; the exit code is 1 if any walk failed. --jobs N runs the walks on N local worker
 processes, --scheduler tcp://HOST:PORT on a Dask cluster you trust (see `mapfilter evaluate
 --help`).
 

@@ -1,13 +1,19 @@
-"""Many independent walks, one task each: in this process, on local Dask worker processes, or
-on an existing Dask cluster.
+"""Many independent walks, one task each: in this process, on local worker processes, or on an
+existing Dask cluster.
 
 Every walk is its own task and draws its random numbers from a generator seeded by the walk
 itself (never from a stream shared across walks), so where a task runs does not change its
 numbers: a serial run, ``--jobs N`` and a cluster give the same results.
 
+``--jobs N`` forks N worker processes from this one (where the platform can fork): each starts
+with what this process has already loaded (the modules, the compiled kernels, the map, the
+radio map and whatever the tasks share), so a worker costs nothing to start and nothing is
+sent to it but each task's item; the pool opens no socket. Where processes cannot be forked,
+``--jobs`` starts a local Dask cluster instead (below).
+
 Dask (``distributed``) is an optional dependency (``pip install 'mapfilter[distributed]'``),
-imported only when a run asks for more than one process or for a scheduler. Starting a
-cluster by hand (see the README)::
+imported only when a run asks for a scheduler (or for ``--jobs`` where forking is not
+available). Starting a cluster by hand (see the README)::
 
     dask scheduler --host 127.0.0.1 --port 8786
     dask worker tcp://127.0.0.1:8786 --nworkers 2 --nthreads 1
@@ -15,7 +21,7 @@ cluster by hand (see the README)::
 Workers need mapfilter installed and the logs at the same paths (a shared file system);
 the map and the other inputs common to all walks are sent to every worker once.
 
-Security. The local cluster of ``--jobs`` listens on 127.0.0.1 only and speaks TLS with
+Security. A local Dask cluster (``--jobs`` where processes cannot be forked) listens on 127.0.0.1 only and speaks TLS with
 credentials made for this run and held only in memory (``Security.temporary()``): its
 scheduler, workers and nannies accept only a peer holding a certificate of this run's own
 authority, so no other user (or other run) of the machine can connect and run code as you.
@@ -56,12 +62,23 @@ class Engine:
 
     @property
     def uses_dask(self) -> bool:
-        return self.scheduler is not None or self.jobs > 1
+        return self.scheduler is not None or (self.jobs > 1 and not can_fork())
 
     def describe(self) -> str:
         if self.scheduler is not None:
             return f"Dask cluster at {self.scheduler}"
-        return f"{self.jobs} local Dask worker processes" if self.jobs > 1 else "serial"
+        if self.jobs == 1:
+            return "serial"
+        return f"{self.jobs} local worker processes" if can_fork() else f"{self.jobs} local Dask worker processes"
+
+
+def can_fork() -> bool:
+    """Whether worker processes can be forked from this one (Linux, and the BSDs; not Windows,
+    and not macOS, where system libraries are not safe to use in a forked child)."""
+    import multiprocessing
+    import sys
+
+    return sys.platform.startswith(("linux", "freebsd")) and "fork" in multiprocessing.get_all_start_methods()
 
 
 def check_scheduler_address(address: str) -> tuple[str, str, int]:
@@ -179,13 +196,16 @@ def run_each(function: Callable[..., Any], items: Sequence[Any], engine: Engine,
     after each task.
     """
     total = len(items)
-    # one walk on local processes gains nothing from starting a cluster; a named scheduler is always used
-    if not engine.uses_dask or total == 0 or (engine.scheduler is None and total == 1):
+    # one walk on local processes gains nothing from starting them; a named scheduler is always used
+    if engine.jobs == 1 and engine.scheduler is None or total == 0 or (engine.scheduler is None and total == 1):
         for i, item in enumerate(items):
             result = function(*common, item)
             if progress:
                 progress(i + 1, total, label(item))
             yield i, result
+        return
+    if not engine.uses_dask:
+        yield from _on_forked_workers(function, items, engine.jobs, common, progress, label)
         return
     with _DaskClient(engine) as client:
         from distributed import as_completed
@@ -203,6 +223,42 @@ def run_each(function: Callable[..., Any], items: Sequence[Any], engine: Engine,
                 yield i, result
         finally:
             client.cancel(list(futures))
+
+
+# what every task of a forked pool shares: set before the pool forks, so every worker starts with
+# it (nothing pickled); emptied when the pool is done
+_COMMON: tuple = ()
+
+
+def _with_common(function: Callable[..., Any], item: Any) -> Any:
+    return function(*_COMMON, item)
+
+
+def _on_forked_workers(function: Callable[..., Any], items: Sequence[Any], jobs: int, common: tuple,
+                       progress: Callable[[int, int, str], None] | None,
+                       label: Callable[[Any], str]) -> Iterator[tuple[int, Any]]:
+    """``run_each`` on ``jobs`` worker processes forked from this one (module docstring)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    global _COMMON
+    _COMMON = tuple(common)
+    total = len(items)
+    try:
+        with ProcessPoolExecutor(max_workers=min(jobs, total), mp_context=multiprocessing.get_context("fork")) as pool:
+            futures = {pool.submit(_with_common, function, item): i for i, item in enumerate(items)}
+            try:
+                for done, future in enumerate(as_completed(futures), start=1):
+                    i = futures[future]
+                    result = future.result()
+                    if progress:
+                        progress(done, total, label(items[i]))
+                    yield i, result
+            finally:
+                for future in futures:
+                    future.cancel()
+    finally:
+        _COMMON = ()
 
 
 class _DaskClient:

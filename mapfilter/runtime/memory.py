@@ -33,7 +33,7 @@ PARTICLE_COPIES_SMOOTH = 2
 INIT_SAMPLE_BYTES = 64  # a candidate drawn from free space at the start: xy, weight, likelihood temporaries
 LIKELIHOOD_CELL_BYTES = 100  # a radio-map likelihood grid cell: indices, centre, tree query, masks
 MAP_MATCH_CELL_BYTES = 64  # a map-matching grid cell: free mask, counts, forward/backward rows
-WORKER_BYTES = 400 << 20  # one local Dask worker process: Python, numpy, numba, the map, a radio map
+WORKER_BYTES = 400 << 20  # one local worker process: Python, numpy, numba, the map, a radio map
 
 
 def format_bytes(n_bytes: float) -> str:
@@ -111,7 +111,7 @@ def grid_bytes(width_m: float, height_m: float, cell_m: float, bytes_per_cell: f
 
 
 def jobs_bytes(jobs: int) -> float:
-    """``jobs`` local Dask worker processes (``WORKER_BYTES`` each)."""
+    """``jobs`` local worker processes (``WORKER_BYTES`` each)."""
     return float(jobs) * WORKER_BYTES
 
 

@@ -1,4 +1,5 @@
-"""The engine: walks as tasks, serially or on local Dask workers; errors reach the user as one line."""
+"""The engine: walks as tasks, serially or on local worker processes (forked from this one); errors
+reach the user as one line."""
 
 import json
 
@@ -31,8 +32,45 @@ def test_bad_engine_options_are_user_errors():
         Engine(scheduler="127.0.0.1:8786")
 
 
+class _Unpicklable:
+    """Shared input that cannot be pickled: a forked worker must inherit it, never receive it."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def __reduce__(self):
+        raise TypeError("the shared inputs must not be pickled to a forked worker")
+
+
+def _pid_and_value(shared, x):
+    import os
+
+    return os.getpid(), shared.value * x
+
+
+def _fails_on_three(x):
+    if x == 3:
+        raise ValueError("task three")
+    return x
+
+
+@pytest.mark.skipif(not __import__("mapfilter.runtime.dispatch", fromlist=["can_fork"]).can_fork(),
+                    reason="this platform cannot fork worker processes")
+def test_jobs_fork_workers_that_inherit_the_shared_inputs_and_raise_a_tasks_error(monkeypatch):
+    import os
+    import sys
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # no Dask: --jobs needs none where it can fork
+    results = dict(run_each(_pid_and_value, list(range(8)), Engine(jobs=2), common=(_Unpicklable(5),)))
+    assert {i: value for i, (_, value) in results.items()} == {i: 5 * i for i in range(8)}
+    pids = {pid for pid, _ in results.values()}
+    assert os.getpid() not in pids and 1 <= len(pids) <= 2
+    assert Engine(jobs=2).describe() == "2 local worker processes" and not Engine(jobs=2).uses_dask
+    with pytest.raises(ValueError, match="task three"):
+        list(run_each(_fails_on_three, [1, 2, 3, 4], Engine(jobs=2)))
+
+
 def test_local_workers_give_every_result_and_a_failing_walk_is_one_line(tmp_path, capsys):
-    pytest.importorskip("distributed")
     results = dict(run_each(_scaled, list(range(6)), Engine(jobs=2), common=(3, 0)))
     assert results == {i: 3 * i for i in range(6)}
     # a walk without waypoints, evaluated on two local workers: the worker's error is our one line,
