@@ -227,6 +227,19 @@ class AllWalks:
     # several floors, left out by group: calibrated once per floor for each group, without its walks
     fix_sigma_by_group: dict[str, dict[str, float]] | None = None
 
+    def without(self, left_out: Sequence[str], one_floor: bool) -> RadioMap:
+        """The radio map less the walks ``left_out`` (a walk, or every walk of its group), made once
+        per set of walks in this process: the walks of one group share it, and with it all that is
+        made from it once per radio map (the survey's own matches, the fix calibration, the
+        radio-map likelihood's tables, the distance grids). One floor: APs no point hears dropped."""
+        key = (frozenset(left_out), one_floor)
+        cached = self.__dict__.setdefault("_without", {})
+        if key not in cached:
+            made = self.radio_map.without_traces(list(left_out))
+            cached.clear()  # the walks come group by group: the last fold only is kept
+            cached[key] = _drop_unheard_aps(made) if one_floor else made
+        return cached[key]
+
     def fix_sigma_for(self, setup: EvaluationSetup, trace: str) -> dict[str, float] | None:
         """The per-floor fix sigma walk ``trace`` is tracked with (None: calibrate on its own map)."""
         if self.fix_sigma_by_group is not None and setup.groups is not None:
@@ -692,7 +705,7 @@ def _radio_map_sigmas(radio_map: RadioMap, building: Building, tracking: Trackin
 def _building_radio_map(recording: Recording | None, setup: EvaluationSetup, all_walks: AllWalks | None,
                         building: Building) -> RadioMap:
     if all_walks is not None:
-        return (all_walks.radio_map.without_traces(setup.left_out_with(recording.name)) if setup.leaves_out
+        return (all_walks.without(setup.left_out_with(recording.name), one_floor=False) if setup.leaves_out
                 else all_walks.radio_map)
     from mapfilter.sensors.floor_vote import load_building_radio_map
 
@@ -801,7 +814,7 @@ def _wifi_sources(recording: Recording, setup: EvaluationSetup, all_walks: AllWa
         check_access_points_on_map(ap_table, building.floors[0].plan, building.path)
     if all_walks is not None:
         # without the walk, or every walk of its group (and with survey logs alone, nothing to drop)
-        radio_map = _drop_unheard_aps(all_walks.radio_map.without_traces(setup.left_out_with(recording.name)))
+        radio_map = all_walks.without(setup.left_out_with(recording.name), one_floor=True)
         if len(radio_map) == 0:
             raise MapfilterError("no survey points left for this walk: it needs other walks with waypoints and WiFi",
                                  recording.path)
