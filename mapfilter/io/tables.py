@@ -147,6 +147,7 @@ class TimedTable:
     t_s: Any  # numpy (R,) float64
     columns: dict[str, Any]
     path: Path | None = None  # the CSV it was read from (for messages)
+    lines: Any = None  # numpy (R,) int64: each row's line in that CSV (a check after reading names it), or None
 
     def __len__(self) -> int:
         return int(self.t_s.size)
@@ -184,4 +185,5 @@ def read_timed_table(path: str | os.PathLike, what: str, columns: Sequence[Colum
             found.append(column.names[name])
         values[column.name] = np.array(found, dtype=np.int64)
     order = np.argsort(t_s, kind="stable")
-    return TimedTable(t_s[order], {name: v[order] for name, v in values.items()}, table.path)
+    lines = np.array([line for line, _ in table.rows], dtype=np.int64)
+    return TimedTable(t_s[order], {name: v[order] for name, v in values.items()}, table.path, lines[order])

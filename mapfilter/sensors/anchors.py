@@ -171,7 +171,7 @@ def read_ranges(path: str | os.PathLike, table: AnchorTable) -> RangeLog:
         Column("anchor_id", names=table.index, names_in=f"the anchor table {table.source_path or ''}",
                called="anchor"),
         Column("range_m", *COLUMN_RANGES["range_m"])))
-    return RangeLog(log.t_s, log.columns, log.path)
+    return RangeLog(log.t_s, log.columns, log.path, log.lines)
 
 
 def simulate_ranges(table: AnchorTable, building: Building, t_s: np.ndarray, xy_m: np.ndarray,

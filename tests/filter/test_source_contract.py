@@ -55,9 +55,11 @@ def _flags(entry: SourcePlugin, files: dict) -> list[str]:
     return [arg for o in entry.options for arg in (o.flag, str(files[o.key]))]
 
 
-def test_every_registered_source_writes_an_example():
-    for entry in registered():
-        assert type(entry).example is not SourcePlugin.example, f"source {entry.name!r} writes no example"
+@pytest.mark.parametrize("name", [p.name for p in registered()])
+def test_every_registered_source_writes_an_example(name):
+    from mapfilter.filter.sources import plugin
+
+    assert type(plugin(name)).example is not SourcePlugin.example, f"source {name!r} writes no example"
 
 
 def test_its_files_load_and_its_input_is_checked(source):
