@@ -27,7 +27,8 @@ from mapfilter.errors import MapfilterError
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.sensors.pdr import Steps
 
-__all__ = ["PlacementConfig", "WalkPlacement", "pdr_shape", "place_walk", "robust_offset", "shift_onto_free_space"]
+__all__ = ["Anchor", "PlacementConfig", "WalkPlacement", "pdr_shape", "place_walk", "robust_offset",
+           "shift_onto_free_space"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,6 +63,7 @@ class WalkPlacement:
     offset_xy_m: np.ndarray  # (2,) translation of the shape (its start point)
     fix_residual_median_m: float  # median distance from the fixes to the placed shape: the WiFi scatter
     n_fixes: int
+    max_shift_m: float | None = None  # placed through an anchor: the walls move it this far at most
 
     def position_at(self, t_s: np.ndarray) -> np.ndarray:
         """Placed positions at ``t_s`` (linear between steps, clamped to the ends), shape (T, 2)."""
@@ -122,8 +124,19 @@ def rotation_vector_heading_offset(steps: Steps) -> float | None:
     return float(math.atan2(np.sin(diff).mean(), np.cos(diff).mean()))
 
 
+@dataclasses.dataclass(frozen=True)
+class Anchor:
+    """Where the walk is known to have been at a time (its start, as the user gives it), within
+    ``sigma_m``: the placed shape passes there, whatever the fixes say, and the walls may move it
+    by that much at most."""
+
+    t_s: float
+    xy_m: np.ndarray
+    sigma_m: float
+
+
 def place_walk(steps: Steps, fix_t_s: np.ndarray, fix_xy_m: np.ndarray, heading_offset_rad: float | None = None,
-               huber_m: float = HUBER_M) -> WalkPlacement:
+               huber_m: float = HUBER_M, anchor: Anchor | None = None) -> WalkPlacement:
     """Place a walk's dead-reckoned shape by every position fix of the walk.
 
     Parameters
@@ -134,6 +147,8 @@ def place_walk(steps: Steps, fix_t_s: np.ndarray, fix_xy_m: np.ndarray, heading_
         (``rotation_vector_heading_offset``), and without one searches 72 directions for the
         offset whose placed shape fits the fixes best (Huber cost).
     huber_m : Huber threshold of the fix offsets.
+    anchor : a point the walk is known to pass (``Anchor``): the translation puts the shape
+        there, and the fixes only choose the heading offset when the log has no rotation vector.
     """
     fix_t = np.asarray(fix_t_s, dtype=np.float64).reshape(-1)
     fix_xy = np.asarray(fix_xy_m, dtype=np.float64).reshape(-1, 2)
@@ -148,13 +163,18 @@ def place_walk(steps: Steps, fix_t_s: np.ndarray, fix_xy_m: np.ndarray, heading_
     for theta in candidates:
         t_s, shape_xy = pdr_shape(steps, float(theta))
         at_fixes = np.column_stack([np.interp(fix_t, t_s, shape_xy[:, 0]), np.interp(fix_t, t_s, shape_xy[:, 1])])
-        offset = robust_offset(fix_xy - at_fixes, huber_m)
+        if anchor is None:
+            offset = robust_offset(fix_xy - at_fixes, huber_m)
+        else:
+            at_anchor = np.array([np.interp(anchor.t_s, t_s, shape_xy[:, k]) for k in (0, 1)])
+            offset = np.asarray(anchor.xy_m, dtype=np.float64).reshape(2) - at_anchor
         residual = np.linalg.norm(fix_xy - at_fixes - offset, axis=1)
         cost = _huber_cost(residual, huber_m)
         if best is None or cost < best[0]:
             best = (cost, float(theta), t_s, shape_xy + offset, offset, residual)
     _, theta, t_s, xy, offset, residual = best
-    return WalkPlacement(t_s, xy, theta, offset, float(np.median(residual)), int(fix_t.size))
+    return WalkPlacement(t_s, xy, theta, offset, float(np.median(residual)), int(fix_t.size),
+                         None if anchor is None else float(anchor.sigma_m))
 
 
 def shift_onto_free_space(floorplan: FloorPlan, placement: WalkPlacement,
@@ -164,6 +184,8 @@ def shift_onto_free_space(floorplan: FloorPlan, placement: WalkPlacement,
     good shifts the shortest. The fixes fix the placement to within their bias; the walls say
     which of the nearby placements a walker could have walked."""
     radius = min(config.map_shift_share * placement.fix_residual_median_m, config.map_shift_max_m)
+    if placement.max_shift_m is not None:
+        radius = min(radius, placement.max_shift_m)
     step_m = config.map_shift_step_m
     if not (radius >= step_m):
         return placement

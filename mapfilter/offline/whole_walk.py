@@ -27,7 +27,7 @@ from mapfilter.filter.evidence import WifiEvidence
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.paths import wall_free_track
 from mapfilter.offline.map_matching import MapMatchConfig, map_match
-from mapfilter.offline.placement import PlacementConfig, WalkPlacement, place_walk, shift_onto_free_space
+from mapfilter.offline.placement import Anchor, PlacementConfig, WalkPlacement, place_walk, shift_onto_free_space
 from mapfilter.sensors.pdr import Steps
 from mapfilter.io.tracks import Track
 
@@ -101,7 +101,9 @@ def _step_headings(placement: WalkPlacement, t_s: np.ndarray) -> np.ndarray:
 
 
 def placed_track(plan: FloorPlan, evidence: WifiEvidence, steps: Steps, causal: Track,
-                 config: OfflineConfig = OfflineConfig()) -> Track:
-    """``whole_walk_track`` of the walk placed by its scans' fixes and the causal estimates."""
-    placement = place_walk(steps, *placement_evidence(evidence, causal), huber_m=config.placement.huber_m)
+                 config: OfflineConfig = OfflineConfig(), anchor: Anchor | None = None) -> Track:
+    """``whole_walk_track`` of the walk placed by its scans' fixes and the causal estimates (and
+    through ``anchor``, where the walk is known to have been)."""
+    placement = place_walk(steps, *placement_evidence(evidence, causal), huber_m=config.placement.huber_m,
+                           anchor=anchor)
     return whole_walk_track(plan, placement, scan_times(evidence), config)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from mapfilter.errors import MapfilterError
-from mapfilter.offline.placement import pdr_shape, place_walk, robust_offset, rotation_vector_heading_offset
+from mapfilter.offline.placement import (Anchor, pdr_shape, place_walk, robust_offset, rotation_vector_heading_offset,
+                                         shift_onto_free_space)
 from mapfilter.sensors.pdr import Steps
 
 
@@ -54,6 +55,39 @@ def test_placement_recovers_the_walk_despite_far_off_fixes():
     plain = np.nanmean(fixes - truth, axis=0)  # what a least-squares placement would be off by
     # Huber bounds each far fix's pull: a third of the plain mean's bias remains, not all of it
     assert error.max() < 5.0 and error.max() < 0.4 * np.linalg.norm(plain)
+
+
+def test_a_known_start_places_the_shape_whatever_the_fixes_say():
+    """Fixes all biased 30 m (a walk where nobody surveyed): without an anchor the shape sits
+    there; through the known start it is where it was. Without a rotation vector the fixes
+    still choose the heading."""
+    rng = np.random.default_rng(3)
+    fix_t = 1000.0 + 2.0 * np.arange(1, 21)
+    steps = l_shaped_steps(0.8)
+    truth = truth_at(steps, 0.8, [50.0, 20.0], fix_t)
+    biased = truth + [30.0, 0.0] + rng.normal(0, 2.0, truth.shape)
+    start = truth_at(steps, 0.8, [50.0, 20.0], [999.0])[0]
+    assert np.linalg.norm(place_walk(steps, fix_t, biased).position_at(fix_t) - truth, axis=1).mean() > 25.0
+    anchored = place_walk(steps, fix_t, biased, anchor=Anchor(999.0, start, 2.0))
+    assert np.linalg.norm(anchored.position_at(fix_t) - truth, axis=1).max() < 1e-9 and anchored.max_shift_m == 2.0
+    no_vector = l_shaped_steps(0.8, with_rotation_vector=False)
+    noisy = truth + rng.normal(0, 3.0, truth.shape)
+    searched = place_walk(no_vector, fix_t, noisy, anchor=Anchor(999.0, start, 2.0))
+    assert abs((searched.heading_offset_rad - 0.8 + math.pi) % (2 * math.pi) - math.pi) < math.radians(6)
+
+
+def test_the_walls_move_an_anchored_placement_no_farther_than_its_anchor_allows():
+    from mapfilter.maps.floorplan import FloorPlan
+
+    wall = np.zeros((200, 200), dtype=bool)
+    wall[:, 100:] = True  # free x < 10 m only
+    plan = FloorPlan(wall, 0.1)
+    steps = l_shaped_steps(0.0)
+    fix_t = 1000.0 + 2.0 * np.arange(1, 21)
+    fixes = truth_at(steps, 0.0, [-20.0, 2.0], fix_t) + 8.0  # residuals of ~11 m: a free shift of 5.6 m
+    placed = place_walk(steps, fix_t, fixes, anchor=Anchor(999.0, np.array([-19.0, 2.0]), 1.0))
+    shifted = shift_onto_free_space(plan, placed)
+    assert np.linalg.norm(shifted.offset_xy_m - placed.offset_xy_m) <= 1.0 + 1e-9
 
 
 def test_without_rotation_vector_the_heading_is_searched():
