@@ -211,6 +211,7 @@ class WallGrid(NamedTuple):
     clearance_px: np.ndarray  # (H, W) float32: a move starting in the pixel and shorter than this touches no wall
     wall_ahead_in_row: np.ndarray  # (H, W) uint16: columns from pixel (r, c) to the first wall at or after it in row r
     wall_ahead_in_column: np.ndarray  # (W, H) uint16: the same down column c (the transposed mask's table)
+    wall_sums: np.ndarray  # (H + 3, W + 3) uint32: wall pixels above-left of each corner of the mask padded with a ring of wall
     x0_m: float  # world position of the mask's lower-left corner
     y0_m: float
     inv_resolution: float  # pixels per metre
@@ -218,7 +219,7 @@ class WallGrid(NamedTuple):
 
 
 WALL_GRID = types.NamedTuple((types.boolean[:, ::1], types.float32[:, ::1], types.uint16[:, ::1],
-                              types.uint16[:, ::1], types.float64, types.float64, types.float64,
+                              types.uint16[:, ::1], types.uint32[:, ::1], types.float64, types.float64, types.float64,
                               types.int64[::1]), WallGrid)
 
 _AHEAD_MAX = 65535  # uint16: a run this long or longer is left to the exact walk
@@ -286,40 +287,60 @@ def _bands(ahead, n_lines, n_across, p0, q0, p1, q1):
     return 2 if undecided else 0
 
 
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def move_crosses(walls, ax, ay, bx, by):
-    """Does the move (ax, ay) -> (bx, by) in world metres touch a wall pixel or leave the map? The
-    filter's wall check (the smoother's; the passes and :func:`crosses_wall` take a batch of moves:
-    :func:`crossings`), with the same answer as the exact walk of every pixel the segment touches
-    (the module's touching rule).
+# what the cheap look at a move says (:func:`classify`)
+FREE, WALL, UNDECIDED = 0, 1, 2
 
-    A move shorter than the clearance of the pixel it starts in touches no wall
-    (:func:`clearance_px`), nor does one shorter than the clearances of its two end pixels together
-    (the two discs cover it); one that ends in a wall pixel touches it; any other is checked band
-    by band along its minor axis (one table read per pixel row or column it spans: :func:`_bands`),
-    and the rare move that passes within ``_EDGE_PX`` of a pixel edge is walked pixel by pixel."""
-    mask = walls.mask
-    h, w = mask.shape
-    u0 = (ax - walls.x0_m) * walls.inv_resolution
-    v0 = h - (ay - walls.y0_m) * walls.inv_resolution
-    u1 = (bx - walls.x0_m) * walls.inv_resolution
-    v1 = h - (by - walls.y0_m) * walls.inv_resolution
-    if not (math.isfinite(u0) and math.isfinite(v0) and math.isfinite(u1) and math.isfinite(v1)):
-        return True
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _pixel_uv(walls, x, y):
+    """World metres to the mask's continuous pixel coordinates (u right, v down)."""
+    return (x - walls.x0_m) * walls.inv_resolution, walls.mask.shape[0] - (y - walls.y0_m) * walls.inv_resolution
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _clamped(x, lo, hi):
+    """x within [lo, hi] (NaN: lo), without a branch."""
+    x = x if x > lo else lo
+    return x if x < hi else hi
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _look(walls, u0, v0, u1, v1):
+    """FREE, WALL or UNDECIDED for the segment (u0, v0)-(u1, v1), from five table reads and no branch on
+    the data: WALL when a coordinate is not finite or it ends off the map or in a wall pixel; FREE when
+    no wall pixel (nor the outside) lies in the box of pixels that its closed pixel squares can meet
+    (columns ceil(u_min) - 1 .. floor(u_max), the same for rows: ``wall_sums``); else UNDECIDED
+    (:func:`_decide`). Every read is inside its table whatever the coordinates."""
+    h, w = walls.mask.shape
     du = u1 - u0
     dv = v1 - v0
-    length2 = du * du + dv * dv
-    c = 0.0
-    if 0.0 <= u0 < w and 0.0 <= v0 < h:
-        c = walls.clearance_px[int(v0), int(u0)]
-        if length2 < c * c:
-            return False
-    if not (0.0 <= u1 < w and 0.0 <= v1 < h) or mask[int(v1), int(u1)]:
-        return True  # it ends in a wall pixel or off the map
-    reach = c + walls.clearance_px[int(v1), int(u1)]
-    if length2 < reach * reach:
-        return False  # the discs of the two ends' clearances cover it
-    if abs(dv) <= abs(du):
+    finite = du * du + dv * dv < math.inf  # not when a coordinate is not
+    in1 = (u1 >= 0.0) & (u1 < w) & (v1 >= 0.0) & (v1 < h)
+    end = walls.mask[int(_clamped(v1, 0.0, h - 1.0)), int(_clamped(u1, 0.0, w - 1.0))]
+    # the box in the padded table's pixels (the ring of wall round the mask at -1 and w, h)
+    col_lo = int(_clamped(np.ceil(min(u0, u1)), 0.0, w + 1.0))  # ceil(u_min) - 1 + 1
+    col_hi = int(_clamped(np.floor(max(u0, u1)), -1.0, w + 0.0)) + 2  # past floor(u_max) + 1
+    row_lo = int(_clamped(np.ceil(min(v0, v1)), 0.0, h + 1.0))
+    row_hi = int(_clamped(np.floor(max(v0, v1)), -1.0, h + 0.0)) + 2
+    sums = walls.wall_sums
+    # the wall pixels in the box, modulo 2^32 (the table's sums wrap; a box holds fewer pixels)
+    in_box = (np.int64(sums[row_hi, col_hi]) - np.int64(sums[row_lo, col_hi]) - np.int64(sums[row_hi, col_lo])
+              + np.int64(sums[row_lo, col_lo])) & 0xFFFFFFFF
+    code = UNDECIDED
+    code = FREE if in_box == 0 else code
+    code = WALL if (not in1) | end else code
+    code = WALL if not finite else code
+    return code
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _decide(walls, u0, v0, u1, v1):
+    """Does the segment that :func:`_look` left UNDECIDED touch a wall? One table read per pixel row (or
+    column) it spans (:func:`_bands`), and the exact walk when it passes within ``_EDGE_PX`` of a pixel
+    edge."""
+    mask = walls.mask
+    h, w = mask.shape
+    if abs(v1 - v0) <= abs(u1 - u0):
         found = _bands(walls.wall_ahead_in_row, h, w, u0, v0, u1, v1)
     else:
         found = _bands(walls.wall_ahead_in_column, w, h, v0, u0, v1, u1)
@@ -329,47 +350,48 @@ def move_crosses(walls, ax, ay, bx, by):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def crossings(walls, ax, ay, bx, by, m, out):
-    """``out[k]`` = :func:`move_crosses` of the move (ax[k], ay[k]) -> (bx[k], by[k]), k < m: the same
-    check written out over a batch (numba passes each array of ``walls`` as several words, so a call
-    per move costs more than the clearance test that decides most moves)."""
-    mask = walls.mask
-    clearance = walls.clearance_px
-    h, w = mask.shape
-    x0 = walls.x0_m
-    y0 = walls.y0_m
-    inv = walls.inv_resolution
+def move_crosses(walls, ax, ay, bx, by):
+    """Does the move (ax, ay) -> (bx, by) in world metres touch a wall pixel or leave the map? The
+    filter's wall check for one move (the smoother's; the passes and :func:`crosses_wall` take a batch
+    of moves: :func:`crossings`), with the same answer as the exact walk of every pixel the segment
+    touches (the module's touching rule).
+
+    A move that ends in a wall pixel or off the map touches it; one whose box of pixels holds no wall
+    does not (:func:`_look`: a few table reads decide most moves); any other is checked band by band
+    along its minor axis (one table read per pixel row or column it spans: :func:`_bands`), and the
+    rare move that passes within ``_EDGE_PX`` of a pixel edge is walked pixel by pixel
+    (:func:`_decide`)."""
+    u0, v0 = _pixel_uv(walls, ax, ay)
+    u1, v1 = _pixel_uv(walls, bx, by)
+    code = _look(walls, u0, v0, u1, v1)
+    if code == UNDECIDED:
+        return _decide(walls, u0, v0, u1, v1)
+    return code == WALL
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def classify(walls, ax, ay, bx, by, m, code):
+    """``code[k]`` = :func:`_look` (FREE, WALL or UNDECIDED) of the move (ax[k], ay[k]) -> (bx[k], by[k]),
+    k < m: the branch-free first half of :func:`crossings`, over a batch."""
     for k in range(m):
-        u0 = (ax[k] - x0) * inv
-        v0 = h - (ay[k] - y0) * inv
-        u1 = (bx[k] - x0) * inv
-        v1 = h - (by[k] - y0) * inv
-        if not (math.isfinite(u0) and math.isfinite(v0) and math.isfinite(u1) and math.isfinite(v1)):
-            out[k] = True
-            continue
-        du = u1 - u0
-        dv = v1 - v0
-        length2 = du * du + dv * dv
-        c = 0.0
-        if 0.0 <= u0 < w and 0.0 <= v0 < h:
-            c = clearance[int(v0), int(u0)]
-            if length2 < c * c:
-                out[k] = False
-                continue
-        if not (0.0 <= u1 < w and 0.0 <= v1 < h) or mask[int(v1), int(u1)]:
-            out[k] = True  # it ends in a wall pixel or off the map
-            continue
-        reach = c + clearance[int(v1), int(u1)]
-        if length2 < reach * reach:
-            out[k] = False  # the discs of the two ends' clearances cover it
-            continue
-        if abs(dv) <= abs(du):
-            found = _bands(walls.wall_ahead_in_row, h, w, u0, v0, u1, v1)
-        else:
-            found = _bands(walls.wall_ahead_in_column, w, h, v0, u0, v1, u1)
-        if found == 2:
-            found = _walk(mask, u0, v0, u1, v1, False, walls.no_buffer, walls.no_buffer)
-        out[k] = found == 1
+        u0, v0 = _pixel_uv(walls, ax[k], ay[k])
+        u1, v1 = _pixel_uv(walls, bx[k], by[k])
+        code[k] = _look(walls, u0, v0, u1, v1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def crossings(walls, ax, ay, bx, by, m, out):
+    """``out[k]`` (uint8: 1 touches, 0 not) = :func:`move_crosses` of the move (ax[k], ay[k]) ->
+    (bx[k], by[k]), k < m, in two loops: the look at every move without a branch on the data
+    (:func:`classify`, which decides most moves), then the rest (:func:`_decide`). Written out over a
+    batch: numba passes each array of ``walls`` as several words, and a mispredicted branch per move
+    cost more than the look."""
+    classify(walls, ax, ay, bx, by, m, out)
+    for k in range(m):
+        if out[k] == UNDECIDED:
+            u0, v0 = _pixel_uv(walls, ax[k], ay[k])
+            u1, v1 = _pixel_uv(walls, bx[k], by[k])
+            out[k] = _decide(walls, u0, v0, u1, v1)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -413,6 +435,16 @@ def _wall_ahead(wall_mask: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.minimum(next_wall - column[None, :], _AHEAD_MAX).astype(np.uint16))
 
 
+def _wall_sums(wall_mask: np.ndarray) -> np.ndarray:
+    """(H + 3, W + 3) uint32: entry (r, c) counts the wall pixels in rows < r and columns < c of the mask
+    padded with a ring of wall (the outside), modulo 2^32; the count in a box is four reads (a summed-area
+    table), exact as long as the box holds fewer than 2^32 pixels."""
+    padded = np.pad(wall_mask, 1, constant_values=True)
+    sums = np.zeros((padded.shape[0] + 1, padded.shape[1] + 1), dtype=np.uint32)
+    np.cumsum(np.cumsum(padded, axis=0, dtype=np.uint32), axis=1, dtype=np.uint32, out=sums[1:, 1:])
+    return sums
+
+
 def wall_grid(floorplan: FloorPlan) -> WallGrid:
     """The plan's :class:`WallGrid`, built once per FloorPlan (and mask object): after editing a mask
     *in place*, call :func:`forget_clearance` (a new mask array or a new FloorPlan is picked up by
@@ -422,7 +454,7 @@ def wall_grid(floorplan: FloorPlan) -> WallGrid:
         return cached[1]
     mask = np.ascontiguousarray(floorplan.wall_mask, dtype=np.bool_)
     grid = WallGrid(mask, _clearance_table(mask), _wall_ahead(mask), _wall_ahead(np.ascontiguousarray(mask.T)),
-                    float(floorplan.origin_m[0]), float(floorplan.origin_m[1]), 1.0 / float(floorplan.resolution_m),
+                    _wall_sums(mask), float(floorplan.origin_m[0]), float(floorplan.origin_m[1]), 1.0 / float(floorplan.resolution_m),
                     NO_BUFFER)
     _GRIDS[floorplan] = (floorplan.wall_mask, grid)
     return grid
@@ -488,10 +520,10 @@ def crosses_wall(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarra
     b = np.ascontiguousarray(to_xy_m, dtype=np.float64).reshape(-1, 2)
     if a.shape != b.shape:
         raise ValueError(f"from and to must have the same shape, got {a.shape} and {b.shape}")
-    out = np.empty(a.shape[0], dtype=np.bool_)
+    out = np.empty(a.shape[0], dtype=np.uint8)
     for_slices(_crosses_world_kernel, a.shape[0], wall_grid(floorplan), a[:, 0].copy(), a[:, 1].copy(),
                b[:, 0].copy(), b[:, 1].copy(), out)
-    return out
+    return out.view(np.bool_)
 
 
 def wall_crossing_mask(floorplan: FloorPlan, track_xy_m: np.ndarray) -> np.ndarray:

@@ -196,7 +196,7 @@ def _advance_kernel(lo_block, hi_block, advance, move, likelihood, walls, before
     scratch = np.empty(BLOCK)
     ll = np.empty(BLOCK)
     e_block = np.empty(BLOCK)
-    hits = np.empty(BLOCK, dtype=np.bool_)
+    hits = np.empty(BLOCK, dtype=np.uint8)
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
@@ -212,9 +212,10 @@ def _advance_kernel(lo_block, hi_block, advance, move, likelihood, walls, before
                 i = lo + j
                 w0 = before.log_weight[i]
                 live = -np.inf < w0 < np.inf
-                after.killed[i] = live and hits[j]
-                n_killed += live and hits[j]
-                lw[i] = w0 if live and not hits[j] else -np.inf
+                hit = hits[j] != 0
+                after.killed[i] = live and hit
+                n_killed += live and hit
+                lw[i] = w0 if live and not hit else -np.inf
             after.sums[block].killed = n_killed
         if advance.flags & WEIGH:
             log_likelihood(likelihood.params, dst, lo, m, ll)
@@ -303,8 +304,8 @@ def _resample_kernel(lo_block, hi_block, resample, weights, walls, origin, src, 
     oy = np.empty(BLOCK)
     cx = np.empty(BLOCK)
     cy = np.empty(BLOCK)
-    hit_from_parent = np.empty(BLOCK, dtype=np.bool_)
-    hit_from_origin = np.empty(BLOCK, dtype=np.bool_)
+    hit_from_parent = np.empty(BLOCK, dtype=np.uint8)
+    hit_from_origin = np.empty(BLOCK, dtype=np.uint8)
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
@@ -358,7 +359,7 @@ def _resample_kernel(lo_block, hi_block, resample, weights, walls, origin, src, 
             n_left = 0
             for q in range(n_pending):
                 j = pending[q]
-                if hit_from_parent[q] or hit_from_origin[q]:
+                if hit_from_parent[q] != 0 or hit_from_origin[q] != 0:
                     pending[n_left] = j  # q >= n_left: already read
                     n_left += 1
                     continue
