@@ -50,7 +50,10 @@ __all__ = [
     "crosses_wall",
     "move_crosses",
     "crosses_wall_uv",
+    "LOOK",
     "crossings",
+    "look",
+    "look_pair",
     "clearance_px",
     "count_wall_crossings",
     "forget_clearance",
@@ -211,7 +214,8 @@ class WallGrid(NamedTuple):
     clearance_px: np.ndarray  # (H, W) float32: a move starting in the pixel and shorter than this touches no wall
     wall_ahead_in_row: np.ndarray  # (H, W) uint16: columns from pixel (r, c) to the first wall at or after it in row r
     wall_ahead_in_column: np.ndarray  # (W, H) uint16: the same down column c (the transposed mask's table)
-    wall_sums: np.ndarray  # (H + 3, W + 3) uint32: wall pixels above-left of each corner of the mask padded with a ring of wall
+    is_wall: np.ndarray  # (H * W,) uint32: the mask row by row, 1 = wall (the vectorised looks gather 32-bit words)
+    wall_sums: np.ndarray  # ((H + 3) * (W + 3),) uint32: wall pixels above-left of each corner of the mask padded with a ring of wall
     x0_m: float  # world position of the mask's lower-left corner
     y0_m: float
     inv_resolution: float  # pixels per metre
@@ -219,7 +223,7 @@ class WallGrid(NamedTuple):
 
 
 WALL_GRID = types.NamedTuple((types.boolean[:, ::1], types.float32[:, ::1], types.uint16[:, ::1],
-                              types.uint16[:, ::1], types.uint32[:, ::1], types.float64, types.float64, types.float64,
+                              types.uint16[:, ::1], types.uint32[::1], types.uint32[::1], types.float64, types.float64, types.float64,
                               types.int64[::1]), WallGrid)
 
 _AHEAD_MAX = 65535  # uint16: a run this long or longer is left to the exact walk
@@ -287,8 +291,7 @@ def _bands(ahead, n_lines, n_across, p0, q0, p1, q1):
     return 2 if undecided else 0
 
 
-# what the cheap look at a move says (:func:`classify`)
-FREE, WALL, UNDECIDED = 0, 1, 2
+LOOK = 64  # moves per call of :func:`look` and :func:`look_pair`: one bit each in a 64-bit word
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -305,37 +308,40 @@ def _clamped(x, lo, hi):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _look(walls, u0, v0, u1, v1):
-    """FREE, WALL or UNDECIDED for the segment (u0, v0)-(u1, v1), from five table reads and no branch on
-    the data: WALL when a coordinate is not finite or it ends off the map or in a wall pixel; FREE when
-    no wall pixel (nor the outside) lies in the box of pixels that its closed pixel squares can meet
-    (columns ceil(u_min) - 1 .. floor(u_max), the same for rows: ``wall_sums``); else UNDECIDED
-    (:func:`_decide`). Every read is inside its table whatever the coordinates."""
+def _box(walls, u_min, u_max, v_min, v_max, u_end, v_end, finite):
+    """(free, wall) for segments that end at (u_end, v_end) and lie in the box [u_min, u_max] x [v_min,
+    v_max], from five table reads and no branch: wall when a coordinate is not ``finite`` or the end is
+    off the map or in a wall pixel; free when no wall pixel (nor the outside) lies among the pixels whose
+    closed squares meet the box (columns ceil(u_min) - 1 .. floor(u_max), the same for rows: four reads of
+    ``wall_sums``); neither: undecided (:func:`_decide`). Every read is inside its table whatever the
+    coordinates, so that a loop of these vectorises (gathers)."""
     h, w = walls.mask.shape
-    du = u1 - u0
-    dv = v1 - v0
-    finite = du * du + dv * dv < math.inf  # not when a coordinate is not
-    in1 = (u1 >= 0.0) & (u1 < w) & (v1 >= 0.0) & (v1 < h)
-    end = walls.mask[int(_clamped(v1, 0.0, h - 1.0)), int(_clamped(u1, 0.0, w - 1.0))]
+    inside = (u_end >= 0.0) & (u_end < w) & (v_end >= 0.0) & (v_end < h)
+    end = walls.is_wall[np.intp(_clamped(v_end, 0.0, h - 1.0)) * w + np.intp(_clamped(u_end, 0.0, w - 1.0))]
     # the box in the padded table's pixels (the ring of wall round the mask at -1 and w, h)
-    col_lo = int(_clamped(np.ceil(min(u0, u1)), 0.0, w + 1.0))  # ceil(u_min) - 1 + 1
-    col_hi = int(_clamped(np.floor(max(u0, u1)), -1.0, w + 0.0)) + 2  # past floor(u_max) + 1
-    row_lo = int(_clamped(np.ceil(min(v0, v1)), 0.0, h + 1.0))
-    row_hi = int(_clamped(np.floor(max(v0, v1)), -1.0, h + 0.0)) + 2
+    col_lo = np.intp(_clamped(np.ceil(u_min), 0.0, w + 1.0))  # ceil(u_min) - 1 + 1
+    col_hi = np.intp(_clamped(np.floor(u_max), -1.0, w + 0.0) + 2.0)  # past floor(u_max) + 1
+    row_lo = np.intp(_clamped(np.ceil(v_min), 0.0, h + 1.0)) * (w + 3)
+    row_hi = np.intp(_clamped(np.floor(v_max), -1.0, h + 0.0) + 2.0) * (w + 3)
     sums = walls.wall_sums
     # the wall pixels in the box, modulo 2^32 (the table's sums wrap; a box holds fewer pixels)
-    in_box = (np.int64(sums[row_hi, col_hi]) - np.int64(sums[row_lo, col_hi]) - np.int64(sums[row_hi, col_lo])
-              + np.int64(sums[row_lo, col_lo])) & 0xFFFFFFFF
-    code = UNDECIDED
-    code = FREE if in_box == 0 else code
-    code = WALL if (not in1) | end else code
-    code = WALL if not finite else code
-    return code
+    in_box = np.uint32(sums[row_hi + col_hi] - sums[row_lo + col_hi] - sums[row_hi + col_lo] + sums[row_lo + col_lo])
+    wall = (not finite) | (not inside) | (end != 0)
+    return (in_box == 0) & (not wall), wall
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _look(walls, u0, v0, u1, v1):
+    """:func:`_box` of the segment (u0, v0)-(u1, v1): (free, wall)."""
+    du = u1 - u0
+    dv = v1 - v0
+    return _box(walls, min(u0, u1), max(u0, u1), min(v0, v1), max(v0, v1), u1, v1,
+                du * du + dv * dv < math.inf)  # not finite when a coordinate is not
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _decide(walls, u0, v0, u1, v1):
-    """Does the segment that :func:`_look` left UNDECIDED touch a wall? One table read per pixel row (or
+    """Does a segment that :func:`_look` left undecided touch a wall? One table read per pixel row (or
     column) it spans (:func:`_bands`), and the exact walk when it passes within ``_EDGE_PX`` of a pixel
     edge."""
     mask = walls.mask
@@ -353,8 +359,8 @@ def _decide(walls, u0, v0, u1, v1):
 def move_crosses(walls, ax, ay, bx, by):
     """Does the move (ax, ay) -> (bx, by) in world metres touch a wall pixel or leave the map? The
     filter's wall check for one move (the smoother's; the passes and :func:`crosses_wall` take a batch
-    of moves: :func:`crossings`), with the same answer as the exact walk of every pixel the segment
-    touches (the module's touching rule).
+    of moves: :func:`look`, :func:`crossings`), with the same answer as the exact walk of every pixel
+    the segment touches (the module's touching rule).
 
     A move that ends in a wall pixel or off the map touches it; one whose box of pixels holds no wall
     does not (:func:`_look`: a few table reads decide most moves); any other is checked band by band
@@ -363,35 +369,63 @@ def move_crosses(walls, ax, ay, bx, by):
     (:func:`_decide`)."""
     u0, v0 = _pixel_uv(walls, ax, ay)
     u1, v1 = _pixel_uv(walls, bx, by)
-    code = _look(walls, u0, v0, u1, v1)
-    if code == UNDECIDED:
-        return _decide(walls, u0, v0, u1, v1)
-    return code == WALL
+    free, wall = _look(walls, u0, v0, u1, v1)
+    if free or wall:
+        return wall
+    return _decide(walls, u0, v0, u1, v1)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def classify(walls, ax, ay, bx, by, m, code):
-    """``code[k]`` = :func:`_look` (FREE, WALL or UNDECIDED) of the move (ax[k], ay[k]) -> (bx[k], by[k]),
-    k < m: the branch-free first half of :func:`crossings`, over a batch."""
+def look(walls, ax, ay, bx, by, lo, m):
+    """(free, wall): bit k of each (uint64) says whether the move (ax, ay)[lo + k] -> (bx, by)[lo + k],
+    k < m <= LOOK, surely touches no wall (free), or surely does (wall), by :func:`_look`; a move with
+    neither bit is decided by :func:`move_crosses`. The loop writes no memory, so that it vectorises."""
+    free_bits = np.uint64(0)
+    wall_bits = np.uint64(0)
     for k in range(m):
-        u0, v0 = _pixel_uv(walls, ax[k], ay[k])
-        u1, v1 = _pixel_uv(walls, bx[k], by[k])
-        code[k] = _look(walls, u0, v0, u1, v1)
+        u0, v0 = _pixel_uv(walls, ax[lo + k], ay[lo + k])
+        u1, v1 = _pixel_uv(walls, bx[lo + k], by[lo + k])
+        free, wall = _look(walls, u0, v0, u1, v1)
+        free_bits |= np.uint64(free) << np.uint64(k)
+        wall_bits |= np.uint64(wall) << np.uint64(k)
+    return free_bits, wall_bits
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def look_pair(walls, ax, ay, bx, by, cx, cy, lo, m):
+    """(free, wall) bits as :func:`look` gives them, for the two moves a -> c and b -> c of each k < m:
+    free when neither touches a wall, wall when c is in a wall pixel or off the map (or a coordinate is
+    not finite), from the box of the three points: one look for two moves that share an end and lie
+    near each other (a jitter from a particle and from its position before the step); with neither
+    bit, check each move (:func:`move_crosses`)."""
+    free_bits = np.uint64(0)
+    wall_bits = np.uint64(0)
+    for k in range(m):
+        ua, va = _pixel_uv(walls, ax[lo + k], ay[lo + k])
+        ub, vb = _pixel_uv(walls, bx[lo + k], by[lo + k])
+        uc, vc = _pixel_uv(walls, cx[lo + k], cy[lo + k])
+        finite = abs(ua) + abs(va) + abs(ub) + abs(vb) + abs(uc) + abs(vc) < math.inf
+        free, wall = _box(walls, min(ua, ub, uc), max(ua, ub, uc), min(va, vb, vc), max(va, vb, vc), uc, vc,
+                          finite)
+        free_bits |= np.uint64(free) << np.uint64(k)
+        wall_bits |= np.uint64(wall) << np.uint64(k)
+    return free_bits, wall_bits
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def crossings(walls, ax, ay, bx, by, m, out):
-    """``out[k]`` (uint8: 1 touches, 0 not) = :func:`move_crosses` of the move (ax[k], ay[k]) ->
-    (bx[k], by[k]), k < m, in two loops: the look at every move without a branch on the data
-    (:func:`classify`, which decides most moves), then the rest (:func:`_decide`). Written out over a
-    batch: numba passes each array of ``walls`` as several words, and a mispredicted branch per move
-    cost more than the look."""
-    classify(walls, ax, ay, bx, by, m, out)
-    for k in range(m):
-        if out[k] == UNDECIDED:
-            u0, v0 = _pixel_uv(walls, ax[k], ay[k])
-            u1, v1 = _pixel_uv(walls, bx[k], by[k])
-            out[k] = _decide(walls, u0, v0, u1, v1)
+    """``out[k]`` = :func:`move_crosses` of the move (ax[k], ay[k]) -> (bx[k], by[k]), k < m: the look at
+    LOOK moves at a time (:func:`look`, which decides most of them without a branch), then the rest one
+    by one. Written out over a batch: numba passes each array of ``walls`` as several words, and a
+    mispredicted branch per move cost more than the look."""
+    for lo in range(0, m, LOOK):
+        count = min(m - lo, LOOK)
+        free_bits, wall_bits = look(walls, ax, ay, bx, by, lo, count)
+        for k in range(count):
+            hit = (wall_bits >> np.uint64(k)) & np.uint64(1) != 0
+            if ((free_bits | wall_bits) >> np.uint64(k)) & np.uint64(1) == 0:
+                hit = move_crosses(walls, ax[lo + k], ay[lo + k], bx[lo + k], by[lo + k])
+            out[lo + k] = hit
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -436,13 +470,13 @@ def _wall_ahead(wall_mask: np.ndarray) -> np.ndarray:
 
 
 def _wall_sums(wall_mask: np.ndarray) -> np.ndarray:
-    """(H + 3, W + 3) uint32: entry (r, c) counts the wall pixels in rows < r and columns < c of the mask
+    """((H + 3) * (W + 3),) uint32, row by row: entry (r, c) counts the wall pixels in rows < r and columns < c of the mask
     padded with a ring of wall (the outside), modulo 2^32; the count in a box is four reads (a summed-area
     table), exact as long as the box holds fewer than 2^32 pixels."""
     padded = np.pad(wall_mask, 1, constant_values=True)
     sums = np.zeros((padded.shape[0] + 1, padded.shape[1] + 1), dtype=np.uint32)
     np.cumsum(np.cumsum(padded, axis=0, dtype=np.uint32), axis=1, dtype=np.uint32, out=sums[1:, 1:])
-    return sums
+    return sums.ravel()
 
 
 def wall_grid(floorplan: FloorPlan) -> WallGrid:
@@ -454,7 +488,7 @@ def wall_grid(floorplan: FloorPlan) -> WallGrid:
         return cached[1]
     mask = np.ascontiguousarray(floorplan.wall_mask, dtype=np.bool_)
     grid = WallGrid(mask, _clearance_table(mask), _wall_ahead(mask), _wall_ahead(np.ascontiguousarray(mask.T)),
-                    _wall_sums(mask), float(floorplan.origin_m[0]), float(floorplan.origin_m[1]), 1.0 / float(floorplan.resolution_m),
+                    mask.astype(np.uint32).ravel(), _wall_sums(mask), float(floorplan.origin_m[0]), float(floorplan.origin_m[1]), 1.0 / float(floorplan.resolution_m),
                     NO_BUFFER)
     _GRIDS[floorplan] = (floorplan.wall_mask, grid)
     return grid
@@ -520,10 +554,10 @@ def crosses_wall(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarra
     b = np.ascontiguousarray(to_xy_m, dtype=np.float64).reshape(-1, 2)
     if a.shape != b.shape:
         raise ValueError(f"from and to must have the same shape, got {a.shape} and {b.shape}")
-    out = np.empty(a.shape[0], dtype=np.uint8)
+    out = np.empty(a.shape[0], dtype=np.bool_)
     for_slices(_crosses_world_kernel, a.shape[0], wall_grid(floorplan), a[:, 0].copy(), a[:, 1].copy(),
                b[:, 0].copy(), b[:, 1].copy(), out)
-    return out.view(np.bool_)
+    return out
 
 
 def wall_crossing_mask(floorplan: FloorPlan, track_xy_m: np.ndarray) -> np.ndarray:

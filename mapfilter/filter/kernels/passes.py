@@ -42,7 +42,7 @@ from numba import njit, types
 
 from mapfilter.filter.kernels.draws import BLOCK, cos_sin, exp_block, normal_pairs
 from mapfilter.filter.kernels.pointers import function_at, pointer
-from mapfilter.maps.walls import WALL_GRID, WallGrid, crossings
+from mapfilter.maps.walls import LOOK, WALL_GRID, WallGrid, look, look_pair, move_crosses
 from mapfilter.runtime.threads import for_slices
 
 __all__ = ["ADVANCE_SUMS", "BLOCK", "LIKELIHOOD_SIGNATURE", "MOVE_SIGNATURE", "RESAMPLE_SUMS", "Advance", "Advanced",
@@ -176,6 +176,87 @@ def likelihood_call(function, params: np.ndarray) -> ModelCall:
     return ModelCall(*pointer(function, LIKELIHOOD_SIGNATURE), np.ascontiguousarray(params, dtype=np.float64))
 
 
+# ---- pass 1, stage by stage over a block of particles lo .. lo + m - 1 ----------------------------
+@njit(cache=True, nogil=True, error_model="numpy")
+def _move_block(advance, move, src, dst, lo, m, iota, normals, scratch):
+    """The motion model's kernel moves the block, with standard normals drawn here."""
+    for pair in range(advance.normal_pairs):
+        normal_pairs(advance.key, pair, lo, iota, m, normals[2 * pair], normals[2 * pair + 1], scratch)
+    _move_at(move.c_address, move.jit_address)(move.params, src, dst, normals, lo, m)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _kill_block(walls, src, dst, log_weight_before, log_weight, killed, lo, m):
+    """A move through a wall kills its particle (Evennou & Marx: P_m = 0); the dead stay dead, and their
+    moves are looked at but not decided. Returns how many it killed."""
+    n_killed = 0
+    for first in range(lo, lo + m, LOOK):
+        count = min(lo + m - first, LOOK)
+        free, wall = look(walls, src[X], src[Y], dst[X], dst[Y], first, count)
+        for k in range(count):
+            i = first + k
+            w0 = log_weight_before[i]
+            live = -np.inf < w0 < np.inf
+            hit = (wall >> np.uint64(k)) & np.uint64(1) != 0
+            if ((free | wall) >> np.uint64(k)) & np.uint64(1) == 0 and live:
+                hit = move_crosses(walls, src[X, i], src[Y, i], dst[X, i], dst[Y, i])
+            dies = live & hit
+            killed[i] = dies
+            n_killed += dies
+            log_weight[i] = -np.inf if dies or not live else w0
+    return n_killed
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _weigh_block(likelihood, dst, log_weight, lo, m, ll):
+    """The measurement model's kernel adds its log-likelihood to the block's log weights. Returns (the
+    largest log weight, the best live log-likelihood, the particles alive, those with a finite weight)."""
+    _likelihood_at(likelihood.c_address, likelihood.jit_address)(likelihood.params, dst, lo, m, ll)
+    top = -np.inf
+    best_ll = -np.inf
+    alive = 0
+    finite = 0
+    for j in range(m):
+        i = lo + j
+        w0 = log_weight[i]
+        v = ll[j]
+        # NaN or +inf is a model defect: such a particle gets no weight instead of a poisoned sum
+        v = v if -np.inf < v < np.inf else -np.inf
+        live = w0 > -np.inf
+        alive += live
+        best_ll = v if live and v > best_ll else best_ll
+        w1 = w0 + v
+        log_weight[i] = w1
+        finite += w1 > -np.inf
+        top = w1 if w1 > top else top
+    return top, best_ll, alive, finite
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _block_moments(advance, dst, log_weight, e, lo, m, top, shifted, e_block, sums):
+    """e = exp(log weight - top) of the block's particles (0 for the dead) into ``e``, and their sums
+    (e, e^2, e dx, e dy, e dx^2, e dx dy, e dy^2; dx, dy from the pass' shift) into the block's
+    ``sums`` record."""
+    s = s2 = sx = sy = sxx = sxy = syy = 0.0
+    for j in range(m):
+        shifted[j] = log_weight[lo + j] - top
+    exp_block(shifted, m, e_block)  # not in place: aliasing kept it from vectorising
+    for j in range(m):
+        i = lo + j
+        w = e_block[j]
+        e[i] = w
+        dx = dst[X, i] - advance.shift_x_m
+        dy = dst[Y, i] - advance.shift_y_m
+        s += w
+        s2 += w * w
+        sx += w * dx
+        sy += w * dy
+        sxx += w * dx * dx
+        sxy += w * dx * dy
+        syy += w * dy * dy
+    sums.e, sums.e2, sums.e_dx, sums.e_dy, sums.e_dxx, sums.e_dxy, sums.e_dyy = s, s2, sx, sy, sxx, sxy, syy
+
+
 @njit(types.void(_i64, _i64, _ADVANCE, _MODEL_CALL, _MODEL_CALL, _WALLS, _CLOUD, _ADVANCED),
       cache=True, nogil=True, error_model="numpy")
 def _advance_kernel(lo_block, hi_block, advance, move, likelihood, walls, before, after):
@@ -185,98 +266,159 @@ def _advance_kernel(lo_block, hi_block, advance, move, likelihood, walls, before
     walls = WallGrid(*walls)
     before = Cloud(*before)
     after = Advanced(*after)
-    move_function = _move_at(move.c_address, move.jit_address)
-    log_likelihood = _likelihood_at(likelihood.c_address, likelihood.jit_address)
-    src = before.state
-    dst = after.state
-    lw = after.log_weight
-    n = src.shape[1]
+    n = before.state.shape[1]
     iota = np.arange(BLOCK)
     normals = np.empty((6, BLOCK))
-    scratch = np.empty(BLOCK)
-    ll = np.empty(BLOCK)
-    e_block = np.empty(BLOCK)
-    hits = np.empty(BLOCK, dtype=np.uint8)
+    work = np.empty((3, BLOCK))  # the draws' scratch, the log-likelihoods, the exponentials
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
+        sums = after.sums[block]
         if advance.flags & MOVE:
-            for pair in range(advance.normal_pairs):
-                normal_pairs(advance.key, pair, lo, iota, m, normals[2 * pair], normals[2 * pair + 1], scratch)
-            move_function(move.params, src, dst, normals, lo, m)
+            _move_block(advance, move, before.state, after.state, lo, m, iota, normals, work[0])
         if advance.flags & KILL:
-            # a move through a wall kills its particle (Evennou & Marx: P_m = 0); the dead stay dead
-            crossings(walls, src[X, lo:lo + m], src[Y, lo:lo + m], dst[X, lo:lo + m], dst[Y, lo:lo + m], m, hits)
-            n_killed = 0
-            for j in range(m):
-                i = lo + j
-                w0 = before.log_weight[i]
-                live = -np.inf < w0 < np.inf
-                hit = hits[j] != 0
-                after.killed[i] = live and hit
-                n_killed += live and hit
-                lw[i] = w0 if live and not hit else -np.inf
-            after.sums[block].killed = n_killed
+            sums.killed = _kill_block(walls, before.state, after.state, before.log_weight, after.log_weight,
+                                      after.killed, lo, m)
         if advance.flags & WEIGH:
-            log_likelihood(likelihood.params, dst, lo, m, ll)
-            top = -np.inf
-            best_ll = -np.inf
-            alive = 0
-            finite = 0
-            for j in range(m):
-                i = lo + j
-                w0 = lw[i]
-                v = ll[j]
-                # NaN or +inf is a model defect: such a particle gets no weight instead of a poisoned sum
-                v = v if -np.inf < v < np.inf else -np.inf
-                live = w0 > -np.inf
-                alive += live
-                if live and v > best_ll:
-                    best_ll = v
-                w1 = w0 + v
-                lw[i] = w1
-                finite += w1 > -np.inf
-                if w1 > top:
-                    top = w1
-            s = 0.0
-            s2 = 0.0
-            sx = 0.0
-            sy = 0.0
-            sxx = 0.0
-            sxy = 0.0
-            syy = 0.0
+            top, best_ll, alive, finite = _weigh_block(likelihood, after.state, after.log_weight, lo, m, work[1])
+            sums.max_log_weight, sums.best_log_likelihood, sums.alive, sums.finite = top, best_ll, alive, finite
             if finite > 0:
-                for j in range(m):
-                    ll[j] = lw[lo + j] - top
-                exp_block(ll, m, e_block)  # 0 for the dead (not in place: aliasing kept it from vectorising)
-                for j in range(m):
-                    i = lo + j
-                    e = e_block[j]
-                    after.e[i] = e
-                    dx = dst[X, i] - advance.shift_x_m
-                    dy = dst[Y, i] - advance.shift_y_m
-                    s += e
-                    s2 += e * e
-                    sx += e * dx
-                    sy += e * dy
-                    sxx += e * dx * dx
-                    sxy += e * dx * dy
-                    syy += e * dy * dy
+                _block_moments(advance, after.state, after.log_weight, after.e, lo, m, top, work[1], work[2], sums)
             else:
-                for j in range(m):
-                    after.e[lo + j] = 0.0
-            sums = after.sums[block]
-            sums.max_log_weight = top
-            sums.e = s
-            sums.e2 = s2
-            sums.e_dx = sx
-            sums.e_dy = sy
-            sums.e_dxx = sxx
-            sums.e_dxy = sxy
-            sums.e_dyy = syy
-            sums.alive = alive
-            sums.finite = finite
-            sums.best_log_likelihood = best_ll
+                after.e[lo:lo + m] = 0.0
+                sums.e = sums.e2 = sums.e_dx = sums.e_dy = sums.e_dxx = sums.e_dxy = sums.e_dyy = 0.0
+
+
+# ---- pass 2, stage by stage over a block of new particles lo .. lo + m - 1 ---------------------------
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _outputs_below(cum, n, u):
+    """How many of the n positions (j + u) / n lie below the cumulative weight ``cum``: ceil(cum n - u)
+    within [0, n]."""
+    x = np.ceil(cum * n - u)
+    x = x if x > 0.0 else 0.0
+    return int(x if x < n else n)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _systematic_block(weights, u, last, n, lo, m, parent, mark):
+    """parent[lo + j], j < m: systematic resampling, output j takes the particle whose bin of the
+    cumulative weights holds (j + u) / n: input i takes the outputs below ceil(C_i n - u) (C_i its
+    cumulative weight) that no input before it took, and ``last`` (the last positive weight) closes the
+    last bin at 1 (round-off guard); zero weights take none. Each input marks the first output it takes
+    and each output takes the last mark at or before it: no branch per output on the weights
+    (``mark``: m + 1 entries)."""
+    e = weights.e
+    scale = weights.block_scale
+    cum_start = weights.cum_start
+    # the walk starts at the last input block whose cumulative start is <= the block's first position
+    p0 = (lo + u) / n
+    b = 0
+    hi_b = min(cum_start.shape[0] - 1, last // BLOCK)
+    while b < hi_b:
+        mid = (b + hi_b + 1) // 2
+        if cum_start[mid] <= p0:
+            b = mid
+        else:
+            hi_b = mid - 1
+    mark[:m + 1] = -1
+    i = b * BLOCK
+    cum = cum_start[b]
+    taken = min(_outputs_below(cum, n, u), lo)  # the outputs the inputs before the walk took
+    while True:
+        w = e[i] * scale[i // BLOCK]
+        cum += w
+        upto = n if i >= last else _outputs_below(cum, n, u)
+        # an input that takes no output marks the spare slot m (a store that waits on no load)
+        mark[max(taken - lo, 0) if (w > 0.0) & (upto > taken) else m] = i
+        taken = max(taken, upto)
+        if taken >= lo + m or i >= last:
+            break
+        i += 1
+    run = -1
+    for j in range(m):
+        k = mark[j]
+        run += (k - run) & -np.int64(k >= 0)  # k where marked, else the mark before (max() branched)
+        parent[lo + j] = run
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _gather_block(src, dst, parent, lo, m):
+    """The new particles' state: their parents' (row by row: each row's reads run forward)."""
+    for row in range(dst.shape[0]):
+        for j in range(m):
+            dst[row, lo + j] = src[row, parent[lo + j]]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _jitter_block(resample, walls, origin, dst, parent, lo, m, pending, buffers):
+    """The jitter of the Regularised Particle Filter: each copy moves to copy + h root eps, drawn again
+    (up to ``resample.tries`` times) while the move from the copy or from its parent's position before
+    the step (``origin``) touches a wall; then the copy stays at its parent. ``buffers``: (9, BLOCK)."""
+    z0, z1, scratch, px, py, ox, oy, cx, cy = (buffers[0], buffers[1], buffers[2], buffers[3], buffers[4],
+                                                buffers[5], buffers[6], buffers[7], buffers[8])
+    h = resample.h
+    root = resample.root
+    for j in range(m):
+        pending[j] = j
+    n_pending = m
+    for t in range(resample.tries):
+        if n_pending == 0:
+            break
+        # draws for the pending copies only (a copy's draw at try t is the same whichever are)
+        normal_pairs(resample.key, t, lo, pending, n_pending, z0, z1, scratch)
+        for q in range(n_pending):
+            j = lo + pending[q]
+            k = parent[j]
+            px[q] = dst[X, j]  # the parent's position: a pending copy has not moved yet
+            py[q] = dst[Y, j]
+            ox[q] = origin[X, k]
+            oy[q] = origin[Y, k]
+            cx[q] = px[q] + h * (root[0, 0] * z0[q] + root[0, 1] * z1[q])
+            cy[q] = py[q] + h * (root[1, 0] * z0[q] + root[1, 1] * z1[q])
+        n_left = 0
+        for first in range(0, n_pending, LOOK):
+            count = min(n_pending - first, LOOK)
+            free, wall = look_pair(walls, px, py, ox, oy, cx, cy, first, count)  # one look at both moves
+            for k in range(count):
+                q = first + k
+                blocked = (wall >> np.uint64(k)) & np.uint64(1) != 0
+                if ((free | wall) >> np.uint64(k)) & np.uint64(1) == 0:
+                    blocked = (move_crosses(walls, px[q], py[q], cx[q], cy[q])
+                               or move_crosses(walls, ox[q], oy[q], cx[q], cy[q]))
+                j = pending[q]
+                pending[n_left] = j  # q >= n_left: already read
+                n_left += blocked
+                if not blocked:
+                    dst[X, lo + j] = cx[q]
+                    dst[Y, lo + j] = cy[q]
+        n_pending = n_left
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _new_cloud_sums(resample, dst, lo, m, sums):
+    """The block's sums of the new cloud (``RESAMPLE_SUMS``; every particle weighs the same) into its
+    ``sums`` record."""
+    sx = sy = sxx = sxy = syy = sc = ss = sl = 0.0
+    for j in range(m):
+        i = lo + j
+        dx = dst[X, i] - resample.shift_x_m
+        dy = dst[Y, i] - resample.shift_y_m
+        sx += dx
+        sy += dy
+        sxx += dx * dx
+        sxy += dx * dy
+        syy += dy * dy
+    if resample.walks:
+        for j in range(m):
+            heading = dst[HEADING, lo + j]
+            if not -math.pi <= heading <= math.pi:
+                heading = ((heading + math.pi) % (2.0 * math.pi)) - math.pi
+            c, s = cos_sin(heading)
+            sc += c
+            ss += s
+            sl += dst[STEP, lo + j]
+    sums.dx, sums.dy, sums.dxx, sums.dxy, sums.dyy = sx, sy, sxx, sxy, syy
+    sums.cos_heading, sums.sin_heading, sums.step_length_m = sc, ss, sl
 
 
 @njit(types.void(_i64, _i64, _RESAMPLE, _WEIGHTS, _WALLS, _state, _state, _RESAMPLED),
@@ -286,120 +428,19 @@ def _resample_kernel(lo_block, hi_block, resample, weights, walls, origin, src, 
     weights = Weights(*weights)
     walls = WallGrid(*walls)
     after = Resampled(*after)
-    e = weights.e
-    parent = after.parent
-    dst = after.state
-    root = resample.root
-    h = resample.h
-    n = dst.shape[1]
-    n_in_blocks = weights.block_scale.shape[0]
-    z0 = np.empty(BLOCK)
-    z1 = np.empty(BLOCK)
-    scratch = np.empty(BLOCK)
+    n = after.state.shape[1]
+    mark = np.empty(BLOCK + 1, dtype=np.int64)
     pending = np.empty(BLOCK, dtype=np.int64)
-    # the pending particles' jitter: from the parent (px, py) and its position before the step (ox, oy) to (cx, cy)
-    px = np.empty(BLOCK)
-    py = np.empty(BLOCK)
-    ox = np.empty(BLOCK)
-    oy = np.empty(BLOCK)
-    cx = np.empty(BLOCK)
-    cy = np.empty(BLOCK)
-    hit_from_parent = np.empty(BLOCK, dtype=np.uint8)
-    hit_from_origin = np.empty(BLOCK, dtype=np.uint8)
+    buffers = np.empty((9, BLOCK))
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
-        # systematic resampling: output j takes the particle whose cumulative-weight bin holds
-        # (j + u) / n. The walk starts at the input block where the block's first position falls
-        p0 = (lo + resample.u) / n
-        b = 0
-        hi_b = n_in_blocks - 1
-        while b < hi_b:  # the last input block whose cumulative start is <= p0
-            mid = (b + hi_b + 1) // 2
-            if weights.cum_start[mid] <= p0:
-                b = mid
-            else:
-                hi_b = mid - 1
-        i = b * BLOCK
-        w = e[i] * weights.block_scale[b]
-        cum = weights.cum_start[b] + w
-        for j in range(m):
-            p = (lo + j + resample.u) / n
-            # the last positive weight closes the last bin at 1 (round-off guard); zero weights have empty bins
-            while (p >= cum or w <= 0.0) and i < resample.last:
-                i += 1
-                w = e[i] * weights.block_scale[i // BLOCK]
-                cum += w
-            parent[lo + j] = i
-        # gather, and the jitter: parent + h root eps, redrawn up to ``tries`` times while the move
-        # from the parent or from the parent's position before the step touches a wall, else the
-        # particle stays at its parent
-        for j in range(m):
-            k = parent[lo + j]
-            for row in range(dst.shape[0]):
-                dst[row, lo + j] = src[row, k]
-            after.log_weight[lo + j] = resample.log_weight
-            pending[j] = j
-        n_pending = m
-        for t in range(resample.tries):
-            if n_pending == 0:
-                break
-            # draws for the pending particles only (a particle's draw at try t is the same whichever are)
-            normal_pairs(resample.key, t, lo, pending, n_pending, z0, z1, scratch)
-            for q in range(n_pending):
-                k = parent[lo + pending[q]]
-                px[q] = src[X, k]
-                py[q] = src[Y, k]
-                ox[q] = origin[X, k]
-                oy[q] = origin[Y, k]
-                cx[q] = px[q] + h * (root[0, 0] * z0[q] + root[0, 1] * z1[q])
-                cy[q] = py[q] + h * (root[1, 0] * z0[q] + root[1, 1] * z1[q])
-            crossings(walls, px, py, cx, cy, n_pending, hit_from_parent)
-            crossings(walls, ox, oy, cx, cy, n_pending, hit_from_origin)
-            n_left = 0
-            for q in range(n_pending):
-                j = pending[q]
-                if hit_from_parent[q] != 0 or hit_from_origin[q] != 0:
-                    pending[n_left] = j  # q >= n_left: already read
-                    n_left += 1
-                    continue
-                dst[X, lo + j] = cx[q]
-                dst[Y, lo + j] = cy[q]
-            n_pending = n_left
-        sx = 0.0
-        sy = 0.0
-        sxx = 0.0
-        sxy = 0.0
-        syy = 0.0
-        sc = 0.0
-        ss = 0.0
-        sl = 0.0
-        for j in range(m):
-            i = lo + j
-            dx = dst[X, i] - resample.shift_x_m
-            dy = dst[Y, i] - resample.shift_y_m
-            sx += dx
-            sy += dy
-            sxx += dx * dx
-            sxy += dx * dy
-            syy += dy * dy
-            if resample.walks:
-                heading = dst[HEADING, i]
-                if not -math.pi <= heading <= math.pi:
-                    heading = ((heading + math.pi) % (2.0 * math.pi)) - math.pi
-                c, s = cos_sin(heading)
-                sc += c
-                ss += s
-                sl += dst[STEP, i]
-        sums = after.sums[block]
-        sums.dx = sx
-        sums.dy = sy
-        sums.dxx = sxx
-        sums.dxy = sxy
-        sums.dyy = syy
-        sums.cos_heading = sc
-        sums.sin_heading = ss
-        sums.step_length_m = sl
+        _systematic_block(weights, resample.u, resample.last, n, lo, m, after.parent, mark)
+        _gather_block(src, after.state, after.parent, lo, m)
+        after.log_weight[lo:lo + m] = resample.log_weight
+        if resample.tries > 0:
+            _jitter_block(resample, walls, origin, after.state, after.parent, lo, m, pending, buffers)
+        _new_cloud_sums(resample, after.state, lo, m, after.sums[block])
 
 
 @njit(LIKELIHOOD_SIGNATURE, cache=True, nogil=True)
