@@ -52,8 +52,8 @@ __all__ = [
     "crosses_wall_uv",
     "LOOK",
     "crossings",
-    "look",
-    "look_pair",
+    "look_move",
+    "look_two_moves",
     "clearance_px",
     "count_wall_crossings",
     "forget_clearance",
@@ -291,7 +291,7 @@ def _bands(ahead, n_lines, n_across, p0, q0, p1, q1):
     return 2 if undecided else 0
 
 
-LOOK = 64  # moves per call of :func:`look` and :func:`look_pair`: one bit each in a 64-bit word
+LOOK = 64  # moves looked at in one loop (:func:`look_move`): one bit each in a 64-bit word
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -317,12 +317,14 @@ def _box(walls, u_min, u_max, v_min, v_max, u_end, v_end, finite):
     coordinates, so that a loop of these vectorises (gathers)."""
     h, w = walls.mask.shape
     inside = (u_end >= 0.0) & (u_end < w) & (v_end >= 0.0) & (v_end < h)
-    end = walls.is_wall[np.intp(_clamped(v_end, 0.0, h - 1.0)) * w + np.intp(_clamped(u_end, 0.0, w - 1.0))]
+    # unsigned indices: numba adds no wrap-around of negative ones, which kept the loads from vectorising
+    width = np.uintp(w)
+    end = walls.is_wall[np.uintp(_clamped(v_end, 0.0, h - 1.0)) * width + np.uintp(_clamped(u_end, 0.0, w - 1.0))]
     # the box in the padded table's pixels (the ring of wall round the mask at -1 and w, h)
-    col_lo = np.intp(_clamped(np.ceil(u_min), 0.0, w + 1.0))  # ceil(u_min) - 1 + 1
-    col_hi = np.intp(_clamped(np.floor(u_max), -1.0, w + 0.0) + 2.0)  # past floor(u_max) + 1
-    row_lo = np.intp(_clamped(np.ceil(v_min), 0.0, h + 1.0)) * (w + 3)
-    row_hi = np.intp(_clamped(np.floor(v_max), -1.0, h + 0.0) + 2.0) * (w + 3)
+    col_lo = np.uintp(_clamped(np.ceil(u_min), 0.0, w + 1.0))  # ceil(u_min) - 1 + 1
+    col_hi = np.uintp(_clamped(np.floor(u_max), -1.0, w + 0.0) + 2.0)  # past floor(u_max) + 1
+    row_lo = np.uintp(_clamped(np.ceil(v_min), 0.0, h + 1.0)) * (width + np.uintp(3))
+    row_hi = np.uintp(_clamped(np.floor(v_max), -1.0, h + 0.0) + 2.0) * (width + np.uintp(3))
     sums = walls.wall_sums
     # the wall pixels in the box, modulo 2^32 (the table's sums wrap; a box holds fewer pixels)
     in_box = np.uint32(sums[row_hi + col_hi] - sums[row_lo + col_hi] - sums[row_hi + col_lo] + sums[row_lo + col_lo])
@@ -359,7 +361,7 @@ def _decide(walls, u0, v0, u1, v1):
 def move_crosses(walls, ax, ay, bx, by):
     """Does the move (ax, ay) -> (bx, by) in world metres touch a wall pixel or leave the map? The
     filter's wall check for one move (the smoother's; the passes and :func:`crosses_wall` take a batch
-    of moves: :func:`look`, :func:`crossings`), with the same answer as the exact walk of every pixel
+    of moves: :func:`look_move`, :func:`crossings`), with the same answer as the exact walk of every pixel
     the segment touches (the module's touching rule).
 
     A move that ends in a wall pixel or off the map touches it; one whose box of pixels holds no wall
@@ -376,51 +378,45 @@ def move_crosses(walls, ax, ay, bx, by):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def look(walls, ax, ay, bx, by, lo, m):
-    """(free, wall): bit k of each (uint64) says whether the move (ax, ay)[lo + k] -> (bx, by)[lo + k],
-    k < m <= LOOK, surely touches no wall (free), or surely does (wall), by :func:`_look`; a move with
-    neither bit is decided by :func:`move_crosses`. The loop writes no memory, so that it vectorises."""
-    free_bits = np.uint64(0)
-    wall_bits = np.uint64(0)
-    for k in range(m):
-        u0, v0 = _pixel_uv(walls, ax[lo + k], ay[lo + k])
-        u1, v1 = _pixel_uv(walls, bx[lo + k], by[lo + k])
-        free, wall = _look(walls, u0, v0, u1, v1)
-        free_bits |= np.uint64(free) << np.uint64(k)
-        wall_bits |= np.uint64(wall) << np.uint64(k)
-    return free_bits, wall_bits
+def look_move(walls, ax, ay, bx, by):
+    """(free, wall) of the move (ax, ay) -> (bx, by) in world metres from a few table reads and no branch
+    (:func:`_look`): free, it surely touches no wall; wall, it surely does; neither, ask
+    :func:`move_crosses`. A loop of these that writes no memory vectorises (the passes gather 64 moves'
+    answers into the bits of a word)."""
+    u0, v0 = _pixel_uv(walls, ax, ay)
+    u1, v1 = _pixel_uv(walls, bx, by)
+    return _look(walls, u0, v0, u1, v1)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def look_pair(walls, ax, ay, bx, by, cx, cy, lo, m):
-    """(free, wall) bits as :func:`look` gives them, for the two moves a -> c and b -> c of each k < m:
-    free when neither touches a wall, wall when c is in a wall pixel or off the map (or a coordinate is
-    not finite), from the box of the three points: one look for two moves that share an end and lie
-    near each other (a jitter from a particle and from its position before the step); with neither
-    bit, check each move (:func:`move_crosses`)."""
-    free_bits = np.uint64(0)
-    wall_bits = np.uint64(0)
-    for k in range(m):
-        ua, va = _pixel_uv(walls, ax[lo + k], ay[lo + k])
-        ub, vb = _pixel_uv(walls, bx[lo + k], by[lo + k])
-        uc, vc = _pixel_uv(walls, cx[lo + k], cy[lo + k])
-        finite = abs(ua) + abs(va) + abs(ub) + abs(vb) + abs(uc) + abs(vc) < math.inf
-        free, wall = _box(walls, min(ua, ub, uc), max(ua, ub, uc), min(va, vb, vc), max(va, vb, vc), uc, vc,
-                          finite)
-        free_bits |= np.uint64(free) << np.uint64(k)
-        wall_bits |= np.uint64(wall) << np.uint64(k)
-    return free_bits, wall_bits
+def look_two_moves(walls, ax, ay, bx, by, cx, cy):
+    """(free, wall) as :func:`look_move` gives them, for the two moves a -> c and b -> c: free when neither
+    touches a wall, wall when c is in a wall pixel or off the map (or a coordinate is not finite), from
+    the box of the three points: one look for two moves that share an end and lie near each other (a
+    jitter from a particle and from its position before the step); neither: check each move."""
+    ua, va = _pixel_uv(walls, ax, ay)
+    ub, vb = _pixel_uv(walls, bx, by)
+    uc, vc = _pixel_uv(walls, cx, cy)
+    finite = abs(ua) + abs(va) + abs(ub) + abs(vb) + abs(uc) + abs(vc) < math.inf
+    return _box(walls, min(ua, ub, uc), max(ua, ub, uc), min(va, vb, vc), max(va, vb, vc), uc, vc, finite)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def crossings(walls, ax, ay, bx, by, m, out):
     """``out[k]`` = :func:`move_crosses` of the move (ax[k], ay[k]) -> (bx[k], by[k]), k < m: the look at
-    LOOK moves at a time (:func:`look`, which decides most of them without a branch), then the rest one
-    by one. Written out over a batch: numba passes each array of ``walls`` as several words, and a
-    mispredicted branch per move cost more than the look."""
+    LOOK moves at a time (:func:`look_move`, which decides most of them, in a loop that vectorises), then
+    the rest one by one. Written out over a batch: numba passes each array of ``walls`` as several
+    words, and a mispredicted branch per move cost more than the look."""
     for lo in range(0, m, LOOK):
         count = min(m - lo, LOOK)
-        free_bits, wall_bits = look(walls, ax, ay, bx, by, lo, count)
+        free_bits = np.uint64(0)
+        wall_bits = np.uint64(0)
+        # views of the chunk: indices that start at 0 make contiguous loads (first + k could be negative)
+        xa, ya, xb, yb = ax[lo:lo + count], ay[lo:lo + count], bx[lo:lo + count], by[lo:lo + count]
+        for k in range(count):  # no memory written: this loop vectorises
+            free, wall = look_move(walls, xa[k], ya[k], xb[k], yb[k])
+            free_bits |= np.uint64(free) << np.uint64(k)
+            wall_bits |= np.uint64(wall) << np.uint64(k)
         for k in range(count):
             hit = (wall_bits >> np.uint64(k)) & np.uint64(1) != 0
             if ((free_bits | wall_bits) >> np.uint64(k)) & np.uint64(1) == 0:

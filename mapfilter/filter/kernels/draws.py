@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
@@ -44,6 +45,17 @@ def as_int(typingctx, value):
     def codegen(context, builder, signature, args):
         return builder.bitcast(args[0], context.get_value_type(out))
     return out(value), codegen
+
+
+@intrinsic
+def trailing_zeros(typingctx, word):
+    """The index of the lowest set bit of an integer (its bit width when it is 0): LLVM's cttz."""
+    if not isinstance(word, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.cttz(args[0], ir.Constant(ir.IntType(1), 0))
+    return word(word), codegen
 
 
 _GAMMA = np.uint64(0x9E3779B97F4A7C15)

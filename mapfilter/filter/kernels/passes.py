@@ -40,9 +40,9 @@ import numba
 import numpy as np
 from numba import njit, types
 
-from mapfilter.filter.kernels.draws import BLOCK, cos_sin, exp_block, normal_pairs
+from mapfilter.filter.kernels.draws import BLOCK, cos_sin, exp_block, normal_pairs, trailing_zeros
 from mapfilter.filter.kernels.pointers import function_at, pointer
-from mapfilter.maps.walls import LOOK, WALL_GRID, WallGrid, look, look_pair, move_crosses
+from mapfilter.maps.walls import LOOK, WALL_GRID, WallGrid, look_move, look_two_moves, move_crosses
 from mapfilter.runtime.threads import for_slices
 
 __all__ = ["ADVANCE_SUMS", "BLOCK", "LIKELIHOOD_SIGNATURE", "MOVE_SIGNATURE", "RESAMPLE_SUMS", "Advance", "Advanced",
@@ -185,25 +185,46 @@ def _move_block(advance, move, src, dst, lo, m, iota, normals, scratch):
     _move_at(move.c_address, move.jit_address)(move.params, src, dst, normals, lo, m)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _bit(word, k):
+    """Bit k of a uint64 word, as a bool."""
+    return (word >> np.uint64(k)) & np.uint64(1) != 0
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _kill_block(walls, src, dst, log_weight_before, log_weight, killed, lo, m):
     """A move through a wall kills its particle (Evennou & Marx: P_m = 0); the dead stay dead, and their
-    moves are looked at but not decided. Returns how many it killed."""
+    moves are looked at but not decided. LOOK particles at a time: the look at every move and which are
+    alive, as bits (a loop that vectorises), the rare undecided live move checked alone, then the kills
+    written. Returns how many it killed."""
     n_killed = 0
     for first in range(lo, lo + m, LOOK):
         count = min(lo + m - first, LOOK)
-        free, wall = look(walls, src[X], src[Y], dst[X], dst[Y], first, count)
+        # views of the chunk: indices that start at 0 make contiguous loads (first + k could be negative)
+        xa, ya = src[X, first:first + count], src[Y, first:first + count]
+        xb, yb = dst[X, first:first + count], dst[Y, first:first + count]
+        weight_before = log_weight_before[first:first + count]
+        free = wall = alive = np.uint64(0)
         for k in range(count):
+            f, w = look_move(walls, xa[k], ya[k], xb[k], yb[k])
+            w0 = weight_before[k]
+            free |= np.uint64(f) << np.uint64(k)
+            wall |= np.uint64(w) << np.uint64(k)
+            alive |= np.uint64((w0 > -np.inf) & (w0 < np.inf)) << np.uint64(k)
+        undecided = alive & ~(free | wall)
+        while undecided != 0:  # over its set bits only: a loop over all would keep the next from vectorising
+            k = trailing_zeros(undecided)
+            undecided &= undecided - np.uint64(1)
             i = first + k
-            w0 = log_weight_before[i]
-            live = -np.inf < w0 < np.inf
-            hit = (wall >> np.uint64(k)) & np.uint64(1) != 0
-            if ((free | wall) >> np.uint64(k)) & np.uint64(1) == 0 and live:
-                hit = move_crosses(walls, src[X, i], src[Y, i], dst[X, i], dst[Y, i])
-            dies = live & hit
-            killed[i] = dies
-            n_killed += dies
-            log_weight[i] = -np.inf if dies or not live else w0
+            if move_crosses(walls, src[X, i], src[Y, i], dst[X, i], dst[Y, i]):
+                wall |= np.uint64(1) << k
+        dies = alive & wall
+        survives = alive & ~wall
+        killed_chunk, weight_after = killed[first:first + count], log_weight[first:first + count]
+        for k in range(count):
+            killed_chunk[k] = _bit(dies, k)
+            n_killed += _bit(dies, k)
+            weight_after[k] = weight_before[k] if _bit(survives, k) else -np.inf
     return n_killed
 
 
@@ -216,9 +237,9 @@ def _weigh_block(likelihood, dst, log_weight, lo, m, ll):
     best_ll = -np.inf
     alive = 0
     finite = 0
+    weights = log_weight[lo:lo + m]  # a view: indices from 0 make contiguous loads (lo + j could be negative)
     for j in range(m):
-        i = lo + j
-        w0 = log_weight[i]
+        w0 = weights[j]
         v = ll[j]
         # NaN or +inf is a model defect: such a particle gets no weight instead of a poisoned sum
         v = v if -np.inf < v < np.inf else -np.inf
@@ -226,7 +247,7 @@ def _weigh_block(likelihood, dst, log_weight, lo, m, ll):
         alive += live
         best_ll = v if live and v > best_ll else best_ll
         w1 = w0 + v
-        log_weight[i] = w1
+        weights[j] = w1
         finite += w1 > -np.inf
         top = w1 if w1 > top else top
     return top, best_ll, alive, finite
@@ -238,15 +259,15 @@ def _block_moments(advance, dst, log_weight, e, lo, m, top, shifted, e_block, su
     (e, e^2, e dx, e dy, e dx^2, e dx dy, e dy^2; dx, dy from the pass' shift) into the block's
     ``sums`` record."""
     s = s2 = sx = sy = sxx = sxy = syy = 0.0
+    weights, e_out, x, y = log_weight[lo:lo + m], e[lo:lo + m], dst[X, lo:lo + m], dst[Y, lo:lo + m]
     for j in range(m):
-        shifted[j] = log_weight[lo + j] - top
+        shifted[j] = weights[j] - top
     exp_block(shifted, m, e_block)  # not in place: aliasing kept it from vectorising
     for j in range(m):
-        i = lo + j
         w = e_block[j]
-        e[i] = w
-        dx = dst[X, i] - advance.shift_x_m
-        dy = dst[Y, i] - advance.shift_y_m
+        e_out[j] = w
+        dx = x[j] - advance.shift_x_m
+        dy = y[j] - advance.shift_y_m
         s += w
         s2 += w * w
         sx += w * dx
@@ -335,29 +356,79 @@ def _systematic_block(weights, u, last, n, lo, m, parent, mark):
             break
         i += 1
     run = -1
+    out = parent[lo:lo + m]
     for j in range(m):
         k = mark[j]
         run += (k - run) & -np.int64(k >= 0)  # k where marked, else the mark before (max() branched)
-        parent[lo + j] = run
+        out[j] = run
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _gather_block(src, dst, parent, lo, m):
     """The new particles' state: their parents' (row by row: each row's reads run forward)."""
+    parents = parent[lo:lo + m]
     for row in range(dst.shape[0]):
+        to, source = dst[row, lo:lo + m], src[row]
         for j in range(m):
-            dst[row, lo + j] = src[row, parent[lo + j]]
+            to[j] = source[np.uintp(parents[j])]  # unsigned: no wrap-around of negative indices
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _jittered(resample, x, y, z0, z1):
+    """(x, y) + h root (z0, z1): the jitter's candidate."""
+    root = resample.root
+    return (x + resample.h * (root[0, 0] * z0 + root[0, 1] * z1),
+            y + resample.h * (root[1, 0] * z0 + root[1, 1] * z1))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _jitter_looks(resample, walls, origin, dst, parent, pending, all_pending, lo, first, count, z0, z1):
+    """Bit k: the candidate of pending copy first + k (of copy first + k when ``all_pending``) touches no
+    wall from the copy nor from its parent's position before the step (``origin``); a pending copy has
+    not moved yet, so it sits at its parent's position."""
+    free = wall = np.uint64(0)
+    ox, oy = origin[X], origin[Y]
+    if all_pending:  # views of the chunk: indices from 0 make contiguous loads
+        x, y = dst[X, lo + first:lo + first + count], dst[Y, lo + first:lo + first + count]
+        parents, z0s, z1s = parent[lo + first:lo + first + count], z0[first:first + count], z1[first:first + count]
+        for k in range(count):  # no memory written: this loop vectorises
+            o = np.uintp(parents[k])
+            cx, cy = _jittered(resample, x[k], y[k], z0s[k], z1s[k])
+            f, w = look_two_moves(walls, x[k], y[k], ox[o], oy[o], cx, cy)
+            free |= np.uint64(f) << np.uint64(k)
+            wall |= np.uint64(w) << np.uint64(k)
+    else:
+        x, y = dst[X], dst[Y]
+        for k in range(count):
+            q = first + k
+            i = np.uintp(lo + pending[q])
+            o = np.uintp(parent[i])
+            cx, cy = _jittered(resample, x[i], y[i], z0[q], z1[q])
+            f, w = look_two_moves(walls, x[i], y[i], ox[o], oy[o], cx, cy)
+            free |= np.uint64(f) << np.uint64(k)
+            wall |= np.uint64(w) << np.uint64(k)
+    undecided = ~(free | wall) & (np.uint64(0xFFFFFFFFFFFFFFFF) >> np.uint64(LOOK - count))
+    while undecided != 0:  # over its set bits only
+        k = trailing_zeros(undecided)
+        undecided &= undecided - np.uint64(1)
+        q = first + k
+        i = lo + (q if all_pending else pending[q])
+        o = parent[i]
+        cx, cy = _jittered(resample, dst[X, i], dst[Y, i], z0[q], z1[q])
+        if not (move_crosses(walls, dst[X, i], dst[Y, i], cx, cy)
+                or move_crosses(walls, origin[X, o], origin[Y, o], cx, cy)):
+            free |= np.uint64(1) << k
+    return free
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _jitter_block(resample, walls, origin, dst, parent, lo, m, pending, buffers):
     """The jitter of the Regularised Particle Filter: each copy moves to copy + h root eps, drawn again
     (up to ``resample.tries`` times) while the move from the copy or from its parent's position before
-    the step (``origin``) touches a wall; then the copy stays at its parent. ``buffers``: (9, BLOCK)."""
-    z0, z1, scratch, px, py, ox, oy, cx, cy = (buffers[0], buffers[1], buffers[2], buffers[3], buffers[4],
-                                                buffers[5], buffers[6], buffers[7], buffers[8])
-    h = resample.h
-    root = resample.root
+    the step (``origin``) touches a wall; then the copy stays at its parent. LOOK copies at a time: one
+    look at both moves of each (:func:`_jitter_looks`, in a loop that vectorises), the accepted written,
+    the others kept for the next try. ``pending``: BLOCK entries; ``buffers``: (3, BLOCK)."""
+    z0, z1, scratch = buffers[0], buffers[1], buffers[2]
     for j in range(m):
         pending[j] = j
     n_pending = m
@@ -366,31 +437,30 @@ def _jitter_block(resample, walls, origin, dst, parent, lo, m, pending, buffers)
             break
         # draws for the pending copies only (a copy's draw at try t is the same whichever are)
         normal_pairs(resample.key, t, lo, pending, n_pending, z0, z1, scratch)
-        for q in range(n_pending):
-            j = lo + pending[q]
-            k = parent[j]
-            px[q] = dst[X, j]  # the parent's position: a pending copy has not moved yet
-            py[q] = dst[Y, j]
-            ox[q] = origin[X, k]
-            oy[q] = origin[Y, k]
-            cx[q] = px[q] + h * (root[0, 0] * z0[q] + root[0, 1] * z1[q])
-            cy[q] = py[q] + h * (root[1, 0] * z0[q] + root[1, 1] * z1[q])
         n_left = 0
         for first in range(0, n_pending, LOOK):
             count = min(n_pending - first, LOOK)
-            free, wall = look_pair(walls, px, py, ox, oy, cx, cy, first, count)  # one look at both moves
-            for k in range(count):
-                q = first + k
-                blocked = (wall >> np.uint64(k)) & np.uint64(1) != 0
-                if ((free | wall) >> np.uint64(k)) & np.uint64(1) == 0:
-                    blocked = (move_crosses(walls, px[q], py[q], cx[q], cy[q])
-                               or move_crosses(walls, ox[q], oy[q], cx[q], cy[q]))
-                j = pending[q]
-                pending[n_left] = j  # q >= n_left: already read
-                n_left += blocked
-                if not blocked:
-                    dst[X, lo + j] = cx[q]
-                    dst[Y, lo + j] = cy[q]
+            accepted = _jitter_looks(resample, walls, origin, dst, parent, pending, t == 0, lo, first, count, z0, z1)
+            # the accepted copies move to their candidates, computed again as in the look
+            if t == 0:
+                x, y = dst[X, lo + first:lo + first + count], dst[Y, lo + first:lo + first + count]
+                z0s, z1s = z0[first:first + count], z1[first:first + count]
+                for k in range(count):
+                    cx, cy = _jittered(resample, x[k], y[k], z0s[k], z1s[k])
+                    x[k] = cx if _bit(accepted, k) else x[k]
+                    y[k] = cy if _bit(accepted, k) else y[k]
+            else:
+                for k in range(count):
+                    q = first + k
+                    i = lo + pending[q]
+                    cx, cy = _jittered(resample, dst[X, i], dst[Y, i], z0[q], z1[q])
+                    dst[X, i] = cx if _bit(accepted, k) else dst[X, i]
+                    dst[Y, i] = cy if _bit(accepted, k) else dst[Y, i]
+            blocked = ~accepted & (np.uint64(0xFFFFFFFFFFFFFFFF) >> np.uint64(LOOK - count))
+            while blocked != 0:  # q >= n_left: already read
+                pending[n_left] = pending[first + trailing_zeros(blocked)]
+                n_left += 1
+                blocked &= blocked - np.uint64(1)
         n_pending = n_left
 
 
@@ -399,10 +469,10 @@ def _new_cloud_sums(resample, dst, lo, m, sums):
     """The block's sums of the new cloud (``RESAMPLE_SUMS``; every particle weighs the same) into its
     ``sums`` record."""
     sx = sy = sxx = sxy = syy = sc = ss = sl = 0.0
+    x, y = dst[X, lo:lo + m], dst[Y, lo:lo + m]
     for j in range(m):
-        i = lo + j
-        dx = dst[X, i] - resample.shift_x_m
-        dy = dst[Y, i] - resample.shift_y_m
+        dx = x[j] - resample.shift_x_m
+        dy = y[j] - resample.shift_y_m
         sx += dx
         sy += dy
         sxx += dx * dx
@@ -431,7 +501,7 @@ def _resample_kernel(lo_block, hi_block, resample, weights, walls, origin, src, 
     n = after.state.shape[1]
     mark = np.empty(BLOCK + 1, dtype=np.int64)
     pending = np.empty(BLOCK, dtype=np.int64)
-    buffers = np.empty((9, BLOCK))
+    buffers = np.empty((3, BLOCK))
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
@@ -544,15 +614,19 @@ def resample_pass(totals: Totals, e: np.ndarray, u: float, key: int, tries: int,
                  types.float64[:, ::1]), cache=True, nogil=True)
 def _killed_kernel(lo_block, hi_block, killed, start, before, after, from_xy, to_xy):
     n = killed.shape[0]
+    spare = from_xy.shape[0] - 1
     for block in range(lo_block, hi_block):
         k = start[block]
+        end = start[block + 1]
         for i in range(block * BLOCK, min(n, (block + 1) * BLOCK)):
-            if killed[i]:
-                from_xy[k, 0] = before[X, i]
-                from_xy[k, 1] = before[Y, i]
-                to_xy[k, 0] = after[X, i]
-                to_xy[k, 1] = after[Y, i]
-                k += 1
+            # every particle is written, to the next row or, once the block's kills are all written,
+            # to the spare last row: no branch on which particles were killed
+            row = k if k < end else spare
+            from_xy[row, 0] = before[X, i]
+            from_xy[row, 1] = before[Y, i]
+            to_xy[row, 0] = after[X, i]
+            to_xy[row, 1] = after[Y, i]
+            k += killed[i]
 
 
 def killed_moves(killed: np.ndarray, sums: np.ndarray, before: np.ndarray, after: np.ndarray
@@ -561,14 +635,14 @@ def killed_moves(killed: np.ndarray, sums: np.ndarray, before: np.ndarray, after
     per block in ``sums``) moved from and to, in particle order (gathered on the threads: a large
     cloud's kills are too many for numpy's gather to stay out of the step's way)."""
     counts = sums["killed"]
-    start = np.zeros(len(counts), dtype=np.int64)
-    np.cumsum(counts[:-1], out=start[1:])
-    total = int(counts.sum())
-    from_xy, to_xy = np.empty((total, 2)), np.empty((total, 2))
+    start = np.zeros(len(counts) + 1, dtype=np.int64)  # each block's first row, and the end
+    np.cumsum(counts, out=start[1:])
+    total = int(start[-1])
+    from_xy, to_xy = np.empty((total + 1, 2)), np.empty((total + 1, 2))  # and a spare row
     if total:
         for_slices(_killed_kernel, len(counts), killed, start, before, after, from_xy, to_xy,
                    min_per_thread=MIN_BLOCKS_PER_THREAD)
-    return from_xy, to_xy
+    return from_xy[:total], to_xy[:total]
 
 
 def resample_sums(n: int) -> np.ndarray:
