@@ -257,9 +257,14 @@ def _pf(fp: FloorPlan, n: int, true_xy: np.ndarray, seed: int) -> ParticleFilter
 # ``BASELINE_CONFIG`` is a dict of FilterConfig settings the revision knows (e.g. its fused path).
 _BASELINE_CHILD = r"""
 import json, sys, time
-import numpy as np
+# the revision's own package, not the one installed in editable mode (whose finder comes first)
+sys.meta_path[:] = [f for f in sys.meta_path if not getattr(f, "__module__", "").startswith("__editable__")]
 sys.path.insert(0, sys.argv[1])
 sys.path.insert(0, sys.argv[1] + "/tools")
+import numpy as np
+import mapfilter
+if not mapfilter.__file__.startswith(sys.argv[1]):
+    raise SystemExit(f"the baseline imported {mapfilter.__file__}, not the revision's package in {sys.argv[1]}")
 import bench_filter as b
 try:
     from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter

@@ -308,28 +308,40 @@ def _clamped(x, lo, hi):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _box(walls, u_min, u_max, v_min, v_max, u_end, v_end, finite):
-    """(free, wall) for segments that end at (u_end, v_end) and lie in the box [u_min, u_max] x [v_min,
-    v_max], from five table reads and no branch: wall when a coordinate is not ``finite`` or the end is
-    off the map or in a wall pixel; free when no wall pixel (nor the outside) lies among the pixels whose
-    closed squares meet the box (columns ceil(u_min) - 1 .. floor(u_max), the same for rows: four reads of
-    ``wall_sums``); neither: undecided (:func:`_decide`). Every read is inside its table whatever the
-    coordinates, so that a loop of these vectorises (gathers)."""
+def _box_is_free(walls, u_min, u_max, v_min, v_max):
+    """No wall pixel (nor the outside) among the pixels whose closed squares meet the box [u_min, u_max]
+    x [v_min, v_max] (columns ceil(u_min) - 1 .. floor(u_max), the same for rows): four reads of
+    ``wall_sums``, each inside the table whatever the coordinates, and no branch."""
     h, w = walls.mask.shape
-    inside = (u_end >= 0.0) & (u_end < w) & (v_end >= 0.0) & (v_end < h)
     # unsigned indices: numba adds no wrap-around of negative ones, which kept the loads from vectorising
-    width = np.uintp(w)
-    end = walls.is_wall[np.uintp(_clamped(v_end, 0.0, h - 1.0)) * width + np.uintp(_clamped(u_end, 0.0, w - 1.0))]
+    width = np.uintp(w) + np.uintp(3)
     # the box in the padded table's pixels (the ring of wall round the mask at -1 and w, h)
     col_lo = np.uintp(_clamped(np.ceil(u_min), 0.0, w + 1.0))  # ceil(u_min) - 1 + 1
     col_hi = np.uintp(_clamped(np.floor(u_max), -1.0, w + 0.0) + 2.0)  # past floor(u_max) + 1
-    row_lo = np.uintp(_clamped(np.ceil(v_min), 0.0, h + 1.0)) * (width + np.uintp(3))
-    row_hi = np.uintp(_clamped(np.floor(v_max), -1.0, h + 0.0) + 2.0) * (width + np.uintp(3))
+    row_lo = np.uintp(_clamped(np.ceil(v_min), 0.0, h + 1.0)) * width
+    row_hi = np.uintp(_clamped(np.floor(v_max), -1.0, h + 0.0) + 2.0) * width
     sums = walls.wall_sums
     # the wall pixels in the box, modulo 2^32 (the table's sums wrap; a box holds fewer pixels)
-    in_box = np.uint32(sums[row_hi + col_hi] - sums[row_lo + col_hi] - sums[row_hi + col_lo] + sums[row_lo + col_lo])
-    wall = (not finite) | (not inside) | (end != 0)
-    return (in_box == 0) & (not wall), wall
+    return np.uint32(sums[row_hi + col_hi] - sums[row_lo + col_hi] - sums[row_hi + col_lo] + sums[row_lo + col_lo]) == 0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _in_wall(walls, u, v):
+    """Is the point (u, v) off the map or in a wall pixel? One read, inside the table whatever (u, v) is."""
+    h, w = walls.mask.shape
+    inside = (u >= 0.0) & (u < w) & (v >= 0.0) & (v < h)
+    index = np.uintp(_clamped(v, 0.0, h - 1.0)) * np.uintp(w) + np.uintp(_clamped(u, 0.0, w - 1.0))
+    return (not inside) | (walls.is_wall[index] != 0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _box(walls, u_min, u_max, v_min, v_max, u_end, v_end, finite):
+    """(free, wall) for segments that end at (u_end, v_end) and lie in the box [u_min, u_max] x [v_min,
+    v_max], from five table reads and no branch: wall when a coordinate is not ``finite`` or the end is
+    off the map or in a wall pixel; free when the box holds no wall (:func:`_box_is_free`); neither:
+    undecided (:func:`_decide`). A loop of these vectorises (gathers)."""
+    wall = (not finite) | _in_wall(walls, u_end, v_end)
+    return _box_is_free(walls, u_min, u_max, v_min, v_max) & (not wall), wall
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)

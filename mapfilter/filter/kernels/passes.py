@@ -253,7 +253,12 @@ def _weigh_block(likelihood, dst, log_weight, lo, m, ll):
     return top, best_ll, alive, finite
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+# fastmath's reassoc: the sums may be added in any order that the compiler vectorises (the same order
+# whatever the threads: a block is summed by one compiled loop)
+_REASSOCIATE = {"reassoc", "contract"}
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_REASSOCIATE)
 def _block_moments(advance, dst, log_weight, e, lo, m, top, shifted, e_block, sums):
     """e = exp(log weight - top) of the block's particles (0 for the dead) into ``e``, and their sums
     (e, e^2, e dx, e dy, e dx^2, e dx dy, e dy^2; dx, dy from the pass' shift) into the block's
@@ -464,7 +469,7 @@ def _jitter_block(resample, walls, origin, dst, parent, lo, m, pending, buffers)
         n_pending = n_left
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_REASSOCIATE)
 def _new_cloud_sums(resample, dst, lo, m, sums):
     """The block's sums of the new cloud (``RESAMPLE_SUMS``; every particle weighs the same) into its
     ``sums`` record."""
@@ -614,19 +619,22 @@ def resample_pass(totals: Totals, e: np.ndarray, u: float, key: int, tries: int,
                  types.float64[:, ::1]), cache=True, nogil=True)
 def _killed_kernel(lo_block, hi_block, killed, start, before, after, from_xy, to_xy):
     n = killed.shape[0]
-    spare = from_xy.shape[0] - 1
     for block in range(lo_block, hi_block):
-        k = start[block]
-        end = start[block + 1]
-        for i in range(block * BLOCK, min(n, (block + 1) * BLOCK)):
-            # every particle is written, to the next row or, once the block's kills are all written,
-            # to the spare last row: no branch on which particles were killed
-            row = k if k < end else spare
-            from_xy[row, 0] = before[X, i]
-            from_xy[row, 1] = before[Y, i]
-            to_xy[row, 0] = after[X, i]
-            to_xy[row, 1] = after[Y, i]
-            k += killed[i]
+        row = start[block]
+        for first in range(block * BLOCK, min(n, (block + 1) * BLOCK), LOOK):
+            count = min(n - first, LOOK)
+            chunk = killed[first:first + count]
+            dies = np.uint64(0)
+            for k in range(count):  # vectorises
+                dies |= np.uint64(chunk[k]) << np.uint64(k)
+            while dies != 0:  # the killed only, in order
+                i = first + trailing_zeros(dies)
+                dies &= dies - np.uint64(1)
+                from_xy[row, 0] = before[X, i]
+                from_xy[row, 1] = before[Y, i]
+                to_xy[row, 0] = after[X, i]
+                to_xy[row, 1] = after[Y, i]
+                row += 1
 
 
 def killed_moves(killed: np.ndarray, sums: np.ndarray, before: np.ndarray, after: np.ndarray
@@ -635,14 +643,14 @@ def killed_moves(killed: np.ndarray, sums: np.ndarray, before: np.ndarray, after
     per block in ``sums``) moved from and to, in particle order (gathered on the threads: a large
     cloud's kills are too many for numpy's gather to stay out of the step's way)."""
     counts = sums["killed"]
-    start = np.zeros(len(counts) + 1, dtype=np.int64)  # each block's first row, and the end
-    np.cumsum(counts, out=start[1:])
-    total = int(start[-1])
-    from_xy, to_xy = np.empty((total + 1, 2)), np.empty((total + 1, 2))  # and a spare row
+    start = np.zeros(len(counts), dtype=np.int64)  # each block's first row
+    np.cumsum(counts[:-1], out=start[1:])
+    total = int(counts.sum())
+    from_xy, to_xy = np.empty((total, 2)), np.empty((total, 2))
     if total:
         for_slices(_killed_kernel, len(counts), killed, start, before, after, from_xy, to_xy,
                    min_per_thread=MIN_BLOCKS_PER_THREAD)
-    return from_xy[:total], to_xy[:total]
+    return from_xy, to_xy
 
 
 def resample_sums(n: int) -> np.ndarray:
