@@ -387,29 +387,27 @@ def _jittered(resample, x, y, z0, z1):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _jitter_looks(resample, walls, origin, dst, parent, pending, all_pending, lo, first, count, z0, z1):
+def _jitter_looks(resample, walls, ox, oy, dst, pending, all_pending, lo, first, count, z0, z1):
     """Bit k: the candidate of pending copy first + k (of copy first + k when ``all_pending``) touches no
-    wall from the copy nor from its parent's position before the step (``origin``); a pending copy has
-    not moved yet, so it sits at its parent's position."""
+    wall from the copy nor from its parent's position before the step (``ox``, ``oy``: the block's); a
+    pending copy has not moved yet, so it sits at its parent's position."""
     free = wall = np.uint64(0)
-    ox, oy = origin[X], origin[Y]
     if all_pending:  # views of the chunk: indices from 0 make contiguous loads
         x, y = dst[X, lo + first:lo + first + count], dst[Y, lo + first:lo + first + count]
-        parents, z0s, z1s = parent[lo + first:lo + first + count], z0[first:first + count], z1[first:first + count]
+        x0, y0 = ox[first:first + count], oy[first:first + count]
+        z0s, z1s = z0[first:first + count], z1[first:first + count]
         for k in range(count):  # no memory written: this loop vectorises
-            o = np.uintp(parents[k])
             cx, cy = _jittered(resample, x[k], y[k], z0s[k], z1s[k])
-            f, w = look_two_moves(walls, x[k], y[k], ox[o], oy[o], cx, cy)
+            f, w = look_two_moves(walls, x[k], y[k], x0[k], y0[k], cx, cy)
             free |= np.uint64(f) << np.uint64(k)
             wall |= np.uint64(w) << np.uint64(k)
     else:
-        x, y = dst[X], dst[Y]
+        x, y = dst[X, lo:], dst[Y, lo:]
         for k in range(count):
             q = first + k
-            i = np.uintp(lo + pending[q])
-            o = np.uintp(parent[i])
-            cx, cy = _jittered(resample, x[i], y[i], z0[q], z1[q])
-            f, w = look_two_moves(walls, x[i], y[i], ox[o], oy[o], cx, cy)
+            j = np.uintp(pending[q])
+            cx, cy = _jittered(resample, x[j], y[j], z0[q], z1[q])
+            f, w = look_two_moves(walls, x[j], y[j], ox[j], oy[j], cx, cy)
             free |= np.uint64(f) << np.uint64(k)
             wall |= np.uint64(w) << np.uint64(k)
     undecided = ~(free | wall) & (np.uint64(0xFFFFFFFFFFFFFFFF) >> np.uint64(LOOK - count))
@@ -417,11 +415,10 @@ def _jitter_looks(resample, walls, origin, dst, parent, pending, all_pending, lo
         k = trailing_zeros(undecided)
         undecided &= undecided - np.uint64(1)
         q = first + k
-        i = lo + (q if all_pending else pending[q])
-        o = parent[i]
-        cx, cy = _jittered(resample, dst[X, i], dst[Y, i], z0[q], z1[q])
-        if not (move_crosses(walls, dst[X, i], dst[Y, i], cx, cy)
-                or move_crosses(walls, origin[X, o], origin[Y, o], cx, cy)):
+        j = q if all_pending else pending[q]
+        px, py = dst[X, lo + j], dst[Y, lo + j]
+        cx, cy = _jittered(resample, px, py, z0[q], z1[q])
+        if not (move_crosses(walls, px, py, cx, cy) or move_crosses(walls, ox[j], oy[j], cx, cy)):
             free |= np.uint64(1) << k
     return free
 
@@ -432,8 +429,9 @@ def _jitter_block(resample, walls, origin, dst, parent, lo, m, pending, buffers)
     (up to ``resample.tries`` times) while the move from the copy or from its parent's position before
     the step (``origin``) touches a wall; then the copy stays at its parent. LOOK copies at a time: one
     look at both moves of each (:func:`_jitter_looks`, in a loop that vectorises), the accepted written,
-    the others kept for the next try. ``pending``: BLOCK entries; ``buffers``: (3, BLOCK)."""
-    z0, z1, scratch = buffers[0], buffers[1], buffers[2]
+    the others kept for the next try. ``pending``: BLOCK entries; ``buffers``: (5, BLOCK)."""
+    z0, z1, scratch, ox, oy = buffers[0], buffers[1], buffers[2], buffers[3], buffers[4]
+    _gather_block(origin[X:Y + 1], buffers[3:5], parent[lo:], 0, m)  # the parents' positions before the step
     for j in range(m):
         pending[j] = j
     n_pending = m
@@ -445,7 +443,7 @@ def _jitter_block(resample, walls, origin, dst, parent, lo, m, pending, buffers)
         n_left = 0
         for first in range(0, n_pending, LOOK):
             count = min(n_pending - first, LOOK)
-            accepted = _jitter_looks(resample, walls, origin, dst, parent, pending, t == 0, lo, first, count, z0, z1)
+            accepted = _jitter_looks(resample, walls, ox, oy, dst, pending, t == 0, lo, first, count, z0, z1)
             # the accepted copies move to their candidates, computed again as in the look
             if t == 0:
                 x, y = dst[X, lo + first:lo + first + count], dst[Y, lo + first:lo + first + count]
@@ -506,7 +504,7 @@ def _resample_kernel(lo_block, hi_block, resample, weights, walls, origin, src, 
     n = after.state.shape[1]
     mark = np.empty(BLOCK + 1, dtype=np.int64)
     pending = np.empty(BLOCK, dtype=np.int64)
-    buffers = np.empty((3, BLOCK))
+    buffers = np.empty((5, BLOCK))
     for block in range(lo_block, hi_block):
         lo = block * BLOCK
         m = min(n, lo + BLOCK) - lo
