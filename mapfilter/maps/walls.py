@@ -259,10 +259,10 @@ def _bands(ahead, n_lines, n_across, p0, q0, p1, q1):
         first = int(math.ceil(p_lo - _EDGE_PX)) - 1
         last = int(math.floor(p_hi + _EDGE_PX))
         for r in range(r_first, r_last + 1):
-            if ahead[r, first] <= last - first:
+            if ahead[np.uintp(r), np.uintp(first)] <= last - first:
                 first_sure = int(math.ceil(p_lo + _EDGE_PX)) - 1
                 last_sure = int(math.floor(p_hi - _EDGE_PX))
-                if first_sure <= last_sure and ahead[r, first_sure] <= last_sure - first_sure:
+                if first_sure <= last_sure and ahead[np.uintp(r), np.uintp(first_sure)] <= last_sure - first_sure:
                     return 1
                 undecided = True
         return 2 if undecided else 0
@@ -280,11 +280,12 @@ def _bands(ahead, n_lines, n_across, p0, q0, p1, q1):
         # pixel c's closed square meets [lo, hi] when c <= hi and c + 1 >= lo; widened by the margin
         first = int(math.ceil(lo - _EDGE_PX)) - 1
         last = int(math.floor(hi + _EDGE_PX))
-        if ahead[r, first] <= last - first:
+        # r and first are >= 0 here (the outside was ruled out above): unsigned, numba adds no wrap-around
+        if ahead[np.uintp(r), np.uintp(first)] <= last - first:
             # a wall in the widened run; in the narrowed one too, or only within the margins?
             first_sure = int(math.ceil(lo + _EDGE_PX)) - 1
             last_sure = int(math.floor(hi - _EDGE_PX))
-            if first_sure <= last_sure and ahead[r, first_sure] <= last_sure - first_sure:
+            if first_sure <= last_sure and ahead[np.uintp(r), np.uintp(first_sure)] <= last_sure - first_sure:
                 return 1
             undecided = True
         pa = pb

@@ -14,7 +14,7 @@ import pytest
 from numba import njit
 from scipy import stats
 
-from mapfilter.filter.kernels.draws import counter_normals, counter_uniforms
+from mapfilter.filter.kernels.draws import BLOCK, counter_normals, counter_uniforms, trailing_zeros
 from mapfilter.filter.kernels.passes import LIKELIHOOD_SIGNATURE, X
 from mapfilter.filter.models.interface import LikelihoodKernel, MeasurementModel
 from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
@@ -154,6 +154,43 @@ def test_resampling_never_picks_a_dead_particle():
     parents = pf.last_parents
     assert set(np.unique(parents)) == {17, 250, 699} and np.all(np.diff(parents) >= 0)
     assert np.bincount(parents)[[17, 250, 699]] == pytest.approx([140, 350, 210], abs=1)
+
+
+def test_resampling_across_blocks_of_dead_particles_is_the_search_of_the_cumulative_weights():
+    """Each copy's parent is the plain search of its position (j + u) / N in the cumulative weights,
+    across a block whose particles are all dead and blocks of few live ones: never a dead parent,
+    every particle copied floor or ceil of N w times (a bin edge within round-off may differ)."""
+    n = 3 * BLOCK + 100
+    pf = _filter(OPEN, RandomWalkMotion(radius_mps=0.0, sigma_mps=0.0), n=n, ess_fraction=1.0, centre=(20.0, 20.0))
+    pf.config = FilterConfig(n_particles=n, resample_ess_fraction=1.0, regularise=False)
+    pf.step(0.5, 1.0)  # parents exist from the first step after the initialisation
+    rng = np.random.default_rng(4)
+    alive = np.zeros(n, dtype=bool)
+    alive[rng.choice(BLOCK, 40, replace=False)] = True  # block 1 all dead
+    alive[2 * BLOCK + rng.choice(BLOCK + 100, 60, replace=False)] = True
+    log_weight = np.where(alive, rng.normal(0.0, 2.0, n), -np.inf)
+    pf.particles.log_weight[:] = log_weight
+    _, u, _ = _draws(pf, resampled=True)
+    assert pf.step(1.0, 1.0).resampled
+    w = np.exp(log_weight - np.logaddexp.reduce(log_weight))
+    expected = np.minimum(np.searchsorted(np.cumsum(w), (np.arange(n) + u) / n, side="right"), np.flatnonzero(alive)[-1])
+    parents = pf.last_parents
+    assert alive[parents].all() and np.all(np.diff(parents) >= 0)
+    assert (parents == expected).mean() > 0.998
+    copies = np.bincount(parents, minlength=n)
+    assert np.all(np.abs(copies - n * w) < 1.0 + 1e-6)
+
+
+def test_the_lowest_set_bit_is_found():
+    @njit
+    def lowest(word):
+        return trailing_zeros(word)
+
+    rng = np.random.default_rng(6)
+    for word in [1, 2, 3, 1 << 63, *rng.integers(1, 2 ** 63, 200)]:
+        word = np.uint64(word)
+        assert lowest(word) == (int(word) & -int(word)).bit_length() - 1
+    assert lowest(np.uint64(0)) == 64
 
 
 def test_counter_draws_are_standard():

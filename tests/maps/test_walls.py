@@ -6,10 +6,13 @@ import pytest
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import (
     _bands,
+    _box_is_free,
     clearance_px,
     count_wall_crossings,
     crosses_wall,
     crosses_wall_uv,
+    look_move,
+    look_two_moves,
     touched_pixels,
     touched_pixels_capacity,
     touched_pixels_into,
@@ -278,3 +281,61 @@ def test_a_run_longer_than_the_table_can_count_is_left_to_the_walk():
     ahead = np.full((3, width), 65_535, dtype=np.uint16)  # no wall within the table's reach
     assert _bands(ahead, 3, width, 10.5, 1.2, 100_000.5, 1.8) == 2  # a run of 100,000 pixels: undecided
     assert _bands(ahead, 3, width, 10.5, 1.2, 30_000.5, 1.8) == 0
+
+
+def _world_segments(rng, n, size, mask):
+    fp = FloorPlan(mask, 0.5, origin_m=(-2.0, 1.0))
+    a, b = _random_segments(rng, n, size)
+    a_xy, b_xy = fp.pixel_to_world(a), fp.pixel_to_world(b)
+    return fp, a_xy, b_xy
+
+
+def test_the_look_at_a_move_is_the_exact_check_whenever_it_answers():
+    """look_move (a few table reads, no branch) says free or wall only where the exact walk says the
+    same, on lattice points, half pixels and moves off the map, and answers most moves."""
+    rng = np.random.default_rng(12)
+    size = 30
+    mask = rng.random((size, size)) < 0.04
+    mask[10, 3:25] = True
+    fp, a_xy, b_xy = _world_segments(rng, 6000, size, mask)
+    grid = wall_grid(fp)
+    looks = np.array([look_move(grid, *a_xy[i], *b_xy[i]) for i in range(len(a_xy))])
+    free, wall = looks[:, 0], looks[:, 1]
+    exact = crosses_wall_uv(mask, fp.world_to_pixel(a_xy), fp.world_to_pixel(b_xy))
+    assert not (free & wall).any()
+    assert not exact[free].any() and exact[wall].all()
+    assert free.mean() > 0.2 and wall.mean() > 0.1 and (free | wall).mean() > 0.4  # the look decides many
+
+
+def test_one_look_at_two_moves_to_one_end_is_the_exact_check_of_both_whenever_it_answers():
+    rng = np.random.default_rng(13)
+    size = 30
+    mask = rng.random((size, size)) < 0.03
+    mask[5:25, 15] = True
+    fp, a_xy, c_xy = _world_segments(rng, 4000, size, mask)
+    b_xy = c_xy + rng.normal(0.0, 0.8, c_xy.shape)  # a second start near the end, like a jitter's
+    grid = wall_grid(fp)
+    looks = np.array([look_two_moves(grid, *a_xy[i], *b_xy[i], *c_xy[i]) for i in range(len(a_xy))])
+    free, wall = looks[:, 0], looks[:, 1]
+    uv = fp.world_to_pixel
+    either = crosses_wall_uv(mask, uv(a_xy), uv(c_xy)) | crosses_wall_uv(mask, uv(b_xy), uv(c_xy))
+    assert not (free & wall).any()
+    assert not either[free].any() and either[wall].all()
+    assert free.mean() > 0.15 and wall.mean() > 0.1  # both answers are exercised
+
+
+def test_a_box_is_free_exactly_when_no_wall_and_no_outside_pixel_meets_it():
+    """The summed-area table's count of the pixels whose closed squares meet a box, against counting
+    them one by one; boxes on pixel edges, partly or wholly off the map (the outside is wall)."""
+    rng = np.random.default_rng(14)
+    h, w = 17, 23
+    mask = rng.random((h, w)) < 0.05
+    grid = wall_grid(FloorPlan(mask, 1.0))
+    corners = rng.uniform(-3.0, 26.0, (3000, 4))
+    corners[::3] = np.round(corners[::3])  # on pixel edges
+    for u_a, u_b, v_a, v_b in corners:
+        u_min, u_max, v_min, v_max = min(u_a, u_b), max(u_a, u_b), min(v_a, v_b), max(v_a, v_b)
+        cols = range(int(np.ceil(u_min)) - 1, int(np.floor(u_max)) + 1)
+        rows = range(int(np.ceil(v_min)) - 1, int(np.floor(v_max)) + 1)
+        expected = not any(not (0 <= r < h and 0 <= c < w) or mask[r, c] for r in rows for c in cols)
+        assert _box_is_free(grid, u_min, u_max, v_min, v_max) == expected, (u_min, u_max, v_min, v_max)
