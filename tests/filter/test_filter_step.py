@@ -14,8 +14,8 @@ import pytest
 from numba import njit
 from scipy import stats
 
-from mapfilter.filter.kernels.draws import BLOCK, counter_normals, counter_uniforms, trailing_zeros
-from mapfilter.filter.kernels.passes import LIKELIHOOD_SIGNATURE, X
+from mapfilter.filter.kernels.draws import counter_normals, counter_uniforms, trailing_zeros
+from mapfilter.filter.kernels.passes import LIKELIHOOD_SIGNATURE, SPAN, X
 from mapfilter.filter.models.interface import LikelihoodKernel, MeasurementModel
 from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.models.path_loss import path_loss_kernel
@@ -160,14 +160,14 @@ def test_resampling_across_blocks_of_dead_particles_is_the_search_of_the_cumulat
     """Each copy's parent is the plain search of its position (j + u) / N in the cumulative weights,
     across a block whose particles are all dead and blocks of few live ones: never a dead parent,
     every particle copied floor or ceil of N w times (a bin edge within round-off may differ)."""
-    n = 3 * BLOCK + 100
+    n = 3 * SPAN + 100
     pf = _filter(OPEN, RandomWalkMotion(radius_mps=0.0, sigma_mps=0.0), n=n, ess_fraction=1.0, centre=(20.0, 20.0))
     pf.config = FilterConfig(n_particles=n, resample_ess_fraction=1.0, regularise=False)
     pf.step(0.5, 1.0)  # parents exist from the first step after the initialisation
     rng = np.random.default_rng(4)
     alive = np.zeros(n, dtype=bool)
-    alive[rng.choice(BLOCK, 40, replace=False)] = True  # block 1 all dead
-    alive[2 * BLOCK + rng.choice(BLOCK + 100, 60, replace=False)] = True
+    alive[rng.choice(SPAN, 40, replace=False)] = True  # block 1 all dead
+    alive[2 * SPAN + rng.choice(SPAN + 100, 60, replace=False)] = True
     log_weight = np.where(alive, rng.normal(0.0, 2.0, n), -np.inf)
     pf.particles.log_weight[:] = log_weight
     _, u, _ = _draws(pf, resampled=True)

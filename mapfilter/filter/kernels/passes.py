@@ -1,4 +1,4 @@
-"""The filter step's two passes over the particles, in blocks of ``BLOCK`` on the shared threads.
+"""The filter step's two passes over the particles, in blocks of ``SPAN`` on the shared threads.
 
 1. :func:`advance_pass` -- per block: the motion model's kernel moves every particle (with
    normals drawn here), the wall check kills the live particles whose move touches a wall, the
@@ -43,9 +43,9 @@ from numba import njit, types
 from mapfilter.filter.kernels.draws import BLOCK, cos_sin, exp_block, normal_pairs, trailing_zeros
 from mapfilter.filter.kernels.pointers import function_at, pointer
 from mapfilter.maps.walls import LOOK, WALL_GRID, WallGrid, look_move, look_two_moves, move_crosses
-from mapfilter.runtime.threads import for_slices
+from mapfilter.runtime.threads import MIN_PER_THREAD, for_slices
 
-__all__ = ["ADVANCE_SUMS", "BLOCK", "LIKELIHOOD_SIGNATURE", "MOVE_SIGNATURE", "RESAMPLE_SUMS", "Advance", "Advanced",
+__all__ = ["ADVANCE_SUMS", "BLOCK", "SPAN", "LIKELIHOOD_SIGNATURE", "MOVE_SIGNATURE", "RESAMPLE_SUMS", "Advance", "Advanced",
            "Cloud", "ModelCall", "Resample", "Resampled", "Totals", "Weights", "advance_pass", "killed_moves",
            "likelihood_call", "move_call", "resample_pass"]
 
@@ -58,6 +58,11 @@ _params = types.float64[::1]
 MOVE_SIGNATURE = types.void(_params, _state, _state, _state, types.int64, types.int64)
 LIKELIHOOD_SIGNATURE = types.void(_params, _state, types.int64, types.int64, types.float64[::1])
 _move_at = function_at(MOVE_SIGNATURE)
+# particles per block of the passes (each block's sums are kept apart): several of a model's calls
+# (``BLOCK`` particles at most, what a model's kernel may size its scratch by); longer runs over each
+# row of the state let the memory keep up (a step at 100,000 particles cost a fifth more in blocks
+# of BLOCK)
+SPAN = 4 * BLOCK
 _likelihood_at = function_at(LIKELIHOOD_SIGNATURE)
 
 # what advance_pass does (flags)
@@ -179,10 +184,13 @@ def likelihood_call(function, params: np.ndarray) -> ModelCall:
 # ---- pass 1, stage by stage over a block of particles lo .. lo + m - 1 ----------------------------
 @njit(cache=True, nogil=True, error_model="numpy")
 def _move_block(advance, move, src, dst, lo, m, iota, normals, scratch):
-    """The motion model's kernel moves the block, with standard normals drawn here."""
-    for pair in range(advance.normal_pairs):
-        normal_pairs(advance.key, pair, lo, iota, m, normals[2 * pair], normals[2 * pair + 1], scratch)
-    _move_at(move.c_address, move.jit_address)(move.params, src, dst, normals, lo, m)
+    """The motion model's kernel moves the block, BLOCK particles a call, with standard normals drawn here."""
+    move_function = _move_at(move.c_address, move.jit_address)
+    for first in range(lo, lo + m, BLOCK):
+        count = min(lo + m - first, BLOCK)
+        for pair in range(advance.normal_pairs):
+            normal_pairs(advance.key, pair, first, iota, count, normals[2 * pair], normals[2 * pair + 1], scratch)
+        move_function(move.params, src, dst, normals, first, count)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -230,9 +238,12 @@ def _kill_block(walls, src, dst, log_weight_before, log_weight, killed, lo, m):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _weigh_block(likelihood, dst, log_weight, lo, m, ll):
-    """The measurement model's kernel adds its log-likelihood to the block's log weights. Returns (the
-    largest log weight, the best live log-likelihood, the particles alive, those with a finite weight)."""
-    _likelihood_at(likelihood.c_address, likelihood.jit_address)(likelihood.params, dst, lo, m, ll)
+    """The measurement model's kernel adds its log-likelihood to the block's log weights (BLOCK particles
+    a call). Returns (the largest log weight, the best live log-likelihood, the particles alive, those
+    with a finite weight)."""
+    log_likelihood = _likelihood_at(likelihood.c_address, likelihood.jit_address)
+    for first in range(lo, lo + m, BLOCK):
+        log_likelihood(likelihood.params, dst, first, min(lo + m - first, BLOCK), ll[first - lo:])
     top = -np.inf
     best_ll = -np.inf
     alive = 0
@@ -295,10 +306,10 @@ def _advance_kernel(lo_block, hi_block, advance, move, likelihood, walls, before
     n = before.state.shape[1]
     iota = np.arange(BLOCK)
     normals = np.empty((6, BLOCK))
-    work = np.empty((3, BLOCK))  # the draws' scratch, the log-likelihoods, the exponentials
+    work = np.empty((3, SPAN))  # the draws' scratch, the log-likelihoods, the exponentials
     for block in range(lo_block, hi_block):
-        lo = block * BLOCK
-        m = min(n, lo + BLOCK) - lo
+        lo = block * SPAN
+        m = min(n, lo + SPAN) - lo
         sums = after.sums[block]
         if advance.flags & MOVE:
             _move_block(advance, move, before.state, after.state, lo, m, iota, normals, work[0])
@@ -339,7 +350,7 @@ def _systematic_block(weights, u, last, n, lo, m, parent, mark):
     # the walk starts at the last input block whose cumulative start is <= the block's first position
     p0 = (lo + u) / n
     b = 0
-    hi_b = min(cum_start.shape[0] - 1, last // BLOCK)
+    hi_b = min(cum_start.shape[0] - 1, last // SPAN)
     while b < hi_b:
         mid = (b + hi_b + 1) // 2
         if cum_start[mid] <= p0:
@@ -347,11 +358,11 @@ def _systematic_block(weights, u, last, n, lo, m, parent, mark):
         else:
             hi_b = mid - 1
     mark[:m + 1] = -1
-    i = b * BLOCK
+    i = b * SPAN
     cum = cum_start[b]
     taken = min(_outputs_below(cum, n, u), lo)  # the outputs the inputs before the walk took
     while True:
-        w = e[i] * scale[i // BLOCK]
+        w = e[i] * scale[i // SPAN]
         cum += w
         upto = n if i >= last else _outputs_below(cum, n, u)
         # an input that takes no output marks the spare slot m (a store that waits on no load)
@@ -429,7 +440,7 @@ def _jitter_block(resample, walls, origin, dst, parent, lo, m, pending, buffers)
     (up to ``resample.tries`` times) while the move from the copy or from its parent's position before
     the step (``origin``) touches a wall; then the copy stays at its parent. LOOK copies at a time: one
     look at both moves of each (:func:`_jitter_looks`, in a loop that vectorises), the accepted written,
-    the others kept for the next try. ``pending``: BLOCK entries; ``buffers``: (5, BLOCK)."""
+    the others kept for the next try. ``pending``: SPAN entries; ``buffers``: (5, SPAN)."""
     z0, z1, scratch, ox, oy = buffers[0], buffers[1], buffers[2], buffers[3], buffers[4]
     _gather_block(origin[X:Y + 1], buffers[3:5], parent[lo:], 0, m)  # the parents' positions before the step
     for j in range(m):
@@ -502,12 +513,12 @@ def _resample_kernel(lo_block, hi_block, resample, weights, walls, origin, src, 
     walls = WallGrid(*walls)
     after = Resampled(*after)
     n = after.state.shape[1]
-    mark = np.empty(BLOCK + 1, dtype=np.int64)
-    pending = np.empty(BLOCK, dtype=np.int64)
-    buffers = np.empty((5, BLOCK))
+    mark = np.empty(SPAN + 1, dtype=np.int64)
+    pending = np.empty(SPAN, dtype=np.int64)
+    buffers = np.empty((5, SPAN))
     for block in range(lo_block, hi_block):
-        lo = block * BLOCK
-        m = min(n, lo + BLOCK) - lo
+        lo = block * SPAN
+        m = min(n, lo + SPAN) - lo
         _systematic_block(weights, resample.u, resample.last, n, lo, m, after.parent, mark)
         _gather_block(src, after.state, after.parent, lo, m)
         after.log_weight[lo:lo + m] = resample.log_weight
@@ -539,11 +550,11 @@ def stay(params, src, dst, normals, lo, m):
 
 
 # ---- the Python side: structs in, sums added up ---------------------------------------------------
-MIN_BLOCKS_PER_THREAD = 16  # below 2 x 16,384 particles a step runs on one thread (the hand-over costs more)
+MIN_BLOCKS_PER_THREAD = MIN_PER_THREAD // SPAN  # below 2 x 16,384 particles a step runs on one thread
 
 
 def n_blocks(n: int) -> int:
-    return (n + BLOCK - 1) // BLOCK
+    return (n + SPAN - 1) // SPAN
 
 
 def advance_sums(n: int) -> np.ndarray:
@@ -602,8 +613,8 @@ def resample_pass(totals: Totals, e: np.ndarray, u: float, key: int, tries: int,
     the step lengths into ``after.sums`` (``RESAMPLE_SUMS``)."""
     blocks = np.flatnonzero(totals.block_weight > 0)
     b = int(blocks[-1])
-    segment = e[b * BLOCK:(b + 1) * BLOCK] * totals.block_scale[b]
-    last = b * BLOCK + int(np.flatnonzero(segment > 0)[-1])  # the last positive weight: the last bin
+    segment = e[b * SPAN:(b + 1) * SPAN] * totals.block_scale[b]
+    last = b * SPAN + int(np.flatnonzero(segment > 0)[-1])  # the last positive weight: the last bin
     cum_start = np.concatenate([[0.0], np.cumsum(totals.block_weight)[:-1]])
     resample = Resample(float(u), -math.log(after.state.shape[1]), last, np.uint64(key), int(tries), float(h),
                         np.ascontiguousarray(root, dtype=np.float64), bool(walks), float(shift_xy_m[0]),
@@ -619,7 +630,7 @@ def _killed_kernel(lo_block, hi_block, killed, start, before, after, from_xy, to
     n = killed.shape[0]
     for block in range(lo_block, hi_block):
         row = start[block]
-        for first in range(block * BLOCK, min(n, (block + 1) * BLOCK), LOOK):
+        for first in range(block * SPAN, min(n, (block + 1) * SPAN), LOOK):
             count = min(n - first, LOOK)
             chunk = killed[first:first + count]
             dies = np.uint64(0)
