@@ -9,12 +9,15 @@ the bundled map maps/office.yaml, it times
 - ``reference_step``: the same step in plain numpy (points sampled every half pixel along each
   segment for the wall check, float32 numpy RSSI likelihood, cumsum + searchsorted resampling);
 - with ``--baseline REV``: the same step by the filter of an earlier revision of this repository
-  (a temporary git worktree, run in a child process that times its own steps; its default path
-  at that N, or the path ``--baseline-config`` names), one step of each in turn;
+  (a temporary git worktree, run in a child process that imports that revision's package, not the
+  installed one, and times its own steps; its default path at that N, or the path
+  ``--baseline-config`` names), one step of each in turn;
 - ``one_thread`` (from 100,000 particles, on a machine with more than one CPU): the same step on
   one thread (``MAPFILTER_THREADS=1``), for what the threads buy;
 
-and the speed-ups over the references, one step of each in turn, in the same run.
+and the speed-ups over the references, one step of each in turn, in the same run, each rate with the
+share of the particles that the step's wall check kills (``killed_per_step_share``: a real map's
+outside is wall, and the kills are where the step works hardest).
 
 It also times what a user feels (``--skip-user`` leaves it out):
 
@@ -312,6 +315,23 @@ class Baseline:
         self.process.wait(timeout=60)
 
 
+def _summary(name: str, row: dict) -> str:
+    """One line of a map's row: each step's rate with its kill share, then the ratios."""
+    def rate(label: str) -> str:
+        return (f"{label} {row[f'{label}_step_per_s'] / 1e6:.3g} M/s ({row[f'{label}_step_ms']:.3g} ms, "
+                f"CPU {row[f'{label}_step_cpu_ms']:.3g} ms)")
+    parts = [f"{name} N={row['n_particles']}: {rate('step')}, kill share {row['killed_per_step_share']:.3f}"]
+    parts += [rate(label) for label in ("one_thread", "reference") if f"{label}_step_per_s" in row]
+    if "baseline_step_per_s" in row:
+        parts.append(f"{rate('baseline')}, kill share {row['baseline_killed_per_step_share']:.3f}")
+    for other in ("reference", "baseline"):
+        if f"speedup_vs_{other}" in row:
+            parts.append(f"step/{other} {row[f'speedup_vs_{other}']:.3g}x (CPU {row[f'speedup_vs_{other}_cpu']:.3g}x)")
+    if "speedup_vs_reference_one_thread_cpu" in row:
+        parts.append(f"one thread/reference CPU {row['speedup_vs_reference_one_thread_cpu']:.3g}x")
+    return "; ".join(parts)
+
+
 def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: int, seed: int,
               baseline: Path | None = None, baseline_config: dict | None = None) -> dict:
     """Per N: the wall check alone; then the step, the numpy reference (and the baseline revision's
@@ -358,6 +378,7 @@ def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: 
         child = Baseline(baseline, name, n, seed, baseline_config or {}) if baseline is not None else None
         n_rounds = reps if n < 1_000_000 else max(3, reps // 3)
         times: dict = {label: ([], []) for label in [*runs, *(["baseline"] if child else [])]}
+        baseline_killed = 0
         for _ in range(n_rounds):
             for label, fn in runs.items():
                 wall, cpu = timed_cpu(fn)
@@ -367,6 +388,7 @@ def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: 
                 child.step()
                 times["baseline"][0].append(child.last[0])
                 times["baseline"][1].append(child.last[1])
+                baseline_killed += child.last[3]
         if child is not None:
             child.close()
         for label, (walls, cpus) in times.items():
@@ -381,11 +403,15 @@ def bench_map(fp: FloorPlan, name: str, sizes: list[int], reps: int, ref_max_n: 
         if "one_thread" in times:
             row["threads"] = n_threads()
             row["speedup_of_threads"] = row["one_thread_step_ms"] / row["step_step_ms"]
+            if "reference" in times:
+                row["speedup_vs_reference_one_thread_cpu"] = (row["reference_step_cpu_ms"]
+                                                              / row["one_thread_step_cpu_ms"])
         row["resampled_share"] = stats["resampled"] / stats["steps"]
         row["killed_per_step_share"] = stats["killed"] / stats["steps"] / n
+        if child is not None:
+            row["baseline_killed_per_step_share"] = baseline_killed / n_rounds / n
         rows.append(row)
-        print(f"{name} N={n}: " + ", ".join(f"{k}={v:.4g}" for k, v in row.items() if k != "n_particles"),
-              file=sys.stderr, flush=True)
+        print(_summary(name, row), file=sys.stderr, flush=True)
     return {"map": name, "shape_px": list(fp.wall_mask.shape), "resolution_m": fp.resolution_m,
             "free_fraction": fp.free_fraction, "results": rows}
 
