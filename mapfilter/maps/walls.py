@@ -20,10 +20,14 @@ the plain-Python oracle (:func:`touched_pixels_reference`, a brute-force clip of
 against every pixel square) agrees with it except on float ties a few ulps apart.
 
 The filter's check (:func:`move_crosses`, behind :func:`crosses_wall`) gives the walk's answer
-cheaper, from tables built once per plan (:class:`WallGrid`): a move shorter than its start
-pixel's clearance (a distance transform of the walls) touches no wall; any other move reads one
-table entry per pixel row (or column) it spans, and the walk decides the rare move that passes
-within a millionth of a pixel of a pixel edge.
+cheaper, from tables built once per plan (:class:`WallGrid`). First a look that reads five table
+entries and takes no branch on the data (:func:`look_move`; loops of it vectorise): a move that
+ends off the map or in a wall pixel touches it; one whose box of pixels (those whose closed squares
+meet the segment's bounding box) holds no wall, counted from a summed-area table in four reads,
+touches none. That decides most moves of a particle step (94-97 % on the bench's maps). Any other
+move reads one table entry per pixel row (or column) it spans, and the walk decides the rare move
+that passes within a millionth of a pixel of a pixel edge. :func:`look_two_moves` looks at two moves
+to one end (a jitter from a particle and from its position before the step) in one box.
 """
 
 from __future__ import annotations
@@ -211,7 +215,7 @@ class WallGrid(NamedTuple):
     smoother and :func:`crosses_wall`)."""
 
     mask: np.ndarray  # (H, W) bool, True = wall
-    clearance_px: np.ndarray  # (H, W) float32: a move starting in the pixel and shorter than this touches no wall
+    clearance_px: np.ndarray  # (H, W) float32: a move starting in the pixel and shorter than this touches no wall (the simulator's)
     wall_ahead_in_row: np.ndarray  # (H, W) uint16: columns from pixel (r, c) to the first wall at or after it in row r
     wall_ahead_in_column: np.ndarray  # (W, H) uint16: the same down column c (the transposed mask's table)
     is_wall: np.ndarray  # (H * W,) uint32: the mask row by row, 1 = wall (the vectorised looks gather 32-bit words)

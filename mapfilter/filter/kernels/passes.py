@@ -1,7 +1,8 @@
 """The filter step's two passes over the particles, in blocks of ``SPAN`` on the shared threads.
 
 1. :func:`advance_pass` -- per block: the motion model's kernel moves every particle (with
-   normals drawn here), the wall check kills the live particles whose move touches a wall, the
+   normals drawn here; ``BLOCK`` particles a call), the wall check kills the live particles whose
+   move touches a wall (64 moves' looks at a time, the few undecided ones checked alone), the
    measurement model's kernel adds its log-likelihood, and the block's sums (``ADVANCE_SUMS``:
    largest log weight, sums of e = exp(lw - max), e^2, e dx, e dy, e dx^2, e dx dy, e dy^2,
    particles alive, with a finite weight, the best live log-likelihood) are kept for the
@@ -11,6 +12,13 @@
 2. :func:`resample_pass` -- systematic resampling from the block sums, the gather of the
    ancestors' state and the wall-safe jitter of the Regularised Particle Filter (Musso, Oudjane
    & Le Gland), with the sums of the new cloud (``RESAMPLE_SUMS``).
+
+Each stage is a named function over one block (``_move_block``, ``_kill_block``, ``_weigh_block``,
+``_block_moments``; ``_systematic_block``, ``_gather_block``, ``_jitter_block``,
+``_new_cloud_sums``), written so that its loops vectorise: no branch per particle on the data (the
+wall looks gather their answers into the bits of a word, the rare exceptions are found by their
+set bits), and loops over views of the block (numba wraps a possibly negative index, and the
+wrap-around turned contiguous loads into gathers).
 
 Each block's sums are kept apart and added in block order, and every random number is a
 counter-based draw of the particle's index, so the result does not depend on how the blocks
