@@ -74,12 +74,18 @@ def waypoints_in_walls(building, recording) -> str | None:
     maps), naming the log, how many and the first; a line saying why they cannot be checked
     (latitude/longitude waypoints and a map without a georeference, no floor named in a
     building); None when every waypoint is on free space or the log has none."""
+    return waypoint_check(building, recording)[2]
+
+
+def waypoint_check(building, recording) -> tuple[int, int, str | None]:
+    """(waypoints on free space, waypoints checked, the warning line of ``waypoints_in_walls`` or
+    None); (0, 0, None) for a log without waypoints, (0, 0, why) when they cannot be checked."""
     import numpy as np
 
     from mapfilter.sensors.logs import localise
 
     if not recording.has_ground_truth:
-        return None
+        return 0, 0, None
     where = recording.path
     try:
         if recording.needs_georeference:
@@ -92,21 +98,43 @@ def waypoints_in_walls(building, recording) -> str | None:
             floors = list(recording.waypoint_floor) if recording.waypoint_floor else (
                 [building.floor_names[header]] * n if header is not None else None)
             if floors is None:
-                return f"{where}: names no floor (FloorName): its waypoints cannot be checked against a building"
+                return 0, 0, f"{where}: names no floor (FloorName): its waypoints cannot be checked against a building"
     except MapfilterError as exc:
-        return f"{where}: its waypoints cannot be checked: {exc.reason}"
+        return 0, 0, f"{where}: its waypoints cannot be checked: {exc.reason}"
     in_walls = np.zeros(n, dtype=bool)
     for name in dict.fromkeys(floors):
         on = np.array([f == name for f in floors])
         in_walls[on] = ~building.floor(name).plan.is_free(recording.waypoint_xy_m[on])
+    free = int(n - in_walls.sum())
     if not in_walls.any():
-        return None
+        return free, n, None
     first = int(np.flatnonzero(in_walls)[0])
     x, y = recording.waypoint_xy_m[first]
     t = recording.waypoint_t_s[first] - recording.waypoint_t_s[0]
-    return (f"{where}: {int(in_walls.sum())} of {n} waypoints fall in walls or outside the map (the first at "
-            f"x {x:.1f} m, y {y:.1f} m, t {t:+.0f} s): a wrong scale or origin, closed outlines (--open-outlines), "
-            "or a plan of another floor?")
+    return free, n, (f"{where}: {int(in_walls.sum())} of {n} waypoints fall in walls or outside the map (the first "
+                     f"at x {x:.1f} m, y {y:.1f} m, t {t:+.0f} s): a wrong scale or origin, closed outlines "
+                     "(--open-outlines), or a plan of another floor?")
+
+
+def check_logs_on_map(building, log_paths: Sequence[Path]) -> tuple[list[str], str]:
+    """``map prepare|import-ilc --check-logs``: (a warning line per log whose waypoints fall in
+    walls or cannot be checked, the check's one summary line: how many of the checked waypoints
+    lie on free space). A log without waypoints is named in the summary."""
+    from mapfilter.sensors.logs import read_log
+
+    found, free, checked, without = [], 0, 0, 0
+    for path in log_paths:
+        recording = read_log(path, warn=lambda message: None)
+        on_free, n, message = waypoint_check(building, recording)
+        free, checked = free + on_free, checked + n
+        without += not recording.has_ground_truth
+        if message is not None:
+            found.append(message)
+    logs = f"{len(log_paths)} log{'s' if len(log_paths) != 1 else ''}"
+    line = f"--check-logs: {free} of {checked} waypoints of {logs} on free space"
+    if without:
+        line += f" ({without} without waypoints)"
+    return found, line
 
 
 # ---- output paths ------------------------------------------------------------------------------

@@ -77,8 +77,11 @@ them, placed in one frame by the GeoJSON longitudes/latitudes (the ground floor'
 docs/building.md). ILC gives no elevations: storeys come from the names (B1 = -1, F1 = 0,
 F2 = 1, ...) times --storey-height (default 5 m).
 
+--check-logs LOG... says in one line how many waypoints of those logs lie on the map's free
+space, and warns about each log with waypoints in walls (a log of another floor, a wrong frame).
+
 example:
-  mapfilter map import-ilc ../shared/data/ilc20/site1/F1 --out F1.yaml
+  mapfilter map import-ilc ../shared/data/ilc20/site1/F1 --out F1.yaml --check-logs walk.txt.gz
   mapfilter map import-ilc ../shared/data/ilc20/site1 --out site1.yaml
 """
 
@@ -185,6 +188,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ilc.add_argument("--edits", type=Path, metavar="FILE", help="YAML/GeoJSON polygons forced free or wall")
     ilc.add_argument("--storey-height", type=_STOREY, default=5.0, metavar="M",
                      help="a site: metres between storeys for the elevations (default: 5)")
+    ilc.add_argument("--check-logs", type=Path, nargs="+", default=[], metavar="LOG",
+                     help="say how many waypoints of these logs lie on free space, and warn about those in walls")
     ilc.set_defaults(func=run_import_ilc)
 
     ipin = commands.add_parser(
@@ -270,38 +275,41 @@ def run_prepare(args: argparse.Namespace) -> int:
     cut_off = walkable.cut_off_message(walk, "open their doors with --edits (free polygons), or look at the preview")
     if cut_off:
         found.append(f"{args.out}: {cut_off}")
-    found += _waypoints_in_walls(plan, args.check_logs)
+    in_walls, checked = _check_logs(plan, args.check_logs)
+    found += in_walls
     _write(plan, args.out)
     for note in notes:
         print(f"  {note}")
     print(f"  {walkable.summary(walk)}")
+    if checked is not None:
+        print(f"  {checked}")
     for message in found:
         warn(message)
     return 0
 
 
-def _waypoints_in_walls(plan, log_paths: list[Path]) -> list[str]:
-    """One warning per log whose waypoints fall in the map's walls (or say why they cannot be checked)."""
-    from mapfilter.cli.common import waypoints_in_walls
+def _check_logs(plan_or_building, log_paths: list[Path]) -> tuple[list[str], str | None]:
+    """--check-logs: (a warning per log whose waypoints fall in walls, the check's summary line;
+    None without logs)."""
+    from mapfilter.cli.common import check_logs_on_map
     from mapfilter.maps.building import Building
-    from mapfilter.sensors.logs import read_log
 
-    building = Building.from_plan(plan)
-    found = []
-    for path in log_paths:
-        recording = read_log(path, warn=lambda message: None)
-        message = waypoints_in_walls(building, recording)
-        if message is not None:
-            found.append(message)
-    return found
+    if not log_paths:
+        return [], None
+    building = plan_or_building if isinstance(plan_or_building, Building) else Building.from_plan(plan_or_building)
+    return check_logs_on_map(building, log_paths)
 
 
 def run_import_ilc(args: argparse.Namespace) -> int:
     from mapfilter.maps import prepare
     from mapfilter.maps.building import is_ilc_site_dir
 
-    inputs = input_paths(args.floor_dir, args.edits)
+    from mapfilter.sensors.logs import log_format
+
+    inputs = input_paths(args.floor_dir, args.edits, args.check_logs)
     check_output_path(args.out, inputs=inputs)
+    for path in args.check_logs:
+        log_format(path)  # a missing or unreadable log is refused before the work
     if is_ilc_site_dir(args.floor_dir):
         return _import_ilc_site(args, inputs)
     _check_map_outputs(args.out, inputs)
@@ -312,10 +320,14 @@ def run_import_ilc(args: argparse.Namespace) -> int:
         plan = dataclasses.replace(plan, floor_name=named)
     if edits is not None:
         plan = prepare.apply_edits(plan, edits)
-    found = prepare.mask_warnings(plan, None, "" if args.route == "image" else None)  # the outline walls the outside
+    found = [f"{args.out}: {message}"  # the outline walls the outside
+             for message in prepare.mask_warnings(plan, None, "" if args.route == "image" else None)]
+    in_walls, checked = _check_logs(plan, args.check_logs)
     _write(plan, args.out)
-    for message in found:
-        warn(f"{args.out}: {message}")
+    if checked is not None:
+        print(f"  {checked}")
+    for message in found + in_walls:
+        warn(message)
     return 0
 
 
@@ -362,11 +374,16 @@ def _import_ilc_site(args: argparse.Namespace, inputs: list[Path]) -> int:
         floor.map_path = args.out.with_name(f"{args.out.stem}_{floor.name}.yaml").resolve()
         _check_map_outputs(floor.map_path, inputs)
         prepare.preview_image(floor.plan)  # fails here, before anything is written, if it fails at all
+    in_walls, checked = _check_logs(building, args.check_logs)
     for floor in building.floors:
         _write(floor.plan, floor.map_path)
     building.save(args.out)
     print(f"wrote {args.out}: {len(building.floors)} floors ({', '.join(building.floor_names)}), "
           f"storey height {args.storey_height:g} m")
+    if checked is not None:
+        print(f"  {checked}")
+    for message in in_walls:
+        warn(message)
     return 0
 
 
