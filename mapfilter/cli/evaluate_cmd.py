@@ -223,6 +223,7 @@ def run(args: argparse.Namespace) -> int:
                 partial = Evaluation.from_outcomes([dataclasses.replace(o, index=index[o.trace]) for o in done
                                                     if o.trace in index], len(args.logs), 0.0)
                 partial.protocol, partial.grouping = setup.protocol, setup.groups
+                partial.radio_map_source = setup.radio_map_source(len(args.logs))
                 _write_summary(args, out, partial, config, methods_for(building, source_files(args)),
                                complete=False)
                 out.commit()
@@ -326,9 +327,9 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
     table = format_table(summary, columns)
     waypoints = summary[0]["n"] + summary[0]["missed"] if summary else 0
     n_done = len({r.trace for r in evaluation.results}) + len(evaluation.failed)
-    grown = f"; radio map + {evaluation.grown}" if evaluation.grown else ""
-    print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s{grown}; "
-          f"scored against {evaluation.protocol}\n{table}")
+    grown = f", plus {evaluation.grown}" if evaluation.grown else ""
+    print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s; "
+          f"{evaluation.radio_map_source}{grown}\n{table}")
     if len(evaluation.phones()) > 1:
         print(f"\nper phone model:\n{format_table(by_phone, ('phone',) + columns)}")
     if grouping is not None:
@@ -351,7 +352,7 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
         s_json.write_text(json.dumps({
             "map": str(args.map), "logs": [str(p) for p in args.logs], "survey": [str(p) for p in args.survey],
             "radiomap": None if args.radiomap is None else str(args.radiomap), "leave_one_out": args.leave_one_out,
-            "protocol": evaluation.protocol,
+            "protocol": evaluation.protocol, "radio_map_source": evaluation.radio_map_source,
             "groups": None if grouping is None else dict(grouping.group_of),
             "sources": _source_files(args),
             "unlabelled": [str(p) for p in args.unlabelled], "transductive": args.transductive,

@@ -149,6 +149,28 @@ class EvaluationSetup:
             return "survey logs (never scored)"
         return "a given radio map" if self.has_radio_map else "a given access-point table"
 
+    def radio_map_source(self, n_walks: int) -> str:
+        """Where the walks' radio map (or access-point table) came from, in plain words for the
+        summary line, e.g. "each walk's radio map built from the other 11 walks (leave-one-walk-out)"."""
+        surveyed = len(self.survey_paths)
+        survey = f"{surveyed} survey walk{'s' if surveyed != 1 else ''} (--survey, not scored)"
+        if self.groups is not None:
+            return (f"each walk's radio map built from the walks of the other {self.groups.unit}s"
+                    + (f" and the {survey}" if surveyed else "") + f" ({self.groups.protocol})")
+        if self.leave_one_out:
+            others = n_walks - 1
+            return (f"each walk's radio map built from the other {others} walk{'s' if others != 1 else ''}"
+                    + (f" and the {survey}" if surveyed else "") + " (leave-one-walk-out)")
+        if surveyed:
+            return f"the radio map built from the {survey}"
+        if self.radio_map_path is not None:
+            return f"the radio map {self.radio_map_path}"
+        if self.radio_map is not None:
+            return "the radio map given"
+        if self.ap_table_path is not None:
+            return f"trilateration from the access-point table {self.ap_table_path}"
+        return "trilateration from the access-point table given"
+
     @property
     def grows(self) -> bool:
         return bool(self.unlabelled_paths) or self.transductive
@@ -330,6 +352,7 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recordi
     evaluation = Evaluation.from_outcomes(outcomes, len(paths), time.perf_counter() - started, read_warnings)
     evaluation.grown = growth.describe() if growth is not None else ""
     evaluation.protocol = setup.protocol
+    evaluation.radio_map_source = setup.radio_map_source(len(paths))
     evaluation.grouping = setup.groups
     return evaluation
 
@@ -915,6 +938,7 @@ class Evaluation:
     failed: list[WalkOutcome] = dataclasses.field(default_factory=list)  # walks without results, and why
     grown: str = ""  # self-training: what grew the radio map ("" without)
     protocol: str = ""  # what the walks were scored against (EvaluationSetup.protocol)
+    radio_map_source: str = ""  # where the radio map came from, in words (EvaluationSetup.radio_map_source)
     grouping: Grouping | None = None  # left out by group: every walk's group (the per-group rows)
 
     @classmethod

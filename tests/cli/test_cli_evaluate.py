@@ -180,6 +180,28 @@ def test_evaluate_against_survey_logs_scores_only_the_walks_given(tmp_path):
                  "--out", str(tmp_path / "o2")]) == 1
 
 
+def test_the_summary_line_says_where_the_radio_map_came_from(tmp_path, capsys):
+    """Issue 53, frictions 5 and 6: the summary line names the radio map in words (the file given,
+    the survey walks it was built from, or each walk's from the others), not a protocol's label."""
+    walks = _office_walks(tmp_path, 3)
+
+    def first_line(args, out, logs=walks[:1]) -> str:
+        assert main(["evaluate", str(MAPS / "office.yaml"), *map(str, logs), "--methods", "kwnn", *args,
+                     "--out", str(tmp_path / out)]) == 0
+        printed = capsys.readouterr().out
+        return next(line for line in printed.splitlines() if " walks, " in line)
+
+    line = first_line(["--survey", str(walks[1]), str(walks[2])], "survey")
+    assert line.endswith("; the radio map built from the 2 survey walks (--survey, not scored)"), line
+    assert "scored against" not in line and "(never scored)" not in line
+    line = first_line(["--radiomap", str(MAPS / "office_radiomap.npz")], "given")
+    assert line.endswith(f"; the radio map {MAPS / 'office_radiomap.npz'}"), line
+    line = first_line(["--leave-one-out"], "loo", walks[:2])
+    assert line.endswith("; each walk's radio map built from the other 1 walk (leave-one-walk-out)"), line
+    summary = json.loads((tmp_path / "loo" / "summary.json").read_text())
+    assert summary["radio_map_source"] == line.split("; ", 1)[1] and summary["protocol"] == "leave-one-walk-out"
+
+
 def test_unlabelled_and_transductive_walks_grow_the_radio_map_and_are_named(tmp_path, capsys):
     """--unlabelled walks grow the survey's radio map and are never scored; --transductive lets the
     scored walks grow it too; both are named in the printout and summary.json."""
@@ -189,7 +211,7 @@ def test_unlabelled_and_transductive_walks_grow_the_radio_map_and_are_named(tmp_
     assert main(common + ["--unlabelled", str(walks[2]), str(walks[3]), "--out", str(tmp_path / "u")]) == 0
     summary = json.loads((tmp_path / "u" / "summary.json").read_text())
     assert {row["trace"] for row in summary["traces"]} == {"walk0"}
-    assert "grown points from 2 walks" in summary["grown"] and "radio map + " in capsys.readouterr().out
+    assert "grown points from 2 walks" in summary["grown"] and ", plus 2" in capsys.readouterr().out
     assert main(common + ["--transductive", "--out", str(tmp_path / "t")]) == 0
     summary = json.loads((tmp_path / "t" / "summary.json").read_text())
     assert "(transductive)" in summary["grown"] and summary["transductive"] is True
@@ -215,7 +237,8 @@ def test_leave_out_route_names_its_protocol_and_groups_as_a_regex_or_csv_does(tm
     assert main(common + ["--leave-out", "route", "--out", str(tmp_path / "route")]) == 0
     printed = capsys.readouterr().out
     assert "leave-one-route-out (IPIN trials): 2 routes of 2 walks" in printed
-    assert "scored against leave-one-route-out (IPIN trials)" in printed and "per route" in printed
+    assert ("each walk's radio map built from the walks of the other routes (leave-one-route-out (IPIN trials))"
+            in printed and "per route" in printed)
     summary = json.loads((tmp_path / "route" / "summary.json").read_text())
     assert summary["protocol"] == "leave-one-route-out (IPIN trials)"
     assert summary["groups"]["IPIN2023_T3_TrainingTrial02_repetition01"] == "T02"
