@@ -205,7 +205,7 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
              unlabelled: Sequence[Recording | PathLike] = (), transductive: bool = False,
              methods: Sequence[str] | None = None, sources: Mapping[str, object] | None = None,
              config: TrackingConfig | None = None, jobs: int = 1, scheduler: str | None = None,
-             progress: Callable[[int, int, str], None] | None = None) -> Evaluation:
+             progress: Callable[[int, int, str], None] | None = None, waypoints: str = "common") -> Evaluation:
     """Every method on the same walks (``evaluation.comparison``), as ``mapfilter evaluate`` runs them:
     ``evaluation.summary_rows()`` is its table, ``errors_by_method()`` its CDF.
 
@@ -215,13 +215,17 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
     evaluated walks too. ``sources``: measurement sources (as ``track`` takes them), each adding
     its methods (``pf+NAME``, ``pf-NAME``; a source may fit its input again on the survey or
     the other walks).
-    ``jobs``/``scheduler``: walks on local worker processes or a Dask cluster.
+    ``jobs``/``scheduler``: walks on local worker processes or a Dask cluster. ``waypoints``:
+    ``"common"`` scores every method of a walk at the waypoints every method has an estimate for,
+    ``"own"`` each at every waypoint from its own first estimate on.
     """
     building = _building(building, "building")
     walks = _walks(logs, "logs")
     if methods is not None and (isinstance(methods, str) or not all(isinstance(m, str) for m in methods)):
         raise TypeError(f"methods: expected a list of method names, got {methods!r}")
     _check_jobs(jobs)
+    if waypoints not in ("common", "own"):
+        raise ValueError(f"waypoints: expected 'common' or 'own', got {waypoints!r}")
     if scheduler is not None and not isinstance(scheduler, str):
         raise TypeError(f"scheduler: expected an address such as 'tcp://HOST:8786', got {type(scheduler).__name__}")
     given_map, map_path = _object_or_path(radio_map, RadioMap, "radio_map", "a RadioMap (mf.load_radio_map)")
@@ -234,14 +238,16 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
                             ap_table_path=None if aps_path is None else Path(aps_path), survey_paths=tuple(_walks(survey, "survey")),
                             leave_one_out=bool(leave_one_out), tracking=config if config is not None else TrackingConfig(),
                             unlabelled_paths=tuple(_walks(unlabelled, "unlabelled")), transductive=bool(transductive),
-                            radio_map=given_map, access_points=given_aps, sources=loaded)
+                            radio_map=given_map, access_points=given_aps, sources=loaded,
+                            common_waypoints=waypoints == "common")
     return _evaluate(building, walks, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)
 
 
 def score(track: Track | PathLike, recording: Recording | PathLike, building: Building | PathLike, *,
           causal: bool = True) -> dict[str, object]:
     """One track's error against its walk's ground truth, as ``evaluate`` scores a method on a walk
-    (``evaluation.scoring.score_track``; a row of its per-walk table): ``mean``, ``median``,
+    at its own waypoints (``evaluation.scoring.score_track``; a row of its per-walk table with
+    ``waypoints="own"``): ``mean``, ``median``,
     ``p75`` (the IPIN/EvAAL score), ``p90``, ``ce95``, ``max``, ``rmse`` (metres), ``n`` (waypoints
     scored), ``missed`` (waypoints before the first row, not scored), ``availability``,
     ``wall_crossings``, ``errors_m`` (each scored waypoint's error, e.g. for a CDF), and with

@@ -179,12 +179,13 @@ def test_a_sections_setting_given_flat_to_tracking_config_says_where_it_lives():
 
 def test_score_gives_one_tracks_errors_as_evaluate_scores_it():
     """`mf.score(track, recording, building)`: the numbers of evaluate's per-walk table for the
-    same track, causal (latest row at each waypoint) and offline (interpolated)."""
+    same track, each method scored at its own waypoints, causal (latest row at each waypoint) and
+    offline (interpolated)."""
     import mapfilter as mf
 
     building, walk = mf.load_map(MAPS / "office.yaml"), mf.read_log(MAPS / "office_walk.txt.gz")
     evaluation = mf.evaluate(building, [walk], radio_map=MAPS / "office_radiomap.npz", methods=["pf", "kwnn"],
-                             config=mf.TrackingConfig(smooth=True).with_particles(500))
+                             config=mf.TrackingConfig(smooth=True).with_particles(500), waypoints="own")
     rows = {row["method"]: row for row in evaluation.trace_rows()}
     checked = set()
     for result in evaluation.results:

@@ -75,9 +75,12 @@ walk is scored with points its own or its group's labels placed); --transductive
 evaluated walks grow it too, each scored with the other walks' grown points (left out by walk
 or group: each fold's walks grow that fold's points, over the survey of the other folds).
 Errors are taken at the ground-truth waypoint times from each method's latest estimate at or
-before that time (causal); waypoints before a method's first estimate are counted as missed,
-not scored. --smooth adds pf-smooth, the offline whole-walk track (not causal). runtime_s is
-each method's own time.
+before that time (causal); waypoints before a method's first estimate are counted as missed.
+Every method of a walk is scored at the same waypoints: those after every method's first
+estimate (the summary says how many; a method with no estimate at some of them is named, and
+not_scored in summary.csv counts them); --waypoints own scores each method at every waypoint from
+its own first estimate on. --smooth adds pf-smooth, the offline whole-walk track (not causal).
+runtime_s is each method's own time.
 
 writes into OUT, each walk's files as the walk finishes: walks/<trace>.json (its numbers),
 tracks/<trace>/<method>.csv and tracks/<trace>.png (tracks on the plan, zoomed on the walk);
@@ -105,6 +108,9 @@ numbers.
 SUMMARY_COLUMNS = ("method", "mean", "median", "p75", "p90", "ce95", "max", "rmse", "n", "missed", "availability",
                    "wall_crossings", "collapses", "runtime_s")
 BUILDING_COLUMNS = ("floor_accuracy", "floor_detection", "ipin_score")
+# the files' columns: the printed ones and, after missed, the common waypoints a method has no estimate at
+FILE_COLUMNS = SUMMARY_COLUMNS[:SUMMARY_COLUMNS.index("missed") + 1] + ("not_scored",) + SUMMARY_COLUMNS[
+    SUMMARY_COLUMNS.index("missed") + 1:]
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -137,6 +143,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--transductive", action="store_true",
                         help="the evaluated walks grow the radio map too, without their labels; each walk is scored "
                              "with the others' grown points")
+    parser.add_argument("--waypoints", choices=("common", "own"), default="common",
+                        help="common: every method of a walk scored at the waypoints every method has an estimate "
+                             "for (default); own: each method at every waypoint from its own first estimate on")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--resume", action="store_true",
                         help="keep the walks an interrupted run with the same settings finished in OUT")
@@ -171,7 +180,8 @@ def run(args: argparse.Namespace) -> int:
     setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,
                             tracking=config, unlabelled_paths=tuple(args.unlabelled),
-                            transductive=args.transductive, sources=load_sources(args, building), groups=grouping)
+                            transductive=args.transductive, sources=load_sources(args, building), groups=grouping,
+                            common_waypoints=args.waypoints == "common")
     validate_setup(building, args.logs, setup)  # before anything is written
     key = run_key({"map": str(args.map.resolve()), "logs": [str(p.resolve()) for p in args.logs],
                    "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
@@ -224,6 +234,7 @@ def run(args: argparse.Namespace) -> int:
                                                     if o.trace in index], len(args.logs), 0.0)
                 partial.protocol, partial.grouping = setup.protocol, setup.groups
                 partial.radio_map_source = setup.radio_map_source(len(args.logs))
+                partial.common_waypoints = setup.common_waypoints
                 _write_summary(args, out, partial, config, methods_for(building, source_files(args)),
                                complete=False)
                 out.commit()
@@ -320,16 +331,22 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
     from mapfilter.evaluation.plots import plot_error_cdf
 
     columns = SUMMARY_COLUMNS + (BUILDING_COLUMNS if evaluation.has_floors else ())
+    file_columns = FILE_COLUMNS + (BUILDING_COLUMNS if evaluation.has_floors else ())
     summary = evaluation.summary_rows()
     by_phone = evaluation.summary_rows(by_phone=True)
     grouping = evaluation.grouping
     by_group = evaluation.summary_rows(by_group=True) if grouping is not None else []
     table = format_table(summary, columns)
-    waypoints = summary[0]["n"] + summary[0]["missed"] if summary else 0
+    waypoints = evaluation.common_count()[1]
     n_done = len({r.trace for r in evaluation.results}) + len(evaluation.failed)
     grown = f", plus {evaluation.grown}" if evaluation.grown else ""
     print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s; "
-          f"{evaluation.radio_map_source}{grown}\n{table}")
+          f"{evaluation.radio_map_source}{grown}")
+    if evaluation.results:
+        print(evaluation.scoring_text())
+    print(table)
+    for line in evaluation.not_scored_text():
+        print(f"  {line}")
     if len(evaluation.phones()) > 1:
         print(f"\nper phone model:\n{format_table(by_phone, ('phone',) + columns)}")
     if grouping is not None:
@@ -343,16 +360,17 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
     names = ("summary.csv", "traces.csv", "walks.csv", "summary.json", "config.yaml") + (
         ("groups.csv",) if grouping is not None else ())
     with out_dir.writing(*names) as (s_csv, t_csv, w_csv, s_json, c_yaml, *g_csv):
-        _write_csv(s_csv, summary, columns)
-        _write_csv(t_csv, trace_rows, ("trace",) + (("group",) if grouping is not None else ()) + columns
+        _write_csv(s_csv, summary, file_columns)
+        _write_csv(t_csv, trace_rows, ("trace",) + (("group",) if grouping is not None else ()) + file_columns
                    + (("phone",) if by_phone else ()))
         _write_csv(w_csv, walk_rows, list(dict.fromkeys(k for row in walk_rows for k in row)) or ["trace"])
         if g_csv:
-            _write_csv(g_csv[0], by_group, ("group",) + columns + ("traces",))
+            _write_csv(g_csv[0], by_group, ("group",) + file_columns + ("traces",))
         s_json.write_text(json.dumps({
             "map": str(args.map), "logs": [str(p) for p in args.logs], "survey": [str(p) for p in args.survey],
             "radiomap": None if args.radiomap is None else str(args.radiomap), "leave_one_out": args.leave_one_out,
             "protocol": evaluation.protocol, "radio_map_source": evaluation.radio_map_source,
+            "waypoints": args.waypoints, "scoring": evaluation.scoring_text(),
             "groups": None if grouping is None else dict(grouping.group_of),
             "sources": _source_files(args),
             "unlabelled": [str(p) for p in args.unlabelled], "transductive": args.transductive,

@@ -128,6 +128,9 @@ class EvaluationSetup:
     # leave a group out (evaluation.groups): each walk's survey drops every walk of its group; the
     # evaluated walks survey each other, as with leave_one_out
     groups: Grouping | None = None
+    # score every method of a walk at the same waypoints (those every method has an estimate for);
+    # False: each at every waypoint from its own first estimate on
+    common_waypoints: bool = True
 
     @property
     def leaves_out(self) -> bool:
@@ -212,6 +215,35 @@ class MethodResult:
     diagnostics: dict[str, float] = dataclasses.field(default_factory=dict)  # the walk's (same for every method)
     floor_score: FloorScore | None = None  # several floors: on the walker's floor at the waypoints
     phone: str | None = None  # the phone model the log names (GetSensorData headers)
+    # scored at the waypoints common to every method of the walk: those of them it has no estimate for
+    not_scored: int = 0
+    detection_score: FloorScore | None = None  # scored at the common waypoints: the floors at all of them
+    skipped: int = 0  # estimated waypoints left out: before another method's first estimate
+
+    @property
+    def floor_detection(self) -> float:
+        """ISO/IEC 18305's floor detection probability over all the walk's waypoints."""
+        score = self.detection_score or self.floor_score
+        return floor_detection([score]) if score is not None else math.nan
+
+    @property
+    def n_waypoints(self) -> int:
+        """The walk's waypoints (scored, missed, or left to the other methods' first estimates)."""
+        return int(self.errors_m.size) + self.missed + self.skipped
+
+    def from_waypoint(self, first: int) -> MethodResult:
+        """This result scored only at the walk's waypoints ``first`` on (a method's scored
+        waypoints are always the walk's last ones: a causal track has none before its first
+        estimate, an offline track all); ``not_scored`` counts those of them it has no estimate for."""
+        skip = max(first - self.missed, 0)
+        not_scored = max(self.missed - first, 0) if self.errors_m.size else self.n_waypoints - first
+        floor_score = self.floor_score
+        if floor_score is not None and floor_score.storeys_off is not None and skip:
+            storeys = floor_score.storeys_off[skip:]
+            floor_score = FloorScore(int(np.count_nonzero(storeys == 0)), int(storeys.size), first, storeys)
+        # the floor detection probability stays over all the walk's points, as ISO/IEC 18305 counts it
+        return dataclasses.replace(self, errors_m=self.errors_m[skip:], floor_score=floor_score,
+                                   not_scored=not_scored, detection_score=self.floor_score, skipped=self.skipped + skip)
 
     @property
     def ipin_errors_m(self) -> np.ndarray:
@@ -354,6 +386,7 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recordi
     evaluation.protocol = setup.protocol
     evaluation.radio_map_source = setup.radio_map_source(len(paths))
     evaluation.grouping = setup.groups
+    evaluation.common_waypoints = setup.common_waypoints
     return evaluation
 
 
@@ -940,6 +973,53 @@ class Evaluation:
     protocol: str = ""  # what the walks were scored against (EvaluationSetup.protocol)
     radio_map_source: str = ""  # where the radio map came from, in words (EvaluationSetup.radio_map_source)
     grouping: Grouping | None = None  # left out by group: every walk's group (the per-group rows)
+    common_waypoints: bool = True  # the tables score every method of a walk at the same waypoints
+
+    def scored(self) -> list[MethodResult]:
+        """The results as the tables score them: with ``common_waypoints``, each walk's at the
+        waypoints every method on it has an estimate for (from the latest first estimate on; a
+        method without any estimate on the walk is left out of that choice and counts them all as
+        ``not_scored``), else each at its own."""
+        if not self.common_waypoints:
+            return self.results
+        first: dict[str, int] = {}
+        for r in self.results:
+            if r.errors_m.size:
+                first[r.trace] = max(first.get(r.trace, 0), r.missed)
+        return [r.from_waypoint(first.get(r.trace, r.n_waypoints)) for r in self.results]
+
+    def common_count(self) -> tuple[int, int]:
+        """(waypoints every method is scored at, waypoints of the walks with results)."""
+        by_trace: dict[str, list[MethodResult]] = {}
+        for r in self.scored():
+            by_trace.setdefault(r.trace, []).append(r)
+        common = sum(max(r.errors_m.size + r.not_scored for r in mine) for mine in by_trace.values())
+        return common, sum(mine[0].n_waypoints for mine in by_trace.values())
+
+    def scoring_text(self) -> str:
+        """One line on the waypoints the table scores each method at."""
+        if not self.results:
+            return ""
+        if not self.common_waypoints:
+            return "each method scored at its own waypoints, from its first estimate on (n, missed)"
+        common, total = self.common_count()
+        if common == total:
+            return f"every method scored at all {total} waypoints"
+        return (f"every method scored at the same {common} of the {total} waypoints: those after every method's "
+                f"first estimate (--waypoints own: each at its own)")
+
+    def not_scored_text(self) -> list[str]:
+        """A line per method that has no estimate at some of the common waypoints."""
+        lines, scored = [], self.scored()
+        for method in self.methods():
+            mine = [r for r in scored if r.method == method]
+            short = sum(r.not_scored for r in mine)
+            if short:
+                walks = [r.trace for r in mine if r.not_scored]
+                lines.append(f"{method}: no estimate at {short} of the common waypoints (walk"
+                             f"{'s' if len(walks) != 1 else ''} {', '.join(walks[:3])}{', ...' if len(walks) > 3 else ''})"
+                             f"; its row is scored at the others")
+        return lines
 
     @classmethod
     def from_outcomes(cls, outcomes: Sequence[WalkOutcome], n_traces: int, wall_time_s: float,
@@ -962,7 +1042,8 @@ class Evaluation:
         return seen
 
     def errors_by_method(self) -> dict[str, np.ndarray]:
-        return {m: np.concatenate([r.errors_m for r in self.results if r.method == m]) for m in self.methods()}
+        scored = self.scored()
+        return {m: np.concatenate([r.errors_m for r in scored if r.method == m]) for m in self.methods()}
 
     def phones(self) -> list[str]:
         """The phone models the walks' logs name, in order of first appearance (GetSensorData logs)."""
@@ -985,14 +1066,15 @@ class Evaluation:
         ``by_phone``: one row per phone model and method (a ``phone`` column first), the walks of
         that phone. ``by_group``: one row per group (a route, left out by group) and method (a
         ``group`` column first), the walks of that group."""
+        scored = self.scored()
         if by_group:
-            groups = list(dict.fromkeys(self.group_of(r.trace) for r in self.results))
+            groups = list(dict.fromkeys(self.group_of(r.trace) for r in scored))
             return [{"group": group, **row} for group in groups
-                    for row in self._rows([r for r in self.results if self.group_of(r.trace) == group])]
+                    for row in self._rows([r for r in scored if self.group_of(r.trace) == group])]
         if by_phone:
             return [{"phone": phone, **row} for phone in self.phones()
-                    for row in self._rows([r for r in self.results if r.phone == phone])]
-        return self._rows(self.results)
+                    for row in self._rows([r for r in scored if r.phone == phone])]
+        return self._rows(scored)
 
     def _rows(self, results: list[MethodResult]) -> list[dict]:
         rows = []
@@ -1001,8 +1083,10 @@ class Evaluation:
             if not mine:
                 continue
             stats = summarise_errors(np.concatenate([r.errors_m for r in mine]))
-            missed = sum(r.missed for r in mine)
-            row = {"method": method, **stats, "missed": missed, "availability": availability(stats["n"], missed),
+            missed = sum(r.missed for r in mine)  # before the method's own first estimate
+            estimated = sum(r.n_waypoints - r.missed for r in mine)
+            row = {"method": method, **stats, "missed": missed, "availability": availability(estimated, missed),
+                   "not_scored": sum(r.not_scored for r in mine),
                    "wall_crossings": sum(r.wall_crossings for r in mine),
                    "collapses": sum(r.collapses for r in mine),
                    "runtime_s": sum(r.runtime_s for r in mine), "traces": len(mine), "causal": mine[0].causal}
@@ -1010,7 +1094,8 @@ class Evaluation:
                 scores = [r.floor_score for r in mine if r.floor_score]
                 judged = sum(s.n_judged for s in scores)
                 row["floor_accuracy"] = sum(s.n_right for s in scores) / judged if judged else math.nan
-                row["floor_detection"] = floor_detection(scores)
+                row["floor_detection"] = floor_detection([r.detection_score or r.floor_score for r in mine
+                                                          if r.floor_score])
                 row["ipin_score"] = ipin_score(np.concatenate([r.ipin_errors_m for r in mine]))
             rows.append(row)
         return rows
@@ -1019,7 +1104,7 @@ class Evaluation:
         """One row per walk: why it went well or wrong (``evaluation.diagnostics``) and each
         method's mean error on it."""
         rows: dict[str, dict] = {}
-        for r in self.results:
+        for r in self.scored():
             group = {"group": self.group_of(r.trace)} if self.grouping is not None else {}
             row = rows.setdefault(r.trace, {"trace": r.trace, **group, **{c: r.diagnostics.get(c, math.nan)
                                                                            for c in DIAGNOSTIC_COLUMNS}})
@@ -1029,13 +1114,13 @@ class Evaluation:
     def trace_rows(self) -> list[dict]:
         """One row per walk and method."""
         rows = []
-        for r in self.results:
+        for r in self.scored():
             row = {"trace": r.trace, "method": r.method, **summarise_errors(r.errors_m), "missed": r.missed,
-                   "availability": availability(r.errors_m.size, r.missed),
+                   "availability": availability(r.n_waypoints - r.missed, r.missed), "not_scored": r.not_scored,
                    "wall_crossings": r.wall_crossings, "collapses": r.collapses, "runtime_s": r.runtime_s}
             if self.has_floors:
                 row["floor_accuracy"] = r.floor_score.accuracy if r.floor_score else math.nan
-                row["floor_detection"] = floor_detection([r.floor_score]) if r.floor_score else math.nan
+                row["floor_detection"] = r.floor_detection
                 row["ipin_score"] = ipin_score(r.ipin_errors_m)
             if r.phone:
                 row["phone"] = r.phone

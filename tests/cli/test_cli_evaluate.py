@@ -278,3 +278,21 @@ def test_leave_out_route_names_its_protocol_and_groups_as_a_regex_or_csv_does(tm
     # one group only: no walk would have a survey
     assert main(common + ["--leave-out-group", "IPIN", "--out", str(tmp_path / "y")]) == 1
     assert "at least two groups" in capsys.readouterr().err and not (tmp_path / "y").exists()
+
+
+def test_the_causal_and_offline_rows_are_scored_at_the_same_waypoints(tmp_path, capsys):
+    """Issue 53, friction 2: pf-smooth was scored at every waypoint and pf only from its first
+    estimate on; by default both are scored at the same ones, and the printout says which."""
+    common = ["evaluate", str(MAPS / "office.yaml"), str(MAPS / "office_walk.txt.gz"), "--radiomap",
+              str(MAPS / "office_radiomap.npz"), "--methods", "pf,kwnn", "--particles", "500", "--smooth"]
+    assert main(common + ["--out", str(tmp_path / "same")]) == 0
+    printed = capsys.readouterr().out
+    rows = {row["method"]: row for row in csv.DictReader((tmp_path / "same" / "summary.csv").open())}
+    assert rows["pf"]["n"] == rows["pf-smooth"]["n"] == rows["kwnn"]["n"]
+    n, missed = int(rows["pf"]["n"]), int(rows["pf"]["missed"])
+    assert missed > 0 and int(rows["pf-smooth"]["missed"]) == 0 and rows["pf-smooth"]["availability"] == "1.0000"
+    assert f"every method scored at the same {n} of the {n + missed} waypoints" in printed
+    assert main(common + ["--waypoints", "own", "--out", str(tmp_path / "own")]) == 0
+    rows = {row["method"]: row for row in csv.DictReader((tmp_path / "own" / "summary.csv").open())}
+    assert int(rows["pf-smooth"]["n"]) == n + missed and int(rows["pf"]["n"]) == n
+    assert "each method scored at its own waypoints" in capsys.readouterr().out
