@@ -45,7 +45,7 @@ from mapfilter.sensors.radiomap import build_radio_map as _build_one_floor
 from mapfilter.pipeline.selftrain import GrowConfig, GrowReport
 from mapfilter.pipeline.selftrain import grow_radio_map as _grow
 from mapfilter.sensors.recording import Recording
-from mapfilter.pipeline.tracker import Tracker, TrackingInputs, TrackResult
+from mapfilter.pipeline.tracker import Tracker, TrackingInputs, TrackResult, WalkStart, as_start
 from mapfilter.pipeline.tracker import track as _track
 from mapfilter.filter.sources import plugin
 from mapfilter.io.tracks import Track, read_track, write_track
@@ -98,21 +98,26 @@ def track(building: Building | FloorPlan | PathLike, recording: Recording | Path
           config: TrackingConfig | None = None, *, floor: str | None = None,
           on_step: Callable[[StepReport], None] | None = None,
           on_offline_step: Callable[[StepReport], None] | None = None,
-          rng: np.random.Generator | None = None, sources: Mapping[str, object] | None = None) -> TrackResult:
+          rng: np.random.Generator | None = None, sources: Mapping[str, object] | None = None,
+          start: tuple | str | None = None) -> TrackResult:
     """Track one walk (``pipeline.tracker.track``): the causal track and, with ``config.smooth``, the
     offline one. ``radio_map`` (fingerprinting) or ``access_points`` (trilateration), at most
     one; ``sources``: measurement sources weighed too (alone without the other two), ``{name: its
     input, or its file (several files: {option: path})}`` (``load_sources``); ``floor`` tracks on
     one floor of a building; ``on_step`` sees every filter step; ``rng``: the run's random
-    numbers (default: from ``config.seed``)."""
+    numbers (default: from ``config.seed``); ``start``: where the walk started, if known, ``(x, y)``
+    or ``(x, y, floor name)`` in metres of the map's frame (``track --start X,Y[,FLOOR]``)."""
     building = _building(building, "building")
     recording = _recording(recording, "recording", building)
     radio_map, access_points, sources, config = _tracking_inputs(building, radio_map, access_points, sources, config,
                                                                  floor)
     if rng is not None and not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
+    start = as_start(start)
+    if start is not None:
+        start.place(building, floor)  # one line for a start in a wall or on a floor the building lacks
     return _track(building, recording, radio_map, access_points, config, floor=floor, on_step=on_step,
-                  on_offline_step=on_offline_step, rng=rng, sources=sources)
+                  on_offline_step=on_offline_step, rng=rng, sources=sources, start=start)
 
 
 def load_sources(sources: Mapping[str, object], building: Building | PathLike) -> dict[str, object]:
@@ -205,7 +210,8 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
              unlabelled: Sequence[Recording | PathLike] = (), transductive: bool = False,
              methods: Sequence[str] | None = None, sources: Mapping[str, object] | None = None,
              config: TrackingConfig | None = None, jobs: int = 1, scheduler: str | None = None,
-             progress: Callable[[int, int, str], None] | None = None, waypoints: str = "common") -> Evaluation:
+             progress: Callable[[int, int, str], None] | None = None, waypoints: str = "common",
+             start: tuple | str | None = None) -> Evaluation:
     """Every method on the same walks (``evaluation.comparison``), as ``mapfilter evaluate`` runs them:
     ``evaluation.summary_rows()`` is its table, ``errors_by_method()`` its CDF.
 
@@ -217,7 +223,8 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
     the other walks).
     ``jobs``/``scheduler``: walks on local worker processes or a Dask cluster. ``waypoints``:
     ``"common"`` scores every method of a walk at the waypoints every method has an estimate for,
-    ``"own"`` each at every waypoint from its own first estimate on.
+    ``"own"`` each at every waypoint from its own first estimate on. ``start``: where every walk
+    started, if known (as ``track`` takes it): the particle filter methods start there.
     """
     building = _building(building, "building")
     walks = _walks(logs, "logs")
@@ -239,7 +246,7 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
                             leave_one_out=bool(leave_one_out), tracking=config if config is not None else TrackingConfig(),
                             unlabelled_paths=tuple(_walks(unlabelled, "unlabelled")), transductive=bool(transductive),
                             radio_map=given_map, access_points=given_aps, sources=loaded,
-                            common_waypoints=waypoints == "common")
+                            common_waypoints=waypoints == "common", start=_start_on(start, building))
     return _evaluate(building, walks, setup, Engine(jobs=jobs, scheduler=scheduler), progress=progress)
 
 
@@ -335,6 +342,14 @@ def _tracking_inputs(building: Building, radio_map, access_points, sources, conf
         raise TypeError(f"floor: expected a floor name (str), got {type(floor).__name__}")
     return (_radio_map(radio_map, "radio_map"), _access_points(access_points, "access_points"),
             load_sources(sources, building) if sources is not None else {}, _config(config))
+
+
+def _start_on(value, building: Building) -> WalkStart | None:
+    """The checked ``start`` argument (``as_start``), on a floor of ``building`` and its free space."""
+    start = as_start(value)
+    if start is not None:
+        start.place(building)
+    return start
 
 
 def _building(value, name: str, optional: bool = False) -> Building | None:

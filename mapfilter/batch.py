@@ -47,6 +47,7 @@ class BatchSetup:
     # {measurement source name: its input} (``filter.sources``), weighed besides (or, without WiFi,
     # instead of) the WiFi
     sources: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    start: Any = None  # where every walk started, if known (``pipeline.tracker.WalkStart``)
 
 
 @dataclasses.dataclass
@@ -101,7 +102,7 @@ def _track_into(result: WalkResult, building: Building, recording: Recording, ra
                 access_points: AccessPointTable | None, setup: BatchSetup) -> None:
     header_floor = building.floor_of_log(recording.floor_name, result.log_path, setup.floor)
     outcome = track(building, recording, radio_map, access_points, setup.tracking, floor=setup.floor,
-                    sources=setup.sources)
+                    sources=setup.sources, start=setup.start)
     smoothed = outcome.offline is not None
     result.track = outcome.offline if smoothed else outcome.causal
     result.causal = outcome.causal

@@ -12,16 +12,18 @@ from pathlib import Path
 from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arguments, add_strict_argument,
                                   announce_estimate, check_map_first, check_output_path, duration_text, engine_from,
                                   estimate_tracking_s, input_paths, walk_spans_s, warn)
-from mapfilter.cli.tracking_options import (add_source_arguments, add_tracking_arguments, load_sources, source_files,
-                                            source_paths, tracking_config_from)
+from mapfilter.cli.tracking_options import (add_source_arguments, add_start_argument, add_tracking_arguments,
+                                            load_sources, source_files, source_paths, start_from,
+                                            tracking_config_from)
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.sources import evaluation_methods, registered
 from mapfilter.runtime.memory import building_extents_m, check_tracking_fits
 
 # mapfilter.evaluation.comparison's methods, written out so that --help imports no numerical
 # library (tests/cli/test_cli_startup.py holds them equal); the sources' from their registry
-ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", *evaluation_methods(True))
-BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", *evaluation_methods(False))
+ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", *evaluation_methods(True),
+               "pdr-start")
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", *evaluation_methods(False), "pdr-start")
 
 
 def _sources_epilog() -> str:
@@ -43,10 +45,15 @@ methods on one floor: {', '.join(ALL_METHODS)} (default: all that the WiFi sourc
   pf-nomap  the same, walls ignored                 pdr-kwnn  KWNN with PDR (Chang et al.)
   pf-nopdr  the same, constant velocity, no PDR     kf        Kalman filter on fixes + PDR
   pdr       dead reckoning from the first fix       ls        least-squares trilateration
+  pdr-start dead reckoning from the walk's true start (its first waypoint: ground truth no other
+            method sees): what the steps alone give, to show what the WiFi adds or costs
 methods in a building with several floors: {', '.join(BUILDING_METHODS)}
   pf        the floor in the filter's state         pf-floor  the same filter on the walker's floor
   kwnn      each scan on the WiFi floor HMM's floor
   kf, pdr   the Kalman filter and dead reckoning on those KWNN fixes, each row on their floor
+  pdr-start from the true start, on the floor of the walk's first waypoint
+--start X,Y[,FLOOR]: every walk started there (an entrance they all walked in from): the pf
+methods start within 2 m of it at each walk's first step (pdr-start always starts at the truth).
 
 {{sources}}
 
@@ -143,6 +150,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--transductive", action="store_true",
                         help="the evaluated walks grow the radio map too, without their labels; each walk is scored "
                              "with the others' grown points")
+    add_start_argument(parser, every_walk=True)
     parser.add_argument("--waypoints", choices=("common", "own"), default="common",
                         help="common: every method of a walk scored at the waypoints every method has an estimate "
                              "for (default); own: each method at every waypoint from its own first estimate on")
@@ -181,13 +189,14 @@ def run(args: argparse.Namespace) -> int:
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,
                             tracking=config, unlabelled_paths=tuple(args.unlabelled),
                             transductive=args.transductive, sources=load_sources(args, building), groups=grouping,
-                            common_waypoints=args.waypoints == "common")
+                            common_waypoints=args.waypoints == "common", start=start_from(args, building))
     validate_setup(building, args.logs, setup)  # before anything is written
     key = run_key({"map": str(args.map.resolve()), "logs": [str(p.resolve()) for p in args.logs],
                    "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
                    "aps": str(args.aps), "leave_one_out": args.leave_one_out, "methods": methods,
                    "unlabelled": [str(p.resolve()) for p in args.unlabelled], "transductive": args.transductive,
                    "strict": args.strict, "config": config.to_dict(),
+                   **({"start": args.start} if args.start is not None else {}),
                    **({"sources": _source_files(args)} if source_files(args) else {}),
                    **({"groups": dict(grouping.group_of)} if grouping is not None else {}),
                    # by content: a log, map or model replaced at the same path is another run
@@ -340,8 +349,9 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
     waypoints = evaluation.common_count()[1]
     n_done = len({r.trace for r in evaluation.results}) + len(evaluation.failed)
     grown = f", plus {evaluation.grown}" if evaluation.grown else ""
+    start = f"; the pf methods started at {args.start} (--start)" if args.start is not None else ""
     print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s; "
-          f"{evaluation.radio_map_source}{grown}")
+          f"{evaluation.radio_map_source}{grown}{start}")
     if evaluation.results:
         print(evaluation.scoring_text())
     print(table)
@@ -370,7 +380,7 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
             "map": str(args.map), "logs": [str(p) for p in args.logs], "survey": [str(p) for p in args.survey],
             "radiomap": None if args.radiomap is None else str(args.radiomap), "leave_one_out": args.leave_one_out,
             "protocol": evaluation.protocol, "radio_map_source": evaluation.radio_map_source,
-            "waypoints": args.waypoints, "scoring": evaluation.scoring_text(),
+            "waypoints": args.waypoints, "scoring": evaluation.scoring_text(), "start": args.start,
             "groups": None if grouping is None else dict(grouping.group_of),
             "sources": _source_files(args),
             "unlabelled": [str(p) for p in args.unlabelled], "transductive": args.transductive,

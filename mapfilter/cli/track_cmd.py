@@ -21,8 +21,9 @@ from mapfilter.cli.common import (SMOOTH_EXTRA_RUNS, ProgressBar, add_engine_arg
                                   announce_estimate, announce_recording_size, bounded_int, check_distinct_outputs,
                                   check_map_first, check_output_path, duration_text, engine_from, estimate_tracking_s,
                                   input_paths, is_stdout, walk_spans_s, warn)
-from mapfilter.cli.tracking_options import (add_source_arguments, add_tracking_arguments, load_sources, source_files,
-                                            source_paths, tracking_config_from)
+from mapfilter.cli.tracking_options import (add_source_arguments, add_start_argument, add_tracking_arguments,
+                                            load_sources, source_files, source_paths, start_from,
+                                            tracking_config_from)
 from mapfilter.filter.sources import registered
 from mapfilter.errors import MapfilterError
 from mapfilter.runtime.memory import building_extents_m, check_tracking_fits
@@ -39,8 +40,11 @@ barometer) places the walker.
 
 {sources}
 
-The starting position is unknown: the filter starts from the first usable WiFi scan (or
-measurement of another source), drawn over the map's free space. If the log has waypoints, the errors at the waypoint times are
+The start: without --start, the filter starts from the first usable WiFi scan (or measurement
+of another source), drawn over the map's free space. --start X,Y[,FLOOR] says where the walk
+started (metres in the map's frame, the floor's name in a building): the particles start within
+2 m of it at the first step. A start in a wall, outside the map or on a floor the building does
+not have is refused. If the log has waypoints, the errors at the waypoint times are
 printed (the latest estimate at or before each waypoint; see "What the numbers mean" in the
 README).
 
@@ -101,6 +105,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     wifi.add_argument("--aps", type=Path, metavar="APS.csv", help="access-point table for trilateration")
     parser.add_argument("--floor", metavar="NAME",
                         help="track on this floor of the map (default: the log's floor, found in a building)")
+    add_start_argument(parser)
     parser.add_argument("--out", type=Path, metavar="FILE", help="write the track here (one log): .csv or .tum")
     parser.add_argument("--out-dir", type=Path, metavar="DIR",
                         help="track every LOG: one track file per walk, summary.csv, summary.json, config.yaml")
@@ -262,6 +267,7 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     if args.floor is not None:
         building.floor_index(args.floor, args.map)
+    start = start_from(args, building, args.floor)
     evaal_start = None
     if args.evaal_start is not None:
         from mapfilter.evaal.protocol import parse_position
@@ -309,7 +315,7 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
             progress.update(report.t_s)
 
         result = track_prepared(walk, config, on_step=on_step, on_offline_step=progress.offline_step,
-                                on_smoothed=logger.log_smoothed if logger.enabled else None)
+                                on_smoothed=logger.log_smoothed if logger.enabled else None, start=start)
         progress.finish()  # a walk without steps to place has no second run
         if result.restarted is not None:
             # the second causal run, from the placed start, whose estimates placed the offline track
@@ -345,11 +351,20 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
         written.append((args.plot, "picture of the tracks"))
     # the track itself on standard output: the summary goes to stderr, out of its way
     summary_to = sys.stderr if any(is_stdout(path) for path, _ in written) else sys.stdout
-    print(_summary(building, recording, result, header_floor, written, wifi_source_text(args, building, ap_table)),
-          file=summary_to)
+    print(_summary(building, recording, result, header_floor, written,
+                   wifi_source_text(args, building, ap_table) + _start_text(start)), file=summary_to)
     if args.out is None:
         print("  no track file written: give --out track.csv (or .tum) to keep the track", file=summary_to)
     return 0
+
+
+def _start_text(start) -> str:
+    """The summary's words for a known start ("" without one)."""
+    if start is None:
+        return ""
+    from mapfilter.pipeline.tracker import KNOWN_START_RADIUS_M
+
+    return f"; started at {start} as given (--start: within {KNOWN_START_RADIUS_M:g} m of it at the first step)"
 
 
 def _run_live(args: argparse.Namespace, config) -> int:
@@ -378,6 +393,7 @@ def _run_live(args: argparse.Namespace, config) -> int:
     check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
     radio_map, ap_table = _wifi_source(args, building, config)
     floor = None if building.is_single_floor else args.floor
+    start = start_from(args, building, args.floor)
     spawn = args.spawn and _viewer_can_start()
     logger = None
 
@@ -385,7 +401,7 @@ def _run_live(args: argparse.Namespace, config) -> int:
         logger.log_step(report)
 
     tracker = Tracker(building, TrackingInputs(radio_map, ap_table, load_sources(args, building)), config, floor=floor,
-                      log_name="standard input", on_step=on_step)
+                      log_name="standard input", on_step=on_step, start=start)
     shown = 0 if floor is None else building.floor_index(floor, args.map)
 
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
@@ -414,7 +430,7 @@ def _run_live(args: argparse.Namespace, config) -> int:
     print(f"standard input: {ended}{result.n_filter_steps} filter steps, {result.n_scans_used} WiFi scans used{_measured(result)}, "
           f"{len(result.collapses)} collapses; causal {result.causal_runtime_s:.1f} s"
           + "".join(f"; wrote {path} ({what})" for path, what in written), file=sys.stderr)
-    print(f"  {wifi_source_text(args, building, ap_table)}", file=sys.stderr)
+    print(f"  {wifi_source_text(args, building, ap_table)}{_start_text(start)}", file=sys.stderr)
     if interrupted is not None:
         raise interrupted  # the exit code says how the walk ended (130, 143)
     return 0
@@ -659,7 +675,7 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
         building.floor_index(args.floor, args.map)
     radio_map, ap_table = _wifi_source(args, building, config)
     setup = BatchSetup(tracking=config, strict=args.strict, floor=None if building.is_single_floor else args.floor,
-                       sources=load_sources(args, building))
+                       sources=load_sources(args, building), start=start_from(args, building, args.floor))
     columns = SUMMARY_COLUMNS if building.is_single_floor else BUILDING_SUMMARY_COLUMNS
     out_format = args.format or "csv"
     track_names = batch_track_names([trace_name(p) for p in args.logs], out_format, config.smooth)

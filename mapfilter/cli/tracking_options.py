@@ -72,6 +72,28 @@ def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:
                             "every AP while the six strongest drop together by more than 6 dB; Lund thesis 7.3)")
 
 
+def add_start_argument(parser: argparse.ArgumentParser, every_walk: bool = False) -> None:
+    """``--start X,Y[,FLOOR]``: where the walk started, if the user knows (a walk's input, not a
+    setting of the config)."""
+    parser.add_argument("--start", metavar="X,Y[,FLOOR]",
+                        help=("where every walk started" if every_walk else "where the walk started") +
+                             ", if you know it (metres in the map's frame; FLOOR: the floor's name, needed in a "
+                             "building): the particles start within 2 m of it at the first step, instead of "
+                             "over the map from the first WiFi scan")
+
+
+def start_from(args: argparse.Namespace, building, floor: str | None = None):
+    """The ``WalkStart`` of ``--start`` (None without it), checked on ``building``: on a floor it
+    has and on free space (``MapfilterError`` in one line)."""
+    if args.start is None:
+        return None
+    from mapfilter.pipeline.tracker import WalkStart
+
+    start = WalkStart.parse(args.start)
+    start.place(building, floor)
+    return start
+
+
 def tracking_config_from(args: argparse.Namespace):
     """The ``TrackingConfig`` of a command: the ``--config`` file's (or the defaults), with every
     flag that was given applied on top."""

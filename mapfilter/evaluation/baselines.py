@@ -4,7 +4,7 @@
   inertial input when available (an EKF in the spirit of Seitz et al., gating bad fixes).
 - ``pdr_kwnn_track``: PDR-KWNN (Chang et al.): the fingerprint distance plus the distance and
   angle to the PDR-predicted position.
-- ``pdr_track``: dead reckoning from the first fix.
+- ``pdr_track``: dead reckoning from the first fix; ``pdr_start_track`` from the walk's true start.
 KWNN fixes and LS trilateration come from ``mapfilter.sensors.radiomap`` / ``mapfilter.sensors.pathloss``.
 """
 
@@ -153,6 +153,14 @@ def pdr_track(steps: Steps, start_t_s: float, start_xy_m: np.ndarray, step_lengt
     t_s = t_s.copy()
     t_s[0] = start_t_s
     return Track(t_s, xy_m, name="pdr")
+
+
+def pdr_start_track(steps: Steps, recording) -> Track:
+    """Dead reckoning from the walk's true start (its first waypoint, time and place: ground truth
+    the other methods never see): what the steps alone give, the baseline that shows what WiFi
+    adds or costs."""
+    track = pdr_track(steps, float(recording.waypoint_t_s[0]), recording.waypoint_xy_m[0])
+    return dataclasses.replace(track, name="pdr-start")
 
 
 @dataclasses.dataclass(frozen=True)

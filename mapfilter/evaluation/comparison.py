@@ -12,7 +12,12 @@ causal: each method's latest estimate at or before the waypoint). On one floor:
 ``kf``         Kalman filter on the KWNN fixes with PDR steps as input (Evennou & Marx; Seitz)
 ``pdr``        dead reckoning from the first fix
 ``ls``         least-squares trilateration per scan (needs an access-point table)
+``pdr-start``  dead reckoning from the walk's true start (its first waypoint: ground truth no
+               other method sees): what the steps alone give, to show what WiFi adds or costs
 =============  ==========================================================================
+
+With a ``start`` (``pipeline.tracker.WalkStart``: where every walk started, as a user who knows
+the entrance says it), the particle filter methods start there at each walk's first step.
 
 With a measurement source's input (``sources``: ``{name: input}``, ``filter.sources``), also
 ``pf+NAME`` (``pf`` with the source's measurements weighed too; with ``smooth``, its offline
@@ -65,7 +70,7 @@ import numpy as np
 from mapfilter.config import TrackingConfig
 from mapfilter.runtime.dispatch import Engine, run_each
 from mapfilter.errors import MapfilterError
-from mapfilter.evaluation.baselines import kalman_track, pdr_kwnn_track, pdr_track
+from mapfilter.evaluation.baselines import kalman_track, pdr_kwnn_track, pdr_start_track, pdr_track
 from mapfilter.evaluation.diagnostics import DIAGNOSTIC_COLUMNS, walk_diagnostics
 from mapfilter.evaluation.groups import Grouping
 from mapfilter.evaluation.metrics import (FloorScore, availability, floor_detection, ipin_errors_m, ipin_score,
@@ -91,8 +96,10 @@ from mapfilter.io.tracks import Track
 
 # {method: (source name, what it runs: pf | pf-floor | alone)} of every registered source
 SOURCE_METHODS = {**evaluation_methods(single_floor=True), **evaluation_methods(single_floor=False)}
-ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", *evaluation_methods(True))
-BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", *evaluation_methods(False))
+# the index of a method here seeds its runs: a new method goes at the end, so that the others keep their numbers
+ALL_METHODS = ("pf", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", *evaluation_methods(True),
+               "pdr-start")
+BUILDING_METHODS = ("pf", "pf-floor", "kwnn", "kf", "pdr", *evaluation_methods(False), "pdr-start")
 STATUSES = ("ok", "failed", "crashed")
 
 
@@ -131,6 +138,7 @@ class EvaluationSetup:
     # score every method of a walk at the same waypoints (those every method has an estimate for);
     # False: each at every waypoint from its own first estimate on
     common_waypoints: bool = True
+    start: Any = None  # where every walk started, if known (``pipeline.tracker.WalkStart``): the pf methods start there
 
     @property
     def leaves_out(self) -> bool:
@@ -650,7 +658,7 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
             rng = np.random.default_rng([tracking.seed, index, ALL_METHODS.index(method)])
             walk = prepared if prepared is not None else prepare_walk(building, recording, None, ap_table, config,
                                                                      steps=steps)
-            outcome = track_prepared(walk, config, rng=rng)
+            outcome = track_prepared(walk, config, rng=rng, start=setup.start)
             scorer.add_run(method, outcome)
         elif method in SOURCE_METHODS:
             # a source with the WiFi (pf+NAME, and its offline track pf-smooth+NAME) or alone (pf-NAME)
@@ -667,7 +675,7 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
             else:
                 walk = prepare_walk(building, recording, None, ap_table if with_wifi else None, config, steps=steps,
                                     sources=given)
-            outcome = track_prepared(walk, config, rng=rng)
+            outcome = track_prepared(walk, config, rng=rng, start=setup.start)
             scorer.add_run(method, outcome)
         elif method == "kwnn" and radio_map is not None:
             scorer.timed(method, lambda: _fix_track(scan_t, fixes, "kwnn"))
@@ -682,6 +690,8 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
                 scorer.timed(method, lambda: pdr_track(steps, scan_t[ok[0]], fixes[ok[0]]))
         elif method == "ls" and ap_table is not None:
             scorer.timed(method, lambda: _fix_track(scan_t, _ls_fixes(ap_table, scans), "ls"))
+        elif method == "pdr-start" and steps is not None:
+            scorer.timed(method, lambda: pdr_start_track(steps, recording))
     diagnostics = walk_diagnostics(recording, scan_t, fixes, radio_map, steps)
     for result in scorer.results:
         result.diagnostics = diagnostics
@@ -720,7 +730,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
             config = dataclasses.replace(tracking, smooth=tracking.smooth and method == "pf")
             walk = prepare_walk(building, recording, radio_map, None, config, steps=steps,
                                 floor=truth if method == "pf-floor" else None, fix_sigma_by_floor_m=sigma)
-            outcome = track_prepared(walk, config, rng=rng)
+            outcome = track_prepared(walk, config, rng=rng, start=setup.start)
             scorer.add_run(method, outcome)
         elif method in SOURCE_METHODS:
             # pf and pf-floor with a source too (pf+NAME's offline track: pf-smooth+NAME), and pf
@@ -734,7 +744,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
                                 floor=truth if kind == "pf-floor" else None,
                                 fix_sigma_by_floor_m=sigma if wifi is not None else None,
                                 sources={name: sources[name]})
-            outcome = track_prepared(walk, config, rng=rng)
+            outcome = track_prepared(walk, config, rng=rng, start=setup.start)
             scorer.add_run(method, outcome)
         elif method in ("kwnn", "kf", "pdr"):
             if fixes is None:
@@ -750,7 +760,16 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
             elif steps is not None and len(steps):
                 scorer.timed(method, lambda: floor_path_baseline(
                     building, scan_t, xy, floor, lambda t, f: pdr_track(steps, t[0], f[0]), "pdr"))
+        elif method == "pdr-start" and steps is not None and len(steps):
+            # on the floor of the walk's first waypoint, in its frame (a walk that changes floor: wrong after it)
+            first = recording.waypoint_floor[0] if recording.waypoint_floor else truth
+            if first is not None:
+                scorer.timed(method, lambda: _on_floor(pdr_start_track(steps, recording), first))
     return scorer.results
+
+
+def _on_floor(track: Track, floor: str) -> Track:
+    return dataclasses.replace(track, floor=[floor] * len(track))
 
 
 def _radio_map_sigmas(radio_map: RadioMap, building: Building, tracking: TrackingConfig) -> dict[str, float]:

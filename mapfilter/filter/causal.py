@@ -259,11 +259,14 @@ class RunSettings:
 @dataclasses.dataclass(frozen=True)
 class Start:
     """Where a run starts: from its first usable measurement's likelihood over the map, or, with
-    ``xy_m``, ``share`` of the particles within ``radius_m`` of it (the rest from the likelihood)."""
+    ``xy_m``, ``share`` of the particles within ``radius_m`` of it (the rest from the likelihood).
+    ``at_first_step``: a walk's known start, all particles there at its first step, which moves
+    them from it (without steps: at the first usable measurement)."""
 
     xy_m: np.ndarray | None = None
     radius_m: float = 5.0
     share: float = 1.0
+    at_first_step: bool = False
 
 
 class CausalFilter:
@@ -504,6 +507,11 @@ class CausalFilter:
                 # cv / rw move over the time since the last step by themselves; PDR only on steps
                 self._step(t_s, None, model, measurement)
             self.n_scans_used += source < 0
+        elif kind == _STEP and not self.started and self._start_at.at_first_step:
+            # the walker stood at the known start until this step: placed there, then moved by it
+            self._start(t_s, None, None, row=False)
+            self._event(t_s, kind, index, source)
+            return
         elif kind == _STEP and self.started and not self._waiting_for_scan:
             # in a building with a barometer, the height weighs floors at every step, not only at scans
             between = self.evidence.between_scans(t_s)
@@ -525,8 +533,9 @@ class CausalFilter:
         if self._on_step is not None:
             self._on_step(report)
 
-    def _start(self, t_s: float, model: MeasurementModel, measurement: Any) -> None:
-        """Particles at a measurement: from its likelihood over the map, or around the start point."""
+    def _start(self, t_s: float, model: MeasurementModel, measurement: Any, row: bool = True) -> None:
+        """Particles at a measurement: from its likelihood over the map, or around the start point
+        (``row``: the start is a row of the track; else the step that follows at ``t_s`` is)."""
         pf = self.pf
         start = self._start_at
         if start.xy_m is None or self.started:
@@ -545,6 +554,9 @@ class CausalFilter:
         heading = circular_mean(particles.heading_rad, particles.weight) if self._uses_steps else math.nan
         if self.history is not None:
             self.history.record(t_s, particles.state, particles.weight, None, 0.0, 0.0, True)
+        if not row:
+            self._last_row_t = float(t_s)
+            return
         self._add_row(t_s, pf.estimate_xy_m.copy(), pf.estimate_std_m, heading, report.get("floor_shares"),
                       report.get("floor_index"))
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from mapfilter.config import TrackingConfig
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.causal import CausalFilter, RunSettings
+from mapfilter.filter.causal import CausalFilter, RunSettings, Start
 from mapfilter.filter.measurement import MeasurementSource
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.evidence import BuildingEvidence, NoWifiEvidence, WifiEvidence
@@ -44,7 +44,85 @@ from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import scans_of
 
-__all__ = ["PreparedWalk", "TrackResult", "Tracker", "TrackingInputs", "prepare_walk", "track", "track_prepared"]
+__all__ = ["KNOWN_START_RADIUS_M", "PreparedWalk", "TrackResult", "Tracker", "TrackingInputs", "WalkStart",
+           "as_start", "prepare_walk", "track", "track_prepared"]
+
+# a start the user knows ("the entrance I walked in from"): the particles within this radius of
+# it, the walker's first steps from there; a person points at their start this closely
+KNOWN_START_RADIUS_M = 2.0
+
+
+@dataclasses.dataclass(frozen=True)
+class WalkStart:
+    """Where a walk started, if the user knows: ``xy_m`` in the floor's own frame (metres, as the
+    map's), ``floor`` its name (needed in a building with several floors unless the floor is
+    given). A walk's input, like its log: not a setting of the config."""
+
+    xy_m: tuple[float, float]
+    floor: str | None = None
+
+    def __str__(self) -> str:
+        return f"{self.xy_m[0]:g},{self.xy_m[1]:g}" + (f",{self.floor}" if self.floor is not None else "")
+
+    @classmethod
+    def parse(cls, text: str, option: str = "--start") -> WalkStart:
+        """``X,Y[,FLOOR]`` (metres of the floor's frame; FLOOR a floor name of the building)."""
+        parts = [part.strip() for part in str(text).split(",")]
+        if len(parts) not in (2, 3) or not all(parts):
+            raise MapfilterError(f"{option} {text!r}: expected X,Y or X,Y,FLOOR (metres in the map's frame, the "
+                                 "floor's name)")
+        try:
+            xy = (float(parts[0]), float(parts[1]))
+        except ValueError:
+            raise MapfilterError(f"{option} {text!r}: X and Y must be numbers (metres in the map's frame)") from None
+        if not all(np.isfinite(xy)):
+            raise MapfilterError(f"{option} {text!r}: X and Y must be finite numbers")
+        return cls(xy, parts[2] if len(parts) == 3 else None)
+
+    def place(self, building: Building, floor: str | None = None) -> tuple[int, np.ndarray]:
+        """(the start's floor index, its position in that floor's frame): on a floor the building
+        has (its own, else ``floor``, the floor tracked on, else the only one) and on its free
+        space; ``MapfilterError`` in one line otherwise."""
+        name = self.floor if self.floor is not None else floor
+        if name is None:
+            if not building.is_single_floor:
+                raise MapfilterError(f"the start {self}: the building has floors {', '.join(building.floor_names)}: "
+                                     "give the start's floor too (X,Y,FLOOR)")
+            index = 0
+        else:
+            if floor is not None and self.floor is not None and self.floor != floor:
+                raise MapfilterError(f"the start {self} is on floor {self.floor}, but the walk is tracked on "
+                                     f"floor {floor}")
+            if self.floor is not None and building.is_single_floor and building.floors[0].name in (None, ""):
+                index = 0
+            else:
+                try:
+                    index = building.floor_index(name)
+                except MapfilterError:
+                    raise MapfilterError(f"the start {self}: the building has no floor {name!r} (floors: "
+                                         f"{', '.join(building.floor_names)})") from None
+        xy = np.array(self.xy_m, dtype=np.float64)
+        plan = building.floors[index].plan
+        if not plan.is_free(xy[None, :])[0]:
+            where = "a wall" if plan.pixel_index(xy[None, :])[2][0] else "outside the map"
+            raise MapfilterError(f"the start {self} is not on the free space of "
+                                 f"{'the map' if building.is_single_floor else 'floor ' + building.floor_names[index]}"
+                                 f" ({where} there): give a point where the walker can stand")
+        return index, xy
+
+
+def as_start(value, name: str = "start") -> WalkStart | None:
+    """A ``WalkStart`` from what the API takes: None, a ``WalkStart``, ``(x, y)``, ``(x, y, floor)``
+    or the text ``"X,Y[,FLOOR]"``; ``TypeError`` naming the argument otherwise."""
+    if value is None or isinstance(value, WalkStart):
+        return value
+    if isinstance(value, str):
+        return WalkStart.parse(value, name)
+    if isinstance(value, (tuple, list)) and len(value) in (2, 3) and all(
+            isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) for v in value[:2]) \
+            and (len(value) == 2 or isinstance(value[2], str)):
+        return WalkStart.parse(",".join(str(v) for v in value), name)
+    raise TypeError(f"{name}: expected (x, y) or (x, y, floor name) in metres of the map's frame, got {value!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,12 +282,16 @@ class Tracker:
     steps : the walk's PDR steps if already detected with ``config.steps`` (else detected as the
         records come).
     prepared : a ``prepare_walk``'s evidence and steps, not made again (its inputs are the run's).
+    start : where the walk started, if known (``WalkStart``, ``(x, y[, floor])``): the particles
+        start within ``KNOWN_START_RADIUS_M`` of it at the first step (without PDR, at the first
+        usable scan), instead of from the first measurement's likelihood over the map.
     """
 
     def __init__(self, building: Building | FloorPlan, inputs: TrackingInputs | None = None,
                  config: TrackingConfig | None = None, *, floor: str | None = None,
                  rng: np.random.Generator | None = None, on_step: Callable[[StepReport], None] | None = None,
-                 log_name: str = "the log", steps: Steps | None = None, prepared: PreparedWalk | None = None) -> None:
+                 log_name: str = "the log", steps: Steps | None = None, prepared: PreparedWalk | None = None,
+                 start: WalkStart | tuple | None = None) -> None:
         if inputs is not None and not isinstance(inputs, TrackingInputs):
             raise TypeError(f"inputs: expected TrackingInputs(radio_map=..., access_points=..., sources=...), got "
                             f"{type(inputs).__name__}")
@@ -247,11 +329,25 @@ class Tracker:
         self.sources = _sources(self.building, self.inputs, config, self.floor_index, stack)
         settings = RunSettings(config.motion, config.filter, config.steps.abs_heading_offset_rad)
         steps_in = (steps if steps is not None else OnlinePDR(config.steps)) if pdr else None
+        self.start = as_start(start)
         self.stream = CausalFilter(plan, evidence, settings, self.rng, steps=steps_in, floors=floors,
-                                   sources=self.sources, on_step=on_step,
+                                   sources=self.sources, on_step=on_step, start=self._known_start(floor),
                                    history=_Recorders(recorders) if recorders else None)
         self._floors = floors
         self.runtime_s = 0.0
+
+    def _known_start(self, floor: str | None) -> Start:
+        """The causal filter's start: within ``KNOWN_START_RADIUS_M`` of the known start (in the
+        filter's plan: a building's stack), at the first step; else from the first measurement."""
+        if self.start is None:
+            return Start()
+        index, xy = self.start.place(self.building, floor)
+        if self.stack is not None:
+            xy = self.stack.to_stack(xy[None, :], index)[0]
+        elif index != self.floor_index:
+            raise MapfilterError(f"the start {self.start} is on floor {self.building.floor_names[index]}, but the "
+                                 f"walk is tracked on floor {self.building.floor_names[self.floor_index]}")
+        return Start(xy, KNOWN_START_RADIUS_M, 1.0, at_first_step=True)
 
     def feed(self, records: Recording) -> Track:
         """The next records of the walk; returns the causal rows they completed (floor frames)."""
@@ -381,7 +477,7 @@ def track(building: Building | FloorPlan, recording: Recording, radio_map: Radio
           on_offline_step: Callable[[StepReport], None] | None = None,
           fix_sigma_by_floor_m: dict[str, float] | None = None,
           floor_evidence: np.ndarray | None = None, rng: np.random.Generator | None = None,
-          sources: Mapping[str, Any] | None = None) -> TrackResult:
+          sources: Mapping[str, Any] | None = None, start: WalkStart | tuple | None = None) -> TrackResult:
     """Track one walk: the replay of its records through a ``Tracker``.
 
     Parameters
@@ -401,13 +497,14 @@ def track(building: Building | FloorPlan, recording: Recording, radio_map: Radio
         each walk and method its own).
     sources : ``{source name: its input}`` of measurement sources (``filter.sources``; e.g.
         ``{"ble": a table}``), weighed too, or alone without WiFi.
+    start : where the walk started, if known (``Tracker``'s).
 
     Tracks carry a floor name per row when the building has several floors.
     """
     config = config if config is not None else TrackingConfig()
     log_name = str(recording.path) if recording.path is not None else "the log"
     tracker = Tracker(building, _inputs(radio_map, access_points, fix_sigma_by_floor_m, floor_evidence, sources),
-                      config, floor=floor, rng=rng, on_step=on_step, log_name=log_name, steps=steps)
+                      config, floor=floor, rng=rng, on_step=on_step, log_name=log_name, steps=steps, start=start)
     tracker.evidence.prepare(scans_of(recording))  # one line naming the log when no scan can be used
     tracker.feed(recording)
     tracker.close()
@@ -417,13 +514,16 @@ def track(building: Building | FloorPlan, recording: Recording, radio_map: Radio
 def track_prepared(walk: PreparedWalk, config: TrackingConfig | None = None, *, rng: np.random.Generator | None = None,
                    on_step: Callable[[StepReport], None] | None = None,
                    on_offline_step: Callable[[StepReport], None] | None = None,
-                   on_smoothed: Callable[[float, np.ndarray, np.ndarray], None] | None = None) -> TrackResult:
+                   on_smoothed: Callable[[float, np.ndarray, np.ndarray], None] | None = None,
+                   start: WalkStart | tuple | None = None) -> TrackResult:
     """Track a walk whose evidence ``prepare_walk`` made (with the same WiFi settings as ``config``);
-    the callbacks are ``Tracker.result``'s and ``on_step`` the filter's."""
+    the callbacks are ``Tracker.result``'s and ``on_step`` the filter's; ``start`` the ``Tracker``'s."""
     config = config if config is not None else TrackingConfig()
     if config.motion.model == "pdr" and walk.steps is None:
         raise MapfilterError("PDR motion needs the walk's steps: prepare the walk with the PDR motion model")
-    tracker = Tracker(walk.building, config=config, rng=rng, on_step=on_step, prepared=walk)
+    floor = None if walk.floor_index is None or walk.building.is_single_floor else \
+        walk.building.floor_names[walk.floor_index]
+    tracker = Tracker(walk.building, config=config, rng=rng, on_step=on_step, prepared=walk, start=start, floor=floor)
     tracker.feed(walk.recording)
     tracker.close()
     tracker.runtime_s += walk.prepare_s  # the walk's evidence is part of tracking it

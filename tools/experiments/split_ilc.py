@@ -29,7 +29,7 @@ sys.path.insert(0, str(REPO))
 
 from mapfilter.config import TrackingConfig  # noqa: E402
 from mapfilter.evaluation.area_split import errors_by_half, half_split, split_directions  # noqa: E402
-from mapfilter.evaluation.baselines import pdr_track  # noqa: E402
+from mapfilter.evaluation.baselines import pdr_start_track  # noqa: E402
 from mapfilter.evaluation.comparison import EvaluationSetup, evaluate, read_walk  # noqa: E402
 from mapfilter.evaluation.metrics import format_table  # noqa: E402
 from mapfilter.maps.building import Building  # noqa: E402
@@ -91,7 +91,7 @@ def run_split(floor: str, tracking: TrackingConfig, jobs: int, work: Path, every
         survey_xy = build_radio_map(survey, plan).xy_m
         for walk in test:
             steps = detect_steps(walk, tracking.steps)
-            track = pdr_track(steps, walk.waypoint_t_s[0], walk.waypoint_xy_m[0])
+            track = pdr_start_track(steps, walk)  # evaluate's pdr-start
             halves = errors_by_half(split, direction.surveyed_side, track, walk.waypoint_t_s, walk.waypoint_xy_m)
             for half, e in zip(HALVES, halves):
                 mine.setdefault((PDR, half), []).append(e)
