@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.estimate import circular_mean
+from mapfilter.filter.estimate import circular_mean, mode_estimate, toward, weighted_moments
 from mapfilter.filter.events import CollapseEvent, StepReport
 from mapfilter.filter.kernels import passes
 from mapfilter.filter.models.building import OneFloor
@@ -74,6 +74,11 @@ class FilterConfig:
             raise MapfilterError(f"init_samples must be a whole number >= 1, got {self.init_samples!r}")
         if not (math.isfinite(self.initial_step_length_m) and self.initial_step_length_m > 0):
             raise MapfilterError(f"initial_step_length_m must be positive, got {self.initial_step_length_m}")
+
+
+import os  # noqa: E402  (WIP: the estimate's variants, measured side by side; removed once chosen)
+
+_ESTIMATE = os.environ.get("MAPFILTER_ESTIMATE", "mode")  # mode | mode-nofollow | mean
 
 
 def optimal_bandwidth(n: int, d: int = 2) -> float:
@@ -178,8 +183,34 @@ class ParticleFilter:
 
     def _set(self, particles: Particles) -> None:
         self.particles = particles
-        self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(particles.xy_m, particles.weight)
+        self._set_estimate(particles.xy_m, particles.weight)
         self._parents_unknown = True
+
+    def _set_estimate(self, xy_m: np.ndarray, weights: np.ndarray, std_m: float | None = None) -> None:
+        """The reported estimate: the main mode of the cloud (of its main floor in a building), reached
+        from the previous estimate without crossing a wall (``filter.estimate``); the spread is the
+        whole cloud's (``std_m`` when the caller has it)."""
+        if _ESTIMATE == "mean":
+            self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(xy_m, weights)
+            return
+        stack = getattr(self.floors, "stack", None)
+        if std_m is None:
+            if stack is None:
+                cov = weighted_moments(xy_m, weights)[1]
+                std_m = float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
+            else:
+                std_m = self.floors.estimate(xy_m, weights)[1]
+        w = weights
+        if stack is not None:  # the floor holding most of the weight: a mode between floors' tiles is no place
+            floor = stack.floor_of(xy_m)
+            w = np.where(floor == int(np.argmax(np.bincount(floor, weights=weights, minlength=stack.n_floors))),
+                         weights, 0.0)
+        target = mode_estimate(self.floorplan, xy_m, w)
+        previous = self.estimate_xy_m
+        if _ESTIMATE == "mode" and previous is not None and (
+                stack is None or stack.floor_of(previous[None, :])[0] == stack.floor_of(target[None, :])[0]):
+            target = toward(self.floorplan, previous, target)  # a change of floor is a jump, not a move
+        self.estimate_xy_m, self.estimate_std_m = target, float(std_m)
 
     def initialise_uniform(self, heading_rad: float | None = None) -> None:
         """N particles uniformly over the free space of the map."""
@@ -318,7 +349,7 @@ class ParticleFilter:
             before_xy = self.estimate_xy_m
             new, parent, ess, recovery = self._recover_from_collapse(t_s, prev)
             weights = new.weight
-            self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(new.xy_m, weights)
+            self._set_estimate(new.xy_m, weights)
             n_alive, means = 0, None
         else:
             n_alive = totals.n_finite
@@ -401,13 +432,17 @@ class ParticleFilter:
         return parent, dict(zip(passes.RESAMPLE_SUMS.names, summed.tolist()))
 
     def _estimate(self, particles: Particles, weights: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> None:
-        """The weighted mean when it is a free point of one floor, else the floor model's estimate
-        (which never reports a point in a wall)."""
-        if not self.floors.changes_floors and np.isfinite(mean).all() and self.floorplan.is_free(mean[None, :])[0]:
-            self.estimate_xy_m = mean
-            self.estimate_std_m = float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
-        else:
-            self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(particles.xy_m, weights)
+        """The estimate of a normalised cloud (``_set_estimate``); ``mean`` and ``cov`` are its
+        moments from the pass' block sums (one floor: the spread without another pass)."""
+        if _ESTIMATE == "mean":
+            if not self.floors.changes_floors and np.isfinite(mean).all() and self.floorplan.is_free(mean[None, :])[0]:
+                self.estimate_xy_m = mean
+                self.estimate_std_m = float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
+            else:
+                self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(particles.xy_m, weights)
+            return
+        std = None if self.floors.changes_floors else float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
+        self._set_estimate(particles.xy_m, weights, std)
 
     # ---- collapse recovery -------------------------------------------------------------------
     def _recover_from_collapse(self, t_s: float, prev: Particles) -> tuple[Particles, np.ndarray, float, str]:

@@ -155,7 +155,7 @@ def test_ipin_evaluate_end_to_end_on_real_logs(ipin2023, tmp_path):
     evaluation = evaluate(building, logs, setup)
     assert not evaluation.failed
     rows = {r["method"]: r for r in evaluation.summary_rows()}
-    assert set(rows) == {"pf", "pf-smooth", "pf-floor", "kwnn", "kf", "pdr"}
+    assert set(rows) == {"pf", "pf-smooth", "pf-floor", "kwnn", "kf", "pdr", "pdr-start"}
     assert rows["pf-floor"]["traces"] == 4  # the walk over two floors has no one floor to give
     for method in ("pf", "pf-smooth", "kwnn"):
         assert rows[method]["floor_accuracy"] >= 0.8, rows[method]
