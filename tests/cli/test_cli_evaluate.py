@@ -22,7 +22,7 @@ def test_every_method_on_the_bundled_walk(tmp_path, capsys):
     printed = capsys.readouterr().out
     with (out / "summary.csv").open() as handle:
         rows = {row["method"]: row for row in csv.DictReader(handle)}
-    assert set(rows) == {"pf", "pf-smooth", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls"}
+    assert set(rows) == {"pf", "pf-smooth", "pf-nomap", "pf-nopdr", "kwnn", "pdr-kwnn", "kf", "pdr", "ls", "pdr-start"}
     for method in rows:
         assert f"| {method} |" in printed
     # with a dense survey the map-aware filter beats the raw fixes; the smoothed track crosses no wall

@@ -305,7 +305,7 @@ def test_evaluate_in_a_building_reports_floor_accuracy_per_method(site1_building
     table = capsys.readouterr().out
     assert "floor_accuracy" in table
     summary = {row["method"]: row for row in json.loads((out / "summary.json").read_text())["summary"]}
-    assert set(summary) == {"pf", "pf-floor", "kwnn", "kf", "pdr", "pf-smooth"}
+    assert set(summary) == {"pf", "pf-floor", "kwnn", "kf", "pdr", "pf-smooth", "pdr-start"}
     assert summary["pf-smooth"]["traces"] == 2 and (out / "tracks" / f1[0].name.split(".")[0] / "pf-smooth.csv").exists()
     assert summary["pf-floor"]["floor_accuracy"] == 1.0  # the floor given
     assert all(0.0 <= row["floor_accuracy"] <= 1.0 for row in summary.values())
