@@ -13,6 +13,7 @@ import contextlib
 import os
 import shutil
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -45,6 +46,51 @@ if TYPE_CHECKING:  # pragma: no cover
 # the viewer cannot draw, and no signal handler runs while it waits).
 VIEWER_FLUSH_LIMIT_S = 20.0
 VIEWER_FLUSH_SLICE_S = 0.25
+
+
+# rerun writes an .rrd file from a thread of its own. On a full disk that thread stops, and a
+# ``save`` that is waiting for it then never returns (rerun 0.41: about half the tries on a full
+# file system) while SIGTERM and Ctrl-C wait behind it: every call that writes the file runs
+# with this deadline.
+RECORDING_WRITE_LIMIT_S = 10.0
+
+
+class WriterHung(MapfilterError):
+    """A rerun call that writes the recording did not return in time (``bounded_write``)."""
+
+
+def bounded_write(call: Callable[[], Any], path: Path | None, limit_s: float | None = None) -> Any:
+    """``call()`` (a rerun call that writes the recording file) within ``limit_s`` (default
+    ``RECORDING_WRITE_LIMIT_S``): its result, or ``MapfilterError`` naming ``path`` when it
+    fails or does not return in time (a full disk). A call that never returns is left to its
+    thread, and rerun's exit handler, which would wait for it too, is dropped."""
+    import rerun as rr
+
+    limit_s = RECORDING_WRITE_LIMIT_S if limit_s is None else limit_s
+    outcome: list = []
+
+    def run() -> None:
+        try:
+            outcome.append((True, call()))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
+            outcome.append((False, exc))
+
+    worker = threading.Thread(target=run, name="mapfilter-rrd-write", daemon=True)
+    worker.start()
+    deadline = time.monotonic() + limit_s
+    while worker.is_alive() and time.monotonic() < deadline:
+        worker.join(VIEWER_FLUSH_SLICE_S)  # in slices: Ctrl-C and SIGTERM are handled between them
+    if worker.is_alive():
+        rr.unregister_shutdown()  # at exit it would flush the stream that hangs
+        raise WriterHung(f"could not write the recording (rerun's file writer did not answer in {limit_s:g} s): is "
+                         "the disk full?", path)
+    ok, value = outcome[0]
+    if ok:
+        return value
+    if isinstance(value, RuntimeError):
+        # "File-writer thread shut down prematurely", "Failed to write: No space left on device"
+        raise MapfilterError(f"could not write the recording ({value}): is the disk full?", path) from None
+    raise value
 
 
 def viewer_executable() -> str | None:
@@ -165,6 +211,9 @@ class RerunLogger:
         warn: Callable[[str], None] | None = None,
         growing: bool = False,
     ) -> None:
+        # rerun's own log lines (a full disk's ERROR and WARN) would come before the run's one line
+        # that says what happened; a RUST_LOG the user set wins
+        os.environ.setdefault("RUST_LOG", "off")
         import rerun as rr  # lazy: only a live logger pays for importing rerun
 
         if (rrd_path is None) == (not spawn):
@@ -177,8 +226,10 @@ class RerunLogger:
         self._closed = False
         self._stack = contextlib.ExitStack()
         self._spawned = spawn
+        self._hung = False  # a call that writes the file did not return: no more calls into the stream
         self._warn = warn
         self._growing = GrowingFile(rrd_path) if growing and rrd_path is not None else None
+        self.rrd_path: Path | None = None if rrd_path is None else Path(rrd_path)
 
         self.rec = rr.RecordingStream(application_id)
         self.rec.set_log_time_enabled(False)  # our clock is the walk's: see the package docstring
@@ -203,13 +254,13 @@ class RerunLogger:
 
             self.plans = FloorPlansLayer(canvas, building)
         blueprint = self.blueprint()
-        self.rrd_path: Path | None = None if rrd_path is None else Path(rrd_path)
         try:
             if self._growing is not None:
-                self.rec.save(self._growing.create(), default_blueprint=blueprint)
+                file = self._growing.create()
+                self._write(lambda: self.rec.save(file, default_blueprint=blueprint))
             elif self.rrd_path is not None:
                 (tmp,) = self._stack.enter_context(atomic_paths(self.rrd_path))
-                self.rec.save(tmp, default_blueprint=blueprint)
+                self._write(lambda: self.rec.save(tmp, default_blueprint=blueprint))
             else:
                 problem = viewer_problem()
                 if problem is not None:
@@ -354,20 +405,34 @@ class RerunLogger:
             self._stack.close()
             return
         self._flush()
+        try:
+            self._write(self.rec.disconnect)  # the file's last bytes
+        except MapfilterError:
+            self.abort()
+            raise
         self._closed = True
-        self.rec.disconnect()
         if self._growing is not None:
             self._growing.publish()
         self._stack.close()
 
     def _flush(self) -> None:
+        """Everything logged so far into the file, within the deadline (``bounded_write``); on
+        failure (a full disk) the run is aborted: no temporary file is left."""
         try:
-            self.rec.flush()
-        except RuntimeError as exc:
-            # rerun writes the file from a thread of its own; a full disk stops that thread,
-            # and flush reports it as "File-writer thread shut down prematurely"
+            self._write(self.rec.flush)
+        except MapfilterError:
             self.abort()  # remove the temporary
-            raise MapfilterError(f"could not write the recording ({exc}): is the disk full?", self.rrd_path) from None
+            raise
+
+    def _write(self, call: Callable[[], Any]) -> None:
+        """A rerun call that writes the file, bounded (``bounded_write``); after one hung, none."""
+        if self._hung:
+            raise WriterHung("could not write the recording: is the disk full?", self.rrd_path)
+        try:
+            bounded_write(call, self.rrd_path)
+        except WriterHung:
+            self._hung = True
+            raise
 
     def abort(self) -> None:
         """Finish without keeping the ``.rrd`` file (e.g. the run failed)."""
@@ -375,9 +440,10 @@ class RerunLogger:
             return
         self._closed = True
         if self._growing is not None and self._growing.published:
-            with contextlib.suppress(RuntimeError):  # a live run's recording keeps what was drawn
-                self.rec.flush()
-        self.rec.disconnect()
+            with contextlib.suppress(MapfilterError):  # a live run's recording keeps what was drawn
+                self._write(self.rec.flush)
+        with contextlib.suppress(MapfilterError):
+            self._write(self.rec.disconnect)
         if self._growing is not None:
             self._growing.discard()  # only when it was never in place
         self._stack.__exit__(RuntimeError, RuntimeError("aborted"), None)
