@@ -75,6 +75,16 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("mapfilter: interrupted", file=sys.stderr)
             return 130
+        except SystemError as exc:
+            # a signal whose handler ran while numba's dispatcher was in Python code: the dispatcher
+            # reports "returned a result with an exception set", the interrupt as its context
+            if isinstance(exc.__context__, Terminated):
+                print("mapfilter: terminated", file=sys.stderr)
+                return 128 + signal.SIGTERM
+            if isinstance(exc.__context__, KeyboardInterrupt):
+                print("mapfilter: interrupted", file=sys.stderr)
+                return 130
+            raise
 
 
 def _main(argv: list[str] | None) -> int:

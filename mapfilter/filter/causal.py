@@ -47,6 +47,8 @@ from mapfilter.filter.models.interface import FloorModel, MeasurementModel, Moti
 from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
 from mapfilter.maps.floorplan import FloorPlan
+from mapfilter.sensors.ipin import MAX_CLOCK_DISAGREEMENT_S
+from mapfilter.sensors.logread import RECORD_BEHIND_LOG_S
 from mapfilter.sensors.pdr import OnlinePDR, Steps
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import iter_scans, scans_recording
@@ -63,6 +65,12 @@ PAUSED_AFTER_S = 3.0
 # scans are taken as passed at the newest record's time less this (IMU samples' own times run a few ms
 # from the times the scans are cut by): rows are not held for the next scan (docs/ipin.md)
 SCAN_PASSED_BEFORE_NEWEST_S = 0.1
+# while a sensor is paused (not waited for), nothing later than this before the newest record is
+# released: the log readers drop a record stamped more than logread.RECORD_BEHIND_LOG_S before the
+# newest of the followed sensors (a clock set back), and place a GetSensorData record within
+# ipin.MAX_CLOCK_DISAGREEMENT_S of its AppTimestamp, so that a paused sensor's next record is never
+# late however the log is chunked
+PAUSED_RELEASE_BEHIND_S = RECORD_BEHIND_LOG_S + 2.0 * MAX_CLOCK_DISAGREEMENT_S
 # at equal times, a step before a scan, ticks before both (a prediction to the scan's time)
 _STEP, _SCAN, _TICK = 0, 1, 2
 # PDR with a barometer in a building: the longest gap between filter steps. A lift ride has no
@@ -112,6 +120,9 @@ class _Merge:
         self.last_t: dict[str, float] = {}  # sensor -> time of its latest record
         self.released_t = -math.inf  # every record before this has been released
         self.late_records = 0
+        # the reader may still give a record of this time (a scan being read, a stream whose
+        # clock went back: ``Recording.pending_t_s``): nothing at or after it is released before it
+        self.pending_t = math.inf
 
     def push(self, sensor: str, t_s: np.ndarray, *values) -> None:
         if len(t_s) == 0:
@@ -142,7 +153,10 @@ class _Merge:
             if stream in last:
                 last[stream] = max(last[stream], newest - behind_s)
         streaming = [t for t in last.values() if newest - t <= PAUSED_AFTER_S]
-        return max(min(streaming), self.released_t)
+        horizon = min(min(streaming), self.pending_t)
+        if len(streaming) < len(last):
+            horizon = min(horizon, newest - PAUSED_RELEASE_BEHIND_S)
+        return max(horizon, self.released_t)
 
     def release(self, horizon: float) -> dict[str, tuple]:
         """sensor -> (t_s, values...) of its records before ``horizon`` (all with ``inf``)."""
@@ -333,6 +347,7 @@ class CausalFilter:
         if self.closed:
             raise RuntimeError("the tracker is closed")
         merge = self._merge
+        merge.pending_t = records.pending_t_s
         merge.push("acc", records.acc_t_s, records.acc_mps2)
         merge.push("gyro", records.gyro_t_s, records.gyro_radps)
         merge.push("rotvec", records.rotvec_t_s, records.rotvec_xyz)

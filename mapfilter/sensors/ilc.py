@@ -35,6 +35,7 @@ What was skipped is in ``Recording.read_report`` (``ReadReport.warning()`` is on
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import zlib
@@ -44,7 +45,8 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.logread import (BadRow, GapTracker, LogReadWarning, RecordStream, ScanAssembler, TimeOrder,
+from mapfilter.sensors.logread import (BadRow, GapTracker, LogClock, LogReadWarning, RecordStream, ScanAssembler,
+                                       TimeOrder,
                                        check_range, clock_before_rows, count_bad_row, count_rows, group_scans,
                                        handle_each, iter_bounded_lines, open_binary, parse_columns, parse_number,
                                        quick_numbers, read_whole, split_by)
@@ -62,6 +64,9 @@ _VECTOR_TYPES = {
     "TYPE_MAGNETIC_FIELD": ("magnet", "magnet_ut"),
     "TYPE_ROTATION_VECTOR": ("rotvec", "quaternion"),
 }
+# The sensors the causal filter merges by time (filter/causal.py): on the log's clock (``LogClock``)
+_FOLLOWED = {kind: k for k, kind in enumerate(("TYPE_ACCELEROMETER", "TYPE_GYROSCOPE", "TYPE_ROTATION_VECTOR",
+                                                "TYPE_PRESSURE", "TYPE_WIFI", "TYPE_BEACON"))}
 # What tracking, evaluation and radio maps read: ground truth, WiFi, the IMU streams that dead
 # reckoning uses (accelerometer, gyroscope, rotation vector) and the barometer the floor
 # tracking uses. The magnetometer and the beacons are read but used by no stage.
@@ -131,6 +136,7 @@ class IlcParser:
         self._waypoints = TimeOrder(report, "TYPE_WAYPOINT")  # records (t_s, x, y, floor or None)
         self._beacons = TimeOrder(report, "TYPE_BEACON")  # records (t_s, id, rssi, distance)
         self._scans = ScanAssembler(report, "TYPE_WIFI")  # rows (t_s, bssid, rssi, freq, age_s)
+        self._clock = LogClock()  # the newest record of the sensors the filter follows
         self._gaps = GapTracker(report)
         self._header: dict[str, str] = {}
 
@@ -211,6 +217,17 @@ class IlcParser:
         """The fast lines ``begin .. end - 1`` (all good records), as line by line."""
         first_line, counts, wifi = [], [], None
         report = self._report
+        # the log's clock over the lines of the sensors the filter follows, in file order
+        followed = np.zeros(end - begin, dtype=bool)
+        sensor_of = np.zeros(end - begin, dtype=np.int64)
+        for kind, (index, _) in parsed.items():
+            if kind in _FOLLOWED:
+                lo, hi = np.searchsorted(index, (begin, end))
+                followed[index[lo:hi] - begin] = True
+                sensor_of[index[lo:hi] - begin] = _FOLLOWED[kind]
+        keep, log_before = np.ones(end - begin, dtype=bool), np.full(end - begin, -np.inf)
+        on_clock = np.flatnonzero(followed)
+        keep[on_clock], log_before[on_clock] = self._clock.keep(clock_t[begin:end][on_clock], sensor_of[on_clock])
         for kind, (index, records) in parsed.items():
             lo, hi = np.searchsorted(index, (begin, end))
             if hi == lo:
@@ -219,16 +236,20 @@ class IlcParser:
             counts.append((kind, int(hi - lo)))
             if records is None:
                 continue
+            kept = keep[index[lo:hi] - begin]
+            if kind != "TYPE_WIFI" and not kept.all():  # behind the log's clock (WiFi: its scans' rule)
+                _count_back(report, kind, int(np.count_nonzero(~kept)))
             if kind in _VECTOR_TYPES:
-                self._vectors[_VECTOR_TYPES[kind][0]].append(records[lo:hi])
+                self._vectors[_VECTOR_TYPES[kind][0]].append(records[lo:hi][kept])
             elif kind == "TYPE_PRESSURE":
-                self._pressure.append(records[lo:hi])
+                self._pressure.append(records[lo:hi][kept])
             elif kind == "TYPE_WAYPOINT":
                 for record in records[lo:hi]:
                     self._waypoints.add(record[0], record)
             elif kind == "TYPE_BEACON":
-                for record in records[lo:hi]:
-                    self._beacons.add(record[0], record)
+                for record, k in zip(records[lo:hi], kept.tolist()):
+                    if k:
+                        self._beacons.add(record[0], record)
             else:
                 wifi = records[lo:hi]
         order = np.argsort(first_line, kind="stable").tolist()
@@ -236,7 +257,7 @@ class IlcParser:
         count_rows(report, [kind for kind, _ in known], [n for _, n in known])
         report.unknown_rows += sum(n for kind, n in counts if kind not in _NUMBER_COLUMNS)
         before, after = clock_before_rows(clock_t[begin:end], is_wifi[begin:end])
-        self._scans.add_rows(wifi or [], before, after)
+        self._scans.add_rows(wifi or [], before, after, log_before[is_wifi[begin:end]])
 
     def take(self, final: bool) -> Recording:
         vectors = {}
@@ -255,6 +276,11 @@ class IlcParser:
         self._gaps.add([t for t, _ in vectors.values()] + [wp[:, 0], baro[:, 0], [scan[0][0] for scan in scans],
                                                            beacon_t])
         start_ms = self._header.get("startTime")
+        # the streams the filter merges by time: what it must wait for (the magnetometer and the
+        # ground truth it does not read)
+        pending = math.inf if final else min(
+            [self._vector_order[name].pending_t for name in ("acc", "gyro", "rotvec")]
+            + [self._pressure_order.pending_t, self._beacons.pending_t, self._scans.pending_t])
         return Recording(
             path=self._report.path,
             floor_name=self._header.get("FloorName") or None,
@@ -271,7 +297,16 @@ class IlcParser:
             pressure_t_s=baro[:, 0].copy(), pressure_hpa=baro[:, 1].copy(),
             waypoint_floor=floors if floors and None not in floors else None,
             phone_model=self._header.get("Model") or None,
+            pending_t_s=pending,
         )
+
+    def _on_clock(self, kind: str, t_s: float) -> bool:
+        """One record of a followed sensor on the log's clock (``LogClock``): whether it is kept
+        (WiFi rows only move the clock; their scans' own rule decides)."""
+        kept = bool(self._clock.keep(np.array([t_s]), _FOLLOWED[kind])[0][0])
+        if not kept and kind != "TYPE_WIFI":
+            _count_back(self._report, kind, 1)
+        return kept
 
     def _count(self, kind: str | None) -> None:
         report = self._report
@@ -295,9 +330,9 @@ class IlcParser:
                 t_s = _time_s(fields)
                 values = [check_range(kind, axis, parse_number(kind, fields, column), quantity)
                           for axis, column in (("x", 2), ("y", 3), ("z", 4))]
-            self._vectors[name].append(np.array([[t_s, *values]], dtype=np.float64))
-            if t_s > self._scans.open_t:
-                self._scans.clock(t_s)
+            if kind not in _FOLLOWED or self._on_clock(kind, t_s):
+                self._vectors[name].append(np.array([[t_s, *values]], dtype=np.float64))
+            self._scans.clock(t_s)
             return kind
         if kind == "TYPE_WIFI":
             if len(fields) < 7:
@@ -310,7 +345,9 @@ class IlcParser:
             if not bssid:
                 raise BadRow(kind, "malformed TYPE_WIFI line: empty BSSID")
             t_s = t_ms / 1000.0
-            self._scans.add(t_s, (t_s, bssid, rssi, freq, (t_ms - seen_ms) / 1000.0))
+            log_t = self._clock.newest_t
+            self._on_clock(kind, t_s)  # a scan's own rule decides whether it went back (ScanAssembler)
+            self._scans.add(t_s, (t_s, bssid, rssi, freq, (t_ms - seen_ms) / 1000.0), log_t)
             return kind
         if kind == "TYPE_WAYPOINT":
             t_s = _time_s(fields)
@@ -321,18 +358,24 @@ class IlcParser:
         elif kind == "TYPE_PRESSURE":
             t_s = _time_s(fields)
             hpa = check_range(kind, "pressure", parse_number(kind, fields, 2), "pressure_hpa")
-            self._pressure.append(np.array([[t_s, hpa]], dtype=np.float64))
+            if self._on_clock(kind, t_s):
+                self._pressure.append(np.array([[t_s, hpa]], dtype=np.float64))
         elif kind == "TYPE_BEACON":
             if len(fields) < 8:
                 raise BadRow(kind, f"malformed TYPE_BEACON line: {len(fields)} fields, expected 10")
             t_s = _time_s(fields)
             rssi = check_range(kind, "RSSI", parse_number(kind, fields, 6), "rssi_dbm")
             distance = check_range(kind, "distance", parse_number(kind, fields, 7), "distance_m")
-            self._beacons.add(t_s, (t_s, _beacon_id(fields), rssi, distance))
+            if self._on_clock(kind, t_s):
+                self._beacons.add(t_s, (t_s, _beacon_id(fields), rssi, distance))
         else:
             return None  # other record types are skipped
         self._scans.clock(t_s)
         return kind
+
+
+def _count_back(report: ReadReport, kind: str, n: int) -> None:
+    report.went_back[kind] = report.went_back.get(kind, 0) + n
 
 
 def _beacon_id(fields: list[str]) -> str:

@@ -63,7 +63,8 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.logread import (BadRow, GapTracker, RecordStream, ScanAssembler, TimeOrder, check_range,
+from mapfilter.sensors.logread import (BadRow, GapTracker, LogClock, RecordStream, ScanAssembler, TimeOrder,
+                                       check_range,
                                        clock_before_rows, count_rows, group_scans, handle_each, iter_bounded_lines,
                                        open_binary, parse_columns, parse_number, quick_numbers, read_whole, split_by)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
@@ -90,6 +91,8 @@ _SENSOR_TYPES = {
     "PRES": ("pressure", "pressure_hpa", 1),
 }
 _AXES = ("x", "y", "z")
+# The sensors the causal filter merges by time (filter/causal.py): on the log's clock (``LogClock``)
+_FOLLOWED = {kind: k for k, kind in enumerate(("ACCE", "GYRO", "AHRS", "PRES", "WIFI", "BLE4"))}
 _RECORD = re.compile(r"[A-Z][A-Z0-9]{3};")
 # What the block parse reads of each record type as numbers (AppTimestamp first) and their
 # quantities (logread.RANGES), as the line parse reads them
@@ -153,6 +156,7 @@ class GsdParser:
         self._next_end_s = -math.inf  # the earliest end of a window still open (-inf: no record yet)
         self._released = False  # the log's window has ended: records go out
         self._wifi = ScanAssembler(report, "WIFI")  # rows (app_s, bssid, rssi, freq, sensor_s)
+        self._clock = LogClock()  # the newest AppTimestamp of the sensors the filter follows
         self._wifi_offset_s: float | None = None  # the accelerometer's: WiFi last-seen times are on its clock
         self._posi = TimeOrder(report, "POSI")  # records (app_s, lat, lon, floor)
         self._beacons = TimeOrder(report, "BLE4")  # records (app_s, MAC, rssi)
@@ -246,17 +250,32 @@ class GsdParser:
         """The fast lines ``begin .. end - 1`` (good records; none ends a window), as line by line."""
         first_line, counts, wifi = [], [], None
         report = self._report
+        # the log's clock over the lines of the sensors the filter follows, in file order
+        followed = np.zeros(end - begin, dtype=bool)
+        sensor_of = np.zeros(end - begin, dtype=np.int64)
+        for kind, (index, _) in parsed.items():
+            if kind in _FOLLOWED:
+                lo, hi = np.searchsorted(index, (begin, end))
+                followed[index[lo:hi] - begin] = True
+                sensor_of[index[lo:hi] - begin] = _FOLLOWED[kind]
+        keep, log_before = np.ones(end - begin, dtype=bool), np.full(end - begin, -np.inf)
+        on_clock = np.flatnonzero(followed)
+        keep[on_clock], log_before[on_clock] = self._clock.keep(app_t[begin:end][on_clock], sensor_of[on_clock])
         for kind, (index, records) in parsed.items():
             lo, hi = np.searchsorted(index, (begin, end))
             if hi == lo:
                 continue
             first_line.append(int(index[lo]))
             counts.append((kind, int(hi - lo)))
+            kept = keep[index[lo:hi] - begin]
+            if kind in _FOLLOWED and kind != "WIFI" and not kept.all():  # behind the log's clock
+                report.went_back[kind] = report.went_back.get(kind, 0) + int(np.count_nonzero(~kept))
             if kind in _SENSOR_TYPES:
-                self._raw[_SENSOR_TYPES[kind][0]].append(records[lo:hi])
+                self._raw[_SENSOR_TYPES[kind][0]].append(records[lo:hi][kept])
             elif kind == "BLE4":
-                for record in records[lo:hi]:
-                    self._beacons.add(record[0], record)
+                for record, k in zip(records[lo:hi], kept.tolist()):
+                    if k:
+                        self._beacons.add(record[0], record)
             elif kind == "WIFI":
                 wifi = records[lo:hi]
         order = np.argsort(first_line, kind="stable").tolist()
@@ -264,7 +283,7 @@ class GsdParser:
         count_rows(report, [kind for kind, _ in known], [n for _, n in known])
         report.unknown_rows += sum(n for kind, n in counts if parsed[kind][1] is None)
         before, after = clock_before_rows(app_t[begin:end], is_wifi[begin:end])
-        self._wifi.add_rows(wifi or [], before, after)
+        self._wifi.add_rows(wifi or [], before, after, log_before[is_wifi[begin:end]])
 
     def take(self, final: bool) -> Recording:
         if final:
@@ -297,6 +316,15 @@ class GsdParser:
         self._gaps.add([t for t, _ in streams.values()] + [waypoint_t, [base_s + scan[0][0] for scan in scans],
                                                            beacon_t])
         floors = [r[3] for r in posi]
+        # the streams the filter merges by time: what it must wait for (a stream still in its own
+        # clock window holds rows whose placed times lie within MAX_CLOCK_DISAGREEMENT_S of their app times)
+        pending = math.inf
+        if not final:
+            held = [np.concatenate(self._raw[name])[:, 0].min() for name in ("acc", "gyro", "rotvec", "pressure")
+                    if self._offset_s.get(name) is None and self._raw[name]]
+            pending = min([base_s + t - MAX_CLOCK_DISAGREEMENT_S for t in held]
+                          + [base_s + self._order[name].pending_t for name in ("acc", "gyro", "rotvec", "pressure")]
+                          + [base_s + self._beacons.pending_t, base_s + self._wifi.pending_t])
         return Recording(
             path=self._report.path,
             floor_name=self._floors[0] if len(self._floors) == 1 else None,
@@ -315,7 +343,16 @@ class GsdParser:
             waypoint_floor=floors or None,
             waypoint_latlon_deg=np.array([[r[1], r[2]] for r in posi], dtype=np.float64) if posi else None,
             phone_model=self._phone_model(),
+            pending_t_s=pending,
         )
+
+    def _on_clock(self, kind: str, app_s: float) -> bool:
+        """One record of a followed sensor on the log's clock (``logread.LogClock``): whether it is
+        kept (WiFi rows only move the clock; their scans' own rule decides)."""
+        kept = bool(self._clock.keep(np.array([app_s]), _FOLLOWED[kind])[0][0])
+        if not kept and kind != "WIFI":
+            self._report.went_back[kind] = self._report.went_back.get(kind, 0) + 1
+        return kept
 
     def _phone_model(self) -> str | None:
         model = self._info.get("Model")
@@ -407,11 +444,11 @@ class GsdParser:
                     raise BadRow(kind, "AHRS quaternion out of range: x^2 + y^2 + z^2 > 1 (not a unit quaternion)")
             if app_s > self._next_end_s:
                 self._at(app_s)
-            if app_s > self._wifi.open_t:
-                self._wifi.clock(app_s)
+            self._wifi.clock(app_s)
             if name in self._waiting:
                 self._begin_late_stream(name, app_s)
-            self._raw[name].append(np.array([[app_s, sensor_s, *values]], dtype=np.float64))
+            if kind not in _FOLLOWED or self._on_clock(kind, app_s):
+                self._raw[name].append(np.array([[app_s, sensor_s, *values]], dtype=np.float64))
             return kind
         if kind == "WIFI":
             while len(fields) > 7 and not fields[-1].strip():
@@ -429,7 +466,9 @@ class GsdParser:
                 raise BadRow(kind, "malformed WIFI line: empty BSSID")
             if app_s > self._next_end_s:
                 self._at(app_s)
-            self._wifi.add(app_s, (app_s, bssid, rssi, freq, sensor_s))
+            log_t = self._clock.newest_t
+            self._on_clock(kind, app_s)  # a scan's own rule decides whether it went back (ScanAssembler)
+            self._wifi.add(app_s, (app_s, bssid, rssi, freq, sensor_s), log_t)
             return kind
         if kind == "BLE4":
             if len(fields) < 5:
@@ -439,7 +478,8 @@ class GsdParser:
             mac = fields[3].strip().upper()  # iBeacon and Eddystone alike
             if not mac:
                 raise BadRow(kind, "malformed BLE4 line: empty MAC")
-            self._beacons.add(app_s, (app_s, mac, rssi))
+            if self._on_clock(kind, app_s):
+                self._beacons.add(app_s, (app_s, mac, rssi))
         elif kind == "POSI":
             if len(fields) < 6:
                 raise BadRow(kind, f"malformed POSI line: {len(fields)} fields, expected 7")

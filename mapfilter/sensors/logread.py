@@ -272,6 +272,18 @@ def group_scans(rows: list[tuple[float, str, float, float, float]], max_age_s: f
 # The longest pause in one stream of the real logs: 28.5 s (ILC beacons), 78 s (IPIN beacons,
 # which are then held, not dropped).
 JUMP_CHECK_S = GAP_REPORT_S
+# A record of a sensor the filter follows stamped this far before the newest such record the log
+# already gave came after the log's clock (or its sensor's) went back: dropped as went back, read
+# whole or live (``LogClock``). The ILC logger writes its IMU rows up to 1.8 s behind its WiFi rows
+# (191 logs); a GetSensorData log is in AppTimestamp order. A live run's filter does not wait for
+# a sensor this far behind (filter/causal.py PAUSED_AFTER_S) and would have moved on.
+RECORD_BEHIND_LOG_S = 3.0
+# A WiFi scan stamped this far before a record the log already gave came after the log's clock
+# went back: dropped as went back, read whole or live. A live run's filter takes the WiFi as
+# passed at its newest record's time less this (filter/causal.py SCAN_PASSED_BEFORE_NEWEST_S)
+# and has moved on by then; in every real log (191 ILC, 29 IPIN 2023) a scan's first row comes
+# before any record stamped after it.
+SCAN_BEHIND_LOG_S = 0.1
 # How far into a log its format is looked for (a header is some 40 lines), blank lines included:
 # lines are held until then.
 SNIFF_LINES = 200
@@ -405,6 +417,15 @@ class TimeOrder:
         self._tail: set[tuple] = set()  # the kept records of time _last_t
         self._held: tuple[float, tuple] | None = None  # (time, record) far after the last kept one
         self._kept: list[tuple] = []  # kept records not yet taken
+        self._behind = False  # its latest record went back: its clock has not passed _last_t again
+
+    @property
+    def pending_t(self) -> float:
+        """The earliest time a later record of this stream can still be kept at: a record it holds
+        back, or, while its records go back in time (a clock set back), the latest kept one's;
+        inf when neither (its next records come after what it gave)."""
+        held = self._held[0] if self._held is not None else math.inf
+        return min(held, self._last_t) if self._behind else held
 
     def add(self, t: float, record: tuple) -> None:
         """One record of time ``t``; ``record`` holds all its values."""
@@ -415,6 +436,7 @@ class TimeOrder:
                 self._keep(held_t, held)
             else:
                 _count(self._report.went_back, self._kind, 1)
+        self._behind = t < self._last_t
         if t < self._last_t:
             _count(self._report.went_back, self._kind, 1)
         elif t == self._last_t:
@@ -454,6 +476,7 @@ class TimeOrder:
                 self.add(row[0], tuple(row))
             return np.array(self.take(final), dtype=np.float64).reshape(-1, rows.shape[1])
         back = t < before
+        self._behind = bool(back[-1])
         if back.any():
             _count(self._report.went_back, self._kind, int(np.count_nonzero(back)))
             rows = rows[~back]
@@ -494,6 +517,54 @@ class TimeOrder:
         return rows[keep]
 
 
+class LogClock:
+    """The log's clock: the newest record so far, in file order, of the sensors the filter follows.
+    A record stamped more than :data:`RECORD_BEHIND_LOG_S` before it came after a clock went
+    back (the log's, or its sensor's alone) and is not kept. Records more than
+    :data:`JUMP_CHECK_S` ahead of it move it only once two sensors have each given two such
+    records in a row (a pause, or the log's clock set forward): a lone row stamped ahead, or one
+    sensor whose clock ran ahead, does not. Its verdicts depend on the records before each in
+    the file only, whatever pieces they come in."""
+
+    def __init__(self) -> None:
+        self.newest_t = -math.inf
+        # sensor -> (its earliest record of its latest run far ahead of the clock, records in that run)
+        self._ahead: dict[int, tuple[float, int]] = {}
+
+    def keep(self, t_s, sensor) -> tuple[np.ndarray, np.ndarray]:
+        """(each of these records is kept: within :data:`RECORD_BEHIND_LOG_S` of the clock before
+        it (N,) bool; the clock before each (N,)) of the next records in file order (``sensor``:
+        each one's sensor, a small integer); the clock moves on."""
+        t = np.asarray(t_s, dtype=np.float64).reshape(-1)
+        if t.size == 0:
+            return np.ones(0, dtype=bool), np.zeros(0)
+        before = np.maximum.accumulate(np.concatenate(([self.newest_t], t[:-1])))
+        if not self._ahead and not np.any((t - before > JUMP_CHECK_S) & (before > -math.inf)):
+            self.newest_t = max(self.newest_t, float(t.max()))  # a record behind never holds the maximum
+            return ~(t < before - RECORD_BEHIND_LOG_S), before
+        sensors = np.broadcast_to(np.asarray(sensor), t.shape).tolist()
+        kept, before = np.ones(t.size, dtype=bool), np.empty(t.size)
+        for i, x in enumerate(t.tolist()):
+            before[i] = self.newest_t
+            kept[i] = self._one(x, int(sensors[i]))
+        return kept, before
+
+    def _one(self, t: float, sensor: int) -> bool:
+        if t < self.newest_t - RECORD_BEHIND_LOG_S:
+            return False
+        if t - self.newest_t > JUMP_CHECK_S and self.newest_t > -math.inf:
+            first, run = self._ahead.get(sensor, (t, 0))
+            self._ahead[sensor] = (min(first, t), run + 1)
+            moved = [first for first, run in self._ahead.values() if run >= 2]
+            if len(moved) >= 2:  # two sensors went on far ahead: the log's clock moved on
+                self.newest_t = min(moved)
+                self._ahead = {k: v for k, v in self._ahead.items() if v[0] - self.newest_t > JUMP_CHECK_S}
+            return True
+        self._ahead.pop(sensor, None)
+        self.newest_t = max(self.newest_t, t)
+        return True
+
+
 class ScanAssembler:
     """WiFi rows -> scans: the rows of one time are one scan, complete once a record of a later
     time (of any type: :meth:`clock`) has come, or the stream ends (:meth:`finish`).
@@ -515,9 +586,19 @@ class ScanAssembler:
         self._before_t = -math.inf  # the time of the scan before the one being filled
         self._held: tuple[float, list[tuple], float] | None = None  # a complete far scan, the time before it
         self._complete: list[list[tuple]] = []  # scans complete and not yet taken, each its rows
+        self._behind = False  # its latest row went back: its clock has not passed _last_t again
 
-    def add(self, t: float, row: tuple) -> None:
-        """One WiFi row of scan time ``t``; ``row`` holds all its values."""
+    @property
+    def pending_t(self) -> float:
+        """The earliest time a later scan can still come at: the scan being filled, a far scan
+        held back, or, while rows go back in time, the latest scan's; inf when none of those."""
+        pending = min(self.open_t if self._rows else math.inf, self._held[0] if self._held is not None else math.inf)
+        return min(pending, self._last_t) if self._behind else pending
+
+    def add(self, t: float, row: tuple, log_t: float = -math.inf) -> None:
+        """One WiFi row of scan time ``t``; ``row`` holds all its values; ``log_t``: the log's
+        clock before it (``LogClock``), which a new scan may not be behind by more than
+        :data:`SCAN_BEHIND_LOG_S`."""
         if t == self.open_t:
             if row in self._seen:
                 _count(self._report.duplicates, self._kind, 1)
@@ -535,7 +616,8 @@ class ScanAssembler:
             else:
                 _count(self._report.went_back, self._kind, len(rows))
                 self._last_t = before_t
-        if t <= self._last_t:
+        self._behind = t <= self._last_t or t < log_t - SCAN_BEHIND_LOG_S
+        if self._behind:  # behind its own scans, or the log's clock (SCAN_BEHIND_LOG_S)
             _count(self._report.went_back, self._kind, 1)
             return
         self._open_far = t - self._last_t > JUMP_CHECK_S and self._last_t > -math.inf
@@ -549,14 +631,17 @@ class ScanAssembler:
         if t > self.open_t:
             self.finish()
 
-    def add_rows(self, rows: list[tuple], clock_before: np.ndarray, clock_after: float) -> None:
+    def add_rows(self, rows: list[tuple], clock_before: np.ndarray, clock_after: float,
+                 log_before: np.ndarray | None = None) -> None:
         """WiFi rows in file order (each's time first), each after a :meth:`clock` of
         ``clock_before`` (the latest record of another type since the row before: -inf, none),
-        then a clock of ``clock_after``: what :meth:`add` and :meth:`clock` would do line by line."""
-        for row, t in zip(rows, clock_before.tolist()):
+        then a clock of ``clock_after``: what :meth:`add` and :meth:`clock` would do line by line
+        (``log_before``: the log's clock before each row, ``add``'s ``log_t``)."""
+        logs = log_before.tolist() if log_before is not None else [-math.inf] * len(rows)
+        for row, t, log_t in zip(rows, clock_before.tolist(), logs):
             if t > self.open_t:
                 self.finish()
-            self.add(row[0], row)
+            self.add(row[0], row, log_t)
         if clock_after > self.open_t:
             self.finish()
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -240,6 +241,10 @@ class Recording:
     # ``waypoint_xy_m`` is NaN
     waypoint_latlon_deg: np.ndarray | None = None
     phone_model: str | None = None  # the phone the log names in its header, if any
+    # a chunk of a log read as it arrives (``sensors.logs.LogStream``): the earliest time a record
+    # the filter reads can still come at (a WiFi scan not yet complete, a record held back, a stream
+    # whose clock went back and has not passed its latest record again); inf: none, as in a whole log
+    pending_t_s: float = math.inf
 
     @property
     def has_ground_truth(self) -> bool:
@@ -332,6 +337,7 @@ def concatenate(chunks: Sequence[Recording]) -> Recording:
         read_report=last.read_report,
         pressure_t_s=rows("pressure_t_s", None), pressure_hpa=rows("pressure_hpa", None),
         waypoint_floor=floors, waypoint_latlon_deg=latlon, phone_model=last.phone_model,
+        pending_t_s=last.pending_t_s,
     )
 
 

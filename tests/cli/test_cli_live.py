@@ -228,3 +228,22 @@ def test_a_live_run_streams_to_a_viewer_with_spawn(tmp_path, capsys, monkeypatch
     printed = capsys.readouterr().out.splitlines()
     # every filter step drawn: a row each, but for the header and the start's row
     assert len(spawned) == 1 and len(drawn) == len(printed) - 2 > 100
+
+
+@pytest.mark.parametrize("interrupt, code", [("Terminated", 143), ("KeyboardInterrupt", 130)])
+def test_a_signal_inside_a_numba_call_ends_as_the_signal(monkeypatch, capsys, interrupt, code):
+    """A signal whose handler runs while numba's dispatcher is in Python code reaches the command
+    as a SystemError ("returned a result with an exception set") with the interrupt as its context
+    (a live run killed at a random point, about 1 time in 20): it ends as the signal does."""
+    import mapfilter.cli as cli
+    from mapfilter.cli import track_cmd
+
+    def run(args):
+        try:
+            raise getattr(cli, interrupt, KeyboardInterrupt)()
+        except KeyboardInterrupt:
+            raise SystemError("CPUDispatcher(<function _weighted_sums>) returned a result with an exception set")
+
+    monkeypatch.setattr(track_cmd, "run", run)
+    assert main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP)]) == code
+    assert "Traceback" not in capsys.readouterr().err

@@ -230,24 +230,20 @@ def test_an_imu_clock_that_jumps_back_20_s_drops_what_went_back_with_a_warning(t
     path.write_text(_ilc_walk(60, jump_back_at_s=30.0))
     warnings = []
     rec = read_ilc(path, warn=warnings.append)
-    # the samples of the 20 s after the jump repeat times already read: they are dropped, and no
-    # sample is out of order (the first one back at the last kept time is kept: it is not a repeat)
+    # the samples after the jump first repeat times already read (behind their own stream), then
+    # run 20 s behind the WiFi and the waypoints (behind the log's clock, logread.LogClock): a live
+    # run would have moved on without them, so a whole read drops them too, and no sample is out
+    # of order
     for t in (rec.acc_t_s, rec.gyro_t_s, rec.rotvec_t_s):
-        assert np.all(np.diff(t) >= 0) and np.count_nonzero(np.diff(t) == 0) == 1
+        assert np.all(np.diff(t) > 0) and t[-1] < T0 / 1000 + 30
     for t in (rec.wifi.t_s, rec.waypoint_t_s):
         assert np.all(np.diff(t) > 0)
-    dropped = 20 * 50 - 1
+    dropped = 30 * 50
     assert rec.read_report.went_back == {k: dropped for k in ("TYPE_ACCELEROMETER", "TYPE_GYROSCOPE",
                                                               "TYPE_ROTATION_VECTOR")}
     assert rec.read_report.duplicates == {} and len(rec.wifi) == 30 and rec.waypoint_t_s.size == 6
     assert rec.acc_t_s.size == 60 * 50 - dropped
-    # after the jump the IMU goes on where it was: a 20 s stretch of the walk is missing, as in a gap
-    assert np.max(np.diff(rec.acc_t_s)) == pytest.approx(0.02, abs=1e-6)
-    assert len(warnings) == 1 and f"{3 * dropped} rows that went back in time" in warnings[0]
-    assert f"{dropped} TYPE_ACCELEROMETER" in warnings[0]
-    # streamed: the same
-    assert_same(stream_pieces(random_pieces(path.read_bytes(), np.random.default_rng(3)), path),
-                          read_log(path, warn=lambda m: None))
+    assert len(warnings) == 1 and f"skipped {3 * dropped} rows that went back in time" in warnings[0]
 
 
 def test_a_getsensordata_sensor_clock_that_jumps_back_20_s_is_placed_at_the_app_clock(tmp_path):
