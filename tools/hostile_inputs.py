@@ -256,6 +256,7 @@ def make_files(work: Path, skip_slow: bool) -> None:
     (work / "outdir").mkdir()
     make_files_36(work)
     make_files_45(work, skip_slow)
+    make_files_53(work)
 
 
 # ---- issue 36's files -------------------------------------------------------------------------
@@ -374,6 +375,18 @@ def make_files_36(work: Path) -> None:
                                               f"  - {{name: b, map: {MAP}, elevation_m: 0}}\n")
     shutil.copy(WALK, work / "summary.txt.gz")
     _write_walk(work / "clock_back.txt", lambda lines: _shift_after(lines, 1_600_000_060_000, -20_000))
+
+
+def make_files_53(work: Path) -> None:
+    """Issue 53's inputs: the probe's log whose IMU clock (not the WiFi's) jumps back 20 s at 60 s,
+    and a track to view."""
+    def imu_back(lines: list[str]) -> list[str]:
+        for kind in ("TYPE_ACCELEROMETER", "TYPE_GYROSCOPE", "TYPE_MAGNETIC_FIELD", "TYPE_ROTATION_VECTOR"):
+            lines = _shift_after(lines, 1_600_000_060_000, -20_000, only=kind)
+        return lines
+
+    _write_walk(work / "clock_back_imu.txt", imu_back)
+    (work / "view_track.csv").write_text("t_s,x_m,y_m,std_m,heading_rad\n1600000000,15,10,1,0\n1600000001,16,10,1,0\n")
 
 
 # ---- issue 45's files ------------------------------------------------------------------------
@@ -732,6 +745,21 @@ print(f"fed whole: {{counts[0]}} rows; in 64 KiB pieces: {{counts[1]}} rows", fi
 sys.exit(0 if counts[0] == counts[1] else 1)
 """
 
+# track FILE and track - on the same bytes: the same rows (issue 53)
+_LIVE_VS_FILE = """
+import subprocess, sys
+common = ["--radiomap", {rm!r}, "--particles", "1000", "--seed", "1"]
+run = lambda log, out, **kw: subprocess.run([sys.executable, "-m", "mapfilter", "track", {map!r}, log, *common,
+                                             "--out", out], capture_output=True, text=True, **kw)
+run({log!r}, "outdir/from_file.csv")
+with open({log!r}, "rb") as handle:
+    run("-", "outdir/from_stdin.csv", stdin=handle)
+rows = [open(f"outdir/from_{{how}}.csv").read().splitlines() for how in ("file", "stdin")]
+print(f"track FILE: {{len(rows[0]) - 1}} rows; track -: {{len(rows[1]) - 1}} rows; "
+      f"{{'the same' if rows[0] == rows[1] else 'not the same'}}", file=sys.stderr)
+sys.exit(0 if rows[0] == rows[1] and len(rows[0]) > 50 else 1)
+"""
+
 _OFFICE = {"map": str(MAP), "walk": str(WALK), "rm": str(RADIOMAP)}
 USER = ("user/office.yaml", "user/office.png", "user/office_radiomap.npz", "user/office_walk.txt.gz",
         "user/walk.txt", "user/office_aps.csv")
@@ -937,7 +965,7 @@ CASES = [
          python=_fmt(_REPLACED_INPUT, what="radiomap"), must_say="resuming: 0 of 1"),
     Case("track --out-dir, a log named summary.txt.gz", "cli/track_cmd.py", None, (0,), python=_SUMMARY_LOG,
          must_say="summary.track.csv: 't_s"),
-    Case("an IMU clock that jumps back 20 s", "sensors/pdr.py (lead)", _track("{w}/clock_back.txt", "--radiomap",
+    Case("every clock jumps back 20 s", "sensors/logread.py", _track("{w}/clock_back.txt", "--radiomap",
                                                                               str(RADIOMAP)), (0,), must_say="back"),
     Case("--kwnn-min-rssi nan", "cli/tracking_options.py", _track(WALK, "--radiomap", str(RADIOMAP),
                                                                   "--kwnn-min-rssi", "nan"), (2,)),
@@ -1066,9 +1094,20 @@ CASES = [
     Case("a log of 20 MB of random bytes without a newline", "sensors/logread.py",
          _track("{w}/random_one_line.bin", "--radiomap", str(RADIOMAP)), max_s=15, one_line=True,
          must_say="binary data"),
-    Case("an IMU clock 20 s back, fed whole and in 64 KiB pieces", "filter/causal.py (open)", None, (0,),
-         python=_fmt(_CHUNKED_ROWS, log="clock_back.txt", **_OFFICE), must_say="fed whole"),
-]
+    Case("every clock 20 s back, fed whole and in 64 KiB pieces", "sensors/logread.py, filter/causal.py", None,
+         (0,), python=_fmt(_CHUNKED_ROWS, log="clock_back.txt", **_OFFICE), must_say="fed whole"),
+] + [  # issue 53: the probe's two cases
+    Case("the IMU clock 20 s back, fed whole and in 64 KiB pieces", "sensors/logread.py, filter/causal.py", None,
+         (0,), python=_fmt(_CHUNKED_ROWS, log="clock_back_imu.txt", **_OFFICE), must_say="fed whole"),
+    Case("the IMU clock 20 s back: track - against track FILE", "sensors/logread.py, filter/causal.py", None, (0,),
+         python=_fmt(_LIVE_VS_FILE, log="clock_back_imu.txt", **_OFFICE), must_say="the same"),
+] + [Case(f"full disk: {command} --rerun, try {k} of 5", "viz/recorder.py",
+          (lambda w, k=k: _track(WALK, "--radiomap", str(RADIOMAP), "--particles", "500", "--rerun",
+                                 f"{w}/outdir/t{k}.rrd")(w)) if command == "track" else
+          (lambda w, k=k: ["view", str(MAP), f"{w}/view_track.csv", "--log", str(WALK), "--rerun",
+                           f"{w}/outdir/v{k}.rrd"]),
+          fsize_bytes=4096, max_s=30, one_line=True, must_say="is the disk full?")
+     for command in ("track", "view") for k in range(1, 6)]
 
 
 # ---- running ------------------------------------------------------------------------------------
