@@ -66,6 +66,17 @@ def _beacon_rows(walk, rng: np.random.Generator, noise_db: float = 4.0, rate_hz:
     return [line for _, line in sorted(rows)]
 
 
+def _with_beacons(plain_text: str, rows: list[str]) -> str:
+    """An ILC log with beacon rows in time order among its records, as a phone writes them (a
+    reading stamped minutes before records already written went back with the log's clock:
+    sensors/logread.LogClock)."""
+    lines = plain_text.splitlines(keepends=True)
+    header = [line for line in lines if line.startswith("#")]
+    records = sorted([line for line in lines if not line.startswith("#")] + rows,
+                     key=lambda line: int(line.split("\t", 1)[0]))
+    return "".join(header + records)
+
+
 @pytest.fixture(scope="module")
 def office_walk(tmp_path_factory):
     """(plan, the simulated walk with beacon readings as read back, the walk's truth, log path)."""
@@ -80,7 +91,7 @@ def office_walk(tmp_path_factory):
     plain = folder / "plain.txt"
     write_ilc(walk, plain)
     path = folder / "walk.txt"
-    path.write_text(plain.read_text() + "".join(_beacon_rows(walk, np.random.default_rng(12))))
+    path.write_text(_with_beacons(plain.read_text(), _beacon_rows(walk, np.random.default_rng(12))))
     recording = read_ilc(path)
     assert len(recording.beacons.t_s) > 500
     return plan, recording, walk, path
@@ -548,7 +559,7 @@ def test_leave_one_out_fits_each_walks_beacons_without_it(office_walk, tmp_path)
     write_ilc(walk, plain)
     second_path = tmp_path / "second.txt"
     rows = _beacon_rows(walk, np.random.default_rng(22), noise_db=6.0)
-    second_path.write_text(plain.read_text() + "".join(rows))
+    second_path.write_text(_with_beacons(plain.read_text(), rows))
     second = read_ilc(second_path)
     positions = tmp_path / "positions.csv"
     _office_table(c_dbm=-50.0, n=3.0).write_csv(positions)
