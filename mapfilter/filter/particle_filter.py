@@ -76,10 +76,6 @@ class FilterConfig:
             raise MapfilterError(f"initial_step_length_m must be positive, got {self.initial_step_length_m}")
 
 
-import os  # noqa: E402  (WIP: the estimate's variants, measured side by side; removed once chosen)
-
-_ESTIMATE = os.environ.get("MAPFILTER_ESTIMATE", "mode")  # mode | mode-nofollow | mean
-
 
 def optimal_bandwidth(n: int, d: int = 2) -> float:
     """Musso, Oudjane & Le Gland's optimal h = A N^(-1/(d+4)) of a Gaussian kernel, A = (4/(d+2))^(1/(d+4))."""
@@ -186,28 +182,30 @@ class ParticleFilter:
         self._set_estimate(particles.xy_m, particles.weight)
         self._parents_unknown = True
 
-    def _set_estimate(self, xy_m: np.ndarray, weights: np.ndarray, std_m: float | None = None) -> None:
-        """The reported estimate: the main mode of the cloud (of its main floor in a building), reached
-        from the previous estimate without crossing a wall (``filter.estimate``); the spread is the
-        whole cloud's (``std_m`` when the caller has it)."""
-        if _ESTIMATE == "mean":
-            self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(xy_m, weights)
-            return
+    def _set_estimate(self, xy_m: np.ndarray, weights: np.ndarray, std_m: float | None = None,
+                      mean: np.ndarray | None = None) -> None:
+        """The reported estimate: the cloud's weighted mean where it is free space, else the mean of
+        its main mode (of its main floor in a building), reached from the previous estimate without
+        crossing a wall (``filter.estimate``); the spread is the cloud's (``std_m`` when the caller
+        has it). The mean of a split cloud falls in a wall and the track would cut through it; the
+        mode everywhere costs IPIN 9 % (docs/accuracy.md, "The reported estimate")."""
         stack = getattr(self.floors, "stack", None)
-        if std_m is None:
-            if stack is None:
-                cov = weighted_moments(xy_m, weights)[1]
-                std_m = float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
-            else:
-                std_m = self.floors.estimate(xy_m, weights)[1]
         w = weights
         if stack is not None:  # the floor holding most of the weight: a mode between floors' tiles is no place
             floor = stack.floor_of(xy_m)
             w = np.where(floor == int(np.argmax(np.bincount(floor, weights=weights, minlength=stack.n_floors))),
                          weights, 0.0)
-        target = mode_estimate(self.floorplan, xy_m, w)
+        if std_m is None:  # the spread of the cloud (in a building: of its main floor's part)
+            cov = weighted_moments(xy_m, w)[1]
+            std_m = float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
+        if mean is None or stack is not None:
+            mean = weighted_moments(xy_m, w)[0]
+        if np.isfinite(mean).all() and self.floorplan.is_free(mean[None, :])[0]:
+            target = np.asarray(mean, dtype=np.float64)
+        else:
+            target = mode_estimate(self.floorplan, xy_m, w)
         previous = self.estimate_xy_m
-        if _ESTIMATE == "mode" and previous is not None and (
+        if previous is not None and (
                 stack is None or stack.floor_of(previous[None, :])[0] == stack.floor_of(target[None, :])[0]):
             target = toward(self.floorplan, previous, target)  # a change of floor is a jump, not a move
         self.estimate_xy_m, self.estimate_std_m = target, float(std_m)
@@ -434,15 +432,8 @@ class ParticleFilter:
     def _estimate(self, particles: Particles, weights: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> None:
         """The estimate of a normalised cloud (``_set_estimate``); ``mean`` and ``cov`` are its
         moments from the pass' block sums (one floor: the spread without another pass)."""
-        if _ESTIMATE == "mean":
-            if not self.floors.changes_floors and np.isfinite(mean).all() and self.floorplan.is_free(mean[None, :])[0]:
-                self.estimate_xy_m = mean
-                self.estimate_std_m = float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
-            else:
-                self.estimate_xy_m, self.estimate_std_m, _ = self.floors.estimate(particles.xy_m, weights)
-            return
         std = None if self.floors.changes_floors else float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
-        self._set_estimate(particles.xy_m, weights, std)
+        self._set_estimate(particles.xy_m, weights, std, None if self.floors.changes_floors else mean)
 
     # ---- collapse recovery -------------------------------------------------------------------
     def _recover_from_collapse(self, t_s: float, prev: Particles) -> tuple[Particles, np.ndarray, float, str]:
