@@ -801,8 +801,8 @@ def preview_image(plan: FloorPlan, max_side_px: int = 2000, outside: np.ndarray 
         source = read_plan_image(plan.source_image.path)
         res = min(res, plan.source_image.resolution_m)
     res = max(res, max(x_max - x_min, y_max - y_min) / max_side_px)
-    cols = int(math.ceil((x_max - x_min) / res))
-    rows = int(math.ceil((y_max - y_min) / res))
+    cols = int(math.ceil((x_max - x_min) / res - 1e-9))  # (a rounding error adds no column)
+    rows = int(math.ceil((y_max - y_min) / res - 1e-9))
     if (source is not None and (rows, cols) == plan.shape_px == source.shape[:2] and res == plan.resolution_m
             and plan.source_image.resolution_m == res and tuple(plan.source_image.origin_m) == tuple(plan.origin_m)):
         # the plan's own grid: no resampling

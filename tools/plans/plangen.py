@@ -789,11 +789,18 @@ def _exterior_opening(jambs, outline: Polygon, exterior_m: float, kind: str, roo
 
 
 def house_layout(exterior_m: float = 0.3, interior_m: float = 0.12, door_m: float = 0.9,
-                 entrance: str = "swing") -> Layout:
+                 entrance: str = "swing", glazing: str = "single", terrace: bool = False) -> Layout:
     """A fixed small building for tests and pictures: 12 x 8 m, two rooms on a corridor, a door
     from each room to the corridor and from one room to the other, an entrance (``entrance``:
-    swing, double or passage) at the corridor's end, two windows."""
+    swing, double or passage) at the corridor's end, two windows (``glazing="run"``: the rooms'
+    whole façade glazed, panes between thin piers; ``"bay"``: a glazed curved bay on each room
+    besides), and with ``terrace`` a 5 x 2 m terrace behind a sliding door off the corridor."""
     outline = box(0, 0, 12, 8)
+    if glazing == "bay":
+        for x in (1.5, 7.5):
+            disc = Point(x + 1.5, 1.2 - 1.9).buffer(1.9, quad_segs=32)
+            outline = unary_union([outline, disc.intersection(box(x, -1.0, x + 3.0, 0.0)).buffer(1e-3)])
+        outline = shapely.normalize(outline.buffer(0))
     rooms = [Room(box(0, 0, 6, 5), "office", "OFFICE 1"), Room(box(6, 0, 12, 5), "office", "OFFICE 2"),
              Room(box(0, 5, 12, 8), "corridor", "CORRIDOR")]
     inner = outline.buffer(-exterior_m, join_style="mitre")
@@ -816,8 +823,30 @@ def house_layout(exterior_m: float = 0.3, interior_m: float = 0.12, door_m: floa
                        (0, -1)),
                Opening(np.array([8.0, 0.0]), np.array([10.0, 0.0]), np.array([0.0, 1.0]), exterior_m, True, "window",
                        (1, -1))]
+    if glazing == "run":
+        face = LineString([(0.0, 0.0), (12.0, 0.0)])
+        windows = [_window_on(face, s, s + 1.5, outline, exterior_m, 0 if s < 6 else 1)
+                   for s in np.arange(0.6, 11.0, 1.65) if s + 1.5 <= 11.5 and not (5.5 < s + 1.5 and s < 6.5)]
+    elif glazing == "bay":
+        faces = _facade_pieces(LineString(outline.exterior.coords), 1.0)
+        windows = [_window_on(f, 0.25, f.length - 0.25, outline, exterior_m, 0) for f in faces
+                   if len(f.coords) > 3]  # the curved pieces
+    inner = outline.buffer(-exterior_m, join_style="mitre")
+    partitions = MultiLineString([[(6, 0), (6, 5)], [(0, 5), (12, 5)]]).buffer(
+        interior_m / 2, cap_style="square", join_style="mitre").intersection(outline)
+    walls = unary_union([outline.difference(inner), partitions])
+    if glazing == "bay":
+        rooms[0].polygon = shapely.normalize(unary_union([rooms[0].polygon, outline.intersection(box(0, -2, 6, 0))]))
+        rooms[1].polygon = shapely.normalize(unary_union([rooms[1].polygon, outline.intersection(box(6, -2, 12, 0))]))
+    terraces = []
+    if terrace:
+        terraces = [box(3.0, 8.0, 8.0, 10.0)]
+        openings.append(Opening(np.array([4.5, 8.0]), np.array([6.3, 8.0]), np.array([0.0, -1.0]), exterior_m, True,
+                                "sliding", (2, -1)))
     walls = walls.difference(unary_union([o.cut() for o in openings] + [w.cut(0.0) for w in windows]))
-    return Layout(outline, rooms, walls, windows, openings, [], exterior_m, interior_m)
+    return Layout(outline, rooms, walls, windows, openings, [], exterior_m, interior_m, terraces,
+                  {"outline": "rect" if glazing != "bay" else "bay", "bay": glazing == "bay",
+                   "window_run": glazing == "run", "terrace": terrace})
 
 
 def plain_style(wall: str = "solid", paper: str = "white", px_per_m: float = 50.0, **changes) -> Style:
