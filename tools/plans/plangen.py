@@ -900,13 +900,14 @@ class Style:
 
 
 def random_style(rng: np.random.Generator, sheet_m: tuple[float, float], wall: str | None = None,
-                 paper: str | None = None) -> Style:
+                 paper: str | None = None, megapixels: float | None = None) -> Style:
     """A drawing style for a sheet of ``sheet_m`` (width, height) metres: the image's size (0.2 to 9
     megapixels, log-uniform: from a web page's real-estate plan to an architect's scan), a print
     scale and the scan resolution it implies, pen widths in pixels from them."""
     wall = wall or str(rng.choice(WALL_STYLES))
     paper = paper or str(rng.choice(PAPER_STYLES))
-    megapixels = float(np.exp(rng.uniform(np.log(MEGAPIXELS[0]), np.log(MEGAPIXELS[1]))))
+    drawn = float(np.exp(rng.uniform(np.log(MEGAPIXELS[0]), np.log(MEGAPIXELS[1]))))
+    megapixels = drawn if megapixels is None else megapixels
     px_per_m = math.sqrt(megapixels * 1e6 / (sheet_m[0] * sheet_m[1]))
     # the print scale whose scan resolution is nearest 200 dpi
     scale = min((50, 100, 200), key=lambda s: abs(math.log(px_per_m * s / 1000 * 25.4 / 200)))
@@ -1311,16 +1312,16 @@ class GeneratedPlan:
 
 
 def draw_plan(rng: np.random.Generator, layout: Layout, wall: str | None = None, paper: str | None = None,
-              style: Style | None = None) -> GeneratedPlan:
-    """Draw ``layout`` in a random style (``wall`` and ``paper`` fix those two; ``style`` all of
-    it) with its truth."""
+              style: Style | None = None, megapixels: float | None = None) -> GeneratedPlan:
+    """Draw ``layout`` in a random style (``wall``, ``paper`` and the sheet's ``megapixels`` before
+    its title block fix those; ``style`` all of it) with its truth."""
     bx0, by0, bx1, by1 = layout.footprint.bounds
     margin_dim = rng.uniform(2.2, 4.5)
     left, top, right, bottom = (margin_dim + rng.uniform(0, 1.5) for _ in range(4))
     title_h = 0.0
     sheet_w = (bx1 - bx0) + left + right
     sheet_h = (by1 - by0) + top + bottom
-    style0 = style if style is not None else random_style(rng, (sheet_w, sheet_h), wall, paper)
+    style0 = style if style is not None else random_style(rng, (sheet_w, sheet_h), wall, paper, megapixels)
     if style0.title_block:
         title_h = max(2.5, 0.14 * sheet_h)
         sheet_h += title_h
@@ -1681,13 +1682,13 @@ def _raster(geometry: shapely.Geometry, shape: tuple[int, int], px_per_m: float,
 
 # ---- plans to files ----------------------------------------------------------------------------
 def generate_plan(seed_sequence: np.random.SeedSequence | int, wall: str | None = None,
-                  paper: str | None = None) -> GeneratedPlan:
-    """One plan from its own seed (a ``SeedSequence`` child or an int)."""
+                  paper: str | None = None, megapixels: float | None = None) -> GeneratedPlan:
+    """One plan from its own seed (a ``SeedSequence`` child or an int); ``megapixels`` fixes its size."""
     rng = np.random.default_rng(seed_sequence)
     for _ in range(20):
         layout = make_layout(rng)
         if len(layout.rooms) >= 2 and layout.openings:
-            return draw_plan(rng, layout, wall, paper)
+            return draw_plan(rng, layout, wall, paper, megapixels=megapixels)
     raise RuntimeError("no usable layout in 20 draws")
 
 
