@@ -51,7 +51,6 @@ LEAF_HALF_M = 0.04  # half a door leaf's drawn width (a leaf drawn as a box is a
 MAX_WALL_M = 0.6
 HATCH_M = 0.1  # enclosed gaps narrower than this, side by side, are between hatch lines
 HATCH_CELLS = 8  # hatching has at least this many cells together (a word has a few letter eyes)
-HEAVY_SHARE = 0.25  # a stroke is a wall when this share of it is drawn heavy (a one-pen plan's lines are half)
 HEAVY_RATIO = 1.3  # ink this many times a thin line's (width times darkness) is drawn heavy
 WALL_OUTLINE_SHARE = 0.7  # a wall's inside is drawn round in heavy lines along this share at least  # thicker than any wall: a gap this wide between wall lines is a room or a corridor
 PAPER_KERNEL_M = 1.2  # the background closing spans this: wider than any wall or column
@@ -62,6 +61,7 @@ COLUMN_MIN_PX = 6  # smaller than this a column cannot be told from a letter
 FRAME_BAND = 0.02  # a sheet frame's lines lie within this share of its box's size from the box's edges ...
 FRAME_ALONG_EDGES = 0.5  # ... with at least this share of its ink
 WORK_M = 0.03  # the outline is found at about this many metres per pixel
+STROKE_REACH_M = 0.5  # thin strokes close the outline this far beyond the walls' rough outline at most
 OPEN_SHARE = 0.45  # a piece enclosed by thin strokes is outside when this share of its edge is thin with the outside beyond
 LEAK_SHARE = 0.7  # the outline leaked when it holds less than this share of the rough outline's free space
 SMALL_GAP_M = 0.3  # scan breaks in the outer wall once its windows and doors are filled
@@ -298,16 +298,6 @@ def heavy_lines(evened: np.ndarray, ink: np.ndarray, core: np.ndarray) -> tuple[
     return core & (mass >= split), split
 
 
-def _mostly(mask: np.ndarray, of: np.ndarray, share: float) -> np.ndarray:
-    """The 8-connected pieces of ``mask`` at least ``share`` of whose pixels are in ``of``."""
-    count, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    total = np.bincount(labels.ravel(), minlength=count)
-    inside = np.bincount(labels[of & mask], minlength=count)
-    keep = inside >= share * total
-    keep[0] = False
-    return keep[labels]
-
-
 def _drop_frames(heavy: np.ndarray, resolution_m: float) -> np.ndarray:
     """Remove a sheet frame: ink reaching near all four edges of the image, round another large
     piece of ink (the building), lying mostly along the edges of its own box (a frame is a
@@ -315,21 +305,37 @@ def _drop_frames(heavy: np.ndarray, resolution_m: float) -> np.ndarray:
     count, labels, stats, _ = cv2.connectedComponentsWithStats(heavy.astype(np.uint8), connectivity=8)
     rows, cols = heavy.shape
     drop = np.zeros(count, dtype=bool)
-    large = (stats[:, cv2.CC_STAT_WIDTH] * stats[:, cv2.CC_STAT_HEIGHT] >= 0.05 * rows * cols)
     for i in range(1, count):
         x, y, w, h, area = stats[i]
         if not (x < 0.1 * cols and y < 0.1 * rows and x + w > 0.9 * cols and y + h > 0.9 * rows):
             continue
-        inner = large.copy()
+        # other ink inside its box, spanning together at least 5 % of the image (a building,
+        # whose walls windows and doors may have cut into many pieces)
+        sx, sy, sw, sh = (stats[:, k] for k in range(4))
+        inner = (sx > x) & (sy > y) & (sx + sw < x + w) & (sy + sh < y + h)
         inner[[0, i]] = False
-        sx, sy, sw, sh = (stats[inner, k] for k in range(4))
-        if not (inner.any() and ((sx > x) & (sy > y) & (sx + sw < x + w) & (sy + sh < y + h)).any()):
+        if not inner.any() or ((sx + sw)[inner].max() - sx[inner].min()) * \
+                ((sy + sh)[inner].max() - sy[inner].min()) < 0.05 * rows * cols:
             continue
-        ys, xs = np.nonzero(labels[y:y + h, x:x + w] == i)
+        # its long straight lines only (a title block's text is no frame's, nor a building's)
+        piece = (labels[y:y + h, x:x + w] == i).astype(np.uint8)
+        run = max(5, int(0.05 * min(w, h)))
+        lines = cv2.morphologyEx(piece, cv2.MORPH_OPEN, np.ones((1, run), np.uint8)) | \
+            cv2.morphologyEx(piece, cv2.MORPH_OPEN, np.ones((run, 1), np.uint8))
+        ys, xs = np.nonzero(lines)
+        if ys.size == 0:
+            continue
         band = FRAME_BAND * min(w, h)
         along_edges = (xs < band) | (ys < band) | (xs >= w - band) | (ys >= h - band)
         if along_edges.mean() >= FRAME_ALONG_EDGES:
             drop[i] = True
+    # a frame's side left alone (the others drawn lighter): a bare straight line along an edge,
+    # across most of the sheet (a building's outer wall carries its partitions)
+    x, y, w, h = (stats[:, k] for k in range(4))
+    across = ((w >= 0.8 * cols) & (h <= np.maximum(3, 0.01 * rows)) & ((y < 0.05 * rows) | (y + h > 0.95 * rows))) | \
+        ((h >= 0.8 * rows) & (w <= np.maximum(3, 0.01 * cols)) & ((x < 0.05 * cols) | (x + w > 0.95 * cols)))
+    across[0] = False
+    drop |= across
     return heavy & ~drop[labels] if drop.any() else heavy
 
 
@@ -473,7 +479,10 @@ def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float,
         near_walls = cv2.dilate((work & rough).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
         touching[np.unique(labels[near_walls & thin])] = True
         touching[0] = False
-        barrier = work | touching[labels]
+        # ... and near it: windows lie in the wall's line, a bay's glazing within the rough outline
+        # (an axis line or a terrace's rail running off to the sheet's frame closes nothing)
+        near_rough = cv2.dilate(rough.astype(np.uint8), _disc(2 * int(STROKE_REACH_M / work_m) + 1)).astype(bool)
+        barrier = work | (touching[labels] & near_rough)
     fills = wall_gap_fills(barrier, work_m, max_gap_m)
     gaps = np.zeros_like(work)
     for fill in fills:
@@ -629,7 +638,7 @@ def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions 
         # at low resolution a thin line is as wide as a wall's line: it is told by its lighter ink
         # (a plan drawn with one pen has no heavier ink: then nothing is told this way)
         if (outlines | fills).sum() >= 0.1 * core.sum():
-            heavy = _mostly(heavy, outlines | fills, HEAVY_SHARE)
+            heavy &= cv2.dilate((outlines | fills).astype(np.uint8), _disc(5)).astype(bool)  # (wall ends too)
         heavy |= fill_wall_bands(heavy, resolution_m)
     else:
         heavy = body
