@@ -22,7 +22,9 @@ a grey image and its pixel size into a wall mask in these steps:
    what they alone enclose is the building's only where it is bounded mostly by walls, not a
    terrace behind its rails); outside it is wall, and so are the windows; a sheet's frame (a
    ring of ink round everything near the image border) is no building;
-7. small wall blobs inside the building that are not solid columns are text: removed.
+7. small wall blobs inside the building that are not solid columns are text: removed;
+8. the learned segmenter (:mod:`mapfilter.maps.segmenter`, trained on generated plans) reads the
+   walls too; a wall of the strokes is kept where the network has one within 3 px.
 
 Pixel sizes come from the plan's scale, so the rules are in metres where a rule is about
 buildings (wall thickness, door width) and in pixels where it is about the drawing (line
@@ -91,6 +93,7 @@ class DrawingOptions:
     find_doors: bool = True
     thicken_px: int = 0
     outside_is_wall: bool = True
+    segmenter: bool = True
 
 
 @dataclasses.dataclass
@@ -590,6 +593,29 @@ def _drop_outer_slivers(wall: np.ndarray, inside: np.ndarray, resolution_m: floa
     return wall | drop[labels]
 
 
+def _with_segmenter(wall: np.ndarray, inside: np.ndarray | None, evened: np.ndarray, ink: np.ndarray,
+                    resolution_m: float, options: DrawingOptions) -> tuple[np.ndarray, np.ndarray | None]:
+    """The learned segmenter's walls (:mod:`mapfilter.maps.segmenter`), read on as the strokes
+    are (a frame and text dropped, the outline from every stroke, the outside walled), kept where
+    the network has a wall within 3 px: the network tells furniture, fixtures, stairs and tiles
+    from walls better, the strokes find the doors open and the walls' exact edges. (It misses
+    faint grey walls on shaded paper: tests/maps/test_drawing.py, test 4.) The outside is what both
+    take for outside. Unchanged when the drawing is too large for the network."""
+    from mapfilter.maps.segmenter import network_walls
+
+    learned = network_walls(evened, resolution_m)
+    if learned is None:
+        return wall, inside
+    learned = _drop_frames(learned, resolution_m)
+    learned, _ = _drop_text_blobs(learned, resolution_m, None)
+    if inside is not None:
+        learned_inside, outer_gaps = building_footprint(learned, resolution_m, options.outline_gap_m, ink)
+        learned = _drop_outer_slivers(learned | outer_gaps | ~learned_inside, learned_inside, resolution_m)
+        inside = inside | learned_inside
+    near = cv2.dilate(learned.astype(np.uint8), _disc(7)).astype(bool)
+    return wall & near, inside
+
+
 def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions = DrawingOptions(),
                  path=None) -> DrawingReading:
     """Wall mask of a drawing (``gray``: 8-bit, paper light; ``resolution_m``: metres per pixel)."""
@@ -657,6 +683,8 @@ def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions 
     if options.outside_is_wall:
         inside, outer_gaps = building_footprint(wall, resolution_m, options.outline_gap_m, ink)
         wall = _drop_outer_slivers(wall | outer_gaps | ~inside, inside, resolution_m)
+    if options.segmenter and options.remove_text_px is None:  # (blobs kept on purpose stay)
+        wall, inside = _with_segmenter(wall, inside, evened, ink, resolution_m, options)
     if options.thicken_px > 0:
         wall = cv2.dilate(wall.astype(np.uint8), _disc(2 * options.thicken_px + 1)).astype(bool)
     return DrawingReading(wall, inside, level, thin_px, doors, n_text)
