@@ -335,3 +335,24 @@ def test_the_reader_refuses_a_blank_and_a_black_plan():
         drawing.read_drawing(np.full((50, 50), 250, np.uint8), 0.05)
     with pytest.raises(MapfilterError, match="dark all over"):
         drawing.read_drawing(np.full((50, 50), 5, np.uint8), 0.05)
+
+
+def test_the_segmenter_ships_with_the_package_and_finds_walls_not_furniture():
+    """The ONNX weights load from the installed package through cv2.dnn; on a drawn house the
+    network's walls cover the true walls and leave the thin furniture; a drawing too large for
+    its 2.5 cm pixels is left to the strokes (None)."""
+    from importlib import resources
+
+    from mapfilter.maps import segmenter
+
+    assert (resources.files("mapfilter.maps") / "data" / "segmenter.onnx").is_file()
+    plan = plangen.draw_plan(np.random.default_rng(0), plangen.house_layout(),
+                             style=plangen.plain_style(furniture=True))
+    walls = segmenter.network_walls(drawing.even_paper(plan.image, plan.resolution_m), plan.resolution_m)
+    assert walls.shape == plan.walls.shape
+    inner = plan.walls & ~cv2.dilate((~plan.walls).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    assert walls[inner].mean() > 0.95
+    furniture = (plan.image < 128) & plan.free & ~cv2.dilate(plan.walls.astype(np.uint8),
+                                                             np.ones((15, 15), np.uint8)).astype(bool)
+    assert furniture.sum() > 500 and walls[furniture].mean() < 0.2
+    assert segmenter.network_walls(np.full((5000, 5000), 255, np.uint8), 0.1) is None
