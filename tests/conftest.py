@@ -15,8 +15,10 @@ the fast one. ``real_data`` is added here to every test that reads ../shared/dat
 fixtures below), which skip, with the reason, when it is absent.
 
 Under ``-n`` (pytest-xdist, ``--dist loadscope`` from pyproject.toml) the tests of a module run in
-one worker, so a module-scoped fixture is built once; a session-scoped one here is built once per
-worker. Fixtures here are shared: a test reads them and writes only under its own ``tmp_path``.
+one worker, so a module-scoped fixture is built once (the documents of tests/test_docs_commands.py
+are units of their own: ``pytest_xdist_make_scheduler`` below); a session-scoped one here is built
+once per worker that uses it. Fixtures here are shared: a test reads them and writes only under its
+own ``tmp_path``.
 """
 
 from pathlib import Path
@@ -47,6 +49,25 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if {"ilc_site1", "ilc_f1_plan", "ipin2023"} & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.real_data)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadscope`` (pyproject.toml) with one change: each document's commands in
+    tests/test_docs_commands.py are a unit of their own (a document's commands run in order in
+    one workspace; two documents need not wait for each other), not the whole module."""
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class DocumentScopes(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            scope = super()._split_scope(nodeid)
+            if scope.endswith("test_docs_commands.py") and "[" in nodeid:
+                return f"{scope}::{nodeid.split('[', 1)[1].split(':', 1)[0]}"  # its document
+            return scope
+
+    return DocumentScopes(config, log)
 
 
 ILC_SITE1 = REPO.parent / "shared" / "data" / "ilc20" / "site1"
