@@ -73,7 +73,6 @@ def test_batch_with_every_walk_tracked_exits_zero_and_tum_files(tmp_path, capsys
     assert (out / "office_walk.tum").is_file() and (out / "summary.csv").is_file()
 
 
-@pytest.mark.slow
 def test_batch_on_two_local_dask_workers_writes_the_serial_tracks(tmp_path, capsys):
     pytest.importorskip("distributed")
     lines = _walk_lines()

@@ -155,7 +155,6 @@ def test_bad_input_is_one_line_naming_the_file_and_nothing_is_written(office3, t
     assert not out.exists()
 
 
-@pytest.mark.slow
 def test_out_dir_on_two_local_dask_workers_writes_the_serial_tracks(office3, tracked, tmp_path, capsys):
     pytest.importorskip("distributed")
     out = tmp_path / "jobs2"
