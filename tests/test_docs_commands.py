@@ -89,7 +89,10 @@ class Command:
 
     @property
     def slow(self) -> bool:
-        return self.needs_real_data or bool(re.search(r"--jobs|\bevaluate\b", self.text))
+        """In the slow tier: every document's commands but the README's, and the README's on the
+        real data or with ``evaluate`` or ``--jobs`` (the fast tier runs the README's quick ones)."""
+        return (self.document != "README.md" or self.needs_real_data
+                or bool(re.search(r"--jobs|\bevaluate\b", self.text)))
 
     @property
     def id(self) -> str:

@@ -124,6 +124,7 @@ def _office_walks(tmp_path, n):
     return walks
 
 
+@pytest.mark.slow
 def test_an_interrupted_evaluate_resumes_to_the_uninterrupted_summary(tmp_path):
     """SIGINT after the first walk: the walks done are kept (their files, a partial summary, no
     temporaries); --resume runs the rest and the summary equals an uninterrupted run's."""
@@ -180,6 +181,7 @@ def test_evaluate_against_survey_logs_scores_only_the_walks_given(tmp_path):
                  "--out", str(tmp_path / "o2")]) == 1
 
 
+@pytest.mark.slow
 def test_unlabelled_and_transductive_walks_grow_the_radio_map_and_are_named(tmp_path, capsys):
     """--unlabelled walks grow the survey's radio map and are never scored; --transductive lets the
     scored walks grow it too; both are named in the printout and summary.json."""
@@ -202,6 +204,7 @@ def test_unlabelled_and_transductive_walks_grow_the_radio_map_and_are_named(tmp_
     assert "both unlabelled and labelled or scored" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_leave_out_route_names_its_protocol_and_groups_as_a_regex_or_csv_does(tmp_path, capsys):
     """--leave-out route on logs with IPIN trial names: the protocol in the printout, summary.json,
     walks.csv and config.yaml (which still loads), a row per route; --leave-out-group and --groups

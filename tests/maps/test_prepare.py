@@ -339,6 +339,7 @@ def ilc_waypoints(ilc_site1) -> dict[str, list[np.ndarray]]:
     return {floor: _waypoints(ilc_site1 / floor) for floor in ("F1", "F2")}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("floor", ["F1", "F2"])
 def test_ilc_image_route(ilc_site1, ilc_waypoints, floor):
     """The floor image's transparent pixels are walkable, and outside the floor's outline is wall,
@@ -366,6 +367,7 @@ def test_ilc_image_route(ilc_site1, ilc_waypoints, floor):
     assert 0.1 < plan.free_fraction < 0.5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("floor", ["F1", "F2"])
 def test_ilc_geojson_route(ilc_site1, ilc_waypoints, floor):
     import shapely
