@@ -207,7 +207,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"mapfilter: {outcome.status}: {outcome.reason}", file=sys.stderr)
         _write_walk_tracks(out, outcome, plans, building)
 
+    from mapfilter.evaluation.plots import load_plotting
     from mapfilter.sensors.recording import trace_name as name_of
+
+    load_plotting()
 
     # every file of the run is staged and committed together at the end: a run that fails (a full
     # disk) leaves an earlier evaluation whole; an interrupted one commits the walks done so far
