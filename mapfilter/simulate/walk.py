@@ -676,22 +676,40 @@ def simulate_walk(floorplan: FloorPlan, ap_table: AccessPointTable, config: SimC
     if config.survey:
         scan_t = np.array([t for t in tl.survey_scan_t if t <= end_t], dtype=np.float64)
     else:
-        gaps = rng.uniform(*config.scan_interval_s, size=int(end_t / config.scan_interval_s[0]) + 2)
-        scan_t = np.cumsum(gaps)
-        scan_t = scan_t[scan_t <= end_t]
+        scan_t = _scan_times(end_t, config, rng)
 
     def position_at(t_rel: np.ndarray) -> np.ndarray:
-        return np.stack([np.interp(t_rel, wp_t, wp_xy[:, 0]), np.interp(t_rel, wp_t, wp_xy[:, 1])], axis=-1)
+        return _xy_at(t_rel, wp_t, wp_xy)
 
     wifi = _wifi(floorplan, ap_table, position_at, scan_t, config, rng,
                  rssi_at=None if rssi_model is None else (lambda seen: rssi_model(position_at(seen))))
     t0 = config.start_time_ms / 1000.0
     return SimulatedWalk(
         floor_name=floorplan.floor_name, site_id=site_id, start_t_s=t0, end_t_s=t0 + end_t,
-        waypoint_t_s=t0 + wp_t, waypoint_xy_m=wp_xy,
-        step_start_t_s=t0 + step_start, step_end_t_s=t0 + step_end,
-        step_length_m=np.linalg.norm(xy1 - xy0, axis=1),
-        heading_t_s=t0 + imu["t_nominal"], heading_rad=imu["heading"], reference_xy_m=reference,
+        waypoint_t_s=t0 + wp_t, waypoint_xy_m=wp_xy, reference_xy_m=reference,
+        **_step_and_sensor_fields(t0, step_start, step_end, xy0, xy1, imu, ap_table, scan_t, wifi),
+    )
+
+
+def _scan_times(end_t: float, config: SimConfig, rng: np.random.Generator) -> np.ndarray:
+    """A walk's WiFi scan times (s from its start): gaps drawn from ``scan_interval_s``, up to end_t."""
+    gaps = rng.uniform(*config.scan_interval_s, size=int(end_t / config.scan_interval_s[0]) + 2)
+    scan_t = np.cumsum(gaps)
+    return scan_t[scan_t <= end_t]
+
+
+def _xy_at(t_rel: np.ndarray, wp_t: np.ndarray, wp_xy: np.ndarray) -> np.ndarray:
+    """Positions at times ``t_rel``, interpolated between the waypoints."""
+    return np.stack([np.interp(t_rel, wp_t, wp_xy[:, 0]), np.interp(t_rel, wp_t, wp_xy[:, 1])], axis=-1)
+
+
+def _step_and_sensor_fields(t0: float, step_start: np.ndarray, step_end: np.ndarray, xy0: np.ndarray,
+                            xy1: np.ndarray, imu: dict[str, np.ndarray], ap_table: AccessPointTable,
+                            scan_t: np.ndarray, wifi: dict[str, np.ndarray]) -> dict:
+    """The ``SimulatedWalk`` fields of its steps, IMU and WiFi, in Unix seconds from ``t0``."""
+    return dict(
+        step_start_t_s=t0 + step_start, step_end_t_s=t0 + step_end, step_length_m=np.linalg.norm(xy1 - xy0, axis=1),
+        heading_t_s=t0 + imu["t_nominal"], heading_rad=imu["heading"],
         acc_t_s=t0 + imu["acc_t"], acc_mps2=imu["acc"], gyro_t_s=t0 + imu["gyro_t"], gyro_radps=imu["gyro"],
         magnet_t_s=t0 + imu["magnet_t"], magnet_ut=imu["magnet"],
         rotvec_t_s=t0 + imu["rotvec_t"], rotvec_xyz=imu["rotvec"], gyro_bias_radps=imu["gyro_bias"],
