@@ -88,18 +88,19 @@ class CsvTable:
     rows: list[tuple[int, list[str]]]
 
     def number(self, fields: list[str], name: str, line_no: int, low: float = -math.inf,
-               high: float = math.inf) -> float:
+               high: float = math.inf, label: str | None = None) -> float:
         """Column ``name`` of a row as a finite number within [low, high]; else one line naming
-        the file and line."""
+        the file and line (and the column as ``label``, by default ``name``)."""
         text = fields[self.column[name]]
+        label = name if label is None else label
         try:
             value = float(text)
         except ValueError:
-            raise MapfilterError(f"column {name} is not a number: {text.strip()!r}", self.path, line_no) from None
+            raise MapfilterError(f"column {label} is not a number: {text.strip()!r}", self.path, line_no) from None
         if not math.isfinite(value):
-            raise MapfilterError(f"column {name} is not finite: {text.strip()!r}", self.path, line_no)
+            raise MapfilterError(f"column {label} is not finite: {text.strip()!r}", self.path, line_no)
         if not low <= value <= high:
-            raise MapfilterError(f"column {name} is {value:g}, outside {low:g} to {high:g}", self.path, line_no)
+            raise MapfilterError(f"column {label} is {value:g}, outside {low:g} to {high:g}", self.path, line_no)
         return value
 
 
