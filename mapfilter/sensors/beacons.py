@@ -283,53 +283,13 @@ def labelled_readings(table: BeaconTable, building: Building, recordings: Sequen
     lift) are left out."""
     beacon_xy, beacon_floor = table.building_xy_m(building)
     index = table.index
-    names = building.floor_names
     parts = []
     for trace, rec in enumerate(recordings):
-        wp_t, wp_xy = rec.waypoint_t_s, rec.waypoint_xy_m
-        if wp_t.size < 2 or len(rec.beacons.t_s) == 0:
+        if rec.waypoint_t_s.size < 2 or len(rec.beacons.t_s) == 0:
             continue
-        if rec.waypoint_floor is not None and len(rec.waypoint_floor) == wp_t.size:
-            wp_floor_names = list(rec.waypoint_floor)
-        elif building.is_single_floor:
-            wp_floor_names = [names[0]] * wp_t.size
-        elif rec.floor_name in names:
-            wp_floor_names = [rec.floor_name] * wp_t.size
-        else:
-            raise MapfilterError("the log names no floor of the building for its waypoints: its beacon readings "
-                                 "cannot be placed", rec.path)
-        if building.is_single_floor:
-            wp_floor = np.zeros(wp_t.size, dtype=np.int64)
-        else:
-            unknown = sorted({f for f in wp_floor_names if f not in names})
-            if unknown:
-                raise MapfilterError(f"the log's waypoints are on floor {unknown[0]!r}, which the building does not "
-                                     f"have (floors: {', '.join(names)})", rec.path)
-            wp_floor = np.array([names.index(f) for f in wp_floor_names], dtype=np.int64)
-        if not np.isfinite(wp_xy).all():
-            raise MapfilterError("the log's waypoints are not in the building's metres (latitude/longitude ground "
-                                 "truth needs a georeferenced building)", rec.path)
-        t = rec.beacons.t_s
-        row = np.array([index.get(beacon_key(b), -1) for b in rec.beacons.beacon_id], dtype=np.int64)
-        rssi = np.asarray(rec.beacons.rssi_dbm, dtype=np.float64)
-        k = np.searchsorted(wp_t, t, side="right") - 1
-        inside = (row >= 0) & (t >= wp_t[0]) & (t <= wp_t[-1]) & np.isfinite(rssi)
-        k = np.clip(k, 0, wp_t.size - 2)
-        same_floor = wp_floor[k] == wp_floor[k + 1]
-        keep = inside & same_floor
-        if not keep.any():
-            continue
-        k, t, row, rssi = k[keep], t[keep], row[keep], rssi[keep]
-        span = wp_t[k + 1] - wp_t[k]
-        a = np.where(span > 0, (t - wp_t[k]) / np.where(span > 0, span, 1.0), 0.0)[:, None]
-        floor = wp_floor[k]
-        local = wp_xy[k] + a * (wp_xy[k + 1] - wp_xy[k])
-        walker = np.empty_like(local)
-        for f in np.unique(floor):
-            on = floor == f
-            walker[on] = building.floors[int(f)].to_building(local[on])
-        parts.append((row, rssi, np.linalg.norm(walker - beacon_xy[row], axis=1),
-                      np.abs(floor - beacon_floor[row]), np.full(row.size, trace), walker, floor))
+        part = _labelled_part(rec, trace, _waypoint_floors(rec, building), building, index, beacon_xy, beacon_floor)
+        if part is not None:
+            parts.append(part)
     traces = tuple(r.name for r in recordings)
     phones = tuple(r.phone_model for r in recordings)
     if not parts:
@@ -339,6 +299,63 @@ def labelled_readings(table: BeaconTable, building: Building, recordings: Sequen
     cat = [np.concatenate([p[j] for p in parts]) for j in range(7)]
     return BeaconReadings(cat[0], cat[1], cat[2], cat[3], cat[4], traces, phones, cat[5], cat[6], beacon_xy,
                           beacon_floor)
+
+
+def _waypoint_floors(rec: Recording, building: Building) -> np.ndarray:
+    """The floor index of each of the walk's waypoints: as the log labels them, else the one floor
+    of a single map or the floor the log's header names; refused when none of these is the
+    building's, or when its waypoints are not in the building's metres."""
+    names, size = building.floor_names, rec.waypoint_t_s.size
+    if rec.waypoint_floor is not None and len(rec.waypoint_floor) == size:
+        wp_floor_names = list(rec.waypoint_floor)
+    elif building.is_single_floor:
+        wp_floor_names = [names[0]] * size
+    elif rec.floor_name in names:
+        wp_floor_names = [rec.floor_name] * size
+    else:
+        raise MapfilterError("the log names no floor of the building for its waypoints: its beacon readings "
+                             "cannot be placed", rec.path)
+    if building.is_single_floor:
+        wp_floor = np.zeros(size, dtype=np.int64)
+    else:
+        unknown = sorted({f for f in wp_floor_names if f not in names})
+        if unknown:
+            raise MapfilterError(f"the log's waypoints are on floor {unknown[0]!r}, which the building does not "
+                                 f"have (floors: {', '.join(names)})", rec.path)
+        wp_floor = np.array([names.index(f) for f in wp_floor_names], dtype=np.int64)
+    if not np.isfinite(rec.waypoint_xy_m).all():
+        raise MapfilterError("the log's waypoints are not in the building's metres (latitude/longitude ground "
+                             "truth needs a georeferenced building)", rec.path)
+    return wp_floor
+
+
+def _labelled_part(rec: Recording, trace: int, wp_floor: np.ndarray, building: Building, index: dict[str, int],
+                   beacon_xy: np.ndarray, beacon_floor: np.ndarray) -> tuple | None:
+    """One walk's readings of the table's beacons between two waypoints of one floor, each placed
+    between them by its time: (beacon row, RSSI, distance, floors apart, trace, walker's building
+    position, floor), or None when it has none."""
+    wp_t, wp_xy = rec.waypoint_t_s, rec.waypoint_xy_m
+    t = rec.beacons.t_s
+    row = np.array([index.get(beacon_key(b), -1) for b in rec.beacons.beacon_id], dtype=np.int64)
+    rssi = np.asarray(rec.beacons.rssi_dbm, dtype=np.float64)
+    k = np.searchsorted(wp_t, t, side="right") - 1
+    inside = (row >= 0) & (t >= wp_t[0]) & (t <= wp_t[-1]) & np.isfinite(rssi)
+    k = np.clip(k, 0, wp_t.size - 2)
+    same_floor = wp_floor[k] == wp_floor[k + 1]
+    keep = inside & same_floor
+    if not keep.any():
+        return None
+    k, t, row, rssi = k[keep], t[keep], row[keep], rssi[keep]
+    span = wp_t[k + 1] - wp_t[k]
+    a = np.where(span > 0, (t - wp_t[k]) / np.where(span > 0, span, 1.0), 0.0)[:, None]
+    floor = wp_floor[k]
+    local = wp_xy[k] + a * (wp_xy[k + 1] - wp_xy[k])
+    walker = np.empty_like(local)
+    for f in np.unique(floor):
+        on = floor == f
+        walker[on] = building.floors[int(f)].to_building(local[on])
+    return (row, rssi, np.linalg.norm(walker - beacon_xy[row], axis=1), np.abs(floor - beacon_floor[row]),
+            np.full(row.size, trace), walker, floor)
 
 
 # ---- fitting -----------------------------------------------------------------------------------
@@ -406,8 +423,6 @@ def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitC
 
     ``MapfilterError`` when fewer than ``min_readings`` readings in all are labelled.
     """
-    from scipy.optimize import least_squares
-
     if readings.beacon_xy_m.shape[0] != len(table):
         raise ValueError("the readings were labelled with another table")
     if len(readings) < config.min_readings:
@@ -417,60 +432,99 @@ def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitC
     apart, beacon = readings.floors_apart.astype(np.float64), readings.beacon
     fit_loss = int(np.count_nonzero(apart > 0)) >= config.min_readings
     kept_loss = float(np.median(table.floor_loss_db))
-    c_lo, c_hi = config.c_bounds_dbm
-    n_lo, n_hi = config.n_bounds
     phone = np.array([p or "" for p in readings.phones], dtype=object)[readings.trace] if len(readings) else \
         np.zeros(0, dtype=object)
     names, counts = np.unique(phone.astype(str), return_counts=True)
     phones = [str(p) for p, k in zip(names, counts) if p and k >= config.min_readings]
     offset = np.zeros(len(readings))  # each reading's phone offset
-
-    def solve(residual, start, lo, hi):
-        start = np.clip(np.array(start, dtype=np.float64), np.array(lo) + 1e-6, np.array(hi) - 1e-6)
-        return least_squares(residual, start, bounds=(lo, hi), loss="soft_l1", f_scale=config.f_scale_db).x
-
     for _ in range(_OFFSET_ROUNDS if phones else 1):
         z = readings.rssi_dbm - offset
-        if fit_loss:
-            shared = solve(lambda p: p[0] - 10.0 * p[1] * log_d - p[2] * apart - z,
-                           [-60.0, 2.0, DEFAULT_FLOOR_LOSS_DB], [c_lo, n_lo, config.floor_loss_bounds_db[0]],
-                           [c_hi, n_hi, config.floor_loss_bounds_db[1]])
-            loss = float(shared[2])
-        else:
-            shared = solve(lambda p: p[0] - 10.0 * p[1] * log_d - kept_loss * apart - z, [-60.0, 2.0],
-                           [c_lo, n_lo], [c_hi, n_hi])
-            loss = kept_loss
-
-        def fit_one(log_dist, floors_apart, rssi):
-            return solve(lambda p: p[0] - 10.0 * p[1] * log_dist - loss * floors_apart - rssi, shared[:2],
-                         [c_lo, n_lo], [c_hi, n_hi])
-
-        c = np.full(len(table), shared[0])
-        n = np.full(len(table), shared[1])
-        own = np.zeros(len(table), dtype=bool)
-        for b in range(len(table)):
-            mine = beacon == b
-            if np.count_nonzero(mine) >= config.min_readings:
-                c[b], n[b] = fit_one(log_d[mine], apart[mine], z[mine])
-                own[b] = True
+        shared, loss = _fit_shared(log_d, apart, z, fit_loss, kept_loss, config)
+        c, n, own = _fit_each_beacon(len(table), beacon, log_d, apart, z, loss, shared, config)
         if phones:
             residual = readings.rssi_dbm - (c[beacon] - 10.0 * n[beacon] * log_d - loss * apart)
-            by_phone = {p: float(np.median(residual[phone == p])) for p in phones}
-            counts = {p: int(np.count_nonzero(phone == p)) for p in phones}
-            mean = sum(by_phone[p] * counts[p] for p in phones) / sum(counts.values())
-            by_phone = {p: v - mean for p, v in by_phone.items()}
-            offset = np.array([by_phone.get(p, 0.0) for p in phone])
+            offset = _phone_offsets(residual, phone, phones)
+    rows = _position_check(table, readings, c, n, own, loss, shared, log_d, z, config)
+    phone_offsets = {p: float(offset[phone == p][0]) for p in phones}
+    fitted = dataclasses.replace(table.with_parameters(c, n, loss),
+                                 phone_offsets_db={p: np.full(len(table), v) for p, v in phone_offsets.items()})
+    return BeaconFit(fitted, tuple(rows), float(shared[0]), float(shared[1]), loss,
+                     fit_loss, len(readings), phone_offsets,
+                     {p: int(np.count_nonzero(phone == p)) for p in phones})
 
-    def rmse(params, log_dist, floors_apart, rssi) -> float:
-        residual = params[0] - 10.0 * params[1] * log_dist - loss * floors_apart - rssi
-        return float(np.sqrt(np.mean(residual ** 2))) if residual.size else math.nan
 
-    # the check of the positions: each beacon's readings fitted at every beacon's position
+def _solve(residual, start, lo, hi, config: BeaconFitConfig) -> np.ndarray:
+    """The parameters within [lo, hi] that minimise the soft-L1 cost of ``residual``, from ``start``."""
+    from scipy.optimize import least_squares
+
+    start = np.clip(np.array(start, dtype=np.float64), np.array(lo) + 1e-6, np.array(hi) - 1e-6)
+    return least_squares(residual, start, bounds=(lo, hi), loss="soft_l1", f_scale=config.f_scale_db).x
+
+
+def _fit_shared(log_d: np.ndarray, apart: np.ndarray, z: np.ndarray, fit_loss: bool, kept_loss: float,
+                config: BeaconFitConfig) -> tuple[np.ndarray, float]:
+    """(C, n[, L]) shared by every beacon over every reading, and the floor loss L (``kept_loss``
+    when it is not fitted)."""
+    (c_lo, c_hi), (n_lo, n_hi) = config.c_bounds_dbm, config.n_bounds
+    if fit_loss:
+        shared = _solve(lambda p: p[0] - 10.0 * p[1] * log_d - p[2] * apart - z,
+                        [-60.0, 2.0, DEFAULT_FLOOR_LOSS_DB], [c_lo, n_lo, config.floor_loss_bounds_db[0]],
+                        [c_hi, n_hi, config.floor_loss_bounds_db[1]], config)
+        return shared, float(shared[2])
+    shared = _solve(lambda p: p[0] - 10.0 * p[1] * log_d - kept_loss * apart - z, [-60.0, 2.0],
+                    [c_lo, n_lo], [c_hi, n_hi], config)
+    return shared, kept_loss
+
+
+def _fit_path_loss(log_dist: np.ndarray, floors_apart: np.ndarray, rssi: np.ndarray, loss: float,
+                   start: np.ndarray, config: BeaconFitConfig) -> np.ndarray:
+    """(C, n) of one beacon's readings, the floor loss fixed, from ``start``."""
+    (c_lo, c_hi), (n_lo, n_hi) = config.c_bounds_dbm, config.n_bounds
+    return _solve(lambda p: p[0] - 10.0 * p[1] * log_dist - loss * floors_apart - rssi, start,
+                  [c_lo, n_lo], [c_hi, n_hi], config)
+
+
+def _fit_each_beacon(k: int, beacon: np.ndarray, log_d: np.ndarray, apart: np.ndarray, z: np.ndarray, loss: float,
+                     shared: np.ndarray, config: BeaconFitConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(C, n, own) of each of the ``k`` beacons: its own fit where it has ``min_readings``
+    readings (``own``), else the shared values."""
+    c = np.full(k, shared[0])
+    n = np.full(k, shared[1])
+    own = np.zeros(k, dtype=bool)
+    for b in range(k):
+        mine = beacon == b
+        if np.count_nonzero(mine) >= config.min_readings:
+            c[b], n[b] = _fit_path_loss(log_d[mine], apart[mine], z[mine], loss, shared[:2], config)
+            own[b] = True
+    return c, n, own
+
+
+def _phone_offsets(residual: np.ndarray, phone: np.ndarray, phones: list[str]) -> np.ndarray:
+    """Each reading's phone offset: the median residual of its phone's readings, the offsets
+    weighted by readings averaging 0 (0 for a phone not fitted)."""
+    by_phone = {p: float(np.median(residual[phone == p])) for p in phones}
+    counts = {p: int(np.count_nonzero(phone == p)) for p in phones}
+    mean = sum(by_phone[p] * counts[p] for p in phones) / sum(counts.values())
+    by_phone = {p: v - mean for p, v in by_phone.items()}
+    return np.array([by_phone.get(p, 0.0) for p in phone])
+
+
+def _rmse(params, log_dist: np.ndarray, floors_apart: np.ndarray, rssi: np.ndarray, loss: float) -> float:
+    residual = params[0] - 10.0 * params[1] * log_dist - loss * floors_apart - rssi
+    return float(np.sqrt(np.mean(residual ** 2))) if residual.size else math.nan
+
+
+def _position_check(table: BeaconTable, readings: BeaconReadings, c: np.ndarray, n: np.ndarray, own: np.ndarray,
+                    loss: float, shared: np.ndarray, log_d: np.ndarray, z: np.ndarray,
+                    config: BeaconFitConfig) -> list[BeaconFitRow]:
+    """How each beacon was fitted, and the check of the table's positions: each beacon's readings
+    (with its own fit) fitted at every beacon's position, the best one named."""
+    beacon, apart = readings.beacon, readings.floors_apart.astype(np.float64)
     beacon_xy, beacon_floor = readings.beacon_xy_m, readings.beacon_floor
     rows = []
     for b in range(len(table)):
         mine = beacon == b
-        here = rmse((c[b], n[b]), log_d[mine], apart[mine], z[mine])
+        here = _rmse((c[b], n[b]), log_d[mine], apart[mine], z[mine], loss)
         best, best_rmse = table.beacon_id[b], here
         if own[b]:
             for other in range(len(table)):
@@ -479,14 +533,10 @@ def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitC
                 d = np.linalg.norm(readings.building_xy_m[mine] - beacon_xy[other], axis=1)
                 log_other = np.log10(np.maximum(d, MIN_DISTANCE_M))
                 apart_other = np.abs(readings.floor[mine] - beacon_floor[other]).astype(np.float64)
-                there = rmse(fit_one(log_other, apart_other, z[mine]), log_other, apart_other, z[mine])
+                there = _rmse(_fit_path_loss(log_other, apart_other, z[mine], loss, shared[:2], config), log_other,
+                              apart_other, z[mine], loss)
                 if there < best_rmse:
                     best, best_rmse = table.beacon_id[other], there
         rows.append(BeaconFitRow(table.beacon_id[b], int(np.count_nonzero(mine)),
                                  int(np.count_nonzero(mine & (apart == 0))), bool(own[b]), here, best, best_rmse))
-    phone_offsets = {p: float(offset[phone == p][0]) for p in phones}
-    fitted = dataclasses.replace(table.with_parameters(c, n, loss),
-                                 phone_offsets_db={p: np.full(len(table), v) for p, v in phone_offsets.items()})
-    return BeaconFit(fitted, tuple(rows), float(shared[0]), float(shared[1]), loss,
-                     fit_loss, len(readings), phone_offsets,
-                     {p: int(np.count_nonzero(phone == p)) for p in phones})
+    return rows
