@@ -45,9 +45,9 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.logread import (BadRow, GapTracker, LogReadWarning, RecordStream, ScanAssembler, TimeOrder,
-                                       check_range, clock_before_rows, count_bad_row, count_rows, group_scans,
-                                       handle_each, iter_bounded_lines, open_binary, parse_columns, parse_number,
-                                       quick_numbers, read_whole, split_by)
+                                       check_range, count_bad_row, group_scans, handle_each, iter_bounded_lines,
+                                       open_binary, parse_columns, parse_number, quick_numbers, read_whole, split_by,
+                                       take_block)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 __all__ = ["DEFAULT_MAX_WIFI_AGE_S", "NEEDED_TYPES", "IlcParser", "LogReadWarning", "read_ilc", "read_ilc_header"]
@@ -209,34 +209,19 @@ class IlcParser:
 
     def _take_block(self, begin: int, end: int, parsed: dict, clock_t: np.ndarray, is_wifi: np.ndarray) -> None:
         """The fast lines ``begin .. end - 1`` (all good records), as line by line."""
-        first_line, counts, wifi = [], [], None
-        report = self._report
-        for kind, (index, records) in parsed.items():
-            lo, hi = np.searchsorted(index, (begin, end))
-            if hi == lo:
-                continue
-            first_line.append(int(index[lo]))
-            counts.append((kind, int(hi - lo)))
-            if records is None:
-                continue
-            if kind in _VECTOR_TYPES:
-                self._vectors[_VECTOR_TYPES[kind][0]].append(records[lo:hi])
-            elif kind == "TYPE_PRESSURE":
-                self._pressure.append(records[lo:hi])
-            elif kind == "TYPE_WAYPOINT":
-                for record in records[lo:hi]:
-                    self._waypoints.add(record[0], record)
-            elif kind == "TYPE_BEACON":
-                for record in records[lo:hi]:
-                    self._beacons.add(record[0], record)
-            else:
-                wifi = records[lo:hi]
-        order = np.argsort(first_line, kind="stable").tolist()
-        known = [counts[i] for i in order if counts[i][0] in _NUMBER_COLUMNS]
-        count_rows(report, [kind for kind, _ in known], [n for _, n in known])
-        report.unknown_rows += sum(n for kind, n in counts if kind not in _NUMBER_COLUMNS)
-        before, after = clock_before_rows(clock_t[begin:end], is_wifi[begin:end])
-        self._scans.add_rows(wifi or [], before, after)
+        take_block(parsed, begin, end, self._report, self._take_records, "TYPE_WIFI", self._scans, clock_t, is_wifi)
+
+    def _take_records(self, kind: str, records) -> None:
+        if kind in _VECTOR_TYPES:
+            self._vectors[_VECTOR_TYPES[kind][0]].append(records)
+        elif kind == "TYPE_PRESSURE":
+            self._pressure.append(records)
+        elif kind == "TYPE_WAYPOINT":
+            for record in records:
+                self._waypoints.add(record[0], record)
+        elif kind == "TYPE_BEACON":
+            for record in records:
+                self._beacons.add(record[0], record)
 
     def take(self, final: bool) -> Recording:
         vectors = {}

@@ -64,8 +64,8 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.logread import (BadRow, GapTracker, RecordStream, ScanAssembler, TimeOrder, check_range,
-                                       clock_before_rows, count_rows, group_scans, handle_each, iter_bounded_lines,
-                                       open_binary, parse_columns, parse_number, quick_numbers, read_whole, split_by)
+                                       group_scans, handle_each, iter_bounded_lines, open_binary, parse_columns,
+                                       parse_number, quick_numbers, read_whole, split_by, take_block)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 FORMAT_NAME = "GetSensorData"
@@ -244,27 +244,14 @@ class GsdParser:
 
     def _take_block(self, begin: int, end: int, parsed: dict, app_t: np.ndarray, is_wifi: np.ndarray) -> None:
         """The fast lines ``begin .. end - 1`` (good records; none ends a window), as line by line."""
-        first_line, counts, wifi = [], [], None
-        report = self._report
-        for kind, (index, records) in parsed.items():
-            lo, hi = np.searchsorted(index, (begin, end))
-            if hi == lo:
-                continue
-            first_line.append(int(index[lo]))
-            counts.append((kind, int(hi - lo)))
-            if kind in _SENSOR_TYPES:
-                self._raw[_SENSOR_TYPES[kind][0]].append(records[lo:hi])
-            elif kind == "BLE4":
-                for record in records[lo:hi]:
-                    self._beacons.add(record[0], record)
-            elif kind == "WIFI":
-                wifi = records[lo:hi]
-        order = np.argsort(first_line, kind="stable").tolist()
-        known = [counts[i] for i in order if parsed[counts[i][0]][1] is not None]
-        count_rows(report, [kind for kind, _ in known], [n for _, n in known])
-        report.unknown_rows += sum(n for kind, n in counts if parsed[kind][1] is None)
-        before, after = clock_before_rows(app_t[begin:end], is_wifi[begin:end])
-        self._wifi.add_rows(wifi or [], before, after)
+        take_block(parsed, begin, end, self._report, self._take_records, "WIFI", self._wifi, app_t, is_wifi)
+
+    def _take_records(self, kind: str, records) -> None:
+        if kind in _SENSOR_TYPES:
+            self._raw[_SENSOR_TYPES[kind][0]].append(records)
+        elif kind == "BLE4":
+            for record in records:
+                self._beacons.add(record[0], record)
 
     def take(self, final: bool) -> Recording:
         if final:

@@ -639,6 +639,35 @@ def count_rows(report: ReadReport, kinds: list[str], counts: list[int]) -> None:
         report.rows[kind] = report.rows.get(kind, 0) + n
 
 
+def take_block(parsed: dict[str, tuple[np.ndarray, object]], begin: int, end: int, report: ReadReport,
+               take: Callable[[str, object], None], wifi_kind: str, scans: ScanAssembler, clock_s: np.ndarray,
+               is_wifi: np.ndarray) -> None:
+    """The fast lines ``begin .. end - 1`` of a block parse (``parsed``: kind -> (its lines, its
+    records, None for a kind not read)), as line by line: each kind's records in the range to
+    ``take(kind, records)`` in the order of ``parsed``, the WiFi rows (``wifi_kind``) to ``scans``
+    with the clock before them (``clock_s``, ``is_wifi``: each line's), the rows counted (the
+    kinds read in the order their first line comes, the others as unknown)."""
+    first_line, counts, wifi = [], [], None
+    for kind, (index, records) in parsed.items():
+        lo, hi = np.searchsorted(index, (begin, end))
+        if hi == lo:
+            continue
+        first_line.append(int(index[lo]))
+        counts.append((kind, int(hi - lo)))
+        if records is None:
+            continue
+        if kind == wifi_kind:
+            wifi = records[lo:hi]
+        else:
+            take(kind, records[lo:hi])
+    order = np.argsort(first_line, kind="stable").tolist()
+    known = [counts[i] for i in order if parsed[counts[i][0]][1] is not None]
+    count_rows(report, [kind for kind, _ in known], [n for _, n in known])
+    report.unknown_rows += sum(n for kind, n in counts if parsed[kind][1] is None)
+    before, after = clock_before_rows(clock_s[begin:end], is_wifi[begin:end])
+    scans.add_rows(wifi or [], before, after)
+
+
 class LogParser(Protocol):
     """What a log format gives a :class:`RecordStream`: its lines in, records out."""
 
