@@ -77,6 +77,18 @@ def table_dict_reader(handle, path: str | os.PathLike) -> csv.DictReader:
     return reader
 
 
+def finite_number(text: str | None, name: str, path: str | os.PathLike, line_no: int) -> float:
+    """A CSV field (``name``'s, None where the row lacks it) as a finite number; else one line naming
+    the file, line and column."""
+    try:
+        value = float(text)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise MapfilterError(f"column {name} is not a number: {text!r}", path, line_no) from None
+    if not math.isfinite(value):
+        raise MapfilterError(f"column {name} is not finite: {text!r}", path, line_no)
+    return value
+
+
 @dataclasses.dataclass(frozen=True)
 class CsvTable:
     """A CSV table with a header: ``column`` maps each lower-case column name to its index,

@@ -12,7 +12,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import io
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -98,7 +97,7 @@ class AccessPointTable:
         rows: dict[str, list] = {c: [] for c in cls.COLUMNS}
         lines: list[int] = []
         first_line: dict[tuple[str, str], int] = {}  # (bssid, band) -> its line
-        from mapfilter.io.tables import read_table_text, table_dict_reader
+        from mapfilter.io.tables import finite_number, read_table_text, table_dict_reader
 
         # UTF-8 with or without the byte-order mark Excel writes; another encoding, or a file over
         # the bound, is one line
@@ -129,12 +128,7 @@ class AccessPointTable:
                     if text in (None, "") and column in defaults:
                         value = float(defaults[column])
                     else:
-                        try:
-                            value = float(text)  # type: ignore[arg-type]
-                        except (TypeError, ValueError):
-                            raise MapfilterError(f"column {column} is not a number: {text!r}", path, line_no) from None
-                    if not math.isfinite(value):
-                        raise MapfilterError(f"column {column} is not finite: {text!r}", path, line_no)
+                        value = finite_number(text, column, path, line_no)
                     low, high = COLUMN_RANGES[column]
                     if not low <= value <= high:
                         raise MapfilterError(f"column {column} is {value:g}, outside the {low:g} to {high:g} an "
