@@ -115,7 +115,7 @@ def _add_grow(sub) -> None:
                     "repeat until the map stops changing. Logs with waypoints are added as surveyed points. "
                     "The result loads everywhere a radio map does (docs/self-training.md).")
     _add_common(grow, "walks: without waypoints they grow the map, with waypoints they are added as surveyed "
-                 "points (unless --ignore-waypoints)")
+                      "points (unless --ignore-waypoints)")
     grow.add_argument("--radiomap", type=Path, required=True, metavar="BASE", help="the radio map to grow (.npz)")
     grow.add_argument("--out", type=Path, required=True, metavar="RADIOMAP", help="the grown radio map (.npz)")
     grow.add_argument("--iterations", type=bounded_int(None, 100), default=_MAX_ITERATIONS, metavar="N",
