@@ -19,6 +19,7 @@ def _api_page_code() -> str:
     return "\n".join(re.findall(r"```python\n(.*?)```", (REPO / "docs" / "api.md").read_text(), flags=re.S))
 
 
+@pytest.mark.slow
 def test_the_api_page_runs_and_its_causal_track_is_the_clis(tmp_path, monkeypatch):
     monkeypatch.chdir(REPO)
     namespace: dict = {}

@@ -61,6 +61,9 @@ LONG_SCRIPTS = {
     "split_ilc.py": "the ILC half-floor split, both floors at 10,000 particles: about 30 minutes",
     "beyond_survey.py": "the IPIN route-out table and the ILC half-floor split: about an hour",
     "benchmark.py": "generated floor plans through map prepare: minutes",
+    "compare_readers.py": "generated floor plans through both drawing readers: minutes",
+    "reader_speed.py": "a benchmark: minutes, and its numbers are for a quiet machine",
+    "train_segmenter.py": "trains a network: an hour, and needs torch (tools/plans/requirements-train.txt)",
     "floor_sim.py": "ten simulated building walks: 2-10 minutes",
     "bench_filter.py": "a benchmark: minutes, and its numbers are for a quiet machine",
     "bench_startup.py": "a benchmark: minutes (radio maps built, commands run in fresh processes)",
@@ -86,7 +89,10 @@ class Command:
 
     @property
     def slow(self) -> bool:
-        return self.needs_real_data or bool(re.search(r"--jobs|\bevaluate\b", self.text))
+        """In the slow tier: every document's commands but the README's, and the README's on the
+        real data or with ``evaluate`` or ``--jobs`` (the fast tier runs the README's quick ones)."""
+        return (self.document != "README.md" or self.needs_real_data
+                or bool(re.search(r"--jobs|\bevaluate\b", self.text)))
 
     @property
     def id(self) -> str:

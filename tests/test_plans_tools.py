@@ -11,6 +11,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import shapely
+from shapely.ops import unary_union
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools" / "plans"))
@@ -33,7 +35,8 @@ def test_truth_is_consistent_and_the_drawing_shows_the_walls(wall, tmp_path: Pat
     assert plan.walls.shape == plan.free.shape == plan.rooms.shape == plan.image.shape[:2]
     assert not (plan.walls & plan.free).any()
     assert (plan.free[plan.rooms > 0]).all()  # rooms are free space
-    assert 1000 <= max(plan.image.shape[:2]) <= 2400
+    # 0.2-9 megapixels for the sheet before its title block (which adds at most a third)
+    assert 0.19e6 <= plan.image.shape[0] * plan.image.shape[1] <= 12e6
     gray = plan.image if plan.image.ndim == 2 else cv2.cvtColor(plan.image, cv2.COLOR_BGR2GRAY)
     inner = plan.walls & ~cv2.dilate((~plan.walls).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     # solid walls are dark inside; outlined walls are dark along their edges
@@ -44,6 +47,28 @@ def test_truth_is_consistent_and_the_drawing_shows_the_walls(wall, tmp_path: Pat
     assert meta["resolution_m"] == pytest.approx(plan.resolution_m) and meta["style"]["wall"] == wall
     np.testing.assert_array_equal(cv2.imread(str(tmp_path / "p_walls.png"), cv2.IMREAD_GRAYSCALE) > 0, plan.walls)
     assert path.exists() and len(meta["rooms"]) == len(plan.room_info)
+
+
+def test_the_layouts_hold_what_real_drawings_hold():
+    """Every outline shape (round, angled and courtyard ones too), bays, window runs and terraces
+    turn up in a set; a courtyard is outside; a terrace is outside and its rail no wall; windows are
+    wall in the truth."""
+    rng = np.random.default_rng(5)
+    layouts = [plangen.make_layout(rng) for _ in range(60)]
+    assert {layout.features["outline"] for layout in layouts} == set(plangen.OUTLINES)
+    for feature in ("bay", "window_run", "terrace"):
+        assert sum(layout.features[feature] for layout in layouts) >= 5, feature
+    courtyard = next(layout for layout in layouts if layout.features["outline"] == "courtyard")
+    assert len(courtyard.footprint.interiors) == 1
+    hole = shapely.Polygon(courtyard.footprint.interiors[0])
+    assert hole.area > 4.0 and not hole.buffer(-0.05).intersects(courtyard.solid)
+    layout = next(layout for layout in layouts if layout.features["terrace"] and layout.windows)
+    plan = plangen.draw_plan(np.random.default_rng(1), layout, "double", "white")
+    terrace = plangen._raster(layout.terraces[0].buffer(-0.1), plan.walls.shape, 1 / plan.resolution_m, plan.origin_m)
+    assert terrace.any() and not (plan.walls | plan.free)[terrace].any()
+    windows = plangen._raster(unary_union([w.cut(0.0).buffer(-0.02) for w in layout.windows]), plan.walls.shape,
+                              1 / plan.resolution_m, plan.origin_m)
+    assert windows.any() and plan.walls[windows].all()
 
 
 def test_scores_of_known_masks():

@@ -165,11 +165,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mapfilter.evaluation.comparison import Evaluation, EvaluationSetup, evaluate, methods_for, validate_setup
-    from mapfilter.evaluation.store import file_digest, read_outcome, run_key, write_outcome
-    from mapfilter.maps.building import Building
-    from mapfilter.maps.walkable import check_before_tracking
-    from mapfilter.sensors.recording import trace_name
+    from mapfilter.evaluation.comparison import evaluate, methods_for
+    from mapfilter.evaluation.plots import load_plotting
 
     check_map_first("mapfilter evaluate MAP LOG...", args.map, [*args.logs, *args.survey, *args.unlabelled])
     if args.leave_out == "walk":
@@ -181,26 +178,84 @@ def run(args: argparse.Namespace) -> int:
     inputs = input_paths(args.map, args.logs, args.radiomap, args.aps, args.survey, args.unlabelled, args.config,
                          *source_paths(args), args.groups)
     out = check_output_path(args.out, directory=True, inputs=inputs)  # holds only our files, no input
+    building = _checked_building(args, config)
+    setup = _validated_setup(args, building, config, methods, grouping)  # before anything is written
+    key = _run_key(args, config, methods, grouping, inputs)
+    resumed = _resumed_walks(args, out, key)
+    args.out.mkdir(parents=True, exist_ok=True)
+    plans = _plans_for_pictures(building, args.logs)
+    _announce(args, building, methods, config, len(resumed))
+    finished = _WalkWriter(out, key, plans, building, resumed)
+    load_plotting()  # before the walks: an interrupt in its import would leave it half loaded for the pictures
+    # every file of the run is staged and committed together at the end: a run that fails (a full
+    # disk) leaves an earlier evaluation whole; an interrupted one commits the walks done so far
+    evaluation = None
+    try:
+        with ProgressBar("evaluate", len(args.logs)) as progress, ProgressBar("growing the radio map", 1) as growing:
+            try:
+                evaluation = evaluate(building, args.logs, setup, engine, progress=progress, on_walk=finished,
+                                      resumed=resumed, grow_progress=growing if setup.grows else None)
+            except KeyboardInterrupt:
+                _write_partial_summary(args, out, finished.done, setup, config,
+                                       methods_for(building, source_files(args)))
+                raise
+        for message in evaluation.read_warnings:
+            warn(message)
+        _write_summary(args, out, evaluation, config, methods_for(building, source_files(args)), complete=True)
+        out.commit()
+    finally:
+        out.discard()
+    return 1 if evaluation.failed else 0
+
+
+def _checked_building(args, config):
+    """The map or building, its problems for tracking warned, refused when the tracking settings
+    do not fit it."""
+    from mapfilter.maps.building import Building
+    from mapfilter.maps.walkable import check_before_tracking
+
     building = Building.load(args.map)
     for message in check_before_tracking(building, args.map):
         warn(message)
     check_tracking_fits(config, building_extents_m(building))
+    return building
+
+
+def _validated_setup(args, building, config, methods, grouping):
+    """The evaluation's setup, checked against the building and the logs."""
+    from mapfilter.evaluation.comparison import EvaluationSetup, validate_setup
+
     setup = EvaluationSetup(methods=methods, radio_map_path=args.radiomap, ap_table_path=args.aps,
                             survey_paths=tuple(args.survey), leave_one_out=args.leave_one_out, strict=args.strict,
                             tracking=config, unlabelled_paths=tuple(args.unlabelled),
                             transductive=args.transductive, sources=load_sources(args, building), groups=grouping,
                             common_waypoints=args.waypoints == "common", start=start_from(args, building))
-    validate_setup(building, args.logs, setup)  # before anything is written
-    key = run_key({"map": str(args.map.resolve()), "logs": [str(p.resolve()) for p in args.logs],
-                   "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
-                   "aps": str(args.aps), "leave_one_out": args.leave_one_out, "methods": methods,
-                   "unlabelled": [str(p.resolve()) for p in args.unlabelled], "transductive": args.transductive,
-                   "strict": args.strict, "config": config.to_dict(),
-                   **({"start": args.start} if args.start is not None else {}),
-                   **({"sources": _source_files(args)} if source_files(args) else {}),
-                   **({"groups": dict(grouping.group_of)} if grouping is not None else {}),
-                   # by content: a log, map or model replaced at the same path is another run
-                   "content": [file_digest(p) for p in inputs if p.is_file()]})
+    validate_setup(building, args.logs, setup)
+    return setup
+
+
+def _run_key(args, config, methods, grouping, inputs) -> str:
+    """What makes two runs the same run (``--resume`` keeps only the walks of the same one)."""
+    from mapfilter.evaluation.store import file_digest, run_key
+
+    return run_key({"map": str(args.map.resolve()), "logs": [str(p.resolve()) for p in args.logs],
+                    "survey": [str(p.resolve()) for p in args.survey], "radiomap": str(args.radiomap),
+                    "aps": str(args.aps), "leave_one_out": args.leave_one_out, "methods": methods,
+                    "unlabelled": [str(p.resolve()) for p in args.unlabelled], "transductive": args.transductive,
+                    "strict": args.strict, "config": config.to_dict(),
+                    **({"start": args.start} if args.start is not None else {}),
+                    **({"sources": _source_files(args)} if source_files(args) else {}),
+                    **({"groups": dict(grouping.group_of)} if grouping is not None else {}),
+                    # by content: a log, map or model replaced at the same path is another run
+                    "content": [file_digest(p) for p in inputs if p.is_file()]})
+
+
+def _resumed_walks(args, out, key: str) -> list:
+    """With --resume, the outcomes of the walks of this run an interrupted one finished in OUT;
+    else none, and what an earlier run wrote there goes with the commit."""
+    from mapfilter.evaluation.store import read_outcome
+    from mapfilter.sensors.recording import trace_name
+
     walks_dir = args.out / "walks"
     resumed = []
     if args.resume:
@@ -212,51 +267,45 @@ def run(args: argparse.Namespace) -> int:
         print(f"resuming: {len(resumed)} of {len(args.logs)} walks already done in {args.out}")
     else:
         out.replace_earlier_run()  # what an earlier run wrote there (its manifest) goes with the commit
-    args.out.mkdir(parents=True, exist_ok=True)
-    plans = _plans_for_pictures(building, args.logs)
-    _announce(args, building, methods, config, len(resumed))
-    done: list = list(resumed)  # the walks with an outcome, for a partial summary
+    return resumed
 
-    def finished(outcome) -> None:
-        # each walk's numbers, tracks and picture staged as it finishes: an interrupted run commits them
-        with out.writing(f"walks/{outcome.trace}.json") as (tmp,):
-            write_outcome(outcome, tmp, key)
-        done.append(outcome)
+
+class _WalkWriter:
+    """``on_walk`` of the evaluation: each walk's numbers, tracks and picture staged as it
+    finishes (an interrupted run commits them); ``done``: the walks with an outcome, for a
+    partial summary."""
+
+    def __init__(self, out, key: str, plans: dict, building, resumed: list) -> None:
+        self.out, self.key, self.plans, self.building = out, key, plans, building
+        self.done: list = list(resumed)
+
+    def __call__(self, outcome) -> None:
+        from mapfilter.evaluation.store import write_outcome
+
+        with self.out.writing(f"walks/{outcome.trace}.json") as (tmp,):
+            write_outcome(outcome, tmp, self.key)
+        self.done.append(outcome)
         if outcome.status != "ok":
             print(f"mapfilter: {outcome.status}: {outcome.reason}", file=sys.stderr)
-        _write_walk_tracks(out, outcome, plans, building)
+        _write_walk_tracks(self.out, outcome, self.plans, self.building)
 
+
+def _write_partial_summary(args, out, done: list, setup, config, methods) -> None:
+    """An interrupted run: the summary of the walks finished so far (a consistent partial
+    result), committed with them."""
+    from mapfilter.evaluation.comparison import Evaluation
     from mapfilter.sensors.recording import trace_name as name_of
 
-    # every file of the run is staged and committed together at the end: a run that fails (a full
-    # disk) leaves an earlier evaluation whole; an interrupted one commits the walks done so far
-    evaluation = None
-    try:
-        with ProgressBar("evaluate", len(args.logs)) as progress, ProgressBar("growing the radio map", 1) as growing:
-            try:
-                evaluation = evaluate(building, args.logs, setup, engine, progress=progress, on_walk=finished,
-                                      resumed=resumed, grow_progress=growing if setup.grows else None)
-            except KeyboardInterrupt:
-                # a consistent partial result: the summary of the walks finished so far
-                index = {name_of(p): i for i, p in enumerate(args.logs)}
-                partial = Evaluation.from_outcomes([dataclasses.replace(o, index=index[o.trace]) for o in done
-                                                    if o.trace in index], len(args.logs), 0.0)
-                partial.protocol, partial.grouping = setup.protocol, setup.groups
-                partial.radio_map_source = setup.radio_map_source(len(args.logs))
-                partial.common_waypoints = setup.common_waypoints
-                _write_summary(args, out, partial, config, methods_for(building, source_files(args)),
-                               complete=False)
-                out.commit()
-                print(f"interrupted: {len(done)} of {len(args.logs)} walks done; wrote a partial summary to "
-                      f"{args.out} (mapfilter evaluate ... --resume runs the rest)")
-                raise
-        for message in evaluation.read_warnings:
-            warn(message)
-        _write_summary(args, out, evaluation, config, methods_for(building, source_files(args)), complete=True)
-        out.commit()
-    finally:
-        out.discard()
-    return 1 if evaluation.failed else 0
+    index = {name_of(p): i for i, p in enumerate(args.logs)}
+    partial = Evaluation.from_outcomes([dataclasses.replace(o, index=index[o.trace]) for o in done
+                                        if o.trace in index], len(args.logs), 0.0)
+    partial.protocol, partial.grouping = setup.protocol, setup.groups
+    partial.radio_map_source = setup.radio_map_source(len(args.logs))
+    partial.common_waypoints = setup.common_waypoints
+    _write_summary(args, out, partial, config, methods, complete=False)
+    out.commit()
+    print(f"interrupted: {len(done)} of {len(args.logs)} walks done; wrote a partial summary to "
+          f"{args.out} (mapfilter evaluate ... --resume runs the rest)")
 
 
 def _grouping(args):
@@ -335,8 +384,6 @@ def _write_walk_tracks(out, outcome, plans: dict, building) -> None:
 
 
 def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -> None:
-    from mapfilter.evaluation.comparison import nan_to_none
-    from mapfilter.evaluation.metrics import format_table
     from mapfilter.evaluation.plots import plot_error_cdf
 
     columns = SUMMARY_COLUMNS + (BUILDING_COLUMNS if evaluation.has_floors else ())
@@ -345,22 +392,8 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
     by_phone = evaluation.summary_rows(by_phone=True)
     grouping = evaluation.grouping
     by_group = evaluation.summary_rows(by_group=True) if grouping is not None else []
-    table = format_table(summary, columns)
-    waypoints = evaluation.common_count()[1]
     n_done = len({r.trace for r in evaluation.results}) + len(evaluation.failed)
-    grown = f", plus {evaluation.grown}" if evaluation.grown else ""
-    start = f"; the pf methods started at {args.start} (--start)" if args.start is not None else ""
-    print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s; "
-          f"{evaluation.radio_map_source}{grown}{start}")
-    if evaluation.results:
-        print(evaluation.scoring_text())
-    print(table)
-    for line in evaluation.not_scored_text():
-        print(f"  {line}")
-    if len(evaluation.phones()) > 1:
-        print(f"\nper phone model:\n{format_table(by_phone, ('phone',) + columns)}")
-    if grouping is not None:
-        print(f"\nper {grouping.unit} ({evaluation.protocol}):\n{format_table(by_group, ('group',) + columns)}")
+    _print_tables(args, evaluation, columns, summary, by_phone, by_group, n_done)
     out: Path = args.out
     trace_rows = evaluation.trace_rows()
     # every walk's row names the protocol it was scored with, so walks.csv stands on its own
@@ -376,23 +409,9 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
         _write_csv(w_csv, walk_rows, list(dict.fromkeys(k for row in walk_rows for k in row)) or ["trace"])
         if g_csv:
             _write_csv(g_csv[0], by_group, ("group",) + file_columns + ("traces",))
-        s_json.write_text(json.dumps({
-            "map": str(args.map), "logs": [str(p) for p in args.logs], "survey": [str(p) for p in args.survey],
-            "radiomap": None if args.radiomap is None else str(args.radiomap), "leave_one_out": args.leave_one_out,
-            "protocol": evaluation.protocol, "radio_map_source": evaluation.radio_map_source,
-            "waypoints": args.waypoints, "scoring": evaluation.scoring_text(), "start": args.start,
-            "groups": None if grouping is None else dict(grouping.group_of),
-            "sources": _source_files(args),
-            "unlabelled": [str(p) for p in args.unlabelled], "transductive": args.transductive,
-            "grown": evaluation.grown,
-            "methods": list(methods), "complete": complete, "walks": evaluation.n_traces, "walks_done": n_done,
-            "wall_time_s": evaluation.wall_time_s, "config": config.to_dict(), "failed": failed,
-            "summary": [{k: nan_to_none(v) for k, v in row.items()} for row in summary],
-            "summary_by_phone": [{k: nan_to_none(v) for k, v in row.items()} for row in by_phone],
-            "summary_by_group": [{k: nan_to_none(v) for k, v in row.items()} for row in by_group],
-            "traces": [{k: nan_to_none(v) for k, v in row.items()} for row in trace_rows],
-            "per_walk": [{k: nan_to_none(v) for k, v in row.items()} for row in walk_rows],
-        }, indent=1))
+        s_json.write_text(json.dumps(_summary_json(args, evaluation, config, methods, complete, n_done, failed, {
+            "summary": summary, "summary_by_phone": by_phone, "summary_by_group": by_group, "traces": trace_rows,
+            "per_walk": walk_rows}), indent=1))
         # the protocol as a comment: the file still loads with --config
         c_yaml.write_text(f"# scored against {evaluation.protocol} (mapfilter evaluate; summary.json has the rest)\n"
                           + config.to_yaml())
@@ -406,6 +425,52 @@ def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -
               + ", ".join(item["trace"] for item in failed))
     print(f"wrote {out}/summary.csv, summary.json, traces.csv, walks.csv (why each walk went wrong), cdf.png, "
           f"config.yaml, " + ("groups.csv (per group), " if grouping is not None else "") + "walks/, tracks/")
+
+
+def _print_tables(args, evaluation, columns, summary: list[dict], by_phone: list[dict], by_group: list[dict],
+                  n_done: int) -> None:
+    """The summary line (walks, waypoints, time, where the radio map came from, the start), how the
+    methods were scored, the summary table with the methods not scored at some waypoints, per phone
+    model when there are several, per group in a leave-a-group-out run."""
+    from mapfilter.evaluation.metrics import format_table
+
+    waypoints = evaluation.common_count()[1]
+    grown = f", plus {evaluation.grown}" if evaluation.grown else ""
+    start = f"; the pf methods started at {args.start} (--start)" if args.start is not None else ""
+    print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s; "
+          f"{evaluation.radio_map_source}{grown}{start}")
+    if evaluation.results:
+        print(evaluation.scoring_text())
+    print(format_table(summary, columns))
+    for line in evaluation.not_scored_text():
+        print(f"  {line}")
+    if len(evaluation.phones()) > 1:
+        print(f"\nper phone model:\n{format_table(by_phone, ('phone',) + columns)}")
+    if evaluation.grouping is not None:
+        print(f"\nper {evaluation.grouping.unit} ({evaluation.protocol}):\n"
+              f"{format_table(by_group, ('group',) + columns)}")
+
+
+def _summary_json(args, evaluation, config, methods, complete: bool, n_done: int, failed: list[dict],
+                  tables: dict[str, list[dict]]) -> dict:
+    """summary.json: the run's inputs, protocol, settings and outcome, then ``tables`` (name: rows,
+    NaN as null)."""
+    from mapfilter.evaluation.comparison import nan_to_none
+
+    grouping = evaluation.grouping
+    return {
+        "map": str(args.map), "logs": [str(p) for p in args.logs], "survey": [str(p) for p in args.survey],
+        "radiomap": None if args.radiomap is None else str(args.radiomap), "leave_one_out": args.leave_one_out,
+        "protocol": evaluation.protocol, "radio_map_source": evaluation.radio_map_source,
+        "waypoints": args.waypoints, "scoring": evaluation.scoring_text(), "start": args.start,
+        "groups": None if grouping is None else dict(grouping.group_of),
+        "sources": _source_files(args),
+        "unlabelled": [str(p) for p in args.unlabelled], "transductive": args.transductive,
+        "grown": evaluation.grown,
+        "methods": list(methods), "complete": complete, "walks": evaluation.n_traces, "walks_done": n_done,
+        "wall_time_s": evaluation.wall_time_s, "config": config.to_dict(), "failed": failed,
+        **{name: [{k: nan_to_none(v) for k, v in row.items()} for row in rows] for name, rows in tables.items()},
+    }
 
 
 def _write_csv(path: Path, rows: list[dict], columns) -> None:

@@ -53,7 +53,9 @@ edits file (metres, world frame: x right, y up, origin at the plan's lower-left 
   or GeoJSON in metres whose features have properties {"set": "free"|"wall"}.
 
 writes NAME.yaml (ROS map_server), NAME.png (mask: 0 = wall, 254 = free) and
-NAME_preview.png (walls in red over the plan); nothing is written on error.
+NAME_preview.png (walls in red over the plan, what was taken for the outside shaded grey, rooms
+cut off in orange boxes); nothing is written on error. The report says what share of the
+drawing was taken for the outside; --outside none keeps all of it walkable.
 
 examples:
   mapfilter map prepare plan.jpg --resolution 0.02 --out floor.yaml
@@ -144,9 +146,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="drop wall blobs whose bounding box is shorter than PX (default: under 1 m and not a "
                             "solid column)")
     lines.add_argument("--thicken", type=_PIXELS, default=0, metavar="PX", help="dilate walls by PX pixels (default: 0)")
-    prepare_parser.add_argument("--keep-outside", action="store_true",
-                                help="lines and regions: keep the outside of the building free "
-                                     "(default: outside the building is wall)")
+    prepare_parser.add_argument("--outside", choices=("auto", "none"), default="auto",
+                                help="lines and regions: auto finds the building's outline and walls what lies "
+                                     "outside it (shaded in the preview); none keeps everything on the sheet "
+                                     "walkable (default: auto)")
+    # the option's old spelling, for saved workflows: the same as --outside none
+    prepare_parser.add_argument("--keep-outside", dest="outside", action="store_const", const="none",
+                                help=argparse.SUPPRESS)
     regions = prepare_parser.add_argument_group("filled-region plans (--kind regions)")
     regions.add_argument("--walkable", action="append", metavar="COLOUR",
                          help="a walkable colour: transparent, #rrggbb or r,g,b; repeat for more "
@@ -242,10 +248,11 @@ def run_prepare(args: argparse.Namespace) -> int:
         if args.size or args.scale_points or args.scale_distance:
             raise MapfilterError("a GeoJSON floor is already in real units: give only --resolution (m per pixel)",
                                  args.plan)
-        if args.keep_outside:
-            raise MapfilterError("--keep-outside is for image plans: outside a GeoJSON floor's outline is wall")
+        if args.outside == "none":
+            raise MapfilterError("--outside none is for image plans: outside a GeoJSON floor's outline is wall")
         plan = prepare.prepare_geojson(args.plan, args.resolution or args.map_resolution, args.units, args.inset,
                                        0.0, args.floor)
+        outside_mask = None  # the floor's outline walls the outside
     else:
         points = None
         if args.scale_points is not None:
@@ -255,16 +262,19 @@ def run_prepare(args: argparse.Namespace) -> int:
                                   args.scale_distance)
         drawing = DrawingOptions(args.threshold, close_gaps_px=args.close_gaps, thin_lines_px=args.thin_lines,
                                  remove_text_px=args.remove_text, outline_gap_m=args.outline_gap,
-                                 thicken_px=args.thicken, outside_is_wall=not args.keep_outside)
+                                 thicken_px=args.thicken, outside_is_wall=args.outside == "auto")
         regions = prepare.RegionOptions(tuple(args.walkable or ()), args.tolerance, remove_below_px=args.remove_below,
-                                        open_outlines_px=args.open_outlines, outside_is_wall=not args.keep_outside)
+                                        open_outlines_px=args.open_outlines, outside_is_wall=args.outside == "auto")
         prepared = prepare.prepare_plan(args.plan, scale, kind, drawing, regions, args.map_resolution, args.floor)
-        plan, kind, notes = prepared.plan, prepared.kind, prepared.notes
+        plan, kind, notes, outside_mask = prepared.plan, prepared.kind, prepared.notes, prepared.outside
+        notes.append(f"{outside_mask.mean():.0%} of the drawing taken for the outside of the building and walled "
+                     "(shaded in the preview; --outside none keeps it walkable)" if outside_mask is not None else
+                     "nothing taken for the outside (--outside none): all the sheet's free space is walkable")
     if edits is not None:
         plan = prepare.apply_edits(plan, edits)
     if args.access_points is not None:
         plan.access_points_csv = args.access_points.resolve()
-    outside = ("you gave --keep-outside" if args.keep_outside else
+    outside = ("you gave --outside none" if args.outside == "none" else
                "an opening in the outer wall wider than --outline-gap let it in, or an edit freed it: close it with "
                "--edits")
     hints = {"lines": (outside, "--remove-text PX drops wall blobs shorter than PX plan pixels"),
@@ -277,7 +287,7 @@ def run_prepare(args: argparse.Namespace) -> int:
         found.append(f"{args.out}: {cut_off}")
     in_walls, checked = _check_logs(plan, args.check_logs)
     found += in_walls
-    _write(plan, args.out)
+    _write(plan, args.out, outside_mask, walkable.cut_off_mask(plan.wall_mask, plan.resolution_m))
     for note in notes:
         print(f"  {note}")
     print(f"  {walkable.summary(walk)}")
@@ -427,10 +437,10 @@ def run_import_ipin(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write(plan, out: Path) -> None:
+def _write(plan, out: Path, outside=None, cut_off=None) -> None:
     from mapfilter.maps import prepare
 
-    written = prepare.write_map(plan, out)
+    written = prepare.write_map(plan, out, outside=outside, cut_off=cut_off)
     rows, cols = plan.shape_px
     print(f"wrote {', '.join(str(p) for p in written)}: {cols}x{rows} px at {plan.resolution_m:.4g} m/px, "
           f"{plan.free_fraction:.1%} free")

@@ -31,27 +31,39 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                                "from survey logs with waypoints (ILC traces or GetSensorData logs, .gz ok; "
                                                "latitude/longitude ground truth needs a georeferenced building).")
     sub = parser.add_subparsers(dest="radiomap_command", metavar="SUBCOMMAND", required=True)
+    _add_build(sub)
+    _add_fit_aps(sub)
+    _add_fit_beacons(sub)
+    _add_grow(sub)
 
-    def common(p: argparse.ArgumentParser, logs_help: str = "survey logs with waypoints") -> None:
-        p.add_argument("map", type=Path, metavar="MAP",
-                       help="floor map YAML (ROS map_server), or a building YAML (build: each log's floor from "
-                            "its header, FloorName, or its ground truth; fit-aps: one floor of it)")
-        p.add_argument("logs", type=Path, nargs="+", metavar="LOG", help=logs_help)
-        p.add_argument("--exclude", action="append", default=[], metavar="TRACE",
-                       help="leave out a log, by file name or trace id (repeatable)")
-        p.add_argument("--max-wifi-age", type=bounded_float(0.0, 3600.0), default=5.0, metavar="S",
-                       help="drop WiFi rows last seen more than S seconds before their scan (default 5)")
-        add_strict_argument(p)
 
+def _add_common(p: argparse.ArgumentParser, logs_help: str = "survey logs with waypoints") -> None:
+    """MAP, LOG... and the options every subcommand reads logs with."""
+    p.add_argument("map", type=Path, metavar="MAP",
+                   help="floor map YAML (ROS map_server), or a building YAML (build: each log's floor from "
+                        "its header, FloorName, or its ground truth; fit-aps: one floor of it)")
+    p.add_argument("logs", type=Path, nargs="+", metavar="LOG", help=logs_help)
+    p.add_argument("--exclude", action="append", default=[], metavar="TRACE",
+                   help="leave out a log, by file name or trace id (repeatable)")
+    p.add_argument("--max-wifi-age", type=bounded_float(0.0, 3600.0), default=5.0, metavar="S",
+                   help="drop WiFi rows last seen more than S seconds before their scan (default 5)")
+    add_strict_argument(p)
+
+
+def _add_build(sub) -> None:
+    """``radiomap build``."""
     build = sub.add_parser("build", help="build a radio map (.npz)")
-    common(build)
+    _add_common(build)
     build.add_argument("--out", type=Path, required=True, metavar="RADIOMAP", help="output radio map (.npz)")
     build.add_argument("--steps", action="store_true",
                        help="label scans by the detected steps between waypoints instead of linearly in time")
     build.set_defaults(func=run_build)
 
+
+def _add_fit_aps(sub) -> None:
+    """``radiomap fit-aps``."""
     fit = sub.add_parser("fit-aps", help="estimate access-point positions and path-loss parameters (CSV)")
-    common(fit)
+    _add_common(fit)
     fit.add_argument("--out", type=Path, required=True, metavar="APS_CSV",
                      help="output table bssid,x,y,band,C,n,alpha,d_max")
     fit.add_argument("--min-observations", type=bounded_int(None, 1_000_000), default=_MIN_OBSERVATIONS, metavar="N",
@@ -60,6 +72,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="with a building YAML: the floor to fit (default: the one floor every log is on)")
     fit.set_defaults(func=run_fit_aps)
 
+
+def _add_fit_beacons(sub) -> None:
+    """``radiomap fit-beacons``."""
     beacons = sub.add_parser(
         "fit-beacons", help="fit BLE beacons' path-loss parameters (CSV beacon table)",
         description="Fit each BLE beacon's path-loss parameters (C at 1 m and the exponent n; one loss per floor "
@@ -76,7 +91,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                "  mapfilter radiomap fit-beacons venue.yaml logs/*.txt.gz --positions BLE_Locations.csv \\\n"
                "      --ids BLE1=BE:AC:20:23:00:01,BLE2=BE:AC:20:23:00:03,... --out beacons.csv",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    common(beacons)
+    _add_common(beacons)
     beacons.add_argument("--positions", type=Path, required=True, metavar="CSV",
                          help="the beacons: beacon_id,x,y[,floor] (metres, each floor's frame) or "
                               "beacon_id,latitude,longitude[,floor] (a georeferenced building); an IPIN venue's "
@@ -90,14 +105,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                            f"{_MIN_BEACON_READINGS})")
     beacons.set_defaults(func=run_fit_beacons)
 
+
+def _add_grow(sub) -> None:
+    """``radiomap grow``."""
     grow = sub.add_parser(
         "grow", help="grow a radio map from tracked walks (self-training)",
         description="Track every walk without waypoints offline over the radio map, add its scans as grown "
                     "reference points at the offline track's positions (each with a position uncertainty), and "
                     "repeat until the map stops changing. Logs with waypoints are added as surveyed points. "
                     "The result loads everywhere a radio map does (docs/self-training.md).")
-    common(grow, "walks: without waypoints they grow the map, with waypoints they are added as surveyed "
-                 "points (unless --ignore-waypoints)")
+    _add_common(grow, "walks: without waypoints they grow the map, with waypoints they are added as surveyed "
+                      "points (unless --ignore-waypoints)")
     grow.add_argument("--radiomap", type=Path, required=True, metavar="BASE", help="the radio map to grow (.npz)")
     grow.add_argument("--out", type=Path, required=True, metavar="RADIOMAP", help="the grown radio map (.npz)")
     grow.add_argument("--iterations", type=bounded_int(None, 100), default=_MAX_ITERATIONS, metavar="N",
@@ -171,13 +189,8 @@ def run_build(args: argparse.Namespace) -> int:
     floorplan, recordings = _load(args)
     if isinstance(floorplan, Building):
         building = floorplan
-        floors = []
-        for rec in recordings:
-            index = building.floor_of_log(rec.floor_name, rec.path)
-            if index is None and not rec.waypoint_floor:
-                raise MapfilterError("the log's header names no floor (FloorName): a building's radio map needs "
-                                     "the floor of every log", rec.path)
-            floors.append(index)  # None: a walk over several floors, each scan on its waypoints' floor
+        floors = _log_floors(building, recordings, "the log's header names no floor (FloorName): a building's "
+                                                   "radio map needs the floor of every log")
         radio_map = build_building_radio_map(recordings, floors, building.floor_names, use_steps=args.steps)
         check_radio_map_on_map(radio_map, building, map_path=args.map)  # waypoints of another map or frame
         radio_map.save(args.out)
@@ -290,48 +303,24 @@ def run_grow(args: argparse.Namespace) -> int:
     # the particles are refused before the logs are read (about 200 bytes each)
     memory.check_fits(memory.particle_filter_bytes(args.particles), f"--particles {args.particles}",
                       "use fewer particles (the default is 10000)")
-    import numpy as np
-
     from mapfilter.maps.building import Building
     from mapfilter.pipeline.selftrain import GrowConfig, grow_radio_map, labelled_and_unlabelled
     from mapfilter.config import TrackingConfig
-    from mapfilter.sensors.radiomap import RadioMap, build_radio_map, check_radio_map_on_map, merge_radio_maps
+    from mapfilter.sensors.radiomap import merge_radio_maps
 
     space, recordings = _load(args)
     memory.check_tracking_fits(TrackingConfig().with_particles(args.particles),
                                memory.building_extents_m(space) if isinstance(space, Building)
                                else [tuple(space.extent_m)])
-    if isinstance(space, Building):
-        from mapfilter.sensors.floor_vote import build_building_radio_map, load_building_radio_map
-
-        base = load_building_radio_map(args.radiomap, space.floor_names)
-    else:
-        base = RadioMap.load(args.radiomap)
-        if base.has_floors:
-            raise MapfilterError("a building's radio map: give the building's YAML as MAP", args.radiomap)
-    check_radio_map_on_map(base, space, args.radiomap, args.map)
+    base = _base_radio_map(args, space)
     labelled, unlabelled = ([], recordings) if args.ignore_waypoints else labelled_and_unlabelled(recordings)
+    surveyed = None
     if labelled:
-        if isinstance(space, Building):
-            floors = []
-            for rec in labelled:
-                index = space.floor_of_log(rec.floor_name, rec.path)
-                if index is None and not rec.waypoint_floor:
-                    raise MapfilterError("the log has waypoints but neither its header (FloorName) nor its "
-                                         "waypoints name a floor: its points need a floor", rec.path)
-                floors.append(index)  # None: a walk over several floors, each scan on its waypoints' floor
-            surveyed = build_building_radio_map(labelled, floors, space.floor_names)
-        else:
-            surveyed = build_radio_map(labelled, space)
+        surveyed = _surveyed_points(space, labelled)
         base = merge_radio_maps([base, surveyed])
     config = GrowConfig(tracking=TrackingConfig().with_particles(args.particles), max_iterations=args.iterations,
                         wifi_only=args.wifi_only, seed=args.seed)
-    spans = [_span_s(rec) for rec in unlabelled]
-    workers = args.jobs if args.scheduler is None else 1
-    announce_estimate(f"growing from {len(unlabelled)} walks", estimate_tracking_s(
-        spans, args.particles, args.iterations * (1 + SMOOTH_EXTRA_RUNS), workers),
-        f"{duration_text(sum(spans))} of walks, up to {args.iterations} rounds of {args.particles} particles, "
-        f"{workers} worker{'s' if workers != 1 else ''}")
+    _announce_growing(args, unlabelled)
     with ProgressBar("grow", len(unlabelled) * args.iterations) as progress:
         grown, report = grow_radio_map(space, base, unlabelled, config, progress=progress, engine=engine)
     if not isinstance(space, Building):
@@ -342,6 +331,68 @@ def run_grow(args: argparse.Namespace) -> int:
     for walk in report.walks:
         if walk.skipped:
             warn(f"{walk.name}: grew nothing: {walk.skipped}")
+    _print_growth(args, report, grown, base, labelled, unlabelled, surveyed)
+    return 0
+
+
+def _base_radio_map(args: argparse.Namespace, space):
+    """The radio map to grow (--radiomap): the building's when MAP is a building, else one floor's;
+    checked against the map."""
+    from mapfilter.maps.building import Building
+    from mapfilter.sensors.radiomap import RadioMap, check_radio_map_on_map
+
+    if isinstance(space, Building):
+        from mapfilter.sensors.floor_vote import load_building_radio_map
+
+        base = load_building_radio_map(args.radiomap, space.floor_names)
+    else:
+        base = RadioMap.load(args.radiomap)
+        if base.has_floors:
+            raise MapfilterError("a building's radio map: give the building's YAML as MAP", args.radiomap)
+    check_radio_map_on_map(base, space, args.radiomap, args.map)
+    return base
+
+
+def _log_floors(building, recordings, no_floor: str) -> list[int | None]:
+    """The floor of each log in a building, from its header (None: a walk over several floors,
+    each scan on its waypoints' floor); ``no_floor`` is the message for a log that names none."""
+    floors = []
+    for rec in recordings:
+        index = building.floor_of_log(rec.floor_name, rec.path)
+        if index is None and not rec.waypoint_floor:
+            raise MapfilterError(no_floor, rec.path)
+        floors.append(index)
+    return floors
+
+
+def _surveyed_points(space, labelled):
+    """The walks with waypoints as surveyed points (their labelled scans)."""
+    from mapfilter.maps.building import Building
+    from mapfilter.sensors.radiomap import build_radio_map
+
+    if isinstance(space, Building):
+        from mapfilter.sensors.floor_vote import build_building_radio_map
+
+        floors = _log_floors(space, labelled, "the log has waypoints but neither its header (FloorName) nor its "
+                                              "waypoints name a floor: its points need a floor")
+        return build_building_radio_map(labelled, floors, space.floor_names)
+    return build_radio_map(labelled, space)
+
+
+def _announce_growing(args: argparse.Namespace, unlabelled) -> None:
+    """How long growing will take: every walk tracked offline, up to --iterations rounds."""
+    spans = [_span_s(rec) for rec in unlabelled]
+    workers = args.jobs if args.scheduler is None else 1
+    announce_estimate(f"growing from {len(unlabelled)} walks", estimate_tracking_s(
+        spans, args.particles, args.iterations * (1 + SMOOTH_EXTRA_RUNS), workers),
+        f"{duration_text(sum(spans))} of walks, up to {args.iterations} rounds of {args.particles} particles, "
+        f"{workers} worker{'s' if workers != 1 else ''}")
+
+
+def _print_growth(args: argparse.Namespace, report, grown, base, labelled, unlabelled, surveyed) -> None:
+    """What was grown (or why nothing), what was surveyed, and the radio map written."""
+    import numpy as np
+
     sigma = grown.xy_sigma_m[len(base):]
     last = report.iterations[-1] if report.iterations else {}
     moved = last.get("moved_median_m", float("nan"))
@@ -362,4 +413,3 @@ def run_grow(args: argparse.Namespace) -> int:
         print(f"surveyed: {len(surveyed)} points from {len(labelled)} walks with waypoints")
     print(f"radio map: {len(grown)} reference points ({len(base) - (len(surveyed) if labelled else 0)} from "
           f"{args.radiomap.name}), {len(grown.ap_keys)} access points -> {args.out}")
-    return 0

@@ -100,6 +100,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--start-time-ms", type=bounded_int(0, _SIM_LIMITS["MAX_START_TIME_MS"]),
                         default=defaults.start_time_ms,
                         help="Unix time (ms) of the first record (default %(default)s)")
+    _add_building_arguments(parser, defaults)
+    parser.set_defaults(func=run)
+
+
+def _add_building_arguments(parser: argparse.ArgumentParser, defaults: argparse.Namespace) -> None:
+    """The options of a walk over several floors (MAP a building YAML)."""
     building = parser.add_argument_group("a building with several floors (MAP a building YAML)")
     building.add_argument("--start-floor", default=None, metavar="NAME",
                           help="the floor the walk starts on (default: drawn from the seed)")
@@ -117,7 +123,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     building.add_argument("--floor-loss-db", type=_DB, default=defaults.floor_loss_db, metavar="DB",
                           help="WiFi attenuation per floor between phone and access point (default %(default)s)")
     building.add_argument("--no-barometer", action="store_true", help="write no TYPE_PRESSURE rows")
-    parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -179,15 +184,27 @@ def _run_building(args: argparse.Namespace, building) -> int:
     """A walk over several floors (or a survey of one floor) of a building."""
     import numpy as np
 
-    from mapfilter.simulate.building import (
-        BuildingSimConfig,
-        building_access_points,
-        simulate_building_survey,
-        simulate_building_walk,
-    )
     from mapfilter.simulate.ilc_writer import write_ilc
-    from mapfilter.simulate.walk import SimConfig
 
+    _check_building_options(args)
+    tables = _checked_floor_tables(args, building)
+    config = _building_config(args)
+    walk, happened = _simulate_in_building(args, building, tables, config, np.random.default_rng(args.seed))
+    if args.no_barometer:
+        walk = dataclasses.replace(walk, pressure_t_s=None, pressure_hpa=None)
+    write_ilc(walk, args.out)
+    t0 = walk.start_t_s
+    n_pressure = 0 if walk.pressure_t_s is None else walk.pressure_t_s.size
+    route = "".join(f", {a} -> {b} by {kind} at {s - t0:.1f} s" for _, s, _, a, b, kind in happened)
+    print(f"{args.out}: {walk.end_t_s - t0:.1f} s, {walk.n_steps} steps, {walk.waypoint_t_s.size} waypoints, "
+          f"{walk.scan_t_s.size} WiFi scans ({walk.row_ap.size} rows)"
+          + (f", {walk.reference_xy_m.shape[0]} reference points on {args.floor}" if args.survey else
+             f", {n_pressure} pressure rows; starts on {walk.floor_name}{route}"), file=sys.stderr)
+    return 0
+
+
+def _check_building_options(args: argparse.Namespace) -> None:
+    """The one-floor options refused in a building; --segment-s and --floor-loss-db checked."""
     where = args.map
     if args.duration is not None:
         raise MapfilterError("--duration: in a building a walk lasts its floor changes and --segment-s of wandering "
@@ -200,6 +217,13 @@ def _run_building(args: argparse.Namespace, building) -> int:
         raise MapfilterError(f"--segment-s needs 0 <= MIN <= MAX, got {lo:g} {hi:g}")
     if not args.floor_loss_db >= 0.0:
         raise MapfilterError(f"--floor-loss-db must be >= 0, got {args.floor_loss_db:g}")
+
+
+def _checked_floor_tables(args: argparse.Namespace, building) -> dict:
+    """Each floor's access points (``_floor_tables``), refused naming the file to fix when BSSIDs of
+    different floors collide."""
+    from mapfilter.simulate.building import building_access_points
+
     tables = _floor_tables(args, building)
     try:
         building_access_points(building, tables)
@@ -207,7 +231,15 @@ def _run_building(args: argparse.Namespace, building) -> int:
         raise MapfilterError(exc.reason + (" (their copies on different floors collide)" if args.aps else
                                            " (each floor map's table: mapfilter: access_points; or pass --aps to "
                                            "copy one table onto every floor with its own BSSIDs)"),
-                             args.aps or where) from None
+                             args.aps or args.map) from None
+    return tables
+
+
+def _building_config(args: argparse.Namespace):
+    """The walk's settings in a building (``BuildingSimConfig``), checked."""
+    from mapfilter.simulate.building import BuildingSimConfig
+    from mapfilter.simulate.walk import SimConfig
+
     walk_cfg = dataclasses.replace(
         SimConfig(), start_time_ms=args.start_time_ms, survey_spacing_m=args.survey_spacing,
         survey_scans_per_point=args.scans_per_point, shadowing_sigma_db=args.shadowing_db,
@@ -215,9 +247,15 @@ def _run_building(args: argparse.Namespace, building) -> int:
         blocking_episodes=tuple(tuple(e) for e in args.blocking),
     )
     walk_cfg.validate()
-    config = BuildingSimConfig(walk=walk_cfg, segment_s=(lo, hi), floor_loss_db=args.floor_loss_db)
-    rng = np.random.default_rng(args.seed)
-    happened: list[tuple] = []
+    return BuildingSimConfig(walk=walk_cfg, segment_s=tuple(args.segment_s), floor_loss_db=args.floor_loss_db)
+
+
+def _simulate_in_building(args: argparse.Namespace, building, tables: dict, config, rng) -> tuple:
+    """(the simulated walk, its floor changes): a survey of --floor, or a walk by the schedule
+    --change / --floor-changes make."""
+    from mapfilter.simulate.building import simulate_building_survey, simulate_building_walk
+
+    where = args.map
     if args.survey:
         if args.start_floor is not None or args.floor_changes is not None or args.change:
             raise MapfilterError("--survey surveys one floor (--floor NAME): --start-floor, --floor-changes and "
@@ -226,25 +264,12 @@ def _run_building(args: argparse.Namespace, building) -> int:
             raise MapfilterError(f"--survey in a building surveys one floor: pass --floor NAME (floors: "
                                  f"{', '.join(building.floor_names)})", where)
         building.floor_index(args.floor, where)
-        walk = simulate_building_survey(building, tables, args.floor, config, rng, site_id=args.map.stem)
-    else:
-        if args.floor is not None:
-            raise MapfilterError("--floor names the floor to survey (with --survey); a walk starts on --start-floor",
-                                 where)
-        start, changes = _schedule(args, building, rng)
-        walk, happened = simulate_building_walk(building, tables, start, changes, config, rng,
-                                                site_id=args.map.stem)
-    if args.no_barometer:
-        walk = dataclasses.replace(walk, pressure_t_s=None, pressure_hpa=None)
-    write_ilc(walk, args.out)
-    t0 = walk.start_t_s
-    n_pressure = 0 if walk.pressure_t_s is None else walk.pressure_t_s.size
-    route = "".join(f", {a} -> {b} by {kind} at {s - t0:.1f} s" for _, s, _, a, b, kind in happened)
-    print(f"{args.out}: {walk.end_t_s - t0:.1f} s, {walk.n_steps} steps, {walk.waypoint_t_s.size} waypoints, "
-          f"{walk.scan_t_s.size} WiFi scans ({walk.row_ap.size} rows)"
-          + (f", {walk.reference_xy_m.shape[0]} reference points on {args.floor}" if args.survey else
-             f", {n_pressure} pressure rows; starts on {walk.floor_name}{route}"), file=sys.stderr)
-    return 0
+        return simulate_building_survey(building, tables, args.floor, config, rng, site_id=args.map.stem), []
+    if args.floor is not None:
+        raise MapfilterError("--floor names the floor to survey (with --survey); a walk starts on --start-floor",
+                             where)
+    start, changes = _schedule(args, building, rng)
+    return simulate_building_walk(building, tables, start, changes, config, rng, site_id=args.map.stem)
 
 
 def _floor_tables(args: argparse.Namespace, building) -> dict:

@@ -255,48 +255,13 @@ def wifi_source_text(args: argparse.Namespace, building, ap_table) -> str:
 
 
 def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
-    from mapfilter.maps.building import Building
-    from mapfilter.sensors.logs import read_log
-    from mapfilter.pipeline.tracker import prepare_walk, track_prepared
-    from mapfilter.io.tracks import write_track
-
     out_format = track_format(args.out, args.format)
     spawn = args.spawn and _viewer_can_start()
-    building = Building.load(args.map)
-    _check_walkable(building, args.map)
-    check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
-    if args.floor is not None:
-        building.floor_index(args.floor, args.map)
+    building = _checked_building(args, config)
     start = start_from(args, building, args.floor)
-    evaal_start = None
-    if args.evaal_start is not None:
-        from mapfilter.evaal.protocol import parse_position
-
-        evaal_start = parse_position(args.evaal_start, "--evaal-start")
-    if args.evaal_out is not None:
-        from mapfilter.evaal.replay import check_replay
-
-        check_replay(building, log_path, args.map, online=not config.smooth, initial=evaal_start)
-    recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
-    header_floor = building.floor_of_log(recording.floor_name, log_path, args.floor)  # refuses another floor
-    radio_map, ap_table = _wifi_source(args, building, config)
-    sources = load_sources(args, building)
-    floor = None if building.is_single_floor else args.floor
-    walk = prepare_walk(building, recording, radio_map, ap_table, config, floor=floor, sources=sources)
-    if recording.has_ground_truth and walk.floor_index is not None and recording.waypoint_floor is None:
-        plan = building.floors[walk.floor_index].plan
-        in_walls = ~plan.is_free(recording.waypoint_xy_m)
-        if in_walls.any():
-            warn(f"{log_path}: {int(in_walls.sum())} of {in_walls.size} waypoints lie in walls or outside the "
-                 f"map {args.map}")
-
-    span_s = _span_s(recording)
-    particles = config.filter.n_particles
-    announce_estimate(f"tracking {recording.name}", estimate_tracking_s(
-        [span_s], particles, 1 + (SMOOTH_EXTRA_RUNS if config.smooth else 0)),
-        f"a {duration_text(span_s)} walk, {particles} particles")
-    if args.rerun is not None:
-        announce_recording_size(span_s, min(particles, args.max_drawn_particles), args.rerun)
+    evaal_start = _checked_evaal_start(args, config, building, log_path)
+    recording, header_floor, walk, ap_table = _prepared_walk(args, config, building, log_path)
+    _announce_walk(args, config, recording)
 
     from mapfilter.viz import make_logger  # rerun is imported only when a viewer is asked for
 
@@ -306,44 +271,9 @@ def _run_one(args: argparse.Namespace, config, log_path: Path) -> int:
                          warn=warn)
     progress = _Progress(recording, config)
     with logger, progress:
-        if recording.has_ground_truth and (walk.stack is None or header_floor is not None
-                                           or recording.waypoint_floor is not None):
-            logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m, recording.waypoint_floor)
-
-        def on_step(report) -> None:
-            logger.log_step(report)
-            progress.update(report.t_s)
-
-        result = track_prepared(walk, config, on_step=on_step, on_offline_step=progress.offline_step,
-                                on_smoothed=logger.log_smoothed if logger.enabled else None, start=start)
-        progress.finish()  # a walk without steps to place has no second run
-        if result.restarted is not None:
-            # the second causal run, from the placed start, whose estimates placed the offline track
-            logger.log_track("restarted", result.restarted.t_s, result.restarted.xy_m, result.restarted.floor)
-        if result.offline is not None:
-            logger.log_track("smoothed", result.offline.t_s, result.offline.xy_m, result.offline.floor)
-        written = []
-        if args.out is not None:
-            if result.offline is not None:
-                with atomic_paths(args.out, causal_path(args.out)) as (tmp, tmp_causal):  # both files or neither
-                    write_track(result.offline, tmp, out_format, building)
-                    write_track(result.causal, tmp_causal, out_format, building)
-                written += [(args.out, "offline track"), (causal_path(args.out), "causal track")]
-            else:
-                write_track(result.causal, args.out, out_format, building)
-                written.append((args.out, "causal track"))
-        if args.adapted_aps is not None:
-            result.access_points.write_csv(args.adapted_aps)
-            written.append((args.adapted_aps, "adapted access-point table"))
-        if args.evaal_out is not None:
-            from mapfilter.evaal.replay import replay_log
-            from mapfilter.pipeline.tracker import Tracker
-
-            # the server sends no header: the log's phone model as the competitor knows it
-            inputs = dataclasses.replace(walk.inputs, phone_model=recording.phone_model)
-            replay = replay_log(Tracker(building, inputs, config, floor=floor), log_path, initial=evaal_start)
-            replay.estimates.write(args.evaal_out)
-            written.append((args.evaal_out, f"competition estimates, {'offline' if config.smooth else 'online'}"))
+        result = _track_walk(walk, config, recording, header_floor, logger, progress, start)
+        written = _write_walk_outputs(args, config, building, walk, recording, result, log_path, evaal_start,
+                                      out_format)
     if args.rerun is not None:
         written.append((args.rerun, "rerun recording"))
     if args.plot is not None:
@@ -365,6 +295,121 @@ def _start_text(start) -> str:
     from mapfilter.pipeline.tracker import KNOWN_START_RADIUS_M
 
     return f"; started at {start} as given (--start: within {KNOWN_START_RADIUS_M:g} m of it at the first step)"
+
+
+def _checked_building(args: argparse.Namespace, config):
+    """The map or building of ``args.map``, refused when nobody can walk on it, when the tracking
+    settings do not fit it, or when it has no floor ``--floor``."""
+    from mapfilter.maps.building import Building
+
+    building = Building.load(args.map)
+    _check_walkable(building, args.map)
+    check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
+    if args.floor is not None:
+        building.floor_index(args.floor, args.map)
+    return building
+
+
+def _checked_evaal_start(args: argparse.Namespace, config, building, log_path: Path):
+    """--evaal-start parsed (None without it); with --evaal-out, the log checked for a replay."""
+    evaal_start = None
+    if args.evaal_start is not None:
+        from mapfilter.evaal.protocol import parse_position
+
+        evaal_start = parse_position(args.evaal_start, "--evaal-start")
+    if args.evaal_out is not None:
+        from mapfilter.evaal.replay import check_replay
+
+        check_replay(building, log_path, args.map, online=not config.smooth, initial=evaal_start)
+    return evaal_start
+
+
+def _prepared_walk(args: argparse.Namespace, config, building, log_path: Path):
+    """The log read and prepared for tracking: (recording, the floor its header names, the
+    prepared walk, the access-point table); a warning for waypoints in walls."""
+    from mapfilter.sensors.logs import read_log
+    from mapfilter.pipeline.tracker import prepare_walk
+
+    recording = read_log(log_path, strict=args.strict, warn=warn, building=building)
+    header_floor = building.floor_of_log(recording.floor_name, log_path, args.floor)  # refuses another floor
+    radio_map, ap_table = _wifi_source(args, building, config)
+    sources = load_sources(args, building)
+    floor = None if building.is_single_floor else args.floor
+    walk = prepare_walk(building, recording, radio_map, ap_table, config, floor=floor, sources=sources)
+    if recording.has_ground_truth and walk.floor_index is not None and recording.waypoint_floor is None:
+        plan = building.floors[walk.floor_index].plan
+        in_walls = ~plan.is_free(recording.waypoint_xy_m)
+        if in_walls.any():
+            warn(f"{log_path}: {int(in_walls.sum())} of {in_walls.size} waypoints lie in walls or outside the "
+                 f"map {args.map}")
+    return recording, header_floor, walk, ap_table
+
+
+def _announce_walk(args: argparse.Namespace, config, recording) -> None:
+    """How long the tracking will take, and how large the rerun recording will be."""
+    span_s = _span_s(recording)
+    particles = config.filter.n_particles
+    announce_estimate(f"tracking {recording.name}", estimate_tracking_s(
+        [span_s], particles, 1 + (SMOOTH_EXTRA_RUNS if config.smooth else 0)),
+        f"a {duration_text(span_s)} walk, {particles} particles")
+    if args.rerun is not None:
+        announce_recording_size(span_s, min(particles, args.max_drawn_particles), args.rerun)
+
+
+def _track_walk(walk, config, recording, header_floor, logger, progress, start=None):
+    """The walk tracked (from ``start`` when it is known), each step and the tracks drawn by
+    ``logger`` (and the ground truth), progress on the bar; the ``TrackResult``."""
+    from mapfilter.pipeline.tracker import track_prepared
+
+    if recording.has_ground_truth and (walk.stack is None or header_floor is not None
+                                       or recording.waypoint_floor is not None):
+        logger.log_ground_truth(recording.waypoint_t_s, recording.waypoint_xy_m, recording.waypoint_floor)
+
+    def on_step(report) -> None:
+        logger.log_step(report)
+        progress.update(report.t_s)
+
+    result = track_prepared(walk, config, on_step=on_step, on_offline_step=progress.offline_step,
+                            on_smoothed=logger.log_smoothed if logger.enabled else None, start=start)
+    progress.finish()  # a walk without steps to place has no second run
+    if result.restarted is not None:
+        # the second causal run, from the placed start, whose estimates placed the offline track
+        logger.log_track("restarted", result.restarted.t_s, result.restarted.xy_m, result.restarted.floor)
+    if result.offline is not None:
+        logger.log_track("smoothed", result.offline.t_s, result.offline.xy_m, result.offline.floor)
+    return result
+
+
+def _write_walk_outputs(args: argparse.Namespace, config, building, walk, recording, result, log_path: Path,
+                        evaal_start, out_format: str) -> list[tuple]:
+    """The track files (--out, with its causal track beside an offline one), --adapted-aps and
+    --evaal-out written; [(path, what)] of each."""
+    from mapfilter.io.tracks import write_track
+
+    written = []
+    if args.out is not None:
+        if result.offline is not None:
+            with atomic_paths(args.out, causal_path(args.out)) as (tmp, tmp_causal):  # both files or neither
+                write_track(result.offline, tmp, out_format, building)
+                write_track(result.causal, tmp_causal, out_format, building)
+            written += [(args.out, "offline track"), (causal_path(args.out), "causal track")]
+        else:
+            write_track(result.causal, args.out, out_format, building)
+            written.append((args.out, "causal track"))
+    if args.adapted_aps is not None:
+        result.access_points.write_csv(args.adapted_aps)
+        written.append((args.adapted_aps, "adapted access-point table"))
+    if args.evaal_out is not None:
+        from mapfilter.evaal.replay import replay_log
+        from mapfilter.pipeline.tracker import Tracker
+
+        # the server sends no header: the log's phone model as the competitor knows it
+        inputs = dataclasses.replace(walk.inputs, phone_model=recording.phone_model)
+        floor = None if building.is_single_floor else args.floor
+        replay = replay_log(Tracker(building, inputs, config, floor=floor), log_path, initial=evaal_start)
+        replay.estimates.write(args.evaal_out)
+        written.append((args.evaal_out, f"competition estimates, {'offline' if config.smooth else 'online'}"))
+    return written
 
 
 def _run_live(args: argparse.Namespace, config) -> int:
@@ -654,76 +699,28 @@ def batch_track_names(traces: list[str], out_format: str, smooth: bool) -> dict[
 
 
 def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
-    import numpy as np
-
-    from mapfilter.batch import BUILDING_SUMMARY_COLUMNS, SUMMARY_COLUMNS, BatchSetup, WalkResult, summary_row, track_logs
-    from mapfilter.maps.building import Building
-    from mapfilter.sensors.logs import missing_log
+    from mapfilter.batch import BUILDING_SUMMARY_COLUMNS, SUMMARY_COLUMNS, BatchSetup, track_logs
     from mapfilter.sensors.recording import trace_name
-    from mapfilter.io.tracks import write_track
 
-    if args.spawn:
-        raise MapfilterError("--spawn is for one walk, not for --out-dir")
-    for path in args.logs:
-        if not path.is_file():
-            raise missing_log(path)
+    _check_batch_logs(args)
     engine = engine_from(args)
-    building = Building.load(args.map)
-    _check_walkable(building, args.map)
-    check_tracking_fits(config, building_extents_m(building), args.radiomap is not None)
-    if args.floor is not None:
-        building.floor_index(args.floor, args.map)
+    building = _checked_building(args, config)
     radio_map, ap_table = _wifi_source(args, building, config)
     setup = BatchSetup(tracking=config, strict=args.strict, floor=None if building.is_single_floor else args.floor,
                        sources=load_sources(args, building), start=start_from(args, building, args.floor))
     columns = SUMMARY_COLUMNS if building.is_single_floor else BUILDING_SUMMARY_COLUMNS
     out_format = args.format or "csv"
     track_names = batch_track_names([trace_name(p) for p in args.logs], out_format, config.smooth)
-    track_files: dict[str, str] = {}
-
-    def write(result: WalkResult) -> None:
-        # each track is staged as its walk finishes; they are committed together at the end (an
-        # earlier run's files stay whole if this one fails), or when the batch is interrupted
-        if result.read_warning:
-            warn(result.read_warning)
-        if result.ok:
-            name = track_names[result.trace]
-            with out_dir.writing(name) as (tmp,):
-                write_track(result.track, tmp, out_format, building)
-            if config.smooth and result.causal is not None:
-                with out_dir.writing(causal_path(Path(name)).name) as (tmp,):
-                    write_track(result.causal, tmp, out_format, building)
-            track_files[result.trace] = name
-
-    spans = walk_spans_s(args.logs)
-    workers = args.jobs if args.scheduler is None else 1
-    announce_estimate(f"tracking {len(args.logs)} walk{'s' if len(args.logs) != 1 else ''}", estimate_tracking_s(
-        spans, config.filter.n_particles, 1 + (SMOOTH_EXTRA_RUNS if config.smooth else 0), workers),
-        f"{duration_text(sum(spans))} of walks, {config.filter.n_particles} particles, {workers} worker"
-        + ("s" if workers != 1 else ""))
+    write = _BatchTrackWriter(out_dir, building, track_names, out_format, config.smooth)
+    _announce_batch(args, config)
     started = time.perf_counter()
     try:
         with ProgressBar("track", len(args.logs)) as progress:
             results = track_logs(building, args.logs, radio_map, ap_table, setup, engine, progress=progress,
                                  on_result=write)
         wall_time_s = time.perf_counter() - started
-        summary = out_dir.path / BATCH_FILES[0]
-        rows = [summary_row(result, track_files.get(result.trace), columns) for result in results]
-        with out_dir.writing(*BATCH_FILES) as (tmp, tmp_json, tmp_yaml):
-            with tmp.open("w", newline="") as handle:
-                writer = csv.DictWriter(handle, columns)
-                writer.writeheader()
-                for row in rows:
-                    writer.writerow({k: (f"{v:.4f}" if isinstance(v, float) else ("" if v is None else v))
-                                     for k, v in row.items()})
-            tmp_json.write_text(json.dumps({"map": str(args.map), "logs": [str(p) for p in args.logs],
-                                            "radiomap": None if args.radiomap is None else str(args.radiomap),
-                                            "aps": None if args.aps is None else str(args.aps),
-                                            "sources": {name: {key: str(path) for key, path in files.items()}
-                                                        for name, files in source_files(args).items()},
-                                            "engine": engine.describe(), "wall_time_s": wall_time_s,
-                                            "config": config.to_dict(), "walks": rows}, indent=1))
-            tmp_yaml.write_text(config.to_yaml())
+        summary = _write_batch_summary(args, config, out_dir, engine, results, write.track_files, columns,
+                                       wall_time_s)
         out_dir.commit()
     except KeyboardInterrupt:
         out_dir.commit()  # an interrupted batch keeps the tracks it finished
@@ -733,6 +730,87 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
     bad = [r for r in results if not r.ok]
     for result in bad:
         print(f"mapfilter: {result.status}: {result.reason}", file=sys.stderr)
+    print(_batch_summary_line(results, engine, wall_time_s))
+    print(f"wrote {sum(r.ok for r in results)} tracks, {summary}, summary.json and config.yaml to {args.out_dir}")
+    return 1 if bad else 0
+
+
+def _check_batch_logs(args: argparse.Namespace) -> None:
+    """Refuse --spawn with --out-dir, and a log that is not there, before any work."""
+    from mapfilter.sensors.logs import missing_log
+
+    if args.spawn:
+        raise MapfilterError("--spawn is for one walk, not for --out-dir")
+    for path in args.logs:
+        if not path.is_file():
+            raise missing_log(path)
+
+
+class _BatchTrackWriter:
+    """``on_result`` of a batch: each walk's track (and causal track) staged in --out-dir as the
+    walk finishes; they are committed together at the end (an earlier run's files stay whole if
+    this one fails), or when the batch is interrupted. ``track_files``: {trace: its file}."""
+
+    def __init__(self, out_dir, building, track_names: dict[str, str], out_format: str, smooth: bool) -> None:
+        self.out_dir, self.building, self.track_names = out_dir, building, track_names
+        self.out_format, self.smooth = out_format, smooth
+        self.track_files: dict[str, str] = {}
+
+    def __call__(self, result) -> None:
+        from mapfilter.io.tracks import write_track
+
+        if result.read_warning:
+            warn(result.read_warning)
+        if result.ok:
+            name = self.track_names[result.trace]
+            with self.out_dir.writing(name) as (tmp,):
+                write_track(result.track, tmp, self.out_format, self.building)
+            if self.smooth and result.causal is not None:
+                with self.out_dir.writing(causal_path(Path(name)).name) as (tmp,):
+                    write_track(result.causal, tmp, self.out_format, self.building)
+            self.track_files[result.trace] = name
+
+
+def _announce_batch(args: argparse.Namespace, config) -> None:
+    """How long tracking the walks will take."""
+    spans = walk_spans_s(args.logs)
+    workers = args.jobs if args.scheduler is None else 1
+    announce_estimate(f"tracking {len(args.logs)} walk{'s' if len(args.logs) != 1 else ''}", estimate_tracking_s(
+        spans, config.filter.n_particles, 1 + (SMOOTH_EXTRA_RUNS if config.smooth else 0), workers),
+        f"{duration_text(sum(spans))} of walks, {config.filter.n_particles} particles, {workers} worker"
+        + ("s" if workers != 1 else ""))
+
+
+def _write_batch_summary(args: argparse.Namespace, config, out_dir, engine, results, track_files: dict[str, str],
+                         columns, wall_time_s: float) -> Path:
+    """summary.csv (a row per walk), summary.json (the run's inputs, engine, settings and rows) and
+    config.yaml staged in --out-dir; the path of summary.csv."""
+    from mapfilter.batch import summary_row
+
+    summary = out_dir.path / BATCH_FILES[0]
+    rows = [summary_row(result, track_files.get(result.trace), columns) for result in results]
+    with out_dir.writing(*BATCH_FILES) as (tmp, tmp_json, tmp_yaml):
+        with tmp.open("w", newline="") as handle:
+            writer = csv.DictWriter(handle, columns)
+            writer.writeheader()
+            for row in rows:
+                writer.writerow({k: (f"{v:.4f}" if isinstance(v, float) else ("" if v is None else v))
+                                 for k, v in row.items()})
+        tmp_json.write_text(json.dumps({"map": str(args.map), "logs": [str(p) for p in args.logs],
+                                        "radiomap": None if args.radiomap is None else str(args.radiomap),
+                                        "aps": None if args.aps is None else str(args.aps),
+                                        "sources": {name: {key: str(path) for key, path in files.items()}
+                                                    for name, files in source_files(args).items()},
+                                        "engine": engine.describe(), "wall_time_s": wall_time_s,
+                                        "config": config.to_dict(), "walks": rows}, indent=1))
+        tmp_yaml.write_text(config.to_yaml())
+    return summary
+
+
+def _batch_summary_line(results, engine, wall_time_s: float) -> str:
+    """The batch in one line: walks tracked, failed and crashed, time, mean error, floor."""
+    import numpy as np
+
     tracked = [r for r in results if r.ok]
     errors = [r.error_stats["mean"] for r in tracked if r.error_stats and r.error_stats["n"]]
     line = (f"{len(results)} walks ({engine.describe()}): {len(tracked)} tracked, "
@@ -744,9 +822,7 @@ def _run_batch(args: argparse.Namespace, config, out_dir) -> int:
     if judged:
         right = sum(r.floor_score.n_right for r in tracked if r.floor_score)
         line += f"; on the walker's floor at {right} of {judged} waypoints ({right / judged:.0%})"
-    print(line)
-    print(f"wrote {len(tracked)} tracks, {summary}, summary.json and config.yaml to {args.out_dir}")
-    return 1 if bad else 0
+    return line
 
 
 class _Progress:

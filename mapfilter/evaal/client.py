@@ -345,103 +345,143 @@ def run_online(client: EvaalClient, tracker: Tracker, horizon_s: float = DEFAULT
     if state.finished:
         raise MapfilterError(f"{name} has finished{' by a timeout' if state.timed_out else ''}: a test trial can be "
                              "reloaded (--reload)")
-    held = parse_position(state.position, f"{name}: the server's position")
-    resumed = state.started
-    online = OnlineTracker(tracker, name)
-    trial_s: float | None = state.trial_s if resumed else None
-    sent: list[tuple[float, float, float, int]] = []
-    given: list[int] = []
-    busy: list[float] = []
-    answered_s: float | None = None  # when the previous batch came
-    labels = secrets.token_hex(4)  # this run's own request labels
-    use_labels = True
-    slowdown, slack_max_s = state.slowdown, state.slack_s
-    slack_s, lowest_s = slack_max_s, math.inf
-    previous_s: float | None = None  # wall clock of the previous request the server took
-    previous_h = 0.0
-    paced = False
-    too_fast = requests = 0
-    next_report_s = -math.inf
-    started_s = clock()
-    final: TrialState | None = None
-    reply_text = ""
-    too_fast_in_row = 0
-    silent_s = 0.0  # trial time since a batch last held a line of its window
-    while True:
-        position = held if online.position is None else online.position
-        query = {"horizon": f"{horizon_s:g}", "position": format_position(*position)}
-        if use_labels:
-            query["label"] = f"{labels}-{requests}"
-        if answered_s is not None:
-            busy.append(clock() - answered_s)
-            answered_s = None
-        if paced and previous_s is not None:
-            wait_s = previous_s + previous_h + _PACE_MARGIN_S - clock()
-            if wait_s > 0:
-                client.sleep(wait_s)
-        sent_s = clock()
-        reply = client.call("nextdata", query, before_retry=_where_it_stands(client, trial_s, horizon_s),
-                            max_bytes=MAX_BATCH_BYTES)
+    run = _OnlineRun(client, tracker, state, name, horizon_s, progress, progress_every_s, clock)
+    while run.next_request():
+        pass
+    return run.finish()
+
+
+class _OnlineRun:
+    """One online trial as it goes: the requests sent, the positions given, the pace the server
+    asks for and the slack as this client counts it."""
+
+    def __init__(self, client: EvaalClient, tracker: Tracker, state: TrialState, name: str, horizon_s: float,
+                 progress: Callable[[str], None] | None, progress_every_s: float, clock: Callable[[], float]):
+        self.client, self.state, self.name, self.horizon_s = client, state, name, horizon_s
+        self.progress, self.progress_every_s, self.clock = progress, progress_every_s, clock
+        self.held = parse_position(state.position, f"{name}: the server's position")
+        self.resumed = state.started
+        self.online = OnlineTracker(tracker, name)
+        self.trial_s: float | None = state.trial_s if self.resumed else None
+        self.sent: list[tuple[float, float, float, int]] = []
+        self.given: list[int] = []
+        self.busy: list[float] = []
+        self.answered_s: float | None = None  # when the previous batch came
+        self.labels = secrets.token_hex(4)  # this run's own request labels
+        self.use_labels = True
+        self.slowdown, self.slack_max_s = state.slowdown, state.slack_s
+        self.slack_s, self.lowest_s = self.slack_max_s, math.inf
+        self.previous_s: float | None = None  # wall clock of the previous request the server took
+        self.previous_h = 0.0
+        self.paced = False
+        self.too_fast = self.requests = 0
+        self.next_report_s = -math.inf
+        self.started_s = clock()
+        self.final: TrialState | None = None
+        self.reply_text = ""
+        self.too_fast_in_row = 0
+        self.silent_s = 0.0  # trial time since a batch last held a line of its window
+
+    def next_request(self) -> bool:
+        """Ask for the next batch with the latest position and take the answer; False once the
+        trial has ended."""
+        position = self.held if self.online.position is None else self.online.position
+        reply, sent_s = self.send(position)
         if reply.status == 423:  # faster than real time: from now on, wait h after the previous one
-            too_fast += 1
-            too_fast_in_row += 1
-            if too_fast_in_row >= MAX_TOO_FAST:
-                waited = (f"although each came {previous_h:g} s after the one it took" if previous_s is not None
-                          else "before it took any")
-                raise MapfilterError(f"{name}: the server refused {too_fast_in_row} requests in a row as faster than "
-                                     f"real time (423), {waited}: it does not keep the protocol "
-                                     f"({_short(reply.text)})")
-            paced = True
-            # the server's clock read the previous one later than ours: never spin
-            client.sleep(_PACE_MARGIN_S * 2 ** (too_fast_in_row - 1))
-            continue
-        too_fast_in_row = 0
-        if reply.status == 422 and use_labels and "label" in reply.text:
-            use_labels = False  # a server without retry labels
-            continue
-        _check_found(reply, client.trial)
+            self.refused_as_too_fast(reply)
+            return True
+        self.too_fast_in_row = 0
+        if reply.status == 422 and self.use_labels and "label" in reply.text:
+            self.use_labels = False  # a server without retry labels
+            return True
+        _check_found(reply, self.client.trial)
         if reply.status == 405:
-            final = TrialState.parse(reply.text)
-            reply_text = _short(reply.text)
-            if not final.timed_out and trial_s is not None:
-                sent.append((trial_s, *position))  # the server keeps the position of the request that ended it
-                given.append(online.rows)
-                requests += 1
-            break
+            self.ended(reply, position)
+            return False
         if reply.status == 422:
-            raise MapfilterError(f"{name}: the server refused the request (422): {_short(reply.text)}")
+            raise MapfilterError(f"{self.name}: the server refused the request (422): {_short(reply.text)}")
         if reply.status != 200:
-            raise MapfilterError(f"{name}: the server answered {reply.status}: {_short(reply.text)}")
-        requests += 1
-        if previous_s is not None:
-            slack_s = min(slack_max_s, slack_s + slowdown * previous_h - (sent_s - previous_s))
-        lowest_s = min(lowest_s, slack_s)
-        previous_s, previous_h = sent_s, horizon_s
-        if trial_s is None:  # the first request: the server keeps its initial position at the first line
-            trial_s = served_time_s(reply.text)
-            if trial_s is None:
-                raise MapfilterError(f"{name}: the first batch of the log has no line with a time")
-            sent.append((trial_s, *held))
+            raise MapfilterError(f"{self.name}: the server answered {reply.status}: {_short(reply.text)}")
+        self.take_batch(reply, sent_s, position)
+        return True
+
+    def send(self, position: tuple[float, float, int]) -> tuple[Reply, float]:
+        """``nextdata`` with ``position`` (once the pace allows); the answer and when it was sent."""
+        query = {"horizon": f"{self.horizon_s:g}", "position": format_position(*position)}
+        if self.use_labels:
+            query["label"] = f"{self.labels}-{self.requests}"
+        if self.answered_s is not None:
+            self.busy.append(self.clock() - self.answered_s)
+            self.answered_s = None
+        if self.paced and self.previous_s is not None:
+            wait_s = self.previous_s + self.previous_h + _PACE_MARGIN_S - self.clock()
+            if wait_s > 0:
+                self.client.sleep(wait_s)
+        sent_s = self.clock()
+        reply = self.client.call("nextdata", query,
+                                 before_retry=_where_it_stands(self.client, self.trial_s, self.horizon_s),
+                                 max_bytes=MAX_BATCH_BYTES)
+        return reply, sent_s
+
+    def refused_as_too_fast(self, reply: Reply) -> None:
+        self.too_fast += 1
+        self.too_fast_in_row += 1
+        if self.too_fast_in_row >= MAX_TOO_FAST:
+            waited = (f"although each came {self.previous_h:g} s after the one it took" if self.previous_s is not None
+                      else "before it took any")
+            raise MapfilterError(f"{self.name}: the server refused {self.too_fast_in_row} requests in a row as faster "
+                                 f"than real time (423), {waited}: it does not keep the protocol "
+                                 f"({_short(reply.text)})")
+        self.paced = True
+        # the server's clock read the previous one later than ours: never spin
+        self.client.sleep(_PACE_MARGIN_S * 2 ** (self.too_fast_in_row - 1))
+
+    def ended(self, reply: Reply, position: tuple[float, float, int]) -> None:
+        self.final = TrialState.parse(reply.text)
+        self.reply_text = _short(reply.text)
+        if not self.final.timed_out and self.trial_s is not None:
+            self.sent.append((self.trial_s, *position))  # the server keeps the position of the request that ended it
+            self.given.append(self.online.rows)
+            self.requests += 1
+
+    def take_batch(self, reply: Reply, sent_s: float, position: tuple[float, float, int]) -> None:
+        """A batch taken: count the slack, note the position sent, check the trial goes on, track."""
+        self.requests += 1
+        if self.previous_s is not None:
+            self.slack_s = min(self.slack_max_s, self.slack_s + self.slowdown * self.previous_h
+                               - (sent_s - self.previous_s))
+        self.lowest_s = min(self.lowest_s, self.slack_s)
+        self.previous_s, self.previous_h = sent_s, self.horizon_s
+        if self.trial_s is None:  # the first request: the server keeps its initial position at the first line
+            self.trial_s = served_time_s(reply.text)
+            if self.trial_s is None:
+                raise MapfilterError(f"{self.name}: the first batch of the log has no line with a time")
+            self.sent.append((self.trial_s, *self.held))
         else:
-            sent.append((trial_s, *position))
-        given.append(online.rows)
-        silent_s = 0.0 if _holds_window(reply.text, trial_s, horizon_s) else silent_s + horizon_s
-        trial_s += horizon_s  # as the server counts it
-        _check_trial_goes_on(name, trial_s, silent_s, slack_s)
-        answered_s = clock()
-        online.feed(reply.text)
-        if progress is not None and trial_s >= next_report_s:
-            progress(f"trial time {trial_s:.1f} s: {requests} requests, {online.rows} tracker rows, slack "
-                     f"{slack_s:.1f} s (lowest {lowest_s:.1f} s)")
-            next_report_s = trial_s + progress_every_s
-    result = online.close()
-    wall_s = clock() - started_s
-    slack_left_s, lowest = _server_slack(client)
-    return TrialRun(client.trial, False, Estimates.of_rows(sent), requests, reply_text, final, wall_s,
-                    slack_left_s if slack_left_s is not None else slack_s,
-                    lowest if lowest is not None else (lowest_s if math.isfinite(lowest_s) else None),
-                    too_fast, client.dropped, state.trial_s if resumed else None, result, np.array(given),
-                    np.array(busy))
+            self.sent.append((self.trial_s, *position))
+        self.given.append(self.online.rows)
+        self.silent_s = 0.0 if _holds_window(reply.text, self.trial_s, self.horizon_s) else \
+            self.silent_s + self.horizon_s
+        self.trial_s += self.horizon_s  # as the server counts it
+        _check_trial_goes_on(self.name, self.trial_s, self.silent_s, self.slack_s)
+        self.answered_s = self.clock()
+        self.online.feed(reply.text)
+        if self.progress is not None and self.trial_s >= self.next_report_s:
+            self.progress(f"trial time {self.trial_s:.1f} s: {self.requests} requests, {self.online.rows} tracker "
+                          f"rows, slack {self.slack_s:.1f} s (lowest {self.lowest_s:.1f} s)")
+            self.next_report_s = self.trial_s + self.progress_every_s
+
+    def finish(self) -> TrialRun:
+        """The tracker closed and the run, with the slack as the server counted it where it says."""
+        result = self.online.close()
+        wall_s = self.clock() - self.started_s
+        slack_left_s, lowest = _server_slack(self.client)
+        lowest_s = self.lowest_s if math.isfinite(self.lowest_s) else None
+        return TrialRun(self.client.trial, False, Estimates.of_rows(self.sent), self.requests, self.reply_text,
+                        self.final, wall_s, slack_left_s if slack_left_s is not None else self.slack_s,
+                        lowest if lowest is not None else lowest_s, self.too_fast, self.client.dropped,
+                        self.state.trial_s if self.resumed else None, result, np.array(self.given),
+                        np.array(self.busy))
 
 
 def _holds_window(text: str, start_s: float, horizon_s: float) -> bool:

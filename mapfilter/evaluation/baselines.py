@@ -223,29 +223,17 @@ def pdr_kwnn_track(radio_map, scans, steps: Steps | None, config: PdrKwnnConfig 
     Track named "pdr-kwnn": one row per scan from the first one with a fix on (scans before
     that, or without a fix and without a previous estimate, give no row).
     """
-    from mapfilter.sensors.radiomap import kwnn_fix_many
-
     scans = list(scans)
     name = "pdr-kwnn"
     if not scans or len(radio_map) == 0:
         return Track(np.zeros(0), np.zeros((0, 2)), name=name)
-    n_refs = len(radio_map)
-    # all signal distances, sorted per scan (KWNN's own kernel; inf where too few shared APs)
-    every = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=n_refs, p=config.p, q=config.q,
-                          missing_dbm=config.missing_dbm, min_shared_aps=config.min_shared_aps)
-    d_rss = np.full((len(scans), n_refs), np.inf)
-    rows = np.repeat(np.arange(len(scans))[:, None], every.neighbours.shape[1], axis=1)
-    ok = every.neighbours >= 0
-    d_rss[rows[ok], every.neighbours[ok]] = every.distance_db[ok]
-    plain = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=config.k, p=config.p, q=config.q,
-                          missing_dbm=config.missing_dbm, min_shared_aps=config.min_shared_aps).xy_m
+    d_rss, plain = _signal_distances_and_fixes(radio_map, scans, config)
     scan_t = np.array([s.t_s for s in scans], dtype=np.float64)
     use_pdr = steps is not None and len(steps) > 0
     out_t: list[float] = []
     out_xy: list[np.ndarray] = []
     previous: np.ndarray | None = None
     for j in range(len(scans)):
-        candidates = np.isfinite(d_rss[j])
         if previous is None:
             if np.all(np.isfinite(plain[j])):
                 previous = plain[j].copy()
@@ -255,19 +243,42 @@ def pdr_kwnn_track(radio_map, scans, steps: Steps | None, config: PdrKwnnConfig 
         if not use_pdr:
             estimate = plain[j] if np.all(np.isfinite(plain[j])) else previous
         else:
-            displacement = _pdr_displacement(steps, scan_t[j - 1], scan_t[j], config)
-            predicted = previous + displacement
-            if not candidates.any():
-                estimate = predicted  # no fingerprint: dead-reckon to the next scan
-            else:
-                estimate = _pdr_kwnn_fix(radio_map.xy_m, d_rss[j], candidates, previous, predicted, displacement,
-                                         config)
+            estimate = _pdr_kwnn_estimate(radio_map.xy_m, d_rss[j], previous,
+                                          _pdr_displacement(steps, scan_t[j - 1], scan_t[j], config), config)
         previous = np.asarray(estimate, dtype=np.float64).copy()
         out_t.append(scan_t[j])
         out_xy.append(previous.copy())
     if not out_t:
         return Track(np.zeros(0), np.zeros((0, 2)), name=name)
     return Track(np.array(out_t), np.array(out_xy), name=name)
+
+
+def _signal_distances_and_fixes(radio_map, scans: list, config: PdrKwnnConfig) -> tuple[np.ndarray, np.ndarray]:
+    """((scans, reference points) signal distance of each scan to every reference point (KWNN's own
+    kernel; inf where too few shared APs), (scans, 2) the plain KWNN fix of each scan)."""
+    from mapfilter.sensors.radiomap import kwnn_fix_many
+
+    n_refs = len(radio_map)
+    every = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=n_refs, p=config.p, q=config.q,
+                          missing_dbm=config.missing_dbm, min_shared_aps=config.min_shared_aps)
+    d_rss = np.full((len(scans), n_refs), np.inf)
+    rows = np.repeat(np.arange(len(scans))[:, None], every.neighbours.shape[1], axis=1)
+    ok = every.neighbours >= 0
+    d_rss[rows[ok], every.neighbours[ok]] = every.distance_db[ok]
+    plain = kwnn_fix_many(radio_map, radio_map.scan_matrix(scans), k=config.k, p=config.p, q=config.q,
+                          missing_dbm=config.missing_dbm, min_shared_aps=config.min_shared_aps).xy_m
+    return d_rss, plain
+
+
+def _pdr_kwnn_estimate(ref_xy_m: np.ndarray, d_rss: np.ndarray, previous: np.ndarray, displacement: np.ndarray,
+                       config: PdrKwnnConfig) -> np.ndarray:
+    """A later scan's estimate: the PDR-KWNN fix around the previous estimate plus the steps'
+    displacement, or that prediction alone where no reference point is a candidate."""
+    candidates = np.isfinite(d_rss)
+    predicted = previous + displacement
+    if not candidates.any():
+        return predicted  # no fingerprint: dead-reckon to the next scan
+    return _pdr_kwnn_fix(ref_xy_m, d_rss, candidates, previous, predicted, displacement, config)
 
 
 def _pdr_displacement(steps: Steps, t0_s: float, t1_s: float, config: PdrKwnnConfig) -> np.ndarray:

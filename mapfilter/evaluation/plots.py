@@ -9,6 +9,16 @@ import numpy as np
 from mapfilter.io.atomic import atomic_paths
 
 
+def load_plotting() -> None:
+    """Import the plotting library now: a run that draws pictures after long work loads it before
+    that work, so that an interrupt (Ctrl-C) cannot land in its import and leave it half loaded
+    for the partial results' pictures."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot  # noqa: F401
+
+
 def plot_error_cdf(errors_by_method: dict[str, np.ndarray], path: str | os.PathLike, title: str = "") -> None:
     """Write a PNG with the empirical CDF of the errors of each method."""
     import matplotlib

@@ -52,6 +52,24 @@ DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, err
 _NAME_MAX = 255  # bytes in a file name (Linux, macOS, Windows)
 
 
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM held back for the block (delivered as it ends): a temporary made and
+    listed for the clean-up, or the files of a commit moved, are never cut in half by Ctrl-C or
+    a SIGTERM (the CLI turns both into an interrupt that cleans up)."""
+    import signal
+    import threading
+
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
 class StagedFiles:
     """Files written to temporaries beside their final paths and moved into place together: all
     of them, or, on any failure, none (every earlier file stays whole).
@@ -94,12 +112,13 @@ class StagedFiles:
             raise MapfilterError("is a directory; give a file name", final)
         check_not_special(final, "output")  # a link, a device, a FIFO: never replaced
         temps: list[Path] = []
-        try:
-            self._made += _make_parents(final.parent)
-            _create_temporary(final, temps)
-        except OSError as exc:  # a parent that is a file, a directory we may not write in
-            raise MapfilterError(f"cannot write here ({exc.strerror or exc})", final) from None
-        self._temps[final] = temps[0]
+        with signals_held():  # made and listed for the clean-up at once
+            try:
+                self._made += _make_parents(final.parent)
+                _create_temporary(final, temps)
+            except OSError as exc:  # a parent that is a file, a directory we may not write in
+                raise MapfilterError(f"cannot write here ({exc.strerror or exc})", final) from None
+            self._temps[final] = temps[0]
         return temps[0]
 
     def written(self, final: str | os.PathLike) -> None:
@@ -139,7 +158,12 @@ class StagedFiles:
 
     def commit(self) -> None:
         """Every written temporary into place and every marked file removed, together; on any
-        failure the earlier files are put back and the error raised. Afterwards the set is empty."""
+        failure the earlier files are put back and the error raised. Afterwards the set is empty.
+        An interrupt waits for the commit's end."""
+        with signals_held():
+            self._commit()
+
+    def _commit(self) -> None:
         pending = [(self._temps[f], f) for f in self.written_paths]
         removals = [p for p in self._removals if p not in self._temps and os.path.lexists(p)]
         umask = os.umask(0)  # mkstemp makes files private (0600): give the usual mode (0666 minus the umask)
@@ -190,11 +214,12 @@ class StagedFiles:
         self._removals = []
 
     def _drop(self, final: Path) -> None:
-        tmp = self._temps.pop(final, None)
-        self._written.discard(final)
-        if tmp is not None:
-            with contextlib.suppress(FileNotFoundError):
-                tmp.unlink()
+        with signals_held():  # unlisted and removed at once
+            tmp = self._temps.pop(final, None)
+            self._written.discard(final)
+            if tmp is not None:
+                with contextlib.suppress(FileNotFoundError):
+                    tmp.unlink()
 
 
 def _backup(path: Path) -> Path:

@@ -77,6 +77,18 @@ def table_dict_reader(handle, path: str | os.PathLike) -> csv.DictReader:
     return reader
 
 
+def finite_number(text: str | None, name: str, path: str | os.PathLike, line_no: int) -> float:
+    """A CSV field (``name``'s, None where the row lacks it) as a finite number; else one line naming
+    the file, line and column."""
+    try:
+        value = float(text)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise MapfilterError(f"column {name} is not a number: {text!r}", path, line_no) from None
+    if not math.isfinite(value):
+        raise MapfilterError(f"column {name} is not finite: {text!r}", path, line_no)
+    return value
+
+
 @dataclasses.dataclass(frozen=True)
 class CsvTable:
     """A CSV table with a header: ``column`` maps each lower-case column name to its index,
@@ -88,18 +100,19 @@ class CsvTable:
     rows: list[tuple[int, list[str]]]
 
     def number(self, fields: list[str], name: str, line_no: int, low: float = -math.inf,
-               high: float = math.inf) -> float:
+               high: float = math.inf, label: str | None = None) -> float:
         """Column ``name`` of a row as a finite number within [low, high]; else one line naming
-        the file and line."""
+        the file and line (and the column as ``label``, by default ``name``)."""
         text = fields[self.column[name]]
+        label = name if label is None else label
         try:
             value = float(text)
         except ValueError:
-            raise MapfilterError(f"column {name} is not a number: {text.strip()!r}", self.path, line_no) from None
+            raise MapfilterError(f"column {label} is not a number: {text.strip()!r}", self.path, line_no) from None
         if not math.isfinite(value):
-            raise MapfilterError(f"column {name} is not finite: {text.strip()!r}", self.path, line_no)
+            raise MapfilterError(f"column {label} is not finite: {text.strip()!r}", self.path, line_no)
         if not low <= value <= high:
-            raise MapfilterError(f"column {name} is {value:g}, outside {low:g} to {high:g}", self.path, line_no)
+            raise MapfilterError(f"column {label} is {value:g}, outside {low:g} to {high:g}", self.path, line_no)
         return value
 
 

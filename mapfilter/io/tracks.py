@@ -17,7 +17,7 @@ from typing import Protocol
 import numpy as np
 
 from mapfilter.io.atomic import atomic_paths, write_csv_atomically
-from mapfilter.io.tables import table_dict_reader
+from mapfilter.io.tables import finite_number, table_dict_reader
 from mapfilter.errors import MapfilterError, not_a_file
 
 
@@ -172,13 +172,7 @@ def _read_csv(path: Path) -> Track:
                 if name == "floor":
                     columns[name].append(value or "")
                     continue
-                try:
-                    number = float(value)  # type: ignore[arg-type]
-                except (TypeError, ValueError):
-                    raise MapfilterError(f"column {name} is not a number: {value!r}", path, line_no) from None
-                if not math.isfinite(number):
-                    raise MapfilterError(f"column {name} is not finite: {value!r}", path, line_no)
-                columns[name].append(number)
+                columns[name].append(finite_number(value, name, path, line_no))
     if not columns["t_s"]:
         raise MapfilterError("the track has no rows", path)
     return Track(

@@ -10,15 +10,21 @@ a grey image and its pixel size into a wall mask in these steps:
    wall, on a reduced copy), so grey, yellowed or unevenly lit paper becomes white;
 2. ink is what is darker than a threshold (Otsu's on the evened image, or a number);
 3. strokes are split by width: the widths of the ink's ridges (twice the distance to paper)
-   fall into the thin lines of annotation and the heavier walls; the thin are not walls;
+   fall into the thin lines of annotation and the heavier walls; the thin are not walls, nor
+   (at a low resolution, where a thin line is as wide as a wall's) a stroke mostly of light ink;
 4. wall cavities are filled: a narrow, elongated gap enclosed by heavy ink is the inside of a
    double-line or hatched wall, or a window in a wall;
 5. door symbols are found among the thin strokes (a quarter circle round a hinge beside a wall,
    its leaf a radius of it); a leaf drawn heavy enough to pass for a wall is removed;
 6. the building is found on a copy of the walls with door-wide gaps closed (so an open
-   entrance, whose symbol was thin, never lets the outside in); outside it is wall; a sheet's
-   frame (a ring of ink round everything near the image border) is no building;
-7. small wall blobs inside the building that are not solid columns are text: removed.
+   entrance, whose symbol was thin, never lets the outside in), and with the thin strokes that
+   touch the walls (so windows drawn thin, a run of them or a bay's glazing, close the outline;
+   what they alone enclose is the building's only where it is bounded mostly by walls, not a
+   terrace behind its rails); outside it is wall, and so are the windows; a sheet's frame (a
+   ring of ink round everything near the image border) is no building;
+7. small wall blobs inside the building that are not solid columns are text: removed;
+8. the learned segmenter (:mod:`mapfilter.maps.segmenter`, trained on generated plans) reads the
+   walls too; a wall of the strokes is kept where the network has one within 3 px.
 
 Pixel sizes come from the plan's scale, so the rules are in metres where a rule is about
 buildings (wall thickness, door width) and in pixels where it is about the drawing (line
@@ -57,6 +63,8 @@ COLUMN_MIN_PX = 6  # smaller than this a column cannot be told from a letter
 FRAME_BAND = 0.02  # a sheet frame's lines lie within this share of its box's size from the box's edges ...
 FRAME_ALONG_EDGES = 0.5  # ... with at least this share of its ink
 WORK_M = 0.03  # the outline is found at about this many metres per pixel
+STROKE_REACH_M = 0.5  # thin strokes close the outline this far beyond the walls' rough outline at most
+OPEN_SHARE = 0.45  # a piece enclosed by thin strokes is outside when this share of its edge is thin with the outside beyond
 LEAK_SHARE = 0.7  # the outline leaked when it holds less than this share of the rough outline's free space
 SMALL_GAP_M = 0.3  # scan breaks in the outer wall once its windows and doors are filled
 SLIVER_M2 = 1.0  # free space touching the outside and smaller than this is a gap's or a corner's sliver  # a sheet frame is a ring of ink at most this thick on average (area / perimeter)
@@ -85,6 +93,7 @@ class DrawingOptions:
     find_doors: bool = True
     thicken_px: int = 0
     outside_is_wall: bool = True
+    segmenter: bool = True
 
 
 @dataclasses.dataclass
@@ -299,21 +308,37 @@ def _drop_frames(heavy: np.ndarray, resolution_m: float) -> np.ndarray:
     count, labels, stats, _ = cv2.connectedComponentsWithStats(heavy.astype(np.uint8), connectivity=8)
     rows, cols = heavy.shape
     drop = np.zeros(count, dtype=bool)
-    large = (stats[:, cv2.CC_STAT_WIDTH] * stats[:, cv2.CC_STAT_HEIGHT] >= 0.05 * rows * cols)
     for i in range(1, count):
         x, y, w, h, area = stats[i]
         if not (x < 0.1 * cols and y < 0.1 * rows and x + w > 0.9 * cols and y + h > 0.9 * rows):
             continue
-        inner = large.copy()
+        # other ink inside its box, spanning together at least 5 % of the image (a building,
+        # whose walls windows and doors may have cut into many pieces)
+        sx, sy, sw, sh = (stats[:, k] for k in range(4))
+        inner = (sx > x) & (sy > y) & (sx + sw < x + w) & (sy + sh < y + h)
         inner[[0, i]] = False
-        sx, sy, sw, sh = (stats[inner, k] for k in range(4))
-        if not (inner.any() and ((sx > x) & (sy > y) & (sx + sw < x + w) & (sy + sh < y + h)).any()):
+        if not inner.any() or ((sx + sw)[inner].max() - sx[inner].min()) * \
+                ((sy + sh)[inner].max() - sy[inner].min()) < 0.05 * rows * cols:
             continue
-        ys, xs = np.nonzero(labels[y:y + h, x:x + w] == i)
+        # its long straight lines only (a title block's text is no frame's, nor a building's)
+        piece = (labels[y:y + h, x:x + w] == i).astype(np.uint8)
+        run = max(5, int(0.05 * min(w, h)))
+        lines = cv2.morphologyEx(piece, cv2.MORPH_OPEN, np.ones((1, run), np.uint8)) | \
+            cv2.morphologyEx(piece, cv2.MORPH_OPEN, np.ones((run, 1), np.uint8))
+        ys, xs = np.nonzero(lines)
+        if ys.size == 0:
+            continue
         band = FRAME_BAND * min(w, h)
         along_edges = (xs < band) | (ys < band) | (xs >= w - band) | (ys >= h - band)
         if along_edges.mean() >= FRAME_ALONG_EDGES:
             drop[i] = True
+    # a frame's side left alone (the others drawn lighter): a bare straight line along an edge,
+    # across most of the sheet (a building's outer wall carries its partitions)
+    x, y, w, h = (stats[:, k] for k in range(4))
+    across = ((w >= 0.8 * cols) & (h <= np.maximum(3, 0.01 * rows)) & ((y < 0.05 * rows) | (y + h > 0.95 * rows))) | \
+        ((h >= 0.8 * rows) & (w <= np.maximum(3, 0.01 * cols)) & ((x < 0.05 * cols) | (x + w > 0.95 * cols)))
+    across[0] = False
+    drop |= across
     return heavy & ~drop[labels] if drop.any() else heavy
 
 
@@ -428,35 +453,70 @@ def wall_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> l
     return fills
 
 
-def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> tuple[np.ndarray, np.ndarray]:
+def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float,
+                       strokes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(inside the building, the filled gaps of its outer wall).
 
     The walls with every gap between wall ends in line closed (:func:`wall_gap_fills`) enclose
     the rooms; the holes filled, the pieces of at least a quarter of the largest one's area are
     the building (a title block, a scale bar or a north arrow is no building). The gaps filled on
-    the outline are windows and entrances: wall, as the outside is."""
+    the outline are windows and entrances: wall, as the outside is.
+
+    ``strokes`` (all the ink, thin lines too): the thin strokes that touch a wall close the
+    outline as well, so that windows drawn in thin lines (a run of them over several metres, a
+    curved bay's glazing) do not let the outside in. What they enclose beyond the walls' own
+    outline is taken in only where it is bounded mostly by walls (rooms behind a window run); a
+    terrace or a balcony, bounded by a façade and thin rails, is not."""
     # at about WORK_M per pixel: walls stay two pixels thick, and it is many times faster
     factor = max(1, int(WORK_M / resolution_m))
-    rows, cols = wall.shape
-    if factor > 1:
-        small_shape = (max(1, cols // factor), max(1, rows // factor))
-        work = cv2.resize(wall.astype(np.float32), small_shape, interpolation=cv2.INTER_AREA) >= 0.3
-        work_m = resolution_m * cols / small_shape[0]
-    else:
-        work, work_m = wall, resolution_m
-    fills = wall_gap_fills(work, work_m, max_gap_m)
-    closed = work.copy()
-    for fill in fills:
-        closed |= fill
-    inside = _enclosed(closed, 0.5 * SMALL_GAP_M / work_m)
-    # a gap the fills missed lets the outside in: then the walls closed over door-wide gaps
-    # (a disc a little wider than max_gap_m cannot pass them) give the outline
+    work, ratio = _reduce(wall, factor, 0.3)
+    work_m = resolution_m * ratio
+    barrier = work
+    # the walls closed over door-wide gaps (a disc a little wider than max_gap_m cannot pass them)
     rough = _enclosed(work, 0.625 * max_gap_m / work_m)
+    if strokes is not None:
+        # thin strokes touching the building's walls (not a sheet frame's or a title block's)
+        thin = _reduce(strokes, factor, 0.2)[0] & ~work
+        count, labels = cv2.connectedComponents(thin.astype(np.uint8), connectivity=8)
+        touching = np.zeros(count, dtype=bool)
+        near_walls = cv2.dilate((work & rough).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        touching[np.unique(labels[near_walls & thin])] = True
+        touching[0] = False
+        # ... and near it: windows lie in the wall's line, a bay's glazing within the rough outline
+        # (an axis line or a terrace's rail running off to the sheet's frame closes nothing)
+        near_rough = cv2.dilate(rough.astype(np.uint8), _disc(2 * int(STROKE_REACH_M / work_m) + 1)).astype(bool)
+        barrier = work | (touching[labels] & near_rough)
+    fills = wall_gap_fills(barrier, work_m, max_gap_m)
+    gaps = np.zeros_like(work)
+    for fill in fills:
+        gaps |= fill
+    closed = barrier | gaps
+    inside = _enclosed(closed, 0.5 * SMALL_GAP_M / work_m)
+    if strokes is not None:
+        wall_fills = wall_gap_fills(work, work_m, max_gap_m)
+        walls_closed = work.copy()
+        for fill in wall_fills:
+            walls_closed |= fill
+        own = _enclosed(walls_closed, 0.5 * SMALL_GAP_M / work_m)
+        # thin strokes with the outside beyond them: windows, rails (furniture has rooms round it)
+        strokes_only = closed & ~(work | gaps)
+        count, labels = cv2.connectedComponents(strokes_only.astype(np.uint8), connectivity=8)
+        open_ = np.zeros(count, dtype=bool)
+        outside_near = cv2.dilate((~inside).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        open_[np.unique(labels[outside_near & strokes_only])] = True
+        open_[0] = False
+        open_strokes = open_[labels]
+        inside = own | _walled_pieces(inside & ~own & ~closed, closed, open_strokes, SLIVER_M2 / work_m ** 2)
+    else:
+        open_strokes = np.zeros_like(work)
+    # a gap the fills missed lets the outside in: then the rough outline
     if (inside & ~work).sum() < LEAK_SHARE * (rough & ~work).sum():
         inside = rough
-    # gap fills on the outline: the pieces (of each direction) touching the outside
-    outside_near = cv2.dilate((~inside).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    outer_fills = np.zeros_like(inside)
+    # gap fills on the outline: the pieces (of each direction) touching the outside, or the thin
+    # strokes with the outside beyond them (a window's glass lines)
+    open_strokes &= inside
+    outside_near = cv2.dilate((~inside | open_strokes).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    outer_fills = open_strokes.copy()
     for fill in fills:
         count, labels, stats, _ = cv2.connectedComponentsWithStats(fill.astype(np.uint8), connectivity=4)
         outer = np.zeros(count, dtype=bool)
@@ -464,6 +524,33 @@ def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float) 
         outer[0] = False
         outer_fills |= outer[labels]
     return _resize_mask(inside, wall.shape), _resize_mask(outer_fills, wall.shape) & ~wall
+
+
+def _reduce(mask: np.ndarray, factor: int, share: float) -> tuple[np.ndarray, float]:
+    """``mask`` reduced ``factor`` times (a pixel set where at least ``share`` of it was)."""
+    if factor <= 1:
+        return mask, 1.0
+    rows, cols = mask.shape
+    small = cv2.resize(mask.astype(np.float32), (max(1, cols // factor), max(1, rows // factor)),
+                       interpolation=cv2.INTER_AREA) >= share
+    return small, cols / small.shape[1]
+
+
+def _walled_pieces(pieces: np.ndarray, barrier: np.ndarray, open_edge: np.ndarray, min_px: float) -> np.ndarray:
+    """The 4-connected ``pieces`` of at least ``min_px`` pixels whose edge (the ``barrier`` pixels
+    beside them) is less than ``OPEN_SHARE`` thin strokes with the outside beyond them
+    (``open_edge``): rooms behind a run of thin windows; a terrace or a balcony behind thin rails
+    is not, nor a pocket between strokes."""
+    count, labels = cv2.connectedComponents(pieces.astype(np.uint8), connectivity=4)
+    if count <= 1:
+        return np.zeros_like(pieces)
+    grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)  # a label's ring
+    ring = barrier & (grown > 0)
+    edge = np.bincount(grown[ring], minlength=count).astype(np.float64)
+    open_ = np.bincount(grown[ring & open_edge], minlength=count)
+    keep = (open_ < OPEN_SHARE * np.maximum(edge, 1)) & (np.bincount(labels.ravel(), minlength=count) >= min_px)
+    keep[0] = False
+    return keep[labels]
 
 
 def _enclosed(wall: np.ndarray, radius_px: float) -> np.ndarray:
@@ -500,10 +587,33 @@ def _drop_outer_slivers(wall: np.ndarray, inside: np.ndarray, resolution_m: floa
     outside_near = cv2.dilate((~inside).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     touching = np.zeros(count, dtype=bool)
     touching[np.unique(labels[outside_near & free])] = True
-    small = stats[:, cv2.CC_STAT_AREA] * resolution_m ** 2 < SLIVER_M2
-    drop = touching & small
+    area_m2 = stats[:, cv2.CC_STAT_AREA] * resolution_m ** 2
+    drop = (touching & (area_m2 < SLIVER_M2)) | (area_m2 < (2 * MIN_WALL_M) ** 2)  # and pinholes in a wall
     drop[0] = False
     return wall | drop[labels]
+
+
+def _with_segmenter(wall: np.ndarray, inside: np.ndarray | None, evened: np.ndarray, ink: np.ndarray,
+                    resolution_m: float, options: DrawingOptions) -> tuple[np.ndarray, np.ndarray | None]:
+    """The learned segmenter's walls (:mod:`mapfilter.maps.segmenter`), read on as the strokes
+    are (a frame and text dropped, the outline from every stroke, the outside walled), kept where
+    the network has a wall within 3 px: the network tells furniture, fixtures, stairs and tiles
+    from walls better, the strokes find the doors open and the walls' exact edges. (It misses
+    faint grey walls on shaded paper: tests/maps/test_drawing.py, test 4.) The outside is what both
+    take for outside. Unchanged when the drawing is too large for the network."""
+    from mapfilter.maps.segmenter import network_walls
+
+    learned = network_walls(evened, resolution_m)
+    if learned is None:
+        return wall, inside
+    learned = _drop_frames(learned, resolution_m)
+    learned, _ = _drop_text_blobs(learned, resolution_m, None)
+    if inside is not None:
+        learned_inside, outer_gaps = building_footprint(learned, resolution_m, options.outline_gap_m, ink)
+        learned = _drop_outer_slivers(learned | outer_gaps | ~learned_inside, learned_inside, resolution_m)
+        inside = inside | learned_inside
+    near = cv2.dilate(learned.astype(np.uint8), _disc(7)).astype(bool)
+    return wall & near, inside
 
 
 def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions = DrawingOptions(),
@@ -547,9 +657,14 @@ def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions 
     hatching = fill_hatching(clean, resolution_m)
     outlines, _ = heavy_lines(evened, ink, core)
     outlines = cv2.morphologyEx((outlines | hatching).astype(np.uint8), cv2.MORPH_CLOSE, _disc(3)).astype(bool)
-    body = core | hatching | fill_wall_bands(outlines, resolution_m) | fill_between_lines(outlines, resolution_m)
+    fills = hatching | fill_wall_bands(outlines, resolution_m) | fill_between_lines(outlines, resolution_m)
+    body = core | fills
     if thin_px > 0:
         heavy = cv2.morphologyEx(body.astype(np.uint8), cv2.MORPH_OPEN, _disc(diameter)).astype(bool)
+        # at low resolution a thin line is as wide as a wall's line: it is told by its lighter ink
+        # (a plan drawn with one pen has no heavier ink: then nothing is told this way)
+        if (outlines | fills).sum() >= 0.1 * core.sum():
+            heavy &= cv2.dilate((outlines | fills).astype(np.uint8), _disc(5)).astype(bool)  # (wall ends too)
         heavy |= fill_wall_bands(heavy, resolution_m)
     else:
         heavy = body
@@ -566,8 +681,10 @@ def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions 
     wall, n_text = _drop_text_blobs(heavy, resolution_m, options.remove_text_px)
     inside = None
     if options.outside_is_wall:
-        inside, outer_gaps = building_footprint(wall, resolution_m, options.outline_gap_m)
+        inside, outer_gaps = building_footprint(wall, resolution_m, options.outline_gap_m, ink)
         wall = _drop_outer_slivers(wall | outer_gaps | ~inside, inside, resolution_m)
+    if options.segmenter and options.remove_text_px is None:  # (blobs kept on purpose stay)
+        wall, inside = _with_segmenter(wall, inside, evened, ink, resolution_m, options)
     if options.thicken_px > 0:
         wall = cv2.dilate(wall.astype(np.uint8), _disc(2 * options.thicken_px + 1)).astype(bool)
     return DrawingReading(wall, inside, level, thin_px, doors, n_text)

@@ -187,63 +187,14 @@ class FloorPlan:
         for key in ("image", "resolution", "origin"):
             if key not in meta:
                 raise MapfilterError(f"map YAML lacks the required key '{key}'", yaml_path)
-        resolution = _positive_float(meta["resolution"], "resolution", yaml_path)
-        origin = meta["origin"]
-        if not (isinstance(origin, list) and len(origin) in (2, 3) and all(is_number(v) for v in origin)):
-            raise MapfilterError(f"'origin' must be [x, y, yaw] numbers, got {origin!r}", yaml_path)
-        problem = plan_geometry_problem(resolution, origin[:2])
-        if problem:
-            raise MapfilterError(problem, yaml_path)
-        if len(origin) == 3 and abs(float(origin[2])) > 1e-9:
-            raise MapfilterError(f"a rotated map (origin yaw {origin[2]}) is not supported", yaml_path)
-        occupied_thresh = meta.get("occupied_thresh", DEFAULT_OCCUPIED_THRESH)
-        free_thresh = meta.get("free_thresh", DEFAULT_FREE_THRESH)
-        if not (is_number(occupied_thresh) and is_number(free_thresh)):
-            raise MapfilterError(f"thresholds must be numbers, got occupied_thresh {occupied_thresh!r}, "
-                                 f"free_thresh {free_thresh!r}", yaml_path)
-        occupied_thresh, free_thresh = float(occupied_thresh), float(free_thresh)
-        if not 0.0 <= free_thresh <= occupied_thresh <= 1.0:
-            raise MapfilterError(
-                f"thresholds must satisfy 0 <= free_thresh ({free_thresh}) <= occupied_thresh ({occupied_thresh}) <= 1",
-                yaml_path,
-            )
-        negate = meta.get("negate", 0)
-        if negate not in (0, 1, True, False):
-            raise MapfilterError(f"'negate' must be 0 or 1, got {negate!r}", yaml_path)
-        mode = meta.get("mode", "trinary")
-        if mode not in ("trinary", "scale", "raw"):
-            raise MapfilterError(f"'mode' must be trinary, scale or raw, got {mode!r}", yaml_path)
-
-        image_path = path_in_yaml(yaml_path, meta["image"])
-        gray = read_gray_image(image_path)
-        # the rule for each of the 256 grey values, looked up per pixel: the same numbers as
-        # computing it per pixel, without (H, W) float64 temporaries
-        values = np.arange(256, dtype=np.uint8)
-        if mode == "raw":
-            # raw: the pixel value is the occupancy in percent (0 = free)
-            occupancy = values.astype(np.float64) / 100.0
-        else:
-            occupancy = values.astype(np.float64) / 255.0 if negate else (255.0 - values) / 255.0
-        # Unknown cells (between the thresholds) are not walkable: they count as wall.
-        wall = (~(occupancy < free_thresh) if mode != "raw" else occupancy > 0.0)[gray]
-
+        resolution, origin = _map_geometry(meta, yaml_path)
+        free_thresh, negate, mode = _occupancy_rule(meta, yaml_path)
+        gray = read_gray_image(path_in_yaml(yaml_path, meta["image"]))
+        wall = _wall_of_gray(gray, free_thresh, negate, mode)
         ours = meta.get("mapfilter") or {}
         if not isinstance(ours, dict):
             raise MapfilterError("'mapfilter' must be a mapping of our extra keys", yaml_path)
-        source = None
-        if ours.get("source_image"):
-            src_origin = ours.get("source_origin", origin[:2])
-            if not (isinstance(src_origin, list) and len(src_origin) >= 2 and all(is_number(v) for v in src_origin[:2])):
-                raise MapfilterError(f"'source_origin' must be [x, y] numbers, got {src_origin!r}", yaml_path)
-            source = SourceImage(
-                path=path_in_yaml(yaml_path, ours["source_image"]),
-                resolution_m=_positive_float(ours.get("source_resolution", resolution), "source_resolution", yaml_path),
-                origin_m=(float(src_origin[0]), float(src_origin[1])),
-            )
-            problem = plan_geometry_problem(source.resolution_m, source.origin_m, "source_resolution", "source_origin")
-            if problem:
-                raise MapfilterError(problem, yaml_path)
-            _check_source_image_size(source.path, yaml_path)
+        source = _source_image(ours, origin, resolution, yaml_path) if ours.get("source_image") else None
         aps = path_in_yaml(yaml_path, ours["access_points"]) if ours.get("access_points") else None
         floor = ours.get("floor")
         return cls(wall, resolution, (float(origin[0]), float(origin[1])),
@@ -389,6 +340,73 @@ def is_number(value: Any) -> bool:
         return math.isfinite(value)
     except OverflowError:
         return False
+
+
+def _map_geometry(meta: dict, yaml_path: Path) -> tuple[float, list]:
+    """(resolution, origin [x, y(, yaw)]) of a map YAML: numbers, a plan of a sane size, no rotation."""
+    resolution = _positive_float(meta["resolution"], "resolution", yaml_path)
+    origin = meta["origin"]
+    if not (isinstance(origin, list) and len(origin) in (2, 3) and all(is_number(v) for v in origin)):
+        raise MapfilterError(f"'origin' must be [x, y, yaw] numbers, got {origin!r}", yaml_path)
+    problem = plan_geometry_problem(resolution, origin[:2])
+    if problem:
+        raise MapfilterError(problem, yaml_path)
+    if len(origin) == 3 and abs(float(origin[2])) > 1e-9:
+        raise MapfilterError(f"a rotated map (origin yaw {origin[2]}) is not supported", yaml_path)
+    return resolution, origin
+
+
+def _occupancy_rule(meta: dict, yaml_path: Path) -> tuple[float, object, str]:
+    """(free_thresh, negate, mode) of a map YAML, map_server's defaults where absent (occupied_thresh
+    checked: a cell between the thresholds is unknown, which counts as wall)."""
+    occupied_thresh = meta.get("occupied_thresh", DEFAULT_OCCUPIED_THRESH)
+    free_thresh = meta.get("free_thresh", DEFAULT_FREE_THRESH)
+    if not (is_number(occupied_thresh) and is_number(free_thresh)):
+        raise MapfilterError(f"thresholds must be numbers, got occupied_thresh {occupied_thresh!r}, "
+                             f"free_thresh {free_thresh!r}", yaml_path)
+    occupied_thresh, free_thresh = float(occupied_thresh), float(free_thresh)
+    if not 0.0 <= free_thresh <= occupied_thresh <= 1.0:
+        raise MapfilterError(
+            f"thresholds must satisfy 0 <= free_thresh ({free_thresh}) <= occupied_thresh ({occupied_thresh}) <= 1",
+            yaml_path,
+        )
+    negate = meta.get("negate", 0)
+    if negate not in (0, 1, True, False):
+        raise MapfilterError(f"'negate' must be 0 or 1, got {negate!r}", yaml_path)
+    mode = meta.get("mode", "trinary")
+    if mode not in ("trinary", "scale", "raw"):
+        raise MapfilterError(f"'mode' must be trinary, scale or raw, got {mode!r}", yaml_path)
+    return free_thresh, negate, mode
+
+
+def _wall_of_gray(gray: np.ndarray, free_thresh: float, negate, mode: str) -> np.ndarray:
+    """The wall mask of a map image. The rule for each of the 256 grey values, looked up per pixel:
+    the same numbers as computing it per pixel, without (H, W) float64 temporaries."""
+    values = np.arange(256, dtype=np.uint8)
+    if mode == "raw":
+        # raw: the pixel value is the occupancy in percent (0 = free)
+        occupancy = values.astype(np.float64) / 100.0
+    else:
+        occupancy = values.astype(np.float64) / 255.0 if negate else (255.0 - values) / 255.0
+    # Unknown cells (between the thresholds) are not walkable: they count as wall.
+    return (~(occupancy < free_thresh) if mode != "raw" else occupancy > 0.0)[gray]
+
+
+def _source_image(ours: dict, origin: list, resolution: float, yaml_path: Path) -> SourceImage:
+    """The source floor-plan image our keys name (for display), its geometry checked."""
+    src_origin = ours.get("source_origin", origin[:2])
+    if not (isinstance(src_origin, list) and len(src_origin) >= 2 and all(is_number(v) for v in src_origin[:2])):
+        raise MapfilterError(f"'source_origin' must be [x, y] numbers, got {src_origin!r}", yaml_path)
+    source = SourceImage(
+        path=path_in_yaml(yaml_path, ours["source_image"]),
+        resolution_m=_positive_float(ours.get("source_resolution", resolution), "source_resolution", yaml_path),
+        origin_m=(float(src_origin[0]), float(src_origin[1])),
+    )
+    problem = plan_geometry_problem(source.resolution_m, source.origin_m, "source_resolution", "source_origin")
+    if problem:
+        raise MapfilterError(problem, yaml_path)
+    _check_source_image_size(source.path, yaml_path)
+    return source
 
 
 def _positive_float(value: Any, key: str, path: Path) -> float:

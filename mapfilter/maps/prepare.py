@@ -215,7 +215,7 @@ def _remove_small_areas(mask: np.ndarray, below_px: int) -> np.ndarray:
     return keep[labels]
 
 
-def _fill_outside(wall: np.ndarray, path: Path | None = None, keep_free_option: str = "--keep-outside") -> np.ndarray:
+def _fill_outside(wall: np.ndarray, path: Path | None = None, keep_free_option: str = "--outside none") -> np.ndarray:
     """Mark free space 4-connected to the image border as wall (outside the building).
     ``keep_free_option``: how the user's kind of plan keeps the outside free (for the message)."""
     count, labels = cv2.connectedComponents((~wall).astype(np.uint8), connectivity=4)
@@ -355,8 +355,10 @@ def prepare_regions(
 
 
 def read_regions(plan_path: str | os.PathLike, scale: PlanScale, options: RegionOptions = RegionOptions(),
-                 map_resolution_m: float | None = None, floor_name: str | None = None) -> tuple[FloorPlan, list[str]]:
-    """:func:`prepare_regions` and what it did, one line each (outlines opened, blobs dropped)."""
+                 map_resolution_m: float | None = None, floor_name: str | None = None
+                 ) -> tuple[FloorPlan, list[str], np.ndarray | None]:
+    """:func:`prepare_regions`, what it did, one line each (outlines opened, blobs dropped), and
+    the pixels it took for the outside (on the map's grid; None when the outside is kept)."""
     plan_path = Path(plan_path)
     bgra = read_plan_image(plan_path)
     resolution_m = scale.resolve(bgra.shape[:2], plan_path)
@@ -375,6 +377,7 @@ def read_regions(plan_path: str | os.PathLike, scale: PlanScale, options: Region
             free |= opaque & (diff <= options.tolerance)
     wall = ~free
     notes = []
+    outside = None
     if options.remove_below_px is None:
         wall, dropped = _drop_region_blobs(wall, resolution_m)
         if dropped:
@@ -382,7 +385,9 @@ def read_regions(plan_path: str | os.PathLike, scale: PlanScale, options: Region
     elif options.remove_below_px > 0:
         wall = _remove_small_areas(wall, options.remove_below_px)
     if options.outside_is_wall:
-        wall = _fill_outside(wall, plan_path, keep_free_option="--keep-outside")
+        walled = _fill_outside(wall, plan_path, keep_free_option="--outside none")
+        outside = walled & ~wall
+        wall = walled
     outline_px = options.open_outlines_px
     if outline_px is None:
         outline_px = outline_width_px(bgra, ~free)
@@ -390,7 +395,16 @@ def read_regions(plan_path: str | os.PathLike, scale: PlanScale, options: Region
             notes.append(f"the filled regions' outlines ({outline_px} px) opened")
     if outline_px > 0:
         wall = _erode(wall, outline_px)
-    return _finish(wall, resolution_m, map_resolution_m, plan_path, floor_name), notes
+    plan = _finish(wall, resolution_m, map_resolution_m, plan_path, floor_name)
+    return plan, notes, _on_grid(outside, plan)
+
+
+def _on_grid(mask: np.ndarray | None, plan: FloorPlan) -> np.ndarray | None:
+    """A plan-pixel mask on the map's own grid (nearest pixel; the same when the grids are one)."""
+    if mask is None or mask.shape == plan.shape_px:
+        return mask
+    rows, cols = plan.shape_px
+    return cv2.resize(mask.astype(np.uint8), (cols, rows), interpolation=cv2.INTER_NEAREST).astype(bool)
 
 
 OUTLINE_RING_SHARE = 0.11
@@ -496,11 +510,13 @@ def detect_kind(bgra: np.ndarray, resolution_m: float) -> KindChoice:
 
 @dataclasses.dataclass
 class PreparedPlan:
-    """A plan read by :func:`prepare_plan`: the map, its kind and what the reader did (one line each)."""
+    """A plan read by :func:`prepare_plan`: the map, its kind, what the reader did (one line each)
+    and the pixels it took for the outside of the building (on the map's grid; None: kept free)."""
 
     plan: FloorPlan
     kind: str
     notes: list[str]
+    outside: np.ndarray | None = None
 
 
 def prepare_plan(plan_path: str | os.PathLike, scale: PlanScale, kind: str | None = None,
@@ -533,10 +549,11 @@ def prepare_plan(plan_path: str | os.PathLike, scale: PlanScale, kind: str | Non
                         if reading.thin_width_px else "every stroke taken for a wall; ")
                      + f"{len(reading.doors)} door symbol{'s' if len(reading.doors) != 1 else ''} found, "
                      f"{reading.text_blobs} small blob{'s' if reading.text_blobs != 1 else ''} dropped (text, marks)")
-        return PreparedPlan(plan, kind, notes)
+        outside = None if reading.inside is None else _on_grid(~reading.inside, plan)
+        return PreparedPlan(plan, kind, notes, outside)
     if kind == "regions":
-        plan, region_notes = read_regions(plan_path, scale, regions, map_resolution_m, floor_name)
-        return PreparedPlan(plan, kind, notes + region_notes)
+        plan, region_notes, outside = read_regions(plan_path, scale, regions, map_resolution_m, floor_name)
+        return PreparedPlan(plan, kind, notes + region_notes, outside)
     raise MapfilterError(f"unknown kind of plan {kind!r} (lines or regions)")
 
 
@@ -769,8 +786,11 @@ def mask_warnings(plan: FloorPlan, outside_hint: str | None = "", blob_hint: str
 
 
 # ---- output ---------------------------------------------------------------------------------
-def preview_image(plan: FloorPlan, max_side_px: int = 2000) -> np.ndarray:
-    """BGR picture of the mask (walls in red, half transparent) over the source plan.
+def preview_image(plan: FloorPlan, max_side_px: int = 2000, outside: np.ndarray | None = None,
+                  cut_off: np.ndarray | None = None) -> np.ndarray:
+    """BGR picture of the mask (walls in red, half transparent) over the source plan; the pixels
+    taken for the outside of the building (``outside``, on the mask's grid) shaded grey, the
+    rooms cut off from the largest free region (``cut_off``) in orange, each boxed.
 
     Drawn at the finer of the plan's and the mask's pixel sizes (at most ``max_side_px``).
     """
@@ -781,11 +801,12 @@ def preview_image(plan: FloorPlan, max_side_px: int = 2000) -> np.ndarray:
         source = read_plan_image(plan.source_image.path)
         res = min(res, plan.source_image.resolution_m)
     res = max(res, max(x_max - x_min, y_max - y_min) / max_side_px)
-    cols = int(math.ceil((x_max - x_min) / res))
-    rows = int(math.ceil((y_max - y_min) / res))
+    cols = int(math.ceil((x_max - x_min) / res - 1e-9))  # (a rounding error adds no column)
+    rows = int(math.ceil((y_max - y_min) / res - 1e-9))
     if (source is not None and (rows, cols) == plan.shape_px == source.shape[:2] and res == plan.resolution_m
             and plan.source_image.resolution_m == res and tuple(plan.source_image.origin_m) == tuple(plan.origin_m)):
-        return _tint_walls(_flatten_on_white(source), plan.wall_mask)  # the plan's own grid: no resampling
+        # the plan's own grid: no resampling
+        return _tint_walls(_flatten_on_white(source), plan.wall_mask, outside, cut_off)
     # world coordinates of the preview's pixel centres
     x_c = x_min + (np.arange(cols) + 0.5) * res
     y_c = y_max - (np.arange(rows) + 0.5) * res
@@ -808,14 +829,24 @@ def preview_image(plan: FloorPlan, max_side_px: int = 2000) -> np.ndarray:
     rr = np.clip(mask_rows, 0, plan.shape_px[0] - 1)
     cc = np.clip(mask_cols, 0, plan.shape_px[1] - 1)
     wall[inside] = plan.wall_mask[np.ix_(rr, cc)][inside]
-    return _tint_walls(canvas, wall)
+    marks = [None if m is None else m[np.ix_(rr, cc)] & inside for m in (outside, cut_off)]
+    return _tint_walls(canvas, wall, *marks)
 
 
-def _tint_walls(canvas: np.ndarray, wall: np.ndarray) -> np.ndarray:
-    """``canvas`` with the wall pixels half red."""
+def _tint_walls(canvas: np.ndarray, wall: np.ndarray, outside: np.ndarray | None = None,
+                cut_off: np.ndarray | None = None) -> np.ndarray:
+    """``canvas`` with the wall pixels half red, the outside's darker grey over that, and the
+    cut-off rooms half orange, each in an orange box."""
     tinted = canvas.copy()
-    red = np.array([40, 40, 230], dtype=np.uint16)  # BGR
-    tinted[wall] = ((tinted[wall].astype(np.uint16) + red + 1) // 2).astype(np.uint8)
+    for mask, colour, weight in ((wall, (40, 40, 230), 0.5), (outside, (90, 90, 90), 0.45),
+                                 (cut_off, (0, 140, 255), 0.5)):  # BGR
+        if mask is not None and mask.any():
+            blend = tinted[mask].astype(np.float32) * (1 - weight) + np.array(colour, np.float32) * weight
+            tinted[mask] = np.round(blend).astype(np.uint8)
+    if cut_off is not None and cut_off.any():
+        count, _, stats, _ = cv2.connectedComponentsWithStats(cut_off.astype(np.uint8), connectivity=4)
+        for x, y, w, h, _ in stats[1:]:
+            cv2.rectangle(tinted, (int(x) - 2, int(y) - 2), (int(x + w) + 1, int(y + h) + 1), (0, 140, 255), 2)
     return tinted
 
 
@@ -825,8 +856,10 @@ def preview_path_for(yaml_path: str | os.PathLike) -> Path:
     return yaml_path.with_name(yaml_path.stem + "_preview.png")
 
 
-def write_map(plan: FloorPlan, yaml_path: str | os.PathLike, preview: bool = True) -> list[Path]:
-    """Write ``NAME.yaml`` + ``NAME.png`` (mask) and ``NAME_preview.png``; all or nothing.
+def write_map(plan: FloorPlan, yaml_path: str | os.PathLike, preview: bool = True,
+              outside: np.ndarray | None = None, cut_off: np.ndarray | None = None) -> list[Path]:
+    """Write ``NAME.yaml`` + ``NAME.png`` (mask) and ``NAME_preview.png`` (with ``outside`` and
+    ``cut_off`` marked: :func:`preview_image`); all or nothing.
 
     Returns the written paths.
     """
@@ -843,7 +876,7 @@ def write_map(plan: FloorPlan, yaml_path: str | os.PathLike, preview: bool = Tru
     if not preview:
         plan.save(yaml_path)
         return written
-    picture = preview_image(plan)  # computed before anything is written
+    picture = preview_image(plan, outside=outside, cut_off=cut_off)  # computed before anything is written
     preview_path = preview_path_for(yaml_path)
     with atomic_paths(preview_path) as (tmp_preview,):
         if not cv2.imwrite(str(tmp_preview), picture):

@@ -44,7 +44,7 @@ def assess(wall_mask: np.ndarray, resolution_m: float) -> Walkability:
     """The free share, the largest region's share of the free space and the regions cut off.
 
     Free space reaching the map's edge is the outside of the building (a map prepared with
-    --keep-outside): it is left out of the regions, unless all free space reaches the edge."""
+    --outside none): it is left out of the regions, unless all free space reaches the edge."""
     free = ~np.asarray(wall_mask, dtype=bool)
     total = int(free.sum())
     if total == 0:
@@ -67,6 +67,23 @@ def assess(wall_mask: np.ndarray, resolution_m: float) -> Walkability:
         x, y, w, h = (int(v) for v in stats[index, :4])
         cut.append(FreeRegion(area_m2, (x, y, x + w - 1, y + h - 1)))
     return Walkability(float(free.mean()), float(areas.max()) / total, tuple(cut))
+
+
+def cut_off_mask(wall_mask: np.ndarray, resolution_m: float) -> np.ndarray:
+    """The free pixels of the regions :func:`assess` lists as cut off (for the preview)."""
+    free = ~np.asarray(wall_mask, dtype=bool)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(free.astype(np.uint8), connectivity=4)
+    if count <= 2:
+        return np.zeros_like(free)
+    areas = stats[:, cv2.CC_STAT_AREA].copy()
+    areas[0] = 0
+    edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    edge = edge[edge > 0]
+    if edge.size < count - 1:
+        areas[edge] = 0  # the outside, as in assess
+    cut = areas * resolution_m ** 2 >= MIN_ROOM_M2
+    cut[int(np.argmax(areas))] = False
+    return cut[labels]
 
 
 def summary(walk: Walkability) -> str:

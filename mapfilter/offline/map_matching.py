@@ -365,6 +365,168 @@ def _anchors_by_step(t_s: np.ndarray, xy_m: np.ndarray, anchor_t_s: np.ndarray) 
     return anchors_at
 
 
+def _observation_factors(grid: _Grid, anchors_at: dict[int, list[np.ndarray]],
+                         anchor_sigma_m: float) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """The observations at each observed step as separable Gaussians, (anchors, ny) along y and
+    (anchors, nx) along x: a grid per scan kept for the whole walk would cost more memory than
+    the messages."""
+    inv_var = 0.5 / anchor_sigma_m ** 2
+    return {k: (np.array([np.exp(-inv_var * (grid.y_m - ay) ** 2) for _, ay in anchors]),
+                np.array([np.exp(-inv_var * (grid.x_m - ax) ** 2) for ax, _ in anchors]))
+            for k, anchors in anchors_at.items()}
+
+
+def _blur_steps(config: MapMatchConfig) -> tuple[int, float, float]:
+    """The step's diffusion as n_blur blurs of [w, 1 - 2 w, w] along each axis: (n_blur, w, 1 - 2 w)."""
+    variance_cells2 = (config.step_sigma_m / config.cell_m) ** 2
+    n_blur = int(math.ceil(variance_cells2 / 0.5 - 1e-9))  # one blur adds at most 0.5 cells^2
+    blur_weight = variance_cells2 / (2.0 * n_blur)
+    return n_blur, blur_weight, 1.0 - 2.0 * blur_weight
+
+
+def _near_free(free: np.ndarray) -> np.ndarray:
+    """The cells within one cell (diagonals too) of a free cell."""
+    near = free > 0
+    near[:, 1:] |= free[:, :-1] > 0
+    near[:, :-1] |= free[:, 1:] > 0
+    near[1:] |= near[:-1].copy()
+    near[:-1] |= near[1:].copy()
+    return near
+
+
+_Message = tuple[np.ndarray, float]
+
+
+class _ForwardBackward:
+    """The hidden Markov model of one walk on the grid, with the buffers its passes reuse.
+
+    A message is (array, factor), the message being array * factor: its normalisation
+    (1 / sum forward, 1 / peak backward) is applied where the message is read.
+    What a step keeps is its values on free cells (the forward result is masked; the moves back
+    read free cells only), and a blur moves mass by at most one cell along each axis before
+    the next mask: so a step needs only the cells within one cell (diagonals too) of a free
+    cell. Each row is computed over the columns from its first such cell to its last
+    (``support``), the rest set to 0: the same numbers, about a third fewer cells on ILC F1.
+    Results that are masked need only the columns of their row's free cells (``free_spans``).
+    """
+
+    def __init__(self, grid: _Grid, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_s: np.ndarray,
+                 config: MapMatchConfig):
+        self.grid, self.free = grid, grid.free
+        ny, nx = self.free.shape
+        self.observations = _observation_factors(grid, _anchors_by_step(t_s, xy_m, anchor_t_s), config.anchor_sigma_m)
+        self.unobserved = (np.zeros((0, ny)), np.zeros((0, nx)))
+        self.paths = [_cell_paths(u) for u in _unit_moves(xy_m, config.cell_m)]  # transition k - 1 -> k at k - 1
+        n_blur, self.blur_weight, self.center = _blur_steps(config)
+        self.support, self.free_spans = _row_spans(_near_free(self.free)), _row_spans(self.free > 0)
+        self.full = np.tile(np.array([0, nx], dtype=np.int64), (ny, 1))
+        self.row_sums = np.empty(ny)
+        self.row_moments = np.empty((ny, 3))
+        # a sweep leaves its output as it is outside the spans: its buffers start at zero, and are
+        # cleared from the first all-ones fallback on (``ones_written``)
+        self.g = np.zeros_like(self.free)  # a backward step before its moves back
+        self.ring, self.ring_spans = np.zeros((n_blur, 3, nx)), np.zeros((n_blur, 3, 2), dtype=np.int64)
+        self.row = np.empty(nx)
+        self.ring_edges = np.array([np.zeros(nx), np.ones(nx)])
+        self.ones_written = False
+
+    def observe(self, gy: np.ndarray, gx: np.ndarray, out: np.ndarray) -> None:
+        """out = the observation alone on the free cells (the free cells without one), as
+        ``_observe_row`` makes it; row sums. (At the start and at restarts only: plain numpy.)"""
+        out[:] = self.free * self.free
+        if gy.shape[0]:
+            observation = np.outer(gy[0], gx[0])
+            for i in range(1, gy.shape[0]):
+                observation = observation * np.outer(gy[i], gx[i])
+            out *= observation
+        self.row_sums[:] = out.sum(axis=1)
+
+    def forward(self, a: _Message | None, k: int, out: np.ndarray) -> tuple[_Message, bool]:
+        """alpha_k (in ``out``) from alpha_{k-1} (None at k = 0); True when the pass restarted here."""
+        gy, gx = self.observations.get(k, self.unobserved)
+        if a is None:
+            self.observe(gy, gx, out)
+        else:
+            _blur_sweep(*a, self.free, self.paths[k - 1][0], gy, gx, self.center, self.blur_weight, True,
+                        self.support, self.ones_written, self.ring, self.ring_spans, self.ring_edges, self.row, out,
+                        self.row_sums)
+        total, restarted = self.row_sums.sum(), False
+        if not total > 1e-250:
+            restarted = k > 0
+            self.observe(gy, gx, out)
+            total = self.row_sums.sum()
+            if not total > 0:  # no free cell near the walk: nothing to match against
+                out[:], total, self.ones_written = 1.0, float(self.free.size), True
+        return (out, 1.0 / float(total)), restarted
+
+    def backward(self, beta: np.ndarray, beta_factor: float, k: int) -> float:
+        """beta_{k-1} from beta_k (``beta`` * ``beta_factor``), in place; returns its factor (1 / its peak)."""
+        gy, gx = self.observations.get(k, self.unobserved)
+        path = self.paths[k - 1][1]
+        _blur_sweep(beta, beta_factor, self.free, path, gy, gx, self.center, self.blur_weight, False, self.support,
+                    False, self.ring, self.ring_spans, self.ring_edges, self.row, self.g, self.row_sums)
+        _move_back(self.g, self.free, path, self.free_spans, beta, self.row_sums)
+        peak = self.row_sums.max()
+        if peak > 0:
+            return 1.0 / float(peak)
+        beta[:] = self.free
+        return 1.0
+
+    def posterior_moments(self, alpha: _Message, beta: np.ndarray, beta_factor: float) -> tuple[np.ndarray, float]:
+        """(posterior mean (2,), its spread in m)."""
+        x_m, y_m, row_moments = self.grid.x_m, self.grid.y_m, self.row_moments
+        _moments(alpha[0], alpha[1], beta, beta_factor, x_m, self.free_spans, row_moments)  # beta is masked
+        total = row_moments[:, 0].sum()
+        if not total > 0:  # alpha and beta share no cell: alpha alone (all ones after the fallback)
+            _moments(alpha[0], alpha[1], beta, 0.0, x_m, self.full, row_moments)
+            total = row_moments[:, 0].sum()
+        mean = np.array([row_moments[:, 1].sum(), (row_moments[:, 0] * y_m).sum()]) / total
+        var_x = row_moments[:, 2].sum() / total - mean[0] ** 2
+        var_y = (row_moments[:, 0] * y_m * y_m).sum() / total - mean[1] ** 2
+        return mean, math.sqrt(max(0.5 * (var_x + var_y), 0.0))
+
+    def forward_pass(self, K: int, every: int, segment_buffer: np.ndarray
+                     ) -> tuple[dict[int, _Message], list[_Message], np.ndarray]:
+        """The forward messages: (checkpoints at every ``every`` steps before the last segment, the
+        last segment's messages whole (in ``segment_buffer``), the steps where the pass restarted)."""
+        last_start = ((K - 1) // every) * every
+        checkpoints: dict[int, _Message] = {}
+        restarted_at = np.zeros(K, dtype=bool)
+        buffers = (np.zeros_like(self.free), np.zeros_like(self.free)) if last_start > 0 else ()
+        segment: list[_Message] = []
+        a = None
+        for k in range(K):
+            a, restarted_at[k] = self.forward(a, k, buffers[k % 2] if k < last_start else segment_buffer[k - last_start])
+            if k >= last_start:
+                segment.append(a)
+            elif k % every == 0:
+                checkpoints[k] = (a[0].copy(), a[1])
+        return checkpoints, segment, restarted_at
+
+    def backward_pass(self, K: int, every: int, segment_buffer: np.ndarray, checkpoints: dict[int, _Message],
+                      segment: list[_Message], restarted_at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The backward pass, segment by segment from the last (each recomputed from its checkpoint):
+        the posterior mean (K, 2) and spread (K,) at every step."""
+        out_xy = np.zeros((K, 2))
+        out_std = np.zeros(K)
+        beta, beta_factor = self.free.copy(), 1.0
+        last_start = ((K - 1) // every) * every
+        for start in range(last_start, -1, -every):
+            if start < last_start:  # recompute the segment's messages from its checkpoint
+                segment = [checkpoints.pop(start)]
+                for k in range(start + 1, start + every):
+                    segment.append(self.forward(segment[-1], k, segment_buffer[k - start])[0])
+            for k in range(start + len(segment) - 1, start - 1, -1):
+                out_xy[k], out_std[k] = self.posterior_moments(segment[k - start], beta, beta_factor)
+                if k == 0:
+                    break
+                if restarted_at[k]:  # the forward pass forgot everything before k: so does the backward one
+                    beta[:], beta_factor = self.free, 1.0
+                    continue
+                beta_factor = self.backward(beta, beta_factor, k)
+        return out_xy, out_std
+
+
 def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_s: np.ndarray,
               config: MapMatchConfig = MapMatchConfig()) -> MapMatch:
     """Map-match a placed walk (positions ``xy_m`` at times ``t_s``, one per step) on the plan.
@@ -379,137 +541,11 @@ def map_match(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray, anchor_t_
     if t.shape[0] != xy.shape[0] or t.shape[0] < 1 or not np.all(np.isfinite(xy)):
         raise ValueError("map_match needs finite positions, one per time")
     grid = _Grid(floorplan, xy, config)
-    free = grid.free
-    if not free.any():  # the walk is nowhere near the plan's free space: nothing to match against
+    if not grid.free.any():  # the walk is nowhere near the plan's free space: nothing to match against
         return MapMatch(t, xy.copy(), 0)
-    K = t.shape[0]
-    ny, nx = free.shape
-    anchors_at = _anchors_by_step(t, xy, anchor_t_s)
-    inv_var = 0.5 / config.anchor_sigma_m ** 2
-    # the observations at step k as separable Gaussians, (anchors, ny) along y and (anchors, nx)
-    # along x: a grid per scan kept for the whole walk would cost more memory than the messages
-    observations = {k: (np.array([np.exp(-inv_var * (grid.y_m - ay) ** 2) for _, ay in anchors]),
-                        np.array([np.exp(-inv_var * (grid.x_m - ax) ** 2) for ax, _ in anchors]))
-                    for k, anchors in anchors_at.items()}
-    unobserved = (np.zeros((0, ny)), np.zeros((0, nx)))
-
-    paths = [_cell_paths(u) for u in _unit_moves(xy, config.cell_m)]  # transition k - 1 -> k at k - 1
-    variance_cells2 = (config.step_sigma_m / config.cell_m) ** 2
-    n_blur = int(math.ceil(variance_cells2 / 0.5 - 1e-9))  # one blur adds at most 0.5 cells^2
-    blur_weight = variance_cells2 / (2.0 * n_blur)
-    center = 1.0 - 2.0 * blur_weight
-
-    # A message is (array, factor), the message being array * factor: its normalisation
-    # (1 / sum forward, 1 / peak backward) is applied where the message is read.
-    # What a step keeps is its values on free cells (the forward result is masked; the moves back
-    # read free cells only), and a blur moves mass by at most one cell along each axis before
-    # the next mask: so a step needs only the cells within one cell (diagonals too) of a free
-    # cell. Each row is computed over the columns from its first such cell to its last
-    # (``support``), the rest set to 0: the same numbers, about a third fewer cells on ILC F1.
-    # Results that are masked need only the columns of their row's free cells (``free_spans``).
-    near = free > 0
-    near[:, 1:] |= free[:, :-1] > 0
-    near[:, :-1] |= free[:, 1:] > 0
-    near[1:] |= near[:-1].copy()
-    near[:-1] |= near[1:].copy()
-    support, free_spans = _row_spans(near), _row_spans(free > 0)
-    full = np.tile(np.array([0, nx], dtype=np.int64), (ny, 1))
-    row_sums = np.empty(ny)
-    row_moments = np.empty((ny, 3))
-    # a sweep leaves its output as it is outside the spans: its buffers start at zero, and are
-    # cleared from the first all-ones fallback on (``ones_written``)
-    g = np.zeros_like(free)  # a backward step before its moves back
-    ring, ring_spans, row = np.zeros((n_blur, 3, nx)), np.zeros((n_blur, 3, 2), dtype=np.int64), np.empty(nx)
-    ring_edges = np.array([np.zeros(nx), np.ones(nx)])
-    ones_written = False
-
-    Message = tuple[np.ndarray, float]
-
-    def observe(gy: np.ndarray, gx: np.ndarray, out: np.ndarray) -> None:
-        """out = the observation alone on the free cells (the free cells without one), as
-        ``_observe_row`` makes it; row sums. (At the start and at restarts only: plain numpy.)"""
-        out[:] = free * free
-        if gy.shape[0]:
-            observation = np.outer(gy[0], gx[0])
-            for i in range(1, gy.shape[0]):
-                observation = observation * np.outer(gy[i], gx[i])
-            out *= observation
-        row_sums[:] = out.sum(axis=1)
-
-    def forward(a: Message | None, k: int, out: np.ndarray) -> tuple[Message, bool]:
-        """alpha_k (in ``out``) from alpha_{k-1} (None at k = 0); True when the pass restarted here."""
-        nonlocal ones_written
-        gy, gx = observations.get(k, unobserved)
-        if a is None:
-            observe(gy, gx, out)
-        else:
-            _blur_sweep(*a, free, paths[k - 1][0], gy, gx, center, blur_weight, True, support, ones_written, ring,
-                        ring_spans, ring_edges, row, out, row_sums)
-        total, restarted = row_sums.sum(), False
-        if not total > 1e-250:
-            restarted = k > 0
-            observe(gy, gx, out)
-            total = row_sums.sum()
-            if not total > 0:  # no free cell near the walk: nothing to match against
-                out[:], total, ones_written = 1.0, float(free.size), True
-        return (out, 1.0 / float(total)), restarted
-
-    def backward(beta: np.ndarray, beta_factor: float, k: int) -> float:
-        """beta_{k-1} from beta_k (``beta`` * ``beta_factor``), in place; returns its factor (1 / its peak)."""
-        gy, gx = observations.get(k, unobserved)
-        path = paths[k - 1][1]
-        _blur_sweep(beta, beta_factor, free, path, gy, gx, center, blur_weight, False, support, False, ring, ring_spans,
-                    ring_edges, row, g, row_sums)
-        _move_back(g, free, path, free_spans, beta, row_sums)
-        peak = row_sums.max()
-        if peak > 0:
-            return 1.0 / float(peak)
-        beta[:] = free
-        return 1.0
-
-    def posterior_moments(alpha: Message, beta: np.ndarray, beta_factor: float) -> tuple[np.ndarray, float]:
-        """(posterior mean (2,), its spread in m)."""
-        _moments(alpha[0], alpha[1], beta, beta_factor, grid.x_m, free_spans, row_moments)  # beta is masked
-        total = row_moments[:, 0].sum()
-        if not total > 0:  # alpha and beta share no cell: alpha alone (all ones after the fallback)
-            _moments(alpha[0], alpha[1], beta, 0.0, grid.x_m, full, row_moments)
-            total = row_moments[:, 0].sum()
-        mean = np.array([row_moments[:, 1].sum(), (row_moments[:, 0] * grid.y_m).sum()]) / total
-        var_x = row_moments[:, 2].sum() / total - mean[0] ** 2
-        var_y = (row_moments[:, 0] * grid.y_m * grid.y_m).sum() / total - mean[1] ** 2
-        return mean, math.sqrt(max(0.5 * (var_x + var_y), 0.0))
-
-    every = config.checkpoint_every
-    last_start = ((K - 1) // every) * every
-    segment_buffer = np.zeros((min(every, K), ny, nx))  # the forward messages of one segment
-    # forward: checkpoints at every `every` steps; the last segment's messages are kept whole
-    checkpoints: dict[int, Message] = {}
-    restarted_at = np.zeros(K, dtype=bool)
-    buffers = (np.zeros_like(free), np.zeros_like(free)) if last_start > 0 else ()
-    segment: list[Message] = []
-    a = None
-    for k in range(K):
-        a, restarted_at[k] = forward(a, k, buffers[k % 2] if k < last_start else segment_buffer[k - last_start])
-        if k >= last_start:
-            segment.append(a)
-        elif k % every == 0:
-            checkpoints[k] = (a[0].copy(), a[1])
-    del buffers
-
-    out_xy = np.zeros((K, 2))
-    out_std = np.zeros(K)
-    beta, beta_factor = free.copy(), 1.0
-    for start in range(last_start, -1, -every):
-        if start < last_start:  # recompute the segment's messages from its checkpoint
-            segment = [checkpoints.pop(start)]
-            for k in range(start + 1, start + every):
-                segment.append(forward(segment[-1], k, segment_buffer[k - start])[0])
-        for k in range(start + len(segment) - 1, start - 1, -1):
-            out_xy[k], out_std[k] = posterior_moments(segment[k - start], beta, beta_factor)
-            if k == 0:
-                break
-            if restarted_at[k]:  # the forward pass forgot everything before k: so does the backward one
-                beta[:], beta_factor = free, 1.0
-                continue
-            beta_factor = backward(beta, beta_factor, k)
+    chain = _ForwardBackward(grid, t, xy, anchor_t_s, config)
+    K, every = t.shape[0], config.checkpoint_every
+    segment_buffer = np.zeros((min(every, K), *grid.free.shape))  # the forward messages of one segment
+    checkpoints, segment, restarted_at = chain.forward_pass(K, every, segment_buffer)
+    out_xy, out_std = chain.backward_pass(K, every, segment_buffer, checkpoints, segment, restarted_at)
     return MapMatch(t, out_xy, int(restarted_at.sum()), out_std)

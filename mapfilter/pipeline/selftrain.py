@@ -248,21 +248,9 @@ def grow_radio_map(space: FloorPlan | Building, radio_map: RadioMap, recordings:
     Random draws come from ``default_rng([config.seed, iteration, walk index])``.
     """
     engine = engine or Engine(jobs=1)
-    building = isinstance(space, Building)
-    if building and not radio_map.has_floors:
-        raise MapfilterError("growing in a building needs the building's radio map (radiomap build BUILDING.yaml)")
-    if building and list(radio_map.floor_names) != list(space.floor_names):
-        raise MapfilterError(f"the radio map's floors ({', '.join(radio_map.floor_names)}) are not the building's "
-                             f"({', '.join(space.floor_names)})")
+    building = _check_building_map(space, radio_map)
     walks = [WalkGrowth(r.name) for r in recordings]
-    usable = []
-    for i, rec in enumerate(recordings):
-        if len(rec.wifi) == 0:
-            walks[i].skipped = "no WiFi scans"
-        elif not _has_imu(rec) and not config.wifi_only:
-            walks[i].skipped = "no IMU (WiFi-only walks are not grown)"
-        else:
-            usable.append(i)
+    usable = _usable_walks(recordings, walks, config)
     if not usable:  # nothing to track: the base map as it is
         return merge_radio_maps([radio_map]), GrowReport(walks, [])
     blind = {i: _without_waypoints(recordings[i]) for i in usable}
@@ -276,30 +264,11 @@ def grow_radio_map(space: FloorPlan | Building, radio_map: RadioMap, recordings:
         current = merge_radio_maps([radio_map, *grown.values()])
         fix_sigma = _fix_sigma(space, current, config)
         tasks = [(i, blind[i], [g for j, g in grown.items() if j != i], [config.seed, iteration, i]) for i in usable]
-        done_before = iteration * len(usable)
-
-        def tick(done: int, _total: int, name: str) -> None:
-            if progress is not None:
-                progress(done_before + done, total, name)
-
-        new: dict[int, OfflineWalk] = {}
-        for _, (i, walk, reason) in run_each(_grow_walk, tasks, engine, common=(space, radio_map, config, fix_sigma),
-                                             progress=tick, label=lambda task: task[1].name):
-            if walk is None:
-                walks[i].skipped = reason
-            else:
-                new[i] = walk
+        new = _track_walks(space, radio_map, config, fix_sigma, tasks, walks, engine, progress,
+                           iteration * len(usable), total)
         moved = [float(np.median(np.linalg.norm(walk.xy_m - positions[i], axis=1)))
                  for i, walk in new.items() if i in positions and positions[i].shape == walk.xy_m.shape]
-        grown = {}
-        for i, walk in new.items():
-            positions[i], offline[i] = walk.xy_m, walk
-            points = grown_points(recordings[i], walk, point_sigma_m(walk, config), floor_names)
-            if points is not None:
-                grown[i] = points
-                walks[i].skipped = ""
-            else:
-                walks[i].skipped = "no scan with a position"
+        grown = _grown_points_of(new, recordings, walks, positions, offline, config, floor_names)
         moved_median = float(np.median(moved)) if moved else math.nan
         iterations.append({"iteration": iteration + 1, "points": sum(len(g) for g in grown.values()),
                            "walks": len(grown), "moved_median_m": moved_median,
@@ -315,6 +284,67 @@ def grow_radio_map(space: FloorPlan | Building, radio_map: RadioMap, recordings:
             walks[i].floors = ",".join(dict.fromkeys(floor_names[f] for f in points.floor))
     result = merge_radio_maps([radio_map, *(grown[i] for i in sorted(grown))])
     return result, GrowReport(walks, iterations, 0, [offline[i] for i in sorted(offline)])
+
+
+def _check_building_map(space: FloorPlan | Building, radio_map: RadioMap) -> bool:
+    """Whether growing is in a building; refused when the radio map is not the building's."""
+    building = isinstance(space, Building)
+    if building and not radio_map.has_floors:
+        raise MapfilterError("growing in a building needs the building's radio map (radiomap build BUILDING.yaml)")
+    if building and list(radio_map.floor_names) != list(space.floor_names):
+        raise MapfilterError(f"the radio map's floors ({', '.join(radio_map.floor_names)}) are not the building's "
+                             f"({', '.join(space.floor_names)})")
+    return building
+
+
+def _usable_walks(recordings: Sequence[Recording], walks: list[WalkGrowth], config: GrowConfig) -> list[int]:
+    """The walks that can be grown (with WiFi, and an IMU unless ``wifi_only``); each other one's
+    reason noted in ``walks``."""
+    usable = []
+    for i, rec in enumerate(recordings):
+        if len(rec.wifi) == 0:
+            walks[i].skipped = "no WiFi scans"
+        elif not _has_imu(rec) and not config.wifi_only:
+            walks[i].skipped = "no IMU (WiFi-only walks are not grown)"
+        else:
+            usable.append(i)
+    return usable
+
+
+def _track_walks(space: FloorPlan | Building, radio_map: RadioMap, config: GrowConfig, fix_sigma, tasks: list,
+                 walks: list[WalkGrowth], engine: Engine, progress: Callable[[int, int, str], None] | None,
+                 done_before: int, total: int) -> dict[int, OfflineWalk]:
+    """One iteration's walks tracked offline (``_grow_walk``): {walk: its offline track}; a walk
+    that could not be tracked has its reason in ``walks``."""
+    def tick(done: int, _total: int, name: str) -> None:
+        if progress is not None:
+            progress(done_before + done, total, name)
+
+    new: dict[int, OfflineWalk] = {}
+    for _, (i, walk, reason) in run_each(_grow_walk, tasks, engine, common=(space, radio_map, config, fix_sigma),
+                                         progress=tick, label=lambda task: task[1].name):
+        if walk is None:
+            walks[i].skipped = reason
+        else:
+            new[i] = walk
+    return new
+
+
+def _grown_points_of(new: dict[int, OfflineWalk], recordings: Sequence[Recording], walks: list[WalkGrowth],
+                     positions: dict[int, np.ndarray], offline: dict[int, OfflineWalk], config: GrowConfig,
+                     floor_names) -> dict[int, RadioMap]:
+    """The grown points of each walk tracked this iteration, at its offline track's positions
+    (kept in ``positions`` and ``offline`` for the next)."""
+    grown = {}
+    for i, walk in new.items():
+        positions[i], offline[i] = walk.xy_m, walk
+        points = grown_points(recordings[i], walk, point_sigma_m(walk, config), floor_names)
+        if points is not None:
+            grown[i] = points
+            walks[i].skipped = ""
+        else:
+            walks[i].skipped = "no scan with a position"
+    return grown
 
 
 def grown_by_fold(space: FloorPlan | Building, labelled: Sequence[Recording], unlabelled: Sequence[Recording],

@@ -234,6 +234,14 @@ def _with_common(function: Callable[..., Any], item: Any) -> Any:
     return function(*_COMMON, item)
 
 
+def _worker_ignores_interrupts() -> None:
+    # Ctrl-C reaches the whole process group: the parent stops the run (and its workers) and
+    # keeps what was done; a worker interrupted on its own would only lose its walk
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _on_forked_workers(function: Callable[..., Any], items: Sequence[Any], jobs: int, common: tuple,
                        progress: Callable[[int, int, str], None] | None,
                        label: Callable[[Any], str]) -> Iterator[tuple[int, Any]]:
@@ -244,21 +252,27 @@ def _on_forked_workers(function: Callable[..., Any], items: Sequence[Any], jobs:
     global _COMMON
     _COMMON = tuple(common)
     total = len(items)
+    pool = ProcessPoolExecutor(max_workers=min(jobs, total), mp_context=multiprocessing.get_context("fork"),
+                               initializer=_worker_ignores_interrupts)
+    finished = False
     try:
-        with ProcessPoolExecutor(max_workers=min(jobs, total), mp_context=multiprocessing.get_context("fork")) as pool:
-            futures = {pool.submit(_with_common, function, item): i for i, item in enumerate(items)}
-            try:
-                for done, future in enumerate(as_completed(futures), start=1):
-                    i = futures[future]
-                    result = future.result()
-                    if progress:
-                        progress(done, total, label(items[i]))
-                    yield i, result
-            finally:
-                for future in futures:
-                    future.cancel()
+        futures = {pool.submit(_with_common, function, item): i for i, item in enumerate(items)}
+        for done, future in enumerate(as_completed(futures), start=1):
+            i = futures[future]
+            result = future.result()
+            if progress:
+                progress(done, total, label(items[i]))
+            yield i, result
+        finished = True
     finally:
         _COMMON = ()
+        if finished:
+            pool.shutdown(wait=True)
+        else:  # an error, an interrupt, or the caller stopped: the workers' walks are not waited for
+            workers = list(getattr(pool, "_processes", {}).values())
+            pool.shutdown(wait=False, cancel_futures=True)
+            for worker in workers:
+                worker.terminate()
 
 
 class _DaskClient:

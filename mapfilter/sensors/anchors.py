@@ -21,7 +21,7 @@ from mapfilter.errors import MapfilterError
 from mapfilter.io.atomic import write_csv_atomically
 from mapfilter.io.tables import Column, TimedTable, read_csv_table, read_timed_table
 from mapfilter.maps.building import Building
-from mapfilter.sensors.radiomap import map_extents_m, metres_outside
+from mapfilter.sensors.table_positions import PlacedTable, placed_xy_m, position_columns, row_floor, row_position
 
 __all__ = ["AnchorTable", "RangeLog", "read_ranges", "simulate_ranges"]
 
@@ -33,7 +33,7 @@ MAX_ANCHOR_OFF_MAP_M = 100.0
 
 
 @dataclasses.dataclass
-class AnchorTable:
+class AnchorTable(PlacedTable):
     """Anchors with positions (arrays of length K)."""
 
     anchor_id: list[str]  # as the range log names them (trimmed)
@@ -44,6 +44,7 @@ class AnchorTable:
     source_lines: list[int] | None = None  # the CSV line of each row, or None
 
     COLUMNS = ("anchor_id", "x", "y", "floor", "height")
+    THING = "anchor"
 
     def __len__(self) -> int:
         return len(self.anchor_id)
@@ -53,23 +54,9 @@ class AnchorTable:
         """Row of each anchor id."""
         return {key: i for i, key in enumerate(self.anchor_id)}
 
-    def building_xy_m(self, building: Building) -> tuple[np.ndarray, np.ndarray]:
-        """((K, 2) positions in the building frame, (K,) floor indices); a ``MapfilterError``
-        naming the table's line for a floor the building does not have."""
-        floors = np.zeros(len(self), dtype=np.int64)
-        out = np.empty_like(self.xy_m)
-        for i, name in enumerate(self.floor):
-            if not building.is_single_floor:
-                if name not in building.floor_names:
-                    what = "has no floor" if name is None else f"is on floor {name!r}, which the building does not have"
-                    raise MapfilterError(f"anchor {self.anchor_id[i]} {what} (floors: {', '.join(building.floor_names)})",
-                                         self.source_path, self._line(i))
-                floors[i] = building.floor_names.index(name)
-            out[i] = building.floors[floors[i]].to_building(self.xy_m[i])
-        return out, floors
-
-    def _line(self, i: int) -> int | None:
-        return self.source_lines[i] if self.source_lines is not None else None
+    @property
+    def ids(self) -> list[str]:
+        return self.anchor_id
 
     @classmethod
     def read_csv(cls, path: str | os.PathLike, building: Building | None = None) -> AnchorTable:
@@ -78,48 +65,27 @@ class AnchorTable:
         ``floor`` (needed in a building with several floors) and ``height`` (m above the phone,
         default 0)."""
         table = read_csv_table(path, "the anchor table")
-        path, column = table.path, table.column
-        if "anchor_id" not in column:
+        if "anchor_id" not in table.column:
             raise MapfilterError("an anchor table needs an anchor_id column (the id the range log names it by)",
-                                 path, 1)
-        if "x" in column and "y" in column:
-            names, geographic = ("x", "y"), False
-        elif "latitude" in column and "longitude" in column:
-            names, geographic = ("latitude", "longitude"), True
-            if building is None or building.georeference is None:
-                raise MapfilterError("the anchors' positions are latitude/longitude: they need a georeferenced "
-                                     "building", path, 1)
-        else:
-            raise MapfilterError("an anchor table needs the position as columns x,y (metres) or latitude,longitude",
-                                 path, 1)
+                                 table.path, 1)
+        position = position_columns(table, building, "an anchor table", "anchors")
         ids, ab, floors, heights, lines, first = [], [], [], [], [], {}
         for line_no, fields in table.rows:
-            name = fields[column["anchor_id"]].strip()
+            name = fields[table.column["anchor_id"]].strip()
             if not name:
-                raise MapfilterError("empty anchor id", path, line_no)
+                raise MapfilterError("empty anchor id", table.path, line_no)
             if name in first:
                 raise MapfilterError(f"anchor {name} is listed twice (lines {first[name]} and {line_no}): keep one",
-                                     path, line_no)
+                                     table.path, line_no)
             first[name] = line_no
-            ab.append([table.number(fields, c, line_no, *COLUMN_RANGES[c]) for c in names])
-            text = fields[column["height"]].strip() if "height" in column else ""
+            ab.append(row_position(table, fields, line_no, position, COLUMN_RANGES))
+            text = fields[table.column["height"]].strip() if "height" in table.column else ""
             heights.append(table.number(fields, "height", line_no, *COLUMN_RANGES["height"]) if text else 0.0)
-            floor = fields[column["floor"]].strip() if "floor" in column else ""
-            if not floor and building is not None and not building.is_single_floor:
-                raise MapfilterError("no floor: a building with several floors needs each anchor's floor (column "
-                                     "floor)", path, line_no)
-            if floor and building is not None and not building.is_single_floor and floor not in building.floor_names:
-                raise MapfilterError(f"floor {floor!r} is not in the building (floors: "
-                                     f"{', '.join(building.floor_names)})", path, line_no)
+            floors.append(row_floor(table, fields, line_no, building, "anchor"))
             ids.append(name)
-            floors.append(floor or None)
             lines.append(line_no)
-        ab = np.array(ab, dtype=np.float64).reshape(-1, 2)
-        if geographic:
-            xy = building.latlon_to_floor_xy(ab, [f if f is not None else building.floors[0].name for f in floors], path)
-        else:
-            xy = ab
-        return cls(ids, xy, floors, np.array(heights), path, lines)
+        xy = placed_xy_m(ab, floors, position, building, table.path)
+        return cls(ids, xy, floors, np.array(heights), table.path, lines)
 
     def write_csv(self, path: str | os.PathLike) -> None:
         """The table as CSV (``COLUMNS``), written atomically."""
@@ -130,16 +96,7 @@ class AnchorTable:
     def check_on(self, building: Building, map_path: str | os.PathLike | None = None) -> None:
         """Refuse a table that cannot belong to ``building``: an anchor on a floor it does not
         have, or more than ``MAX_ANCHOR_OFF_MAP_M`` outside its floor's map."""
-        _, floors = self.building_xy_m(building)
-        for i in range(len(self)):
-            extents = map_extents_m(building.floors[int(floors[i])].plan)
-            off_m = min(float(metres_outside(self.xy_m[i:i + 1], e)[0]) for e in extents)
-            if off_m > MAX_ANCHOR_OFF_MAP_M:
-                x, y = self.xy_m[i]
-                on = f" {map_path}" if map_path is not None else ""
-                raise MapfilterError(f"anchor {self.anchor_id[i]} at ({x:.6g}, {y:.6g}) m lies {off_m:.0f} m outside "
-                                     f"the map{on} (at most {MAX_ANCHOR_OFF_MAP_M:g} m): is the table in the map's "
-                                     "frame?", self.source_path, self._line(i))
+        self.check_within(building, MAX_ANCHOR_OFF_MAP_M, map_path)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -16,7 +16,6 @@ floors, not the height. A ``BeaconTable`` holds each beacon's id (as the logs na
 from __future__ import annotations
 
 import dataclasses
-import io
 import math
 import os
 from collections.abc import Mapping, Sequence
@@ -24,12 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from mapfilter.io.atomic import write_csv_atomically
 from mapfilter.errors import MapfilterError
+from mapfilter.io.atomic import write_csv_atomically
+from mapfilter.io.tables import CsvTable, read_csv_table
 from mapfilter.maps.building import Building
 from mapfilter.sensors.pathloss import MIN_DISTANCE_M
-from mapfilter.sensors.radiomap import map_extents_m, metres_outside
 from mapfilter.sensors.recording import Recording
+from mapfilter.sensors.table_positions import PlacedTable, placed_xy_m, position_columns, row_floor, row_position
 
 __all__ = ["BeaconFit", "BeaconFitConfig", "BeaconReadings", "BeaconTable", "beacon_key", "beacon_rssi_dbm",
            "check_beacons_on_map", "fit_beacons", "labelled_readings", "parse_beacon_ids"]
@@ -50,6 +50,8 @@ MAX_BEACON_OFF_MAP_M = 100.0
 _ID_COLUMNS = ("beacon_id", "bleid")
 _LAT_COLUMNS = ("latitude", "lat")
 _LON_COLUMNS = ("longitude", "lon")
+# the optional path-loss columns and their defaults
+_PARAMETERS = {"C": DEFAULT_C_DBM, "n": DEFAULT_PATH_LOSS_EXPONENT, "floor_loss": DEFAULT_FLOOR_LOSS_DB}
 
 
 def beacon_key(beacon_id: str) -> str:
@@ -83,7 +85,7 @@ def parse_beacon_ids(text: str) -> dict[str, str]:
 
 
 @dataclasses.dataclass
-class BeaconTable:
+class BeaconTable(PlacedTable):
     """Beacons with positions and path-loss parameters (arrays of length K)."""
 
     beacon_id: list[str]  # as the logs name them (GetSensorData: the MAC), upper case
@@ -99,6 +101,7 @@ class BeaconTable:
     phone_offsets_db: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     COLUMNS = ("beacon_id", "x", "y", "floor", "C", "n", "floor_loss")
+    THING = "beacon"
     OFFSET_PREFIX = "offset_db:"  # a column per phone model: its RSSI minus the table's, per beacon
 
     def __len__(self) -> int:
@@ -117,28 +120,9 @@ class BeaconTable:
                                    floor_loss_db=np.broadcast_to(np.asarray(floor_loss_db, dtype=np.float64),
                                                                  (k,)).copy())
 
-    def building_xy_m(self, building: Building) -> tuple[np.ndarray, np.ndarray]:
-        """((K, 2) positions in the building frame, (K,) floor indices) of the beacons in
-        ``building`` (a one-floor building takes every beacon on its floor); ``MapfilterError``
-        naming the table's line for a floor the building does not have, or a beacon without a
-        floor in a building with several."""
-        floors = np.zeros(len(self), dtype=np.int64)
-        out = np.empty_like(self.xy_m)
-        for i, name in enumerate(self.floor):
-            if not building.is_single_floor:
-                if name is None:
-                    raise MapfilterError(f"beacon {self.beacon_id[i]} has no floor: a building with several floors "
-                                         "needs the floor column", self.source_path, self._line(i))
-                if name not in building.floor_names:
-                    raise MapfilterError(f"beacon {self.beacon_id[i]} is on floor {name!r}, which the building "
-                                         f"does not have (floors: {', '.join(building.floor_names)})",
-                                         self.source_path, self._line(i))
-                floors[i] = building.floor_names.index(name)
-            out[i] = building.floors[floors[i]].to_building(self.xy_m[i])
-        return out, floors
-
-    def _line(self, i: int) -> int | None:
-        return self.source_lines[i] if self.source_lines is not None else None
+    @property
+    def ids(self) -> list[str]:
+        return self.beacon_id
 
     @classmethod
     def read_csv(cls, path: str | os.PathLike, building: Building | None = None,
@@ -154,113 +138,34 @@ class BeaconTable:
         the logs' ids (the IPIN venues' ``BLE_Locations.csv`` names its beacons BLE1, BLE2, ...).
         Every problem is a ``MapfilterError`` naming the file and line.
         """
-        path = Path(path)
-        if not path.is_file():
-            raise MapfilterError("file not found", path)
-        from mapfilter.io.tables import read_table_text, table_reader
-
-        text = read_table_text(path, "a beacon table")  # bounded: a table is kilobytes
-        with io.StringIO(text, newline="") as handle:
-            reader = table_reader(handle, path)  # a field over the csv module's limit: one line
-            header = next(reader, None)
-            if header is None:
-                raise MapfilterError("the beacon table is empty: it needs a header line", path, 1)
-            column = {name.strip().lower(): j for j, name in enumerate(header)}
-            id_col = next((column[c] for c in _ID_COLUMNS if c in column), None)
-            if id_col is None:
-                raise MapfilterError("a beacon table needs a beacon_id column (the id the logs name each beacon by)",
-                                     path, 1)
-            by_name = header[id_col].strip().lower() == "bleid"
-            if by_name and ids is None:
-                raise MapfilterError("the table names its beacons by bleID (BLE1, ...), not as the logs do: give "
-                                     "the logs' id of each (--ids BLE1=BE:AC:20:23:00:01,...)", path, 1)
-            if "x" in column and "y" in column:
-                position = (column["x"], column["y"])
-                geographic = False
-            else:
-                lat = next((column[c] for c in _LAT_COLUMNS if c in column), None)
-                lon = next((column[c] for c in _LON_COLUMNS if c in column), None)
-                if lat is None or lon is None:
-                    raise MapfilterError("a beacon table needs the position as columns x,y (metres) or "
-                                         "latitude,longitude", path, 1)
-                if building is None or building.georeference is None:
-                    raise MapfilterError("the beacons' positions are latitude/longitude: they need a georeferenced "
-                                         "building (mapfilter map import-ipin) to convert them", path, 1)
-                position, geographic = (lat, lon), True
-            names = (("latitude", "longitude") if geographic else ("x", "y"))
-            optional = {"C": column.get("c"), "n": column.get("n"), "floor_loss": column.get("floor_loss")}
-            defaults = {"C": DEFAULT_C_DBM, "n": DEFAULT_PATH_LOSS_EXPONENT, "floor_loss": DEFAULT_FLOOR_LOSS_DB}
-            floor_col = column.get("floor")
-            phone_cols = {name.strip()[len(cls.OFFSET_PREFIX):].strip(): j for j, name in enumerate(header)
-                          if name.strip().lower().startswith(cls.OFFSET_PREFIX)}
-            if "" in phone_cols:
-                raise MapfilterError(f"a column {cls.OFFSET_PREFIX} names no phone model ({cls.OFFSET_PREFIX}MODEL)",
-                                     path, 1)
-            offsets: dict[str, list[float]] = {phone: [] for phone in phone_cols}
-            rows: dict[str, list] = {k: [] for k in ("id", "a", "b", "floor", "C", "n", "floor_loss")}
-            lines: list[int] = []
-            named: list[str] = []  # the ids as the file writes them
-            first_line: dict[str, int] = {}
-            for fields in reader:
-                line_no = reader.line_num
-                if not any(f.strip() for f in fields):
-                    continue  # a blank line
-                if len(fields) < len(header):
-                    raise MapfilterError(f"{len(fields)} fields, the header has {len(header)}", path, line_no)
-                name = fields[id_col].strip().strip('"')
-                if not name:
-                    raise MapfilterError("empty beacon id", path, line_no)
-                named.append(name)
-                if ids is not None:
-                    if name not in ids:
-                        raise MapfilterError(f"beacon {name} has no id among the ids given ({', '.join(ids)})",
-                                             path, line_no)
-                    name = ids[name]
-                key = beacon_key(name)
-                if key in first_line:
-                    raise MapfilterError(f"beacon {key} is listed twice (lines {first_line[key]} and {line_no}): "
-                                         "keep one", path, line_no)
-                first_line[key] = line_no
-                values = {}
-                for label, j in zip(names, position):
-                    values[label] = _number(fields[j], label, path, line_no)
-                for label, j in optional.items():
-                    text_value = fields[j].strip() if j is not None else ""
-                    values[label] = defaults[label] if not text_value else _number(text_value, label, path, line_no)
-                floor = None
-                if floor_col is not None and fields[floor_col].strip():
-                    floor = _floor_name(fields[floor_col])
-                    if building is not None and not building.is_single_floor and floor not in building.floor_names:
-                        raise MapfilterError(f"floor {floor!r} is not in the building (floors: "
-                                             f"{', '.join(building.floor_names)})", path, line_no)
-                elif building is not None and not building.is_single_floor:
-                    raise MapfilterError("no floor: a building with several floors needs each beacon's floor "
-                                         "(column floor)", path, line_no)
-                rows["id"].append(key)
-                rows["a"].append(values[names[0]])
-                rows["b"].append(values[names[1]])
-                rows["floor"].append(floor)
-                for label in ("C", "n", "floor_loss"):
-                    rows[label].append(values[label])
-                for phone, j in phone_cols.items():
-                    text_value = fields[j].strip()
-                    offsets[phone].append(_number(text_value, "offset_db", path, line_no) if text_value else 0.0)
-                lines.append(line_no)
-        if not rows["id"]:
-            raise MapfilterError("the beacon table has no rows", path)
+        table = read_csv_table(path, "the beacon table")  # bounded: a table is kilobytes
+        id_key = _id_column(table, ids)
+        position = position_columns(table, building, "a beacon table", "beacons", _LAT_COLUMNS, _LON_COLUMNS,
+                                    " (mapfilter map import-ipin) to convert them")
+        phone_keys = _phone_columns(table, cls.OFFSET_PREFIX)
+        keys, named, ab, floors, parameters, lines, first_line = [], [], [], [], [], [], {}
+        offsets: dict[str, list[float]] = {phone: [] for phone in phone_keys}
+        for line_no, fields in table.rows:
+            name = fields[table.column[id_key]].strip().strip('"')
+            key = _beacon_key_of(name, ids, first_line, table.path, line_no)
+            named.append(name)
+            first_line[key] = line_no
+            ab.append(row_position(table, fields, line_no, position, COLUMN_RANGES))
+            parameters.append([_optional_number(table, fields, line_no, label, default)
+                               for label, default in _PARAMETERS.items()])
+            floors.append(row_floor(table, fields, line_no, building, "beacon", _floor_name))
+            keys.append(key)
+            for phone, column in phone_keys.items():
+                offsets[phone].append(_optional_number(table, fields, line_no, "offset_db", 0.0, column))
+            lines.append(line_no)
         if ids is not None:
             unused = sorted(set(ids) - set(named))
             if unused:
-                raise MapfilterError(f"the ids name {unused[0]}, which the table does not have", path)
-        ab = np.column_stack([rows["a"], rows["b"]]).astype(np.float64)
-        if geographic:
-            floors = [f if f is not None else building.floors[0].name for f in rows["floor"]]
-            xy = building.latlon_to_floor_xy(ab, floors, path)
-        else:
-            xy = ab
-        return cls(beacon_id=rows["id"], xy_m=xy, floor=rows["floor"], c_dbm=np.array(rows["C"]),
-                   n=np.array(rows["n"]), floor_loss_db=np.array(rows["floor_loss"]), source_path=path,
-                   source_lines=lines, phone_offsets_db={p: np.array(v) for p, v in offsets.items()})
+                raise MapfilterError(f"the ids name {unused[0]}, which the table does not have", table.path)
+        c_dbm, n, floor_loss = (np.array(p, dtype=np.float64).reshape(len(keys)) for p in zip(*parameters))
+        return cls(beacon_id=keys, xy_m=placed_xy_m(ab, floors, position, building, table.path), floor=floors,
+                   c_dbm=c_dbm, n=n, floor_loss_db=floor_loss, source_path=table.path, source_lines=lines,
+                   phone_offsets_db={p: np.array(v) for p, v in offsets.items()})
 
     def write_csv(self, path: str | os.PathLike) -> None:
         """The table as CSV (``COLUMNS``, then an ``offset_db:MODEL`` column per phone model), written
@@ -273,18 +178,54 @@ class BeaconTable:
             for i in range(len(self))))
 
 
-def _number(text: str, column: str, path: Path, line_no: int) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise MapfilterError(f"column {column} is not a number: {text.strip()!r}", path, line_no) from None
-    if not math.isfinite(value):
-        raise MapfilterError(f"column {column} is not finite: {text.strip()!r}", path, line_no)
-    low, high = COLUMN_RANGES[column]
-    if not low <= value <= high:
-        raise MapfilterError(f"column {column} is {value:g}, outside the {low:g} to {high:g} a beacon's can be",
+def _id_column(table: CsvTable, ids: Mapping[str, str] | None) -> str:
+    """The key of the id column: ``beacon_id``, or ``bleID`` (the IPIN venues' names, which need
+    ``ids``)."""
+    id_key = next((c for c in _ID_COLUMNS if c in table.column), None)
+    if id_key is None:
+        raise MapfilterError("a beacon table needs a beacon_id column (the id the logs name each beacon by)",
+                             table.path, 1)
+    if table.header[table.column[id_key]].strip().lower() == "bleid" and ids is None:
+        raise MapfilterError("the table names its beacons by bleID (BLE1, ...), not as the logs do: give "
+                             "the logs' id of each (--ids BLE1=BE:AC:20:23:00:01,...)", table.path, 1)
+    return id_key
+
+
+def _phone_columns(table: CsvTable, prefix: str) -> dict[str, str]:
+    """{phone model: key of its ``offset_db:MODEL`` column}."""
+    phones = {name.strip()[len(prefix):].strip(): name.strip().lower() for name in table.header
+              if name.strip().lower().startswith(prefix)}
+    if "" in phones:
+        raise MapfilterError(f"a column {prefix} names no phone model ({prefix}MODEL)", table.path, 1)
+    return phones
+
+
+def _beacon_key_of(name: str, ids: Mapping[str, str] | None, first_line: dict[str, int], path: Path,
+                   line_no: int) -> str:
+    """The ``beacon_key`` of a row's id as the file writes it (through ``ids``); refused when
+    empty, not among ``ids``, or listed before."""
+    if not name:
+        raise MapfilterError("empty beacon id", path, line_no)
+    if ids is not None:
+        if name not in ids:
+            raise MapfilterError(f"beacon {name} has no id among the ids given ({', '.join(ids)})", path, line_no)
+        name = ids[name]
+    key = beacon_key(name)
+    if key in first_line:
+        raise MapfilterError(f"beacon {key} is listed twice (lines {first_line[key]} and {line_no}): keep one",
                              path, line_no)
-    return value
+    return key
+
+
+def _optional_number(table: CsvTable, fields: list[str], line_no: int, label: str, default: float,
+                     key: str | None = None) -> float:
+    """An optional column's value (``label``: its name in ``COLUMN_RANGES`` and messages; ``key``:
+    its key, by default ``label`` in lower case), ``default`` where the table has no such column or
+    the row leaves it empty."""
+    key = label.lower() if key is None else key
+    if key not in table.column or not fields[table.column[key]].strip():
+        return default
+    return table.number(fields, key, line_no, *COLUMN_RANGES[label], label=label)
 
 
 def _floor_name(text: str) -> str:
@@ -301,16 +242,7 @@ def check_beacons_on_map(table: BeaconTable, building: Building, map_path: str |
     """Refuse a table that cannot belong to ``building``: a floor it does not have, or a beacon
     more than ``MAX_BEACON_OFF_MAP_M`` outside its floor's map (a table in another frame).
     ``MapfilterError`` naming the table's file and line."""
-    _, floors = table.building_xy_m(building)
-    for i in range(len(table)):
-        extents = map_extents_m(building.floors[int(floors[i])].plan)
-        off_m = min(float(metres_outside(table.xy_m[i:i + 1], e)[0]) for e in extents)
-        if off_m > MAX_BEACON_OFF_MAP_M:
-            x, y = table.xy_m[i]
-            on = f" {map_path}" if map_path is not None else ""
-            raise MapfilterError(f"beacon {table.beacon_id[i]} at ({x:.6g}, {y:.6g}) m lies {off_m:.0f} m outside the "
-                                 f"map{on} (at most {MAX_BEACON_OFF_MAP_M:g} m): is the table in the map's frame?",
-                                 table.source_path, table._line(i))
+    table.check_within(building, MAX_BEACON_OFF_MAP_M, map_path)
 
 
 # ---- survey readings ----------------------------------------------------------------------------
@@ -351,53 +283,13 @@ def labelled_readings(table: BeaconTable, building: Building, recordings: Sequen
     lift) are left out."""
     beacon_xy, beacon_floor = table.building_xy_m(building)
     index = table.index
-    names = building.floor_names
     parts = []
     for trace, rec in enumerate(recordings):
-        wp_t, wp_xy = rec.waypoint_t_s, rec.waypoint_xy_m
-        if wp_t.size < 2 or len(rec.beacons.t_s) == 0:
+        if rec.waypoint_t_s.size < 2 or len(rec.beacons.t_s) == 0:
             continue
-        if rec.waypoint_floor is not None and len(rec.waypoint_floor) == wp_t.size:
-            wp_floor_names = list(rec.waypoint_floor)
-        elif building.is_single_floor:
-            wp_floor_names = [names[0]] * wp_t.size
-        elif rec.floor_name in names:
-            wp_floor_names = [rec.floor_name] * wp_t.size
-        else:
-            raise MapfilterError("the log names no floor of the building for its waypoints: its beacon readings "
-                                 "cannot be placed", rec.path)
-        if building.is_single_floor:
-            wp_floor = np.zeros(wp_t.size, dtype=np.int64)
-        else:
-            unknown = sorted({f for f in wp_floor_names if f not in names})
-            if unknown:
-                raise MapfilterError(f"the log's waypoints are on floor {unknown[0]!r}, which the building does not "
-                                     f"have (floors: {', '.join(names)})", rec.path)
-            wp_floor = np.array([names.index(f) for f in wp_floor_names], dtype=np.int64)
-        if not np.isfinite(wp_xy).all():
-            raise MapfilterError("the log's waypoints are not in the building's metres (latitude/longitude ground "
-                                 "truth needs a georeferenced building)", rec.path)
-        t = rec.beacons.t_s
-        row = np.array([index.get(beacon_key(b), -1) for b in rec.beacons.beacon_id], dtype=np.int64)
-        rssi = np.asarray(rec.beacons.rssi_dbm, dtype=np.float64)
-        k = np.searchsorted(wp_t, t, side="right") - 1
-        inside = (row >= 0) & (t >= wp_t[0]) & (t <= wp_t[-1]) & np.isfinite(rssi)
-        k = np.clip(k, 0, wp_t.size - 2)
-        same_floor = wp_floor[k] == wp_floor[k + 1]
-        keep = inside & same_floor
-        if not keep.any():
-            continue
-        k, t, row, rssi = k[keep], t[keep], row[keep], rssi[keep]
-        span = wp_t[k + 1] - wp_t[k]
-        a = np.where(span > 0, (t - wp_t[k]) / np.where(span > 0, span, 1.0), 0.0)[:, None]
-        floor = wp_floor[k]
-        local = wp_xy[k] + a * (wp_xy[k + 1] - wp_xy[k])
-        walker = np.empty_like(local)
-        for f in np.unique(floor):
-            on = floor == f
-            walker[on] = building.floors[int(f)].to_building(local[on])
-        parts.append((row, rssi, np.linalg.norm(walker - beacon_xy[row], axis=1),
-                      np.abs(floor - beacon_floor[row]), np.full(row.size, trace), walker, floor))
+        part = _labelled_part(rec, trace, _waypoint_floors(rec, building), building, index, beacon_xy, beacon_floor)
+        if part is not None:
+            parts.append(part)
     traces = tuple(r.name for r in recordings)
     phones = tuple(r.phone_model for r in recordings)
     if not parts:
@@ -407,6 +299,63 @@ def labelled_readings(table: BeaconTable, building: Building, recordings: Sequen
     cat = [np.concatenate([p[j] for p in parts]) for j in range(7)]
     return BeaconReadings(cat[0], cat[1], cat[2], cat[3], cat[4], traces, phones, cat[5], cat[6], beacon_xy,
                           beacon_floor)
+
+
+def _waypoint_floors(rec: Recording, building: Building) -> np.ndarray:
+    """The floor index of each of the walk's waypoints: as the log labels them, else the one floor
+    of a single map or the floor the log's header names; refused when none of these is the
+    building's, or when its waypoints are not in the building's metres."""
+    names, size = building.floor_names, rec.waypoint_t_s.size
+    if rec.waypoint_floor is not None and len(rec.waypoint_floor) == size:
+        wp_floor_names = list(rec.waypoint_floor)
+    elif building.is_single_floor:
+        wp_floor_names = [names[0]] * size
+    elif rec.floor_name in names:
+        wp_floor_names = [rec.floor_name] * size
+    else:
+        raise MapfilterError("the log names no floor of the building for its waypoints: its beacon readings "
+                             "cannot be placed", rec.path)
+    if building.is_single_floor:
+        wp_floor = np.zeros(size, dtype=np.int64)
+    else:
+        unknown = sorted({f for f in wp_floor_names if f not in names})
+        if unknown:
+            raise MapfilterError(f"the log's waypoints are on floor {unknown[0]!r}, which the building does not "
+                                 f"have (floors: {', '.join(names)})", rec.path)
+        wp_floor = np.array([names.index(f) for f in wp_floor_names], dtype=np.int64)
+    if not np.isfinite(rec.waypoint_xy_m).all():
+        raise MapfilterError("the log's waypoints are not in the building's metres (latitude/longitude ground "
+                             "truth needs a georeferenced building)", rec.path)
+    return wp_floor
+
+
+def _labelled_part(rec: Recording, trace: int, wp_floor: np.ndarray, building: Building, index: dict[str, int],
+                   beacon_xy: np.ndarray, beacon_floor: np.ndarray) -> tuple | None:
+    """One walk's readings of the table's beacons between two waypoints of one floor, each placed
+    between them by its time: (beacon row, RSSI, distance, floors apart, trace, walker's building
+    position, floor), or None when it has none."""
+    wp_t, wp_xy = rec.waypoint_t_s, rec.waypoint_xy_m
+    t = rec.beacons.t_s
+    row = np.array([index.get(beacon_key(b), -1) for b in rec.beacons.beacon_id], dtype=np.int64)
+    rssi = np.asarray(rec.beacons.rssi_dbm, dtype=np.float64)
+    k = np.searchsorted(wp_t, t, side="right") - 1
+    inside = (row >= 0) & (t >= wp_t[0]) & (t <= wp_t[-1]) & np.isfinite(rssi)
+    k = np.clip(k, 0, wp_t.size - 2)
+    same_floor = wp_floor[k] == wp_floor[k + 1]
+    keep = inside & same_floor
+    if not keep.any():
+        return None
+    k, t, row, rssi = k[keep], t[keep], row[keep], rssi[keep]
+    span = wp_t[k + 1] - wp_t[k]
+    a = np.where(span > 0, (t - wp_t[k]) / np.where(span > 0, span, 1.0), 0.0)[:, None]
+    floor = wp_floor[k]
+    local = wp_xy[k] + a * (wp_xy[k + 1] - wp_xy[k])
+    walker = np.empty_like(local)
+    for f in np.unique(floor):
+        on = floor == f
+        walker[on] = building.floors[int(f)].to_building(local[on])
+    return (row, rssi, np.linalg.norm(walker - beacon_xy[row], axis=1), np.abs(floor - beacon_floor[row]),
+            np.full(row.size, trace), walker, floor)
 
 
 # ---- fitting -----------------------------------------------------------------------------------
@@ -474,8 +423,6 @@ def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitC
 
     ``MapfilterError`` when fewer than ``min_readings`` readings in all are labelled.
     """
-    from scipy.optimize import least_squares
-
     if readings.beacon_xy_m.shape[0] != len(table):
         raise ValueError("the readings were labelled with another table")
     if len(readings) < config.min_readings:
@@ -485,60 +432,99 @@ def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitC
     apart, beacon = readings.floors_apart.astype(np.float64), readings.beacon
     fit_loss = int(np.count_nonzero(apart > 0)) >= config.min_readings
     kept_loss = float(np.median(table.floor_loss_db))
-    c_lo, c_hi = config.c_bounds_dbm
-    n_lo, n_hi = config.n_bounds
     phone = np.array([p or "" for p in readings.phones], dtype=object)[readings.trace] if len(readings) else \
         np.zeros(0, dtype=object)
     names, counts = np.unique(phone.astype(str), return_counts=True)
     phones = [str(p) for p, k in zip(names, counts) if p and k >= config.min_readings]
     offset = np.zeros(len(readings))  # each reading's phone offset
-
-    def solve(residual, start, lo, hi):
-        start = np.clip(np.array(start, dtype=np.float64), np.array(lo) + 1e-6, np.array(hi) - 1e-6)
-        return least_squares(residual, start, bounds=(lo, hi), loss="soft_l1", f_scale=config.f_scale_db).x
-
     for _ in range(_OFFSET_ROUNDS if phones else 1):
         z = readings.rssi_dbm - offset
-        if fit_loss:
-            shared = solve(lambda p: p[0] - 10.0 * p[1] * log_d - p[2] * apart - z,
-                           [-60.0, 2.0, DEFAULT_FLOOR_LOSS_DB], [c_lo, n_lo, config.floor_loss_bounds_db[0]],
-                           [c_hi, n_hi, config.floor_loss_bounds_db[1]])
-            loss = float(shared[2])
-        else:
-            shared = solve(lambda p: p[0] - 10.0 * p[1] * log_d - kept_loss * apart - z, [-60.0, 2.0],
-                           [c_lo, n_lo], [c_hi, n_hi])
-            loss = kept_loss
-
-        def fit_one(log_dist, floors_apart, rssi):
-            return solve(lambda p: p[0] - 10.0 * p[1] * log_dist - loss * floors_apart - rssi, shared[:2],
-                         [c_lo, n_lo], [c_hi, n_hi])
-
-        c = np.full(len(table), shared[0])
-        n = np.full(len(table), shared[1])
-        own = np.zeros(len(table), dtype=bool)
-        for b in range(len(table)):
-            mine = beacon == b
-            if np.count_nonzero(mine) >= config.min_readings:
-                c[b], n[b] = fit_one(log_d[mine], apart[mine], z[mine])
-                own[b] = True
+        shared, loss = _fit_shared(log_d, apart, z, fit_loss, kept_loss, config)
+        c, n, own = _fit_each_beacon(len(table), beacon, log_d, apart, z, loss, shared, config)
         if phones:
             residual = readings.rssi_dbm - (c[beacon] - 10.0 * n[beacon] * log_d - loss * apart)
-            by_phone = {p: float(np.median(residual[phone == p])) for p in phones}
-            counts = {p: int(np.count_nonzero(phone == p)) for p in phones}
-            mean = sum(by_phone[p] * counts[p] for p in phones) / sum(counts.values())
-            by_phone = {p: v - mean for p, v in by_phone.items()}
-            offset = np.array([by_phone.get(p, 0.0) for p in phone])
+            offset = _phone_offsets(residual, phone, phones)
+    rows = _position_check(table, readings, c, n, own, loss, shared, log_d, z, config)
+    phone_offsets = {p: float(offset[phone == p][0]) for p in phones}
+    fitted = dataclasses.replace(table.with_parameters(c, n, loss),
+                                 phone_offsets_db={p: np.full(len(table), v) for p, v in phone_offsets.items()})
+    return BeaconFit(fitted, tuple(rows), float(shared[0]), float(shared[1]), loss,
+                     fit_loss, len(readings), phone_offsets,
+                     {p: int(np.count_nonzero(phone == p)) for p in phones})
 
-    def rmse(params, log_dist, floors_apart, rssi) -> float:
-        residual = params[0] - 10.0 * params[1] * log_dist - loss * floors_apart - rssi
-        return float(np.sqrt(np.mean(residual ** 2))) if residual.size else math.nan
 
-    # the check of the positions: each beacon's readings fitted at every beacon's position
+def _solve(residual, start, lo, hi, config: BeaconFitConfig) -> np.ndarray:
+    """The parameters within [lo, hi] that minimise the soft-L1 cost of ``residual``, from ``start``."""
+    from scipy.optimize import least_squares
+
+    start = np.clip(np.array(start, dtype=np.float64), np.array(lo) + 1e-6, np.array(hi) - 1e-6)
+    return least_squares(residual, start, bounds=(lo, hi), loss="soft_l1", f_scale=config.f_scale_db).x
+
+
+def _fit_shared(log_d: np.ndarray, apart: np.ndarray, z: np.ndarray, fit_loss: bool, kept_loss: float,
+                config: BeaconFitConfig) -> tuple[np.ndarray, float]:
+    """(C, n[, L]) shared by every beacon over every reading, and the floor loss L (``kept_loss``
+    when it is not fitted)."""
+    (c_lo, c_hi), (n_lo, n_hi) = config.c_bounds_dbm, config.n_bounds
+    if fit_loss:
+        shared = _solve(lambda p: p[0] - 10.0 * p[1] * log_d - p[2] * apart - z,
+                        [-60.0, 2.0, DEFAULT_FLOOR_LOSS_DB], [c_lo, n_lo, config.floor_loss_bounds_db[0]],
+                        [c_hi, n_hi, config.floor_loss_bounds_db[1]], config)
+        return shared, float(shared[2])
+    shared = _solve(lambda p: p[0] - 10.0 * p[1] * log_d - kept_loss * apart - z, [-60.0, 2.0],
+                    [c_lo, n_lo], [c_hi, n_hi], config)
+    return shared, kept_loss
+
+
+def _fit_path_loss(log_dist: np.ndarray, floors_apart: np.ndarray, rssi: np.ndarray, loss: float,
+                   start: np.ndarray, config: BeaconFitConfig) -> np.ndarray:
+    """(C, n) of one beacon's readings, the floor loss fixed, from ``start``."""
+    (c_lo, c_hi), (n_lo, n_hi) = config.c_bounds_dbm, config.n_bounds
+    return _solve(lambda p: p[0] - 10.0 * p[1] * log_dist - loss * floors_apart - rssi, start,
+                  [c_lo, n_lo], [c_hi, n_hi], config)
+
+
+def _fit_each_beacon(k: int, beacon: np.ndarray, log_d: np.ndarray, apart: np.ndarray, z: np.ndarray, loss: float,
+                     shared: np.ndarray, config: BeaconFitConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(C, n, own) of each of the ``k`` beacons: its own fit where it has ``min_readings``
+    readings (``own``), else the shared values."""
+    c = np.full(k, shared[0])
+    n = np.full(k, shared[1])
+    own = np.zeros(k, dtype=bool)
+    for b in range(k):
+        mine = beacon == b
+        if np.count_nonzero(mine) >= config.min_readings:
+            c[b], n[b] = _fit_path_loss(log_d[mine], apart[mine], z[mine], loss, shared[:2], config)
+            own[b] = True
+    return c, n, own
+
+
+def _phone_offsets(residual: np.ndarray, phone: np.ndarray, phones: list[str]) -> np.ndarray:
+    """Each reading's phone offset: the median residual of its phone's readings, the offsets
+    weighted by readings averaging 0 (0 for a phone not fitted)."""
+    by_phone = {p: float(np.median(residual[phone == p])) for p in phones}
+    counts = {p: int(np.count_nonzero(phone == p)) for p in phones}
+    mean = sum(by_phone[p] * counts[p] for p in phones) / sum(counts.values())
+    by_phone = {p: v - mean for p, v in by_phone.items()}
+    return np.array([by_phone.get(p, 0.0) for p in phone])
+
+
+def _rmse(params, log_dist: np.ndarray, floors_apart: np.ndarray, rssi: np.ndarray, loss: float) -> float:
+    residual = params[0] - 10.0 * params[1] * log_dist - loss * floors_apart - rssi
+    return float(np.sqrt(np.mean(residual ** 2))) if residual.size else math.nan
+
+
+def _position_check(table: BeaconTable, readings: BeaconReadings, c: np.ndarray, n: np.ndarray, own: np.ndarray,
+                    loss: float, shared: np.ndarray, log_d: np.ndarray, z: np.ndarray,
+                    config: BeaconFitConfig) -> list[BeaconFitRow]:
+    """How each beacon was fitted, and the check of the table's positions: each beacon's readings
+    (with its own fit) fitted at every beacon's position, the best one named."""
+    beacon, apart = readings.beacon, readings.floors_apart.astype(np.float64)
     beacon_xy, beacon_floor = readings.beacon_xy_m, readings.beacon_floor
     rows = []
     for b in range(len(table)):
         mine = beacon == b
-        here = rmse((c[b], n[b]), log_d[mine], apart[mine], z[mine])
+        here = _rmse((c[b], n[b]), log_d[mine], apart[mine], z[mine], loss)
         best, best_rmse = table.beacon_id[b], here
         if own[b]:
             for other in range(len(table)):
@@ -547,14 +533,10 @@ def fit_beacons(table: BeaconTable, readings: BeaconReadings, config: BeaconFitC
                 d = np.linalg.norm(readings.building_xy_m[mine] - beacon_xy[other], axis=1)
                 log_other = np.log10(np.maximum(d, MIN_DISTANCE_M))
                 apart_other = np.abs(readings.floor[mine] - beacon_floor[other]).astype(np.float64)
-                there = rmse(fit_one(log_other, apart_other, z[mine]), log_other, apart_other, z[mine])
+                there = _rmse(_fit_path_loss(log_other, apart_other, z[mine], loss, shared[:2], config), log_other,
+                              apart_other, z[mine], loss)
                 if there < best_rmse:
                     best, best_rmse = table.beacon_id[other], there
         rows.append(BeaconFitRow(table.beacon_id[b], int(np.count_nonzero(mine)),
                                  int(np.count_nonzero(mine & (apart == 0))), bool(own[b]), here, best, best_rmse))
-    phone_offsets = {p: float(offset[phone == p][0]) for p in phones}
-    fitted = dataclasses.replace(table.with_parameters(c, n, loss),
-                                 phone_offsets_db={p: np.full(len(table), v) for p, v in phone_offsets.items()})
-    return BeaconFit(fitted, tuple(rows), float(shared[0]), float(shared[1]), loss,
-                     fit_loss, len(readings), phone_offsets,
-                     {p: int(np.count_nonzero(phone == p)) for p in phones})
+    return rows

@@ -46,10 +46,9 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.logread import (BadRow, GapTracker, LogClock, LogReadWarning, RecordStream, ScanAssembler,
-                                       TimeOrder,
-                                       check_range, clock_before_rows, count_bad_row, count_rows, group_scans,
-                                       handle_each, iter_bounded_lines, open_binary, parse_columns, parse_number,
-                                       quick_numbers, read_whole, split_by)
+                                       TimeOrder, check_range, count_bad_row, group_scans, handle_each,
+                                       iter_bounded_lines, open_binary, parse_columns, parse_number, quick_numbers,
+                                       read_whole, split_by, take_block)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 __all__ = ["DEFAULT_MAX_WIFI_AGE_S", "NEEDED_TYPES", "IlcParser", "LogReadWarning", "read_ilc", "read_ilc_header"]
@@ -215,49 +214,22 @@ class IlcParser:
 
     def _take_block(self, begin: int, end: int, parsed: dict, clock_t: np.ndarray, is_wifi: np.ndarray) -> None:
         """The fast lines ``begin .. end - 1`` (all good records), as line by line."""
-        first_line, counts, wifi = [], [], None
-        report = self._report
-        # the log's clock over the lines of the sensors the filter follows, in file order
-        followed = np.zeros(end - begin, dtype=bool)
-        sensor_of = np.zeros(end - begin, dtype=np.int64)
-        for kind, (index, _) in parsed.items():
-            if kind in _FOLLOWED:
-                lo, hi = np.searchsorted(index, (begin, end))
-                followed[index[lo:hi] - begin] = True
-                sensor_of[index[lo:hi] - begin] = _FOLLOWED[kind]
-        keep, log_before = np.ones(end - begin, dtype=bool), np.full(end - begin, -np.inf)
-        on_clock = np.flatnonzero(followed)
-        keep[on_clock], log_before[on_clock] = self._clock.keep(clock_t[begin:end][on_clock], sensor_of[on_clock])
-        for kind, (index, records) in parsed.items():
-            lo, hi = np.searchsorted(index, (begin, end))
-            if hi == lo:
-                continue
-            first_line.append(int(index[lo]))
-            counts.append((kind, int(hi - lo)))
-            if records is None:
-                continue
-            kept = keep[index[lo:hi] - begin]
-            if kind != "TYPE_WIFI" and not kept.all():  # behind the log's clock (WiFi: its scans' rule)
-                _count_back(report, kind, int(np.count_nonzero(~kept)))
-            if kind in _VECTOR_TYPES:
-                self._vectors[_VECTOR_TYPES[kind][0]].append(records[lo:hi][kept])
-            elif kind == "TYPE_PRESSURE":
-                self._pressure.append(records[lo:hi][kept])
-            elif kind == "TYPE_WAYPOINT":
-                for record in records[lo:hi]:
-                    self._waypoints.add(record[0], record)
-            elif kind == "TYPE_BEACON":
-                for record, k in zip(records[lo:hi], kept.tolist()):
-                    if k:
-                        self._beacons.add(record[0], record)
-            else:
-                wifi = records[lo:hi]
-        order = np.argsort(first_line, kind="stable").tolist()
-        known = [counts[i] for i in order if counts[i][0] in _NUMBER_COLUMNS]
-        count_rows(report, [kind for kind, _ in known], [n for _, n in known])
-        report.unknown_rows += sum(n for kind, n in counts if kind not in _NUMBER_COLUMNS)
-        before, after = clock_before_rows(clock_t[begin:end], is_wifi[begin:end])
-        self._scans.add_rows(wifi or [], before, after, log_before[is_wifi[begin:end]])
+        take_block(parsed, begin, end, self._report, self._take_records, "TYPE_WIFI", self._scans, clock_t, is_wifi,
+                   self._clock, _FOLLOWED)
+
+    def _take_records(self, kind: str, records, kept: np.ndarray) -> None:
+        """A block's records of one kind; ``kept``: each one is on the log's clock (``take_block``)."""
+        if kind in _VECTOR_TYPES:
+            self._vectors[_VECTOR_TYPES[kind][0]].append(records[kept])
+        elif kind == "TYPE_PRESSURE":
+            self._pressure.append(records[kept])
+        elif kind == "TYPE_WAYPOINT":
+            for record in records:
+                self._waypoints.add(record[0], record)
+        elif kind == "TYPE_BEACON":
+            for record, k in zip(records, kept.tolist()):
+                if k:
+                    self._beacons.add(record[0], record)
 
     def take(self, final: bool) -> Recording:
         vectors = {}

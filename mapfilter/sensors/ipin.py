@@ -64,9 +64,8 @@ import numpy as np
 
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.logread import (BadRow, GapTracker, LogClock, RecordStream, ScanAssembler, TimeOrder,
-                                       check_range,
-                                       clock_before_rows, count_rows, group_scans, handle_each, iter_bounded_lines,
-                                       open_binary, parse_columns, parse_number, quick_numbers, read_whole, split_by)
+                                       check_range, group_scans, handle_each, iter_bounded_lines, open_binary,
+                                       parse_columns, parse_number, quick_numbers, read_whole, split_by, take_block)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 FORMAT_NAME = "GetSensorData"
@@ -185,45 +184,18 @@ class GsdParser:
         types not read; every number read and in range) are parsed together per record type; the
         others (headers, blank or bad lines, POSI), and a record that ends a clock window or
         begins a late stream, go through :meth:`handle_line` in their place in the order."""
-        kinds = [line[:4] if line is not None and line[4:5] == ";" else "" for line in lines]
-        groups = split_by(kinds)
-        n = len(lines)
-        fast = np.zeros(n, dtype=bool)
-        app_t = np.full(n, -np.inf)  # each fast line's AppTimestamp, if it moves the clocks
-        is_wifi = np.zeros(n, dtype=bool)
-        stream = np.full(n, -1)  # a sensor record's stream (its place in _SENSOR_TYPES)
-        parsed: dict[str, tuple[np.ndarray, object]] = {}  # kind -> (its lines, its records)
-        for kind, index in groups.items():
-            if kind in _SENSOR_TYPES or kind in ("WIFI", "BLE4"):
-                texts = [lines[i] for i in index.tolist()]
-                columns, quantities = _NUMBER_COLUMNS[kind]
-                values, ok = parse_columns(texts, ";", columns, quantities)
-                app_s = values[:, 0]
-                if kind in _SENSOR_TYPES:
-                    if kind == "AHRS":  # a unit quaternion's x, y, z
-                        ok &= values[:, 2] ** 2 + values[:, 3] ** 2 + values[:, 4] ** 2 <= 1.0 + 1e-3
-                    records = values
-                elif kind == "WIFI":
-                    rows = [text.split(";") for text in texts]
-                    bssids = [row[4].strip() if len(row) == 7 else "" for row in rows]  # a plain row: 7 fields
-                    ok &= np.array([bool(b) for b in bssids], dtype=bool)
-                    records = list(zip(app_s.tolist(), bssids, values[:, 3].tolist(), values[:, 2].tolist(),
-                                       values[:, 1].tolist()))
-                    is_wifi[index] = True
-                else:  # BLE4: iBeacon and Eddystone alike, by MAC
-                    macs = [text.split(";", 4)[3].strip().upper() if ok_i else ""
-                            for text, ok_i in zip(texts, ok.tolist())]
-                    ok &= np.array([bool(m) for m in macs], dtype=bool)
-                    records = list(zip(app_s.tolist(), macs, values[:, 1].tolist()))
-                fast[index[ok]] = True
-                app_t[index] = app_s
-                parsed[kind] = (index, records)
-            elif kind and kind != "POSI" and _RECORD.match(kind + ";"):
-                fast[index] = True  # a type not read (GNSS, LIGH, SOUN, ...): counted, nothing else
-                parsed[kind] = (index, None)
-        if np.count_nonzero(fast) < _BLOCK_SHARE * n:
+        fast, app_t, is_wifi, parsed = _parse_block(lines)
+        if np.count_nonzero(fast) < _BLOCK_SHARE * len(lines):
             handle_each(self.handle_line, first, lines, bad_row)
             return
+        self._take_in_order(first, lines, bad_row, fast, app_t, is_wifi, parsed)
+
+    def _take_in_order(self, first: int, lines: list[str | None], bad_row, fast: np.ndarray, app_t: np.ndarray,
+                       is_wifi: np.ndarray, parsed: dict) -> None:
+        """The block's lines in their order: runs of fast lines taken together, each slow line, and
+        each record that ends a clock window or begins a late stream, line by line."""
+        n = len(lines)
+        stream = np.full(n, -1)  # a sensor record's stream (its place in _SENSOR_TYPES)
         for j, kind in enumerate(_SENSOR_TYPES):
             if kind in parsed:
                 stream[parsed[kind][0]] = j
@@ -248,42 +220,17 @@ class GsdParser:
 
     def _take_block(self, begin: int, end: int, parsed: dict, app_t: np.ndarray, is_wifi: np.ndarray) -> None:
         """The fast lines ``begin .. end - 1`` (good records; none ends a window), as line by line."""
-        first_line, counts, wifi = [], [], None
-        report = self._report
-        # the log's clock over the lines of the sensors the filter follows, in file order
-        followed = np.zeros(end - begin, dtype=bool)
-        sensor_of = np.zeros(end - begin, dtype=np.int64)
-        for kind, (index, _) in parsed.items():
-            if kind in _FOLLOWED:
-                lo, hi = np.searchsorted(index, (begin, end))
-                followed[index[lo:hi] - begin] = True
-                sensor_of[index[lo:hi] - begin] = _FOLLOWED[kind]
-        keep, log_before = np.ones(end - begin, dtype=bool), np.full(end - begin, -np.inf)
-        on_clock = np.flatnonzero(followed)
-        keep[on_clock], log_before[on_clock] = self._clock.keep(app_t[begin:end][on_clock], sensor_of[on_clock])
-        for kind, (index, records) in parsed.items():
-            lo, hi = np.searchsorted(index, (begin, end))
-            if hi == lo:
-                continue
-            first_line.append(int(index[lo]))
-            counts.append((kind, int(hi - lo)))
-            kept = keep[index[lo:hi] - begin]
-            if kind in _FOLLOWED and kind != "WIFI" and not kept.all():  # behind the log's clock
-                report.went_back[kind] = report.went_back.get(kind, 0) + int(np.count_nonzero(~kept))
-            if kind in _SENSOR_TYPES:
-                self._raw[_SENSOR_TYPES[kind][0]].append(records[lo:hi][kept])
-            elif kind == "BLE4":
-                for record, k in zip(records[lo:hi], kept.tolist()):
-                    if k:
-                        self._beacons.add(record[0], record)
-            elif kind == "WIFI":
-                wifi = records[lo:hi]
-        order = np.argsort(first_line, kind="stable").tolist()
-        known = [counts[i] for i in order if parsed[counts[i][0]][1] is not None]
-        count_rows(report, [kind for kind, _ in known], [n for _, n in known])
-        report.unknown_rows += sum(n for kind, n in counts if parsed[kind][1] is None)
-        before, after = clock_before_rows(app_t[begin:end], is_wifi[begin:end])
-        self._wifi.add_rows(wifi or [], before, after, log_before[is_wifi[begin:end]])
+        take_block(parsed, begin, end, self._report, self._take_records, "WIFI", self._wifi, app_t, is_wifi,
+                   self._clock, _FOLLOWED)
+
+    def _take_records(self, kind: str, records, kept: np.ndarray) -> None:
+        """A block's records of one kind; ``kept``: each one is on the log's clock (``take_block``)."""
+        if kind in _SENSOR_TYPES:
+            self._raw[_SENSOR_TYPES[kind][0]].append(records[kept])
+        elif kind == "BLE4":
+            for record, k in zip(records, kept.tolist()):
+                if k:
+                    self._beacons.add(record[0], record)
 
     def take(self, final: bool) -> Recording:
         if final:
@@ -427,69 +374,15 @@ class GsdParser:
         """Take one record; return its type (None: a type not read). Raises ``BadRow``."""
         kind = fields[0].strip()
         if kind in _SENSOR_TYPES:
-            name, quantity, n_values = _SENSOR_TYPES[kind]
-            first = 6 if kind == "AHRS" else 3
-            app = quick_numbers(fields, range(1, 2), "log_s")
-            sensor = quick_numbers(fields, range(2, 3), "sensor_s")
-            values = quick_numbers(fields, range(first, first + n_values), quantity)
-            if app is not None and sensor is not None and values is not None and (
-                    kind != "AHRS" or values[0] ** 2 + values[1] ** 2 + values[2] ** 2 <= 1.0 + 1e-3):
-                app_s, sensor_s = app[0], sensor[0]  # the fast path: a good row
-            else:
-                app_s = _app_time(kind, fields)
-                sensor_s = check_range(kind, "SensorTimestamp", parse_number(kind, fields, 2), "sensor_s")
-                values = [check_range(kind, _AXES[j] if n_values > 1 else quantity.split("_")[0],
-                                      parse_number(kind, fields, first + j), quantity) for j in range(n_values)]
-                if kind == "AHRS" and values[0] ** 2 + values[1] ** 2 + values[2] ** 2 > 1.0 + 1e-3:
-                    raise BadRow(kind, "AHRS quaternion out of range: x^2 + y^2 + z^2 > 1 (not a unit quaternion)")
-            if app_s > self._next_end_s:
-                self._at(app_s)
-            self._wifi.clock(app_s)
-            if name in self._waiting:
-                self._begin_late_stream(name, app_s)
-            if kind not in _FOLLOWED or self._on_clock(kind, app_s):
-                self._raw[name].append(np.array([[app_s, sensor_s, *values]], dtype=np.float64))
+            self._take_sensor(kind, fields)
             return kind
         if kind == "WIFI":
-            while len(fields) > 7 and not fields[-1].strip():
-                fields = fields[:-1]  # a trailing ';'
-            if len(fields) < 7:
-                raise BadRow(kind, f"malformed WIFI line: {len(fields)} fields, expected 7")
-            # an SSID may hold ';': BSSID, frequency and RSS are the last three fields
-            tail = [fields[0], fields[1], fields[2], fields[-3], fields[-2], fields[-1]]
-            app_s = _app_time(kind, tail)
-            sensor_s = check_range(kind, "SensorTimestamp", parse_number(kind, tail, 2), "sensor_s")
-            freq = check_range(kind, "frequency", parse_number(kind, tail, 4), "freq_mhz")
-            rssi = check_range(kind, "RSSI", parse_number(kind, tail, 5), "rssi_dbm")
-            bssid = tail[3].strip()
-            if not bssid:
-                raise BadRow(kind, "malformed WIFI line: empty BSSID")
-            if app_s > self._next_end_s:
-                self._at(app_s)
-            log_t = self._clock.newest_t
-            self._on_clock(kind, app_s)  # a scan's own rule decides whether it went back (ScanAssembler)
-            self._wifi.add(app_s, (app_s, bssid, rssi, freq, sensor_s), log_t)
+            self._take_wifi(fields)
             return kind
         if kind == "BLE4":
-            if len(fields) < 5:
-                raise BadRow(kind, f"malformed BLE4 line: {len(fields)} fields, expected at least 5")
-            app_s = _app_time(kind, fields)
-            rssi = check_range(kind, "RSSI", parse_number(kind, fields, 4), "rssi_dbm")
-            mac = fields[3].strip().upper()  # iBeacon and Eddystone alike
-            if not mac:
-                raise BadRow(kind, "malformed BLE4 line: empty MAC")
-            if self._on_clock(kind, app_s):
-                self._beacons.add(app_s, (app_s, mac, rssi))
+            app_s = self._take_ble4(fields)
         elif kind == "POSI":
-            if len(fields) < 6:
-                raise BadRow(kind, f"malformed POSI line: {len(fields)} fields, expected 7")
-            app_s = _app_time(kind, fields)
-            lat = check_range(kind, "latitude", parse_number(kind, fields, 3), "latitude_deg")
-            lon = check_range(kind, "longitude", parse_number(kind, fields, 4), "longitude_deg")
-            floor = _floor_id(fields[5])
-            if not floor:
-                raise BadRow(kind, "malformed POSI line: empty floor id")
-            self._posi.add(app_s, (app_s, lat, lon, floor))
+            app_s = self._take_posi(fields)
         elif _RECORD.match(kind + ";"):
             return None  # GNSS, LIGH, SOUN, PROX, ...: not read
         else:
@@ -498,6 +391,130 @@ class GsdParser:
             self._at(app_s)
         self._wifi.clock(app_s)
         return kind
+
+    def _take_sensor(self, kind: str, fields: list[str]) -> None:
+        """An IMU, magnetometer, pressure or AHRS record: its times and values into its stream."""
+        name, quantity, n_values = _SENSOR_TYPES[kind]
+        first = 6 if kind == "AHRS" else 3
+        app = quick_numbers(fields, range(1, 2), "log_s")
+        sensor = quick_numbers(fields, range(2, 3), "sensor_s")
+        values = quick_numbers(fields, range(first, first + n_values), quantity)
+        if app is not None and sensor is not None and values is not None and (
+                kind != "AHRS" or values[0] ** 2 + values[1] ** 2 + values[2] ** 2 <= 1.0 + 1e-3):
+            app_s, sensor_s = app[0], sensor[0]  # the fast path: a good row
+        else:
+            app_s = _app_time(kind, fields)
+            sensor_s = check_range(kind, "SensorTimestamp", parse_number(kind, fields, 2), "sensor_s")
+            values = [check_range(kind, _AXES[j] if n_values > 1 else quantity.split("_")[0],
+                                  parse_number(kind, fields, first + j), quantity) for j in range(n_values)]
+            if kind == "AHRS" and values[0] ** 2 + values[1] ** 2 + values[2] ** 2 > 1.0 + 1e-3:
+                raise BadRow(kind, "AHRS quaternion out of range: x^2 + y^2 + z^2 > 1 (not a unit quaternion)")
+        if app_s > self._next_end_s:
+            self._at(app_s)
+        if app_s > self._wifi.open_t:
+            self._wifi.clock(app_s)
+        if name in self._waiting:
+            self._begin_late_stream(name, app_s)
+        if kind not in _FOLLOWED or self._on_clock(kind, app_s):
+            self._raw[name].append(np.array([[app_s, sensor_s, *values]], dtype=np.float64))
+
+    def _take_wifi(self, fields: list[str]) -> None:
+        """A WIFI record: a row of its scan."""
+        kind = "WIFI"
+        while len(fields) > 7 and not fields[-1].strip():
+            fields = fields[:-1]  # a trailing ';'
+        if len(fields) < 7:
+            raise BadRow(kind, f"malformed WIFI line: {len(fields)} fields, expected 7")
+        # an SSID may hold ';': BSSID, frequency and RSS are the last three fields
+        tail = [fields[0], fields[1], fields[2], fields[-3], fields[-2], fields[-1]]
+        app_s = _app_time(kind, tail)
+        sensor_s = check_range(kind, "SensorTimestamp", parse_number(kind, tail, 2), "sensor_s")
+        freq = check_range(kind, "frequency", parse_number(kind, tail, 4), "freq_mhz")
+        rssi = check_range(kind, "RSSI", parse_number(kind, tail, 5), "rssi_dbm")
+        bssid = tail[3].strip()
+        if not bssid:
+            raise BadRow(kind, "malformed WIFI line: empty BSSID")
+        if app_s > self._next_end_s:
+            self._at(app_s)
+        log_t = self._clock.newest_t
+        self._on_clock(kind, app_s)  # a scan's own rule decides whether it went back (ScanAssembler)
+        self._wifi.add(app_s, (app_s, bssid, rssi, freq, sensor_s), log_t)
+
+    def _take_ble4(self, fields: list[str]) -> float:
+        """A BLE4 record (iBeacon and Eddystone alike, by MAC); its AppTimestamp."""
+        kind = "BLE4"
+        if len(fields) < 5:
+            raise BadRow(kind, f"malformed BLE4 line: {len(fields)} fields, expected at least 5")
+        app_s = _app_time(kind, fields)
+        rssi = check_range(kind, "RSSI", parse_number(kind, fields, 4), "rssi_dbm")
+        mac = fields[3].strip().upper()
+        if not mac:
+            raise BadRow(kind, "malformed BLE4 line: empty MAC")
+        if self._on_clock(kind, app_s):
+            self._beacons.add(app_s, (app_s, mac, rssi))
+        return app_s
+
+    def _take_posi(self, fields: list[str]) -> float:
+        """A POSI record (ground truth: latitude, longitude, floor); its AppTimestamp."""
+        kind = "POSI"
+        if len(fields) < 6:
+            raise BadRow(kind, f"malformed POSI line: {len(fields)} fields, expected 7")
+        app_s = _app_time(kind, fields)
+        lat = check_range(kind, "latitude", parse_number(kind, fields, 3), "latitude_deg")
+        lon = check_range(kind, "longitude", parse_number(kind, fields, 4), "longitude_deg")
+        floor = _floor_id(fields[5])
+        if not floor:
+            raise BadRow(kind, "malformed POSI line: empty floor id")
+        self._posi.add(app_s, (app_s, lat, lon, floor))
+        return app_s
+
+
+def _parse_block(lines: list[str | None]) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """The lines of a block parsed per record type: (each line is fast: one good record of a type
+    read in bulk or not read; each fast line's AppTimestamp, if it moves the clocks; each line is a
+    WiFi row; kind -> (its lines, its records, None for a type not read))."""
+    kinds = [line[:4] if line is not None and line[4:5] == ";" else "" for line in lines]
+    groups = split_by(kinds)
+    n = len(lines)
+    fast = np.zeros(n, dtype=bool)
+    app_t = np.full(n, -np.inf)
+    is_wifi = np.zeros(n, dtype=bool)
+    parsed: dict[str, tuple[np.ndarray, object]] = {}
+    for kind, index in groups.items():
+        if kind in _SENSOR_TYPES or kind in ("WIFI", "BLE4"):
+            texts = [lines[i] for i in index.tolist()]
+            app_s, ok, records = _block_records(kind, texts)
+            if kind == "WIFI":
+                is_wifi[index] = True
+            fast[index[ok]] = True
+            app_t[index] = app_s
+            parsed[kind] = (index, records)
+        elif kind and kind != "POSI" and _RECORD.match(kind + ";"):
+            fast[index] = True  # a type not read (GNSS, LIGH, SOUN, ...): counted, nothing else
+            parsed[kind] = (index, None)
+    return fast, app_t, is_wifi, parsed
+
+
+def _block_records(kind: str, texts: list[str]) -> tuple[np.ndarray, np.ndarray, object]:
+    """The lines of one type read in bulk: (AppTimestamps, each line good, the records: a float
+    table of a sensor, WiFi rows, BLE4 readings)."""
+    columns, quantities = _NUMBER_COLUMNS[kind]
+    values, ok = parse_columns(texts, ";", columns, quantities)
+    app_s = values[:, 0]
+    if kind in _SENSOR_TYPES:
+        if kind == "AHRS":  # a unit quaternion's x, y, z
+            ok &= values[:, 2] ** 2 + values[:, 3] ** 2 + values[:, 4] ** 2 <= 1.0 + 1e-3
+        return app_s, ok, values
+    if kind == "WIFI":
+        rows = [text.split(";") for text in texts]
+        bssids = [row[4].strip() if len(row) == 7 else "" for row in rows]  # a plain row: 7 fields
+        ok &= np.array([bool(b) for b in bssids], dtype=bool)
+        return app_s, ok, list(zip(app_s.tolist(), bssids, values[:, 3].tolist(), values[:, 2].tolist(),
+                                   values[:, 1].tolist()))
+    # BLE4: iBeacon and Eddystone alike, by MAC
+    macs = [text.split(";", 4)[3].strip().upper() if ok_i else "" for text, ok_i in zip(texts, ok.tolist())]
+    ok &= np.array([bool(m) for m in macs], dtype=bool)
+    return app_s, ok, list(zip(app_s.tolist(), macs, values[:, 1].tolist()))
 
 
 def _median_offset(rows: list[np.ndarray]) -> float:

@@ -724,6 +724,51 @@ def count_rows(report: ReadReport, kinds: list[str], counts: list[int]) -> None:
         report.rows[kind] = report.rows.get(kind, 0) + n
 
 
+def take_block(parsed: dict[str, tuple[np.ndarray, object]], begin: int, end: int, report: ReadReport,
+               take: Callable[[str, object, np.ndarray], None], wifi_kind: str, scans: ScanAssembler,
+               clock_s: np.ndarray, is_wifi: np.ndarray, log_clock: LogClock, followed: dict[str, int]) -> None:
+    """The fast lines ``begin .. end - 1`` of a block parse (``parsed``: kind -> (its lines, its
+    records, None for a kind not read)), as line by line: the records of the ``followed`` sensors
+    (kind -> a small integer) put on the log's clock (``log_clock``: those that went back with it
+    are counted in ``report.went_back``), each kind's records in the range to ``take(kind,
+    records, kept)`` in the order of ``parsed``, the WiFi rows (``wifi_kind``) to ``scans`` with
+    the clocks before them (``clock_s``, ``is_wifi``: each line's), the rows counted (the kinds
+    read in the order their first line comes, the others as unknown)."""
+    n_lines = end - begin
+    on_clock = np.zeros(n_lines, dtype=bool)
+    sensor_of = np.zeros(n_lines, dtype=np.int64)
+    for kind, (index, _) in parsed.items():
+        if kind in followed:
+            lo, hi = np.searchsorted(index, (begin, end))
+            on_clock[index[lo:hi] - begin] = True
+            sensor_of[index[lo:hi] - begin] = followed[kind]
+    keep, log_before = np.ones(n_lines, dtype=bool), np.full(n_lines, -np.inf)
+    at = np.flatnonzero(on_clock)
+    keep[at], log_before[at] = log_clock.keep(clock_s[begin:end][at], sensor_of[at])
+    first_line, counts, wifi = [], [], None
+    for kind, (index, records) in parsed.items():
+        lo, hi = np.searchsorted(index, (begin, end))
+        if hi == lo:
+            continue
+        first_line.append(int(index[lo]))
+        counts.append((kind, int(hi - lo)))
+        if records is None:
+            continue
+        if kind == wifi_kind:  # a scan's own rule decides whether it went back (ScanAssembler)
+            wifi = records[lo:hi]
+            continue
+        kept = keep[index[lo:hi] - begin]
+        if not kept.all():
+            report.went_back[kind] = report.went_back.get(kind, 0) + int(np.count_nonzero(~kept))
+        take(kind, records[lo:hi], kept)
+    order = np.argsort(first_line, kind="stable").tolist()
+    known = [counts[i] for i in order if parsed[counts[i][0]][1] is not None]
+    count_rows(report, [kind for kind, _ in known], [n for _, n in known])
+    report.unknown_rows += sum(n for kind, n in counts if parsed[kind][1] is None)
+    before, after = clock_before_rows(clock_s[begin:end], is_wifi[begin:end])
+    scans.add_rows(wifi or [], before, after, log_before[is_wifi[begin:end]])
+
+
 class LogParser(Protocol):
     """What a log format gives a :class:`RecordStream`: its lines in, records out."""
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import io
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -98,7 +97,7 @@ class AccessPointTable:
         rows: dict[str, list] = {c: [] for c in cls.COLUMNS}
         lines: list[int] = []
         first_line: dict[tuple[str, str], int] = {}  # (bssid, band) -> its line
-        from mapfilter.io.tables import read_table_text, table_dict_reader
+        from mapfilter.io.tables import finite_number, read_table_text, table_dict_reader
 
         # UTF-8 with or without the byte-order mark Excel writes; another encoding, or a file over
         # the bound, is one line
@@ -129,12 +128,7 @@ class AccessPointTable:
                     if text in (None, "") and column in defaults:
                         value = float(defaults[column])
                     else:
-                        try:
-                            value = float(text)  # type: ignore[arg-type]
-                        except (TypeError, ValueError):
-                            raise MapfilterError(f"column {column} is not a number: {text!r}", path, line_no) from None
-                    if not math.isfinite(value):
-                        raise MapfilterError(f"column {column} is not finite: {text!r}", path, line_no)
+                        value = finite_number(text, column, path, line_no)
                     low, high = COLUMN_RANGES[column]
                     if not low <= value <= high:
                         raise MapfilterError(f"column {column} is {value:g}, outside the {low:g} to {high:g} an "
@@ -283,8 +277,6 @@ def estimate_access_points(labelled: RadioMap | Sequence[Recording],
     starting at the RSSI-weighted centroid of the strongest observations; fits with an RMS
     residual above ``config.max_rmse_db`` are dropped. ``MapfilterError`` if no AP can be fitted.
     """
-    from scipy.optimize import least_squares
-
     radio_map = labelled if isinstance(labelled, RadioMap) else build_radio_map(list(labelled))
 
     xy_ref = radio_map.xy_m
@@ -298,50 +290,14 @@ def estimate_access_points(labelled: RadioMap | Sequence[Recording],
         if seen.size < config.min_observations:
             continue
         tried += 1
-        obs_xy = xy_ref[seen]
-        obs_rssi = radio_map.rssi_dbm[seen, k].astype(np.float64)
-        strongest = np.argsort(-obs_rssi)[: config.strongest]
-        start_xy = rssi_weighted_centroid(obs_xy[strongest], obs_rssi[strongest])
-        lo_xy = obs_xy.min(axis=0) - config.margin_m
-        hi_xy = obs_xy.max(axis=0) + config.margin_m
-        # C at the start: the strongest observation put back to 1 m with the default exponent
-        d0 = np.maximum(np.linalg.norm(obs_xy[strongest[0]] - start_xy), MIN_DISTANCE_M)
-        start_c = obs_rssi[strongest[0]] + 10.0 * DEFAULT_PATH_LOSS_EXPONENT * np.log10(d0)
-        start = [start_xy[0], start_xy[1], start_c, DEFAULT_PATH_LOSS_EXPONENT]
-        lo = [lo_xy[0], lo_xy[1], config.c_bounds_dbm[0], config.n_bounds[0]]
-        hi = [hi_xy[0], hi_xy[1], config.c_bounds_dbm[1], config.n_bounds[1]]
-        if config.fit_alpha:
-            start.append(config.alpha_db_per_m)
-            lo.append(0.0)
-            hi.append(2.0)
-        start = np.clip(np.array(start), np.array(lo) + 1e-6, np.array(hi) - 1e-6)
-
-        def residual(p, obs_xy=obs_xy, obs_rssi=obs_rssi):
-            alpha = p[4] if config.fit_alpha else config.alpha_db_per_m
-            d = np.hypot(obs_xy[:, 0] - p[0], obs_xy[:, 1] - p[1])
-            return path_loss_rssi_dbm(d, p[2], p[3], alpha, config.d_max_m) - obs_rssi
-
-        def jacobian(p, obs_xy=obs_xy):
-            # analytic: d R / d d = -10 n / (d ln 10) - alpha [d < d_max], zero where d is clamped at 1 m
-            alpha = p[4] if config.fit_alpha else config.alpha_db_per_m
-            dx, dy = p[0] - obs_xy[:, 0], p[1] - obs_xy[:, 1]
-            d_raw = np.hypot(dx, dy)
-            d = np.maximum(d_raw, MIN_DISTANCE_M)
-            dr_dd = np.where(d_raw > MIN_DISTANCE_M, -10.0 * p[3] / (d * np.log(10.0)) - alpha * (d < config.d_max_m), 0.0)
-            columns = [dr_dd * dx / d, dr_dd * dy / d, np.ones_like(d), -10.0 * np.log10(d)]
-            if config.fit_alpha:
-                columns.append(-np.minimum(d, config.d_max_m))
-            return np.column_stack(columns)
-
-        fit = least_squares(residual, start, jac=jacobian, bounds=(lo, hi), loss="soft_l1", f_scale=config.f_scale_db)
-        rmse = float(np.sqrt(np.mean(fit.fun ** 2)))
-        if not (fit.success and rmse <= config.max_rmse_db):
+        params = _fit_access_point(xy_ref[seen], radio_map.rssi_dbm[seen, k].astype(np.float64), config)
+        if params is None:
             continue
         bssid, _, band = key.rpartition("@")
         bssids.append(bssid)
         bands.append(band)
-        rows.append([fit.x[0], fit.x[1], fit.x[2], fit.x[3],
-                     fit.x[4] if config.fit_alpha else config.alpha_db_per_m, config.d_max_m])
+        rows.append([params[0], params[1], params[2], params[3],
+                     params[4] if config.fit_alpha else config.alpha_db_per_m, config.d_max_m])
     if not rows:
         if tried == 0:
             raise MapfilterError(f"no access point was heard in at least {config.min_observations} labelled scans: "
@@ -351,3 +307,53 @@ def estimate_access_points(labelled: RadioMap | Sequence[Recording],
     table = np.array(rows, dtype=np.float64)
     return AccessPointTable(bssid=bssids, band=bands, xy_m=table[:, :2].copy(), c_dbm=table[:, 2].copy(),
                             n=table[:, 3].copy(), alpha_db_per_m=table[:, 4].copy(), d_max_m=table[:, 5].copy())
+
+
+def _fit_access_point(obs_xy: np.ndarray, obs_rssi: np.ndarray, config: ApFitConfig) -> np.ndarray | None:
+    """(x, y, C, n[, alpha]) of one AP fitted to its observations (RSSI at positions), or None
+    when the fit failed or its RMS residual is over ``max_rmse_db``."""
+    from scipy.optimize import least_squares
+
+    start, lo, hi = _fit_start_and_bounds(obs_xy, obs_rssi, config)
+
+    def residual(p):
+        alpha = p[4] if config.fit_alpha else config.alpha_db_per_m
+        d = np.hypot(obs_xy[:, 0] - p[0], obs_xy[:, 1] - p[1])
+        return path_loss_rssi_dbm(d, p[2], p[3], alpha, config.d_max_m) - obs_rssi
+
+    def jacobian(p):
+        # analytic: d R / d d = -10 n / (d ln 10) - alpha [d < d_max], zero where d is clamped at 1 m
+        alpha = p[4] if config.fit_alpha else config.alpha_db_per_m
+        dx, dy = p[0] - obs_xy[:, 0], p[1] - obs_xy[:, 1]
+        d_raw = np.hypot(dx, dy)
+        d = np.maximum(d_raw, MIN_DISTANCE_M)
+        dr_dd = np.where(d_raw > MIN_DISTANCE_M, -10.0 * p[3] / (d * np.log(10.0)) - alpha * (d < config.d_max_m), 0.0)
+        columns = [dr_dd * dx / d, dr_dd * dy / d, np.ones_like(d), -10.0 * np.log10(d)]
+        if config.fit_alpha:
+            columns.append(-np.minimum(d, config.d_max_m))
+        return np.column_stack(columns)
+
+    fit = least_squares(residual, start, jac=jacobian, bounds=(lo, hi), loss="soft_l1", f_scale=config.f_scale_db)
+    rmse = float(np.sqrt(np.mean(fit.fun ** 2)))
+    return fit.x if fit.success and rmse <= config.max_rmse_db else None
+
+
+def _fit_start_and_bounds(obs_xy: np.ndarray, obs_rssi: np.ndarray,
+                          config: ApFitConfig) -> tuple[np.ndarray, list[float], list[float]]:
+    """Where an AP's fit starts (the RSSI-weighted centroid of the strongest observations, C
+    from the strongest), within its bounds (the observations' box plus a margin)."""
+    strongest = np.argsort(-obs_rssi)[: config.strongest]
+    start_xy = rssi_weighted_centroid(obs_xy[strongest], obs_rssi[strongest])
+    lo_xy = obs_xy.min(axis=0) - config.margin_m
+    hi_xy = obs_xy.max(axis=0) + config.margin_m
+    # C at the start: the strongest observation put back to 1 m with the default exponent
+    d0 = np.maximum(np.linalg.norm(obs_xy[strongest[0]] - start_xy), MIN_DISTANCE_M)
+    start_c = obs_rssi[strongest[0]] + 10.0 * DEFAULT_PATH_LOSS_EXPONENT * np.log10(d0)
+    start = [start_xy[0], start_xy[1], start_c, DEFAULT_PATH_LOSS_EXPONENT]
+    lo = [lo_xy[0], lo_xy[1], config.c_bounds_dbm[0], config.n_bounds[0]]
+    hi = [hi_xy[0], hi_xy[1], config.c_bounds_dbm[1], config.n_bounds[1]]
+    if config.fit_alpha:
+        start.append(config.alpha_db_per_m)
+        lo.append(0.0)
+        hi.append(2.0)
+    return np.clip(np.array(start), np.array(lo) + 1e-6, np.array(hi) - 1e-6), lo, hi

@@ -336,6 +336,276 @@ def _reset_stretch(fs, ist, t):
     fs[_F_STEP_T] = np.nan
 
 
+# The kernel's steps. They allocate nothing and are compiled without numba's reference counting
+# (_nrt=False, as in maps/walls.py: counting every array argument in and out of each step made
+# the kernel about twice as slow); the three run for every record or grid sample are inlined
+# into it (forceinline: a call that passes some twenty arrays field by field is not free), so
+# the steps run as fast as the one long loop they replaced.
+
+
+@njit(cache=True, nogil=True, _nrt=False, forceinline=True)
+def _keep_rotvec_sample(t, x, y, z, fs, ist, rot_t, rot_q):
+    """Keep a rotation-vector sample for the headings of later steps; False (nothing changed but
+    pruning) when the buffer is full from its first slot and must grow first."""
+    w = math.sqrt(max(1.0 - (x * x + y * y + z * z), 0.0))  # Android: unit quaternion, w >= 0
+    replace = ist[_I_EVER + ROTVEC] == 1 and t == fs[_F_LAST_T + ROTVEC] and ist[_I_ROT_N] > 0
+    if not replace:
+        _prune_rotvec(rot_t, ist, fs[_F_KEEP_T])
+        head, n = ist[_I_ROT_HEAD], ist[_I_ROT_N]
+        if head + n == rot_t.shape[0]:
+            if head == 0:
+                return False
+            for j in range(n):
+                rot_t[j] = rot_t[head + j]
+                for c in range(4):  # element by element: a row copy would allocate
+                    rot_q[j, c] = rot_q[head + j, c]
+            ist[_I_ROT_HEAD] = 0
+            head = 0
+        slot = head + n
+        ist[_I_ROT_N] = n + 1
+    else:
+        slot = ist[_I_ROT_HEAD] + ist[_I_ROT_N] - 1
+    # q and -q are one rotation; Android's w >= 0 flips x, y, z when w passes 0: keep the
+    # signs continuous so that interpolating between neighbours never passes through zero
+    if slot > ist[_I_ROT_HEAD]:
+        p = rot_q[slot - 1]
+        if p[0] * x + p[1] * y + p[2] * z + p[3] * w < 0.0:
+            x, y, z, w = -x, -y, -z, -w
+    rot_t[slot] = t
+    rot_q[slot, 0] = x
+    rot_q[slot, 1] = y
+    rot_q[slot, 2] = z
+    rot_q[slot, 3] = w
+    fs[_F_LAST_T + ROTVEC] = t
+    ist[_I_EVER + ROTVEC] = 1
+    return True
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _end_stretch_after_gap(s, t, gap, fs, ist):
+    """Start a new stretch at t when either sensor has been silent longer than ``gap`` (or
+    nothing has started one since the last reset)."""
+    o = 1 - s
+    if ist[_I_STARTED]:
+        own = fs[_F_LAST_T + s] if ist[_I_HAS + s] else fs[_F_STRETCH_T]
+        other = fs[_F_LAST_T + o] if ist[_I_HAS + o] else fs[_F_STRETCH_T]
+        if t - own > gap or t - other > gap:
+            _reset_stretch(fs, ist, t)
+    else:
+        _reset_stretch(fs, ist, t)
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _grid_streams_to_fill(s, fs, ist):
+    """Bit x set: make sensor x's grid values now. Starts the stretch's grid once both sensors
+    have a sample, at the later of their latest samples."""
+    if ist[_I_GRID]:
+        return 1 << s
+    if ist[_I_HAS + 1 - s]:
+        fs[_F_G0] = max(fs[_F_LAST_T], fs[_F_LAST_T + 1])
+        ist[_I_GRID] = 1
+        ist[_I_N_STRETCHES] += 1
+        return 3
+    return 0
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _fill_grid_values(x_s, interpolate, t_prev, vp0, vp1, vp2, v0, v1, v2, dt, fs, ist, q_val, q_src):
+    """Sensor x_s's values at every grid time up to its latest sample: interpolated between its
+    previous sample (t_prev, vp) and its latest (v), or, at the grid's origin, the latest."""
+    cap = q_src.shape[1]
+    t_new = fs[_F_LAST_T + x_s]
+    k = ist[_I_NEXT_K + x_s]
+    while True:
+        g = fs[_F_G0] + k * dt
+        if g > t_new:
+            break
+        if k - ist[_I_K_DONE] >= cap:  # cannot happen: a sensor further ahead ends the stretch
+            raise RuntimeError("OnlinePDR: grid values overran their buffer")
+        slot = k % cap
+        if interpolate and t_new > t_prev:
+            f = (g - t_prev) / (t_new - t_prev)
+            q_val[x_s, slot, 0] = vp0 + f * (v0 - vp0)
+            q_val[x_s, slot, 1] = vp1 + f * (v1 - vp1)
+            q_val[x_s, slot, 2] = vp2 + f * (v2 - vp2)
+        else:  # the grid's origin: this stream's latest sample is at it
+            q_val[x_s, slot, 0] = fs[_F_LAST_V + 3 * x_s]
+            q_val[x_s, slot, 1] = fs[_F_LAST_V + 3 * x_s + 1]
+            q_val[x_s, slot, 2] = fs[_F_LAST_V + 3 * x_s + 2]
+        q_src[x_s, slot] = t_new
+        k += 1
+    ist[_I_NEXT_K + x_s] = k
+
+
+@njit(cache=True, nogil=True, _nrt=False, forceinline=True)
+def _take_imu_sample(s, t, v0, v1, v2, gap, dt, fs, ist, q_val, q_src):
+    """Keep an accelerometer (s = ACC) or gyroscope (s = GYRO) sample and make the grid values it
+    completes; False for a repeated time stamp (its values stand for the grid samples to come)."""
+    _end_stretch_after_gap(s, t, gap, fs, ist)
+    if not ist[_I_GRID] and t > fs[_F_KEEP_T]:
+        fs[_F_KEEP_T] = t  # the grid, when it starts, starts at or after now
+    first = ist[_I_HAS + s] == 0
+    t_prev = fs[_F_LAST_T + s]
+    vp0, vp1, vp2 = fs[_F_LAST_V + 3 * s], fs[_F_LAST_V + 3 * s + 1], fs[_F_LAST_V + 3 * s + 2]
+    fs[_F_LAST_T + s] = t
+    fs[_F_LAST_V + 3 * s] = v0
+    fs[_F_LAST_V + 3 * s + 1] = v1
+    fs[_F_LAST_V + 3 * s + 2] = v2
+    ist[_I_EVER + s] = 1
+    ist[_I_HAS + s] = 1
+    if not first and t == t_prev:
+        return False
+    streams_to_fill = _grid_streams_to_fill(s, fs, ist)
+    for x_s in range(2):
+        if streams_to_fill & (1 << x_s):
+            _fill_grid_values(x_s, x_s == s and not first, t_prev, vp0, vp1, vp2, v0, v1, v2, dt, fs, ist,
+                              q_val, q_src)
+    return True
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _start_filters(magnitude, ax, ay, az, zi_step, zi_grav, z_step, z_grav):
+    """The step and gravity filters in their steady state for a stretch's first grid sample."""
+    for sec in range(z_step.shape[0]):
+        z_step[sec, 0] = zi_step[sec, 0] * magnitude
+        z_step[sec, 1] = zi_step[sec, 1] * magnitude
+    for c, a in enumerate((ax, ay, az)):
+        for sec in range(z_grav.shape[1]):
+            z_grav[c, sec, 0] = zi_grav[sec, 0] * a
+            z_grav[c, sec, 1] = zi_grav[sec, 1] * a
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _yaw_rate(ax, ay, az, wx, wy, wz, sos_grav, z_grav):
+    """The gyroscope rate about gravity (the accelerometer low-passed): yaw rate = gyro . up (an
+    accelerometer at rest reads +g along up); Android gyro rates are counter-clockwise
+    positive, as the map heading."""
+    gx = _sos_step(sos_grav, z_grav[0], ax)
+    gy = _sos_step(sos_grav, z_grav[1], ay)
+    gz = _sos_step(sos_grav, z_grav[2], az)
+    norm = math.sqrt(gx * gx + gy * gy + gz * gz)
+    if norm == 0.0:
+        norm = 1.0
+    return (wx * gx + wy * gy + wz * gz) / norm
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _step_level(k, params, level_ring):
+    """The step level at grid sample k: a share of the step signal's RMS over the trailing
+    window, clipped to [min, max]; the max alone when the share is 0."""
+    level = params[_P_MAX_LEVEL]
+    if params[_P_FRACTION] > 0.0:
+        n = min(k, level_ring.shape[0])
+        total = 0.0
+        for j in range(n):
+            total += level_ring[j]
+        level = params[_P_FRACTION] * math.sqrt(total / n) if n > 0 else 0.0
+        level = min(max(level, params[_P_MIN_LEVEL]), params[_P_MAX_LEVEL])
+    return level
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _step_time(k, g, over, dt, settle, fs, params):
+    """The time of a step at the grid interval (g - dt, g]: the upward crossing of the level,
+    placed linearly, once the filter has settled and the previous step is old enough; NaN if
+    there is none."""
+    over_prev = fs[_F_OVER]
+    if k - 1 >= settle and over_prev < 0.0 <= over:
+        g_prev = g - dt
+        t_step = g_prev - over_prev / (over - over_prev) * dt
+        step_t = fs[_F_STEP_T]
+        if math.isnan(step_t) or t_step - step_t >= params[_P_MIN_INTERVAL]:
+            return t_step
+    return np.nan
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _weinberg_unit(k, t_step, dt, fs, params, mag_ring):
+    """(a_max - a_min)^(1/4) of the low-passed |a| from the previous step (at most
+    MAX_STEP_WINDOW_S back) to the step at t_step."""
+    cap_mag = mag_ring.shape[0]
+    begin = t_step - params[_P_MAX_WINDOW]
+    step_t = fs[_F_STEP_T]
+    if not math.isnan(step_t) and step_t > begin:
+        begin = step_t
+    lo, hi = np.inf, -np.inf
+    for j in range(k, max(-1, k - cap_mag), -1):
+        g_j = fs[_F_G0] + j * dt
+        if g_j < begin:
+            break
+        if g_j <= t_step:
+            value = mag_ring[j % cap_mag]
+            lo = min(lo, value)
+            hi = max(hi, value)
+    return (hi - lo) ** 0.25 if hi >= lo else 0.0
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _write_step(k, g, t_step, heading, available, fs, ist, params, mag_ring, rot_t, rot_q, row):
+    """A step at t_step in the grid interval (g - dt, g] of sample k into its row: time, gyro
+    heading change and heading (interpolated in the interval), rotation-vector heading, Weinberg
+    unit, when it was available; it is the last step now."""
+    dt = params[_P_DT]
+    g_prev = g - dt
+    at = fs[_F_HEADING] + (t_step - g_prev) / dt * (heading - fs[_F_HEADING])
+    row[0] = t_step
+    row[1] = at - fs[_F_STEP_HEADING]
+    row[2] = at
+    row[3] = _rotvec_heading(rot_t, rot_q, ist, t_step, params[_P_OFFSET])
+    row[4] = _weinberg_unit(k, t_step, dt, fs, params, mag_ring)
+    row[5] = available
+    fs[_F_STEP_T] = t_step
+    fs[_F_STEP_HEADING] = at
+
+
+@njit(cache=True, nogil=True, _nrt=False, forceinline=True)
+def _grid_sample(params, sos_step, zi_step, sos_grav, zi_grav, settle, fs, ist, z_step, z_grav, q_val, q_src,
+                 level_ring, mag_ring, rot_t, rot_q, out_steps, n_steps, trace, n_trace, keep_trace):
+    """The next grid sample both sensors have reached through the chain: filters, gyro heading,
+    step signal and level, a step at an upward crossing (a row of out_steps), a trace row.
+    Returns the new counts of steps and trace rows."""
+    dt = params[_P_DT]
+    k = ist[_I_K_DONE]
+    slot = k % q_src.shape[1]
+    g = fs[_F_G0] + k * dt
+    available = max(q_src[0, slot], q_src[1, slot])
+    ax, ay, az = q_val[0, slot, 0], q_val[0, slot, 1], q_val[0, slot, 2]
+    magnitude = math.sqrt(ax * ax + ay * ay + az * az)
+    if k == 0:
+        _start_filters(magnitude, ax, ay, az, zi_step, zi_grav, z_step, z_grav)
+        if math.isnan(fs[_F_T0]):
+            fs[_F_T0] = g
+    smooth = _sos_step(sos_step, z_step, magnitude)
+    yaw = _yaw_rate(ax, ay, az, q_val[1, slot, 0], q_val[1, slot, 1], q_val[1, slot, 2], sos_grav, z_grav)
+    mag_ring[k % mag_ring.shape[0]] = smooth
+    heading = fs[_F_HEADING]
+    d = 0.0
+    if k > 0:
+        heading += 0.5 * (fs[_F_YAW] + yaw) * dt  # trapezoid
+        d = (smooth - fs[_F_SMOOTH]) / dt  # backward difference: the step signal d|a|/dt
+        level_ring[(k - 1) % level_ring.shape[0]] = d * d
+    level = _step_level(k, params, level_ring)
+    if k > 0:
+        over = d - level
+        t_step = _step_time(k, g, over, dt, settle, fs, params)
+        if not math.isnan(t_step):
+            _write_step(k, g, t_step, heading, available, fs, ist, params, mag_ring, rot_t, rot_q, out_steps[n_steps])
+            n_steps += 1
+        fs[_F_OVER] = over
+    if keep_trace:
+        row = trace[n_trace]
+        row[0], row[1], row[2], row[3], row[4], row[5] = g, available, smooth, d, level, heading
+        row[6] = _rotvec_heading(rot_t, rot_q, ist, g, params[_P_OFFSET])
+        n_trace += 1
+    fs[_F_HEADING] = heading
+    fs[_F_YAW] = yaw
+    fs[_F_SMOOTH] = smooth
+    if g > fs[_F_KEEP_T]:
+        fs[_F_KEEP_T] = g
+    ist[_I_K_DONE] = k + 1
+    return n_steps, n_trace
+
+
 @njit(cache=True, nogil=True)
 def _feed_kernel(t_s, stream, values, start, params, sos_step, zi_step, sos_grav, zi_grav, settle,
                  fs, ist, z_step, z_grav, q_val, q_src, level_ring, mag_ring, rot_t, rot_q,
@@ -343,11 +613,7 @@ def _feed_kernel(t_s, stream, values, start, params, sos_step, zi_step, sos_grav
     """Process records start.. in order; returns (next record, steps written, trace rows written,
     why it stopped). It stops before a record when the outputs might overflow (_FLUSH) or the
     rotation-vector buffer is full (_GROW_ROTVEC); the caller makes room and calls again."""
-    dt = params[_P_DT]
-    gap = params[_P_GAP]
     cap = q_src.shape[1]
-    window = level_ring.shape[0]
-    cap_mag = mag_ring.shape[0]
     n_steps = 0
     n_trace = 0
     for i in range(start, t_s.shape[0]):
@@ -355,191 +621,20 @@ def _feed_kernel(t_s, stream, values, start, params, sos_step, zi_step, sos_grav
             return i, n_steps, n_trace, _FLUSH
         s = stream[i]
         t = t_s[i]
-        if s == 2:  # rotation vector: kept for the headings of later steps
-            if ist[_I_EVER + 2] and t < fs[_F_LAST_T + 2]:
-                ist[_I_N_LATE] += 1
-                continue
-            x, y, z = values[i, 0], values[i, 1], values[i, 2]
-            w = math.sqrt(max(1.0 - (x * x + y * y + z * z), 0.0))  # Android: unit quaternion, w >= 0
-            replace = ist[_I_EVER + 2] == 1 and t == fs[_F_LAST_T + 2] and ist[_I_ROT_N] > 0
-            if not replace:
-                _prune_rotvec(rot_t, ist, fs[_F_KEEP_T])
-                head, n = ist[_I_ROT_HEAD], ist[_I_ROT_N]
-                if head + n == rot_t.shape[0]:
-                    if head == 0:
-                        return i, n_steps, n_trace, _GROW_ROTVEC
-                    for j in range(n):
-                        rot_t[j] = rot_t[head + j]
-                        rot_q[j] = rot_q[head + j]
-                    ist[_I_ROT_HEAD] = 0
-                    head = 0
-                slot = head + n
-                ist[_I_ROT_N] = n + 1
-            else:
-                slot = ist[_I_ROT_HEAD] + ist[_I_ROT_N] - 1
-            # q and -q are one rotation; Android's w >= 0 flips x, y, z when w passes 0: keep the
-            # signs continuous so that interpolating between neighbours never passes through zero
-            if slot > ist[_I_ROT_HEAD]:
-                p = rot_q[slot - 1]
-                if p[0] * x + p[1] * y + p[2] * z + p[3] * w < 0.0:
-                    x, y, z, w = -x, -y, -z, -w
-            rot_t[slot] = t
-            rot_q[slot, 0] = x
-            rot_q[slot, 1] = y
-            rot_q[slot, 2] = z
-            rot_q[slot, 3] = w
-            fs[_F_LAST_T + 2] = t
-            ist[_I_EVER + 2] = 1
-            continue
-        # accelerometer or gyroscope
-        if ist[_I_EVER + s] and t < fs[_F_LAST_T + s]:
+        if ist[_I_EVER + s] and t < fs[_F_LAST_T + s]:  # earlier than its sensor's previous sample
             ist[_I_N_LATE] += 1
             continue
-        o = 1 - s
-        if ist[_I_STARTED]:
-            own = fs[_F_LAST_T + s] if ist[_I_HAS + s] else fs[_F_STRETCH_T]
-            other = fs[_F_LAST_T + o] if ist[_I_HAS + o] else fs[_F_STRETCH_T]
-            if t - own > gap or t - other > gap:
-                _reset_stretch(fs, ist, t)
-        else:
-            _reset_stretch(fs, ist, t)
-        if not ist[_I_GRID] and t > fs[_F_KEEP_T]:
-            fs[_F_KEEP_T] = t  # the grid, when it starts, starts at or after now
-        first = ist[_I_HAS + s] == 0
-        t_prev = fs[_F_LAST_T + s]
-        vp0, vp1, vp2 = fs[_F_LAST_V + 3 * s], fs[_F_LAST_V + 3 * s + 1], fs[_F_LAST_V + 3 * s + 2]
-        fs[_F_LAST_T + s] = t
-        fs[_F_LAST_V + 3 * s] = values[i, 0]
-        fs[_F_LAST_V + 3 * s + 1] = values[i, 1]
-        fs[_F_LAST_V + 3 * s + 2] = values[i, 2]
-        ist[_I_EVER + s] = 1
-        ist[_I_HAS + s] = 1
-        if not first and t == t_prev:
+        if s == ROTVEC:  # kept for the headings of later steps
+            if not _keep_rotvec_sample(t, values[i, 0], values[i, 1], values[i, 2], fs, ist, rot_t, rot_q):
+                return i, n_steps, n_trace, _GROW_ROTVEC
+            continue
+        if not _take_imu_sample(s, t, values[i, 0], values[i, 1], values[i, 2], params[_P_GAP], params[_P_DT],
+                                fs, ist, q_val, q_src):
             continue  # a repeated time stamp: its values stand for the grid samples still to come
-        streams_to_fill = 0  # bit s: make stream s's grid values
-        if ist[_I_GRID]:
-            streams_to_fill = 1 << s
-        elif ist[_I_HAS + o]:
-            # both sensors have started: the grid starts at the later of their latest samples
-            fs[_F_G0] = max(fs[_F_LAST_T], fs[_F_LAST_T + 1])
-            ist[_I_GRID] = 1
-            ist[_I_N_STRETCHES] += 1
-            streams_to_fill = 3
-        for x_s in range(2):
-            if not streams_to_fill & (1 << x_s):
-                continue
-            t_new = fs[_F_LAST_T + x_s]
-            k = ist[_I_NEXT_K + x_s]
-            while True:
-                g = fs[_F_G0] + k * dt
-                if g > t_new:
-                    break
-                if k - ist[_I_K_DONE] >= cap:  # cannot happen: a sensor further ahead ends the stretch
-                    raise RuntimeError("OnlinePDR: grid values overran their buffer")
-                slot = k % cap
-                if x_s == s and not first and t_new > t_prev:
-                    f = (g - t_prev) / (t_new - t_prev)
-                    q_val[x_s, slot, 0] = vp0 + f * (values[i, 0] - vp0)
-                    q_val[x_s, slot, 1] = vp1 + f * (values[i, 1] - vp1)
-                    q_val[x_s, slot, 2] = vp2 + f * (values[i, 2] - vp2)
-                else:  # the grid's origin: this stream's latest sample is at it
-                    q_val[x_s, slot, 0] = fs[_F_LAST_V + 3 * x_s]
-                    q_val[x_s, slot, 1] = fs[_F_LAST_V + 3 * x_s + 1]
-                    q_val[x_s, slot, 2] = fs[_F_LAST_V + 3 * x_s + 2]
-                q_src[x_s, slot] = t_new
-                k += 1
-            ist[_I_NEXT_K + x_s] = k
-        # every grid sample both sensors have reached
-        while ist[_I_K_DONE] < min(ist[_I_NEXT_K], ist[_I_NEXT_K + 1]):
-            k = ist[_I_K_DONE]
-            slot = k % cap
-            g = fs[_F_G0] + k * dt
-            available = max(q_src[0, slot], q_src[1, slot])
-            ax, ay, az = q_val[0, slot, 0], q_val[0, slot, 1], q_val[0, slot, 2]
-            magnitude = math.sqrt(ax * ax + ay * ay + az * az)
-            if k == 0:  # the filters start in their steady state for this first sample
-                for sec in range(z_step.shape[0]):
-                    z_step[sec, 0] = zi_step[sec, 0] * magnitude
-                    z_step[sec, 1] = zi_step[sec, 1] * magnitude
-                for c in range(3):
-                    for sec in range(z_grav.shape[1]):
-                        z_grav[c, sec, 0] = zi_grav[sec, 0] * q_val[0, slot, c]
-                        z_grav[c, sec, 1] = zi_grav[sec, 1] * q_val[0, slot, c]
-                if math.isnan(fs[_F_T0]):
-                    fs[_F_T0] = g
-            smooth = _sos_step(sos_step, z_step, magnitude)
-            gx = _sos_step(sos_grav, z_grav[0], ax)
-            gy = _sos_step(sos_grav, z_grav[1], ay)
-            gz = _sos_step(sos_grav, z_grav[2], az)
-            norm = math.sqrt(gx * gx + gy * gy + gz * gz)
-            if norm == 0.0:
-                norm = 1.0
-            # yaw rate = gyro . up (an accelerometer at rest reads +g along up); Android gyro
-            # rates are counter-clockwise positive, as the map heading
-            yaw = (q_val[1, slot, 0] * gx + q_val[1, slot, 1] * gy + q_val[1, slot, 2] * gz) / norm
-            mag_ring[k % cap_mag] = smooth
-            heading = fs[_F_HEADING]
-            d = 0.0
-            if k > 0:
-                heading += 0.5 * (fs[_F_YAW] + yaw) * dt  # trapezoid
-                d = (smooth - fs[_F_SMOOTH]) / dt  # backward difference: the step signal d|a|/dt
-                level_ring[(k - 1) % window] = d * d
-            level = params[_P_MAX_LEVEL]
-            if params[_P_FRACTION] > 0.0:  # the RMS of the step signal over the trailing window
-                n = min(k, window)
-                total = 0.0
-                for j in range(n):
-                    total += level_ring[j]
-                level = params[_P_FRACTION] * math.sqrt(total / n) if n > 0 else 0.0
-                level = min(max(level, params[_P_MIN_LEVEL]), params[_P_MAX_LEVEL])
-            if k > 0:
-                over = d - level
-                over_prev = fs[_F_OVER]
-                if k - 1 >= settle and over_prev < 0.0 <= over:  # an upward crossing, the filter settled
-                    g_prev = g - dt
-                    t_step = g_prev - over_prev / (over - over_prev) * dt
-                    step_t = fs[_F_STEP_T]
-                    if math.isnan(step_t) or t_step - step_t >= params[_P_MIN_INTERVAL]:
-                        at = fs[_F_HEADING] + (t_step - g_prev) / dt * (heading - fs[_F_HEADING])
-                        # Weinberg: min and max of low-passed |a| from the previous step (at most
-                        # MAX_STEP_WINDOW_S back) to this one
-                        begin = t_step - params[_P_MAX_WINDOW]
-                        if not math.isnan(step_t) and step_t > begin:
-                            begin = step_t
-                        lo, hi = np.inf, -np.inf
-                        for j in range(k, max(-1, k - cap_mag), -1):
-                            g_j = fs[_F_G0] + j * dt
-                            if g_j < begin:
-                                break
-                            if g_j <= t_step:
-                                value = mag_ring[j % cap_mag]
-                                lo = min(lo, value)
-                                hi = max(hi, value)
-                        out_steps[n_steps, 0] = t_step
-                        out_steps[n_steps, 1] = at - fs[_F_STEP_HEADING]
-                        out_steps[n_steps, 2] = at
-                        out_steps[n_steps, 3] = _rotvec_heading(rot_t, rot_q, ist, t_step, params[_P_OFFSET])
-                        out_steps[n_steps, 4] = (hi - lo) ** 0.25 if hi >= lo else 0.0
-                        out_steps[n_steps, 5] = available
-                        n_steps += 1
-                        fs[_F_STEP_T] = t_step
-                        fs[_F_STEP_HEADING] = at
-                fs[_F_OVER] = over
-            if keep_trace:
-                trace[n_trace, 0] = g
-                trace[n_trace, 1] = available
-                trace[n_trace, 2] = smooth
-                trace[n_trace, 3] = d
-                trace[n_trace, 4] = level
-                trace[n_trace, 5] = heading
-                trace[n_trace, 6] = _rotvec_heading(rot_t, rot_q, ist, g, params[_P_OFFSET])
-                n_trace += 1
-            fs[_F_HEADING] = heading
-            fs[_F_YAW] = yaw
-            fs[_F_SMOOTH] = smooth
-            if g > fs[_F_KEEP_T]:
-                fs[_F_KEEP_T] = g
-            ist[_I_K_DONE] = k + 1
+        while ist[_I_K_DONE] < min(ist[_I_NEXT_K], ist[_I_NEXT_K + 1]):  # every grid sample both reached
+            n_steps, n_trace = _grid_sample(params, sos_step, zi_step, sos_grav, zi_grav, settle, fs, ist, z_step,
+                                            z_grav, q_val, q_src, level_ring, mag_ring, rot_t, rot_q, out_steps,
+                                            n_steps, trace, n_trace, keep_trace)
         _prune_rotvec(rot_t, ist, fs[_F_KEEP_T])
     return t_s.shape[0], n_steps, n_trace, _DONE
 

@@ -285,91 +285,133 @@ class RadioMap:
     def load(cls, path: str | os.PathLike) -> RadioMap:
         """Read a radio map written by ``save``; ``MapfilterError`` on anything else."""
         path = Path(path)
-        if not path.is_file():
-            raise not_a_file(path)
-        _check_npz_headers(path)  # before numpy allocates what a header declares
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {key: data[key] for key in data.files}
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error) as exc:
-            raise MapfilterError(f"{_NOT_A_RADIO_MAP}: {exc}", path) from None
-        if str(arrays.get("format", "")) != FORMAT_NAME:
-            raise MapfilterError(f"{_NOT_A_RADIO_MAP}: no format key {FORMAT_NAME!r}", path)
-        version = int(arrays.get("version", -1))
-        if version not in READABLE_VERSIONS:
-            raise MapfilterError(f"radio map format version {version} is not supported (this reads "
-                                 f"{', '.join(map(str, READABLE_VERSIONS))})", path)
-        missing = {"xy_m", "t_s", "trace", "ap_keys", "rssi_dbm", "source_traces"} - set(arrays)
-        if missing:
-            raise MapfilterError(f"radio map lacks the arrays {sorted(missing)}", path)
-        xy, rssi, keys = arrays["xy_m"], arrays["rssi_dbm"], arrays["ap_keys"]
-        p = xy.shape[0] if xy.ndim == 2 else -1
-        if (xy.ndim != 2 or xy.shape[1] != 2 or rssi.shape != (p, keys.shape[0]) or arrays["t_s"].shape != (p,)
-                or arrays["trace"].shape != (p,)):
-            raise MapfilterError(f"radio map arrays disagree in shape: xy_m {xy.shape}, rssi_dbm {rssi.shape}, "
-                                 f"ap_keys {keys.shape}", path)
-        if not np.all(np.isfinite(xy)):
-            raise MapfilterError("radio map has non-finite reference positions", path)
-        if xy.size and np.abs(xy).max() > MAX_POSITION_M:
-            i = int(np.argmax(np.abs(xy).max(axis=1)))
-            raise MapfilterError(f"reference point {i} at {tuple(float(v) for v in xy[i])} m is more than "
-                                 f"{MAX_POSITION_M:g} m from the origin: not a position on a floor", path)
-        if not np.all(np.isfinite(arrays["t_s"])):
-            raise MapfilterError("radio map has non-finite scan times", path)
-        low, high = (np.nanmin(rssi), np.nanmax(rssi)) if rssi.size and not np.isnan(rssi).all() else (0.0, 0.0)
-        if np.isinf(low) or np.isinf(high) or not (RSSI_RANGE_DBM[0] <= low and high <= RSSI_RANGE_DBM[1]):
-            raise MapfilterError(f"radio map has RSSI from {low:g} to {high:g} dBm, outside the "
-                                 f"{RSSI_RANGE_DBM[0]:g} to {RSSI_RANGE_DBM[1]:g} dBm a phone reports", path)
-        traces = [str(t) for t in arrays["source_traces"]]
-        if p and (arrays["trace"].min() < 0 or arrays["trace"].max() >= len(traces)):
-            raise MapfilterError("radio map trace indices out of range", path)
+        arrays, version = _read_radio_map_arrays(path)
+        p = _check_points(arrays, path)
+        point_floor, floor_names = _floor_labels(arrays, version, p, path)
+        source, xy_sigma = _grown_labels(arrays, version, p, path)
         floor = str(arrays.get("floor_name", ""))
-        point_floor = floor_names = None
-        if version == 3 or (version >= GROWN_FORMAT_VERSION and ("floor" in arrays or "floor_names" in arrays)):
-            if "floor" not in arrays or "floor_names" not in arrays:
-                raise MapfilterError(f"a version {version} radio map with floors needs the arrays floor and "
-                                     "floor_names", path)
-            point_floor, floor_names = arrays["floor"], [str(n) for n in arrays["floor_names"]]
-            if point_floor.shape != (p,) or (p and (point_floor.min() < 0 or point_floor.max() >= len(floor_names))):
-                raise MapfilterError("radio map floor labels out of range", path)
-        source = xy_sigma = None
-        if version >= GROWN_FORMAT_VERSION:
-            if "source" not in arrays or "xy_sigma_m" not in arrays:
-                raise MapfilterError(f"a version {version} radio map needs the arrays source and xy_sigma_m", path)
-            source, xy_sigma = arrays["source"], arrays["xy_sigma_m"]
-            if source.shape != (p,) or xy_sigma.shape != (p,):
-                raise MapfilterError(f"radio map source {source.shape} / xy_sigma_m {xy_sigma.shape} do not have "
-                                     f"one entry per point ({p})", path)
-            if not np.all(np.isin(source, (SURVEYED, GROWN))):
-                raise MapfilterError(f"radio map source codes must be {SURVEYED} (surveyed) or {GROWN} (grown)", path)
-            if not (np.all(np.isfinite(xy_sigma)) and np.all(xy_sigma >= 0)):
-                raise MapfilterError("radio map xy_sigma_m must be finite and >= 0", path)
-        radio_map = cls(xy, [str(k) for k in keys], rssi, arrays["t_s"], arrays["trace"], traces, floor or None,
+        radio_map = cls(arrays["xy_m"], [str(k) for k in arrays["ap_keys"]], arrays["rssi_dbm"], arrays["t_s"],
+                        arrays["trace"], [str(t) for t in arrays["source_traces"]], floor or None,
                         point_floor, floor_names, source, xy_sigma,
                         {key[len("likelihood_"):]: array for key, array in arrays.items() if key.startswith("likelihood_")})
-        inside, outside = arrays.get("survey_inside_match_db"), arrays.get("survey_outside_match_db")
-        match_params = arrays.get("survey_match_params")
-        if inside is not None and outside is not None and match_params is not None \
-                and np.array_equal(match_params, _survey_match_params()):
-            if not (np.all(np.isfinite(inside)) and np.all(np.isfinite(outside))):
-                raise MapfilterError("radio map has malformed survey_inside_match_db / survey_outside_match_db", path)
-            memo_of(radio_map)["match distances"] = (np.sort(inside.astype(np.float64)),
-                                                     np.sort(outside.astype(np.float64)))
-        cv_errors, cv_params = arrays.get("cv_fix_errors_m"), arrays.get("cv_fix_errors_params")
-        if version >= 2 and cv_errors is not None and cv_params is not None:
-            if (cv_errors.ndim != 1 or cv_params.shape != (3,) or not np.all(np.isfinite(cv_errors))
-                    or not np.all(np.isfinite(cv_params))):
-                raise MapfilterError("radio map has malformed cv_fix_errors_m / cv_fix_errors_params", path)
-            params = (int(cv_params[0]), int(cv_params[1]), float(cv_params[2]))
-            if point_floor is None:
-                _cv_memo(radio_map)[params] = cv_errors.astype(np.float64)
-            elif params == _STORED_CV_PARAMS:
-                of_floor = arrays.get("cv_fix_errors_floor")
-                if of_floor is None or of_floor.shape != cv_errors.shape:
-                    raise MapfilterError("radio map has malformed cv_fix_errors_floor", path)
-                radio_map._floor_cv_errors = {i: cv_errors[of_floor == i].astype(np.float64)
-                                              for i in range(len(floor_names))}
+        _restore_match_distances(radio_map, arrays, path)
+        _restore_cv_errors(radio_map, arrays, version, point_floor, floor_names, path)
         return radio_map
+
+
+def _read_radio_map_arrays(path: Path) -> tuple[dict[str, np.ndarray], int]:
+    """The arrays of a radio map file and its format version; refused when it is not one (or not
+    a version this reads)."""
+    if not path.is_file():
+        raise not_a_file(path)
+    _check_npz_headers(path)  # before numpy allocates what a header declares
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error) as exc:
+        raise MapfilterError(f"{_NOT_A_RADIO_MAP}: {exc}", path) from None
+    if str(arrays.get("format", "")) != FORMAT_NAME:
+        raise MapfilterError(f"{_NOT_A_RADIO_MAP}: no format key {FORMAT_NAME!r}", path)
+    version = int(arrays.get("version", -1))
+    if version not in READABLE_VERSIONS:
+        raise MapfilterError(f"radio map format version {version} is not supported (this reads "
+                             f"{', '.join(map(str, READABLE_VERSIONS))})", path)
+    return arrays, version
+
+
+def _check_points(arrays: dict[str, np.ndarray], path: Path) -> int:
+    """The number of reference points, their arrays checked: present, of one length, positions
+    finite and on a floor, times finite, RSSI as a phone reports it, traces in range."""
+    missing = {"xy_m", "t_s", "trace", "ap_keys", "rssi_dbm", "source_traces"} - set(arrays)
+    if missing:
+        raise MapfilterError(f"radio map lacks the arrays {sorted(missing)}", path)
+    xy, rssi, keys = arrays["xy_m"], arrays["rssi_dbm"], arrays["ap_keys"]
+    p = xy.shape[0] if xy.ndim == 2 else -1
+    if (xy.ndim != 2 or xy.shape[1] != 2 or rssi.shape != (p, keys.shape[0]) or arrays["t_s"].shape != (p,)
+            or arrays["trace"].shape != (p,)):
+        raise MapfilterError(f"radio map arrays disagree in shape: xy_m {xy.shape}, rssi_dbm {rssi.shape}, "
+                             f"ap_keys {keys.shape}", path)
+    if not np.all(np.isfinite(xy)):
+        raise MapfilterError("radio map has non-finite reference positions", path)
+    if xy.size and np.abs(xy).max() > MAX_POSITION_M:
+        i = int(np.argmax(np.abs(xy).max(axis=1)))
+        raise MapfilterError(f"reference point {i} at {tuple(float(v) for v in xy[i])} m is more than "
+                             f"{MAX_POSITION_M:g} m from the origin: not a position on a floor", path)
+    if not np.all(np.isfinite(arrays["t_s"])):
+        raise MapfilterError("radio map has non-finite scan times", path)
+    low, high = (np.nanmin(rssi), np.nanmax(rssi)) if rssi.size and not np.isnan(rssi).all() else (0.0, 0.0)
+    if np.isinf(low) or np.isinf(high) or not (RSSI_RANGE_DBM[0] <= low and high <= RSSI_RANGE_DBM[1]):
+        raise MapfilterError(f"radio map has RSSI from {low:g} to {high:g} dBm, outside the "
+                             f"{RSSI_RANGE_DBM[0]:g} to {RSSI_RANGE_DBM[1]:g} dBm a phone reports", path)
+    if p and (arrays["trace"].min() < 0 or arrays["trace"].max() >= len(arrays["source_traces"])):
+        raise MapfilterError("radio map trace indices out of range", path)
+    return p
+
+
+def _floor_labels(arrays: dict[str, np.ndarray], version: int, p: int,
+                  path: Path) -> tuple[np.ndarray | None, list[str] | None]:
+    """(each point's floor index, the floor names) of a radio map with floors, else (None, None)."""
+    if not (version == 3 or (version >= GROWN_FORMAT_VERSION and ("floor" in arrays or "floor_names" in arrays))):
+        return None, None
+    if "floor" not in arrays or "floor_names" not in arrays:
+        raise MapfilterError(f"a version {version} radio map with floors needs the arrays floor and "
+                             "floor_names", path)
+    point_floor, floor_names = arrays["floor"], [str(n) for n in arrays["floor_names"]]
+    if point_floor.shape != (p,) or (p and (point_floor.min() < 0 or point_floor.max() >= len(floor_names))):
+        raise MapfilterError("radio map floor labels out of range", path)
+    return point_floor, floor_names
+
+
+def _grown_labels(arrays: dict[str, np.ndarray], version: int, p: int,
+                  path: Path) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(each point's source, SURVEYED or GROWN, and position sigma) of a grown radio map's
+    format, else (None, None)."""
+    if version < GROWN_FORMAT_VERSION:
+        return None, None
+    if "source" not in arrays or "xy_sigma_m" not in arrays:
+        raise MapfilterError(f"a version {version} radio map needs the arrays source and xy_sigma_m", path)
+    source, xy_sigma = arrays["source"], arrays["xy_sigma_m"]
+    if source.shape != (p,) or xy_sigma.shape != (p,):
+        raise MapfilterError(f"radio map source {source.shape} / xy_sigma_m {xy_sigma.shape} do not have "
+                             f"one entry per point ({p})", path)
+    if not np.all(np.isin(source, (SURVEYED, GROWN))):
+        raise MapfilterError(f"radio map source codes must be {SURVEYED} (surveyed) or {GROWN} (grown)", path)
+    if not (np.all(np.isfinite(xy_sigma)) and np.all(xy_sigma >= 0)):
+        raise MapfilterError("radio map xy_sigma_m must be finite and >= 0", path)
+    return source, xy_sigma
+
+
+def _restore_match_distances(radio_map: RadioMap, arrays: dict[str, np.ndarray], path: Path) -> None:
+    """The survey's match distances the file stored, when they were made with this release's
+    parameters (else they are computed again when asked for)."""
+    inside, outside = arrays.get("survey_inside_match_db"), arrays.get("survey_outside_match_db")
+    match_params = arrays.get("survey_match_params")
+    if inside is not None and outside is not None and match_params is not None \
+            and np.array_equal(match_params, _survey_match_params()):
+        if not (np.all(np.isfinite(inside)) and np.all(np.isfinite(outside))):
+            raise MapfilterError("radio map has malformed survey_inside_match_db / survey_outside_match_db", path)
+        memo_of(radio_map)["match distances"] = (np.sort(inside.astype(np.float64)),
+                                                 np.sort(outside.astype(np.float64)))
+
+
+def _restore_cv_errors(radio_map: RadioMap, arrays: dict[str, np.ndarray], version: int,
+                       point_floor: np.ndarray | None, floor_names: list[str] | None, path: Path) -> None:
+    """The cross-validated fix errors the file stored (per floor in a radio map with floors)."""
+    cv_errors, cv_params = arrays.get("cv_fix_errors_m"), arrays.get("cv_fix_errors_params")
+    if not (version >= 2 and cv_errors is not None and cv_params is not None):
+        return
+    if (cv_errors.ndim != 1 or cv_params.shape != (3,) or not np.all(np.isfinite(cv_errors))
+            or not np.all(np.isfinite(cv_params))):
+        raise MapfilterError("radio map has malformed cv_fix_errors_m / cv_fix_errors_params", path)
+    params = (int(cv_params[0]), int(cv_params[1]), float(cv_params[2]))
+    if point_floor is None:
+        _cv_memo(radio_map)[params] = cv_errors.astype(np.float64)
+    elif params == _STORED_CV_PARAMS:
+        of_floor = arrays.get("cv_fix_errors_floor")
+        if of_floor is None or of_floor.shape != cv_errors.shape:
+            raise MapfilterError("radio map has malformed cv_fix_errors_floor", path)
+        radio_map._floor_cv_errors = {i: cv_errors[of_floor == i].astype(np.float64)
+                                      for i in range(len(floor_names))}
 
 
 # ---- where a radio map meets a map -------------------------------------------------------------

@@ -40,9 +40,12 @@ from mapfilter.simulate.walk import (
     _build_route_graph,
     _cut_into_steps,
     _imu,
+    _scan_times,
     _shortest_path,
+    _step_and_sensor_fields,
     _string_pull,
     _wifi,
+    _xy_at,
 )
 
 SEA_LEVEL_HPA = 1013.25
@@ -152,6 +155,150 @@ class _Plan:
     changes: list = dataclasses.field(default_factory=list)  # (t_start, t_switch, t_end, from, to, kind)
 
 
+class _BuildingWalker:
+    """The walker's plan as it is made: where they are (floor, route-graph node), and the
+    waypoints, steps and elevation knots so far, in the building frame."""
+
+    def __init__(self, building: Building, start_floor: str, config: BuildingSimConfig, rng: np.random.Generator):
+        self.building, self.config, self.walk_cfg, self.rng = building, config, config.walk, rng
+        self.graphs = [_build_route_graph(f.plan, self.walk_cfg) for f in building.floors]
+        self.members = [np.nonzero(g.component == g.main)[0] for g in self.graphs]
+        self.floor = building.floor_index(start_floor)
+        self.step_m = max(0.3, self.walk_cfg.step_length_m + self.walk_cfg.step_length_sigma_m * rng.standard_normal())
+        self.plan = _Plan()
+        self.current = int(rng.choice(self.members[self.floor]))
+        self.elevation = [f.elevation_m for f in building.floors]
+        self.waypoint(0.0, self.floor, self.here_b(self.floor, self.current))
+        self.plan.elev_t.append(0.0)
+        self.plan.elev_m.append(self.elevation[self.floor])
+
+    def here_b(self, f: int, node) -> np.ndarray:
+        """Route-graph node(s) of floor f in the building frame."""
+        return self.building.floors[f].to_building(self.graphs[f].xy_m[node])
+
+    def waypoint(self, t: float, f: int, xy_b: np.ndarray) -> None:
+        self.plan.wp_t.append(t)
+        self.plan.wp_floor.append(f)
+        self.plan.wp_xy_b.append(np.asarray(xy_b, dtype=np.float64))
+
+    def step(self, t0: float, t1: float, a_b: np.ndarray, b_b: np.ndarray, f: int) -> None:
+        self.plan.step_start.append(t0)
+        self.plan.step_end.append(t1)
+        self.plan.step_xy0.append(a_b)
+        self.plan.step_xy1.append(b_b)
+        self.waypoint(t1, f, b_b)
+
+    def elevation_knots(self, t: list[float], elevation_m: list[float]) -> None:
+        self.plan.elev_t += t
+        self.plan.elev_m += elevation_m
+
+    def walk_to(self, goal: int, t: float) -> float:
+        """Walk the route to node ``goal`` of the current floor, step by step; the time of arrival."""
+        if goal == self.current:
+            return t
+        fl, graph = self.building.floors[self.floor], self.graphs[self.floor]
+        nodes = _shortest_path(graph, self.current, goal)
+        polyline = _string_pull(fl.plan, graph, nodes, self.walk_cfg.preferred_clearance_m)
+        feet, leg_step_m = _cut_into_steps(fl.plan, polyline, self.step_m, self.rng)
+        dt = leg_step_m / self.rng.uniform(*self.walk_cfg.speed_mps)
+        feet_b = fl.to_building(feet)
+        for k in range(1, feet.shape[0]):
+            self.step(t, t + dt, feet_b[k - 1], feet_b[k], self.floor)
+            t += dt
+        self.current = goal
+        return t
+
+    def wander(self, t: float, until: float) -> float:
+        """Walk to random goals on the current floor (pausing at each) until ``until``."""
+        members = self.members[self.floor]
+        while t < until:
+            g = self.graphs[self.floor]
+            far = members[np.linalg.norm(g.xy_m[members] - g.xy_m[self.current], axis=1)
+                          >= self.walk_cfg.min_goal_distance_m]
+            t = self.walk_to(int(self.rng.choice(far if far.size else members)), t)
+            t += self.rng.uniform(*self.walk_cfg.pause_s)
+            self.waypoint(t, self.floor, self.here_b(self.floor, self.current))
+        return t
+
+    def nodes_inside(self, f: int, polygon) -> np.ndarray:
+        g, members = self.graphs[f], self.members[f]
+        inside = shapely.contains_xy(polygon, g.xy_m[members, 0], g.xy_m[members, 1])
+        return members[inside]
+
+    def take(self, change: FloorChange, t: float) -> float:
+        """Wander, walk into the connector and take it to the change's floor; the time it is done."""
+        building, config = self.building, self.config
+        connector = next((c for c in building.connectors if c.name == change.connector), None)
+        if connector is None:
+            raise MapfilterError(f"the building has no connector {change.connector!r}", building.path)
+        here_name = building.floors[self.floor].name
+        dest = building.floor_index(change.to_floor)
+        if here_name not in connector.polygons or change.to_floor not in connector.polygons or dest == self.floor:
+            raise MapfilterError(f"connector {connector.name!r} does not link {here_name} to {change.to_floor}",
+                                 building.path)
+        t = self.wander(t, t + self.rng.uniform(*config.segment_s))
+        entries = self.nodes_inside(self.floor, connector.polygons[here_name])
+        exits = self.nodes_inside(dest, connector.polygons[change.to_floor])
+        if entries.size == 0 or exits.size == 0:
+            raise MapfilterError(f"connector {connector.name!r} has no room to walk in on {here_name} or "
+                                 f"{change.to_floor}", building.path)
+        xy_m = self.graphs[self.floor].xy_m
+        entry = int(entries[np.argmin(np.linalg.norm(xy_m[entries] - xy_m[self.current], axis=1))])
+        t_enter = t = self.walk_to(entry, t)
+        if connector.kind == "lift":
+            t, t_switch, exit_node = self.ride_lift(t, entry, dest, exits)
+        else:
+            t, t_switch, exit_node = self.climb_stairs(t, entry, dest, exits, connector.name)
+        self.plan.changes.append((t_enter, t_switch, t, self.floor, dest, connector.kind))
+        self.floor = dest
+        self.current = exit_node
+        self.elevation_knots([t], [self.elevation[dest]])
+        return t
+
+    def ride_lift(self, t: float, entry: int, dest: int, exits: np.ndarray) -> tuple[float, float, int]:
+        """Wait in the lift at node ``entry``, ride to floor ``dest``, step out to the exit
+        nearest; (time done, time the floor switches, exit node)."""
+        config, entry_b = self.config, self.here_b(self.floor, entry)
+        rise = self.elevation[dest] - self.elevation[self.floor]
+        exit_node = int(exits[np.argmin(np.linalg.norm(self.here_b(dest, exits) - entry_b, axis=1))])
+        t += self.rng.uniform(*config.lift_wait_s)
+        ride = config.lift_s_per_storey * abs(rise) / max(self.building.storey_height_m or 4.0, 1e-9)
+        self.elevation_knots([t, t + ride], [self.elevation[self.floor], self.elevation[dest]])
+        t_switch = t + ride / 2
+        self.waypoint(t_switch - 1e-3, self.floor, entry_b)
+        self.waypoint(t_switch, dest, entry_b)
+        t += ride + config.lift_exit_s
+        self.waypoint(t, dest, entry_b)
+        exit_b = self.here_b(dest, exit_node)
+        if np.linalg.norm(exit_b - entry_b) > 0.05:  # step out onto the destination floor's grid
+            self.step(t, t + self.walk_cfg.step_length_m / 1.2, entry_b, exit_b, dest)
+            t += self.walk_cfg.step_length_m / 1.2
+        return t, t_switch, exit_node
+
+    def climb_stairs(self, t: float, entry: int, dest: int, exits: np.ndarray,
+                     name: str) -> tuple[float, float, int]:
+        """Walk across the stairs from node ``entry`` to the far end of the polygon on floor
+        ``dest``, one step per stair; (time done, time the floor switches, exit node)."""
+        building, config, entry_b = self.building, self.config, self.here_b(self.floor, entry)
+        rise = self.elevation[dest] - self.elevation[self.floor]
+        far = np.linalg.norm(self.here_b(dest, exits) - entry_b, axis=1)
+        exit_node = int(exits[np.argmax(far)])
+        exit_b = self.here_b(dest, exit_node)
+        n_steps = max(2, int(math.ceil(abs(rise) / config.stair_rise_m)))
+        path = entry_b + np.linspace(0.0, 1.0, n_steps + 1)[:, None] * (exit_b - entry_b)
+        for fl in (building.floors[self.floor], building.floors[dest]):
+            local = fl.from_building(path)
+            if crosses_wall(fl.plan, local[:-1], local[1:]).any():
+                raise MapfilterError(f"connector {name!r}: the straight way across the stairs meets a "
+                                     f"wall on floor {fl.name}", building.path)
+        self.elevation_knots([t, t + n_steps * config.stair_step_s], [self.elevation[self.floor], self.elevation[dest]])
+        t_switch = t + (n_steps // 2) * config.stair_step_s
+        for k in range(1, n_steps + 1):  # the floor changes after the middle step
+            self.step(t, t + config.stair_step_s, path[k - 1], path[k], dest if k > n_steps // 2 else self.floor)
+            t += config.stair_step_s
+        return t, t_switch, exit_node
+
+
 def simulate_building_walk(building: Building, ap_tables: dict[str, AccessPointTable], start_floor: str,
                            changes: list[FloorChange], config: BuildingSimConfig, rng: np.random.Generator,
                            site_id: str = "mapfilter-sim") -> tuple[SimulatedWalk, list[tuple]]:
@@ -162,133 +309,15 @@ def simulate_building_walk(building: Building, ap_tables: dict[str, AccessPointT
     (t_enter_s, t_switch_s, t_leave_s, from_floor, to_floor, kind) in Unix seconds, where the
     ground truth's floor switches at ``t_switch_s``.
     """
-    walk_cfg = config.walk
-    walk_cfg.validate()
+    config.walk.validate()
     config.validate(len(changes))
-    graphs = [_build_route_graph(f.plan, walk_cfg) for f in building.floors]
-    members = [np.nonzero(g.component == g.main)[0] for g in graphs]
-    floor = building.floor_index(start_floor)
-    step_m = max(0.3, walk_cfg.step_length_m + walk_cfg.step_length_sigma_m * rng.standard_normal())
-    plan = _Plan()
-    current = int(rng.choice(members[floor]))
-    elevation = [f.elevation_m for f in building.floors]
-
-    def here_b(f: int, node: int) -> np.ndarray:
-        return building.floors[f].to_building(graphs[f].xy_m[node])
-
-    def waypoint(t: float, f: int, xy_b: np.ndarray) -> None:
-        plan.wp_t.append(t)
-        plan.wp_floor.append(f)
-        plan.wp_xy_b.append(np.asarray(xy_b, dtype=np.float64))
-
-    def step(t0: float, t1: float, a_b: np.ndarray, b_b: np.ndarray, f: int) -> None:
-        plan.step_start.append(t0)
-        plan.step_end.append(t1)
-        plan.step_xy0.append(a_b)
-        plan.step_xy1.append(b_b)
-        waypoint(t1, f, b_b)
-
-    t = walk_cfg.initial_still_s
-    waypoint(0.0, floor, here_b(floor, current))
-    plan.elev_t.append(0.0)
-    plan.elev_m.append(elevation[floor])
-
-    def walk_to(goal: int, t: float) -> float:
-        nonlocal current
-        if goal == current:
-            return t
-        fl = building.floors[floor]
-        nodes = _shortest_path(graphs[floor], current, goal)
-        polyline = _string_pull(fl.plan, graphs[floor], nodes, walk_cfg.preferred_clearance_m)
-        feet, leg_step_m = _cut_into_steps(fl.plan, polyline, step_m, rng)
-        dt = leg_step_m / rng.uniform(*walk_cfg.speed_mps)
-        feet_b = fl.to_building(feet)
-        for k in range(1, feet.shape[0]):
-            step(t, t + dt, feet_b[k - 1], feet_b[k], floor)
-            t += dt
-        current = goal
-        return t
-
-    def wander(t: float, until: float) -> float:
-        while t < until:
-            g = graphs[floor]
-            far = members[floor][np.linalg.norm(g.xy_m[members[floor]] - g.xy_m[current], axis=1)
-                                 >= walk_cfg.min_goal_distance_m]
-            t = walk_to(int(rng.choice(far if far.size else members[floor])), t)
-            t += rng.uniform(*walk_cfg.pause_s)
-            waypoint(t, floor, here_b(floor, current))
-        return t
-
-    def nodes_inside(f: int, polygon) -> np.ndarray:
-        g = graphs[f]
-        inside = shapely.contains_xy(polygon, g.xy_m[members[f], 0], g.xy_m[members[f], 1])
-        return members[f][inside]
-
+    walker = _BuildingWalker(building, start_floor, config, rng)
+    t = config.walk.initial_still_s
     for change in changes:
-        connector = next((c for c in building.connectors if c.name == change.connector), None)
-        if connector is None:
-            raise MapfilterError(f"the building has no connector {change.connector!r}", building.path)
-        here_name = building.floors[floor].name
-        dest = building.floor_index(change.to_floor)
-        if here_name not in connector.polygons or change.to_floor not in connector.polygons or dest == floor:
-            raise MapfilterError(f"connector {connector.name!r} does not link {here_name} to {change.to_floor}",
-                                 building.path)
-        t = wander(t, t + rng.uniform(*config.segment_s))
-        entries = nodes_inside(floor, connector.polygons[here_name])
-        exits = nodes_inside(dest, connector.polygons[change.to_floor])
-        if entries.size == 0 or exits.size == 0:
-            raise MapfilterError(f"connector {connector.name!r} has no room to walk in on {here_name} or "
-                                 f"{change.to_floor}", building.path)
-        entry = int(entries[np.argmin(np.linalg.norm(graphs[floor].xy_m[entries] - graphs[floor].xy_m[current],
-                                                     axis=1))])
-        t = walk_to(entry, t)
-        t_enter = t
-        entry_b = here_b(floor, entry)
-        rise = elevation[dest] - elevation[floor]
-        if connector.kind == "lift":
-            exit_node = int(exits[np.argmin(np.linalg.norm(here_b(dest, exits) - entry_b, axis=1))])
-            t += rng.uniform(*config.lift_wait_s)
-            ride = config.lift_s_per_storey * abs(rise) / max(building.storey_height_m or 4.0, 1e-9)
-            plan.elev_t += [t, t + ride]
-            plan.elev_m += [elevation[floor], elevation[dest]]
-            t_switch = t + ride / 2
-            waypoint(t_switch - 1e-3, floor, entry_b)
-            waypoint(t_switch, dest, entry_b)
-            t += ride + config.lift_exit_s
-            waypoint(t, dest, entry_b)
-            exit_b = here_b(dest, exit_node)
-            if np.linalg.norm(exit_b - entry_b) > 0.05:  # step out onto the destination floor's grid
-                step(t, t + walk_cfg.step_length_m / 1.2, entry_b, exit_b, dest)
-                t += walk_cfg.step_length_m / 1.2
-        else:
-            # across the stairs: to the far end of the polygon on the destination floor
-            far = np.linalg.norm(here_b(dest, exits) - entry_b, axis=1)
-            exit_node = int(exits[np.argmax(far)])
-            exit_b = here_b(dest, exit_node)
-            n_steps = max(2, int(math.ceil(abs(rise) / config.stair_rise_m)))
-            path = entry_b + np.linspace(0.0, 1.0, n_steps + 1)[:, None] * (exit_b - entry_b)
-            here_fl, dest_fl = building.floors[floor], building.floors[dest]
-            for fl in (here_fl, dest_fl):
-                local = fl.from_building(path)
-                if crosses_wall(fl.plan, local[:-1], local[1:]).any():
-                    raise MapfilterError(f"connector {connector.name!r}: the straight way across the stairs meets a "
-                                         f"wall on floor {fl.name}", building.path)
-            plan.elev_t += [t, t + n_steps * config.stair_step_s]
-            plan.elev_m += [elevation[floor], elevation[dest]]
-            t_switch = t + (n_steps // 2) * config.stair_step_s
-            for k in range(1, n_steps + 1):  # the floor changes after the middle step
-                step(t, t + config.stair_step_s, path[k - 1], path[k], dest if k > n_steps // 2 else floor)
-                t += config.stair_step_s
-        plan.changes.append((t_enter, t_switch, t, floor, dest, connector.kind))
-        floor = dest
-        current = exit_node
-        plan.elev_t.append(t)
-        plan.elev_m.append(elevation[floor])
-    t = wander(t, t + rng.uniform(*config.segment_s))
-    end_t = t
-    plan.elev_t.append(end_t)
-    plan.elev_m.append(elevation[floor])
-    return _sensors(building, ap_tables, plan, end_t, config, rng, site_id)
+        t = walker.take(change, t)
+    t = walker.wander(t, t + rng.uniform(*config.segment_s))
+    walker.elevation_knots([t], [walker.elevation[walker.floor]])
+    return _sensors(building, ap_tables, walker.plan, t, config, rng, site_id)
 
 
 def _sensors(building: Building, ap_tables: dict[str, AccessPointTable], plan: _Plan, end_t: float,
@@ -304,9 +333,7 @@ def _sensors(building: Building, ap_tables: dict[str, AccessPointTable], plan: _
     xy0 = np.array(plan.step_xy0).reshape(-1, 2)
     xy1 = np.array(plan.step_xy1).reshape(-1, 2)
     imu = _imu(step_start, step_end, xy0, xy1, end_t, walk_cfg, rng)
-    gaps = rng.uniform(*walk_cfg.scan_interval_s, size=int(end_t / walk_cfg.scan_interval_s[0]) + 2)
-    scan_t = np.cumsum(gaps)
-    scan_t = scan_t[scan_t <= end_t]
+    scan_t = _scan_times(end_t, walk_cfg, rng)
     elev_t, elev_m = np.array(plan.elev_t), np.array(plan.elev_m)
     order_e = np.argsort(elev_t, kind="stable")
     elev_t, elev_m = elev_t[order_e], elev_m[order_e]
@@ -316,7 +343,7 @@ def _sensors(building: Building, ap_tables: dict[str, AccessPointTable], plan: _
         return wp_floor[np.clip(np.searchsorted(wp_t, t_rel, side="right") - 1, 0, wp_t.size - 1)]
 
     def position_at(t_rel: np.ndarray) -> np.ndarray:
-        return np.stack([np.interp(t_rel, wp_t, wp_b[:, 0]), np.interp(t_rel, wp_t, wp_b[:, 1])], axis=-1)
+        return _xy_at(t_rel, wp_t, wp_b)
 
     def rssi_at(seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return building_rssi_dbm(building, ap_table, ap_floor, np.arange(len(ap_table)), floor_at(seen),
@@ -335,17 +362,9 @@ def _sensors(building: Building, ap_tables: dict[str, AccessPointTable], plan: _
     t0 = walk_cfg.start_time_ms / 1000.0
     walk = SimulatedWalk(
         floor_name=names[wp_floor[0]], site_id=site_id, start_t_s=t0, end_t_s=t0 + end_t,
-        waypoint_t_s=t0 + wp_t, waypoint_xy_m=wp_local,
-        step_start_t_s=t0 + step_start, step_end_t_s=t0 + step_end, step_length_m=np.linalg.norm(xy1 - xy0, axis=1),
-        heading_t_s=t0 + imu["t_nominal"], heading_rad=imu["heading"], reference_xy_m=np.zeros((0, 2)),
-        acc_t_s=t0 + imu["acc_t"], acc_mps2=imu["acc"], gyro_t_s=t0 + imu["gyro_t"], gyro_radps=imu["gyro"],
-        magnet_t_s=t0 + imu["magnet_t"], magnet_ut=imu["magnet"],
-        rotvec_t_s=t0 + imu["rotvec_t"], rotvec_xyz=imu["rotvec"], gyro_bias_radps=imu["gyro_bias"],
-        ap_bssid=list(ap_table.bssid), ap_band=list(ap_table.band), ap_freq_mhz=wifi["freq"],
-        scan_t_s=t0 + scan_t, row_scan=wifi["row_scan"], row_ap=wifi["row_ap"], rssi_dbm=wifi["rssi"],
-        seen_t_s=t0 + wifi["seen"], stale=wifi["stale"], expected_rssi_dbm=wifi["expected"],
-        walls_crossed=wifi["walls"], waypoint_floor=[names[f] for f in wp_floor],
-        pressure_t_s=t0 + p_t, pressure_hpa=p_hpa,
+        waypoint_t_s=t0 + wp_t, waypoint_xy_m=wp_local, reference_xy_m=np.zeros((0, 2)),
+        waypoint_floor=[names[f] for f in wp_floor], pressure_t_s=t0 + p_t, pressure_hpa=p_hpa,
+        **_step_and_sensor_fields(t0, step_start, step_end, xy0, xy1, imu, ap_table, scan_t, wifi),
     )
     changes = [(t0 + a, t0 + s, t0 + b, names[f], names[g], kind) for a, s, b, f, g, kind in plan.changes]
     return walk, changes

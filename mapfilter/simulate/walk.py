@@ -428,23 +428,8 @@ def _plan(floorplan: FloorPlan, config: SimConfig, rng: np.random.Generator) -> 
     tl.waypoint_xy.append(graph.xy_m[current])
     t = config.initial_still_s
     limit = math.inf if config.duration_s is None else float(config.duration_s)
-
-    if config.survey:
-        # reference points: grid nodes on a lattice of survey_spacing_m (Evennou & Marx: a
-        # fingerprint every 2 m), visited nearest-first along the walking routes.
-        every = max(1, int(round(config.survey_spacing_m / (graph.stride_px * floorplan.resolution_m))))
-        on_lattice = (graph.rc[members, 0] % every == 0) & (graph.rc[members, 1] % every == 0)
-        todo = set(members[on_lattice].tolist())
-        if not todo:
-            raise MapfilterError("no survey reference point fits the map: lower the survey spacing")
-        if len(todo) > MAX_SURVEY_POINTS:
-            raise MapfilterError(f"a survey at {config.survey_spacing_m:g} m spacing has {len(todo)} reference points "
-                                 f"here, more than {MAX_SURVEY_POINTS}: raise the survey spacing")
-        reference = []
-    else:
-        todo = set()
-        reference = []
-
+    todo = _survey_points(floorplan, graph, members, config) if config.survey else set()
+    reference = []
     while t < limit:
         dist, pred = dijkstra(graph.graph, indices=current, return_predecessors=True)
         if config.survey:
@@ -457,34 +442,14 @@ def _plan(floorplan: FloorPlan, config: SimConfig, rng: np.random.Generator) -> 
             far = members[np.linalg.norm(graph.xy_m[members] - graph.xy_m[current], axis=1) >= config.min_goal_distance_m]
             goal = int(rng.choice(far if far.size else members))
         if goal != current:
-            nodes = _shortest_path(graph, current, goal, pred)
-            polyline = _string_pull(floorplan, graph, nodes, config.preferred_clearance_m)
-            feet, leg_step_m = _cut_into_steps(floorplan, polyline, step_m, rng)
-            speed = rng.uniform(*config.speed_mps)
-            dt = leg_step_m / speed  # cadence is steady within a leg; a short corner step is slower
-            for k in range(1, feet.shape[0]):
-                tl.step_start.append(t)
-                tl.step_xy0.append(feet[k - 1])
-                t += dt
-                tl.step_end.append(t)
-                tl.step_xy1.append(feet[k])
-                tl.waypoint_t.append(t)
-                tl.waypoint_xy.append(feet[k])
+            t = _walk_leg(floorplan, graph, tl, current, goal, pred, step_m, t, config, rng)
         current = goal
         if config.survey and t > MAX_DURATION_S:  # a walk stops at its duration
             raise MapfilterError(f"the survey would last more than {MAX_DURATION_S / 3600:g} h: raise the survey "
                                  "spacing or lower the scans per point")
         if config.survey:
             reference.append(graph.xy_m[goal])
-            # stand still and scan; a waypoint at each scan labels it for the radio map
-            t += config.fresh_age_s[1] + 0.1  # so the first scan's fresh rows are measured here
-            for i_scan in range(config.survey_scans_per_point):
-                if i_scan:
-                    t += rng.uniform(*config.scan_interval_s)
-                tl.survey_scan_t.append(t)
-                tl.waypoint_t.append(t)
-                tl.waypoint_xy.append(graph.xy_m[goal])
-            t += 0.5
+            t = _survey_scans(tl, graph.xy_m[goal], t, config, rng)
         else:
             t += rng.uniform(*config.pause_s)
         # the walker leaves the goal now: a waypoint pins the standing time
@@ -494,6 +459,53 @@ def _plan(floorplan: FloorPlan, config: SimConfig, rng: np.random.Generator) -> 
     return tl, np.asarray(reference).reshape(-1, 2), end_t
 
 
+def _survey_points(floorplan: FloorPlan, graph, members: np.ndarray, config: SimConfig) -> set[int]:
+    """The survey's reference points: grid nodes on a lattice of survey_spacing_m (Evennou &
+    Marx: a fingerprint every 2 m), to be visited nearest-first along the walking routes."""
+    every = max(1, int(round(config.survey_spacing_m / (graph.stride_px * floorplan.resolution_m))))
+    on_lattice = (graph.rc[members, 0] % every == 0) & (graph.rc[members, 1] % every == 0)
+    todo = set(members[on_lattice].tolist())
+    if not todo:
+        raise MapfilterError("no survey reference point fits the map: lower the survey spacing")
+    if len(todo) > MAX_SURVEY_POINTS:
+        raise MapfilterError(f"a survey at {config.survey_spacing_m:g} m spacing has {len(todo)} reference points "
+                             f"here, more than {MAX_SURVEY_POINTS}: raise the survey spacing")
+    return todo
+
+
+def _walk_leg(floorplan: FloorPlan, graph, tl: _Timeline, current: int, goal: int, pred: np.ndarray, step_m: float,
+              t: float, config: SimConfig, rng: np.random.Generator) -> float:
+    """Walk the route from node ``current`` to ``goal`` step by step (steps and waypoints into
+    ``tl``); the time of arrival."""
+    nodes = _shortest_path(graph, current, goal, pred)
+    polyline = _string_pull(floorplan, graph, nodes, config.preferred_clearance_m)
+    feet, leg_step_m = _cut_into_steps(floorplan, polyline, step_m, rng)
+    speed = rng.uniform(*config.speed_mps)
+    dt = leg_step_m / speed  # cadence is steady within a leg; a short corner step is slower
+    for k in range(1, feet.shape[0]):
+        tl.step_start.append(t)
+        tl.step_xy0.append(feet[k - 1])
+        t += dt
+        tl.step_end.append(t)
+        tl.step_xy1.append(feet[k])
+        tl.waypoint_t.append(t)
+        tl.waypoint_xy.append(feet[k])
+    return t
+
+
+def _survey_scans(tl: _Timeline, xy_m: np.ndarray, t: float, config: SimConfig, rng: np.random.Generator) -> float:
+    """Stand still at a reference point and scan; a waypoint at each scan labels it for the radio
+    map. The time the walker leaves."""
+    t += config.fresh_age_s[1] + 0.1  # so the first scan's fresh rows are measured here
+    for i_scan in range(config.survey_scans_per_point):
+        if i_scan:
+            t += rng.uniform(*config.scan_interval_s)
+        tl.survey_scan_t.append(t)
+        tl.waypoint_t.append(t)
+        tl.waypoint_xy.append(xy_m)
+    return t + 0.5
+
+
 # ---------------------------------------------------------------------------------------
 # sensors
 # ---------------------------------------------------------------------------------------
@@ -501,29 +513,46 @@ def _imu(tl_start: np.ndarray, tl_end: np.ndarray, xy0: np.ndarray, xy1: np.ndar
          config: SimConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
     dt_s = 1.0 / config.imu_rate_hz
     t = np.arange(0.0, end_t, dt_s)
-    m = t.shape[0]
-    k = tl_start.shape[0]
-    # --- heading: step chord directions, unwrapped, held during pauses, smoothed
-    if k:
-        chord = xy1 - xy0
-        heading_steps = np.unwrap(np.arctan2(chord[:, 1], chord[:, 0]))
-        # knots at mid-step: a turn between two steps takes about one step period
-        knot_t = list(0.5 * (tl_start + tl_end))
-        knot_h = list(heading_steps)
-        # after a pause the walker turns on the spot just before setting off, not all along
-        for i in np.nonzero(tl_start[1:] > tl_end[:-1] + 1e-6)[0]:
-            knot_t.append(max(tl_end[i], tl_start[i + 1] - config.turn_on_spot_s))
-            knot_h.append(heading_steps[i])
-        order = np.argsort(knot_t, kind="stable")
-        heading = np.interp(t, np.asarray(knot_t)[order], np.asarray(knot_h)[order])
-    else:
-        heading = np.zeros(m)
+    heading = _step_heading(t, tl_start, tl_end, xy0, xy1, config)
     heading = gaussian_filter1d(heading, config.heading_smoothing_s / dt_s, mode="nearest")
     yaw_rate = np.gradient(heading, dt_s)
-    # --- step bumps: the body bobs once per step, vertical acceleration -A cos(2 pi s) with s the
-    # phase within the step (peak +A mid-step, zero mean over a step). The first half of the first
-    # step of a bout and the last half of its last step are faded in/out with sin^2(pi s), so
-    # standing is exactly still and every step, even a lone one, has its single peak.
+    vert, fwd = _step_bumps(t, tl_start, tl_end, config, rng)
+    sensors, gyro_bias = _phone_sensors(heading, yaw_rate, vert, fwd, config, rng)
+    t_rep, stalled = _reported_times(t, end_t, config, rng)
+    out: dict[str, np.ndarray] = {"t_nominal": t, "heading": heading, "gyro_bias": gyro_bias}
+    for name, values in sensors:
+        keep = (rng.random(t.shape[0]) >= config.drop_probability) & ~stalled
+        out[name + "_t"] = t_rep[keep]
+        out[name] = values[keep]
+    return out
+
+
+def _step_heading(t: np.ndarray, tl_start: np.ndarray, tl_end: np.ndarray, xy0: np.ndarray, xy1: np.ndarray,
+                  config: SimConfig) -> np.ndarray:
+    """The walking heading at times t: step chord directions, unwrapped, held during pauses."""
+    if not tl_start.shape[0]:
+        return np.zeros(t.shape[0])
+    chord = xy1 - xy0
+    heading_steps = np.unwrap(np.arctan2(chord[:, 1], chord[:, 0]))
+    # knots at mid-step: a turn between two steps takes about one step period
+    knot_t = list(0.5 * (tl_start + tl_end))
+    knot_h = list(heading_steps)
+    # after a pause the walker turns on the spot just before setting off, not all along
+    for i in np.nonzero(tl_start[1:] > tl_end[:-1] + 1e-6)[0]:
+        knot_t.append(max(tl_end[i], tl_start[i + 1] - config.turn_on_spot_s))
+        knot_h.append(heading_steps[i])
+    order = np.argsort(knot_t, kind="stable")
+    return np.interp(t, np.asarray(knot_t)[order], np.asarray(knot_h)[order])
+
+
+def _step_bumps(t: np.ndarray, tl_start: np.ndarray, tl_end: np.ndarray, config: SimConfig,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(vertical, forward) acceleration of the steps at times t. The body bobs once per step,
+    vertical acceleration -A cos(2 pi s) with s the phase within the step (peak +A mid-step, zero
+    mean over a step). The first half of the first step of a bout and the last half of its last
+    step are faded in/out with sin^2(pi s), so standing is exactly still and every step, even a
+    lone one, has its single peak."""
+    m, k = t.shape[0], tl_start.shape[0]
     vert = np.zeros(m)
     fwd = np.zeros(m)
     if k:
@@ -541,7 +570,15 @@ def _imu(tl_start: np.ndarray, tl_end: np.ndarray, xy0: np.ndarray, xy1: np.ndar
         amp = np.interp(t[inside], 0.5 * (tl_start + tl_end), amp_steps)
         vert[inside] = -amp * np.cos(2 * np.pi * s) * taper
         fwd[inside] = config.forward_sway_mps2 * np.sin(2 * np.pi * s) * taper
-    # --- phone orientation: device->world R = Rz(yaw) Rx(pitch) Ry(roll); device +y is forward,
+    return vert, fwd
+
+
+def _phone_sensors(heading: np.ndarray, yaw_rate: np.ndarray, vert: np.ndarray, fwd: np.ndarray, config: SimConfig,
+                   rng: np.random.Generator) -> tuple[list[tuple[str, np.ndarray]], np.ndarray]:
+    """What the tilted phone's accelerometer, magnetometer, gyroscope and rotation vector read at
+    each sample (with bias and noise), and the gyroscope's bias."""
+    m = heading.shape[0]
+    # phone orientation: device->world R = Rz(yaw) Rx(pitch) Ry(roll); device +y is forward,
     # so yaw = heading - pi/2 (Android azimuth = pi/2 - heading).
     pitch = math.radians(config.tilt_deg[0] + config.tilt_deg[1] * rng.standard_normal())
     roll = math.radians(config.tilt_deg[1] * rng.standard_normal())
@@ -563,7 +600,14 @@ def _imu(tl_start: np.ndarray, tl_end: np.ndarray, xy0: np.ndarray, xy1: np.ndar
     rot_est = Rotation.from_euler("ZXY", np.column_stack([yaw + azimuth_err, np.full(m, pitch), np.full(m, roll)]))
     quat = rot_est.as_quat()  # x, y, z, w
     quat[quat[:, 3] < 0] *= -1.0  # Android's rotation vector keeps w >= 0 (it writes only x, y, z)
-    # --- reported timestamps: jitter, kept strictly increasing; samples dropped per sensor
+    return [("acc", acc), ("magnet", magnet), ("gyro", gyro), ("rotvec", quat[:, :3])], gyro_bias
+
+
+def _reported_times(t: np.ndarray, end_t: float, config: SimConfig,
+                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(the samples' reported times: jittered, kept strictly increasing; the samples in a stall,
+    where no sensor reports)."""
+    m = t.shape[0]
     t_rep = t + config.timestamp_jitter_ms * 1e-3 * rng.standard_normal(m)
     t_rep = np.maximum.accumulate(np.round(t_rep * 1000.0)) / 1000.0
     stalled = np.zeros(m, bool)
@@ -572,12 +616,7 @@ def _imu(tl_start: np.ndarray, tl_end: np.ndarray, xy0: np.ndarray, xy1: np.ndar
     gap_end = gap_start + rng.uniform(*config.gap_s, size=n_gaps)
     for a, b in zip(gap_start, gap_end):
         stalled |= (t >= a) & (t < b)
-    out: dict[str, np.ndarray] = {"t_nominal": t, "heading": heading, "gyro_bias": gyro_bias}
-    for name, values in (("acc", acc), ("magnet", magnet), ("gyro", gyro), ("rotvec", quat[:, :3])):
-        keep = (rng.random(m) >= config.drop_probability) & ~stalled
-        out[name + "_t"] = t_rep[keep]
-        out[name] = values[keep]
-    return out
+    return t_rep, stalled
 
 
 def _wifi(floorplan: FloorPlan, ap_table: AccessPointTable, position_at, scan_t: np.ndarray,
@@ -676,22 +715,40 @@ def simulate_walk(floorplan: FloorPlan, ap_table: AccessPointTable, config: SimC
     if config.survey:
         scan_t = np.array([t for t in tl.survey_scan_t if t <= end_t], dtype=np.float64)
     else:
-        gaps = rng.uniform(*config.scan_interval_s, size=int(end_t / config.scan_interval_s[0]) + 2)
-        scan_t = np.cumsum(gaps)
-        scan_t = scan_t[scan_t <= end_t]
+        scan_t = _scan_times(end_t, config, rng)
 
     def position_at(t_rel: np.ndarray) -> np.ndarray:
-        return np.stack([np.interp(t_rel, wp_t, wp_xy[:, 0]), np.interp(t_rel, wp_t, wp_xy[:, 1])], axis=-1)
+        return _xy_at(t_rel, wp_t, wp_xy)
 
     wifi = _wifi(floorplan, ap_table, position_at, scan_t, config, rng,
                  rssi_at=None if rssi_model is None else (lambda seen: rssi_model(position_at(seen))))
     t0 = config.start_time_ms / 1000.0
     return SimulatedWalk(
         floor_name=floorplan.floor_name, site_id=site_id, start_t_s=t0, end_t_s=t0 + end_t,
-        waypoint_t_s=t0 + wp_t, waypoint_xy_m=wp_xy,
-        step_start_t_s=t0 + step_start, step_end_t_s=t0 + step_end,
-        step_length_m=np.linalg.norm(xy1 - xy0, axis=1),
-        heading_t_s=t0 + imu["t_nominal"], heading_rad=imu["heading"], reference_xy_m=reference,
+        waypoint_t_s=t0 + wp_t, waypoint_xy_m=wp_xy, reference_xy_m=reference,
+        **_step_and_sensor_fields(t0, step_start, step_end, xy0, xy1, imu, ap_table, scan_t, wifi),
+    )
+
+
+def _scan_times(end_t: float, config: SimConfig, rng: np.random.Generator) -> np.ndarray:
+    """A walk's WiFi scan times (s from its start): gaps drawn from ``scan_interval_s``, up to end_t."""
+    gaps = rng.uniform(*config.scan_interval_s, size=int(end_t / config.scan_interval_s[0]) + 2)
+    scan_t = np.cumsum(gaps)
+    return scan_t[scan_t <= end_t]
+
+
+def _xy_at(t_rel: np.ndarray, wp_t: np.ndarray, wp_xy: np.ndarray) -> np.ndarray:
+    """Positions at times ``t_rel``, interpolated between the waypoints."""
+    return np.stack([np.interp(t_rel, wp_t, wp_xy[:, 0]), np.interp(t_rel, wp_t, wp_xy[:, 1])], axis=-1)
+
+
+def _step_and_sensor_fields(t0: float, step_start: np.ndarray, step_end: np.ndarray, xy0: np.ndarray,
+                            xy1: np.ndarray, imu: dict[str, np.ndarray], ap_table: AccessPointTable,
+                            scan_t: np.ndarray, wifi: dict[str, np.ndarray]) -> dict:
+    """The ``SimulatedWalk`` fields of its steps, IMU and WiFi, in Unix seconds from ``t0``."""
+    return dict(
+        step_start_t_s=t0 + step_start, step_end_t_s=t0 + step_end, step_length_m=np.linalg.norm(xy1 - xy0, axis=1),
+        heading_t_s=t0 + imu["t_nominal"], heading_rad=imu["heading"],
         acc_t_s=t0 + imu["acc_t"], acc_mps2=imu["acc"], gyro_t_s=t0 + imu["gyro_t"], gyro_radps=imu["gyro"],
         magnet_t_s=t0 + imu["magnet_t"], magnet_ut=imu["magnet"],
         rotvec_t_s=t0 + imu["rotvec_t"], rotvec_xyz=imu["rotvec"], gyro_bias_radps=imu["gyro_bias"],

@@ -235,14 +235,33 @@ class RerunLogger:
         self.rec.set_log_time_enabled(False)  # our clock is the walk's: see the package docstring
         if recording_name:
             self.rec.send_recording_name(recording_name)
-        canvas = self.canvas = Canvas(rr, self.rec)
+        self.canvas = Canvas(rr, self.rec)
+        self._add_layers(floorplan, stack, building)
+        self._steps_drawn: list[tuple[float, int, int]] = []  # (t_s, step index, floor shown) of each step
+        blueprint = self.blueprint()
+        try:
+            self._start_output(rr, blueprint)
+            # the flip that lets everything below map/world be logged in y-up metres
+            if self.plans is None:
+                self.canvas.log("map/world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+            if self.filter_plots:
+                self.plots.style()
+            if self.floors is not None:
+                self.floors.style()
+        except BaseException:
+            self.abort()  # leave no temporary file behind
+            raise
+
+    def _add_layers(self, floorplan: FloorPlan, stack: Any, building: Any) -> None:
+        """What the recording draws: map, particles, plots, events, truth and tracks; the floors of
+        a ``stack`` the filter runs across; the floor plans of a ``building``'s finished tracks."""
+        canvas = self.canvas
         self.map = MapLayer(canvas, floorplan)
         self.particles = ParticleLayer(canvas, self.max_particles)
         self.plots = PlotLayer(canvas)
         self.events = EventLayer(canvas)
         self.truth = GroundTruthLayer(canvas)
         self.tracks = TrackLayer(canvas, self.truth)
-        self._steps_drawn: list[tuple[float, int, int]] = []  # (t_s, step index, floor shown) of each step
         self.floors = None
         if stack is not None:
             from mapfilter.viz.building import FloorLayer
@@ -253,29 +272,22 @@ class RerunLogger:
             from mapfilter.viz.building import FloorPlansLayer
 
             self.plans = FloorPlansLayer(canvas, building)
-        blueprint = self.blueprint()
-        try:
-            if self._growing is not None:
-                file = self._growing.create()
-                self._write(lambda: self.rec.save(file, default_blueprint=blueprint))
-            elif self.rrd_path is not None:
-                (tmp,) = self._stack.enter_context(atomic_paths(self.rrd_path))
-                self._write(lambda: self.rec.save(tmp, default_blueprint=blueprint))
-            else:
-                problem = viewer_problem()
-                if problem is not None:
-                    raise MapfilterError(f"no rerun viewer can start here: {problem}")
-                rr.spawn(default_blueprint=blueprint, executable_path=viewer_executable(), recording=self.rec)
-            # the flip that lets everything below map/world be logged in y-up metres
-            if self.plans is None:
-                canvas.log("map/world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
-            if self.filter_plots:
-                self.plots.style()
-            if self.floors is not None:
-                self.floors.style()
-        except BaseException:
-            self.abort()  # leave no temporary file behind
-            raise
+
+    def _start_output(self, rr, blueprint: Any) -> None:
+        """Where the recording goes: a live run's growing file, a .rrd that appears on close, or a
+        viewer spawned now (refused in one line where none can start). A save runs under
+        ``_write``'s deadline: on a full disk rerun's writer stops and the save never returns."""
+        if self._growing is not None:
+            file = self._growing.create()
+            self._write(lambda: self.rec.save(file, default_blueprint=blueprint))
+        elif self.rrd_path is not None:
+            (tmp,) = self._stack.enter_context(atomic_paths(self.rrd_path))
+            self._write(lambda: self.rec.save(tmp, default_blueprint=blueprint))
+        else:
+            problem = viewer_problem()
+            if problem is not None:
+                raise MapfilterError(f"no rerun viewer can start here: {problem}")
+            rr.spawn(default_blueprint=blueprint, executable_path=viewer_executable(), recording=self.rec)
 
     # ---- layout ---------------------------------------------------------------------------
     def blueprint(self) -> Any:

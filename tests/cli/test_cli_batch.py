@@ -73,14 +73,13 @@ def test_batch_with_every_walk_tracked_exits_zero_and_tum_files(tmp_path, capsys
     assert (out / "office_walk.tum").is_file() and (out / "summary.csv").is_file()
 
 
-def test_batch_on_two_local_dask_workers_writes_the_serial_tracks(tmp_path, capsys):
-    pytest.importorskip("distributed")
+def test_batch_on_two_local_workers_writes_the_serial_tracks(tmp_path, capsys):
     lines = _walk_lines()
     logs = [_write(tmp_path / f"walk{i}.txt.gz", lines) for i in range(3)]
     common = ["track", str(OFFICE), *map(str, logs), "--radiomap", str(RADIOMAP), "--particles", "200"]
     assert main(common + ["--out-dir", str(tmp_path / "serial")]) == 0
     assert main(common + ["--jobs", "2", "--out-dir", str(tmp_path / "jobs2")]) == 0
-    assert "3 walks (2 local Dask worker processes): 3 tracked" in capsys.readouterr().out
+    assert "3 walks (2 local worker processes): 3 tracked" in capsys.readouterr().out
     for i in range(3):
         assert (tmp_path / "serial" / f"walk{i}.csv").read_bytes() == (tmp_path / "jobs2" / f"walk{i}.csv").read_bytes()
 

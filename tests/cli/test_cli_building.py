@@ -155,12 +155,11 @@ def test_bad_input_is_one_line_naming_the_file_and_nothing_is_written(office3, t
     assert not out.exists()
 
 
-def test_out_dir_on_two_local_dask_workers_writes_the_serial_tracks(office3, tracked, tmp_path, capsys):
-    pytest.importorskip("distributed")
+def test_out_dir_on_two_local_workers_writes_the_serial_tracks(office3, tracked, tmp_path, capsys):
     out = tmp_path / "jobs2"
     assert main(["track", str(office3.building), *map(str, office3.walks), "--radiomap", str(office3.radiomap),
                  *PARTICLES, "--jobs", "2", "--out-dir", str(out)]) == 0
-    assert "2 walks (2 local Dask worker processes): 2 tracked" in capsys.readouterr().out
+    assert "2 walks (2 local worker processes): 2 tracked" in capsys.readouterr().out
     for name in ("walk1.csv", "walk2.csv"):
         assert (out / name).read_bytes() == (tracked.out / name).read_bytes()
     assert _summary(out)["walk1"]["floors"] == _summary(tracked.out)["walk1"]["floors"]

@@ -104,6 +104,7 @@ def whole_track(tmp_path_factory):
     return out.read_bytes()
 
 
+@pytest.mark.slow
 def test_a_live_run_killed_at_ten_random_points_keeps_every_row_it_printed(tmp_path, whole_track):
     """SIGINT or SIGTERM after a random number of printed rows, while the run waits for its
     input (the log fed line by line) or while it works through a large piece: the exit code is

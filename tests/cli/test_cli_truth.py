@@ -73,15 +73,13 @@ def test_truth_never_writes_over_the_at_track_the_map_or_its_image(tmp_path, cap
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
 
 
-def test_latlon_truth_needs_a_georeferenced_map_and_is_placed_by_it(ipin2023, tmp_path, capsys):
+def test_latlon_truth_needs_a_georeferenced_map_and_is_placed_by_it(ipin2023, ipin_venue, tmp_path, capsys):
     log = ipin2023 / "logs" / "IPIN2023_T3_TrainingTrial52_repetition01.txt.gz"
     assert main(["check", str(log), "--truth", str(tmp_path / "gt.csv")]) == 1
     err = capsys.readouterr().err
     assert "its ground truth is latitude/longitude (POSI rows): give --map BUILDING.yaml" in err
     assert not (tmp_path / "gt.csv").exists()
-    assert main(["map", "import-ipin", str(ipin2023 / "plans" / "calib_mapa_Nuremberg.cal"), "--out",
-                 str(tmp_path / "venue.yaml"), "--storey-height", "2.8"]) == 0
-    assert main(["check", str(log), "--map", str(tmp_path / "venue.yaml"), "--truth", str(tmp_path / "gt.csv")]) == 0
+    assert main(["check", str(log), "--map", str(ipin_venue), "--truth", str(tmp_path / "gt.csv")]) == 0
     truth = read_track(tmp_path / "gt.csv")
     recording = read_log(log)
     assert truth.floor == list(recording.waypoint_floor) and {"0", "-2"} <= set(truth.floor)

@@ -308,7 +308,7 @@ def _without_posi(log, path, seconds: float = 8.0):
     return path
 
 
-def test_evaal_out_on_a_log_without_posi_names_evaal_start(ipin2023, tmp_path, capsys):
+def test_evaal_out_on_a_log_without_posi_names_evaal_start(ipin2023, ipin_venue, tmp_path, capsys):
     """Online --evaal-out needs the trial's initial position: without a POSI row, the one line
     names --evaal-start, before any tracking; with it, the replay starts there."""
     from mapfilter.cli import main
@@ -319,9 +319,7 @@ def test_evaal_out_on_a_log_without_posi_names_evaal_start(ipin2023, tmp_path, c
     from mapfilter.sensors.logs import read_log
     from mapfilter.api import build_radio_map
 
-    venue = tmp_path / "venue.yaml"
-    assert main(["map", "import-ipin", str(ipin2023 / "plans" / "calib_mapa_Nuremberg.cal"), "--out", str(venue),
-                 "--storey-height", "2.8"]) == 0
+    venue = ipin_venue
     log = _without_posi(ipin2023 / "logs" / LOG01, tmp_path / "no_posi.txt")
     capsys.readouterr()
     assert main(["track", str(venue), str(log), "--floor", "0", "--evaal-out", str(tmp_path / "e.csv")]) == 1

@@ -28,24 +28,20 @@ SHORT_S = 12.0  # the scoring trial: the first seconds of a walk (a scoring tria
 
 
 @pytest.fixture(scope="module")
-def venue(ipin2023, tmp_path_factory):
+def venue(ipin2023, ipin_venue, tmp_path_factory):
     """(venue YAML, building, radio map path, {walk: log}): the radio map from the other 27 logs
     (leave the walks out, as docs/ipin.md does)."""
     from mapfilter.api import build_radio_map
-    from mapfilter.cli import main
     from mapfilter.maps.building import Building
     from mapfilter.sensors.logs import read_log
 
     folder = tmp_path_factory.mktemp("evaal_venue")
-    venue_yaml = folder / "venue.yaml"
-    assert main(["map", "import-ipin", str(ipin2023 / "plans" / "calib_mapa_Nuremberg.cal"), "--out",
-                 str(venue_yaml), "--storey-height", "2.8"]) == 0
-    building = Building.load(venue_yaml)
+    building = Building.load(ipin_venue)
     logs = sorted((ipin2023 / "logs").glob("*.txt.gz"))
     radio_map = build_radio_map(building, [read_log(p, building=building) for p in logs
                                           if p.name.removesuffix(".txt.gz") not in WALKS])
     radio_map.save(folder / "rm.npz")
-    return venue_yaml, building, folder / "rm.npz", {w: ipin2023 / "logs" / f"{w}.txt.gz" for w in WALKS}
+    return ipin_venue, building, folder / "rm.npz", {w: ipin2023 / "logs" / f"{w}.txt.gz" for w in WALKS}
 
 
 @pytest.fixture(scope="module")

@@ -429,6 +429,7 @@ def test_the_fit_recovers_the_parameters_and_finds_swapped_ids(office_walk):
 
 
 # ---- the command line ---------------------------------------------------------------------------
+@pytest.mark.slow
 def test_cli_fit_beacons_track_and_evaluate_with_beacons(office_walk, tmp_path, capsys):
     plan, recording, _, log = office_walk
     positions = tmp_path / "positions.csv"
@@ -493,26 +494,24 @@ IPIN_IDS = ("BLE1=BE:AC:20:23:00:01,BLE2=BE:AC:20:23:00:03,BLE3=BE:AC:20:23:00:0
 
 
 @pytest.fixture(scope="module")
-def ipin_venue(ipin2023, tmp_path_factory):
-    venue = tmp_path_factory.mktemp("ipin_ble") / "venue.yaml"
-    assert main(["map", "import-ipin", str(ipin2023 / "plans" / "calib_mapa_Nuremberg.cal"), "--out", str(venue),
-                 "--storey-height", "2.8"]) == 0
-    return Building.load(venue)
+def ipin_building(ipin_venue):
+    return Building.load(ipin_venue)
 
 
-def test_ipin_beacons_minor_n_is_ble_n_but_for_2_and_3(ipin2023, ipin_venue):
+@pytest.mark.slow
+def test_ipin_beacons_minor_n_is_ble_n_but_for_2_and_3(ipin2023, ipin_building):
     """The natural reading (BLEn the beacon with minor n, MAC ...:0n) checked against the POSI
     points: the readings of minors 2 and 3 fit each other's positions (and floors) better."""
     from mapfilter.sensors.logs import read_log
 
     logs = sorted((ipin2023 / "logs").glob("*.txt.gz"))
-    recordings = [read_log(p, building=ipin_venue) for p in logs[::2]]
+    recordings = [read_log(p, building=ipin_building) for p in logs[::2]]
     natural = ",".join(f"BLE{i}=BE:AC:20:23:00:0{i}" for i in range(1, 7))
     positions = ipin2023 / "BLE_Locations.csv"
     for ids, swapped in ((natural, True), (IPIN_IDS, False)):
-        table = BeaconTable.read_csv(positions, ipin_venue, parse_beacon_ids(ids))
+        table = BeaconTable.read_csv(positions, ipin_building, parse_beacon_ids(ids))
         assert table.floor == ["0", "0", "-2", "-2", "-2", "-2"]
-        fit = fit_beacons(table, labelled_readings(table, ipin_venue, recordings))
+        fit = fit_beacons(table, labelled_readings(table, ipin_building, recordings))
         elsewhere = {row.beacon_id: row.best_position for row in fit.rows
                      if row.best_position_rmse_db < row.rmse_db - 1.0}
         if swapped:
@@ -523,23 +522,23 @@ def test_ipin_beacons_minor_n_is_ble_n_but_for_2_and_3(ipin2023, ipin_venue):
 
 
 @pytest.mark.slow
-def test_ipin_walk_with_beacons(ipin2023, ipin_venue):
+def test_ipin_walk_with_beacons(ipin2023, ipin_building):
     from mapfilter.api import build_radio_map
     from mapfilter.sensors.logs import read_log
 
     logs = sorted((ipin2023 / "logs").glob("*.txt.gz"))
-    walk = read_log(next(p for p in logs if "Trial21_repetition03" in p.name), building=ipin_venue)
-    others = [read_log(p, building=ipin_venue) for p in logs if "Trial2" in p.name and "Trial21_repetition03"
+    walk = read_log(next(p for p in logs if "Trial21_repetition03" in p.name), building=ipin_building)
+    others = [read_log(p, building=ipin_building) for p in logs if "Trial2" in p.name and "Trial21_repetition03"
               not in p.name]
-    table = BeaconTable.read_csv(ipin2023 / "BLE_Locations.csv", ipin_venue, parse_beacon_ids(IPIN_IDS))
-    fitted = fit_beacons(table, labelled_readings(table, ipin_venue, others)).table
-    radio_map = build_radio_map(ipin_venue, others)
+    table = BeaconTable.read_csv(ipin2023 / "BLE_Locations.csv", ipin_building, parse_beacon_ids(IPIN_IDS))
+    fitted = fit_beacons(table, labelled_readings(table, ipin_building, others)).table
+    radio_map = build_radio_map(ipin_building, others)
     config = TrackingConfig().override({"filter.n_particles": 3000})
-    both = track(ipin_venue, walk, radio_map, config=config, sources={"ble": fitted})
-    alone = track(ipin_venue, walk, config=config, sources={"ble": fitted})
+    both = track(ipin_building, walk, radio_map, config=config, sources={"ble": fitted})
+    alone = track(ipin_building, walk, config=config, sources={"ble": fitted})
     assert both.n_measurements["ble"] == alone.n_measurements["ble"] > 30
     for result in (both, alone):
-        score = score_track(ipin_venue, walk, result.causal, None, True)
+        score = score_track(ipin_building, walk, result.causal, None, True)
         assert score.errors.errors_m.size == walk.waypoint_t_s.size
         assert np.median(score.errors.errors_m) < (5.0 if result is both else 25.0)
 

@@ -135,20 +135,17 @@ def test_evaluate_reports_the_ipin_score_per_method_and_per_phone():
 
 
 # ---- IPIN 2023, end to end --------------------------------------------------------------------
-def test_ipin_evaluate_end_to_end_on_real_logs(ipin2023, tmp_path):
+@pytest.mark.slow
+def test_ipin_evaluate_end_to_end_on_real_logs(ipin2023, ipin_venue):
     """Four real logs of both phones and both floors, and the walk from -2 to 0 and back,
     leave-one-out: every building method runs on every walk, the walk over two floors joins
     the radio map and is scored per waypoint, and the numbers are sane (thresholds well above
     what the full evaluation in docs/ipin.md measures)."""
     from conftest import tracking_config
-    from mapfilter.cli import main
     from mapfilter.evaluation.comparison import EvaluationSetup, evaluate
     from mapfilter.maps.building import Building
 
-    venue = tmp_path / "venue.yaml"
-    assert main(["map", "import-ipin", str(ipin2023 / "plans" / "calib_mapa_Nuremberg.cal"), "--out", str(venue),
-                 "--storey-height", "2.8"]) == 0
-    building = Building.load(venue)
+    building = Building.load(ipin_venue)
     logs = [ipin2023 / "logs" / f"IPIN2023_T3_TrainingTrial{n}.txt.gz"
             for n in ("01_repetition01", "01_repetition03", "21_repetition02", "21_repetition04", "52_repetition01")]
     setup = EvaluationSetup(leave_one_out=True, tracking=tracking_config(n_particles=500, smooth=True))
@@ -175,7 +172,7 @@ def test_ipin_evaluate_end_to_end_on_real_logs(ipin2023, tmp_path):
 @pytest.mark.real_data
 @pytest.mark.slow
 @pytest.mark.parametrize("reach_sigmas", [None, 1e9])
-def test_on_an_open_floor_the_offline_track_is_the_smoothed_filter(ipin2023, tmp_path, reach_sigmas, monkeypatch):
+def test_on_an_open_floor_the_offline_track_is_the_smoothed_filter(ipin2023, ipin_venue, reach_sigmas, monkeypatch):
     """IPIN 2023 trial 03 (floor 0, no plan: an open floor): the walk's smoothed track stays far
     from every wall, so the offline track is the smoothed filter, not the dead-reckoned shape
     placed rigidly (its gyro drifts over the 3-minute walk, and no wall bends it back): better than
@@ -183,17 +180,13 @@ def test_on_an_open_floor_the_offline_track_is_the_smoothed_filter(ipin2023, tmp
     that the test can fail)."""
     import mapfilter.pipeline.offline as tracking
     from mapfilter.api import build_radio_map, read_log, track
-    from mapfilter.cli import main
     from mapfilter.config import TrackingConfig
     from mapfilter.evaluation.scoring import score_track
     from mapfilter.maps.building import Building
 
     if reach_sigmas is not None:
         monkeypatch.setattr(tracking, "WALL_REACH_SIGMAS", reach_sigmas)
-    venue = tmp_path / "venue.yaml"
-    assert main(["map", "import-ipin", str(ipin2023 / "plans" / "calib_mapa_Nuremberg.cal"), "--out", str(venue),
-                 "--storey-height", "2.8"]) == 0
-    building = Building.load(venue)
+    building = Building.load(ipin_venue)
     logs = [ipin2023 / "logs" / f"IPIN2023_T3_TrainingTrial0{t}_repetition0{r}.txt.gz"
             for t in (2, 3) for r in (1, 2, 3, 4)]
     walk = read_log(logs[5], building=building)  # trial 03, repetition 02

@@ -189,6 +189,7 @@ def test_only_the_walks_own_ranges_are_weighed(files, tmp_path):
     np.testing.assert_array_equal(own.causal.xy_m, session.causal.xy_m)
 
 
+@pytest.mark.slow
 def test_evaluate_names_the_ranges_methods(files, tmp_path, capsys):
     anchors, ranges = files
     out = tmp_path / "eval"

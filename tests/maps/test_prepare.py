@@ -339,6 +339,7 @@ def ilc_waypoints(ilc_site1) -> dict[str, list[np.ndarray]]:
     return {floor: _waypoints(ilc_site1 / floor) for floor in ("F1", "F2")}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("floor", ["F1", "F2"])
 def test_ilc_image_route(ilc_site1, ilc_waypoints, floor):
     """The floor image's transparent pixels are walkable, and outside the floor's outline is wall,
@@ -366,6 +367,7 @@ def test_ilc_image_route(ilc_site1, ilc_waypoints, floor):
     assert 0.1 < plan.free_fraction < 0.5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("floor", ["F1", "F2"])
 def test_ilc_geojson_route(ilc_site1, ilc_waypoints, floor):
     import shapely
@@ -442,7 +444,7 @@ def test_cli_prepare_and_import(tmp_path: Path, capsys, ilc_site1):
                            "--walkable", "transparent", "--walkable", "250,240,180", "--edits", tmp_path / "edits.yaml",
                            "--keep-outside", "--out", tmp_path / "m" / "mall.yaml"], capsys)
     assert code == 0, err
-    assert "free space reaches the edge of the map" in err and "(you gave --keep-outside)" in err
+    assert "free space reaches the edge of the map" in err and "(you gave --outside none)" in err
     mall = FloorPlan.load(tmp_path / "m" / "mall.yaml")
     assert mall.is_free(np.array([[27.0, 15.0], [10.0, 23.0], [1.0, 1.0], [9.0, 15.0]])).tolist() == [
         True, True, False, False]  # yellow shop, corridor, closed corner, blue shop
@@ -562,7 +564,7 @@ def test_regions_wall_the_outside_by_default(tmp_path: Path, capsys):
                            "--keep-outside", "--out", tmp_path / "open.yaml"], capsys)
     assert code == 0 and FloorPlan.load(tmp_path / "open.yaml").is_free(np.array([[1.0, 1.0]])).all()
     (line,) = _warnings(err)
-    assert "open.yaml: free space reaches the edge of the map" in line and "you gave --keep-outside" in line
+    assert "open.yaml: free space reaches the edge of the map" in line and "you gave --outside none" in line
 
 
 def test_regions_open_outlines_never_let_the_outside_in(tmp_path: Path):
@@ -595,7 +597,7 @@ def test_a_nearly_empty_plan_warns_almost_no_walls(tmp_path: Path, capsys):
     image = np.full((200, 300), 255, np.uint8)
     cv2.rectangle(image, (100, 100), (121, 121), 0, 1)  # a small closed mark (the IPIN plan's reference points)
     cv2.imwrite(str(tmp_path / "dot_plan.png"), image)
-    for extra, words in (([], "no free space"), (["--keep-outside"], "no walls")):
+    for extra, words in (([], "no free space"), (["--outside", "none"], "no walls")):
         code, out, err = _run(["map", "prepare", tmp_path / "dot_plan.png", "--resolution", 0.1, *extra, "--out",
                                tmp_path / "dot.yaml"], capsys)
         assert code == 1 and len(err.strip().splitlines()) == 1 and words in err, err
@@ -637,18 +639,18 @@ def test_check_says_latlon_waypoints_need_a_georeferenced_map(ipin2023, capsys):
 
 
 def test_the_outside_warning_blames_keep_outside_only_when_it_was_given(tmp_path: Path, capsys):
-    """Issue 45 friction 4: free space at the map's edge was blamed on --keep-outside, given or not."""
+    """Issue 45 friction 4: free space at the map's edge was blamed on --outside none (once --keep-outside), given or not."""
     _two_rooms_png(tmp_path / "rooms.png")
     # an edit frees a strip along the bottom edge (metres, origin at the lower-left corner)
     (tmp_path / "edits.yaml").write_text("free:\n  - [[2, 0], [8, 0], [8, 0.3], [2, 0.3]]\n")
     code, out, err = _run(["map", "prepare", tmp_path / "rooms.png", "--resolution", 0.1, "--edits",
                            tmp_path / "edits.yaml", "--out", tmp_path / "edited.yaml"], capsys)
     (line,) = [w for w in _warnings(err) if "edge of the map" in w]
-    assert code == 0 and "--keep-outside" not in line and "--edits" in line
-    code, out, err = _run(["map", "prepare", tmp_path / "rooms.png", "--resolution", 0.1, "--keep-outside",
+    assert code == 0 and "--outside none" not in line and "--edits" in line
+    code, out, err = _run(["map", "prepare", tmp_path / "rooms.png", "--resolution", 0.1, "--outside", "none",
                            "--out", tmp_path / "open.yaml"], capsys)
     (line,) = [w for w in _warnings(err) if "edge of the map" in w]
-    assert "you gave --keep-outside" in line
+    assert "you gave --outside none" in line
 
 
 def test_the_report_names_the_rooms_cut_off(tmp_path: Path, capsys):

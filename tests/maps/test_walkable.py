@@ -45,7 +45,7 @@ def test_a_diagonal_touch_is_no_passage():
 
 def test_the_outside_kept_free_is_no_region():
     wall = _rooms()
-    wall[0, :] = False  # free space along the map's edge: a plan prepared with --keep-outside
+    wall[0, :] = False  # free space along the map's edge: a plan prepared with --outside none
     walk = walkable.assess(wall, 0.1)
     assert [r.box_px for r in walk.cut_off] == [(60, 5, 77, 22)]
 

@@ -52,6 +52,7 @@ def _mean_error(plan, radio_map, paths) -> float:
     return float(np.concatenate(errors).mean())
 
 
+@pytest.mark.slow
 def test_growing_from_unlabelled_walks_lowers_a_held_out_walks_error(office):
     """One 40 s survey walk covers a corner of the office: held-out walks err about 10 m with
     its map alone. Three walks without waypoints grow it; the held-out walks' causal error must

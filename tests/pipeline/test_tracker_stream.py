@@ -97,29 +97,28 @@ def test_the_bundled_walk_is_causal_and_streams():
         _check_causal_and_chunked(space, rec, radio_map, config, np.random.default_rng(1))
 
 
-@pytest.mark.slow
-def test_real_ilc_walks_are_causal_and_stream(ilc_site1):
+@pytest.fixture(scope="module")
+def ilc_f1_survey(ilc_site1, ilc_f1_plan):
+    """(F1's logs, a radio map of F1 from 30 of them: not the first three, which are tracked)."""
     from mapfilter.api import build_radio_map
-    from mapfilter.maps.prepare import import_ilc
 
-    floor = ilc_site1 / "F1"
-    logs = sorted((floor / "path_data_files").glob("*.txt.gz"))
-    plan = import_ilc(floor)
-    radio_map = build_radio_map(Building.from_plan(plan), [read_log(p) for p in logs[3:33]])
+    logs = sorted((ilc_site1 / "F1" / "path_data_files").glob("*.txt.gz"))
+    return logs, build_radio_map(Building.from_plan(ilc_f1_plan), [read_log(p) for p in logs[3:33]])
+
+
+# the first walk in the fast tier (its live path on real data), the other two in the slow one
+@pytest.mark.parametrize("k", [0, pytest.param(1, marks=pytest.mark.slow), pytest.param(2, marks=pytest.mark.slow)])
+def test_real_ilc_walks_are_causal_and_stream(ilc_f1_plan, ilc_f1_survey, k):
+    logs, radio_map = ilc_f1_survey
     config = TrackingConfig().override({"filter.n_particles": 3000})
-    for k, path in enumerate(logs[:3]):
-        _check_causal_and_chunked(plan, read_log(path), radio_map, config, np.random.default_rng(k))
+    _check_causal_and_chunked(ilc_f1_plan, read_log(logs[k]), radio_map, config, np.random.default_rng(k))
 
 
 @pytest.mark.slow
-def test_real_ipin_walks_are_causal_and_stream(ipin2023, tmp_path):
+def test_real_ipin_walks_are_causal_and_stream(ipin2023, ipin_venue):
     from mapfilter.api import build_radio_map
-    from mapfilter.cli import main
 
-    venue = tmp_path / "venue.yaml"
-    assert main(["map", "import-ipin", str(ipin2023 / "plans" / "calib_mapa_Nuremberg.cal"), "--out", str(venue),
-                 "--storey-height", "2.8"]) == 0
-    building = Building.load(venue)
+    building = Building.load(ipin_venue)
     logs = sorted((ipin2023 / "logs").glob("*.txt.gz"))
     walks = [p for p in logs if "Trial01_repetition01" in p.name or "Trial01_repetition03" in p.name]
     survey = [read_log(p, building=building) for p in logs if "Trial02" in p.name or "Trial03_repetition0" in p.name][:6]

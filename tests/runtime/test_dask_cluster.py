@@ -79,6 +79,7 @@ def _numbers(out):
     return rows, tracks
 
 
+@pytest.mark.slow
 def test_evaluate_on_a_two_worker_cluster_gives_the_serial_numbers_exactly(ilc_site1, tmp_path, cluster):
     floor = ilc_site1 / "F1"
     import_ilc(floor, route="geojson").save(tmp_path / "F1.yaml")

@@ -227,14 +227,7 @@ def _site_subset(ilc_site1: Path, every: int) -> list[Path]:
     return logs
 
 
-@pytest.fixture(scope="module")
-def site1_building(ilc_site1, tmp_path_factory):
-    out = tmp_path_factory.mktemp("site1") / "site1.yaml"
-    assert main(["map", "import-ilc", str(ilc_site1), "--out", str(out)]) == 0
-    return out
-
-
-def test_a_log_whose_floor_is_not_in_the_building_is_one_line_and_writes_nothing(site1_building, ilc_site1,
+def test_a_log_whose_floor_is_not_in_the_building_is_one_line_and_writes_nothing(ilc_site1_building, ilc_site1,
                                                                                  tmp_path, capsys):
     import gzip
 
@@ -242,8 +235,8 @@ def test_a_log_whose_floor_is_not_in_the_building_is_one_line_and_writes_nothing
     text = gzip.decompress(log.read_bytes()).decode().replace("FloorName:F1", "FloorName:F9")
     bad = tmp_path / "walk_f9.txt"
     bad.write_text(text)
-    for argv in (["radiomap", "build", str(site1_building), str(bad), "--out", str(tmp_path / "rm.npz")],
-                 ["track", str(site1_building), str(bad), "--radiomap", str(tmp_path / "none.npz"),
+    for argv in (["radiomap", "build", str(ilc_site1_building), str(bad), "--out", str(tmp_path / "rm.npz")],
+                 ["track", str(ilc_site1_building), str(bad), "--radiomap", str(tmp_path / "none.npz"),
                   "--out", str(tmp_path / "t.csv")]):
         assert main(argv) == 1
         # track may warn first about the building (B1's free space is mostly cut off): one error line
@@ -252,11 +245,11 @@ def test_a_log_whose_floor_is_not_in_the_building_is_one_line_and_writes_nothing
     assert sorted(p.name for p in tmp_path.iterdir()) == ["walk_f9.txt"]
 
 
-def test_a_building_whose_floors_overlap_nothing_is_one_line_for_track(site1_building, ilc_site1, tmp_path, capsys):
-    meta = yaml.safe_load(site1_building.read_text())
+def test_a_building_whose_floors_overlap_nothing_is_one_line_for_track(ilc_site1_building, ilc_site1, tmp_path, capsys):
+    meta = yaml.safe_load(ilc_site1_building.read_text())
     meta["floors"][2]["offset_m"] = [5000.0, 0.0]
     for floor in meta["floors"]:
-        floor["map"] = str(site1_building.parent / floor["map"])
+        floor["map"] = str(ilc_site1_building.parent / floor["map"])
     bad = tmp_path / "apart.yaml"
     bad.write_text(yaml.safe_dump(meta))
     log = sorted((ilc_site1 / "F1" / "path_data_files").glob("*.txt.gz"))[0]
@@ -267,7 +260,8 @@ def test_a_building_whose_floors_overlap_nothing_is_one_line_for_track(site1_bui
     assert not (tmp_path / "t.csv").exists()
 
 
-def test_real_walks_are_tracked_on_their_floor_without_its_label(site1_building, ilc_site1, tmp_path, capsys):
+@pytest.mark.slow
+def test_real_walks_are_tracked_on_their_floor_without_its_label(ilc_site1_building, ilc_site1, tmp_path, capsys):
     """ILC site 1 as one building: a radio map from every other walk of every floor, and walks with IMU
     of F1 and F2 (not in it) tracked without their floor: every waypoint on the right floor."""
     from mapfilter.sensors.ilc import read_ilc
@@ -280,10 +274,10 @@ def test_real_walks_are_tracked_on_their_floor_without_its_label(site1_building,
     f2 = [p for p in (ilc_site1 / "F2" / "path_data_files" / f"{n}.txt.gz" for n in full_f2) if p not in survey]
     walks = [max(group, key=lambda p: len(read_ilc(p).waypoint_t_s)) for group in (f1, f2)]
     rm = tmp_path / "rm.npz"
-    assert main(["radiomap", "build", str(site1_building), *map(str, survey), "--out", str(rm)]) == 0
+    assert main(["radiomap", "build", str(ilc_site1_building), *map(str, survey), "--out", str(rm)]) == 0
     for walk in walks:
         out = tmp_path / f"{walk.name}.csv"
-        assert main(["track", str(site1_building), str(walk), "--radiomap", str(rm), "--particles", "3000",
+        assert main(["track", str(ilc_site1_building), str(walk), "--radiomap", str(rm), "--particles", "3000",
                      "--out", str(out)]) == 0
         printed = capsys.readouterr().out
         header_floor = walk.parent.parent.name
@@ -294,13 +288,13 @@ def test_real_walks_are_tracked_on_their_floor_without_its_label(site1_building,
         assert f"on {header_floor} at {score.n_right} of {score.n_judged} waypoints" in printed
 
 
-def test_evaluate_in_a_building_reports_floor_accuracy_per_method(site1_building, ilc_site1, tmp_path, capsys):
+def test_evaluate_in_a_building_reports_floor_accuracy_per_method(ilc_site1_building, ilc_site1, tmp_path, capsys):
     import json
 
     f1 = sorted((ilc_site1 / "F1" / "path_data_files").glob("*.txt.gz"))[:2]
     wifi_only = sorted((ilc_site1 / "B1" / "path_data_files").glob("*.txt.gz"))[:2]
     out = tmp_path / "ev"
-    assert main(["evaluate", str(site1_building), *map(str, f1 + wifi_only), "--leave-one-out",
+    assert main(["evaluate", str(ilc_site1_building), *map(str, f1 + wifi_only), "--leave-one-out",
                  "--particles", "500", "--smooth", "--out", str(out)]) == 0
     table = capsys.readouterr().out
     assert "floor_accuracy" in table

@@ -39,6 +39,7 @@ def _logs(root):
     return paths
 
 
+@pytest.mark.slow
 def test_every_real_log_reads_whole(ipin2023):
     for path in _logs(ipin2023):
         counts, floors, wifi_times, model = _raw(path)

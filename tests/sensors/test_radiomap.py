@@ -181,6 +181,7 @@ def test_radio_map_from_real_traces_is_labelled_inside_the_waypoints(ilc_site1):
     assert len(radio_map.without_traces([recs[0].name])) == (radio_map.trace == 1).sum()
 
 
+@pytest.mark.slow
 def test_leave_one_out_kwnn_on_real_traces_beats_chance(ilc_site1):
     recs = [read_ilc(p) for p in F1_LOGS]
     radio_map = build_radio_map(recs)
@@ -264,6 +265,7 @@ def f1_map(tmp_path, ilc_site1):
     return path
 
 
+@pytest.mark.slow
 def test_cli_build_and_fit_aps(tmp_path, f1_map, capsys):
     out = tmp_path / "rm.npz"
     logs = [str(p) for p in F1_LOGS[:4]]

@@ -138,6 +138,7 @@ def test_trilateration_uses_a_kernel_equal_to_the_plain_formula():
         TrilaterationLikelihood(table, variance_db2=0.0)
 
 
+@pytest.mark.slow
 def test_estimate_access_points_from_real_logs(ilc_site1):
     recs = [read_ilc(p) for p in sorted((ilc_site1 / "F1" / "path_data_files").glob("*.txt.gz"))[:4]]
     table = estimate_access_points(recs, ApFitConfig(min_observations=10))

@@ -1,27 +1,30 @@
 """Random floor plans drawn the way drawings look, with their exact truth.
 
-A layout (metres) is drawn at random: a building outline (rectangle, L, U or with cut corners),
-rooms (an office's corridor with rooms along it, or an apartment split room by room), walls on
+A layout (metres) is drawn at random: a building outline (rectangle, L, U, cut corners, round or
+bowed, angled façades or a wing turned, a courtyard; sometimes curved or angled bays), rooms (an office's corridor with rooms along it, or an apartment split room by room), walls on
 every room boundary (exterior walls thicker), doors between rooms chosen so that every room can
 be reached (swing doors, double doors, sliding doors and open passages), one or two entrances,
-windows, sometimes columns and a closed shaft. The drawing of it then varies as drawings do:
+windows (single ones, or runs of panes over several metres, and the glazing of bays), sometimes
+terraces and balconies outside a door, columns, stairs and a closed shaft. The drawing of it then varies as drawings do:
 
 - walls solid (black, dark or faint grey, with or without an outline), double-line (two heavier
   lines, sometimes a light fill) or hatched (outline and 45-degree hatching, sometimes crossed);
 - door leaves (a line or a thin rectangle) and swing arcs (sometimes dashed), sliding doors,
-  lintel lines over passages, windows as thin lines across the wall;
+  lintel lines over passages, windows as two or three thin lines in the wall (their faces thin or
+  the walls' heavy lines); terraces' rails thin, doubled or dashed, sometimes paved;
 - room names and areas in several fonts, sizes and weights, furniture and fixtures by room
   (beds, wardrobes, sofas, tables and chairs, kitchen counters with sink and hob, baths,
-  showers, toilets, basins, desks, shelves, plants), stairs, tiled wet rooms, light grey fills;
+  showers, toilets, basins, desks, shelves, plants; against the walls, touching them), stairs,
+  tiled wet rooms, light grey fills;
 - dimension chains with extension lines, ticks and values, interior dimensions, a dash-dot axis
   grid with labelled bubbles, a sheet frame with a title block, a north arrow and a scale bar;
 - paper white, grey, uneven or scanned (gradients, blotches, blur, noise, JPEG, a slight skew,
-  a scanner's dark edge), at the pixel sizes of a plan printed at 1:50 to 1:200 and scanned at
-  100 to 300 dpi.
+  a scanner's dark edge; JPEG on any paper), from 0.2 to 9 megapixels (a web page's plan to an
+  architect's scan).
 
 The truth, rasterised on the image's own pixel grid: the walls (windows and columns included:
 nothing walks through them), the free space (inside the building, not wall: furniture, text and
-door symbols are free), and each room's pixels. Everything is drawn from one
+door symbols are free; a courtyard, a terrace or a balcony is outside), and each room's pixels. Everything is drawn from one
 ``numpy.random.Generator``: the same seed gives the same plans.
 
 Used by ``generate.py`` (plans to files) and ``benchmark.py`` (``mapfilter map prepare`` scored
@@ -44,6 +47,7 @@ from shapely.ops import linemerge, unary_union
 
 WALL_STYLES = ("solid", "double", "hatched")
 PAPER_STYLES = ("white", "grey", "uneven", "scan")
+MEGAPIXELS = (0.2, 9.0)  # the images' sizes
 SUPERSAMPLE = 2  # drawn at twice the final size, then area-averaged: anti-aliased like a print
 
 ROOM_NAMES = {
@@ -98,7 +102,8 @@ class Opening:
     def cut(self, extra_m: float = 0.02) -> Polygon:
         """The opening's rectangle through the whole wall."""
         if self.exterior:
-            near, far = -extra_m, self.thickness_m + extra_m
+            # a door on a curved face: its chord lies inside the face, the cut reaches past it
+            near, far = -extra_m - (0.1 if self.kind != "window" else 0.0), self.thickness_m + extra_m
         else:
             near, far = -self.thickness_m / 2 - extra_m, self.thickness_m / 2 + extra_m
         n = self.inward
@@ -114,6 +119,31 @@ class Opening:
 
 
 @dataclasses.dataclass
+class Window:
+    """A window (or a run of glazing) in the outer wall, straight or curved: the piece of wall it
+    replaces and its outer and inner face lines (the outer face on the outline)."""
+
+    polygon: Polygon
+    outer: LineString
+    inner: LineString
+    room: int
+    thickness_m: float
+    exterior: bool = True
+    kind: str = "window"
+
+    @property
+    def a(self) -> np.ndarray:
+        return np.asarray(self.outer.coords[0])
+
+    @property
+    def b(self) -> np.ndarray:
+        return np.asarray(self.outer.coords[-1])
+
+    def cut(self, extra_m: float = 0.0) -> Polygon:
+        return self.polygon if extra_m == 0 else self.polygon.buffer(extra_m)
+
+
+@dataclasses.dataclass
 class Layout:
     footprint: Polygon
     rooms: list[Room]
@@ -123,6 +153,8 @@ class Layout:
     columns: list[Polygon]
     exterior_m: float
     interior_m: float
+    terraces: list = dataclasses.field(default_factory=list)  # outside areas with rails (not the building)
+    features: dict = dataclasses.field(default_factory=dict)  # outline shape, bays, window runs, terraces
 
     @property
     def solid(self) -> shapely.Geometry:
@@ -157,7 +189,12 @@ def _straight_pieces(geometry: shapely.Geometry, min_length_m: float) -> list[tu
     return pieces
 
 
-def _footprint(rng: np.random.Generator, kind: str) -> Polygon:
+OUTLINES = ("rect", "L", "U", "chamfer", "round", "angled", "courtyard")
+
+
+def _footprint(rng: np.random.Generator, kind: str) -> tuple[Polygon, str, list[Polygon]]:
+    """(outline, its shape's name, the bays added to it): a rectangle, L, U, cut corners, a round
+    or bowed house, angled façades or wings, a courtyard; sometimes curved or angled bays."""
     if kind == "office":
         width, height = rng.uniform(18, 40), rng.uniform(11, 22)
     elif kind == "house":
@@ -166,7 +203,9 @@ def _footprint(rng: np.random.Generator, kind: str) -> Polygon:
         width, height = rng.uniform(8, 18), rng.uniform(7, 13)
     if rng.random() < 0.5:
         width, height = height, width
-    shape = rng.choice(["rect", "L", "U", "chamfer"], p=[0.35, 0.3, 0.15, 0.2])
+    shape = str(rng.choice(OUTLINES, p=[0.2, 0.17, 0.1, 0.13, 0.13, 0.15, 0.12]))
+    if shape == "courtyard" and min(width, height) < 11:
+        width, height = width * 1.4, height * 1.4
     outline = box(0, 0, width, height)
     if shape == "L":
         cw, ch = width * rng.uniform(0.25, 0.5), height * rng.uniform(0.25, 0.5)
@@ -191,7 +230,113 @@ def _footprint(rng: np.random.Generator, kind: str) -> Polygon:
             cx, cy = [(0, 0), (width, 0), (width, height), (0, height)][corner]
             sx, sy = (1 if cx == 0 else -1), (1 if cy == 0 else -1)
             outline = outline.difference(Polygon([(cx, cy), (cx + sx * leg, cy), (cx, cy + sy * leg)]))
-    return shapely.normalize(outline.buffer(0))
+    elif shape == "round":
+        roll = rng.random()
+        if roll < 0.3:  # a round house
+            outline = affinity.scale(Point(width / 2, height / 2).buffer(1.0, quad_segs=32), width / 2,
+                                     min(height, width) / 2 if rng.random() < 0.5 else height / 2)
+        elif roll < 0.6:  # a stadium: two round ends
+            r = min(width, height) / 2
+            outline = unary_union([box(r, 0, width - r, height) if width >= height else box(0, r, width, height - r),
+                                   *(Point(c).buffer(r, quad_segs=24) for c in
+                                     ([(r, r), (width - r, r)] if width >= height else [(r, r), (r, height - r)]))])
+        else:  # one side bowed out
+            bulge = rng.uniform(1.0, 0.3 * min(width, height))
+            side = rng.integers(4)
+            chord = width if side in (0, 2) else height
+            radius = (chord ** 2 / 4 + bulge ** 2) / (2 * bulge)
+            centre_in = radius - bulge
+            if side == 0:
+                centre = (width / 2, centre_in)
+            elif side == 2:
+                centre = (width / 2, height - centre_in)
+            elif side == 1:
+                centre = (width - centre_in, height / 2)
+            else:
+                centre = (centre_in, height / 2)
+            disc = Point(centre).buffer(radius, quad_segs=48)
+            outline = unary_union([outline, disc.intersection(_side_band(side, width, height, bulge))])
+    elif shape == "angled":
+        if rng.random() < 0.5:  # one or two façades at an angle
+            for corner in rng.choice(4, size=rng.integers(1, 3), replace=False):
+                cx, cy = [(0, 0), (width, 0), (width, height), (0, height)][corner]
+                sx, sy = (1 if cx == 0 else -1), (1 if cy == 0 else -1)
+                a, b = rng.uniform(0.3, 0.6) * width, rng.uniform(0.15, 0.35) * height
+                if rng.random() < 0.5:
+                    a, b = rng.uniform(0.15, 0.35) * width, rng.uniform(0.3, 0.6) * height
+                outline = outline.difference(Polygon([(cx, cy), (cx + sx * a, cy), (cx, cy + sy * b)]))
+        else:  # a wing turned by 30-60 degrees
+            wing_w, wing_l = min(width, height) * rng.uniform(0.4, 0.6), max(width, height) * rng.uniform(0.4, 0.7)
+            turn = float(rng.uniform(30, 60)) * (1 if rng.random() < 0.5 else -1)
+            wing = box(-wing_w / 2, 0, wing_w / 2, wing_l)
+            wing = affinity.rotate(wing, turn, origin=(0, 0))
+            corner = [(0, height), (width, height)][int(rng.integers(2))]
+            wing = affinity.translate(wing, corner[0] + (wing_w / 2 if corner[0] == 0 else -wing_w / 2), corner[1] - 1.0)
+            outline = unary_union([outline, wing])
+    elif shape == "courtyard":
+        cw, ch = width * rng.uniform(0.25, 0.4), height * rng.uniform(0.25, 0.4)
+        cx, cy = rng.uniform(0.3, 0.7) * (width - cw), rng.uniform(0.3, 0.7) * (height - ch)
+        courtyard = box(cx, cy, cx + cw, cy + ch)
+        if rng.random() < 0.3:
+            courtyard = Point(cx + cw / 2, cy + ch / 2).buffer(min(cw, ch) / 2, quad_segs=24)
+        outline = outline.difference(courtyard)
+    outline = shapely.normalize(outline.buffer(0))
+    if outline.geom_type != "Polygon":
+        outline = max(outline.geoms, key=lambda g: g.area)
+    bays = []
+    if shape in ("rect", "L", "U", "chamfer", "angled", "courtyard") and rng.random() < 0.45:
+        for _ in range(int(rng.integers(1, 3))):
+            bay = _bay(rng, outline)
+            if bay is not None:
+                grown = shapely.normalize(unary_union([outline, bay.buffer(1e-3, join_style="mitre")]).buffer(0))
+                if grown.geom_type == "Polygon":
+                    bays.append(bay)
+                    outline = grown
+    return outline, shape, bays
+
+
+def _side_band(side: int, width: float, height: float, bulge: float) -> Polygon:
+    """The rectangle grown outward on ``side`` only (0 top, 1 right, 2 bottom, 3 left; y down)."""
+    x0, y0, x1, y1 = 0.0, 0.0, width, height
+    if side == 0:
+        y0 -= bulge + 0.2
+    elif side == 1:
+        x1 += bulge + 0.2
+    elif side == 2:
+        y1 += bulge + 0.2
+    else:
+        x0 -= bulge + 0.2
+    return box(x0, y0, x1, y1)
+
+
+def _bay(rng: np.random.Generator, outline: Polygon) -> Polygon | None:
+    """A curved or angled bay on a straight façade of ``outline``: 1.8-4.5 m wide, 0.6-1.6 m deep."""
+    pieces = _straight_pieces(LineString(outline.exterior.coords), 3.0)
+    if not pieces:
+        return None
+    p, q = pieces[rng.integers(len(pieces))]
+    length = float(np.linalg.norm(q - p))
+    width = rng.uniform(1.8, min(4.5, length - 1.2))
+    if width < 1.8:
+        return None
+    depth = rng.uniform(0.6, min(1.6, 0.6 * width))
+    d = (q - p) / length
+    n = np.array([-d[1], d[0]])
+    centre = p + d * rng.uniform(0.6 + width / 2, length - 0.6 - width / 2)
+    if outline.contains(Point(*(centre + n * 0.05))):
+        n = -n  # outward
+    a, b = centre - d * width / 2, centre + d * width / 2
+    if rng.random() < 0.5:  # angled: 45-degree cheeks
+        side = min(depth, width / 3)
+        bay = Polygon([a, a + n * side + d * side, b + n * side - d * side, b])
+    else:  # curved: a circle's segment
+        radius = (width ** 2 / 4 + depth ** 2) / (2 * depth)
+        disc = Point(*(centre + n * (depth - radius))).buffer(radius, quad_segs=32)
+        bay = disc.intersection(Polygon([a, a + n * (depth + 1), b + n * (depth + 1), b]))
+    bay = bay.buffer(0)
+    if bay.is_empty or bay.intersection(outline).area > 0.05 * bay.area:
+        return None
+    return bay
 
 
 def _bsp(rect: tuple[float, float, float, float], rng: np.random.Generator, max_side: float,
@@ -322,7 +467,7 @@ def _name_rooms(rng: np.random.Generator, rooms: list[Room], kind: str) -> None:
                 rooms[i].kind = rng.choice(["bath", "kitchen", "hall"])
             else:
                 rooms[i].kind = rng.choice(["bedroom", "bedroom", "kitchen", "bath"])
-    if rng.random() < 0.15 and len(rooms) > 3:
+    if rng.random() < 0.35 and len(rooms) > 3:
         candidates = [r for r in rooms if r.kind not in ("corridor", "living", "meeting") and 5 < r.polygon.area < 16]
         if candidates:
             candidates[rng.integers(len(candidates))].kind = "stairs"
@@ -356,7 +501,7 @@ def _place_opening(rng: np.random.Generator, p: np.ndarray, q: np.ndarray, width
 def make_layout(rng: np.random.Generator) -> Layout:
     """A random building: outline, rooms, walls, doors, windows, columns (metres, y down)."""
     kind = str(rng.choice(["apartment", "house", "office"], p=[0.4, 0.2, 0.4]))
-    outline = _footprint(rng, kind)
+    outline, shape, bays = _footprint(rng, kind)
     rooms = _partition(rng, kind, outline)
     _name_rooms(rng, rooms, kind)
     exterior_m = rng.uniform(0.22, 0.45)
@@ -444,14 +589,14 @@ def make_layout(rng: np.random.Generator) -> Layout:
                                 int(rng.choice([-1, 1])), bool(rng.random() < 0.5),
                                 90.0 if rng.random() < 0.75 else float(rng.uniform(25, 60))))
 
-    # entrances and windows on the outer faces
-    outer_pieces: list[tuple[int, np.ndarray, np.ndarray]] = []
+    # entrances and windows on the outer faces (straight or curved pieces between corners)
+    outer_pieces: list[tuple[int, LineString]] = []
     for i, room in enumerate(rooms):
         if room.kind == "shaft":
             continue
         common = room.polygon.boundary.intersection(outline.boundary)
-        for p, q in _straight_pieces(common, 1.0):
-            outer_pieces.append((i, p, q))
+        for piece in _facade_pieces(common, 1.0):
+            outer_pieces.append((i, piece))
     order = rng.permutation(len(outer_pieces))
     entrances = 0
     wanted = 1 + int(rng.random() < 0.3)
@@ -460,25 +605,49 @@ def make_layout(rng: np.random.Generator) -> Layout:
     for rank in sorted(order, key=lambda k: rooms[outer_pieces[k][0]].kind not in preferred):
         if entrances >= wanted:
             break
-        i, p, q = outer_pieces[rank]
+        i, piece = outer_pieces[rank]
         roll = rng.random()
         door_kind, width = (("swing", rng.uniform(0.9, 1.1)) if roll < 0.6 else
                             ("double", rng.uniform(1.4, 1.8)) if roll < 0.85 else ("passage", rng.uniform(1.2, 2.0)))
-        jambs = _place_opening(rng, p, q, width, margin_m + 0.2, ext_taken.setdefault(rank, []))
-        if jambs is None:
+        span = _place_along(rng, piece, width, margin_m + 0.2, ext_taken.setdefault(rank, []))
+        if span is None:
             continue
+        jambs = (np.asarray(piece.interpolate(span[0]).coords[0]), np.asarray(piece.interpolate(span[1]).coords[0]))
         openings.append(_exterior_opening(jambs, outline, exterior_m, door_kind, i, rng))
         entrances += 1
+    # terraces and balconies: outside, behind a door in the outer wall, drawn with rails
+    terraces = []
+    if rng.random() < 0.35:
+        terraces = _terraces(rng, outline, rooms, outer_pieces, openings, ext_taken, exterior_m, margin_m)
+    # windows: single ones, runs of panes with thin piers between over several metres, and the
+    # glazing of bays and curved façades
+    runs = bool(rng.random() < 0.45)
     windows = []
-    for rank, (i, p, q) in enumerate(outer_pieces):
-        length = float(np.linalg.norm(q - p))
+    for rank, (i, piece) in enumerate(outer_pieces):
+        length = piece.length
+        in_bay = any(piece.intersection(bay.buffer(0.01)).length > 0.5 * length for bay in bays)
+        if in_bay or (runs and length > 3.0 and rng.random() < 0.6):
+            # a run: panes and piers over most of the piece
+            span = _place_along(rng, piece, length * rng.uniform(0.6, 0.95) - 2 * margin_m, margin_m,
+                                ext_taken.setdefault(rank, []), clear_m=0.0)
+            if span is None:
+                continue
+            s, end = span
+            pier = rng.uniform(0.1, 0.3)
+            pane = rng.uniform(0.8, 2.2)
+            while s < end - 0.3:
+                stop = min(end, s + pane)
+                windows.append(_window_on(piece, s, stop, outline, exterior_m, i))
+                s = stop + pier
+            continue
         for _ in range(1 + int(length > 5.5)):
             if rng.random() > 0.65:
                 continue
             width = rng.uniform(0.6, min(2.4, max(0.6, length - 2 * margin_m - 0.4)))
-            jambs = _place_opening(rng, p, q, width, margin_m + 0.1, ext_taken.setdefault(rank, []))
-            if jambs is not None:
-                windows.append(_exterior_opening(jambs, outline, exterior_m, "window", i, rng))
+            span = _place_along(rng, piece, width, margin_m + 0.1, ext_taken.setdefault(rank, []))
+            if span is not None:
+                windows.append(_window_on(piece, span[0], span[1], outline, exterior_m, i))
+    windows = [w for w in windows if not w.polygon.is_empty]
 
     walls = walls.difference(unary_union([o.cut() for o in openings] + [w.cut(0.0) for w in windows]))
 
@@ -495,7 +664,116 @@ def make_layout(rng: np.random.Generator) -> Layout:
                 if inner.buffer(-0.05).contains(column) and not column.intersects(keep_clear) \
                         and not column.intersects(walls):
                     columns.append(column)
-    return Layout(outline, rooms, walls, windows, openings, columns, exterior_m, interior_m)
+    features = {"outline": shape, "bay": bool(bays), "window_run": runs and len(windows) > 0,
+                "terrace": bool(terraces)}
+    return Layout(outline, rooms, walls, windows, openings, columns, exterior_m, interior_m, terraces, features)
+
+
+def _facade_pieces(geometry: shapely.Geometry, min_length_m: float) -> list[LineString]:
+    """The pieces of a façade line between its corners (a turn of more than 50 degrees; a curve or
+    a bay's 45-degree cheeks stay one piece), each at least ``min_length_m`` long."""
+    if geometry.is_empty:
+        return []
+    merged = linemerge(geometry) if geometry.geom_type == "MultiLineString" else geometry
+    pieces = []
+    for line in getattr(merged, "geoms", [merged]):
+        if line.geom_type != "LineString":
+            continue
+        coords = np.asarray(line.coords)
+        start = 0
+        for k in range(1, len(coords) - 1):
+            d1, d2 = coords[k] - coords[k - 1], coords[k + 1] - coords[k]
+            cos = float(d1 @ d2) / max(np.linalg.norm(d1) * np.linalg.norm(d2), 1e-12)
+            if cos < math.cos(math.radians(50)):
+                pieces.append(LineString(coords[start:k + 1]))
+                start = k
+        pieces.append(LineString(coords[start:]))
+    return [p for p in pieces if p.length >= min_length_m]
+
+
+def _place_along(rng: np.random.Generator, line: LineString, width_m: float, margin_m: float,
+                 taken: list[tuple[float, float]], clear_m: float = 0.3) -> tuple[float, float] | None:
+    """(start, end) distances along ``line`` of an opening of ``width_m``, ``margin_m`` from its ends
+    and ``clear_m`` clear of the intervals in ``taken`` (which it joins)."""
+    length = line.length
+    lo, hi = margin_m + width_m / 2, length - margin_m - width_m / 2
+    if hi < lo or width_m <= 0.3:
+        return None
+    for _ in range(12):
+        centre = rng.uniform(lo, hi)
+        interval = (centre - width_m / 2 - clear_m, centre + width_m / 2 + clear_m)
+        if all(interval[1] < t0 or interval[0] > t1 for t0, t1 in taken):
+            taken.append(interval)
+            return centre - width_m / 2, centre + width_m / 2
+    return None
+
+
+def _window_on(piece: LineString, start_m: float, end_m: float, outline: Polygon, exterior_m: float,
+               room: int) -> Window:
+    """The window between ``start_m`` and ``end_m`` along the façade ``piece`` (the outer face)."""
+    outer = shapely.ops.substring(piece, start_m, end_m)
+    inner = None
+    for sign in (1.0, -1.0):
+        candidate = outer.offset_curve(sign * exterior_m, join_style="mitre")
+        if candidate.geom_type == "LineString" and not candidate.is_empty and \
+                outline.contains(candidate.interpolate(0.5, normalized=True)):
+            inner = candidate
+            break
+    if inner is None:
+        return Window(Polygon(), outer, outer, room, exterior_m)
+    if np.linalg.norm(np.asarray(inner.coords[0]) - np.asarray(outer.coords[0])) > \
+            np.linalg.norm(np.asarray(inner.coords[-1]) - np.asarray(outer.coords[0])):
+        inner = LineString(np.asarray(inner.coords)[::-1])
+    polygon = Polygon(list(outer.coords) + list(inner.coords)[::-1]).buffer(0)
+    band = outline.difference(outline.buffer(-exterior_m, join_style="mitre"))
+    polygon = polygon.intersection(band.buffer(0.001))
+    if polygon.geom_type != "Polygon":
+        parts = [g for g in getattr(polygon, "geoms", []) if g.geom_type == "Polygon"]
+        polygon = max(parts, key=lambda g: g.area) if parts else Polygon()
+    return Window(polygon, outer, inner, room, exterior_m)
+
+
+def _terraces(rng, outline: Polygon, rooms: list[Room], outer_pieces, openings: list[Opening], ext_taken,
+              exterior_m: float, margin_m: float) -> list[Polygon]:
+    """One or two terraces or balconies on straight façades of living rooms, bedrooms and offices
+    (in an L's or U's notch when there is one), each behind a door in the outer wall."""
+    terraces = []
+    hull_notch = outline.envelope.difference(outline.buffer(0.01))
+    for rank in rng.permutation(len(outer_pieces)):
+        if len(terraces) >= 1 + int(rng.random() < 0.3):
+            break
+        i, piece = outer_pieces[rank]
+        if rooms[i].kind not in ("living", "bedroom", "office", "meeting", "kitchen") or len(piece.coords) != 2 \
+                or piece.length < 2.5:
+            continue
+        p, q = (np.asarray(c) for c in piece.coords)
+        d = (q - p) / piece.length
+        n = np.array([-d[1], d[0]])
+        mid = (p + q) / 2
+        if outline.contains(Point(*(mid + n * 0.05))):
+            n = -n  # outward
+        width = rng.uniform(2.0, min(7.0, piece.length))
+        depth = rng.uniform(1.2, 3.0)
+        s0 = rng.uniform(0.0, piece.length - width)
+        a, b = p + d * s0, p + d * (s0 + width)
+        terrace = Polygon([a, b, b + n * depth, a + n * depth])
+        if not hull_notch.is_empty and hull_notch.intersection(terrace).area > 0.5 * terrace.area:
+            terrace = terrace.intersection(hull_notch.buffer(0.01)).buffer(0)  # in the notch
+        if terrace.is_empty or terrace.geom_type != "Polygon" or terrace.intersection(outline).area > 0.01 \
+                or any(terrace.intersects(t.buffer(0.3)) for t in terraces):
+            continue
+        door_w = rng.uniform(0.8, min(2.4, width - 0.4))
+        local: list = ext_taken.setdefault(rank, [])
+        span = _place_along(rng, piece, door_w, margin_m, local)
+        if span is None or not (s0 <= span[0] and span[1] <= s0 + width):
+            if span is not None:
+                local.remove((span[0] - 0.3, span[1] + 0.3))
+            continue
+        jambs = (np.asarray(piece.interpolate(span[0]).coords[0]), np.asarray(piece.interpolate(span[1]).coords[0]))
+        kind = str(rng.choice(["swing", "sliding", "double"], p=[0.5, 0.3, 0.2])) if door_w >= 1.2 else "swing"
+        openings.append(_exterior_opening(jambs, outline, exterior_m, kind, i, rng))
+        terraces.append(terrace)
+    return terraces
 
 
 def _exterior_opening(jambs, outline: Polygon, exterior_m: float, kind: str, room: int,
@@ -511,11 +789,18 @@ def _exterior_opening(jambs, outline: Polygon, exterior_m: float, kind: str, roo
 
 
 def house_layout(exterior_m: float = 0.3, interior_m: float = 0.12, door_m: float = 0.9,
-                 entrance: str = "swing") -> Layout:
+                 entrance: str = "swing", glazing: str = "single", terrace: bool = False) -> Layout:
     """A fixed small building for tests and pictures: 12 x 8 m, two rooms on a corridor, a door
     from each room to the corridor and from one room to the other, an entrance (``entrance``:
-    swing, double or passage) at the corridor's end, two windows."""
+    swing, double or passage) at the corridor's end, two windows (``glazing="run"``: the rooms'
+    whole façade glazed, panes between thin piers; ``"bay"``: a glazed curved bay on each room
+    besides), and with ``terrace`` a 5 x 2 m terrace behind a sliding door off the corridor."""
     outline = box(0, 0, 12, 8)
+    if glazing == "bay":
+        for x in (1.5, 7.5):
+            disc = Point(x + 1.5, 1.2 - 1.9).buffer(1.9, quad_segs=32)
+            outline = unary_union([outline, disc.intersection(box(x, -1.0, x + 3.0, 0.0)).buffer(1e-3)])
+        outline = shapely.normalize(outline.buffer(0))
     rooms = [Room(box(0, 0, 6, 5), "office", "OFFICE 1"), Room(box(6, 0, 12, 5), "office", "OFFICE 2"),
              Room(box(0, 5, 12, 8), "corridor", "CORRIDOR")]
     inner = outline.buffer(-exterior_m, join_style="mitre")
@@ -538,8 +823,30 @@ def house_layout(exterior_m: float = 0.3, interior_m: float = 0.12, door_m: floa
                        (0, -1)),
                Opening(np.array([8.0, 0.0]), np.array([10.0, 0.0]), np.array([0.0, 1.0]), exterior_m, True, "window",
                        (1, -1))]
+    if glazing == "run":
+        face = LineString([(0.0, 0.0), (12.0, 0.0)])
+        windows = [_window_on(face, s, s + 1.5, outline, exterior_m, 0 if s < 6 else 1)
+                   for s in np.arange(0.6, 11.0, 1.65) if s + 1.5 <= 11.5 and not (5.5 < s + 1.5 and s < 6.5)]
+    elif glazing == "bay":
+        faces = _facade_pieces(LineString(outline.exterior.coords), 1.0)
+        windows = [_window_on(f, 0.25, f.length - 0.25, outline, exterior_m, 0) for f in faces
+                   if len(f.coords) > 3]  # the curved pieces
+    inner = outline.buffer(-exterior_m, join_style="mitre")
+    partitions = MultiLineString([[(6, 0), (6, 5)], [(0, 5), (12, 5)]]).buffer(
+        interior_m / 2, cap_style="square", join_style="mitre").intersection(outline)
+    walls = unary_union([outline.difference(inner), partitions])
+    if glazing == "bay":
+        rooms[0].polygon = shapely.normalize(unary_union([rooms[0].polygon, outline.intersection(box(0, -2, 6, 0))]))
+        rooms[1].polygon = shapely.normalize(unary_union([rooms[1].polygon, outline.intersection(box(6, -2, 12, 0))]))
+    terraces = []
+    if terrace:
+        terraces = [box(3.0, 8.0, 8.0, 10.0)]
+        openings.append(Opening(np.array([4.5, 8.0]), np.array([6.3, 8.0]), np.array([0.0, -1.0]), exterior_m, True,
+                                "sliding", (2, -1)))
     walls = walls.difference(unary_union([o.cut() for o in openings] + [w.cut(0.0) for w in windows]))
-    return Layout(outline, rooms, walls, windows, openings, [], exterior_m, interior_m)
+    return Layout(outline, rooms, walls, windows, openings, [], exterior_m, interior_m, terraces,
+                  {"outline": "rect" if glazing != "bay" else "bay", "bay": glazing == "bay",
+                   "window_run": glazing == "run", "terrace": terrace})
 
 
 def plain_style(wall: str = "solid", paper: str = "white", px_per_m: float = 50.0, **changes) -> Style:
@@ -593,21 +900,18 @@ class Style:
 
 
 def random_style(rng: np.random.Generator, sheet_m: tuple[float, float], wall: str | None = None,
-                 paper: str | None = None) -> Style:
-    """A drawing style for a sheet of ``sheet_m`` (width, height) metres: the print scale and scan
-    resolution give the pixel size (the longer side 1,000-2,200 px), pen widths give line weights."""
+                 paper: str | None = None, megapixels: float | None = None) -> Style:
+    """A drawing style for a sheet of ``sheet_m`` (width, height) metres: the image's size (0.2 to 9
+    megapixels, log-uniform: from a web page's real-estate plan to an architect's scan), a print
+    scale and the scan resolution it implies, pen widths in pixels from them."""
     wall = wall or str(rng.choice(WALL_STYLES))
     paper = paper or str(rng.choice(PAPER_STYLES))
-    long_m = max(sheet_m)
-    options = [(s, dpi) for s in (50, 100, 200) for dpi in (100, 150, 200, 300)
-               if 1000 <= long_m / s * 1000 / 25.4 * dpi <= 2200]
-    if options:
-        scale, dpi = options[rng.integers(len(options))]
-        px_per_m = 1000 / scale / 25.4 * dpi
-    else:
-        dpi = 150
-        px_per_m = rng.uniform(1000, 2200) / long_m
-        scale = 1000 / px_per_m / 25.4 * dpi
+    drawn = float(np.exp(rng.uniform(np.log(MEGAPIXELS[0]), np.log(MEGAPIXELS[1]))))
+    megapixels = drawn if megapixels is None else megapixels
+    px_per_m = math.sqrt(megapixels * 1e6 / (sheet_m[0] * sheet_m[1]))
+    # the print scale whose scan resolution is nearest 200 dpi
+    scale = min((50, 100, 200), key=lambda s: abs(math.log(px_per_m * s / 1000 * 25.4 / 200)))
+    dpi = px_per_m * scale / 1000 * 25.4
     px_per_mm_paper = dpi / 25.4
     # pens as drafters choose them: finer at smaller scales
     pen_mm = rng.uniform(0.13, 0.25) if scale < 150 else rng.uniform(0.1, 0.18)
@@ -628,7 +932,7 @@ def random_style(rng: np.random.Generator, sheet_m: tuple[float, float], wall: s
         dimensions=bool(rng.random() < 0.7), interior_dimensions=bool(rng.random() < 0.3), axes=bool(rng.random() < 0.35),
         title_block=bool(rng.random() < 0.6), north_arrow=bool(rng.random() < 0.3), scale_bar=bool(rng.random() < 0.3),
         tiles=bool(rng.random() < 0.2), colour=bool(rng.random() < 0.35),
-        jpeg_quality=int(rng.uniform(35, 92)) if (paper in ("uneven", "scan") and rng.random() < 0.7) or rng.random() < 0.1 else 0,
+        jpeg_quality=int(rng.uniform(35, 92)) if rng.random() < (0.7 if paper in ("uneven", "scan") else 0.4) else 0,
         blur_sigma_px=float(rng.uniform(0.5, 1.2) if scan else rng.uniform(0.0, 0.7)),
         noise_sigma=float(rng.uniform(3, 8) if scan else rng.uniform(0, 4) if paper != "white" else 0.0),
         skew_deg=float(rng.uniform(-0.8, 0.8)) if scan and rng.random() < 0.4 else 0.0,
@@ -784,6 +1088,15 @@ class Canvas:
         half_w, half_h = patch.shape[1] / 2 / self.scale, patch.shape[0] / 2 / self.scale
         x, y = centre_m
         return box(x - half_w, y - half_h, x + half_w, y + half_h)
+
+
+def _between(outer: LineString, inner: LineString, share: float) -> LineString:
+    """The line ``share`` of the way from ``outer`` to ``inner`` (same number of points or resampled)."""
+    n = max(len(outer.coords), len(inner.coords), 2)
+    steps = np.linspace(0.0, 1.0, n)
+    po = np.array([outer.interpolate(t, normalized=True).coords[0] for t in steps])
+    pi = np.array([inner.interpolate(t, normalized=True).coords[0] for t in steps])
+    return LineString(po + share * (pi - po))
 
 
 def _arc(centre: np.ndarray, radius: float, start_rad: float, sweep_rad: float, n: int = 24) -> LineString:
@@ -953,7 +1266,7 @@ def _place_furniture(rng: np.random.Generator, room: Room, free: shapely.Geometr
                 ty = rng.uniform(y0 - by0, max(y0 - by0, y1 - by1)) if y1 - y0 > by1 - by0 else None
             else:
                 # against the wall of that side: y = 0 of the piece on the wall
-                gap = 0.02
+                gap = 0.0  # touching the wall ("free" is the room less the walls)
                 if side == 0:  # wall at the top (small y), piece grows down
                     tx, ty = rng.uniform(x0 - bx0, max(x0 - bx0, x1 - bx1)), y0 + gap - by0
                 elif side == 1:  # rotated 90: the piece grows to -x; wall on the right
@@ -994,19 +1307,21 @@ class GeneratedPlan:
     style: Style
     n_doors: int
     jpeg: bytes | None = None  # the JPEG file's bytes when the plan is a JPEG (``image`` is them decoded)
+    features: dict = dataclasses.field(default_factory=dict)  # the layout's outline shape, bays, runs, terraces
+    origin_m: tuple[float, float] = (0.0, 0.0)  # the layout's metres at the image's top-left corner
 
 
 def draw_plan(rng: np.random.Generator, layout: Layout, wall: str | None = None, paper: str | None = None,
-              style: Style | None = None) -> GeneratedPlan:
-    """Draw ``layout`` in a random style (``wall`` and ``paper`` fix those two; ``style`` all of
-    it) with its truth."""
+              style: Style | None = None, megapixels: float | None = None) -> GeneratedPlan:
+    """Draw ``layout`` in a random style (``wall``, ``paper`` and the sheet's ``megapixels`` before
+    its title block fix those; ``style`` all of it) with its truth."""
     bx0, by0, bx1, by1 = layout.footprint.bounds
     margin_dim = rng.uniform(2.2, 4.5)
     left, top, right, bottom = (margin_dim + rng.uniform(0, 1.5) for _ in range(4))
     title_h = 0.0
     sheet_w = (bx1 - bx0) + left + right
     sheet_h = (by1 - by0) + top + bottom
-    style0 = style if style is not None else random_style(rng, (sheet_w, sheet_h), wall, paper)
+    style0 = style if style is not None else random_style(rng, (sheet_w, sheet_h), wall, paper, megapixels)
     if style0.title_block:
         title_h = max(2.5, 0.14 * sheet_h)
         sheet_h += title_h
@@ -1021,12 +1336,13 @@ def draw_plan(rng: np.random.Generator, layout: Layout, wall: str | None = None,
     # ---- walls
     solid_walls = unary_union([layout.walls, *layout.columns])
     window_cuts = [w.cut(0.0) for w in layout.windows]
+    thin_faces = style.wall == "solid" or rng.random() < 0.5  # else the windows' faces are the walls' heavy lines
     if style.wall == "solid":
         canvas.fill(layout.walls, style.wall_level)
         if style.wall_outline:
             canvas.stroke(layout.walls, medium, min(ink, style.wall_level))
     else:
-        band = unary_union([layout.walls, *window_cuts])
+        band = unary_union([layout.walls, *([] if thin_faces else window_cuts)])
         if style.wall_fill_level < 255:
             canvas.fill(layout.walls, style.wall_fill_level)
         if style.wall == "hatched":
@@ -1036,18 +1352,40 @@ def draw_plan(rng: np.random.Generator, layout: Layout, wall: str | None = None,
     for column in layout.columns:
         canvas.fill(column, min(style.wall_level, 60))
         canvas.stroke(column, medium, ink)
-    # windows: lines along the opening (faces and glass) and the jambs
+    # windows: lines along the opening (faces and glass: double or triple thin lines) and the jambs
     for window in layout.windows:
-        d = (window.b - window.a) / window.width_m
-        t = window.thickness_m
-        offsets = [0.0, t] if style.wall == "solid" else []
-        offsets += [t * 0.45, t * 0.55] if rng.random() < 0.5 else [t * 0.5]
-        for off in offsets:
-            canvas.stroke(LineString([window.a + window.inward * off, window.b + window.inward * off]), thin, ink)
-        if style.wall == "solid":
-            for p in (window.a, window.b):
-                canvas.stroke(LineString([p, p + window.inward * t]), thin, ink)
-        del d
+        if isinstance(window, Opening):
+            t = window.thickness_m
+            outer = LineString([window.a, window.b])
+            inner = LineString([window.a + window.inward * t, window.b + window.inward * t])
+        else:
+            outer, inner = window.outer, window.inner
+        lines = [outer, inner] if thin_faces else []
+        glass = [0.45, 0.55] if rng.random() < 0.5 else [0.5] if rng.random() < 0.6 else []
+        lines += [_between(outer, inner, f) for f in glass]
+        for line in lines:
+            canvas.stroke(line, thin, ink)
+        if thin_faces:
+            for end in (0, -1):
+                canvas.stroke(LineString([outer.coords[end], inner.coords[end]]), thin, ink)
+    # terraces and balconies: rails (thin, doubled or dashed), sometimes paved
+    for terrace in layout.terraces:
+        rail = terrace.boundary.difference(layout.footprint.buffer(0.02))
+        roll = rng.random()
+        if roll < 0.4:
+            canvas.stroke(rail, thin, ink)
+        elif roll < 0.7:
+            canvas.stroke(rail, thin, ink)
+            canvas.stroke(terrace.buffer(-0.06, join_style="mitre").boundary.difference(layout.footprint.buffer(0.08)),
+                          thin, ink)
+        else:
+            canvas.stroke(rail, thin, ink, dash_m=(0.2, 0.1))
+        if rng.random() < 0.4:
+            x0, y0, x1, y1 = terrace.bounds
+            step = rng.uniform(0.3, 0.6)
+            grid = [LineString([(x, y0), (x, y1)]) for x in np.arange(x0 + step, x1, step)]
+            grid += [LineString([(x0, y), (x1, y)]) for y in np.arange(y0 + step, y1, step)]
+            canvas.stroke(MultiLineString(grid).intersection(terrace.buffer(-0.08)), thin * 0.8, min(255, ink + 120))
 
     # ---- doors
     swept_all = []
@@ -1102,7 +1440,9 @@ def draw_plan(rng: np.random.Generator, layout: Layout, wall: str | None = None,
             canvas.stroke(MultiLineString(grid).intersection(room.polygon.intersection(inner_free)), thin * 0.8,
                           min(255, ink + 110))
         if style.furniture:
-            for lines, outline in _place_furniture(rng, room, free, blocked, _furniture_for(room.kind, rng)):
+            # pieces stand against the walls' faces, touching them
+            against = room.polygon.intersection(layout.footprint.difference(layout.solid)).buffer(-0.003)
+            for lines, outline in _place_furniture(rng, room, against, blocked, _furniture_for(room.kind, rng)):
                 if style.furniture_fill < 255:
                     canvas.fill(outline, style.furniture_fill)
                 for g in lines:
@@ -1293,7 +1633,8 @@ def draw_plan(rng: np.random.Generator, layout: Layout, wall: str | None = None,
         jpeg = data.tobytes()
         image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     return GeneratedPlan(image, walls, free, room_labels, info, 1.0 / ppm, style,
-                         sum(o.kind in ("swing", "double", "sliding") for o in layout.openings), jpeg)
+                         sum(o.kind in ("swing", "double", "sliding") for o in layout.openings), jpeg,
+                         dict(layout.features), origin)
 
 
 def _tick(canvas: Canvas, xy, kind: int, thin: float, heavy: float, ink: int, size_m: float) -> None:
@@ -1341,13 +1682,13 @@ def _raster(geometry: shapely.Geometry, shape: tuple[int, int], px_per_m: float,
 
 # ---- plans to files ----------------------------------------------------------------------------
 def generate_plan(seed_sequence: np.random.SeedSequence | int, wall: str | None = None,
-                  paper: str | None = None) -> GeneratedPlan:
-    """One plan from its own seed (a ``SeedSequence`` child or an int)."""
+                  paper: str | None = None, megapixels: float | None = None) -> GeneratedPlan:
+    """One plan from its own seed (a ``SeedSequence`` child or an int); ``megapixels`` fixes its size."""
     rng = np.random.default_rng(seed_sequence)
     for _ in range(20):
         layout = make_layout(rng)
         if len(layout.rooms) >= 2 and layout.openings:
-            return draw_plan(rng, layout, wall, paper)
+            return draw_plan(rng, layout, wall, paper, megapixels=megapixels)
     raise RuntimeError("no usable layout in 20 draws")
 
 
@@ -1364,9 +1705,13 @@ def write_plan(plan: GeneratedPlan, folder: Path, name: str) -> Path:
     cv2.imwrite(str(folder / f"{name}_free.png"), plan.free.astype(np.uint8) * 255)
     cv2.imwrite(str(folder / f"{name}_rooms.png"), plan.rooms)
     meta = {"image": image_path.name, "resolution_m": plan.resolution_m, "style": dataclasses.asdict(plan.style),
-            "rooms": plan.room_info, "doors": plan.n_doors}
+            "rooms": plan.room_info, "doors": plan.n_doors, "features": plan.features}
     (folder / f"{name}.json").write_text(json.dumps(meta, indent=1))
     return image_path
+
+
+# the set the reader is measured on and never tuned on; tuning uses other seeds (1, 3, ...)
+HELD_OUT_SEED = 2
 
 
 def plan_seeds(seed: int, count: int) -> list[np.random.SeedSequence]:

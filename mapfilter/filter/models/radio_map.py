@@ -76,6 +76,28 @@ class RadioMapLikelihood(MeasurementModel):
         the set, heard by a scan anyway, is ignored like an AP the radio map does not know.
         None: all APs."""
         cfg = self.config = config
+        use_aps, tabled = self._index_readings(radio_map, heard_keys)
+        grid = _stored_grid(radio_map, floorplan, cfg, use_aps)
+        self.from_stored_tables = grid is not None
+        if grid is None:
+            grid = _built_grid(radio_map, floorplan, cfg)
+        (x0, y0), self.shape, active, self._weight, w_all, stored_base = grid
+        self._take_grid(x0, y0, active, len(radio_map))
+        self._w_all = w_all
+        self._built = ~tabled  # an AP outside heard_keys never gets a table
+        self._tables: list[tuple[np.ndarray, ...]] = []  # per batch: (ap, cell, mu, 1/var, offset)
+        self._ap_ptr = np.zeros(self._n_aps + 1, dtype=np.int64)
+        self._cell = np.zeros(0, dtype=np.int32)
+        self._mu = self._inv_var = self._offset = np.zeros(0, dtype=np.float32)
+        p0 = self._set_prior(w_all)
+        self.base = stored_base if stored_base is not None else self._not_heard_base(p0, w_all)
+        self._use_aps = use_aps
+
+    def _index_readings(self, radio_map: RadioMap,
+                        heard_keys: Collection[str] | None) -> tuple[np.ndarray, np.ndarray]:
+        """The APs in use (heard in ``MIN_OBSERVATIONS`` reference points), their keys, and every
+        reading of them by AP (CSR by AP, each AP's in reference-point order); (the APs in use,
+        which of them get tables)."""
         heard = ~np.isnan(radio_map.rssi_dbm)
         use_aps = np.nonzero(heard.sum(axis=0) >= MIN_OBSERVATIONS)[0]
         if use_aps.size == 0 or len(radio_map) == 0:
@@ -84,22 +106,21 @@ class RadioMapLikelihood(MeasurementModel):
         tabled = np.ones(use_aps.size, dtype=bool) if heard_keys is None else np.isin(self.ap_keys, list(heard_keys))
         self.key_index = {key: j for j, key in enumerate(self.ap_keys) if tabled[j]}
         n_aps = use_aps.size
-        # every reading of the APs in use, by AP, each AP's in reference-point order (CSR by AP)
         ref, ap_col = np.nonzero(heard[:, use_aps])
         values = radio_map.rssi_dbm[:, use_aps][ref, ap_col].astype(np.float32)
         by_ap = np.argsort(ap_col, kind="stable")
         self._readings = (np.searchsorted(ap_col[by_ap], np.arange(n_aps + 1)).astype(np.int64),
                           ref[by_ap].astype(np.int64), values[by_ap])
         self._n_refs, self._n_aps = len(radio_map), n_aps
-        grid = _stored_grid(radio_map, floorplan, cfg, use_aps)
-        self.from_stored_tables = grid is not None
-        if grid is None:
-            grid = _built_grid(radio_map, floorplan, cfg)
-        (x0, y0), self.shape, active, self._weight, w_all, stored_base = grid
-        # the kernel weights by reference point (CSC), each point's cells in cell order
+        return use_aps, tabled
+
+    def _take_grid(self, x0: float, y0: float, active: np.ndarray, n_refs: int) -> None:
+        """The grid's cells (``active``: the grid indices of the cells kept), where particles find
+        them, and the kernel weights by reference point (CSC, each point's cells in cell order)."""
+        cfg = self.config
         w_ptr, w_ref, w_val = self._weight
         by_ref = np.argsort(w_ref, kind="stable")
-        self._weight_by_ref = (np.searchsorted(w_ref[by_ref], np.arange(len(radio_map) + 1)).astype(np.int64),
+        self._weight_by_ref = (np.searchsorted(w_ref[by_ref], np.arange(n_refs + 1)).astype(np.int64),
                                np.repeat(np.arange(w_ptr.size - 1), np.diff(w_ptr))[by_ref], w_val[by_ref])
         self.origin_m = (float(x0), float(y0))
         n_cells = active.size
@@ -107,32 +128,30 @@ class RadioMapLikelihood(MeasurementModel):
         self.cell_of[active] = np.arange(n_cells)
         rows, cols = np.divmod(active, self.shape[1])
         self.cell_xy_m = np.column_stack([x0 + (cols + 0.5) * cfg.cell_m, y0 + (rows + 0.5) * cfg.cell_m])
-        self._w_all = w_all
-        self._built = ~tabled  # an AP outside heard_keys never gets a table
-        self._tables: list[tuple[np.ndarray, ...]] = []  # per batch: (ap, cell, mu, 1/var, offset)
-        self._ap_ptr = np.zeros(n_aps + 1, dtype=np.int64)
-        self._cell = np.zeros(0, dtype=np.int32)
-        self._mu = self._inv_var = self._offset = np.zeros(0, dtype=np.float32)
+
+    def _set_prior(self, w_all: np.ndarray) -> np.ndarray:
+        """The prior per cell (an AP never heard near it): its mean, inverse variance and offset;
+        returns the probability of hearing such an AP at each cell (and the prior cell)."""
         clip = HEARD_CLIP
         prior_var = PRIOR_SIGMA_DB ** 2 + SIGMA_FLOOR_DB ** 2
-        # the prior per cell: an AP never heard near the cell
         p0 = np.clip(PRIOR_WEIGHT * PRIOR_HEARD / (w_all + PRIOR_WEIGHT), clip, 1 - clip)
         self._prior_mu_dbm = PRIOR_RSSI_DBM
         self._prior_inv_var = 1.0 / prior_var
         self._prior_offset = np.log(p0) - 0.5 * np.log(2 * np.pi * prior_var) - np.log1p(-p0)  # (cells + 1,)
-        if stored_base is not None:
-            self.base = stored_base
-        else:
-            # every AP unheard: the prior everywhere, corrected where an AP has data (all APs)
-            all_cell, _, all_wh, _, _ = self._sums(np.ones(n_aps, dtype=bool))
-            self.base = grid_base = n_aps * np.log1p(-p0)
-            data = all_wh > MIN_WEIGHT
-            base_cell = all_cell[data]
-            p_heard_all = np.clip((all_wh[data] + PRIOR_WEIGHT * PRIOR_HEARD) / (w_all[base_cell] + PRIOR_WEIGHT),
-                                  clip, 1 - clip)
-            # each cell's terms added in AP order
-            np.add.at(grid_base, base_cell, np.log1p(-p_heard_all) - np.log1p(-p0[base_cell]))
-        self._use_aps = use_aps
+        return p0
+
+    def _not_heard_base(self, p0: np.ndarray, w_all: np.ndarray) -> np.ndarray:
+        """Each cell's log-likelihood of every AP unheard: the prior everywhere, corrected where an
+        AP has data (all APs), each cell's terms added in AP order."""
+        clip = HEARD_CLIP
+        all_cell, _, all_wh, _, _ = self._sums(np.ones(self._n_aps, dtype=bool))
+        grid_base = self._n_aps * np.log1p(-p0)
+        data = all_wh > MIN_WEIGHT
+        base_cell = all_cell[data]
+        p_heard_all = np.clip((all_wh[data] + PRIOR_WEIGHT * PRIOR_HEARD) / (w_all[base_cell] + PRIOR_WEIGHT),
+                              clip, 1 - clip)
+        np.add.at(grid_base, base_cell, np.log1p(-p_heard_all) - np.log1p(-p0[base_cell]))
+        return grid_base
 
     def _sums(self, aps: np.ndarray) -> tuple[np.ndarray, ...]:
         """(cell, ap, weight, weighted RSSI sum, weighted RSSI^2 sum) of every cell and AP of
