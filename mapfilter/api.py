@@ -45,7 +45,7 @@ from mapfilter.sensors.radiomap import build_radio_map as _build_one_floor
 from mapfilter.pipeline.selftrain import GrowConfig, GrowReport
 from mapfilter.pipeline.selftrain import grow_radio_map as _grow
 from mapfilter.sensors.recording import Recording
-from mapfilter.pipeline.tracker import Tracker, TrackingInputs, TrackResult, WalkStart, as_start
+from mapfilter.pipeline.tracker import TRUE_START, Tracker, TrackingInputs, TrackResult, WalkStart, as_start
 from mapfilter.pipeline.tracker import track as _track
 from mapfilter.filter.sources import plugin
 from mapfilter.io.tracks import Track, read_track, write_track
@@ -224,7 +224,8 @@ def evaluate(building: Building | PathLike, logs: Sequence[Recording | PathLike]
     ``jobs``/``scheduler``: walks on local worker processes or a Dask cluster. ``waypoints``:
     ``"common"`` scores every method of a walk at the waypoints every method has an estimate for,
     ``"own"`` each at every waypoint from its own first estimate on. ``start``: where every walk
-    started, if known (as ``track`` takes it): the particle filter methods start there.
+    started, if known (as ``track`` takes it): the particle filter methods start there; ``"truth"``:
+    each walk at its own first waypoint (``evaluate --start truth``).
     """
     building = _building(building, "building")
     walks = _walks(logs, "logs")
@@ -344,8 +345,11 @@ def _tracking_inputs(building: Building, radio_map, access_points, sources, conf
             load_sources(sources, building) if sources is not None else {}, _config(config))
 
 
-def _start_on(value, building: Building) -> WalkStart | None:
-    """The checked ``start`` argument (``as_start``), on a floor of ``building`` and its free space."""
+def _start_on(value, building: Building) -> WalkStart | str | None:
+    """The checked ``start`` argument (``as_start``), on a floor of ``building`` and its free space;
+    ``TRUE_START`` as it is."""
+    if value == TRUE_START:
+        return TRUE_START
     start = as_start(value)
     if start is not None:
         start.place(building)

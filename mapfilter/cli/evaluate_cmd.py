@@ -53,7 +53,8 @@ methods in a building with several floors: {', '.join(BUILDING_METHODS)}
   kf, pdr   the Kalman filter and dead reckoning on those KWNN fixes, each row on their floor
   pdr-start from the true start, on the floor of the walk's first waypoint
 --start X,Y[,FLOOR]: every walk started there (an entrance they all walked in from): the pf
-methods start within 2 m of it at each walk's first step (pdr-start always starts at the truth).
+methods start within 2 m of it at each walk's first step, and the offline track passes there;
+--start truth: each walk at its own first waypoint (pdr-start always starts at the truth).
 
 {{sources}}
 
@@ -433,10 +434,12 @@ def _print_tables(args, evaluation, columns, summary: list[dict], by_phone: list
     methods were scored, the summary table with the methods not scored at some waypoints, per phone
     model when there are several, per group in a leave-a-group-out run."""
     from mapfilter.evaluation.metrics import format_table
+    from mapfilter.pipeline.tracker import TRUE_START
 
     waypoints = evaluation.common_count()[1]
     grown = f", plus {evaluation.grown}" if evaluation.grown else ""
-    start = f"; the pf methods started at {args.start} (--start)" if args.start is not None else ""
+    start = ("" if args.start is None else "; the pf methods started at each walk's first waypoint (--start truth)"
+             if args.start == TRUE_START else f"; the pf methods started at {args.start} (--start)")
     print(f"{n_done} of {evaluation.n_traces} walks, {waypoints} waypoints, {evaluation.wall_time_s:.1f} s; "
           f"{evaluation.radio_map_source}{grown}{start}")
     if evaluation.results:

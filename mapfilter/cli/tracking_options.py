@@ -74,12 +74,15 @@ def add_tracking_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_start_argument(parser: argparse.ArgumentParser, every_walk: bool = False) -> None:
     """``--start X,Y[,FLOOR]``: where the walk started, if the user knows (a walk's input, not a
-    setting of the config)."""
-    parser.add_argument("--start", metavar="X,Y[,FLOOR]",
+    setting of the config); for every walk of an evaluation also ``truth``: each walk's own first
+    waypoint."""
+    parser.add_argument("--start", metavar="X,Y[,FLOOR]" + ("|truth" if every_walk else ""),
                         help=("where every walk started" if every_walk else "where the walk started") +
                              ", if you know it (metres in the map's frame; FLOOR: the floor's name, needed in a "
                              "building): the particles start within 2 m of it at the first step, instead of "
-                             "over the map from the first WiFi scan")
+                             "over the map from the first WiFi scan, and the offline track passes there" +
+                             ("; truth: each walk at its own first waypoint (as a competition gives a trial's "
+                              "initial position)" if every_walk else ""))
 
 
 def start_from(args: argparse.Namespace, building, floor: str | None = None):
@@ -87,7 +90,10 @@ def start_from(args: argparse.Namespace, building, floor: str | None = None):
     has and on free space (``MapfilterError`` in one line)."""
     if args.start is None:
         return None
-    from mapfilter.pipeline.tracker import WalkStart
+    from mapfilter.pipeline.tracker import TRUE_START, WalkStart
+
+    if args.start == TRUE_START and getattr(args, "command", None) == "evaluate":
+        return TRUE_START
 
     start = WalkStart.parse(args.start)
     start.place(building, floor)

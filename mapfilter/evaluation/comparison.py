@@ -17,7 +17,9 @@ causal: each method's latest estimate at or before the waypoint). On one floor:
 =============  ==========================================================================
 
 With a ``start`` (``pipeline.tracker.WalkStart``: where every walk started, as a user who knows
-the entrance says it), the particle filter methods start there at each walk's first step.
+the entrance says it), the particle filter methods start there at each walk's first step; with
+``TRUE_START`` each walk starts at its own first waypoint (as a competition gives a trial's
+initial position, and as a user who knows where each walk began would).
 
 With a measurement source's input (``sources``: ``{name: input}``, ``filter.sources``), also
 ``pf+NAME`` (``pf`` with the source's measurements weighed too; with ``smooth``, its offline
@@ -91,7 +93,7 @@ from mapfilter.sensors.radiomap import (GROWN, RadioMap, build_radio_map, check_
                                        merge_radio_maps)
 from mapfilter.sensors.recording import Recording, trace_name
 from mapfilter.sensors.wifi import scans_of
-from mapfilter.pipeline.tracker import TrackResult, prepare_walk, track_prepared
+from mapfilter.pipeline.tracker import TRUE_START, TrackResult, WalkStart, prepare_walk, track_prepared
 from mapfilter.io.tracks import Track
 
 # {method: (source name, what it runs: pf | pf-floor | alone)} of every registered source
@@ -112,6 +114,18 @@ def methods_for(building: Building, sources: Collection[str] = ()) -> tuple[str,
 
 # A walk to evaluate: its log's path, or the log already read (the Python API takes both).
 Walk = Path | Recording
+
+
+def walk_start(start, recording, building):
+    """The start a walk's particle filter methods are given: ``start`` (every walk's, or None), or
+    with ``TRUE_START`` the walk's first waypoint (on its floor in a ``building`` with several)."""
+    if start != TRUE_START:
+        return start
+    if not len(recording.waypoint_t_s):
+        return None
+    floor = str(recording.waypoint_floor[0]) if recording.waypoint_floor and not building.is_single_floor else None
+    x, y = (float(v) for v in recording.waypoint_xy_m[0])
+    return WalkStart((x, y), floor)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,7 +152,9 @@ class EvaluationSetup:
     # score every method of a walk at the same waypoints (those every method has an estimate for);
     # False: each at every waypoint from its own first estimate on
     common_waypoints: bool = True
-    start: Any = None  # where every walk started, if known (``pipeline.tracker.WalkStart``): the pf methods start there
+    # where every walk started, if known (``pipeline.tracker.WalkStart``; ``TRUE_START``: each walk's
+    # first waypoint): the pf methods start there
+    start: Any = None
 
     @property
     def leaves_out(self) -> bool:
@@ -658,7 +674,7 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
             rng = np.random.default_rng([tracking.seed, index, ALL_METHODS.index(method)])
             walk = prepared if prepared is not None else prepare_walk(building, recording, None, ap_table, config,
                                                                      steps=steps)
-            outcome = track_prepared(walk, config, rng=rng, start=setup.start)
+            outcome = track_prepared(walk, config, rng=rng, start=walk_start(setup.start, recording, building))
             scorer.add_run(method, outcome)
         elif method in SOURCE_METHODS:
             # a source with the WiFi (pf+NAME, and its offline track pf-smooth+NAME) or alone (pf-NAME)
@@ -675,7 +691,7 @@ def _one_floor_methods(context: _Context, index: int, recording: Recording) -> l
             else:
                 walk = prepare_walk(building, recording, None, ap_table if with_wifi else None, config, steps=steps,
                                     sources=given)
-            outcome = track_prepared(walk, config, rng=rng, start=setup.start)
+            outcome = track_prepared(walk, config, rng=rng, start=walk_start(setup.start, recording, building))
             scorer.add_run(method, outcome)
         elif method == "kwnn" and radio_map is not None:
             scorer.timed(method, lambda: _fix_track(scan_t, fixes, "kwnn"))
@@ -730,7 +746,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
             config = dataclasses.replace(tracking, smooth=tracking.smooth and method == "pf")
             walk = prepare_walk(building, recording, radio_map, None, config, steps=steps,
                                 floor=truth if method == "pf-floor" else None, fix_sigma_by_floor_m=sigma)
-            outcome = track_prepared(walk, config, rng=rng, start=setup.start)
+            outcome = track_prepared(walk, config, rng=rng, start=walk_start(setup.start, recording, building))
             scorer.add_run(method, outcome)
         elif method in SOURCE_METHODS:
             # pf and pf-floor with a source too (pf+NAME's offline track: pf-smooth+NAME), and pf
@@ -744,7 +760,7 @@ def _building_methods(context: _Context, index: int, recording: Recording) -> li
                                 floor=truth if kind == "pf-floor" else None,
                                 fix_sigma_by_floor_m=sigma if wifi is not None else None,
                                 sources={name: sources[name]})
-            outcome = track_prepared(walk, config, rng=rng, start=setup.start)
+            outcome = track_prepared(walk, config, rng=rng, start=walk_start(setup.start, recording, building))
             scorer.add_run(method, outcome)
         elif method in ("kwnn", "kf", "pdr"):
             if fixes is None:

@@ -3,7 +3,8 @@
 ``offline_track`` is a function of what the causal run left (``CausalRun``): the smoother
 (``offline.smoother``) over the filter's own run, and, for a walk on one floor with PDR steps
 and WiFi (in a building: one the smoother keeps on one floor throughout), the whole walk placed
-(``offline.whole_walk``): its dead-reckoned shape placed through the causal track starts half
+(``offline.whole_walk``): its dead-reckoned shape placed through the causal track (and through
+the walk's start, when the user knows it) starts half
 the particles of a second forward pass on that floor's map, with every measurement source's
 measurements replayed there (``filter.measurement.ReplayedMeasurements``), and placed through that
 pass's smoothed track it is the offline track (docs/accuracy.md), unless that smoothed track
@@ -28,6 +29,7 @@ from mapfilter.io.tracks import Track
 from mapfilter.maps.building import Building
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.paths import detour_wall_crossings
+from mapfilter.offline.placement import Anchor
 from mapfilter.offline.smoother import ParticleHistory, smooth
 from mapfilter.offline.whole_walk import placed_track
 from mapfilter.sensors.pdr import Steps
@@ -61,6 +63,7 @@ class CausalRun:
     history: ParticleHistory  # every step's cloud
     sources: tuple[MeasurementSource, ...]  # the measurement sources, with what they measured
     rng: np.random.Generator  # the run's generator, as the causal run left it
+    start: Start = Start()  # where the run started (a known start: ``at_first_step``, in the plan's frame)
 
 
 def offline_track(run: CausalRun, on_offline_step: Callable[[StepReport], None] | None = None,
@@ -86,7 +89,8 @@ def offline_track(run: CausalRun, on_offline_step: Callable[[StepReport], None] 
         # on one floor throughout: the walk as on that floor's own map
         plan, evidence, floor_name = building.floors[floor].plan, run.evidence.floor_wifi[floor], building.floor_names[floor]
         causal = dataclasses.replace(causal, xy_m=run.stack.to_floor(causal.xy_m)[0])
-    placed = placed_track(plan, evidence, steps, causal, config.offline)
+    anchor = _known_start_anchor(run, steps, floor)
+    placed = placed_track(plan, evidence, steps, causal, config.offline, anchor)
     t0 = float(evidence.scans[int(np.argmax(evidence.usable))].t_s)
     start_xy = placed.xy_m[int(np.clip(np.searchsorted(placed.t_s, t0), 0, len(placed) - 1))]
     history = ParticleHistory()
@@ -99,7 +103,7 @@ def offline_track(run: CausalRun, on_offline_step: Callable[[StepReport], None] 
     second_smoothed = smoothed_track(history, plan, config)
     reach_m = WALL_REACH_SIGMAS * config.offline.map_matching.anchor_sigma_m
     track = (second_smoothed if np.median(plan.distance_to_wall_m(second_smoothed.xy_m)) > reach_m
-             else placed_track(plan, evidence, steps, second_smoothed, config.offline))
+             else placed_track(plan, evidence, steps, second_smoothed, config.offline, anchor))
     restarted = dataclasses.replace(second.track(), name="restarted")
     if floor_name is not None:  # the floor's probability is the smoother's at or before each row
         row = np.clip(np.searchsorted(smoothed.t_s, track.t_s, side="right") - 1, 0, len(smoothed) - 1)
@@ -107,6 +111,20 @@ def offline_track(run: CausalRun, on_offline_step: Callable[[StepReport], None] 
                                     floor_p=None if smoothed.floor_p is None else smoothed.floor_p[row])
         restarted = dataclasses.replace(restarted, floor=[floor_name] * len(restarted))
     return track, restarted
+
+
+def _known_start_anchor(run: CausalRun, steps: Steps, floor: int | None) -> Anchor | None:
+    """A known start as the placement's anchor (``offline.placement.Anchor``): the walk's shape,
+    before its first step, within the start's radius of it, on the floor's own map (None: no
+    known start, or one on another floor than the walk's)."""
+    if not run.start.at_first_step or run.start.xy_m is None:
+        return None
+    xy = np.asarray(run.start.xy_m, dtype=np.float64).reshape(1, 2)
+    if run.stack is not None:
+        xy, start_floor = run.stack.to_floor(xy)
+        if int(start_floor[0]) != floor:
+            return None
+    return Anchor(float(steps.t0_s), xy[0], float(run.start.radius_m))
 
 
 def smoothed_track(history: ParticleHistory, plan: FloorPlan, config: TrackingConfig,

@@ -44,12 +44,14 @@ from mapfilter.sensors.radiomap import RadioMap
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import scans_of
 
-__all__ = ["KNOWN_START_RADIUS_M", "PreparedWalk", "TrackResult", "Tracker", "TrackingInputs", "WalkStart",
+__all__ = ["KNOWN_START_RADIUS_M", "TRUE_START", "PreparedWalk", "TrackResult", "Tracker", "TrackingInputs", "WalkStart",
            "as_start", "prepare_walk", "track", "track_prepared"]
 
 # a start the user knows ("the entrance I walked in from"): the particles within this radius of
 # it, the walker's first steps from there; a person points at their start this closely
 KNOWN_START_RADIUS_M = 2.0
+# an evaluation's start for every walk (``evaluate --start truth``): each walk's own first waypoint
+TRUE_START = "truth"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -330,8 +332,9 @@ class Tracker:
         settings = RunSettings(config.motion, config.filter, config.steps.abs_heading_offset_rad)
         steps_in = (steps if steps is not None else OnlinePDR(config.steps)) if pdr else None
         self.start = as_start(start)
+        self._start_at = self._known_start(floor)
         self.stream = CausalFilter(plan, evidence, settings, self.rng, steps=steps_in, floors=floors,
-                                   sources=self.sources, on_step=on_step, start=self._known_start(floor),
+                                   sources=self.sources, on_step=on_step, start=self._start_at,
                                    history=_Recorders(recorders) if recorders else None)
         self._floors = floors
         self.runtime_s = 0.0
@@ -399,7 +402,8 @@ class Tracker:
         """What the causal run leaves for the offline track (``pipeline.offline``; after ``close``,
         with ``config.smooth``)."""
         return CausalRun(self.building, self.config, self.plan, self.evidence, self.stack, self._floors,
-                         self.floor_index, self.stream.steps, self.stream.track(), self.history, self.sources, self.rng)
+                         self.floor_index, self.stream.steps, self.stream.track(), self.history, self.sources, self.rng,
+                         self._start_at)
 
     def result(self, on_offline_step: Callable[[StepReport], None] | None = None,
                on_smoothed: Callable[[float, np.ndarray, np.ndarray], None] | None = None) -> TrackResult:

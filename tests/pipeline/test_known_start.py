@@ -5,7 +5,9 @@ line; ``evaluate`` offers dead reckoning from the true start (``pdr-start``)."""
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
+import json
 import io
 import sys
 
@@ -149,3 +151,36 @@ def test_evaluate_starts_the_pf_methods_there_and_offers_dead_reckoning_from_the
     assert rows["pdr-start"]["mean"] < rows["pdr"]["mean"]  # the true start beats the first fix's
     with pytest.raises(MapfilterError, match="not on the free space"):
         mf.evaluate(building, [walk], start=(1.0, 1.0), **common)
+
+
+def test_the_offline_track_passes_through_a_known_start(office):
+    """The known start anchors the offline track's placement (``offline.placement.Anchor``): its
+    first row is within the start's radius of it, wherever the fixes would put the shape; without
+    a start the placement is by the fixes alone, and the walk's first row follows them."""
+    building, walk, radio_map = office
+    config = dataclasses.replace(CONFIG, smooth=True)
+    far = (5.0, 30.0)  # across the office from the true start: the fixes never put the walk there
+    given = mf.track(building, walk, radio_map, config=config, start=far)
+    plain = mf.track(building, walk, radio_map, config=config)
+    assert given.offline is not None and plain.offline is not None
+    assert np.linalg.norm(given.offline.xy_m[0] - far) < KNOWN_START_RADIUS_M + STEP_M
+    assert np.linalg.norm(plain.offline.xy_m[0] - far) > 3 * KNOWN_START_RADIUS_M
+    truth = tuple(float(v) for v in walk.waypoint_xy_m[0])
+    at_truth = mf.track(building, walk, radio_map, config=config, start=truth)
+    assert np.linalg.norm(at_truth.offline.xy_m[0] - walk.waypoint_xy_m[0]) < KNOWN_START_RADIUS_M + STEP_M
+
+
+def test_evaluate_start_truth_starts_each_walk_at_its_first_waypoint(office, tmp_path, capsys):
+    """``evaluate --start truth``: each walk's pf methods from its own first waypoint (a
+    competition's initial position), named in the summary."""
+    building, walk, radio_map = office
+    result = mf.evaluate(building, [walk], radio_map=RADIOMAP, methods=["pf"], config=CONFIG, start="truth")
+    (pf,) = [r.track for r in result.results if r.method == "pf"]
+    assert np.linalg.norm(pf.xy_m[0] - walk.waypoint_xy_m[0]) < KNOWN_START_RADIUS_M + STEP_M
+    assert main(["evaluate", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP), "--methods", "pf",
+                 "--particles", "1000", "--start", "truth", "--out", str(tmp_path / "e")]) == 0
+    assert json.loads((tmp_path / "e" / "summary.json").read_text())["start"] == "truth"
+    assert "the pf methods started at each walk's first waypoint (--start truth)" in capsys.readouterr().out
+    # on track, a walk's start is a place: "truth" is not one
+    with pytest.raises(MapfilterError, match="X,Y"):
+        mf.track(building, walk, radio_map, config=CONFIG, start="truth")

@@ -12,6 +12,8 @@ site 1 half-floor split, with one compact summary, so that every candidate is me
 ``--set SECTION.FIELD=VALUE`` overrides the config for both (a candidate's settings). ``--quick``:
 2,000 particles, one repetition of each IPIN route scored (the other 21 logs survey, each walk's
 route still left out) and every third ILC test walk; minutes, for iterating, not for the docs.
+``--start truth``: the particle filter starts at each walk's first waypoint, and the offline
+track passes there (``evaluate --start truth``; docs/accuracy.md).
 
     .venv/bin/python tools/experiments/beyond_survey.py --jobs 2 [--quick] [--set wifi.fingerprint_model=fix]
 """
@@ -56,7 +58,7 @@ def ipin_venue(work: Path, beacons: bool) -> tuple[Path, Path | None]:
     return venue, table
 
 
-def run_ipin(work: Path, tracking, jobs: int, quick: bool, beacons: bool) -> dict:
+def run_ipin(work: Path, tracking, jobs: int, quick: bool, beacons: bool, start=None) -> dict:
     """The IPIN 2023 logs leave-one-route-out: summary rows and rows per route."""
     venue, table = ipin_venue(work, beacons)
     building = Building.load(venue)
@@ -65,7 +67,7 @@ def run_ipin(work: Path, tracking, jobs: int, quick: bool, beacons: bool) -> dic
     scored = [p for p in logs if p.name.endswith("repetition01.txt.gz")] if quick else logs
     setup = EvaluationSetup(methods=("pf", "kwnn") + (("pf+ble",) if beacons else ()),
                             survey_paths=tuple(p for p in logs if p not in scored), groups=by_ipin_trial(logs),
-                            sources=sources, tracking=tracking)
+                            sources=sources, tracking=tracking, start=start)
     evaluation = evaluate(building, scored, setup, Engine(jobs=jobs), progress=progress("IPIN 2023"))
     failed = [f"{o.trace}: {o.reason}" for o in evaluation.failed]
     return {"protocol": evaluation.protocol, "walks": len(scored), "failed": failed,
@@ -97,21 +99,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--floors", nargs="+", choices=list(FLOORS), default=list(FLOORS))
     parser.add_argument("--set", dest="settings", nargs="+", default=[], metavar="SECTION.FIELD=VALUE",
                         help="config overrides (YAML values) for every run")
+    parser.add_argument("--start", choices=("truth",), default=None,
+                        help="truth: the pf methods start at each walk's first waypoint (evaluate --start truth)")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "beyond_survey")
     args = parser.parse_args(argv)
     particles = args.particles or (2_000 if args.quick else 10_000)
     tracking = tracking_config(args.seed, particles, args.settings)
     args.out.mkdir(parents=True, exist_ok=True)
-    report, printed, seconds = {"particles": particles, "seed": args.seed, "set": args.settings}, [], {}
+    report, printed, seconds = {"particles": particles, "seed": args.seed, "set": args.settings,
+                                "start": args.start}, [], {}
     if "ipin" in args.parts:
         started = time.perf_counter()
-        report["ipin"] = run_ipin(args.out, tracking, args.jobs, args.quick, args.beacons)
+        report["ipin"] = run_ipin(args.out, tracking, args.jobs, args.quick, args.beacons, args.start)
         seconds["ipin"] = time.perf_counter() - started
         printed.append(ipin_tables(report["ipin"]))
         print(printed[-1], flush=True)
     if "ilc" in args.parts:
         started = time.perf_counter()
-        report["ilc"] = [run_split(floor, tracking, args.jobs, args.out, every=3 if args.quick else 1)
+        report["ilc"] = [run_split(floor, tracking, args.jobs, args.out, every=3 if args.quick else 1, start=args.start)
                          for floor in args.floors]
         seconds["ilc"] = time.perf_counter() - started
         rows = [row for result in report["ilc"] for row in result["rows"]]
@@ -121,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     report["seconds"] = seconds
     (args.out / "beyond_survey.json").write_text(json.dumps(report, indent=1, default=_plain))
     print(f"\n{particles} particles, seed {args.seed}" + (f", --set {' '.join(args.settings)}" if args.settings else "")
+          + (f", --start {args.start}" if args.start else "")
           + "; " + ", ".join(f"{k} {v / 60:.1f} min" for k, v in seconds.items()) + f"; wrote {args.out}")
     return 0
 
