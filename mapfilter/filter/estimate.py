@@ -1,17 +1,18 @@
-"""The reported position: the cloud's main mode, never inside a wall, and a track that walks
-round walls.
+"""The reported position: the cloud's mean where it is free space, else its main mode, and a
+track that walks round walls.
 
 Evennou & Marx report the barycentre of the cloud, which can sit inside a wall (a cloud
 split by a wall, or curved around a corner), and a track of barycentres cuts through walls
-when the cloud splits. The causal filter reports the mean of the cloud's main mode instead
-(:func:`mode_estimate`): the densest 3 m x 3 m window of the weight, the particle nearest to
-that window's mean as the mode's centre, and the weighted mean of the particles within
-``MODE_RADIUS_M`` of it that it sees (no wall between): one side of a wall, one corridor. A
-mean that still falls in a wall gives way to the nearest of those particles. Between two
-rows the estimate walks round a wall as the walker must (:func:`toward`): when the straight
-move to the new mode touches a wall, the row is the farthest point of the shortest free path
-to it that the previous row sees, so consecutive rows never cross a wall; the next rows
-follow the path on.
+when the cloud splits. The causal filter reports the barycentre while it lies on free space,
+and else the mean of the cloud's main mode (:func:`mode_estimate`): the densest 3 m x 3 m
+window of the weight, the particle nearest to that window's mean as the mode's centre, and the
+weighted mean of the particles within ``MODE_RADIUS_M`` of it that it sees (no wall between):
+one side of a wall, one corridor. A mean that still falls in a wall gives way to the nearest
+of those particles. (The mode everywhere costs IPIN 9 %: docs/accuracy.md.) Between two rows
+the estimate walks round a wall as the walker must (:func:`toward`): when the straight move to
+the new estimate touches a wall, the row is the farthest point of the shortest free path to it
+that the previous row sees, so consecutive rows never cross a wall; the next rows follow the
+path on.
 
 :func:`weighted_estimate` (the weighted mean when it lies on free space, else the live
 particle nearest to it) is what the smoother reports for each smoothed cloud.

@@ -55,11 +55,13 @@ def floor_walks(floor: str) -> list[Path]:
 
 
 def run_split(floor: str, tracking: TrackingConfig, jobs: int, work: Path, every: int = 1,
-              log=lambda message: print(message, file=sys.stderr, flush=True), start=None) -> dict:
+              log=lambda message: print(message, file=sys.stderr, flush=True), start=None,
+              transductive: bool = False) -> dict:
     """One floor, both directions: the errors of every method per half (pooled over both
     directions), per direction, and the survey's coverage. ``every``: score every n-th test walk
     only (a quick look; the survey is whole); ``start``: evaluate's (``"truth"``: each walk from
-    its first waypoint)."""
+    its first waypoint); ``transductive``: the test walks grow the survey's radio map (without
+    their labels; a walk's own grown points are left out of its radio map)."""
     plan = import_ilc(SITE1 / floor, route="geojson")
     map_path = work / f"{floor}.yaml"
     plan.save(map_path)
@@ -77,7 +79,8 @@ def run_split(floor: str, tracking: TrackingConfig, jobs: int, work: Path, every
         by_name = {w.name: w for w in test}
         started = time.perf_counter()
         evaluation = evaluate(building, test, EvaluationSetup(methods=METHODS, survey_paths=tuple(survey),
-                                                              tracking=tracking, start=start), Engine(jobs=jobs),
+                                                              tracking=tracking, start=start,
+                                                              transductive=transductive), Engine(jobs=jobs),
                               progress=progress(f"{floor} {split.describe(direction.surveyed_side)} surveyed"))
         failed = [{"trace": o.trace, "reason": o.reason} for o in evaluation.failed]
         for item in failed:  # e.g. a walk that hears none of the survey's access points: no WiFi track
@@ -173,6 +176,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="config overrides (YAML values), e.g. wifi.fingerprint_model=fix")
     parser.add_argument("--start", choices=("truth",), default=None,
                         help="truth: the pf methods start at each walk's first waypoint (evaluate --start truth)")
+    parser.add_argument("--transductive", action="store_true",
+                        help="the test walks grow the survey's radio map too (evaluate --transductive)")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "split")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -180,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     for seed in args.seeds:
         for floor in args.floors:
             result = run_split(floor, tracking_config(seed, args.particles, args.settings), args.jobs, args.out,
-                               args.every, start=args.start)
+                               args.every, start=args.start, transductive=args.transductive)
             results.append({"seed": seed, **result})
             print(f"\n{describe(result)} (seed {seed})\n{format_table(result['rows'], COLUMNS)}", flush=True)
     (args.out / "split.json").write_text(json.dumps(results, indent=1))
