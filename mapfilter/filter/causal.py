@@ -47,8 +47,7 @@ from mapfilter.filter.models.interface import FloorModel, MeasurementModel, Moti
 from mapfilter.filter.models.motion import ConstantVelocityMotion, PDRMotion, RandomWalkMotion, StepInput
 from mapfilter.filter.particle_filter import FilterConfig, ParticleFilter
 from mapfilter.maps.floorplan import FloorPlan
-from mapfilter.sensors.ipin import MAX_CLOCK_DISAGREEMENT_S
-from mapfilter.sensors.logread import RECORD_BEHIND_LOG_S
+from mapfilter.sensors.logread import MAX_RECORD_LATENESS_S
 from mapfilter.sensors.pdr import OnlinePDR, Steps
 from mapfilter.sensors.recording import Recording
 from mapfilter.sensors.wifi import iter_scans, scans_recording
@@ -66,11 +65,10 @@ PAUSED_AFTER_S = 3.0
 # from the times the scans are cut by): rows are not held for the next scan (docs/ipin.md)
 SCAN_PASSED_BEFORE_NEWEST_S = 0.1
 # while a sensor is paused (not waited for), nothing later than this before the newest record is
-# released: the log readers drop a record stamped more than logread.RECORD_BEHIND_LOG_S before the
-# newest of the followed sensors (a clock set back), and place a GetSensorData record within
-# ipin.MAX_CLOCK_DISAGREEMENT_S of its AppTimestamp, so that a paused sensor's next record is never
-# late however the log is chunked
-PAUSED_RELEASE_BEHIND_S = RECORD_BEHIND_LOG_S + 2.0 * MAX_CLOCK_DISAGREEMENT_S
+# released: no log reader gives a record farther behind the newest it gave (a clock set back is
+# dropped, a time placed within its bound: logread.MAX_RECORD_LATENESS_S), so that a paused
+# sensor's next record is never late however the log is chunked
+PAUSED_RELEASE_BEHIND_S = MAX_RECORD_LATENESS_S
 # at equal times, a step before a scan, ticks before both (a prediction to the scan's time)
 _STEP, _SCAN, _TICK = 0, 1, 2
 # PDR with a barometer in a building: the longest gap between filter steps. A lift ride has no

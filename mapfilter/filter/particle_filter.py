@@ -76,7 +76,6 @@ class FilterConfig:
             raise MapfilterError(f"initial_step_length_m must be positive, got {self.initial_step_length_m}")
 
 
-
 def optimal_bandwidth(n: int, d: int = 2) -> float:
     """Musso, Oudjane & Le Gland's optimal h = A N^(-1/(d+4)) of a Gaussian kernel, A = (4/(d+2))^(1/(d+4))."""
     return (4.0 / (d + 2.0)) ** (1.0 / (d + 4.0)) * max(int(n), 1) ** (-1.0 / (d + 4.0))

@@ -63,17 +63,16 @@ from pathlib import Path
 import numpy as np
 
 from mapfilter.errors import MapfilterError
-from mapfilter.sensors.logread import (BadRow, GapTracker, LogClock, RecordStream, ScanAssembler, TimeOrder,
-                                       check_range, group_scans, handle_each, iter_bounded_lines, open_binary,
-                                       parse_columns, parse_number, quick_numbers, read_whole, split_by, take_block)
+from mapfilter.sensors.logread import (MAX_CLOCK_DISAGREEMENT_S, BadRow, GapTracker, LogClock, RecordStream,
+                                       ScanAssembler, TimeOrder, check_range, group_scans, handle_each,
+                                       iter_bounded_lines, open_binary, parse_columns, parse_number, quick_numbers,
+                                       read_whole, split_by, take_block)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 FORMAT_NAME = "GetSensorData"
 DEFAULT_MAX_WIFI_AGE_S = 5.0  # as for ILC logs
 # what tracking, evaluation and radio maps read (the magnetometer and the beacons no stage uses)
 NEEDED_TYPES = frozenset({"POSI", "ACCE", "GYRO", "AHRS", "WIFI", "PRES"})
-# a sensor timestamp further than this from its AppTimestamp (after the stream's offset) is not trusted
-MAX_CLOCK_DISAGREEMENT_S = 1.0
 # each sensor stream's clock offset is the median over its records in the log's first 0.5 s: on the
 # 29 IPIN 2023 logs within 7 ms of the whole log's median (1.4 ms median)
 CLOCK_WINDOW_S = 0.5

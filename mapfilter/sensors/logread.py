@@ -278,6 +278,12 @@ JUMP_CHECK_S = GAP_REPORT_S
 # (191 logs); a GetSensorData log is in AppTimestamp order. A live run's filter does not wait for
 # a sensor this far behind (filter/causal.py PAUSED_AFTER_S) and would have moved on.
 RECORD_BEHIND_LOG_S = 3.0
+# a reader may place a record's time this far from the log's clock (GetSensorData: a sensor's own
+# time trusted within this of its AppTimestamp, sensors.ipin)
+MAX_CLOCK_DISAGREEMENT_S = 1.0
+# the farthest a record a reader gives can lie behind the newest followed record it gave before:
+# dropped beyond RECORD_BEHIND_LOG_S, then placed up to MAX_CLOCK_DISAGREEMENT_S either way
+MAX_RECORD_LATENESS_S = RECORD_BEHIND_LOG_S + 2.0 * MAX_CLOCK_DISAGREEMENT_S
 # A WiFi scan stamped this far before a record the log already gave came after the log's clock
 # went back: dropped as went back, read whole or live. A live run's filter takes the WiFi as
 # passed at its newest record's time less this (filter/causal.py SCAN_PASSED_BEFORE_NEWEST_S)
