@@ -215,14 +215,22 @@ def run_each(function: Callable[..., Any], items: Sequence[Any], engine: Engine,
         shared = client.scatter(list(common), broadcast=True) if common else []
         futures = {client.submit(function, *shared, item, pure=False): i for i, item in enumerate(items)}
         try:
-            for done, future in enumerate(as_completed(futures), start=1):
-                i = futures[future]
-                result = future.result()
-                if progress:
-                    progress(done, total, label(items[i]))
-                yield i, result
+            yield from _as_completed(futures, as_completed, items, progress, label)
         finally:
             client.cancel(list(futures))
+
+
+def _as_completed(futures: dict, as_completed: Callable, items: Sequence[Any],
+                  progress: Callable[[int, int, str], None] | None, label: Callable[[Any], str]
+                  ) -> Iterator[tuple[int, Any]]:
+    """(item index, result) of each future (future -> its item's index) as it completes, with the
+    progress told (``as_completed``: Dask's or concurrent.futures')."""
+    for done, future in enumerate(as_completed(futures), start=1):
+        i = futures[future]
+        result = future.result()
+        if progress:
+            progress(done, len(items), label(items[i]))
+        yield i, result
 
 
 # what every task of a forked pool shares: set before the pool forks, so every worker starts with
@@ -251,18 +259,12 @@ def _on_forked_workers(function: Callable[..., Any], items: Sequence[Any], jobs:
 
     global _COMMON
     _COMMON = tuple(common)
-    total = len(items)
-    pool = ProcessPoolExecutor(max_workers=min(jobs, total), mp_context=multiprocessing.get_context("fork"),
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(items)), mp_context=multiprocessing.get_context("fork"),
                                initializer=_worker_ignores_interrupts)
     finished = False
     try:
         futures = {pool.submit(_with_common, function, item): i for i, item in enumerate(items)}
-        for done, future in enumerate(as_completed(futures), start=1):
-            i = futures[future]
-            result = future.result()
-            if progress:
-                progress(done, total, label(items[i]))
-            yield i, result
+        yield from _as_completed(futures, as_completed, items, progress, label)
         finished = True
     finally:
         _COMMON = ()
