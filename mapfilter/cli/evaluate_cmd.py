@@ -184,9 +184,8 @@ def run(args: argparse.Namespace) -> int:
     key = _run_key(args, config, methods, grouping, inputs)
     resumed = _resumed_walks(args, out, key)
     args.out.mkdir(parents=True, exist_ok=True)
-    plans = _plans_for_pictures(building, args.logs)
     _announce(args, building, methods, config, len(resumed))
-    finished = _WalkWriter(out, key, plans, building, resumed)
+    finished = _WalkWriter(out, key, resumed)
     load_plotting()  # before the walks: an interrupt in its import would leave it half loaded for the pictures
     # every file of the run is staged and committed together at the end: a run that fails (a full
     # disk) leaves an earlier evaluation whole; an interrupted one commits the walks done so far
@@ -195,7 +194,8 @@ def run(args: argparse.Namespace) -> int:
         with ProgressBar("evaluate", len(args.logs)) as progress, ProgressBar("growing the radio map", 1) as growing:
             try:
                 evaluation = evaluate(building, args.logs, setup, engine, progress=progress, on_walk=finished,
-                                      resumed=resumed, grow_progress=growing if setup.grows else None)
+                                      resumed=resumed, grow_progress=growing if setup.grows else None,
+                                      walk_files=walk_files)
             except KeyboardInterrupt:
                 _write_partial_summary(args, out, finished.done, setup, config,
                                        methods_for(building, source_files(args)))
@@ -272,12 +272,12 @@ def _resumed_walks(args, out, key: str) -> list:
 
 
 class _WalkWriter:
-    """``on_walk`` of the evaluation: each walk's numbers, tracks and picture staged as it
-    finishes (an interrupted run commits them); ``done``: the walks with an outcome, for a
-    partial summary."""
+    """``on_walk`` of the evaluation: each walk's numbers and the files its task made (its tracks
+    and picture: ``walk_files``) staged as it finishes (an interrupted run commits them); ``done``:
+    the walks with an outcome, for a partial summary."""
 
-    def __init__(self, out, key: str, plans: dict, building, resumed: list) -> None:
-        self.out, self.key, self.plans, self.building = out, key, plans, building
+    def __init__(self, out, key: str, resumed: list) -> None:
+        self.out, self.key = out, key
         self.done: list = list(resumed)
 
     def __call__(self, outcome) -> None:
@@ -288,7 +288,9 @@ class _WalkWriter:
         self.done.append(outcome)
         if outcome.status != "ok":
             print(f"mapfilter: {outcome.status}: {outcome.reason}", file=sys.stderr)
-        _write_walk_tracks(self.out, outcome, self.plans, self.building)
+        for name, content in outcome.files.items():
+            with self.out.writing(name) as (tmp,):
+                tmp.write_bytes(content)
 
 
 def _write_partial_summary(args, out, done: list, setup, config, methods) -> None:
@@ -351,37 +353,31 @@ def _announce(args, building, methods, config, n_resumed: int) -> None:
 
 
 
-def _plans_for_pictures(building, logs) -> dict:
-    """The plan each walk's picture is drawn on (a building: the walk's own floor)."""
-    from mapfilter.sensors.logs import read_log_header
-    from mapfilter.sensors.recording import trace_name
+def walk_files(outcome, recording, building) -> dict[str, bytes]:
+    """A walk's files, made in its own task (``evaluate``'s ``walk_files``): every method's track
+    (tracks/WALK/METHOD.csv) and the tracks on the walk's floor plan (tracks/WALK.png)."""
+    import tempfile
 
-    plans = {}
-    for path in logs:
-        index = 0
-        if not building.is_single_floor:
-            try:
-                index = building.floor_of_log(read_log_header(path).get("FloorName") or None, path) or 0
-            except MapfilterError:
-                index = 0
-        plans[trace_name(path)] = building.floors[index].plan
-    return plans
-
-
-def _write_walk_tracks(out, outcome, plans: dict, building) -> None:
     from mapfilter.evaluation.plots import plot_tracks_on_map
-    from mapfilter.sensors.logs import read_log
     from mapfilter.io.tracks import write_track_csv
 
-    if not outcome.results:
-        return
-    for result in outcome.results:
-        with out.writing(f"tracks/{outcome.trace}/{result.method}.csv") as (tmp,):
-            write_track_csv(dataclasses.replace(result.track, name=result.method), tmp, building=building)
-    recording = read_log(outcome.log_path, warn=lambda message: None, building=building)  # warnings reported once
-    shown = {r.method: r.track.xy_m for r in outcome.results if r.method in ("pf", "pf-smooth", "kwnn", "kf", "pdr")}
-    with out.writing(f"tracks/{outcome.trace}.png") as (tmp,):
-        plot_tracks_on_map(plans[outcome.trace], shown, tmp, recording.waypoint_xy_m, title=outcome.trace)
+    index = 0  # the picture's plan: in a building, the floor the log's header names
+    if not building.is_single_floor:
+        try:
+            index = building.floor_of_log(recording.floor_name or None, outcome.log_path) or 0
+        except MapfilterError:
+            index = 0
+    files = {}
+    with tempfile.TemporaryDirectory(prefix="mapfilter-walk-") as tmp:
+        for result in outcome.results:
+            path = Path(tmp) / f"{result.method}.csv"
+            write_track_csv(dataclasses.replace(result.track, name=result.method), path, building=building)
+            files[f"tracks/{outcome.trace}/{result.method}.csv"] = path.read_bytes()
+        shown = {r.method: r.track.xy_m for r in outcome.results if r.method in ("pf", "pf-smooth", "kwnn", "kf", "pdr")}
+        picture = Path(tmp) / "walk.png"
+        plot_tracks_on_map(building.floors[index].plan, shown, picture, recording.waypoint_xy_m, title=outcome.trace)
+        files[f"tracks/{outcome.trace}.png"] = picture.read_bytes()
+    return files
 
 
 def _write_summary(args, out_dir, evaluation, config, methods, complete: bool) -> None:

@@ -290,6 +290,8 @@ class WalkOutcome:
     results: list[MethodResult] = dataclasses.field(default_factory=list)
     read_warnings: list[str] = dataclasses.field(default_factory=list)
     runtime_s: float = 0.0
+    # the files made where the walk ran (``evaluate``'s ``walk_files``): name -> content
+    files: dict[str, bytes] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass
@@ -357,21 +359,25 @@ class _Context:
     all_walks: AllWalks | None
     true_floors: tuple[int | None, ...]  # per evaluated walk: its floor by the header (None: per waypoint or none)
     growth: Growth | None = None
+    walk_files: Callable[[WalkOutcome, Recording, Building], dict[str, bytes]] | None = None
 
 
 def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recording], setup: EvaluationSetup,
              engine: Engine = Engine(), progress: Callable[[int, int, str], None] | None = None,
              on_walk: Callable[[WalkOutcome], None] | None = None,
              resumed: Sequence[WalkOutcome] = (),
-             grow_progress: Callable[[int, int, str], None] | None = None) -> Evaluation:
+             grow_progress: Callable[[int, int, str], None] | None = None,
+             walk_files: Callable[[WalkOutcome, Recording, Building], dict[str, bytes]] | None = None) -> Evaluation:
     """Evaluate every method on every walk, one walk per task on ``engine``. Each walk seeds its
     own generators (``default_rng([seed, walk, method])``), so the numbers do not depend on the
     engine. A walk that fails is reported (``WalkOutcome.status``) and the others go on;
     ``on_walk`` sees each walk as it finishes (to write its results at once). ``resumed``: the
     outcomes of walks already done (``evaluation.store``): those walks are not run again.
     ``grow_progress`` follows the growing of the radio map (self-training), which comes first.
-    A walk is a log's path or a ``Recording`` already read (as are the setup's survey and
-    unlabelled walks)."""
+    ``walk_files(outcome, recording, building)`` makes a walk's files (its tracks, its picture)
+    in the walk's own task, so that they are made in parallel; ``on_walk`` finds them in
+    ``outcome.files``. A walk is a log's path or a ``Recording`` already read (as are the setup's
+    survey and unlabelled walks)."""
     paths, survey, methods = validate_setup(building, log_paths, setup)
     if setup.groups is not None:
         setup = dataclasses.replace(setup, groups=setup.groups.checked(walk_name(p) for p in survey + paths))
@@ -395,7 +401,7 @@ def evaluate(building: Building, log_paths: Sequence[str | os.PathLike | Recordi
         with _collect_read_warnings(read_warnings):
             growth = _growth(building, setup, paths, survey_recordings + recordings, all_walks, engine,
                              grow_progress)
-    context = _Context(building, setup, methods, tuple(paths), all_walks, true_floors, growth)
+    context = _Context(building, setup, methods, tuple(paths), all_walks, true_floors, growth, walk_files)
     done = {o.index for o in resumed}
     todo = [i for i in range(len(paths)) if i not in done]
     outcomes: list[WalkOutcome] = list(resumed)
@@ -585,6 +591,8 @@ def _evaluate_walk(context: _Context, index: int) -> WalkOutcome:
             outcome.results = _one_floor_methods(context, index, recording)
         else:
             outcome.results = _building_methods(context, index, recording)
+        if context.walk_files is not None and outcome.results:
+            outcome.files = context.walk_files(outcome, recording, context.building)
     except MapfilterError as exc:
         outcome.status, outcome.reason, outcome.results = "failed", str(exc), []
     except Exception as exc:  # noqa: BLE001 - a bug in one walk must not lose the other walks' work

@@ -130,3 +130,29 @@ def test_a_gap_in_a_log_is_no_walking_time(tmp_path):
     lines.insert(-1, f"{t_last + 3 * 365 * 86400 * 1000}\tTYPE_ACCELEROMETER\t0.1\t0.2\t9.8\t3\n")  # years ahead
     (tmp_path / "gap.txt").write_text("".join(lines))
     assert log_time_span_s(tmp_path / "gap.txt") == pytest.approx(120.0, abs=0.1)
+
+
+def test_many_logs_spans_are_read_from_a_sample_and_scaled_by_size(tmp_path, monkeypatch):
+    """Reading a log's span reads the whole log: of many, SPAN_SAMPLE_LOGS are read and the
+    others scaled by their file size (a rough run time; a 500-walk run spent 20 s reading)."""
+    import gzip
+
+    from mapfilter.sensors import logs
+
+    text = gzip.decompress((MAPS / "office_walk.txt.gz").read_bytes()).decode()
+    paths = []
+    for i in range(3 * common.SPAN_SAMPLE_LOGS):
+        path = tmp_path / f"walk{i}.txt"
+        path.write_text(text + "#\n" * i)  # the same walk, each file a little longer
+        paths.append(path)
+    read = []
+    real = logs.log_time_span_s
+    monkeypatch.setattr(logs, "log_time_span_s", lambda p: read.append(p) or real(p))
+    spans = common.walk_spans_s(paths)
+    assert len(read) == common.SPAN_SAMPLE_LOGS and paths[0] in read and paths[-1] in read
+    per_byte = sum(real(p) for p in read) / sum(p.stat().st_size for p in read)
+    for path, span in zip(paths, spans):  # those read: their span; the others: their size at the sample's rate
+        assert span == pytest.approx(real(path) if path in read else path.stat().st_size * per_byte)
+        assert span == pytest.approx(120.0, rel=0.01)
+    read.clear()
+    assert common.walk_spans_s(paths[:2]) == pytest.approx([120.0, 120.0], abs=0.1) and len(read) == 2
