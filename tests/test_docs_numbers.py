@@ -84,10 +84,13 @@ def test_the_readmes_printout_names_its_command():
 
 def test_the_readme_stays_a_short_guide_and_its_install_time_is_a_measured_one():
     """The README had grown to 243 lines (the guide says under 220), and said "about a minute and a
-    half" for an install a newcomer timed at 3 min 17 s."""
+    half" for an install a newcomer timed at 3 min 17 s; then the worst time seen (12.5 minutes on a
+    loaded machine) where a newcomer's fresh clone took 1.6 minutes: the time a user sees, measured
+    in a fresh clone with the command, and what it depends on."""
     text = (REPO / "README.md").read_text()
     assert len(text.splitlines()) < 220
-    assert "a minute and a half" not in text
+    assert "a minute and a half" not in text and "12.5 minutes" not in text
     numbers, _ = docs_numbers.read_document(REPO / "README.md")
-    install = [n for n in numbers if n.line < 12 and n.text == "12.5"]
+    install = [n for n in numbers if n.line < 12 and "fresh clone" in n.context and n.text == "1.0"]
     assert install and install[0].command.startswith("python3 -m venv .venv && .venv/bin/pip install -e")
+    assert "cache" in install[0].context  # whether pip's cache was warm is said
