@@ -76,11 +76,14 @@ def wall_free_track(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray) -> 
 
 
 def free_path(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarray,
-              margin_m: float = 20.0) -> np.ndarray | None:
+              margin_m: float = 20.0, max_cells: int | None = None) -> np.ndarray | None:
     """Shortest wall-free polyline (K, 2) from ``from_xy_m`` to ``to_xy_m``, both ends included.
 
     The search covers the segment's bounding box plus ``margin_m`` on every side (then the whole
-    map if that fails). None when either end is in a wall or no free path joins them.
+    map if that fails). None when either end is in a wall or no free path joins them. With
+    ``max_cells``, a window of more pixels is searched on square cells of k x k pixels, a cell
+    free only where all its pixels are (a bounded cost on a fine plan: the search's time grows
+    with its cells; at the native pixels where an end's cell is not free).
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
@@ -100,7 +103,21 @@ def free_path(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarray,
         r0, r1 = max(rows.min() - pad, 0), min(rows.max() + pad + 1, height)
         c0, c1 = max(cols.min() - pad, 0), min(cols.max() + pad + 1, width)
         window = free[r0:r1, c0:c1]
-        cells = _grid_path(window, (rows[0] - r0, cols[0] - c0), (rows[1] - r0, cols[1] - c0), coo_matrix, dijkstra)
+        ends = ((rows[0] - r0, cols[0] - c0), (rows[1] - r0, cols[1] - c0))
+        k = 1 if max_cells is None else max(1, math.ceil(math.sqrt(window.size / max_cells)))
+        if k > 1:
+            h, w = -(-window.shape[0] // k) * k, -(-window.shape[1] // k) * k
+            padded = np.zeros((h, w), dtype=bool)
+            padded[:window.shape[0], :window.shape[1]] = window
+            coarse = padded.reshape(h // k, k, w // k, k).all(axis=(1, 3))
+            if all(coarse[r // k, c // k] for r, c in ends):
+                cells = _grid_path(coarse, *[(r // k, c // k) for r, c in ends], coo_matrix, dijkstra)
+                if cells is not None:  # each cell's centre, in the window's pixels
+                    cells = cells * k + (k - 1) / 2.0
+            else:
+                cells = _grid_path(window, *ends, coo_matrix, dijkstra)
+        else:
+            cells = _grid_path(window, *ends, coo_matrix, dijkstra)
         if cells is not None:
             centres = floorplan.pixel_to_world(np.column_stack([cells[:, 1] + c0 + 0.5, cells[:, 0] + r0 + 0.5]))
             return np.vstack([a, centres, b])

@@ -1,6 +1,7 @@
 """Shortest wall-free paths and tracks made wall-free with them."""
 
 import numpy as np
+import pytest
 
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.paths import detour_wall_crossings, free_path, nearest_free
@@ -89,3 +90,30 @@ def test_wall_free_track_keeps_the_walk_in_one_free_area():
     assert not free_path(plan, xy[1], xy[2])
     t2, xy2 = wall_free_track(plan, t, xy)
     assert count_wall_crossings(plan, xy2) == 0 and plan.is_free(xy2).all()
+
+
+def test_a_search_over_too_many_pixels_runs_on_coarser_cells_and_still_crosses_no_wall():
+    """free_path(max_cells=): a fine plan's window searched on k x k cells, a cell free only where
+    all its pixels are: the path crosses no wall, is about as long as the native one, and goes
+    through the one door; an end whose cell is not free is searched at the native pixels."""
+    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.maps.paths import free_path
+    from mapfilter.maps.walls import crosses_wall
+
+    res = 0.05
+    wall = np.zeros((int(20 / res), int(30 / res)), dtype=bool)  # 20 m x 30 m, two rooms, a door at the far end
+    wall[:2, :] = wall[-2:, :] = wall[:, :2] = wall[:, -2:] = True
+    wall[wall.shape[0] // 2 - 2:wall.shape[0] // 2 + 2, :-int(2 / res)] = True
+    plan = FloorPlan(wall, res)
+    a, b = np.array([3.0, 8.0]), np.array([4.0, 12.0])
+    native = free_path(plan, a, b)
+    coarse = free_path(plan, a, b, max_cells=20_000)
+    for path in (native, coarse):
+        assert path is not None and not crosses_wall(plan, path[:-1], path[1:]).any()
+        assert path[:, 0].max() > 27.0  # round the wall's far end, through the door
+    length = [float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in (native, coarse)]
+    assert length[1] == pytest.approx(length[0], rel=0.05)
+    assert len(coarse) < len(native) / 2  # the coarser cells: fewer of them on the way
+    near = np.array([3.0, 9.85])  # 5 cm from the wall: its coarse cell holds wall pixels
+    path = free_path(plan, near, b, max_cells=20_000)
+    assert path is not None and not crosses_wall(plan, path[:-1], path[1:]).any()
