@@ -62,7 +62,23 @@ class Terminated(KeyboardInterrupt):
     """Raised in the main thread on SIGTERM, so that a terminated run cleans up as Ctrl-C does."""
 
 
+# the signals whose exception may have been lost: raised where Python only prints an exception
+# ("Exception ignored in ...": a weakref or __del__ callback the collector ran), the run went on
+_PENDING_SIGNALS: list[int] = []
+
+
+def raise_pending_signal() -> None:
+    """Raise again a SIGINT or SIGTERM that came since the last call (``KeyboardInterrupt`` or
+    ``Terminated``): long work calls it between its tasks (``cli.common.ProgressBar``), so that
+    an interrupt whose exception a callback swallowed still stops the run."""
+    if _PENDING_SIGNALS:
+        signum = _PENDING_SIGNALS[-1]
+        _PENDING_SIGNALS.clear()
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
 def main(argv: list[str] | None = None) -> int:
+    _PENDING_SIGNALS.clear()
     with _sigterm_as_interrupt():
         try:
             return _main(argv)
@@ -159,20 +175,30 @@ def describe_os_error(exc: OSError) -> str:
 @contextlib.contextmanager
 def _sigterm_as_interrupt():
     """While the command runs, SIGTERM raises ``Terminated`` in the main thread (as Ctrl-C raises
-    KeyboardInterrupt): ``with`` blocks and ``finally`` clauses run, temporaries are removed."""
+    KeyboardInterrupt): ``with`` blocks and ``finally`` clauses run, temporaries are removed. Both
+    are noted for ``raise_pending_signal``."""
     if threading.current_thread() is not threading.main_thread():
         yield  # signal handlers can only be set from the main thread
         return
 
     def terminate(signum, frame):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
+        _PENDING_SIGNALS.append(signum)
         raise Terminated()
 
+    def interrupt(signum, frame):
+        _PENDING_SIGNALS.append(signum)
+        raise KeyboardInterrupt()
+
     previous = signal.signal(signal.SIGTERM, terminate)
+    previous_int = signal.signal(signal.SIGINT, interrupt) if signal.getsignal(signal.SIGINT) is \
+        signal.default_int_handler else None
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+        if previous_int is not None:
+            signal.signal(signal.SIGINT, previous_int)
 
 
 def _quiet_stdout() -> None:

@@ -1,6 +1,8 @@
 """Progress where the output is a pipe (a plain line every few seconds, not a bar), and the rough
 time of a long run said before it starts."""
 
+import time
+
 import pytest
 from conftest import REPO
 
@@ -156,3 +158,28 @@ def test_many_logs_spans_are_read_from_a_sample_and_scaled_by_size(tmp_path, mon
         assert span == pytest.approx(120.0, rel=0.01)
     read.clear()
     assert common.walk_spans_s(paths[:2]) == pytest.approx([120.0, 120.0], abs=0.1) and len(read) == 2
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # the swallowed exception
+def test_an_interrupt_a_callback_swallowed_still_stops_the_run_at_the_next_task():
+    """Ctrl-C whose KeyboardInterrupt is raised inside a weakref callback is only printed by
+    Python ("Exception ignored in ..."): an interrupted evaluate once ran on to the end with exit
+    code 0. The signal is noted, and the progress callback between two tasks raises it again."""
+    import os
+    import signal
+    import weakref
+
+    import mapfilter.cli as cli
+
+    class Thing:
+        pass
+
+    with cli._sigterm_as_interrupt():
+        thing = Thing()
+        ref = weakref.ref(thing, lambda _: os.kill(os.getpid(), signal.SIGINT) or time.sleep(0.5))
+        del thing  # the callback runs, the signal's KeyboardInterrupt is raised in it and swallowed
+        assert ref() is None  # and no KeyboardInterrupt came out here
+        progress = common.ProgressBar("evaluate", 3)
+        with pytest.raises(KeyboardInterrupt):
+            progress(1, 3, "walk1")
+        progress(2, 3, "walk2")  # raised once
