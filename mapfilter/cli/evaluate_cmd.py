@@ -354,12 +354,13 @@ def _announce(args, building, methods, config, n_resumed: int) -> None:
 
 
 def walk_files(outcome, recording, building) -> dict[str, bytes]:
-    """A walk's files, made in its own task (``evaluate``'s ``walk_files``): every method's track
-    (tracks/WALK/METHOD.csv) and the tracks on the walk's floor plan (tracks/WALK.png)."""
-    import tempfile
+    """A walk's files, made in memory in its own task (``evaluate``'s ``walk_files``): every
+    method's track (tracks/WALK/METHOD.csv) and the tracks on the walk's floor plan
+    (tracks/WALK.png); the parent writes them."""
+    import io
 
     from mapfilter.evaluation.plots import plot_tracks_on_map
-    from mapfilter.io.tracks import write_track_csv
+    from mapfilter.io.tracks import track_csv_bytes
 
     index = 0  # the picture's plan: in a building, the floor the log's header names
     if not building.is_single_floor:
@@ -367,16 +368,12 @@ def walk_files(outcome, recording, building) -> dict[str, bytes]:
             index = building.floor_of_log(recording.floor_name or None, outcome.log_path) or 0
         except MapfilterError:
             index = 0
-    files = {}
-    with tempfile.TemporaryDirectory(prefix="mapfilter-walk-") as tmp:
-        for result in outcome.results:
-            path = Path(tmp) / f"{result.method}.csv"
-            write_track_csv(dataclasses.replace(result.track, name=result.method), path, building=building)
-            files[f"tracks/{outcome.trace}/{result.method}.csv"] = path.read_bytes()
-        shown = {r.method: r.track.xy_m for r in outcome.results if r.method in ("pf", "pf-smooth", "kwnn", "kf", "pdr")}
-        picture = Path(tmp) / "walk.png"
-        plot_tracks_on_map(building.floors[index].plan, shown, picture, recording.waypoint_xy_m, title=outcome.trace)
-        files[f"tracks/{outcome.trace}.png"] = picture.read_bytes()
+    files = {f"tracks/{outcome.trace}/{r.method}.csv": track_csv_bytes(dataclasses.replace(r.track, name=r.method),
+                                                                        building) for r in outcome.results}
+    shown = {r.method: r.track.xy_m for r in outcome.results if r.method in ("pf", "pf-smooth", "kwnn", "kf", "pdr")}
+    picture = io.BytesIO()
+    plot_tracks_on_map(building.floors[index].plan, shown, picture, recording.waypoint_xy_m, title=outcome.trace)
+    files[f"tracks/{outcome.trace}.png"] = picture.getvalue()
     return files
 
 

@@ -59,10 +59,10 @@ def walk_window_m(floorplan, points_xy_m: list[np.ndarray], margin_m: float = 10
     return max(px0, lo[0]), min(px1, hi[0]), max(py0, lo[1]), min(py1, hi[1])
 
 
-def plot_tracks_on_map(floorplan, tracks: dict[str, np.ndarray], path: str | os.PathLike,
+def plot_tracks_on_map(floorplan, tracks: dict[str, np.ndarray], path,
                        ground_truth_xy_m: np.ndarray | None = None, title: str = "") -> None:
     """Write a PNG of tracks (name -> (T, 2) metres) and the ground truth over the floor plan,
-    zoomed on the walk (``walk_window_m``)."""
+    zoomed on the walk (``walk_window_m``), to ``path`` (a file's path, or a binary stream)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -94,10 +94,14 @@ def plot_tracks_on_map(floorplan, tracks: dict[str, np.ndarray], path: str | os.
     save_figure(fig, path)
 
 
-def save_figure(fig, path: str | os.PathLike, dpi: float | None = None) -> None:
-    """Write a matplotlib figure as PNG atomically and close it."""
+def save_figure(fig, path, dpi: float | None = None) -> None:
+    """Write a matplotlib figure as PNG atomically (``path`` a file's path, or a binary stream
+    it is written to) and close it."""
     import matplotlib.pyplot as plt
 
-    with atomic_paths(path) as (tmp,):
-        fig.savefig(tmp, format="png", dpi=dpi)
+    if hasattr(path, "write"):
+        fig.savefig(path, format="png", dpi=dpi)
+    else:
+        with atomic_paths(path) as (tmp,):
+            fig.savefig(tmp, format="png", dpi=dpi)
     plt.close(fig)

@@ -116,6 +116,20 @@ def write_track_csv(track: Track, path: str | os.PathLike, building: Georeferenc
     write_csv_atomically(path, csv_header(track), csv_rows(track))
 
 
+def track_csv_bytes(track: Track, building: Georeferenced | None = None) -> bytes:
+    """The bytes ``write_track_csv`` writes (made in memory: a worker's files for its parent)."""
+    import csv
+    import io
+
+    if track.latlon_deg is None and building is not None and building.georeference is not None:
+        track = with_latlon(track, building)
+    text = io.StringIO(newline="")
+    writer = csv.writer(text)
+    writer.writerow(csv_header(track))
+    writer.writerows(csv_rows(track))
+    return text.getvalue().encode()
+
+
 def tum_lines(track: Track) -> list[str]:
     """The TUM lines of a track: ``t x y z qx qy qz qw`` (z = 0; yaw-only quaternion; identity
     without a heading), each with its newline."""

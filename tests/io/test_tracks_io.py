@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from mapfilter.errors import MapfilterError
-from mapfilter.io.tracks import Track, read_track, write_track_csv, write_track_tum
+from mapfilter.io.tracks import Track, read_track, track_csv_bytes, write_track_csv, write_track_tum
 
 
 def _track(n=5):
@@ -19,6 +19,16 @@ def test_csv_round_trip(tmp_path):
     np.testing.assert_allclose(back.xy_m, track.xy_m, atol=1e-3)
     np.testing.assert_allclose(back.std_m, track.std_m, atol=1e-3)
     np.testing.assert_allclose(back.heading_rad, track.heading_rad, atol=1e-4)
+
+
+def test_a_csv_made_in_memory_is_the_file_write_track_csv_writes(tmp_path):
+    """evaluate's workers make each walk's track files in memory for the parent to write."""
+    import dataclasses
+
+    track = dataclasses.replace(_track(), floor=["F1", "F1", "F2", "F2", "F2"], floor_p=np.linspace(0.5, 1.0, 5))
+    for t in (_track(), track):
+        write_track_csv(t, tmp_path / "t.csv")
+        assert track_csv_bytes(t) == (tmp_path / "t.csv").read_bytes()
 
 
 def test_tum_parses_back_with_heading_as_yaw_quaternion(tmp_path):
