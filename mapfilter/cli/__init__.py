@@ -24,6 +24,7 @@ import threading
 
 from mapfilter import __version__
 from mapfilter.errors import MapfilterError
+from mapfilter.runtime.interrupts import Terminated, clear, note_signal
 
 # Command modules, in the order they appear in --help.
 COMMAND_MODULES = ("map_cmd", "radiomap_cmd", "check_cmd", "track_cmd", "evaluate_cmd", "simulate_cmd", "view_cmd",
@@ -58,27 +59,8 @@ def _all_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParse
     return found
 
 
-class Terminated(KeyboardInterrupt):
-    """Raised in the main thread on SIGTERM, so that a terminated run cleans up as Ctrl-C does."""
-
-
-# the signals whose exception may have been lost: raised where Python only prints an exception
-# ("Exception ignored in ...": a weakref or __del__ callback the collector ran), the run went on
-_PENDING_SIGNALS: list[int] = []
-
-
-def raise_pending_signal() -> None:
-    """Raise again a SIGINT or SIGTERM that came since the last call (``KeyboardInterrupt`` or
-    ``Terminated``): long work calls it between its tasks (``cli.common.ProgressBar``), so that
-    an interrupt whose exception a callback swallowed still stops the run."""
-    if _PENDING_SIGNALS:
-        signum = _PENDING_SIGNALS[-1]
-        _PENDING_SIGNALS.clear()
-        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
-
-
 def main(argv: list[str] | None = None) -> int:
-    _PENDING_SIGNALS.clear()
+    clear()  # the signals of an earlier command in this process (tests run many)
     with _sigterm_as_interrupt():
         try:
             return _main(argv)
@@ -176,18 +158,18 @@ def describe_os_error(exc: OSError) -> str:
 def _sigterm_as_interrupt():
     """While the command runs, SIGTERM raises ``Terminated`` in the main thread (as Ctrl-C raises
     KeyboardInterrupt): ``with`` blocks and ``finally`` clauses run, temporaries are removed. Both
-    are noted for ``raise_pending_signal``."""
+    are noted for ``runtime.interrupts.raise_pending_signal``."""
     if threading.current_thread() is not threading.main_thread():
         yield  # signal handlers can only be set from the main thread
         return
 
     def terminate(signum, frame):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
-        _PENDING_SIGNALS.append(signum)
+        note_signal(signum)
         raise Terminated()
 
     def interrupt(signum, frame):
-        _PENDING_SIGNALS.append(signum)
+        note_signal(signum)
         raise KeyboardInterrupt()
 
     previous = signal.signal(signal.SIGTERM, terminate)

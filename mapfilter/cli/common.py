@@ -243,7 +243,7 @@ class ProgressBar:
                             dynamic_ncols=True)
 
     def __call__(self, done: int, total: int, name: str) -> None:
-        from mapfilter.cli import raise_pending_signal
+        from mapfilter.runtime.interrupts import raise_pending_signal
 
         raise_pending_signal()  # between two tasks: an interrupt a callback swallowed stops the run here
         self.total, self.name = total, name
