@@ -348,7 +348,7 @@ def _tracking_inputs(building: Building, radio_map, access_points, sources, conf
 def _start_on(value, building: Building) -> WalkStart | str | None:
     """The checked ``start`` argument (``as_start``), on a floor of ``building`` and its free space;
     ``TRUE_START`` as it is."""
-    if value == TRUE_START:
+    if isinstance(value, str) and value == TRUE_START:
         return TRUE_START
     start = as_start(value)
     if start is not None:

@@ -119,7 +119,7 @@ Walk = Path | Recording
 def walk_start(start, recording, building):
     """The start a walk's particle filter methods are given: ``start`` (every walk's, or None), or
     with ``TRUE_START`` the walk's first waypoint (on its floor in a ``building`` with several)."""
-    if start != TRUE_START:
+    if not (isinstance(start, str) and start == TRUE_START):
         return start
     if not len(recording.waypoint_t_s):
         return None
