@@ -194,11 +194,12 @@ class ParticleFilter:
             floor = stack.floor_of(xy_m)
             w = np.where(floor == int(np.argmax(np.bincount(floor, weights=weights, minlength=stack.n_floors))),
                          weights, 0.0)
-        if std_m is None:  # the spread of the cloud (in a building: of its main floor's part)
-            cov = weighted_moments(xy_m, w)[1]
-            std_m = float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
-        if mean is None or stack is not None:
-            mean = weighted_moments(xy_m, w)[0]
+        if std_m is None or mean is None or stack is not None:  # the moments of the weight w, in one pass
+            w_mean, cov = weighted_moments(xy_m, w)
+            if std_m is None:  # the spread of the cloud (in a building: of its main floor's part)
+                std_m = float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
+            if mean is None or stack is not None:
+                mean = w_mean
         if np.isfinite(mean).all() and self.floorplan.is_free(mean[None, :])[0]:
             target = np.asarray(mean, dtype=np.float64)
         else:

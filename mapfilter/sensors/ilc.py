@@ -47,8 +47,8 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.logread import (BadRow, GapTracker, LogClock, LogReadWarning, RecordStream, ScanAssembler,
                                        TimeOrder, check_range, count_bad_row, group_scans, handle_each,
-                                       iter_bounded_lines, open_binary, parse_columns, parse_number, quick_numbers,
-                                       read_whole, split_by, take_block)
+                                       iter_bounded_lines, on_log_clock, open_binary, parse_columns, parse_number,
+                                       quick_numbers, read_whole, split_by, take_block)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 __all__ = ["DEFAULT_MAX_WIFI_AGE_S", "NEEDED_TYPES", "IlcParser", "LogReadWarning", "read_ilc", "read_ilc_header"]
@@ -275,10 +275,7 @@ class IlcParser:
     def _on_clock(self, kind: str, t_s: float) -> bool:
         """One record of a followed sensor on the log's clock (``LogClock``): whether it is kept
         (WiFi rows only move the clock; their scans' own rule decides)."""
-        kept = bool(self._clock.keep(np.array([t_s]), _FOLLOWED[kind])[0][0])
-        if not kept and kind != "TYPE_WIFI":
-            _count_back(self._report, kind, 1)
-        return kept
+        return on_log_clock(self._clock, self._report, kind, _FOLLOWED[kind], t_s, kind != "TYPE_WIFI")
 
     def _count(self, kind: str | None) -> None:
         report = self._report
@@ -344,10 +341,6 @@ class IlcParser:
             return None  # other record types are skipped
         self._scans.clock(t_s)
         return kind
-
-
-def _count_back(report: ReadReport, kind: str, n: int) -> None:
-    report.went_back[kind] = report.went_back.get(kind, 0) + n
 
 
 def _beacon_id(fields: list[str]) -> str:

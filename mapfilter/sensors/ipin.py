@@ -65,8 +65,8 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.sensors.logread import (MAX_CLOCK_DISAGREEMENT_S, BadRow, GapTracker, LogClock, RecordStream,
                                        ScanAssembler, TimeOrder, check_range, group_scans, handle_each,
-                                       iter_bounded_lines, open_binary, parse_columns, parse_number, quick_numbers,
-                                       read_whole, split_by, take_block)
+                                       iter_bounded_lines, on_log_clock, open_binary, parse_columns, parse_number,
+                                       quick_numbers, read_whole, split_by, take_block)
 from mapfilter.sensors.recording import Beacons, ReadReport, Recording
 
 FORMAT_NAME = "GetSensorData"
@@ -295,10 +295,7 @@ class GsdParser:
     def _on_clock(self, kind: str, app_s: float) -> bool:
         """One record of a followed sensor on the log's clock (``logread.LogClock``): whether it is
         kept (WiFi rows only move the clock; their scans' own rule decides)."""
-        kept = bool(self._clock.keep(np.array([app_s]), _FOLLOWED[kind])[0][0])
-        if not kept and kind != "WIFI":
-            self._report.went_back[kind] = self._report.went_back.get(kind, 0) + 1
-        return kept
+        return on_log_clock(self._clock, self._report, kind, _FOLLOWED[kind], app_s, kind != "WIFI")
 
     def _phone_model(self) -> str | None:
         model = self._info.get("Model")

@@ -537,6 +537,10 @@ class LogClock:
         # sensor -> (its earliest record of its latest run far ahead of the clock, records in that run)
         self._ahead: dict[int, tuple[float, int]] = {}
 
+    def keep_one(self, t_s: float, sensor: int) -> bool:
+        """``keep`` of one record, without arrays (a reader's line-by-line path)."""
+        return self._one(float(t_s), int(sensor))
+
     def keep(self, t_s, sensor) -> tuple[np.ndarray, np.ndarray]:
         """(each of these records is kept: within :data:`RECORD_BEHIND_LOG_S` of the clock before
         it (N,) bool; the clock before each (N,)) of the next records in file order (``sensor``:
@@ -730,6 +734,21 @@ def count_rows(report: ReadReport, kinds: list[str], counts: list[int]) -> None:
         report.rows[kind] = report.rows.get(kind, 0) + n
 
 
+def count_went_back(report: ReadReport, kind: str, n: int = 1) -> None:
+    """``n`` records of ``kind`` dropped: they came after the log's clock went back (``LogClock``)."""
+    report.went_back[kind] = report.went_back.get(kind, 0) + n
+
+
+def on_log_clock(clock: LogClock, report: ReadReport, kind: str, sensor: int, t_s: float, counted: bool) -> bool:
+    """One record of a followed sensor on the log's clock: whether it is kept; one that is not is
+    counted as went back when ``counted`` (a WiFi row is not: its scan's own rule decides,
+    ``ScanAssembler``, and the row only moves the clock)."""
+    kept = clock.keep_one(t_s, sensor)
+    if not kept and counted:
+        count_went_back(report, kind)
+    return kept
+
+
 def take_block(parsed: dict[str, tuple[np.ndarray, object]], begin: int, end: int, report: ReadReport,
                take: Callable[[str, object, np.ndarray], None], wifi_kind: str, scans: ScanAssembler,
                clock_s: np.ndarray, is_wifi: np.ndarray, log_clock: LogClock, followed: dict[str, int]) -> None:
@@ -765,7 +784,7 @@ def take_block(parsed: dict[str, tuple[np.ndarray, object]], begin: int, end: in
             continue
         kept = keep[index[lo:hi] - begin]
         if not kept.all():
-            report.went_back[kind] = report.went_back.get(kind, 0) + int(np.count_nonzero(~kept))
+            count_went_back(report, kind, int(np.count_nonzero(~kept)))
         take(kind, records[lo:hi], kept)
     order = np.argsort(first_line, kind="stable").tolist()
     known = [counts[i] for i in order if parsed[counts[i][0]][1] is not None]
