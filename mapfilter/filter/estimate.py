@@ -34,8 +34,8 @@ __all__ = ["MODE_CELL_M", "MODE_RADIUS_M", "circular_mean", "mode_estimate", "to
 MODE_CELL_M = 1.0  # the weight's histogram cells: the densest 3 x 3 of them is the mode's window
 MODE_RADIUS_M = 8.0  # the mode: the particles this close to its centre that it sees
 # a row's walk round a wall searches at most this many cells: a larger window (a fine or large
-# plan) is searched on coarser cells; the ILC, office and IPIN windows fit (850,000 pixels of a
-# 0.05 m plan took 5 s a row)
+# plan, or a whole map searched when the window held no path) is searched on coarser cells; a
+# row's window on the ILC, office and IPIN maps fits (850,000 pixels of a 0.05 m plan took 5 s a row)
 TOWARD_MAX_CELLS = 250_000
 MODE_SIGHT_CHECKS = 512  # at most this many particles' sight checked (every k-th of those in reach)
 # a larger cloud is read every k-th particle: its mode is as clear in 4,096 of them (a resampled
