@@ -640,23 +640,29 @@ def test_merged_radio_maps_unite_access_points_and_keep_sources():
     assert np.all(np.isnan(m.rssi_dbm[:10, m.ap_keys.index(b.ap_keys[0])]))
 
 
-@pytest.mark.parametrize("floor_dbm,missing", [(None, -100.0), (-85.0, -90.0), (None, -95.0)])
-def test_distances_by_matrix_products_equal_the_pairwise_merge_to_the_last_bit(floor_dbm, missing):
+@pytest.mark.parametrize("floor_dbm,missing,per_ap", [(None, -100.0, False), (-85.0, -90.0, False),
+                                                     (None, -95.0, False), (-85.0, -100.0, True), (None, -90.0, True)])
+def test_distances_by_matrix_products_equal_the_pairwise_merge_to_the_last_bit(floor_dbm, missing, per_ap):
     """Oracle: on whole dBm the p = 2 fast path (matrix products) gives the merge kernel's
-    distances and shared counts exactly; readings below the floor and missing APs included."""
+    distances and shared counts exactly; readings below the floor and missing APs included, and
+    with ``per_ap`` (the match distance's mean over the APs either side heard) a scan and a point
+    that hear nothing."""
     from mapfilter.sensors.radiomap import (_below_floor_unheard, _distances_to_references, _reference_rows,
                                            _signal_distances, _sparse_rows)
 
     rng = np.random.default_rng(3)
     rm = _random_map(rng, p=80, k=40, heard=0.3)
     rm.rssi_dbm = np.round(rm.rssi_dbm)
+    rm.rssi_dbm[5] = np.nan  # a point that heard nothing
     scans = np.round(rm.rssi_dbm[::2] + rng.normal(0, 4, (40, 40))).astype(np.float64)
-    fast = _distances_to_references(rm, scans, 2.0, missing, floor_dbm)
+    scans[7] = np.nan  # a scan that heard nothing
+    fast = _distances_to_references(rm, scans, 2.0, missing, floor_dbm, per_ap=per_ap)
     refs, rows = _reference_rows(rm, floor_dbm), _sparse_rows(_below_floor_unheard(scans, floor_dbm))
     dist, shared = np.empty_like(fast[0]), np.empty_like(fast[1])
-    _signal_distances(rows.ptr, rows.col, rows.val, refs.ptr, refs.col, refs.val, 2.0, missing, False, dist, shared)
+    _signal_distances(rows.ptr, rows.col, rows.val, refs.ptr, refs.col, refs.val, 2.0, missing, per_ap, dist, shared)
     np.testing.assert_array_equal(fast[0], dist)
     np.testing.assert_array_equal(fast[1], shared)
+    assert fast[0][7, 5] == 0.0 and np.all(fast[0][7] >= 0)
 
 
 def test_a_buildings_fixes_and_matches_from_one_distance_matrix_are_each_floors(office3, office3_radio_map):
