@@ -191,11 +191,10 @@ class ParticleFilter:
         stack = getattr(self.floors, "stack", None)
         w = weights
         if stack is not None:  # the floor holding most of the weight: a mode between floors' tiles is no place
-            floor = stack.floor_of(xy_m)
-            w = np.where(floor == int(np.argmax(np.bincount(floor, weights=weights, minlength=stack.n_floors))),
-                         weights, 0.0)
+            w, w_mean, cov = stack.main_floor_moments(xy_m, weights)  # its weights and their moments
         if std_m is None or mean is None or stack is not None:  # the moments of the weight w, in one pass
-            w_mean, cov = weighted_moments(xy_m, w)
+            if stack is None:
+                w_mean, cov = weighted_moments(xy_m, w)
             if std_m is None:  # the spread of the cloud (in a building: of its main floor's part)
                 std_m = float(math.sqrt(max(0.5 * (cov[0, 0] + cov[1, 1]), 0.0)))
             if mean is None or stack is not None:

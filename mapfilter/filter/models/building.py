@@ -24,17 +24,199 @@ import dataclasses
 import math
 
 import numpy as np
+from numba import njit
 
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.estimate import weighted_estimate, weighted_moments
 from mapfilter.filter.models.interface import FloorModel, MeasurementModel
-from mapfilter.filter.models.survey_reach import mixture_log_likelihood
-from mapfilter.filter.particles import Particles
+from mapfilter.filter.models.survey_reach import EMPTY_LOG_LIKELIHOOD
+from mapfilter.filter.particles import Particles, X, Y
 from mapfilter.maps.building import Building, connector_pixels
 from mapfilter.maps.floorplan import FloorPlan
 
 # wall pixels between two floors' tiles (and around the stack): wider than any jitter
 _TILE_GAP_PX = 4
+# a fix's position term for a particle on a floor without a fix: a fix 3 sigma away
+_NO_FIX_LOG_LIKELIHOOD = -4.5
+
+
+# The building's per-particle bookkeeping in numba (the step weighs floors every step: in numpy
+# each of these was a dozen passes over the cloud). Each is the same arithmetic as the numpy it
+# replaced, element by element, and sums in the same order where numpy's does (np.bincount's);
+# tests/filter/test_floor_kernels.py holds them to numpy.
+
+@njit(cache=True, nogil=True)
+def _floor_index(x, tile_x_min, out):
+    # np.searchsorted(tile_x_min, x, side="right") - 1 clipped to the floors (NaN: the last, as there)
+    n_floors = tile_x_min.shape[0]
+    for i in range(x.shape[0]):
+        xi = x[i]
+        if xi != xi:
+            out[i] = n_floors - 1
+            continue
+        f = 0
+        for k in range(1, n_floors):
+            if tile_x_min[k] <= xi:
+                f = k
+            else:
+                break
+        out[i] = f
+
+
+@njit(cache=True, nogil=True)
+def _floor_sums(x, weights, tile_x_min, out):
+    # np.bincount(floor, weights): each floor's weight, summed in particle order
+    floor = np.empty(x.shape[0], dtype=np.int64)
+    _floor_index(x, tile_x_min, floor)
+    out[:] = 0.0
+    for i in range(x.shape[0]):
+        out[floor[i]] += weights[i]
+    return floor
+
+
+@njit(cache=True, nogil=True)
+def _main_floor_moments(x, y, weights, tile_x_min, w_out):
+    # the weights of the floor with most weight (w_out, zero elsewhere) and their moments, as
+    # estimate._moments computes them over (xy, w_out)
+    shares = np.empty(tile_x_min.shape[0])
+    floor = _floor_sums(x, weights, tile_x_min, shares)
+    best = 0
+    for f in range(1, shares.shape[0]):
+        if shares[f] > shares[best]:  # np.argmax: the first of equal shares
+            best = f
+    total = 0.0
+    mx = 0.0
+    my = 0.0
+    for i in range(x.shape[0]):
+        wi = weights[i] if floor[i] == best else 0.0
+        w_out[i] = wi
+        total += wi
+        mx += wi * x[i]
+        my += wi * y[i]
+    mx /= total
+    my /= total
+    sxx = 0.0
+    sxy = 0.0
+    syy = 0.0
+    for i in range(x.shape[0]):
+        dx = x[i] - mx
+        dy = y[i] - my
+        sxx += w_out[i] * dx * dx
+        sxy += w_out[i] * dx * dy
+        syy += w_out[i] * dy * dy
+    return best, mx, my, sxx / total, sxy / total, syy / total
+
+
+@njit(cache=True, nogil=True)
+def _stack_to_building(x, y, tile_x_min, shift, frame, out):
+    # a stack position -> its floor's frame -> the building's (Floor.to_building's arithmetic);
+    # frame[f] = (offset x, offset y, cos, sin) of floor f
+    floor = np.empty(x.shape[0], dtype=np.int64)
+    _floor_index(x, tile_x_min, floor)
+    for i in range(x.shape[0]):
+        f = floor[i]
+        lx = x[i] - shift[f, 0]
+        ly = y[i] - shift[f, 1]
+        out[i, 0] = frame[f, 0] + frame[f, 2] * lx - frame[f, 3] * ly
+        out[i, 1] = frame[f, 1] + frame[f, 3] * lx + frame[f, 2] * ly
+
+
+@njit(cache=True, nogil=True)
+def _log_add_exp(a, b):
+    # np.logaddexp
+    if a == b:
+        return a + math.log(2.0)
+    d = a - b
+    if d > 0:
+        return a + math.log1p(math.exp(-d))
+    if d <= 0:
+        return b + math.log1p(math.exp(d))
+    return d
+
+
+@njit(cache=True, nogil=True)
+def _mixture_tables(distance_m, var):
+    # the terms of survey_reach.mixture_log_likelihood that depend on the cell only: per cell of a
+    # floor's distance grid, log u(x) + log(sigma^2 / s^2) (-inf where u(x) = 0) and s^2
+    base = np.empty(distance_m.shape[0])
+    spread = np.empty(distance_m.shape[0])
+    for k in range(distance_m.shape[0]):
+        d2 = distance_m[k] * distance_m[k]
+        spread[k] = var + d2
+        uncovered = -math.expm1(-0.5 * d2 / var)
+        base[k] = math.log(max(uncovered, 1e-300)) + math.log(var / spread[k]) if uncovered > 0 else -math.inf
+    return base, spread
+
+
+@njit(cache=True, nogil=True)
+def _floor_fix_kernel(x, y, prior, tile_x_min, shift, fix, var, grid_head, grid_base, grid_spread, mixture,
+                      in_survey, floor_ll, collapse_nats, out):
+    # FloorFixLikelihood.log_likelihood (its docstring) in two passes over the cloud and one over
+    # its live particles; grid_head[f] = (x0, y0, cell, rows, cols, first index in grid_base and
+    # grid_spread: _mixture_tables of floor f's grid; a floor without one: one cell at distance 0)
+    n = x.shape[0]
+    n_floors = tile_x_min.shape[0]
+    floor = np.empty(n, dtype=np.int64)
+    _floor_index(x, tile_x_min, floor)
+    top = -math.inf  # the best floor's evidence
+    for f in range(n_floors):
+        top = max(top, floor_ll[f])
+    # survey_reach.mixture_log_likelihood: the in-survey and the outside component's weights
+    log_in = math.log(max(in_survey, 1e-300)) if in_survey > 0 else -math.inf
+    log_out = math.log(max(1.0 - in_survey, 1e-300)) if in_survey < 1 else -math.inf
+    v_max = np.full(n_floors, -math.inf)  # per floor: max of prior + position, of prior (live particles)
+    p_max = np.full(n_floors, -math.inf)
+    has_live = np.zeros(n_floors, dtype=np.bool_)
+    for i in range(n):
+        f = floor[i]
+        dx = x[i] - fix[f, 0]
+        dy = y[i] - fix[f, 1]
+        r2 = dx * dx + dy * dy
+        if not math.isfinite(r2):
+            position = _NO_FIX_LOG_LIKELIHOOD
+        elif mixture:
+            rows = int(grid_head[f, 3])
+            cols = int(grid_head[f, 4])
+            c = min(max(int((x[i] - shift[f, 0] - grid_head[f, 0]) / grid_head[f, 2]), 0), cols - 1)
+            r = min(max(int((y[i] - shift[f, 1] - grid_head[f, 1]) / grid_head[f, 2]), 0), rows - 1)
+            k = int(grid_head[f, 5]) + r * cols + c
+            inside = log_in - 0.5 * r2 / var[f]
+            outside = log_out + grid_base[k] - 0.5 * r2 / grid_spread[k]
+            both = _log_add_exp(inside, outside)
+            position = both if math.isfinite(both) else EMPTY_LOG_LIKELIHOOD
+        else:
+            position = -0.5 * r2 / var[f]
+        out[i] = position
+        if math.isfinite(prior[i]):
+            has_live[f] = True
+            v_max[f] = max(v_max[f], prior[i] + position)
+            p_max[f] = max(p_max[f], prior[i])
+    any_live = False
+    live_top = -math.inf
+    for f in range(n_floors):
+        if has_live[f]:
+            any_live = True
+            live_top = max(live_top, floor_ll[f])
+    if any_live and live_top < top - collapse_nats:
+        out[:] = -math.inf
+        return
+    v_sum = np.zeros(n_floors)
+    p_sum = np.zeros(n_floors)
+    for i in range(n):
+        if math.isfinite(prior[i]):
+            f = floor[i]
+            v_sum[f] += math.exp(prior[i] + out[i] - v_max[f])
+            p_sum[f] += math.exp(prior[i] - p_max[f])
+    # each floor's position term a reweighting within the floor: minus log(sum w e^pos / sum w)
+    normaliser = np.zeros(n_floors)
+    for f in range(n_floors):
+        if has_live[f]:
+            normaliser[f] = (v_max[f] + math.log(v_sum[f])) - (p_max[f] + math.log(p_sum[f]))
+    for i in range(n):
+        f = floor[i]
+        out[i] = floor_ll[f] + out[i]
+        if math.isfinite(prior[i]):
+            out[i] -= normaliser[f]
 
 
 def floor_stack(building: Building) -> FloorStack:
@@ -82,6 +264,9 @@ class FloorStack:
         self.plan = FloorPlan(mask, res, (0.0, 0.0), None)
         self.shift_m = np.array(shifts, dtype=np.float64)
         self.tile_x_min_m = np.array(starts, dtype=np.float64)
+        # per floor (offset x, offset y, cos, sin) of its frame in the building's (Floor.to_building)
+        self._frames = np.array([(f.offset_m[0], f.offset_m[1], math.cos(f.rotation_rad), math.sin(f.rotation_rad))
+                                 for f in building.floors], dtype=np.float64)
 
     @property
     def n_floors(self) -> int:
@@ -90,7 +275,9 @@ class FloorStack:
     def floor_of(self, stack_xy_m: np.ndarray) -> np.ndarray:
         """(N,) floor index of stack positions (N, 2)."""
         x = np.asarray(stack_xy_m, dtype=np.float64)[..., 0]
-        return np.clip(np.searchsorted(self.tile_x_min_m, x, side="right") - 1, 0, self.n_floors - 1)
+        out = np.empty(x.shape, dtype=np.int64)
+        _floor_index(np.ascontiguousarray(x).reshape(-1), self.tile_x_min_m, out.reshape(-1))
+        return out
 
     def to_stack(self, xy_m: np.ndarray, floor: np.ndarray | int) -> np.ndarray:
         """Floor-frame positions (N, 2) on ``floor`` (index or (N,) indices) -> stack positions."""
@@ -104,17 +291,29 @@ class FloorStack:
 
     def to_building(self, stack_xy_m: np.ndarray) -> np.ndarray:
         """Stack positions (N, 2) -> building-frame positions (N, 2) (floors placed as the file says)."""
-        local, floor = self.to_floor(stack_xy_m)
-        out = np.empty_like(local)
-        for f, fl in enumerate(self.building.floors):
-            on = floor == f
-            if on.any():
-                out[on] = fl.to_building(local[on])
+        xy = np.asarray(stack_xy_m, dtype=np.float64).reshape(-1, 2)
+        out = np.empty(xy.shape)
+        _stack_to_building(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), self.tile_x_min_m,
+                           self.shift_m, self._frames, out)
         return out
 
     def floor_shares(self, stack_xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """(F,) share of the weight on each floor."""
-        return np.bincount(self.floor_of(stack_xy_m), weights=weights, minlength=self.n_floors)
+        out = np.empty(self.n_floors)
+        _floor_sums(np.ascontiguousarray(np.asarray(stack_xy_m, dtype=np.float64)[:, 0]),
+                    np.ascontiguousarray(weights, dtype=np.float64), self.tile_x_min_m, out)
+        return out
+
+    def main_floor_moments(self, stack_xy_m: np.ndarray, weights: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(the weights of the floor holding most of the weight, zero on the others (N,); their
+        weighted mean (2,) and covariance (2, 2), as ``weighted_moments`` gives them), in one go."""
+        xy = np.asarray(stack_xy_m, dtype=np.float64)
+        w = np.empty(len(xy))
+        _, mx, my, sxx, sxy, syy = _main_floor_moments(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
+                                                       np.ascontiguousarray(weights, dtype=np.float64),
+                                                       self.tile_x_min_m, w)
+        return w, np.array([mx, my]), np.array([[sxx, sxy], [sxy, syy]])
 
     def estimate(self, stack_xy_m: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float, bool]:
         """The estimate on the floor holding most of the weight: ``weighted_estimate`` of that
@@ -226,6 +425,7 @@ class FloorChanges(FloorModel):
         for c, connector in enumerate(stack.building.connectors):
             if connector.kind == "stairs":
                 self.on_stairs |= self.connector_id == c
+        self._has_stairs = bool(self.on_stairs.any())  # asked every step: once here
         self.changed_last_step = 0  # particles that changed floor in the last ``change_floors``
 
     @property
@@ -274,7 +474,7 @@ class FloorChanges(FloorModel):
         """One PDR step's end points, with every step that starts on stairs shortened to a tread
         (``STAIRS_TREAD_M``) along its own direction; the rest as given (a new array)."""
         out = np.array(to_xy_m, dtype=np.float64, copy=True)
-        if not self.on_stairs.any():
+        if not self._has_stairs:
             return out
         rows, cols, inside = self.stack.plan.pixel_index(from_xy_m)
         stairs = np.zeros(len(out), dtype=bool)
@@ -331,20 +531,18 @@ class FloorChanges(FloorModel):
         movers = np.flatnonzero(live & (rng.random(len(particles)) < p))
         if movers.size == 0:
             return log_weight
-        local, floor = stack.to_floor(xy[movers])
+        moving = xy[movers]
         # another floor, alike: add 1..F-1 to the floor index modulo F
-        dest = (floor + rng.integers(1, stack.n_floors, movers.size)) % stack.n_floors
+        dest = (stack.floor_of(moving) + rng.integers(1, stack.n_floors, movers.size)) % stack.n_floors
+        building_xy = stack.to_building(moving)
         out = log_weight.copy()
-        for f in np.unique(floor):
-            on = floor == f
-            building_xy = stack.building.floors[f].to_building(local[on])
-            for d in np.unique(dest[on]):
-                sel = dest[on] == d
-                point = stack.building.floors[d].from_building(building_xy[sel])
-                idx = movers[on][sel]
-                free = stack.building.floors[d].plan.is_free(point)
-                xy[idx[free]] = stack.to_stack(point[free], d)
-                out[idx[~free]] = -np.inf  # no floor there: it dies where it stood
+        for d in np.unique(dest):
+            sel = dest == d
+            point = stack.building.floors[d].from_building(building_xy[sel])
+            idx = movers[sel]
+            free = stack.building.floors[d].plan.is_free(point)
+            xy[idx[free]] = stack.to_stack(point[free], d)
+            out[idx[~free]] = -np.inf  # no floor there: it dies where it stood
         self.changed_last_step = int(np.count_nonzero(np.isfinite(out[movers])))
         particles.log_weight = out
         return out
@@ -426,39 +624,38 @@ class FloorFixLikelihood(MeasurementModel):
     def locates(self, measurement: FloorFix) -> bool:
         return not measurement.evidence_only
 
+    def __post_init__(self) -> None:
+        # the floors' distance grids as the kernel reads them (``_floor_fix_kernel``'s grid_head,
+        # grid_base, grid_spread): per cell, the mixture's terms that only the distance decides
+        sigma = np.asarray(self.sigma_m, dtype=np.float64)
+        head, base, spread, first = np.zeros((self.stack.n_floors, 6)), [], [], 0
+        for f in range(self.stack.n_floors):
+            grid = self.grids[f] if self.grids is not None else None
+            distance = np.zeros(1) if grid is None else np.asarray(grid.distance_m, dtype=np.float64)
+            rows, cols = (1, 1) if grid is None else distance.shape
+            x0, y0, cell = (0.0, 0.0, 1.0) if grid is None else (*grid.origin_m, grid.cell_m)
+            head[f] = (x0, y0, cell, rows, cols, first)
+            b, s = _mixture_tables(distance.ravel(), float(sigma[f] * sigma[f]))
+            base.append(b)
+            spread.append(s)
+            first += rows * cols
+        object.__setattr__(self, "_grid_head", head)
+        object.__setattr__(self, "_grid_base", np.concatenate(base))
+        object.__setattr__(self, "_grid_spread", np.concatenate(spread))
+
     def log_likelihood(self, particles: Particles, measurement: FloorFix) -> np.ndarray:
-        floor = self.stack.floor_of(particles.xy_m)
-        fix = measurement.xy_m[floor]
-        sigma = np.asarray(self.sigma_m, dtype=np.float64)[floor]
-        r2 = ((particles.xy_m - fix) ** 2).sum(axis=1)
-        if self.grids is not None and measurement.in_survey is not None:
-            floor_xy = particles.xy_m - self.stack.shift_m[floor]
-            d2 = np.zeros(len(floor))
-            for f, grid in enumerate(self.grids):
-                on = floor == f
-                if grid is not None and on.any():
-                    d2[on] = grid.at(floor_xy[on]) ** 2
-            w = float(measurement.in_survey)
-            with np.errstate(invalid="ignore"):
-                position = np.where(np.isfinite(r2), mixture_log_likelihood(r2, d2, sigma * sigma, w), -4.5)
-        else:
-            position = np.where(np.isfinite(r2), -0.5 * r2 / (sigma * sigma), -4.5)
-        prior = np.asarray(particles.log_weight, dtype=np.float64)
-        live = np.isfinite(prior)
-        floor_ll = np.asarray(measurement.floor_log_likelihood, dtype=np.float64)
+        floor_ll = np.ascontiguousarray(measurement.floor_log_likelihood, dtype=np.float64)
         if measurement.evidence_only:
             # floor evidence alone (the barometer between scans): it reweighs floors and never
             # collapses the cloud, whose re-draw needs a position; the next scan can
-            return floor_ll[floor]
-        if live.any() and floor_ll[floor[live]].max() < floor_ll.max() - self.floor_collapse_nats:
-            return np.full(len(particles), -np.inf)
-        out = floor_ll[floor] + position
-        for f in np.unique(floor[live]):
-            on = live & (floor == f)
-            out[on] -= _logsumexp(prior[on] + position[on]) - _logsumexp(prior[on])
+            return floor_ll[self.stack.floor_of(particles.xy_m)]
+        sigma = np.asarray(self.sigma_m, dtype=np.float64)
+        out = np.empty(len(particles))
+        _floor_fix_kernel(particles.state[X], particles.state[Y], np.ascontiguousarray(particles.log_weight,
+                                                                                      dtype=np.float64),
+                          self.stack.tile_x_min_m, self.stack.shift_m,
+                          np.ascontiguousarray(measurement.xy_m, dtype=np.float64), sigma * sigma, self._grid_head,
+                          self._grid_base, self._grid_spread, self.grids is not None and measurement.in_survey is not None,
+                          0.0 if measurement.in_survey is None else float(measurement.in_survey), floor_ll,
+                          float(self.floor_collapse_nats), out)
         return out
-
-
-def _logsumexp(values: np.ndarray) -> float:
-    m = float(values.max())
-    return m + math.log(float(np.exp(values - m).sum()))
