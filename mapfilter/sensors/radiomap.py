@@ -1070,11 +1070,10 @@ def survey_match_distances_db(radio_map: RadioMap) -> tuple[np.ndarray, np.ndarr
     other walks' points (``MAX_MATCHED_POINTS`` of them at most, spread over the map); inside, the points
     within ``INSIDE_WITHIN_M`` of another walk's point on their floor, outside those farther than
     ``OUTSIDE_BEYOND_M`` from all of them. Kept on the radio map (an evaluation's walks share it)."""
-    from scipy.spatial import cKDTree
-
     memo = memo_of(radio_map)
     if "match distances" in memo:
         return memo["match distances"]
+    from scipy.spatial import cKDTree  # here: a radio map file keeps them, and a track need not import scipy.spatial
     walk = np.asarray(radio_map.trace)
     floor = np.zeros(len(radio_map), dtype=np.int64) if radio_map.floor is None else np.asarray(radio_map.floor)
     walks = np.unique(walk)

@@ -115,6 +115,27 @@ def test_the_distance_grid_is_the_nearest_reference_point():
     np.testing.assert_allclose(upstairs.at(centres), brute_3d, atol=1e-9)
 
 
+@pytest.mark.parametrize("dims", [2, 3])
+def test_the_distance_grids_sweep_gives_ckdtrees_distances_to_the_last_bit(dims):
+    """Oracle: the sweep (no scipy.spatial on a walk's path) against cKDTree.query, which the grid
+    was made with before: the same numbers exactly, on points with ties (rounded coordinates),
+    points beyond the extent, one point, and none."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(5)
+    x0, x1, y0, y1 = -5.0, 62.0, -3.0, 33.0
+    for n in (1, 7, 60, 400):
+        refs = rng.uniform([-20, -20, 0][:dims], [80, 50, 8][:dims], (n, dims)).round(int(rng.integers(0, 3)))
+        grid = distance_grid(refs, (x0, x1, y0, y1), height_m=4.0, cell_m=0.7)
+        rows, cols = grid.distance_m.shape
+        yy, xx = np.mgrid[0:rows, 0:cols]
+        centres = np.column_stack([x0 + (xx.ravel() + 0.5) * 0.7, y0 + (yy.ravel() + 0.5) * 0.7])
+        if dims == 3:
+            centres = np.column_stack([centres, np.full(len(centres), 4.0)])
+        np.testing.assert_array_equal(grid.distance_m.ravel(), cKDTree(refs).query(centres)[0])
+    assert np.isinf(distance_grid(np.zeros((0, dims)), (x0, x1, y0, y1)).distance_m).all()
+
+
 def test_a_building_floor_fix_inside_the_survey_is_the_gaussian_and_flatter_outside():
     """FloorFixLikelihood with each floor's distance grid: a scan taken inside the survey weighs
     positions as the plain Gaussian fix; one taken outside spares the particles far from the survey."""
