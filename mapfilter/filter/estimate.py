@@ -29,7 +29,7 @@ from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall, crossings, wall_grid
 
 __all__ = ["MODE_CELL_M", "MODE_RADIUS_M", "circular_mean", "mode_estimate", "toward", "weighted_estimate",
-           "weighted_moments"]
+           "weighted_moments", "writable"]
 
 MODE_CELL_M = 1.0  # the weight's histogram cells: the densest 3 x 3 of them is the mode's window
 MODE_RADIUS_M = 8.0  # the mode: the particles this close to its centre that it sees
@@ -69,10 +69,17 @@ def _moments(xy, w):
     return mx, my, sxx / total, sxy / total, syy / total
 
 
+def writable(values: np.ndarray) -> np.ndarray:
+    """``values`` as a contiguous float64 array that is not read-only (a copy if it is): numba
+    compiles a kernel apart for read-only arrays (a resampled cloud's shared uniform weights), and
+    each variant is one more load from its cache per process."""
+    out = np.ascontiguousarray(values, dtype=np.float64)
+    return out if out.flags.writeable else out.copy()
+
+
 def weighted_moments(xy_m: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(mean (2,), covariance (2, 2)) of positions under (not necessarily normalised) weights."""
-    mx, my, sxx, sxy, syy = _moments(np.ascontiguousarray(xy_m, dtype=np.float64),
-                                     np.ascontiguousarray(weights, dtype=np.float64))
+    mx, my, sxx, sxy, syy = _moments(np.ascontiguousarray(xy_m, dtype=np.float64), writable(weights))
     return np.array([mx, my]), np.array([[sxx, sxy], [sxy, syy]])
 
 
@@ -216,7 +223,7 @@ def mode_estimate(floorplan: FloorPlan, xy_m: np.ndarray, weights: np.ndarray) -
     xy = np.asarray(xy_m, dtype=np.float64)
     stride = -(-len(xy) // MODE_PARTICLES)
     mx, my, _, _ = _mode(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
-                         np.ascontiguousarray(weights, dtype=np.float64), wall_grid(floorplan), MODE_CELL_M,
+                         writable(weights), wall_grid(floorplan), MODE_CELL_M,
                          MODE_RADIUS_M, MODE_SIGHT_CHECKS, max(stride, 1))
     return np.array([mx, my])
 

@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.estimate import weighted_estimate, weighted_moments
+from mapfilter.filter.estimate import weighted_estimate, weighted_moments, writable
 from mapfilter.filter.models.interface import FloorModel, MeasurementModel
 from mapfilter.filter.models.survey_reach import EMPTY_LOG_LIKELIHOOD
 from mapfilter.filter.particles import Particles, X, Y
@@ -301,7 +301,7 @@ class FloorStack:
         """(F,) share of the weight on each floor."""
         out = np.empty(self.n_floors)
         _floor_sums(np.ascontiguousarray(np.asarray(stack_xy_m, dtype=np.float64)[:, 0]),
-                    np.ascontiguousarray(weights, dtype=np.float64), self.tile_x_min_m, out)
+                    writable(weights), self.tile_x_min_m, out)
         return out
 
     def main_floor_moments(self, stack_xy_m: np.ndarray, weights: np.ndarray
@@ -311,7 +311,7 @@ class FloorStack:
         xy = np.asarray(stack_xy_m, dtype=np.float64)
         w = np.empty(len(xy))
         _, mx, my, sxx, sxy, syy = _main_floor_moments(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
-                                                       np.ascontiguousarray(weights, dtype=np.float64),
+                                                       writable(weights),
                                                        self.tile_x_min_m, w)
         return w, np.array([mx, my]), np.array([[sxx, sxy], [sxy, syy]])
 
