@@ -173,3 +173,32 @@ def test_radiomap_build_keeps_the_grid_and_track_starts_from_it(tmp_path, ilc_si
     assert main(["track", str(tmp_path / "F1.yaml"), str(logs[0]), "--radiomap", str(tmp_path / "plain.npz"),
                  "--out", str(tmp_path / "plain.csv")]) == 0
     assert (tmp_path / "stored.csv").read_bytes() == (tmp_path / "plain.csv").read_bytes()
+
+
+def test_the_per_ap_table_kernel_gives_the_numpy_tables_to_the_bit():
+    """Oracle: ``_ap_table`` and ``_offset`` (one loop over the weighted sums, the logarithms in
+    numpy) against the numpy formulas they replaced, on the office map's every AP: the same float32
+    entries; entries at or below MIN_WEIGHT dropped."""
+    from mapfilter.filter.models import radio_map as rml
+
+    plan, radio_map, _ = _office()
+    model = RadioMapLikelihood(radio_map, plan)
+    cell, ap, wh, s1, s2 = model._sums(np.ones(model._n_aps, dtype=bool))  # noqa: SLF001
+    keep = wh > rml.MIN_WEIGHT
+    assert 0 < keep.sum() < keep.size  # some entries are dropped, most kept
+    cell, ap, wh, s1, s2 = cell[keep], ap[keep], wh[keep], s1[keep], s2[keep]
+    pw = rml.PRIOR_WEIGHT
+    mu = (s1 + pw * rml.PRIOR_RSSI_DBM) / (wh + pw)
+    var = (s2 - 2 * mu * s1 + mu * mu * wh + pw * rml.PRIOR_SIGMA_DB ** 2) / (wh + pw)
+    var = np.maximum(var, 0.0) + rml.SIGMA_FLOOR_DB ** 2
+    p_heard = np.clip((wh + pw * rml.PRIOR_HEARD) / (model._w_all[cell] + pw), rml.HEARD_CLIP,  # noqa: SLF001
+                      1 - rml.HEARD_CLIP)
+    offset = (np.log(p_heard) - 0.5 * np.log(2 * np.pi * var) - np.log1p(-p_heard)).astype(np.float32)
+    got = rml._ap_table(*model._sums(np.ones(model._n_aps, dtype=bool)), model._w_all)  # noqa: SLF001
+    got_ap, got_cell, got_mu, got_inv_var, got_p, got_two_pi_var = got
+    np.testing.assert_array_equal(got_ap, ap)
+    np.testing.assert_array_equal(got_cell, cell.astype(np.int32))
+    np.testing.assert_array_equal(got_mu, mu.astype(np.float32))
+    np.testing.assert_array_equal(got_inv_var, (1.0 / var).astype(np.float32))
+    np.testing.assert_array_equal(got_p, p_heard)
+    np.testing.assert_array_equal(rml._offset(np.log(got_p), np.log(got_two_pi_var), np.log1p(-got_p)), offset)

@@ -179,25 +179,20 @@ class RadioMapLikelihood(MeasurementModel):
         tabled = np.zeros(self._n_aps, dtype=bool)
         tabled[new] = True
         cell, ap, wh, s1, s2 = self._sums(tabled)
-        # below the threshold the prior's pseudo-count dominates: keep the prior there
-        keep = wh > MIN_WEIGHT
-        cell, ap, wh, s1, s2 = cell[keep], ap[keep], wh[keep], s1[keep], s2[keep]
-        pw = PRIOR_WEIGHT
-        mu = (s1 + pw * PRIOR_RSSI_DBM) / (wh + pw)
-        # weighted spread around mu, the prior's spread counting as pw pseudo-observations
-        var = (s2 - 2 * mu * s1 + mu * mu * wh + pw * PRIOR_SIGMA_DB ** 2) / (wh + pw)
-        var = np.maximum(var, 0.0) + SIGMA_FLOOR_DB ** 2
-        p_heard = (wh + pw * PRIOR_HEARD) / (self._w_all[cell] + pw)
-        ap, cell = ap.astype(np.int64), cell.astype(np.int64)
-        p_heard = np.clip(p_heard, HEARD_CLIP, 1 - HEARD_CLIP)
-        self._tables.append((ap, cell.astype(np.int32), mu.astype(np.float32), (1.0 / var).astype(np.float32),
-                             (np.log(p_heard) - 0.5 * np.log(2 * np.pi * var) - np.log1p(-p_heard)).astype(np.float32)))
+        # each entry's mean, spread and P(heard) in one loop (_ap_table); the logarithms in numpy,
+        # whose vectorised log rounds as the tables always were
+        ap, cell, mu, inv_var, p_heard, two_pi_var = _ap_table(cell, ap, wh, s1, s2, self._w_all)
+        offset = _offset(np.log(p_heard), np.log(two_pi_var), np.log1p(-p_heard))
+        self._tables.append((ap, cell, mu, inv_var, offset))
         # sparse per-AP tables (CSR by AP): log h + log N normaliser - log(1 - h), mean, 1/var;
         # each AP's entries come from one batch, in cell order
-        ap, cell, mu, inv_var, offset = (np.concatenate(parts) for parts in zip(*self._tables))
-        order = np.argsort(ap, kind="stable")
-        self._ap_ptr = np.searchsorted(ap[order], np.arange(self._n_aps + 1))
-        self._cell, self._mu, self._inv_var, self._offset = cell[order], mu[order], inv_var[order], offset[order]
+        ap, cell, mu, inv_var, offset = (np.concatenate(parts) if len(parts) > 1 else parts[0]
+                                         for parts in zip(*self._tables))
+        if np.any(ap[1:] < ap[:-1]):  # a batch after the first: its APs go between the others'
+            order = np.argsort(ap, kind="stable")
+            ap, cell, mu, inv_var, offset = ap[order], cell[order], mu[order], inv_var[order], offset[order]
+        self._ap_ptr = np.searchsorted(ap, np.arange(self._n_aps + 1))
+        self._cell, self._mu, self._inv_var, self._offset = cell, mu, inv_var, offset
 
     def stored_tables(self, radio_map: RadioMap, floorplan: FloorPlan) -> dict[str, np.ndarray]:
         """What a radio map file keeps of this likelihood (``RadioMap.likelihood_tables``): the
@@ -374,6 +369,64 @@ def _built_grid(radio_map: RadioMap, floorplan: FloorPlan | None, config: RadioM
     w_all[:n_cells] = np.asarray(weight.sum(axis=1)).ravel()
     return ((float(x0), float(y0)), shape, active.astype(np.int64),
             (weight.indptr.astype(np.int64), weight.indices.astype(np.int64), weight.data), w_all, None)
+
+
+@njit(cache=True, nogil=True)
+def _ap_table(cell, ap, wh, s1, s2, w_all):
+    """The per-AP table's entries (``RadioMapLikelihood._build_tables``) from the weighted sums:
+    those with kernel weight above ``MIN_WEIGHT`` (below it the prior's pseudo-count dominates:
+    the prior stays); their AP, cell (int32), RSSI mean and inverse variance (float32), P(heard)
+    and 2 pi variance (float64, for the logarithms). The arithmetic of the numpy it replaced, term
+    by term, so the same numbers (tests/sensors/test_radiomap_tables.py)."""
+    pw = PRIOR_WEIGHT
+    mu_prior = pw * PRIOR_RSSI_DBM
+    var_prior = pw * PRIOR_SIGMA_DB ** 2
+    var_floor = SIGMA_FLOOR_DB ** 2
+    heard_prior = pw * PRIOR_HEARD
+    low = HEARD_CLIP
+    high = 1 - HEARD_CLIP
+    two_pi = 2 * np.pi
+    n = 0
+    for i in range(wh.shape[0]):
+        if wh[i] > MIN_WEIGHT:
+            n += 1
+    ap_out = np.empty(n, dtype=np.int64)
+    cell_out = np.empty(n, dtype=np.int32)
+    mu_out = np.empty(n, dtype=np.float32)
+    inv_var_out = np.empty(n, dtype=np.float32)
+    p_out = np.empty(n)
+    two_pi_var = np.empty(n)
+    k = 0
+    for i in range(wh.shape[0]):
+        w = wh[i]
+        if not w > MIN_WEIGHT:
+            continue
+        mu = (s1[i] + mu_prior) / (w + pw)
+        # weighted spread around mu, the prior's spread counting as pw pseudo-observations
+        var = (s2[i] - 2 * mu * s1[i] + mu * mu * w + var_prior) / (w + pw)
+        var = (var if var >= 0.0 or var != var else 0.0) + var_floor  # np.maximum(var, 0): NaN stays
+        p = (w + heard_prior) / (w_all[cell[i]] + pw)
+        if p < low:  # np.clip
+            p = low
+        elif p > high:
+            p = high
+        ap_out[k] = ap[i]
+        cell_out[k] = cell[i]
+        mu_out[k] = mu
+        inv_var_out[k] = 1.0 / var
+        p_out[k] = p
+        two_pi_var[k] = two_pi * var
+        k += 1
+    return ap_out, cell_out, mu_out, inv_var_out, p_out, two_pi_var
+
+
+@njit(cache=True, nogil=True)
+def _offset(log_p, log_two_pi_var, log_not_p):
+    """log h + the Gaussian's log normaliser - log(1 - h), float32 (``_ap_table``'s entries)."""
+    out = np.empty(log_p.shape[0], dtype=np.float32)
+    for i in range(log_p.shape[0]):
+        out[i] = log_p[i] - 0.5 * log_two_pi_var[i] - log_not_p[i]
+    return out
 
 
 @njit(cache=True, nogil=True)
