@@ -187,9 +187,9 @@ class WifiEvidence:
             self._kwnn.extend(nan2)
             self._best.extend(nan2)
             return
-        shared = [sum(k in radio_map.key_index for k in s.ap_keys) for s in scans]
-        if wifi.fingerprint_model == "likelihood":
-            self._usable.extend(n >= 1 for n in shared)
+        if wifi.fingerprint_model == "likelihood":  # a scan is usable when it hears an AP of the map
+            index = radio_map.key_index
+            self._usable.extend(any(k in index for k in s.ap_keys) for s in scans)
             self._fix.extend(nan2)
             self._kwnn.extend(nan2)
             self._best.extend(nan2)

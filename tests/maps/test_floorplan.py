@@ -268,3 +268,28 @@ def test_grey_lookup_gives_the_per_pixel_rule(tmp_path: Path):
                             ("mode: raw\n", gray / 100.0 > 0.0)):
         (tmp_path / "g.yaml").write_text("image: g.png\nresolution: 0.1\norigin: [0, 0, 0]\n" + extra)
         np.testing.assert_array_equal(FloorPlan.load(tmp_path / "g.yaml").wall_mask, expected)
+
+
+def test_is_free_is_the_pixel_index_lookup_for_every_point():
+    """Oracle: the compiled is_free against pixel_index and the mask, on points inside, on pixel
+    edges, off every side, NaN and infinite, in the shapes callers pass ((N, 2), (2,), (A, B, 2))."""
+    rng = np.random.default_rng(8)
+    mask = rng.random((37, 53)) < 0.3
+    plan = FloorPlan(mask, 0.25, (-1.5, 2.0))
+
+    def oracle(xy):
+        rows, cols, inside = plan.pixel_index(xy)
+        free = np.zeros(rows.shape, dtype=bool)
+        free[inside] = ~mask[rows[inside], cols[inside]]
+        return free
+
+    x0, x1, y0, y1 = plan.extent_m
+    points = np.concatenate([rng.uniform([x0 - 2, y0 - 2], [x1 + 2, y1 + 2], (5000, 2)),
+                             np.column_stack([x0 + 0.25 * rng.integers(-2, 56, 500), y0 + 0.25 * rng.integers(-2, 40, 500)]),
+                             [[np.nan, 3.0], [0.0, np.nan], [np.inf, 3.0], [-np.inf, 3.0], [x1, y0], [x0, y1]]])
+    got = plan.is_free(points)
+    assert got.any() and not got.all()
+    np.testing.assert_array_equal(got, oracle(points))
+    np.testing.assert_array_equal(plan.is_free(points[:12].reshape(3, 4, 2)), oracle(points[:12].reshape(3, 4, 2)))
+    assert plan.is_free(points[0]).shape == () and plan.is_free(points[0]) == oracle(points[0])
+    np.testing.assert_array_equal(plan.is_free(points[::2].T.copy().T), oracle(points[::2]))  # a strided view

@@ -148,6 +148,17 @@ def _mixture_tables(distance_m, var):
     return base, spread
 
 
+def _grid_tables(grid, distance_m: np.ndarray, var_m2: float) -> tuple[np.ndarray, np.ndarray]:
+    """``_mixture_tables`` of a floor's distance grid, kept with the grid (a building's grids are
+    kept with its radio map: every walk tracked in it shares them)."""
+    if grid is None:
+        return _mixture_tables(distance_m.ravel(), var_m2)
+    kept = grid.__dict__.setdefault("_mixture_tables", {})
+    if var_m2 not in kept:
+        kept[var_m2] = _mixture_tables(distance_m.ravel(), var_m2)
+    return kept[var_m2]
+
+
 @njit(cache=True, nogil=True)
 def _floor_fix_kernel(x, y, prior, tile_x_min, shift, fix, var, grid_head, grid_base, grid_spread, mixture,
                       in_survey, floor_ll, collapse_nats, out):
@@ -635,7 +646,7 @@ class FloorFixLikelihood(MeasurementModel):
             rows, cols = (1, 1) if grid is None else distance.shape
             x0, y0, cell = (0.0, 0.0, 1.0) if grid is None else (*grid.origin_m, grid.cell_m)
             head[f] = (x0, y0, cell, rows, cols, first)
-            b, s = _mixture_tables(distance.ravel(), float(sigma[f] * sigma[f]))
+            b, s = _grid_tables(grid, distance, float(sigma[f] * sigma[f]))
             base.append(b)
             spread.append(s)
             first += rows * cols
