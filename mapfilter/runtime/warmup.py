@@ -8,12 +8,14 @@ and per CPU; a stale entry is simply compiled again on first use).
 
 The work is a small simulated office (two rooms, a door, six access points): a survey and a walk
 written as an ILC log and read back, a radio map, then the walk tracked by
-each motion and fingerprint model and by trilateration, with the offline track, so that every
-kernel a command can reach gets compiled with the argument types the commands use.
+each motion and fingerprint model and by trilateration, with the offline track, and a walk in a
+building of two such floors, so that every kernel a command can reach gets compiled with the
+argument types the commands use.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import tempfile
 import time
@@ -68,7 +70,40 @@ def compile_kernels(verbose: bool = False) -> float:
         track(plan, walk, rm, ap_table, base.override(settings))
         if verbose:
             print(f"mapfilter warm-up: {settings or 'trilateration'} done", file=sys.stderr)
+    _building_walk(plan, aps, base)
+    if verbose:
+        print("mapfilter warm-up: a building's walk done", file=sys.stderr)
     return time.perf_counter() - started
+
+
+def _building_walk(plan, aps, config) -> None:
+    """The office twice, one floor above the other, without connectors (as the ILC buildings are):
+    a survey of each floor, then a walk tracked across the floors, causal and offline, for the
+    kernels only a building reaches (the floors in the filter's state)."""
+    from mapfilter.api import track
+    from mapfilter.maps.building import Building, Floor
+    from mapfilter.sensors.floor_vote import build_building_radio_map
+    from mapfilter.sensors.logs import read_log
+    from mapfilter.simulate.building import BuildingSimConfig, simulate_building_survey, simulate_building_walk
+    from mapfilter.simulate.ilc_writer import write_ilc
+    from mapfilter.simulate.walk import SimConfig
+
+    building = Building([Floor("L0", plan), Floor("L1", plan, elevation_m=4.0)])
+    upstairs = dataclasses.replace(aps, bssid=[key.replace("02:00:00:00:00:", "02:00:00:00:01:") for key in aps.bssid])
+    tables = {"L0": aps, "L1": upstairs}  # each floor its own access points
+    surveys = BuildingSimConfig(walk=SimConfig(survey_spacing_m=3.0, survey_scans_per_point=1))
+    walk_config = BuildingSimConfig(walk=SimConfig(), segment_s=(20.0, 20.0))
+    with tempfile.TemporaryDirectory(prefix="mapfilter-warmup-") as tmp:
+        logs = []
+        for i, name in enumerate(building.floor_names):
+            write_ilc(simulate_building_survey(building, tables, name, surveys, np.random.default_rng([3, i])),
+                      Path(tmp) / f"survey_{name}.txt")
+            logs.append(read_log(Path(tmp) / f"survey_{name}.txt"))
+        walk, _ = simulate_building_walk(building, tables, "L0", [], walk_config, np.random.default_rng(4))
+        write_ilc(walk, Path(tmp) / "walk.txt")
+        recording = read_log(Path(tmp) / "walk.txt", building=building)
+    radio_map = build_building_radio_map(logs, list(range(len(logs))), building.floor_names)
+    track(building, recording, radio_map, None, config)
 
 
 def main() -> int:
