@@ -67,6 +67,7 @@ LONG_SCRIPTS = {
     "floor_sim.py": "ten simulated building walks: 2-10 minutes",
     "bench_filter.py": "a benchmark: minutes, and its numbers are for a quiet machine",
     "bench_startup.py": "a benchmark: minutes (radio maps built, commands run in fresh processes)",
+    "bench_command_cost.py": "a benchmark: a minute (a radio map built, commands run in fresh processes)",
     "bench_live_cost.py": "a 4.2-hour live session fed at once: tens of minutes",
     "hostile_inputs.py": "every hostile input in a subprocess: minutes",
     "ipin_eval.py": "the IPIN walk over two floors with every method: minutes",
