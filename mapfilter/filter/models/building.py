@@ -302,11 +302,12 @@ class FloorStack:
 
     def to_building(self, stack_xy_m: np.ndarray) -> np.ndarray:
         """Stack positions (N, 2) -> building-frame positions (N, 2) (floors placed as the file says)."""
-        xy = np.asarray(stack_xy_m, dtype=np.float64).reshape(-1, 2)
+        given = np.asarray(stack_xy_m, dtype=np.float64)
+        xy = given.reshape(-1, 2)
         out = np.empty(xy.shape)
         _stack_to_building(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), self.tile_x_min_m,
                            self.shift_m, self._frames, out)
-        return out
+        return out.reshape(given.shape)
 
     def floor_shares(self, stack_xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """(F,) share of the weight on each floor."""
