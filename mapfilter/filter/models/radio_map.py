@@ -144,7 +144,7 @@ class RadioMapLikelihood(MeasurementModel):
         """Each cell's log-likelihood of every AP unheard: the prior everywhere, corrected where an
         AP has data (all APs), each cell's terms added in AP order."""
         clip = HEARD_CLIP
-        all_cell, _, all_wh, _, _ = self._sums(np.ones(self._n_aps, dtype=bool))
+        all_cell, _, all_wh, _, _ = self._sums(np.ones(self._n_aps, dtype=bool), weights_only=True)
         grid_base = self._n_aps * np.log1p(-p0)
         data = all_wh > MIN_WEIGHT
         base_cell = all_cell[data]
@@ -153,14 +153,18 @@ class RadioMapLikelihood(MeasurementModel):
         np.add.at(grid_base, base_cell, np.log1p(-p_heard_all) - np.log1p(-p0[base_cell]))
         return grid_base
 
-    def _sums(self, aps: np.ndarray) -> tuple[np.ndarray, ...]:
+    def _sums(self, aps: np.ndarray, weights_only: bool = False) -> tuple[np.ndarray, ...]:
         """(cell, ap, weight, weighted RSSI sum, weighted RSSI^2 sum) of every cell and AP of
         ``aps`` (a mask over the APs in use) that a reference point within the kernel's reach of
-        the cell heard, in (AP, cell) order; the sums are float32 (``_weighted_sums``)."""
+        the cell heard, in (AP, cell) order; the sums are float32 (``_weighted_sums``), returned
+        as float64. ``weights_only``: the two RSSI sums are None (the not-heard base reads the
+        weights only, and the every-AP arrays are millions of entries on a building's floor)."""
         ap_ptr, reading_ref, reading_rssi = self._readings
         c_ptr, c_cell, c_val = self._weight_by_ref
         cell, ap, wh, s1, s2 = _weighted_sums(c_ptr, c_cell, c_val, ap_ptr, reading_ref, reading_rssi,
                                               np.flatnonzero(aps).astype(np.int64), self.n_cells)
+        if weights_only:
+            return cell, ap, wh.astype(np.float64), None, None
         return cell, ap, wh.astype(np.float64), s1.astype(np.float64), s2.astype(np.float64)
 
     def build_tables(self, keys: Collection[str]) -> None:
