@@ -60,6 +60,7 @@ LONG_SCRIPTS = {
     "floor_ilc.py": "every ILC walk with IMU as one building: about 5 minutes",
     "split_ilc.py": "the ILC half-floor split, both floors at 10,000 particles: about 30 minutes",
     "beyond_survey.py": "the IPIN route-out table and the ILC half-floor split: about an hour",
+    "radio_region.py": "a path-loss model fitted per AP, every ILC split direction and IPIN route: about 3 minutes",
     "benchmark.py": "generated floor plans through map prepare: minutes",
     "compare_readers.py": "generated floor plans through both drawing readers: minutes",
     "reader_speed.py": "a benchmark: minutes, and its numbers are for a quiet machine",

@@ -1,4 +1,4 @@
-"""ILC site 1, the half-floor split: a radio model of the whole plan as a per-scan predictor (issue 49).
+"""Where nobody surveyed: a path-loss model of the whole plan as a per-scan predictor (issue 49).
 
 Beside KWNN, where the survey never was: every test walk's scans are labelled with their true
 positions (interpolated between waypoints) and placed by
@@ -10,13 +10,16 @@ positions (interpolated between waypoints) and placed by
   not heard;
 - ``nearest survey point``: the survey point nearest the truth, the best any fingerprint can do.
 Errors by the scan's distance from the survey (its true position to the nearest survey point).
+The IPIN 2023 logs too (``ipin``): the first repetition of each route, every log of the other
+routes the survey, each scan placed on its true floor from that floor's points.
 
-    .venv/bin/python tools/experiments/radio_region.py --floors F1 F2
+    .venv/bin/python tools/experiments/radio_region.py --parts F1 F2 ipin
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 import time
@@ -24,21 +27,21 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.special import log_ndtr
 from scipy.spatial import cKDTree
+from scipy.special import log_ndtr
 
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from mapfilter.evaluation.area_split import half_split, split_directions  # noqa: E402
-from mapfilter.evaluation.comparison import read_walk  # noqa: E402
-from mapfilter.evaluation.metrics import format_table  # noqa: E402
-from mapfilter.maps.building import Building  # noqa: E402
-from mapfilter.maps.prepare import import_ilc  # noqa: E402
-from mapfilter.sensors.radiomap import build_radio_map, kwnn_fix_many  # noqa: E402
+from mapfilter.evaluation.area_split import half_split, split_directions
+from mapfilter.evaluation.comparison import read_walk
+from mapfilter.evaluation.metrics import format_table
+from mapfilter.maps.building import Building
+from mapfilter.maps.prepare import import_ilc
+from mapfilter.sensors.radiomap import build_radio_map, kwnn_fix_many
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from split_ilc import floor_walks  # noqa: E402
+from split_ilc import floor_walks
 
 FLOOR_DBM = -90.0  # a reading below this is taken as not heard (-95 and -85 placed F1 worse)
 SIGMA_DB = 6.0  # spread of a heard reading about the model (the fits' median residual is 4-5 dB)
@@ -73,7 +76,7 @@ def fit_access_points(survey_xy_m: np.ndarray, survey_rssi_dbm: np.ndarray, exte
         start = np.array([*xy_seen[top].mean(axis=0), PRIOR_C_DBM, PRIOR_N])
         weight_unseen = np.sqrt(seen.size / max(unseen.size, 1))  # the unheard count as much as the heard together
 
-        def residual(p):
+        def residual(p, xy_seen=xy_seen, xy_unseen=xy_unseen, z=z, weight_unseen=weight_unseen):
             r_seen = (predicted_rssi_dbm(np.hypot(*(xy_seen - p[:2]).T), p[2], p[3]) - z) / SIGMA_DB
             above = predicted_rssi_dbm(np.hypot(*(xy_unseen - p[:2]).T), p[2], p[3]) - FLOOR_DBM
             r_unseen = weight_unseen * np.maximum(above, 0.0) / SIGMA_DB
@@ -128,40 +131,80 @@ def run_floor(floor: str, work: Path, seed: int, log) -> dict[str, list]:
         started = time.perf_counter()
         radio_map = build_radio_map([walks[i] for i in direction.survey], plan)
         columns, params = fit_access_points(radio_map.xy_m, radio_map.rssi_dbm, plan.extent_m, rng)
-        survey_tree = cKDTree(radio_map.xy_m)
-        index = radio_map.key_index
         for i in direction.test:
             own = build_radio_map([walks[i]], plan)  # the walk's scans, labelled with their true positions
-            scans = np.full((len(own), len(radio_map.ap_keys)), np.nan, dtype=np.float32)
-            shared = [(j, index[key]) for j, key in enumerate(own.ap_keys) if key in index]
-            if shared:
-                own_cols, map_cols = map(list, zip(*shared))
-                scans[:, map_cols] = own.rssi_dbm[:, own_cols]
-            usable = np.count_nonzero(~np.isnan(scans), axis=1) >= 3
-            truth, scans = own.xy_m[usable], scans[usable]
-            if not len(truth):
-                continue
-            kwnn = kwnn_fix_many(radio_map, scans).xy_m
-            path_loss = path_loss_fixes(cells, params, scans[:, columns])
-            distance, nearest = survey_tree.query(truth)
-            side = split.side(truth)
-            rows["distance"].extend(distance)
-            rows["half"].extend(np.where(side == direction.surveyed_side, "surveyed", "unsurveyed"))
-            rows["kwnn"].extend(np.linalg.norm(kwnn - truth, axis=1))
-            rows["path loss"].extend(np.linalg.norm(path_loss - truth, axis=1))
-            rows["nearest survey point"].extend(distance)
+            truth, scored = _score(own, radio_map, cells, columns, params)
+            for key, values in scored.items():
+                rows[key].extend(values)
+            rows["half"].extend(np.where(split.side(truth) == direction.surveyed_side, "surveyed", "unsurveyed"))
         log(f"{floor} {split.describe(direction.surveyed_side)} surveyed: {len(columns)} APs fitted, "
             f"{len(direction.test)} test walks, {time.perf_counter() - started:.0f} s")
     return rows
+
+
+def run_ipin(work: Path, seed: int, log) -> dict[str, list]:
+    """IPIN 2023, the first repetition of each route, its floor's survey every log of the other
+    routes (leave-one-route-out): each scan placed on its true floor from that floor's points."""
+    from beyond_survey import IPIN, ipin_venue
+
+    from mapfilter.sensors.floor_vote import build_building_radio_map
+
+    building = Building.load(ipin_venue(work, beacons=False)[0])
+    logs = sorted((IPIN / "logs").glob("*.txt.gz"))
+    walks = {p: read_walk(p, building) for p in logs}
+    names = building.floor_names
+    rng = np.random.default_rng(seed)
+    rows: dict[str, list] = {"distance": [], "half": [], "kwnn": [], "path loss": [], "nearest survey point": []}
+    for test in (p for p in logs if p.name.endswith("repetition01.txt.gz")):
+        route = test.name.split("Trial")[1][:2]
+        survey = [walks[p] for p in logs if f"Trial{route}_" not in p.name]
+        radio_map = build_building_radio_map(survey, [None] * len(survey), names)
+        own = build_building_radio_map([walks[test]], [None], names)  # labelled with their true positions
+        for f, floor in enumerate(building.floors):
+            floor_map, mine = radio_map.floor_map(f), own.floor == f
+            if len(floor_map) == 0 or not mine.any():
+                continue
+            columns, params = fit_access_points(floor_map.xy_m, floor_map.rssi_dbm, floor.plan.extent_m, rng)
+            _, scored = _score(own.select(mine), floor_map, free_cells(floor.plan), columns, params)
+            for key, values in scored.items():
+                rows[key].extend(values)
+            # no halves here: "surveyed" within 15 m of the floor's survey, "unsurveyed" beyond
+            rows["half"].extend(np.where(scored["distance"] < 15.0, "surveyed", "unsurveyed"))
+        log(f"IPIN route {route} left out: {len(survey)} survey walks")
+    return rows
+
+
+def _score(own, radio_map, cells, columns, params) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """(true positions, errors): KWNN, path-loss and nearest-survey-point errors of a walk's
+    labelled scans (``own``, a radio map of the walk alone) against a survey's radio map; scans
+    sharing under 3 APs with it skipped."""
+    index = radio_map.key_index
+    scans = np.full((len(own), len(radio_map.ap_keys)), np.nan, dtype=np.float32)
+    shared = [(j, index[key]) for j, key in enumerate(own.ap_keys) if key in index]
+    if shared:
+        own_cols, map_cols = map(list, zip(*shared))
+        scans[:, map_cols] = own.rssi_dbm[:, own_cols]
+    usable = np.count_nonzero(~np.isnan(scans), axis=1) >= 3
+    truth, scans = own.xy_m[usable], scans[usable]
+    if not len(truth):
+        return truth, {"distance": np.zeros(0), "kwnn": np.zeros(0), "path loss": np.zeros(0),
+                       "nearest survey point": np.zeros(0)}
+    distance = cKDTree(radio_map.xy_m).query(truth)[0]
+    return truth, {"distance": distance,
+            "kwnn": np.linalg.norm(kwnn_fix_many(radio_map, scans).xy_m - truth, axis=1),
+            "path loss": np.linalg.norm(path_loss_fixes(cells, params, scans[:, columns]) - truth, axis=1),
+            "nearest survey point": distance}
 
 
 def table(floor: str, rows: dict[str, list]) -> list[dict]:
     """Mean / median / p75 per method, per distance bin and per half."""
     distance = np.array(rows["distance"])
     half = np.array(rows["half"])
-    groups = [("unsurveyed half", half == "unsurveyed"), ("surveyed half", half == "surveyed")]
+    far, near = (("15 m or more from the survey", "within 15 m of the survey") if floor == "ipin"
+                 else ("unsurveyed half", "surveyed half"))
+    groups = [(far, half == "unsurveyed"), (near, half == "surveyed")]
     groups += [(f"{lo:.0f}-{hi:.0f} m from the survey" if np.isfinite(hi) else f"over {lo:.0f} m from the survey",
-                (distance >= lo) & (distance < hi)) for lo, hi in zip(DISTANCE_BINS_M[:-1], DISTANCE_BINS_M[1:])]
+                (distance >= lo) & (distance < hi)) for lo, hi in itertools.pairwise(DISTANCE_BINS_M)]
     out = []
     for name, keep in groups:
         row = {"floor": floor, "scans": name, "n": int(np.count_nonzero(keep))}
@@ -175,14 +218,16 @@ def table(floor: str, rows: dict[str, list]) -> list[dict]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
-    parser.add_argument("--floors", nargs="+", choices=("F1", "F2"), default=["F1", "F2"])
+    parser.add_argument("--parts", nargs="+", choices=("F1", "F2", "ipin"), default=["F1", "F2", "ipin"],
+                        help="ILC site 1 floors (the half-floor split) and the IPIN 2023 logs (route left out)")
     parser.add_argument("--seed", type=int, default=1, help="the sample of unheard survey points per AP's fit")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "radio_region")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     results = {}
-    for floor in args.floors:
-        rows = run_floor(floor, args.out, args.seed, lambda m: print(m, file=sys.stderr, flush=True))
+    log = lambda message: print(message, file=sys.stderr, flush=True)
+    for floor in args.parts:
+        rows = run_ipin(args.out, args.seed, log) if floor == "ipin" else run_floor(floor, args.out, args.seed, log)
         results[floor] = {k: [float(v) if k != "half" else v for v in values] for k, values in rows.items()}
         print(f"\nper scan error, mean / median / p75 (m)\n"
               f"{format_table(table(floor, rows), ('floor', 'scans', 'n', 'kwnn', 'path loss', 'nearest survey point'))}",
