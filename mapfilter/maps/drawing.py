@@ -403,27 +403,46 @@ def _rotate(mask: np.ndarray, angle_deg: float, shape: tuple[int, int] | None = 
 def _thin_enough(fills: np.ndarray, resolution_m: float) -> np.ndarray:
     """The pieces of ``fills`` as thick as a wall: no thicker than ``MAX_WALL_M``, and no thinner
     than half ``MIN_WALL_M`` (a closing between specks)."""
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(fills.astype(np.uint8), connectivity=4)
+    box = _ink_box(fills)
+    if box is None:
+        return fills
+    piece = fills[box]  # (the fills are sparse: measured in their box, paper round it)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(piece.astype(np.uint8), connectivity=4)
     if count <= 1:
         return fills
-    widest = _widest(labels, count, fills)
+    widest = _widest(labels, count, piece)
     thickness_m = 2 * widest * resolution_m
     keep = (thickness_m <= MAX_WALL_M) & (thickness_m >= 0.5 * MIN_WALL_M) & (widest >= 1.0)
     keep[0] = False
-    return keep[labels]
+    kept = np.zeros_like(fills)
+    kept[box] = keep[labels]
+    return kept
+
+
+def _ink_box(mask: np.ndarray, margin_px: int = 3) -> tuple[slice, slice] | None:
+    """The bounding box of ``mask``'s pixels grown by ``margin_px`` within the image (None: no
+    pixel). Pieces, their distances to paper and their dilations by up to ``margin_px`` are the
+    same in it as in the whole image (the margin is paper, or the image's own edge)."""
+    x, y, w, h = cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
+    if w == 0 or h == 0:
+        return None
+    rows, cols = mask.shape
+    return (slice(max(0, y - margin_px), min(rows, y + h + margin_px)),
+            slice(max(0, x - margin_px), min(cols, x + w + margin_px)))
 
 
 def _run_lengths(mask: np.ndarray) -> np.ndarray:
-    """At each pixel of ``mask``, the length of the horizontal run of mask pixels it lies in."""
+    """At each pixel of ``mask``, the length of the horizontal run of mask pixels it lies in (int32)."""
     rows, cols = mask.shape
-    padded = np.zeros((rows, cols + 1), dtype=bool)  # a blank column: runs never cross rows
+    padded = np.zeros((rows, cols + 1), dtype=np.int8)  # a blank column: runs never cross rows
     padded[:, :cols] = mask
     flat = padded.ravel()
-    starts = flat.copy()
-    starts[1:] &= ~flat[:-1]
-    run_id = np.cumsum(starts)
-    lengths = np.bincount(run_id, weights=flat)
-    return np.where(flat, lengths[run_id], 0.0).reshape(rows, cols + 1)[:, :cols]
+    edges = np.diff(flat, prepend=np.int8(0))  # +1 where a run starts, -1 just past its end
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    lengths = (ends - starts).astype(np.int32)
+    out = np.zeros(flat.shape, dtype=np.int32)
+    out[flat.view(bool)] = np.repeat(lengths, lengths)  # the mask's pixels are its runs' in order
+    return out.reshape(rows, cols + 1)[:, :cols]
 
 
 def wall_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> list[np.ndarray]:
@@ -484,7 +503,11 @@ def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float,
         touching[0] = False
         # ... and near it: windows lie in the wall's line, a bay's glazing within the rough outline
         # (an axis line or a terrace's rail running off to the sheet's frame closes nothing)
-        near_rough = cv2.dilate(rough.astype(np.uint8), _disc(2 * int(STROKE_REACH_M / work_m) + 1)).astype(bool)
+        reach = int(STROKE_REACH_M / work_m)
+        near_rough = np.zeros_like(rough)
+        box = _ink_box(rough, reach + 1)
+        if box is not None:
+            near_rough[box] = cv2.dilate(rough[box].astype(np.uint8), _disc(2 * reach + 1)).astype(bool)
         barrier = work | (touching[labels] & near_rough)
     fills = wall_gap_fills(barrier, work_m, max_gap_m)
     gaps = np.zeros_like(work)
@@ -518,11 +541,14 @@ def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float,
     outside_near = cv2.dilate((~inside | open_strokes).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     outer_fills = open_strokes.copy()
     for fill in fills:
-        count, labels, stats, _ = cv2.connectedComponentsWithStats(fill.astype(np.uint8), connectivity=4)
+        box = _ink_box(fill)
+        if box is None:
+            continue
+        count, labels = cv2.connectedComponents(fill[box].astype(np.uint8), connectivity=4)
         outer = np.zeros(count, dtype=bool)
-        outer[np.unique(labels[outside_near & fill])] = True
+        outer[np.unique(labels[outside_near[box] & fill[box]])] = True
         outer[0] = False
-        outer_fills |= outer[labels]
+        outer_fills[box] |= outer[labels]
     return _resize_mask(inside, wall.shape), _resize_mask(outer_fills, wall.shape) & ~wall
 
 
@@ -559,16 +585,23 @@ def _enclosed(wall: np.ndarray, radius_px: float) -> np.ndarray:
     pad = int(math.ceil(radius_px)) + 2
     padded = cv2.copyMakeBorder(wall.astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0).astype(bool)
     closed = _close_by_distance(padded, radius_px)[pad:-pad, pad:-pad]
-    count, labels, stats, _ = cv2.connectedComponentsWithStats((~closed).astype(np.uint8), connectivity=4)
+    count, labels = cv2.connectedComponents((~closed).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    filled = ~np.isin(labels, border[border > 0])  # closed walls and their holes
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(filled.astype(np.uint8), connectivity=8)
+    outer = np.zeros(count, dtype=bool)
+    outer[border[border > 0]] = True
+    filled = ~outer[labels]  # closed walls and their holes
+    box = _ink_box(filled)
+    if box is None:
+        return filled
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(filled[box].astype(np.uint8), connectivity=8)
     if count <= 1:
         return filled
     areas = stats[1:, cv2.CC_STAT_AREA]
     keep = np.zeros(count, dtype=bool)
     keep[1:] = areas >= 0.25 * areas.max()
-    return keep[labels]
+    kept = np.zeros_like(filled)
+    kept[box] = keep[labels]
+    return kept
 
 
 def _resize_mask(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
