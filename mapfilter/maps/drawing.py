@@ -457,15 +457,14 @@ def wall_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> l
     length = int(max_gap_m / resolution_m) | 1
     shortest = MIN_RUN_M / resolution_m
     fills = []
-    for angle, dominance in ((0.0, 1.0), (45.0, 2.0)):
+    for angle, dominance in ((0.0, 1), (45.0, 2)):
         turned = wall if angle == 0 else _rotate(wall, angle)
         along_x = _run_lengths(turned)
-        along_y = _run_lengths(turned.T).T
-        for running, kernel in ((turned & (along_x >= dominance * along_y) & (along_x >= shortest),
-                                 np.ones((1, length), np.uint8)),
-                                (turned & (along_y >= dominance * along_x) & (along_y >= shortest),
-                                 np.ones((length, 1), np.uint8))):
-            closed = cv2.morphologyEx(running.astype(np.uint8), cv2.MORPH_CLOSE, kernel).astype(bool) & ~turned
+        along_y = np.ascontiguousarray(_run_lengths(turned.T).T)
+        # (off the walls both lengths are 0, below `shortest`)
+        for running, kernel in (((along_x >= dominance * along_y) & (along_x >= shortest), np.ones((1, length), np.uint8)),
+                                ((along_y >= dominance * along_x) & (along_y >= shortest), np.ones((length, 1), np.uint8))):
+            closed = cv2.morphologyEx(running.view(np.uint8), cv2.MORPH_CLOSE, kernel).view(bool) & ~turned
             if angle:
                 closed = _rotate(closed, -angle, wall.shape) & ~wall
             fills.append(_thin_enough(closed, resolution_m))
