@@ -100,3 +100,13 @@ def test_the_benchmark_runs_the_command_and_summarises(tmp_path: Path):
     table = benchmark.summarise([row, dict(row, wall="double", wall_iou=0.5)], "wall")
     assert [t["group"] for t in table] == ["all", "solid", "double"] and table[0]["plans"] == 2
     assert "| all | 2 |" in benchmark.markdown(table, "wall style")
+
+
+def test_the_plans_of_one_outline_are_the_first_of_the_set_with_it():
+    seeds = plangen.plan_seeds(3, 100)
+    for seed in seeds[:2]:  # the layout alone names the drawn plan's outline
+        assert plangen.outline_of(seed) == plangen.generate_plan(seed).features["outline"]
+    picked = benchmark.plan_indices(3, 2, "courtyard")
+    shapes = [plangen.outline_of(seed) for seed in seeds[:picked[-1] + 1]]
+    assert len(picked) == 2 and [i for i, shape in enumerate(shapes) if shape == "courtyard"] == picked
+    assert benchmark.plan_indices(3, 4) == [0, 1, 2, 3]

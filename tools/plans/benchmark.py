@@ -155,19 +155,36 @@ def markdown(table: list[dict], title: str) -> str:
     return "\n".join(lines)
 
 
+def plan_indices(seed: int, count: int, outline: str | None = None) -> list[int]:
+    """The indices of the set's plans to score: the first ``count``, or the first ``count`` whose
+    outline is ``outline``."""
+    if outline is None:
+        return list(range(count))
+    found: list[int] = []
+    batch = 0
+    while len(found) < count:
+        batch += 1
+        seeds = plangen.plan_seeds(seed, 50 * count * batch)
+        start = 50 * count * (batch - 1)
+        found += [i for i in range(start, len(seeds)) if plangen.outline_of(seeds[i]) == outline]
+    return found[:count]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--seed", type=int, default=plangen.HELD_OUT_SEED,
                         help=f"the set's seed (default: {plangen.HELD_OUT_SEED}, held out: the reader is tuned on others)")
     parser.add_argument("--count", type=int, default=300, help="how many plans (default: 300)")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes, at most 2 here (default: 1)")
+    parser.add_argument("--outline", choices=plangen.OUTLINES,
+                        help="only the plans of this outline's shape: the first COUNT of them in the set")
     parser.add_argument("--out", type=Path, required=True, help="folder for plans.csv and summary.md")
     args = parser.parse_args(argv)
     if args.count < 1 or not 1 <= args.jobs <= 2:
         parser.error("--count must be at least 1 and --jobs 1 or 2")
     args.out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as folder:
-        tasks = [(args.seed, i, folder) for i in range(args.count)]
+        tasks = [(args.seed, i, folder) for i in plan_indices(args.seed, args.count, args.outline)]
         rows = []
         with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
             for done, row in enumerate(pool.imap(run_plan, tasks), 1):
@@ -181,7 +198,8 @@ def main(argv: list[str] | None = None) -> int:
         writer.writeheader()
         writer.writerows(rows)
     tables = {key: summarise(rows, key) for key in ("wall", "paper", "outline", "feature", "size")}
-    command = f"tools/plans/benchmark.py --seed {args.seed} --count {args.count} --jobs {args.jobs}"
+    command = f"tools/plans/benchmark.py --seed {args.seed} --count {args.count} --jobs {args.jobs}" + \
+        (f" --outline {args.outline}" if args.outline else "")
     titles = {"wall": "wall style", "paper": "paper", "outline": "outline", "feature": "plans with", "size": "size"}
     text = "\n\n".join([f"`{command}`"] + [markdown(tables[key], titles[key]) for key in tables])
     (args.out / "summary.md").write_text(text + "\n")

@@ -1692,6 +1692,17 @@ def generate_plan(seed_sequence: np.random.SeedSequence | int, wall: str | None 
     raise RuntimeError("no usable layout in 20 draws")
 
 
+def outline_of(seed_sequence: np.random.SeedSequence | int) -> str:
+    """The outline's shape of the plan :func:`generate_plan` draws from this seed (its layout
+    only, not drawn: a quick way to pick the plans of one shape)."""
+    rng = np.random.default_rng(seed_sequence)
+    for _ in range(20):
+        layout = make_layout(rng)
+        if len(layout.rooms) >= 2 and layout.openings:
+            return layout.features["outline"]
+    raise RuntimeError("no usable layout in 20 draws")
+
+
 def write_plan(plan: GeneratedPlan, folder: Path, name: str) -> Path:
     """Write NAME.png or NAME.jpg (the drawing), NAME_walls.png and NAME_free.png (255 = wall / free),
     NAME_rooms.png (16-bit room labels) and NAME.json (pixel size, style, rooms); returns the image path."""
