@@ -24,7 +24,7 @@ import threading
 
 from mapfilter import __version__
 from mapfilter.errors import MapfilterError
-from mapfilter.runtime.interrupts import Terminated, clear, note_signal
+from mapfilter.runtime.interrupts import Terminated, clear, interrupted_by, note_signal
 
 # Command modules, in the order they appear in --help.
 COMMAND_MODULES = ("map_cmd", "radiomap_cmd", "check_cmd", "track_cmd", "evaluate_cmd", "simulate_cmd", "view_cmd",
@@ -73,13 +73,15 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("mapfilter: interrupted", file=sys.stderr)
             return 130
-        except SystemError as exc:
-            # a signal whose handler ran while numba's dispatcher was in Python code: the dispatcher
-            # reports "returned a result with an exception set", the interrupt as its context
-            if isinstance(exc.__context__, Terminated):
+        except Exception as exc:
+            # a signal whose handler ran while numba's dispatcher was in Python code (loading a
+            # kernel from its cache): the dispatcher reports "returned a result with an exception
+            # set", the interrupt in its contexts; the run ends as the signal
+            signum = interrupted_by(exc)
+            if signum == signal.SIGTERM:
                 print("mapfilter: terminated", file=sys.stderr)
                 return 128 + signal.SIGTERM
-            if isinstance(exc.__context__, KeyboardInterrupt):
+            if signum == signal.SIGINT:
                 print("mapfilter: interrupted", file=sys.stderr)
                 return 130
             raise

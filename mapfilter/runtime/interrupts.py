@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import signal
 
-__all__ = ["Terminated", "clear", "note_signal", "raise_pending_signal"]
+__all__ = ["Terminated", "clear", "interrupted_by", "note_signal", "raise_pending_signal"]
 
 _PENDING: list[int] = []  # the signals since the last raise_pending_signal
 
@@ -38,3 +38,19 @@ def raise_pending_signal() -> None:
         signum = _PENDING[-1]
         _PENDING.clear()
         raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def interrupted_by(exc: BaseException) -> int | None:
+    """The signal (SIGINT or SIGTERM) behind an error, or None: a ``KeyboardInterrupt`` anywhere
+    in its chain of causes and contexts, else the last signal noted since the command began. A
+    handler that raised inside code which turned its exception into another (numba's dispatcher
+    loading a kernel from its cache reports "returned a result with an exception set", the
+    interrupt one or more contexts down) ends the run as the signal, not as a crash."""
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        seen.add(id(link))
+        if isinstance(link, KeyboardInterrupt):
+            return signal.SIGTERM if isinstance(link, Terminated) else signal.SIGINT
+        link = link.__cause__ or link.__context__
+    return _PENDING[-1] if _PENDING else None
