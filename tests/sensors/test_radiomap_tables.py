@@ -202,3 +202,25 @@ def test_the_per_ap_table_kernel_gives_the_numpy_tables_to_the_bit():
     np.testing.assert_array_equal(got_inv_var, (1.0 / var).astype(np.float32))
     np.testing.assert_array_equal(got_p, p_heard)
     np.testing.assert_array_equal(rml._offset(np.log(got_p), np.log(got_two_pi_var), np.log1p(-got_p)), offset)
+
+
+def test_the_not_heard_base_is_the_numpy_formulas_to_the_bit():
+    """Oracle: the not-heard base (``_not_heard_entries``: the pairs whose P(heard) is not the
+    prior's, one pass) against the numpy it replaced (every pair with data, ``np.add.at``), on the
+    office map's every AP: the same float64 per cell."""
+    from mapfilter.filter.models import radio_map as rml
+
+    plan, radio_map, _ = _office()
+    radio_map.likelihood_tables = {}  # the base built here, not the file's
+    model = RadioMapLikelihood(radio_map, plan)
+    assert not model.from_stored_tables
+    clip, pw, w_all = rml.HEARD_CLIP, rml.PRIOR_WEIGHT, model._w_all  # noqa: SLF001
+    p0 = np.clip(pw * rml.PRIOR_HEARD / (w_all + pw), clip, 1 - clip)
+    cell, _, wh, _, _ = model._sums(np.ones(model._n_aps, dtype=bool))  # noqa: SLF001
+    data = wh > rml.MIN_WEIGHT
+    p_heard = np.clip((wh[data] + pw * rml.PRIOR_HEARD) / (w_all[cell[data]] + pw), clip, 1 - clip)
+    assert 0 < np.sum(p_heard == p0[cell[data]]) < p_heard.size  # some pairs' terms are zero, not all
+    expected = model._n_aps * np.log1p(-p0)  # noqa: SLF001
+    np.add.at(expected, cell[data], np.log1p(-p_heard) - np.log1p(-p0[cell[data]]))
+    np.testing.assert_array_equal(model.base, expected)
+    assert not np.array_equal(model.base, model._n_aps * np.log1p(-p0))  # noqa: SLF001  the data count

@@ -143,28 +143,27 @@ class RadioMapLikelihood(MeasurementModel):
     def _not_heard_base(self, p0: np.ndarray, w_all: np.ndarray) -> np.ndarray:
         """Each cell's log-likelihood of every AP unheard: the prior everywhere, corrected where an
         AP has data (all APs), each cell's terms added in AP order."""
-        clip = HEARD_CLIP
-        all_cell, _, all_wh, _, _ = self._sums(np.ones(self._n_aps, dtype=bool), weights_only=True)
-        grid_base = self._n_aps * np.log1p(-p0)
-        data = all_wh > MIN_WEIGHT
-        base_cell = all_cell[data]
-        p_heard_all = np.clip((all_wh[data] + PRIOR_WEIGHT * PRIOR_HEARD) / (w_all[base_cell] + PRIOR_WEIGHT),
-                              clip, 1 - clip)
-        np.add.at(grid_base, base_cell, np.log1p(-p_heard_all) - np.log1p(-p0[base_cell]))
+        ap_ptr, reading_ref, _ = self._readings
+        c_ptr, c_cell, c_val = self._weight_by_ref
+        # only the (AP, cell) pairs whose P(heard) differs from the prior's: the others' terms are
+        # exactly zero (most of a building's pairs are neither: millions of them)
+        cell, p_heard = _not_heard_entries(c_ptr, c_cell, c_val, ap_ptr, reading_ref, self.n_cells, w_all, p0)
+        not_p0 = np.log1p(-p0)
+        grid_base = self._n_aps * not_p0
+        # the logarithms in numpy, as the base always had them (each cell's prior one once); the
+        # sums in AP order (np.add.at's)
+        _add_in_order(grid_base, cell, np.log1p(-p_heard) - not_p0[cell])
         return grid_base
 
-    def _sums(self, aps: np.ndarray, weights_only: bool = False) -> tuple[np.ndarray, ...]:
+    def _sums(self, aps: np.ndarray) -> tuple[np.ndarray, ...]:
         """(cell, ap, weight, weighted RSSI sum, weighted RSSI^2 sum) of every cell and AP of
         ``aps`` (a mask over the APs in use) that a reference point within the kernel's reach of
         the cell heard, in (AP, cell) order; the sums are float32 (``_weighted_sums``), returned
-        as float64. ``weights_only``: the two RSSI sums are None (the not-heard base reads the
-        weights only, and the every-AP arrays are millions of entries on a building's floor)."""
+        as float64."""
         ap_ptr, reading_ref, reading_rssi = self._readings
         c_ptr, c_cell, c_val = self._weight_by_ref
         cell, ap, wh, s1, s2 = _weighted_sums(c_ptr, c_cell, c_val, ap_ptr, reading_ref, reading_rssi,
                                               np.flatnonzero(aps).astype(np.int64), self.n_cells)
-        if weights_only:
-            return cell, ap, wh.astype(np.float64), None, None
         return cell, ap, wh.astype(np.float64), s1.astype(np.float64), s2.astype(np.float64)
 
     def build_tables(self, keys: Collection[str]) -> None:
@@ -490,6 +489,66 @@ def _weighted_sums(c_ptr, c_cell, c_val, ap_ptr, reading_ref, reading_rssi, aps,
                 acc_2[c] = 0.0
                 touched[c] = False
     return cell, ap, wh, s1, s2
+
+
+@njit(cache=True, nogil=True)
+def _not_heard_entries(c_ptr, c_cell, c_val, ap_ptr, reading_ref, n_cells, w_all, p0):
+    """The not-heard base's corrections (``RadioMapLikelihood._not_heard_base``): per AP in order,
+    its cells' kernel weight summed in float32 over the reference points that heard it in order
+    (``_weighted_sums``' sums), and where that weight is above ``MIN_WEIGHT`` the cell's P(heard),
+    clipped as numpy clips it; (cell, P(heard)) of the pairs whose P(heard) is not the prior's
+    ``p0`` (their term is exactly zero), in (AP, cell first reached) order. One pass, no sweep of
+    every cell per AP."""
+    heard_prior = PRIOR_WEIGHT * PRIOR_HEARD
+    low = HEARD_CLIP
+    high = 1 - HEARD_CLIP
+    acc = np.zeros(n_cells, dtype=np.float32)
+    touched = np.zeros(n_cells, dtype=np.bool_)
+    reached = np.empty(n_cells, dtype=np.int64)
+    cell_out = np.empty(max(n_cells, 16), dtype=np.int64)
+    p_out = np.empty(cell_out.shape[0])
+    e = 0
+    for a in range(ap_ptr.shape[0] - 1):
+        n = 0
+        for kk in range(ap_ptr[a], ap_ptr[a + 1]):
+            r = reading_ref[kk]
+            for jj in range(c_ptr[r], c_ptr[r + 1]):
+                c = c_cell[jj]
+                if not touched[c]:
+                    touched[c] = True
+                    reached[n] = c
+                    n += 1
+                acc[c] += c_val[jj]
+        if e + n > cell_out.shape[0]:  # room for every cell this AP reached
+            grown = max(2 * cell_out.shape[0], e + n)
+            cell_new = np.empty(grown, dtype=np.int64)
+            p_new = np.empty(grown)
+            cell_new[:e] = cell_out[:e]
+            p_new[:e] = p_out[:e]
+            cell_out, p_out = cell_new, p_new
+        for t in range(n):
+            c = reached[t]
+            w = np.float64(acc[c])
+            acc[c] = 0.0
+            touched[c] = False
+            if w > MIN_WEIGHT:
+                p = (w + heard_prior) / (w_all[c] + PRIOR_WEIGHT)
+                if p < low:  # np.clip
+                    p = low
+                elif p > high:
+                    p = high
+                if p != p0[c]:
+                    cell_out[e] = c
+                    p_out[e] = p
+                    e += 1
+    return cell_out[:e].copy(), p_out[:e].copy()
+
+
+@njit(cache=True, nogil=True)
+def _add_in_order(out, index, values):
+    """``np.add.at(out, index, values)``: each value added in order."""
+    for i in range(index.shape[0]):
+        out[index[i]] += values[i]
 
 
 # id(radio map) -> (weak reference to it, its arrays when the entry was made, {(id(floor plan),
