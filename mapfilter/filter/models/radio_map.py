@@ -98,19 +98,17 @@ class RadioMapLikelihood(MeasurementModel):
         """The APs in use (heard in ``MIN_OBSERVATIONS`` reference points), their keys, and every
         reading of them by AP (CSR by AP, each AP's in reference-point order); (the APs in use,
         which of them get tables)."""
-        heard = ~np.isnan(radio_map.rssi_dbm)
-        use_aps = np.nonzero(heard.sum(axis=0) >= MIN_OBSERVATIONS)[0]
+        heard = ~np.isnan(radio_map.rssi_dbm.T)  # AP by point: the readings come out by AP, in point order
+        use_aps = np.nonzero(heard.sum(axis=1) >= MIN_OBSERVATIONS)[0]
         if use_aps.size == 0 or len(radio_map) == 0:
             raise MapfilterError(f"the radio map has no AP heard in {MIN_OBSERVATIONS} reference points")
         self.ap_keys = [radio_map.ap_keys[j] for j in use_aps]
         tabled = np.ones(use_aps.size, dtype=bool) if heard_keys is None else np.isin(self.ap_keys, list(heard_keys))
         self.key_index = {key: j for j, key in enumerate(self.ap_keys) if tabled[j]}
         n_aps = use_aps.size
-        ref, ap_col = np.nonzero(heard[:, use_aps])
-        values = radio_map.rssi_dbm[:, use_aps][ref, ap_col].astype(np.float32)
-        by_ap = np.argsort(ap_col, kind="stable")
-        self._readings = (np.searchsorted(ap_col[by_ap], np.arange(n_aps + 1)).astype(np.int64),
-                          ref[by_ap].astype(np.int64), values[by_ap])
+        ap_col, ref = np.nonzero(heard[use_aps])
+        values = radio_map.rssi_dbm[ref, use_aps[ap_col]].astype(np.float32)
+        self._readings = (np.searchsorted(ap_col, np.arange(n_aps + 1)).astype(np.int64), ref.astype(np.int64), values)
         self._n_refs, self._n_aps = len(radio_map), n_aps
         return use_aps, tabled
 
