@@ -139,6 +139,7 @@ class WifiEvidence:
         self._in_survey: list[float] = []  # per scan: P(taken inside the survey) (fix, blend)
         self.reach: SurveyReach | None = None
         self._radio_map_model: RadioMapLikelihood | None = None
+        self._pending_keys: set[str] = set()  # APs whose radio-map tables the walk needs (blend; ``prepare``)
         self.model: MeasurementModel
         if radio_map is not None:
             if wifi.fingerprint_model in ("fix", "blend"):
@@ -156,13 +157,20 @@ class WifiEvidence:
     def prepare(self, scans: list[WifiScan]) -> None:
         """Check that the scans to come share access points with the radio map or table (one line
         naming the log if none does) and build the radio-map tables of the APs they hear in one go
-        (the same numbers as building them scan by scan, faster)."""
+        (the same numbers as building them scan by scan, faster); with the blend, when a scan first
+        needs the likelihood's best cell."""
         if self._radio_map is not None:
             index = self._radio_map.key_index
             if not any(k in index for s in scans for k in s.ap_keys):
                 raise MapfilterError(f"the radio map shares no access point with {self.log_name}")
             if self._wifi.fingerprint_model in ("blend", "likelihood"):
-                self.radio_map_model().build_tables({key for scan in scans for key in scan.ap_keys})
+                keys = {key for scan in scans for key in scan.ap_keys}
+                if self._wifi.fingerprint_model == "blend" and self._radio_map_model is None:
+                    # built with the likelihood, when a scan first needs its best cell: a building
+                    # floor's own fingerprints may never reach the walk's scans
+                    self._pending_keys |= keys
+                else:
+                    self.radio_map_model().build_tables(keys)
         elif not any(match_scan(self._ap_table, s)[0].size for s in scans):
             raise MapfilterError(f"the access-point table shares no access point with {self.log_name}")
 
@@ -205,10 +213,9 @@ class WifiEvidence:
             kwnn[~np.asarray(wanted, dtype=bool)] = np.nan
         best = np.full((len(scans), 2), np.nan)
         if wifi.fingerprint_model == "blend":
-            model = self.radio_map_model()
             for i, scan in enumerate(scans):
                 if np.isfinite(kwnn[i]).all():
-                    best[i] = model.best_position(scan)
+                    best[i] = self.radio_map_model().best_position(scan)
         fix = np.where(np.isfinite(best), 0.5 * (kwnn + best), kwnn)
         self._in_survey.extend(self.reach.in_survey_probability(matrix) if in_survey is None else in_survey)
         self._kwnn.extend(kwnn)
@@ -267,7 +274,9 @@ class WifiEvidence:
         the other walks tracked with it; an AP's tables are built when a scan first hears it."""
         if self._radio_map_model is None:
             self._radio_map_model = radio_map_likelihood(self._radio_map, self._floorplan,
-                                                         self._wifi.radio_map_likelihood)
+                                                         self._wifi.radio_map_likelihood,
+                                                         heard_keys=self._pending_keys or None)
+            self._pending_keys = set()
         return self._radio_map_model
 
     def best_cell_xy_m(self) -> np.ndarray:

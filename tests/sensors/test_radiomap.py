@@ -692,3 +692,40 @@ def test_a_buildings_fixes_and_matches_from_one_distance_matrix_are_each_floors(
         np.testing.assert_allclose(own[:, f], strong_kwnn_fixes(floor_map, scans, 4), atol=1e-9)
         np.testing.assert_array_equal(match[:, f], match_distance_db(floor_map, scans))
     assert np.isfinite(own).all(axis=2).mean() > 0.5 and np.isfinite(every).all()
+
+
+def test_a_building_builds_a_floors_own_radio_map_likelihood_only_when_a_scan_needs_it(office3, office3_radio_map):
+    """A floor's own fingerprints give a scan's fix (with the blend's best cell of their radio-map
+    likelihood) only where they reach the scan: the likelihood of a floor they never reach is not
+    built (a building's first walk builds it otherwise), and the fixes are those of evidence whose
+    every likelihood was built first."""
+    from mapfilter.filter.evidence import BuildingEvidence
+    from mapfilter.filter.models.building import FloorStack
+    from mapfilter.sensors.wifi import WifiScan
+
+    building, _ = office3
+    top = len(building.floors) - 1
+    # the top floor's survey hears none of the first half of the APs, and the scans (of floor 0's
+    # survey) hear only those: the top floor's own fingerprints share no AP with them
+    half = np.arange(len(office3_radio_map.ap_keys)) < len(office3_radio_map.ap_keys) // 2
+    rssi = office3_radio_map.rssi_dbm.copy()
+    rssi[np.ix_(office3_radio_map.floor == top, half)] = np.nan
+    radio_map = dataclasses.replace(office3_radio_map, rssi_dbm=rssi, likelihood_tables={})
+    scans = []
+    for i, point in enumerate(np.flatnonzero(radio_map.floor == 0)[:12]):
+        heard = np.flatnonzero(~np.isnan(rssi[point]) & half)
+        scans.append(WifiScan(float(i), tuple(radio_map.ap_keys[j] for j in heard),
+                              rssi[point, heard].astype(np.float32)))
+    stack = FloorStack(building)
+    lazy, eager = BuildingEvidence(radio_map, stack), BuildingEvidence(radio_map, stack)
+    for evidence in (lazy, eager):
+        evidence.prepare(scans)
+    for own in eager._own_floor:  # noqa: SLF001
+        own[1].radio_map_model()
+    lazy.add_scans(scans)
+    eager.add_scans(scans)
+    built = [own[1]._radio_map_model is not None for own in lazy._own_floor]  # noqa: SLF001
+    used = [bool(np.isfinite(own[1].kwnn_xy_m).all(axis=1).any()) for own in lazy._own_floor]  # noqa: SLF001
+    assert built == used and built[0] and not built[top]
+    np.testing.assert_array_equal(lazy.fix_xy_m, eager.fix_xy_m)
+    assert np.isfinite(lazy.fix_xy_m).all(axis=2).any(axis=1).all()
