@@ -4,7 +4,10 @@ Compiling every kernel takes about 15 s of CPU; loading them from the cache, a f
 second. The editable install runs this module (the in-tree build backend in ``build_backend/``),
 so a user's first command loads the kernels instead of compiling them. ``python -m
 mapfilter.runtime.warmup`` does it again, e.g. after numba was upgraded (its cache is per numba version
-and per CPU; a stale entry is simply compiled again on first use).
+and per CPU; a stale entry is simply compiled again on first use) or after the sources changed. It
+first removes the package's numba cache files: numba checks a cached kernel against its own
+source file only, so a kernel whose file did not change but which calls a changed kernel of
+another module would load stale from its cache (a pulled checkout, an upgraded install).
 
 The work is a small simulated office (two rooms, a door, six access points): a survey and a walk
 written as an ILC log and read back, a radio map, then the walk tracked by
@@ -23,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["compile_kernels"]
+__all__ = ["clear_kernel_cache", "compile_kernels"]
 
 
 def _office_plan():
@@ -106,7 +109,24 @@ def _building_walk(plan, aps, config) -> None:
     track(building, recording, radio_map, None, config)
 
 
+def clear_kernel_cache(package_dir: Path | None = None) -> int:
+    """Remove numba's cache files of the package's kernels (``*.nbi``, ``*.nbc`` in the
+    ``__pycache__`` folders beside its sources, where ``cache=True`` writes them; nothing else);
+    returns how many were removed."""
+    root = Path(__file__).resolve().parents[1] if package_dir is None else Path(package_dir)
+    removed = 0
+    for cache in root.rglob("__pycache__"):
+        for path in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
+            try:
+                path.unlink()
+                removed += 1
+            except OSError:  # removed by another process first, or a read-only install: left as it is
+                pass
+    return removed
+
+
 def main() -> int:
+    clear_kernel_cache()  # a kernel calling a changed kernel of another module would load stale
     seconds = compile_kernels(verbose="-v" in sys.argv[1:])
     print(f"mapfilter: numba kernels compiled into their cache in {seconds:.1f} s")
     return 0

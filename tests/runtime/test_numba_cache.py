@@ -46,3 +46,22 @@ def test_cached_kernels_load_without_numbas_whole_context_and_new_ones_still_com
                                 "(another numba?): every command pays numba's whole context at start-up")
     assert loaded_only == "True"  # no numba.np.arraymath, no scipy.linalg
     assert float(value) == 3.0 + 3.0 ** 0.5
+
+
+def test_the_warm_up_removes_numbas_cache_files_of_the_package_and_nothing_else(tmp_path):
+    """A reinstall compiles every kernel afresh: numba checks a cached kernel against its own file
+    only, so one that calls a changed kernel of another module would load stale. Only numba's
+    index and data files in the ``__pycache__`` folders go; the sources, the bytecode and any other
+    file stay."""
+    from mapfilter.runtime.warmup import clear_kernel_cache
+
+    stale = [tmp_path / "filter" / "__pycache__" / "kernels.step-12.py311.nbi",
+             tmp_path / "filter" / "__pycache__" / "kernels.step-12.py311.1.nbc",
+             tmp_path / "__pycache__" / "estimate._mode-40.py311.nbi"]
+    kept = [tmp_path / "filter" / "kernels.py", tmp_path / "filter" / "__pycache__" / "kernels.cpython-311.pyc",
+            tmp_path / "notes" / "run.nbi"]  # not in a __pycache__ folder: not numba's
+    for path in stale + kept:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"x")
+    assert clear_kernel_cache(tmp_path) == len(stale)
+    assert not any(p.exists() for p in stale) and all(p.exists() for p in kept)
