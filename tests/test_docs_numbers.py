@@ -91,6 +91,6 @@ def test_the_readme_stays_a_short_guide_and_its_install_time_is_a_measured_one()
     assert len(text.splitlines()) < 220
     assert "a minute and a half" not in text and "12.5 minutes" not in text
     numbers, _ = docs_numbers.read_document(REPO / "README.md")
-    install = [n for n in numbers if n.line < 12 and "fresh clone" in n.context and n.text == "1.0"]
+    install = [n for n in numbers if n.line < 12 and "fresh clone" in n.context and n.text == "1.5"]
     assert install and install[0].command.startswith("python3 -m venv .venv && .venv/bin/pip install -e")
     assert "cache" in install[0].context  # whether pip's cache was warm is said
