@@ -29,7 +29,7 @@ from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall, crossings, wall_grid
 
 __all__ = ["MODE_CELL_M", "MODE_RADIUS_M", "circular_mean", "mode_estimate", "toward", "weighted_estimate",
-           "weighted_moments", "writable"]
+           "weighted_moments", "writable", "xy_moments"]
 
 MODE_CELL_M = 1.0  # the weight's histogram cells: the densest 3 x 3 of them is the mode's window
 MODE_RADIUS_M = 8.0  # the mode: the particles this close to its centre that it sees
@@ -47,22 +47,29 @@ _MAX_CELLS_SIDE = 128  # a cloud spread wider than 128 cells is binned coarser (
 
 @njit(cache=True)
 def _moments(xy, w):
-    # two passes (mean, then centred sums) for accuracy; serial: memory-bound and cheap
+    return xy_moments(xy[:, 0], xy[:, 1], w)
+
+
+@njit(cache=True, nogil=True)
+def xy_moments(x, y, w):
+    """(mean x, mean y, var x, cov xy, var y) of positions under (not necessarily normalised)
+    weights: two passes (mean, then centred sums) for accuracy; serial: memory-bound and cheap.
+    A kernel: the building's main-floor moments call it too."""
     total = 0.0
     mx = 0.0
     my = 0.0
     for i in range(w.shape[0]):
         total += w[i]
-        mx += w[i] * xy[i, 0]
-        my += w[i] * xy[i, 1]
+        mx += w[i] * x[i]
+        my += w[i] * y[i]
     mx /= total
     my /= total
     sxx = 0.0
     sxy = 0.0
     syy = 0.0
     for i in range(w.shape[0]):
-        dx = xy[i, 0] - mx
-        dy = xy[i, 1] - my
+        dx = x[i] - mx
+        dy = y[i] - my
         sxx += w[i] * dx * dx
         sxy += w[i] * dx * dy
         syy += w[i] * dy * dy

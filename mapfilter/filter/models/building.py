@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from mapfilter.errors import MapfilterError
-from mapfilter.filter.estimate import weighted_estimate, weighted_moments, writable
+from mapfilter.filter.estimate import weighted_estimate, weighted_moments, writable, xy_moments
 from mapfilter.filter.models.interface import FloorModel, MeasurementModel
 from mapfilter.filter.models.survey_reach import EMPTY_LOG_LIKELIHOOD
 from mapfilter.filter.particles import Particles, X, Y
@@ -76,35 +76,17 @@ def _floor_sums(x, weights, tile_x_min, out):
 
 @njit(cache=True, nogil=True)
 def _main_floor_moments(x, y, weights, tile_x_min, w_out):
-    # the weights of the floor with most weight (w_out, zero elsewhere) and their moments, as
-    # estimate._moments computes them over (xy, w_out)
+    # the weights of the floor with most weight (w_out, zero elsewhere) and their moments
     shares = np.empty(tile_x_min.shape[0])
     floor = _floor_sums(x, weights, tile_x_min, shares)
     best = 0
     for f in range(1, shares.shape[0]):
         if shares[f] > shares[best]:  # np.argmax: the first of equal shares
             best = f
-    total = 0.0
-    mx = 0.0
-    my = 0.0
     for i in range(x.shape[0]):
-        wi = weights[i] if floor[i] == best else 0.0
-        w_out[i] = wi
-        total += wi
-        mx += wi * x[i]
-        my += wi * y[i]
-    mx /= total
-    my /= total
-    sxx = 0.0
-    sxy = 0.0
-    syy = 0.0
-    for i in range(x.shape[0]):
-        dx = x[i] - mx
-        dy = y[i] - my
-        sxx += w_out[i] * dx * dx
-        sxy += w_out[i] * dx * dy
-        syy += w_out[i] * dy * dy
-    return best, mx, my, sxx / total, sxy / total, syy / total
+        w_out[i] = weights[i] if floor[i] == best else 0.0
+    mx, my, sxx, sxy, syy = xy_moments(x, y, w_out)
+    return best, mx, my, sxx, sxy, syy
 
 
 @njit(cache=True, nogil=True)
