@@ -38,6 +38,7 @@ from mapfilter.evaluation.comparison import read_walk
 from mapfilter.evaluation.metrics import format_table
 from mapfilter.maps.building import Building
 from mapfilter.maps.prepare import import_ilc
+from mapfilter.sensors.pathloss import path_loss_rssi_dbm
 from mapfilter.sensors.radiomap import build_radio_map, kwnn_fix_many
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -54,8 +55,8 @@ DISTANCE_BINS_M = (0.0, 5.0, 15.0, 30.0, np.inf)
 
 
 def predicted_rssi_dbm(d_m: np.ndarray, c_dbm, n) -> np.ndarray:
-    """Log-distance path loss, R = C - 10 n log10(max(d, 1 m))."""
-    return c_dbm - 10.0 * n * np.log10(np.maximum(d_m, 1.0))
+    """Log-distance path loss, R = C - 10 n log10(max(d, 1 m)): the Lund model without its wall term."""
+    return path_loss_rssi_dbm(d_m, c_dbm, n, 0.0, 0.0)
 
 
 def fit_access_points(survey_xy_m: np.ndarray, survey_rssi_dbm: np.ndarray, extent_m, rng) -> tuple[np.ndarray, np.ndarray]:
