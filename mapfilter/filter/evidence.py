@@ -16,7 +16,9 @@ weighs the particles alone. The stream filter
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import math
 from typing import Any, Protocol
 
 import numpy as np
@@ -24,7 +26,7 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.models.adaptive_path_loss import (THESIS_BLOCKING_DROP_DB, THESIS_RSSI_LIMIT_DBM,
                                                         AdaptiveTrilaterationLikelihood, check_adaptive_settings)
-from mapfilter.filter.models.barometer import (STEADY_M, STEADY_WINDOW_S, BarometerConfig, BarometerReference,
+from mapfilter.filter.models.barometer import (ANCHOR_SHARE, STEADY_M, STEADY_WINDOW_S, BarometerConfig, BarometerReference,
                                                BarometricHeights)
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.models.building import FloorFix, FloorFixLikelihood, FloorStack
@@ -418,7 +420,9 @@ class BuildingEvidence:
     ``add_pressure``.
 
     With a barometer, each scan, and each filter step between scans (``between_scans``), also
-    weighs floors by height against a ``BarometerReference`` that ``observe`` keeps.
+    weighs floors by height against a ``BarometerReference``: the scans so far weigh which floor
+    its zero is on (each scan's match to each floor), ``observe`` follows the weather (and,
+    without WiFi, the filter's floor), ``start_on`` takes a known start's floor.
     """
 
     def __init__(self, radio_map: RadioMap | None, stack: FloorStack, wifi: WifiConfig = WifiConfig(),
@@ -477,6 +481,8 @@ class BuildingEvidence:
         self._heights = BarometricHeights()  # barometric_height of the readings so far
         self.reference = BarometerReference(self.elevation_m, barometer)
         self._in_survey: list[float] = []  # per scan: P(taken inside the survey)
+        self._match_db: list[np.ndarray] = []  # per scan: (F,) its match distance to each floor
+        self._n_weighed = 0  # scans the barometer's reference has weighed so far
         grids = None if radio_map is None else [None if e is None else e.model.grid for e in self.floor_wifi]
         self.model = FloorFixLikelihood(stack, sigma, grids)
 
@@ -510,6 +516,7 @@ class BuildingEvidence:
             reach = self._reach
             in_survey = reach.probability(match.min(axis=1, initial=np.inf))
             self._in_survey.extend(in_survey)
+            self._match_db.extend(match)
             for f, evidence in enumerate(self.floor_wifi):
                 if evidence is None:
                     continue
@@ -587,11 +594,47 @@ class BuildingEvidence:
     def has_evidence_between_scans(self) -> bool:
         return self.use_barometer
 
+    def start_on(self, floor: int) -> None:
+        """The walk is known to start on ``floor`` (its first barometer reading's height)."""
+        self.reference.start_on(floor, 0.0)
+
+    def whole_walk_start_floor(self) -> int | None:
+        """The floor every scan of the walk together puts its start on (the barometer's zero
+        after weighing them all, at ``ANCHOR_SHARE`` or more; offline), None when they do not say."""
+        ref = self.reference
+        if not self.use_barometer or len(self._heights) < 2:
+            return None
+        self._weigh_reference(math.inf)
+        if ref.log_p is None or float(np.exp(ref.log_p.max())) < ANCHOR_SHARE:
+            return None
+        return ref.floor_at(0.0)
+
+    def restarted_on(self, floor: int) -> BuildingEvidence:
+        """The same scans and barometer, its reference started on ``floor`` (a second run over the walk)."""
+        again = copy.copy(self)
+        again.reference = BarometerReference(self.elevation_m, self.barometer)
+        again.reference.start_on(floor, 0.0)
+        again._n_weighed = 0
+        return again
+
+    def _weigh_reference(self, t_s: float, last_index: int | None = None) -> None:
+        """Let the barometer's reference weigh the scans it has not yet, up to ``last_index`` or
+        (without it) those stamped at or before ``t_s``, each at its own time's height."""
+        if len(self._heights) < 2:
+            return
+        while self._n_weighed < len(self._match_db):
+            i = self._n_weighed
+            if (i > last_index) if last_index is not None else (self.scans[i].t_s > t_s):
+                break
+            self.reference.observe_scan(self.height_m(self.scans[i].t_s), self._match_db[i], self._in_survey[i])
+            self._n_weighed += 1
+
     def between_scans(self, t_s: float) -> FloorFix | None:
         """The barometer alone at ``t_s`` (a step between scans): floors weighed by height as in
         ``measurement``, no position fix; None without a barometer or before a reference."""
         if len(self._heights) < 2:
             return None
+        self._weigh_reference(t_s)
         floor_ll = self.reference.floor_log_likelihood(self.height_m(t_s))
         if floor_ll is None:
             return None
@@ -599,6 +642,7 @@ class BuildingEvidence:
 
     def measurement(self, index: int) -> FloorFix | None:
         """The scan ``index`` as a ``FloorFix`` (None when no floor gives it a fix)."""
+        self._weigh_reference(self.scans[index].t_s, index)
         fix = self._fix[index]
         if not np.isfinite(fix).all(axis=1).any():
             return None

@@ -45,6 +45,9 @@ RESTART_RADIUS_M = 5.0
 # wall than this many times that error keeps the smoothed track: there the rigid shape only adds
 # its drift (docs/accuracy.md)
 WALL_REACH_SIGMAS = 2.0
+# a floor change reaches the smoothed track 0.5-1.5 s after the barometer (docs/ipin.md); longer
+# on another floor than the whole walk's barometer says, and the run goes again from that floor
+OTHER_FLOOR_MAX_S = 10.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,6 +81,11 @@ def offline_track(run: CausalRun, on_offline_step: Callable[[StepReport], None] 
     smoothed = None
     if run.stack is not None or not places_shape or on_smoothed is not None:
         smoothed = smoothed_track(run.history, run.plan, config, run.floors, run.stack, on_smoothed)
+    if run.stack is not None:
+        again = _on_the_whole_walks_floor(run, smoothed)
+        if again is not None:
+            run = again
+            smoothed = smoothed_track(run.history, run.plan, config, run.floors, run.stack, on_smoothed)
     if not places_shape:
         return smoothed, None
     plan, evidence, causal, floor_name, floor = run.plan, run.evidence, run.causal, None, run.floor_index
@@ -111,6 +119,33 @@ def offline_track(run: CausalRun, on_offline_step: Callable[[StepReport], None] 
                                     floor_p=None if smoothed.floor_p is None else smoothed.floor_p[row])
         restarted = dataclasses.replace(restarted, floor=[floor_name] * len(restarted))
     return track, restarted
+
+
+def _on_the_whole_walks_floor(run: CausalRun, smoothed: Track) -> CausalRun | None:
+    """The causal run again, its barometer's reference started on the floor every scan of the
+    walk together puts the start on, when the smoothed run spent more than ``OTHER_FLOOR_MAX_S``
+    on other floors than the barometer puts it on from there (a filter sure of the floor below
+    from a start that matches it a little better: IPIN trial 01); None when the walk has no
+    barometer, its scans do not say, or they agree with the run."""
+    if not isinstance(run.evidence, BuildingEvidence) or len(smoothed) == 0:
+        return None
+    evidence = run.evidence
+    floor = evidence.whole_walk_start_floor()
+    if floor is None:
+        return None
+    expected = np.array([evidence.reference.floor_at(evidence.height_m(t)) for t in smoothed.t_s])
+    off = run.stack.floor_of(smoothed.xy_m) != expected
+    if np.sum(np.diff(smoothed.t_s, append=smoothed.t_s[-1])[off]) <= OTHER_FLOOR_MAX_S:
+        return None
+    history = ParticleHistory()
+    evidence = evidence.restarted_on(floor)
+    frame = StateFrame(run.building, 0, run.stack)
+    sources = tuple(ReplayedMeasurements(source, source.model_on(frame)) for source in run.sources)
+    settings = RunSettings(run.config.motion, run.config.filter, run.config.steps.abs_heading_offset_rad)
+    steps = run.steps if run.config.motion.model == "pdr" else None
+    again = run_over_scans(run.plan, evidence, settings, run.rng, steps, floors=run.floors, sources=sources,
+                           start=run.start, history=history)
+    return dataclasses.replace(run, evidence=evidence, causal=again.track(), history=history)
 
 
 def _known_start_anchor(run: CausalRun, steps: Steps, floor: int | None) -> Anchor | None:

@@ -347,6 +347,8 @@ class Tracker:
         index, xy = self.start.place(self.building, floor)
         if self.stack is not None:
             xy = self.stack.to_stack(xy[None, :], index)[0]
+            if isinstance(self.evidence, BuildingEvidence):  # the barometer's zero is the start's floor
+                self.evidence.start_on(index)
         elif index != self.floor_index:
             raise MapfilterError(f"the start {self.start} is on floor {self.building.floor_names[index]}, but the "
                                  f"walk is tracked on floor {self.building.floor_names[self.floor_index]}")

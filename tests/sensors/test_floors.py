@@ -463,6 +463,7 @@ def test_pdr_steps_on_the_barometer_alone_wherever_a_second_passes_without_a_ste
 
 
 def test_barometer_reference_follows_the_weather_not_a_pausing_climber():
+    """Without WiFi the reference is the filter's floor when it is sure, moved no faster than the weather."""
     from mapfilter.filter.models.barometer import DRIFT_M_PER_S as drift_m_per_s
     from mapfilter.filter.models.barometer import BarometerReference
 
@@ -472,7 +473,7 @@ def test_barometer_reference_follows_the_weather_not_a_pausing_climber():
     ref.update(0.0, 0.0, True, sure_0)
     # a climber pauses 1 m up the stairs (steady for a few seconds, the filter still on floor 0)
     ref.update(10.0, 1.0, True, sure_0)
-    assert ref.anchor[1] <= 10.0 * drift_m_per_s + 1e-12
+    assert 0.0 < ref.drift_m <= 10.0 * drift_m_per_s + 1e-12
     # 2.2 m up: floor 1 already weighs more, as it would have without the pause
     ll = ref.floor_log_likelihood(2.2)
     assert ll[1] > ll[0]
@@ -480,16 +481,51 @@ def test_barometer_reference_follows_the_weather_not_a_pausing_climber():
     ref = BarometerReference(np.array([0.0, 4.0, 8.0]))
     for t in np.arange(0.0, 301.0, 1.0):
         ref.update(float(t), 0.001 * t, True, sure_0)
-    assert abs(ref.anchor[1] - 0.3) < 1e-9 and np.argmax(ref.floor_log_likelihood(0.3)) == 0
+    assert abs(ref.drift_m - 0.3) < 1e-9 and np.argmax(ref.floor_log_likelihood(0.3)) == 0
     # unsure or not steady: no move; a floor the barometer disagrees with (4 m expected, 0.3 m seen): no move
-    before = ref.anchor
+    before = ref.drift_m, ref.log_p.copy()
     ref.update(301.0, 0.3, False, sure_0)
     ref.update(302.0, 0.3, True, np.array([0.6, 0.4, 0.0]))
     ref.update(303.0, 0.3, True, np.array([0.0, 1.0, 0.0]))
-    assert ref.anchor == before
-    # after a real change (4 m up, the filter sure of floor 1) the reference moves to floor 1
+    assert ref.drift_m == before[0] and np.array_equal(ref.log_p, before[1])
+    # after a real change (4 m up, the filter sure of floor 1), floor 1 is the barometer's
     ref.update(330.0, 4.3, True, np.array([0.0, 1.0, 0.0]))
-    assert ref.anchor[0] == 1 and np.argmax(ref.floor_log_likelihood(4.3)) == 1
+    assert np.argmax(ref.floor_log_likelihood(4.3)) == 1
+
+
+def test_the_scans_not_the_filter_decide_which_floor_the_barometer_started_on():
+    """With WiFi, which floor the barometer's zero is on is weighed by every scan's match to each
+    floor, never by the filter's floor: a walk that matches the floor below 1 dB better for its
+    first scans and its own floor 6 dB better later ends on its own floor (IPIN trial 01), a climb
+    the barometer sees rules out a start on the top floor, and a known start is never moved."""
+    from mapfilter.filter.models.barometer import BarometerReference
+
+    elevations = np.array([-5.6, -2.8, 0.0])
+    ref = BarometerReference(elevations)
+    below_a_little = np.array([15.0, np.inf, 16.0])  # floor -2 matches 1 dB better; nobody surveyed -1
+    own_much = np.array([14.0, np.inf, 8.0])
+    for _ in range(15):
+        ref.observe_scan(0.0, below_a_little)
+        ref.update(0.0, 0.0, True, np.array([0.0, 0.0, 1.0]))  # the filter's floor is never read
+    assert np.argmax(ref.floor_log_likelihood(0.0)) == 0
+    for _ in range(10):
+        ref.observe_scan(0.1, own_much)
+    ll = ref.floor_log_likelihood(0.1)
+    assert np.argmax(ll) == 2 and np.exp(ref.log_p[2]) > 0.999
+    assert np.isclose(np.exp(ref.log_p).sum(), 1.0)
+
+    # a walk 5.6 m up from where it started: it cannot have started on the top floor
+    ref = BarometerReference(elevations)
+    ref.observe_scan(0.0, np.array([10.0, np.inf, 10.0]))
+    ref.observe_scan(5.6, np.array([10.0, np.inf, 10.0]))
+    assert np.argmax(ref.log_p) == 0 and np.argmax(ref.floor_log_likelihood(5.6)) == 2
+
+    # a known start: the scans never move it
+    ref = BarometerReference(elevations)
+    ref.start_on(2, 0.0)
+    for _ in range(30):
+        ref.observe_scan(0.0, np.array([5.0, np.inf, 15.0]))
+    assert np.argmax(ref.floor_log_likelihood(0.0)) == 2
 
 
 def test_in_a_connector_the_barometers_floor_decides_and_elsewhere_nothing_moves(tmp_path):

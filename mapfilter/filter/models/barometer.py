@@ -28,6 +28,10 @@ DRIFT_M_PER_S = 0.01
 # pressure readings of the last this-many seconds make one height (a phone barometer's noise is
 # about 0.25 m per sample)
 SMOOTHING_WINDOW_S = 2.0
+# a scan weighs the barometer's zero by its match to each floor's fingerprints (dB per AP, as
+# the survey reach's): floor f gains -(d_f^2 - d_min^2) / (2 tau^2); the middle of the 2-8 dB over
+# which a per-floor best-match vote was tried (docs/accuracy.md), set before any run
+ZERO_MATCH_TAU_DB = 4.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,46 +48,123 @@ class BarometerConfig:
 
 
 class BarometerReference:
-    """The barometer's zero for floor evidence: a floor the filter was sure of and the height then.
+    """The barometer's zero for floor evidence: which floor the walker stood on at height zero.
 
-    ``update`` sets the reference when the filter is sure of its floor (``ANCHOR_SHARE``)
-    while the height is steady, and afterwards moves it no faster than the weather moves a
-    barometer (``DRIFT_M_PER_S``), never to a floor the barometer disagrees with;
-    ``floor_log_likelihood`` gives a floor of elevation e the value
-    -(e - (e_ref + h - h_ref))^2 / (2 sigma_m^2).
+    A phone barometer measures height *changes* only. Hypothesis j: the walker stood on floor j
+    when the barometer read zero, so at height h stands at elevation e_j + h - drift (``drift_m``
+    follows the weather). ``floor_log_likelihood`` gives floor f the mixture
+    log sum_j P(j) exp(-(e_f - (e_j + h - drift))^2 / (2 sigma_m^2)).
+
+    With WiFi, the scans weigh the hypotheses (``observe_scan``: each scan's match to each floor's
+    fingerprints, at the floor each hypothesis puts the walker on), never the filter's own floor:
+    a filter sure of a wrong floor early (a start that matches the floor below 1 dB better) would
+    otherwise be held there by the barometer for good, however well a later stretch matches the
+    right floor (IPIN trial 01, docs/accuracy.md). A known start settles it (``start_on``).
+    Without WiFi (the barometer beside other measurement sources) the reference is the filter's:
+    ``update`` sets it when the filter is sure of its floor (``ANCHOR_SHARE``) while the height
+    is steady, and moves it to a floor the barometer agrees with. Either way, while the height is
+    steady and one hypothesis holds ``ANCHOR_SHARE``, the zero follows the nearest floor no faster
+    than the weather moves a barometer (``DRIFT_M_PER_S``).
     """
 
     def __init__(self, elevation_m: np.ndarray, config: BarometerConfig = BarometerConfig()) -> None:
         self.elevation_m = np.asarray(elevation_m, dtype=np.float64)
         self.config = config
-        self.anchor: tuple[int, float, float] | None = None  # (floor, barometer height, time)
+        self.log_p: np.ndarray | None = None  # (F,) log P(floor j at height zero); None: no evidence yet
+        self.drift_m = 0.0
+        self._t_drift: float | None = None  # when the drift last moved (or the reference was set)
+        self._from_scans = False  # the scans weigh the hypotheses (the filter's floor never does then)
+
+    def start_on(self, floor: int, height_m: float) -> None:
+        """The walker is known to be on ``floor`` at barometer height ``height_m`` (a known start)."""
+        self._set(floor, height_m)
+        self._from_scans = True  # the user's floor, not the filter's: the scans cannot move it
+
+    def observe_scan(self, height_m: float, match_db: np.ndarray, in_survey: float = 1.0) -> None:
+        """A scan at barometer height ``height_m``, its match distance (dB) to each floor's
+        fingerprints (``radiomap.match_distance_by_floor_db``; inf: none shares enough APs) and
+        the probability that it was taken inside the survey (``filter.models.survey_reach``): each
+        hypothesis gains -w (d_f^2 - d_min^2) / (2 tau^2) at the floor f it puts the walker on
+        (``ZERO_MATCH_TAU_DB``; a floor nobody surveyed as the scan's worst). A scan from where
+        nobody surveyed matches every floor poorly, and best the floor surveyed above or below
+        it: it says little (w small)."""
+        match = np.asarray(match_db, dtype=np.float64)
+        finite = np.isfinite(match)
+        if not finite.any():
+            return
+        if not self._from_scans:
+            self._from_scans = True
+            if self.log_p is None:  # every floor alike at first
+                self.log_p = np.full(self.elevation_m.size, -math.log(self.elevation_m.size))
+        d = np.where(finite, match, match[finite].max())
+        scan_ll = -in_survey * (d ** 2 - d.min() ** 2) / (2.0 * ZERO_MATCH_TAU_DB ** 2)
+        # (J, F): hypothesis j puts the walker at floor f as well as the barometer allows
+        ll = scan_ll[None, :] + self._height_log_likelihood(height_m)
+        self.log_p = _normalised_log(self.log_p + _logsumexp(ll, axis=1))
 
     def update(self, t_s: float, height_m: float, steady: bool, floor_shares: np.ndarray) -> None:
         """After a filter step at ``t_s``: the barometer's height, whether it was steady, and the
-        filter's share of weight per floor."""
-        cfg = self.config
-        floor = int(np.argmax(floor_shares))
-        if not (steady and float(np.max(floor_shares)) >= ANCHOR_SHARE):
+        filter's share of weight per floor (read only without WiFi)."""
+        if not steady:
             return
-        if self.anchor is None:
-            self.anchor = (floor, height_m, t_s)
+        if self._from_scans:  # follow the floor nearest the most probable hypothesis
+            if self.log_p is None or float(np.exp(self.log_p.max())) < ANCHOR_SHARE:
+                return
+            target = self._nearest_floor(self._expected_m(height_m))
+        else:  # follow the filter's floor
+            if float(np.max(floor_shares)) < ANCHOR_SHARE:
+                return
+            target = int(np.argmax(floor_shares))
+            if self.log_p is None:
+                self._set(target, height_m, t_s)
+                return
+        residual = self._expected_m(height_m) - self.elevation_m[target]
+        # never move to a floor the barometer disagrees with: a filter that missed a floor change
+        # would otherwise silence the barometer for good (and on the stairs there is none to follow)
+        if abs(residual) > 2.0 * self.config.sigma_m:
             return
-        ref_floor, h_ref, t_ref = self.anchor
-        h_floor = h_ref + self.elevation_m[floor] - self.elevation_m[ref_floor]  # the floor's height by the reference
-        # never move the reference to a floor the barometer disagrees with: a filter that
-        # missed a floor change would otherwise silence the barometer for good
-        if abs(height_m - h_floor) > 2.0 * cfg.sigma_m:
-            return
-        drift = DRIFT_M_PER_S * max(t_s - t_ref, 0.0)
-        self.anchor = (floor, h_floor + float(np.clip(height_m - h_floor, -drift, drift)), t_s)
+        drift = DRIFT_M_PER_S * max(t_s - (t_s if self._t_drift is None else self._t_drift), 0.0)
+        self.drift_m += float(np.clip(residual, -drift, drift))
+        self._t_drift = t_s
 
     def floor_log_likelihood(self, height_m: float) -> np.ndarray | None:
-        """(F,) log-likelihood of each floor at barometer height ``height_m``; None before a reference."""
-        if self.anchor is None:
+        """(F,) log-likelihood of each floor at barometer height ``height_m``; None before any evidence."""
+        if self.log_p is None:
             return None
-        floor, h_ref, _ = self.anchor
-        expected = self.elevation_m[floor] + height_m - h_ref
-        return -0.5 * ((self.elevation_m - expected) / self.config.sigma_m) ** 2
+        return _logsumexp(self.log_p[:, None] + self._height_log_likelihood(height_m), axis=0)
+
+    def floor_at(self, height_m: float) -> int:
+        """The floor nearest the walker's elevation at ``height_m`` under the most probable hypothesis."""
+        return self._nearest_floor(self._expected_m(height_m))
+
+    def _height_log_likelihood(self, height_m: float) -> np.ndarray:
+        """(J, F): -(e_f - (e_j + h - drift))^2 / (2 sigma^2)."""
+        expected = self.elevation_m + height_m - self.drift_m
+        return -0.5 * ((self.elevation_m[None, :] - expected[:, None]) / self.config.sigma_m) ** 2
+
+    def _expected_m(self, height_m: float) -> float:
+        """The walker's elevation at ``height_m`` under the most probable hypothesis."""
+        return float(self.elevation_m[int(np.argmax(self.log_p))] + height_m - self.drift_m)
+
+    def _nearest_floor(self, elevation_m: float) -> int:
+        return int(np.argmin(np.abs(self.elevation_m - elevation_m)))
+
+    def _set(self, floor: int, height_m: float, t_s: float | None = None) -> None:
+        """The walker on ``floor`` at ``height_m``: one hypothesis, the drift that puts it there."""
+        zero = self._nearest_floor(self.elevation_m[floor] - height_m)
+        self.log_p = np.where(np.arange(self.elevation_m.size) == zero, 0.0, -np.inf)
+        self.drift_m = float(self.elevation_m[zero] + height_m - self.elevation_m[floor])
+        self._t_drift = t_s
+
+
+def _logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
+    m = np.max(a, axis=axis, keepdims=True)
+    m = np.where(np.isfinite(m), m, 0.0)
+    return np.squeeze(m, axis=axis) + np.log(np.sum(np.exp(a - m), axis=axis))
+
+
+def _normalised_log(log_p: np.ndarray) -> np.ndarray:
+    return log_p - _logsumexp(log_p, axis=0)
 
 
 def barometric_height(t_s: np.ndarray, pressure_hpa: np.ndarray, window_s: float = SMOOTHING_WINDOW_S,
