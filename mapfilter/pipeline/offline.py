@@ -8,7 +8,9 @@ the walk's start, when the user knows it) starts half
 the particles of a second forward pass on that floor's map, with every measurement source's
 measurements replayed there (``filter.measurement.ReplayedMeasurements``), and placed through that
 pass's smoothed track it is the offline track (docs/accuracy.md), unless that smoothed track
-stays far from every wall (``WALL_REACH_SIGMAS``): then the smoothed track is.
+stays far from every wall (``WALL_REACH_SIGMAS``): then the smoothed track is. In a building with
+a barometer, a run whose smoothed track spent more than ``OTHER_FLOOR_MAX_S`` on other floors than
+every scan of the walk together puts it on is first run again from that floor.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from mapfilter.offline.smoother import ParticleHistory, smooth
 from mapfilter.offline.whole_walk import placed_track
 from mapfilter.sensors.pdr import Steps
 
-__all__ = ["RESTART_RADIUS_M", "RESTART_SHARE", "WALL_REACH_SIGMAS", "CausalRun", "offline_track", "smoothed_track"]
+__all__ = ["OTHER_FLOOR_MAX_S", "RESTART_RADIUS_M", "RESTART_SHARE", "WALL_REACH_SIGMAS", "CausalRun", "offline_track", "smoothed_track"]
 
 # the second forward pass: half its particles near the placed start, the rest from the first
 # scan as in the first pass, so that a wrong placement costs little (docs/accuracy.md)
