@@ -624,3 +624,31 @@ def test_centred_barometric_height_has_no_lag_and_less_noise_than_the_causal_one
     assert abs(np.mean(hc[mid] - truth_c[mid])) < 0.1
 
 
+
+
+@pytest.mark.slow
+def test_a_walk_whose_start_matches_the_floor_below_ends_on_its_own_floor_and_is_there_offline(ipin2023, ipin_venue):
+    """IPIN trial 01 (floor 0) against every other trial's survey: its first and last minutes match
+    floor -2's fingerprints a little better, its middle floor 0's much better. The barometer's zero
+    is weighed by the scans, not by the filter's floor: the causal track ends on floor 0, and the
+    offline track, run from the floor the whole walk says, is on floor 0 at every POSI point (the
+    filter's floor as the zero kept both on floor -2 throughout)."""
+    from mapfilter.api import build_radio_map
+    from mapfilter.config import TrackingConfig
+    from mapfilter.maps.building import Building
+    from mapfilter.pipeline.tracker import track
+    from mapfilter.sensors.logs import read_log
+
+    building = Building.load(ipin_venue)
+    logs = sorted((ipin2023 / "logs").glob("*.txt.gz"))
+    radio_map = build_radio_map(building, [read_log(p, building=building) for p in logs if "Trial01" not in p.name])
+    rec = read_log(next(p for p in logs if "Trial01_repetition01" in p.name), building=building)
+    result = track(building, rec, radio_map, config=TrackingConfig(smooth=True, seed=0).override({"filter.n_particles": 2000}))
+
+    def floors_at_points(tr):
+        row = np.clip(np.searchsorted(tr.t_s, rec.waypoint_t_s, side="right") - 1, 0, len(tr) - 1)
+        return np.array(tr.floor)[row]
+
+    assert set(rec.waypoint_floor) == {"0"}
+    assert result.causal.floor[-1] == "0" and np.mean(floors_at_points(result.causal) == "0") >= 0.5
+    assert np.all(floors_at_points(result.offline) == "0")
