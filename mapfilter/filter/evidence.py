@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import math
 from typing import Any, Protocol
 
 import numpy as np
@@ -604,7 +603,7 @@ class BuildingEvidence:
         ref = self.reference
         if not self.use_barometer or len(self._heights) < 2:
             return None
-        self._weigh_reference(math.inf)
+        self._weigh_reference(len(self.scans) - 1)
         if ref.log_p is None or float(np.exp(ref.log_p.max())) < ANCHOR_SHARE:
             return None
         return ref.floor_at(0.0)
@@ -617,24 +616,21 @@ class BuildingEvidence:
         again._n_weighed = 0
         return again
 
-    def _weigh_reference(self, t_s: float, last_index: int | None = None) -> None:
-        """Let the barometer's reference weigh the scans it has not yet, up to ``last_index`` or
-        (without it) those stamped at or before ``t_s``, each at its own time's height."""
+    def _weigh_reference(self, last_index: int) -> None:
+        """Let the barometer's reference weigh the scans up to ``last_index`` it has not yet, each
+        at its own time's height: only scans the filter has reached (``measurement``), so a live
+        run, whatever its chunks, weighs the same scans at every step as a whole log's."""
         if len(self._heights) < 2:
             return
-        while self._n_weighed < len(self._match_db):
-            i = self._n_weighed
-            if (i > last_index) if last_index is not None else (self.scans[i].t_s > t_s):
-                break
+        for i in range(self._n_weighed, min(last_index + 1, len(self._match_db))):
             self.reference.observe_scan(self.height_m(self.scans[i].t_s), self._match_db[i], self._in_survey[i])
-            self._n_weighed += 1
+        self._n_weighed = max(self._n_weighed, min(last_index + 1, len(self._match_db)))
 
     def between_scans(self, t_s: float) -> FloorFix | None:
         """The barometer alone at ``t_s`` (a step between scans): floors weighed by height as in
         ``measurement``, no position fix; None without a barometer or before a reference."""
         if len(self._heights) < 2:
             return None
-        self._weigh_reference(t_s)
         floor_ll = self.reference.floor_log_likelihood(self.height_m(t_s))
         if floor_ll is None:
             return None
@@ -642,7 +638,7 @@ class BuildingEvidence:
 
     def measurement(self, index: int) -> FloorFix | None:
         """The scan ``index`` as a ``FloorFix`` (None when no floor gives it a fix)."""
-        self._weigh_reference(self.scans[index].t_s, index)
+        self._weigh_reference(index)
         fix = self._fix[index]
         if not np.isfinite(fix).all(axis=1).any():
             return None
