@@ -3,7 +3,7 @@
 A command allocates arrays and short-lived containers (a log's split lines, its rows) and few
 reference cycles; reference counting frees nearly everything. At Python's default threshold (a
 young-generation collection every 700 net container allocations) a one-walk ``mapfilter track``
-runs about 250 collections, two full ones among them, most while it imports numpy, numba and the
+runs about 250 collections, a full one among them, most while it imports numpy, numba and the
 kernels and while it reads the log: 5-10 % of the command's CPU (docs/benchmarks.md). A
 collection every ``COMMAND_GEN0_THRESHOLD`` allocations still collects every cycle, a few
 megabytes later.
