@@ -25,8 +25,8 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.models.adaptive_path_loss import (THESIS_BLOCKING_DROP_DB, THESIS_RSSI_LIMIT_DBM,
                                                         AdaptiveTrilaterationLikelihood, check_adaptive_settings)
-from mapfilter.filter.models.barometer import (ANCHOR_SHARE, STEADY_M, STEADY_WINDOW_S, BarometerConfig, BarometerReference,
-                                               BarometricHeights)
+from mapfilter.filter.models.barometer import (ANCHOR_SHARE, STEADY_M, STEADY_WINDOW_S, BarometerConfig,
+                                               BarometerReference, BarometricHeights)
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.models.building import FloorFix, FloorFixLikelihood, FloorStack
 from mapfilter.filter.models.path_loss import TrilaterationLikelihood

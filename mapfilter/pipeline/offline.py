@@ -36,7 +36,8 @@ from mapfilter.offline.smoother import ParticleHistory, smooth
 from mapfilter.offline.whole_walk import placed_track
 from mapfilter.sensors.pdr import Steps
 
-__all__ = ["OTHER_FLOOR_MAX_S", "RESTART_RADIUS_M", "RESTART_SHARE", "WALL_REACH_SIGMAS", "CausalRun", "offline_track", "smoothed_track"]
+__all__ = ["OTHER_FLOOR_MAX_S", "RESTART_RADIUS_M", "RESTART_SHARE", "WALL_REACH_SIGMAS", "CausalRun", "offline_track",
+           "smoothed_track"]
 
 # the second forward pass: half its particles near the placed start, the rest from the first
 # scan as in the first pass, so that a wrong placement costs little (docs/accuracy.md)

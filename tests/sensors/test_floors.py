@@ -643,7 +643,8 @@ def test_a_walk_whose_start_matches_the_floor_below_ends_on_its_own_floor_and_is
     logs = sorted((ipin2023 / "logs").glob("*.txt.gz"))
     radio_map = build_radio_map(building, [read_log(p, building=building) for p in logs if "Trial01" not in p.name])
     rec = read_log(next(p for p in logs if "Trial01_repetition01" in p.name), building=building)
-    result = track(building, rec, radio_map, config=TrackingConfig(smooth=True, seed=0).override({"filter.n_particles": 2000}))
+    config = TrackingConfig(smooth=True, seed=0).override({"filter.n_particles": 2000})
+    result = track(building, rec, radio_map, config=config)
 
     def floors_at_points(tr):
         row = np.clip(np.searchsorted(tr.t_s, rec.waypoint_t_s, side="right") - 1, 0, len(tr) - 1)
