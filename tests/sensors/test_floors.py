@@ -520,6 +520,14 @@ def test_the_scans_not_the_filter_decide_which_floor_the_barometer_started_on():
     ref.observe_scan(5.6, np.array([10.0, np.inf, 10.0]))
     assert np.argmax(ref.log_p) == 0 and np.argmax(ref.floor_log_likelihood(5.6)) == 2
 
+    # the filter's floor, taken before the first scan (another source started it), is not kept
+    ref = BarometerReference(elevations)
+    ref.update(0.0, 0.0, True, np.array([0.99, 0.0, 0.01]))
+    assert np.argmax(ref.floor_log_likelihood(0.0)) == 0
+    for _ in range(5):
+        ref.observe_scan(0.0, own_much)
+    assert np.argmax(ref.floor_log_likelihood(0.0)) == 2
+
     # a known start: the scans never move it
     ref = BarometerReference(elevations)
     ref.start_on(2, 0.0)

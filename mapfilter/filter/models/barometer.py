@@ -92,10 +92,10 @@ class BarometerReference:
         finite = np.isfinite(match)
         if not finite.any():
             return
-        if not self._from_scans:
+        if not self._from_scans:  # every floor alike at first, whatever the filter took before
             self._from_scans = True
-            if self.log_p is None:  # every floor alike at first
-                self.log_p = np.full(self.elevation_m.size, -math.log(self.elevation_m.size))
+            self.log_p = np.full(self.elevation_m.size, -math.log(self.elevation_m.size))
+            self.drift_m, self._t_drift = 0.0, None
         d = np.where(finite, match, match[finite].max())
         scan_ll = -in_survey * (d ** 2 - d.min() ** 2) / (2.0 * ZERO_MATCH_TAU_DB ** 2)
         # (J, F): hypothesis j puts the walker at floor f as well as the barometer allows
