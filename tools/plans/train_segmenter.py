@@ -13,12 +13,20 @@ no user needs them:
 
     python3 -m venv .venv-train && .venv-train/bin/pip install -r tools/plans/requirements-train.txt -e .
     nice -n 10 .venv-train/bin/python tools/plans/train_segmenter.py --plans 240 --minutes 60 --out /tmp/seg
+
+It writes checkpoint.pt (model, optimiser state, step count, the curve so far) to --out every
+``--checkpoint-every`` steps and at the end, so a run cut off is not lost: ``--resume`` continues
+from one (into another --out) with a new cosine over the new --minutes; ``--minutes 0``
+only exports its ONNX file:
+
+    nice -n 10 .venv-train/bin/python tools/plans/train_segmenter.py --resume /tmp/seg/checkpoint.pt --lr 1e-3 --minutes 60 --out /tmp/seg2
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import pickle
 import sys
 import time
 from pathlib import Path
@@ -111,19 +119,59 @@ def predict(model, image: np.ndarray) -> np.ndarray:
     return torch.sigmoid(logits)[0, 0, :rows, :cols].numpy()
 
 
+def save_checkpoint(path: Path, model, optimiser, step: int, minutes: float, curve: list[dict], rng) -> None:
+    """Model, optimiser state, step count, training minutes so far and the curve, written whole or not at all."""
+    import torch
+
+    partial = path.with_name(path.name + ".partial")
+    torch.save({"model": model.state_dict(), "optimiser": optimiser.state_dict(), "step": step, "minutes": minutes,
+                "curve": curve, "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state()}, partial)
+    partial.replace(path)
+
+
+def load_checkpoint(path: Path) -> dict:
+    """A checkpoint of this script, or a bare ``state_dict`` (step, minutes and curve then come from the
+    curve.csv beside it, if there is one; the optimiser state starts fresh)."""
+    import torch
+
+    try:
+        loaded = torch.load(path, map_location="cpu", weights_only=False)
+    except (OSError, RuntimeError, EOFError, ValueError, pickle.UnpicklingError) as error:
+        raise SystemExit(f"error: {path}: not a checkpoint ({error})") from None
+    if isinstance(loaded, dict) and "model" in loaded:
+        return loaded
+    if not isinstance(loaded, dict) or not all(isinstance(v, torch.Tensor) for v in loaded.values()):
+        raise SystemExit(f"error: {path}: neither a checkpoint nor a state_dict")
+    curve = []
+    beside = path.with_name("curve.csv")
+    if beside.exists():
+        with beside.open(newline="") as handle:
+            curve = [{"step": int(row["step"]), "minutes": float(row["minutes"]), "loss": float(row["loss"]),
+                      "validation_wall_iou": float(row["validation_wall_iou"])} for row in csv.DictReader(handle)]
+    return {"model": loaded, "optimiser": None, "step": curve[-1]["step"] if curve else 0,
+            "minutes": curve[-1]["minutes"] if curve else 0.0, "curve": curve, "rng": None, "torch_rng": None}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--plans", type=int, default=240, help="training plans (default: 240)")
     parser.add_argument("--validation", type=int, default=16, help="validation plans (default: 16)")
-    parser.add_argument("--minutes", type=float, default=60.0, help="training time budget (default: 60)")
+    parser.add_argument("--minutes", type=float, default=60.0, help="training time budget of this run (default: 60)")
+    parser.add_argument("--lr", type=float, default=2e-3, help="peak learning rate of this run's cosine (default: 2e-3)")
     parser.add_argument("--batch", type=int, default=12)
     parser.add_argument("--eval-every", type=int, default=300)
-    parser.add_argument("--out", type=Path, required=True, help="folder for the data cache, curve.csv and the ONNX file")
+    parser.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default: 100)")
+    parser.add_argument("--resume", type=Path, help="continue from this checkpoint (or a bare state_dict)")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="folder for the data cache, checkpoint.pt, curve.csv and the ONNX file")
     args = parser.parse_args(argv)
     import torch
 
+    if args.resume is not None and args.resume.resolve().parent == args.out.resolve():
+        parser.error(f"--resume {args.resume}: this run writes into its folder; give another --out")
     torch.set_num_threads(1)
     torch.manual_seed(0)
+    resumed = load_checkpoint(args.resume) if args.resume is not None else None
     args.out.mkdir(parents=True, exist_ok=True)
     cache = args.out / f"data_{args.plans}_{args.validation}.npz"
     if cache.exists():
@@ -141,13 +189,25 @@ def main(argv: list[str] | None = None) -> int:
         print(f"data: {len(train)} + {len(validation)} plans in {time.time() - started:.0f} s", flush=True)
     rng = np.random.default_rng(0)
     model = build_model()
-    optimiser = torch.optim.Adam(model.parameters(), lr=2e-3)
+    optimiser = torch.optim.Adam(model.parameters(), lr=args.lr)
+    curve, step, minutes_before = [], 0, 0.0
+    if resumed is not None:
+        model.load_state_dict(resumed["model"])
+        if resumed["optimiser"] is not None:
+            optimiser.load_state_dict(resumed["optimiser"])
+        curve, step, minutes_before = list(resumed["curve"]), int(resumed["step"]), float(resumed["minutes"])
+        if resumed["rng"] is not None:
+            rng.bit_generator.state = resumed["rng"]
+            torch.set_rng_state(resumed["torch_rng"])
+        else:  # no stored draws: other patches than the first run's first ones, still the same for the same input
+            rng = np.random.default_rng([0, step])
+        print(f"resumed {args.resume} at step {step} ({minutes_before:.1f} min trained, optimiser state "
+              f"{'restored' if resumed['optimiser'] is not None else 'fresh'})", flush=True)
     budget_s = args.minutes * 60.0
     loss_fn = torch.nn.BCEWithLogitsLoss(pos_weight=torch.tensor(2.0))
     areas = np.array([image.size for image, _ in train], dtype=np.float64)
-    curve = []
     started = time.time()
-    step = 0
+    run_steps = 0
     while time.time() - started < budget_s:
         batch_x = np.zeros((args.batch, 1, PATCH, PATCH), np.float32)
         batch_y = np.zeros_like(batch_x)
@@ -163,19 +223,24 @@ def main(argv: list[str] | None = None) -> int:
                 x, y = x[:, ::-1], y[:, ::-1]
             batch_x[k, 0, :x.shape[0], :x.shape[1]] = x
             batch_y[k, 0, :y.shape[0], :y.shape[1]] = y
-        # the learning rate falls along a cosine over the time budget
+        # the learning rate falls along a cosine over this run's time budget (a resumed run is a warm
+        # restart); a fresh optimiser state first warms up over 100 steps so its first steps do not undo the weights
+        warm = min(1.0, (run_steps + 1) / 100) if resumed is not None and resumed["optimiser"] is None else 1.0
         for group in optimiser.param_groups:
-            group["lr"] = 2e-3 * 0.5 * (1 + np.cos(np.pi * min(1.0, (time.time() - started) / budget_s)))
+            group["lr"] = warm * args.lr * 0.5 * (1 + np.cos(np.pi * min(1.0, (time.time() - started) / budget_s)))
         model.train()
         loss = loss_fn(model(torch.from_numpy(batch_x)), torch.from_numpy(batch_y))
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
         step += 1
-        if step % args.eval_every == 0 or time.time() - started >= budget_s:
+        run_steps += 1
+        minutes = minutes_before + (time.time() - started) / 60
+        finished = time.time() - started >= budget_s
+        if step % args.eval_every == 0 or finished:
             model.eval()
             ious = [tolerant_iou(predict(model, image) > 0.5, walls > 0.5) for image, walls in validation]
-            curve.append({"step": step, "minutes": round((time.time() - started) / 60, 2), "loss": float(loss.item()),
+            curve.append({"step": step, "minutes": round(minutes, 2), "loss": float(loss.item()),
                           "validation_wall_iou": float(np.mean(ious))})
             print(curve[-1], flush=True)
             with (args.out / "curve.csv").open("w", newline="") as handle:
@@ -183,20 +248,28 @@ def main(argv: list[str] | None = None) -> int:
                 writer.writeheader()
                 writer.writerows(curve)
             torch.save(model.state_dict(), args.out / "segmenter.pt")
+        if step % args.checkpoint_every == 0 or finished:
+            save_checkpoint(args.out / "checkpoint.pt", model, optimiser, step, minutes, curve, rng)
     model.eval()
+    export_onnx(model, args.out / "segmenter.onnx", validation[0][0])
+    return 0
+
+
+def export_onnx(model, path: Path, image: np.ndarray) -> None:
+    """Write the ONNX file and check that OpenCV's ``cv2.dnn`` reads it and agrees with torch."""
+    import torch
+
     dummy = torch.zeros(1, 1, 256, 256)
-    torch.onnx.export(model, dummy, str(args.out / "segmenter.onnx"), opset_version=13, dynamo=False,
+    torch.onnx.export(model, dummy, str(path), opset_version=13, dynamo=False,
                       input_names=["darkness"], output_names=["wall_logit"],
                       dynamic_axes={"darkness": {2: "rows", 3: "cols"}, "wall_logit": {2: "rows", 3: "cols"}})
-    net = cv2.dnn.readNetFromONNX(str(args.out / "segmenter.onnx"))  # OpenCV reads it: the reader can run it
-    image = validation[0][0]
+    net = cv2.dnn.readNetFromONNX(str(path))  # OpenCV reads it: the reader can run it
     rows, cols = (image.shape[0] // 8) * 8, (image.shape[1] // 8) * 8
     net.setInput(image[None, None, :rows, :cols].copy())
     ours = net.forward()[0, 0]
     theirs = predict(model, image[:rows, :cols])
-    print(f"exported {args.out / 'segmenter.onnx'}: cv2.dnn and torch agree within "
+    print(f"exported {path}: cv2.dnn and torch agree within "
           f"{np.abs(1 / (1 + np.exp(-ours)) - theirs).max():.2g}", flush=True)
-    return 0
 
 
 if __name__ == "__main__":
