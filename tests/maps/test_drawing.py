@@ -98,8 +98,8 @@ def test_4_grey_uneven_paper_and_faint_walls(tmp_path: Path):
         wall = _read(path, plan, **options)
         assert all(_rooms_reached(wall, plan)), options
         # the learned segmenter misses some of the faint grey walls (docs/results.md): by default
-        # they are fewer (IoU 0.85)
-        assert _tolerant_iou(wall, plan.walls, plan.walls | plan.free) > (0.9 if options else 0.83), options
+        # they are fewer (IoU 0.92 against 0.98 from the strokes alone)
+        assert _tolerant_iou(wall, plan.walls, plan.walls | plan.free) > 0.9, options
 
 
 def test_5_dimension_axis_and_title_lines_are_not_walls(tmp_path: Path):
