@@ -519,11 +519,16 @@ def _follow_standard_input(args: argparse.Namespace, building, tracker, out):
                 truth_floor.append(records.waypoint_floor)
         return records
 
+    from mapfilter.runtime.interrupts import raise_pending_signal
+
     interrupted = None
     source = sys.stdin.buffer
     try:
         while True:
             try:
+                # a signal whose exception a finalizer swallowed while the last chunk was tracked
+                # (the collector ran one) would otherwise leave the run waiting on an open input
+                raise_pending_signal()
                 data = source.read1(65536)  # what has arrived, as soon as anything has
             except KeyboardInterrupt as signal:  # Ctrl-C or SIGTERM while waiting: the walk ends here
                 interrupted = signal

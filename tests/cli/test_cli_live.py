@@ -275,3 +275,54 @@ def test_an_error_without_a_signal_is_not_taken_for_one(monkeypatch):
     monkeypatch.setattr(track_cmd, "run", run)
     with pytest.raises(SystemError):
         main(["track", str(OFFICE), str(WALK), "--radiomap", str(RADIOMAP)])
+
+
+def test_a_signal_a_finalizer_swallowed_ends_the_live_run_before_it_waits_on_its_input(monkeypatch, capsys):
+    """Ctrl-C whose KeyboardInterrupt a finalizer swallowed while a chunk was tracked is noted
+    (``runtime.interrupts``): the live loop raises it before it reads again, and ends the walk as
+    Ctrl-C does, instead of waiting on an input that stays open (``tail -f``)."""
+    import argparse
+    import io
+
+    from mapfilter.cli.track_cmd import _follow_standard_input
+    from mapfilter.config import TrackingConfig
+    from mapfilter.maps.building import Building
+    from mapfilter.maps.floorplan import FloorPlan
+    from mapfilter.pipeline.tracker import Tracker, TrackingInputs
+    from mapfilter.runtime.interrupts import clear, note_signal
+    from mapfilter.sensors.radiomap import RadioMap
+
+    walk = gzip.open(WALK, "rb").read()
+    first_chunk = walk[:walk.index(b"\n", len(walk) // 2) + 1]  # the first half of the walk, whole lines
+
+    class OpenInput(io.RawIOBase):
+        """Standard input that gives one chunk, then would wait forever (the writer keeps it open)."""
+
+        def __init__(self) -> None:
+            self.reads = 0
+
+        def read1(self, size: int = -1) -> bytes:
+            self.reads += 1
+            if self.reads > 1:
+                raise AssertionError("read again with a signal pending: a live run would wait here for good")
+            return first_chunk
+
+    source = OpenInput()
+
+    def swallowed_while_tracking(*args, **kwargs):
+        note_signal(signal.SIGINT)  # the handler ran inside a finalizer: noted, its exception lost
+        return original_feed(*args, **kwargs)
+
+    monkeypatch.setattr(sys, "stdin", type("Stdin", (), {"buffer": source})())
+    config = TrackingConfig(seed=0).override({"filter.n_particles": 300})
+    building = Building.from_plan(FloorPlan.load(OFFICE))
+    tracker = Tracker(building, TrackingInputs(radio_map=RadioMap.load(RADIOMAP)), config=config,
+                      log_name="standard input")
+    original_feed = tracker.feed
+    monkeypatch.setattr(tracker, "feed", swallowed_while_tracking)
+    clear()
+    printed, _, interrupted = _follow_standard_input(argparse.Namespace(strict=False, out=None), building, tracker,
+                                                       None)
+    clear()
+    assert isinstance(interrupted, KeyboardInterrupt) and source.reads == 1
+    assert printed > 0  # the rows of what was read are printed, as at the input's end
