@@ -519,17 +519,12 @@ def _follow_standard_input(args: argparse.Namespace, building, tracker, out):
                 truth_floor.append(records.waypoint_floor)
         return records
 
-    from mapfilter.runtime.interrupts import raise_pending_signal
-
     interrupted = None
     source = sys.stdin.buffer
     try:
         while True:
             try:
-                # a signal whose exception a finalizer swallowed while the last chunk was tracked
-                # (the collector ran one) would otherwise leave the run waiting on an open input
-                raise_pending_signal()
-                data = source.read1(65536)  # what has arrived, as soon as anything has
+                data = _read_when_it_comes(source)  # what has arrived, as soon as anything has
             except KeyboardInterrupt as signal:  # Ctrl-C or SIGTERM while waiting: the walk ends here
                 interrupted = signal
                 break
@@ -550,6 +545,28 @@ def _follow_standard_input(args: argparse.Namespace, building, tracker, out):
         truth = dataclasses.replace(truth, waypoint_t_s=np.concatenate(truth_t), waypoint_xy_m=np.concatenate(truth_xy),
                                     waypoint_floor=floors)
     return printed, truth, interrupted
+
+
+def _read_when_it_comes(source, wake_s: float = 0.5) -> bytes:
+    """What standard input has, once it has something (b"" at its end). Between waits of
+    ``wake_s`` the main thread raises a Ctrl-C or SIGTERM that came meanwhile: one the kernel gave
+    another thread does not interrupt a read blocked in the main one, and one whose exception a
+    finalizer swallowed while the last chunk was tracked is only noted (``runtime.interrupts``);
+    either would otherwise leave a live run waiting on an input that stays open (``tail -f``)."""
+    import select
+
+    from mapfilter.runtime.interrupts import raise_pending_signal
+
+    raise_pending_signal()
+    try:
+        fd = source.fileno()
+    except (AttributeError, OSError, ValueError):  # a stand-in without a descriptor
+        return source.read1(65536)
+    if os.name == "nt":  # select() takes sockets only there
+        return source.read1(65536)
+    while not select.select([fd], [], [], wake_s)[0]:
+        raise_pending_signal()
+    return os.read(fd, 65536)
 
 
 def _refuse_standard_input_as_output(args: argparse.Namespace) -> None:
