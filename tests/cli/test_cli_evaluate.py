@@ -142,8 +142,11 @@ def test_an_interrupted_evaluate_resumes_to_the_uninterrupted_summary(tmp_path, 
             "--methods", "pf,kwnn", "--particles", "8000"]
     whole, cut = tmp_path / "whole", tmp_path / "cut"
     assert main(args + ["--out", str(whole)]) == 0
+    # SIGINT handled as a terminal's process gets it, even where the tests run with it ignored (a
+    # shell's background job), which the child would inherit
     process = subprocess.Popen([sys.executable, "-m", "mapfilter", *args, "--jobs", jobs, "--out", str(cut)], cwd=REPO,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while not list((cut / "walks").glob("*.json")) and time.monotonic() < deadline:
         time.sleep(0.05)

@@ -27,6 +27,12 @@ RADIOMAP = REPO / "maps" / "office_radiomap.npz"
 PARTICLES = "300"
 
 
+def _ctrl_c_as_a_terminal_gives_it() -> None:
+    """In the child: SIGINT handled as a terminal's process gets it, even when the tests run where
+    it is ignored (a shell's background job ignores SIGINT, and its children inherit that)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class LiveRun:
     """``mapfilter track office -`` in a subprocess: its standard input written by the test, its
     printed lines collected as they come."""
@@ -36,7 +42,7 @@ class LiveRun:
         self.process = subprocess.Popen(
             [sys.executable, "-m", "mapfilter", "track", str(OFFICE), "-", "--radiomap", str(RADIOMAP), "--particles",
              PARTICLES, "--out", str(out), *extra], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE, cwd=REPO, env=env)
+            stderr=subprocess.PIPE, cwd=REPO, env=env, preexec_fn=_ctrl_c_as_a_terminal_gives_it)
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
