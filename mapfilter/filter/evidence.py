@@ -25,8 +25,8 @@ import numpy as np
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.models.adaptive_path_loss import (THESIS_BLOCKING_DROP_DB, THESIS_RSSI_LIMIT_DBM,
                                                         AdaptiveTrilaterationLikelihood, check_adaptive_settings)
-from mapfilter.filter.models.barometer import (ANCHOR_SHARE, STEADY_M, STEADY_WINDOW_S, BarometerConfig,
-                                               BarometerReference, BarometricHeights)
+from mapfilter.filter.models.barometer import (STEADY_M, STEADY_WINDOW_S, BarometerConfig, BarometerReference,
+                                               BarometricHeights)
 from mapfilter.filter.events import StepReport
 from mapfilter.filter.models.building import FloorFix, FloorFixLikelihood, FloorStack
 from mapfilter.filter.models.path_loss import TrilaterationLikelihood
@@ -600,13 +600,10 @@ class BuildingEvidence:
     def whole_walk_start_floor(self) -> int | None:
         """The floor every scan of the walk together puts its start on (the barometer's zero
         after weighing them all, at ``ANCHOR_SHARE`` or more; offline), None when they do not say."""
-        ref = self.reference
         if not self.use_barometer or len(self._heights) < 2:
             return None
         self._weigh_reference(len(self.scans) - 1)
-        if ref.log_p is None or float(np.exp(ref.log_p.max())) < ANCHOR_SHARE:
-            return None
-        return ref.floor_at(0.0)
+        return self.reference.sure_floor_at(0.0)
 
     def restarted_on(self, floor: int) -> BuildingEvidence:
         """The same scans and barometer, its reference started on ``floor`` (a second run over the walk)."""

@@ -108,9 +108,9 @@ class BarometerReference:
         if not steady:
             return
         if self._from_scans:  # follow the floor nearest the most probable hypothesis
-            if self.log_p is None or float(np.exp(self.log_p.max())) < ANCHOR_SHARE:
+            target = self.sure_floor_at(height_m)
+            if target is None:
                 return
-            target = self._nearest_floor(self._expected_m(height_m))
         else:  # follow the filter's floor
             if float(np.max(floor_shares)) < ANCHOR_SHARE:
                 return
@@ -136,6 +136,12 @@ class BarometerReference:
     def floor_at(self, height_m: float) -> int:
         """The floor nearest the walker's elevation at ``height_m`` under the most probable hypothesis."""
         return self._nearest_floor(self._expected_m(height_m))
+
+    def sure_floor_at(self, height_m: float) -> int | None:
+        """``floor_at`` when one hypothesis holds ``ANCHOR_SHARE`` or more, else None."""
+        if self.log_p is None or float(np.exp(self.log_p.max())) < ANCHOR_SHARE:
+            return None
+        return self.floor_at(height_m)
 
     def _height_log_likelihood(self, height_m: float) -> np.ndarray:
         """(J, F): -(e_f - (e_j + h - drift))^2 / (2 sigma^2)."""
