@@ -98,8 +98,14 @@ class BarometerReference:
             self.drift_m, self._t_drift = 0.0, None
         d = np.where(finite, match, match[finite].max())
         scan_ll = -in_survey * (d ** 2 - d.min() ** 2) / (2.0 * ZERO_MATCH_TAU_DB ** 2)
-        # (J, F): hypothesis j puts the walker at floor f as well as the barometer allows
-        ll = scan_ll[None, :] + self._height_log_likelihood(height_m)
+        # (J, F): hypothesis j puts the walker at floor f as well as the barometer allows, each row
+        # scaled so that it sums to its best floor's fit: a height off every floor under j still
+        # rules j out, but no hypothesis gains from its neighbours' tails (summed, a middle floor's
+        # gained two at every scan, and a walk whose scans tell the floors apart no better than
+        # chance drifted to the middle floor: IPIN trial 21, surveyed on one floor only)
+        height_ll = self._height_log_likelihood(height_m)
+        tails = _logsumexp(height_ll, axis=1) - height_ll.max(axis=1)
+        ll = scan_ll[None, :] + height_ll - tails[:, None]
         self.log_p = _normalised_log(self.log_p + _logsumexp(ll, axis=1))
 
     def update(self, t_s: float, height_m: float, steady: bool, floor_shares: np.ndarray) -> None:
