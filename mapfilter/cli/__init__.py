@@ -7,7 +7,8 @@ returns the exit code. A
 so does an ``OSError`` (a full disk, a file that cannot be written); anything else is a bug and
 crashes loudly. SIGTERM is handled like Ctrl-C (context managers run, temporaries are removed:
 exit code 143, Ctrl-C's is 130), and a closed pipe on stdout (``mapfilter ... | head -1``)
-ends the command quietly.
+ends the command quietly. The cyclic garbage collector runs rarely while a command does
+(``runtime/collector.py``).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import threading
 
 from mapfilter import __version__
 from mapfilter.errors import MapfilterError
+from mapfilter.runtime.collector import rare_collections
 from mapfilter.runtime.interrupts import Terminated, clear, interrupted_by, note_signal
 
 # Command modules, in the order they appear in --help.
@@ -61,7 +63,7 @@ def _all_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParse
 
 def main(argv: list[str] | None = None) -> int:
     clear()  # the signals of an earlier command in this process (tests run many)
-    with _sigterm_as_interrupt():
+    with _sigterm_as_interrupt(), rare_collections():
         try:
             return _main(argv)
         except BrokenPipeError:
