@@ -90,6 +90,8 @@ class MotionConfig:
     random_walk: RandomWalkMotion = dataclasses.field(default_factory=RandomWalkMotion)  # the rw model (Lund thesis eq. 6.6)
     tick_s: float = 1.0  # cv / rw: prediction interval between scans
     start_heading_from_rotation_vector: bool = True  # PDR: start headings from the rotation vector when the log has one
+    # wide for the building's steel (tens of degrees in places); set before any run
+    rotation_vector_sigma_deg: float = 25.0  # PDR: a scan outside the survey weighs headings against the rotation vector's by this spread (0: never)
     max_gap_s: float = 60.0  # nothing happened for longer than this: the filter starts afresh at the next scan
 
     def __post_init__(self) -> None:
@@ -99,6 +101,9 @@ class MotionConfig:
             value = getattr(self, name)
             if not (value > 0 and math.isfinite(value)):
                 raise MapfilterError(f"motion setting {name} must be a positive number of seconds, got {value}")
+        if not (self.rotation_vector_sigma_deg >= 0 and math.isfinite(self.rotation_vector_sigma_deg)):
+            raise MapfilterError("motion setting rotation_vector_sigma_deg must be a number of degrees, 0 or more, "
+                                 f"got {self.rotation_vector_sigma_deg}")
 
     @property
     def motion_model(self) -> MotionModel:
@@ -316,6 +321,8 @@ class CausalFilter:
         self._pdr = steps if isinstance(steps, OnlinePDR) else None
         self._given_steps = steps if isinstance(steps, Steps) else None
         self._abs_heading_offset_rad = settings.abs_heading_offset_rad
+        # the rotation vector's heading weighs the particles' at each scan (0: not)
+        self._rotation_vector_sigma_rad = math.radians(motion.rotation_vector_sigma_deg) if self._uses_steps else 0.0
         self._steps = _StepLog()  # the steps detected so far
         self._start_at = start
         self._on_step = on_step
@@ -514,6 +521,8 @@ class CausalFilter:
             measurement = measurement_of(index)
             if measurement is None:
                 return
+            if source < 0:
+                measurement = self._with_rotation_vector(t_s, measurement)
             if not self.started or self._waiting_for_scan:
                 self._start(t_s, model, measurement)
             else:
@@ -572,6 +581,16 @@ class CausalFilter:
             return
         self._add_row(t_s, pf.estimate_xy_m.copy(), pf.estimate_std_m, heading, report.get("floor_shares"),
                       report.get("floor_index"))
+
+    def _with_rotation_vector(self, t_s: float, measurement: Any) -> Any:
+        """A scan's fix with the rotation vector's heading at the latest step known at ``t_s``
+        (``filter.models.survey_reach``'s heading term), when the fix takes one and there is one."""
+        if self._rotation_vector_sigma_rad <= 0 or not hasattr(measurement, "heading_rad"):
+            return measurement
+        heading = self._steps.latest_abs_heading_rad(t_s)
+        if heading is None or not math.isfinite(heading):
+            return measurement
+        return dataclasses.replace(measurement, heading_rad=heading, heading_sigma_rad=self._rotation_vector_sigma_rad)
 
     def _start_headings(self, t_s: float) -> None:
         """PDR particles start with the rotation vector's heading (plus spread), else uniform: the

@@ -107,7 +107,10 @@ def offline_track(run: CausalRun, on_offline_step: Callable[[StepReport], None] 
     history = ParticleHistory()
     frame = StateFrame(building, floor or 0)  # every source's measurements, weighed on this floor's map
     sources = tuple(ReplayedMeasurements(source, source.model_on(frame)) for source in run.sources)
-    settings = RunSettings(config.motion, config.filter, config.steps.abs_heading_offset_rad)
+    # the second pass starts where the placed shape, turned by the rotation vector, puts the walk:
+    # its particles' headings are left to the walls and the fixes (docs/accuracy.md)
+    motion = dataclasses.replace(config.motion, rotation_vector_sigma_deg=0.0)
+    settings = RunSettings(motion, config.filter, config.steps.abs_heading_offset_rad)
     second = run_over_scans(plan, evidence, settings, run.rng, steps, sources=sources,
                             start=Start(start_xy, RESTART_RADIUS_M, RESTART_SHARE), on_step=on_offline_step,
                             history=history)

@@ -157,6 +157,55 @@ def test_a_building_floor_fix_inside_the_survey_is_the_gaussian_and_flatter_outs
     assert outside[2] - outside[0] > plain[2] - plain[0] + 50.0  # the far particle: 35 m off, in unsurveyed space
 
 
+def test_outside_the_survey_the_rotation_vector_weighs_headings_and_inside_nothing_changes():
+    """The heading term of the module docstring, in both fix models: (1 - w) (cos(h_i - h_rv) - 1)
+    / sigma_h^2 added to the position's log-likelihood (one floor: exactly; a building: within
+    each floor, so that no floor's weight moves); nothing at w = 1 or without a heading."""
+    from mapfilter.filter.models.building import FloorFix, FloorFixLikelihood, FloorStack
+    from mapfilter.filter.particles import HEADING
+    from mapfilter.maps.building import Building, Floor
+    from mapfilter.maps.floorplan import FloorPlan
+
+    radio_map, _ = _survey()
+    grid = distance_grid(radio_map.xy_m, EXTENT)
+    model = ReachFixLikelihood(3.0, grid)
+    rng = np.random.default_rng(4)
+    particles = Particles.at(np.column_stack([rng.uniform(0, 60, 400), rng.uniform(0, 30, 400)]))
+    particles.state[HEADING] = rng.uniform(-np.pi, np.pi, 400)
+    h_rv, sigma = 0.7, np.radians(25.0)
+    fix = np.array([15.0, 12.0])
+    for w in (0.0, 0.3, 1.0):
+        plain = evaluate_log_likelihood(model, ReachFix(fix, w), particles)
+        turned = evaluate_log_likelihood(model, ReachFix(fix, w, heading_rad=h_rv, heading_sigma_rad=sigma), particles)
+        expected = (1.0 - w) * (np.cos(particles.state[HEADING] - h_rv) - 1.0) / sigma ** 2
+        np.testing.assert_allclose(turned - plain, expected, atol=1e-9)
+    assert np.ptp(expected) == 0.0 and np.ptp(turned - plain) < 1e-9  # at w = 1 nothing
+    nan_heading = evaluate_log_likelihood(model, ReachFix(fix, 0.3, heading_rad=np.nan, heading_sigma_rad=sigma),
+                                          particles)
+    np.testing.assert_array_equal(nan_heading, evaluate_log_likelihood(model, ReachFix(fix, 0.3), particles))
+
+    # a building of two floors: the term reweighs within each floor, never between them
+    plan = FloorPlan(np.pad(np.zeros((298, 598), dtype=bool), 1, constant_values=True), 0.1)  # 60 m x 30 m
+    stack = FloorStack(Building([Floor("0", plan), Floor("1", plan, elevation_m=4.0)]))
+    floor_of = rng.integers(0, 2, 400)
+    cloud = Particles.at(stack.to_stack(particles.xy_m, floor_of))
+    cloud.state[HEADING] = particles.state[HEADING]
+    cloud.log_weight = np.log(rng.uniform(0.5, 1.0, 400))
+    reach = FloorFixLikelihood(stack, np.array([3.0, 3.0]), [grid, grid])
+    fixes = stack.to_stack(np.array([[15.0, 12.0], [40.0, 20.0]]), np.arange(2))
+    votes = np.log([0.3, 0.7])
+    plain = reach.log_likelihood(cloud, FloorFix(fixes, votes, in_survey=0.2))
+    turned = reach.log_likelihood(cloud, FloorFix(fixes, votes, in_survey=0.2, heading_rad=h_rv,
+                                                  heading_sigma_rad=sigma))
+    for f in range(2):
+        on = floor_of == f
+        share = [np.logaddexp.reduce(cloud.log_weight[on] + ll[on]) for ll in (plain, turned)]
+        assert share[0] == pytest.approx(share[1], abs=1e-9)  # the floor's weight as before
+        gain = turned[on] - plain[on]
+        expected = 0.8 * (np.cos(cloud.state[HEADING][on] - h_rv) - 1.0) / sigma ** 2
+        np.testing.assert_allclose(gain - gain.mean(), expected - expected.mean(), atol=1e-9)
+
+
 def test_a_track_with_a_radio_map_imports_no_scipy_spatial():
     """The distance grid's sweep and the match distances the radio map file keeps: tracking the
     bundled office walk never imports scipy.spatial (a tenth of a second of every command)."""

@@ -29,8 +29,8 @@ from numba import njit
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.estimate import weighted_estimate, weighted_moments, writable, xy_moments
 from mapfilter.filter.models.interface import FloorModel, MeasurementModel
-from mapfilter.filter.models.survey_reach import EMPTY_LOG_LIKELIHOOD
-from mapfilter.filter.particles import Particles, X, Y
+from mapfilter.filter.models.survey_reach import EMPTY_LOG_LIKELIHOOD, heading_weight
+from mapfilter.filter.particles import HEADING, Particles, X, Y
 from mapfilter.maps.building import Building, connector_pixels
 from mapfilter.maps.floorplan import FloorPlan
 
@@ -142,8 +142,8 @@ def _grid_tables(grid, distance_m: np.ndarray, var_m2: float) -> tuple[np.ndarra
 
 
 @njit(cache=True, nogil=True)
-def _floor_fix_kernel(x, y, prior, tile_x_min, shift, fix, var, grid_head, grid_base, grid_spread, mixture,
-                      in_survey, floor_ll, collapse_nats, out):
+def _floor_fix_kernel(x, y, heading, prior, tile_x_min, shift, fix, var, grid_head, grid_base, grid_spread, mixture,
+                      in_survey, rotation_vector_rad, heading_weight, floor_ll, collapse_nats, out):
     # FloorFixLikelihood.log_likelihood (its docstring) in two passes over the cloud and one over
     # its live particles; grid_head[f] = (x0, y0, cell, rows, cols, first index in grid_base and
     # grid_spread: _mixture_tables of floor f's grid; a floor without one: one cell at distance 0)
@@ -179,6 +179,8 @@ def _floor_fix_kernel(x, y, prior, tile_x_min, shift, fix, var, grid_head, grid_
             position = both if math.isfinite(both) else EMPTY_LOG_LIKELIHOOD
         else:
             position = -0.5 * r2 / var[f]
+        if heading_weight > 0.0:  # survey_reach's heading term: a reweighting within the floor too
+            position += heading_weight * (math.cos(heading[i] - rotation_vector_rad) - 1.0)
         out[i] = position
         if math.isfinite(prior[i]):
             has_live[f] = True
@@ -573,6 +575,8 @@ class FloorFix:
     floor_log_likelihood: np.ndarray  # (F,)
     height_floor: int | None = None  # the floor the barometer's height is nearest (None: no barometer)
     in_survey: float | None = None  # P(the scan was taken inside the survey) (None: a plain Gaussian fix)
+    heading_rad: float = math.nan  # the rotation vector's heading at the scan (NaN: none; survey_reach's heading term)
+    heading_sigma_rad: float = math.nan  # ... and its spread
 
     @property
     def evidence_only(self) -> bool:
@@ -590,7 +594,8 @@ class FloorFixLikelihood(MeasurementModel):
         pos_i   = -|x_i - fix_f|^2 / (2 sigma_f^2)
 
     (with ``grids``, pos_i is ``survey_reach.mixture_log_likelihood``: the fix weighed by the
-    scan's in-survey probability and the particle's distance to the survey)
+    scan's in-survey probability and the particle's distance to the survey, plus, with the
+    rotation vector's heading, ``survey_reach``'s heading term)
 
     where ``vote_f`` is the scan's floor log-likelihood (``sensors.floor_vote.
     floor_vote_log_likelihood``) and ``fix_f`` the fix made from floor f's fingerprints only
@@ -645,11 +650,15 @@ class FloorFixLikelihood(MeasurementModel):
             return floor_ll[self.stack.floor_of(particles.xy_m)]
         sigma = np.asarray(self.sigma_m, dtype=np.float64)
         out = np.empty(len(particles))
-        _floor_fix_kernel(particles.state[X], particles.state[Y], np.ascontiguousarray(particles.log_weight,
-                                                                                      dtype=np.float64),
+        mixture = self.grids is not None and measurement.in_survey is not None
+        turn = heading_weight(measurement.in_survey if mixture else None, measurement.heading_rad,
+                              measurement.heading_sigma_rad)
+        _floor_fix_kernel(particles.state[X], particles.state[Y], particles.state[HEADING],
+                          np.ascontiguousarray(particles.log_weight, dtype=np.float64),
                           self.stack.tile_x_min_m, self.stack.shift_m,
                           np.ascontiguousarray(measurement.xy_m, dtype=np.float64), sigma * sigma, self._grid_head,
-                          self._grid_base, self._grid_spread, self.grids is not None and measurement.in_survey is not None,
-                          0.0 if measurement.in_survey is None else float(measurement.in_survey), floor_ll,
+                          self._grid_base, self._grid_spread, mixture,
+                          0.0 if measurement.in_survey is None else float(measurement.in_survey),
+                          float(measurement.heading_rad) if turn > 0 else 0.0, turn, floor_ll,
                           float(self.floor_collapse_nats), out)
         return out

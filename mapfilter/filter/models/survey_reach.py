@@ -26,6 +26,16 @@ Marx); outside, a fix off by about the distance to the survey, where u(x) keeps 
 the particles away from the survey. A scan that matches the survey well (w near 1) weighs as
 before; a poorly matching one flattens towards the steps and the walls where nobody surveyed,
 instead of pulling the cloud into surveyed space.
+
+Where the WiFi says little of the place, it can still bend the walk: the particles whose
+heading follows the fixes' drift survive. With the rotation vector's heading h_rv at the scan
+(PDR; ``filter.causal``), each particle's heading h_i is weighed too, as far as the scan is
+outside the survey:
+
+    + (1 - w) (cos(h_i - h_rv) - 1) / sigma_h^2
+
+(a von Mises term of spread sigma_h: the rotation vector is biased by the building's steel, by
+tens of degrees in places), so that the walk keeps its shape's direction where nobody surveyed.
 """
 
 from __future__ import annotations
@@ -37,12 +47,12 @@ from typing import ClassVar
 import numpy as np
 from numba import njit
 
-from mapfilter.filter.kernels.passes import LIKELIHOOD_SIGNATURE, X, Y
+from mapfilter.filter.kernels.passes import HEADING, LIKELIHOOD_SIGNATURE, X, Y
 from mapfilter.filter.models.interface import LikelihoodKernel, MeasurementModel
 from mapfilter.sensors.radiomap import match_distance_db, survey_match_distances_db
 
-__all__ = ["DistanceGrid", "ReachFix", "ReachFixLikelihood", "SurveyReach", "distance_grid", "mixture_log_likelihood",
-           "survey_reach"]
+__all__ = ["DistanceGrid", "ReachFix", "ReachFixLikelihood", "SurveyReach", "distance_grid", "heading_weight",
+           "mixture_log_likelihood", "survey_reach"]
 
 GRID_CELL_M = 1.0  # the distance-to-survey grid's cell
 NO_COMPONENT = -1e300  # a mixture component that is absent (no infinities: the kernels use fastmath)
@@ -170,6 +180,16 @@ class ReachFix:
     xy_m: np.ndarray
     in_survey: float
     sigma_m: float | None = None  # overrides the model's sigma
+    heading_rad: float = math.nan  # the rotation vector's heading at the scan (NaN: none; the module docstring)
+    heading_sigma_rad: float = math.nan  # ... and its spread
+
+
+def heading_weight(in_survey: float | None, heading_rad: float, heading_sigma_rad: float) -> float:
+    """(1 - w) / sigma_h^2 of the module docstring's heading term; 0 without a heading (or a
+    plain Gaussian fix: ``in_survey`` None)."""
+    if in_survey is None or not (math.isfinite(heading_rad) and heading_sigma_rad > 0):
+        return 0.0
+    return (1.0 - float(in_survey)) / (heading_sigma_rad * heading_sigma_rad)
 
 
 def mixture_log_likelihood(r2_m2: np.ndarray, d2_m2: np.ndarray, var_m2: np.ndarray | float,
@@ -191,22 +211,25 @@ def mixture_log_likelihood(r2_m2: np.ndarray, d2_m2: np.ndarray, var_m2: np.ndar
 
 @njit(LIKELIHOOD_SIGNATURE, cache=True, nogil=True, fastmath=True)
 def _reach_fix(params, state, lo, m, out):
-    # params: fix x, fix y, sigma^2, w, grid x0, y0, 1 / cell, rows, cols, then d^2 of every cell row by row
+    # params: fix x, fix y, sigma^2, w, the rotation vector's heading, the heading term's weight,
+    # grid x0, y0, 1 / cell, rows, cols, then d^2 of every cell row by row
     fx = params[0]
     fy = params[1]
     var0 = params[2]
     w = params[3]
-    x0 = params[4]
-    y0 = params[5]
-    inv_cell = params[6]
-    rows = int(params[7])
-    cols = int(params[8])
+    heading = params[4]
+    heading_weight = params[5]
+    x0 = params[6]
+    y0 = params[7]
+    inv_cell = params[8]
+    rows = int(params[9])
+    cols = int(params[10])
     for j in range(m):
         x = state[X, lo + j]
         y = state[Y, lo + j]
         c = min(max(int((x - x0) * inv_cell), 0), cols - 1)
         r = min(max(int((y - y0) * inv_cell), 0), rows - 1)
-        d2 = params[9 + r * cols + c]
+        d2 = params[11 + r * cols + c]
         dx = x - fx
         dy = y - fy
         r2 = dx * dx + dy * dy
@@ -223,6 +246,8 @@ def _reach_fix(params, state, lo, m, out):
             out[j] = EMPTY_LOG_LIKELIHOOD
         else:
             out[j] = high + math.log(math.exp(inside - high) + math.exp(outside - high))
+        if heading_weight > 0.0:
+            out[j] += heading_weight * (math.cos(state[HEADING, lo + j] - heading) - 1.0)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -247,4 +272,7 @@ class ReachFixLikelihood(MeasurementModel):
             raise ValueError(f"fix sigma must be a positive number of metres, got {sigma}")
         fx, fy = (float(v) for v in np.asarray(measurement.xy_m, dtype=np.float64).ravel()[:2])
         w = float(measurement.in_survey)
-        return LikelihoodKernel(_reach_fix, np.concatenate([[fx, fy, sigma * sigma, w], self._grid_params]))
+        turn = heading_weight(w, measurement.heading_rad, measurement.heading_sigma_rad)
+        heading = measurement.heading_rad if turn > 0 else 0.0
+        return LikelihoodKernel(_reach_fix, np.concatenate([[fx, fy, sigma * sigma, w, heading, turn],
+                                                            self._grid_params]))
