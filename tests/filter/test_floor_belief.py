@@ -148,7 +148,9 @@ def test_ipin_evaluate_end_to_end_on_real_logs(ipin2023, ipin_venue):
     building = Building.load(ipin_venue)
     logs = [ipin2023 / "logs" / f"IPIN2023_T3_TrainingTrial{n}.txt.gz"
             for n in ("01_repetition01", "01_repetition03", "21_repetition02", "21_repetition04", "52_repetition01")]
-    setup = EvaluationSetup(leave_one_out=True, tracking=tracking_config(n_particles=500, smooth=True))
+    # 2,000 particles: at 500 the walk over two floors (12 points) is lost 50-65 m off on most
+    # seeds and found once (19 m, seed 0), and that one walk decided the comparison below
+    setup = EvaluationSetup(leave_one_out=True, tracking=tracking_config(n_particles=2000, smooth=True))
     evaluation = evaluate(building, logs, setup)
     assert not evaluation.failed
     rows = {r["method"]: r for r in evaluation.summary_rows()}
@@ -160,8 +162,8 @@ def test_ipin_evaluate_end_to_end_on_real_logs(ipin2023, ipin_venue):
     assert rows["kwnn"]["median"] < 10.0
     # on these open floors (no plan: nothing for the walls to bend) the offline track is the
     # smoothed filter, which uses every scan of the walk: better than the causal track at p75; on
-    # the mean within 2 % (five walks, 500 particles: 22.8 against 22.6 m since the fix weighs
-    # where the survey reaches, p75 24.4 against 38.7 m)
+    # the mean within 2 % (five walks, 2,000 particles, seeds 0 and 1: mean 18.8 and 19.4 against
+    # 21.6 m, p75 25.1 and 25.5 against 33.2 and 32.9 m)
     assert rows["pf-smooth"]["p75"] < rows["pf"]["p75"], (rows["pf-smooth"], rows["pf"])
     assert rows["pf-smooth"]["mean"] < 1.02 * rows["pf"]["mean"], (rows["pf-smooth"], rows["pf"])
     assert {r["phone"] for r in evaluation.summary_rows(by_phone=True)} == {"SM-A520F", "SM-G930F"}
