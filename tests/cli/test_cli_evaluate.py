@@ -154,7 +154,9 @@ def test_an_interrupted_evaluate_resumes_to_the_uninterrupted_summary(tmp_path, 
     out, err = process.communicate(timeout=120)
     assert process.returncode == 130, err
     done = sorted(p.name for p in (cut / "walks").glob("*.json"))
-    assert 1 <= len(done) < 6 and "interrupted" in out
+    # usually one walk or more; none when the signal came before the run took in the walk whose
+    # file the loop above saw (once in CI, two workers under load): the resume below holds either way
+    assert len(done) < 6 and "interrupted" in out
     partial = json.loads((cut / "summary.json").read_text())
     assert partial["complete"] is False and partial["walks_done"] == len(done)
     assert not [p for p in cut.rglob(".*") if p.is_file() and p.name != ".mapfilter-manifest.json"]  # no temporaries
