@@ -21,11 +21,19 @@ once per worker that uses it. Fixtures here are shared: a test reads them and wr
 own ``tmp_path``.
 """
 
+import signal
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def ctrl_c_as_a_terminal_gives_it() -> None:
+    """``preexec_fn`` of a command the test interrupts: in the child, SIGINT handled as a
+    terminal's process gets it, even when the tests run where it is ignored (a shell's background
+    job ignores SIGINT, and its children inherit that)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 # the fast tier's one real-data run of each pipeline (the slow tier holds the others)

@@ -26,7 +26,7 @@ import threading
 from mapfilter import __version__
 from mapfilter.errors import MapfilterError
 from mapfilter.runtime.collector import rare_collections
-from mapfilter.runtime.interrupts import Terminated, clear, interrupted_by, note_signal
+from mapfilter.runtime.interrupts import Terminated, clear, deferring, interrupted_by, note_signal
 
 # Command modules, in the order they appear in --help.
 COMMAND_MODULES = ("map_cmd", "radiomap_cmd", "check_cmd", "track_cmd", "evaluate_cmd", "simulate_cmd", "view_cmd",
@@ -162,7 +162,7 @@ def describe_os_error(exc: OSError) -> str:
 def _sigterm_as_interrupt():
     """While the command runs, SIGTERM raises ``Terminated`` in the main thread (as Ctrl-C raises
     KeyboardInterrupt): ``with`` blocks and ``finally`` clauses run, temporaries are removed. Both
-    are noted for ``runtime.interrupts.raise_pending_signal``."""
+    are noted for ``runtime.interrupts.raise_pending_signal`` (and only noted inside its ``deferred``)."""
     if threading.current_thread() is not threading.main_thread():
         yield  # signal handlers can only be set from the main thread
         return
@@ -170,11 +170,13 @@ def _sigterm_as_interrupt():
     def terminate(signum, frame):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
         note_signal(signum)
-        raise Terminated()
+        if not deferring():
+            raise Terminated()
 
     def interrupt(signum, frame):
         note_signal(signum)
-        raise KeyboardInterrupt()
+        if not deferring():
+            raise KeyboardInterrupt()
 
     previous = signal.signal(signal.SIGTERM, terminate)
     previous_int = signal.signal(signal.SIGINT, interrupt) if signal.getsignal(signal.SIGINT) is \

@@ -282,15 +282,18 @@ class _WalkWriter:
 
     def __call__(self, outcome) -> None:
         from mapfilter.evaluation.store import write_outcome
+        from mapfilter.runtime.interrupts import deferred
 
-        with self.out.writing(f"walks/{outcome.trace}.json") as (tmp,):
-            write_outcome(outcome, tmp, self.key)
-        self.done.append(outcome)
+        # a walk computed is kept whole: a Ctrl-C while its files are written comes after them
+        with deferred():
+            with self.out.writing(f"walks/{outcome.trace}.json") as (tmp,):
+                write_outcome(outcome, tmp, self.key)
+            for name, content in outcome.files.items():
+                with self.out.writing(name) as (tmp,):
+                    tmp.write_bytes(content)
+            self.done.append(outcome)
         if outcome.status != "ok":
             print(f"mapfilter: {outcome.status}: {outcome.reason}", file=sys.stderr)
-        for name, content in outcome.files.items():
-            with self.out.writing(name) as (tmp,):
-                tmp.write_bytes(content)
 
 
 def _write_partial_summary(args, out, done: list, setup, config, methods) -> None:

@@ -5,16 +5,19 @@ raised inside a weakref callback or a ``__del__`` the collector ran, it is only 
 ("Exception ignored in ...") and the run goes on: an interrupted ``evaluate`` once finished with
 exit code 0. The command's handlers (``mapfilter.cli``) note each signal here, and long work
 calls :func:`raise_pending_signal` between its tasks (``cli.common.ProgressBar``), which raises
-it again if it was lost.
+it again if it was lost. A few milliseconds of work that must end whole (an evaluated walk's
+files) run in :func:`deferred`: a signal there is noted and raised as the block ends.
 """
 
 from __future__ import annotations
 
+import contextlib
 import signal
 
-__all__ = ["Terminated", "clear", "interrupted_by", "note_signal", "raise_pending_signal"]
+__all__ = ["Terminated", "clear", "deferred", "deferring", "interrupted_by", "note_signal", "raise_pending_signal"]
 
 _PENDING: list[int] = []  # the signals since the last raise_pending_signal
+_DEFERRING: list[int] = [0]  # how many deferred blocks are open
 
 
 class Terminated(KeyboardInterrupt):
@@ -29,6 +32,24 @@ def note_signal(signum: int) -> None:
 def clear() -> None:
     """Forget the signals noted so far (a command starts)."""
     _PENDING.clear()
+
+
+def deferring() -> bool:
+    """A :func:`deferred` block is open: the command's handlers note a signal and return."""
+    return _DEFERRING[0] > 0
+
+
+@contextlib.contextmanager
+def deferred():
+    """A block that a SIGINT or SIGTERM does not cut short: the signal is noted, and raised when
+    the block (the outermost one) ends without an error of its own."""
+    _DEFERRING[0] += 1
+    try:
+        yield
+    finally:
+        _DEFERRING[0] -= 1
+    if not _DEFERRING[0]:
+        raise_pending_signal()
 
 
 def raise_pending_signal() -> None:

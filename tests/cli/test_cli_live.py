@@ -19,18 +19,12 @@ import pytest
 from rerun.chunk import RrdReader
 
 from mapfilter.cli import main
-from tests.conftest import REPO
+from tests.conftest import REPO, ctrl_c_as_a_terminal_gives_it
 
 OFFICE = REPO / "maps" / "office.yaml"
 WALK = REPO / "maps" / "office_walk.txt.gz"
 RADIOMAP = REPO / "maps" / "office_radiomap.npz"
 PARTICLES = "300"
-
-
-def _ctrl_c_as_a_terminal_gives_it() -> None:
-    """In the child: SIGINT handled as a terminal's process gets it, even when the tests run where
-    it is ignored (a shell's background job ignores SIGINT, and its children inherit that)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 class LiveRun:
@@ -42,7 +36,7 @@ class LiveRun:
         self.process = subprocess.Popen(
             [sys.executable, "-m", "mapfilter", "track", str(OFFICE), "-", "--radiomap", str(RADIOMAP), "--particles",
              PARTICLES, "--out", str(out), *extra], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE, cwd=REPO, env=env, preexec_fn=_ctrl_c_as_a_terminal_gives_it)
+            stderr=subprocess.PIPE, cwd=REPO, env=env, preexec_fn=ctrl_c_as_a_terminal_gives_it)
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
