@@ -29,7 +29,7 @@ from numba import njit
 from mapfilter.errors import MapfilterError
 from mapfilter.filter.estimate import weighted_estimate, weighted_moments, writable, xy_moments
 from mapfilter.filter.models.interface import FloorModel, MeasurementModel
-from mapfilter.filter.models.survey_reach import EMPTY_LOG_LIKELIHOOD, heading_weight
+from mapfilter.filter.models.survey_reach import EMPTY_LOG_LIKELIHOOD, heading_log_likelihood, heading_term
 from mapfilter.filter.particles import HEADING, Particles, X, Y
 from mapfilter.maps.building import Building, connector_pixels
 from mapfilter.maps.floorplan import FloorPlan
@@ -179,8 +179,8 @@ def _floor_fix_kernel(x, y, heading, prior, tile_x_min, shift, fix, var, grid_he
             position = both if math.isfinite(both) else EMPTY_LOG_LIKELIHOOD
         else:
             position = -0.5 * r2 / var[f]
-        if heading_weight > 0.0:  # survey_reach's heading term: a reweighting within the floor too
-            position += heading_weight * (math.cos(heading[i] - rotation_vector_rad) - 1.0)
+        # survey_reach's heading term: a reweighting within the floor too
+        position += heading_log_likelihood(heading[i], rotation_vector_rad, heading_weight)
         out[i] = position
         if math.isfinite(prior[i]):
             has_live[f] = True
@@ -651,14 +651,13 @@ class FloorFixLikelihood(MeasurementModel):
         sigma = np.asarray(self.sigma_m, dtype=np.float64)
         out = np.empty(len(particles))
         mixture = self.grids is not None and measurement.in_survey is not None
-        turn = heading_weight(measurement.in_survey if mixture else None, measurement.heading_rad,
-                              measurement.heading_sigma_rad)
+        heading, turn = heading_term(measurement.in_survey if mixture else None, measurement.heading_rad,
+                                     measurement.heading_sigma_rad)
         _floor_fix_kernel(particles.state[X], particles.state[Y], particles.state[HEADING],
                           np.ascontiguousarray(particles.log_weight, dtype=np.float64),
                           self.stack.tile_x_min_m, self.stack.shift_m,
                           np.ascontiguousarray(measurement.xy_m, dtype=np.float64), sigma * sigma, self._grid_head,
                           self._grid_base, self._grid_spread, mixture,
                           0.0 if measurement.in_survey is None else float(measurement.in_survey),
-                          float(measurement.heading_rad) if turn > 0 else 0.0, turn, floor_ll,
-                          float(self.floor_collapse_nats), out)
+                          heading, turn, floor_ll, float(self.floor_collapse_nats), out)
         return out

@@ -51,7 +51,8 @@ from mapfilter.filter.kernels.passes import HEADING, LIKELIHOOD_SIGNATURE, X, Y
 from mapfilter.filter.models.interface import LikelihoodKernel, MeasurementModel
 from mapfilter.sensors.radiomap import match_distance_db, survey_match_distances_db
 
-__all__ = ["DistanceGrid", "ReachFix", "ReachFixLikelihood", "SurveyReach", "distance_grid", "heading_weight",
+__all__ = ["DistanceGrid", "ReachFix", "ReachFixLikelihood", "SurveyReach", "distance_grid", "heading_log_likelihood",
+           "heading_term",
            "mixture_log_likelihood", "survey_reach"]
 
 GRID_CELL_M = 1.0  # the distance-to-survey grid's cell
@@ -184,12 +185,21 @@ class ReachFix:
     heading_sigma_rad: float = math.nan  # ... and its spread
 
 
-def heading_weight(in_survey: float | None, heading_rad: float, heading_sigma_rad: float) -> float:
-    """(1 - w) / sigma_h^2 of the module docstring's heading term; 0 without a heading (or a
-    plain Gaussian fix: ``in_survey`` None)."""
+def heading_term(in_survey: float | None, heading_rad: float, heading_sigma_rad: float) -> tuple[float, float]:
+    """The module docstring's heading term as a kernel takes it: the rotation vector's heading
+    and the weight (1 - w) / sigma_h^2; (0, 0) without a heading (or for a plain Gaussian fix:
+    ``in_survey`` None)."""
     if in_survey is None or not (math.isfinite(heading_rad) and heading_sigma_rad > 0):
-        return 0.0
-    return (1.0 - float(in_survey)) / (heading_sigma_rad * heading_sigma_rad)
+        return 0.0, 0.0
+    return float(heading_rad), (1.0 - float(in_survey)) / (heading_sigma_rad * heading_sigma_rad)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def heading_log_likelihood(heading_rad, rotation_vector_rad, weight):
+    """A particle's heading term: weight * (cos(h_i - h_rv) - 1) (module docstring); 0 at weight 0."""
+    if weight > 0.0:
+        return weight * (math.cos(heading_rad - rotation_vector_rad) - 1.0)
+    return 0.0
 
 
 def mixture_log_likelihood(r2_m2: np.ndarray, d2_m2: np.ndarray, var_m2: np.ndarray | float,
@@ -246,8 +256,7 @@ def _reach_fix(params, state, lo, m, out):
             out[j] = EMPTY_LOG_LIKELIHOOD
         else:
             out[j] = high + math.log(math.exp(inside - high) + math.exp(outside - high))
-        if heading_weight > 0.0:
-            out[j] += heading_weight * (math.cos(state[HEADING, lo + j] - heading) - 1.0)
+        out[j] += heading_log_likelihood(state[HEADING, lo + j], heading, heading_weight)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -272,7 +281,6 @@ class ReachFixLikelihood(MeasurementModel):
             raise ValueError(f"fix sigma must be a positive number of metres, got {sigma}")
         fx, fy = (float(v) for v in np.asarray(measurement.xy_m, dtype=np.float64).ravel()[:2])
         w = float(measurement.in_survey)
-        turn = heading_weight(w, measurement.heading_rad, measurement.heading_sigma_rad)
-        heading = measurement.heading_rad if turn > 0 else 0.0
+        heading, turn = heading_term(w, measurement.heading_rad, measurement.heading_sigma_rad)
         return LikelihoodKernel(_reach_fix, np.concatenate([[fx, fy, sigma * sigma, w, heading, turn],
                                                             self._grid_params]))
