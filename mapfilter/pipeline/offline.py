@@ -108,14 +108,17 @@ def offline_track(run: CausalRun, on_offline_step: Callable[[StepReport], None] 
     frame = StateFrame(building, floor or 0)  # every source's measurements, weighed on this floor's map
     sources = tuple(ReplayedMeasurements(source, source.model_on(frame)) for source in run.sources)
     # the second pass starts where the placed shape, turned by the rotation vector, puts the walk:
-    # its particles' headings are left to the walls and the fixes (docs/accuracy.md)
-    motion = dataclasses.replace(config.motion, rotation_vector_sigma_deg=0.0)
+    # its particles' headings are left to the walls and the fixes where walls are within reach of
+    # the causal track; on an open floor nothing but the rotation vector holds them (docs/accuracy.md)
+    reach_m = WALL_REACH_SIGMAS * config.offline.map_matching.anchor_sigma_m
+    motion = config.motion
+    if np.median(plan.distance_to_wall_m(causal.xy_m)) <= reach_m:
+        motion = dataclasses.replace(config.motion, rotation_vector_sigma_deg=0.0)
     settings = RunSettings(motion, config.filter, config.steps.abs_heading_offset_rad)
     second = run_over_scans(plan, evidence, settings, run.rng, steps, sources=sources,
                             start=Start(start_xy, RESTART_RADIUS_M, RESTART_SHARE), on_step=on_offline_step,
                             history=history)
     second_smoothed = smoothed_track(history, plan, config)
-    reach_m = WALL_REACH_SIGMAS * config.offline.map_matching.anchor_sigma_m
     track = (second_smoothed if np.median(plan.distance_to_wall_m(second_smoothed.xy_m)) > reach_m
              else placed_track(plan, evidence, steps, second_smoothed, config.offline, anchor))
     restarted = dataclasses.replace(second.track(), name="restarted")
