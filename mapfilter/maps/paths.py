@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from mapfilter.maps.floorplan import FloorPlan
 from mapfilter.maps.walls import crosses_wall, wall_crossing_mask
@@ -85,7 +86,7 @@ def free_path(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarray,
     free only where all its pixels are (a bounded cost on a fine plan: the search's time grows
     with its cells; at the native pixels where an end's cell is not free).
     """
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import dijkstra
 
     a = np.asarray(from_xy_m, dtype=np.float64).reshape(2)
@@ -111,38 +112,26 @@ def free_path(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarray,
             padded[:window.shape[0], :window.shape[1]] = window
             coarse = padded.reshape(h // k, k, w // k, k).all(axis=(1, 3))
             if all(coarse[r // k, c // k] for r, c in ends):
-                cells = _grid_path(coarse, *[(r // k, c // k) for r, c in ends], coo_matrix, dijkstra)
+                cells = _grid_path(coarse, *[(r // k, c // k) for r, c in ends], csr_matrix, dijkstra)
                 if cells is not None:  # each cell's centre, in the window's pixels
                     cells = cells * k + (k - 1) / 2.0
             else:
-                cells = _grid_path(window, *ends, coo_matrix, dijkstra)
+                cells = _grid_path(window, *ends, csr_matrix, dijkstra)
         else:
-            cells = _grid_path(window, *ends, coo_matrix, dijkstra)
+            cells = _grid_path(window, *ends, csr_matrix, dijkstra)
         if cells is not None:
             centres = floorplan.pixel_to_world(np.column_stack([cells[:, 1] + c0 + 0.5, cells[:, 0] + r0 + 0.5]))
             return np.vstack([a, centres, b])
     return None
 
 
-def _grid_path(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int], coo_matrix, dijkstra) -> np.ndarray | None:
+def _grid_path(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int], csr_matrix, dijkstra) -> np.ndarray | None:
     """(K, 2) rows/cols of the shortest 8-connected path over ``free`` (corner rule above)."""
-    h, w = free.shape
+    free = np.ascontiguousarray(free, dtype=np.bool_)
     index = np.full(free.shape, -1, dtype=np.int64)
-    index[free] = np.arange(int(free.sum()))
-    src, dst, cost = [], [], []
-    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
-        r = np.arange(max(0, -dr), h - max(0, dr))
-        c = np.arange(max(0, -dc), w - max(0, dc))
-        rr, cc = np.meshgrid(r, c, indexing="ij")
-        ok = free[rr, cc] & free[rr + dr, cc + dc]
-        if dr and dc:  # diagonal: through a lattice corner, the two other pixels must be free too
-            ok &= free[rr + dr, cc] & free[rr, cc + dc]
-        src.append(index[rr[ok], cc[ok]])
-        dst.append(index[rr[ok] + dr, cc[ok] + dc])
-        cost.append(np.full(int(ok.sum()), math.hypot(dr, dc)))
     n = int(free.sum())
-    s, d, c = np.concatenate(src), np.concatenate(dst), np.concatenate(cost)
-    graph = coo_matrix((np.concatenate([c, c]), (np.concatenate([s, d]), np.concatenate([d, s]))), shape=(n, n)).tocsr()
+    index[free] = np.arange(n)
+    graph = csr_matrix(_grid_graph(free, index, n), shape=(n, n))
     i0, i1 = index[start], index[goal]
     dist, pred = dijkstra(graph, indices=int(i0), return_predecessors=True)
     if not np.isfinite(dist[i1]):
@@ -153,6 +142,41 @@ def _grid_path(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int], 
     flat_rows, flat_cols = np.nonzero(free)
     chain = np.array(chain[::-1])
     return np.column_stack([flat_rows[chain], flat_cols[chain]])
+
+
+@njit(cache=True, nogil=True)
+def _grid_graph(free, index, n):
+    """The free pixels' 8-connected graph as a canonical CSR (data, indices, indptr): each free
+    pixel's row lists its neighbours in index order (row-major over the free pixels), a side move
+    costing 1 and a diagonal one sqrt 2 (allowed only with the two pixels beside it free: the
+    corner rule). The matrix scipy's sorted, duplicate-free COO-to-CSR conversion makes of the
+    pixel pairs (``tests/maps/test_paths.py`` holds it to that numpy), so the same search."""
+    h, w = free.shape
+    diagonal = math.hypot(1.0, 1.0)
+    indptr = np.empty(n + 1, dtype=np.int64)
+    indices = np.empty(8 * n, dtype=np.int64)
+    data = np.empty(8 * n)
+    indptr[0] = 0
+    e = 0
+    for r in range(h):
+        for c in range(w):
+            if not free[r, c]:
+                continue
+            for dr in range(-1, 2):  # the neighbours in row-major order: their indices ascend
+                rr = r + dr
+                if rr < 0 or rr >= h:
+                    continue
+                for dc in range(-1, 2):
+                    cc = c + dc
+                    if (dr == 0 and dc == 0) or cc < 0 or cc >= w or not free[rr, cc]:
+                        continue
+                    if dr != 0 and dc != 0 and not (free[rr, c] and free[r, cc]):
+                        continue
+                    indices[e] = index[rr, cc]
+                    data[e] = diagonal if dr != 0 and dc != 0 else 1.0
+                    e += 1
+            indptr[index[r, c] + 1] = e
+    return data[:e].copy(), indices[:e].copy(), indptr
 
 
 def detour_wall_crossings(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

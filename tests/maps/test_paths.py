@@ -117,3 +117,70 @@ def test_a_search_over_too_many_pixels_runs_on_coarser_cells_and_still_crosses_n
     near = np.array([3.0, 9.85])  # 5 cm from the wall: its coarse cell holds wall pixels
     path = free_path(plan, near, b, max_cells=20_000)
     assert path is not None and not crosses_wall(plan, path[:-1], path[1:]).any()
+
+
+def _numpy_grid_graph(free: np.ndarray):
+    """The search's graph as plain numpy built it (the oracle of ``paths._grid_graph``): every
+    pixel pair as a COO entry both ways, to scipy's CSR (sorted, no duplicates)."""
+    import math
+
+    from scipy.sparse import coo_matrix
+
+    h, w = free.shape
+    index = np.full(free.shape, -1, dtype=np.int64)
+    index[free] = np.arange(int(free.sum()))
+    src, dst, cost = [], [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        r = np.arange(max(0, -dr), h - max(0, dr))
+        c = np.arange(max(0, -dc), w - max(0, dc))
+        rr, cc = np.meshgrid(r, c, indexing="ij")
+        ok = free[rr, cc] & free[rr + dr, cc + dc]
+        if dr and dc:  # diagonal: through a lattice corner, the two other pixels must be free too
+            ok &= free[rr + dr, cc] & free[rr, cc + dc]
+        src.append(index[rr[ok], cc[ok]])
+        dst.append(index[rr[ok] + dr, cc[ok] + dc])
+        cost.append(np.full(int(ok.sum()), math.hypot(dr, dc)))
+    n = int(free.sum())
+    s, d, c = np.concatenate(src), np.concatenate(dst), np.concatenate(cost)
+    return coo_matrix((np.concatenate([c, c]), (np.concatenate([s, d]), np.concatenate([d, s]))), shape=(n, n)).tocsr()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_search_graph_is_the_numpy_one_entry_for_entry_and_so_is_the_path(seed):
+    """paths._grid_graph against the numpy it replaced, on random masks (thin walls, lone wall
+    pixels, free borders): the same CSR arrays, hence the same shortest path between random free
+    pixels, pixel for pixel, Dijkstra's ties broken alike."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    from mapfilter.maps.paths import _grid_graph, _grid_path
+
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(5, 60, 2)
+    free = rng.random((h, w)) > rng.uniform(0.05, 0.4)
+    free[rng.integers(0, h), :] = False  # a wall across, with a gap
+    free[:, rng.integers(0, w)] = True
+    index = np.full(free.shape, -1, dtype=np.int64)
+    n = int(free.sum())
+    index[free] = np.arange(n)
+    data, indices, indptr = _grid_graph(free, index, n)
+    oracle = _numpy_grid_graph(free)
+    assert oracle.has_sorted_indices and data.size == oracle.nnz > 0
+    assert np.array_equal(indptr, oracle.indptr) and np.array_equal(indices, oracle.indices)
+    assert np.array_equal(data, oracle.data)
+    rows, cols = np.nonzero(free)
+    found = 0
+    for _ in range(20):
+        a, b = rng.integers(0, n, 2)
+        start, goal = (rows[a], cols[a]), (rows[b], cols[b])
+        path = _grid_path(free, start, goal, csr_matrix, dijkstra)
+        dist, pred = dijkstra(oracle, indices=int(a), return_predecessors=True)
+        if not np.isfinite(dist[b]):
+            assert path is None
+            continue
+        chain = [int(b)]
+        while chain[-1] != a:
+            chain.append(int(pred[chain[-1]]))
+        assert np.array_equal(path, np.column_stack([rows[chain[::-1]], cols[chain[::-1]]]))
+        found += 1
+    assert found > 0
