@@ -224,3 +224,28 @@ def test_the_not_heard_base_is_the_numpy_formulas_to_the_bit():
     np.add.at(expected, cell[data], np.log1p(-p_heard) - np.log1p(-p0[cell[data]]))
     np.testing.assert_array_equal(model.base, expected)
     assert not np.array_equal(model.base, model._n_aps * np.log1p(-p0))  # noqa: SLF001  the data count
+
+
+@pytest.mark.parametrize("exponent", [1.0, 0.4, 0.0])
+def test_the_best_cell_is_numpys_argmax_of_the_grid(exponent):
+    """Oracle: ``best_position`` (``_best_cell``: the grid's values and their maximum in one
+    kernel) against the centre of ``np.argmax`` of ``grid_log_likelihood`` on the office walk's
+    scans: the same cell every time; a flat grid (exponent 0, or no AP of the map heard) gives the
+    first cell, as numpy's argmax does, and so does a NaN."""
+    from mapfilter.filter.models.radio_map import RadioMapLikelihoodConfig
+    from mapfilter.sensors.wifi import WifiScan
+
+    plan, radio_map, scans = _office()
+    model = RadioMapLikelihood(radio_map, plan, RadioMapLikelihoodConfig(exponent=exponent))
+    cells = set()
+    for scan in scans:
+        expected = model.cell_xy_m[int(np.argmax(model.grid_log_likelihood(scan)[:-1]))]
+        assert np.array_equal(model.best_position(scan), expected)
+        cells.add(tuple(expected))
+    assert (len(cells) > 5) == (exponent > 0)  # the walk's scans peak in many places
+    unknown = WifiScan(0.0, ("02:00:00:00:ff:ff",), np.array([-50.0], dtype=np.float32))
+    assert np.array_equal(model.best_position(unknown), model.cell_xy_m[0])
+    model.base = model.base.copy()
+    model.base[[7, 9]] = np.nan  # the first NaN wins, as in np.argmax
+    assert np.array_equal(model.best_position(scans[0]), model.cell_xy_m[7])
+    assert int(np.argmax(model.grid_log_likelihood(scans[0])[:-1])) == 7

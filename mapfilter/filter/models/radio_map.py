@@ -214,23 +214,29 @@ class RadioMapLikelihood(MeasurementModel):
         """Active grid cells (the prior cell not counted)."""
         return self.cell_xy_m.shape[0]
 
-    def grid_log_likelihood(self, scan: WifiScan) -> np.ndarray:
-        """Log-likelihood of the scan at every active cell plus the prior cell, shape (cells + 1,)."""
+    def _heard(self, scan: WifiScan) -> tuple[np.ndarray, np.ndarray]:
+        """(the scan's APs of the map with tables to be, as columns; their RSSI), tables built."""
         cols, rssi = [], []
         for key, value in zip(scan.ap_keys, scan.rssi_dbm):
             j = self.key_index.get(key)
             if j is not None:
                 cols.append(j)
                 rssi.append(float(value))
+        cols = np.array(cols, dtype=np.int64)
+        if cols.size:
+            self._build_tables(cols)
+        return cols, np.array(rssi)
+
+    def grid_log_likelihood(self, scan: WifiScan) -> np.ndarray:
+        """Log-likelihood of the scan at every active cell plus the prior cell, shape (cells + 1,)."""
+        cols, r = self._heard(scan)
         out = np.zeros(self.n_cells + 1)
-        if not cols:
+        if not cols.size:
             return out  # nothing known heard: no information
-        r = np.array(rssi)
-        self._build_tables(np.array(cols, dtype=np.int64))
         # every heard AP at its prior, then the cells where it has data replace that term
         out += self.base + len(cols) * self._prior_offset
         out -= 0.5 * self._prior_inv_var * float(((r - self._prior_mu_dbm) ** 2).sum())
-        _add_heard_corrections(out, np.array(cols, dtype=np.int64), r, self._ap_ptr, self._cell, self._mu,
+        _add_heard_corrections(out, cols, r, self._ap_ptr, self._cell, self._mu,
                                self._inv_var, self._offset, self._prior_offset, self._prior_mu_dbm,
                                self._prior_inv_var)
         return self.config.exponent * out
@@ -252,11 +258,19 @@ class RadioMapLikelihood(MeasurementModel):
         return LikelihoodKernel(_grid_lookup, np.concatenate([head, values[self.cell_of]]))
 
     def best_position(self, scan: WifiScan) -> np.ndarray:
-        """Centre of the active cell with the highest likelihood: the radio-map likelihood used alone."""
-        ll = self.grid_log_likelihood(scan)[:-1]
-        if ll.size == 0:
+        """Centre of the active cell with the highest likelihood: the radio-map likelihood used
+        alone (the first such cell, as ``np.argmax`` of ``grid_log_likelihood`` takes it: its
+        numbers made in one kernel, without the grid's temporaries)."""
+        if self.n_cells == 0:
             return np.full(2, np.nan)
-        return self.cell_xy_m[int(np.argmax(ll))]
+        cols, r = self._heard(scan)
+        if not cols.size:
+            return self.cell_xy_m[0]  # nothing known heard: every cell alike
+        quad = 0.5 * self._prior_inv_var * float(((r - self._prior_mu_dbm) ** 2).sum())
+        best = _best_cell(self.base, self._prior_offset, float(cols.size), quad, cols, r, self._ap_ptr, self._cell,
+                          self._mu, self._inv_var, self._offset, self._prior_mu_dbm, self._prior_inv_var,
+                          float(self.config.exponent))
+        return self.cell_xy_m[best]
 
 
 # ---- the tables a radio map file keeps (RadioMap.likelihood_tables) ------------------------------
@@ -604,3 +618,30 @@ def _add_heard_corrections(out, cols, rssi, ap_ptr, cell, mu, inv_var, offset, p
             c = cell[e]
             d = r - mu[e]
             out[c] += (offset[e] - 0.5 * inv_var[e] * d * d) - (prior_offset[c] - prior_quad)
+
+
+@njit(cache=True, nogil=True)
+def _best_cell(base, prior_offset, n_heard, quad, cols, rssi, ap_ptr, cell, mu, inv_var, offset, prior_mu,
+               prior_inv_var, exponent):
+    """``np.argmax(grid_log_likelihood(scan)[:-1])`` (``RadioMapLikelihood.best_position``): the
+    grid's values made as ``grid_log_likelihood`` makes them, term by term in its order (the
+    heard APs' priors, minus ``quad``: their quadratic terms' sum, then the corrections), the
+    first maximum (or first NaN, as numpy's) of the active cells."""
+    out = np.empty(base.shape[0])
+    for c in range(base.shape[0]):
+        out[c] = base[c] + n_heard * prior_offset[c]
+        out[c] -= quad
+    _add_heard_corrections(out, cols, rssi, ap_ptr, cell, mu, inv_var, offset, prior_offset, prior_mu,
+                           prior_inv_var)
+    best = 0
+    top = exponent * out[0]
+    if top != top:
+        return 0
+    for c in range(1, base.shape[0] - 1):
+        v = exponent * out[c]
+        if v != v:
+            return c
+        if v > top:
+            best = c
+            top = v
+    return best
