@@ -190,3 +190,47 @@ def test_a_filter_run_with_the_kernel_follows_the_numpy_model_draw_for_draw():
         np.testing.assert_allclose(xy_a, xy_b, rtol=0, atol=1e-9)
         np.testing.assert_allclose(lw_a, lw_b, rtol=0, atol=1e-9)
         np.testing.assert_allclose(est_a, est_b, rtol=0, atol=1e-9)
+
+
+def _numpy_change_floors(stack: FloorStack, particles: Particles, log_weight: np.ndarray, p: float,
+                         rng: np.random.Generator) -> tuple[np.ndarray, int]:
+    """FloorChanges.change_floors without connectors as plain numpy (the oracle: what the kernel
+    replaced), moving ``particles`` in place; (the log weights, how many landed)."""
+    xy = particles.xy_m
+    movers = np.flatnonzero(np.isfinite(log_weight) & (rng.random(len(particles)) < p))
+    moving = xy[movers]
+    dest = (stack.floor_of(moving) + rng.integers(1, stack.n_floors, movers.size)) % stack.n_floors
+    building_xy = stack.to_building(moving)
+    out = log_weight.copy()
+    for d in np.unique(dest):
+        sel = dest == d
+        point = stack.building.floors[d].from_building(building_xy[sel])
+        idx = movers[sel]
+        free = stack.building.floors[d].plan.is_free(point)
+        xy[idx[free]] = stack.to_stack(point[free], d)
+        out[idx[~free]] = -np.inf
+    return out, int(np.count_nonzero(np.isfinite(out[movers])))
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_the_floor_change_kernel_moves_and_kills_as_numpy_did(seed):
+    """FloorChanges.change_floors without connectors (``_change_anywhere``) against the numpy it
+    replaced, from one seed: the same particles moved to the same stack positions to the bit, the
+    same ones killed (their point no free space on the floor drawn), the same count landed."""
+    stack = _stack()
+    rng = np.random.default_rng(seed)
+    particles = _cloud(stack, rng)
+    changes = FloorChanges(stack, FloorChangeConfig(0.0, 0.3))
+    dt_s = 1.0
+    p = -math.expm1(-0.3 * dt_s)
+    oracle = Particles(particles.state.copy(), particles.log_weight.copy())
+    before = particles.xy_m.copy()
+    out = changes.change_floors(particles, particles.log_weight.copy(), dt_s, np.random.default_rng(seed + 10))
+    want, landed = _numpy_change_floors(stack, oracle, oracle.log_weight.copy(), p, np.random.default_rng(seed + 10))
+    np.testing.assert_array_equal(particles.state, oracle.state)
+    np.testing.assert_array_equal(out, want)
+    assert changes.changed_last_step == landed
+    moved = np.any(particles.xy_m != before, axis=1)
+    killed = np.isfinite(oracle.log_weight) & ~np.isfinite(out)
+    assert moved.sum() == landed > 50 and killed.sum() > 10  # some land, some find a wall
+    assert np.all(stack.floor_of(particles.xy_m[moved]) != stack.floor_of(before[moved]))

@@ -46,21 +46,25 @@ _NO_FIX_LOG_LIKELIHOOD = -4.5
 # tests/filter/test_floor_kernels.py holds them to numpy.
 
 @njit(cache=True, nogil=True)
-def _floor_index(x, tile_x_min, out):
+def _floor_at(x, tile_x_min):
     # np.searchsorted(tile_x_min, x, side="right") - 1 clipped to the floors (NaN: the last, as there)
     n_floors = tile_x_min.shape[0]
+    if x != x:
+        return n_floors - 1
+    f = 0
+    for k in range(1, n_floors):
+        if tile_x_min[k] <= x:
+            f = k
+        else:
+            break
+    return f
+
+
+@njit(cache=True, nogil=True)
+def _floor_index(x, tile_x_min, out):
+    # _floor_at of every x
     for i in range(x.shape[0]):
-        xi = x[i]
-        if xi != xi:
-            out[i] = n_floors - 1
-            continue
-        f = 0
-        for k in range(1, n_floors):
-            if tile_x_min[k] <= xi:
-                f = k
-            else:
-                break
-        out[i] = f
+        out[i] = _floor_at(x[i], tile_x_min)
 
 
 @njit(cache=True, nogil=True)
@@ -101,6 +105,39 @@ def _stack_to_building(x, y, tile_x_min, shift, frame, out):
         ly = y[i] - shift[f, 1]
         out[i, 0] = frame[f, 0] + frame[f, 2] * lx - frame[f, 3] * ly
         out[i, 1] = frame[f, 1] + frame[f, 3] * lx + frame[f, 2] * ly
+
+
+@njit(cache=True, nogil=True)
+def _change_anywhere(state, movers, step, tile_x_min, shift, frame, origin, tiles, mask, out):
+    # FloorChanges.change_floors without connectors, after the draws: mover j goes from its floor
+    # f to floor (f + step[j]) mod F at the same building-frame point (Floor.to_building's, then
+    # the destination's Floor.from_building's arithmetic), moved there (FloorStack.to_stack) where
+    # that point is free on the destination's plan (FloorPlan.is_free's arithmetic, read off its
+    # tile of the stack's mask), else killed where it stood (out = -inf); returns how many landed
+    n_floors = tile_x_min.shape[0]
+    landed = 0
+    for j in range(movers.shape[0]):
+        i = movers[j]
+        f = _floor_at(state[X, i], tile_x_min)
+        lx = state[X, i] - shift[f, 0]
+        ly = state[Y, i] - shift[f, 1]
+        bx = frame[f, 0] + frame[f, 2] * lx - frame[f, 3] * ly
+        by = frame[f, 1] + frame[f, 3] * lx + frame[f, 2] * ly
+        d = (f + step[j]) % n_floors
+        dx = bx - frame[d, 0]
+        dy = by - frame[d, 1]
+        px = frame[d, 2] * dx + frame[d, 3] * dy
+        py = -frame[d, 3] * dx + frame[d, 2] * dy
+        u = (px - origin[d, 0]) / origin[d, 2]
+        v = tiles[d, 2] - (py - origin[d, 1]) / origin[d, 2]
+        if 0.0 <= u < tiles[d, 3] and 0.0 <= v < tiles[d, 2] and \
+                not mask[tiles[d, 0] + int(math.floor(v)), tiles[d, 1] + int(math.floor(u))]:
+            state[X, i] = px + shift[d, 0]
+            state[Y, i] = py + shift[d, 1]
+            landed += 1
+        else:
+            out[i] = -math.inf  # no floor there: it dies where it stood
+    return landed
 
 
 @njit(cache=True, nogil=True)
@@ -246,7 +283,7 @@ class FloorStack:
         height_px = max(f.plan.shape_px[0] for f in building.floors) + 2 * gap
         width_px = sum(f.plan.shape_px[1] for f in building.floors) + gap * (len(building.floors) + 1)
         mask = np.ones((height_px, width_px), dtype=bool)
-        shifts, starts = [], []
+        shifts, starts, tiles = [], [], []
         col = gap
         for floor in building.floors:
             rows, cols = floor.plan.shape_px
@@ -255,8 +292,14 @@ class FloorStack:
             x0, y0 = floor.plan.origin_m
             shifts.append((col * res - x0, gap * res - y0))
             starts.append((col - gap / 2.0) * res)
+            tiles.append((height_px - gap - rows, col, rows, cols))
             col += cols + gap
         self.plan = FloorPlan(mask, res, (0.0, 0.0), None)
+        # per floor: (first row, first column, rows, columns) of its tile in the stack's mask, and
+        # (x0, y0, resolution) of its own plan: its ``is_free`` read off the stack's mask
+        self._tiles = np.array(tiles, dtype=np.int64)
+        self._plan_origins = np.array([(*f.plan.origin_m, f.plan.resolution_m) for f in building.floors],
+                                      dtype=np.float64)
         self.shift_m = np.array(shifts, dtype=np.float64)
         self.tile_x_min_m = np.array(starts, dtype=np.float64)
         # per floor (offset x, offset y, cos, sin) of its frame in the building's (Floor.to_building)
@@ -527,19 +570,12 @@ class FloorChanges(FloorModel):
         movers = np.flatnonzero(live & (rng.random(len(particles)) < p))
         if movers.size == 0:
             return log_weight
-        moving = xy[movers]
         # another floor, alike: add 1..F-1 to the floor index modulo F
-        dest = (stack.floor_of(moving) + rng.integers(1, stack.n_floors, movers.size)) % stack.n_floors
-        building_xy = stack.to_building(moving)
+        step = rng.integers(1, stack.n_floors, movers.size)
         out = log_weight.copy()
-        for d in np.unique(dest):
-            sel = dest == d
-            point = stack.building.floors[d].from_building(building_xy[sel])
-            idx = movers[sel]
-            free = stack.building.floors[d].plan.is_free(point)
-            xy[idx[free]] = stack.to_stack(point[free], d)
-            out[idx[~free]] = -np.inf  # no floor there: it dies where it stood
-        self.changed_last_step = int(np.count_nonzero(np.isfinite(out[movers])))
+        self.changed_last_step = int(_change_anywhere(particles.state, movers, step, stack.tile_x_min_m,
+                                                      stack.shift_m, stack._frames, stack._plan_origins,
+                                                      stack._tiles, stack.plan.wall_mask, out))
         particles.log_weight = out
         return out
 
