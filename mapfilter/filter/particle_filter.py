@@ -326,10 +326,12 @@ class ParticleFilter:
             run(passes.MOVE | passes.KILL | passes.WEIGH)  # the common step: one pass
         else:
             if self.floors.changes_floors:
-                run(passes.MOVE)
-                if self.motion.walks_in_steps and motion_input is not None:
+                if self.motion.walks_in_steps and motion_input is not None and self.floors.has_stairs:
+                    run(passes.MOVE)
                     moved.xy_m = self.floors.step_on_stairs(prev.xy_m, moved.xy_m, self.rng)
-                run(passes.KILL)
+                    run(passes.KILL)
+                else:  # no step shortened: the move and the wall check in one pass, block by block
+                    run(passes.MOVE | passes.KILL)
                 # floor changes after the wall check: the jump between floors is not a wall crossing
                 moved.log_weight[:] = self.floors.change_floors(moved, moved.log_weight, dt_s, self.rng,
                                                                 measurement)

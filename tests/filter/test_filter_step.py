@@ -250,7 +250,7 @@ def test_a_model_written_outside_the_package_plugs_in():
     assert not report.resampled and 0.3 < alive.mean() < 0.9 and (pf.particles.xy_m[alive, 0] > 34.0).all()
 
 
-# ---- a building's floors: the pass runs in three calls around the floor changes ------------------
+# ---- a building's floors: the pass runs in calls around the floor changes (three with stairs, two without)
 def _stack_filter(tmp_path, motion, n=3000, seed=0, connectors=False, rates=(0.0, 0.05)):
     from mapfilter.filter.models.building import FloorChangeConfig, FloorChanges, FloorStack
     from tests.sensors.test_floors import _building
@@ -298,3 +298,33 @@ def test_on_a_buildings_stairs_a_pdr_step_advances_a_tread(tmp_path):
     moved_m = np.linalg.norm(pf.particles.xy_m - start, axis=1)
     # a tread on the stairs; off them the 0.7 m stride with its slack (5 sigma below it is still no tread)
     assert (moved_m[:200] <= hi + 0.05).all() and (moved_m[200:] >= hi + 0.1).all()
+
+
+def test_without_stairs_the_move_and_the_wall_check_in_one_call_are_the_two_calls(tmp_path):
+    """A building without stairs moves and checks walls in one call of the pass; the two calls a
+    building with stairs makes (its steps shortened between them, here none: no stairs) give the
+    same clouds to the bit, step by step, floor changes and weighing included."""
+    from mapfilter.filter.models.building import FloorChanges, FloorFix, FloorFixLikelihood
+
+    class SaysItHasStairs(FloorChanges):
+        has_stairs = True  # the filter takes the two calls; step_on_stairs still shortens nothing
+
+    runs = []
+    for split in (False, True):
+        stack, changes, pf = _stack_filter(tmp_path, PDRMotion(), seed=5, rates=(0.0, 0.05))
+        if split:
+            changes.__class__ = SaysItHasStairs
+        assert pf.floors.has_stairs == split
+        model = FloorFixLikelihood(stack, np.full(3, 3.0))
+        fix = FloorFix(stack.to_stack(np.array([[10.0, 5.0]] * 3), np.arange(3)), np.log([0.2, 0.6, 0.2]))
+        pf.initialise_from_measurement(0.0, model, fix)
+        clouds = []
+        for k in range(1, 16):
+            report = pf.step(float(k), 0.6, StepInput(1, 0.1), model, fix if k % 3 == 0 else None)
+            clouds.append((pf.particles.state.copy(), pf.particles.log_weight.copy(), report.n_killed,
+                           report.floor_changes))
+        runs.append(clouds)
+    assert sum(c[2] for c in runs[0]) > 0 and sum(c[3] for c in runs[0]) > 0  # walls killed, floors changed
+    for (state_a, lw_a, killed_a, changed_a), (state_b, lw_b, killed_b, changed_b) in zip(*runs):
+        assert np.array_equal(state_a, state_b) and np.array_equal(lw_a, lw_b, equal_nan=True)
+        assert killed_a == killed_b and changed_a == changed_b

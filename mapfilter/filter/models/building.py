@@ -472,6 +472,10 @@ class FloorChanges(FloorModel):
         return bool(self.connector_cells)
 
     @property
+    def has_stairs(self) -> bool:
+        return self._has_stairs
+
+    @property
     def plan(self) -> FloorPlan:
         return self.stack.plan
 

@@ -122,6 +122,7 @@ class FloorModel(Protocol):
 
     plan: FloorPlan  # the state space: particles live on its free pixels
     changes_floors: bool = False  # False: the filter skips the hooks below that change nothing
+    has_stairs: bool = False  # False: ``step_on_stairs`` gives every step as it is (the filter skips it)
 
     def step_on_stairs(self, from_xy_m: np.ndarray, to_xy_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One step's end points with the steps that start on stairs shortened to a tread."""
