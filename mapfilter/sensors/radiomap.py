@@ -788,7 +788,7 @@ def _distances_to_references(radio_map: RadioMap, scans: np.ndarray, p: float, m
     ``per_ap``: the p-th power mean over the APs heard by either side instead of the sum."""
     refs = _reference_rows(radio_map, min_rssi_dbm)
     rows = _sparse_rows(_below_floor_unheard(scans, min_rssi_dbm))
-    if p == 2.0 and _integral(rows.val, missing_dbm) and _integral(refs.val, missing_dbm):
+    if p == 2.0 and _integral(rows.val, missing_dbm) and _integral_references(radio_map, min_rssi_dbm, missing_dbm):
         return _squared_distances_by_products(rows, refs, len(radio_map.ap_keys), float(missing_dbm), per_ap)
     dist = np.empty((scans.shape[0], len(radio_map)))
     shared = np.empty((scans.shape[0], len(radio_map)), dtype=np.int64)
@@ -803,40 +803,76 @@ def _integral(values: np.ndarray, missing_dbm: float) -> bool:
             and bool(np.all(values == np.round(values))))
 
 
+def _integral_references(radio_map: RadioMap, min_rssi_dbm: float | None, missing_dbm: float) -> bool:
+    """``_integral`` of the radio map's sparse rows (``_reference_rows``), kept with them."""
+    refs = _reference_rows(radio_map, min_rssi_dbm)
+    kept = radio_map._sparse_refs[1]
+    if ("integral", min_rssi_dbm) not in kept:
+        kept[("integral", min_rssi_dbm)] = _integral(refs.val, 0.0)
+    return float(missing_dbm).is_integer() and kept[("integral", min_rssi_dbm)]
+
+
 def _squared_distances_by_products(rows: _SparseRows, refs: _SparseRows, n_aps: int,
                                    missing_dbm: float, per_ap: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """``_signal_distances`` for p = 2 as matrix products: with every reading shifted by
-    -missing_dbm an AP heard on one side only is the other side's 0, and one heard by neither
-    adds 0, so D^2 = |a|^2 + |b|^2 - 2 a.b over all APs, where a.b needs only the APs the scans
-    heard. On whole dBm every term and partial sum is an integer far below 2^53: the same D^2 to
-    the last bit as the pairwise merge (whatever order the sums take), and the same root; 10-20x
-    faster on a mall's radio map (a point hears 200 of 2,000 APs). ``per_ap``: D^2 divided by
-    the APs either side heard (each side's count less the shared ones), as the merge divides it."""
-    a_val, b_val = rows.val - missing_dbm, refs.val - missing_dbm
+    """``_signal_distances`` for p = 2 as products: with every reading shifted by -missing_dbm an
+    AP heard on one side only is the other side's 0, and one heard by neither adds 0, so D^2 =
+    |a|^2 + |b|^2 - 2 a.b over all APs, where a.b needs only the APs the scans heard. On whole dBm
+    every term and partial sum is an integer far below 2^53: the same D^2 to the last bit as the
+    pairwise merge (whatever order the sums take), and the same root; 10-20x faster on a mall's
+    radio map (a point hears 200 of 2,000 APs). The products run over each point's readings of
+    the scans' APs (``_sparse_products``: a point hears a few of them), not over dense matrices.
+    ``per_ap``: D^2 divided by the APs either side heard (each side's count less the shared
+    ones), as the merge divides it."""
+    a_val = rows.val - missing_dbm
     heard = np.unique(rows.col)  # the APs any scan heard: the only columns of a.b
     column = np.full(n_aps, -1, dtype=np.int64)
     column[heard] = np.arange(heard.size)
-
-    def dense(r: _SparseRows, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(rows x heard APs) shifted readings and 0/1 heard, of the columns in ``heard``."""
-        row = np.repeat(np.arange(r.ptr.size - 1), np.diff(r.ptr))
-        keep = column[r.col] >= 0
-        out, ones = np.zeros((r.ptr.size - 1, heard.size)), np.zeros((r.ptr.size - 1, heard.size))
-        out[row[keep], column[r.col[keep]]] = values[keep]
-        ones[row[keep], column[r.col[keep]]] = 1.0
-        return out, ones
-
-    a, a_heard = dense(rows, a_val)
-    b, b_heard = dense(refs, b_val)
-    cross = a @ b.T
-    shared = (a_heard @ b_heard.T).astype(np.int64)
-    na, nb = _row_sums(rows, a_val * a_val), _row_sums(refs, b_val * b_val)
-    squared = na[:, None] + nb[None, :] - 2.0 * cross
-    if per_ap:  # a pair with no AP heard by either side keeps its 0, as in the merge
-        either = np.diff(rows.ptr)[:, None] + np.diff(refs.ptr)[None, :] - shared
-        np.divide(squared, either, out=squared, where=either > 0)
+    n_scans = rows.ptr.size - 1
+    # the scans' shifted readings and 0/1 heard, AP by scan (a point's reading meets every scan at once)
+    row = np.repeat(np.arange(n_scans), np.diff(rows.ptr))
+    a, a_heard = np.zeros((heard.size, n_scans)), np.zeros((heard.size, n_scans), dtype=np.int64)
+    a[column[rows.col], row] = a_val
+    a_heard[column[rows.col], row] = 1
+    squared = np.empty((n_scans, refs.ptr.size - 1))
+    shared = np.empty((n_scans, refs.ptr.size - 1), dtype=np.int64)
+    _sparse_products(a, a_heard, refs.ptr, refs.col, refs.val, column, float(missing_dbm),
+                     _row_sums(rows, a_val * a_val), np.diff(rows.ptr), bool(per_ap), squared, shared)
     _root_in_place(squared, 2.0)
     return squared, shared
+
+
+@njit(cache=True, nogil=True)
+def _sparse_products(a, a_heard, r_ptr, r_col, r_val, column, missing_dbm, na, row_count, per_ap, squared, shared):
+    """Per reference point p (its readings ``r_*``, CSR): b = its readings shifted by
+    -``missing_dbm``, |b|^2 over all of them, a.b and the shared count over those of the scans'
+    APs (``column``: an AP's row of ``a``, the scans' shifted readings AP by scan, -1 for one no
+    scan heard); D^2 = |a|^2 + |b|^2 - 2 a.b (``na``: the scans' |a|^2) into ``squared[:, p]``,
+    divided with ``per_ap`` by the APs either side heard where any."""
+    n_scans = a.shape[1]
+    cross = np.empty(n_scans)
+    count = np.empty(n_scans, dtype=np.int64)
+    for p in range(r_ptr.shape[0] - 1):
+        cross[:] = 0.0
+        count[:] = 0
+        nb = 0.0
+        for e in range(r_ptr[p], r_ptr[p + 1]):
+            b = r_val[e] - missing_dbm
+            nb += b * b
+            j = column[r_col[e]]
+            if j < 0:
+                continue
+            for s in range(n_scans):
+                cross[s] += a[j, s] * b
+                count[s] += a_heard[j, s]
+        n_ref = r_ptr[p + 1] - r_ptr[p]
+        for s in range(n_scans):
+            value = na[s] + nb - 2.0 * cross[s]
+            if per_ap:  # a pair with no AP heard by either side keeps its 0, as in the merge
+                either = row_count[s] + n_ref - count[s]
+                if either > 0:
+                    value = value / either
+            squared[s, p] = value
+            shared[s, p] = count[s]
 
 
 def _row_sums(r: _SparseRows, values: np.ndarray) -> np.ndarray:
