@@ -46,25 +46,21 @@ _NO_FIX_LOG_LIKELIHOOD = -4.5
 # tests/filter/test_floor_kernels.py holds them to numpy.
 
 @njit(cache=True, nogil=True)
-def _floor_at(x, tile_x_min):
+def _floor_index(x, tile_x_min, out):
     # np.searchsorted(tile_x_min, x, side="right") - 1 clipped to the floors (NaN: the last, as there)
     n_floors = tile_x_min.shape[0]
-    if x != x:
-        return n_floors - 1
-    f = 0
-    for k in range(1, n_floors):
-        if tile_x_min[k] <= x:
-            f = k
-        else:
-            break
-    return f
-
-
-@njit(cache=True, nogil=True)
-def _floor_index(x, tile_x_min, out):
-    # _floor_at of every x
     for i in range(x.shape[0]):
-        out[i] = _floor_at(x[i], tile_x_min)
+        xi = x[i]
+        if xi != xi:
+            out[i] = n_floors - 1
+            continue
+        f = 0
+        for k in range(1, n_floors):
+            if tile_x_min[k] <= xi:
+                f = k
+            else:
+                break
+        out[i] = f
 
 
 @njit(cache=True, nogil=True)
@@ -115,10 +111,12 @@ def _change_anywhere(state, movers, step, tile_x_min, shift, frame, origin, tile
     # that point is free on the destination's plan (FloorPlan.is_free's arithmetic, read off its
     # tile of the stack's mask), else killed where it stood (out = -inf); returns how many landed
     n_floors = tile_x_min.shape[0]
+    where = np.empty(1, dtype=np.int64)
     landed = 0
     for j in range(movers.shape[0]):
         i = movers[j]
-        f = _floor_at(state[X, i], tile_x_min)
+        _floor_index(state[X, i:i + 1], tile_x_min, where)
+        f = where[0]
         lx = state[X, i] - shift[f, 0]
         ly = state[Y, i] - shift[f, 1]
         bx = frame[f, 0] + frame[f, 2] * lx - frame[f, 3] * ly
