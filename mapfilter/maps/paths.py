@@ -96,14 +96,14 @@ def free_path(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarray,
     cols, rows = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
     if np.any((cols < 0) | (cols >= width) | (rows < 0) | (rows >= height)):
         return None
-    free = ~floorplan.wall_mask
-    if not (free[rows[0], cols[0]] and free[rows[1], cols[1]]):
+    wall = floorplan.wall_mask
+    if wall[rows[0], cols[0]] or wall[rows[1], cols[1]]:
         return None
     margin_px = int(math.ceil(margin_m / floorplan.resolution_m))
     for pad in (margin_px, max(height, width)):
         r0, r1 = max(rows.min() - pad, 0), min(rows.max() + pad + 1, height)
         c0, c1 = max(cols.min() - pad, 0), min(cols.max() + pad + 1, width)
-        window = free[r0:r1, c0:c1]
+        window = ~wall[r0:r1, c0:c1]  # the window's free pixels (not the whole plan's: a building's is large)
         ends = ((rows[0] - r0, cols[0] - c0), (rows[1] - r0, cols[1] - c0))
         k = 1 if max_cells is None else max(1, math.ceil(math.sqrt(window.size / max_cells)))
         if k > 1:
