@@ -145,6 +145,7 @@ class ParticleFilter:
         self.collapses: list[CollapseEvent] = []
         self.last_parents: np.ndarray | None = None  # (N,) each particle's parent in the step before (-1: none)
         self._step_index = 0
+        self._estimate_floor_shares: np.ndarray | None = None  # the latest estimate's cloud's floor shares (a building)
         self._parents_unknown = True
         self._last_measurement: tuple[float, Any, Any] | None = None  # (t_s, model, measurement)
         self._recovery_level = 0
@@ -190,8 +191,11 @@ class ParticleFilter:
         mode everywhere costs IPIN 9 % (docs/accuracy.md, "The reported estimate")."""
         stack = getattr(self.floors, "stack", None)
         w = weights
+        self._estimate_floor_shares = None
         if stack is not None:  # the floor holding most of the weight: a mode between floors' tiles is no place
-            w, w_mean, cov = stack.main_floor_moments(xy_m, weights)  # its weights and their moments
+            self._estimate_floor_shares = np.empty(stack.n_floors)  # the step's report takes them from here
+            # its weights and their moments
+            w, w_mean, cov = stack.main_floor_moments(xy_m, weights, self._estimate_floor_shares)
         if std_m is None or mean is None or stack is not None:  # the moments of the weight w, in one pass
             if stack is None:
                 w_mean, cov = weighted_moments(xy_m, w)
@@ -297,6 +301,7 @@ class ParticleFilter:
             raise RuntimeError("initialise the filter before stepping it")
         step_index = self._step_index
         self._step_index += 1
+        self._estimate_floor_shares = None  # set by this step's estimate
         prev = self.particles
         measured = model is not None and measurement is not None
         self.last_jitter_m2 = 0.0  # the variance per axis of this step's jitter (the smoother's transition)
@@ -502,5 +507,6 @@ class ParticleFilter:
             fix_xy_m=None if fix_xy is None else np.asarray(fix_xy, dtype=np.float64).ravel()[:2].copy(),
             heard_ap_xy_m=model.heard_ap_xy_m(measurement) if model is not None else None,
             path_loss=model.viewer_state() if model is not None else None,
-            **self.floors.report(new.xy_m, weights, self.estimate_xy_m),
+            # the estimate was made of this cloud (new, weights) this step: its floor shares are the report's
+            **self.floors.report(new.xy_m, weights, self.estimate_xy_m, self._estimate_floor_shares),
         )

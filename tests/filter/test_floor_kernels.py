@@ -137,7 +137,8 @@ def test_the_floor_fix_kernel_collapses_and_weighs_floors_alone_as_numpy_does():
 
 def test_the_stacks_floor_kernels_give_numpys_numbers_to_the_last_bit():
     """floor_of (NaN and points off every tile too), floor_shares (np.bincount), to_building (each
-    floor's Floor.to_building) and main_floor_moments (weighted_moments of the main floor's weights)."""
+    floor's Floor.to_building) and main_floor_moments (weighted_moments of the main floor's weights,
+    and the floor shares it gives the step's report)."""
     stack = _stack()
     rng = np.random.default_rng(13)
     particles = _cloud(stack, rng)
@@ -157,11 +158,13 @@ def test_the_stacks_floor_kernels_give_numpys_numbers_to_the_last_bit():
     np.testing.assert_array_equal(stack.to_building(xy), want)
     main = int(np.argmax(np.bincount(floor, weights, stack.n_floors)))
     w_main = np.where(floor == main, weights, 0.0)
-    w, mean, cov = stack.main_floor_moments(xy, weights)
+    shares = np.full(stack.n_floors, np.nan)
+    w, mean, cov = stack.main_floor_moments(xy, weights, shares)
     want_mean, want_cov = weighted_moments(xy, w_main)
     np.testing.assert_array_equal(w, w_main)
     np.testing.assert_array_equal(mean, want_mean)
     np.testing.assert_array_equal(cov, want_cov)
+    np.testing.assert_array_equal(shares, np.bincount(floor, weights, stack.n_floors))  # the report's floor shares
 
 
 def test_a_filter_run_with_the_kernel_follows_the_numpy_model_draw_for_draw():

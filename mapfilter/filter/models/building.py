@@ -75,9 +75,9 @@ def _floor_sums(x, weights, tile_x_min, out):
 
 
 @njit(cache=True, nogil=True)
-def _main_floor_moments(x, y, weights, tile_x_min, w_out):
-    # the weights of the floor with most weight (w_out, zero elsewhere) and their moments
-    shares = np.empty(tile_x_min.shape[0])
+def _main_floor_moments(x, y, weights, tile_x_min, w_out, shares):
+    # the weights of the floor with most weight (w_out, zero elsewhere) and their moments; each
+    # floor's weight (_floor_sums) into shares
     floor = _floor_sums(x, weights, tile_x_min, shares)
     best = 0
     for f in range(1, shares.shape[0]):
@@ -341,15 +341,16 @@ class FloorStack:
                     writable(weights), self.tile_x_min_m, out)
         return out
 
-    def main_floor_moments(self, stack_xy_m: np.ndarray, weights: np.ndarray
+    def main_floor_moments(self, stack_xy_m: np.ndarray, weights: np.ndarray, shares: np.ndarray | None = None
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(the weights of the floor holding most of the weight, zero on the others (N,); their
-        weighted mean (2,) and covariance (2, 2), as ``weighted_moments`` gives them), in one go."""
+        weighted mean (2,) and covariance (2, 2), as ``weighted_moments`` gives them), in one go;
+        ``shares`` (F,), if given, gets ``floor_shares`` of the same cloud."""
         xy = np.asarray(stack_xy_m, dtype=np.float64)
         w = np.empty(len(xy))
         _, mx, my, sxx, sxy, syy = _main_floor_moments(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
-                                                       writable(weights),
-                                                       self.tile_x_min_m, w)
+                                                       writable(weights), self.tile_x_min_m, w,
+                                                       np.empty(self.n_floors) if shares is None else shares)
         return w, np.array([mx, my]), np.array([[sxx, sxy], [sxy, syy]])
 
     def estimate(self, stack_xy_m: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float, bool]:
@@ -385,7 +386,8 @@ class OneFloor(FloorModel):
     def covariance(self, xy_m: np.ndarray, weights: np.ndarray) -> np.ndarray:
         return weighted_moments(xy_m, weights)[1]
 
-    def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray) -> dict:
+    def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray,
+               floor_shares: np.ndarray | None = None) -> dict:
         return {}
 
     def change_probability(self, xy_m: np.ndarray, dt_s: float) -> np.ndarray:
@@ -485,8 +487,9 @@ class FloorChanges(FloorModel):
         # across the stack's tiles, which would make the jitter as wide as the building
         return weighted_moments(self.stack.to_building(xy_m), weights)[1]
 
-    def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray) -> dict:
-        return {"floor_shares": self.stack.floor_shares(xy_m, weights),
+    def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray,
+               floor_shares: np.ndarray | None = None) -> dict:
+        return {"floor_shares": self.stack.floor_shares(xy_m, weights) if floor_shares is None else floor_shares,
                 "floor_index": int(self.stack.floor_of(estimate_xy_m[None, :])[0]),
                 "floor_changes": self.changed_last_step}
 

@@ -142,8 +142,10 @@ class FloorModel(Protocol):
         """(2, 2) the cloud's weighted covariance, for the regularisation's jitter."""
         ...
 
-    def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray) -> dict:
-        """The floor fields of a ``StepReport`` (none on one floor)."""
+    def report(self, xy_m: np.ndarray, weights: np.ndarray, estimate_xy_m: np.ndarray,
+               floor_shares: np.ndarray | None = None) -> dict:
+        """The floor fields of a ``StepReport`` (none on one floor); ``floor_shares``: the cloud's
+        share on each floor when the caller has it already (of these positions and weights)."""
         ...
 
     def change_probability(self, xy_m: np.ndarray, dt_s: float) -> np.ndarray:
