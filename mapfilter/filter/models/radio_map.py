@@ -216,16 +216,12 @@ class RadioMapLikelihood(MeasurementModel):
 
     def _heard(self, scan: WifiScan) -> tuple[np.ndarray, np.ndarray]:
         """(the scan's APs of the map with tables to be, as columns; their RSSI), tables built."""
-        cols, rssi = [], []
-        for key, value in zip(scan.ap_keys, scan.rssi_dbm):
-            j = self.key_index.get(key)
-            if j is not None:
-                cols.append(j)
-                rssi.append(float(value))
-        cols = np.array(cols, dtype=np.int64)
-        if cols.size:
+        heard = [(j, value) for j, value in zip(map(self.key_index.get, scan.ap_keys),
+                                                np.asarray(scan.rssi_dbm).tolist()) if j is not None]
+        cols = np.array([j for j, _ in heard], dtype=np.int64)
+        if cols.size and not self._built[cols].all():
             self._build_tables(cols)
-        return cols, np.array(rssi)
+        return cols, np.array([value for _, value in heard], dtype=np.float64)
 
     def grid_log_likelihood(self, scan: WifiScan) -> np.ndarray:
         """Log-likelihood of the scan at every active cell plus the prior cell, shape (cells + 1,)."""
