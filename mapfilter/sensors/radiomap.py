@@ -898,7 +898,7 @@ def _kwnn_from_distances(ref_xy_m: np.ndarray, dist: np.ndarray, shared: np.ndar
     n_scans, n_refs = dist.shape
     dist[shared < max(min_shared_aps, 1)] = np.inf
     kk = min(k, n_refs)
-    order = np.argsort(dist, axis=1, kind="stable")[:, :kk]
+    order = _k_smallest(np.ascontiguousarray(dist), kk)
     d_nn = np.take_along_axis(dist, order, axis=1)
     valid = np.isfinite(d_nn)
     # an exact match (D = 0) takes all the weight instead of dividing by zero
@@ -910,6 +910,36 @@ def _kwnn_from_distances(ref_xy_m: np.ndarray, dist: np.ndarray, shared: np.ndar
     ok = total > 0
     xy[ok] = (weight[ok, :, None] * ref_xy_m[order[ok]]).sum(axis=1) / total[ok, None]
     return KwnnFix(xy, np.where(valid, order, -1), np.where(valid, d_nn, np.nan), n_shared_aps)
+
+
+@njit(cache=True, nogil=True)
+def _k_smallest(values, k):
+    """(R, k) ``np.argsort(values, axis=1, kind="stable")[:, :k]`` without sorting whole rows: each
+    row's k smallest in order, equal values by index and NaN after everything (numpy's order),
+    kept by insertion in one pass (k is a handful, a row thousands of points)."""
+    rows, n = values.shape
+    out = np.empty((rows, k), dtype=np.int64)
+    for r in range(rows):
+        row = values[r]
+        kept = 0
+        for i in range(n):
+            v = row[i]
+            if kept == k:  # only a value before the last kept one gets in
+                last = row[out[r, k - 1]]
+                if not (v < last or (last != last and v == v)):
+                    continue
+                kept -= 1
+            j = kept  # after every kept value not above it (stable; NaN sorts last)
+            while j > 0:
+                w = row[out[r, j - 1]]
+                if v < w or (w != w and v == v):
+                    out[r, j] = out[r, j - 1]
+                    j -= 1
+                else:
+                    break
+            out[r, j] = i
+            kept += 1
+    return out
 
 
 def kwnn_fix_many(radio_map: RadioMap, scan_rssi_dbm: np.ndarray, k: int = 4, p: float = 2.0, q: float = 2.0,

@@ -729,3 +729,23 @@ def test_a_building_builds_a_floors_own_radio_map_likelihood_only_when_a_scan_ne
     assert built == used and built[0] and not built[top]
     np.testing.assert_array_equal(lazy.fix_xy_m, eager.fix_xy_m)
     assert np.isfinite(lazy.fix_xy_m).all(axis=2).any(axis=1).all()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_k_nearest_are_numpys_stable_argsort_head(seed):
+    """Oracle: ``_k_smallest`` (the KWNN fix's k nearest points, one pass) against
+    ``np.argsort(kind="stable")[:, :k]``: many equal distances (whole-dB values), infinities (too
+    few shared APs), NaN, and k up to the row's length."""
+    from mapfilter.sensors.radiomap import _k_smallest
+
+    rng = np.random.default_rng(seed)
+    values = np.round(rng.uniform(0.0, 12.0, (60, 40)))
+    values[rng.random(values.shape) < 0.2] = np.inf
+    values[rng.random(values.shape) < 0.05] = np.nan
+    values[3] = np.inf
+    values[4] = 7.0
+    values[5] = np.nan
+    for k in (1, 4, 11, 40):
+        want = np.argsort(values, axis=1, kind="stable")[:, :k]
+        np.testing.assert_array_equal(_k_smallest(values, k), want)
+    assert _k_smallest(np.zeros((0, 5)), 3).shape == (0, 3)
