@@ -459,12 +459,20 @@ def wall_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> l
     fills = []
     for angle, dominance in ((0.0, 1), (45.0, 2)):
         turned = wall if angle == 0 else _rotate(wall, angle)
-        along_x = _run_lengths(turned)
-        along_y = np.ascontiguousarray(_run_lengths(turned.T).T)
+        # worked in the walls' box and a gap's length round it (a closing reaches half of it
+        # beyond the walls, and looks half of it further): the same as over the whole canvas
+        box = _ink_box(turned, length)
+        if box is None:
+            fills += [np.zeros_like(wall), np.zeros_like(wall)]
+            continue
+        near = np.ascontiguousarray(turned[box])
+        along_x = _run_lengths(near)
+        along_y = np.ascontiguousarray(_run_lengths(near.T).T)
         # (off the walls both lengths are 0, below `shortest`)
         for running, kernel in (((along_x >= dominance * along_y) & (along_x >= shortest), np.ones((1, length), np.uint8)),
                                 ((along_y >= dominance * along_x) & (along_y >= shortest), np.ones((length, 1), np.uint8))):
-            closed = cv2.morphologyEx(running.view(np.uint8), cv2.MORPH_CLOSE, kernel).view(bool) & ~turned
+            closed = np.zeros_like(turned)
+            closed[box] = cv2.morphologyEx(running.view(np.uint8), cv2.MORPH_CLOSE, kernel).view(bool) & ~near
             if angle:
                 closed = _rotate(closed, -angle, wall.shape) & ~wall
             fills.append(_thin_enough(closed, resolution_m))
@@ -582,13 +590,19 @@ def _enclosed(wall: np.ndarray, radius_px: float) -> np.ndarray:
     """The building: ``wall`` closed by a disc of ``radius_px``, its holes filled, the pieces of at
     least a quarter of the largest one's area (a title block, a scale bar, a north arrow is none)."""
     pad = int(math.ceil(radius_px)) + 2
-    padded = cv2.copyMakeBorder(wall.astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0).astype(bool)
+    filled = np.zeros_like(wall)
+    # in the walls' box and the closing's reach round it (beyond it, paper all round the walls:
+    # the outside): the same as over the whole image
+    near = _ink_box(wall, pad)
+    if near is None:
+        return filled
+    padded = cv2.copyMakeBorder(wall[near].astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0).astype(bool)
     closed = _close_by_distance(padded, radius_px)[pad:-pad, pad:-pad]
     count, labels = cv2.connectedComponents((~closed).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     outer = np.zeros(count, dtype=bool)
     outer[border[border > 0]] = True
-    filled = ~outer[labels]  # closed walls and their holes
+    filled[near] = ~outer[labels]  # closed walls and their holes
     box = _ink_box(filled)
     if box is None:
         return filled
