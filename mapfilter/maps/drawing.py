@@ -67,6 +67,7 @@ STROKE_REACH_M = 0.5  # thin strokes close the outline this far beyond the walls
 OPEN_SHARE = 0.45  # a piece enclosed by thin strokes is outside when this share of its edge is thin with the outside beyond
 LEAK_SHARE = 0.7  # the outline leaked when it holds less than this share of the rough outline's free space
 SMALL_GAP_M = 0.3  # scan breaks in the outer wall once its windows and doors are filled
+NETWORK_MARGIN_M = 1.0  # the segmenter sees the building's outline and this much round it (not the sheet's margins)
 SLIVER_M2 = 1.0  # free space touching the outside and smaller than this is a gap's or a corner's sliver  # a sheet frame is a ring of ink at most this thick on average (area / perimeter)
 
 
@@ -646,10 +647,13 @@ def _with_segmenter(wall: np.ndarray, inside: np.ndarray | None, evened: np.ndar
     the network has a wall within 3 px: the network tells furniture, fixtures, stairs and tiles
     from walls better, the strokes find the doors open and the walls' exact edges. (It misses
     faint grey walls on shaded paper: tests/maps/test_drawing.py, test 4.) The outside is what both
-    take for outside. Unchanged when the drawing is too large for the network."""
+    take for outside. Unchanged when the drawing is too large for the network. The network sees
+    the strokes' outline of the building and ``NETWORK_MARGIN_M`` round it (the walls' box when the
+    outside is kept): beyond it is the outside, or no wall."""
     from mapfilter.maps.segmenter import network_walls
 
-    learned = network_walls(evened, resolution_m)
+    region = _ink_box(wall if inside is None else inside, int(NETWORK_MARGIN_M / resolution_m))
+    learned = network_walls(evened, resolution_m, region)
     if learned is None:
         return wall, inside
     learned = _drop_frames(learned, resolution_m)

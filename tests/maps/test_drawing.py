@@ -430,3 +430,29 @@ def test_the_segmenter_ships_with_the_package_and_finds_walls_not_furniture():
                                                              np.ones((15, 15), np.uint8)).astype(bool)
     assert furniture.sum() > 500 and walls[furniture].mean() < 0.2
     assert segmenter.network_walls(np.full((5000, 5000), 255, np.uint8), 0.1) is None
+
+
+def test_the_segmenter_run_over_a_region_sees_the_same_grid_and_no_wall_beyond():
+    """Run over the building's box and a margin, the network's walls are those of the whole
+    drawing (but near the box's edges, where it sees less round them) and there are none beyond the
+    box; over a region holding the whole drawing, the same pixel for pixel."""
+    from mapfilter.maps import segmenter
+
+    plan = plangen.draw_plan(np.random.default_rng(0), plangen.house_layout(), style=plangen.plain_style())
+    evened = drawing.even_paper(plan.image, plan.resolution_m)
+    whole = segmenter.network_walls(evened, plan.resolution_m)
+    everything = (slice(0, evened.shape[0]), slice(0, evened.shape[1]))
+    np.testing.assert_array_equal(segmenter.network_walls(evened, plan.resolution_m, everything), whole)
+    rows, cols = np.nonzero(plan.walls)
+    margin = int(1.0 / plan.resolution_m)
+    region = (slice(max(0, rows.min() - margin), rows.max() + margin),
+              slice(max(0, cols.min() - margin), cols.max() + margin))
+    assert region[0].start > 0 and region[1].start > 0  # (paper round the box: a region smaller than the drawing)
+    part = segmenter.network_walls(evened, plan.resolution_m, region)
+    beyond = np.ones_like(part)
+    beyond[region] = False
+    assert not part[beyond].any()
+    agree = (part == whole)[region]
+    assert agree.mean() > 0.995
+    inner = plan.walls & ~cv2.dilate((~plan.walls).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    assert part[inner].mean() > 0.95
