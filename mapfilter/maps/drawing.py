@@ -67,6 +67,7 @@ STROKE_REACH_M = 0.5  # thin strokes close the outline this far beyond the walls
 OPEN_SHARE = 0.45  # a piece enclosed by thin strokes is outside when this share of its edge is thin with the outside beyond
 LEAK_SHARE = 0.7  # the outline leaked when it holds less than this share of the rough outline's free space
 SMALL_GAP_M = 0.3  # scan breaks in the outer wall once its windows and doors are filled
+NETWORK_OUTLINE_M = 0.06  # the outline of the segmenter's walls is found at about this many metres per pixel
 NETWORK_MARGIN_M = 1.0  # the segmenter sees the building's outline and this much round it (not the sheet's margins)
 SLIVER_M2 = 1.0  # free space touching the outside and smaller than this is a gap's or a corner's sliver  # a sheet frame is a ring of ink at most this thick on average (area / perimeter)
 
@@ -481,7 +482,7 @@ def wall_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> l
 
 
 def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float,
-                       strokes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                       strokes: np.ndarray | None = None, about_m: float = WORK_M) -> tuple[np.ndarray, np.ndarray]:
     """(inside the building, the filled gaps of its outer wall).
 
     The walls with every gap between wall ends in line closed (:func:`wall_gap_fills`) enclose
@@ -493,9 +494,12 @@ def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float,
     outline as well, so that windows drawn in thin lines (a run of them over several metres, a
     curved bay's glazing) do not let the outside in. What they enclose beyond the walls' own
     outline is taken in only where it is bounded mostly by walls (rooms behind a window run); a
-    terrace or a balcony, bounded by a façade and thin rails, is not."""
+    terrace or a balcony, bounded by a façade and thin rails, is not.
+
+    It is found on a copy of the walls reduced to about ``about_m`` metres per pixel (a whole
+    number of pixels to one)."""
     # at about WORK_M per pixel: walls stay two pixels thick, and it is many times faster
-    factor = max(1, int(WORK_M / resolution_m))
+    factor = max(1, int(about_m / resolution_m))
     work, ratio = _reduce(wall, factor, 0.3)
     work_m = resolution_m * ratio
     barrier = work
@@ -643,7 +647,8 @@ def _drop_outer_slivers(wall: np.ndarray, inside: np.ndarray, resolution_m: floa
 def _with_segmenter(wall: np.ndarray, inside: np.ndarray | None, evened: np.ndarray, ink: np.ndarray,
                     resolution_m: float, options: DrawingOptions) -> tuple[np.ndarray, np.ndarray | None]:
     """The learned segmenter's walls (:mod:`mapfilter.maps.segmenter`), read on as the strokes
-    are (a frame and text dropped, the outline from every stroke, the outside walled), kept where
+    are (a frame and text dropped, the outline from every stroke, found at ``NETWORK_OUTLINE_M`` per
+    pixel, the outside walled), kept where
     the network has a wall within 3 px: the network tells furniture, fixtures, stairs and tiles
     from walls better, the strokes find the doors open and the walls' exact edges. (It misses
     faint grey walls on shaded paper: tests/maps/test_drawing.py, test 4.) The outside is what both
@@ -659,7 +664,7 @@ def _with_segmenter(wall: np.ndarray, inside: np.ndarray | None, evened: np.ndar
     learned = _drop_frames(learned, resolution_m)
     learned, _ = _drop_text_blobs(learned, resolution_m, None)
     if inside is not None:
-        learned_inside, outer_gaps = building_footprint(learned, resolution_m, options.outline_gap_m, ink)
+        learned_inside, outer_gaps = building_footprint(learned, resolution_m, options.outline_gap_m, ink, NETWORK_OUTLINE_M)
         learned = _drop_outer_slivers(learned | outer_gaps | ~learned_inside, learned_inside, resolution_m)
         inside = inside | learned_inside
     near = cv2.dilate(learned.astype(np.uint8), _disc(7)).astype(bool)
