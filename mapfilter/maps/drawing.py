@@ -647,12 +647,11 @@ def _drop_outer_slivers(wall: np.ndarray, inside: np.ndarray, resolution_m: floa
 def _with_segmenter(wall: np.ndarray, inside: np.ndarray | None, evened: np.ndarray, ink: np.ndarray,
                     resolution_m: float, options: DrawingOptions) -> tuple[np.ndarray, np.ndarray | None]:
     """The learned segmenter's walls (:mod:`mapfilter.maps.segmenter`), read on as the strokes
-    are (a frame and text dropped, the outline from every stroke, found at ``NETWORK_OUTLINE_M`` per
-    pixel, the outside walled), kept where
-    the network has a wall within 3 px: the network tells furniture, fixtures, stairs and tiles
-    from walls better, the strokes find the doors open and the walls' exact edges. (It misses
-    faint grey walls on shaded paper: tests/maps/test_drawing.py, test 4.) The outside is what both
-    take for outside. Unchanged when the drawing is too large for the network. The network sees
+    are (a frame and text dropped, the outline from every stroke, found at ``NETWORK_OUTLINE_M``
+    per pixel, the outside walled), kept where the network has a wall within 3 px: the network
+    tells furniture, fixtures, stairs and tiles from walls better, the strokes find the doors open
+    and the walls' exact edges. (It misses faint grey walls on shaded paper:
+    tests/maps/test_drawing.py, test 4.) The outside is what both take for outside. Unchanged when the drawing is too large for the network. The network sees
     the strokes' outline of the building and ``NETWORK_MARGIN_M`` round it (the walls' box when the
     outside is kept): beyond it is the outside, or no wall."""
     from mapfilter.maps.segmenter import network_walls
