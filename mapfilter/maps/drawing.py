@@ -67,6 +67,8 @@ STROKE_REACH_M = 0.5  # thin strokes close the outline this far beyond the walls
 OPEN_SHARE = 0.45  # a piece enclosed by thin strokes is outside when this share of its edge is thin with the outside beyond
 LEAK_SHARE = 0.7  # the outline leaked when it holds less than this share of the rough outline's free space
 SMALL_GAP_M = 0.3  # scan breaks in the outer wall once its windows and doors are filled
+NETWORK_OUTLINE_M = 0.06  # the outline of the segmenter's walls is found at about this many metres per pixel
+NETWORK_MARGIN_M = 1.0  # the segmenter sees the building's outline and this much round it (not the sheet's margins)
 SLIVER_M2 = 1.0  # free space touching the outside and smaller than this is a gap's or a corner's sliver  # a sheet frame is a ring of ink at most this thick on average (area / perimeter)
 
 
@@ -459,12 +461,20 @@ def wall_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> l
     fills = []
     for angle, dominance in ((0.0, 1), (45.0, 2)):
         turned = wall if angle == 0 else _rotate(wall, angle)
-        along_x = _run_lengths(turned)
-        along_y = np.ascontiguousarray(_run_lengths(turned.T).T)
+        # worked in the walls' box and a gap's length round it (a closing reaches half of it
+        # beyond the walls, and looks half of it further): the same as over the whole canvas
+        box = _ink_box(turned, length)
+        if box is None:
+            fills += [np.zeros_like(wall), np.zeros_like(wall)]
+            continue
+        near = np.ascontiguousarray(turned[box])
+        along_x = _run_lengths(near)
+        along_y = np.ascontiguousarray(_run_lengths(near.T).T)
         # (off the walls both lengths are 0, below `shortest`)
         for running, kernel in (((along_x >= dominance * along_y) & (along_x >= shortest), np.ones((1, length), np.uint8)),
                                 ((along_y >= dominance * along_x) & (along_y >= shortest), np.ones((length, 1), np.uint8))):
-            closed = cv2.morphologyEx(running.view(np.uint8), cv2.MORPH_CLOSE, kernel).view(bool) & ~turned
+            closed = np.zeros_like(turned)
+            closed[box] = cv2.morphologyEx(running.view(np.uint8), cv2.MORPH_CLOSE, kernel).view(bool) & ~near
             if angle:
                 closed = _rotate(closed, -angle, wall.shape) & ~wall
             fills.append(_thin_enough(closed, resolution_m))
@@ -472,7 +482,7 @@ def wall_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> l
 
 
 def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float,
-                       strokes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                       strokes: np.ndarray | None = None, about_m: float = WORK_M) -> tuple[np.ndarray, np.ndarray]:
     """(inside the building, the filled gaps of its outer wall).
 
     The walls with every gap between wall ends in line closed (:func:`wall_gap_fills`) enclose
@@ -484,9 +494,12 @@ def building_footprint(wall: np.ndarray, resolution_m: float, max_gap_m: float,
     outline as well, so that windows drawn in thin lines (a run of them over several metres, a
     curved bay's glazing) do not let the outside in. What they enclose beyond the walls' own
     outline is taken in only where it is bounded mostly by walls (rooms behind a window run); a
-    terrace or a balcony, bounded by a façade and thin rails, is not."""
+    terrace or a balcony, bounded by a façade and thin rails, is not.
+
+    It is found on a copy of the walls reduced to about ``about_m`` metres per pixel (a whole
+    number of pixels to one)."""
     # at about WORK_M per pixel: walls stay two pixels thick, and it is many times faster
-    factor = max(1, int(WORK_M / resolution_m))
+    factor = max(1, int(about_m / resolution_m))
     work, ratio = _reduce(wall, factor, 0.3)
     work_m = resolution_m * ratio
     barrier = work
@@ -582,13 +595,19 @@ def _enclosed(wall: np.ndarray, radius_px: float) -> np.ndarray:
     """The building: ``wall`` closed by a disc of ``radius_px``, its holes filled, the pieces of at
     least a quarter of the largest one's area (a title block, a scale bar, a north arrow is none)."""
     pad = int(math.ceil(radius_px)) + 2
-    padded = cv2.copyMakeBorder(wall.astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0).astype(bool)
+    filled = np.zeros_like(wall)
+    # in the walls' box and the closing's reach round it (beyond it, paper all round the walls:
+    # the outside): the same as over the whole image
+    near = _ink_box(wall, pad)
+    if near is None:
+        return filled
+    padded = cv2.copyMakeBorder(wall[near].astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0).astype(bool)
     closed = _close_by_distance(padded, radius_px)[pad:-pad, pad:-pad]
     count, labels = cv2.connectedComponents((~closed).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     outer = np.zeros(count, dtype=bool)
     outer[border[border > 0]] = True
-    filled = ~outer[labels]  # closed walls and their holes
+    filled[near] = ~outer[labels]  # closed walls and their holes
     box = _ink_box(filled)
     if box is None:
         return filled
@@ -628,20 +647,23 @@ def _drop_outer_slivers(wall: np.ndarray, inside: np.ndarray, resolution_m: floa
 def _with_segmenter(wall: np.ndarray, inside: np.ndarray | None, evened: np.ndarray, ink: np.ndarray,
                     resolution_m: float, options: DrawingOptions) -> tuple[np.ndarray, np.ndarray | None]:
     """The learned segmenter's walls (:mod:`mapfilter.maps.segmenter`), read on as the strokes
-    are (a frame and text dropped, the outline from every stroke, the outside walled), kept where
-    the network has a wall within 3 px: the network tells furniture, fixtures, stairs and tiles
-    from walls better, the strokes find the doors open and the walls' exact edges. (It misses
-    faint grey walls on shaded paper: tests/maps/test_drawing.py, test 4.) The outside is what both
-    take for outside. Unchanged when the drawing is too large for the network."""
+    are (a frame and text dropped, the outline from every stroke, found at ``NETWORK_OUTLINE_M``
+    per pixel, the outside walled), kept where the network has a wall within 3 px: the network
+    tells furniture, fixtures, stairs and tiles from walls better, the strokes find the doors open
+    and the walls' exact edges. (It misses faint grey walls on shaded paper:
+    tests/maps/test_drawing.py, test 4.) The outside is what both take for outside. Unchanged when the drawing is too large for the network. The network sees
+    the strokes' outline of the building and ``NETWORK_MARGIN_M`` round it (the walls' box when the
+    outside is kept): beyond it is the outside, or no wall."""
     from mapfilter.maps.segmenter import network_walls
 
-    learned = network_walls(evened, resolution_m)
+    region = _ink_box(wall if inside is None else inside, int(NETWORK_MARGIN_M / resolution_m))
+    learned = network_walls(evened, resolution_m, region)
     if learned is None:
         return wall, inside
     learned = _drop_frames(learned, resolution_m)
     learned, _ = _drop_text_blobs(learned, resolution_m, None)
     if inside is not None:
-        learned_inside, outer_gaps = building_footprint(learned, resolution_m, options.outline_gap_m, ink)
+        learned_inside, outer_gaps = building_footprint(learned, resolution_m, options.outline_gap_m, ink, NETWORK_OUTLINE_M)
         learned = _drop_outer_slivers(learned | outer_gaps | ~learned_inside, learned_inside, resolution_m)
         inside = inside | learned_inside
     near = cv2.dilate(learned.astype(np.uint8), _disc(7)).astype(bool)

@@ -841,8 +841,10 @@ def _tint_walls(canvas: np.ndarray, wall: np.ndarray, outside: np.ndarray | None
     for mask, colour, weight in ((wall, (40, 40, 230), 0.5), (outside, (90, 90, 90), 0.45),
                                  (cut_off, (0, 140, 255), 0.5)):  # BGR
         if mask is not None and mask.any():
-            blend = tinted[mask].astype(np.float32) * (1 - weight) + np.array(colour, np.float32) * weight
-            tinted[mask] = np.round(blend).astype(np.uint8)
+            # each channel's 256 blends, looked up (faster than blending every masked pixel)
+            blend = np.arange(256, dtype=np.float32)[:, None] * (1 - weight) + np.array(colour, np.float32) * weight
+            table = np.round(blend).astype(np.uint8)
+            tinted = cv2.copyTo(cv2.LUT(tinted, table[None]), np.ascontiguousarray(mask).view(np.uint8), tinted)
     if cut_off is not None and cut_off.any():
         count, _, stats, _ = cv2.connectedComponentsWithStats(cut_off.astype(np.uint8), connectivity=4)
         for x, y, w, h, _ in stats[1:]:

@@ -206,6 +206,20 @@ def test_10_rooms_cut_off_are_marked_in_the_preview():
     assert tuple(picture[15, 60]) != (255, 255, 255) and tuple(picture[40, 20]) == (255, 255, 255)
 
 
+def test_the_preview_tint_is_the_plain_blend_of_each_pixel():
+    """The looked-up tint equals blending each masked pixel with its colour (rounded), and leaves
+    the others alone."""
+    rng = np.random.default_rng(5)
+    canvas = rng.integers(0, 256, (50, 70, 3), dtype=np.uint8)
+    wall, outside = rng.random((50, 70)) < 0.5, rng.random((50, 70)) < 0.3
+    expected = canvas.astype(np.float64)
+    for mask, colour, weight in ((wall, (40, 40, 230), 0.5), (outside, (90, 90, 90), 0.45)):
+        expected[mask] = np.round(expected[mask] * (1 - weight) + np.array(colour) * weight)
+    picture = prepare._tint_walls(canvas, wall, outside)
+    np.testing.assert_array_equal(picture, expected.astype(np.uint8))
+    assert not np.array_equal(picture, canvas) and np.array_equal(picture[~(wall | outside)], canvas[~(wall | outside)])
+
+
 @pytest.mark.real_data
 @pytest.mark.slow
 def test_6_the_ilc_floor_images_read_by_default_match_their_geojson(ilc_site1):
@@ -300,6 +314,66 @@ def test_wall_gap_fills_close_a_window_but_no_corridor():
     assert not fills[70:170, 66:98].any()
 
 
+def _whole_canvas_gap_fills(wall: np.ndarray, resolution_m: float, max_gap_m: float) -> list[np.ndarray]:
+    """wall_gap_fills as first written: every step over the whole (turned) canvas."""
+    length = int(max_gap_m / resolution_m) | 1
+    fills = []
+    for angle, dominance in ((0.0, 1), (45.0, 2)):
+        turned = wall if angle == 0 else drawing._rotate(wall, angle)
+        along_x = drawing._run_lengths(turned)
+        along_y = np.ascontiguousarray(drawing._run_lengths(turned.T).T)
+        shortest = drawing.MIN_RUN_M / resolution_m
+        for running, kernel in (((along_x >= dominance * along_y) & (along_x >= shortest), np.ones((1, length), np.uint8)),
+                                ((along_y >= dominance * along_x) & (along_y >= shortest), np.ones((length, 1), np.uint8))):
+            closed = cv2.morphologyEx(running.view(np.uint8), cv2.MORPH_CLOSE, kernel).view(bool) & ~turned
+            if angle:
+                closed = drawing._rotate(closed, -angle, wall.shape) & ~wall
+            fills.append(drawing._thin_enough(closed, resolution_m))
+    return fills
+
+
+def _whole_canvas_enclosed(wall: np.ndarray, radius_px: float) -> np.ndarray:
+    """_enclosed as first written, over the whole image: the closed walls and their holes (before
+    the small pieces are dropped, which both do alike)."""
+    pad = int(np.ceil(radius_px)) + 2
+    padded = cv2.copyMakeBorder(wall.astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0).astype(bool)
+    closed = drawing._close_by_distance(padded, radius_px)[pad:-pad, pad:-pad]
+    count, labels = cv2.connectedComponents((~closed).astype(np.uint8), connectivity=4)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    outer = np.zeros(count, dtype=bool)
+    outer[border[border > 0]] = True
+    return ~outer[labels]
+
+
+@pytest.mark.parametrize("shift", [(0, 0), (150, 90), (-200, -180)])
+def test_the_outline_worked_in_the_walls_box_is_the_whole_canvas_one(shift):
+    """The gap fills and the enclosed building, worked in the walls' box and a margin, are the
+    same pixel for pixel as over the whole canvas: on a drawn house moved about the sheet (in the
+    middle, near a corner, cut by the sheet's edges) with specks of ink far from it."""
+    plan = plangen.draw_plan(np.random.default_rng(0), plangen.house_layout(), style=plangen.plain_style())
+    rows, cols = plan.walls.shape
+    wall = np.zeros((rows + 300, cols + 300), bool)
+    top, left = 150 + shift[0], 150 + shift[1]
+    wall[max(0, top):top + rows, max(0, left):left + cols] = plan.walls[max(0, -top):, max(0, -left):][
+        :wall.shape[0] - max(0, top), :wall.shape[1] - max(0, left)]
+    wall[5:8, -40:-30] = True  # specks: the boxes reach across the sheet
+    assert wall.any() and not wall.all()
+    for fast, slow in zip(drawing.wall_gap_fills(wall, plan.resolution_m, 3.0),
+                          _whole_canvas_gap_fills(wall, plan.resolution_m, 3.0)):
+        np.testing.assert_array_equal(fast, slow)
+    assert any(fill.any() for fill in drawing.wall_gap_fills(wall, plan.resolution_m, 3.0))  # (something to compare)
+    for radius_px in (3.0, 40.0):
+        whole = _whole_canvas_enclosed(wall, radius_px)
+        assert whole.sum() > wall.sum()  # holes filled
+        fast = drawing._enclosed(wall, radius_px)
+        # the pieces kept are whole pieces of the whole canvas' building, the largest among them
+        count, labels = cv2.connectedComponents(whole.astype(np.uint8), connectivity=8)
+        areas = np.bincount(labels.ravel(), minlength=count)
+        areas[0] = 0
+        expected = areas[labels] >= 0.25 * areas.max()
+        np.testing.assert_array_equal(fast, expected & whole)
+
+
 def test_a_sheet_frame_is_dropped_but_a_building_filling_the_sheet_is_not():
     res = 0.05
     sheet = np.zeros((400, 600), bool)
@@ -356,3 +430,29 @@ def test_the_segmenter_ships_with_the_package_and_finds_walls_not_furniture():
                                                              np.ones((15, 15), np.uint8)).astype(bool)
     assert furniture.sum() > 500 and walls[furniture].mean() < 0.2
     assert segmenter.network_walls(np.full((5000, 5000), 255, np.uint8), 0.1) is None
+
+
+def test_the_segmenter_run_over_a_region_sees_the_same_grid_and_no_wall_beyond():
+    """Run over the building's box and a margin, the network's walls are those of the whole
+    drawing (but near the box's edges, where it sees less round them) and there are none beyond the
+    box; over a region holding the whole drawing, the same pixel for pixel."""
+    from mapfilter.maps import segmenter
+
+    plan = plangen.draw_plan(np.random.default_rng(0), plangen.house_layout(), style=plangen.plain_style())
+    evened = drawing.even_paper(plan.image, plan.resolution_m)
+    whole = segmenter.network_walls(evened, plan.resolution_m)
+    everything = (slice(0, evened.shape[0]), slice(0, evened.shape[1]))
+    np.testing.assert_array_equal(segmenter.network_walls(evened, plan.resolution_m, everything), whole)
+    rows, cols = np.nonzero(plan.walls)
+    margin = int(1.0 / plan.resolution_m)
+    region = (slice(max(0, rows.min() - margin), rows.max() + margin),
+              slice(max(0, cols.min() - margin), cols.max() + margin))
+    assert region[0].start > 0 and region[1].start > 0  # (paper round the box: a region smaller than the drawing)
+    part = segmenter.network_walls(evened, plan.resolution_m, region)
+    beyond = np.ones_like(part)
+    beyond[region] = False
+    assert not part[beyond].any()
+    agree = (part == whole)[region]
+    assert agree.mean() > 0.995
+    inner = plan.walls & ~cv2.dilate((~plan.walls).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    assert part[inner].mean() > 0.95
