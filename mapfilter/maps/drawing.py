@@ -651,9 +651,10 @@ def _with_segmenter(wall: np.ndarray, inside: np.ndarray | None, evened: np.ndar
     per pixel, the outside walled), kept where the network has a wall within 3 px: the network
     tells furniture, fixtures, stairs and tiles from walls better, the strokes find the doors open
     and the walls' exact edges. (It misses faint grey walls on shaded paper:
-    tests/maps/test_drawing.py, test 4.) The outside is what both take for outside. Unchanged when the drawing is too large for the network. The network sees
-    the strokes' outline of the building and ``NETWORK_MARGIN_M`` round it (the walls' box when the
-    outside is kept): beyond it is the outside, or no wall."""
+    tests/maps/test_drawing.py, test 4.) The outside is what both take for outside. Unchanged
+    when the drawing is too large for the network. The network sees the strokes' outline of the
+    building and ``NETWORK_MARGIN_M`` round it (the walls' box when the outside is kept): beyond
+    it is the outside, or no wall."""
     from mapfilter.maps.segmenter import network_walls
 
     region = _ink_box(wall if inside is None else inside, int(NETWORK_MARGIN_M / resolution_m))

@@ -8,7 +8,9 @@ the walk's start, when the user knows it) starts half
 the particles of a second forward pass on that floor's map, with every measurement source's
 measurements replayed there (``filter.measurement.ReplayedMeasurements``), and placed through that
 pass's smoothed track it is the offline track (docs/accuracy.md), unless that smoothed track
-stays far from every wall (``WALL_REACH_SIGMAS``): then the smoothed track is. In a building with
+stays far from every wall (``WALL_REACH_SIGMAS``): then the smoothed track is. The second pass
+weighs its particles' headings against the rotation vector only where the causal track stays that
+far from every wall (near walls the walls hold them). In a building with
 a barometer, a run whose smoothed track spent more than ``OTHER_FLOOR_MAX_S`` on other floors than
 every scan of the walk together puts it on is first run again from that floor.
 """
@@ -110,16 +112,15 @@ def offline_track(run: CausalRun, on_offline_step: Callable[[StepReport], None] 
     # the second pass starts where the placed shape, turned by the rotation vector, puts the walk:
     # its particles' headings are left to the walls and the fixes where walls are within reach of
     # the causal track; on an open floor nothing but the rotation vector holds them (docs/accuracy.md)
-    reach_m = WALL_REACH_SIGMAS * config.offline.map_matching.anchor_sigma_m
     motion = config.motion
-    if np.median(plan.distance_to_wall_m(causal.xy_m)) <= reach_m:
+    if not _out_of_the_walls_reach(plan, causal.xy_m, config):
         motion = dataclasses.replace(config.motion, rotation_vector_sigma_deg=0.0)
     settings = RunSettings(motion, config.filter, config.steps.abs_heading_offset_rad)
     second = run_over_scans(plan, evidence, settings, run.rng, steps, sources=sources,
                             start=Start(start_xy, RESTART_RADIUS_M, RESTART_SHARE), on_step=on_offline_step,
                             history=history)
     second_smoothed = smoothed_track(history, plan, config)
-    track = (second_smoothed if np.median(plan.distance_to_wall_m(second_smoothed.xy_m)) > reach_m
+    track = (second_smoothed if _out_of_the_walls_reach(plan, second_smoothed.xy_m, config)
              else placed_track(plan, evidence, steps, second_smoothed, config.offline, anchor))
     restarted = dataclasses.replace(second.track(), name="restarted")
     if floor_name is not None:  # the floor's probability is the smoother's at or before each row
@@ -128,6 +129,14 @@ def offline_track(run: CausalRun, on_offline_step: Callable[[StepReport], None] 
                                     floor_p=None if smoothed.floor_p is None else smoothed.floor_p[row])
         restarted = dataclasses.replace(restarted, floor=[floor_name] * len(restarted))
     return track, restarted
+
+
+def _out_of_the_walls_reach(plan: FloorPlan, xy_m: np.ndarray, config: TrackingConfig) -> bool:
+    """A track that stays, at its median, farther from every wall than ``WALL_REACH_SIGMAS``
+    times the map matching's observation error: an open floor, where no wall bends a placed shape
+    or holds a heading (module docstring; docs/accuracy.md)."""
+    reach_m = WALL_REACH_SIGMAS * config.offline.map_matching.anchor_sigma_m
+    return bool(np.median(plan.distance_to_wall_m(xy_m)) > reach_m)
 
 
 def _on_the_whole_walks_floor(run: CausalRun, smoothed: Track) -> CausalRun | None:

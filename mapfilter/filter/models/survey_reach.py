@@ -52,8 +52,7 @@ from mapfilter.filter.models.interface import LikelihoodKernel, MeasurementModel
 from mapfilter.sensors.radiomap import match_distance_db, survey_match_distances_db
 
 __all__ = ["DistanceGrid", "ReachFix", "ReachFixLikelihood", "SurveyReach", "distance_grid", "heading_log_likelihood",
-           "heading_term",
-           "mixture_log_likelihood", "survey_reach"]
+           "heading_term", "mixture_log_likelihood", "survey_reach"]
 
 GRID_CELL_M = 1.0  # the distance-to-survey grid's cell
 NO_COMPONENT = -1e300  # a mixture component that is absent (no infinities: the kernels use fastmath)
