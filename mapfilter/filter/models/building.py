@@ -89,24 +89,28 @@ def _main_floor_moments(x, y, weights, tile_x_min, w_out, shares):
     return best, mx, my, sxx, sxy, syy
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _point_to_building(x, y, f, shift, frame):
+    # a stack position on floor f -> its floor's frame -> the building's (Floor.to_building's
+    # arithmetic); frame[f] = (offset x, offset y, cos, sin) of floor f
+    lx = x - shift[f, 0]
+    ly = y - shift[f, 1]
+    return frame[f, 0] + frame[f, 2] * lx - frame[f, 3] * ly, frame[f, 1] + frame[f, 3] * lx + frame[f, 2] * ly
+
+
 @njit(cache=True, nogil=True)
 def _stack_to_building(x, y, tile_x_min, shift, frame, out):
-    # a stack position -> its floor's frame -> the building's (Floor.to_building's arithmetic);
-    # frame[f] = (offset x, offset y, cos, sin) of floor f
+    # every stack position -> the building's frame (_point_to_building)
     floor = np.empty(x.shape[0], dtype=np.int64)
     _floor_index(x, tile_x_min, floor)
     for i in range(x.shape[0]):
-        f = floor[i]
-        lx = x[i] - shift[f, 0]
-        ly = y[i] - shift[f, 1]
-        out[i, 0] = frame[f, 0] + frame[f, 2] * lx - frame[f, 3] * ly
-        out[i, 1] = frame[f, 1] + frame[f, 3] * lx + frame[f, 2] * ly
+        out[i, 0], out[i, 1] = _point_to_building(x[i], y[i], floor[i], shift, frame)
 
 
 @njit(cache=True, nogil=True)
 def _change_anywhere(state, movers, step, tile_x_min, shift, frame, origin, tiles, mask, out):
     # FloorChanges.change_floors without connectors, after the draws: mover j goes from its floor
-    # f to floor (f + step[j]) mod F at the same building-frame point (Floor.to_building's, then
+    # f to floor (f + step[j]) mod F at the same building-frame point (_point_to_building, then
     # the destination's Floor.from_building's arithmetic), moved there (FloorStack.to_stack) where
     # that point is free on the destination's plan (FloorPlan.is_free's arithmetic, read off its
     # tile of the stack's mask), else killed where it stood (out = -inf); returns how many landed
@@ -117,10 +121,7 @@ def _change_anywhere(state, movers, step, tile_x_min, shift, frame, origin, tile
         i = movers[j]
         _floor_index(state[X, i:i + 1], tile_x_min, where)
         f = where[0]
-        lx = state[X, i] - shift[f, 0]
-        ly = state[Y, i] - shift[f, 1]
-        bx = frame[f, 0] + frame[f, 2] * lx - frame[f, 3] * ly
-        by = frame[f, 1] + frame[f, 3] * lx + frame[f, 2] * ly
+        bx, by = _point_to_building(state[X, i], state[Y, i], f, shift, frame)
         d = (f + step[j]) % n_floors
         dx = bx - frame[d, 0]
         dy = by - frame[d, 1]
