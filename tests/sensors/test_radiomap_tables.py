@@ -226,12 +226,27 @@ def test_the_not_heard_base_is_the_numpy_formulas_to_the_bit():
     assert not np.array_equal(model.base, model._n_aps * np.log1p(-p0))  # noqa: SLF001  the data count
 
 
+def _numpy_grid(model, scan) -> np.ndarray:
+    """``grid_log_likelihood`` as numpy made it before the kernel (``_grid_values``)."""
+    from mapfilter.filter.models.radio_map import _add_heard_corrections
+
+    cols, r = model._heard(scan)
+    out = np.zeros(model.n_cells + 1)
+    if not cols.size:
+        return out
+    out += model.base + len(cols) * model._prior_offset
+    out -= 0.5 * model._prior_inv_var * float(((r - model._prior_mu_dbm) ** 2).sum())
+    _add_heard_corrections(out, cols, r, model._ap_ptr, model._cell, model._mu, model._inv_var, model._offset,
+                           model._prior_offset, model._prior_mu_dbm, model._prior_inv_var)
+    return model.config.exponent * out
+
+
 @pytest.mark.parametrize("exponent", [1.0, 0.4, 0.0])
 def test_the_best_cell_is_numpys_argmax_of_the_grid(exponent):
-    """Oracle: ``best_position`` (``_best_cell``: the grid's values and their maximum in one
-    kernel) against the centre of ``np.argmax`` of ``grid_log_likelihood`` on the office walk's
-    scans: the same cell every time; a flat grid (exponent 0, or no AP of the map heard) gives the
-    first cell, as numpy's argmax does, and so does a NaN."""
+    """Oracle: the grid (``_grid_values``) against the numpy it replaced, to the bit, and
+    ``best_position`` (``_best_cell``) against the centre of ``np.argmax`` of that grid on the
+    office walk's scans: the same cell every time; a flat grid (exponent 0, or no AP of the map
+    heard) gives the first cell, as numpy's argmax does, and so does a NaN."""
     from mapfilter.filter.models.radio_map import RadioMapLikelihoodConfig
     from mapfilter.sensors.wifi import WifiScan
 
@@ -239,7 +254,9 @@ def test_the_best_cell_is_numpys_argmax_of_the_grid(exponent):
     model = RadioMapLikelihood(radio_map, plan, RadioMapLikelihoodConfig(exponent=exponent))
     cells = set()
     for scan in scans:
-        expected = model.cell_xy_m[int(np.argmax(model.grid_log_likelihood(scan)[:-1]))]
+        grid = _numpy_grid(model, scan)
+        assert np.array_equal(model.grid_log_likelihood(scan), grid)
+        expected = model.cell_xy_m[int(np.argmax(grid[:-1]))]
         assert np.array_equal(model.best_position(scan), expected)
         cells.add(tuple(expected))
     assert (len(cells) > 5) == (exponent > 0)  # the walk's scans peak in many places

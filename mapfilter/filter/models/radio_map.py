@@ -226,16 +226,16 @@ class RadioMapLikelihood(MeasurementModel):
     def grid_log_likelihood(self, scan: WifiScan) -> np.ndarray:
         """Log-likelihood of the scan at every active cell plus the prior cell, shape (cells + 1,)."""
         cols, r = self._heard(scan)
-        out = np.zeros(self.n_cells + 1)
         if not cols.size:
-            return out  # nothing known heard: no information
-        # every heard AP at its prior, then the cells where it has data replace that term
-        out += self.base + len(cols) * self._prior_offset
-        out -= 0.5 * self._prior_inv_var * float(((r - self._prior_mu_dbm) ** 2).sum())
-        _add_heard_corrections(out, cols, r, self._ap_ptr, self._cell, self._mu,
-                               self._inv_var, self._offset, self._prior_offset, self._prior_mu_dbm,
-                               self._prior_inv_var)
-        return self.config.exponent * out
+            return np.zeros(self.n_cells + 1)  # nothing known heard: no information
+        return self.config.exponent * self._grid_values(cols, r)
+
+    def _grid_values(self, cols: np.ndarray, rssi_dbm: np.ndarray) -> np.ndarray:
+        """``grid_log_likelihood`` before its exponent, of the heard APs ``cols`` (tables built)."""
+        quad = 0.5 * self._prior_inv_var * float(((rssi_dbm - self._prior_mu_dbm) ** 2).sum())
+        return _grid_values(self.base, self._prior_offset, float(cols.size), quad, cols, rssi_dbm, self._ap_ptr,
+                            self._cell, self._mu, self._inv_var, self._offset, self._prior_mu_dbm,
+                            self._prior_inv_var)
 
     def cell_index(self, xy_m: np.ndarray) -> np.ndarray:
         """Row of the grid tables for each point (the prior cell off the grid or without data)."""
@@ -262,11 +262,7 @@ class RadioMapLikelihood(MeasurementModel):
         cols, r = self._heard(scan)
         if not cols.size:
             return self.cell_xy_m[0]  # nothing known heard: every cell alike
-        quad = 0.5 * self._prior_inv_var * float(((r - self._prior_mu_dbm) ** 2).sum())
-        best = _best_cell(self.base, self._prior_offset, float(cols.size), quad, cols, r, self._ap_ptr, self._cell,
-                          self._mu, self._inv_var, self._offset, self._prior_mu_dbm, self._prior_inv_var,
-                          float(self.config.exponent))
-        return self.cell_xy_m[best]
+        return self.cell_xy_m[_best_cell(self._grid_values(cols, r), float(self.config.exponent))]
 
 
 # ---- the tables a radio map file keeps (RadioMap.likelihood_tables) ------------------------------
@@ -617,24 +613,30 @@ def _add_heard_corrections(out, cols, rssi, ap_ptr, cell, mu, inv_var, offset, p
 
 
 @njit(cache=True, nogil=True)
-def _best_cell(base, prior_offset, n_heard, quad, cols, rssi, ap_ptr, cell, mu, inv_var, offset, prior_mu,
-               prior_inv_var, exponent):
-    """``np.argmax(grid_log_likelihood(scan)[:-1])`` (``RadioMapLikelihood.best_position``): the
-    grid's values made as ``grid_log_likelihood`` makes them, term by term in its order (the
-    heard APs' priors, minus ``quad``: their quadratic terms' sum, then the corrections), the
-    first maximum (or first NaN, as numpy's) of the active cells."""
+def _grid_values(base, prior_offset, n_heard, quad, cols, rssi, ap_ptr, cell, mu, inv_var, offset, prior_mu,
+                 prior_inv_var):
+    """``RadioMapLikelihood.grid_log_likelihood`` before its exponent, every cell and the prior
+    one, without the grid's temporaries: every heard AP at its prior (``quad``: their quadratic
+    terms' sum), then the cells where it has data replace that term."""
     out = np.empty(base.shape[0])
     for c in range(base.shape[0]):
         out[c] = base[c] + n_heard * prior_offset[c]
         out[c] -= quad
     _add_heard_corrections(out, cols, rssi, ap_ptr, cell, mu, inv_var, offset, prior_offset, prior_mu,
                            prior_inv_var)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _best_cell(values, exponent):
+    """``np.argmax(exponent * values[:-1])`` (``RadioMapLikelihood.best_position``): the first
+    maximum (or first NaN, as numpy's) of the active cells (the last value is the prior cell's)."""
     best = 0
-    top = exponent * out[0]
+    top = exponent * values[0]
     if top != top:
         return 0
-    for c in range(1, base.shape[0] - 1):
-        v = exponent * out[c]
+    for c in range(1, values.shape[0] - 1):
+        v = exponent * values[c]
         if v != v:
             return c
         if v > top:
