@@ -242,12 +242,16 @@ def _with_common(function: Callable[..., Any], item: Any) -> Any:
     return function(*_COMMON, item)
 
 
-def _worker_ignores_interrupts() -> None:
+def _worker_signals() -> None:
     # Ctrl-C reaches the whole process group: the parent stops the run (and its workers) and
-    # keeps what was done; a worker interrupted on its own would only lose its walk
+    # keeps what was done; a worker interrupted on its own would only lose its walk. SIGTERM ends
+    # a worker at once, whatever the parent's handler was when it forked: a pool forked after a
+    # first SIGTERM (which the command's handler answers by ignoring the next) inherited that, and
+    # its workers outlived the run, waiting for tasks that never came
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _on_forked_workers(function: Callable[..., Any], items: Sequence[Any], jobs: int, common: tuple,
@@ -260,7 +264,7 @@ def _on_forked_workers(function: Callable[..., Any], items: Sequence[Any], jobs:
     global _COMMON
     _COMMON = tuple(common)
     pool = ProcessPoolExecutor(max_workers=min(jobs, len(items)), mp_context=multiprocessing.get_context("fork"),
-                               initializer=_worker_ignores_interrupts)
+                               initializer=_worker_signals)
     finished = False
     try:
         futures = {pool.submit(_with_common, function, item): i for i, item in enumerate(items)}

@@ -70,6 +70,29 @@ def test_jobs_fork_workers_that_inherit_the_shared_inputs_and_raise_a_tasks_erro
         list(run_each(_fails_on_three, [1, 2, 3, 4], Engine(jobs=2)))
 
 
+def _signal_handlers(x):
+    import signal
+
+    return signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+
+
+@pytest.mark.skipif(not __import__("mapfilter.runtime.dispatch", fromlist=["can_fork"]).can_fork(),
+                    reason="this platform cannot fork worker processes")
+def test_workers_forked_while_sigterm_is_ignored_still_die_of_it(monkeypatch):
+    # the command ignores a second SIGTERM while it cleans up after the first; a pool forked then
+    # must not inherit that, or the parent's terminate() leaves its workers behind
+    import signal
+    import sys
+
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    previous = signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    try:
+        results = dict(run_each(_signal_handlers, [1, 2, 3], Engine(jobs=2)))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert set(results.values()) == {(signal.SIG_IGN, signal.SIG_DFL)}
+
+
 def test_local_workers_give_every_result_and_a_failing_walk_is_one_line(tmp_path, capsys):
     results = dict(run_each(_scaled, list(range(6)), Engine(jobs=2), common=(3, 0)))
     assert results == {i: 3 * i for i in range(6)}
