@@ -86,9 +86,6 @@ def free_path(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarray,
     free only where all its pixels are (a bounded cost on a fine plan: the search's time grows
     with its cells; at the native pixels where an end's cell is not free).
     """
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import dijkstra
-
     a = np.asarray(from_xy_m, dtype=np.float64).reshape(2)
     b = np.asarray(to_xy_m, dtype=np.float64).reshape(2)
     height, width = floorplan.shape_px
@@ -112,71 +109,110 @@ def free_path(floorplan: FloorPlan, from_xy_m: np.ndarray, to_xy_m: np.ndarray,
             padded[:window.shape[0], :window.shape[1]] = window
             coarse = padded.reshape(h // k, k, w // k, k).all(axis=(1, 3))
             if all(coarse[r // k, c // k] for r, c in ends):
-                cells = _grid_path(coarse, *[(r // k, c // k) for r, c in ends], csr_matrix, dijkstra)
+                cells = _grid_path(coarse, *[(r // k, c // k) for r, c in ends])
                 if cells is not None:  # each cell's centre, in the window's pixels
                     cells = cells * k + (k - 1) / 2.0
             else:
-                cells = _grid_path(window, *ends, csr_matrix, dijkstra)
+                cells = _grid_path(window, *ends)
         else:
-            cells = _grid_path(window, *ends, csr_matrix, dijkstra)
+            cells = _grid_path(window, *ends)
         if cells is not None:
             centres = floorplan.pixel_to_world(np.column_stack([cells[:, 1] + c0 + 0.5, cells[:, 0] + r0 + 0.5]))
             return np.vstack([a, centres, b])
     return None
 
 
-def _grid_path(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int], csr_matrix, dijkstra) -> np.ndarray | None:
-    """(K, 2) rows/cols of the shortest 8-connected path over ``free`` (corner rule above)."""
+def _grid_path(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) -> np.ndarray | None:
+    """(K, 2) rows/cols of the shortest 8-connected path over ``free`` (corner rule above), None
+    when no free path joins the two pixels (``_grid_search``)."""
     free = np.ascontiguousarray(free, dtype=np.bool_)
-    index = np.full(free.shape, -1, dtype=np.int64)
-    n = int(free.sum())
-    index[free] = np.arange(n)
-    graph = csr_matrix(_grid_graph(free, index, n), shape=(n, n))
-    i0, i1 = index[start], index[goal]
-    dist, pred = dijkstra(graph, indices=int(i0), return_predecessors=True)
-    if not np.isfinite(dist[i1]):
+    pred = np.empty(free.size, dtype=np.int64)
+    w = free.shape[1]
+    s, g = int(start[0]) * w + int(start[1]), int(goal[0]) * w + int(goal[1])
+    if not _grid_search(free, s, g, pred):
         return None
-    chain = [int(i1)]
-    while chain[-1] != i0:
+    chain = [g]
+    while chain[-1] != s:
         chain.append(int(pred[chain[-1]]))
-    flat_rows, flat_cols = np.nonzero(free)
-    chain = np.array(chain[::-1])
-    return np.column_stack([flat_rows[chain], flat_cols[chain]])
+    chain = np.array(chain[::-1], dtype=np.int64)
+    return np.column_stack([chain // w, chain % w])
+
+
+# Dijkstra's search as scipy.sparse.csgraph.dijkstra runs it (scipy >= 1.15: a queue of (distance,
+# index) pairs, popped nearest first and, of equal distances, the higher index first; an entry
+# whose pixel got nearer since is skipped; a neighbour takes the popped pixel as predecessor
+# when it comes strictly nearer), on the graph scipy was given (each free pixel's neighbours in
+# row-major order, a side move 1 and a diagonal sqrt 2 past two free pixels; pixel ids in
+# row-major order rank as the free pixels' indices do), stopped when the goal is popped: every
+# pixel of its path was popped before it, and a popped pixel's distance and predecessor never
+# change again. tests/maps/test_paths.py holds the paths to scipy's, pixel for pixel.
+@njit(cache=True, nogil=True, inline="always")
+def _before(d_a, a, d_b, b):
+    # the queue's order: the nearer first, of equal distances the higher index
+    return d_a < d_b or (d_a == d_b and a > b)
 
 
 @njit(cache=True, nogil=True)
-def _grid_graph(free, index, n):
-    """The free pixels' 8-connected graph as a canonical CSR (data, indices, indptr): each free
-    pixel's row lists its neighbours in index order (row-major over the free pixels), a side move
-    costing 1 and a diagonal one sqrt 2 (allowed only with the two pixels beside it free: the
-    corner rule). The matrix scipy's sorted, duplicate-free COO-to-CSR conversion makes of the
-    pixel pairs (``tests/maps/test_paths.py`` holds it to that numpy), so the same search."""
+def _grid_search(free, start, goal, pred):
+    """Shortest path from pixel ``start`` to ``goal`` (row-major indices of ``free``) over the free
+    pixels (module docstring's moves): True when found, ``pred`` then leading back from the goal."""
     h, w = free.shape
+    dist = np.full(h * w, np.inf)
+    # the queue, a binary heap: a free pixel enters it each time it comes strictly nearer, at most
+    # once per neighbour (8); the room is reserved, not written (a search touches what it uses)
+    room = 8 * np.count_nonzero(free) + 1
+    dist_q = np.empty(room)
+    node_q = np.empty(room, dtype=np.int64)
     diagonal = math.hypot(1.0, 1.0)
-    indptr = np.empty(n + 1, dtype=np.int64)
-    indices = np.empty(8 * n, dtype=np.int64)
-    data = np.empty(8 * n)
-    indptr[0] = 0
-    e = 0
-    for r in range(h):
-        for c in range(w):
-            if not free[r, c]:
+    dist[start] = 0.0
+    dist_q[0], node_q[0], size = 0.0, start, 1
+    while size > 0:
+        d, v = dist_q[0], node_q[0]  # pop: the last entry sifted down from the top
+        size -= 1
+        last_d, last = dist_q[size], node_q[size]
+        i = 0
+        while True:
+            child = 2 * i + 1
+            if child >= size:
+                break
+            if child + 1 < size and _before(dist_q[child + 1], node_q[child + 1], dist_q[child], node_q[child]):
+                child += 1
+            if not _before(dist_q[child], node_q[child], last_d, last):
+                break
+            dist_q[i], node_q[i] = dist_q[child], node_q[child]
+            i = child
+        dist_q[i], node_q[i] = last_d, last
+        if dist[v] < d:
+            continue  # an entry from before the pixel came nearer
+        if v == goal:
+            return True
+        r = v // w
+        c = v - r * w
+        for dr in range(-1, 2):  # the neighbours in row-major order, as the CSR rows list them
+            rr = r + dr
+            if rr < 0 or rr >= h:
                 continue
-            for dr in range(-1, 2):  # the neighbours in row-major order: their indices ascend
-                rr = r + dr
-                if rr < 0 or rr >= h:
+            for dc in range(-1, 2):
+                cc = c + dc
+                if (dr == 0 and dc == 0) or cc < 0 or cc >= w or not free[rr, cc]:
                     continue
-                for dc in range(-1, 2):
-                    cc = c + dc
-                    if (dr == 0 and dc == 0) or cc < 0 or cc >= w or not free[rr, cc]:
-                        continue
-                    if dr != 0 and dc != 0 and not (free[rr, c] and free[r, cc]):
-                        continue
-                    indices[e] = index[rr, cc]
-                    data[e] = diagonal if dr != 0 and dc != 0 else 1.0
-                    e += 1
-            indptr[index[r, c] + 1] = e
-    return data[:e].copy(), indices[:e].copy(), indptr
+                if dr != 0 and dc != 0 and not (free[rr, c] and free[r, cc]):
+                    continue
+                j = rr * w + cc
+                step = d + (diagonal if dr != 0 and dc != 0 else 1.0)
+                if dist[j] > step:
+                    dist[j] = step
+                    pred[j] = v
+                    i = size  # push: sifted up from the end
+                    size += 1
+                    while i > 0:
+                        up = (i - 1) // 2
+                        if not _before(step, j, dist_q[up], node_q[up]):
+                            break
+                        dist_q[i], node_q[i] = dist_q[up], node_q[up]
+                        i = up
+                    dist_q[i], node_q[i] = step, j
+    return False
 
 
 def detour_wall_crossings(floorplan: FloorPlan, t_s: np.ndarray, xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
