@@ -734,8 +734,7 @@ class FloorFixLikelihood(MeasurementModel):
         heading, turn = heading_term(measurement.in_survey if mixture else None, measurement.heading_rad,
                                      measurement.heading_sigma_rad)
         _floor_fix_kernel(particles.state[X], particles.state[Y], particles.state[HEADING],
-                          prior, self.stack.tile_x_min_m, self.stack.shift_m,
-                          np.ascontiguousarray(fix, dtype=np.float64), sigma * sigma, self._grid_head,
+                          prior, self.stack.tile_x_min_m, self.stack.shift_m, np.ascontiguousarray(fix, dtype=np.float64), sigma * sigma, self._grid_head,
                           self._grid_base, self._grid_spread, mixture,
                           0.0 if measurement.in_survey is None else float(measurement.in_survey),
                           heading, turn, floor_ll, float(self.floor_collapse_nats), out)
