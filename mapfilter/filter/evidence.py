@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import functools
 from typing import Any, Protocol
 
 import numpy as np
@@ -137,9 +136,6 @@ class WifiEvidence:
         self._fix: list[np.ndarray] = []  # per scan: the fingerprint fix (NaN: none)
         self._kwnn: list[np.ndarray] = []  # per scan: the KWNN fix (NaN: none)
         self._best: list[np.ndarray] = []  # per scan: the radio-map likelihood's best cell (blend; NaN: none)
-        # scans whose best cell is made when their fix is first read (``fix_of``): a building's
-        # floor holds live particles at some of its scans only, and only those weigh its fix
-        self._unmade: set[int] = set()
         self._usable: list[bool] = []
         self._in_survey: list[float] = []  # per scan: P(taken inside the survey) (fix, blend)
         self.reach: SurveyReach | None = None
@@ -216,61 +212,37 @@ class WifiEvidence:
             kwnn = strong_kwnn_fixes(radio_map, matrix, wifi.kwnn_k, wifi.kwnn_min_rssi_dbm)
         if wanted is not None:
             kwnn[~np.asarray(wanted, dtype=bool)] = np.nan
-        located = np.all(np.isfinite(kwnn), axis=1)  # the blend's fix is finite where its KWNN half is
+        best = np.full((len(scans), 2), np.nan)
         if wifi.fingerprint_model == "blend":
-            first = len(self._fix)
-            self._unmade.update((first + np.flatnonzero(located)).tolist())
+            for i, scan in enumerate(scans):
+                if np.isfinite(kwnn[i]).all():
+                    best[i] = self.radio_map_model().best_position(scan)
+        fix = np.where(np.isfinite(best), 0.5 * (kwnn + best), kwnn)
         self._in_survey.extend(self.reach.in_survey_probability(matrix) if in_survey is None else in_survey)
         self._kwnn.extend(kwnn)
-        self._best.extend(np.full((len(scans), 2), np.nan))
-        self._fix.extend(kwnn.copy())  # the blend's: its KWNN half until made
-        self._usable.extend(located)
+        self._best.extend(best)
+        self._fix.extend(fix)
+        self._usable.extend(np.all(np.isfinite(fix), axis=1))
 
     @property
     def usable(self) -> np.ndarray:
         return np.array(self._usable, dtype=bool)
 
     @property
-    def _has_fixes(self) -> bool:
-        return self._radio_map is not None and self._wifi.fingerprint_model != "likelihood"
-
-    def fix_of(self, index: int) -> np.ndarray:
-        """(2,) the fingerprint fix of scan ``index`` (NaN: none; fix, blend), the blend's best cell
-        made now if not yet."""
-        if index in self._unmade:
-            best = self.radio_map_model().best_position(self.scans[index])
-            kwnn = self._kwnn[index]
-            self._best[index] = best
-            self._fix[index] = np.where(np.isfinite(best), 0.5 * (kwnn + best), kwnn)
-            self._unmade.discard(index)
-        return self._fix[index]
-
-    def _make_since(self, first: int) -> None:
-        for i in sorted(i for i in self._unmade if i >= first):
-            self.fix_of(i)
-
-    @property
     def fix_xy_m(self) -> np.ndarray | None:
         """(S, 2) fingerprint fixes, one per scan (NaN: none); None for the other models."""
-        return self.fix_xy_m_since(0)
+        return np.array(self._fix).reshape(-1, 2) if self._radio_map is not None and self._wifi.fingerprint_model != \
+            "likelihood" else None
 
     def fix_xy_m_since(self, first: int) -> np.ndarray | None:
         """``fix_xy_m[first:]``, without making the whole walk's array (a live run adds scans all along)."""
-        if not self._has_fixes:
-            return None
-        self._make_since(first)
-        return np.array(self._fix[first:]).reshape(-1, 2)
-
-    def known_fixes_since(self, first: int) -> tuple[np.ndarray, np.ndarray]:
-        """(S', 2) the fixes of scans ``first``.. as made so far (a blend fix not yet made: its
-        KWNN half), and (S',) bool which are made (``fix_of`` makes the others)."""
-        made = np.array([i not in self._unmade for i in range(first, len(self._fix))], dtype=bool)
-        return np.array(self._fix[first:]).reshape(-1, 2), made
+        return np.array(self._fix[first:]).reshape(-1, 2) if self._radio_map is not None and \
+            self._wifi.fingerprint_model != "likelihood" else None
 
     @property
     def kwnn_xy_m(self) -> np.ndarray | None:
         """(S, 2) KWNN fixes, one per scan (NaN: none); None for the other models."""
-        return np.array(self._kwnn).reshape(-1, 2) if self._has_fixes else None
+        return np.array(self._kwnn).reshape(-1, 2) if self.fix_xy_m is not None else None
 
     @property
     def fix_sigma_m(self) -> float | None:
@@ -285,8 +257,8 @@ class WifiEvidence:
     def measurement(self, index: int) -> Any:
         if not self._usable[index]:
             return None
-        if self._has_fixes:
-            return ReachFix(self.fix_of(index), self._in_survey[index])
+        if self._radio_map is not None and self._wifi.fingerprint_model != "likelihood":
+            return ReachFix(self._fix[index], self._in_survey[index])
         return self.scans[index]
 
     def between_scans(self, t_s: float) -> None:
@@ -312,7 +284,6 @@ class WifiEvidence:
         """(S, 2) the radio-map likelihood's best cell per scan (NaN: scan without a fix, or for
         the likelihood model without a known AP)."""
         if self._wifi.fingerprint_model == "blend":
-            self._make_since(0)
             return np.array(self._best).reshape(-1, 2)
         model = self.radio_map_model()
         out = np.full((len(self.scans), 2), np.nan)
@@ -464,11 +435,7 @@ class BuildingEvidence:
         self.log_name = log_name
         self._radio_map, self._stack, self._wifi = radio_map, stack, wifi
         n_floors = len(names)
-        self._fix: list[np.ndarray] = []  # per scan: (F, 2) stack positions (a row not yet made: its KWNN half)
-        # per scan: (F,) bool the floors whose blend fix is not yet made (``_fixes_on``), and
-        # (F,) bool those whose own fingerprints give it
-        self._unmade: list[np.ndarray] = []
-        self._own_reaches: list[np.ndarray] = []
+        self._fix: list[np.ndarray] = []  # per scan: (F, 2) stack positions
         self._floor_ll: list[np.ndarray] = []
         self._given_floor_ll = None if floor_evidence is None else np.asarray(floor_evidence, dtype=np.float64)
         # each floor's own evidence (None: its fingerprints share nothing with the walk)
@@ -536,8 +503,6 @@ class BuildingEvidence:
         self.scans.extend(scans)
         n_floors = len(self.floor_wifi)
         fix = np.full((len(scans), n_floors, 2), np.nan)
-        unmade = np.zeros((len(scans), n_floors), dtype=bool)
-        reaches = np.zeros((len(scans), n_floors), dtype=bool)
         if self._radio_map is not None:
             # one matrix of signal distances for every floor: the fixes from every floor's points
             # (building frame), each floor's from its own, and each scan's match to each floor
@@ -560,15 +525,9 @@ class BuildingEvidence:
                 evidence.add_scans(scans, floors[f].from_building(every_xy), in_survey)
                 own = self._own_floor[f][1]
                 own.add_scans(scans, own_xy[:, f], in_survey, wanted=own_reaches)
-                # the blend's best cells are made when the filter reads a floor's fix (``_fixes_on``)
-                (own_fix, own_made), (every_fix, every_made) = own.known_fixes_since(first), \
-                    evidence.known_fixes_since(first)
-                fix[:, f] = self._stack.to_stack(np.where(own_reaches[:, None], own_fix, every_fix), f)
-                unmade[:, f] = ~np.where(own_reaches, own_made, every_made)
-                reaches[:, f] = own_reaches
+                fix[:, f] = self._stack.to_stack(np.where(own_reaches[:, None], own.fix_xy_m_since(first),
+                                                          evidence.fix_xy_m_since(first)), f)
         self._fix.extend(fix)
-        self._unmade.extend(unmade)
-        self._own_reaches.extend(reaches)
         if self._given_floor_ll is not None:
             self._floor_ll.extend(self._given_floor_ll[first:first + len(scans)])
         elif self._radio_map is None:
@@ -597,20 +556,7 @@ class BuildingEvidence:
     @property
     def fix_xy_m(self) -> np.ndarray:
         """(S, F, 2) each scan's fix from each floor's fingerprints, stack frame (NaN: none)."""
-        every = np.ones(len(self.floor_wifi), dtype=bool)
-        for i in range(len(self._fix)):
-            self._fixes_on(i, every)
         return np.array(self._fix).reshape(-1, len(self.floor_wifi), 2)
-
-    def _fixes_on(self, index: int, floors: np.ndarray) -> np.ndarray:
-        """(F, 2) scan ``index``'s fixes with those of ``floors`` ((F,) bool) made (the floor's own
-        fingerprints' evidence or every floor's makes its best cell: ``WifiEvidence.fix_of``)."""
-        fix, unmade = self._fix[index], self._unmade[index]
-        for f in np.flatnonzero(unmade & floors):
-            source = self._own_floor[f][1] if self._own_reaches[index][f] else self.floor_wifi[f]
-            fix[f] = self._stack.to_stack(source.fix_of(index), f)
-            unmade[f] = False
-        return fix
 
     @property
     def floor_log_likelihood(self) -> np.ndarray:
@@ -618,8 +564,7 @@ class BuildingEvidence:
 
     @property
     def usable(self) -> np.ndarray:
-        # a fix not yet made is finite where the made one is (its KWNN half)
-        return np.isfinite(np.array(self._fix).reshape(-1, len(self.floor_wifi), 2)).all(axis=2).any(axis=1)
+        return np.isfinite(self.fix_xy_m).all(axis=2).any(axis=1)
 
     @property
     def pressure(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -701,5 +646,4 @@ class BuildingEvidence:
             if height_ll is not None:
                 floor_ll = floor_ll + height_ll
                 height_floor = int(np.argmax(height_ll))
-        return FloorFix(fix, floor_ll, height_floor, in_survey=self._in_survey[index] if self._in_survey else None,
-                        make_fixes=functools.partial(self._fixes_on, index) if self._unmade[index].any() else None)
+        return FloorFix(fix, floor_ll, height_floor, in_survey=self._in_survey[index] if self._in_survey else None)

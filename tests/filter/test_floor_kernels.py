@@ -116,54 +116,6 @@ def test_the_floor_fix_kernel_gives_the_numpy_likelihood(in_survey, with_none):
                                _numpy_log_likelihood(plain, particles, measurement), rtol=1e-12, atol=1e-12)
 
 
-def test_a_floor_without_live_particles_gets_no_fix_made_and_the_same_weights():
-    """A fix made when read (``FloorFix.make_fixes``, a building's blend): the likelihood asks for
-    the floors its live particles are on and no other (``_live_floors``: numpy's floors of the
-    finite priors, NaN positions on the last floor as ``floor_of`` puts them), and weighs the
-    cloud to the bit as with every fix given (the dead particles on the skipped floor stay dead)."""
-    from mapfilter.filter.models.building import _live_floors
-
-    stack = _stack()
-    rng = np.random.default_rng(15)
-    model = FloorFixLikelihood(stack, np.array([2.0, 3.5, 5.0]), _grids(stack, rng, False))
-    particles = _cloud(stack, rng)
-    floor = stack.floor_of(particles.xy_m)
-    particles.log_weight[floor == 1] = -np.inf  # L1 holds dead particles only
-    made = stack.to_stack(np.array([[5.0, 4.0], [12.0, 9.0], [8.0, 6.0]]), np.arange(3))
-    half = made + 3.0  # what a row holds before it is made (its KWNN half)
-    asked = []
-
-    def make(floors):
-        asked.append(floors.copy())
-        out = half.copy()
-        out[floors] = made[floors]
-        return out
-
-    for in_survey in (None, 0.4):
-        asked.clear()
-        lazy = FloorFix(half, np.log([0.5, 0.3, 0.2]), in_survey=in_survey, make_fixes=make)
-        got = model.log_likelihood(particles, lazy)
-        want = model.log_likelihood(particles, FloorFix(made, np.log([0.5, 0.3, 0.2]), in_survey=in_survey))
-        assert len(asked) == 1
-        np.testing.assert_array_equal(asked[0], [True, False, True])
-        # the weights: a dead particle's value on the skipped floor differs and weighs nothing
-        np.testing.assert_array_equal(particles.log_weight + got, particles.log_weight + want)
-        np.testing.assert_array_equal(got[floor != 1], want[floor != 1])
-        assert np.isfinite(got[floor != 1]).all() and not np.array_equal(got, model.log_likelihood(
-            particles, FloorFix(half, np.log([0.5, 0.3, 0.2]), in_survey=in_survey)))  # the made fixes count
-    np.testing.assert_array_equal(lazy.xy_m, made)  # every floor's, made when read whole
-    assert not lazy.evidence_only
-    for points, prior in ((particles.state[0], particles.log_weight),
-                          (np.array([np.nan, 1.0, stack.tile_x_min_m[1] + 1.0]), np.array([0.0, -np.inf, 0.0])),
-                          (np.zeros(0), np.zeros(0))):
-        out = np.empty(stack.n_floors, dtype=bool)
-        _live_floors(np.ascontiguousarray(points), np.ascontiguousarray(prior), stack.tile_x_min_m, out)
-        want = np.zeros(stack.n_floors, dtype=bool)
-        live = np.isfinite(prior)
-        want[stack.floor_of(np.column_stack([points, np.zeros_like(points)])[live])] = True
-        np.testing.assert_array_equal(out, want)
-
-
 def test_the_floor_fix_kernel_collapses_and_weighs_floors_alone_as_numpy_does():
     stack = _stack()
     rng = np.random.default_rng(12)

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
 
 import numpy as np
 from numba import njit
@@ -62,17 +61,6 @@ def _floor_index(x, tile_x_min, out):
             else:
                 break
         out[i] = f
-
-
-@njit(cache=True, nogil=True)
-def _live_floors(x, prior, tile_x_min, out):
-    # out[f]: floor f holds a particle with a finite prior (_floor_fix_kernel's has_live)
-    floor = np.empty(x.shape[0], dtype=np.int64)
-    _floor_index(x, tile_x_min, floor)
-    out[:] = False
-    for i in range(x.shape[0]):
-        if math.isfinite(prior[i]):
-            out[floor[i]] = True
 
 
 @njit(cache=True, nogil=True)
@@ -623,37 +611,19 @@ class FloorChanges(FloorModel):
 @dataclasses.dataclass(frozen=True)
 class FloorFix:
     """A scan as the multi-floor filter weighs it: a position fix per floor (stack frame, NaN =
-    none from that floor's fingerprints) and the scan's log-likelihood of each floor.
+    none from that floor's fingerprints) and the scan's log-likelihood of each floor."""
 
-    With ``make_fixes`` a floor's fix is made when first read (a building's blend: a floor's
-    fix takes the best cell of its radio-map likelihood, a grid over every AP the scan heard),
-    and the filter reads only the floors its live particles are on (``fixes_on``)."""
-
-    # (F, 2) stack positions; with make_fixes, a floor's row not yet made holds the fix's KWNN
-    # half, finite where the fix is
-    given_xy_m: np.ndarray
+    xy_m: np.ndarray  # (F, 2) stack positions
     floor_log_likelihood: np.ndarray  # (F,)
     height_floor: int | None = None  # the floor the barometer's height is nearest (None: no barometer)
     in_survey: float | None = None  # P(the scan was taken inside the survey) (None: a plain Gaussian fix)
     heading_rad: float = math.nan  # the rotation vector's heading at the scan (NaN: none; survey_reach's heading term)
     heading_sigma_rad: float = math.nan  # ... and its spread
-    # (F,) bool floors -> (F, 2): given_xy_m with those floors' fixes made (None: all made)
-    make_fixes: Callable[[np.ndarray], np.ndarray] | None = None
-
-    @property
-    def xy_m(self) -> np.ndarray:
-        """(F, 2) every floor's fix (stack frame; NaN: none)."""
-        return self.fixes_on(np.ones(len(self.given_xy_m), dtype=bool))
-
-    def fixes_on(self, floors: np.ndarray) -> np.ndarray:
-        """(F, 2) the fixes with those of ``floors`` ((F,) bool) made; another floor's row may
-        hold its fix's KWNN half only."""
-        return self.given_xy_m if self.make_fixes is None else self.make_fixes(np.asarray(floors, dtype=bool))
 
     @property
     def evidence_only(self) -> bool:
         """No position fix on any floor (the barometer between scans): floors only."""
-        return not np.isfinite(self.given_xy_m).any()
+        return not np.isfinite(self.xy_m).any()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -721,20 +691,14 @@ class FloorFixLikelihood(MeasurementModel):
             # collapses the cloud, whose re-draw needs a position; the next scan can
             return floor_ll[self.stack.floor_of(particles.xy_m)]
         sigma = np.asarray(self.sigma_m, dtype=np.float64)
-        prior = np.ascontiguousarray(particles.log_weight, dtype=np.float64)
-        fix = measurement.given_xy_m
-        if measurement.make_fixes is not None:
-            # a floor without live particles weighs none: its fix is not made (the dead ones'
-            # values there add to -inf whatever the fix)
-            live = np.empty(self.stack.n_floors, dtype=np.bool_)
-            _live_floors(particles.state[X], prior, self.stack.tile_x_min_m, live)
-            fix = measurement.fixes_on(live)
         out = np.empty(len(particles))
         mixture = self.grids is not None and measurement.in_survey is not None
         heading, turn = heading_term(measurement.in_survey if mixture else None, measurement.heading_rad,
                                      measurement.heading_sigma_rad)
         _floor_fix_kernel(particles.state[X], particles.state[Y], particles.state[HEADING],
-                          prior, self.stack.tile_x_min_m, self.stack.shift_m, np.ascontiguousarray(fix, dtype=np.float64), sigma * sigma, self._grid_head,
+                          np.ascontiguousarray(particles.log_weight, dtype=np.float64),
+                          self.stack.tile_x_min_m, self.stack.shift_m,
+                          np.ascontiguousarray(measurement.xy_m, dtype=np.float64), sigma * sigma, self._grid_head,
                           self._grid_base, self._grid_spread, mixture,
                           0.0 if measurement.in_survey is None else float(measurement.in_survey),
                           heading, turn, floor_ll, float(self.floor_collapse_nats), out)
