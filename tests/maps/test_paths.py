@@ -164,7 +164,7 @@ def test_the_search_finds_scipys_path_pixel_for_pixel(seed):
     """paths._grid_search (Dijkstra stopped at its goal) against scipy's dijkstra over the whole
     graph, the search it replaced: the same shortest path between random free pixels, pixel for
     pixel, ties broken alike (an open grid has many equal paths), None where scipy finds none.
-    (scipy before 1.15 broke ties in a Fibonacci heap's order: there, the path's length only.)"""
+    (an older scipy, whose Fibonacci heap may break ties otherwise: the path's length only.)"""
     import scipy
     from scipy.sparse.csgraph import dijkstra
 
