@@ -138,10 +138,10 @@ def _grid_path(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) 
     return np.column_stack([chain // w, chain % w])
 
 
-# Dijkstra's search as scipy.sparse.csgraph.dijkstra runs it (scipy 1.17, as the test holds it: a
-# queue of (distance, index) pairs, popped nearest first and, of equal distances, the higher index first; an entry
-# whose pixel got nearer since is skipped; a neighbour takes the popped pixel as predecessor
-# when it comes strictly nearer), on the graph scipy was given (each free pixel's neighbours in
+# Dijkstra's search as scipy.sparse.csgraph.dijkstra runs it (scipy 1.17, as the test holds it:
+# a queue of (distance, index) pairs, popped nearest first and, of equal distances, the higher
+# index first; an entry whose pixel got nearer since is skipped; a neighbour takes the popped
+# pixel as predecessor when it comes strictly nearer), on the graph scipy was given (each free pixel's neighbours in
 # row-major order, a side move 1 and a diagonal sqrt 2 past two free pixels; pixel ids in
 # row-major order rank as the free pixels' indices do), stopped when the goal is popped: every
 # pixel of its path was popped before it, and a popped pixel's distance and predecessor never
