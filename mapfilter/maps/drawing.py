@@ -24,9 +24,7 @@ a grey image and its pixel size into a wall mask in these steps:
    ring of ink round everything near the image border) is no building;
 7. small wall blobs inside the building that are not solid columns are text: removed;
 8. the learned segmenter (:mod:`mapfilter.maps.segmenter`, trained on generated plans) reads the
-   walls too; a wall of the strokes is kept where the network has one within 3 px, and what only
-   the strokes' outline takes in is outside unless the network walls it round (on a small drawing
-   a dimension chain's lines merge into heavy ink, and the margin they enclose is no room).
+   walls too; a wall of the strokes is kept where the network has one within 3 px.
 
 Pixel sizes come from the plan's scale, so the rules are in metres where a rule is about
 buildings (wall thickness, door width) and in pixels where it is about the drawing (line
@@ -71,8 +69,6 @@ LEAK_SHARE = 0.7  # the outline leaked when it holds less than this share of the
 SMALL_GAP_M = 0.3  # scan breaks in the outer wall once its windows and doors are filled
 NETWORK_OUTLINE_M = 0.06  # the outline of the segmenter's walls is found at about this many metres per pixel
 NETWORK_MARGIN_M = 1.0  # the segmenter sees the building's outline and this much round it (not the sheet's margins)
-ROOM_NECK_M = 1.0  # rooms meet at doors narrower than this: a piece of free space is split there
-CONFIRMED_SHARE = 0.6  # a piece only the strokes' outline takes in stays when this share of its edge is the network's
 SLIVER_M2 = 1.0  # free space touching the outside and smaller than this is a gap's or a corner's sliver  # a sheet frame is a ring of ink at most this thick on average (area / perimeter)
 
 
@@ -648,94 +644,14 @@ def _drop_outer_slivers(wall: np.ndarray, inside: np.ndarray, resolution_m: floa
     return wall | drop[labels]
 
 
-def _unconfirmed_pieces(free: np.ndarray, learned_inside: np.ndarray, learned: np.ndarray,
-                        resolution_m: float, doors=()) -> np.ndarray:
-    """The free space of the strokes' outline that the network's outline leaves out and the network
-    does not wall round: the outside, not rooms.
-
-    On a small drawing the strokes' outline takes in what lies between the building and heavy ink
-    round it (a dimension chain whose lines merge into a block, a sheet's frame): bands and margins
-    bounded by the façade on one side only. ``free`` (the strokes' free space) beyond 3 px of
-    ``learned_inside`` is split into rooms where it narrows below ``ROOM_NECK_M`` (a door); a
-    piece stays free when ``CONFIRMED_SHARE`` of its edge lies within 3 px of the network's walls
-    (``learned``, before its outline) or of its inside, not counting the blobs it holds
-    (furniture), or when a door symbol of the strokes (``doors``) swings into it. What the
-    opening left (strips narrower than a door) goes with the room it touches, or is judged by
-    its own edge."""
-    near_inside = cv2.dilate(learned_inside.astype(np.uint8), _disc(7)).astype(bool)
-    radius = 0.5 * ROOM_NECK_M / resolution_m
-    box = _ink_box(free & ~near_inside, int(math.ceil(radius)) + 3)
-    if box is None:
-        return np.zeros_like(free)
-    pieces = free[box] & ~near_inside[box]
-    confirmed = cv2.dilate(learned[box].astype(np.uint8), _disc(7)).astype(bool) | near_inside[box]
-    # the pieces opened by a disc of ROOM_NECK_M (two distance transforms): rooms apart at their doors
-    core = cv2.distanceTransform(pieces.astype(np.uint8), cv2.DIST_L2, 5) > radius
-    opened = cv2.distanceTransform((~core).astype(np.uint8), cv2.DIST_L2, 5) <= radius
-    # holes of a room that are the strokes' walls only (furniture, fixtures) are no part of its edge
-    count, holes = cv2.connectedComponents((~opened).astype(np.uint8), connectivity=8)
-    open_hole = np.zeros(count, dtype=bool)
-    open_hole[np.unique(np.concatenate([holes[0], holes[-1], holes[:, 0], holes[:, -1]]))] = True
-    open_hole[np.unique(holes[~opened & (free[box] | learned_inside[box])])] = True
-    open_hole[0] = True
-    rooms = opened | ~open_hole[holes]
-    count, labels = cv2.connectedComponents(rooms.astype(np.uint8), connectivity=4)
-    keep = _confirmed_edges(labels, count, rooms | pieces, confirmed)  # (the strips the opening cut off: no edge)
-    for door in doors:  # a door swings into a room (into its sweep, past the hinge)
-        hinge = np.array(door.hinge_px)
-        col, row = np.round(hinge + 0.6 * (0.5 * (np.array(door.jamb_px) + np.array(door.leaf_tip_px)) - hinge)).astype(int)
-        row, col = row - box[0].start, col - box[1].start
-        if 0 <= row < labels.shape[0] and 0 <= col < labels.shape[1]:
-            keep[labels[row, col]] = True
-    keep[0] = False
-    kept_rooms = keep[labels] & opened
-    # the corners and doorways the opening cut off go with the room they open from; the strips
-    # no room reaches are judged by their own edge
-    steps = int(math.ceil(radius)) + 1
-    kept = _grown_within(kept_rooms, pieces, steps)
-    rest = pieces & ~_grown_within(opened, pieces, steps)
-    count, labels = cv2.connectedComponents(rest.astype(np.uint8), connectivity=4)
-    keep = _confirmed_edges(labels, count, pieces, confirmed)
-    keep[0] = False
-    kept |= keep[labels]
-    out = np.zeros_like(free)
-    out[box] = pieces & ~kept
-    return out
-
-
-def _grown_within(seed: np.ndarray, mask: np.ndarray, steps: int) -> np.ndarray:
-    """``seed`` grown ``steps`` pixels (8-connected) without leaving ``mask``: never across a wall."""
-    grown = seed & mask
-    kernel = np.ones((3, 3), np.uint8)
-    for _ in range(steps):
-        wider = cv2.dilate(grown.view(np.uint8), kernel).view(bool) & mask
-        if np.array_equal(wider, grown):
-            break
-        grown = wider
-    return grown
-
-
-def _confirmed_edges(labels: np.ndarray, count: int, within: np.ndarray, confirmed: np.ndarray) -> np.ndarray:
-    """Per label: at least ``CONFIRMED_SHARE`` of its edge (the pixels round it not ``within``)
-    is ``confirmed``."""
-    grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)  # a label's ring
-    ring = (grown > 0) & ~within
-    edge = np.bincount(grown[ring], minlength=count).astype(np.float64)
-    walled = np.bincount(grown[ring & confirmed], minlength=count)
-    return walled >= CONFIRMED_SHARE * np.maximum(edge, 1)
-
-
 def _with_segmenter(wall: np.ndarray, inside: np.ndarray | None, evened: np.ndarray, ink: np.ndarray,
-                    resolution_m: float, options: DrawingOptions,
-                    doors: list[DoorSymbol] = ()) -> tuple[np.ndarray, np.ndarray | None]:
+                    resolution_m: float, options: DrawingOptions) -> tuple[np.ndarray, np.ndarray | None]:
     """The learned segmenter's walls (:mod:`mapfilter.maps.segmenter`), read on as the strokes
     are (a frame and text dropped, the outline from every stroke, found at ``NETWORK_OUTLINE_M``
     per pixel, the outside walled), kept where the network has a wall within 3 px: the network
     tells furniture, fixtures, stairs and tiles from walls better, the strokes find the doors open
     and the walls' exact edges. (It misses faint grey walls on shaded paper:
-    tests/maps/test_drawing.py, test 4.) The outside is what both take for outside, but for the
-    pieces only the strokes take in that the network neither takes in nor walls round
-    (:func:`_unconfirmed_pieces`: the margins a small drawing's heavy annotation encloses). Unchanged
+    tests/maps/test_drawing.py, test 4.) The outside is what both take for outside. Unchanged
     when the drawing is too large for the network. The network sees the strokes' outline of the
     building and ``NETWORK_MARGIN_M`` round it (the walls' box when the outside is kept): beyond
     it is the outside, or no wall."""
@@ -747,14 +663,12 @@ def _with_segmenter(wall: np.ndarray, inside: np.ndarray | None, evened: np.ndar
         return wall, inside
     learned = _drop_frames(learned, resolution_m)
     learned, _ = _drop_text_blobs(learned, resolution_m, None)
-    outside = None
     if inside is not None:
         learned_inside, outer_gaps = building_footprint(learned, resolution_m, options.outline_gap_m, ink, NETWORK_OUTLINE_M)
-        outside = _unconfirmed_pieces(inside & ~wall, learned_inside, learned, resolution_m, doors)
         learned = _drop_outer_slivers(learned | outer_gaps | ~learned_inside, learned_inside, resolution_m)
-        inside = (inside | learned_inside) & ~outside
+        inside = inside | learned_inside
     near = cv2.dilate(learned.astype(np.uint8), _disc(7)).astype(bool)
-    return (wall & near) if outside is None else (wall & near) | outside, inside
+    return wall & near, inside
 
 
 def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions = DrawingOptions(),
@@ -825,7 +739,7 @@ def read_drawing(gray: np.ndarray, resolution_m: float, options: DrawingOptions 
         inside, outer_gaps = building_footprint(wall, resolution_m, options.outline_gap_m, ink)
         wall = _drop_outer_slivers(wall | outer_gaps | ~inside, inside, resolution_m)
     if options.segmenter and options.remove_text_px is None:  # (blobs kept on purpose stay)
-        wall, inside = _with_segmenter(wall, inside, evened, ink, resolution_m, options, doors)
+        wall, inside = _with_segmenter(wall, inside, evened, ink, resolution_m, options)
     if options.thicken_px > 0:
         wall = cv2.dilate(wall.astype(np.uint8), _disc(2 * options.thicken_px + 1)).astype(bool)
     return DrawingReading(wall, inside, level, thin_px, doors, n_text)
